@@ -1,0 +1,1 @@
+"""datagen: NLOS SPAD lidar simulation (Scholes & Leach, Sensors 2024) and dataset generation."""

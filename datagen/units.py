@@ -1,0 +1,62 @@
+"""Physical constants and unit parsing at the configuration boundary.
+
+Inside datagen every length is in metres and every time in seconds (DESIGN.md §1). Configuration files may
+write durations as strings with a unit (``"600ps"``, ``"100 ns"``, ``"10ms"``); :func:`parse_duration`
+converts them once, at the boundary.
+"""
+from __future__ import annotations
+
+import re
+
+SPEED_OF_LIGHT = 299_792_458.0
+"""c in m/s (exact, SI definition)."""
+
+PLANCK = 6.626_070_15e-34
+"""h in J·s (exact, SI definition)."""
+
+_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "ps": 1e-12, "fs": 1e-15}
+_ENERGY_UNITS = {"J": 1.0, "mJ": 1e-3, "uJ": 1e-6, "µJ": 1e-6, "nJ": 1e-9, "pJ": 1e-12, "fJ": 1e-15}
+_LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "nm": 1e-9, "cm": 1e-2, "km": 1e3}
+_NUMBER_WITH_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-zµ]*)\s*$")
+
+
+def _parse(value: float | int | str, units: dict[str, float], kind: str) -> float:
+    if isinstance(value, bool):
+        raise ValueError(f"expected a {kind} (number or string with unit), got {value!r}")
+    if isinstance(value, (int, float)):
+        return float(value)
+    match = _NUMBER_WITH_UNIT.match(str(value))
+    if match is None:
+        raise ValueError(f"cannot read {value!r} as a {kind}; write e.g. '600ps' or a number in SI units")
+    number, unit = match.groups()
+    if unit == "":
+        return float(number)
+    if unit not in units:
+        raise ValueError(f"unknown {kind} unit {unit!r} in {value!r}; known: {', '.join(units)}")
+    return float(number) * units[unit]
+
+
+def parse_duration(value: float | int | str) -> float:
+    """Return a duration in seconds from a number (seconds) or a string such as ``"600ps"``.
+
+    Raises:
+        ValueError: the string has no number or an unknown unit (the message names the value).
+    """
+    return _parse(value, _TIME_UNITS, "duration")
+
+
+def parse_energy(value: float | int | str) -> float:
+    """Return an energy in joules from a number (J) or a string such as ``"1nJ"``."""
+    return _parse(value, _ENERGY_UNITS, "energy")
+
+
+def parse_length(value: float | int | str) -> float:
+    """Return a length in metres from a number (m) or a string such as ``"532nm"``."""
+    return _parse(value, _LENGTH_UNITS, "length")
+
+
+def photons_per_pulse(pulse_energy: float, wavelength: float) -> float:
+    """Photons in a pulse of ``pulse_energy`` joules at ``wavelength`` metres: E·λ/(h·c)."""
+    if pulse_energy < 0 or wavelength <= 0:
+        raise ValueError(f"pulse_energy must be >= 0 and wavelength > 0, got {pulse_energy!r}, {wavelength!r}")
+    return pulse_energy * wavelength / (PLANCK * SPEED_OF_LIGHT)
