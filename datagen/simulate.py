@@ -1,0 +1,236 @@
+"""The main job: scene → lookins and observed points → transport → envelope L(t) → SPAD histogram.
+
+``simulate(scene, config)`` returns a :class:`Result` holding the binned envelope (expected detected photons
+per laser pulse per time bin), its components (room, each object, secondary) and a finite-exposure SPAD
+histogram drawn from it. Random streams come from ``SeedSequence(seed, spawn_key=(stream,))`` (DESIGN.md §7):
+stream 0 samples the scene, stream 1 the detector noise, so re-drawing noise never changes the envelope.
+"""
+from __future__ import annotations
+
+import platform
+import re
+import time
+from dataclasses import dataclass, field
+from importlib import metadata
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from . import spad
+from .irf import EnvelopeAccumulator, Irf, TimeAxis
+from .raycast import RayCaster
+from .scene import Scene, SceneError, format_validation_error
+from .transport import Transport, TransportSettings
+
+STREAM_SAMPLING, STREAM_NOISE = 0, 1
+"""spawn_key entries of the random streams (DESIGN.md §7)."""
+
+_GRID = re.compile(r"^\s*(\d+)\s*[x×X]\s*(\d+)\s*$")
+
+
+def parse_grid(value: Any, field_name: str) -> tuple[int, int]:
+    """Read a grid size from ``"10x10"``, ``10`` (→ 10×10) or ``[10, 10]``; both counts ≥ 1."""
+    if isinstance(value, str):
+        m = _GRID.match(value)
+        if not m:
+            raise ValueError(f"{field_name} must look like '10x10', got {value!r}")
+        grid = (int(m.group(1)), int(m.group(2)))
+    elif isinstance(value, int) and not isinstance(value, bool):
+        grid = (value, value)
+    elif isinstance(value, (list, tuple)) and len(value) == 2:
+        grid = (int(value[0]), int(value[1]))
+    else:
+        raise ValueError(f"{field_name} must look like '10x10', got {value!r}")
+    if min(grid) < 1:
+        raise ValueError(f"{field_name} counts must be >= 1, got {value!r}")
+    return grid
+
+
+class SimulationConfig(BaseModel):
+    """Everything ``simulate`` needs besides the scene. Durations accept strings such as "600ps".
+
+    Attributes:
+        lookins, pixels: lookin grid √N×√N and camera l×p ("10x10", "60x60" are the paper's).
+        lookin_pdf: hemisphere sampling at the spot ("cosine" or "uniform").
+        jitter: stratified jitter of lookin rays and camera pixels (False: the paper's regular grids).
+        secondary: "none", "optimized" (paper §4, strongest ``top_k`` per lookin and FoV point) or "full".
+        seed: root of every random stream.
+        time: output time axis (t_start, bin_width, n_bins); irf: Gaussian IRF (fwhm or sigma).
+        attenuation: atmospheric extinction μ in 1/m (C_atm = e^{−μR}).
+        count_laser_leg / count_sensor_leg: whether the emitter→spot / FoV→sensor legs count in the time of
+            flight (DESIGN.md §1; default False / True as in the paper's code).
+        detector: SPAD parameters (datagen.spad.DetectorConfig); its pde scales the envelope.
+        batch: lookins per batch (memory bound).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    lookins: tuple[int, int] = (10, 10)
+    pixels: tuple[int, int] = (60, 60)
+    lookin_pdf: Literal["cosine", "uniform"] = "cosine"
+    jitter: bool = True
+    secondary: Literal["none", "optimized", "full"] = "full"
+    top_k: int = Field(1, ge=1)
+    seed: int = Field(0, ge=0)
+    time: TimeAxis = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=5000)
+    irf: Irf = Irf(fwhm=600e-12)
+    attenuation: float = Field(0.0, ge=0.0)
+    count_laser_leg: bool = False
+    count_sensor_leg: bool = True
+    detector: dict = Field(default_factory=dict)
+    batch: int = Field(32, ge=1)
+
+    @field_validator("lookins", "pixels", mode="before")
+    @classmethod
+    def _grid(cls, value: Any, info) -> tuple[int, int]:
+        return parse_grid(value, info.field_name)
+
+    def detector_config(self) -> "spad.DetectorConfig":
+        """The detector config with the TDC bin width taken from the time axis unless given."""
+        data = {"bin_width": self.time.bin_width, "t_start": self.time.t_start, **self.detector}
+        return spad.DetectorConfig.model_validate(data)
+
+    def transport_settings(self) -> TransportSettings:
+        return TransportSettings(lookins=self.lookins, pixels=self.pixels, lookin_pdf=self.lookin_pdf,
+                                 jitter=self.jitter, secondary=self.secondary, top_k=self.top_k,
+                                 attenuation=self.attenuation, pde=self.detector_config().pde,
+                                 count_laser_leg=self.count_laser_leg, count_sensor_leg=self.count_sensor_leg,
+                                 batch=self.batch)
+
+
+def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationConfig:
+    """Merge the scene file's ``simulation`` block with ``overrides`` (e.g. CLI options) and validate.
+
+    Raises:
+        SceneError: an invalid value, naming the scene file, the field and the value.
+    """
+    data = {**scene.defaults, **{k: v for k, v in (overrides or {}).items() if v is not None}}
+    try:
+        config = SimulationConfig.model_validate(data)
+        config.detector_config()
+    except ValidationError as exc:
+        where = f"{scene.source} (simulation)" if scene.source else "simulation"
+        raise SceneError(format_validation_error(exc, where)) from None
+    return config
+
+
+@dataclass
+class Result:
+    """Output of :func:`simulate`.
+
+    Attributes:
+        time_edges: (n_bins+1,) float64 seconds.
+        envelope: (n_bins,) float64 expected detected photons per pulse per bin (pixel arrays: (ny, nx, n_bins)).
+        components: name → array shaped like ``envelope``; they sum to ``envelope``.
+        counts: int64 SPAD histogram over the exposure, shaped like ``envelope``.
+        attrs: JSON-able metadata (resolved config, effects, timings, versions, statistics).
+    """
+
+    time_edges: np.ndarray
+    envelope: np.ndarray
+    components: dict[str, np.ndarray]
+    counts: np.ndarray
+    attrs: dict = field(default_factory=dict)
+
+    @property
+    def time_centers(self) -> np.ndarray:
+        return 0.5 * (self.time_edges[1:] + self.time_edges[:-1])
+
+    def peak_time(self, name: str | None = None) -> float:
+        """Time (s) of the maximum of the envelope or of a component (single-pixel results)."""
+        y = self.envelope if name is None else self.components[name]
+        return float(self.time_centers[int(np.argmax(y.reshape(-1, y.shape[-1]).sum(0)))])
+
+    def area(self, name: str | None = None) -> float:
+        """Expected detections per pulse in the window (sum of bins) of the envelope or a component."""
+        y = self.envelope if name is None else self.components[name]
+        return float(y.sum())
+
+
+def library_versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("datagen", "numpy", "scipy", "trimesh", "embreex", "zarr", "pydantic", "torch"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def simulate(scene: Scene, config: SimulationConfig | None = None, progress: bool = False) -> Result:
+    """Simulate the envelope and a SPAD histogram for ``scene``.
+
+    Args:
+        scene: the scene (see :func:`datagen.load_scene`).
+        config: sampling, time axis, IRF and detector; default: the scene's ``simulation`` block.
+        progress: show a tqdm bar over lookins.
+    Returns:
+        :class:`Result`.
+    Raises:
+        SceneError: invalid scene/config (laser spot off every surface, FoV sees no surface, …).
+    """
+    config = config or resolve_config(scene)
+    detector = config.detector_config()
+    t0 = time.perf_counter()
+    transport = Transport(scene, config.transport_settings(), RayCaster(scene))
+    t_setup = time.perf_counter() - t0
+    names = scene.component_names() + ["secondary"]
+    n_pix = transport.capture.n_pixels
+    acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_pix)
+    rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(STREAM_SAMPLING,)))
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=config.lookins[0] * config.lookins[1], unit="lookin", desc="transport", leave=False)
+    t1 = time.perf_counter()
+    transport.run(acc, rng, progress=(bar.update if bar is not None else None))
+    if bar is not None:
+        bar.close()
+    t_transport = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    binned = acc.binned()
+    outside = acc.outside()
+    nx, ny = transport.capture.fov_pixels
+    shape = (config.time.n_bins,) if n_pix == 1 else (ny, nx, config.time.n_bins)
+    per = binned.reshape(len(names), n_pix, -1)
+    components = {name: per[i].reshape(shape) for i, name in enumerate(names)}
+    envelope = per.sum(axis=0).reshape(shape)
+    t_bin = time.perf_counter() - t2
+    t3 = time.perf_counter()
+    noise_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(STREAM_NOISE,)))
+    counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
+    t_detect = time.perf_counter() - t3
+    st = transport.stats
+    attrs = {
+        "scene": scene.name,
+        "scene_file": scene.source,
+        "config": config.model_dump(mode="json"),
+        "detector": detector.model_dump(mode="json"),
+        "n_cycles": int(detector.cycles),
+        "component_names": names,
+        "units": {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin",
+                  "counts": "detections over the exposure (int64)"},
+        "time_zero": "laser pulse at the laser spot" if not config.count_laser_leg else "laser pulse leaves emitter",
+        "photons_per_pulse": transport.capture.photons,
+        "effects": {
+            "primary": True,
+            "secondary": config.secondary,
+            "top_k": config.top_k if config.secondary == "optimized" else None,
+            "occlusion": "all legs (first-hit rays, laser shadow rays, FoV→sensor shadow rays)",
+            "non_lambertian_brdfs": sorted({o.material.kind for o in scene.objects} - {"lambertian"}),
+            "atmospheric_attenuation": config.attenuation > 0,
+            "first_bounce": False,
+            "emitter_to_spot_leg_in_time": config.count_laser_leg,
+            "fov_to_sensor_leg_in_time": config.count_sensor_leg,
+            "detector_model": detector.model,
+        },
+        "energy_outside_window": {n: float(v) for n, v in zip(names, outside.reshape(len(names), -1).sum(1))},
+        "stats": {"lookins_cast": st.lookins_cast, "lookins_hit": st.lookins_hit,
+                  "observed_points": st.observed_points, "fov_points": st.fov_points,
+                  "lit_points": st.lit_points, "secondary_pairs": st.secondary_pairs},
+        "timings_s": {"setup": t_setup, "transport": t_transport, "binning": t_bin, "detector": t_detect,
+                      "total": time.perf_counter() - t0},
+        "versions": library_versions(),
+    }
+    return Result(config.time.edges, envelope, components, counts, attrs)

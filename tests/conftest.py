@@ -1,0 +1,31 @@
+"""Shared fixtures: small analytic scenes."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from datagen.brdf import Material
+from datagen.scene import FieldOfView, Laser, Scene, Sensor, box, quad
+
+
+def patch_scene(patch_size: float = 0.4, albedo: float = 0.8, with_occluder: bool = False) -> Scene:
+    """Relay wall x = 2 facing −x, laser spot (2, 0, 0); a square Lambertian patch of side ``patch_size``
+    centred at (1, 0, 0.5) facing +x (toward the wall); sensor/emitter at (0, 0, −0.5);
+    FoV 0.8 m square centred at (2, 0, −0.6). Optionally a box between the patch and the FoV's lower part.
+    """
+    s = patch_size
+    objects = [
+        quad("relay_wall", (2.0, -2.0, -2.0), (0.0, 4.0, 0.0), (0.0, 0.0, 4.0), Material(albedo=0.9),
+             label="relay_wall"),
+        quad("patch", (1.0, -s / 2, 0.5 - s / 2), (0.0, s, 0.0), (0.0, 0.0, s), Material(albedo=albedo)),
+    ]
+    if with_occluder:
+        objects.append(box("occluder", (1.45, 0.1, 0.1), (0.1, 0.25, 0.25), material=Material(albedo=0.5)))
+    return Scene(objects, Laser(emitter=(0.0, 0.0, -0.5), spot=(2.0, 0.0, 0.0)),
+                 Sensor(position=(0.0, 0.0, -0.5), aperture_radius=0.02,
+                        fov=FieldOfView(center=(2.0, 0.0, -0.6), size=(0.8, 0.8))))
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)
