@@ -440,7 +440,7 @@ def _run_chunked(func, arrays: list[np.ndarray], rng: np.random.Generator) -> li
     """Apply ``func(gen, *chunk_arrays)`` to fixed pixel chunks of 2-D ``arrays`` with one random stream per
     chunk, in threads (numpy's samplers release the GIL).  Deterministic whatever the thread count."""
     n_pix = arrays[0].shape[0]
-    bounds = list(range(0, n_pix, SAMPLER_PIXEL_CHUNK)) + [n_pix]
+    bounds = list(range(0, n_pix, SAMPLER_PIXEL_CHUNK)) + [n_pix] if n_pix else [0, 0]
     gens = _child_generators(rng, len(bounds) - 1)
     jobs = [(gens[k], *[a[bounds[k]:bounds[k + 1]] for a in arrays]) for k in range(len(bounds) - 1)]
     workers = min(_workers(), len(jobs))
@@ -956,53 +956,59 @@ def _decayed_cumsum(v: np.ndarray, c: np.ndarray) -> np.ndarray:
     return out
 
 
+def _scatter_columns(values: np.ndarray, dest: np.ndarray, n_cols: int) -> np.ndarray:
+    """out[:, c] = Σ_{j: dest[j] = c} values[:, j] (fast replacement for np.add.at over columns)."""
+    order = np.argsort(dest, kind="stable")
+    sorted_dest = dest[order]
+    starts = np.flatnonzero(np.r_[True, sorted_dest[1:] != sorted_dest[:-1]])
+    out = np.zeros((values.shape[0], n_cols))
+    out[:, sorted_dest[starts]] = np.add.reduceat(values[:, order], starts, axis=1)
+    return out
+
+
 class _Chain:
     """Discretised free-running chain on the detection phase for a batch of pixels (Rapp et al. 2019).
 
-    Cells j (width h_j, avalanches q_j per cycle); a detection in cell j is taken at the cell centre, so the
-    detector is live again at centre_j + τ: inside cell a_j with a live fraction φ_j of that cell.  From there
-    the next detection is the first avalanche of the periodic Poisson process: cell a_j with probability
-    1 − e^{−φ q_a}, otherwise the full-period kernel F(a_j + 1, ·) (geometric over whole periods)."""
+    Cells j (avalanches q_j per cycle) cover the period.  A detection in cell j is taken at the cell centre,
+    so the detector is live again at centre_j + τ: inside cell a_j, with a live fraction φ_j of that cell.
+    From there the next detection is the first avalanche of the periodic Poisson process: in cell a_j with
+    probability 1 − e^{−φ_j q_a}, otherwise distributed by the full-period kernel
+    F(b, j') = e^{−(C_{j'} − C_b)} (1 − e^{−q_{j'}}) / (1 − e^{−Λ}) from b = a_j + 1 (whole empty periods
+    summed geometrically).  Applying the transition costs O(cells) per pixel (decayed prefix sums)."""
 
     def __init__(self, q: np.ndarray, edges: np.ndarray, dead_time: float):
-        self.q = q
-        self.edges = edges
+        self.q, self.edges, self.dead_time = q, edges, dead_time
         self.T = edges[-1]
         self.M = q.shape[1]
         centre = 0.5 * (edges[:-1] + edges[1:])
         live = np.mod(centre + dead_time, self.T)
         a = np.clip(np.searchsorted(edges, live, side="right") - 1, 0, self.M - 1)
-        self.a = a
-        self.phi = np.clip((edges[a + 1] - live) / (edges[a + 1] - edges[a]), 0.0, 1.0)
-        self.b = (a + 1) % self.M
+        phi = np.clip((edges[a + 1] - live) / (edges[a + 1] - edges[a]), 0.0, 1.0)
+        self.a, self.b = a, (a + 1) % self.M
         self.p = -np.expm1(-q)
         q2 = np.concatenate([q, q], axis=1)
-        c2 = np.zeros_like(q2)
-        np.cumsum(q2[:, :-1], axis=1, out=c2[:, 1:])
-        self.c2 = c2
+        self.c2 = np.zeros_like(q2)
+        np.cumsum(q2[:, :-1], axis=1, out=self.c2[:, 1:])
         self.lam = q.sum(axis=1)
         self.one_minus_survival = -np.expm1(-self.lam)
         qa = q[:, a]
-        self.stay = -np.expm1(-self.phi[None, :] * qa)   # detect inside the partial cell a_j
-        self.go = np.exp(-self.phi[None, :] * qa)        # survive it
+        self.stay = -np.expm1(-phi[None, :] * qa)   # detect inside the partial cell a_j
+        self.go = np.exp(-phi[None, :] * qa)        # survive it
 
     def step(self, pi: np.ndarray) -> np.ndarray:
-        n_pix, M = pi.shape
-        y = np.zeros_like(pi)
-        rows = np.arange(n_pix)[:, None]
-        np.add.at(y, (rows, np.broadcast_to(self.a, pi.shape)), pi * self.stay)
-        v = np.zeros_like(pi)
-        np.add.at(v, (rows, np.broadcast_to(self.b, pi.shape)), pi * self.go)
-        v2 = np.concatenate([v, np.zeros_like(v)], axis=1)
+        """One transition of a batch of row distributions pi (pixels, cells)."""
+        M = self.M
+        y = _scatter_columns(pi * self.stay, self.a, M)
+        v2 = np.zeros((pi.shape[0], 2 * M))
+        v2[:, :M] = _scatter_columns(pi * self.go, self.b, M)
         u = _decayed_cumsum(v2, self.c2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            wrap = np.where(self.one_minus_survival[:, None] > 0,
-                            u[:, M:] / self.one_minus_survival[:, None], 0.0)
+        oms = self.one_minus_survival[:, None]
+        wrap = np.divide(u[:, M:], oms, out=np.zeros_like(u[:, M:]), where=oms > 0)
         y += self.p * (u[:, :M] + wrap)
         return y
 
-    def window_mass(self, pi: np.ndarray, dead_time: float) -> np.ndarray:
-        """(Wπ)_j: probability mass of detections in (centre_j − τ, centre_j], periodic (π piecewise uniform)."""
+    def window_mass(self, pi: np.ndarray) -> np.ndarray:
+        """(Wπ)_j: mass of detections in (centre_j − τ, centre_j], periodic, π uniform within cells."""
         cum = np.zeros((pi.shape[0], self.M + 1))
         np.cumsum(pi, axis=1, out=cum[:, 1:])
         total = cum[:, -1:]
@@ -1015,37 +1021,37 @@ class _Chain:
             frac = (u - self.edges[idx]) / (self.edges[idx + 1] - self.edges[idx])
             return k[None, :] * total + cum[:, idx] + frac[None, :] * pi[:, idx]
 
-        return at(centre) - at(centre - dead_time)
+        return at(centre) - at(centre - self.dead_time)
 
 
 def _stationary(chain: _Chain) -> np.ndarray:
-    """Stationary detection-phase distribution, (pixels, cells)."""
+    """Stationary detection-phase distribution (pixels, cells): vectorised power iteration started from the
+    low-flux guess π ∝ q, then ARPACK for any pixel whose chain mixes too slowly."""
     q = chain.q
     pi = q / np.where(chain.lam[:, None] > 0, chain.lam[:, None], 1.0)
-    converged = np.zeros(q.shape[0], dtype=bool)
-    for it in range(MARKOV_MAX_ITER):
-        nxt = chain.step(pi)
+    todo = np.arange(q.shape[0])
+    sub = chain
+    for _ in range(MARKOV_MAX_ITER):
+        nxt = sub.step(pi[todo])
         s = nxt.sum(axis=1, keepdims=True)
-        nxt = nxt / np.where(s > 0, s, 1.0)
-        diff = np.abs(nxt - pi).sum(axis=1)
-        pi = nxt
-        converged = diff < MARKOV_TOL
-        if converged.all():
-            break
-    if not converged.all():  # slowly mixing (nearly deterministic phase advance): ARPACK per pixel
-        from scipy.sparse.linalg import LinearOperator, eigs
+        nxt /= np.where(s > 0, s, 1.0)
+        diff = np.abs(nxt - pi[todo]).sum(axis=1)
+        pi[todo] = nxt
+        keep = diff >= MARKOV_TOL
+        if not keep.any():
+            return pi
+        if not keep.all():
+            todo = todo[keep]
+            sub = _Chain(q[todo], chain.edges, chain.dead_time)
+    from scipy.sparse.linalg import LinearOperator, eigs
 
-        for k in np.flatnonzero(~converged):
-            sub = _Chain.__new__(_Chain)
-            sub.__dict__.update({key: (val[k:k + 1] if isinstance(val, np.ndarray) and val.ndim == 2
-                                       and val.shape[0] == q.shape[0] else
-                                       (val[k:k + 1] if key in ("lam", "one_minus_survival") else val))
-                                 for key, val in chain.__dict__.items()})
-            op = LinearOperator((chain.M, chain.M), matvec=lambda x, s=sub: s.step(x.real.reshape(1, -1))[0],
-                                dtype=np.float64)
-            _, vec = eigs(op, k=1, which="LR", v0=pi[k], tol=1e-14, maxiter=100_000)
-            vec = np.abs(vec[:, 0].real)
-            pi[k] = vec / vec.sum()
+    for k in todo:  # pragma: no cover - only for pathological, nearly periodic chains
+        one = _Chain(q[k:k + 1], chain.edges, chain.dead_time)
+        op = LinearOperator((chain.M, chain.M), matvec=lambda x, c=one: c.step(np.real(x).reshape(1, -1))[0],
+                            dtype=np.float64)
+        _, vec = eigs(op, k=1, which="LR", v0=pi[k], tol=1e-14, maxiter=100_000)
+        vec = np.abs(vec[:, 0].real)
+        pi[k] = vec / vec.sum()
     return pi
 
 
@@ -1072,7 +1078,7 @@ def _free_running_nonparalyzable(r2: np.ndarray, config: DetectorConfig) -> tupl
     fine_edges, fine_q, parent = _refine_cells(edges, q, factor)
     chain = _Chain(fine_q, fine_edges, config.dead_time)
     pi = _stationary(chain)
-    wpi = chain.window_mass(pi, config.dead_time) if config.dead_time > 0 else np.zeros_like(pi)
+    wpi = chain.window_mass(pi) if config.dead_time > 0 else np.zeros_like(pi)
     rho = chain.lam / (1.0 + np.sum(fine_q * wpi, axis=1))  # detections per cycle (dead-fraction identity)
     per_cell = rho[:, None] * pi
     fine_bin = cell_bin[parent]
@@ -1209,8 +1215,8 @@ def _event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Gen
         b = _row_search(cum, idx, inner)
         with np.errstate(divide="ignore", invalid="ignore"):
             u1 = edges[b] + (inner - cum[idx, b]) / q[idx, b] * widths[b]
-        u1 = np.clip(np.where(beyond, 0.0, u1), edges[b] * ~beyond, np.nextafter(edges[b + 1], 0.0))
-        c1 = np.where(beyond, n, np.where(beyond, 0.0, new_cycle)).astype(np.int64)
+        u1 = np.where(beyond, 0.0, np.clip(u1, edges[b], np.nextafter(edges[b + 1], 0.0)))
+        c1 = np.where(beyond, float(n), new_cycle).astype(np.int64)
         is_ap = np.zeros(idx.size, dtype=bool)
         if p_ap > 0:
             apc, apu = ap_cycle[idx], ap_phase[idx]

@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# Install datagen and run the main job on the bundled demonstration room (README: "Quick start").
+set -euo pipefail
+cd "$(dirname "$0")/.."
+python -m pip install --quiet --disable-pip-version-check -e .
+datagen simulate scene_library/demo_room.yaml --out out/demo_room --lookins 10x10 --pixels 60x60 \
+    --secondary full "$@"
