@@ -102,6 +102,12 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def _on_surface(caster: RayCaster, point: np.ndarray, direction: np.ndarray, tol: float) -> bool:
+    """True when a surface passes within ``tol`` of ``point`` along ``direction`` (a short probe ray)."""
+    probe = caster.intersect((point - 2 * tol * direction)[None], direction[None])
+    return bool(probe.hit[0] and probe.distance[0] <= 4 * tol)
+
+
 def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     """Find the laser spot's surface and normal, and check the FoV sees a surface.
 
@@ -118,12 +124,12 @@ def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     hits = caster.intersect(emitter[None], _unit(spot - emitter)[None])
     tol = FOV_PLANE_TOL * caster.offset
     if not hits.hit[0] or hits.distance[0] < leg - tol:
-        if hits.hit[0]:
+        if hits.hit[0] and _on_surface(caster, spot, _unit(spot - emitter), tol):
             blocker = scene.objects[hits.object_id[0]].name
             raise SceneError(f"{where}laser.spot {spot.tolist()} is hidden from the emitter: the beam hits "
                              f"object {blocker!r} at {np.round(hits.points[0], 4).tolist()} first")
-        raise SceneError(f"{where}laser.spot {spot.tolist()} is off every surface (the beam from "
-                         f"{emitter.tolist()} hits nothing)")
+        raise SceneError(f"{where}laser.spot {spot.tolist()} is off every surface (no surface there along "
+                         f"the beam from the emitter {emitter.tolist()})")
     if hits.distance[0] > leg + tol:
         raise SceneError(f"{where}laser.spot {spot.tolist()} is off every surface (the beam from the emitter "
                          f"first hits {np.round(hits.points[0], 4).tolist()})")
