@@ -1,5 +1,5 @@
-"""Figures: the envelope L(t) with its components (Scholes & Leach 2024, Figure 7), and sampling views
-(Figures 3 and 5: energy reaching observed points from the laser spot, and one lookin's distribution)."""
+"""Figure: the envelope L(t) with its components (Scholes & Leach 2024, Figure 7); the sampling views
+(Figures 3 and 5) are in :mod:`datagen.figures`."""
 from __future__ import annotations
 
 from pathlib import Path
