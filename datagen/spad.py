@@ -25,8 +25,9 @@ Histogram models (``DetectorConfig.model``):
 ``"free_running"``
     Free-running SPAD whose dead time crosses cycle boundaries (time-tagging TCSPC).  Exact
     continuous-time event simulation for samples; the expected histogram is the stationary distribution
-    of the Markov chain on the detection phase (Rapp, Ma, Dawson & Goyal, IEEE Trans. Signal Process.
-    67(13), 2019), or a closed form for a paralyzable dead time.
+    of the Markov chain on the detection phase (Rapp, Ma, Dawson & Goyal, "Dead time compensation for
+    high-flux ranging", IEEE Trans. Signal Process. 67(13), 2019), or a closed form for a paralyzable dead
+    time.
 
 Timing order (DESIGN.md §6): the laser pulse shape (already in the transport envelope) and the SPAD
 diffusion tail act *before* pile-up (they change which photon comes first); the Gaussian
@@ -460,7 +461,8 @@ def gate_fraction(edges: np.ndarray, gate: tuple[float, float] | None) -> np.nda
         edges: float64 (bins + 1,) increasing bin edges in s.
         gate: ``(start, stop)`` in s, or None.
     Returns:
-        float64 (bins,) in [0, 1].
+        float64 (bins,) in [0, 1].  Used by :func:`rates_from_envelope` (DESIGN.md §6: the bright first
+        bounce is gated out in NLOS systems).
     """
     edges = np.asarray(edges, dtype=np.float64)
     if gate is None:
@@ -667,6 +669,9 @@ def instrument_response(config: DetectorConfig, n_bins: int, first_bin: int = 0)
     the bins (DESIGN.md §5).  At low flux :func:`expected_histogram` of a one-bin envelope equals
     ``n_cycles × r × instrument_response`` up to the piecewise-constant approximation inside bins.
 
+    Args:
+        config: detector description (uses jitter, diffusion_tail, diffusion_fraction, bin_width).
+        n_bins: length of the returned histogram; first_bin: bin in which the photon arrives.
     Returns:
         float64 (n_bins,) probabilities (sum ≤ 1; mass outside the window is lost).
     """
@@ -728,9 +733,21 @@ def rates_from_envelope(envelope: Any, config: DetectorConfig) -> np.ndarray:
     return rates
 
 
+def _accurate_cumsum(x: np.ndarray) -> np.ndarray:
+    """Inclusive float64 cumulative sum along the last axis, compensated: the exact rounding error of every
+    step of ``np.cumsum`` is recovered with Knuth's TwoSum and added back, so each prefix sum is accurate to a
+    few ulps even over 10^6 bins (a plain cumsum drifts by ~n·ε and breaks Σ pmf = 1 at 1e-12)."""
+    s = np.cumsum(x, axis=-1)
+    prev = np.zeros_like(s)
+    prev[..., 1:] = s[..., :-1]
+    bp = s - prev
+    err = (prev - (s - bp)) + (x - bp)
+    return s + np.cumsum(err, axis=-1)
+
+
 def _exclusive_cumsum(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(C, Λ): exclusive float64 cumulative sum along the last axis and the total."""
-    total = np.cumsum(r, axis=-1)
+    """(C, Λ): exclusive float64 (compensated) cumulative sum along the last axis and the total."""
+    total = _accurate_cumsum(r)
     c = np.empty_like(r)
     c[..., 0] = 0.0
     c[..., 1:] = total[..., :-1]
@@ -762,23 +779,54 @@ def detection_pmf(rates: Any) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # Synchronous models: poisson, pile_up, multi_stop
 # --------------------------------------------------------------------------------------------------
+def _first_photon_sequential(gen: np.random.Generator, r: np.ndarray, n: int) -> np.ndarray:
+    """Sequential conditional binomials ``N_i ~ Bin(D_i, 1 − e^{−r_i})``, ``D_{i+1} = D_i − N_i`` (DESIGN.md §6);
+    one vectorised binomial call per bin over all pixels of the chunk."""
+    p = -np.expm1(-r)
+    out = np.zeros(r.shape, dtype=np.int64)
+    remaining = np.full(r.shape[0], n, dtype=np.int64)
+    for i in range(r.shape[1]):
+        ni = gen.binomial(remaining, p[:, i])
+        out[:, i] = ni
+        remaining -= ni
+        if not remaining.any():
+            break
+    return out
+
+
+def _first_photon_tree(gen: np.random.Generator, r: np.ndarray, n: int) -> np.ndarray:
+    """The same multinomial drawn top-down on a binary tree of bin blocks: the number of cycles detecting in a
+    block is split between its halves with ``P(left | block) = (1 − e^{−R_left}) / (1 − e^{−R_block})`` (the
+    e^{−C} factors cancel, so no cancellation; block sums are pairwise).  Exact; log2(bins) vectorised calls,
+    which is what makes 10^6 bins fast."""
+    n_pix, bins = r.shape
+    size = 1 << max(0, (bins - 1).bit_length())
+    leaf = np.zeros((n_pix, size))
+    leaf[:, :bins] = r
+    levels = [leaf]
+    while levels[-1].shape[1] > 1:
+        levels.append(levels[-1].reshape(n_pix, -1, 2).sum(axis=-1))
+    counts = gen.binomial(n, -np.expm1(-levels[-1][:, 0]))[:, None].astype(np.int64)
+    for lev in range(len(levels) - 2, -1, -1):
+        child = levels[lev].reshape(n_pix, -1, 2)
+        parent = -np.expm1(-levels[lev + 1])
+        left = -np.expm1(-child[..., 0])
+        p = np.divide(left, parent, out=np.zeros_like(left), where=parent > 0)
+        np.minimum(p, 1.0, out=p)
+        n_left = gen.binomial(counts, p)
+        counts = np.stack([n_left, counts - n_left], axis=-1).reshape(n_pix, -1)
+    return counts[:, :bins]
+
+
+SEQUENTIAL_MAX_BINS = 4096
+"""Histograms with up to this many bins are drawn by sequential binomials (fastest for image-sized arrays);
+longer ones by the binary tree (log2(bins) Python calls instead of bins)."""
+
+
 def _sample_first_photon(rates2d: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Exact multinomial first-photon counts as sequential binomials with exact conditional probabilities
-    ``p_i = 1 − e^{−r_i}``: ``N_i ~ Bin(D_i, p_i)``, ``D_{i+1} = D_i − N_i``.  rates2d: (pixels, bins)."""
-    p = -np.expm1(-rates2d)
-
-    def draw(gen, pp):
-        out = np.zeros(pp.shape, dtype=np.int64)
-        remaining = np.full(pp.shape[0], n, dtype=np.int64)
-        for i in range(pp.shape[1]):
-            ni = gen.binomial(remaining, pp[:, i])
-            out[:, i] = ni
-            remaining -= ni
-            if not remaining.any():
-                break
-        return out
-
-    return np.concatenate(_run_chunked(draw, [p], rng), axis=0)
+    """Exact multinomial first-photon counts of (pixels, bins) rates over n cycles (int64)."""
+    draw = _first_photon_sequential if rates2d.shape[1] <= SEQUENTIAL_MAX_BINS else _first_photon_tree
+    return np.concatenate(_run_chunked(lambda gen, rr: draw(gen, rr, n), [rates2d], rng), axis=0)
 
 
 def _multi_stop_dead_bins(config: DetectorConfig) -> int:
@@ -850,54 +898,83 @@ def _neighbour_table(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _sample_pile_up_crosstalk(rates: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
-    """Pile-up histograms of an (..., H, W, bins) array with prompt optical crosstalk, by per-cycle event
-    simulation.  In each cycle every pixel's first primary avalanche time is drawn (piecewise-constant
-    intensity, continuous time); each avalanche triggers, with ``crosstalk_probability``, an avalanche at the
-    same instant in one uniformly chosen 4-neighbour; a pixel records its earliest avalanche (primary or
-    crosstalk; cascades are followed to convergence).  Cost O(n_cycles · pixels)."""
+    """Pile-up histograms of an (..., H, W, bins) array with prompt optical crosstalk, by event simulation of
+    the cycles in which something happens.
+
+    Per pixel, the set of cycles with a primary avalanche is a uniformly random subset of size
+    ``K ~ Bin(n, 1 − e^{−Λ})``; in each, the first primary avalanche time is drawn from the piecewise-constant
+    intensity (continuous time).  Every avalanche triggers, with ``crosstalk_probability``, an avalanche at the
+    same instant in one uniformly chosen 4-neighbour; each pixel records its earliest avalanche of the cycle
+    (primary or crosstalk) and is then held until the next cycle.  Cascades are followed to a fixed point.
+    Cost O(avalanches), so low-flux exposures of 10^6 cycles are cheap."""
     if rates.ndim < 3:
         raise ValueError(f"crosstalk needs rates of shape (..., H, W, bins), got {rates.shape}")
-    *lead, h, w, bins = rates.shape
+    h, w, bins = rates.shape[-3:]
+    n_pix = h * w
     n = config.cycles
     widths = config.widths(bins)
     edges = np.concatenate([[0.0], np.cumsum(widths)])
     neighbours, n_nb = _neighbour_table(h, w)
-    frames = rates.reshape(-1, h * w, bins)
+    frames = rates.reshape(-1, n_pix, bins)
     out = np.zeros(frames.shape, dtype=np.int64)
-    chunk = max(1, 2_000_000 // (h * w))
+    p_ct = config.crosstalk_probability
+
+    def draw_destinations(pixels):
+        sends = rng.random(pixels.size) < p_ct
+        choice = np.minimum((rng.random(pixels.size) * n_nb[pixels]).astype(np.int64), 3)
+        dest = neighbours[pixels, choice]
+        return np.where(sends & (n_nb[pixels] > 0), dest, -1)
+
     for f in range(frames.shape[0]):
         q = frames[f]
-        cum = np.zeros((h * w, bins + 1))
+        cum = np.zeros((n_pix, bins + 1))
         np.cumsum(q, axis=1, out=cum[:, 1:])
         lam = cum[:, -1]
-        done = 0
-        while done < n:
-            m = min(chunk, n - done)
-            done += m
-            e = rng.standard_exponential((m, h * w))
-            t = np.full((m, h * w), np.inf)
-            hit = e < lam[None, :]
-            cyc, pix = np.nonzero(hit)
-            if pix.size:
-                target = np.maximum(e[cyc, pix], np.finfo(float).tiny)
-                b = _row_search(cum, pix, target)
-                rate = q[pix, b]
-                t[cyc, pix] = edges[b] + (target - cum[pix, b]) / rate * widths[b]
-            sends = rng.random((m, h * w)) < config.crosstalk_probability
-            choice = (rng.random((m, h * w)) * n_nb[None, :]).astype(np.int64)
-            dest = np.where(n_nb[None, :] > 0, neighbours[np.arange(h * w)[None, :], np.minimum(choice, 3)], -1)
-            sends &= dest >= 0
-            for _ in range(h * w + 1):  # cascade to a fixed point
-                src_c, src_p = np.nonzero(sends & np.isfinite(t))
-                if src_c.size == 0:
-                    break
-                before = t.copy()
-                np.minimum.at(t, (src_c, dest[src_c, src_p]), t[src_c, src_p])
-                if np.array_equal(before, t):
-                    break
-            cyc, pix = np.nonzero(np.isfinite(t))
-            tb = np.clip(np.searchsorted(edges, t[cyc, pix], side="right") - 1, 0, bins - 1)
-            out[f] += np.bincount(pix * bins + tb, minlength=h * w * bins).reshape(h * w, bins)
+        p_hit = -np.expm1(-lam)
+        k = rng.binomial(n, p_hit)
+        cycles = np.concatenate([rng.choice(n, size=int(kk), replace=False) for kk in k]) if k.sum() else \
+            np.zeros(0, dtype=np.int64)
+        pix = np.repeat(np.arange(n_pix), k)
+        target = -np.log1p(-rng.random(pix.size) * p_hit[pix])  # Exp(1) truncated to (0, Λ)
+        target = np.clip(target, np.finfo(float).tiny, lam[pix])
+        b = _row_search(cum, pix, target)
+        t = edges[b] + (target - cum[pix, b]) / q[pix, b] * widths[b]
+        keys = cycles.astype(np.int64) * n_pix + pix
+        order = np.argsort(keys)
+        keys, t, pix = keys[order], t[order], pix[order]
+        dest = draw_destinations(pix)
+        changed = np.ones(keys.size, dtype=bool)
+        while True:
+            src = np.flatnonzero(changed & (dest >= 0))
+            if src.size == 0:
+                break
+            cand_key = (keys[src] // n_pix) * n_pix + dest[src]
+            cand_t = t[src]
+            pos = np.searchsorted(keys, cand_key)
+            exists = (pos < keys.size) & (keys[np.minimum(pos, keys.size - 1)] == cand_key)
+            changed = np.zeros(keys.size, dtype=bool)
+            # existing avalanches made earlier by crosstalk
+            ep, et = pos[exists], cand_t[exists]
+            earlier = et < t[ep]
+            if earlier.any():
+                np.minimum.at(t, ep[earlier], et[earlier])
+                changed[ep[earlier]] = True
+            # new avalanches in pixels that had none in that cycle
+            new_key, new_t = cand_key[~exists], cand_t[~exists]
+            if new_key.size:
+                uniq, first = np.unique(new_key, return_index=True)
+                best = np.full(uniq.size, np.inf)
+                np.minimum.at(best, np.searchsorted(uniq, new_key), new_t)
+                new_pix = uniq % n_pix
+                keys = np.concatenate([keys, uniq])
+                t = np.concatenate([t, best])
+                pix = np.concatenate([pix, new_pix])
+                dest = np.concatenate([dest, draw_destinations(new_pix)])
+                changed = np.concatenate([changed, np.ones(uniq.size, dtype=bool)])
+                order = np.argsort(keys, kind="stable")
+                keys, t, pix, dest, changed = keys[order], t[order], pix[order], dest[order], changed[order]
+        tb = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, bins - 1)
+        out[f] = np.bincount(pix * bins + tb, minlength=n_pix * bins).reshape(n_pix, bins)
     return out.reshape(rates.shape)
 
 
@@ -923,6 +1000,8 @@ def _period_cells(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, n
         n_post = max(int(round(tail / config.bin_width)), 1)
         parts.append(np.linspace(win[-1], T, n_post + 1)[1:])
     edges = np.concatenate(parts)
+    if tail <= 1e-9 * T:
+        edges[-1] = T  # window ends at the period (within round-off)
     n_before = 0 if win[0] <= 0 else parts[0].size
     n_cells = edges.size - 1
     cell_bin = np.full(n_cells, -1, dtype=np.int64)
@@ -1045,7 +1124,7 @@ def _stationary(chain: _Chain) -> np.ndarray:
             sub = _Chain(q[todo], chain.edges, chain.dead_time)
     from scipy.sparse.linalg import LinearOperator, eigs
 
-    for k in todo:  # pragma: no cover - only for pathological, nearly periodic chains
+    for k in todo:  # only for slowly mixing, nearly periodic chains
         one = _Chain(q[k:k + 1], chain.edges, chain.dead_time)
         op = LinearOperator((chain.M, chain.M), matvec=lambda x, c=one: c.step(np.real(x).reshape(1, -1))[0],
                             dtype=np.float64)
@@ -1096,7 +1175,8 @@ def _free_running_paralyzable(r2: np.ndarray, config: DetectorConfig) -> tuple[n
     cum = np.zeros((q.shape[0], q.shape[1] + 1))
     np.cumsum(q, axis=1, out=cum[:, 1:])
     lam = cum[:, -1:]
-    breaks = np.unique(np.concatenate([edges, np.mod(edges - tau, T)]) if tau > 0 else edges)
+    # E(t) = R(t) − R(t − τ) is linear between cell edges and the points where t − τ crosses an edge
+    breaks = np.unique(np.concatenate([edges, np.mod(edges + tau, T)]) if tau > 0 else edges)
     breaks = breaks[(breaks >= 0) & (breaks <= T)]
     breaks = np.unique(np.concatenate([[0.0, T], breaks]))
     lo, hi = breaks[:-1], breaks[1:]
@@ -1131,6 +1211,23 @@ def _free_running_paralyzable(r2: np.ndarray, config: DetectorConfig) -> tuple[n
     return hist, piece.sum(axis=1)
 
 
+MARKOV_CHUNK_ELEMENTS = 4_000_000
+"""Pixels are processed in chunks so that one chunk's (pixels × cells) arrays stay below this size."""
+
+
+def _free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(per-cycle expected histogram (pixels, bins), detections per cycle (pixels,)), in pixel chunks."""
+    solver = _free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable
+    cells = _period_cells(r2[:1], config)[1].shape[1]
+    per_pixel = cells * (2 if config.paralyzable else 2 * (config.markov_oversample or 8))
+    chunk = max(1, MARKOV_CHUNK_ELEMENTS // per_pixel)
+    hist = np.zeros_like(r2)
+    rho = np.zeros(r2.shape[0])
+    for start in range(0, r2.shape[0], chunk):
+        hist[start:start + chunk], rho[start:start + chunk] = solver(r2[start:start + chunk], config)
+    return hist, rho
+
+
 def free_running_rate(rates: Any, config: DetectorConfig) -> np.ndarray:
     """Stationary detections per laser cycle of a free-running SPAD (all phases, in or out of the window).
 
@@ -1140,20 +1237,22 @@ def free_running_rate(rates: Any, config: DetectorConfig) -> np.ndarray:
     constant rate).
 
     Args:
-        rates: (..., bins); config with ``model="free_running"``.
+        rates: (..., bins) expected avalanches per cycle per bin; config with ``model="free_running"``.
     Returns:
-        float64 (...,) detections per cycle.
+        float64 (...,) detections per cycle (multiply by ``repetition_rate`` for Hz).
+    Raises:
+        ValueError: invalid rates, another model, or a histogram window longer than the period.
     """
     r = _as_rates(rates)
     _require_model(config, "free_running")
-    r2 = r.reshape(-1, r.shape[-1])
-    _, rho = (_free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable)(r2, config)
+    _, rho = _free_running_expected(r.reshape(-1, r.shape[-1]), config)
     return rho.reshape(r.shape[:-1])
 
 
 def _event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
     """Exact continuous-time simulation of a free-running SPAD over ``n_cycles`` periods, vectorised over pixels
-    (one round = one avalanche per pixel).  The avalanche intensity is piecewise constant on the period cells;
+    (one round = one avalanche per pixel).  Used when afterpulsing is on (afterpulses depend on the recorded
+    history); otherwise :func:`_event_simulation_batched` simulates the same process faster.  The avalanche intensity is piecewise constant on the period cells;
     the next avalanche after time s is found by inverting the cumulative intensity with an Exp(1) draw,
     skipping whole empty periods in O(1).  Non-paralyzable: the detector is live again at t + τ.  Paralyzable:
     every avalanche restarts the dead time and is recorded only if the previous one is ≥ τ earlier.
@@ -1262,6 +1361,108 @@ def _event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Gen
     return hist.reshape(n_pix, bins)
 
 
+TICKS_PER_PERIOD = 1 << 24
+"""Time resolution of the batched free-running simulator: the period is split into 2**24 integer ticks
+(3 fs at 20 MHz), so that sorting and dead-time comparisons are exact integer operations."""
+
+EVENT_SEGMENT_ARRIVALS = 4_000_000
+"""Expected avalanches (all pixels) generated per segment of the batched free-running simulator."""
+
+
+def _dead_time_path(key: np.ndarray, pix: np.ndarray, dead: int, start: np.ndarray) -> np.ndarray:
+    """Indices of the avalanches recorded by a non-paralyzable detector.
+
+    ``key`` (A,) int64 sorted times (pixel-offset ticks), ``pix`` (A,) pixel of each, ``start`` (pixels,) index
+    of each pixel's first recorded avalanche (A: none).  next[k] = first avalanche of the same pixel at or after
+    key[k] + dead; the recorded ones are the path start → next → next …, enumerated for all pixels at once by
+    pointer doubling (level m adds the nodes 2^m steps further), O(A log L)."""
+    size = key.size
+    nxt = np.searchsorted(key, key + dead, side="left")
+    bad = nxt >= size
+    nxt[bad] = size
+    ok = ~bad
+    ok[ok] = pix[nxt[ok]] == pix[ok]
+    nxt[~ok] = size
+    jump = np.append(nxt, size)
+    nodes = start[start < size]
+    while True:
+        add = jump[nodes]
+        add = add[add < size]
+        if add.size == 0:
+            return nodes
+        nodes = np.concatenate([nodes, add])
+        jump = jump[jump]
+
+
+def _event_simulation_batched(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+    """Exact free-running simulation without afterpulsing, in segments of whole cycles, vectorised over all
+    avalanches.  Avalanche counts per (pixel, cell, segment) are Poisson(S·q); positions are uniform within the
+    cell (constant intensity there) and the cycle uniform within the segment; times are integer ticks
+    (TICKS_PER_PERIOD per period).  Non-paralyzable dead time: :func:`_dead_time_path`; paralyzable: an avalanche
+    is recorded iff the previous avalanche of that pixel is ≥ τ earlier.  State (live-from / last avalanche)
+    carries across segments, so the result is the same process as :func:`_event_simulation`."""
+    edges, q, cell_bin = _period_cells(r2, config)
+    n_pix, n_cells = q.shape
+    bins = r2.shape[1]
+    n, T = config.cycles, config.period
+    dead = int(round(config.dead_time / T * TICKS_PER_PERIOD))
+    total_rate = float(q.sum())
+    hist = np.zeros(n_pix * bins, dtype=np.int64)
+    if total_rate == 0.0 or n_pix == 0:
+        return hist.reshape(n_pix, bins)
+    max_cycles_by_overflow = (np.iinfo(np.int64).max // 4) // (max(n_pix, 1) * TICKS_PER_PERIOD) - 2
+    seg = int(max(1, min(n, EVENT_SEGMENT_ARRIVALS / total_rate, max_cycles_by_overflow)))
+    cell_lo = np.floor(edges[:-1] / T * TICKS_PER_PERIOD).astype(np.int64)
+    cell_span = np.maximum(np.floor(edges[1:] / T * TICKS_PER_PERIOD).astype(np.int64) - cell_lo, 1)
+    never = np.iinfo(np.int64).min // 4
+    carry = np.full(n_pix, never, dtype=np.int64)  # live-from (non-paralyzable) or last avalanche, in ticks
+    paralyzable = config.paralyzable
+    pix_ids = np.arange(n_pix, dtype=np.int64)
+    done = 0
+    while done < n:
+        s = min(seg, n - done)
+        span = s * TICKS_PER_PERIOD
+        big = span + TICKS_PER_PERIOD
+        counts = rng.poisson(s * q).ravel()
+        flat = np.repeat(np.arange(counts.size, dtype=np.int64), counts)
+        pix, cell = np.divmod(flat, n_cells)
+        local = (rng.integers(0, s, flat.size, dtype=np.int64) * TICKS_PER_PERIOD + cell_lo[cell]
+                 + (rng.random(flat.size) * cell_span[cell]).astype(np.int64))
+        key = pix * big + local
+        order = np.argsort(key, kind="stable")
+        key, pix, cell, local = key[order], pix[order], cell[order], local[order]
+        if paralyzable:
+            prev = np.empty_like(local)
+            prev[1:] = local[:-1]
+            first = np.ones(key.size, dtype=bool)
+            first[1:] = pix[1:] != pix[:-1]
+            prev[first] = carry[pix[first]]
+            recorded = np.flatnonzero((local - prev) >= dead)
+            if key.size:
+                last = np.ones(key.size, dtype=bool)
+                last[:-1] = pix[1:] != pix[:-1]
+                carry[pix[last]] = local[last]
+        else:
+            start = np.searchsorted(key, pix_ids * big + np.maximum(carry, 0), side="left")
+            valid = start < key.size
+            valid[valid] = pix[start[valid]] == pix_ids[valid]
+            start[~valid] = key.size
+            recorded = _dead_time_path(key, pix, dead, start)
+            if recorded.size:
+                rec_pix = pix[recorded]
+                last_local = np.full(n_pix, never, dtype=np.int64)
+                np.maximum.at(last_local, rec_pix, local[recorded])
+                has = last_local > never
+                carry[has] = last_local[has] + dead
+        carry = np.where(carry > never, carry - span, never)
+        carry = np.maximum(carry, never)
+        hb = cell_bin[cell[recorded]]
+        inside = hb >= 0
+        hist += np.bincount(pix[recorded][inside] * bins + hb[inside], minlength=n_pix * bins)
+        done += s
+    return hist.reshape(n_pix, bins)
+
+
 # --------------------------------------------------------------------------------------------------
 # Public model dispatch
 # --------------------------------------------------------------------------------------------------
@@ -1310,7 +1511,7 @@ def expected_histogram(rates: Any, config: DetectorConfig) -> np.ndarray:
     elif config.model == "multi_stop":
         hist = _multi_stop_expected(r2, n, _multi_stop_dead_bins(config))
     else:
-        per_cycle, _ = (_free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable)(r2, config)
+        per_cycle, _ = _free_running_expected(r2, config)
         hist = n * per_cycle
     if config.jitter > 0:
         kernel, first = gaussian_kernel(config.jitter, config.bin_width)
@@ -1323,13 +1524,14 @@ def sample_histogram(rates: Any, config: DetectorConfig, rng: np.random.Generato
 
     * ``poisson``: ``rng.poisson(n·r)``.
     * ``pile_up``: exact multinomial as sequential binomials ``N_i ~ Bin(D_i, 1 − e^{−r_i})``,
-      ``D_0 = n``, ``D_{i+1} = D_i − N_i`` (DESIGN.md §6), vectorised over pixels; with crosstalk, a per-cycle
-      event simulation of the (…, H, W) array.
+      ``D_0 = n``, ``D_{i+1} = D_i − N_i`` (DESIGN.md §6), vectorised over pixels (histograms longer than
+      SEQUENTIAL_MAX_BINS: the same conditional binomials on a binary tree of bins).  With crosstalk: event
+      simulation of the (…, H, W) array over the cycles in which some pixel avalanches.
     * ``multi_stop``: exact sampler of the discrete model tracking the number of live cycles.
     * ``free_running``: exact continuous-time event simulation (dead time across cycles, paralyzable or not,
       afterpulsing).
-    Pixels are drawn in fixed chunks of SAMPLER_PIXEL_CHUNK with independent child streams of ``rng`` and in
-    threads; the result depends only on ``rng``'s state, not on the number of cores.
+    The pile-up and multi-stop samplers draw pixels in fixed chunks of SAMPLER_PIXEL_CHUNK with independent
+    child streams of ``rng``, in threads; the result depends only on ``rng``'s state, not on the core count.
 
     Args:
         rates: (..., bins) expected avalanches per cycle per bin (float32 accepted).
@@ -1356,8 +1558,10 @@ def sample_histogram(rates: Any, config: DetectorConfig, rng: np.random.Generato
             counts = _sample_first_photon(r2, n, rng)
     elif config.model == "multi_stop":
         counts = _multi_stop_sample(r2, n, _multi_stop_dead_bins(config), rng)
-    else:
+    elif config.afterpulse_probability > 0:
         counts = _event_simulation(r2, config, rng)
+    else:
+        counts = _event_simulation_batched(r2, config, rng)
     if config.jitter > 0:
         kernel, first = gaussian_kernel(config.jitter, config.bin_width)
         counts = _jitter_counts(counts, kernel, first, rng)
@@ -1428,8 +1632,12 @@ def counter_variance(true_rate: Any, dead_time: float, window: float, paralyzabl
     Renewal theory (Var N ≈ window·σ²/μ³ of the inter-count interval; Müller 1973): non-paralyzable
     ``n·window/(1 + nτ)³``; paralyzable ``m·window·(1 − 2nτ e^{−nτ})`` with ``m = n e^{−nτ}``.
 
+    Args:
+        true_rate: Poisson input rate n in Hz (array-like); dead_time τ and window in s.
     Returns:
         float64 array (counts²), same shape as ``true_rate``.
+    Raises:
+        ValueError: negative/NaN rate or negative dead time.
     """
     n = _as_counter_rate(true_rate, dead_time)
     if paralyzable:
@@ -1459,38 +1667,32 @@ def sample_counter(true_rate: float, dead_time: float, window: float, rng: np.ra
             independent windows.
     Returns:
         int64 (size,) counts.
+    Raises:
+        ValueError: negative/NaN rate or negative dead time.
     """
     _as_counter_rate(true_rate, dead_time)
     n_rate = float(true_rate)
     out = np.zeros(size, dtype=np.int64)
     if n_rate == 0:
         return out
-    if paralyzable:
-        expected = n_rate * window
-        batch = max(1, int(4e6 // max(expected, 1.0)))
-        for start in range(0, size, batch):
-            m = min(batch, size - start)
-            k = rng.poisson(expected, size=m)
-            total = int(k.sum())
-            times = rng.random(total) * window
-            owner = np.repeat(np.arange(m), k)
-            order = np.lexsort((times, owner))
-            times, owner = times[order], owner[order]
-            gap = np.diff(times, prepend=-np.inf)
-            first = np.ones(total, dtype=bool)
-            first[1:] = owner[1:] != owner[:-1]
-            counted = first | (gap >= dead_time)
-            out[start:start + m] = np.bincount(owner[counted], minlength=m)
-        return out
-    mean_gap = dead_time + 1.0 / n_rate
-    per = int(window / mean_gap * 1.2 + 10 * math.sqrt(window / mean_gap) + 20)
-    for start in range(0, size, max(1, int(4e6 // per))):
-        m = min(max(1, int(4e6 // per)), size - start)
+    # Inter-arrival gaps of the Poisson input are iid Exp(n).  Non-paralyzable: a renewal process with
+    # intervals τ + gap (the first without τ).  Paralyzable: an arrival is counted iff its gap ≥ τ.
+    shift = 0.0 if paralyzable else dead_time
+    mean_gap = shift + 1.0 / n_rate
+    per = int(window / mean_gap * 1.1 + 10 * math.sqrt(window / mean_gap) + 20)
+    rows = max(1, int(4e6 // per))
+    for start in range(0, size, rows):
+        m = min(rows, size - start)
         gaps = rng.standard_exponential((m, per)) / n_rate
-        gaps[:, 1:] += dead_time
-        t = np.cumsum(gaps, axis=1)
+        t = np.cumsum(gaps + shift, axis=1) - shift
         while np.any(t[:, -1] <= window):  # extend the rare rows that did not reach the window end
-            more = rng.standard_exponential((m, per)) / n_rate + dead_time
-            t = np.concatenate([t, t[:, -1:] + np.cumsum(more, axis=1)], axis=1)
-        out[start:start + m] = (t <= window).sum(axis=1)
+            more = rng.standard_exponential((m, per)) / n_rate
+            t = np.concatenate([t, t[:, -1:] + np.cumsum(more + shift, axis=1)], axis=1)
+            gaps = np.concatenate([gaps, more], axis=1)
+        inside = t <= window
+        if paralyzable:
+            counted = gaps >= dead_time
+            counted[:, 0] = True
+            inside &= counted
+        out[start:start + m] = inside.sum(axis=1)
     return out
