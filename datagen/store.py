@@ -73,3 +73,24 @@ def read_result(path: str | Path) -> Result:
     return Result(time_edges=root["time_edges"][...], envelope=root["envelope"][...],
                   components={n: comps[n][...] for n in names}, counts=root["counts"][...],
                   attrs=dict(root.attrs))
+
+
+def write_detection(path: str | Path, name: str, counts: np.ndarray, attrs: dict) -> Path:
+    """Add (or replace) ``detections/<name>/counts`` (int64) with ``attrs`` to an existing result store.
+
+    Raises:
+        FileNotFoundError: no result store at ``path``.
+    """
+    path = Path(path)
+    if (path / RESULT_NAME).exists():
+        path = path / RESULT_NAME
+    if not (path / "zarr.json").exists():
+        raise FileNotFoundError(f"no datagen result store at {path}")
+    root = zarr.open_group(str(path), mode="a")
+    group = root.require_group("detections").require_group(name)
+    group.create_array("counts", data=np.asarray(counts, dtype=np.int64), overwrite=True)
+    group.attrs.update(_jsonable(attrs))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
+        zarr.consolidate_metadata(str(path))
+    return path

@@ -83,3 +83,24 @@ def test_bad_input_gets_one_clear_line(tmp_path, case):
         assert fragment in lines[0], (name, fragment, lines[0])
     assert "Traceback" not in res.output
     assert not (tmp_path / "out" / "result.zarr").exists()
+
+
+def test_detect_redraws_counts_from_stored_envelope(tmp_path):
+    assert run(["simulate", str(DEMO), "--out", str(tmp_path), "--lookins", "4x4", "--pixels", "16x16",
+                "--secondary", "none", "--quiet"]).exit_code == 0
+    import zarr
+
+    draws = []
+    for _ in range(2):
+        res = run(["detect", str(tmp_path), "--detector", "configs/detectors/hwu_single_pixel.yaml",
+                   "--exposure", "5ms", "--seed", "4"])
+        assert res.exit_code == 0, res.output
+        g = zarr.open_group(str(tmp_path / "result.zarr"), mode="r")
+        counts = g["detections/hwu_single_pixel/counts"][...]
+        draws.append(counts)
+        assert counts.dtype == np.int64 and counts.sum() > 0
+        assert g["detections/hwu_single_pixel"].attrs["n_cycles"] == 50_000     # 5 ms at 10 MHz
+    np.testing.assert_array_equal(draws[0], draws[1])
+    assert read_result(tmp_path).envelope.shape == (5000,)                         # envelope untouched
+    bad = run(["detect", str(tmp_path), "--detector", "missing.yaml"])
+    assert bad.exit_code == 2 and bad.output.startswith("error: ")
