@@ -24,6 +24,26 @@ def _jsonable(value):
     return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
+def _consolidate(path: Path) -> None:
+    with warnings.catch_warnings():   # consolidated metadata is a zarr-python v3 extension; we rely on it
+        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
+        zarr.consolidate_metadata(str(path))
+
+
+def _existing_store(path: str | Path) -> Path:
+    """The ``.zarr`` store at ``path`` (the store itself or the result directory holding it).
+
+    Raises:
+        FileNotFoundError: no result store there.
+    """
+    path = Path(path)
+    if (path / RESULT_NAME).exists():
+        path = path / RESULT_NAME
+    if not (path / "zarr.json").exists():
+        raise FileNotFoundError(f"no datagen result store at {path}")
+    return path
+
+
 def write_result(result: Result, path: str | Path, overwrite: bool = True) -> Path:
     """Write ``result`` to ``path`` (a ``.zarr`` directory) and return the path.
 
@@ -47,9 +67,7 @@ def write_result(result: Result, path: str | Path, overwrite: bool = True) -> Pa
     for name, arr in result.components.items():
         comps.create_array(name, data=np.asarray(arr, dtype=np.float64))
     root.attrs.update(_jsonable(result.attrs))
-    with warnings.catch_warnings():   # consolidated metadata is a zarr-python v3 extension; we rely on it
-        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
-        zarr.consolidate_metadata(str(tmp))
+    _consolidate(tmp)
     if path.exists():
         shutil.rmtree(path)
     tmp.rename(path)
@@ -62,11 +80,7 @@ def read_result(path: str | Path) -> Result:
     Raises:
         FileNotFoundError: no result store at ``path``.
     """
-    path = Path(path)
-    if (path / RESULT_NAME).exists():
-        path = path / RESULT_NAME
-    if not (path / "zarr.json").exists():
-        raise FileNotFoundError(f"no datagen result store at {path}")
+    path = _existing_store(path)
     root = zarr.open_group(str(path), mode="r")
     comps = root["components"]
     names = root.attrs.get("component_names", sorted(comps.array_keys()))
@@ -81,16 +95,10 @@ def write_detection(path: str | Path, name: str, counts: np.ndarray, attrs: dict
     Raises:
         FileNotFoundError: no result store at ``path``.
     """
-    path = Path(path)
-    if (path / RESULT_NAME).exists():
-        path = path / RESULT_NAME
-    if not (path / "zarr.json").exists():
-        raise FileNotFoundError(f"no datagen result store at {path}")
+    path = _existing_store(path)
     root = zarr.open_group(str(path), mode="a")
     group = root.require_group("detections").require_group(name)
     group.create_array("counts", data=np.asarray(counts, dtype=np.int64), overwrite=True)
     group.attrs.update(_jsonable(attrs))
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
-        zarr.consolidate_metadata(str(path))
+    _consolidate(path)
     return path
