@@ -118,10 +118,6 @@ class MaterialTable:
             f[sel] = rho[sel] * ((1.0 - ks) / np.pi + ks * lobe)
         return np.where((cos_in > 0) & (cos_out > 0), f, 0.0)
 
-    def lambertian_value(self, object_ids: np.ndarray) -> np.ndarray:
-        """ρ/π for each object id, (n,) float64 (valid only where ``self.lambertian``)."""
-        return self.albedo[object_ids] / np.pi
-
 
 def _broadcast(ids, normals, w_in, w_out):
     ids = np.asarray(ids)

@@ -83,6 +83,7 @@ def detect(result_path, detector_file, exposure, seed):
     import yaml
 
     from . import spad
+    from .simulate import STREAM_NOISE, stream_rng
     from .store import read_result, write_detection
     from .units import parse_duration
 
@@ -102,7 +103,7 @@ def detect(result_path, detector_file, exposure, seed):
     # the detector's TDC bins: the envelope (bins hold integrals) is re-binned onto them over the same window
     n_bins = int(round((result.time_edges[-1] - config.t_start) / config.bin_width))
     envelope = spad.rebin_envelope(result.envelope, result.time_edges, config.bin_edges(n_bins))
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
+    rng = stream_rng(seed, STREAM_NOISE)
     counts = spad.sample_histogram(spad.rates_from_envelope(envelope, config), config, rng)
     name = Path(detector_file).stem
     path = write_detection(result_path, name, counts, {"detector": config.model_dump(mode="json"),

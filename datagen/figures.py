@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree  # noqa: E402
 
 from .sampling import Lookins, observe  # noqa: E402
 from .scene import ROOM_LABELS, Scene  # noqa: E402
-from .simulate import STREAM_SAMPLING, SimulationConfig  # noqa: E402
+from .simulate import STREAM_SAMPLING, SimulationConfig, stream_rng  # noqa: E402
 from .transport import FOV_PLANE_TOL, Transport  # noqa: E402
 
 MAX_DRAWN_POINTS = 1_000_000
@@ -204,10 +204,10 @@ def laser_energy(scene: Scene, config: SimulationConfig, transport: Transport | 
     Args:
         scene, config: the scene and its sampling (lookins, pixels, lookin_pdf, jitter, seed).
         transport: reuse a transport built on ``scene`` (default: a new one).
-        rng: sampling generator (default ``np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(STREAM_SAMPLING,)))``).
+        rng: sampling generator (default ``stream_rng(config.seed, STREAM_SAMPLING)``).
     """
     t = transport or Transport(scene, config.transport_settings())
-    rng = rng if rng is not None else np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(STREAM_SAMPLING,)))
+    rng = rng if rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     s, c = t.settings, t.capture
     jitter_rng = rng if s.jitter else None
     look = t.lookins(jitter_rng)
@@ -650,7 +650,7 @@ def write_sampling_figures(scene: Scene, config: SimulationConfig, out_dir: Path
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t = Transport(scene, config.transport_settings())
-    rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(STREAM_SAMPLING,)))
+    rng = stream_rng(config.seed, STREAM_SAMPLING)
     data = laser_energy(scene, config, t, rng)
     paths = [plot_laser_energy(scene, data, t, out_dir / "fig3_laser_energy.png", rng)]
     look = data.lookins

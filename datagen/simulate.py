@@ -26,6 +26,11 @@ from .transport import Transport, TransportSettings
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
 """spawn_key entries of the random streams (DESIGN.md §7)."""
 
+def stream_rng(seed: int, stream: int) -> np.random.Generator:
+    """Generator of random stream ``stream`` under root ``seed``: SeedSequence(seed, spawn_key=(stream,))."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(stream,)))
+
+
 _GRID = re.compile(r"^\s*(\d+)\s*[x×X]\s*(\d+)\s*$")
 
 
@@ -178,7 +183,7 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     names = scene.component_names() + ["secondary"]
     n_pix = transport.capture.n_pixels
     acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_pix)
-    rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(STREAM_SAMPLING,)))
+    rng = stream_rng(config.seed, STREAM_SAMPLING)
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -198,7 +203,7 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     envelope = per.sum(axis=0).reshape(shape)
     t_bin = time.perf_counter() - t2
     t3 = time.perf_counter()
-    noise_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(STREAM_NOISE,)))
+    noise_rng = stream_rng(config.seed, STREAM_NOISE)
     counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
     t_detect = time.perf_counter() - t3
     st = transport.stats

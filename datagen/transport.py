@@ -35,8 +35,8 @@ independent area quadrature).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Callable, Literal
+from dataclasses import dataclass
+from typing import Callable, Literal, Protocol
 
 import numpy as np
 
@@ -197,14 +197,12 @@ class TransportStats:
     fov_points: int = 0
     lit_points: int = 0
     secondary_pairs: int = 0
-    seconds: dict = field(default_factory=dict)
 
 
-class Sink:
-    """Where transport sends path impulses: anything with ``add(times_s, weights, component_ids)``."""
+class Sink(Protocol):
+    """Where transport sends path impulses (e.g. :class:`datagen.irf.EnvelopeAccumulator`)."""
 
-    def add(self, times: np.ndarray, weights: np.ndarray, component: np.ndarray) -> None:  # pragma: no cover
-        raise NotImplementedError
+    def add(self, times: np.ndarray, weights: np.ndarray, component: np.ndarray) -> None: ...
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
