@@ -908,7 +908,8 @@ def _sample_pile_up_crosstalk(rates: np.ndarray, config: DetectorConfig, rng: np
     (primary or crosstalk) and is then held until the next cycle.  Cascades are followed to a fixed point.
     Cost O(avalanches), so low-flux exposures of 10^6 cycles are cheap."""
     if rates.ndim < 3:
-        raise ValueError(f"crosstalk needs rates of shape (..., H, W, bins), got {rates.shape}")
+        raise ValueError(f"crosstalk_probability > 0 models a pixel array and needs rates of shape (..., H, W, bins), "
+                         f"got {rates.shape}; use a detector without crosstalk for a single-pixel capture")
     h, w, bins = rates.shape[-3:]
     n_pix = h * w
     n = config.cycles
