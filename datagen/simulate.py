@@ -163,13 +163,18 @@ def library_versions() -> dict[str, str]:
     return out
 
 
-def simulate(scene: Scene, config: SimulationConfig | None = None, progress: bool = False) -> Result:
+def simulate(scene: Scene, config: SimulationConfig | None = None, progress: bool = False,
+             sampling_rng: np.random.Generator | None = None,
+             noise_rng: np.random.Generator | None = None) -> Result:
     """Simulate the envelope and a SPAD histogram for ``scene``.
 
     Args:
         scene: the scene (see :func:`datagen.load_scene`).
         config: sampling, time axis, IRF and detector; default: the scene's ``simulation`` block.
         progress: show a tqdm bar over lookins.
+        sampling_rng, noise_rng: the scene-sampling and detector-noise streams; default
+            ``stream_rng(config.seed, STREAM_SAMPLING)`` and ``stream_rng(config.seed, STREAM_NOISE)``. Dataset
+            builds pass streams keyed by (dataset seed, split, index, stream) (DESIGN.md §7).
     Returns:
         :class:`Result`.
     Raises:
@@ -183,7 +188,7 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     names = scene.component_names() + ["secondary"]
     n_pix = transport.capture.n_pixels
     acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_pix)
-    rng = stream_rng(config.seed, STREAM_SAMPLING)
+    rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -203,7 +208,7 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     envelope = per.sum(axis=0).reshape(shape)
     t_bin = time.perf_counter() - t2
     t3 = time.perf_counter()
-    noise_rng = stream_rng(config.seed, STREAM_NOISE)
+    noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
     counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
     t_detect = time.perf_counter() - t3
     st = transport.stats
