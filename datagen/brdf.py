@@ -119,6 +119,51 @@ class MaterialTable:
         return np.where((cos_in > 0) & (cos_out > 0), f, 0.0)
 
 
+    # -- separable split (used by the exact factorised secondary, DESIGN.md §3) ---------------------------
+
+    def separable_scale(self, object_ids: np.ndarray) -> np.ndarray:
+        """c in the split f(ω_i, ω_o) = c·g(ω_i)·g(ω_o) + lobe(ω_i, ω_o), per object id (1/sr).
+
+        Lambertian: c = ρ/π, g = 1, no lobe. sin θ: c = ρ/2, g = |sin azimuth|, no lobe (the lobe is a
+        product of an incoming and an outgoing factor). Phong: c = (1 − k_s)ρ/π, g = 1, lobe = ρ·k_s·(n+2)/(2π)
+        ·cos^n α (not separable: summed pairwise).
+        """
+        ids = np.asarray(object_ids)
+        kind, rho = self.kind[ids], self.albedo[ids]
+        return np.where(kind == SIN_THETA, 0.5 * rho,
+                        np.where(kind == PHONG, (1.0 - self.specular[ids]) * rho / np.pi, rho / np.pi))
+
+    def separable_factor(self, object_ids: np.ndarray, normals: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """g(ω) of :meth:`separable_scale`'s split, (...,) for (..., 3) directions away from the surface."""
+        object_ids, normals, w, _ = _broadcast(object_ids, normals, w, w)
+        g = (np.einsum("...k,...k->...", normals, w) > 0).astype(np.float64)
+        sel = self.kind[object_ids] == SIN_THETA
+        if np.any(sel):
+            g[sel] *= _abs_sin_azimuth(normals[sel], self.axis[object_ids[sel]], w[sel])
+        return g
+
+    def has_lobe(self, object_ids: np.ndarray) -> np.ndarray:
+        """True where the material has a non-separable lobe (Phong with k_s > 0)."""
+        ids = np.asarray(object_ids)
+        return (self.kind[ids] == PHONG) & (self.specular[ids] > 0)
+
+    def lobe(self, object_ids: np.ndarray, normals: np.ndarray, w_in: np.ndarray,
+             w_out: np.ndarray) -> np.ndarray:
+        """The non-separable part of f (Phong glossy lobe; 0 for other kinds), broadcasting like evaluate."""
+        object_ids, normals, w_in, w_out = _broadcast(object_ids, normals, w_in, w_out)
+        cos_in = np.einsum("...k,...k->...", normals, w_in)
+        cos_out = np.einsum("...k,...k->...", normals, w_out)
+        out = np.zeros(object_ids.shape, dtype=np.float64)
+        sel = self.has_lobe(object_ids) & (cos_in > 0) & (cos_out > 0)
+        if np.any(sel):
+            ids = object_ids[sel]
+            mirror = 2.0 * cos_in[sel][..., None] * normals[sel] - w_in[sel]
+            cos_alpha = np.clip(np.einsum("...k,...k->...", mirror, w_out[sel]), 0.0, 1.0)
+            expo = self.exponent[ids]
+            out[sel] = self.albedo[ids] * self.specular[ids] * (expo + 2.0) / (2.0 * np.pi) * cos_alpha ** expo
+        return out
+
+
 def _broadcast(ids, normals, w_in, w_out):
     ids = np.asarray(ids)
     shape = np.broadcast_shapes(ids.shape, normals.shape[:-1], w_in.shape[:-1], w_out.shape[:-1])

@@ -22,6 +22,13 @@ Method (DESIGN.md §5), used by :class:`EnvelopeAccumulator`:
    F((n-1/2)delta)`` (FFT, overlap-add), giving the exact integral of the envelope over each fine cell for
    impulses sitting on nodes; ``oversample`` consecutive cells are summed into one output bin.
 
+3. Narrow IRF (its whole support, ``MARGIN_SIGMAS * sigma`` before and after, within one bin: sigma <=
+   bin_width / 8.5, e.g. 0.1 ps against 20 ps bins). A fine grid would need ``oversample >= 34`` nodes per
+   bin (memory and FFT cost growing as bin_width / sigma). Instead each impulse puts its *exact* bin
+   integrals into the bin ``b`` that contains it and its two neighbours: ``w*F(e_b - tau)`` into ``b-1``,
+   ``w*P(X >= e_{b+1} - tau)`` into ``b+1`` and the rest into ``b`` ("direct" mode, two CDF evaluations
+   per impulse, no splatting error, memory O(n_components * n_bins)).
+
 Cost is O(paths + fine_nodes * log(kernel)) in time and O(n_components * fine_nodes) in memory, independent
 of the number of paths. :func:`bin_impulses` is the exact per-impulse reference (O(paths * bins)).
 
@@ -83,6 +90,10 @@ _DIRECT_KERNEL_MAX = 32
 
 _REFERENCE_BLOCK = 1 << 21
 """Elements (impulses x edges) evaluated at once by bin_impulses."""
+
+_DIRECT_GUARD_BINS = 2
+"""Direct (narrow-IRF) mode: bins kept on each side of the window. An impulse in bin b touches b-1..b+1, so
+impulses in bins -1 and n_bins still deposit into the guards; anything farther out is wholly outside."""
 
 
 def fwhm_to_sigma(fwhm: float) -> float:
@@ -365,6 +376,11 @@ class EnvelopeAccumulator:
     Splatting is linear (cloud-in-cell) between nodes for sigma > 0, nearest-cell for the delta IRF (so an
     impulse lands exactly in the bin that contains it, up to float rounding of the edges).
 
+    Narrow IRFs (``max(irf.support) <= bin_width`` and ``oversample`` not given; see the module doc, point
+    3) use the exact *direct* mode instead (:attr:`direct` is True): then ``oversample == 1``, the "fine"
+    nodes are the bin centres with two guard bins on each side (``n_left == n_right == 2``), the histogram
+    holds exact bin integrals and the kernel is the identity.
+
     Args:
         axis: output time axis.
         irf: instrument response.
@@ -381,8 +397,11 @@ class EnvelopeAccumulator:
     def __init__(self, axis: TimeAxis, irf: Irf, n_components: int, oversample: int | None = None) -> None:
         if isinstance(n_components, bool) or int(n_components) != n_components or n_components < 1:
             raise ValueError(f"n_components must be an integer >= 1, got n_components={n_components!r}")
+        before, after = irf.support
+        # Narrow IRF: exact per-bin deposit instead of an oversample >= 34 fine grid (module doc, point 3).
+        self.direct = oversample is None and not irf.is_delta and max(before, after) <= axis.bin_width
         if oversample is None:
-            oversample = self.default_oversample(axis, irf)
+            oversample = 1 if self.direct else self.default_oversample(axis, irf)
         if isinstance(oversample, bool) or int(oversample) != oversample or oversample < 1:
             raise ValueError(f"oversample must be an integer >= 1, got oversample={oversample!r}")
         self.axis = axis
@@ -390,9 +409,11 @@ class EnvelopeAccumulator:
         self.n_components = int(n_components)
         self.oversample = int(oversample)
         self.fine_step = axis.bin_width / self.oversample
-        before, after = irf.support
-        self.n_left = int(math.ceil(after / self.fine_step))
-        self.n_right = int(math.ceil(before / self.fine_step))
+        if self.direct:
+            self.n_left = self.n_right = _DIRECT_GUARD_BINS
+        else:
+            self.n_left = int(math.ceil(after / self.fine_step))
+            self.n_right = int(math.ceil(before / self.fine_step))
         self.n_cells = axis.n_bins * self.oversample
         self.n_fine = self.n_cells + self.n_left + self.n_right
         if self.n_fine > MAX_FINE_NODES:
@@ -404,8 +425,11 @@ class EnvelopeAccumulator:
                 f"oversample"
             )
         offsets = np.arange(-self.n_right, self.n_left + 1, dtype=np.float64)
-        # Fine-cell-integrated IRF: p[n + n_right] = P((n - 1/2) delta <= X < (n + 1/2) delta).
-        self._kernel = irf.interval_mass((offsets - 0.5) * self.fine_step, (offsets + 0.5) * self.fine_step)
+        if self.direct:  # the histogram already holds bin integrals
+            self._kernel = (offsets == 0).astype(np.float64)
+        else:
+            # Fine-cell-integrated IRF: p[n + n_right] = P((n - 1/2) delta <= X < (n + 1/2) delta).
+            self._kernel = irf.interval_mass((offsets - 0.5) * self.fine_step, (offsets + 0.5) * self.fine_step)
         self._hist = np.zeros((self.n_components, self.n_fine), dtype=np.float64)
         self._total = np.zeros(self.n_components, dtype=np.float64)
         self._beyond = np.zeros(self.n_components, dtype=np.float64)
@@ -487,8 +511,31 @@ class EnvelopeAccumulator:
             return sums
         return np.bincount(c, weights=w, minlength=self.n_components)
 
+    def _splat_direct(self, flat: np.ndarray, t: np.ndarray, w: np.ndarray, c: int | np.ndarray) -> None:
+        """Direct mode: exact bin integrals into the containing bin b and its neighbours (module doc, 3)."""
+        t0, width = self.axis.t_start, self.axis.bin_width
+        with np.errstate(over="ignore", invalid="ignore"):
+            b = np.floor((t - t0) / width)
+        inside = (b >= -1) & (b <= self.axis.n_bins)
+        if not inside.all():
+            out = ~inside
+            self._beyond += self._component_sums(w[out], c if isinstance(c, int) else c[out])
+            t, w, b = t[inside], w[inside], b[inside]
+            if not isinstance(c, int):
+                c = c[inside]
+        # Same edge formula as TimeAxis.edges, so a rounded floor() is corrected by the CDFs themselves.
+        left = w * self.irf.cdf(t0 + b * width - t)              # X < e_b - tau: bin b-1
+        right = w * self.irf.sf(t0 + (b + 1.0) * width - t)      # X >= e_{b+1} - tau: bin b+1
+        idx = c * self.n_fine + b.astype(np.int64) + self.n_left
+        np.add.at(flat, idx - 1, left)
+        np.add.at(flat, idx, w - left - right)
+        np.add.at(flat, idx + 1, right)
+
     def _splat(self, flat: np.ndarray, t: np.ndarray, w: np.ndarray, c: int | np.ndarray) -> None:
         self._total += self._component_sums(w, c)
+        if self.direct:
+            self._splat_direct(flat, t, w, c)
+            return
         # Fractional node coordinate: node g is at t_start + (g - n_left + 1/2) * fine_step.
         with np.errstate(over="ignore"):  # absurdly distant times overflow to +-inf: simply "beyond"
             x = (t - self.axis.t_start) / self.fine_step + (self.n_left - 0.5)
@@ -517,12 +564,35 @@ class EnvelopeAccumulator:
         np.add.at(flat, idx, w_left)
         np.add.at(flat, idx + 1, w_right)
 
+    def spawn(self) -> "EnvelopeAccumulator":
+        """An empty accumulator on the same axis, IRF, components and fine grid (a partial sum)."""
+        return EnvelopeAccumulator(self.axis, self.irf, self.n_components, None if self.direct else self.oversample)
+
+    def merge(self, other: "EnvelopeAccumulator") -> None:
+        """Add a partial accumulator from :meth:`spawn` (same grid) into this one.
+
+        Raises:
+            ValueError: the grids differ.
+        """
+        if (other._hist.shape != self._hist.shape or other.fine_step != self.fine_step
+                or other.direct != self.direct):
+            raise ValueError(f"cannot merge accumulators with different grids: {other._hist.shape} vs "
+                             f"{self._hist.shape}")
+        self._binned = None
+        self._hist += other._hist
+        self._total += other._total
+        self._beyond += other._beyond
+
     def total_weight(self) -> np.ndarray:
         """Everything added per component (inside the window or not), shape (n_components,), float64 photons."""
         return self._total.copy()
 
     def fine_histogram(self) -> np.ndarray:
-        """Copy of the splatted fine histogram, shape (n_components, n_fine), float64 photons per node."""
+        """Copy of the splatted fine histogram, shape (n_components, n_fine), float64 photons per node.
+
+        In direct mode (narrow IRF) the nodes are the bin centres (2 guard bins each side) and each holds the
+        exact integral of the envelope over its bin.
+        """
         return self._hist.copy()
 
     def binned(self) -> np.ndarray:
@@ -569,6 +639,8 @@ class EnvelopeAccumulator:
         total_weight()`` up to float round-off and the IRF mass beyond its support (< 1e-15 relative).
         """
         result = self._beyond.copy()
+        if self.direct:  # guard bins hold exact out-of-window bin integrals
+            return result + self._hist[:, : self.n_left].sum(1) + self._hist[:, self.n_left + self.n_cells :].sum(1)
         for k in range(self.n_components):
             nz = np.flatnonzero(self._hist[k])
             for start in range(0, nz.size, _CHUNK * 4):

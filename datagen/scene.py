@@ -144,14 +144,15 @@ class FieldOfView(BaseModel):
 class Sensor(BaseModel):
     """SPAD sensor: position, circular collection aperture (radius, m), field of view on the relay wall.
 
-    The aperture faces the FoV centre; its area πr² enters the envelope (DESIGN.md §2, A_ap).
+    The aperture faces the FoV centre; its area πr² enters the envelope (DESIGN.md §2, A_ap). ``fov`` may be
+    omitted when the scene has a ``capture`` block with a sensor or laser grid.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     position: Vec3 = (0.0, 0.0, 1.0)
     aperture_radius: float = Field(0.02, gt=0)
-    fov: FieldOfView
+    fov: FieldOfView | None = None
 
     @field_validator("aperture_radius", mode="before")
     @classmethod
@@ -161,6 +162,65 @@ class Sensor(BaseModel):
     @property
     def aperture_area(self) -> float:
         return float(np.pi * self.aperture_radius ** 2)
+
+
+class WallGrid(BaseModel):
+    """A grid of nx×ny points on the relay wall: cell centres of a w×h rectangle around ``center``.
+
+    Point (iy, ix) sits at center + ((ix+½)/nx − ½)·w·u + ((iy+½)/ny − ½)·h·v with u the wall's horizontal
+    tangent (n × z normalised) and v = u × n, as for :class:`FieldOfView`.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    center: Vec3
+    size: tuple[float, float]
+    points: tuple[int, int] = (1, 1)
+
+    @field_validator("size")
+    @classmethod
+    def _nonnegative(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not (np.all(np.isfinite(v)) and min(v) >= 0):
+            raise ValueError(f"both sizes must be >= 0, got {list(v)}")
+        return v
+
+    @field_validator("points")
+    @classmethod
+    def _points(cls, v: tuple[int, int]) -> tuple[int, int]:
+        if min(v) < 1:
+            raise ValueError(f"point counts must be >= 1, got {list(v)}")
+        return v
+
+
+class CaptureSpec(BaseModel):
+    """Scan pattern over the relay wall (the tal capture types) and the sensor convention.
+
+    - ``single``: one laser spot (``laser.spot``) and a sensor grid (``sensor_grid``, or ``sensor.fov``).
+    - ``confocal``: the laser visits each point of ``laser_grid`` and the sensor looks at that same point.
+    - ``exhaustive``: every laser point of ``laser_grid`` × every sensor point of ``sensor_grid``.
+
+    Conventions: ``aperture`` (default): each sensor point is the centre of a pixel region (cell of the grid)
+    imaged through the aperture; the envelope is expected detected photons per pulse per bin (DESIGN.md §2).
+    ``point_radiance`` (tal / mitransient): radiance leaving the wall point toward ``sensor.position`` per
+    unit power delivered to the laser spot, per bin, in 1/(m²·sr); no PDE, aperture or sensor visibility.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    type: Literal["single", "confocal", "exhaustive"] = "single"
+    convention: Literal["aperture", "point_radiance"] = "aperture"
+    laser_grid: WallGrid | None = None
+    sensor_grid: WallGrid | None = None
+
+    @model_validator(mode="after")
+    def _grids(self) -> "CaptureSpec":
+        if self.type in ("confocal", "exhaustive") and self.laser_grid is None:
+            raise ValueError(f"capture type {self.type!r} needs a laser_grid")
+        if self.type == "confocal" and self.sensor_grid is not None:
+            raise ValueError("confocal captures use laser_grid for the sensor points too; drop sensor_grid")
+        if self.type == "single" and self.laser_grid is not None:
+            raise ValueError("single captures use laser.spot; laser_grid needs type confocal or exhaustive")
+        return self
 
 
 @dataclass
@@ -180,6 +240,7 @@ class Scene:
     name: str = "scene"
     source: str | None = None
     defaults: dict = field(default_factory=dict)
+    capture: CaptureSpec | None = None
 
     def __post_init__(self):
         names = [o.name for o in self.objects]
@@ -188,6 +249,12 @@ class Scene:
             raise SceneError(f"{self._where()}object names must be unique; repeated: {sorted(dup)}")
         if not self.objects:
             raise SceneError(f"{self._where()}a scene needs at least one object")
+        cap = self.capture
+        needs_fov = cap is None or (cap.type == "single" and cap.sensor_grid is None) or (
+            cap.type == "exhaustive" and cap.sensor_grid is None)
+        if needs_fov and self.sensor.fov is None:
+            raise SceneError(f"{self._where()}sensor.fov is required unless capture gives a sensor_grid "
+                             f"(or is confocal)")
 
     def _where(self) -> str:
         return f"{self.source}: " if self.source else ""
@@ -467,6 +534,7 @@ class SceneFile(_Spec):
     objects: list[ObjectSpec]
     laser: Laser
     sensor: Sensor
+    capture: CaptureSpec | None = None
     simulation: dict = {}
 
 
@@ -499,7 +567,7 @@ def scene_from_dict(data: dict, source: str | None = None, base: Path | None = N
             objects.extend(obj.build(base) if isinstance(obj, MeshSpec) else obj.build())
         except SceneError as exc:
             raise SceneError(f"{source + ': ' if source else ''}objects.{i}: {exc}") from None
-    return Scene(objects, spec.laser, spec.sensor, spec.name, source, spec.simulation)
+    return Scene(objects, spec.laser, spec.sensor, spec.name, source, spec.simulation, spec.capture)
 
 
 def load_scene(path: str | Path) -> Scene:

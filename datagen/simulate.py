@@ -23,6 +23,9 @@ from .raycast import RayCaster
 from .scene import Scene, SceneError, format_validation_error
 from .transport import Transport, TransportSettings
 
+EFFECTS = ("shadow_spot", "shadow_sensor", "secondary", "brdf_angles", "attenuation", "first_bounce", "pile_up")
+"""Effects the planner decides (datagen.planner); each can be forced on or off in ``SimulationConfig.effects``."""
+
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
 """spawn_key entries of the random streams (DESIGN.md §7)."""
 
@@ -59,7 +62,14 @@ class SimulationConfig(BaseModel):
         lookins, pixels: lookin grid √N×√N and camera l×p ("10x10", "60x60" are the paper's).
         lookin_pdf: hemisphere sampling at the spot ("cosine" or "uniform").
         jitter: stratified jitter of lookin rays and camera pixels (False: the paper's regular grids).
-        secondary: "none", "optimized" (paper §4, strongest ``top_k`` per lookin and FoV point) or "full".
+        secondary: "none", "optimized" (paper §4, strongest ``top_k`` per lookin and FoV point), "full"
+            (every pair, O(Ñ²) per lookin) or "exact" (the same sum factorised, O(Ñ) per lookin, DESIGN.md §3).
+        sensor_sampling: "camera" (the paper: FoV points from the lookin cameras) or "connect" (next-event
+            connections to ``connect_samples`` stratified points per sensor pixel; forced for point radiance).
+        conv_refine: the exact secondary's profile grid is this many times finer than the envelope's grid.
+        workers: processes sharing the lookins (1 = in process; the result does not depend on it).
+        tolerance: relative accuracy the effect planner works to (effects below it are skipped).
+        effects: per effect "auto" (the planner decides) or true/false (forced); see datagen.planner.
         seed: root of every random stream.
         time: output time axis (t_start, bin_width, n_bins); irf: Gaussian IRF (fwhm or sigma).
         attenuation: atmospheric extinction μ in 1/m (C_atm = e^{−μR}).
@@ -75,8 +85,14 @@ class SimulationConfig(BaseModel):
     pixels: tuple[int, int] = (60, 60)
     lookin_pdf: Literal["cosine", "uniform"] = "cosine"
     jitter: bool = True
-    secondary: Literal["none", "optimized", "full"] = "full"
+    secondary: Literal["none", "optimized", "full", "exact"] = "full"
     top_k: int = Field(1, ge=1)
+    sensor_sampling: Literal["camera", "connect"] = "camera"
+    connect_samples: tuple[int, int] = (4, 4)
+    conv_refine: int = Field(1, ge=1, le=64)
+    workers: int = Field(1, ge=1)
+    tolerance: float = Field(0.01, gt=0, lt=1)
+    effects: dict[str, bool | Literal["auto"]] = Field(default_factory=dict)
     seed: int = Field(0, ge=0)
     time: TimeAxis = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=5000)
     irf: Irf = Irf(fwhm=600e-12)
@@ -86,7 +102,15 @@ class SimulationConfig(BaseModel):
     detector: dict = Field(default_factory=dict)
     batch: int = Field(32, ge=1)
 
-    @field_validator("lookins", "pixels", mode="before")
+    @field_validator("effects")
+    @classmethod
+    def _effects(cls, value: dict) -> dict:
+        unknown = sorted(set(value) - set(EFFECTS))
+        if unknown:
+            raise ValueError(f"unknown effect(s) {unknown}; known: {list(EFFECTS)}")
+        return value
+
+    @field_validator("lookins", "pixels", "connect_samples", mode="before")
     @classmethod
     def _grid(cls, value: Any, info) -> tuple[int, int]:
         return parse_grid(value, info.field_name)
@@ -97,11 +121,19 @@ class SimulationConfig(BaseModel):
         return spad.DetectorConfig.model_validate(data)
 
     def transport_settings(self) -> TransportSettings:
+        forced = {k: v for k, v in self.effects.items() if isinstance(v, bool)}
+        secondary = self.secondary if forced.get("secondary", True) else "none"
+        attenuation = self.attenuation if forced.get("attenuation", True) else 0.0
         return TransportSettings(lookins=self.lookins, pixels=self.pixels, lookin_pdf=self.lookin_pdf,
-                                 jitter=self.jitter, secondary=self.secondary, top_k=self.top_k,
-                                 attenuation=self.attenuation, pde=self.detector_config().pde,
+                                 jitter=self.jitter, secondary=secondary, top_k=self.top_k,
+                                 sensor_sampling=self.sensor_sampling, connect_samples=self.connect_samples,
+                                 attenuation=attenuation, pde=self.detector_config().pde,
                                  count_laser_leg=self.count_laser_leg, count_sensor_leg=self.count_sensor_leg,
-                                 batch=self.batch)
+                                 shadow_spot=forced.get("shadow_spot", True),
+                                 shadow_sensor=forced.get("shadow_sensor", True),
+                                 first_bounce=forced.get("first_bounce", False),
+                                 brdf_angles=forced.get("brdf_angles", True),
+                                 conv_refine=self.conv_refine, batch=self.batch, workers=self.workers)
 
 
 def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationConfig:
@@ -126,10 +158,15 @@ class Result:
 
     Attributes:
         time_edges: (n_bins+1,) float64 seconds.
-        envelope: (n_bins,) float64 expected detected photons per pulse per bin (pixel arrays: (ny, nx, n_bins)).
+        envelope: float64 expected detected photons per pulse per bin (point radiance: 1/(m²·sr) per unit
+            power at the spot, per bin), shaped ``channel_shape + (n_bins,)``: (n_bins,) for the paper's
+            single-pixel FoV, (ny, nx, n_bins) for a sensor grid / SPAD array / confocal scan, (ly, lx, ny,
+            nx, n_bins) for an exhaustive scan.
         components: name → array shaped like ``envelope``; they sum to ``envelope``.
         counts: int64 SPAD histogram over the exposure, shaped like ``envelope``.
-        attrs: JSON-able metadata (resolved config, effects, timings, versions, statistics).
+        attrs: JSON-able metadata (resolved config, capture, effect plan, timings, versions, statistics).
+        laser_points: (ly, lx, 3) float64 laser points on the relay wall (m); sensor_points: (ny, nx, 3);
+        wall_normal: (3,) relay-wall normal facing the sensor.
     """
 
     time_edges: np.ndarray
@@ -137,13 +174,16 @@ class Result:
     components: dict[str, np.ndarray]
     counts: np.ndarray
     attrs: dict = field(default_factory=dict)
+    laser_points: np.ndarray | None = None
+    sensor_points: np.ndarray | None = None
+    wall_normal: np.ndarray | None = None
 
     @property
     def time_centers(self) -> np.ndarray:
         return 0.5 * (self.time_edges[1:] + self.time_edges[:-1])
 
     def peak_time(self, name: str | None = None) -> float:
-        """Time (s) of the maximum of the envelope or of a component (single-pixel results)."""
+        """Time (s) of the maximum of the envelope or of a component (summed over channels)."""
         y = self.envelope if name is None else self.components[name]
         return float(self.time_centers[int(np.argmax(y.reshape(-1, y.shape[-1]).sum(0)))])
 
@@ -161,6 +201,20 @@ def library_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             out[pkg] = "not installed"
     return out
+
+
+def _plan(scene: Scene, config: SimulationConfig, transport: Transport) -> dict:
+    """Run the effect planner (datagen.planner) and apply its decisions to the transport settings.
+
+    Returns the plan's attributes (effect → {on, reason, forced}).
+    """
+    try:
+        from .planner import plan_effects
+    except ImportError:          # planner not yet available: forced values only (TODO remove)
+        return {}
+    plan = plan_effects(scene, config, transport.capture, transport.caster)
+    transport.configure(plan.apply(transport.settings))
+    return plan.to_attrs()
 
 
 def simulate(scene: Scene, config: SimulationConfig | None = None, progress: bool = False,
@@ -184,15 +238,20 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     detector = config.detector_config()
     t0 = time.perf_counter()
     transport = Transport(scene, config.transport_settings(), RayCaster(scene))
+    plan = _plan(scene, config, transport)
+    if not plan.get("pile_up", {}).get("on", True) and detector.model != "poisson":
+        detector = detector.model_copy(update={"model": "poisson"})
     t_setup = time.perf_counter() - t0
-    names = scene.component_names() + ["secondary"]
-    n_pix = transport.capture.n_pixels
-    acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_pix)
+    capture = transport.capture
+    names = transport.component_names
+    n_ch = capture.n_channels
+    acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_ch)
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     bar = None
     if progress:
         from tqdm.auto import tqdm
-        bar = tqdm(total=config.lookins[0] * config.lookins[1], unit="lookin", desc="transport", leave=False)
+        total = config.lookins[0] * config.lookins[1] * capture.n_lasers
+        bar = tqdm(total=total, unit="lookin", desc="transport", leave=False)
     t1 = time.perf_counter()
     transport.run(acc, rng, progress=(bar.update if bar is not None else None))
     if bar is not None:
@@ -201,9 +260,8 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     t2 = time.perf_counter()
     binned = acc.binned()
     outside = acc.outside()
-    nx, ny = transport.capture.fov_pixels
-    shape = (config.time.n_bins,) if n_pix == 1 else (ny, nx, config.time.n_bins)
-    per = binned.reshape(len(names), n_pix, -1)
+    shape = capture.channel_shape() + (config.time.n_bins,)
+    per = binned.reshape(len(names), n_ch, -1)
     components = {name: per[i].reshape(shape) for i, name in enumerate(names)}
     envelope = per.sum(axis=0).reshape(shape)
     t_bin = time.perf_counter() - t2
@@ -212,6 +270,7 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
     t_detect = time.perf_counter() - t3
     st = transport.stats
+    settings = transport.settings
     attrs = {
         "scene": scene.name,
         "scene_file": scene.source,
@@ -219,28 +278,39 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
         "detector": detector.model_dump(mode="json"),
         "n_cycles": int(detector.cycles),
         "component_names": names,
-        "units": {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin",
+        "capture": {"type": capture.kind, "convention": capture.convention,
+                    "laser_grid": list(capture.laser_shape), "sensor_grid": list(capture.fov_pixels),
+                    "sensor_grid_size": list(capture.fov_size), "sensor_position": capture.sensor.tolist(),
+                    "emitter_position": capture.emitter.tolist(), "channel_shape": list(capture.channel_shape())},
+        "units": {"time_edges": "s",
+                  "envelope": ("expected detected photons per laser pulse per bin" if capture.convention ==
+                               "aperture" else "radiance toward the sensor per unit power at the laser spot, "
+                               "per bin, 1/(m^2 sr)"),
                   "counts": "detections over the exposure (int64)"},
         "time_zero": "laser pulse at the laser spot" if not config.count_laser_leg else "laser pulse leaves emitter",
-        "photons_per_pulse": transport.capture.photons,
+        "photons_per_pulse": capture.photons,
+        "plan": plan,
         "effects": {
             "primary": True,
-            "secondary": config.secondary,
-            "top_k": config.top_k if config.secondary == "optimized" else None,
-            "occlusion": "all legs (first-hit rays, laser shadow rays, FoV→sensor shadow rays)",
+            "secondary": settings.secondary,
+            "top_k": config.top_k if settings.secondary == "optimized" else None,
+            "sensor_sampling": settings.sensor_sampling,
+            "shadow_rays": {"spot": settings.shadow_spot, "sensor": settings.shadow_sensor},
             "non_lambertian_brdfs": sorted({o.material.kind for o in scene.objects} - {"lambertian"}),
-            "atmospheric_attenuation": config.attenuation > 0,
-            "first_bounce": False,
+            "atmospheric_attenuation": settings.attenuation > 0,
+            "first_bounce": settings.first_bounce,
             "emitter_to_spot_leg_in_time": config.count_laser_leg,
             "fov_to_sensor_leg_in_time": config.count_sensor_leg,
             "detector_model": detector.model,
         },
         "energy_outside_window": {n: float(v) for n, v in zip(names, outside.reshape(len(names), -1).sum(1))},
-        "stats": {"lookins_cast": st.lookins_cast, "lookins_hit": st.lookins_hit,
-                  "observed_points": st.observed_points, "fov_points": st.fov_points,
-                  "lit_points": st.lit_points, "secondary_pairs": st.secondary_pairs},
+        "stats": {k: int(v) for k, v in vars(st).items()},
         "timings_s": {"setup": t_setup, "transport": t_transport, "binning": t_bin, "detector": t_detect,
                       "total": time.perf_counter() - t0},
         "versions": library_versions(),
     }
-    return Result(config.time.edges, envelope, components, counts, attrs)
+    lx, ly = capture.laser_shape
+    nx, ny = capture.fov_pixels
+    return Result(config.time.edges, envelope, components, counts, attrs,
+                  laser_points=capture.spots.reshape(ly, lx, 3), sensor_points=capture.sensor_points(),
+                  wall_normal=capture.fov_normal.copy())

@@ -35,42 +35,53 @@ independent area quadrature).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
 from typing import Callable, Literal, Protocol
 
+import multiprocessing as mp
 import numpy as np
+import scipy.fft
 
 from .brdf import MaterialTable
 from .raycast import RayCaster
-from .sampling import Lookins, ObservedPoints, observe, sample_lookins
+from .sampling import Lookins, ObservedPoints, observe, sample_lookins, stratified_grid
 from .scene import Scene, SceneError
 from .units import SPEED_OF_LIGHT
 
-SecondaryMode = Literal["none", "optimized", "full"]
+SecondaryMode = Literal["none", "optimized", "full", "exact"]
 
 FOV_PLANE_TOL = 10.0
 """A hit lies on the FoV plane when within this many ray offsets of it (hit points are float64 rebuilt
 from float32 barycentrics, accurate to a few offsets)."""
 
+
 @dataclass(frozen=True)
 class Capture:
-    """Resolved capture geometry (all float64, metres).
+    """Resolved capture geometry (all float64, metres): laser points, sensor grid, sensor device.
 
     Attributes:
-        spot, spot_normal: laser spot and relay-wall normal there (facing the hidden scene / sensor side).
-        spot_object: object id the spot lies on.
-        emitter, sensor: positions; emitter_leg: |spot − emitter|.
-        aperture_area: m²; aperture_normal: unit vector from the sensor toward the FoV centre.
-        fov_center, fov_u, fov_v, fov_normal: FoV rectangle frame; fov_size: (width, height);
-        fov_pixels: (nx, ny).
-        photons: Φ, photons per pulse.
+        kind: "single" | "confocal" | "exhaustive" (DESIGN.md §8, tal's scan types).
+        convention: "aperture" (detected photons per pulse) or "point_radiance" (tal / mitransient).
+        spots: (L, 3) laser points; spot_normals: (L, 3) relay-wall normals there (facing the hidden side);
+        spot_objects: (L,) object ids; laser_shape: (lx, ly) grid of the laser points (L = lx·ly).
+        emitter: (3,); emitter_legs: (L,) |spot − emitter|.
+        sensor: (3,) sensor position; aperture_area: m²; aperture_normal: unit vector toward the grid centre.
+        fov_center, fov_u, fov_v, fov_normal: the sensor grid's frame on the relay wall; fov_size: (w, h);
+        fov_pixels: (nx, ny) sensor points (cell centres) / pixel regions (cells).
+        photons: Φ, photons per pulse (1 for point radiance: per unit power at the spot).
+        legacy_single_pixel: the scene used the paper's one-pixel ``sensor.fov`` (envelope shape (T,)).
     """
 
-    spot: np.ndarray
-    spot_normal: np.ndarray
-    spot_object: int
+    kind: str
+    convention: str
+    spots: np.ndarray
+    spot_normals: np.ndarray
+    spot_objects: np.ndarray
+    laser_shape: tuple[int, int]
     emitter: np.ndarray
-    emitter_leg: float
+    emitter_legs: np.ndarray
     sensor: np.ndarray
     aperture_area: float
     aperture_normal: np.ndarray
@@ -81,10 +92,64 @@ class Capture:
     fov_size: tuple[float, float]
     fov_pixels: tuple[int, int]
     photons: float
+    legacy_single_pixel: bool = False
+
+    # -- the first laser point, for single-spot callers (figures, planner) --------------------------------
+    @property
+    def spot(self) -> np.ndarray:
+        return self.spots[0]
+
+    @property
+    def spot_normal(self) -> np.ndarray:
+        return self.spot_normals[0]
+
+    @property
+    def spot_object(self) -> int:
+        return int(self.spot_objects[0])
+
+    @property
+    def emitter_leg(self) -> float:
+        return float(self.emitter_legs[0])
 
     @property
     def n_pixels(self) -> int:
+        """Sensor points (or pixel regions) S."""
         return self.fov_pixels[0] * self.fov_pixels[1]
+
+    @property
+    def n_lasers(self) -> int:
+        return len(self.spots)
+
+    @property
+    def n_channels(self) -> int:
+        """Output channels: S (single, confocal) or L·S (exhaustive)."""
+        return self.n_lasers * self.n_pixels if self.kind == "exhaustive" else self.n_pixels
+
+    def channel(self, laser: int, pixel: np.ndarray) -> np.ndarray:
+        """Output channel of sensor pixel(s) ``pixel`` lit from laser point ``laser`` (−1: not recorded)."""
+        pixel = np.asarray(pixel)
+        if self.kind == "exhaustive":
+            return np.where(pixel >= 0, laser * self.n_pixels + pixel, -1)
+        if self.kind == "confocal":
+            return np.where(pixel == laser, pixel, -1)
+        return pixel
+
+    def channel_shape(self) -> tuple[int, ...]:
+        """Leading shape of the envelope: () legacy single pixel, (ny, nx), or (ly, lx, ny, nx) exhaustive."""
+        if self.legacy_single_pixel:
+            return ()
+        nx, ny = self.fov_pixels
+        if self.kind == "exhaustive":
+            lx, ly = self.laser_shape
+            return (ly, lx, ny, nx)
+        return (ny, nx)
+
+    def sensor_points(self) -> np.ndarray:
+        """(ny, nx, 3) sensor points: cell centres of the sensor grid."""
+        nx, ny = self.fov_pixels
+        a = ((np.arange(nx) + 0.5) / nx - 0.5) * self.fov_size[0]
+        b = ((np.arange(ny) + 0.5) / ny - 0.5) * self.fov_size[1]
+        return self.fov_center + b[:, None, None] * self.fov_v + a[None, :, None] * self.fov_u
 
     def fov_pixel(self, points: np.ndarray, tol: float) -> np.ndarray:
         """Sensor pixel index (row-major over (v, u)) of each point, −1 outside the FoV. (..., 3) → (...,)."""
@@ -108,53 +173,97 @@ def _on_surface(caster: RayCaster, point: np.ndarray, direction: np.ndarray, tol
     return bool(probe.hit[0] and probe.distance[0] <= 4 * tol)
 
 
-def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
-    """Find the laser spot's surface and normal, and check the FoV sees a surface.
+def _wall_frame(caster: RayCaster, sensor: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(u, v, n) of the relay wall around ``center`` as the sensor sees it (n facing the sensor)."""
+    hit_c = caster.intersect(sensor[None], _unit(center - sensor)[None])
+    normal = hit_c.normals[0] if hit_c.hit[0] else _unit(sensor - center)
+    u = np.cross(normal, np.array([0.0, 0.0, 1.0]))
+    u = _unit(np.cross(normal, np.array([0.0, 1.0, 0.0]))) if np.linalg.norm(u) < 1e-9 else _unit(u)
+    return u, np.cross(u, normal), normal
 
-    Raises:
-        SceneError: the laser spot is off every surface or hidden from the emitter; the FoV rectangle
-            sees no surface from the sensor; the sensor is behind the relay wall.
-    """
-    where = f"{scene.source}: " if scene.source else ""
-    emitter = np.asarray(scene.laser.emitter, dtype=np.float64)
-    spot = np.asarray(scene.laser.spot, dtype=np.float64)
+
+def _grid_points(center, size, points, u, v) -> np.ndarray:
+    nx, ny = points
+    a = ((np.arange(nx) + 0.5) / nx - 0.5) * size[0]
+    b = ((np.arange(ny) + 0.5) / ny - 0.5) * size[1]
+    return (np.asarray(center, float) + b[:, None, None] * v + a[None, :, None] * u).reshape(-1, 3)
+
+
+def _resolve_spot(caster: RayCaster, names: list[str], emitter: np.ndarray, spot: np.ndarray, where: str,
+                  field: str) -> tuple[np.ndarray, int, float]:
+    """Normal, object id and emitter leg of a laser point; SceneError when it is off every surface."""
     leg = float(np.linalg.norm(spot - emitter))
     if leg == 0:
-        raise SceneError(f"{where}laser.spot equals laser.emitter {spot.tolist()}")
+        raise SceneError(f"{where}{field} equals laser.emitter {spot.tolist()}")
     hits = caster.intersect(emitter[None], _unit(spot - emitter)[None])
     tol = FOV_PLANE_TOL * caster.offset
     if not hits.hit[0] or hits.distance[0] < leg - tol:
         if hits.hit[0] and _on_surface(caster, spot, _unit(spot - emitter), tol):
-            blocker = scene.objects[hits.object_id[0]].name
-            raise SceneError(f"{where}laser.spot {spot.tolist()} is hidden from the emitter: the beam hits "
-                             f"object {blocker!r} at {np.round(hits.points[0], 4).tolist()} first")
-        raise SceneError(f"{where}laser.spot {spot.tolist()} is off every surface (no surface there along "
+            raise SceneError(f"{where}{field} {spot.tolist()} is hidden from the emitter: the beam hits "
+                             f"object {names[hits.object_id[0]]!r} at "
+                             f"{np.round(hits.points[0], 4).tolist()} first")
+        raise SceneError(f"{where}{field} {spot.tolist()} is off every surface (no surface there along "
                          f"the beam from the emitter {emitter.tolist()})")
     if hits.distance[0] > leg + tol:
-        raise SceneError(f"{where}laser.spot {spot.tolist()} is off every surface (the beam from the emitter "
+        raise SceneError(f"{where}{field} {spot.tolist()} is off every surface (the beam from the emitter "
                          f"first hits {np.round(hits.points[0], 4).tolist()})")
-    spot_normal = hits.normals[0]
-    spot_object = int(hits.object_id[0])
+    return hits.normals[0], int(hits.object_id[0]), leg
 
+
+def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
+    """Find the laser points' surfaces and normals, set up the sensor grid, check the sensor sees it.
+
+    Raises:
+        SceneError: a laser point off every surface or hidden from the emitter; the sensor grid sees no
+            surface from the sensor.
+    """
+    where = f"{scene.source}: " if scene.source else ""
+    emitter = np.asarray(scene.laser.emitter, dtype=np.float64)
     sensor = np.asarray(scene.sensor.position, dtype=np.float64)
-    fov = scene.sensor.fov
-    center = np.asarray(fov.center, dtype=np.float64)
-    hit_c = caster.intersect(sensor[None], _unit(center - sensor)[None])
-    normal = hit_c.normals[0] if hit_c.hit[0] else _unit(sensor - center)
-    up = np.array([0.0, 0.0, 1.0])
-    u = np.cross(normal, up)
-    u = _unit(np.cross(normal, np.array([0.0, 1.0, 0.0]))) if np.linalg.norm(u) < 1e-9 else _unit(u)
-    v = np.cross(u, normal)
-    capture = Capture(spot, spot_normal, spot_object, emitter, leg, sensor, scene.sensor.aperture_area,
-                      _unit(center - sensor), center, u, v, normal, fov.size, fov.pixels, scene.laser.photons)
-    # Probe the FoV from the sensor on a grid: some of it must be a surface the sensor sees.
+    cap = scene.capture
+    kind = cap.type if cap else "single"
+    convention = cap.convention if cap else "aperture"
+    if cap is not None and cap.type == "confocal":
+        grid, grid_field = cap.laser_grid, "capture.laser_grid"
+    elif cap is not None and cap.sensor_grid is not None:
+        grid, grid_field = cap.sensor_grid, "capture.sensor_grid"
+    else:
+        fov = scene.sensor.fov
+        grid, grid_field = fov, "sensor.fov"
+    center = np.asarray(grid.center, dtype=np.float64)
+    size = tuple(float(x) for x in grid.size)
+    pixels = tuple(grid.pixels) if grid_field == "sensor.fov" else tuple(grid.points)
+    if convention == "aperture" and min(size) <= 0:
+        raise SceneError(f"{where}{grid_field}.size must be > 0 for the aperture convention (pixel regions), "
+                         f"got {list(size)}")
+    u, v, normal = _wall_frame(caster, sensor, center)
+    if cap is None or cap.type == "single":
+        spots = np.asarray(scene.laser.spot, dtype=np.float64)[None]
+        laser_shape, fields = (1, 1), ["laser.spot"]
+    else:
+        lg = cap.laser_grid
+        lu, lv, _ = _wall_frame(caster, sensor, np.asarray(lg.center, float))
+        spots = _grid_points(lg.center, lg.size, lg.points, lu, lv)
+        laser_shape = tuple(lg.points)
+        fields = [f"capture.laser_grid point {i}" for i in range(len(spots))]
+    names = [o.name for o in scene.objects]
+    resolved = [_resolve_spot(caster, names, emitter, p, where, f) for p, f in zip(spots, fields)]
+    photons = 1.0 if convention == "point_radiance" else scene.laser.photons
+    capture = Capture(kind, convention, spots, np.array([r[0] for r in resolved]),
+                      np.array([r[1] for r in resolved], dtype=np.int64), laser_shape, emitter,
+                      np.array([r[2] for r in resolved]), sensor, scene.sensor.aperture_area,
+                      _unit(center - sensor), center, u, v, normal, size, pixels, photons,
+                      legacy_single_pixel=(cap is None and pixels == (1, 1)))
+    # Probe the sensor grid from the sensor: some of it must be a surface the sensor sees.
+    tol = FOV_PLANE_TOL * caster.offset
     g = (np.arange(9) + 0.5) / 9 - 0.5
-    gu, gv = np.meshgrid(g * fov.size[0], g * fov.size[1])
-    targets = center + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * v
+    gu, gv = np.meshgrid(g * size[0], g * size[1])
+    targets = np.concatenate([center + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * v,
+                              capture.sensor_points().reshape(-1, 3)])
     probe = caster.intersect(np.broadcast_to(sensor, targets.shape), _unit(targets - sensor))
-    seen = probe.hit & (capture.fov_pixel(np.nan_to_num(probe.points), tol) >= 0)
-    if not seen.any():
-        raise SceneError(f"{where}sensor.fov (center {center.tolist()}, size {list(fov.size)}) sees no surface "
+    on_wall = probe.hit & (np.abs(_dot(np.nan_to_num(probe.points) - center, normal)) <= tol)
+    if not on_wall.any():
+        raise SceneError(f"{where}{grid_field} (center {center.tolist()}, size {list(size)}) sees no surface "
                          f"from the sensor at {sensor.tolist()}")
     return capture
 
@@ -167,11 +276,23 @@ class TransportSettings:
         lookins: (n_u, n_v) lookin grid; pixels: (l, p) camera resolution.
         lookin_pdf: "cosine" or "uniform" hemisphere sampling at the spot.
         jitter: stratified jitter (True) or cell centres (False).
-        secondary: "none" | "optimized" | "full"; top_k: kept k' per (lookin, FoV point) when optimized.
+        secondary: "none" | "optimized" | "full" | "exact"; top_k: kept k' per (lookin, FoV point) when
+            optimized.
+        sensor_sampling: "camera" (the paper: FoV points are the lookin cameras' observed points) or
+            "connect" (next-event connection from each lookin to ``connect_samples`` stratified points per
+            sensor pixel region, or to each sensor point for point radiance).
+        connect_samples: (n_u, n_v) stratified points per pixel region for ``connect``.
         attenuation: μ in 1/m (0 = none).
         pde: q, detection efficiency applied to every detected photon.
         count_laser_leg / count_sensor_leg: include emitter→spot / FoV→sensor in the time of flight.
-        batch: lookins processed together (bounds memory).
+        shadow_spot: shadow rays from observed points to the laser spot (which points the laser lights).
+        shadow_sensor: shadow rays from FoV points to the sensor.
+        first_bounce: add the direct laser spot → sensor return when the spot lies in a sensor pixel.
+        brdf_angles: evaluate every BRDF in full (False: Lambertian materials take the constant ρ/π path).
+        conv_refine: the exact secondary bins its time profiles this many times finer than the envelope's
+            fine grid before convolving (its only approximation; error ~ (step/feature width)²).
+        batch: lookins processed together (bounds memory; also the unit of work of ``workers``).
+        workers: processes sharing the lookin batches (results do not depend on it).
     """
 
     lookins: tuple[int, int] = (10, 10)
@@ -180,11 +301,19 @@ class TransportSettings:
     jitter: bool = True
     secondary: SecondaryMode = "full"
     top_k: int = 1
+    sensor_sampling: Literal["camera", "connect"] = "camera"
+    connect_samples: tuple[int, int] = (4, 4)
     attenuation: float = 0.0
     pde: float = 1.0
     count_laser_leg: bool = False
     count_sensor_leg: bool = True
+    shadow_spot: bool = True
+    shadow_sensor: bool = True
+    first_bounce: bool = False
+    brdf_angles: bool = True
+    conv_refine: int = 1
     batch: int = 32
+    workers: int = 1
 
 
 @dataclass
@@ -196,7 +325,12 @@ class TransportStats:
     observed_points: int = 0
     fov_points: int = 0
     lit_points: int = 0
+    shadow_rays: int = 0
     secondary_pairs: int = 0
+
+    def add(self, other: "TransportStats") -> None:
+        for k, v in vars(other).items():
+            setattr(self, k, getattr(self, k) + v)
 
 
 class Sink(Protocol):
@@ -209,12 +343,113 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...k,...k->...", a, b)
 
 
+@dataclass
+class _Out:
+    """Sensor-side impulses of a batch of lookins: one row per (lookin, FoV point or sensor target).
+
+    b: lookin index in the batch; direction: unit ω_k from the lookin; cos: cosθ_k at the lookin;
+    weight: detected photons per unit radiant intensity of the lookin toward ω_k (geometry, far-side
+    BRDF and sensor collection; excludes the lookin's own BRDF and cos); time: seconds from the lookin to
+    detection; phys: metres of physical path (for attenuation); channel: output channel.
+    """
+
+    b: np.ndarray
+    direction: np.ndarray
+    weight: np.ndarray
+    time: np.ndarray
+    phys: np.ndarray
+    channel: np.ndarray
+
+
+class _ConvGrid:
+    """Time profiles of the exact secondary, summed on a grid of step ``step`` aligned to the sink's grid.
+
+    Holds ``(n_channels, n_nodes)`` float64 node weights; node n sits at ``t0 + n·step``. Impulses beyond
+    the grid are kept as a total per channel and sent as one impulse past the window by :meth:`flush`.
+    """
+
+    def __init__(self, t0: float, step: float, n_nodes: int, n_channels: int):
+        self.t0, self.step, self.n_nodes = t0, step, n_nodes
+        self.nodes = np.zeros((n_channels, n_nodes))
+        self.beyond = np.zeros(n_channels)
+
+    def empty_like(self) -> "_ConvGrid":
+        return _ConvGrid(self.t0, self.step, self.n_nodes, len(self.nodes))
+
+    def merge(self, other: "_ConvGrid") -> None:
+        self.nodes += other.nodes
+        self.beyond += other.beyond
+
+    def add_block(self, channel: int, start: int, values: np.ndarray) -> None:
+        """Add node weights ``values`` to ``channel`` from node ``start`` on (clipped; clipped mass → beyond)."""
+        lo, hi = max(start, 0), min(start + len(values), self.n_nodes)
+        if hi > lo:
+            self.nodes[channel, lo:hi] += values[lo - start:hi - start]
+        self.beyond[channel] += values.sum() - (values[lo - start:hi - start].sum() if hi > lo else 0.0)
+
+    def add_impulses(self, times: np.ndarray, weights: np.ndarray, channel: np.ndarray) -> None:
+        """Linear (cloud-in-cell) splat of impulses onto the nodes."""
+        x = (times - self.t0) / self.step
+        inside = (x >= 0) & (x <= self.n_nodes - 1)
+        if not inside.all():
+            np.add.at(self.beyond, channel[~inside], weights[~inside])
+        x, w, c = x[inside], weights[inside], channel[inside]
+        i = np.minimum(np.floor(x).astype(np.int64), self.n_nodes - 2)
+        wr = w * (x - i)
+        flat = self.nodes.reshape(-1)
+        idx = c * self.n_nodes + i
+        flat += np.bincount(idx, w - wr, minlength=flat.size) + np.bincount(idx + 1, wr, minlength=flat.size)
+
+    def flush(self, sink: Sink, component_offset: int, t_beyond: float) -> None:
+        ch, n = np.nonzero(self.nodes)
+        if len(ch):
+            sink.add(self.t0 + n * self.step, self.nodes[ch, n], component_offset + ch)
+        far = np.flatnonzero(self.beyond > 0)
+        if len(far):
+            sink.add(np.full(len(far), t_beyond), self.beyond[far], component_offset + far)
+
+
+def _cic_rows(x: np.ndarray, w: np.ndarray, row: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cloud-in-cell splat of positions ``x`` (in nodes) into per-row local windows.
+
+    Returns (start (n_rows,) int64 first node of each row's window, dense (n_rows, width) weights).
+    """
+    start = np.full(n_rows, np.iinfo(np.int64).max)
+    i = np.floor(x).astype(np.int64)
+    np.minimum.at(start, row, i)
+    stop = np.zeros(n_rows, dtype=np.int64)
+    np.maximum.at(stop, row, i + 2)
+    start = np.where(start == np.iinfo(np.int64).max, 0, start)
+    width = int(max((stop - start).max(), 1))
+    dense = np.zeros(n_rows * width)
+    local = row * width + (i - start[row])
+    wr = w * (x - i)
+    dense += np.bincount(local, w - wr, minlength=dense.size) + np.bincount(local + 1, wr, minlength=dense.size)
+    return start, dense.reshape(n_rows, width)
+
+
+_CONV_DENSE_MAX = 1 << 22
+"""Cap on rows × nodes of the exact secondary's dense profile buffers (32 MiB of float64)."""
+
+_WORKER: dict = {}
+
+
+def _worker_init(transport: "Transport") -> None:
+    transport.caster = RayCaster(transport.scene)          # a fresh BVH per process
+    _WORKER["transport"] = transport
+
+
+def _worker_batch(args):
+    return _WORKER["transport"]._run_batch(*args)
+
+
 class Transport:
     """Runs the lookin estimator over a scene and sends impulses to a sink.
 
-    Component ids sent to the sink: ``component * n_pixels + pixel`` where component indexes
-    ``scene.component_names()`` for primary paths (by the object the lookin hit) and
-    ``len(scene.component_names())`` for secondary paths.
+    Component ids sent to the sink: ``component * n_channels + channel`` where component indexes
+    ``scene.component_names()`` for primary paths (by the object the lookin hit), then
+    ``len(scene.component_names())`` for secondary paths and, when ``first_bounce`` is on, one more for the
+    direct laser-spot return (:attr:`component_names`).
     """
 
     def __init__(self, scene: Scene, settings: TransportSettings, caster: RayCaster | None = None):
@@ -226,151 +461,398 @@ class Transport:
         self.object_component = scene.object_component()
         self.n_primary = len(scene.component_names())
         self.stats = TransportStats()
+        self.configure(settings)
+
+    def configure(self, settings: TransportSettings) -> None:
+        """Replace the settings (e.g. after the effect planner); point radiance forces ``connect``."""
+        if self.capture.convention == "point_radiance" and settings.sensor_sampling != "connect":
+            settings = replace(settings, sensor_sampling="connect")
+        self.settings = settings
+        self.component_names = self.scene.component_names() + ["secondary"] + (
+            ["first_bounce"] if settings.first_bounce else [])
 
     # -- per-leg physics (written once, used by every estimator) -----------------------------------------
 
-    def _spot_emission(self, directions: np.ndarray) -> np.ndarray:
-        """f_l(ω_e, ω)·cosθ_l at the laser spot for outgoing unit directions ω (..., 3) → (...,).
+    def _spot_emission(self, directions: np.ndarray, laser: int = 0) -> np.ndarray:
+        """f_l(ω_e, ω)·cosθ_l at laser point ``laser`` for outgoing unit directions ω (..., 3) → (...,).
 
         The beam arrives from the emitter, ω_e = unit(emitter − spot); radiant intensity per photon of the
         pulse is f_l·cosθ_l (DESIGN.md §2).
         """
         c = self.capture
-        w_e = _unit(c.emitter - c.spot)
-        n = np.broadcast_to(c.spot_normal, directions.shape)
-        f = self.materials.evaluate(np.full(directions.shape[:-1], c.spot_object), n,
+        spot, normal = c.spots[laser], c.spot_normals[laser]
+        w_e = _unit(c.emitter - spot)
+        n = np.broadcast_to(normal, directions.shape)
+        f = self.materials.evaluate(np.full(directions.shape[:-1], c.spot_objects[laser]), n,
                                     np.broadcast_to(w_e, directions.shape), directions)
         return f * np.maximum(_dot(n, directions), 0.0)
 
     def _sensor_collection(self, points: np.ndarray, normals: np.ndarray, object_id: np.ndarray,
                            w_in: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Fraction of photons landing at FoV points that are detected, and the FoV→sensor distance.
+        """What a photon landing at a FoV point becomes at the sensor, and the FoV→sensor distance.
 
-        q·f_y(ω_in, ω_s)·cosθ_y,out·A_ap·cosθ_ap/d²·V(y, x_s) (paper A3 and aperture term), (n,) each.
+        Aperture convention: the detected fraction q·f_y(ω_in, ω_s)·cosθ_y,out·A_ap·cosθ_ap/d²·V(y, x_s)
+        (paper A3 and aperture term). Point radiance: f_y(ω_in, ω_s), the radiance toward the sensor per
+        unit irradiance. (n,) each.
         """
         c = self.capture
         to_sensor = c.sensor - points
         d = np.linalg.norm(to_sensor, axis=-1)
         w_s = to_sensor / d[..., None]
+        f = self.materials.evaluate(object_id, normals, w_in, w_s)
+        if c.convention == "point_radiance":
+            return f, d
         cos_out = np.maximum(_dot(normals, w_s), 0.0)
         cos_ap = np.maximum(-_dot(w_s, c.aperture_normal), 0.0)
-        f = self.materials.evaluate(object_id, normals, w_in, w_s)
-        visible = self.caster.visible(points, normals, c.sensor, None)
-        return self.settings.pde * f * cos_out * c.aperture_area * cos_ap / d ** 2 * visible, d
+        out = self.settings.pde * f * cos_out * c.aperture_area * cos_ap / d ** 2
+        if self.settings.shadow_sensor:
+            ok = out > 0
+            vis = np.zeros(len(out), dtype=bool)
+            vis[ok] = self.caster.visible(points[ok], normals[ok], c.sensor, None)
+            self.stats.shadow_rays += int(ok.sum())
+            out = out * vis
+        return out, d
 
     def _attenuation(self, path: np.ndarray) -> np.ndarray | float:
         mu = self.settings.attenuation
         return np.exp(-mu * path) if mu > 0 else 1.0
 
+    def _brdf(self, obj: np.ndarray, normals: np.ndarray, w_in: np.ndarray, w_out: np.ndarray) -> np.ndarray:
+        """f(ω_in, ω_out) with the Lambertian shortcut unless ``brdf_angles`` (same values either way)."""
+        if not self.settings.brdf_angles:
+            obj_b = np.broadcast_to(obj, np.broadcast_shapes(np.shape(obj), w_out.shape[:-1]))
+            if self.materials.lambertian[obj_b].all():
+                return self.materials.albedo[obj_b] / np.pi
+        return self.materials.evaluate(obj, normals, w_in, w_out)
+
     # -- estimator ---------------------------------------------------------------------------------------
 
-    def lookins(self, rng: np.random.Generator | None) -> Lookins:
-        s = self.settings
-        return sample_lookins(self.caster, self.capture.spot, self.capture.spot_normal, s.lookins,
-                              s.lookin_pdf, rng)
+    def lookins(self, rng: np.random.Generator | None, laser: int = 0) -> Lookins:
+        s, c = self.settings, self.capture
+        return sample_lookins(self.caster, c.spots[laser], c.spot_normals[laser], s.lookins, s.lookin_pdf, rng)
+
+    def needs_camera(self) -> bool:
+        return self.settings.sensor_sampling == "camera" or self.settings.secondary != "none"
 
     def run(self, sink: Sink, rng: np.random.Generator, progress: Callable[[int], None] | None = None) -> None:
-        """Sample lookins and observed points and send every primary (and secondary) impulse to ``sink``."""
-        s = self.settings
-        look = self.lookins(rng if s.jitter else None)
-        self.stats.lookins_cast += look.n_rays
-        idx = np.flatnonzero(look.hit)
-        self.stats.lookins_hit += len(idx)
-        for start in range(0, len(idx), s.batch):
-            sel = idx[start:start + s.batch]
-            obs = observe(self.caster, look.points[sel], look.normals[sel], s.pixels, rng if s.jitter else None)
-            self._batch(look, sel, obs, sink)
+        """Sample lookins and observed points and send every primary (and secondary) impulse to ``sink``.
+
+        Work is split into fixed batches of ``settings.batch`` lookins, each with its own random stream
+        (from ``rng``) and its own partial sums, merged in batch order: the result is bit-identical whatever
+        ``settings.workers``. With ``workers > 1`` and a sink that can ``spawn`` partial accumulators
+        (:class:`~datagen.irf.EnvelopeAccumulator`), batches run in worker processes.
+        """
+        s, c = self.settings, self.capture
+        conv = self._conv_grid(sink) if s.secondary == "exact" else None
+        root = np.random.SeedSequence(int(rng.integers(0, 2 ** 63)))
+        tasks = []
+        for laser in range(c.n_lasers):
+            look_rng = np.random.default_rng(root.spawn(1)[0]) if s.jitter else None
+            look = self.lookins(look_rng, laser)
+            self.stats.lookins_cast += look.n_rays
+            idx = np.flatnonzero(look.hit)
+            self.stats.lookins_hit += len(idx)
+            for start in range(0, len(idx), s.batch):
+                sel = idx[start:start + s.batch]
+                tasks.append((laser, look.n_rays, look.directions[sel], look.pdf[sel], look.points[sel],
+                              look.normals[sel], look.object_id[sel], look.distance[sel],
+                              root.spawn(1)[0] if s.jitter else None))
+        spawn = getattr(sink, "spawn", None)
+        parallel = s.workers > 1 and spawn is not None and len(tasks) > 1
+        results = self._map(tasks, sink, conv, parallel)
+        for n_done, (partial, partial_conv, stats) in results:
+            if partial is not None:
+                sink.merge(partial)
+            if partial_conv is not None:
+                conv.merge(partial_conv)
+            self.stats.add(stats)
             if progress is not None:
-                progress(len(sel))
-        if progress is not None and len(idx) == 0:
+                progress(n_done)
+        if s.first_bounce:
+            self._first_bounce(sink)
+        if conv is not None:
+            conv.flush(sink, self.n_primary * c.n_channels, sink_far_time(sink))
+        if progress is not None and not tasks:
             progress(0)
 
-    def _batch(self, look: Lookins, sel: np.ndarray, obs: ObservedPoints, sink: Sink) -> None:
-        c, s = self.capture, self.settings
-        n = look.n_rays
-        x = look.points[sel]                                   # (B, 3)
-        n_x = look.normals[sel]
-        obj_x = look.object_id[sel]
-        r_lx = look.distance[sel]
-        w_to_spot = (c.spot - x) / r_lx[:, None]
-        cos_x_l = np.maximum(_dot(n_x, w_to_spot), 0.0)
-        flux = c.photons * self._spot_emission(look.directions[sel]) / (n * look.pdf[sel])   # W_j, photons
-        self.stats.observed_points += int(obs.hit.sum())
+    def _map(self, tasks, sink, conv, parallel):
+        """Yield (lookins done, partial sink, partial conv grid, stats) per batch, in batch order."""
+        spawn = getattr(sink, "spawn", None)
+        if not parallel:
+            for task in tasks:
+                part = spawn() if spawn is not None else None
+                stats = TransportStats()
+                part_conv = conv.empty_like() if conv is not None else None
+                self._batch(task, part if part is not None else sink, part_conv, stats)
+                yield len(task[2]), (part, part_conv, stats)
+            return
+        ctx = mp.get_context("fork")
+        with ProcessPoolExecutor(self.settings.workers, mp_context=ctx, initializer=_worker_init,
+                                 initargs=(self,)) as pool:
+            futures = [pool.submit(_worker_batch, (task, spawn(), conv.empty_like() if conv else None))
+                       for task in tasks]
+            for task, fut in zip(tasks, futures):
+                part, part_conv, stats = fut.result()
+                yield len(task[2]), (part, part_conv, stats)
 
+    def _run_batch(self, task, part, part_conv):
+        stats = TransportStats()
+        self._batch(task, part, part_conv, stats)
+        return part, part_conv, stats
+
+    def _conv_grid(self, sink: Sink) -> _ConvGrid:
+        """Exact-secondary profile grid aligned to the sink's fine grid, ``conv_refine`` times finer."""
+        k = max(1, int(self.settings.conv_refine))
+        if hasattr(sink, "fine_step"):
+            step = sink.fine_step / k
+            t0 = float(sink.fine_times[0])
+            n = (sink.n_fine - 1) * k + 1
+        else:
+            raise SceneError("secondary 'exact' needs an EnvelopeAccumulator sink")
+        return _ConvGrid(t0, step, n, self.capture.n_channels)
+
+    def _batch(self, task, sink: Sink, conv: _ConvGrid | None, stats: TransportStats) -> None:
+        (laser, n_rays, directions, pdf, x, n_x, obj_x, r_lx, seed) = task
+        c, s = self.capture, self.settings
+        saved, self.stats = self.stats, stats
+        try:
+            rng = np.random.default_rng(seed) if seed is not None else None
+            spot = c.spots[laser]
+            w_to_spot = (spot - x) / r_lx[:, None]
+            cos_x_l = np.maximum(_dot(n_x, w_to_spot), 0.0)
+            flux = c.photons * self._spot_emission(directions, laser) / (n_rays * pdf)   # W_j, photons
+            obs = observe(self.caster, x, n_x, s.pixels, rng) if self.needs_camera() else None
+            if obs is not None:
+                stats.observed_points += int(obs.hit.sum())
+            out = self._camera_out(obs, laser) if s.sensor_sampling == "camera" else \
+                self._connect_out(x, n_x, laser, rng)
+            stats.fov_points += len(out.b)
+            laser_t = (c.emitter_legs[laser] if s.count_laser_leg else 0.0) / SPEED_OF_LIGHT
+            if len(out.b):
+                b = out.b
+                f = self._brdf(obj_x[b], n_x[b], w_to_spot[b], out.direction)
+                cos_k = np.maximum(_dot(n_x[b], out.direction), 0.0)
+                weight = flux[b] * f * cos_k * out.weight * self._attenuation(
+                    c.emitter_legs[laser] + r_lx[b] + out.phys)
+                comp = self.object_component[obj_x[b]] * c.n_channels + out.channel
+                sink.add(laser_t + r_lx[b] / SPEED_OF_LIGHT + out.time, weight, comp)
+            if s.secondary != "none" and len(out.b):
+                self._secondary(laser, n_rays, pdf, x, n_x, obj_x, r_lx, cos_x_l, obs, out, sink, conv)
+        finally:
+            self.stats = saved
+
+    # -- sensor side -------------------------------------------------------------------------------------
+
+    def _camera_out(self, obs: ObservedPoints, laser: int) -> _Out:
+        """FoV points among the observed points (the paper's final bounce through the camera pixels)."""
+        c, s = self.capture, self.settings
         tol = FOV_PLANE_TOL * self.caster.offset
         pix = np.where(obs.hit, c.fov_pixel(np.nan_to_num(obs.points), tol), -1)
-        fov = (pix >= 0) & (_dot(obs.normals, c.sensor - np.nan_to_num(obs.points)) > 0)
-        bi, ki = np.nonzero(fov)                               # FoV observed points (batch idx, pixel idx)
-        self.stats.fov_points += len(bi)
-        if len(bi) == 0:
-            return
+        ch = np.where(pix >= 0, c.channel(laser, pix), -1)
+        fov = (ch >= 0) & (_dot(obs.normals, c.sensor - np.nan_to_num(obs.points)) > 0)
+        bi, ki = np.nonzero(fov)
         y = obs.points[bi, ki]
         w_y_in = -obs.directions[bi, ki]
         collect, d_ys = self._sensor_collection(y, obs.normals[bi, ki], obs.object_id[bi, ki], w_y_in)
-        # lookin → FoV point: f_j(ω_in = to spot, ω_k)·cosθ_k·Ω (paper A2)
-        f_out = self.materials.evaluate(obj_x[bi], n_x[bi], w_to_spot[bi], obs.directions[bi, ki])
-        out = f_out * obs.local_z[bi, ki] * obs.solid_angle * collect          # per photon at lookin
-        out_path = obs.distance[bi, ki] + (d_ys if s.count_sensor_leg else 0.0)
-        phys_out = obs.distance[bi, ki] + d_ys
-        laser_leg = c.emitter_leg if s.count_laser_leg else 0.0
-        comp = self.object_component[obj_x[bi]] * c.n_pixels + pix[bi, ki]
-        weight = flux[bi] * out * self._attenuation(c.emitter_leg + r_lx[bi] + phys_out)
-        sink.add((laser_leg + r_lx[bi] + out_path) / SPEED_OF_LIGHT, weight, comp)
-        if s.secondary != "none":
-            self._secondary(look, sel, obs, bi, ki, out_path, phys_out, pix, cos_x_l, collect, sink)
+        r = obs.distance[bi, ki]
+        time = (r + (d_ys if s.count_sensor_leg else 0.0)) / SPEED_OF_LIGHT
+        # per unit radiant intensity toward ω_k the pixel carries Ω photons to y (the caller applies f·cos)
+        return _Out(bi, obs.directions[bi, ki], obs.solid_angle * collect, time, r + d_ys, ch[bi, ki])
 
-    def _secondary(self, look, sel, obs, bi, ki, out_path, phys_out, pix, cos_x_l, collect, sink) -> None:
+    def _connect_out(self, x: np.ndarray, n_x: np.ndarray, laser: int, rng) -> _Out:
+        """Next-event connections from each lookin to sensor points (point radiance) or to stratified area
+        samples of each sensor pixel region (aperture), with shadow rays (the FoV side of transient path
+        tracers; DESIGN.md §2 with dA_y explicit)."""
         c, s = self.capture, self.settings
-        x, n_x, obj_x = look.points[sel], look.normals[sel], look.object_id[sel]
-        r_lx = look.distance[sel]
+        nx, ny = c.fov_pixels
+        if c.convention == "point_radiance":
+            targets = c.sensor_points().reshape(1, -1, 3)                     # (1, S, 3)
+            pix = np.arange(c.n_pixels)[None]
+            area = 1.0
+        else:
+            mu, mv = s.connect_samples
+            uv = stratified_grid(mu, mv, rng, count=c.n_pixels)               # (S, M, 2)
+            iy, ix = np.divmod(np.arange(c.n_pixels), nx)
+            a = ((ix[:, None] + uv[..., 0]) / nx - 0.5) * c.fov_size[0]
+            bb = ((iy[:, None] + uv[..., 1]) / ny - 0.5) * c.fov_size[1]
+            targets = (c.fov_center + a[..., None] * c.fov_u + bb[..., None] * c.fov_v).reshape(1, -1, 3)
+            pix = np.repeat(np.arange(c.n_pixels), mu * mv)[None]
+            area = c.fov_size[0] * c.fov_size[1] / (c.n_pixels * mu * mv)
+        ch = c.channel(laser, pix)
+        keep = ch[0] >= 0
+        targets, pix, ch = targets[:, keep], pix[:, keep], ch[:, keep]
+        B, S = len(x), targets.shape[1]
+        to_y = targets - x[:, None, :]                                      # (B, S, 3)
+        r = np.linalg.norm(to_y, axis=-1)
+        w = to_y / np.maximum(r, 1e-300)[..., None]
+        cos_x = _dot(n_x[:, None, :], w)
+        n_y = np.broadcast_to(c.fov_normal, to_y.shape)
+        cos_y = -_dot(n_y, w)
+        ok = (cos_x > 0) & (cos_y > 0)
+        bi, si = np.nonzero(ok)
+        vis = self.caster.visible(x[bi], n_x[bi], targets[0, si], c.fov_normal)
+        self.stats.shadow_rays += len(bi)
+        bi, si = bi[vis], si[vis]
+        y = targets[0, si]
+        wk = w[bi, si]
+        obj_y = np.full(len(bi), self._wall_object())
+        collect, d_ys = self._sensor_collection(y, n_y[bi, si], obj_y, -wk)
+        rr = r[bi, si]
+        # photons landing on dA_y per unit radiant intensity toward ω_k: cosθ_y dA_y / r²
+        weight = cos_y[bi, si] * area / rr ** 2 * collect
+        time = (rr + (d_ys if s.count_sensor_leg else 0.0)) / SPEED_OF_LIGHT
+        return _Out(bi, wk, weight, time, rr + d_ys, ch[0, si])
+
+    def _wall_object(self) -> int:
+        """Object id of the relay wall under the sensor grid centre."""
+        if not hasattr(self, "_wall_id"):
+            c = self.capture
+            h = self.caster.intersect((c.fov_center + 2 * FOV_PLANE_TOL * self.caster.offset * c.fov_normal)[None],
+                                      (-c.fov_normal)[None])
+            self._wall_id = int(h.object_id[0]) if h.hit[0] else int(c.spot_objects[0])
+        return self._wall_id
+
+    def _first_bounce(self, sink: Sink) -> None:
+        """Direct return of each laser spot lying inside a sensor pixel region (aperture convention)."""
+        c, s = self.capture, self.settings
+        if c.convention != "aperture":
+            return
+        tol = FOV_PLANE_TOL * self.caster.offset
+        comp = (self.n_primary + 1) * c.n_channels
+        for laser in range(c.n_lasers):
+            spot = c.spots[laser]
+            pix = c.fov_pixel(spot[None], tol)
+            ch = c.channel(laser, pix)
+            if ch[0] < 0:
+                continue
+            w_s = _unit(c.sensor - spot)
+            d = float(np.linalg.norm(c.sensor - spot))
+            emit = self._spot_emission(w_s[None], laser)
+            cos_ap = max(-float(_dot(w_s, c.aperture_normal)), 0.0)
+            vis = self.caster.visible(spot[None], c.spot_normals[laser][None], c.sensor, None)
+            weight = c.photons * s.pde * emit * c.aperture_area * cos_ap / d ** 2 * vis
+            weight = weight * self._attenuation(np.array([c.emitter_legs[laser] + d]))
+            t = ((c.emitter_legs[laser] if s.count_laser_leg else 0.0) + (d if s.count_sensor_leg else 0.0))
+            sink.add(np.array([t / SPEED_OF_LIGHT]), weight, np.array([comp + ch[0]]))
+
+    # -- secondary ---------------------------------------------------------------------------------------
+
+    def _secondary(self, laser, n_rays, pdf, x, n_x, obj_x, r_lx, cos_x_l, obs, out: _Out, sink, conv) -> None:
+        c, s = self.capture, self.settings
+        spot, spot_n = c.spots[laser], c.spot_normals[laser]
         # area measure of each lookin as a second hidden vertex: dA_j = R_j² / (N p_j cosθ_j,l)
         with np.errstate(divide="ignore", invalid="ignore"):
-            area = np.where(cos_x_l > 0, r_lx ** 2 / (look.n_rays * look.pdf[sel] * cos_x_l), 0.0)
-        # laser-lit observed points y' (real shadow rays to the spot)
+            area = np.where(cos_x_l > 0, r_lx ** 2 / (n_rays * pdf * cos_x_l), 0.0)
+        # laser-lit observed points y' (shadow rays to the spot)
         y1 = np.nan_to_num(obs.points)
-        to_y1 = y1 - c.spot
+        to_y1 = y1 - spot
         r_ly = np.linalg.norm(to_y1, axis=-1)
         w_ly = to_y1 / np.maximum(r_ly, 1e-300)[..., None]
-        cos_l = _dot(c.spot_normal, w_ly)
+        cos_l = _dot(spot_n, w_ly)
         cos_y_in = -_dot(obs.normals, w_ly)
         cand = obs.hit & (cos_l > 0) & (cos_y_in > 0) & (area[:, None] > 0)
-        lit = np.zeros_like(cand)
-        lit[cand] = self.caster.visible(y1[cand], obs.normals[cand], c.spot, c.spot_normal)
+        lit = cand.copy()
+        if s.shadow_spot:
+            lit[cand] = self.caster.visible(y1[cand], obs.normals[cand], spot, spot_n)
+            self.stats.shadow_rays += int(cand.sum())
         self.stats.lit_points += int(lit.sum())
         lb, lk = np.nonzero(lit)
         if len(lb) == 0:
             return
         yp, n_yp, obj_yp = y1[lb, lk], obs.normals[lb, lk], obs.object_id[lb, lk]
-        irradiance = c.photons * self._spot_emission(w_ly[lb, lk]) * cos_y_in[lb, lk] / r_ly[lb, lk] ** 2
+        irradiance = c.photons * self._spot_emission(w_ly[lb, lk], laser) * cos_y_in[lb, lk] / r_ly[lb, lk] ** 2
         w_yp_out = -obs.directions[lb, lk]                                   # toward the lookin
-        radiance = irradiance * self.materials.evaluate(obj_yp, n_yp, -w_ly[lb, lk], w_yp_out)
-        in_w = radiance * obs.local_z[lb, lk] * obs.solid_angle * area[lb]   # photons leaving lookin area
+        radiance = irradiance * self._brdf(obj_yp, n_yp, -w_ly[lb, lk], w_yp_out)
+        in_w = radiance * obs.local_z[lb, lk] * obs.solid_angle * area[lb]   # photons arriving at the lookin
         in_path = r_ly[lb, lk] + obs.distance[lb, lk]
-        # FoV side, per photon arriving at the lookin (without the lookin's BRDF)
-        out_w = obs.local_z[bi, ki] * obs.solid_angle * collect
-        laser_leg = c.emitter_leg if s.count_laser_leg else 0.0
-        sec_comp = self.n_primary * c.n_pixels
-        for j in range(len(sel)):
+        in_dir = obs.directions[lb, lk]
+        laser_t = (c.emitter_legs[laser] if s.count_laser_leg else 0.0) / SPEED_OF_LIGHT
+        if s.attenuation > 0:
+            in_w = in_w * self._attenuation(c.emitter_legs[laser] + in_path)
+        cos_out = np.maximum(_dot(n_x[out.b], out.direction), 0.0)
+        out_w = cos_out * out.weight * self._attenuation(out.phys)
+        out_t = laser_t + out.time
+        if s.secondary == "exact":
+            self._secondary_exact(x, n_x, obj_x, lb, in_w, in_path / SPEED_OF_LIGHT, in_dir, out, out_w, out_t,
+                                  conv)
+            return
+        sec_comp = self.n_primary * c.n_channels
+        for j in range(len(x)):
             a = np.flatnonzero(lb == j)
-            b = np.flatnonzero(bi == j)
+            b = np.flatnonzero(out.b == j)
             if len(a) == 0 or len(b) == 0:
                 continue
-            if self.materials.lambertian[obj_x[j]]:
-                f = np.full((1, 1), self.materials.albedo[obj_x[j]] / np.pi)
-            else:
-                f = self.materials.evaluate(np.full((len(a), len(b)), obj_x[j]), n_x[j],
-                                            obs.directions[j, lk[a]][:, None, :], obs.directions[j, ki[b]][None])
+            f = self._brdf(np.full((len(a), len(b)), obj_x[j]), n_x[j], in_dir[a][:, None, :],
+                           out.direction[b][None])
             pair = in_w[a, None] * f * out_w[None, b]
-            t_pair = in_path[a, None] + out_path[None, b]
+            t_pair = in_path[a, None] / SPEED_OF_LIGHT + out_t[None, b]
+            chan = np.broadcast_to(out.channel[b][None, :], pair.shape)
             if s.secondary == "optimized" and s.top_k < len(a):
                 keep = np.argpartition(-pair, s.top_k - 1, axis=0)[:s.top_k]   # (K, n_fov)
                 pair = np.take_along_axis(pair, keep, axis=0)
                 t_pair = np.take_along_axis(np.broadcast_to(t_pair, (len(a), len(b))), keep, axis=0)
-                phys = np.take_along_axis(np.broadcast_to(in_path[a, None] + phys_out[None, b],
-                                                          (len(a), len(b))), keep, axis=0)
-            else:
-                phys = in_path[a, None] + phys_out[None, b]
-            weight = pair * self._attenuation(c.emitter_leg + phys)
-            comp = np.broadcast_to(sec_comp + pix[j, ki[b]][None, :], weight.shape)
-            self.stats.secondary_pairs += weight.size
-            sink.add(((laser_leg + t_pair) / SPEED_OF_LIGHT).ravel(), weight.ravel(), comp.ravel())
+                chan = chan[:s.top_k]
+            self.stats.secondary_pairs += pair.size
+            sink.add(t_pair.ravel(), pair.ravel(), (sec_comp + chan).ravel())
+
+    def _secondary_exact(self, x, n_x, obj_x, lb, in_w, in_t, in_dir, out: _Out, out_w, out_t,
+                         conv: _ConvGrid) -> None:
+        """Exact secondary at O(N·l·p) cost (DESIGN.md §3): with the split f = c·g(ω_in)·g(ω_out) + lobe, the
+        sum over pairs (k', k) at each lookin is c × (incoming profile weighted by g) ⊛ (outgoing profile
+        weighted by g): one FFT convolution per lookin and channel. Lobes (Phong) are summed pairwise.
+        Profiles are binned on ``conv``'s grid (cloud-in-cell), its only approximation."""
+        B = len(x)
+        if B > 1:
+            t_all = np.concatenate([in_t, out_t])
+            span = (t_all.max() - t_all.min()) / conv.step if len(t_all) else 0.0
+            if B * span > _CONV_DENSE_MAX:                 # bound the dense profile buffers: split the batch
+                half = B // 2
+                for sel in (np.arange(half), np.arange(half, B)):
+                    mi, mo = np.isin(lb, sel), np.isin(out.b, sel)
+                    remap = np.full(B, -1)
+                    remap[sel] = np.arange(len(sel))
+                    sub = _Out(remap[out.b[mo]], out.direction[mo], out.weight[mo], out.time[mo], out.phys[mo],
+                               out.channel[mo])
+                    self._secondary_exact(x[sel], n_x[sel], obj_x[sel], remap[lb[mi]], in_w[mi], in_t[mi],
+                                          in_dir[mi], sub, out_w[mo], out_t[mo], conv)
+                return
+        scale = self.materials.separable_scale(obj_x)                                  # (B,)
+        g_in = self.materials.separable_factor(obj_x[lb], n_x[lb], in_dir)
+        g_out = self.materials.separable_factor(obj_x[out.b], n_x[out.b], out.direction)
+        step = conv.step
+        # incoming profiles, one row per lookin, on nodes n·step (time from the spot)
+        a_start, a_dense = _cic_rows(in_t / step, in_w * g_in, lb, B)
+        # outgoing profiles per (lookin, channel) on nodes t0 + n·step
+        pairs, pair_row = np.unique(out.b * conv.nodes.shape[0] + out.channel, return_inverse=True)
+        b_start, b_dense = _cic_rows((out_t - conv.t0) / step, out_w * g_out, pair_row, len(pairs))
+        p_lookin, p_channel = np.divmod(pairs, conv.nodes.shape[0])
+        has_in = np.bincount(lb, minlength=B) > 0
+        use = has_in[p_lookin]
+        n = scipy.fft.next_fast_len(a_dense.shape[1] + b_dense.shape[1] - 1, real=True)
+        fa = scipy.fft.rfft(a_dense, n, axis=1)
+        fb = scipy.fft.rfft(b_dense[use], n, axis=1)
+        prod = scipy.fft.irfft(fa[p_lookin[use]] * fb, n, axis=1)
+        length = a_dense.shape[1] + b_dense.shape[1] - 1
+        for row, (j, ch, bs) in enumerate(zip(p_lookin[use], p_channel[use], b_start[use])):
+            vals = prod[row, :length] * scale[j]
+            np.maximum(vals, 0.0, out=vals)                       # FFT round-off below zero
+            conv.add_block(int(ch), int(a_start[j] + bs), vals)
+        self.stats.secondary_pairs += int(np.bincount(lb, minlength=B) @ np.bincount(out.b, minlength=B))
+        lobe = self.materials.has_lobe(obj_x)
+        for j in np.flatnonzero(lobe):
+            a = np.flatnonzero(lb == j)
+            b = np.flatnonzero(out.b == j)
+            if len(a) == 0 or len(b) == 0:
+                continue
+            f = self.materials.lobe(np.full((len(a), len(b)), obj_x[j]), n_x[j], in_dir[a][:, None, :],
+                                    out.direction[b][None])
+            pair = in_w[a, None] * f * out_w[None, b]
+            t_pair = in_t[a, None] + out_t[None, b]
+            chan = np.broadcast_to(out.channel[b][None, :], pair.shape)
+            conv.add_impulses(t_pair.ravel(), pair.ravel(), chan.ravel())
+
+
+def sink_far_time(sink: Sink) -> float:
+    """A time beyond every window of ``sink`` (for mass that must be counted as outside)."""
+    axis = getattr(sink, "axis", None)
+    return float(axis.t_stop + 1.0) if axis is not None else 1e9

@@ -84,3 +84,72 @@ def test_lookin_estimator_converges_to_area_quadrature_with_occlusion():
     assert errors[96] < 0.05
     assert errors[96] < errors[12] / 3
     assert errors[48] < errors[12]
+
+
+# -- exact factorised secondary, parallel batches, next-event sensor connections ---------------------------
+
+def demo_like_scene(pillar_kind="sin_theta", pixels=(1, 1)):
+    import yaml
+
+    from datagen.scene import scene_from_dict
+    data = yaml.safe_load(open("scene_library/demo_room.yaml"))
+    data["objects"][2]["material"] = ({"kind": "phong", "albedo": 0.9, "specular": 0.7, "exponent": 30}
+                                      if pillar_kind == "phong" else {"kind": pillar_kind, "albedo": 1.0})
+    data["sensor"]["fov"]["pixels"] = list(pixels)
+    return scene_from_dict(data)
+
+
+def secondary(scene, mode, lookins=(8, 8), pixels=(24, 24), seed=3, **kw):
+    tr = Transport(scene, TransportSettings(lookins=lookins, pixels=pixels, secondary=mode, **kw))
+    acc = EnvelopeAccumulator(TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=5000), Irf(fwhm=600e-12),
+                              len(tr.component_names) * tr.capture.n_channels)
+    tr.run(acc, np.random.default_rng(seed))
+    per = acc.binned().reshape(len(tr.component_names), tr.capture.n_channels, -1)
+    return per[tr.n_primary], tr
+
+
+def rel_l2(y, ref):
+    m = ref > 0.01 * ref.max()
+    return float(np.linalg.norm((y - ref)[m]) / np.linalg.norm(ref[m]))
+
+
+@pytest.mark.parametrize("kind", ["lambertian", "sin_theta", "phong"])
+def test_exact_secondary_equals_full_pairs(kind):
+    """The factorised O(N) secondary (DESIGN.md §3) sums the same pairs as the O(Ñ²) one: identical up to
+    time binning of its profiles (measured 1e-5 relative L2 on the demo room at 30×30×30×30)."""
+    scene = demo_like_scene(kind)
+    full, tr = secondary(scene, "full")
+    exact, _ = secondary(scene, "exact")
+    assert full.sum() > 0
+    assert exact.sum() == pytest.approx(full.sum(), rel=1e-9)       # binning moves mass, never loses it
+    assert rel_l2(exact, full) < 1e-4
+
+
+def test_exact_secondary_per_pixel_of_a_spad_array():
+    scene = demo_like_scene("lambertian", pixels=(3, 2))
+    full, tr = secondary(scene, "full", lookins=(6, 6), pixels=(20, 20))
+    exact, _ = secondary(scene, "exact", lookins=(6, 6), pixels=(20, 20))
+    assert tr.capture.n_channels == 6
+    for ch in range(6):
+        assert exact[ch].sum() == pytest.approx(full[ch].sum(), rel=1e-9)
+        if full[ch].sum() > 0:
+            assert rel_l2(exact[ch], full[ch]) < 1e-4
+
+
+def test_workers_do_not_change_the_result():
+    scene = demo_like_scene("sin_theta")
+    one, _ = secondary(scene, "exact", lookins=(8, 8), pixels=(16, 16), batch=8)
+    two, _ = secondary(scene, "exact", lookins=(8, 8), pixels=(16, 16), batch=8, workers=2)
+    np.testing.assert_array_equal(one, two)
+
+
+def test_connect_sensor_sampling_converges_to_the_same_primary():
+    """Next-event connections to stratified FoV points estimate the same integral as the camera pixels."""
+    scene = patch_scene(with_occluder=True)
+    ref, _ = primary_area_quadrature(scene, AXIS, IRF, h_hidden=0.02, h_fov=0.02)
+    # measured at 48×48 lookins: camera 0.996 of the total, 1.4 % L2; connect (24×24 per FoV) 0.995, 1.6 %
+    cam, _ = run_primary(scene, (48, 48), (48, 48))
+    con, _ = run_primary(scene, (48, 48), (2, 2), sensor_sampling="connect", connect_samples=(24, 24))
+    for est in (cam, con):
+        assert est.sum() == pytest.approx(ref.sum(), rel=0.02)
+        assert rel_l2(est, ref) < 0.04
