@@ -142,6 +142,15 @@ class MaterialTable:
             g[sel] *= _abs_sin_azimuth(normals[sel], self.axis[object_ids[sel]], w[sel])
         return g
 
+    def separable_factor_above(self, object_ids: np.ndarray, normals: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """:meth:`separable_factor` for directions known to lie above the surface (skips the cos test)."""
+        object_ids = np.asarray(object_ids)
+        g = np.ones(object_ids.shape, dtype=np.float64)
+        sel = self.kind[object_ids] == SIN_THETA
+        if np.any(sel):
+            g[sel] = _abs_sin_azimuth(normals[sel], self.axis[object_ids[sel]], w[sel])
+        return g
+
     def has_lobe(self, object_ids: np.ndarray) -> np.ndarray:
         """True where the material has a non-separable lobe (Phong with k_s > 0)."""
         ids = np.asarray(object_ids)

@@ -1,8 +1,9 @@
 """First-hit ray casting and shadow (visibility) rays over a scene, on Embree (embreex).
 
 Embree works in float32. To keep that from limiting large scenes, the mesh is translated so its bounding box
-is centred on the origin before it is handed to Embree, every hit point is rebuilt in float64 from the hit
-triangle's barycentric coordinates, and distances are recomputed in float64 from those points. Rays leave a
+is centred on the origin before it is handed to Embree, and every hit point is placed in float64 along the
+float64 ray at Embree's hit distance, then projected onto the hit triangle's plane in float64 (so it lies on
+its surface to float64 precision; along the surface it is within ~1e-7 of the distance). Rays leave a
 surface from a point pushed off it along the normal by a *scale-aware* offset (a fixed fraction of the scene
 size), so a 6 m room and a 600 m tunnel both work.
 """
@@ -87,21 +88,23 @@ class RayCaster:
         o = origins.reshape(-1, 3)
         d = np.broadcast_to(directions, origins.shape).reshape(-1, 3)
         face = np.empty(len(o), dtype=np.int64)
-        u = np.empty(len(o), dtype=np.float64)
-        v = np.empty(len(o), dtype=np.float64)
+        tfar = np.empty(len(o), dtype=np.float64)
+        center = self.center.astype(np.float32)
         for start in range(0, len(o), CHUNK):
             sl = slice(start, start + CHUNK)
-            res = self._embree.run((o[sl] - self.center).astype(np.float32), d[sl].astype(np.float32), output=1)
-            face[sl], u[sl], v[sl] = res["primID"], res["u"], res["v"]
+            res = self._embree.run(o[sl].astype(np.float32) - center, d[sl].astype(np.float32), output=1)
+            face[sl], tfar[sl] = res["primID"], res["tfar"]
         hit = face >= 0
         f = np.where(hit, face, 0)
-        points = self._tri0[f] + u[:, None] * self._e1[f] + v[:, None] * self._e2[f]
-        distance = np.linalg.norm(points - o, axis=1)
+        # Hit point in float64 along the float64 ray: |error| ≈ 6e-8 × distance (float32 tfar), far below the
+        # surface offset (1e-5 × scene size) and below 1 fs of time of flight for a 1 km path.
+        points = o + d * np.where(hit, tfar, np.nan)[:, None]
         normals = self.face_normals[f]
+        # snap onto the hit triangle's plane in float64 (removes the float32 error across the surface)
+        points -= np.einsum("ij,ij->i", points - self._tri0[f], normals)[:, None] * normals
+        distance = np.where(hit, np.sqrt(np.einsum("ij,ij->i", points - o, points - o)), np.inf)
         flip = np.einsum("ij,ij->i", normals, d) > 0
-        normals = np.where(flip[:, None], -normals, normals)
-        points[~hit] = np.nan
-        distance[~hit] = np.inf
+        np.negative(normals, out=normals, where=flip[:, None])
         normals[~hit] = 0.0
         obj = np.where(hit, self.face_object[f], -1)
         return Hits(hit.reshape(shape), distance.reshape(shape), points.reshape(shape + (3,)),
@@ -120,21 +123,22 @@ class RayCaster:
         """
         p, q = np.broadcast_arrays(np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64))
         shape = p.shape[:-1]
-        a = p + (0.0 if n_p is None else self.offset * np.asarray(n_p))
-        b = q + (0.0 if n_q is None else self.offset * np.asarray(n_q))
+        a = p if n_p is None else p + self.offset * np.asarray(n_p)
+        b = q if n_q is None else q + self.offset * np.asarray(n_q)
         a = np.broadcast_to(a, p.shape).reshape(-1, 3)
         b = np.broadcast_to(b, p.shape).reshape(-1, 3)
         seg = b - a
-        length = np.linalg.norm(seg, axis=1)
-        out = np.ones(len(a), dtype=bool)
+        length = np.sqrt(np.einsum("ij,ij->i", seg, seg))
         ok = length > self.offset
-        d = seg[ok] / length[ok, None]
-        tmax = length[ok] - self.offset
-        res = np.empty(int(ok.sum()), dtype=np.int32)
-        oa = a[ok]
-        for start in range(0, len(oa), CHUNK):
+        if not ok.all():
+            seg, a, length = seg[ok], a[ok], length[ok]
+        d = (seg / length[:, None]).astype(np.float32)
+        o = a.astype(np.float32) - self.center.astype(np.float32)
+        tmax = (length - self.offset).astype(np.float32)
+        res = np.empty(len(o), dtype=np.int32)
+        for start in range(0, len(o), CHUNK):
             sl = slice(start, start + CHUNK)
-            res[sl] = self._embree.run((oa[sl] - self.center).astype(np.float32), d[sl].astype(np.float32),
-                                       dists=tmax[sl].astype(np.float32), query="OCCLUDED")
+            res[sl] = self._embree.run(o[sl], d[sl], dists=tmax[sl], query="OCCLUDED")
+        out = np.ones(len(ok), dtype=bool)
         out[ok] = res == -1
         return out.reshape(shape)

@@ -170,9 +170,11 @@ def observe(caster: RayCaster, points: np.ndarray, normals: np.ndarray, pixels: 
     uv = stratified_grid(pixels[0], pixels[1], rng, count=b if rng is not None else 1)
     local, _ = square_to_hemisphere(uv[..., 0], uv[..., 1], "uniform")
     local = np.broadcast_to(local, (b,) + local.shape[1:])
-    directions = to_world(local, normals[:, None, :])
+    t, bt = tangent_frame(normals)
+    directions = local @ np.stack([t, bt, normals], axis=1)          # (B, P, 3): rows of the local frame
     origins = np.broadcast_to((points + caster.offset * normals)[:, None, :], directions.shape)
     hits = caster.intersect(origins, directions)
-    distance = np.where(hits.hit, np.linalg.norm(hits.points - points[:, None, :], axis=-1), np.inf)
+    # the ray starts ``offset`` off the lookin along its normal: distance from the lookin itself
+    distance = hits.distance + caster.offset * local[..., 2]
     return ObservedPoints(directions, np.array(local[..., 2]), camera_solid_angle(pixels), hits.hit,
                           hits.points, hits.normals, hits.object_id, distance)

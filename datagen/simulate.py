@@ -132,7 +132,7 @@ class SimulationConfig(BaseModel):
                                  shadow_spot=forced.get("shadow_spot", True),
                                  shadow_sensor=forced.get("shadow_sensor", True),
                                  first_bounce=forced.get("first_bounce", False),
-                                 brdf_angles=forced.get("brdf_angles", True),
+                                 brdf_angles=forced.get("brdf_angles", False),
                                  conv_refine=self.conv_refine, batch=self.batch, workers=self.workers)
 
 

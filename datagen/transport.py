@@ -288,7 +288,8 @@ class TransportSettings:
         shadow_spot: shadow rays from observed points to the laser spot (which points the laser lights).
         shadow_sensor: shadow rays from FoV points to the sensor.
         first_bounce: add the direct laser spot → sensor return when the spot lies in a sensor pixel.
-        brdf_angles: evaluate every BRDF in full (False: Lambertian materials take the constant ρ/π path).
+        brdf_angles: evaluate every BRDF in full (default False: Lambertian materials take f = ρ/π with no
+            angle work, identical values).
         conv_refine: the exact secondary bins its time profiles this many times finer than the envelope's
             fine grid before convolving (its only approximation; error ~ (step/feature width)²).
         batch: lookins processed together (bounds memory; also the unit of work of ``workers``).
@@ -310,7 +311,7 @@ class TransportSettings:
     shadow_spot: bool = True
     shadow_sensor: bool = True
     first_bounce: bool = False
-    brdf_angles: bool = True
+    brdf_angles: bool = False
     conv_refine: int = 1
     batch: int = 32
     workers: int = 1
@@ -414,13 +415,15 @@ def _cic_rows(x: np.ndarray, w: np.ndarray, row: np.ndarray, n_rows: int) -> tup
 
     Returns (start (n_rows,) int64 first node of each row's window, dense (n_rows, width) weights).
     """
-    start = np.full(n_rows, np.iinfo(np.int64).max)
     i = np.floor(x).astype(np.int64)
-    np.minimum.at(start, row, i)
-    stop = np.zeros(n_rows, dtype=np.int64)
-    np.maximum.at(stop, row, i + 2)
-    start = np.where(start == np.iinfo(np.int64).max, 0, start)
-    width = int(max((stop - start).max(), 1))
+    start = np.zeros(n_rows, dtype=np.int64)
+    width = 1
+    if len(i):
+        order = np.argsort(row, kind="stable")
+        rs, io = row[order], i[order]
+        first = np.flatnonzero(np.r_[True, rs[1:] != rs[:-1]])
+        start[rs[first]] = np.minimum.reduceat(io, first)
+        width = int((np.maximum.reduceat(io, first) + 2 - start[rs[first]]).max())
     dense = np.zeros(n_rows * width)
     local = row * width + (i - start[row])
     wr = w * (x - i)
@@ -483,9 +486,13 @@ class Transport:
         spot, normal = c.spots[laser], c.spot_normals[laser]
         w_e = _unit(c.emitter - spot)
         n = np.broadcast_to(normal, directions.shape)
-        f = self.materials.evaluate(np.full(directions.shape[:-1], c.spot_objects[laser]), n,
+        cos = np.maximum(_dot(n, directions), 0.0)
+        obj = c.spot_objects[laser]
+        if self.materials.lambertian[obj] and not self.settings.brdf_angles:
+            return self.materials.albedo[obj] / np.pi * cos
+        f = self.materials.evaluate(np.full(directions.shape[:-1], obj), n,
                                     np.broadcast_to(w_e, directions.shape), directions)
-        return f * np.maximum(_dot(n, directions), 0.0)
+        return f * cos
 
     def _sensor_collection(self, points: np.ndarray, normals: np.ndarray, object_id: np.ndarray,
                            w_in: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -499,7 +506,7 @@ class Transport:
         to_sensor = c.sensor - points
         d = np.linalg.norm(to_sensor, axis=-1)
         w_s = to_sensor / d[..., None]
-        f = self.materials.evaluate(object_id, normals, w_in, w_s)
+        f = self._brdf(object_id, normals, w_in, w_s)
         if c.convention == "point_radiance":
             return f, d
         cos_out = np.maximum(_dot(normals, w_s), 0.0)
@@ -518,12 +525,22 @@ class Transport:
         return np.exp(-mu * path) if mu > 0 else 1.0
 
     def _brdf(self, obj: np.ndarray, normals: np.ndarray, w_in: np.ndarray, w_out: np.ndarray) -> np.ndarray:
-        """f(ω_in, ω_out) with the Lambertian shortcut unless ``brdf_angles`` (same values either way)."""
-        if not self.settings.brdf_angles:
-            obj_b = np.broadcast_to(obj, np.broadcast_shapes(np.shape(obj), w_out.shape[:-1]))
-            if self.materials.lambertian[obj_b].all():
-                return self.materials.albedo[obj_b] / np.pi
-        return self.materials.evaluate(obj, normals, w_in, w_out)
+        """f(ω_in, ω_out) for directions known to lie above the surface.
+
+        Unless ``brdf_angles`` is set, Lambertian materials take f = ρ/π without any angle work and only the
+        other materials are evaluated in full (the values are identical: callers only pass directions above
+        the surface).
+        """
+        if self.settings.brdf_angles:
+            return self.materials.evaluate(obj, normals, w_in, w_out)
+        shape = np.broadcast_shapes(np.shape(obj), normals.shape[:-1], w_in.shape[:-1], w_out.shape[:-1])
+        obj_b = np.broadcast_to(obj, shape)
+        f = self.materials.albedo[obj_b] / np.pi
+        sel = ~self.materials.lambertian[obj_b]
+        if sel.any():
+            full = lambda a: np.broadcast_to(a, shape + (3,))[sel]
+            f[sel] = self.materials.evaluate(obj_b[sel], full(normals), full(w_in), full(w_out))
+        return f
 
     # -- estimator ---------------------------------------------------------------------------------------
 
@@ -647,17 +664,18 @@ class Transport:
         """FoV points among the observed points (the paper's final bounce through the camera pixels)."""
         c, s = self.capture, self.settings
         tol = FOV_PLANE_TOL * self.caster.offset
-        pix = np.where(obs.hit, c.fov_pixel(np.nan_to_num(obs.points), tol), -1)
-        ch = np.where(pix >= 0, c.channel(laser, pix), -1)
-        fov = (ch >= 0) & (_dot(obs.normals, c.sensor - np.nan_to_num(obs.points)) > 0)
-        bi, ki = np.nonzero(fov)
+        bi, ki = np.nonzero(np.isin(obs.object_id, self._fov_objects()))     # cheap pre-filter by object
+        pts = obs.points[bi, ki]
+        ch = c.channel(laser, c.fov_pixel(pts, tol))
+        keep = (ch >= 0) & (_dot(obs.normals[bi, ki], c.sensor - pts) > 0)
+        bi, ki, ch = bi[keep], ki[keep], ch[keep]
         y = obs.points[bi, ki]
         w_y_in = -obs.directions[bi, ki]
         collect, d_ys = self._sensor_collection(y, obs.normals[bi, ki], obs.object_id[bi, ki], w_y_in)
         r = obs.distance[bi, ki]
         time = (r + (d_ys if s.count_sensor_leg else 0.0)) / SPEED_OF_LIGHT
         # per unit radiant intensity toward ω_k the pixel carries Ω photons to y (the caller applies f·cos)
-        return _Out(bi, obs.directions[bi, ki], obs.solid_angle * collect, time, r + d_ys, ch[bi, ki])
+        return _Out(bi, obs.directions[bi, ki], obs.solid_angle * collect, time, r + d_ys, ch)
 
     def _connect_out(self, x: np.ndarray, n_x: np.ndarray, laser: int, rng) -> _Out:
         """Next-event connections from each lookin to sensor points (point radiance) or to stratified area
@@ -703,6 +721,16 @@ class Transport:
         time = (rr + (d_ys if s.count_sensor_leg else 0.0)) / SPEED_OF_LIGHT
         return _Out(bi, wk, weight, time, rr + d_ys, ch[0, si])
 
+    def _fov_objects(self) -> np.ndarray:
+        """Ids of the objects with a face in the sensor grid's plane (only they can hold FoV points)."""
+        if not hasattr(self, "_fov_ids"):
+            c, rc = self.capture, self.caster
+            tol = FOV_PLANE_TOL * rc.offset
+            tri = rc.vertices[rc.faces]
+            in_plane = np.abs((tri - c.fov_center) @ c.fov_normal).max(axis=1) <= tol
+            self._fov_ids = np.unique(rc.face_object[in_plane])
+        return self._fov_ids
+
     def _wall_object(self) -> int:
         """Object id of the relay wall under the sensor grid centre."""
         if not hasattr(self, "_wall_id"):
@@ -743,29 +771,31 @@ class Transport:
         # area measure of each lookin as a second hidden vertex: dA_j = R_j² / (N p_j cosθ_j,l)
         with np.errstate(divide="ignore", invalid="ignore"):
             area = np.where(cos_x_l > 0, r_lx ** 2 / (n_rays * pdf * cos_x_l), 0.0)
-        # laser-lit observed points y' (shadow rays to the spot)
-        y1 = np.nan_to_num(obs.points)
+        # laser-lit observed points y' (shadow rays to the spot), on the hit points only
+        hb, hk = np.nonzero(obs.hit & (area[:, None] > 0))
+        y1 = obs.points[hb, hk]
+        n_y1 = obs.normals[hb, hk]
         to_y1 = y1 - spot
-        r_ly = np.linalg.norm(to_y1, axis=-1)
-        w_ly = to_y1 / np.maximum(r_ly, 1e-300)[..., None]
-        cos_l = _dot(spot_n, w_ly)
-        cos_y_in = -_dot(obs.normals, w_ly)
-        cand = obs.hit & (cos_l > 0) & (cos_y_in > 0) & (area[:, None] > 0)
-        lit = cand.copy()
+        r_ly = np.sqrt(_dot(to_y1, to_y1))
+        w_ly = to_y1 / np.maximum(r_ly, 1e-300)[:, None]
+        cos_l = w_ly @ spot_n
+        cos_y_in = -_dot(n_y1, w_ly)
+        cand = (cos_l > 0) & (cos_y_in > 0)
         if s.shadow_spot:
-            lit[cand] = self.caster.visible(y1[cand], obs.normals[cand], spot, spot_n)
             self.stats.shadow_rays += int(cand.sum())
-        self.stats.lit_points += int(lit.sum())
-        lb, lk = np.nonzero(lit)
-        if len(lb) == 0:
+            cand[cand] = self.caster.visible(y1[cand], n_y1[cand], spot, spot_n)
+        self.stats.lit_points += int(cand.sum())
+        if not cand.any():
             return
-        yp, n_yp, obj_yp = y1[lb, lk], obs.normals[lb, lk], obs.object_id[lb, lk]
-        irradiance = c.photons * self._spot_emission(w_ly[lb, lk], laser) * cos_y_in[lb, lk] / r_ly[lb, lk] ** 2
-        w_yp_out = -obs.directions[lb, lk]                                   # toward the lookin
-        radiance = irradiance * self._brdf(obj_yp, n_yp, -w_ly[lb, lk], w_yp_out)
-        in_w = radiance * obs.local_z[lb, lk] * obs.solid_angle * area[lb]   # photons arriving at the lookin
-        in_path = r_ly[lb, lk] + obs.distance[lb, lk]
+        lb, lk = hb[cand], hk[cand]
+        yp, n_yp, obj_yp = y1[cand], n_y1[cand], obs.object_id[lb, lk]
+        w_l = w_ly[cand]
+        r_l = r_ly[cand]
+        irradiance = c.photons * self._spot_emission(w_l, laser) * cos_y_in[cand] / r_l ** 2
         in_dir = obs.directions[lb, lk]
+        radiance = irradiance * self._brdf(obj_yp, n_yp, -w_l, -in_dir)       # toward the lookin
+        in_w = radiance * obs.local_z[lb, lk] * obs.solid_angle * area[lb]   # photons arriving at the lookin
+        in_path = r_l + obs.distance[lb, lk]
         laser_t = (c.emitter_legs[laser] if s.count_laser_leg else 0.0) / SPEED_OF_LIGHT
         if s.attenuation > 0:
             in_w = in_w * self._attenuation(c.emitter_legs[laser] + in_path)
@@ -817,8 +847,8 @@ class Transport:
                                           in_dir[mi], sub, out_w[mo], out_t[mo], conv)
                 return
         scale = self.materials.separable_scale(obj_x)                                  # (B,)
-        g_in = self.materials.separable_factor(obj_x[lb], n_x[lb], in_dir)
-        g_out = self.materials.separable_factor(obj_x[out.b], n_x[out.b], out.direction)
+        g_in = self.materials.separable_factor_above(obj_x[lb], n_x[lb], in_dir)
+        g_out = self.materials.separable_factor_above(obj_x[out.b], n_x[out.b], out.direction)
         step = conv.step
         # incoming profiles, one row per lookin, on nodes n·step (time from the spot)
         a_start, a_dense = _cic_rows(in_t / step, in_w * g_in, lb, B)
