@@ -47,7 +47,7 @@ class Material(BaseModel):
     kind: Literal["lambertian", "sin_theta", "phong"] = "lambertian"
     albedo: float = Field(1.0, ge=0.0, le=1.0, description="hemispherical reflectance scale ρ (Γ), 0..1")
     specular: float = Field(0.5, ge=0.0, le=1.0, description="phong: fraction k_s of ρ in the glossy lobe")
-    exponent: float = Field(50.0, gt=0.0, description="phong: lobe exponent n (larger is sharper)")
+    exponent: float = Field(50.0, gt=0.0, allow_inf_nan=False, description="phong: lobe exponent n (larger is sharper)")
     axis: tuple[float, float, float] = Field((0.0, 0.0, 1.0), description="sin_theta: azimuth reference axis")
 
     @field_validator("axis")

@@ -75,8 +75,8 @@ class Laser(BaseModel):
 
     emitter: Vec3 = (0.0, 0.0, 1.0)
     spot: Vec3
-    photons_per_pulse: float | None = Field(None, gt=0)
-    pulse_energy: float | None = Field(None, gt=0)
+    photons_per_pulse: float | None = Field(None, gt=0, allow_inf_nan=False)
+    pulse_energy: float | None = Field(None, gt=0, allow_inf_nan=False)
     wavelength: float = Field(532e-9, gt=0)
 
     @field_validator("pulse_energy", mode="before")
@@ -126,6 +126,13 @@ class FieldOfView(BaseModel):
     size: tuple[float, float]
     pixels: tuple[int, int] = (1, 1)
 
+    @field_validator("center")
+    @classmethod
+    def _finite_center(cls, v: Vec3) -> Vec3:
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"must be finite, got {list(v)}")
+        return v
+
     @field_validator("size")
     @classmethod
     def _positive(cls, v: tuple[float, float]) -> tuple[float, float]:
@@ -158,6 +165,13 @@ class Sensor(BaseModel):
     @classmethod
     def _radius(cls, v: Any) -> Any:
         return parse_length(v)
+
+    @field_validator("position")
+    @classmethod
+    def _finite(cls, v: Vec3) -> Vec3:
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"must be finite, got {list(v)}")
+        return v
 
     @property
     def aperture_area(self) -> float:

@@ -24,7 +24,8 @@ from .scene import Scene, SceneError, format_validation_error
 from .transport import Transport, TransportSettings
 
 EFFECTS = ("shadow_spot", "shadow_sensor", "secondary", "brdf_angles", "attenuation", "first_bounce", "pile_up")
-"""Effects the planner decides (datagen.planner); each can be forced on or off in ``SimulationConfig.effects``."""
+"""Effects the planner decides (datagen.planner.EFFECTS, a test keeps them equal); each can be forced on or off
+in ``SimulationConfig.effects``."""
 
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
 """spawn_key entries of the random streams (DESIGN.md §7)."""
@@ -203,18 +204,61 @@ def library_versions() -> dict[str, str]:
     return out
 
 
-def _plan(scene: Scene, config: SimulationConfig, transport: Transport) -> dict:
+def _plan(scene: Scene, config: SimulationConfig, transport: Transport):
     """Run the effect planner (datagen.planner) and apply its decisions to the transport settings.
 
-    Returns the plan's attributes (effect → {on, reason, forced}).
+    Returns the :class:`datagen.planner.Plan`.
     """
-    try:
-        from .planner import plan_effects
-    except ImportError:          # planner not yet available: forced values only (TODO remove)
-        return {}
+    from .planner import plan_effects
     plan = plan_effects(scene, config, transport.capture, transport.caster)
     transport.configure(plan.apply(transport.settings))
-    return plan.to_attrs()
+    return plan
+
+
+@dataclass
+class Transported:
+    """Binned transport output before the detector: per-component envelopes and bookkeeping.
+
+    Attributes:
+        names: component names; binned: (n_components, n_channels, n_bins) float64; outside: same without
+        the bin axis (energy outside the window); transport: the :class:`Transport` used (capture, settings,
+        stats); plan: the effect plan's attributes; seconds: setup / transport / binning wall times.
+    """
+
+    names: list[str]
+    binned: np.ndarray
+    outside: np.ndarray
+    transport: Transport
+    plan: Any
+    seconds: dict
+
+
+def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generator,
+                  progress: bool = False) -> Transported:
+    """Plan the effects, run the estimator and bin its impulses (scene → transport → envelope)."""
+    t0 = time.perf_counter()
+    transport = Transport(scene, config.transport_settings(), RayCaster(scene))
+    plan = _plan(scene, config, transport)
+    t_setup = time.perf_counter() - t0
+    capture = transport.capture
+    names = transport.component_names
+    n_ch = capture.n_channels
+    acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_ch)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        total = config.lookins[0] * config.lookins[1] * capture.n_lasers
+        bar = tqdm(total=total, unit="lookin", desc="transport", leave=False)
+    t1 = time.perf_counter()
+    transport.run(acc, rng, progress=(bar.update if bar is not None else None))
+    if bar is not None:
+        bar.close()
+    t_transport = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    binned = acc.binned().reshape(len(names), n_ch, -1)
+    outside = acc.outside().reshape(len(names), n_ch)
+    seconds = {"setup": t_setup, "transport": t_transport, "binning": time.perf_counter() - t2}
+    return Transported(names, binned, outside, transport, plan, seconds)
 
 
 def simulate(scene: Scene, config: SimulationConfig | None = None, progress: bool = False,
@@ -235,36 +279,27 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
         SceneError: invalid scene/config (laser spot off every surface, FoV sees no surface, …).
     """
     config = config or resolve_config(scene)
-    detector = config.detector_config()
     t0 = time.perf_counter()
-    transport = Transport(scene, config.transport_settings(), RayCaster(scene))
-    plan = _plan(scene, config, transport)
-    if not plan.get("pile_up", {}).get("on", True) and detector.model != "poisson":
-        detector = detector.model_copy(update={"model": "poisson"})
-    t_setup = time.perf_counter() - t0
-    capture = transport.capture
-    names = transport.component_names
-    n_ch = capture.n_channels
-    acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_ch)
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-        total = config.lookins[0] * config.lookins[1] * capture.n_lasers
-        bar = tqdm(total=total, unit="lookin", desc="transport", leave=False)
-    t1 = time.perf_counter()
-    transport.run(acc, rng, progress=(bar.update if bar is not None else None))
-    if bar is not None:
-        bar.close()
-    t_transport = time.perf_counter() - t1
-    t2 = time.perf_counter()
-    binned = acc.binned()
-    outside = acc.outside()
+    tr = run_transport(scene, config, rng, progress)
+    return make_result(scene, config, tr, noise_rng, t0)
+
+
+def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
+                noise_rng: np.random.Generator | None, t0: float, extra_attrs: dict | None = None) -> Result:
+    """Detector draw and metadata around binned transport output (the last steps of :func:`simulate`)."""
+    transport, names = tr.transport, tr.names
+    capture = transport.capture
     shape = capture.channel_shape() + (config.time.n_bins,)
-    per = binned.reshape(len(names), n_ch, -1)
-    components = {name: per[i].reshape(shape) for i, name in enumerate(names)}
-    envelope = per.sum(axis=0).reshape(shape)
-    t_bin = time.perf_counter() - t2
+    components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
+    envelope = tr.binned.sum(axis=0).reshape(shape)
+    detector = config.detector_config()
+    plan = tr.plan.refine_pile_up(envelope, detector)
+    detector = plan.detector(detector)
+    warnings = []
+    if not envelope.any():
+        warnings.append("no light path reaches the FoV: the envelope is zero (no path from the laser spot "
+                        "reaches the sensor grid within the time window; counts hold background only)")
     t3 = time.perf_counter()
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
     counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
@@ -289,7 +324,8 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
                   "counts": "detections over the exposure (int64)"},
         "time_zero": "laser pulse at the laser spot" if not config.count_laser_leg else "laser pulse leaves emitter",
         "photons_per_pulse": capture.photons,
-        "plan": plan,
+        "plan": plan.to_attrs(),
+        "warnings": warnings,
         "effects": {
             "primary": True,
             "secondary": settings.secondary,
@@ -303,14 +339,13 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
             "fov_to_sensor_leg_in_time": config.count_sensor_leg,
             "detector_model": detector.model,
         },
-        "energy_outside_window": {n: float(v) for n, v in zip(names, outside.reshape(len(names), -1).sum(1))},
+        "energy_outside_window": {n: float(v) for n, v in zip(names, tr.outside.sum(1))},
         "stats": {k: int(v) for k, v in vars(st).items()},
-        "timings_s": {"setup": t_setup, "transport": t_transport, "binning": t_bin, "detector": t_detect,
-                      "total": time.perf_counter() - t0},
+        "timings_s": {**tr.seconds, "detector": t_detect, "total": time.perf_counter() - t0},
         "versions": library_versions(),
+        **(extra_attrs or {}),
     }
     lx, ly = capture.laser_shape
-    nx, ny = capture.fov_pixels
     return Result(config.time.edges, envelope, components, counts, attrs,
                   laser_points=capture.spots.reshape(ly, lx, 3), sensor_points=capture.sensor_points(),
                   wall_normal=capture.fov_normal.copy())

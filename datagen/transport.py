@@ -248,6 +248,9 @@ def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
         fields = [f"capture.laser_grid point {i}" for i in range(len(spots))]
     names = [o.name for o in scene.objects]
     resolved = [_resolve_spot(caster, names, emitter, p, where, f) for p, f in zip(spots, fields)]
+    if float(np.dot(normal, resolved[0][0])) < 0:
+        raise SceneError(f"{where}sensor.position {sensor.tolist()} is behind the relay wall: it sees the back of "
+                         f"the wall at {grid_field} while the laser lights the other side")
     photons = 1.0 if convention == "point_radiance" else scene.laser.photons
     capture = Capture(kind, convention, spots, np.array([r[0] for r in resolved]),
                       np.array([r[1] for r in resolved], dtype=np.int64), laser_shape, emitter,
@@ -749,6 +752,10 @@ class Transport:
         comp = (self.n_primary + 1) * c.n_channels
         for laser in range(c.n_lasers):
             spot = c.spots[laser]
+            rel = spot - c.fov_center
+            margin = min(c.fov_size[0] / 2 - abs(rel @ c.fov_u), c.fov_size[1] / 2 - abs(rel @ c.fov_v))
+            if margin <= 1e-9 * max(c.fov_size):        # on the FoV's edge (or outside): not imaged
+                continue
             pix = c.fov_pixel(spot[None], tol)
             ch = c.channel(laser, pix)
             if ch[0] < 0:

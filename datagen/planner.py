@@ -1,0 +1,915 @@
+"""The effect planner: before transport, decide which effects a scene calls for (issue 5).
+
+``plan_effects(scene, config, capture, caster)`` returns a :class:`Plan`: one :class:`Decision` per effect
+(``on``, a human-readable ``reason`` quoting the numbers behind it, ``forced`` when the user set it, and
+those ``numbers``). ``Plan.apply`` turns it into :class:`~datagen.transport.TransportSettings` switches,
+``Plan.detector`` into the detector model, and ``Plan.to_attrs`` into the JSON stored in the result's
+attributes (``attrs["plan"]``). An effect is skipped only when simulating it cannot change the envelope by
+more than ``config.tolerance`` (relative), or when it is exactly zero. Every effect can be forced with
+``config.effects[name] = True | False``; forced values always win. The rules (docs/planner.md derives them):
+
+- ``shadow_sensor``: FoV point → sensor shadow rays. Off when no triangle except the FoV's own surface can
+  meet the pyramid spanned by the sensor and the FoV rectangle (separating-plane test: the pyramid's five
+  face planes and the triangle's own plane). Exact: such rays can never be blocked.
+- ``shadow_spot``: observed point → laser spot shadow rays (which points the laser lights, for the
+  secondary). Off when the secondary is off, or when no triangle can meet any tetrahedron spanned by the
+  spot (the hull of the laser grid's corners for a scan) and a hidden triangle lit on a side the laser can
+  reach (same separating-plane test, all pairs; closed meshes are seen from outside only): every segment
+  spot → observable lit point is then free. Exact.
+- ``secondary``: off when no two hidden triangles can exchange light on the way spot → x → x' → FoV
+  (exact zero), or when a coarse area quadrature of secondary / primary energy times
+  ``SECONDARY_SAFETY`` is below the tolerance (an *estimate* with a safety factor, not a bound).
+- ``brdf_angles``: off when every material is Lambertian (f = ρ/π does not depend on angles). Exact.
+- ``attenuation``: off when 1 − e^{−μ·L_max} < tolerance, L_max = emitter leg + 3 × scene diagonal +
+  longest FoV → sensor leg bounds every simulated path, so every bin changes by less. A bound.
+- ``first_bounce``: on only when the laser spot lies strictly inside the FoV, faces and sees the sensor,
+  arrives inside the time window, and the detector gate leaves a bin of its IRF support open. Exact.
+- ``pile_up``: off (Poisson counts) when the dead-time bound 1 − e^{−M} < tolerance, M the expected
+  avalanches in the longest window that can disable the detector (Λ per cycle for pile-up and multi-stop).
+  Before transport Λ is estimated (coarse quadrature × ``PILE_UP_SAFETY``); :meth:`Plan.refine_pile_up`
+  replaces it by the exact Λ of the envelope.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from . import spad
+from .irf import TAIL_MARGIN_TAUS
+from .raycast import RayCaster
+from .reference import subdivide_triangles
+from .scene import Scene, SceneError
+from .transport import FOV_PLANE_TOL, Capture, Transport, TransportSettings
+from .units import SPEED_OF_LIGHT
+
+if TYPE_CHECKING:  # simulate imports this module
+    from .simulate import SimulationConfig
+
+EFFECTS = ("shadow_spot", "shadow_sensor", "secondary", "brdf_angles", "attenuation", "first_bounce", "pile_up")
+"""Keys of ``SimulationConfig.effects``; each maps to True, False or "auto"."""
+
+DEFAULT_TOLERANCE = 0.01
+"""Relative change of the envelope below which an effect may be skipped (``SimulationConfig.tolerance``)."""
+
+SECONDARY_SAFETY = 4.0
+"""Factor on the coarse secondary/primary energy estimate before comparing with the tolerance. The coarse
+quadrature is an estimate, not a bound: on the seven scenes of docs/planner.md it was 0.86–1.25 × the
+converged transport ratio, so 4 leaves a margin of more than 3 against underestimates."""
+
+PILE_UP_SAFETY = 4.0
+"""Factor on the coarse estimate of detected photons per pulse (primary + secondary) used for Λ before
+transport; the first bounce and the background are exact and not multiplied."""
+
+COARSE_ELEMENTS = 160
+"""Target number of hidden-surface elements of the coarse quadrature (cost ∝ elements²: ~0.03 s for the
+demo room; 256 elements moved its ratio by 6 % for 3× the time)."""
+
+COARSE_ELEMENTS_MAX = 250
+"""Hard cap on coarse elements; meshes with more triangles are sampled by area instead of subdivided."""
+
+COARSE_FOV = (5, 5)
+"""FoV cells of the coarse quadrature."""
+
+PAIR_TEST_MAX_TRIANGLES = 2000
+"""Pairwise triangle tests (shadow_spot, exact-zero secondary) cost O(F²); above this many triangles
+(4e6 pairs, ~1 s when nothing blocks) the planner does not attempt them and keeps the effect on."""
+
+FOV_EDGE_REL = 1e-9
+"""A laser point within this fraction of the FoV size of the FoV's edge is on the boundary, which counts as
+outside (the demo room's spot lies exactly on its FoV's top edge; float rounding of the in-plane
+coordinates is ~1e-16 relative)."""
+
+PLANNER_SEED = 20240520
+"""Seed of the area sampling used only when a mesh has more than ``COARSE_ELEMENTS_MAX`` triangles, so
+the plan of a scene is always the same."""
+
+_CHUNK_ELEMENTS = 1 << 22
+"""Floats per temporary in the vectorised pair tests (32 MiB)."""
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Plan and decisions
+
+
+@dataclass(frozen=True)
+class Decision:
+    """Whether one effect is simulated.
+
+    Attributes:
+        on: simulate the effect.
+        reason: why, quoting the numbers.
+        forced: set by the user (``config.effects``), not decided by the planner.
+        numbers: the quantities behind the decision (floats, ints, strings; JSON-able).
+    """
+
+    on: bool
+    reason: str
+    forced: bool = False
+    numbers: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One :class:`Decision` per effect of :data:`EFFECTS`, and the tolerance they were made for."""
+
+    decisions: dict[str, Decision]
+    tolerance: float = DEFAULT_TOLERANCE
+
+    def __getitem__(self, name: str) -> Decision:
+        return self.decisions[name]
+
+    def on(self, name: str) -> bool:
+        """True when effect ``name`` is simulated."""
+        return self.decisions[name].on
+
+    def to_attrs(self) -> dict:
+        """JSON-able form stored in ``Result.attrs["plan"]``: effect → {on, forced, reason, numbers}."""
+        return {name: {"on": bool(d.on), "forced": bool(d.forced), "reason": d.reason,
+                       "numbers": _jsonable(d.numbers)} for name, d in self.decisions.items()}
+
+    def apply(self, settings: TransportSettings) -> TransportSettings:
+        """Transport settings with this plan's switches (``dataclasses.replace``).
+
+        ``secondary`` becomes "none" and ``attenuation`` 0.0 when their effect is off; otherwise the configured
+        estimator and μ are kept. Shadow, first-bounce and BRDF switches are set from the decisions.
+        """
+        return dataclasses.replace(
+            settings,
+            shadow_spot=self.on("shadow_spot"), shadow_sensor=self.on("shadow_sensor"),
+            first_bounce=self.on("first_bounce"), brdf_angles=self.on("brdf_angles"),
+            secondary=settings.secondary if self.on("secondary") else "none",
+            attenuation=settings.attenuation if self.on("attenuation") else 0.0)
+
+    def detector(self, detector: spad.DetectorConfig) -> spad.DetectorConfig:
+        """The detector model to use: ``detector`` itself, or its Poisson version when pile-up is off."""
+        if self.on("pile_up") or detector.model == "poisson":
+            return detector
+        data = detector.model_dump()
+        data.update(model="poisson", dead_time_kind=None, paralyzable=False)
+        return spad.DetectorConfig.model_validate(data)
+
+    def refine_pile_up(self, envelope: np.ndarray, detector: spad.DetectorConfig) -> "Plan":
+        """Re-decide an automatic ``pile_up`` from the envelope itself (exact Λ instead of the estimate).
+
+        Args:
+            envelope: (..., n_bins) expected detected photons per pulse per bin (pixels on leading axes).
+            detector: the configured detector.
+        Returns:
+            A new plan (this one unchanged when ``pile_up`` was forced).
+        """
+        if self.decisions["pile_up"].forced:
+            return self
+        rates = spad.rates_from_envelope(envelope, detector)
+        lam = float(np.max(rates.reshape(-1, rates.shape[-1]).sum(axis=-1))) if rates.size else 0.0
+        window = float(np.sum(detector.widths(rates.shape[-1])))
+        decision = _pile_up_from_lambda(detector, lam, window, self.tolerance, "from the envelope")
+        return dataclasses.replace(self, decisions={**self.decisions, "pile_up": decision})
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    return value if value is None or isinstance(value, str) else str(value)
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3g}"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Entry point
+
+
+def plan_effects(scene: Scene, config: "SimulationConfig", capture: Capture, caster: RayCaster) -> Plan:
+    """Decide which effects to simulate for ``scene`` under ``config`` (rules in the module docstring).
+
+    Args:
+        scene: the scene; config: the simulation config (``tolerance``, ``effects``, time axis, IRF,
+            detector, ``secondary``, ``attenuation``, leg flags); capture: its resolved capture geometry
+            (one laser spot, or a confocal/exhaustive laser grid); caster: the scene's ray caster.
+    Returns:
+        :class:`Plan` with a decision for every effect of :data:`EFFECTS`.
+    Raises:
+        SceneError: an unknown key or value in ``config.effects``, a tolerance outside [0, 1), or a forced
+            effect the configuration cannot simulate (secondary forced on with ``secondary: none``, pile-up
+            forced on with a Poisson detector).
+    """
+    tol = float(getattr(config, "tolerance", DEFAULT_TOLERANCE))
+    if not (math.isfinite(tol) and 0.0 <= tol < 1.0):
+        raise SceneError(f"tolerance must be in [0, 1) (a relative error of the envelope), got {tol!r}")
+    forced = _forced_effects(getattr(config, "effects", None) or {})
+    detector = config.detector_config()
+    if forced.get("secondary") is True and config.secondary == "none":
+        raise SceneError("effects.secondary is forced on but secondary is 'none': choose an estimator "
+                         "(optimized, full or exact)")
+    if forced.get("pile_up") is True and detector.model == "poisson":
+        raise SceneError("effects.pile_up is forced on but detector.model is 'poisson': choose pile_up, "
+                         "multi_stop or free_running")
+    geometry = _Geometry(scene, caster, capture, FOV_PLANE_TOL * caster.offset, detector.pde)
+
+    auto: dict[str, Decision] = {}
+    auto["brdf_angles"] = _decide_brdf_angles(scene)
+    auto["attenuation"] = _decide_attenuation(config.attenuation, geometry, tol)
+    auto["first_bounce"] = _decide_first_bounce(config, detector, geometry)
+    coarse = None
+    if (forced.get("secondary") is None and config.secondary != "none") or forced.get("pile_up") is None:
+        coarse = _coarse_energies(geometry)
+    auto["secondary"] = _decide_secondary(config.secondary, geometry, coarse, tol)
+    secondary_on = _resolve("secondary", auto["secondary"], forced).on
+    auto["shadow_spot"] = _decide_shadow_spot(geometry, secondary_on)
+    auto["shadow_sensor"] = _decide_shadow_sensor(geometry)
+    first_bounce_on = _resolve("first_bounce", auto["first_bounce"], forced).on
+    auto["pile_up"] = _decide_pile_up(detector, config, coarse, secondary_on,
+                                      auto["first_bounce"] if first_bounce_on else None, tol)
+    return Plan({name: _resolve(name, auto[name], forced) for name in EFFECTS}, tol)
+
+
+def _forced_effects(effects: dict) -> dict[str, bool | None]:
+    out: dict[str, bool | None] = {}
+    for key, value in dict(effects).items():
+        if key not in EFFECTS:
+            raise SceneError(f"effects: unknown effect {key!r}; known effects are {list(EFFECTS)}")
+        if value is None or (isinstance(value, str) and value == "auto"):
+            out[key] = None
+        elif isinstance(value, (bool, np.bool_)):
+            out[key] = bool(value)
+        else:
+            raise SceneError(f"effects.{key} must be true, false or 'auto', got {value!r}")
+    return out
+
+
+def _resolve(name: str, auto: Decision, forced: dict[str, bool | None]) -> Decision:
+    value = forced.get(name)
+    if value is None:
+        return auto
+    planner = "on" if auto.on else "off"
+    return Decision(value, f"forced {'on' if value else 'off'} by the user (the planner would say {planner}: "
+                           f"{auto.reason})", True, auto.numbers)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Geometry shared by the decisions
+
+
+class _Geometry:
+    """Triangles, their planes and the capture frame, in float64 metres.
+
+    ``lasers`` are the laser points the estimates use: the only one of a single capture, else the corners
+    of the laser grid and its most central point (the estimates vary smoothly over a grid on a wall).
+    ``corners`` are the laser grid's corners: every laser point lies in their convex hull. ``side`` tells,
+    per face, which side light from the laser can ever reach (:func:`_reachable_side`).
+    """
+
+    def __init__(self, scene: Scene, caster: RayCaster, capture: Capture, tol: float, pde: float):
+        self.scene, self.caster, self.capture, self.tol = scene, caster, capture, tol
+        # the transport's per-leg weights (spot emission, sensor collection), with every effect on
+        self.legs = Transport(scene, TransportSettings(secondary="none", pde=pde, attenuation=0.0), caster)
+        self.tri = caster.vertices[caster.faces]                       # (F, 3, 3)
+        self.normal = caster.face_normals                               # (F, 3), zero when degenerate
+        self.offset = np.einsum("ij,ij->i", self.normal, self.tri[:, 0])
+        self.valid = caster.face_area > 0
+        self.object = caster.face_object
+        c = capture
+        lx, ly = c.laser_shape
+        grid = np.arange(c.n_lasers).reshape(ly, lx)
+        self.corners = np.unique(grid[[0, 0, -1, -1], [0, -1, -1, 0]])
+        centre = grid[(ly - 1) // 2, (lx - 1) // 2]
+        self.lasers = np.unique(np.append(self.corners, centre))
+        hw, hh = 0.5 * c.fov_size[0], 0.5 * c.fov_size[1]
+        self.fov_corners = np.array([c.fov_center + a * hw * c.fov_u + b * hh * c.fov_v
+                                     for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        # signed distances of every vertex to each laser corner's wall plane (+ = hidden side) and the FoV's
+        self.d_spot = np.einsum("fvk,lk->lfv", self.tri, c.spot_normals[self.corners]) \
+            - np.einsum("lk,lk->l", c.spots[self.corners], c.spot_normals[self.corners])[:, None, None]
+        self.d_fov = (self.tri - c.fov_center) @ c.fov_normal          # (F, 3), + = sensor side
+        self.front = np.any(self.d_spot > tol, axis=2).any(axis=0)      # (F,) reaches the hidden side
+        in_wall = np.all(np.abs(self.d_spot) <= tol, axis=2).all(axis=0)
+        in_fov_plane = np.all(np.abs(self.d_fov) <= tol, axis=1)
+        albedo = scene.materials.albedo[self.object]
+        # hidden triangles: real surfaces off the relay-wall/FoV plane that reflect light
+        self.hidden = self.valid & ~in_wall & ~in_fov_plane & (albedo > 0)
+        self.side = _reachable_side(scene, c.spots[self.corners])       # (F,) +1/−1/0
+        bounds = np.stack([caster.vertices.min(axis=0), caster.vertices.max(axis=0)])
+        self.diagonal = float(np.linalg.norm(bounds[1] - bounds[0]))
+        self.max_sensor_leg = float(np.max(np.linalg.norm(self.fov_corners - c.sensor, axis=1)))
+
+    def names(self, faces: np.ndarray) -> list[str]:
+        """Object names of ``faces`` (sorted, unique)."""
+        return sorted({self.scene.objects[i].name for i in np.unique(self.object[faces])})
+
+
+WINDING_INSIDE = 0.75
+"""|winding number| above this: the point is inside a closed mesh; below 0.25: outside; between (on the
+surface): undecided, both sides are kept."""
+
+
+def _closed_components(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Connected components of a mesh that are closed with consistent winding.
+
+    After merging identical vertices a component is closed and consistently wound when each of its directed
+    edges occurs exactly once and so does the reverse. Returns (F,) component label per face (−1: the face
+    belongs to an open or inconsistent component) and the (F, 3, 3) triangles.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    f = inverse.reshape(-1)[faces]
+    n = len(unique)
+    a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n))
+    _, vertex_label = connected_components(graph, directed=False)
+    label = vertex_label[f[:, 0]]
+    fwd = a * n + b
+    keys, counts = np.unique(fwd, return_counts=True)
+    edge_ok = (a != b) & (counts[np.searchsorted(keys, fwd)] == 1) & np.isin(b * n + a, fwd)
+    bad = np.unique(label[~edge_ok.reshape(-1, 3).all(axis=1)])
+    return np.where(np.isin(label, bad), -1, label), unique[f]
+
+
+def _winding_number(tri: np.ndarray, point: np.ndarray) -> float:
+    """Generalised winding number of ``point`` w.r.t. triangles (F, 3, 3): Σ solid angles / 4π (Van Oosterom &
+    Strackee, IEEE TBME 30(2), 1983); ±1 inside a closed surface, 0 outside, ±½ on it."""
+    a, b, c = (tri[:, i] - point for i in range(3))
+    la, lb, lc = (np.linalg.norm(v, axis=1) for v in (a, b, c))
+    num = np.einsum("ij,ij->i", a, np.cross(b, c))
+    den = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb \
+        + np.einsum("ij,ij->i", b, c) * la
+    return float(np.sum(2.0 * np.arctan2(num, den)) / (4.0 * np.pi))
+
+
+def _reachable_side(scene: Scene, spots: np.ndarray) -> np.ndarray:
+    """Which side of each face light from the laser can reach: (F,) int8, +1 / −1 the side the face normal
+    (vertex winding as given) points to / away from, 0 either side.
+
+    Only closed, consistently wound components restrict it: every ray from the laser spot (lookins, then the
+    lookins' cameras) stays in the spot's region, inside or outside the closed surface, so it sees only
+    that side of its faces. Inside/outside from the winding number of the spot (:func:`_winding_number`),
+    orientation from the component's signed volume. All ``spots`` must agree, else 0.
+    """
+    out = []
+    for obj in scene.objects:
+        side = np.zeros(len(obj.faces), dtype=np.int8)
+        label, tri = _closed_components(obj.vertices, obj.faces)
+        for comp in np.unique(label[label >= 0]):
+            t = tri[label == comp]
+            orientation = np.sign(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum())
+            sides = set()
+            for p in spots:
+                w = abs(_winding_number(t, p))
+                sides.add(0 if 1 - WINDING_INSIDE < w < WINDING_INSIDE
+                          else int(-orientation if w >= WINDING_INSIDE else orientation))
+            if len(sides) == 1 and orientation != 0:
+                side[label == comp] = sides.pop()
+        out.append(side)
+    return np.concatenate(out)
+
+
+def _outward_planes(faces: np.ndarray, opposite: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Planes through (..., 3, 3) vertex triples with unit normals pointing away from ``opposite`` (..., 3).
+
+    Returns normals (..., 3), offsets (...,) with n·x = offset on the plane, and validity (...,) (False for a
+    degenerate triple or when ``opposite`` lies on the plane).
+    """
+    n = np.cross(faces[..., 1, :] - faces[..., 0, :], faces[..., 2, :] - faces[..., 0, :])
+    length = np.linalg.norm(n, axis=-1)
+    n = np.divide(n, length[..., None], out=np.zeros_like(n), where=length[..., None] > 0)
+    side = np.einsum("...k,...k->...", n, opposite - faces[..., 0, :])
+    n = np.where((side > 0)[..., None], -n, n)
+    valid = (length > 0) & (side != 0)
+    return n, np.einsum("...k,...k->...", n, faces[..., 0, :]), valid
+
+
+def _hull_planes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Outward face planes of the convex hulls of point sets (m, V, 3) → normals (m, P, 3), offsets (m, P),
+    validity (m, P), by Qhull; a flat or degenerate set gets no valid plane (it is then never separated)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    planes = []
+    for pts in points:
+        try:
+            eq = ConvexHull(pts).equations                             # n·x + d ≤ 0 inside, n unit
+            planes.append((eq[:, :3], -eq[:, 3]))
+        except (QhullError, ValueError):
+            planes.append((np.zeros((1, 3)), np.zeros(1)))
+    p = max(len(n) for n, _ in planes)
+    normals = np.zeros((len(points), p, 3))
+    offsets = np.zeros((len(points), p))
+    valid = np.zeros((len(points), p), dtype=bool)
+    for i, (n, o) in enumerate(planes):
+        normals[i, :len(n)], offsets[i, :len(n)] = n, o
+        valid[i, :len(n)] = np.linalg.norm(n, axis=1) > 0
+    return normals, offsets, valid
+
+
+def _may_meet(tri: np.ndarray, tri_n: np.ndarray, tri_o: np.ndarray, tri_valid: np.ndarray,
+              hull_n: np.ndarray, hull_o: np.ndarray, hull_valid: np.ndarray, hull_v: np.ndarray,
+              tol: float, exclude: np.ndarray | None = None, first_only: bool = False) -> np.ndarray:
+    """Conservative triangle / convex-hull overlap test by separating planes.
+
+    A triangle is apart from a convex hull when all its vertices lie outside (≥ −tol) one outward face plane
+    of the hull, or all hull vertices lie on one side (within tol) of the triangle's plane. Touching within
+    ``tol`` counts as apart: contact on the boundary blocks only a set of measure zero (docs/planner.md).
+    Missing the edge×edge axes only makes the test report "may meet" too often, never too rarely.
+
+    Args:
+        tri: (k, 3, 3) triangles; tri_n, tri_o, tri_valid: their planes (k, 3), (k,), (k,) bool.
+        hull_n, hull_o, hull_valid: (m, P, 3), (m, P), (m, P) outward face planes of m hulls.
+        hull_v: (m, V, 3) hull vertices.
+        exclude: optional (k, m) bool → (k,) and (m,) ids: pairs with equal ids never meet (pass as a pair of
+            arrays (tri_ids, hull_ids)).
+        first_only: stop after the first chunk of triangles that has a meeting pair (rows after it are False).
+    Returns:
+        (k, m) bool, True where the triangle may meet the hull.
+    """
+    k, m = len(tri), len(hull_n)
+    out = np.zeros((k, m), dtype=bool)
+    if k == 0 or m == 0:
+        return out
+    p, v = hull_n.shape[1], hull_v.shape[1]
+    planes = hull_n.reshape(m * p, 3).T                                   # (3, m·P)
+    step = max(1, _CHUNK_ELEMENTS // max(1, 3 * m * p))
+    if first_only:
+        step = min(step, 128)
+    for s in range(0, k, step):
+        t = tri[s:s + step]
+        a = len(t)
+        d_min = (t.reshape(a * 3, 3) @ planes).reshape(a, 3, m * p).min(axis=1)
+        apart = ((d_min >= (hull_o.reshape(-1) - tol)[None]) & hull_valid.reshape(-1)[None]).reshape(a, m, p).any(-1)
+        e = (tri_n[s:s + step] @ hull_v.reshape(m * v, 3).T).reshape(a, m, v)
+        lo, hi = e.min(axis=-1), e.max(axis=-1)
+        o = tri_o[s:s + step, None]
+        apart |= tri_valid[s:s + step, None] & ((lo >= o - tol) | (hi <= o + tol))
+        if exclude is not None:
+            apart |= exclude[0][s:s + step, None] == exclude[1][None, :]
+        out[s:s + step] = ~apart
+        if first_only and out[s:s + step].any():
+            break
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The decisions
+
+
+def _decide_brdf_angles(scene: Scene) -> Decision:
+    kinds = {o.name: (o.material.kind, o.material.is_lambertian, o.material.albedo) for o in scene.objects}
+    angular = [n for n, (_, lamb, _) in kinds.items() if not lamb]
+    per = {n: ("lambertian f = ρ/π = " + _fmt(rho / np.pi) if lamb else f"{kind}: depends on angles")
+           for n, (kind, lamb, rho) in kinds.items()}
+    numbers = {"materials": per}
+    if angular:
+        return Decision(False, "angle work only where needed: Lambertian materials take f = ρ/π ("
+                        + ", ".join(n for n in kinds if n not in angular) + "); non-Lambertian ones are "
+                        "evaluated in full: " + ", ".join(f"{n} ({kinds[n][0]})" for n in angular), False, numbers)
+    return Decision(False, f"all {len(kinds)} materials are Lambertian (f = ρ/π, no angle dependence): "
+                    + ", ".join(f"{n} ρ={_fmt(kinds[n][2])}" for n in kinds), False, numbers)
+
+
+def _decide_attenuation(mu: float, g: _Geometry, tol: float) -> Decision:
+    emitter_leg = float(np.max(g.capture.emitter_legs))
+    longest = emitter_leg + 3.0 * g.diagonal + g.max_sensor_leg
+    change = -math.expm1(-mu * longest)
+    numbers = {"mu_per_m": mu, "longest_path_m": longest, "max_relative_change": change}
+    what = (f"μ = {_fmt(mu)}/m over the longest path L = {_fmt(longest)} m (emitter leg {_fmt(emitter_leg)} "
+            f"+ 3 × scene diagonal {_fmt(g.diagonal)} + FoV→sensor {_fmt(g.max_sensor_leg)}): "
+            f"1 − e^(−μL) = {_fmt(change)}")
+    if mu == 0.0:
+        return Decision(False, "no atmospheric attenuation configured (μ = 0)", False, numbers)
+    if change < tol:
+        return Decision(False, f"{what} < tolerance {_fmt(tol)}", False, numbers)
+    return Decision(True, f"{what} ≥ tolerance {_fmt(tol)}", False, numbers)
+
+
+def _decide_first_bounce(config: "SimulationConfig", detector: spad.DetectorConfig, g: _Geometry) -> Decision:
+    """Direct spot → sensor return: on when some laser point is strictly inside the FoV, in a recorded
+    channel, faces and sees the sensor, arrives in the window and is not gated out (bin-exact)."""
+    c, tol = g.capture, g.tol
+    if c.convention != "aperture":
+        return Decision(False, f"the {c.convention} convention has no direct aperture return")
+    rel = c.spots - c.fov_center
+    a, b = rel @ c.fov_u, rel @ c.fov_v
+    off_plane = np.abs(rel @ c.fov_normal)
+    margin = np.minimum(0.5 * c.fov_size[0] - np.abs(a), 0.5 * c.fov_size[1] - np.abs(b))   # > 0: inside
+    pix = c.fov_pixel(c.spots, tol)
+    channel = np.array([c.channel(i, pix[i:i + 1])[0] for i in range(c.n_lasers)])
+    edge = FOV_EDGE_REL * max(c.fov_size)                                   # boundary points count as outside
+    inside = (off_plane <= tol) & (margin > edge) & (channel >= 0)
+    numbers: dict[str, Any] = {"lasers": int(c.n_lasers), "lasers_inside_fov": int(inside.sum()),
+                               "inside_margin_m": float(np.max(margin))}
+    if not inside.any():
+        i = int(np.argmax(margin))
+        where = "on the FoV boundary" if off_plane[i] <= tol and abs(margin[i]) <= edge else "outside the FoV"
+        what = "laser spot" if c.n_lasers == 1 else "no laser point in a recorded channel; the closest,"
+        return Decision(False, f"{what} {np.round(c.spots[i], 4).tolist()} is {where} (in-plane offset "
+                        f"({_fmt(a[i])}, {_fmt(b[i])}) m from the FoV centre, half-size ({_fmt(0.5 * c.fov_size[0])}, "
+                        f"{_fmt(0.5 * c.fov_size[1])}) m, {_fmt(off_plane[i])} m off its plane)", False, numbers)
+    idx = np.flatnonzero(inside)
+    to_sensor = c.sensor - c.spots[idx]
+    d = np.linalg.norm(to_sensor, axis=1)
+    w_s = to_sensor / d[:, None]
+    facing = np.einsum("ij,ij->i", w_s, c.spot_normals[idx]) > 0
+    seen = np.zeros(len(idx), dtype=bool)
+    seen[facing] = g.caster.visible(c.spots[idx][facing], c.spot_normals[idx][facing], c.sensor, None)
+    if not seen.any():
+        return Decision(False, f"{len(idx)} laser point(s) lie in the FoV but none faces and sees the sensor",
+                        False, numbers)
+    idx, d, w_s = idx[seen], d[seen], w_s[seen]
+    emission = np.array([g.legs._spot_emission(w[None], int(i))[0] for i, w in zip(idx, w_s)])
+    cos_ap = np.maximum(-(w_s @ c.aperture_normal), 0.0)
+    photons = c.photons * emission * detector.pde * c.aperture_area * cos_ap / d ** 2
+    t = ((c.emitter_legs[idx] if config.count_laser_leg else 0.0) + (d if config.count_sensor_leg else 0.0)) \
+        / SPEED_OF_LIGHT
+    before, after = config.irf.support
+    lo, hi = t - before, t + after
+    axis = config.time
+    in_window = (hi >= axis.t_start) & (lo < axis.t_stop)
+    numbers.update(arrival_s=[float(t.min()), float(t.max())], detected_photons_per_pulse=float(photons.max()))
+    if not in_window.any():
+        return Decision(False, f"first bounce arrives at {_fmt(t.min() * 1e9)}–{_fmt(t.max() * 1e9)} ns (IRF "
+                        f"support ±{_fmt(before * 1e9)} ns), outside the time window {_fmt(axis.t_start * 1e9)}–"
+                        f"{_fmt(axis.t_stop * 1e9)} ns", False, numbers)
+    kept = in_window
+    if detector.gate is not None:
+        n = axis.n_bins
+        tail = TAIL_MARGIN_TAUS * detector.diffusion_tail if detector.diffusion_fraction > 0 else 0.0
+        open_bin = spad.gate_fraction(detector.bin_edges(n), detector.gate) > 0
+        b0 = np.clip(np.floor((lo - axis.t_start) / axis.bin_width), 0, n - 1).astype(np.int64)
+        b1 = np.clip(np.ceil((hi + tail - axis.t_start) / axis.bin_width), 0, n - 1).astype(np.int64)
+        cum = np.concatenate([[0], np.cumsum(open_bin)])
+        kept = in_window & (cum[b1 + 1] - cum[b0] > 0)
+        numbers["gate_s"] = list(detector.gate)
+        if not kept.any():
+            return Decision(False, f"first bounce at {_fmt(t.min() * 1e9)}–{_fmt(t.max() * 1e9)} ns (support to "
+                            f"{_fmt((hi.max() + tail) * 1e9)} ns with the detector tail) is removed by the gate "
+                            f"{_fmt(detector.gate[0] * 1e9)}–{_fmt(detector.gate[1] * 1e9)} ns", False, numbers)
+    numbers["detected_photons_per_pulse"] = float(photons[kept].max())
+    return Decision(True, f"{int(kept.sum())} laser point(s) lie in the FoV ({_fmt(margin[idx[kept]].max())} m "
+                    f"inside its edge) and see the sensor: direct return of up to {_fmt(photons[kept].max())} "
+                    f"detected photons/pulse at {_fmt(t[kept].min() * 1e9)} ns, not gated out", False, numbers)
+
+
+def _decide_shadow_sensor(g: _Geometry) -> Decision:
+    c = g.capture
+    apex = c.sensor
+    corners = g.fov_corners
+    centroid = (apex + corners.sum(axis=0)) / 5.0
+    faces = np.array([[apex, corners[i], corners[(i + 1) % 4]] for i in range(4)] + [corners[:3]])
+    n, o, valid = _outward_planes(faces, np.broadcast_to(centroid, (5, 3)))
+    hull_v = np.concatenate([apex[None], corners])
+    # the FoV's own surface (on or behind the FoV plane) cannot block: exclude it before the test
+    front = np.flatnonzero(np.any(g.d_fov > g.tol, axis=1))
+    meet = _may_meet(g.tri[front], g.normal[front], g.offset[front], g.valid[front],
+                     n[None], o[None], valid[None], hull_v[None], g.tol)[:, 0]
+    hits = front[meet]
+    numbers = {"triangles": int(len(g.tri)), "triangles_in_front_of_fov": int(len(front)),
+               "triangles_may_block": int(len(hits))}
+    if len(hits) == 0:
+        return Decision(False, f"no triangle can cross the sensor→FoV pyramid ({len(front)} triangles in front of "
+                        "the FoV plane, all separated by a pyramid or triangle plane): FoV→sensor rays are never "
+                        "blocked", False, numbers)
+    numbers["objects"] = g.names(hits)
+    return Decision(True, f"{len(hits)} triangles of {', '.join(g.names(hits))} may cross the sensor→FoV pyramid",
+                    False, numbers)
+
+
+def _decide_shadow_spot(g: _Geometry, secondary_on: bool) -> Decision:
+    """Off when no triangle can meet the hull of (laser points, hidden triangle) for any hidden triangle."""
+    if not secondary_on:
+        return Decision(False, "only the secondary casts observed point→laser spot shadow rays, and it is off")
+    c, tol = g.capture, g.tol
+    apexes = c.spots[g.corners]                                             # (A, 3) hull of every laser point
+    # targets: hidden-side triangles with no laser corner in their plane (else light grazes them: 0), lit on
+    # their reachable side
+    apex_dist = g.normal @ apexes.T - g.offset[:, None]                     # (F, A) signed
+    # a shadow ray starts only where the laser lights the side the observer sees (the reachable side)
+    facing = (g.side[:, None] == 0) | (g.side[:, None] * apex_dist > tol)
+    targets = np.flatnonzero(g.front & g.valid & (np.abs(apex_dist) > tol).all(axis=1) & facing.all(axis=1))
+    # a segment from the laser into a closed mesh first crosses a face with the laser on its reachable side
+    occluders = np.flatnonzero(g.front & ((g.side == 0) | (g.side[:, None] * apex_dist > -tol).any(axis=1)))
+    numbers = {"targets": int(len(targets)), "occluders": int(len(occluders)), "laser_corners": int(len(apexes))}
+    if len(targets) == 0:
+        return Decision(False, "no surface in front of the laser spot: nothing to shadow", False, numbers)
+    if max(len(targets), len(occluders)) > PAIR_TEST_MAX_TRIANGLES:
+        return Decision(True, f"{len(occluders)} triangles exceed the pairwise test limit "
+                        f"{PAIR_TEST_MAX_TRIANGLES}: shadow rays kept", False, numbers)
+    t = g.tri[targets]                                                       # (m, 3, 3)
+    if len(apexes) == 1:
+        s = np.broadcast_to(apexes[0], (len(t), 3))
+        # tetrahedron faces (a,b,c), (s,a,b), (s,b,c), (s,c,a) with opposite vertices s, c, a, b
+        faces = np.stack([t, np.stack([s, t[:, 0], t[:, 1]], 1), np.stack([s, t[:, 1], t[:, 2]], 1),
+                          np.stack([s, t[:, 2], t[:, 0]], 1)], axis=1)       # (m, 4, 3, 3)
+        opposite = np.stack([s, t[:, 2], t[:, 0], t[:, 1]], axis=1)         # (m, 4, 3)
+        n, o, valid = _outward_planes(faces, opposite)
+        hull_v = np.concatenate([s[:, None], t], axis=1)                    # (m, 4, 3)
+    else:
+        hull_v = np.concatenate([np.broadcast_to(apexes, (len(t),) + apexes.shape), t], axis=1)
+        n, o, valid = _hull_planes(hull_v)
+    # a triangle never shadows itself; stop at the first chunk of occluders that blocks something
+    meet = _may_meet(g.tri[occluders], g.normal[occluders], g.offset[occluders], g.valid[occluders],
+                     n, o, valid, hull_v, tol, exclude=(occluders, targets), first_only=True)
+    blockers = occluders[meet.any(axis=1)]
+    shadowed = targets[meet.any(axis=0)]
+    numbers.update(blocking_triangles_found=int(len(blockers)), shadowed_triangles_found=int(len(shadowed)))
+    if len(blockers) == 0:
+        return Decision(False, f"no triangle can cross any segment laser spot → hidden point ({len(targets)} "
+                        f"target × {len(occluders)} occluder triangles separated): the spot sees every hidden "
+                        "point, shadow rays would all pass", False, numbers)
+    numbers.update(blocking_objects=g.names(blockers), shadowed_objects=g.names(shadowed))
+    return Decision(True, f"triangles of {', '.join(g.names(blockers))} may shadow {', '.join(g.names(shadowed))} "
+                    f"from the laser spot ({len(blockers)} blocking triangles found)", False, numbers)
+
+
+def _secondary_pairs_possible(g: _Geometry) -> tuple[bool | None, int]:
+    """Whether two hidden triangles can carry light spot → x → x' → FoV (exact necessary condition).
+
+    x must have the laser point strictly on one side of its plane (for some laser corner: a laser point
+    inside the grid is on a corner's side), x' a vertex strictly on that side, x a vertex and the FoV a
+    corner strictly on one same side of x''s plane, and x' a vertex in front of the FoV plane; the sides
+    used must be reachable (closed meshes are seen from the laser's side only).
+    Returns (possible, pairs found: stops at the first chunk that has one); possible is None when the scene
+    is too large to test.
+    """
+    c, tol = g.capture, g.tol
+    recv = np.flatnonzero(g.hidden & np.any(g.d_fov > tol, axis=1))
+    lit = np.flatnonzero(g.hidden & g.front)
+    if len(lit) == 0 or len(recv) == 0:
+        return False, 0
+    if max(len(lit), len(recv)) > PAIR_TEST_MAX_TRIANGLES:
+        return None, 0
+    spot_side = g.normal[lit] @ c.spots[g.corners].T - g.offset[lit, None]  # (n_lit, A)
+    corner_d = g.fov_corners @ g.normal[recv].T - g.offset[recv]            # (4, r) FoV corners vs x' plane
+    fov_pos, fov_neg = (corner_d > tol).any(axis=0), (corner_d < -tol).any(axis=0)
+    count = 0
+    step = max(1, _CHUNK_ELEMENTS // (9 * len(recv)))
+    for s in range(0, len(lit), step):
+        x = lit[s:s + step]
+        sx = g.side[x]
+        pos = (spot_side[s:s + step] > tol).any(axis=1) & (sx >= 0)      # x lit on its + side (and reachable)
+        neg = (spot_side[s:s + step] < -tol).any(axis=1) & (sx <= 0)
+        d_recv = np.einsum("rvk,ak->arv", g.tri[recv], g.normal[x]) - g.offset[x, None, None]
+        a = (pos[:, None] & (d_recv > tol).any(axis=-1)) | (neg[:, None] & (d_recv < -tol).any(axis=-1))
+        d_x = np.einsum("avk,rk->arv", g.tri[x], g.normal[recv]) - g.offset[None, recv, None]
+        b = ((d_x > tol).any(-1) & (fov_pos & (g.side[recv] >= 0))[None]) \
+            | ((d_x < -tol).any(-1) & (fov_neg & (g.side[recv] <= 0))[None])
+        count += int((a & b & (x[:, None] != recv[None, :])).sum())
+        if count:
+            break
+    return count > 0, count
+
+
+def _decide_secondary(mode: str, g: _Geometry, coarse: "_Coarse | None", tol: float) -> Decision:
+    if mode == "none":
+        return Decision(False, "config.secondary is 'none' (no secondary estimator selected)")
+    possible, pairs = _secondary_pairs_possible(g)
+    numbers: dict[str, Any] = {"exchanging_triangle_pairs_found": pairs}
+    if possible is False:
+        return Decision(False, "no two hidden surfaces can exchange light on a path laser spot → x → x' → FoV "
+                        "(every pair is coplanar, back-facing or off the FoV side): the secondary is exactly 0",
+                        False, numbers)
+    if coarse is None:
+        return Decision(True, "not estimated (the secondary is forced): kept", False, numbers)
+    numbers.update(coarse_primary=coarse.primary, coarse_secondary=coarse.secondary,
+                   coarse_elements=coarse.elements, safety=SECONDARY_SAFETY)
+    if coarse.primary <= 0.0:
+        return Decision(True, "the coarse quadrature finds no primary light to compare the secondary with; "
+                        "secondary kept", False, numbers)
+    ratio = coarse.ratio
+    estimate = SECONDARY_SAFETY * ratio
+    numbers.update(ratio=ratio, estimate=estimate)
+    what = (f"coarse secondary/primary energy {_fmt(ratio)} ({coarse.elements} elements"
+            f"{'' if len(g.lasers) == 1 else f', max over {len(g.lasers)} laser points'}) × safety "
+            f"{_fmt(SECONDARY_SAFETY)} = {_fmt(estimate)}")
+    if estimate < tol:
+        return Decision(False, f"{what} < tolerance {_fmt(tol)}", False, numbers)
+    return Decision(True, f"{what} ≥ tolerance {_fmt(tol)}", False, numbers)
+
+
+def _pile_up_from_lambda(detector: spad.DetectorConfig, lam: float, window: float, tol: float,
+                         source: str) -> Decision:
+    """Pile-up decision from Λ, the expected avalanches per cycle in the histogram window of ``window`` s.
+
+    The detector is dead at time t only after an avalanche in the preceding dead window, which for a
+    Poisson arrival process has probability 1 − e^{−M}, M the expected avalanches there: every bin's
+    expected count differs from the Poisson one by a relative amount ≤ 1 − e^{−M}. M = Λ for pile_up and
+    multi_stop (re-armed every cycle); for free_running the dead time spans ≤ ceil(τ/T) + 1 periods.
+    """
+    numbers: dict[str, Any] = {"model": detector.model, "lambda_per_cycle": lam}
+    if detector.model == "poisson":
+        return Decision(False, "detector model is 'poisson' (configured)", False, numbers)
+    if detector.afterpulse_probability > 0 or detector.crosstalk_probability > 0:
+        return Decision(True, f"detector models afterpulsing ({_fmt(detector.afterpulse_probability)}) or "
+                        f"crosstalk ({_fmt(detector.crosstalk_probability)}), which Poisson counts cannot",
+                        False, numbers)
+    m = lam
+    if detector.model == "free_running":
+        per_period = lam + detector.background_rate * max(detector.period - window, 0.0)
+        m = per_period * (math.ceil(detector.dead_time / detector.period) + 1)
+    distortion = -math.expm1(-m)
+    total = 1.0 + math.expm1(-lam) / lam if lam > 0 else 0.0            # 1 − (1 − e^{−Λ})/Λ
+    numbers.update(dead_window_avalanches=m, max_bin_distortion=distortion, total_distortion=total)
+    what = (f"Λ = {_fmt(lam)} avalanches/cycle ({source}), dead-time bound 1 − e^(−{_fmt(m)}) = "
+            f"{_fmt(distortion)} (total {_fmt(total)})")
+    if distortion < tol:
+        return Decision(False, f"{what} < tolerance {_fmt(tol)}: Poisson counts", False, numbers)
+    return Decision(True, f"{what} ≥ tolerance {_fmt(tol)}: {detector.model} model", False, numbers)
+
+
+def _decide_pile_up(detector: spad.DetectorConfig, config: "SimulationConfig", coarse: "_Coarse | None",
+                    secondary_on: bool, first_bounce: Decision | None, tol: float) -> Decision:
+    n = config.time.n_bins
+    widths = detector.widths(n)
+    gate = spad.gate_fraction(detector.bin_edges(n), detector.gate)
+    background = detector.background_rate * float(np.sum(widths * gate))
+    if coarse is None:
+        return _pile_up_from_lambda(detector, math.inf, float(widths.sum()), tol, "no flux estimate was made")
+    signal = coarse.signal_with_secondary if secondary_on else coarse.signal
+    fb = first_bounce.numbers.get("detected_photons_per_pulse", 0.0) if first_bounce is not None else 0.0
+    return _pile_up_from_lambda(detector, PILE_UP_SAFETY * signal + fb + background, float(widths.sum()), tol,
+                                f"estimate: {_fmt(PILE_UP_SAFETY)} × coarse signal {_fmt(signal)} + first bounce "
+                                f"{_fmt(fb)} + background {_fmt(background)}")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Coarse area quadrature of the primary and secondary energy
+
+
+@dataclass(frozen=True)
+class _Coarse:
+    """Coarse quadrature energies (expected detected photons per pulse) per representative laser point."""
+
+    primary_per_laser: np.ndarray      # (A,) primary (three-bounce) energy
+    secondary_per_laser: np.ndarray    # (A,) energy of paths with two hidden vertices
+    elements: int
+
+    @property
+    def primary(self) -> float:
+        return float(self.primary_per_laser.max(initial=0.0))
+
+    @property
+    def secondary(self) -> float:
+        return float(self.secondary_per_laser.max(initial=0.0))
+
+    @property
+    def ratio(self) -> float:
+        """max over laser points of secondary / primary (inf when a point has secondary but no primary)."""
+        p, s = self.primary_per_laser, self.secondary_per_laser
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(s > 0, s / p, 0.0)
+        return float(r.max(initial=0.0))
+
+    @property
+    def signal(self) -> float:
+        return self.primary
+
+    @property
+    def signal_with_secondary(self) -> float:
+        return float((self.primary_per_laser + self.secondary_per_laser).max(initial=0.0))
+
+
+def _hidden_elements(g: _Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Midpoints (M, 3), geometric unit normals (M, 3), areas (M,) and object ids (M,) of hidden elements.
+
+    Hidden triangles are split into k² congruent sub-triangles (:func:`datagen.reference.subdivide_triangles`)
+    with the edge length chosen for about ``COARSE_ELEMENTS`` elements; when the mesh has more than
+    ``COARSE_ELEMENTS_MAX`` triangles, ``COARSE_ELEMENTS_MAX`` points are drawn by area instead (seeded).
+    """
+    faces = np.flatnonzero(g.hidden)
+    if len(faces) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64)
+    tri = g.tri[faces]
+    area = g.caster.face_area[faces]
+    if len(faces) > COARSE_ELEMENTS_MAX:
+        rng = np.random.default_rng(PLANNER_SEED)
+        pick = rng.choice(len(faces), size=COARSE_ELEMENTS_MAX, p=area / area.sum())
+        u, v = rng.random((2, COARSE_ELEMENTS_MAX))
+        flip = u + v > 1
+        u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+        t = tri[pick]
+        pts = t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
+        return pts, g.normal[faces[pick]], np.full(len(pick), area.sum() / len(pick)), g.object[faces[pick]]
+    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max(axis=1)
+    h = math.sqrt(4.0 * area.sum() / COARSE_ELEMENTS)
+    while np.sum(np.maximum(1, np.ceil(edges / h)) ** 2) > COARSE_ELEMENTS_MAX:
+        h *= 1.25
+    pts, areas, parent = subdivide_triangles(tri, h)
+    return pts, g.normal[faces[parent]], areas, g.object[faces[parent]]
+
+
+def _coarse_energies(g: _Geometry) -> _Coarse:
+    """Midpoint area quadrature of DESIGN.md §2 for the primary and the secondary energy (photons/pulse).
+
+    Hidden elements (≤ COARSE_ELEMENTS_MAX) × FoV cells (COARSE_FOV; for point radiance up to that many
+    sensor points, per unit area, as the transport connects them) with shadow rays on every leg, for each
+    representative laser point; the per-leg weights are the transport's own (``_spot_emission``,
+    ``_sensor_collection``). Surfaces are two-sided: each vertex reflects on the side the light comes from.
+    """
+    c, tol, caster, tr = g.capture, g.tol, g.caster, g.legs
+    mats = g.scene.materials
+    x, n_geo, area, obj = _hidden_elements(g)
+    zero = np.zeros(len(g.lasers))
+    # FoV cells (point radiance: sensor points, per unit area) that lie on a surface the sensor looks at
+    if c.convention == "point_radiance":
+        points = c.sensor_points()
+        iy = np.unique(np.linspace(0, points.shape[0] - 1, COARSE_FOV[1]).round().astype(int))
+        ix = np.unique(np.linspace(0, points.shape[1] - 1, COARSE_FOV[0]).round().astype(int))
+        y, area_y = points[np.ix_(iy, ix)].reshape(-1, 3), 1.0
+    else:
+        nu, nv = COARSE_FOV
+        gu = ((np.arange(nu) + 0.5) / nu - 0.5) * c.fov_size[0]
+        gv = ((np.arange(nv) + 0.5) / nv - 0.5) * c.fov_size[1]
+        uu, vv = np.meshgrid(gu, gv, indexing="ij")
+        y = c.fov_center + uu.reshape(-1, 1) * c.fov_u + vv.reshape(-1, 1) * c.fov_v
+        area_y = c.fov_size[0] * c.fov_size[1] / (nu * nv)
+    d_sy = y - c.sensor
+    probe = caster.intersect(np.broadcast_to(c.sensor, y.shape), d_sy / np.linalg.norm(d_sy, axis=1)[:, None])
+    on = probe.hit & (np.linalg.norm(np.nan_to_num(probe.points) - y, axis=1) < tol)
+    y, obj_y = y[on], probe.object_id[on]
+    if len(x) == 0 or len(y) == 0:
+        return _Coarse(zero, zero, len(x))
+    # element → FoV cell → sensor: geometry × collection, for the side of the element facing the cell
+    d_xy = y[None] - x[:, None]                                            # (M, K, 3)
+    r_xy = np.linalg.norm(d_xy, axis=-1)
+    w_xy = d_xy / np.maximum(r_xy, 1e-300)[..., None]
+    s_xy = np.sign(np.einsum("mk,mjk->mj", n_geo, w_xy))                  # side of x that sees y
+    cos_xo = np.abs(np.einsum("mk,mjk->mj", n_geo, w_xy))
+    cos_yi = -w_xy @ c.fov_normal
+    mi, ki = np.nonzero((cos_xo > 0) & (cos_yi > 0) & (r_xy > tol))
+    geo = np.zeros(r_xy.shape)
+    if len(mi):
+        vis = caster.visible(x[mi], s_xy[mi, ki][:, None] * n_geo[mi], y[ki], c.fov_normal)
+        mi, ki = mi[vis], ki[vis]
+        collect, _ = tr._sensor_collection(y[ki], np.broadcast_to(c.fov_normal, (len(ki), 3)), obj_y[ki],
+                                           -w_xy[mi, ki])
+        geo[mi, ki] = cos_xo[mi, ki] * cos_yi[mi, ki] / r_xy[mi, ki] ** 2 * area_y * collect
+    sees_fov = geo.sum(axis=1) > 0
+    primary, secondary = zero.copy(), zero.copy()
+    for i, laser in enumerate(g.lasers):
+        primary[i], secondary[i] = _coarse_one_laser(g, int(laser), x, n_geo, area, obj, w_xy, s_xy, geo,
+                                                     sees_fov, mats)
+    return _Coarse(primary, secondary, len(x))
+
+
+def _coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov, mats) -> tuple[float, float]:
+    c, tol, caster = g.capture, g.tol, g.caster
+    spot, spot_n = c.spots[laser], c.spot_normals[laser]
+    # laser spot → element: irradiance E_l (photons/m²) on the side facing the spot
+    d_lx = x - spot
+    r_lx = np.linalg.norm(d_lx, axis=1)
+    w_lx = d_lx / np.maximum(r_lx, 1e-300)[:, None]
+    side = np.sign(np.einsum("ij,ij->i", n_geo, -d_lx))
+    n_lit = side[:, None] * n_geo
+    cos_in = np.einsum("ij,ij->i", n_lit, -w_lx)
+    ok = (w_lx @ spot_n > 0) & (cos_in > 0) & (r_lx > tol)
+    ok[ok] = caster.visible(x[ok], n_lit[ok], spot, spot_n)
+    lit = np.flatnonzero(ok)
+    if len(lit) == 0:
+        return 0.0, 0.0
+    irradiance = np.zeros(len(x))
+    irradiance[lit] = c.photons * g.legs._spot_emission(w_lx[lit], laser) * cos_in[lit] / r_lx[lit] ** 2
+    # primary: E_l dA_x f_x(→spot, →y) geo
+    mask = s_xy[lit] == side[lit, None]
+    f_x = mats.evaluate(obj[lit, None], n_lit[lit, None], -w_lx[lit, None], w_xy[lit])
+    primary = float(np.sum(irradiance[lit] * area[lit] * np.sum(f_x * geo[lit] * mask, axis=1)))
+    # secondary: E_l dA_x f_x(→spot, →x') cos cos'/r² V dA_x' f_x'(→x, →y) geo
+    xa, xb = np.meshgrid(lit, np.flatnonzero(sees_fov), indexing="ij")
+    xa, xb = xa.ravel(), xb.ravel()
+    d = x[xb] - x[xa]
+    r = np.linalg.norm(d, axis=1)
+    w = d / np.maximum(r, 1e-300)[:, None]
+    cos_a = np.einsum("ij,ij->i", n_lit[xa], w)
+    side_b = np.sign(np.einsum("ij,ij->i", n_geo[xb], -w))
+    cos_b = np.abs(np.einsum("ij,ij->i", n_geo[xb], w))
+    keep = np.flatnonzero((cos_a > 0) & (cos_b > 0) & (r > tol))
+    keep = keep[caster.visible(x[xa[keep]], n_lit[xa[keep]], x[xb[keep]], side_b[keep, None] * n_geo[xb[keep]])]
+    if len(keep) == 0:
+        return primary, 0.0
+    xa, xb, w, r, cos_a, cos_b, side_b = xa[keep], xb[keep], w[keep], r[keep], cos_a[keep], cos_b[keep], side_b[keep]
+    transfer = (irradiance[xa] * area[xa] * mats.evaluate(obj[xa], n_lit[xa], -w_lx[xa], w)
+                * cos_a * cos_b / r ** 2 * area[xb])
+    # Lambertian x': f = ρ/π, so its detected fraction is ρ/π × Σ_y geo over the cells its lit side sees
+    lamb = mats.lambertian[obj[xb]]
+    seen = np.where(side_b[lamb, None] == s_xy[xb[lamb]], geo[xb[lamb]], 0.0).sum(axis=1)
+    secondary = float(np.sum(transfer[lamb] * mats.albedo[obj[xb[lamb]]] / np.pi * seen))
+    other = np.flatnonzero(~lamb)
+    step = max(1, _CHUNK_ELEMENTS // (3 * geo.shape[1]))
+    for s in range(0, len(other), step):
+        i = other[s:s + step]
+        b = xb[i]
+        n_b = side_b[i, None] * n_geo[b]
+        f_b = mats.evaluate(obj[b, None], n_b[:, None], -w[i, None], w_xy[b])
+        mask = s_xy[b] == side_b[i, None]
+        secondary += float(np.sum(transfer[i] * np.sum(f_b * geo[b] * mask, axis=1)))
+    return primary, secondary
