@@ -434,6 +434,9 @@ def _cic_rows(x: np.ndarray, w: np.ndarray, row: np.ndarray, n_rows: int) -> tup
     return start, dense.reshape(n_rows, width)
 
 
+CONV_REFINE_MAX = 1024
+"""Largest automatic refinement of the exact secondary's profile grid (for IRFs much narrower than a bin)."""
+
 _CONV_DENSE_MAX = 1 << 22
 """Cap on rows × nodes of the exact secondary's dense profile buffers (32 MiB of float64)."""
 
@@ -623,6 +626,10 @@ class Transport:
     def _conv_grid(self, sink: Sink) -> _ConvGrid:
         """Exact-secondary profile grid aligned to the sink's fine grid, ``conv_refine`` times finer."""
         k = max(1, int(self.settings.conv_refine))
+        irf = getattr(sink, "irf", None)
+        if irf is not None and irf.sigma > 0 and hasattr(sink, "fine_step"):
+            # a narrow IRF (σ below 4 grid steps) would show the profiles' binning: refine to ≤ σ/4
+            k = max(k, min(CONV_REFINE_MAX, int(np.ceil(4.0 * sink.fine_step / irf.sigma))))
         if hasattr(sink, "fine_step"):
             step = sink.fine_step / k
             t0 = float(sink.fine_times[0])

@@ -209,12 +209,6 @@ def test_grazing_lookin_secondary_is_finite_and_factorises(grazing):
     assert rel_l2(out["exact"], out["full"]) < 1e-3
 
 
-@pytest.mark.xfail(strict=True, reason="datagen/transport.py exact secondary (_ConvGrid): with sigma << bin "
-                   "(0.1 ps vs 20 ps) the incoming/outgoing profiles are cloud-in-cell splatted on a grid of step "
-                   "bin_width/conv_refine and re-added as impulses, so impulses near a bin edge leak into the "
-                   "neighbour bin: relative L2 to 'full' 5.5 % at conv_refine=1 (2.8 % at 4, 1.6 % at 16, 0.5 % "
-                   "at 64), same with the old fine-grid accumulator. Fix: refine the profile grid to <= sigma/4 "
-                   "when the sink's IRF is narrow (or deposit exact bin integrals of the convolved profile).")
 def test_exact_secondary_with_irf_much_narrower_than_bin():
     """As above, IRF σ = 0.1 ps against 20 ps bins: 'exact' must still equal 'full' (relative L2 < 1e-3)."""
     data = scene_data("grazing_lookin")
