@@ -1,0 +1,701 @@
+"""Hidden-surface area sampler: the transient path integral with next-event connections (transient path tracing).
+
+The integral is DESIGN.md §2's, the same one the lookin estimator of :mod:`datagen.transport` converges to,
+written in *area* measure. Every factor comes from transport's per-leg helpers (laser emission
+``_spot_emission``, sensor collection ``_sensor_collection``, BRDFs ``_brdf``, attenuation); what differs is
+how the vertices are sampled:
+
+- **Hidden points x** come from two strategies combined by multiple importance sampling (balance heuristic,
+  Veach & Guibas 1995): M_a points by *area* over every triangle that can take part in a path (a face wholly
+  behind every laser-spot plane and the FoV plane cannot: the relay wall itself), and M_s points by
+  *cosine-weighted direction from the laser spot* (the first hits; density M_s·cosθ_l cosθ_x,in /(π r²) in
+  area measure, for points the spot sees). Each x weighs 1/(ρ_a(x) + ρ_s(x)), the inverse of the summed
+  sample densities. ``sampling`` sets how both sets are drawn: ``"stratified"`` (each triangle split into k²
+  congruent sub-triangles of edge ≤ h with one uniform point in each, so ρ_a = k_f²/A_f on face f; a
+  jittered √M_s×√M_s grid of directions), ``"sobol"`` (scrambled Sobol points, scipy.stats.qmc: randomised
+  QMC) or ``"random"`` (independent points). All three are unbiased. Area samples alone put as many points on
+  the far walls as on the ceiling 35 cm above the spot, whose irradiance is 100× higher; spot samples alone
+  miss every point the spot does not see (the secondary's middle vertex can lie in a laser shadow).
+- **Laser leg** (next-event connection to the laser spot x_l, a shadow ray): the irradiance
+  E(x) = Φ f_l cosθ_l cosθ_x,in / |x−x_l|² V(x_l, x), photons per m² (DESIGN.md §2: in area measure the
+  1/r² is genuine).
+- **FoV leg** (:meth:`AreaSampler._connect`): stratified points y on each sensor pixel region (a k_u×k_v grid
+  per hidden point, shifted by that point's two *padding* coordinates: Sobol dimensions 3–4 for "sobol", a
+  permuted jittered grid for "stratified", fresh jitter for "random"; shadow ray x→y) and ``fov_directions``
+  cosine-weighted rays from x that hit the FoV, combined by the balance heuristic; then the sensor leg
+  q f_y cosθ_y,out A_ap cosθ_ap / |x_s−y|² V(y, x_s) (paper A3 and aperture term). Point-radiance captures
+  connect to the sensor points instead.
+- **Primary**: w_x · E(x) · f_x(ω→x_l, ω→y) · cosθ_x,out cosθ_y,in / |y−x|² · w_y · collection(y) at time
+  (|x−x_l| + |y−x| [+ |x_s−y|]) / c.
+- **Secondary** (a vertex x' before x): at each x the irradiance arriving from other surfaces is estimated
+  with up to three partner strategies under the balance heuristic: ``spot_partners`` cosine directions from
+  the laser spot (density ∝ the laser irradiance pattern), ``direction_partners`` cosine directions from x
+  (density cosθ_x cosθ_x' /(π r²)) and ``area_partners`` points by area (1/A_hidden). Each partner x' has its
+  own laser connection E(x') and the estimate is Σ E(x') f_x'(ω→x_l, ω→x) G(x',x) V(x',x) / Σ_t P_t p_t(x'),
+  G = cosθ_x' cosθ_x / |x−x'|². Area or spot partners alone have *infinite variance* where two surfaces meet
+  (G ~ 1/r² at a room corner: the second moment diverges like 1/ε); the direction strategy bounds the
+  weight there by π E f / P_d, and the spot strategy keeps the brightly lit patch next to the spot cheap.
+
+Unlike the lookin estimator's secondary, whose middle vertex is a lookin (a point the laser spot sees),
+the middle vertex x here ranges over every surface, laser-shadowed ones included, as the integral asks: in the
+demo room 6.9 % of the secondary (2.2 % of the total) passes through laser-shadowed middle vertices
+(docs/accuracy.md).
+
+Sink component ids follow :class:`datagen.transport.Transport`: ``component * n_channels + channel`` with the
+component of the object x lies on for primary paths, ``len(scene.component_names())`` for secondary and one
+more for the direct first bounce when ``first_bounce`` is on (:attr:`AreaSampler.component_names`). Every
+laser point of the capture is sampled (confocal and exhaustive scans included).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.stats import qmc
+
+from .raycast import RayCaster
+from .sampling import square_to_hemisphere, stratified_grid, to_world
+from .scene import Scene, SceneError
+from .transport import FOV_PLANE_TOL, Sink, Transport, TransportSettings, _Out
+from .units import SPEED_OF_LIGHT
+
+AreaSampling = Literal["stratified", "sobol", "random"]
+
+MAX_CONNECTIONS = 1 << 17
+"""Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
+
+MIN_PARTNER_DISTANCE_OFFSETS = 10.0
+"""A partner x' closer to x than this many ray offsets is dropped: the shadow ray between them is shorter than
+the surface offsets and cannot be trusted (the pair lies on a set of measure zero in the integral)."""
+
+
+@dataclass(frozen=True)
+class AreaSettings:
+    """Settings of the area sampler (:class:`AreaSampler`).
+
+    Attributes:
+        samples: M, hidden samples per run and laser point: M_a = M − M_s by area, M_s = round(spot_fraction
+            · M) by direction from the spot (stratified: the closest achievable counts, at least one point per
+            triangle and a square grid of directions; sobol: each rounded up to a power of two).
+        sampling: "stratified" | "sobol" | "random" (see the module docstring).
+        spot_fraction: share of the hidden samples drawn by direction from the laser spot, in [0, 1).
+        fov_samples: (k_u, k_v) stratified FoV points per sensor pixel region for every hidden sample.
+        fov_directions: D, cosine-weighted rays per hidden sample (and side) that connect where they hit the
+            FoV, combined with the stratified points by MIS (0: stratified points only).
+        secondary: "none" or "full" (the unbiased secondary; there is no "optimized" variant here).
+        spot_partners, direction_partners, area_partners: P_l, P_d, P_a secondary partners x' per hidden
+            sample for each strategy (sum ≥ 1 when secondary is "full").
+        attenuation: μ in 1/m; pde: q; count_laser_leg / count_sensor_leg, shadow_spot, shadow_sensor,
+            first_bounce, brdf_angles: as in :class:`datagen.transport.TransportSettings`.
+        batch: hidden samples processed together (lowered so that batch × FoV points ≤ ``MAX_CONNECTIONS``).
+
+    Raises:
+        SceneError: a field out of range (the message names the field and the value).
+    """
+
+    samples: int = 1 << 16
+    sampling: AreaSampling = "sobol"
+    spot_fraction: float = 0.5
+    fov_samples: tuple[int, int] = (4, 4)
+    fov_directions: int = 2
+    secondary: Literal["none", "full"] = "full"
+    spot_partners: int = 2
+    direction_partners: int = 1
+    area_partners: int = 1
+    attenuation: float = 0.0
+    pde: float = 1.0
+    count_laser_leg: bool = False
+    count_sensor_leg: bool = True
+    shadow_spot: bool = True
+    shadow_sensor: bool = True
+    first_bounce: bool = False
+    brdf_angles: bool = True
+    batch: int = 4096
+
+    def __post_init__(self):
+        def bad(name, value, why):
+            raise SceneError(f"area sampler: {name} {why}, got {value!r}")
+
+        def count(name, low):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+                bad(name, v, f"must be an integer >= {low}")
+
+        count("samples", 1)
+        count("batch", 1)
+        for name in ("fov_directions", "spot_partners", "direction_partners", "area_partners"):
+            count(name, 0)
+        if self.sampling not in ("stratified", "sobol", "random"):
+            bad("sampling", self.sampling, "must be 'stratified', 'sobol' or 'random'")
+        if not (isinstance(self.spot_fraction, (int, float)) and 0 <= self.spot_fraction < 1):
+            bad("spot_fraction", self.spot_fraction, "must be in [0, 1) (area samples are needed for points "
+                                                     "the laser spot does not see)")
+        fs = tuple(self.fov_samples)
+        if len(fs) != 2 or any(isinstance(v, bool) or int(v) != v or v < 1 for v in fs):
+            bad("fov_samples", self.fov_samples, "must be two integers >= 1")
+        if self.secondary not in ("none", "full"):
+            bad("secondary", self.secondary, "must be 'none' or 'full'")
+        n_partners = self.spot_partners + self.direction_partners + self.area_partners
+        if self.secondary == "full" and n_partners < 1:
+            bad("spot_partners + direction_partners + area_partners", n_partners,
+                "must be >= 1 when secondary is 'full'")
+        if not np.isfinite(self.attenuation) or self.attenuation < 0:
+            bad("attenuation", self.attenuation, "must be finite and >= 0")
+        if not np.isfinite(self.pde) or not 0 <= self.pde <= 1:
+            bad("pde", self.pde, "must be in [0, 1]")
+        object.__setattr__(self, "fov_samples", (int(fs[0]), int(fs[1])))
+
+    @property
+    def spot_samples(self) -> int:
+        """M_s, hidden samples drawn by direction from each laser spot (before rounding)."""
+        return int(round(self.spot_fraction * self.samples))
+
+    @property
+    def area_samples(self) -> int:
+        """M_a, hidden samples drawn by area (before rounding; at least 1)."""
+        return max(1, self.samples - self.spot_samples)
+
+    @classmethod
+    def from_transport(cls, settings: TransportSettings, **kwargs) -> AreaSettings:
+        """Area settings sharing the physics switches (μ, q, time-of-flight legs, shadow rays, first bounce,
+        BRDF angles, secondary on/off) of lookin ``settings``; ``kwargs`` set the sampling fields."""
+        base = dict(attenuation=settings.attenuation, pde=settings.pde, count_laser_leg=settings.count_laser_leg,
+                    count_sensor_leg=settings.count_sensor_leg, shadow_spot=settings.shadow_spot,
+                    shadow_sensor=settings.shadow_sensor, first_bounce=settings.first_bounce,
+                    brdf_angles=settings.brdf_angles,
+                    secondary="none" if settings.secondary == "none" else "full")
+        return cls(**{**base, **kwargs})
+
+    def transport_settings(self) -> TransportSettings:
+        """Lookin settings carrying the same physics switches (for transport's per-leg helpers)."""
+        return TransportSettings(secondary="none", sensor_sampling="connect", connect_samples=self.fov_samples,
+                                 attenuation=self.attenuation, pde=self.pde, count_laser_leg=self.count_laser_leg,
+                                 count_sensor_leg=self.count_sensor_leg, shadow_spot=self.shadow_spot,
+                                 shadow_sensor=self.shadow_sensor, first_bounce=self.first_bounce,
+                                 brdf_angles=self.brdf_angles)
+
+
+@dataclass
+class AreaStats:
+    """Counters from an area-sampler run (summed over laser points)."""
+
+    area_samples: int = 0
+    spot_samples: int = 0
+    lit_samples: int = 0
+    fov_connections: int = 0
+    partners: int = 0
+    secondary_pairs: int = 0
+
+
+@dataclass(frozen=True)
+class SurfaceSamples:
+    """Points on triangles.
+
+    Attributes:
+        points: (M, 3) float64 metres.
+        normals: (M, 3) float64 unit face normals (unoriented: the estimator orients them per leg).
+        face: (M,) int64 face index; object_id: (M,) int64.
+        area: (M,) float64 m², the area each point stands for under its own sampling (1/density).
+        pad: (M, 2) float64 in [0, 1)², the shift of each point's FoV grid (the padding dimensions of the
+            sampling pattern; see :func:`padding`).
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    face: np.ndarray
+    object_id: np.ndarray
+    area: np.ndarray
+    pad: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def take(self, sel) -> SurfaceSamples:
+        return SurfaceSamples(self.points[sel], self.normals[sel], self.face[sel], self.object_id[sel],
+                              self.area[sel], self.pad[sel])
+
+    @staticmethod
+    def concat(parts: list[SurfaceSamples]) -> SurfaceSamples:
+        return SurfaceSamples(*(np.concatenate([getattr(p, f) for p in parts])
+                                for f in ("points", "normals", "face", "object_id", "area", "pad")))
+
+
+def _unit_triangle(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Square-root map of [0,1]² onto the triangle (0,0), (1,0), (0,1), uniform in area (Turk 1990).
+
+    Returns the barycentric weights (b1, b2) of vertices 1 and 2.
+    """
+    su = np.sqrt(u)
+    return su * (1.0 - v), su * v
+
+
+def _subdivisions(tri: np.ndarray, h: float) -> np.ndarray:
+    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max(axis=1)
+    return np.maximum(1, np.ceil(edges / h).astype(np.int64))
+
+
+def subdivide_triangles(tri: np.ndarray, h: float, rng: np.random.Generator | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split triangles (F, 3, 3) into k² congruent sub-triangles each, k = ceil(longest edge / h).
+
+    Args:
+        tri: (F, 3, 3) float64 vertices, metres.
+        h: target sub-triangle edge, metres (> 0).
+        rng: None puts one point at each sub-triangle's centroid (midpoint rule); a generator puts one
+            uniform random point in each (stratified sampling).
+    Returns:
+        points (M, 3), areas (M,) m², parent face index (M,) int64.
+    Raises:
+        SceneError: h not finite or ≤ 0.
+    """
+    if not np.isfinite(h) or h <= 0:
+        raise SceneError(f"subdivide_triangles: h must be finite and > 0, got {h!r}")
+    ks = _subdivisions(tri, h)
+    pts, areas, parents = [], [], []
+    for k in np.unique(ks):
+        faces = np.flatnonzero(ks == k)
+        i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+        up = (i + j) < k                                  # upward sub-triangles (i, j), (i+1, j), (i, j+1)
+        down = (i + j) < k - 1                            # downward ones (i+1, j), (i, j+1), (i+1, j+1)
+        corner = np.concatenate([np.stack([i[up], j[up]], -1), np.stack([i[down] + 1, j[down] + 1], -1)])
+        sign = np.concatenate([np.ones(int(up.sum())), -np.ones(int(down.sum()))])[:, None]
+        shape = (len(faces), len(corner))
+        if rng is None:
+            a = b = np.full(shape, 1.0 / 3.0)
+        else:
+            a, b = _unit_triangle(rng.random(shape), rng.random(shape))
+        bary = (corner[None] + sign[None] * np.stack([a, b], -1)) / k      # (faces, sub, 2)
+        t = tri[faces]
+        e1, e2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+        p = t[:, None, 0] + bary[..., :1] * e1[:, None] + bary[..., 1:] * e2[:, None]
+        area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1) / k ** 2
+        pts.append(p.reshape(-1, 3))
+        areas.append(np.repeat(area, shape[1]))
+        parents.append(np.repeat(faces, shape[1]))
+    return np.concatenate(pts), np.concatenate(areas), np.concatenate(parents).astype(np.int64)
+
+
+def stratified_edge(tri: np.ndarray, samples: int) -> float:
+    """Largest sub-triangle edge h whose subdivision of ``tri`` (F, 3, 3) gives at most ``samples`` points
+    (but at least one per triangle), by bisection on log h."""
+    edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max(axis=1)
+    lo, hi = edges.max() * 1e-6, edges.max() * 1.0001
+    for _ in range(60):
+        mid = np.sqrt(lo * hi)
+        if int((_subdivisions(tri, mid) ** 2).sum()) > samples:
+            lo = mid
+        else:
+            hi = mid
+    return float(hi)
+
+
+def padding(n: int, method: AreaSampling, rng: np.random.Generator) -> np.ndarray:
+    """(n, 2) points of [0,1)² for the padding dimensions of a stratified or random pattern: the first n of a
+    randomly permuted jittered k×k grid, k = ceil(√n) ("stratified": padded stratified sampling, each point
+    uniform on its own, jointly spread), or independent uniform points."""
+    if method == "stratified" and n > 0:
+        k = int(np.ceil(np.sqrt(n)))
+        return rng.permutation(stratified_grid(k, k, rng)[0])[:n]
+    return rng.random((n, 2))
+
+
+def unit_square_points(samples: int, method: AreaSampling, rng: np.random.Generator) -> np.ndarray:
+    """Points on [0,1]⁴: dims 0-1 a jittered k×k grid with k = round(√samples) ("stratified"), scrambled Sobol
+    points rounded up to a power of two ("sobol") or independent uniform points ("random"); dims 2-3 the
+    padding (:func:`padding`; Sobol dims 2-3 for "sobol"). (n, 4) float64."""
+    if method == "stratified":
+        k = max(1, int(round(np.sqrt(samples))))
+        u = stratified_grid(k, k, rng)[0]
+        return np.concatenate([u, padding(len(u), method, rng)], axis=1)
+    if method == "sobol":
+        return qmc.Sobol(d=4, scramble=True, seed=rng).random_base2(max(0, int(np.ceil(np.log2(samples)))))
+    return rng.random((samples, 4))
+
+
+def sample_surfaces(caster: RayCaster, faces: np.ndarray, samples: int, method: AreaSampling,
+                    rng: np.random.Generator) -> tuple[SurfaceSamples, np.ndarray]:
+    """Sample points by area over the triangles ``faces`` (indices into the caster's faces).
+
+    Args:
+        samples: requested count (see :class:`AreaSettings` for how each method rounds it).
+        method: "stratified", "sobol" or "random".
+    Returns:
+        The samples, and the sample density per face (n_faces_total,) in 1/m² (0 off ``faces``): k_f²/A_f for
+        "stratified", M/A for the others. The samples' areas are its inverse.
+    Raises:
+        SceneError: unknown method.
+    """
+    tri = caster.vertices[caster.faces[faces]]
+    density = np.zeros(len(caster.faces))
+    if method == "stratified":
+        h = stratified_edge(tri, samples)
+        pts, area, parent = subdivide_triangles(tri, h, rng)
+        face = faces[parent]
+        density[faces] = _subdivisions(tri, h) ** 2 / caster.face_area[faces]
+        pad = padding(len(pts), method, rng)
+    elif method in ("sobol", "random"):
+        areas = caster.face_area[faces]
+        total = float(areas.sum())
+        if method == "sobol":
+            u = qmc.Sobol(d=5, scramble=True, seed=rng).random_base2(max(0, int(np.ceil(np.log2(samples)))))
+        else:
+            u = rng.random((samples, 5))
+        pad = u[:, 3:]
+        cdf = np.cumsum(areas) / total
+        pick = np.minimum(np.searchsorted(cdf, u[:, 0], side="right"), len(faces) - 1)
+        b1, b2 = _unit_triangle(u[:, 1], u[:, 2])
+        t = tri[pick]
+        pts = t[:, 0] + b1[:, None] * (t[:, 1] - t[:, 0]) + b2[:, None] * (t[:, 2] - t[:, 0])
+        face = faces[pick]
+        density[faces] = len(pts) / total
+        area = np.full(len(pts), total / len(pts))
+    else:
+        raise SceneError(f"area sampler: sampling must be 'stratified', 'sobol' or 'random', got {method!r}")
+    return SurfaceSamples(pts, caster.face_normals[face], face, caster.face_object[face], area, pad), density
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("...k,...k->...", a, b)
+
+
+class AreaSampler:
+    """Area-sampling estimator with next-event connections to the laser spot and the FoV.
+
+    Same interface as :class:`datagen.transport.Transport`: ``AreaSampler(scene, settings, caster).run(sink,
+    rng, progress)`` sends path impulses (times s, weights photons, component ids) to ``sink``.
+
+    Attributes:
+        component_names: names of the sink components (primary components, "secondary"[, "first_bounce"]).
+        hidden_faces: (F_h,) int64 faces that can be hidden vertices; hidden_area: their area, m².
+        stats: :class:`AreaStats`; legs.stats: transport's counters (shadow rays).
+
+    Raises:
+        SceneError: invalid settings; the capture errors of :func:`datagen.transport.resolve_capture`; no
+            triangle can take part in a path.
+    """
+
+    def __init__(self, scene: Scene, settings: AreaSettings | None = None, caster: RayCaster | None = None):
+        self.scene = scene
+        self.settings = settings or AreaSettings()
+        self.caster = caster or RayCaster(scene)
+        self.legs = Transport(scene, self.settings.transport_settings(), self.caster)   # per-leg physics
+        self.capture = self.legs.capture
+        self.component_names = list(self.legs.component_names)
+        self.object_component = scene.object_component()
+        self.n_primary = len(scene.component_names())
+        self.tol = FOV_PLANE_TOL * self.caster.offset
+        self.hidden_faces = self._hidden_faces()
+        if len(self.hidden_faces) == 0:
+            raise SceneError(f"{scene.source + ': ' if scene.source else ''}no surface lies in front of the laser "
+                             "spot or the FoV: nothing can be lit and seen")
+        self.hidden_area = float(self.caster.face_area[self.hidden_faces].sum())
+        self._is_hidden = np.zeros(len(self.caster.faces), dtype=bool)
+        self._is_hidden[self.hidden_faces] = True
+        self.stats = AreaStats()
+
+    def _hidden_faces(self) -> np.ndarray:
+        """Faces that can be a hidden vertex: non-degenerate and not wholly behind every laser-spot plane and
+        the FoV plane (such a face has cosθ_l ≤ 0 and cosθ_y,in ≤ 0 everywhere, so every path through it is
+        0: the relay wall itself)."""
+        c, cst = self.capture, self.caster
+        tri = cst.vertices[cst.faces]                                          # (F, 3, 3)
+        planes = np.unique(np.round(np.concatenate([c.spot_normals, _dot(c.spots, c.spot_normals)[:, None]], 1),
+                                    12), axis=0)                               # distinct laser-spot planes
+        front_spot = np.zeros(len(tri), dtype=bool)
+        for n_x, n_y, n_z, d in planes:
+            front_spot |= (tri @ np.array([n_x, n_y, n_z]) - d > self.tol).any(axis=1)
+        front_fov = ((tri - c.fov_center) @ c.fov_normal > self.tol).any(axis=1)
+        return np.flatnonzero((cst.face_area > 0) & (front_spot | front_fov))
+
+    def _targets_per_sample(self) -> int:
+        c = self.capture
+        if c.convention == "point_radiance":
+            return c.n_pixels
+        return c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1]
+
+    # -- legs ------------------------------------------------------------------------------------------------
+
+    def _irradiance(self, points: np.ndarray, face_normals: np.ndarray, laser: int
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Laser irradiance at surface points (n, 3) with face normals (n, 3) (DESIGN.md §2).
+
+        Returns:
+            E = Φ f_l cosθ_l cosθ_in / r² V, photons/m² (n,); r, distance to the laser point (n,); the unit
+            direction toward it (n, 3); and the geometric factor cosθ_l cosθ_in / r² V (n,), 1/m², so that
+            the spot strategy's density is geo/π per sample.
+        """
+        c = self.capture
+        spot, spot_n = c.spots[laser], c.spot_normals[laser]
+        to_spot = spot - points
+        r = np.linalg.norm(to_spot, axis=-1)
+        w = to_spot / np.maximum(r, 1e-300)[:, None]
+        nfw = _dot(face_normals, w)
+        cos_in = np.abs(nfw)
+        cos_l = -_dot(w, spot_n)
+        idx = np.flatnonzero((cos_l > 0) & (cos_in > 0) & (r > self.tol))
+        if self.settings.shadow_spot and len(idx):
+            n_lit = np.where(nfw[idx, None] < 0, -face_normals[idx], face_normals[idx])
+            self.legs.stats.shadow_rays += len(idx)
+            idx = idx[self.caster.visible(points[idx], n_lit, spot, spot_n)]
+        geo = np.zeros(len(points))
+        e = np.zeros(len(points))
+        geo[idx] = cos_l[idx] * cos_in[idx] / r[idx] ** 2
+        e[idx] = c.photons * self.legs._spot_emission(-w[idx], laser) * cos_in[idx] / r[idx] ** 2
+        return e, r, w, geo
+
+    def _from_spot(self, uv: np.ndarray, laser: int) -> tuple[SurfaceSamples, np.ndarray]:
+        """First hits of cosine-weighted rays from laser point ``laser`` through the points ``uv`` (n, 2) of
+        the unit square (Malley's method). Returns the hits (area field 0) and which rays hit (n,)."""
+        c, cst = self.capture, self.caster
+        local, _ = square_to_hemisphere(uv[:, 0], uv[:, 1], "cosine")
+        normal = np.broadcast_to(c.spot_normals[laser], local.shape)
+        hits = cst.intersect(np.broadcast_to(c.spots[laser] + cst.offset * c.spot_normals[laser], local.shape),
+                             to_world(local, normal))
+        face = np.where(hits.hit, hits.face, 0)
+        found = SurfaceSamples(np.nan_to_num(hits.points), cst.face_normals[face], face, cst.face_object[face],
+                               np.zeros(len(face)), uv[:, 2:4] if uv.shape[1] >= 4 else np.zeros((len(face), 2)))
+        return found, hits.hit
+
+    def _connect(self, x: np.ndarray, n_x: np.ndarray, laser: int, rng: np.random.Generator,
+                 pad: np.ndarray | None = None) -> _Out:
+        """Next-event connections of hidden points x (B, 3), from the side of normals n_x (B, 3), to the sensor.
+
+        Two strategies under the balance heuristic: the area strategy of transport's ``connect`` sensor
+        sampling (:meth:`datagen.transport.Transport._connect_out`: stratified points y on each sensor pixel
+        region, density ρ_a = 1/dA_y, a shadow ray x→y), but with its own grid shift *for every hidden point*
+        (``pad`` (B, 2) in [0,1)², the padding coordinates of the sampling pattern; None: independent jitter
+        per cell), since transport draws one grid per batch of lookins, which would correlate the FoV error of
+        thousands of area samples; and ``fov_directions`` cosine-weighted rays from x whose first hit lies in the FoV
+        (density p_d = cosθ_x cosθ_y /(π r²) in area measure). Each connection weighs cosθ_y / r² ·
+        collection(y) / (ρ_a + D·p_d), per unit radiant intensity of x toward y (transport's ``_Out.weight``).
+        Without the direction strategy a point a few cm from the FoV (a side wall meeting the relay wall, the
+        box 10 cm in front of it) has G(x, y) ~ 1/r² and a huge variance; with it the weight stays below
+        π·collection/(D cosθ_x). Point-radiance captures connect to the sensor points (transport's code).
+        """
+        c, s, cst = self.capture, self.settings, self.caster
+        if c.convention == "point_radiance":
+            return self.legs._connect_out(x, n_x, laser, rng)
+        nx, ny = c.fov_pixels
+        mu, mv = s.fov_samples
+        n_dir = s.fov_directions
+        pix = np.repeat(np.arange(c.n_pixels), mu * mv)
+        ch = c.channel(laser, pix)
+        keep = ch >= 0
+        pix, ch = pix[keep], ch[keep]
+        iy, ix = np.divmod(pix, nx)
+        cell = stratified_grid(mu, mv, None)[0] - 0.5 / np.array([mu, mv])      # cell corners, (M, 2)
+        corner = np.tile(cell, (c.n_pixels, 1))[keep]
+        jitter = rng.random((len(x), len(pix), 2)) if pad is None else pad[:, None, :]
+        uv = corner[None] + jitter / np.array([mu, mv])
+        a = ((ix + uv[..., 0]) / nx - 0.5) * c.fov_size[0]
+        b = ((iy + uv[..., 1]) / ny - 0.5) * c.fov_size[1]
+        targets = c.fov_center + a[..., None] * c.fov_u + b[..., None] * c.fov_v               # (B, S, 3)
+        rho_a = c.n_pixels * mu * mv / (c.fov_size[0] * c.fov_size[1])                         # 1/dA_y
+        to_y = targets - x[:, None, :]
+        r = np.linalg.norm(to_y, axis=-1)
+        w = to_y / np.maximum(r, 1e-300)[..., None]
+        cos_y = -_dot(w, c.fov_normal)
+        bi, si = np.nonzero((_dot(n_x[:, None, :], w) > 0) & (cos_y > 0))
+        vis = cst.visible(x[bi], n_x[bi], targets[bi, si], c.fov_normal)
+        self.legs.stats.shadow_rays += len(bi)
+        bi, si = bi[vis], si[vis]
+        y, wk, rr, cy, chan = targets[bi, si], w[bi, si], r[bi, si], cos_y[bi, si], ch[si]
+        n_y = np.broadcast_to(c.fov_normal, y.shape)
+        obj_y = np.full(len(bi), self.legs._wall_object())
+        if n_dir:
+            local, _ = square_to_hemisphere(rng.random((len(x), n_dir)), rng.random((len(x), n_dir)), "cosine")
+            n_b = np.broadcast_to(n_x[:, None], (len(x), n_dir, 3))
+            dirs = to_world(local, n_b)
+            hits = cst.intersect(x[:, None] + cst.offset * n_b, dirs)
+            hp = np.nan_to_num(hits.points)
+            hch = np.where(hits.hit, c.channel(laser, c.fov_pixel(hp, self.tol)), -1)
+            db, dk = np.nonzero(hch >= 0)
+            y = np.concatenate([y, hp[db, dk]])
+            wk = np.concatenate([wk, dirs[db, dk]])
+            rr = np.concatenate([rr, np.linalg.norm(hp[db, dk] - x[db], axis=-1)])   # from x, not the offset origin
+            cy = np.concatenate([cy, -_dot(dirs[db, dk], c.fov_normal)])
+            chan = np.concatenate([chan, hch[db, dk]])
+            n_y = np.concatenate([n_y, hits.normals[db, dk]])
+            obj_y = np.concatenate([obj_y, hits.object_id[db, dk]])
+            bi = np.concatenate([bi, db])
+        collect, d_ys = self.legs._sensor_collection(y, n_y, obj_y, -wk)
+        p_d = _dot(n_x[bi], wk) * cy / (np.pi * rr ** 2)
+        weight = cy / rr ** 2 * collect / (rho_a + n_dir * p_d)
+        time = (rr + (d_ys if s.count_sensor_leg else 0.0)) / SPEED_OF_LIGHT
+        return _Out(bi, wk, weight, time, rr + d_ys, chan)
+
+    # -- estimator -------------------------------------------------------------------------------------------
+
+    def run(self, sink: Sink, rng: np.random.Generator, progress: Callable[[int], None] | None = None) -> None:
+        """Sample hidden points and send every primary (and secondary) impulse to ``sink``.
+
+        ``progress`` is called with the number of hidden samples done after each batch (per laser point).
+        """
+        s, c = self.settings, self.capture
+        area_set, density_a = sample_surfaces(self.caster, self.hidden_faces, s.area_samples, s.sampling, rng)
+        batch = max(1, min(s.batch, MAX_CONNECTIONS // max(self._targets_per_sample(), 1)))
+        for laser in range(c.n_lasers):
+            parts, n_spot = [area_set], 0
+            if s.spot_samples > 0:
+                uv = unit_square_points(s.spot_samples, s.sampling, rng)
+                found, hit = self._from_spot(uv, laser)
+                parts.append(found.take(hit))
+                n_spot = len(uv)
+            xs = SurfaceSamples.concat(parts)
+            self.stats.area_samples += len(area_set)
+            self.stats.spot_samples += n_spot
+            for start in range(0, len(xs), batch):
+                part = xs.take(slice(start, start + batch))
+                self._batch(part, laser, density_a, n_spot, sink, rng)
+                if progress is not None:
+                    progress(len(part))
+        if s.first_bounce:
+            self.legs._first_bounce(sink)
+
+    def _batch(self, xs: SurfaceSamples, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
+               rng: np.random.Generator) -> None:
+        c, s = self.capture, self.settings
+        e_x, r_lx, w_spot, geo = self._irradiance(xs.points, xs.normals, laser)
+        self.stats.lit_samples += int((e_x > 0).sum())
+        density = density_a[xs.face] + n_spot * geo / np.pi                  # ρ_a + ρ_s, 1/m²
+        weight_x = np.divide(1.0, density, out=np.zeros_like(density), where=density > 0)
+        n_front = np.where(_dot(xs.normals, w_spot)[:, None] < 0, -xs.normals, xs.normals)   # facing the spot
+        pad = None if s.sampling == "random" else xs.pad
+        out = self._connect(xs.points, n_front, laser, rng, pad)
+        self.stats.fov_connections += len(out.b)
+        leg = c.emitter_legs[laser]
+        laser_t = (leg if s.count_laser_leg else 0.0) / SPEED_OF_LIGHT
+        lit = e_x[out.b] > 0
+        if lit.any():
+            b = out.b[lit]
+            f = self.legs._brdf(xs.object_id[b], n_front[b], w_spot[b], out.direction[lit])
+            cos_k = np.maximum(_dot(n_front[b], out.direction[lit]), 0.0)
+            weight = (weight_x[b] * e_x[b] * f * cos_k * out.weight[lit]
+                      * self.legs._attenuation(leg + r_lx[b] + out.phys[lit]))
+            comp = self.object_component[xs.object_id[b]] * c.n_channels + out.channel[lit]
+            sink.add(laser_t + r_lx[b] / SPEED_OF_LIGHT + out.time[lit], weight, comp)
+        if s.secondary == "full":
+            # FoV behind the spot-facing side: only where the FoV rectangle reaches behind x's plane
+            corners = (c.fov_center + np.array([[a * c.fov_size[0] / 2, b * c.fov_size[1] / 2]
+                                                for a in (-1, 1) for b in (-1, 1)]) @ np.stack([c.fov_u, c.fov_v]))
+            behind = np.flatnonzero((_dot(corners[None] - xs.points[:, None], -n_front[:, None]) > 0).any(axis=1))
+            back = self._connect(xs.points[behind], -n_front[behind], laser, rng,
+                                 None if pad is None else pad[behind])
+            back.b = behind[back.b]
+            self.stats.fov_connections += len(back.b)
+            conn = {name: np.concatenate([getattr(out, name), getattr(back, name)])
+                    for name in ("b", "direction", "weight", "time", "phys", "channel")}
+            conn["normal"] = np.concatenate([n_front[out.b], -n_front[back.b]])
+            if len(conn["b"]):
+                self._secondary(xs, weight_x, laser, conn, sink, rng)
+
+    def _partners(self, x: np.ndarray, nf: np.ndarray, pos: np.ndarray, neg: np.ndarray, laser: int,
+                  rng: np.random.Generator) -> tuple[SurfaceSamples, np.ndarray]:
+        """Secondary partners of the n points x (n, 3): P_l from the spot, P_d from x, P_a by area.
+
+        The direction strategy samples the hemisphere of each side of x that has FoV connections (pos: the
+        +normal side, neg: the −normal side; both: each with probability ½). Returns the partners flattened
+        to n·P rows (owner-major; spot, then direction, then area partners) and whether each was found.
+        """
+        s, cst = self.settings, self.caster
+        n, pl, pd, pa = len(x), s.spot_partners, s.direction_partners, s.area_partners
+        blocks, found = [], []
+        if pl:
+            sp, hit = self._from_spot(rng.random((n * pl, 2)), laser)
+            blocks.append(sp)
+            found.append(hit)
+        if pd:
+            coin = rng.random((n, pd)) < 0.5
+            flip = np.where((pos & neg)[:, None], coin, ~pos[:, None])        # sample the −normal side
+            n_side = np.where(flip[..., None], -nf[:, None], nf[:, None])
+            local, _ = square_to_hemisphere(rng.random((n, pd)), rng.random((n, pd)), "cosine")
+            hits = cst.intersect(x[:, None] + cst.offset * n_side, to_world(local, n_side))
+            face = np.where(hits.hit, hits.face, 0).ravel()
+            blocks.append(SurfaceSamples(np.nan_to_num(hits.points).reshape(-1, 3), cst.face_normals[face], face,
+                                         cst.face_object[face], np.zeros(len(face)), np.zeros((len(face), 2))))
+            found.append(hits.hit.ravel())
+        if pa:
+            ap, _ = sample_surfaces(cst, self.hidden_faces, n * pa, "random", rng)
+            blocks.append(ap)
+            found.append(np.ones(n * pa, dtype=bool))
+        # blocks are strategy-major (n·P_t rows each, owner-major inside); gather owner-major rows
+        sizes = [k for k in (pl, pd, pa) if k]
+        offsets = np.cumsum([0] + [n * k for k in sizes])[:-1]
+        idx = np.concatenate([off + np.arange(n)[:, None] * k + np.arange(k)[None]
+                              for off, k in zip(offsets, sizes)], axis=1).ravel()
+        allp = SurfaceSamples.concat(blocks)
+        return allp.take(idx), np.concatenate(found)[idx]
+
+    def _secondary(self, xs: SurfaceSamples, weight_x: np.ndarray, laser: int, conn: dict, sink: Sink,
+                   rng: np.random.Generator) -> None:
+        """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc)."""
+        c, s, cst = self.capture, self.settings, self.caster
+        rows, inv = np.unique(conn["b"], return_inverse=True)       # hidden samples with FoV connections
+        n = len(rows)
+        x, nf = xs.points[rows], xs.normals[rows]
+        side = _dot(nf[inv], conn["normal"]) > 0                    # the connection leaves x's +normal side
+        pos = np.zeros(n, dtype=bool)
+        neg = np.zeros(n, dtype=bool)
+        pos[inv[side]] = True
+        neg[inv[~side]] = True
+        n_sides = pos.astype(int) + neg.astype(int)
+        pl, pd, pa = s.spot_partners, s.direction_partners, s.area_partners
+        p_tot = pl + pd + pa
+        xp, found = self._partners(x, nf, pos, neg, laser, rng)
+        owner = np.repeat(np.arange(n), p_tot)
+        slot = np.tile(np.arange(p_tot), n)
+        needs_vis = (slot < pl) | (slot >= pl + pd)                  # spot and area partners; not first hits
+        # x' → x geometry
+        dpx = x[owner] - xp.points
+        rp = np.linalg.norm(dpx, axis=-1)
+        wpx = dpx / np.maximum(rp, 1e-300)[:, None]                   # unit x' → x
+        cos_p = np.abs(_dot(xp.normals, wpx))
+        nfx_w = _dot(nf[owner], wpx)                                  # < 0: x' on x's +normal side
+        cos_x = np.abs(nfx_w)
+        on_pos = nfx_w < 0
+        covered = np.where(on_pos, pos[owner], neg[owner])
+        keep = found & (rp > MIN_PARTNER_DISTANCE_OFFSETS * cst.offset) & (cos_p > 0) & (cos_x > 0) & covered
+        e_p = np.zeros(len(rp))
+        r_lp = np.zeros(len(rp))
+        w_sp = np.zeros((len(rp), 3))
+        geo_p = np.zeros(len(rp))
+        if keep.any():
+            e_p[keep], r_lp[keep], w_sp[keep], geo_p[keep] = self._irradiance(xp.points[keep], xp.normals[keep],
+                                                                              laser)
+        keep &= e_p > 0
+        n_px = np.where(_dot(xp.normals, wpx)[:, None] < 0, -xp.normals, xp.normals)   # x' normal facing x
+        n_xp = np.where(on_pos[:, None], nf[owner], -nf[owner])                        # x normal facing x'
+        check = keep & needs_vis
+        if check.any():
+            keep[check] = cst.visible(xp.points[check], n_px[check], x[owner][check], n_xp[check])
+            self.legs.stats.shadow_rays += int(check.sum())
+        self.stats.partners += int(keep.sum())
+        if not keep.any():
+            return
+        idx = np.flatnonzero(keep)
+        g = cos_p[idx] * cos_x[idx] / rp[idx] ** 2                    # G(x', x), 1/m²
+        p_spot = geo_p[idx] / np.pi                                   # densities in area measure, 1/m²
+        p_dir = g / (np.pi * n_sides[owner[idx]])
+        p_area = self._is_hidden[xp.face[idx]] / self.hidden_area
+        f_p = self.legs._brdf(xp.object_id[idx], n_px[idx], w_sp[idx], wpx[idx])
+        irr = np.zeros(len(rp))                                       # MIS terms of the irradiance at x
+        irr[idx] = e_p[idx] * f_p * g / (pl * p_spot + pd * p_dir + pa * p_area)
+        # every FoV connection of x with every partner of x
+        part = (inv[:, None] * p_tot + np.arange(p_tot)[None]).ravel()
+        ci = np.repeat(np.arange(len(inv)), p_tot)
+        use = irr[part] > 0
+        part, ci = part[use], ci[use]
+        if len(part) == 0:
+            return
+        b = conn["b"][ci]
+        n_side, w_out = conn["normal"][ci], conn["direction"][ci]
+        f_x = self.legs._brdf(xs.object_id[b], n_side, -wpx[part], w_out)
+        cos_k = np.maximum(_dot(n_side, w_out), 0.0)
+        leg = c.emitter_legs[laser]
+        weight = (weight_x[b] * irr[part] * f_x * cos_k * conn["weight"][ci]
+                  * self.legs._attenuation(leg + r_lp[part] + rp[part] + conn["phys"][ci]))
+        t = ((leg if s.count_laser_leg else 0.0) + r_lp[part] + rp[part]) / SPEED_OF_LIGHT + conn["time"][ci]
+        self.stats.secondary_pairs += len(part)
+        sink.add(t, weight, self.n_primary * c.n_channels + conn["channel"][ci])
