@@ -65,6 +65,9 @@ class SimulationConfig(BaseModel):
         jitter: stratified jitter of lookin rays and camera pixels (False: the paper's regular grids).
         secondary: "none", "optimized" (paper §4, strongest ``top_k`` per lookin and FoV point), "full"
             (every pair, O(Ñ²) per lookin) or "exact" (the same sum factorised, O(Ñ) per lookin, DESIGN.md §3).
+        estimator: "lookin" (the paper's sampler: lookins and hemispherical cameras) or "area" (hidden-surface
+            area sampling with next-event connections to the spot and the FoV, datagen.area; ``area_samples``
+            hidden points; its secondary is "full" whenever ``secondary`` is not "none").
         sensor_sampling: "camera" (the paper: FoV points from the lookin cameras) or "connect" (next-event
             connections to ``connect_samples`` stratified points per sensor pixel; forced for point radiance).
         conv_refine: the exact secondary's profile grid is this many times finer than the envelope's grid.
@@ -88,6 +91,8 @@ class SimulationConfig(BaseModel):
     jitter: bool = True
     secondary: Literal["none", "optimized", "full", "exact"] = "full"
     top_k: int = Field(1, ge=1)
+    estimator: Literal["lookin", "area"] = "lookin"
+    area_samples: int = Field(65536, ge=16)
     sensor_sampling: Literal["camera", "connect"] = "camera"
     connect_samples: tuple[int, int] = (4, 4)
     conv_refine: int = Field(1, ge=1, le=64)
@@ -237,8 +242,18 @@ def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generat
                   progress: bool = False) -> Transported:
     """Plan the effects, run the estimator and bin its impulses (scene → transport → envelope)."""
     t0 = time.perf_counter()
-    transport = Transport(scene, config.transport_settings(), RayCaster(scene))
+    caster = RayCaster(scene)
+    transport = Transport(scene, config.transport_settings(), caster)
     plan = _plan(scene, config, transport)
+    if config.estimator == "area":
+        from .area import AreaSampler, AreaSettings
+        ts = transport.settings
+        # the planner's shadow_spot decision is about the lookin sampler's secondary; the area sampler's hidden
+        # points always need their laser shadow ray (lookins are visible from the spot by construction)
+        area = AreaSampler(scene, AreaSettings.from_transport(
+            ts, samples=config.area_samples, secondary="none" if ts.secondary == "none" else "full",
+            shadow_spot=config.effects.get("shadow_spot") is not False), caster)
+        transport = area
     t_setup = time.perf_counter() - t0
     capture = transport.capture
     names = transport.component_names
@@ -247,8 +262,9 @@ def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generat
     bar = None
     if progress:
         from tqdm.auto import tqdm
-        total = config.lookins[0] * config.lookins[1] * capture.n_lasers
-        bar = tqdm(total=total, unit="lookin", desc="transport", leave=False)
+        per = config.area_samples if config.estimator == "area" else config.lookins[0] * config.lookins[1]
+        bar = tqdm(total=per * capture.n_lasers, unit="sample" if config.estimator == "area" else "lookin",
+                   desc="transport", leave=False)
     t1 = time.perf_counter()
     transport.run(acc, rng, progress=(bar.update if bar is not None else None))
     if bar is not None:
@@ -328,9 +344,10 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
         "warnings": warnings,
         "effects": {
             "primary": True,
+            "estimator": config.estimator,
             "secondary": settings.secondary,
             "top_k": config.top_k if settings.secondary == "optimized" else None,
-            "sensor_sampling": settings.sensor_sampling,
+            "sensor_sampling": getattr(settings, "sensor_sampling", "area next-event connections"),
             "shadow_rays": {"spot": settings.shadow_spot, "sensor": settings.shadow_sensor},
             "non_lambertian_brdfs": sorted({o.material.kind for o in scene.objects} - {"lambertian"}),
             "atmospheric_attenuation": settings.attenuation > 0,
@@ -340,7 +357,7 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
             "detector_model": detector.model,
         },
         "energy_outside_window": {n: float(v) for n, v in zip(names, tr.outside.sum(1))},
-        "stats": {k: int(v) for k, v in vars(st).items()},
+        "stats": {k: int(v) for k, v in vars(st).items() if isinstance(v, (int, np.integer))},
         "timings_s": {**tr.seconds, "detector": t_detect, "total": time.perf_counter() - t0},
         "versions": library_versions(),
         **(extra_attrs or {}),
