@@ -5,8 +5,20 @@ Public entry points::
     scene = datagen.load_scene("scene_library/demo_room.yaml")
     result = datagen.simulate(scene, datagen.resolve_config(scene, {"lookins": "10x10"}))
     result.envelope, result.components["box"], result.counts
+
+    # datasets (docs/datasets.md): `datagen build configs/datasets/smoke.yaml --out data/smoke`, then
+    ds = datagen.NLOSDataset("data/smoke", split="train", noise="resample")   # a torch Dataset
 """
 from .scene import Scene, SceneError, load_scene
 from .simulate import Result, SimulationConfig, resolve_config, simulate
 
-__all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate"]
+__all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
+           "NLOSDataset"]
+
+
+def __getattr__(name: str):
+    """``datagen.NLOSDataset`` imports torch on first use only (``import datagen`` stays light for workers)."""
+    if name == "NLOSDataset":
+        from .loader import NLOSDataset
+        return NLOSDataset
+    raise AttributeError(f"module 'datagen' has no attribute {name!r}")

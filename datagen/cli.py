@@ -31,19 +31,34 @@ def main():
     """datagen: simulate NLOS SPAD lidar transients (Scholes & Leach 2024) and build datasets."""
 
 
+def _parse_fraction(text: str, option: str) -> float:
+    """'1%' → 0.01, '0.01' → 0.01; click.BadParameter naming the option otherwise."""
+    t = str(text).strip()
+    try:
+        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+    except ValueError:
+        raise click.BadParameter(f"{option} must look like 1% or 0.01, got {text!r}") from None
+    if not 0 < value < 1:
+        raise click.BadParameter(f"{option} must be between 0 and 100 %, got {text!r}")
+    return value
+
+
 @main.command()
 @click.argument("scene_file", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory")
 @click.option("--lookins", default=None, help="lookin grid, e.g. 10x10 (default: the scene's)")
 @click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
-@click.option("--secondary", type=click.Choice(["none", "optimized", "full"]), default=None,
-              help="secondary (one more hidden bounce) estimator")
+@click.option("--secondary", type=click.Choice(["none", "optimized", "full", "exact"]), default=None,
+              help="secondary (one more hidden bounce) estimator: exact = full at O(N) cost")
+@click.option("--tolerance", default=None,
+              help="target relative L2 error, e.g. 1%: choose lookins/pixels from an on-the-fly error estimate")
+@click.option("--workers", type=int, default=None, help="processes sharing the lookins (result unchanged)")
 @click.option("--top-k", type=int, default=None, help="secondary paths kept per lookin and FoV point (optimized)")
 @click.option("--seed", type=int, default=None, help="root seed of every random stream")
 @click.option("--figures", is_flag=True, help="also write the paper's Figure 3 and 5 sampling views")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @_friendly_errors
-def simulate(scene_file, out, lookins, pixels, secondary, top_k, seed, figures, quiet):
+def simulate(scene_file, out, lookins, pixels, secondary, tolerance, workers, top_k, seed, figures, quiet):
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from .plot import plot_envelope
     from .scene import load_scene
@@ -52,9 +67,18 @@ def simulate(scene_file, out, lookins, pixels, secondary, top_k, seed, figures, 
     from .store import RESULT_NAME, write_result
 
     scene = load_scene(scene_file)
+    tol = _parse_fraction(tolerance, "--tolerance") if tolerance is not None else None
     config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
-                                    "top_k": top_k, "seed": seed})
-    result = run_simulation(scene, config, progress=not quiet)
+                                    "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol})
+    if tol is not None:
+        from .adaptive import simulate_to_tolerance
+        result = simulate_to_tolerance(scene, config, tol, progress=not quiet)
+        t = result.attrs["tolerance"]
+        click.echo(f"tolerance {tol:.2%}: lookins {'x'.join(map(str, result.attrs['config']['lookins']))}"
+                   f", pixels {'x'.join(map(str, result.attrs['config']['pixels']))}, estimated error "
+                   f"{t['estimate']:.2%} (90 % upper bound){'' if t['met'] else ' — NOT met'}")
+    else:
+        result = run_simulation(scene, config, progress=not quiet)
     out.mkdir(parents=True, exist_ok=True)
     write_result(result, out / RESULT_NAME)
     plot_envelope(result, out / "envelope.png")
@@ -125,6 +149,22 @@ def summary(result) -> str:
                  f"({result.attrs['detector']['model']} model)")
     lines.append(f"wall time {t['total']:.2f} s (transport {t['transport']:.2f} s)")
     return "\n".join(lines)
+
+
+from .cli_tal import export_tal, tal_render  # noqa: E402  (tal interop commands, issue 6)
+
+main.add_command(tal_render)
+main.add_command(export_tal)
+
+from .cli_dataset import build, inspect, verify  # noqa: E402  (dataset commands, issue 4)
+
+main.add_command(build)
+main.add_command(inspect)
+main.add_command(verify)
+
+from .cli_bench import bench  # noqa: E402  (benchmarks: datagen bench accuracy, issue 5)
+
+main.add_command(bench)
 
 
 if __name__ == "__main__":

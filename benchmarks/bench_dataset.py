@@ -1,0 +1,178 @@
+"""Benchmark of dataset builds and the loader (issue 4). Plain script::
+
+    python benchmarks/bench_dataset.py                       # all three measurements
+    python benchmarks/bench_dataset.py --big-config smoke    # the 1000-sample build on the smoke config
+
+Reports
+* build throughput (samples/s) of ``configs/datasets/default.yaml`` cut to ``--samples`` (40) train samples,
+  ``--workers`` (2) local worker processes;
+* loader throughput (samples/s) of ``NLOSDataset`` on that store with ``DataLoader(num_workers=2,
+  batch_size=64, shuffle=True, persistent_workers=True)``, frozen and re-drawn noise, after a warm-up epoch;
+  plus the time of one ``__getitem__`` in the main process;
+* peak resident memory (RSS summed over the build process and all its children, sampled every 0.1 s) of a
+  ``--big`` (1000) sample build of ``--big-config`` (default or smoke).
+Timings depend on the machine's load: run it on an otherwise idle machine.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import psutil
+
+from datagen.build import build_dataset
+from datagen.dataset import SplitSpec, load_dataset_config
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = {"default": ROOT / "configs/datasets/default.yaml", "smoke": ROOT / "configs/datasets/smoke.yaml"}
+
+
+def config_with(name: str, samples: int, shard_size: int | None = None):
+    config = load_dataset_config(CONFIGS[name])
+    update = {"splits": {"train": SplitSpec(count=samples)}}
+    if shard_size:
+        update["shard_size"] = shard_size
+    return config.model_copy(update=update)
+
+
+class PeakRSS:
+    """Peak of the summed RSS of this process and all its descendants, sampled in a thread."""
+
+    def __init__(self, interval: float = 0.1):
+        self.interval, self.peak, self._stop = interval, 0, threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        me = psutil.Process()
+        while not self._stop.is_set():
+            total = 0
+            for proc in [me] + me.children(recursive=True):
+                try:
+                    total += proc.memory_info().rss
+                except psutil.Error:
+                    pass
+            self.peak = max(self.peak, total)
+            time.sleep(self.interval)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+
+
+def tree_cpu_seconds() -> float:
+    """User + system CPU seconds of this process and its live children (load-independent work measure)."""
+    total = 0.0
+    me = psutil.Process()
+    for proc in [me] + me.children(recursive=True):
+        try:
+            t = proc.cpu_times()
+            total += t.user + t.system
+        except psutil.Error:
+            pass
+    return total
+
+
+def bench_build(tmp: Path, samples: int, workers: int) -> tuple[Path, float]:
+    out = tmp / "default_build"
+    config = config_with("default", samples, shard_size=max(1, samples // (2 * workers)))
+    report = build_dataset(config, out, workers=workers, progress=False)
+    timing = report.card["timing"]["per_sample_s"]
+    print(f"build  default config, {samples} samples, {workers} workers, shard size {config.shard_size}: "
+          f"{report.samples_per_second:.2f} samples/s ({report.seconds:.1f} s wall incl. pool start-up; "
+          f"per sample {timing['mean']:.3f} s mean, {timing['p95']:.3f} s p95 in a worker)")
+    # load-independent view: CPU seconds of one sample in this process (the build is one thread per sample)
+    from datagen.dataset import make_sample
+    make_sample(config, "train", 0)
+    cpu0 = time.process_time()
+    for i in range(1, 9):
+        make_sample(config, "train", i)
+    cpu = (time.process_time() - cpu0) / 8
+    print(f"build  {cpu:.3f} CPU-s per default sample in one process: {workers / cpu:.1f} samples/s expected on "
+          f"{workers} idle cores")
+    return out, report.samples_per_second
+
+
+def bench_loader(path: Path, epochs: int = 5) -> dict:
+    import torch
+    from torch.utils.data import DataLoader
+
+    from datagen.loader import NLOSDataset
+
+    results = {}
+    ds = NLOSDataset(path, split="train")
+    ds[0]
+    t0 = time.perf_counter()
+    n = 0
+    while time.perf_counter() - t0 < 1.0:
+        ds[n % len(ds)]
+        n += 1
+    per_item = (time.perf_counter() - t0) / n
+    sample_bytes = sum(t.numel() * t.element_size() for t in ds[0].values())
+    print(f"loader one __getitem__ in the main process: {per_item * 1e6:.0f} µs "
+          f"({len(ds.fields)} fields, {sample_bytes / 1024:.1f} KiB per sample)")
+    for noise in ("frozen", "resample"):
+        ds = NLOSDataset(path, split="train", noise=noise)
+        # a few thousand items per epoch, like a real training set: repeat the stored samples
+        # (re-drawn noise is far slower: a smaller epoch)
+        items = max(4096 if noise == "frozen" else 256, len(ds))
+        index = torch.utils.data.Subset(ds, [i % len(ds) for i in range(items)])
+        loader = DataLoader(index, batch_size=64, shuffle=True, num_workers=2, persistent_workers=True)
+        for _ in loader:   # warm-up epoch: worker start-up, shard indexes
+            pass
+        cpu0, t0, seen = tree_cpu_seconds(), time.perf_counter(), 0
+        for epoch in range(epochs if noise == "frozen" else 1):
+            for batch in loader:
+                seen += batch["envelope"].shape[0]
+        rate = seen / (time.perf_counter() - t0)
+        per_cpu = seen / (tree_cpu_seconds() - cpu0)
+        results[noise] = rate
+        print(f"loader DataLoader(num_workers=2, batch 64, shuffle) noise={noise}: {rate:.0f} samples/s "
+              f"({per_cpu:.0f} samples per CPU-second of the main process and its workers together)")
+        del loader
+    return results
+
+
+def bench_memory(tmp: Path, samples: int, workers: int, name: str) -> float:
+    out = tmp / f"{name}_big"
+    config = config_with(name, samples)
+    before = psutil.Process().memory_info().rss
+    with PeakRSS() as rss:
+        report = build_dataset(config, out, workers=workers, progress=False)
+    print(f"memory {samples}-sample build of the {name} config, {workers} workers: peak RSS of the process tree "
+          f"{rss.peak / 2**20:.0f} MiB, of which this driver process held {before / 2**20:.0f} MiB before the "
+          f"build ({report.samples_per_second:.2f} samples/s, {report.seconds:.0f} s)")
+    return rss.peak
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--samples", type=int, default=40)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--big", type=int, default=1000)
+    parser.add_argument("--big-config", choices=sorted(CONFIGS), default="default")
+    parser.add_argument("--skip-big", action="store_true")
+    args = parser.parse_args()
+    print(f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}, "
+          f"load average {os.getloadavg()[0]:.1f}")
+    tmp = Path(tempfile.mkdtemp(prefix="bench_dataset_"))
+    try:
+        path, _ = bench_build(tmp, args.samples, args.workers)
+        bench_loader(path)
+        if not args.skip_big:
+            bench_memory(tmp, args.big, args.workers, args.big_config)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

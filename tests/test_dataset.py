@@ -1,0 +1,150 @@
+"""Dataset config and "make sample i": seeds keyed by (seed, split, index, stream), pure samples, fixed
+shapes, held-out splits, and config errors that name the dotted field."""
+from __future__ import annotations
+
+import copy
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from datagen.dataset import (STREAMS, config_from_json, load_dataset_config, make_sample, resample_rng,
+                             sample_rngs, split_key)
+from datagen.scene import SceneError
+
+SMOKE = Path("configs/datasets/smoke.yaml")
+
+
+@pytest.fixture(scope="module")
+def smoke():
+    return load_dataset_config(SMOKE)
+
+
+def smoke_data() -> dict:
+    return yaml.safe_load(SMOKE.read_text())
+
+
+def test_streams_are_seedsequence_of_seed_split_index_stream():
+    assert STREAMS == {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
+    assert split_key("train") == zlib.crc32(b"train")
+    rngs = sample_rngs(7, "val", 11)
+    for name, sid in STREAMS.items():
+        ref = np.random.default_rng(np.random.SeedSequence(7, spawn_key=(zlib.crc32(b"val"), 11, sid)))
+        assert np.array_equal(rngs[name].integers(0, 2**62, 8), ref.integers(0, 2**62, 8)), name
+    # streams of one sample, and the same stream of neighbouring samples/splits, are all different
+    draws = {(s, i, n): sample_rngs(7, s, i)[n].random() for s in ("train", "val") for i in (0, 1) for n in STREAMS}
+    assert len(set(draws.values())) == len(draws)
+    # the loader's per-epoch noise uses a 4-entry key: never one of the build's streams
+    assert resample_rng(7, "val", 0, 11).random() not in set(draws.values())
+    assert resample_rng(7, "val", 0, 11).random() == resample_rng(7, "val", 0, 11).random()
+    assert resample_rng(7, "val", 1, 11).random() != resample_rng(7, "val", 0, 11).random()
+
+
+def test_make_sample_is_a_pure_function_of_config_split_index(smoke):
+    a, b = make_sample(smoke, "train", 3), make_sample(smoke, "train", 3)
+    assert a.arrays.keys() == b.arrays.keys()
+    for name in a.arrays:
+        assert a.arrays[name].tobytes() == b.arrays[name].tobytes() if name != "params" else \
+            a.arrays[name][()] == b.arrays[name][()], name
+    c = make_sample(smoke, "train", 4)
+    assert not np.array_equal(a.arrays["envelope"], c.arrays["envelope"])
+
+
+def test_sample_fields_shapes_dtypes_and_components_sum(smoke):
+    s = make_sample(smoke, "val", 0)
+    a = s.arrays
+    assert a["envelope"].shape == (256,) and a["envelope"].dtype == np.float32
+    assert a["counts"].shape == (256,) and a["counts"].dtype == np.int64 and a["counts"].sum() > 0
+    assert s.time_edges.shape == (257,)
+    np.testing.assert_allclose(s.time_edges[[0, -1]], [15e-9, 15e-9 + 256 * 200e-12], rtol=1e-12)
+    k = 4
+    assert s.component_names == ["room"] + [f"object_{i}" for i in range(k)] + ["secondary", "first_bounce"]
+    assert a["components"].shape == (len(s.component_names), 256)
+    # components are the envelope split by what the lookin hit: they sum back to it (float32 storage)
+    np.testing.assert_allclose(a["components"].astype(np.float64).sum(0), a["envelope"], rtol=2e-6,
+                               atol=1e-7 * a["envelope"].max())
+    n = int(a["object_count"])
+    assert a["object_class"].shape == (k,)
+    assert (a["object_class"][n:] == -1).all() and (a["object_class"][:n] >= 0).all()
+    # an absent object's component slot is exactly zero
+    assert not a["components"][1 + n:1 + k].any()
+    assert a["depth"].shape == (16, 16) and a["normal"].shape == (16, 16, 3) and a["occupancy"].shape == (16,) * 3
+    assert set(s.seconds) == {"room", "simulate", "labels", "total"}
+
+
+def test_held_out_material_split_makes_every_box_phong(smoke):
+    """test_phong overrides the box material mixture: every box there is Phong (kind index 2), while the
+    train split's boxes are Lambertian (0)."""
+    brdf = {"test_phong": [], "train": []}
+    for split in brdf:
+        for i in range(6):
+            a = make_sample(smoke, split, i).arrays
+            brdf[split] += [int(b) for c, b in zip(a["object_class"], a["object_brdf"]) if c == 0]
+    assert brdf["test_phong"] and set(brdf["test_phong"]) == {2}
+    assert brdf["train"] and set(brdf["train"]) == {0}
+
+
+def test_config_json_roundtrip_keeps_the_fingerprint(smoke):
+    again = config_from_json(smoke.to_json())
+    assert again.fingerprint() == smoke.fingerprint()
+    assert isinstance(again.room, dict) and isinstance(again.detector, dict)
+    changed = smoke.model_copy(update={"seed": smoke.seed + 1})
+    assert changed.fingerprint() != smoke.fingerprint()
+
+
+def test_detector_preset_path_loads_with_the_dataset_time_axis():
+    data = smoke_data()
+    data["detector"] = "../detectors/hwu_single_pixel.yaml"
+    config = load_dataset_config(data, base_dir=SMOKE.parent)
+    assert config.detector["model"] == "free_running"
+    assert "bin_width" not in config.detector and "t_start" not in config.detector
+    det = config.simulation_config("train").detector_config()
+    assert det.bin_width == pytest.approx(200e-12) and det.t_start == pytest.approx(15e-9)
+
+
+@pytest.mark.parametrize("change, expected", [
+    ({"sead": 3}, "sead: Extra inputs are not permitted"),
+    ({"splits": {"train": {"count": -1}}}, "splits.train.count"),
+    ({"splits": {"train": {"count": 4, "shards": 2}}}, "splits.train.shards"),
+    ({"splits": {"train": {"count": 4, "room_overrides": {"corridor": {"width": {"min": 3.0, "max": 2.0}}}}}},
+     "splits.train.room_overrides: .*corridor.width: .*min \\(3.0\\) must be <= max \\(2.0\\)"),
+    ({"splits": {"train": {"count": 4, "room_overrides": {"objects": {"box": {"count": {"min": 30, "max": 30}}}}}}},
+     "splits.train.room_overrides: .*objects: room too small"),
+    ({"splits": {"train": {"count": 4, "room_overrides": {"corridor": {"lenght": 3}}}}},
+     "splits.train.room_overrides: .*corridor.lenght"),
+    ({"room": {"corridor": {"width": {"min": 2.5, "max": 1.5}}}}, "room: .*corridor.width"),
+    ({"room": "missing_rooms.yaml"}, "room: file not found: 'missing_rooms.yaml'"),
+    ({"labels": {"max_objects": -1}}, "labels.max_objects"),
+    ({"labels": {"voxel": 8}}, "labels.voxel"),
+    ({"simulation": {"lookins": "four"}}, "simulation.lookins"),
+    ({"simulation": {"seed": 3}}, "simulation: .*remove simulation.seed"),
+    ({"detector": {"pde": 2.0, "repetition_rate": 1e7, "exposure": "1ms"}}, "detector.pde"),
+    ({"store": {"envelope_dtype": "float16"}}, "store.envelope_dtype"),
+    ({"shard_size": 0}, "shard_size"),
+])
+def test_bad_config_names_the_field(change, expected):
+    data = smoke_data()
+    data.update(copy.deepcopy(change))
+    with pytest.raises(SceneError, match=expected):
+        load_dataset_config(data, base_dir=SMOKE.parent)
+
+
+def test_bad_config_file_names_the_file(tmp_path):
+    data = smoke_data()
+    data["room"] = str((SMOKE.parent / data["room"]).resolve())
+    data["splits"]["val"]["count"] = "many"
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(SceneError, match=f"{path}: splits.val.count"):
+        load_dataset_config(path)
+    with pytest.raises(SceneError, match="dataset config not found"):
+        load_dataset_config(tmp_path / "nope.yaml")
+
+
+def test_make_sample_rejects_unknown_split_and_index(smoke):
+    with pytest.raises(SceneError, match="split 'tain'"):
+        make_sample(smoke, "tain", 0)
+    with pytest.raises(SceneError, match="index 8 is outside split 'val'"):
+        make_sample(smoke, "val", 8)

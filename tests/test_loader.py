@@ -1,0 +1,125 @@
+"""NLOSDataset: the fast shard reader returns exactly what zarr stores; DataLoader workers return the same
+tensors as the main process; re-drawn SPAD noise is fresh per epoch, repeatable per epoch, and has the
+detector model's mean."""
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import zarr
+from torch.utils.data import DataLoader
+
+import datagen
+from datagen import spad
+from datagen.build import build_dataset
+from datagen.dataset import SplitSpec, load_dataset_config
+from datagen.loader import NLOSDataset
+
+SMOKE = Path("configs/datasets/smoke.yaml")
+
+
+@pytest.fixture(scope="module")
+def dataset_path(tmp_path_factory):
+    config = load_dataset_config(SMOKE)
+    splits = {"train": SplitSpec(count=8), "val": SplitSpec(count=2)}
+    config = config.model_copy(update={"splits": splits, "shard_size": 3})   # shards of 3, 3, 2 samples
+    out = tmp_path_factory.mktemp("loader") / "ds"
+    build_dataset(config, out, workers=0, progress=False)
+    return out
+
+
+def test_items_equal_the_stored_arrays(dataset_path):
+    ds = datagen.NLOSDataset(dataset_path, split="train")
+    group = zarr.open_group(str(dataset_path), mode="r")["train"]
+    assert len(ds) == 8 and "params" not in ds.fields and {"envelope", "counts", "depth", "occupancy"} <= set(ds.fields)
+    for i in (0, 2, 3, 7):      # first/last sample of a shard, and of the short last shard
+        item = ds[i]
+        for name in ds.fields:
+            stored = group[name][i]
+            assert isinstance(item[name], torch.Tensor), name
+            assert item[name].numpy().dtype == stored.dtype and item[name].numpy().tobytes() == stored.tobytes(), name
+    assert ds[-1]["counts"].equal(ds[7]["counts"])
+    assert ds.params(5)["index"] == 5 and ds.params(5)["split"] == "train"
+    with pytest.raises(IndexError):
+        ds[8]
+
+
+def test_dataloader_two_workers_returns_the_same_tensors_as_zero(dataset_path):
+    ds = NLOSDataset(dataset_path, split="train", fields=("envelope", "counts", "depth", "object_count"))
+    ds[0]   # open shards in this process: nothing opened may travel to the workers
+    state = pickle.dumps(ds)
+    assert len(state) < 200_000 and pickle.loads(state)[4]["counts"].equal(ds[4]["counts"])
+    batches0 = list(DataLoader(ds, batch_size=3, num_workers=0))
+    batches2 = list(DataLoader(ds, batch_size=3, num_workers=2))
+    assert len(batches0) == len(batches2) == 3
+    for a, b in zip(batches0, batches2):
+        assert a.keys() == b.keys()
+        for name in a:
+            assert a[name].dtype == b[name].dtype and torch.equal(a[name], b[name]), name
+    assert batches0[0]["envelope"].shape == (3, 256) and batches0[0]["counts"].dtype == torch.int64
+
+
+def test_resampled_noise_differs_across_epochs_and_repeats_within_one(dataset_path):
+    frozen = NLOSDataset(dataset_path, split="train", fields=("counts",))
+    ds = NLOSDataset(dataset_path, split="train", fields=("envelope", "counts"), noise="resample")
+    ds.set_epoch(0)
+    e0 = [ds[i]["counts"] for i in range(len(ds))]
+    e0_again = [ds[i]["counts"] for i in range(len(ds))]
+    ds.set_epoch(1)
+    e1 = [ds[i]["counts"] for i in range(len(ds))]
+    for i in range(len(ds)):
+        assert torch.equal(e0[i], e0_again[i])
+        assert not torch.equal(e0[i], e1[i])
+        assert not torch.equal(e0[i], frozen[i]["counts"])
+    # workers draw exactly what the main process draws for the same epoch
+    ds.set_epoch(1)
+    loaded = torch.cat([b["counts"] for b in DataLoader(ds, batch_size=4, num_workers=2)])
+    assert torch.equal(loaded, torch.stack(e1))
+
+
+def test_resampled_counts_have_the_detector_models_mean(dataset_path):
+    """Mean total counts of 40 epochs of sample 1 = the pile-up model's expected total from the stored
+    envelope (within 5 standard errors), as the build's own counts are a draw of the same model."""
+    ds = NLOSDataset(dataset_path, split="train", fields=("envelope", "counts"), noise="resample")
+    env = ds[1]["envelope"].numpy().astype(np.float64)
+    det = spad.DetectorConfig.model_validate(ds.detector)
+    expected = spad.expected_histogram(spad.rates_from_envelope(env, det), det).sum()
+    totals = []
+    for epoch in range(40):
+        ds.set_epoch(epoch)
+        totals.append(int(ds[1]["counts"].sum()))
+    totals = np.asarray(totals, dtype=np.float64)
+    assert abs(totals.mean() - expected) < 5 * totals.std(ddof=1) / np.sqrt(len(totals)) + 1e-9 * expected
+    stored = NLOSDataset(dataset_path, split="train", fields=("counts",))[1]["counts"].sum().item()
+    assert abs(stored - expected) < 5 * totals.std(ddof=1)
+
+
+def test_transform_fields_and_errors(dataset_path):
+    ds = NLOSDataset(dataset_path, split="val", fields=("depth", "params"),
+                     transform=lambda item: {**item, "depth": item["depth"] * 2})
+    item = ds[1]
+    assert set(item) == {"depth", "params"} and isinstance(item["params"], str)
+    raw = NLOSDataset(dataset_path, split="val", fields=("depth",))[1]["depth"]
+    assert torch.equal(item["depth"], raw * 2)
+    with pytest.raises(ValueError, match="split 'tran'"):
+        NLOSDataset(dataset_path, split="tran")
+    with pytest.raises(ValueError, match="fields \\['dept'\\]"):
+        NLOSDataset(dataset_path, fields=("dept",))
+    with pytest.raises(ValueError, match="noise must be"):
+        NLOSDataset(dataset_path, noise="fresh")
+    with pytest.raises(FileNotFoundError, match="no datagen dataset"):
+        NLOSDataset(dataset_path / "nope")
+
+
+def test_plot_returns_a_figure(dataset_path, tmp_path):
+    ds = NLOSDataset(dataset_path, split="train")
+    fig = ds.plot(2)
+    titles = [ax.get_title() for ax in fig.axes]
+    assert "envelope and counts" in titles and "depth from the FoV centre" in titles
+    assert any(t.startswith("occupancy") for t in titles)
+    fig.savefig(tmp_path / "s.png")
+    assert (tmp_path / "s.png").stat().st_size > 10_000
+    assert ds.plot(ds[2]) is not None
