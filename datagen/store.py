@@ -2,7 +2,7 @@
 
 A result directory holds ``result.zarr`` with arrays ``time_edges`` (s), ``envelope`` (expected detected
 photons per pulse per bin), ``components/<name>`` (same shape, summing to the envelope) and ``counts``
-(int64 SPAD histogram), and the result's attributes (resolved config, effects, timings, versions) as the
+(int64 SPAD histogram), the capture geometry (``laser_points``, ``sensor_points``, ``wall_normal``), and the result's attributes (resolved config, effects, timings, versions) as the
 group's attributes. Arrays are written whole; metadata is consolidated once at the end.
 """
 from __future__ import annotations
@@ -18,6 +18,10 @@ import zarr
 from .simulate import Result
 
 RESULT_NAME = "result.zarr"
+
+
+CAPTURE_ARRAYS = ("laser_points", "sensor_points", "wall_normal")
+"""Capture geometry stored beside the envelope: (ly, lx, 3) and (ny, nx, 3) points (m), (3,) wall normal."""
 
 
 def _jsonable(value):
@@ -66,6 +70,10 @@ def write_result(result: Result, path: str | Path, overwrite: bool = True) -> Pa
     comps = root.create_group("components")
     for name, arr in result.components.items():
         comps.create_array(name, data=np.asarray(arr, dtype=np.float64))
+    for name in CAPTURE_ARRAYS:                      # capture geometry (tal export needs it)
+        value = getattr(result, name, None)
+        if value is not None:
+            root.create_array(name, data=np.asarray(value, dtype=np.float64))
     root.attrs.update(_jsonable(result.attrs))
     _consolidate(tmp)
     if path.exists():
@@ -84,9 +92,10 @@ def read_result(path: str | Path) -> Result:
     root = zarr.open_group(str(path), mode="r")
     comps = root["components"]
     names = root.attrs.get("component_names", sorted(comps.array_keys()))
+    geometry = {n: root[n][...] for n in CAPTURE_ARRAYS if n in root.array_keys()}
     return Result(time_edges=root["time_edges"][...], envelope=root["envelope"][...],
                   components={n: comps[n][...] for n in names}, counts=root["counts"][...],
-                  attrs=dict(root.attrs))
+                  attrs=dict(root.attrs), **geometry)
 
 
 def write_detection(path: str | Path, name: str, counts: np.ndarray, attrs: dict) -> Path:
