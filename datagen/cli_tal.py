@@ -34,11 +34,12 @@ def _h_summary(path: Path) -> str:
 @click.command("tal-render")
 @click.argument("config_file", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output .hdf5 file")
-@click.option("--lookins", default=None, help="lookin grid, e.g. 32x32 (default: the YAML's datagen block, else 10x10)")
+@click.option("--lookins", default=None, help="lookin estimator with this lookin grid, e.g. 1024x1024")
 @click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
 @click.option("--estimator", type=click.Choice(["lookin", "area"]), default=None,
-              help="lookin (the paper's sampler) or area (hidden-surface area sampling; datagen.area)")
-@click.option("--samples", type=int, default=None, help="area estimator: hidden samples per laser point")
+              help="area (default: hidden-surface area sampling, datagen.area) or lookin (the paper's sampler)")
+@click.option("--samples", type=int, default=None,
+              help="area estimator: hidden samples per laser point (default 65536)")
 @click.option("--seed", type=int, default=None, help="root seed of every random stream")
 @click.option("--float32", "float32", is_flag=True, help="store H as float32 (as tal render does)")
 @click.option("--compression", type=click.IntRange(0, 9), default=0, help="gzip level for H (0: none)")
@@ -57,6 +58,8 @@ def tal_render(config_file, out, lookins, pixels, estimator, samples, seed, floa
 
     t0 = time.perf_counter()
     scene, tal = scene_from_tal_yaml(config_file)
+    if estimator is None and (lookins or pixels):
+        estimator = "lookin"          # lookin options mean the lookin estimator (the default is area)
     config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "estimator": estimator,
                                     "area_samples": samples, "seed": seed})
     result = simulate(scene, config, progress=not quiet)

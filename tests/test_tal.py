@@ -34,14 +34,21 @@ RHO_WALL, RHO_SQUARE = 0.9, 0.6
 SQUARE_CENTER = np.array([0.1, -0.05, 1.0])    # off the wall's centre so every axis-order mistake shows
 LASER = np.array([-0.5, 0.0, 0.25])
 
-# Tolerances. datagen is Monte Carlo over lookins (cosine-distributed rays from the laser spot, ~5 % of which
-# hit the square); the quadrature is a 200×200 midpoint rule, exact to ~1e-5 in totals and to well below these
-# tolerances per 1 cm bin. Seeded errors measured at the lookin grids used below (max per-point total error,
-# relative L2 over bins above 1 % of the peak): single 256×256: 0.1 %, 2.0 %; confocal 256×256: 0.7 %, 3.4 %;
-# exhaustive 384×384: ~0.5 %, ~3.5 %. The tolerances are about twice those, so a wrong factor (K, an albedo,
-# a cosine), a transposed grid or a shifted time axis fails them by far.
-TOL = {"single": (0.01, 0.04), "confocal": (0.02, 0.07), "exhaustive": (0.015, 0.07)}
-"""capture type → (per-point total rtol, relative L2 bound)."""
+# Tolerances. Both datagen estimators are Monte Carlo; the quadrature is a 200×200 midpoint rule, exact to
+# ~1e-5 in totals and to well below these tolerances per 1 cm bin. Seeded errors measured with the settings
+# below (max per-point total error, relative L2 over bins above 1 % of the peak):
+#   lookin (cosine rays from the spot, ~5 % hit the square): single 256×256: 0.1 %, 2.0 %; confocal 256×256:
+#     0.7 %, 3.4 %; exhaustive 384×384: ~0.5 %, ~3.5 %;
+#   area (hidden-surface samples, datagen.area), 16 384 samples per laser point: single 0.04 %, 1.0 %;
+#     confocal 0.04 %, 1.0 %; exhaustive 0.05 %, 1.5 %.
+# The tolerances are about twice those, so a wrong factor (K, an albedo, a cosine), a transposed grid or a
+# shifted time axis fails them by far.
+SETTINGS = {"lookin": {"single": {"lookins": "256x256"}, "confocal": {"lookins": "256x256"},
+                       "exhaustive": {"lookins": "384x384"}},
+            "area": {scan: {"estimator": "area", "area_samples": 16384} for scan in ("single", "confocal", "exhaustive")}}
+TOL = {"lookin": {"single": (0.01, 0.04), "confocal": (0.02, 0.07), "exhaustive": (0.015, 0.07)},
+       "area": {"single": (0.003, 0.025), "confocal": (0.003, 0.025), "exhaustive": (0.003, 0.03)}}
+"""estimator → capture type → (per-point total rtol, relative L2 bound)."""
 
 
 def hidden_square(tmp_path: Path, scan: str, **changes) -> Path:
@@ -92,9 +99,13 @@ def laser_scale(spot: np.ndarray) -> float:
     return math.pi * (d[2] / np.linalg.norm(d)) / float(d @ d)
 
 
-def run(path: Path, lookins: str = "64x64", seed: int = 1):
+def run(path: Path, lookins: str = "64x64", seed: int = 1, estimator: str = "lookin", **settings):
+    """Simulate a tal YAML with the lookin estimator (``lookins``) or the area estimator (``area_samples``)."""
     scene, tal = scene_from_tal_yaml(path)
-    result = simulate(scene, resolve_config(scene, {"lookins": lookins, "seed": seed}))
+    overrides = {"estimator": estimator, "seed": seed, **settings}
+    if estimator == "lookin":
+        overrides["lookins"] = lookins
+    result = simulate(scene, resolve_config(scene, overrides))
     return scene, tal, result
 
 
@@ -237,9 +248,10 @@ def test_load_tal_config_merges_tal_defaults_and_reads_scene_folders(tmp_path):
 # H against the independent quadrature, every capture type
 
 
-def test_single_capture_matches_quadrature_in_tal_layout(tmp_path):
-    scene, tal, result = run(hidden_square(tmp_path, "single"), lookins="256x256")
-    tot, l2 = TOL["single"]
+@pytest.mark.parametrize("estimator", ["lookin", "area"])
+def test_single_capture_matches_quadrature_in_tal_layout(tmp_path, estimator):
+    scene, tal, result = run(hidden_square(tmp_path, "single"), **SETTINGS[estimator]["single"])
+    tot, l2 = TOL[estimator]["single"]
     spot = np.zeros(3)
     ref = quadrature(spot, result.sensor_points.reshape(-1, 3), opl_edges(result))
     env = result.envelope.reshape(-1, result.envelope.shape[-1])
@@ -255,9 +267,10 @@ def test_single_capture_matches_quadrature_in_tal_layout(tmp_path):
     assert np.all(np.diff(tal.sensor_grid_xyz[:, 0, 0]) > 0) and np.all(np.diff(tal.sensor_grid_xyz[0, :, 1]) > 0)
 
 
-def test_confocal_capture_matches_quadrature_with_the_laser_on_each_point(tmp_path):
-    scene, tal, result = run(hidden_square(tmp_path, "confocal"), lookins="256x256")
-    tot, l2 = TOL["confocal"]
+@pytest.mark.parametrize("estimator", ["lookin", "area"])
+def test_confocal_capture_matches_quadrature_with_the_laser_on_each_point(tmp_path, estimator):
+    scene, tal, result = run(hidden_square(tmp_path, "confocal"), **SETTINGS[estimator]["confocal"])
+    tot, l2 = TOL[estimator]["confocal"]
     # confocal: laser grid == sensor grid, and each channel is lit at its own point
     np.testing.assert_array_equal(result.laser_points, result.sensor_points)
     edges = opl_edges(result)
@@ -275,9 +288,10 @@ def test_confocal_capture_matches_quadrature_with_the_laser_on_each_point(tmp_pa
     assert rel_l2(H, ref_tal) < l2
 
 
-def test_exhaustive_capture_matches_quadrature_for_every_laser_point(tmp_path):
-    scene, tal, result = run(hidden_square(tmp_path, "exhaustive"), lookins="384x384")
-    tot, l2 = TOL["exhaustive"]
+@pytest.mark.parametrize("estimator", ["lookin", "area"])
+def test_exhaustive_capture_matches_quadrature_for_every_laser_point(tmp_path, estimator):
+    scene, tal, result = run(hidden_square(tmp_path, "exhaustive"), **SETTINGS[estimator]["exhaustive"])
+    tot, l2 = TOL[estimator]["exhaustive"]
     edges = opl_edges(result)
     ly, lx, sy, sx, nt = result.envelope.shape
     assert (ly, lx, sy, sx) == (2, 3, 3, 4)
