@@ -61,6 +61,16 @@ def _envelope_and_edges(obj: Any) -> tuple[np.ndarray, np.ndarray | None]:
     return np.asarray(obj, dtype=np.float64), None
 
 
+def relative_l2(estimate: np.ndarray, reference: np.ndarray) -> float:
+    """‖e − r‖ / ‖r‖ over the bins (of every channel) where r exceeds ``PEAK_FLOOR`` of its peak; 0 for an
+    all-zero reference. Arrays (..., n_bins) of the same shape."""
+    peak = reference.max()
+    if peak <= 0:
+        return 0.0
+    mask = reference > PEAK_FLOOR * peak
+    return float(np.linalg.norm(estimate[mask] - reference[mask]) / np.linalg.norm(reference[mask]))
+
+
 def envelope_error(estimate: Any, reference: Any, time_edges: np.ndarray | None = None) -> dict[str, float]:
     """Error of a binned envelope against a reference (module docstring).
 
@@ -87,9 +97,8 @@ def envelope_error(estimate: Any, reference: Any, time_edges: np.ndarray | None 
     peak = r.max()
     if peak <= 0:
         raise SceneError("envelope_error: the reference envelope is zero everywhere (nothing reaches the sensor)")
-    mask = r > PEAK_FLOOR * peak
     edges = np.asarray(edges, dtype=np.float64)
-    return {"rel_l2": float(np.linalg.norm(e[mask] - r[mask]) / np.linalg.norm(r[mask])),
+    return {"rel_l2": relative_l2(e, r),
             "total": float(abs(e.sum() - r.sum()) / r.sum()),
             "peak_time": float(abs(peak_time(e, edges) - peak_time(r, edges)))}
 

@@ -14,7 +14,7 @@ The reported estimate is a 90 % upper confidence bound (×2.27, see UPPER_90). S
 setting, each level predicts the setting that meets the tolerance from ε̂ ∝ N^(−1/2) in the lookin count N
 (Monte Carlo rate; stratification only makes it faster), grows lookin sides by g and camera sides by √g, and
 stops when ε̂ ≤ tolerance. Earlier levels are not wasted work
-in the result's error: only the last level's halves form the result.
+in the result's error: only the last level's replicas form the result.
 """
 from __future__ import annotations
 
@@ -23,12 +23,10 @@ import time
 
 import numpy as np
 
+from .accuracy import relative_l2
 from .scene import Scene, SceneError
 from .simulate import (STREAM_SAMPLING, Result, SimulationConfig, Transported, make_result, run_transport,
                        stream_rng)
-
-PEAK_FRACTION = 0.01
-"""Bins below this fraction of the peak are left out of the error measure (as in datagen.accuracy)."""
 
 MAX_GROWTH = 3.0
 """Largest growth of each grid side per level (guards a noisy first estimate)."""
@@ -42,17 +40,6 @@ UPPER_90 = math.sqrt((REPLICAS - 1) / 0.5844)
 """The standard error from 4 replicas has 3 degrees of freedom; ×sqrt(3/χ²₃(0.10)) = ×2.27 turns it into a
 90 % upper confidence bound. The errors are heavy-tailed (a few lookins on a small object carry them), and a
 plain two-replica estimate was measured to understate the true error by up to 2× on the patch scene."""
-
-
-def relative_l2(estimate: np.ndarray, reference: np.ndarray) -> float:
-    """‖estimate − reference‖ / ‖reference‖ over bins where the channel-summed reference exceeds 1 % of its
-    peak. Arrays (..., n_bins); channels are kept separate, bins selected on their sum."""
-    ref = reference.reshape(-1, reference.shape[-1])
-    est = estimate.reshape(-1, estimate.shape[-1])
-    total = ref.sum(0)
-    mask = total > PEAK_FRACTION * total.max() if total.max() > 0 else np.zeros_like(total, bool)
-    den = np.linalg.norm(ref[:, mask])
-    return float(np.linalg.norm((est - ref)[:, mask]) / den) if den > 0 else 0.0
 
 
 def _grid(side: float, aspect: tuple[int, int]) -> tuple[int, int]:
@@ -85,8 +72,8 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         cfg = config.model_copy(update={"lookins": _grid(side_l, start), "pixels": _grid(side_p, start_pixels),
                                         "tolerance": tolerance})
         t_level = time.perf_counter()
-        halves = [run_transport(scene, cfg, _half_rng(config.seed, level, h)) for h in range(REPLICAS)]
-        parts = [h.binned.sum(axis=0) for h in halves]
+        replicas = [run_transport(scene, cfg, _replica_rng(config.seed, level, h)) for h in range(REPLICAS)]
+        parts = [h.binned.sum(axis=0) for h in replicas]
         mean = sum(parts) / REPLICAS
         if mean.max() <= 0:
             raise SceneError(f"{scene.source or scene.name}: the envelope is zero in the time window; no "
@@ -108,16 +95,16 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             break
         side_l *= growth
         side_p *= math.sqrt(growth)
-    merged = _merge_halves(halves)
+    merged = _merge_replicas(replicas)
     info = {"tolerance": {"target": tolerance, "estimate": estimate, "met": bool(estimate <= tolerance),
                           "method": "standard error of the mean of 4 independent replicas, relative L2 over bins above 1 % of the peak",
                           "levels": levels}}
     return make_result(scene, cfg, merged, None, t0, info)
 
 
-def _half_rng(seed: int, level: int, half: int) -> np.random.Generator:
+def _replica_rng(seed: int, level: int, replica: int) -> np.random.Generator:
     root = stream_rng(seed, STREAM_SAMPLING).integers(0, 2 ** 63)
-    return np.random.default_rng(np.random.SeedSequence(int(root), spawn_key=(level, half)))
+    return np.random.default_rng(np.random.SeedSequence(int(root), spawn_key=(level, replica)))
 
 
 def replica_error(parts: list[np.ndarray]) -> float:
@@ -129,11 +116,11 @@ def replica_error(parts: list[np.ndarray]) -> float:
     return float(np.sqrt(se2))
 
 
-def _merge_halves(halves: list[Transported]) -> Transported:
-    first = halves[0]
-    binned = sum(h.binned for h in halves) / len(halves)
-    outside = sum(h.outside for h in halves) / len(halves)
-    for h in halves[1:]:
+def _merge_replicas(replicas: list[Transported]) -> Transported:
+    first = replicas[0]
+    binned = sum(h.binned for h in replicas) / len(replicas)
+    outside = sum(h.outside for h in replicas) / len(replicas)
+    for h in replicas[1:]:
         first.transport.stats.add(h.transport.stats)
-    seconds = {k: sum(h.seconds[k] for h in halves) for k in first.seconds}
+    seconds = {k: sum(h.seconds[k] for h in replicas) for k in first.seconds}
     return Transported(first.names, binned, outside, first.transport, first.plan, seconds)

@@ -19,7 +19,7 @@ from .brdf import BRDF_KINDS
 from .raycast import RayCaster
 from .rooms import OBJECT_CLASSES, LabelRegion, SampledRoom, points_in_box, yaw_matrix
 from .sampling import square_to_hemisphere
-from .scene import SceneError
+from .scene import SceneError, check_counts
 
 PAD_INT = -1
 """Padding of integer per-object arrays (class, BRDF kind) beyond ``object_count``; float arrays pad with 0."""
@@ -47,9 +47,7 @@ class LabelSpec(BaseModel):
     @field_validator("depth_map")
     @classmethod
     def _pixels(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if min(v) < 1:
-            raise ValueError(f"both pixel counts must be >= 1, got {list(v)}")
-        return v
+        return check_counts(v, "both pixel counts")
 
 
 def label_shapes(spec: LabelSpec) -> dict[str, tuple[tuple[int, ...], np.dtype]]:

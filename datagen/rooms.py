@@ -34,7 +34,7 @@ import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .brdf import BRDF_KINDS, Material
-from .scene import (ROOM_LABELS, FieldOfView, Laser, Scene, SceneError, Sensor, box, format_validation_error,
+from .scene import (ROOM_LABELS, check_counts, FieldOfView, Laser, Scene, SceneError, Sensor, box, format_validation_error,
                     l_room, pillar)
 from .units import parse_energy, parse_length
 
@@ -202,9 +202,7 @@ class FovDist(_Model):
     @field_validator("pixels")
     @classmethod
     def _pixels(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if min(v) < 1:
-            raise ValueError(f"pixel counts must be >= 1, got {list(v)}")
-        return v
+        return check_counts(v, "pixel counts")
 
 
 class CaptureDist(_Model):

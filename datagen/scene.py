@@ -32,6 +32,20 @@ class SceneError(ValueError):
     """A scene is invalid; the message names the file (when there is one), the field and the value."""
 
 
+def check_finite(v: Vec3) -> Vec3:
+    """Pydantic validator body: every coordinate finite (names no field; pydantic adds it)."""
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"must be finite, got {list(v)}")
+    return v
+
+
+def check_counts(v: tuple[int, int], what: str) -> tuple[int, int]:
+    """Pydantic validator body: both grid counts >= 1 (``what`` names them in the message)."""
+    if min(v) < 1:
+        raise ValueError(f"{what} must be >= 1, got {list(v)}")
+    return v
+
+
 @dataclass(frozen=True)
 class SceneObject:
     """One labelled mesh.
@@ -92,9 +106,7 @@ class Laser(BaseModel):
     @field_validator("emitter", "spot")
     @classmethod
     def _finite(cls, v: Vec3) -> Vec3:
-        if not np.all(np.isfinite(v)):
-            raise ValueError(f"must be finite, got {list(v)}")
-        return v
+        return check_finite(v)
 
     @model_validator(mode="after")
     def _one_source(self) -> "Laser":
@@ -129,9 +141,7 @@ class FieldOfView(BaseModel):
     @field_validator("center")
     @classmethod
     def _finite_center(cls, v: Vec3) -> Vec3:
-        if not np.all(np.isfinite(v)):
-            raise ValueError(f"must be finite, got {list(v)}")
-        return v
+        return check_finite(v)
 
     @field_validator("size")
     @classmethod
@@ -143,9 +153,7 @@ class FieldOfView(BaseModel):
     @field_validator("pixels")
     @classmethod
     def _pixels(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if min(v) < 1:
-            raise ValueError(f"pixel counts must be >= 1, got {list(v)}")
-        return v
+        return check_counts(v, "pixel counts")
 
 
 class Sensor(BaseModel):
@@ -169,9 +177,7 @@ class Sensor(BaseModel):
     @field_validator("position")
     @classmethod
     def _finite(cls, v: Vec3) -> Vec3:
-        if not np.all(np.isfinite(v)):
-            raise ValueError(f"must be finite, got {list(v)}")
-        return v
+        return check_finite(v)
 
     @property
     def aperture_area(self) -> float:
@@ -201,9 +207,7 @@ class WallGrid(BaseModel):
     @field_validator("points")
     @classmethod
     def _points(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if min(v) < 1:
-            raise ValueError(f"point counts must be >= 1, got {list(v)}")
-        return v
+        return check_counts(v, "point counts")
 
 
 class CaptureSpec(BaseModel):

@@ -19,13 +19,11 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from . import spad
 from .irf import EnvelopeAccumulator, Irf, TimeAxis
+from .planner import EFFECTS, plan_effects
 from .raycast import RayCaster
 from .scene import Scene, SceneError, format_validation_error
 from .transport import Transport, TransportSettings
 
-EFFECTS = ("shadow_spot", "shadow_sensor", "secondary", "brdf_angles", "attenuation", "first_bounce", "pile_up")
-"""Effects the planner decides (datagen.planner.EFFECTS, a test keeps them equal); each can be forced on or off
-in ``SimulationConfig.effects``."""
 
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
 """spawn_key entries of the random streams (DESIGN.md §7)."""
@@ -214,7 +212,6 @@ def _plan(scene: Scene, config: SimulationConfig, transport: Transport):
 
     Returns the :class:`datagen.planner.Plan`.
     """
-    from .planner import plan_effects
     plan = plan_effects(scene, config, transport.capture, transport.caster)
     transport.configure(plan.apply(transport.settings))
     return plan

@@ -35,9 +35,8 @@ independent area quadrature).
 """
 from __future__ import annotations
 
-import os
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Callable, Literal, Protocol
 
 import multiprocessing as mp
@@ -147,9 +146,7 @@ class Capture:
     def sensor_points(self) -> np.ndarray:
         """(ny, nx, 3) sensor points: cell centres of the sensor grid."""
         nx, ny = self.fov_pixels
-        a = ((np.arange(nx) + 0.5) / nx - 0.5) * self.fov_size[0]
-        b = ((np.arange(ny) + 0.5) / ny - 0.5) * self.fov_size[1]
-        return self.fov_center + b[:, None, None] * self.fov_v + a[None, :, None] * self.fov_u
+        return _grid_points(self.fov_center, self.fov_size, self.fov_pixels, self.fov_u, self.fov_v).reshape(ny, nx, 3)
 
     def fov_pixel(self, points: np.ndarray, tol: float) -> np.ndarray:
         """Sensor pixel index (row-major over (v, u)) of each point, −1 outside the FoV. (..., 3) → (...,)."""
@@ -183,6 +180,7 @@ def _wall_frame(caster: RayCaster, sensor: np.ndarray, center: np.ndarray) -> tu
 
 
 def _grid_points(center, size, points, u, v) -> np.ndarray:
+    """(ny·nx, 3) cell centres of an nx×ny grid of size (w, h) around ``center`` in the (u, v) frame."""
     nx, ny = points
     a = ((np.arange(nx) + 0.5) / nx - 0.5) * size[0]
     b = ((np.arange(ny) + 0.5) / ny - 0.5) * size[1]
@@ -582,7 +580,7 @@ class Transport:
                               root.spawn(1)[0] if s.jitter else None))
         spawn = getattr(sink, "spawn", None)
         parallel = s.workers > 1 and spawn is not None and len(tasks) > 1
-        results = self._map(tasks, sink, conv, parallel)
+        results = self._map(tasks, spawn, conv, parallel, sink)
         for n_done, (partial, partial_conv, stats) in results:
             if partial is not None:
                 sink.merge(partial)
@@ -598,9 +596,8 @@ class Transport:
         if progress is not None and not tasks:
             progress(0)
 
-    def _map(self, tasks, sink, conv, parallel):
+    def _map(self, tasks, spawn, conv, parallel, sink):
         """Yield (lookins done, partial sink, partial conv grid, stats) per batch, in batch order."""
-        spawn = getattr(sink, "spawn", None)
         if not parallel:
             for task in tasks:
                 part = spawn() if spawn is not None else None
@@ -709,7 +706,6 @@ class Transport:
         ch = c.channel(laser, pix)
         keep = ch[0] >= 0
         targets, pix, ch = targets[:, keep], pix[:, keep], ch[:, keep]
-        B, S = len(x), targets.shape[1]
         to_y = targets - x[:, None, :]                                      # (B, S, 3)
         r = np.linalg.norm(to_y, axis=-1)
         w = to_y / np.maximum(r, 1e-300)[..., None]
@@ -802,7 +798,7 @@ class Transport:
         if not cand.any():
             return
         lb, lk = hb[cand], hk[cand]
-        yp, n_yp, obj_yp = y1[cand], n_y1[cand], obs.object_id[lb, lk]
+        n_yp, obj_yp = n_y1[cand], obs.object_id[lb, lk]
         w_l = w_ly[cand]
         r_l = r_ly[cand]
         irradiance = c.photons * self._spot_emission(w_l, laser) * cos_y_in[cand] / r_l ** 2
