@@ -110,6 +110,9 @@ class Decision:
     reason: str
     forced: bool = False
     numbers: dict = field(default_factory=dict)
+    blockers: tuple[int, ...] | None = field(default=None, repr=False, compare=False)
+    """shadow_spot only: every face that can cross a laser point → hidden point segment (complete), or None
+    when not determined; transport uses it to skip shadow rays that cannot be blocked (not in the attrs)."""
 
 
 @dataclass(frozen=True)
@@ -142,7 +145,8 @@ class Plan:
             shadow_spot=self.on("shadow_spot"), shadow_sensor=self.on("shadow_sensor"),
             first_bounce=self.on("first_bounce"), brdf_angles=self.on("brdf_angles"),
             secondary=settings.secondary if self.on("secondary") else "none",
-            attenuation=settings.attenuation if self.on("attenuation") else 0.0)
+            attenuation=settings.attenuation if self.on("attenuation") else 0.0,
+            spot_blockers=self.decisions["shadow_spot"].blockers)
 
     def detector(self, detector: spad.DetectorConfig) -> spad.DetectorConfig:
         """The detector model to use: ``detector`` itself, or its Poisson version when pile-up is off."""
@@ -256,7 +260,7 @@ def _resolve(name: str, auto: Decision, forced: dict[str, bool | None]) -> Decis
         return auto
     planner = "on" if auto.on else "off"
     return Decision(value, f"forced {'on' if value else 'off'} by the user (the planner would say {planner}: "
-                           f"{auto.reason})", True, auto.numbers)
+                           f"{auto.reason})", True, auto.numbers, auto.blockers)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -619,17 +623,19 @@ def _decide_shadow_spot(g: _Geometry, secondary_on: bool) -> Decision:
         n, o, valid = _hull_planes(hull_v)
     # a triangle never shadows itself; stop at the first chunk of occluders that blocks something
     meet = _may_meet(g.tri[occluders], g.normal[occluders], g.offset[occluders], g.valid[occluders],
-                     n, o, valid, hull_v, tol, exclude=(occluders, targets), first_only=True)
+                     n, o, valid, hull_v, tol, exclude=(occluders, targets))
     blockers = occluders[meet.any(axis=1)]
     shadowed = targets[meet.any(axis=0)]
-    numbers.update(blocking_triangles_found=int(len(blockers)), shadowed_triangles_found=int(len(shadowed)))
+    numbers.update(blocking_triangles=int(len(blockers)), shadowed_triangles=int(len(shadowed)))
+    # faces that are neither targets nor occluders (behind every laser plane) cannot block either
+    listed = tuple(int(f) for f in blockers)
     if len(blockers) == 0:
         return Decision(False, f"no triangle can cross any segment laser spot → hidden point ({len(targets)} "
                         f"target × {len(occluders)} occluder triangles separated): the spot sees every hidden "
-                        "point, shadow rays would all pass", False, numbers)
+                        "point, shadow rays would all pass", False, numbers, listed)
     numbers.update(blocking_objects=g.names(blockers), shadowed_objects=g.names(shadowed))
     return Decision(True, f"triangles of {', '.join(g.names(blockers))} may shadow {', '.join(g.names(shadowed))} "
-                    f"from the laser spot ({len(blockers)} blocking triangles found)", False, numbers)
+                    f"from the laser spot ({len(blockers)} blocking triangles)", False, numbers, listed)
 
 
 def _secondary_pairs_possible(g: _Geometry) -> tuple[bool | None, int]:

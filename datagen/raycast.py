@@ -2,8 +2,8 @@
 
 Embree works in float32. To keep that from limiting large scenes, the mesh is translated so its bounding box
 is centred on the origin before it is handed to Embree, and every hit point is placed in float64 along the
-float64 ray at Embree's hit distance, then projected onto the hit triangle's plane in float64 (so it lies on
-its surface to float64 precision; along the surface it is within ~1e-7 of the distance). Rays leave a
+float64 ray where it crosses the hit triangle's plane in float64 (so it lies on its surface to float64
+precision, and so does the distance). Rays leave a
 surface from a point pushed off it along the normal by a *scale-aware* offset (a fixed fraction of the scene
 size), so a 6 m room and a 600 m tunnel both work.
 """
@@ -18,6 +18,10 @@ from .scene import Scene
 RAY_OFFSET_REL = 1e-5
 """Surface offset for ray origins, as a fraction of the scene size: ~100 float32 ULPs of the centred
 coordinates, enough to step past the surface a ray leaves, small against any feature we model."""
+
+GRAZING_COS = 1e-3
+"""|cos| between a ray and the hit face's normal below which the float64 ray-plane intersection is
+ill-conditioned and Embree's own distance is kept."""
 
 CHUNK = 1 << 21
 """Rays per Embree call: bounds the temporary float32 buffers (~50 MB) for huge ray batches."""
@@ -68,6 +72,7 @@ class RayCaster:
         self.face_area = 0.5 * norm
         self.face_normals = np.divide(cross, norm[:, None], out=np.zeros_like(cross), where=norm[:, None] > 0)
         self._tri0 = tri[:, 0]
+        self._plane_offset = np.einsum("ij,ij->i", self.face_normals, self._tri0)     # n·p₀ per face, metres
         self._e1 = tri[:, 1] - tri[:, 0]
         self._e2 = tri[:, 2] - tri[:, 0]
         self._embree = rtcore_scene.EmbreeScene()
@@ -77,38 +82,42 @@ class RayCaster:
         """First hit along each ray.
 
         Args:
-            origins: (..., 3) float64 metres (already offset off any surface they start on).
+            origins: (..., 3) float64 metres (already offset off any surface they start on); broadcast against
+                ``directions`` (e.g. (B, 1, 3) origins for (B, P, 3) directions: one origin per camera).
             directions: (..., 3) float64 unit vectors.
         Returns:
-            :class:`Hits` with the batch's leading shape.
+            :class:`Hits` with the broadcast batch shape.
+
+        Embree finds the face in float32; the distance is then the float64 intersection of the float64 ray with
+        that face's plane, t = (n·p₀ − n·o) / (n·d), so hit points lie on the surface to float64 precision
+        (falling back to Embree's float32 distance, ~6e-8 relative, for rays within 1e-3 of grazing).
         """
         origins = np.asarray(origins, dtype=np.float64)
         directions = np.asarray(directions, dtype=np.float64)
-        shape = origins.shape[:-1]
-        o = origins.reshape(-1, 3)
-        d = np.broadcast_to(directions, origins.shape).reshape(-1, 3)
-        face = np.empty(len(o), dtype=np.int64)
-        tfar = np.empty(len(o), dtype=np.float64)
+        shape = np.broadcast_shapes(origins.shape, directions.shape)[:-1]
         center = self.center.astype(np.float32)
-        for start in range(0, len(o), CHUNK):
+        o32 = np.broadcast_to(origins.astype(np.float32) - center, shape + (3,)).reshape(-1, 3)
+        d32 = np.broadcast_to(directions.astype(np.float32), shape + (3,)).reshape(-1, 3)
+        n = len(o32)
+        face = np.empty(n, dtype=np.int64)
+        tfar = np.empty(n, dtype=np.float64)
+        for start in range(0, n, CHUNK):
             sl = slice(start, start + CHUNK)
-            res = self._embree.run(o[sl].astype(np.float32) - center, d[sl].astype(np.float32), output=1)
+            res = self._embree.run(np.ascontiguousarray(o32[sl]), np.ascontiguousarray(d32[sl]), output=1)
             face[sl], tfar[sl] = res["primID"], res["tfar"]
+        face = face.reshape(shape)
         hit = face >= 0
         f = np.where(hit, face, 0)
-        # Hit point in float64 along the float64 ray: |error| ≈ 6e-8 × distance (float32 tfar), far below the
-        # surface offset (1e-5 × scene size) and below 1 fs of time of flight for a 1 km path.
-        points = o + d * np.where(hit, tfar, np.nan)[:, None]
         normals = self.face_normals[f]
-        # snap onto the hit triangle's plane in float64 (removes the float32 error across the surface)
-        points -= np.einsum("ij,ij->i", points - self._tri0[f], normals)[:, None] * normals
-        distance = np.where(hit, np.sqrt(np.einsum("ij,ij->i", points - o, points - o)), np.inf)
-        flip = np.einsum("ij,ij->i", normals, d) > 0
-        np.negative(normals, out=normals, where=flip[:, None])
-        normals[~hit] = 0.0
+        denom = np.einsum("...k,...k->...", directions, normals)
+        num = self._plane_offset[f] - np.einsum("...k,...k->...", origins, normals)
+        steep = np.abs(denom) > GRAZING_COS
+        t = np.where(steep, num / np.where(steep, denom, 1.0), tfar.reshape(shape))
+        distance = np.where(hit, t, np.inf)
+        points = origins + directions * np.where(hit, t, np.nan)[..., None]
+        normals *= np.where(denom > 0, -1.0, 1.0)[..., None] * hit[..., None]     # face the origin; 0 if no hit
         obj = np.where(hit, self.face_object[f], -1)
-        return Hits(hit.reshape(shape), distance.reshape(shape), points.reshape(shape + (3,)),
-                    normals.reshape(shape + (3,)), np.where(hit, face, -1).reshape(shape), obj.reshape(shape))
+        return Hits(hit, distance, points, normals, np.where(hit, face, -1), obj)
 
     def visible(self, p: np.ndarray, n_p: np.ndarray | None, q: np.ndarray, n_q: np.ndarray | None) -> np.ndarray:
         """Mutual visibility of point pairs by shadow rays (Embree occlusion queries).
@@ -121,24 +130,24 @@ class RayCaster:
         Returns:
             (...,) bool, True where nothing blocks the segment.
         """
-        p, q = np.broadcast_arrays(np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64))
-        shape = p.shape[:-1]
-        a = p if n_p is None else p + self.offset * np.asarray(n_p)
-        b = q if n_q is None else q + self.offset * np.asarray(n_q)
-        a = np.broadcast_to(a, p.shape).reshape(-1, 3)
-        b = np.broadcast_to(b, p.shape).reshape(-1, 3)
-        seg = b - a
+        p, q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
+        shape = np.broadcast_shapes(p.shape, q.shape)[:-1]
+        center = self.center
+        # ends pushed off their surfaces, centred, in float32 (Embree's precision; the offset is ~100 ULPs)
+        a = (p - center if n_p is None else p - center + self.offset * np.asarray(n_p)).astype(np.float32)
+        b = (q - center if n_q is None else q - center + self.offset * np.asarray(n_q)).astype(np.float32)
+        seg = np.broadcast_to(b - a, shape + (3,)).reshape(-1, 3)
+        a = np.broadcast_to(a, shape + (3,)).reshape(-1, 3)
         length = np.sqrt(np.einsum("ij,ij->i", seg, seg))
         ok = length > self.offset
         if not ok.all():
             seg, a, length = seg[ok], a[ok], length[ok]
-        d = (seg / length[:, None]).astype(np.float32)
-        o = a.astype(np.float32) - self.center.astype(np.float32)
-        tmax = (length - self.offset).astype(np.float32)
-        res = np.empty(len(o), dtype=np.int32)
-        for start in range(0, len(o), CHUNK):
+        d = seg / length[:, None]
+        tmax = length - np.float32(self.offset)
+        res = np.empty(len(a), dtype=np.int32)
+        for start in range(0, len(a), CHUNK):
             sl = slice(start, start + CHUNK)
-            res[sl] = self._embree.run(o[sl], d[sl], dists=tmax[sl], query="OCCLUDED")
+            res[sl] = self._embree.run(np.ascontiguousarray(a[sl]), d[sl], dists=tmax[sl], query="OCCLUDED")
         out = np.ones(len(ok), dtype=bool)
         out[ok] = res == -1
         return out.reshape(shape)
