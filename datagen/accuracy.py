@@ -17,8 +17,10 @@ accurate), and :func:`write_csv` / :func:`plot_accuracy` / :func:`format_table` 
 
 Estimators (selectable by name): ``lookin`` (the paper's sampler, primary + full secondary, at N and l×p),
 ``top1`` and ``top8`` (the optimized secondary keeping the K strongest pairs; biased low by design, so their
-error levels off), ``exact`` (the factorised exact secondary, DESIGN.md §3) and ``area`` (the hidden-surface
-area sampler of :mod:`datagen.area`).
+error levels off), ``exact`` (the factorised exact secondary, DESIGN.md §3), ``area`` (the hidden-surface
+area sampler of :mod:`datagen.area`) and ``quadrature`` (the deterministic hidden-surface quadrature of
+:mod:`datagen.quadrature`, its edge h halving; a planned secondary comes from the area sampler, whose hidden
+samples grow with the ladder, so that part of its error is Monte Carlo noise).
 """
 from __future__ import annotations
 
@@ -33,6 +35,7 @@ import numpy as np
 
 from .area import AreaSampler, AreaSettings
 from .irf import EnvelopeAccumulator
+from .quadrature import Quadrature, QuadratureSettings
 from .raycast import RayCaster
 from .reference import PEAK_FLOOR, Reference, peak_time
 from .scene import Scene, SceneError
@@ -108,9 +111,10 @@ class Estimator:
     """One estimator of the benchmark and its ladder of settings.
 
     Attributes:
-        name: CLI name; label: legend text; kind: "lookin" or "area".
+        name: CLI name; label: legend text; kind: "lookin", "area" or "quadrature".
         ladder: per step, the settings to override (lookin: ``lookins``, ``pixels``, ``secondary``, ``top_k``;
-            area: :class:`datagen.area.AreaSettings` fields).
+            area: :class:`datagen.area.AreaSettings` fields; quadrature: :class:`datagen.quadrature.
+            QuadratureSettings` fields).
         cost: nominal cost of a step (used with measured times to predict the next step's time).
     """
 
@@ -123,6 +127,8 @@ class Estimator:
     def describe(self, step: dict) -> str:
         if self.kind == "area":
             return f"M={step['samples']}"
+        if self.kind == "quadrature":
+            return f"h={step['edge']:g} m, M2={step['secondary_samples']}"   # M2: area secondary, when planned
         (n, _), (l, p) = step["lookins"], step["pixels"]
         return f"{n}x{n}x{l}x{p}"
 
@@ -153,6 +159,10 @@ LADDERS: dict[str, Estimator] = {
     "exact": Estimator("exact", "lookin, exact secondary", "lookin", _lookin_ladder("exact"), _ray_cost),
     "area": Estimator("area", "area sampler", "area",
                       tuple({"samples": 1 << k} for k in range(9, 24)), lambda s: float(s["samples"])),
+    "quadrature": Estimator("quadrature", "hidden-surface quadrature", "quadrature",
+                            tuple({"edge": 1.6 / 2 ** i, "secondary_samples": 1 << min(13 + 2 * i, 20)}
+                                  for i in range(9)),
+                            lambda s: s["edge"] ** -4 + s["secondary_samples"] / 16.0),
 }
 """Every estimator of the benchmark by name."""
 
@@ -183,6 +193,8 @@ def run_estimator(scene: Scene, config, estimator: Estimator, step: dict, caster
     t0 = time.perf_counter()
     if estimator.kind == "area":
         runner = AreaSampler(scene, AreaSettings.from_transport(base, **step), caster)
+    elif estimator.kind == "quadrature":
+        runner = Quadrature(scene, QuadratureSettings.from_transport(base, **step), caster)
     else:
         settings = replace(base, **step)
         if base.secondary == "none":                  # the config asks for no secondary at all

@@ -366,19 +366,29 @@ class AreaSampler:
     Same interface as :class:`datagen.transport.Transport`: ``AreaSampler(scene, settings, caster).run(sink,
     rng, progress)`` sends path impulses (times s, weights photons, component ids) to ``sink``.
 
+    ``secondary_only=True`` deposits only the secondary (no primary and no first-bounce impulses; the samples,
+    connections and random streams are unchanged), for estimators that compute the primary another way
+    (:mod:`datagen.quadrature`). It is an argument, not an :class:`AreaSettings` field, so that the settings'
+    hashes (the reference cache keys of :mod:`datagen.reference`) stay as they were.
+
     Attributes:
         component_names: names of the sink components (primary components, "secondary"[, "first_bounce"]).
         hidden_faces: (F_h,) int64 faces that can be hidden vertices; hidden_area: their area, m².
         stats: :class:`AreaStats`; legs.stats: transport's counters (shadow rays).
 
     Raises:
-        SceneError: invalid settings; the capture errors of :func:`datagen.transport.resolve_capture`; no
-            triangle can take part in a path.
+        SceneError: invalid settings (``secondary_only`` with secondary "none"); the capture errors of
+            :func:`datagen.transport.resolve_capture`; no triangle can take part in a path.
     """
 
-    def __init__(self, scene: Scene, settings: AreaSettings | None = None, caster: RayCaster | None = None):
+    def __init__(self, scene: Scene, settings: AreaSettings | None = None, caster: RayCaster | None = None,
+                 secondary_only: bool = False):
         self.scene = scene
         self.settings = settings or AreaSettings()
+        if secondary_only and self.settings.secondary != "full":
+            raise SceneError(f"area sampler: secondary_only needs secondary 'full' (there is nothing else to "
+                             f"deposit), got secondary {self.settings.secondary!r}")
+        self.secondary_only = bool(secondary_only)
         self.caster = caster or RayCaster(scene)
         self.legs = Transport(scene, self.settings.transport_settings(), self.caster)   # per-leg physics
         self.capture = self.legs.capture
@@ -551,7 +561,7 @@ class AreaSampler:
                 self._batch(part, laser, density_a, n_spot, sink, rng)
                 if progress is not None:
                     progress(len(part))
-        if s.first_bounce:
+        if s.first_bounce and not self.secondary_only:
             self.legs._first_bounce(sink)
 
     def _batch(self, xs: SurfaceSamples, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
@@ -568,7 +578,7 @@ class AreaSampler:
         leg = c.emitter_legs[laser]
         laser_t = (leg if s.count_laser_leg else 0.0) / SPEED_OF_LIGHT
         lit = e_x[out.b] > 0
-        if lit.any():
+        if lit.any() and not self.secondary_only:
             b = out.b[lit]
             f = self.legs._brdf(xs.object_id[b], n_front[b], w_spot[b], out.direction[lit])
             cos_k = np.maximum(_dot(n_front[b], out.direction[lit]), 0.0)

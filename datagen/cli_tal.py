@@ -36,16 +36,20 @@ def _h_summary(path: Path) -> str:
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output .hdf5 file")
 @click.option("--lookins", default=None, help="lookin estimator with this lookin grid, e.g. 1024x1024")
 @click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
-@click.option("--estimator", type=click.Choice(["lookin", "area"]), default=None,
-              help="area (default: hidden-surface area sampling, datagen.area) or lookin (the paper's sampler)")
+@click.option("--estimator", type=click.Choice(["quadrature", "area", "lookin"]), default=None,
+              help="quadrature (default: deterministic hidden-surface quadrature, datagen.quadrature), area "
+                   "(hidden-surface area sampling, datagen.area) or lookin (the paper's sampler)")
+@click.option("--edge", type=float, default=None,
+              help="quadrature: largest hidden sub-triangle edge in metres (default 0.02)")
 @click.option("--samples", type=int, default=None,
-              help="area estimator: hidden samples per laser point (default 65536)")
+              help="area estimator: hidden samples per laser point (default 65536; quadrature: for a planned "
+                   "secondary)")
 @click.option("--seed", type=int, default=None, help="root seed of every random stream")
 @click.option("--float32", "float32", is_flag=True, help="store H as float32 (as tal render does)")
 @click.option("--compression", type=click.IntRange(0, 9), default=0, help="gzip level for H (0: none)")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @_friendly
-def tal_render(config_file, out, lookins, pixels, estimator, samples, seed, float32, compression, quiet):
+def tal_render(config_file, out, lookins, pixels, estimator, edge, samples, seed, float32, compression, quiet):
     """Render a `tal render` YAML (y-tal 0.20) with datagen and write a tal HDF5 capture to OUT.
 
     H is what `tal render` estimates (radiance toward the sensor, tal's laser normalisation, OPL bins),
@@ -59,13 +63,15 @@ def tal_render(config_file, out, lookins, pixels, estimator, samples, seed, floa
     t0 = time.perf_counter()
     scene, tal = scene_from_tal_yaml(config_file)
     if estimator is None and (lookins or pixels):
-        estimator = "lookin"          # lookin options mean the lookin estimator (the default is area)
+        estimator = "lookin"          # lookin options mean the lookin estimator (the default is quadrature)
+    elif estimator is None and samples is not None and edge is None:
+        estimator = "area"            # and --samples alone the area estimator
     config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "estimator": estimator,
-                                    "area_samples": samples, "seed": seed})
+                                    "quadrature_edge": edge, "area_samples": samples, "seed": seed})
     result = simulate(scene, config, progress=not quiet)
     out.parent.mkdir(parents=True, exist_ok=True)
     args = {"command": "tal-render", "config_file": str(config_file), "lookins": lookins, "pixels": pixels,
-            "estimator": estimator, "samples": samples, "seed": seed, "float32": float32,
+            "estimator": estimator, "edge": edge, "samples": samples, "seed": seed, "float32": float32,
             "compression": compression}
     write_tal_hdf5(result, out, tal, compression_level=compression, dtype="float32" if float32 else "float64",
                    scene_info={"args": args})

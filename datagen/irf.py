@@ -29,6 +29,16 @@ Method (DESIGN.md §5), used by :class:`EnvelopeAccumulator`:
    ``w*P(X >= e_{b+1} - tau)`` into ``b+1`` and the rest into ``b`` ("direct" mode, two CDF evaluations
    per impulse, no splatting error, memory O(n_components * n_bins)).
 
+4. Tents (:meth:`EnvelopeAccumulator.add_tents`, used by the hidden-surface quadrature of
+   ``datagen.quadrature``): the pushforward of the area measure of a triangle under a path length that is linear
+   on it is a piecewise-linear "tent" density between the sorted vertex times t0 <= t1 <= t2 (peak 2w/(t2-t0)
+   at t1). Its deposits are exact: in the fine-grid mode each node receives the integral of the tent against
+   the node's linear splatting weight (the limit of infinitely many impulses spread over the tent, splatted as
+   in point 1; for the delta IRF, the exact integral over the fine cell), from the closed-form second
+   antiderivative of the tent (piecewise cubic); in the direct mode each bin receives the exact integral of the
+   tent convolved with the IRF, from the IRF's partial moments E[(c-X)_+] and E[(c-X)_+^2]/2 (closed forms for
+   the Gaussian and the ex-Gaussian). A tent of zero span is an impulse.
+
 Cost is O(paths + fine_nodes * log(kernel)) in time and O(n_components * fine_nodes) in memory, independent
 of the number of paths. :func:`bin_impulses` is the exact per-impulse reference (O(paths * bins)).
 
@@ -87,6 +97,9 @@ _CHUNK = 1 << 18
 
 _DIRECT_KERNEL_MAX = 32
 """Kernels up to this length are convolved directly (exact, no FFT noise); longer ones by overlap-add FFT."""
+
+_TENT_ROWS = 1 << 21
+"""Evaluation rows (tents x nodes they cover) processed at once by EnvelopeAccumulator.add_tents."""
 
 _REFERENCE_BLOCK = 1 << 21
 """Elements (impulses x edges) evaluated at once by bin_impulses."""
@@ -363,6 +376,107 @@ def bin_impulses(times: Any, weights: Any, axis: TimeAxis, irf: Irf) -> np.ndarr
     return out
 
 
+# ------------------------------------------------------------------------------------------------- tents
+
+TENT_SMALL_SIGMAS = 1e-4
+"""Direct mode: a tent narrower than this many IRF sigmas is deposited as an impulse at its mean (the error,
+~(span/sigma)^2 / 36 of its weight, is below 1e-9, while the exact formula would lose more to cancellation)."""
+
+TENT_GAP_SMALL_SIGMAS = 1e-2
+"""Direct mode: a tent side narrower than this many IRF sigmas takes the mean of E[(c-X)_+] over the side from
+a two-term Taylor expansion (error ~(gap/sigma)^4 / 1920 < 1e-11) instead of a difference quotient that
+cancels."""
+
+
+def _rows(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Flattened (owner, k) rows: owner i repeated counts[i] times, k = 0 .. counts[i]-1."""
+    owner = np.repeat(np.arange(len(counts)), counts)
+    start = np.cumsum(counts) - counts
+    return owner, np.arange(int(counts.sum()), dtype=np.int64) - start[owner]
+
+
+def _tent_cdf(y: np.ndarray, t0: np.ndarray, t1: np.ndarray, t2: np.ndarray) -> np.ndarray:
+    """P(T < y) for T with the unit-mass tent density between t0 <= t1 <= t2 (peak at t1) (arrays alike).
+
+    Piecewise quadratic: (y-t0)^2 / (L g0) on [t0, t1], 1 - (t2-y)^2 / (L g1) on [t1, t2], L = t2 - t0,
+    g0 = t1 - t0, g1 = t2 - t1. Degenerate sides (g = 0) are never divided by: their piece is empty.
+    """
+    span, g0, g1 = t2 - t0, t1 - t0, t2 - t1
+    rise = (y > t0) & (y < t1)
+    fall = (y >= t1) & (y < t2)
+    out = ((y > t2) | ((y >= t2) & (span > 0))).astype(np.float64)     # P(T < y): a zero-span tent at y is above
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(rise, (y - t0) ** 2 / (span * g0), out)
+        out = np.where(fall, 1.0 - (t2 - y) ** 2 / (span * g1), out)
+    return out
+
+
+def _tent_cdf2(y: np.ndarray, t0: np.ndarray, t1: np.ndarray, t2: np.ndarray) -> np.ndarray:
+    """Second antiderivative of the unit-mass tent, integral of its CDF from -inf to y (piecewise cubic).
+
+    0 before t0; (y-t0)^3 / (3 L g0) on [t0, t1]; g0^2/(3L) + (y-t1) - g1^2/(3L) + (t2-y)^3 / (3 L g1) on
+    [t1, t2]; y - (t0+t1+t2)/3 after t2 (the tent's mean). Zero-span tents give (y - t0)_+.
+    """
+    span, g0, g1 = t2 - t0, t1 - t0, t2 - t1
+    rise = (y > t0) & (y < t1)
+    fall = (y >= t1) & (y < t2) & ~rise
+    out = np.where(y >= t2, y - (t0 + t1 + t2) / 3.0, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(rise, (y - t0) ** 3 / (3.0 * span * g0), out)
+        out = np.where(fall, (g0 ** 2 - g1 ** 2) / (3.0 * span) + (y - t1) + (t2 - y) ** 3 / (3.0 * span * g1), out)
+    return out
+
+
+def _partial_moments(irf: Irf, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M1, M2) = (E[(c-X)_+], E[(c-X)_+^2]/2) of the IRF delay X at c (seconds), i.e. the first and second
+    antiderivatives of its CDF. Gaussian: sigma*A1(z), sigma^2*A2(z), z = c/sigma, A1 = z Phi + phi,
+    A2 = ((z^2+1) Phi + z phi)/2. Ex-Gaussian (X = N(0, sigma^2) + Exp(mean tau)): M1 = sigma A1 - tau F_X(c),
+    M2 = sigma^2 A2 - tau sigma A1 + tau^2 F_X(c) (integrating F_X = Phi(z) - e^{-c/tau + sigma^2/2tau^2}
+    Phi(z - sigma/tau) by parts; F_X from scipy.stats.exponnorm)."""
+    s = irf.sigma
+    z = c / s
+    cdf = ndtr(z)
+    pdf = np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+    a1 = z * cdf + pdf
+    a2 = 0.5 * ((z * z + 1.0) * cdf + z * pdf)
+    if irf.kind == "gaussian":
+        return s * a1, s * s * a2
+    tau = float(irf.tail)
+    fx = irf.cdf(c)
+    return s * a1 - tau * fx, s * s * a2 - tau * s * a1 + tau * tau * fx
+
+
+def _irf_pdf(irf: Irf, c: np.ndarray) -> np.ndarray:
+    if irf.kind == "gaussian":
+        return np.exp(-0.5 * (c / irf.sigma) ** 2) / (math.sqrt(2.0 * math.pi) * irf.sigma)
+    return exponnorm.pdf(c, irf.tail / irf.sigma, scale=irf.sigma)
+
+
+def _tent_irf_cdf(irf: Irf, e: np.ndarray, t0: np.ndarray, t1: np.ndarray, t2: np.ndarray) -> np.ndarray:
+    """P(T + X < e) for T the unit-mass tent (t0 <= t1 <= t2) and X the IRF delay (sigma > 0).
+
+    With ρ'' = (2/L)[δ(t-t0)/g0 - δ(t-t1)(1/g0 + 1/g1) + δ(t-t2)/g1], G = ρ * F_X = (2/L)[DD(e-t0, g0) -
+    DD(e-t1, g1)], DD(c, g) = (M2(c) - M2(c-g))/g the mean of M1 over [c-g, c] (:func:`_partial_moments`); a
+    side narrower than TENT_GAP_SMALL_SIGMAS·sigma uses M1(c-g/2) + g^2/24 f_X(c-g/2), and a tent narrower than
+    TENT_SMALL_SIGMAS·sigma is an impulse at its mean."""
+    span = t2 - t0
+    narrow = span < TENT_SMALL_SIGMAS * irf.sigma
+
+    def mean_m1(c, g):
+        small = g < TENT_GAP_SMALL_SIGMAS * irf.sigma
+        m1_mid, _ = _partial_moments(irf, c - 0.5 * g)
+        taylor = m1_mid + g * g / 24.0 * _irf_pdf(irf, c - 0.5 * g)
+        _, m2_hi = _partial_moments(irf, c)
+        _, m2_lo = _partial_moments(irf, c - g)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(small, taylor, (m2_hi - m2_lo) / np.where(small, 1.0, g))
+
+    c0, g0 = e - t0, t1 - t0                    # one rounding of e − t0 shared by both sides
+    with np.errstate(divide="ignore", invalid="ignore"):
+        full = 2.0 / np.where(narrow, 1.0, span) * (mean_m1(c0, g0) - mean_m1(c0 - g0, t2 - t1))
+    return np.where(narrow, irf.cdf(e - (t0 + t1 + t2) / 3.0), np.clip(full, 0.0, 1.0))
+
+
 class EnvelopeAccumulator:
     """Accumulate path impulses of several components into binned envelopes (DESIGN.md §5).
 
@@ -563,6 +677,125 @@ class EnvelopeAccumulator:
         idx = base + i
         np.add.at(flat, idx, w_left)
         np.add.at(flat, idx + 1, w_right)
+
+    def add_tents(self, times: Any, weights: Any, component: int | np.ndarray = 0) -> None:
+        """Add tent densities: for each row of ``times`` (n, 3), the path times (s) at a triangle's vertices,
+        the pushforward of a uniform density of total ``weights`` (photons per pulse) over the triangle when
+        the path time is linear on it (module doc, point 4), to ``component``.
+
+        The deposits are the exact limit of infinitely many impulses spread over the tent and added with
+        :meth:`add`: per fine node the integral of the tent against its linear splatting weight (the delta IRF:
+        over its fine cell); in the direct mode the exact bin integrals of the tent convolved with the IRF. A
+        row with t0 = t1 = t2 is an impulse. Mass beyond the fine grid (direct mode: the guard bins) is counted
+        in :meth:`outside`, as for impulses.
+
+        Args:
+            times: (n, 3) float64-convertible seconds, the vertex times in any order.
+            weights: (n,) or a scalar, >= 0 (photons per pulse); zero weights are ignored.
+            component: one integer id for all tents, or an integer array of ids, one per tent.
+
+        Raises:
+            ValueError: times not of shape (n, 3), NaN/inf in times or weights, negative weights, mismatched
+                lengths, component ids out of range or not integers (as :meth:`add`).
+        """
+        t = np.asarray(times)
+        if t.ndim != 2 or t.shape[1] != 3:
+            raise ValueError(f"times must have shape (n, 3) (vertex times of each triangle), got {t.shape}")
+        _, w = _times_weights(t[:, 0], weights)
+        comp = self._components(component, len(t))
+        t = t.astype(np.float64)
+        _check_finite(t.reshape(-1), "times")
+        _check_weights(np.asarray(w, dtype=np.float64))
+        if not isinstance(comp, int) and comp.size and (comp.min() < 0 or comp.max() >= self.n_components):
+            bad = int(comp[(comp < 0) | (comp >= self.n_components)][0])
+            raise ValueError(f"component ids must be in [0, {self.n_components}), got {bad}")
+        keep = np.asarray(w, dtype=np.float64) != 0
+        if not keep.any():
+            return
+        self._binned = None
+        t = np.sort(t[keep], axis=1)
+        w = np.asarray(w, dtype=np.float64)[keep]
+        comp = comp if isinstance(comp, int) else comp[keep].astype(np.int64)
+        self._total += self._component_sums(w, comp)
+        flat = self._hist.reshape(-1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            if self.direct:
+                before, after = self.irf.support
+                lo = np.floor((t[:, 0] - before - self.axis.t_start) / self.axis.bin_width) + self.n_left
+                hi = np.floor((t[:, 2] + after - self.axis.t_start) / self.axis.bin_width) + self.n_left
+                coord = None
+            else:
+                shift = self.n_left if self.irf.is_delta else self.n_left - 0.5
+                coord = (t - self.axis.t_start) / self.fine_step + shift         # node / cell coordinates
+                lo = np.floor(coord[:, 0])
+                hi = np.floor(coord[:, 2]) if self.irf.is_delta else np.ceil(coord[:, 2])
+        # tents wholly outside the grid (or absurdly far: overflowing coordinates) count as beyond
+        inside = np.isfinite(lo) & np.isfinite(hi) & (hi >= 0) & (lo <= self.n_fine - 1)
+        if not inside.all():
+            out = ~inside
+            self._beyond += self._component_sums(w[out], comp if isinstance(comp, int) else comp[out])
+            t, w, lo, hi = t[inside], w[inside], lo[inside], hi[inside]
+            coord = None if coord is None else coord[inside]
+            if not isinstance(comp, int):
+                comp = comp[inside]
+        clipped = (lo < 0) | (hi > self.n_fine - 1)
+        first = np.maximum(lo, 0).astype(np.int64)
+        last = np.minimum(hi, self.n_fine - 1).astype(np.int64)
+        # evaluation points per tent: edges first..last+1 (cells, bins) or nodes first-1..last+1 (splat weights)
+        extra = 2 if (self.direct or self.irf.is_delta) else 3
+        counts = last - first + extra
+        ends = np.cumsum(counts)
+        group = 0
+        while group < len(counts):
+            base = ends[group - 1] if group else 0
+            stop = max(group + 1, int(np.searchsorted(ends, base + _TENT_ROWS, side="right")))
+            sel = slice(group, stop)
+            self._tent_rows(flat, t[sel], w[sel], comp if isinstance(comp, int) else comp[sel], first[sel],
+                            counts[sel], None if coord is None else coord[sel], clipped[sel])
+            group = stop
+
+    def _tent_rows(self, flat: np.ndarray, t: np.ndarray, w: np.ndarray, c: int | np.ndarray, first: np.ndarray,
+                   counts: np.ndarray, coord: np.ndarray | None, clipped: np.ndarray) -> None:
+        """Deposit tents (sorted times t (n, 3), weights w (n,)) onto the nodes first .. first+counts-extra.
+
+        A cumulative quantity C is evaluated at consecutive positions p of each tent and node p receives
+        w·(C(p+1) − C(p)): C is the unit tent's P(T < edge) at cell edges (delta IRF), P(T + X < e_b) at bin
+        edges (direct mode), or the first difference D(p) = F2(p) − F2(p−1) of the tent's second antiderivative
+        at node coordinates (linear splatting: D(g+1) − D(g) = ∫ tent(y) max(0, 1 − |y − g|) dy).
+        """
+        owner, k = _rows(counts)
+        pos = first[owner] + k
+        if self.direct:
+            # node g's lower edge is bin (g − n_left)'s, at t_start + b·bin_width as in TimeAxis.edges
+            edge = self.axis.t_start + (pos - self.n_left).astype(np.float64) * self.axis.bin_width
+            ta, tb, tc = t[owner, 0], t[owner, 1], t[owner, 2]
+            before, after = self.irf.support
+            cum = np.where(edge <= ta - before, 0.0,
+                           np.where(edge >= tc + after, 1.0, _tent_irf_cdf(self.irf, edge, ta, tb, tc)))
+        else:
+            base = np.floor(coord[:, 0])
+            a = coord - base[:, None]                                  # local coordinates: small numbers
+            if self.irf.is_delta:
+                cum = _tent_cdf((pos - base[owner]).astype(np.float64), a[owner, 0], a[owner, 1], a[owner, 2])
+            else:
+                pos = pos - 1
+                f2 = _tent_cdf2((pos - base[owner]).astype(np.float64), a[owner, 0], a[owner, 1], a[owner, 2])
+                later = k > 0                                          # D(p) needs F2 at p − 1 of the same tent
+                cum = (f2 - np.concatenate([[0.0], f2[:-1]]))[later]
+                owner, pos = owner[later], pos[later]
+        same = owner[1:] == owner[:-1]
+        mass = np.maximum((cum[1:] - cum[:-1])[same], 0.0)             # round-off below 0 (~1e-17 w) → 0
+        node, own = pos[:-1][same], owner[:-1][same]
+        mass = mass * w[own]
+        idx = (c if isinstance(c, int) else c[own]) * self.n_fine + node
+        if len(idx):
+            lo = int(idx.min())
+            part = np.bincount(idx - lo, weights=mass)
+            flat[lo:lo + len(part)] += part
+        if clipped.any():
+            deposited = np.bincount(own, weights=mass, minlength=len(w))
+            lost = np.where(clipped, np.maximum(w - deposited, 0.0), 0.0)
+            self._beyond += self._component_sums(lost, c)
 
     def spawn(self) -> "EnvelopeAccumulator":
         """An empty accumulator on the same axis, IRF, components and fine grid (a partial sum)."""

@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from . import spad
 from .irf import EnvelopeAccumulator, Irf, TimeAxis
 from .planner import EFFECTS, plan_effects
+from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureSettings
 from .raycast import RayCaster
 from .scene import Scene, SceneError, format_validation_error
 from .transport import Transport, TransportSettings
@@ -63,9 +64,13 @@ class SimulationConfig(BaseModel):
         jitter: stratified jitter of lookin rays and camera pixels (False: the paper's regular grids).
         secondary: "none", "optimized" (paper §4, strongest ``top_k`` per lookin and FoV point), "full"
             (every pair, O(Ñ²) per lookin) or "exact" (the same sum factorised, O(Ñ) per lookin, DESIGN.md §3).
-        estimator: "lookin" (the paper's sampler: lookins and hemispherical cameras) or "area" (hidden-surface
+        estimator: "lookin" (the paper's sampler: lookins and hemispherical cameras), "area" (hidden-surface
             area sampling with next-event connections to the spot and the FoV, datagen.area; ``area_samples``
-            hidden points; its secondary is "full" whenever ``secondary`` is not "none").
+            hidden points; its secondary is "full" whenever ``secondary`` is not "none") or "quadrature" (the
+            deterministic hidden-surface quadrature of datagen.quadrature: sub-triangles of edge
+            ``quadrature_edge`` metres with exact time binning; aperture captures integrate each pixel region
+            with ``quadrature_fov`` × ``quadrature_fov`` FoV cells (None: cells no larger than the edge); a
+            planned secondary comes from the area sampler with ``area_samples`` hidden samples per laser point).
         sensor_sampling: "camera" (the paper: FoV points from the lookin cameras) or "connect" (next-event
             connections to ``connect_samples`` stratified points per sensor pixel; forced for point radiance).
         conv_refine: the exact secondary's profile grid is this many times finer than the envelope's grid.
@@ -89,8 +94,10 @@ class SimulationConfig(BaseModel):
     jitter: bool = True
     secondary: Literal["none", "optimized", "full", "exact"] = "full"
     top_k: int = Field(1, ge=1)
-    estimator: Literal["lookin", "area"] = "lookin"
+    estimator: Literal["lookin", "area", "quadrature"] = "lookin"
     area_samples: int = Field(65536, ge=16)
+    quadrature_edge: float = Field(QUADRATURE_EDGE, gt=0.0, allow_inf_nan=False)
+    quadrature_fov: int | None = Field(None, ge=1)
     sensor_sampling: Literal["camera", "connect"] = "camera"
     connect_samples: tuple[int, int] = (4, 4)
     conv_refine: int = Field(1, ge=1, le=64)
@@ -251,6 +258,14 @@ def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generat
             ts, samples=config.area_samples, secondary="none" if ts.secondary == "none" else "full",
             shadow_spot=config.effects.get("shadow_spot") is not False), caster)
         transport = area
+    elif config.estimator == "quadrature":
+        # shadow rays on the laser and FoV legs: the quadrature's own exact occluder test unless the user forces
+        # shadow_spot (the planner's shadow_spot decision concerns the lookin sampler's secondary)
+        forced_spot = config.effects.get("shadow_spot")
+        transport = Quadrature(scene, QuadratureSettings.from_transport(
+            transport.settings, edge=config.quadrature_edge, fov_cells=config.quadrature_fov,
+            secondary_samples=config.area_samples,
+            shadow_spot=forced_spot if isinstance(forced_spot, bool) else None), caster)
     t_setup = time.perf_counter() - t0
     capture = transport.capture
     names = transport.component_names
@@ -259,9 +274,12 @@ def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generat
     bar = None
     if progress:
         from tqdm.auto import tqdm
-        per = config.area_samples if config.estimator == "area" else config.lookins[0] * config.lookins[1]
-        bar = tqdm(total=per * capture.n_lasers, unit="sample" if config.estimator == "area" else "lookin",
-                   desc="transport", leave=False)
+        if config.estimator == "quadrature":
+            total, unit = transport.total_rows, "pair"
+        else:
+            per = config.area_samples if config.estimator == "area" else config.lookins[0] * config.lookins[1]
+            total, unit = per * capture.n_lasers, "sample" if config.estimator == "area" else "lookin"
+        bar = tqdm(total=total, unit=unit, desc="transport", leave=False)
     t1 = time.perf_counter()
     transport.run(acc, rng, progress=(bar.update if bar is not None else None))
     if bar is not None:
@@ -344,7 +362,9 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
             "estimator": config.estimator,
             "secondary": settings.secondary,
             "top_k": config.top_k if settings.secondary == "optimized" else None,
-            "sensor_sampling": getattr(settings, "sensor_sampling", "area next-event connections"),
+            "sensor_sampling": getattr(settings, "sensor_sampling", None) or (
+                "quadrature: sensor points / FoV cells" if config.estimator == "quadrature"
+                else "area next-event connections"),
             "shadow_rays": {"spot": settings.shadow_spot, "sensor": settings.shadow_sensor},
             "non_lambertian_brdfs": sorted({o.material.kind for o in scene.objects} - {"lambertian"}),
             "atmospheric_attenuation": settings.attenuation > 0,
@@ -355,6 +375,7 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
         },
         "energy_outside_window": {n: float(v) for n, v in zip(names, tr.outside.sum(1))},
         "stats": {k: int(v) for k, v in vars(st).items() if isinstance(v, (int, np.integer))},
+        **({"quadrature": transport.attrs()} if hasattr(transport, "attrs") else {}),
         "timings_s": {**tr.seconds, "detector": t_detect, "total": time.perf_counter() - t0},
         "versions": library_versions(),
         **(extra_attrs or {}),

@@ -14,13 +14,15 @@ Steps, for the 16×16 single-spot capture (hidden_square.yaml) and the 32×32 co
 (a) reference: mitransient at high samples (two seeds; their mean is the reference and half their relative
     L2 difference its own error), mitransient's best settings (laser sampling + hidden-geometry sampling);
     cross-checks that the in-process driver equals ``tal render`` itself;
-(b) ``datagen tal-render`` (this Python, as a subprocess) at the final setting;
+(b) ``datagen tal-render`` (this Python, as a subprocess) at the final setting (the default estimator, the
+    hidden-surface quadrature at its default edge);
 (c) total ratio and relative L2 over the bins above 1 % of the reference's peak (targets 1 % and 2 %);
     tal.io.read_capture loads datagen's files (fields, shapes, enums compared with datagen's own reader);
     a layout check with an off-centre object and laser, and an RGB-variant check of the laser normalisation;
 (d) tal's backprojection (bp, fbp) of datagen's 32×32 confocal capture: the object's position error (≤ 3 cm);
-(e) time to 1 % relative L2: datagen (sweeping lookins) vs mitransient (sweeping samples per pixel), both
-    timed in-process on the same 2 cores (render only: scene load + JIT/setup + render, not interpreter start).
+(e) time to 1 % relative L2: datagen (sweeping the quadrature's edge h, halving; the area estimator's samples;
+    the lookin grid) vs mitransient (sweeping samples per pixel), both timed in-process on the same 2 cores
+    (render only: scene load + JIT/setup + render, not interpreter start).
 """
 from __future__ import annotations
 
@@ -28,7 +30,6 @@ import argparse
 import json
 import math
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -48,6 +49,8 @@ LLVM_CANDIDATES = ("/usr/lib/llvm-19/lib/libLLVM.so.1", "/usr/lib/llvm-19/lib/li
                    "/usr/lib/aarch64-linux-gnu/libLLVM-19.so")
 
 sys.path.insert(0, str(ROOT))
+
+from datagen.quadrature import QUADRATURE_EDGE  # noqa: E402  (after the path insert)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -192,6 +195,10 @@ def exact_hidden_square(config: Path, out: Path, n: int = 1024) -> np.ndarray:
 
 def _setting(setting: dict) -> tuple[dict, list[str], str]:
     """A datagen sampling setting → (simulation overrides, tal-render CLI options, label)."""
+    if "quadrature_edge" in setting:
+        h = float(setting["quadrature_edge"])
+        return ({"estimator": "quadrature", "quadrature_edge": h}, ["--estimator", "quadrature", "--edge", str(h)],
+                f"quadrature h={h:g} m")
     if "area_samples" in setting:
         m = int(setting["area_samples"])
         return {"estimator": "area", "area_samples": m}, ["--estimator", "area", "--samples", str(m)], f"area {m}"
@@ -202,7 +209,8 @@ def _setting(setting: dict) -> tuple[dict, list[str], str]:
 
 def datagen_in_process(config: Path, setting: dict, seed: int) -> tuple[np.ndarray, tuple[float, float]]:
     """datagen's tal-render pipeline in this process; returns H and the (wall, CPU) seconds of scene loading,
-    simulation and layout. ``setting``: {"lookins": n} (lookin estimator, n×n) or {"area_samples": m}."""
+    simulation and layout. ``setting``: {"lookins": n} (lookin estimator, n×n), {"area_samples": m} or
+    {"quadrature_edge": h}."""
     from datagen.simulate import resolve_config, simulate
     from datagen.tal import scene_from_tal_yaml, tal_arrays
 
@@ -292,19 +300,22 @@ def main() -> None:
     # samples per pixel of each reference seed; the mitransient and datagen sweeps
     plan = {
         "single": {"ref_spp": 1_000_000 if a.quick else 4_000_000, "spp": [50_000, 200_000, 800_000],
-                   "datagen": {"lookin": [{"lookins": n} for n in (256, 512, 768, 1024, 1536)],
+                   "datagen": {"quadrature": [{"quadrature_edge": h} for h in (0.08, 0.04, 0.02, 0.01)],
+                               "lookin": [{"lookins": n} for n in (256, 512, 768, 1024, 1536)],
                                "area": [{"area_samples": m} for m in (4096, 16384, 65536, 262144)]},
-                   "final": {"lookins": 1024 if a.quick else 1536}},
+                   "final": {"quadrature_edge": QUADRATURE_EDGE}},
         "confocal": {"ref_spp": 200_000 if a.quick else 1_000_000, "spp": [20_000, 80_000, 320_000],
-                     "datagen": {"lookin": [{"lookins": n} for n in (32, 64, 128)],
+                     "datagen": {"quadrature": [{"quadrature_edge": h} for h in (0.08, 0.04, 0.02, 0.01)],
+                                 "lookin": [{"lookins": n} for n in (32, 64, 128)],
                                  "area": [{"area_samples": m} for m in (512, 1024, 4096)]},
-                     "final": {"lookins": 128}},
+                     "final": {"quadrature_edge": QUADRATURE_EDGE}},
     }
     if a.quick:
         for s in plan.values():
             s["spp"] = s["spp"][:2]
             s["datagen"] = {k: v[:3] for k, v in s["datagen"].items()}
-    results: dict = {"machine": {"cores": os.cpu_count(), "threads": a.threads}, "scenes": {}}
+    results: dict = {"machine": {"cores": os.cpu_count(), "threads": a.threads,
+                                 "load_average_at_start": list(os.getloadavg())}, "scenes": {}}
     for name in a.scenes:
         config, pl = SCENES[name], plan[name]
         r: dict = {}
@@ -344,6 +355,7 @@ def main() -> None:
         # the reference's own noise removed in quadrature
         # timings drift on a shared machine: both renderers are measured in the same window, interleaved,
         # a.repeats times; each setting keeps its fastest run (its error does not depend on the run)
+        r["load_average_before_timing"] = list(os.getloadavg())      # (1, 5, 15 min): other jobs on the machine
         sweep_dg = {e: [] for e in pl["datagen"]}
         sweep_mt = []
         datagen_in_process(config, {"lookins": 16}, 0)        # warm-up (imports, embree)
@@ -382,6 +394,7 @@ def main() -> None:
             times[clock] = {"datagen": per[best], "datagen_estimator": best, "datagen_by_estimator": per,
                             "mitransient": t_mt, "speedup": t_mt / per[best]}
         r["sweep"] = {"datagen": sweep_dg, "mitransient": sweep_mt, "time_to_1pct": times}
+        r["load_average_after_timing"] = list(os.getloadavg())
         w, c = times["seconds"], times["cpu_seconds"]
         print(f"   time to 1 % L2 ({w['datagen_estimator']}): wall datagen {w['datagen']:.2f} s, "
               f"mitransient {w['mitransient']:.2f} s "
