@@ -111,8 +111,9 @@ class Decision:
     forced: bool = False
     numbers: dict = field(default_factory=dict)
     blockers: tuple[int, ...] | None = field(default=None, repr=False, compare=False)
-    """shadow_spot only: every face that can cross a laser point → hidden point segment (complete), or None
-    when not determined; transport uses it to skip shadow rays that cannot be blocked (not in the attrs)."""
+    """shadow_spot / shadow_sensor: every face that can cross a laser point → hidden point segment, or a FoV
+    point → sensor segment (complete), or None when not determined; transport uses it to skip shadow rays that
+    cannot be blocked (not in the attrs)."""
 
 
 @dataclass(frozen=True)
@@ -146,7 +147,8 @@ class Plan:
             first_bounce=self.on("first_bounce"), brdf_angles=self.on("brdf_angles"),
             secondary=settings.secondary if self.on("secondary") else "none",
             attenuation=settings.attenuation if self.on("attenuation") else 0.0,
-            spot_blockers=self.decisions["shadow_spot"].blockers)
+            spot_blockers=self.decisions["shadow_spot"].blockers,
+            sensor_blockers=self.decisions["shadow_sensor"].blockers)
 
     def detector(self, detector: spad.DetectorConfig) -> spad.DetectorConfig:
         """The detector model to use: ``detector`` itself, or its Poisson version when pile-up is off."""
@@ -586,7 +588,7 @@ def _decide_shadow_sensor(g: _Geometry) -> Decision:
                         "blocked", False, numbers)
     numbers["objects"] = g.names(hits)
     return Decision(True, f"{len(hits)} triangles of {', '.join(g.names(hits))} may cross the sensor→FoV pyramid",
-                    False, numbers)
+                    False, numbers, tuple(int(f) for f in hits))
 
 
 def _decide_shadow_spot(g: _Geometry, secondary_on: bool) -> Decision:

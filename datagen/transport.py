@@ -298,6 +298,7 @@ class TransportSettings:
         spot_blockers: every face that can cross a laser point → observed point segment (the effect planner's
             pair test), or None (unknown: every laser shadow ray is cast). Segments that miss the bounding
             spheres of these faces (grouped by object) are unoccluded without a ray.
+        sensor_blockers: the same for FoV point → sensor segments (the planner's sensor-pyramid test).
         conv_refine: the exact secondary bins its time profiles this many times finer than the envelope's
             fine grid before convolving (its only approximation; error ~ (step/feature width)²).
         batch: lookins processed together (bounds memory; also the unit of work of ``workers``).
@@ -322,6 +323,7 @@ class TransportSettings:
     brdf_angles: bool = False
     dark_middle: bool = True
     spot_blockers: tuple[int, ...] | None = None
+    sensor_blockers: tuple[int, ...] | None = None
     conv_refine: int = 1
     batch: int = 32
     workers: int = 1
@@ -357,9 +359,10 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @dataclass
 class _Lit:
-    """Hit observed points of a batch (flat: index into the batch's B·P pixels; hb: lookin) with their laser-spot geometry: y, n_y
-    (facing the lookin), r and unit w (spot → y), cos_l (at the spot), cos_in (at y, on the lookin's side), and
-    lit (the spot lights y on that side: both cosines > 0 and, with ``shadow_spot``, an unoccluded ray)."""
+    """Hit observed points of a batch (flat: index into the batch's B·P pixels; hb: lookin) with their
+    laser-spot geometry: y, n_y (facing the lookin), r and unit w (spot → y), cos_l (at the spot), cos_in (at
+    y, on the lookin's side), and lit (the spot lights y on that side: both cosines > 0 and, with
+    ``shadow_spot``, an unoccluded ray)."""
 
     flat: np.ndarray
     hb: np.ndarray
@@ -550,11 +553,11 @@ class Transport:
         cos_ap = np.maximum(-_dot(w_s, c.aperture_normal), 0.0)
         out = self.settings.pde * f * cos_out * c.aperture_area * cos_ap / d ** 2
         if self.settings.shadow_sensor:
-            ok = out > 0
-            vis = np.zeros(len(out), dtype=bool)
-            vis[ok] = self.caster.visible(points[ok], normals[ok], c.sensor, None)
-            self.stats.shadow_rays += int(ok.sum())
-            out = out * vis
+            idx = np.flatnonzero(out > 0)
+            idx = idx[self._may_be_blocked(c.sensor, -w_s[idx], d[idx], self.settings.sensor_blockers)]
+            if len(idx):
+                self.stats.shadow_rays += len(idx)
+                out[idx[~self.caster.visible(points[idx], normals[idx], c.sensor, None)]] = 0.0
         return out, d
 
     def _attenuation(self, path: np.ndarray) -> np.ndarray | float:
@@ -843,43 +846,39 @@ class Transport:
         lit = (cos_l > 0) & (cos_in > 0)
         if s.shadow_spot and lit.any():
             idx = np.flatnonzero(lit)
-            idx = idx[self._may_be_blocked(laser, w[idx], r[idx])]
+            idx = idx[self._may_be_blocked(spot, w[idx], r[idx], s.spot_blockers)]
             self.stats.shadow_rays += len(idx)
             lit[idx] = self.caster.visible(y[idx], n_y[idx], spot, spot_n)
         return _Lit(flat, flat // obs.hit.shape[1], y, n_y, r, w, cos_l, cos_in, lit)
 
-    def _blocker_spheres(self) -> np.ndarray | None:
-        """(G, 4) bounding spheres (centre, radius; metres) of the planner's spot blockers grouped by object,
-        padded by 10 surface offsets; None when the blockers are unknown."""
-        if self.settings.spot_blockers is None:
-            return None
-        key = self.settings.spot_blockers
-        if getattr(self, "_spheres_key", None) != key:
-            faces = np.asarray(key, dtype=np.int64)
+    def _blocker_spheres(self, blockers: tuple[int, ...]) -> np.ndarray:
+        """(G, 4) bounding spheres (centre, radius; metres) of the faces ``blockers`` grouped by object, padded
+        by 10 surface offsets (cached per face list)."""
+        cache = self.__dict__.setdefault("_spheres", {})
+        if blockers not in cache:
+            faces = np.asarray(blockers, dtype=np.int64)
             spheres = []
             for obj in np.unique(self.caster.face_object[faces]):
-                pts = self.caster.vertices[self.caster.faces[faces[self.caster.face_object[faces] == obj]]].reshape(-1, 3)
-                lo, hi = pts.min(axis=0), pts.max(axis=0)
-                centre = 0.5 * (lo + hi)
+                mine = faces[self.caster.face_object[faces] == obj]
+                pts = self.caster.vertices[self.caster.faces[mine]].reshape(-1, 3)
+                centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
                 radius = float(np.max(np.linalg.norm(pts - centre, axis=1))) + 10 * self.caster.offset
                 spheres.append([*centre, radius])
-            self._spheres = np.array(spheres).reshape(-1, 4)
-            self._spheres_key = key
-        return self._spheres
+            cache[blockers] = np.array(spheres).reshape(-1, 4)
+        return cache[blockers]
 
-    def _may_be_blocked(self, laser: int, w: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """(n,) bool: the segment from laser point ``laser`` along unit directions w (n, 3) over lengths r (n,)
-        may meet a blocker's bounding sphere (inside its cone from the spot and not wholly before it); the
-        others need no shadow ray. All True when the blockers are unknown."""
-        spheres = self._blocker_spheres()
-        if spheres is None:
+    def _may_be_blocked(self, origin: np.ndarray, w: np.ndarray, r: np.ndarray,
+                        blockers: tuple[int, ...] | None) -> np.ndarray:
+        """(n,) bool: the segment from ``origin`` (3,) along unit directions w (n, 3) over lengths r (n,) may meet
+        the bounding sphere of a blocker (inside its cone from the origin and not wholly before it); the others
+        need no shadow ray. All True when ``blockers`` is None (unknown)."""
+        if blockers is None:
             return np.ones(len(w), dtype=bool)
-        spot = self.capture.spots[laser]
         out = np.zeros(len(w), dtype=bool)
-        for cx, cy, cz, radius in spheres:
-            to_c = np.array([cx, cy, cz]) - spot
+        for cx, cy, cz, radius in self._blocker_spheres(blockers):
+            to_c = np.array([cx, cy, cz]) - origin
             dist = float(np.linalg.norm(to_c))
-            if dist <= radius:                                      # the spot is inside the sphere
+            if dist <= radius:                                      # the origin is inside the sphere
                 return np.ones(len(w), dtype=bool)
             cos_cone = np.sqrt(1.0 - (radius / dist) ** 2)
             out |= (w @ (to_c / dist) >= cos_cone - 1e-12) & (r >= dist - radius)
@@ -936,7 +935,8 @@ class Transport:
 
     def _secondary_dark(self, laser, flux, x, n_x, obj_x, r_lx, w_to_spot, obs: ObservedPoints, light: "_Lit",
                         sink, rng) -> None:
-        """Secondary paths whose middle vertex the laser does not light (DESIGN.md §3, "dark middle vertex").
+        """Secondary paths whose middle vertex the laser does not light (DESIGN.md §2's path integral;
+        docs/accuracy.md, "dark middle vertices").
 
         The lookin secondary (:meth:`_secondary`) puts the middle vertex of spot → y' → x → FoV on a lookin
         x, i.e. on a point the laser spot lights; paths whose middle vertex lies in a laser shadow (behind

@@ -187,10 +187,11 @@ def test_secondary_through_laser_shadowed_middle_vertices_is_counted():
     assert se < 0.1 * area.mean()
 
 
-def test_skipping_unblockable_laser_shadow_rays_changes_nothing():
-    """Laser shadow rays whose segment misses every blocker's bounding sphere (the planner's complete list of
-    faces that can cross a spot → hidden point segment) are skipped: on the demo room (box and pillar block)
-    the envelope is bit-identical to casting every ray, with well under half the shadow rays."""
+def test_skipping_unblockable_shadow_rays_changes_nothing():
+    """Laser and sensor shadow rays whose segment misses every blocker's bounding sphere (the planner's complete
+    lists of faces that can cross a spot → hidden point or FoV point → sensor segment) are skipped: on the demo
+    room (box and pillar block) the envelope is bit-identical to casting every ray, with well under half the
+    shadow rays."""
     import datagen
     from datagen.planner import plan_effects
     from datagen.raycast import RayCaster
@@ -199,13 +200,15 @@ def test_skipping_unblockable_laser_shadow_rays_changes_nothing():
     scene = datagen.load_scene("scene_library/demo_room.yaml")
     config = datagen.resolve_config(scene, {"lookins": "12x12", "pixels": "32x32", "secondary": "exact"})
     caster = RayCaster(scene)
-    blockers = plan_effects(scene, config, resolve_capture(scene, caster), caster)["shadow_spot"].blockers
+    plan = plan_effects(scene, config, resolve_capture(scene, caster), caster)
+    blockers, sensor_blockers = plan["shadow_spot"].blockers, plan["shadow_sensor"].blockers
     assert blockers and set(caster.face_object[list(blockers)]) == {
         i for i, o in enumerate(scene.objects) if o.name in ("box", "pillar")}
+    assert sensor_blockers and {scene.objects[i].name for i in caster.face_object[list(sensor_blockers)]} == {"box"}
     out = []
-    for listed in (blockers, None):
+    for listed, sensor_listed in ((blockers, sensor_blockers), (None, None)):
         tr = Transport(scene, TransportSettings(lookins=(12, 12), pixels=(32, 32), secondary="exact",
-                                                spot_blockers=listed), caster)
+                                                spot_blockers=listed, sensor_blockers=sensor_listed), caster)
         acc = EnvelopeAccumulator(AXIS, IRF, len(tr.component_names))
         tr.run(acc, np.random.default_rng(3))
         out.append((acc.binned(), tr.stats.shadow_rays))
