@@ -65,6 +65,11 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     """
     if not 0 < tolerance < 1:
         raise SceneError(f"tolerance must be in (0, 1), got {tolerance!r}")
+    if config.estimator == "quadrature":
+        return _quadrature_to_tolerance(scene, config, tolerance, max_seconds, progress)
+    if config.estimator != "lookin":
+        raise SceneError(f"tolerance: simulating to a tolerance supports the 'lookin' and 'quadrature' "
+                         f"estimators, got estimator {config.estimator!r}")
     t0 = time.perf_counter()
     side_l, side_p = 1.0, 1.0
     levels = []
@@ -124,3 +129,56 @@ def _merge_replicas(replicas: list[Transported]) -> Transported:
         first.transport.stats.add(h.transport.stats)
     seconds = {k: sum(h.seconds[k] for h in replicas) for k in first.seconds}
     return Transported(first.names, binned, outside, first.transport, first.plan, seconds)
+
+
+QUADRATURE_START_EDGE = 0.16
+"""First quadrature edge (m) of :func:`_quadrature_to_tolerance`; each level shrinks it by at least 2×."""
+
+QUADRATURE_SAFETY = 0.9
+"""Factor on the predicted edge, so that the next level lands below the tolerance rather than on it."""
+
+
+def _quadrature_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: float,
+                             max_seconds: float | None, progress: bool) -> Result:
+    """The quadrature estimator's edge h halved (at least) until its error estimate meets ``tolerance``.
+
+    The quadrature is deterministic with error ≈ c·h² (datagen.quadrature), so two levels h' > h give
+    E(h') − E(h) ≈ c(h'² − h²) and the error of E(h) is estimated as ‖E(h') − E(h)‖ / ((h'/h)² − 1), relative
+    L2 over bins above 1 % of the peak (measured on the tal captures: 1.1–1.5× the true error at h' = 2h). A
+    planned secondary is Monte Carlo (area sampler) and its noise enters the difference, which only makes the
+    estimate larger. The next edge is h·sqrt(tol/ε̂)·0.9, at most h/2.
+    """
+    t0 = time.perf_counter()
+    h = max(QUADRATURE_START_EDGE, float(config.quadrature_edge))
+    levels, previous = [], None
+    for level in range(MAX_LEVELS + 2):
+        cfg = config.model_copy(update={"quadrature_edge": h, "tolerance": tolerance})
+        t_level = time.perf_counter()
+        tr = run_transport(scene, cfg, _replica_rng(config.seed, level, 0))
+        seconds = time.perf_counter() - t_level
+        env = tr.binned.sum(axis=0)
+        if env.max() <= 0:
+            raise SceneError(f"{scene.source or scene.name}: the envelope is zero in the time window; no "
+                             f"error estimate is possible (check the time axis and the FoV)")
+        estimate = None
+        if previous is not None:
+            ratio = previous[0] / h
+            estimate = relative_l2(previous[1], env) / (ratio ** 2 - 1.0)
+        levels.append({"quadrature_edge": h, "estimate": estimate, "seconds": seconds})
+        if progress:
+            shown = "-" if estimate is None else f"{estimate:.3%}"
+            print(f"level {level}: quadrature edge {h:.4g} m: estimated error {shown} ({seconds:.2f} s)")
+        if estimate is not None and (estimate <= tolerance or level == MAX_LEVELS + 1):
+            break
+        shrink = 0.5 if estimate is None else min(0.5, math.sqrt(tolerance / estimate) * QUADRATURE_SAFETY)
+        # cost ∝ h^-2 (point sensors) to h^-4 (aperture): predict with the steeper law
+        if max_seconds is not None and estimate is not None and \
+                (time.perf_counter() - t0) + seconds / shrink ** 4 > max_seconds:
+            break
+        previous = (h, env)
+        h *= shrink
+    info = {"tolerance": {"target": tolerance, "estimate": estimate, "met": bool(estimate <= tolerance),
+                          "method": "quadrature edge refinement: ‖E(h') − E(h)‖ / ((h'/h)² − 1), relative L2 over "
+                                    "bins above 1 % of the peak (error ∝ h²)",
+                          "levels": levels}}
+    return make_result(scene, cfg, tr, None, t0, info)

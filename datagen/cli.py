@@ -50,15 +50,21 @@ def _parse_fraction(text: str, option: str) -> float:
 @click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
 @click.option("--secondary", type=click.Choice(["none", "optimized", "full", "exact"]), default=None,
               help="secondary (one more hidden bounce) estimator: exact = full at O(N) cost")
+@click.option("--estimator", type=click.Choice(["lookin", "area", "quadrature"]), default=None,
+              help="lookin (the paper's sampler), area (hidden-surface area sampling) or quadrature "
+                   "(deterministic, exact time binning; best for small hidden objects and point sensors)")
+@click.option("--edge", type=float, default=None, help="quadrature: sub-triangle edge in metres (default 0.02)")
 @click.option("--tolerance", default=None,
-              help="target relative L2 error, e.g. 1%: choose lookins/pixels from an on-the-fly error estimate")
+              help="target relative L2 error, e.g. 1%: choose lookins/pixels (or the quadrature edge) from an "
+                   "on-the-fly error estimate")
 @click.option("--workers", type=int, default=None, help="processes sharing the lookins (result unchanged)")
 @click.option("--top-k", type=int, default=None, help="secondary paths kept per lookin and FoV point (optimized)")
 @click.option("--seed", type=int, default=None, help="root seed of every random stream")
 @click.option("--figures", is_flag=True, help="also write the paper's Figure 3 and 5 sampling views")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @_friendly_errors
-def simulate(scene_file, out, lookins, pixels, secondary, tolerance, workers, top_k, seed, figures, quiet):
+def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, tolerance, workers, top_k, seed, figures,
+             quiet):
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from .plot import plot_envelope
     from .scene import load_scene
@@ -69,14 +75,20 @@ def simulate(scene_file, out, lookins, pixels, secondary, tolerance, workers, to
     scene = load_scene(scene_file)
     tol = _parse_fraction(tolerance, "--tolerance") if tolerance is not None else None
     config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
-                                    "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol})
+                                    "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol,
+                                    "estimator": estimator, "quadrature_edge": edge})
     if tol is not None:
         from .adaptive import simulate_to_tolerance
         result = simulate_to_tolerance(scene, config, tol, progress=not quiet)
         t = result.attrs["tolerance"]
-        click.echo(f"tolerance {tol:.2%}: lookins {'x'.join(map(str, result.attrs['config']['lookins']))}"
-                   f", pixels {'x'.join(map(str, result.attrs['config']['pixels']))}, estimated error "
-                   f"{t['estimate']:.2%} (90 % upper bound){'' if t['met'] else ' — NOT met'}")
+        cfg = result.attrs["config"]
+        if cfg["estimator"] == "quadrature":
+            setting, bound = f"quadrature edge {cfg['quadrature_edge']:.4g} m", "from edge refinement"
+        else:
+            setting = f"lookins {'x'.join(map(str, cfg['lookins']))}, pixels {'x'.join(map(str, cfg['pixels']))}"
+            bound = "90 % upper bound"
+        click.echo(f"tolerance {tol:.2%}: {setting}, estimated error {t['estimate']:.2%} ({bound})"
+                   f"{'' if t['met'] else ' — NOT met'}")
     else:
         result = run_simulation(scene, config, progress=not quiet)
     out.mkdir(parents=True, exist_ok=True)

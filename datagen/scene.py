@@ -1094,6 +1094,10 @@ def scene_from_dict(data: dict, source: str | None = None, base: Path | None = N
     """
     if not isinstance(data, dict):
         raise SceneError(f"{source or 'scene'}: expected a mapping at the top level, got {type(data).__name__}")
+    if "objects" not in data and {"geometry", "scan_type"} & set(data):
+        raise SceneError(f"{source or 'scene'}: this is a tal render config (it has "
+                         f"{', '.join(sorted({'geometry', 'scan_type'} & set(data)))}), not a datagen scene: "
+                         "render it with `datagen tal-render CONFIG.yaml --out FILE.hdf5`")
     try:
         spec = SceneFile.model_validate(data)
     except ValidationError as exc:

@@ -53,3 +53,22 @@ def test_bad_tolerance_is_refused(reference):
     scene, _ = reference
     with pytest.raises(SceneError, match="tolerance"):
         simulate_to_tolerance(scene, SimulationConfig(time=AXIS, irf=IRF, detector=DETECTOR), 1.5)
+
+
+@pytest.mark.parametrize("tol", [0.02, 0.005])
+def test_quadrature_edge_is_refined_until_the_tolerance_holds(reference, tol):
+    """The quadrature's estimate ‖E(h') − E(h)‖/((h'/h)² − 1) (error ∝ h²) drives the edge down until it meets
+    the tolerance; the actual error against the independent reference is within it and within 2× the estimate,
+    and the area estimator, which has no refinement rule here, is refused by name."""
+    scene, ref = reference
+    config = SimulationConfig(time=AXIS, irf=IRF, secondary="none", detector=DETECTOR, estimator="quadrature")
+    result = simulate_to_tolerance(scene, config, tol)
+    info = result.attrs["tolerance"]
+    assert info["met"] and info["estimate"] <= tol
+    edges = [lv["quadrature_edge"] for lv in info["levels"]]
+    assert edges == sorted(edges, reverse=True) and len(edges) >= 2
+    assert result.attrs["config"]["quadrature_edge"] == edges[-1]
+    actual = relative_l2(result.envelope, ref)
+    assert actual <= tol and actual <= 2.0 * info["estimate"] + 2e-4   # the reference's own error ~1e-4
+    with pytest.raises(SceneError, match="estimator 'area'"):
+        simulate_to_tolerance(scene, config.model_copy(update={"estimator": "area"}), tol)
