@@ -39,7 +39,7 @@ def bench():
 @click.option("--budget", default="60s", show_default=True, help="wall time per estimator, e.g. 60s, 5min")
 @click.option("--out", "out", default=None, type=click.Path(path_type=Path),
               help="output directory (default out/bench_accuracy/<scene name>)")
-@click.option("--estimators", default=None, help="comma-separated subset of: lookin,top1,top8,exact,area")
+@click.option("--estimators", default=None, help="comma-separated subset of: lookin, top1, top8, exact, area, quadrature (default: all)")
 @click.option("--rel-tol", default=1e-3, show_default=True, type=float,
               help="target relative L2 error estimate of the reference")
 @click.option("--reference-budget", default="30min", show_default=True,

@@ -327,7 +327,7 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
     detector = config.detector_config()
     plan = tr.plan.refine_pile_up(envelope, detector)
     detector = plan.detector(detector)
-    warnings = []
+    warnings = list(scene.notes)                 # what loading changed (e.g. duplicate faces removed)
     if not envelope.any():
         warnings.append("no light path reaches the FoV: the envelope is zero (no path from the laser spot "
                         "reaches the sensor grid within the time window; counts hold background only)")

@@ -597,6 +597,7 @@ def test_duplicate_face_with_the_same_material_changes_nothing():
     assert any("patch_twin" in note and "dropped" in note for note in twice_scene.notes), twice_scene.notes
     twice = run(twice_scene)
     np.testing.assert_allclose(twice.envelope, single.envelope, rtol=0, atol=1e-12 * single.envelope.max())
+    assert twice.attrs["warnings"] == twice_scene.notes and single.attrs["warnings"] == []   # the user is told
 
 
 def test_reference_counts_a_duplicate_face_once():
