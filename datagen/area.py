@@ -188,6 +188,11 @@ class AreaStats:
     partners: int = 0
     secondary_pairs: int = 0
 
+    def add(self, other: "AreaStats") -> None:
+        """Add another run's counters (replicas merged by datagen.adaptive)."""
+        for k, v in vars(other).items():
+            setattr(self, k, getattr(self, k) + v)
+
 
 @dataclass(frozen=True)
 class SurfaceSamples:

@@ -84,6 +84,8 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
         cfg = result.attrs["config"]
         if cfg["estimator"] == "quadrature":
             setting, bound = f"quadrature edge {cfg['quadrature_edge']:.4g} m", "from edge refinement"
+        elif cfg["estimator"] == "area":
+            setting, bound = f"{cfg['area_samples']} hidden samples per laser point", "90 % upper bound"
         else:
             setting = f"lookins {'x'.join(map(str, cfg['lookins']))}, pixels {'x'.join(map(str, cfg['pixels']))}"
             bound = "90 % upper bound"
