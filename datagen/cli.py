@@ -117,7 +117,6 @@ def detect(result_path, detector_file, exposure, seed):
     The envelope is re-binned onto the detector's TDC bins (taken as piecewise constant within the stored
     bins, so TDC bins finer than the stored ones do not gain time resolution).
     """
-    import numpy as np
     import yaml
 
     from . import spad

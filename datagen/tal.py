@@ -56,7 +56,7 @@ import numpy as np
 import yaml
 
 from .brdf import Material
-from .scene import Scene, SceneError, SceneObject, quad_mesh, scene_from_dict
+from .scene import Scene, SceneError, SceneObject, scene_from_dict
 from .units import SPEED_OF_LIGHT
 
 __all__ = [

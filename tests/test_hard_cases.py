@@ -30,8 +30,8 @@ from datagen.brdf import Material
 from datagen.irf import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
 from datagen.raycast import RAY_OFFSET_REL
 from datagen.reference import primary_area_quadrature
+from datagen.coincident import COPLANAR_TOL_REL
 from datagen.scene import (
-    COPLANAR_TOL_REL,
     FieldOfView,
     Laser,
     Scene,

@@ -25,7 +25,7 @@ from datagen.cli import main
 from datagen.scene import SceneError
 from datagen.simulate import resolve_config, simulate
 from datagen.store import write_result
-from datagen.tal import (GridFormat, HFormat, VolumeFormat, load_tal_config, read_tal_hdf5, scene_from_tal_config,
+from datagen.tal import (GridFormat, HFormat, VolumeFormat, load_tal_config, read_tal_hdf5,
                          scene_from_tal_yaml, tal_arrays, tal_transform, write_tal_hdf5)
 
 C = 299_792_458.0

@@ -108,11 +108,6 @@ def secondary(scene, mode, lookins=(8, 8), pixels=(24, 24), seed=3, **kw):
     return per[tr.n_primary], tr
 
 
-def rel_l2(y, ref):
-    m = ref > 0.01 * ref.max()
-    return float(np.linalg.norm((y - ref)[m]) / np.linalg.norm(ref[m]))
-
-
 @pytest.mark.parametrize("kind", ["lambertian", "sin_theta", "phong"])
 def test_exact_secondary_equals_full_pairs(kind):
     """The factorised O(N) secondary (DESIGN.md §3) sums the same pairs as the O(Ñ²) one: identical up to
