@@ -58,7 +58,7 @@ from scipy.stats import qmc
 from .raycast import RayCaster
 from .sampling import square_to_hemisphere, stratified_grid, to_world
 from .scene import Scene, SceneError
-from .transport import FOV_PLANE_TOL, Sink, Transport, TransportSettings, _Out
+from .transport import FOV_PLANE_TOL, Counters, Sink, Transport, TransportSettings, _Out
 from .units import SPEED_OF_LIGHT
 
 AreaSampling = Literal["stratified", "sobol", "random"]
@@ -178,8 +178,8 @@ class AreaSettings:
 
 
 @dataclass
-class AreaStats:
-    """Counters from an area-sampler run (summed over laser points)."""
+class AreaStats(Counters):
+    """Counters from an area-sampler run (summed over laser points; ``add`` merges replicas)."""
 
     area_samples: int = 0
     spot_samples: int = 0
@@ -187,11 +187,6 @@ class AreaStats:
     fov_connections: int = 0
     partners: int = 0
     secondary_pairs: int = 0
-
-    def add(self, other: "AreaStats") -> None:
-        """Add another run's counters (replicas merged by datagen.adaptive)."""
-        for k, v in vars(other).items():
-            setattr(self, k, getattr(self, k) + v)
 
 
 @dataclass(frozen=True)

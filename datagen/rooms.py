@@ -30,12 +30,11 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping
 
 import numpy as np
-import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .brdf import BRDF_KINDS, Material
-from .scene import (ROOM_LABELS, check_counts, FieldOfView, Laser, Scene, SceneError, Sensor, box, format_validation_error,
-                    l_room, pillar)
+from .scene import (ROOM_LABELS, FieldOfView, Laser, Scene, SceneError, Sensor, box, check_counts,
+                    format_validation_error, l_room, pillar, read_yaml)
 from .units import parse_energy, parse_length
 
 OBJECT_CLASSES = ("box", "pillar")
@@ -437,12 +436,7 @@ def load_room_distribution(source: str | Path | dict, _source: str | None = None
         data, where = source, _source or "room distribution"
     else:
         path = Path(source)
-        if not path.is_file():
-            raise SceneError(f"room distribution file not found: {path}")
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise SceneError(f"{path}: not valid YAML: {exc}".replace("\n", " ")) from None
+        data = read_yaml(path, "room distribution file")
         where = str(path)
         if not isinstance(data, dict):
             raise SceneError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")

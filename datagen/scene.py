@@ -607,10 +607,19 @@ def load_scene(path: str | Path) -> Scene:
         SceneError: missing file, YAML syntax error, or invalid content (message names file, field, value).
     """
     path = Path(path)
+    return scene_from_dict(read_yaml(path, "scene file"), str(path), path.parent)
+
+
+def read_yaml(path: Path, what: str) -> Any:
+    """Parsed content of the YAML file ``path`` (a ``what``: "scene file", "tal config", ...).
+
+    Raises:
+        SceneError: the file does not exist ("<what> not found: <path>") or is not valid YAML (names the file
+            and the parser's message).
+    """
     if not path.is_file():
-        raise SceneError(f"scene file not found: {path}")
+        raise SceneError(f"{what} not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text())
+        return yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise SceneError(f"{path}: not valid YAML: {exc}".replace("\n", " ")) from None
-    return scene_from_dict(data, str(path), path.parent)

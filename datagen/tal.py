@@ -56,7 +56,7 @@ import numpy as np
 import yaml
 
 from .brdf import Material
-from .scene import Scene, SceneError, SceneObject, scene_from_dict
+from .scene import Scene, SceneError, SceneObject, read_yaml, scene_from_dict
 from .units import SPEED_OF_LIGHT
 
 __all__ = [
@@ -217,12 +217,7 @@ def load_tal_config(path: str | Path) -> dict:
     path = Path(path)
     if path.is_dir() and (path / f"{path.name}.yaml").is_file():
         path = path / f"{path.name}.yaml"
-    if not path.is_file():
-        raise SceneError(f"tal config not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise SceneError(f"{path}: not valid YAML: {exc}".replace("\n", " ")) from None
+    data = read_yaml(path, "tal config") or {}
     if not isinstance(data, dict):
         raise SceneError(f"{path}: expected a mapping at the top level, got {type(data).__name__}")
     unknown = sorted(set(data) - TAL_KEYS)

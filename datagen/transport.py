@@ -330,8 +330,16 @@ class TransportSettings:
     workers: int = 1
 
 
+class Counters:
+    """Mixin for dataclasses of int counters: ``add`` sums another run's counters into this one."""
+
+    def add(self, other: "Counters") -> None:
+        for k, v in vars(other).items():
+            setattr(self, k, getattr(self, k) + v)
+
+
 @dataclass
-class TransportStats:
+class TransportStats(Counters):
     """Counters from a transport run (recorded in the result attributes)."""
 
     lookins_cast: int = 0
@@ -342,10 +350,6 @@ class TransportStats:
     shadow_rays: int = 0
     dark_points: int = 0
     secondary_pairs: int = 0
-
-    def add(self, other: "TransportStats") -> None:
-        for k, v in vars(other).items():
-            setattr(self, k, getattr(self, k) + v)
 
 
 class Sink(Protocol):
