@@ -522,6 +522,8 @@ class Transport:
         self.settings = settings
         self.component_names = self.scene.component_names() + ["secondary"] + (
             ["first_bounce"] if settings.first_bounce else [])
+        self._spot_spheres = self._blocker_spheres(settings.spot_blockers)
+        self._sensor_spheres = self._blocker_spheres(settings.sensor_blockers)
 
     # -- per-leg physics (written once, used by every estimator) -----------------------------------------
 
@@ -563,7 +565,7 @@ class Transport:
         out = self.settings.pde * f * cos_out * c.aperture_area * cos_ap / d ** 2
         if self.settings.shadow_sensor:
             idx = np.flatnonzero(out > 0)
-            idx = idx[self._may_be_blocked(c.sensor, -w_s[idx], d[idx], self.settings.sensor_blockers)]
+            idx = idx[self._may_be_blocked(c.sensor, -w_s[idx], d[idx], self._sensor_spheres)]
             if len(idx):
                 self.stats.shadow_rays += len(idx)
                 out[idx[~self.caster.visible(points[idx], normals[idx], c.sensor, None)]] = 0.0
@@ -868,36 +870,35 @@ class Transport:
         lit = (cos_l > 0) & (cos_in > 0)
         if s.shadow_spot and lit.any():
             idx = np.flatnonzero(lit)
-            idx = idx[self._may_be_blocked(spot, w[idx], r[idx], s.spot_blockers)]
+            idx = idx[self._may_be_blocked(spot, w[idx], r[idx], self._spot_spheres)]
             self.stats.shadow_rays += len(idx)
             lit[idx] = self.caster.visible(y[idx], n_y[idx], spot, spot_n)
         return _Lit(flat, flat // obs.hit.shape[1], y, n_y, r, w, cos_l, cos_in, lit)
 
-    def _blocker_spheres(self, blockers: tuple[int, ...]) -> np.ndarray:
+    def _blocker_spheres(self, blockers: tuple[int, ...] | None) -> np.ndarray | None:
         """(G, 4) bounding spheres (centre, radius; metres) of the faces ``blockers`` grouped by object, padded
-        by 10 surface offsets (cached per face list)."""
-        cache = self.__dict__.setdefault("_spheres", {})
-        if blockers not in cache:
-            faces = np.asarray(blockers, dtype=np.int64)
-            spheres = []
-            for obj in np.unique(self.caster.face_object[faces]):
-                mine = faces[self.caster.face_object[faces] == obj]
-                pts = self.caster.vertices[self.caster.faces[mine]].reshape(-1, 3)
-                centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-                radius = float(np.max(np.linalg.norm(pts - centre, axis=1))) + 10 * self.caster.offset
-                spheres.append([*centre, radius])
-            cache[blockers] = np.array(spheres).reshape(-1, 4)
-        return cache[blockers]
+        by 10 surface offsets; None when the blockers are unknown."""
+        if blockers is None:
+            return None
+        faces = np.asarray(blockers, dtype=np.int64)
+        spheres = []
+        for obj in np.unique(self.caster.face_object[faces]):
+            mine = faces[self.caster.face_object[faces] == obj]
+            pts = self.caster.vertices[self.caster.faces[mine]].reshape(-1, 3)
+            centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+            radius = float(np.max(np.linalg.norm(pts - centre, axis=1))) + 10 * self.caster.offset
+            spheres.append([*centre, radius])
+        return np.array(spheres).reshape(-1, 4)
 
     def _may_be_blocked(self, origin: np.ndarray, w: np.ndarray, r: np.ndarray,
-                        blockers: tuple[int, ...] | None) -> np.ndarray:
+                        spheres: np.ndarray | None) -> np.ndarray:
         """(n,) bool: the segment from ``origin`` (3,) along unit directions w (n, 3) over lengths r (n,) may meet
-        the bounding sphere of a blocker (inside its cone from the origin and not wholly before it); the others
-        need no shadow ray. All True when ``blockers`` is None (unknown)."""
-        if blockers is None:
+        one of the blockers' bounding ``spheres`` (inside its cone from the origin and not wholly before it);
+        the others need no shadow ray. All True when ``spheres`` is None (blockers unknown)."""
+        if spheres is None:
             return np.ones(len(w), dtype=bool)
         out = np.zeros(len(w), dtype=bool)
-        for cx, cy, cz, radius in self._blocker_spheres(blockers):
+        for cx, cy, cz, radius in spheres:
             to_c = np.array([cx, cy, cz]) - origin
             dist = float(np.linalg.norm(to_c))
             if dist <= radius:                                      # the origin is inside the sphere
