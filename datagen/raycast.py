@@ -95,8 +95,7 @@ class RayCaster:
         origins = np.asarray(origins, dtype=np.float64)
         directions = np.asarray(directions, dtype=np.float64)
         shape = np.broadcast_shapes(origins.shape, directions.shape)[:-1]
-        center = self.center.astype(np.float32)
-        o32 = np.broadcast_to(origins.astype(np.float32) - center, shape + (3,)).reshape(-1, 3)
+        o32 = np.broadcast_to((origins - self.center).astype(np.float32), shape + (3,)).reshape(-1, 3)
         d32 = np.broadcast_to(directions.astype(np.float32), shape + (3,)).reshape(-1, 3)
         n = len(o32)
         face = np.empty(n, dtype=np.int64)

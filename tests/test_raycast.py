@@ -52,3 +52,30 @@ def test_no_self_intersection_and_float64_hits_at_any_scale(scale):
     floor = obs.object_id == 2
     assert floor.any()
     assert np.abs(obs.points[floor][:, 2]).max() < 1e-9 * scale
+
+
+def test_a_scene_far_from_the_world_origin_gives_the_same_primary():
+    """The patch scene moved 100 km along x: ray origins are centred in float64 before Embree's float32, so
+    the primary equals the unshifted one to 1e-9 (before, origins were rounded to float32 first — a 4 mm
+    error against a 40 µm surface offset — and every camera ray hit its own lookin: the primary was 0)."""
+    from conftest import patch_scene
+
+    from datagen.irf import EnvelopeAccumulator, Irf, TimeAxis
+    from datagen.scene import FieldOfView, Laser, Scene, SceneObject, Sensor
+    from datagen.transport import Transport, TransportSettings
+
+    def shifted(dx):
+        base, d = patch_scene(), np.array([dx, 0.0, 0.0])
+        move = lambda p: tuple(np.array(p) + d)
+        objects = [SceneObject(o.name, o.label, o.material, o.vertices + d, o.faces) for o in base.objects]
+        return Scene(objects, Laser(emitter=move(base.laser.emitter), spot=move(base.laser.spot)),
+                     Sensor(position=move(base.sensor.position), aperture_radius=0.02,
+                            fov=FieldOfView(center=move(base.sensor.fov.center), size=(0.8, 0.8))))
+
+    totals = []
+    for dx in (0.0, 1e5):
+        tr = Transport(shifted(dx), TransportSettings(lookins=(32, 32), pixels=(24, 24), secondary="none"))
+        acc = EnvelopeAccumulator(TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000), Irf(fwhm=100e-12), 3)
+        tr.run(acc, np.random.default_rng(0))
+        totals.append(acc.total_weight().sum())
+    assert totals[0] > 0 and totals[1] == pytest.approx(totals[0], rel=1e-9)
