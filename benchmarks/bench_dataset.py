@@ -26,7 +26,7 @@ from pathlib import Path
 
 import psutil
 
-from datagen.build import build_dataset
+from datagen.dataset import build_dataset
 from datagen.dataset import SplitSpec, load_dataset_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,7 +106,7 @@ def bench_loader(path: Path, epochs: int = 5) -> dict:
     import torch
     from torch.utils.data import DataLoader
 
-    from datagen.loader import NLOSDataset
+    from datagen.dataset import NLOSDataset
 
     results = {}
     ds = NLOSDataset(path, split="train")

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 import datagen
-from datagen.brdf import Material
+from datagen.scene import Material
 from datagen.scene import Scene, SceneObject
 
 

@@ -10,7 +10,7 @@ Public entry points::
     ds = datagen.NLOSDataset("data/smoke", split="train", noise="resample")   # a torch Dataset
 """
 from .scene import Scene, SceneError, load_scene
-from .simulate import Result, SimulationConfig, resolve_config, simulate
+from .simulation import Result, SimulationConfig, resolve_config, simulate
 
 __all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
            "NLOSDataset"]
@@ -19,6 +19,6 @@ __all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "r
 def __getattr__(name: str):
     """``datagen.NLOSDataset`` imports torch on first use only (``import datagen`` stays light for workers)."""
     if name == "NLOSDataset":
-        from .loader import NLOSDataset
+        from .dataset.loader import NLOSDataset
         return NLOSDataset
     raise AttributeError(f"module 'datagen' has no attribute {name!r}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datagen.brdf import Material
+from datagen.scene import Material
 from datagen.scene import FieldOfView, Laser, Scene, Sensor, box, quad
 
 

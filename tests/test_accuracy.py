@@ -11,7 +11,7 @@ from conftest import patch_scene
 from test_area import two_patch_closed_form, two_patch_scene
 from test_reference import AXIS, IRF, patch_envelope, rel_l2
 
-from datagen.accuracy import (
+from datagen.analysis import (
     ESTIMATORS,
     LADDERS,
     AccuracyRow,
@@ -20,11 +20,11 @@ from datagen.accuracy import (
     pareto_front,
     run_accuracy,
 )
-from datagen.brdf import Material
-from datagen.cli import main
-from datagen.irf import EnvelopeAccumulator
-from datagen.raycast import RayCaster
-from datagen.reference import converged_reference, peak_time
+from datagen.scene import Material
+from datagen.cli.main import main
+from datagen.timing import EnvelopeAccumulator
+from datagen.scene import RayCaster
+from datagen.analysis import converged_reference, peak_time
 from datagen.scene import SceneError
 from datagen.transport import Transport, TransportSettings
 

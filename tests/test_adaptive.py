@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from conftest import patch_scene
 
-from datagen.adaptive import relative_l2, replica_error, simulate_to_tolerance
-from datagen.irf import Irf, TimeAxis
-from datagen.reference import primary_area_quadrature
+from datagen.analysis import relative_l2, replica_error, simulate_to_tolerance
+from datagen.timing import Irf, TimeAxis
+from datagen.analysis import primary_area_quadrature
 from datagen.scene import SceneError
-from datagen.simulate import SimulationConfig
+from datagen.simulation import SimulationConfig
 
 AXIS = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000)
 IRF = Irf(fwhm=100e-12)

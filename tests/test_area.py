@@ -6,10 +6,11 @@ import pytest
 from conftest import patch_scene
 from test_transport import patch_closed_form
 
-from datagen.area import AreaSampler, AreaSettings, sample_surfaces, subdivide_triangles
-from datagen.brdf import Material, MaterialTable
-from datagen.irf import EnvelopeAccumulator, Irf, TimeAxis
-from datagen.raycast import RayCaster
+from datagen.sampling import sample_surfaces, subdivide_triangles
+from datagen.transport import AreaSampler, AreaSettings
+from datagen.scene import Material, MaterialTable
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
+from datagen.scene import RayCaster
 from datagen.scene import FieldOfView, Laser, Scene, SceneError, Sensor, quad
 from datagen.units import SPEED_OF_LIGHT
 
@@ -280,9 +281,9 @@ def test_scans_match_the_lookin_estimator_per_channel(convention):
 
 def test_simulate_selects_the_area_estimator_by_name():
     """``estimator: area`` through simulate(): same integral as the primary quadrature (patch scene)."""
-    from datagen.irf import Irf, TimeAxis
-    from datagen.reference import primary_area_quadrature
-    from datagen.simulate import SimulationConfig, simulate
+    from datagen.timing import Irf, TimeAxis
+    from datagen.analysis import primary_area_quadrature
+    from datagen.simulation import SimulationConfig, simulate
     from conftest import patch_scene
     scene = patch_scene(with_occluder=True)
     axis, irf = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000), Irf(fwhm=100e-12)

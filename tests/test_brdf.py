@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datagen.brdf import Material, MaterialTable
+from datagen.scene import Material, MaterialTable
 from datagen.sampling import square_to_hemisphere, stratified_grid
 
 MATERIALS = [Material(kind="lambertian", albedo=0.7), Material(kind="sin_theta", albedo=0.9),

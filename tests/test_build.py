@@ -17,9 +17,9 @@ import yaml
 import zarr
 from click.testing import CliRunner
 
-from datagen.build import (DONE_DIR, LOCK_NAME, BuildError, BuildLock, BuildLockedError, build_dataset,
+from datagen.dataset import (DONE_DIR, LOCK_NAME, BuildError, BuildLock, BuildLockedError, build_dataset,
                            read_card, shard_file, verify_dataset)
-from datagen.cli import main
+from datagen.cli.main import main
 from datagen.dataset import SplitSpec, load_dataset_config
 from datagen.scene import SceneError
 
@@ -102,7 +102,7 @@ def test_card_records_config_versions_timings_hashes_and_consolidates(reference)
 
 
 def _start_cli_build(config_path: Path, out: Path, workers: int) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "datagen.cli", "build", str(config_path), "--out", str(out),
+    cmd = [sys.executable, "-m", "datagen.cli.main", "build", str(config_path), "--out", str(out),
            "--workers", str(workers), "--quiet"]
     return subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)
@@ -198,7 +198,7 @@ def test_verify_catches_deleted_and_corrupted_shards(reference, tmp_path):
 
 
 def test_failed_shard_is_retried_reported_and_finished_shards_kept(tmp_path, monkeypatch):
-    import datagen.build as build_module
+    import datagen.dataset.build as build_module
     from datagen.dataset import make_sample
 
     attempts = []
@@ -224,7 +224,7 @@ def test_failed_shard_is_retried_reported_and_finished_shards_kept(tmp_path, mon
 
 
 def test_sample_with_another_shape_stops_its_shard_naming_it(tmp_path, monkeypatch):
-    import datagen.build as build_module
+    import datagen.dataset.build as build_module
     from datagen.dataset import make_sample
 
     def wider(config, split, index):

@@ -8,8 +8,8 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from datagen.cli import main
-from datagen.store import read_result
+from datagen.cli.main import main
+from datagen.io import read_result
 
 DEMO = Path("scene_library/demo_room.yaml")
 

@@ -1,4 +1,4 @@
-"""Tests of datagen.figures: the sampling views of Scholes & Leach 2024, Figures 3 and 5, on the demo room.
+"""Tests of datagen.plot.figures: the sampling views of Scholes & Leach 2024, Figures 3 and 5, on the demo room.
 
 Small sampling (6×6 lookins × 24×24 pixels) keeps this quick. Besides checking that both PNGs are written,
 the Figure 3 data is checked against geometry and the laser-irradiance formula: the box on its shelf next
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from datagen import load_scene, resolve_config
-from datagen.figures import laser_energy, write_sampling_figures
+from datagen.plot import laser_energy, write_sampling_figures
 
 DEMO = Path(__file__).resolve().parents[1] / "scene_library" / "demo_room.yaml"
 SMALL = {"lookins": "6x6", "pixels": "24x24"}

@@ -8,7 +8,7 @@ References never share code with the lookin estimator:
 - in-test Gauss–Legendre evaluations of the primary path integral of DESIGN.md §2, written out below
   (:func:`primary_integrand`); where the kernel is singular the rule is graded by a substitution that makes the
   integrand smooth (stated in each test). Their own error is checked by refining them (quoted per test).
-- ``datagen.reference.primary_area_quadrature`` (midpoint area quadrature with shadow rays), where its own
+- ``datagen.analysis.reference.primary_area_quadrature`` (midpoint area quadrature with shadow rays), where its own
   error (h against h/2) is small;
 - closed forms (bin integrals of a Gaussian, exact integer sums).
 Error measure (issue 5): relative L2 of the binned envelope over the bins above 1 % of the reference peak.
@@ -26,11 +26,11 @@ import yaml
 from scipy.special import ndtr
 
 from datagen import spad
-from datagen.brdf import Material
-from datagen.irf import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
-from datagen.raycast import RAY_OFFSET_REL
-from datagen.reference import primary_area_quadrature
-from datagen.coincident import COPLANAR_TOL_REL
+from datagen.scene import Material
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
+from datagen.scene import RAY_OFFSET_REL
+from datagen.analysis import primary_area_quadrature
+from datagen.scene import COPLANAR_TOL_REL
 from datagen.scene import (
     FieldOfView,
     Laser,
@@ -45,7 +45,7 @@ from datagen.scene import (
     quad,
     scene_from_dict,
 )
-from datagen.simulate import resolve_config, simulate
+from datagen.simulation import resolve_config, simulate
 from datagen.units import SPEED_OF_LIGHT
 
 HARD = Path(__file__).resolve().parents[1] / "scene_library" / "hard"

@@ -1,4 +1,4 @@
-"""Tests of datagen.irf: bin integrals of the IRF, fine-grid splatting + FFT, energy conservation (DESIGN.md §5).
+"""Tests of datagen.timing.irf: bin integrals of the IRF, fine-grid splatting + FFT, energy conservation (DESIGN.md §5).
 
 Tolerances are stated next to each assertion. "rel" means relative to the total weight (or to the largest
 bin where stated).
@@ -14,7 +14,7 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import ndtr
 
-from datagen.irf import (
+from datagen.timing import (
     MAX_FINE_NODES,
     EnvelopeAccumulator,
     Irf,

@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from datagen.brdf import Material
-from datagen.labels import LabelSpec, camera_directions, label_shapes, occupancy_grid, scene_labels
-from datagen.rooms import STREAMS, SampledRoom, load_room_distribution, sample_room
+from datagen.scene import Material
+from datagen.dataset import LabelSpec, camera_directions, label_shapes, occupancy_grid, scene_labels
+from datagen.dataset import SampledRoom, load_room_distribution, sample_room
+from datagen.dataset.sampler import STREAMS
 from datagen.scene import FieldOfView, Laser, Scene, SceneError, Sensor, box, l_room, quad
 
 DEFAULT = Path(__file__).resolve().parents[1] / "configs" / "rooms" / "default.yaml"

@@ -14,9 +14,9 @@ from torch.utils.data import DataLoader
 
 import datagen
 from datagen import spad
-from datagen.build import build_dataset
+from datagen.dataset import build_dataset
 from datagen.dataset import SplitSpec, load_dataset_config
-from datagen.loader import NLOSDataset
+from datagen.dataset import NLOSDataset
 
 SMOKE = Path("configs/datasets/smoke.yaml")
 

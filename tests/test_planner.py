@@ -16,12 +16,13 @@ from conftest import patch_scene
 
 import datagen
 from datagen import spad
-from datagen.brdf import Material
-from datagen.planner import EFFECTS, SECONDARY_SAFETY, Decision, Plan, _reachable_side, plan_effects
-from datagen.raycast import RayCaster
+from datagen.scene import Material
+from datagen.planner import EFFECTS, SECONDARY_SAFETY, Decision, Plan, reachable_side, plan_effects
+from datagen.scene import RayCaster
 from datagen.scene import (CaptureSpec, FieldOfView, Laser, Scene, SceneError, SceneObject, Sensor, WallGrid,
                            box, box_mesh, quad)
-from datagen.transport import TransportSettings, resolve_capture
+from datagen.scene import resolve_capture
+from datagen.transport import TransportSettings
 from datagen.units import SPEED_OF_LIGHT
 
 TOL = 0.01
@@ -161,11 +162,11 @@ def test_closed_meshes_are_reached_from_the_laser_side_only():
     wound = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     centre = np.where(np.arange(len(faces))[:, None] < 12, [0.0, 0.0, 0.0], [0.0, 3.0, 0.0])
     outward = np.sign(np.einsum("ij,ij->i", wound, tri.mean(axis=1) - centre))   # +1 box A, −1 box B
-    outside = _reachable_side(scene, np.array([[3.0, 1.5, 0.1]]))
-    inside_a = _reachable_side(scene, np.array([[0.1, 0.2, -0.1]]))
+    outside = reachable_side(scene, np.array([[3.0, 1.5, 0.1]]))
+    inside_a = reachable_side(scene, np.array([[0.1, 0.2, -0.1]]))
     assert np.array_equal(outside[:24], outward[:24]) and np.all(outside[24:] == 0)
     assert np.array_equal(inside_a[:12], -outward[:12]) and np.array_equal(inside_a[12:24], outward[12:24])
-    assert np.all(_reachable_side(scene, np.array([[3.0, 1.5, 0.1], [0.1, 0.2, -0.1]]))[:12] == 0)
+    assert np.all(reachable_side(scene, np.array([[3.0, 1.5, 0.1], [0.1, 0.2, -0.1]]))[:12] == 0)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -390,7 +391,7 @@ def test_bad_effect_settings_raise_clear_errors():
 
 
 def test_the_planner_decides_exactly_the_effects_the_config_accepts():
-    assert importlib.import_module("datagen.simulate").EFFECTS == EFFECTS
+    assert importlib.import_module("datagen.simulation.config").EFFECTS == EFFECTS
 
 
 def test_apply_sets_the_transport_switches():

@@ -1,8 +1,8 @@
-"""Hidden-surface quadrature (datagen.quadrature) and the exact tent deposits it relies on (datagen.irf).
+"""Hidden-surface quadrature (datagen.transport.quadrature) and the exact tent deposits it relies on (datagen.timing.irf).
 
 The tents are checked against closed forms computed independently (areas and centroids of a triangle clipped by
 the level sets of a linear time map); the quadrature against the project's independent midpoint reference
-(:func:`datagen.reference.primary_area_quadrature`), the area sampler (occluder scene) and tal's point-radiance
+(:func:`datagen.analysis.reference.primary_area_quadrature`), the area sampler (occluder scene) and tal's point-radiance
 integrand (tests/test_tal.py), and scans against single-spot captures.
 """
 from __future__ import annotations
@@ -11,15 +11,17 @@ import numpy as np
 import pytest
 from test_tal import hidden_square, laser_scale, opl_edges, quadrature, rel_l2, run
 
-from datagen.accuracy import relative_l2
-from datagen.area import AreaSampler, AreaSettings, subdivide_triangles
-from datagen.brdf import Material
-from datagen.irf import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
-from datagen.quadrature import Quadrature, QuadratureSettings, subdivide_with_vertices
-from datagen.reference import primary_area_quadrature
+from datagen.analysis import relative_l2
+from datagen.sampling import subdivide_triangles
+from datagen.transport import AreaSampler, AreaSettings
+from datagen.scene import Material
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
+from datagen.sampling import subdivide_with_vertices
+from datagen.transport import Quadrature, QuadratureSettings
+from datagen.analysis import primary_area_quadrature
 from datagen.scene import CaptureSpec, FieldOfView, Laser, Scene, SceneError, Sensor, WallGrid, box, quad
-from datagen.simulate import SimulationConfig, resolve_config, simulate
-from datagen.tal import tal_arrays
+from datagen.simulation import SimulationConfig, resolve_config, simulate
+from datagen.io import tal_arrays
 
 PS = 1e-12
 
@@ -334,8 +336,8 @@ def test_accuracy_ladder_halves_the_edge():
     """``datagen bench accuracy``'s quadrature ladder: h halves at every step and the error against a fine
     quadrature (h = 2 cm, itself 2.3e-4 from the reference) falls by ≥ 3× per step (measured 0.082, 0.010,
     0.0017 at h = 20, 10, 5 cm on the small scene: the first step is pre-asymptotic, 2 sub-triangles per side)."""
-    from datagen.accuracy import LADDERS, run_estimator
-    from datagen.raycast import RayCaster
+    from datagen.analysis import LADDERS, run_estimator
+    from datagen.scene import RayCaster
 
     est = LADDERS["quadrature"]
     edges = [s["edge"] for s in est.ladder]

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datagen.raycast import RayCaster
+from datagen.scene import RayCaster
 from datagen.sampling import observe
 from datagen.scene import FieldOfView, Laser, Scene, Sensor, box, l_room
 
@@ -60,7 +60,7 @@ def test_a_scene_far_from_the_world_origin_gives_the_same_primary():
     error against a 40 µm surface offset — and every camera ray hit its own lookin: the primary was 0)."""
     from conftest import patch_scene
 
-    from datagen.irf import EnvelopeAccumulator, Irf, TimeAxis
+    from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
     from datagen.scene import FieldOfView, Laser, Scene, SceneObject, Sensor
     from datagen.transport import Transport, TransportSettings
 

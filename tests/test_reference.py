@@ -7,11 +7,11 @@ import pytest
 from conftest import patch_scene
 from test_transport import patch_closed_form
 
-from datagen.irf import EnvelopeAccumulator, Irf, TimeAxis
-from datagen.raycast import RayCaster
-from datagen.reference import converged_reference, peak_time
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
+from datagen.scene import RayCaster
+from datagen.analysis import converged_reference, peak_time
 from datagen.scene import FieldOfView, Scene, SceneError, Sensor
-from datagen.simulate import SimulationConfig
+from datagen.simulation import SimulationConfig
 from datagen.units import SPEED_OF_LIGHT
 
 AXIS = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000)

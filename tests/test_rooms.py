@@ -10,9 +10,10 @@ import pytest
 import yaml
 
 import datagen
-from datagen.raycast import RayCaster
-from datagen.rooms import (STREAMS, RoomDistribution, box_hits_pyramid, box_hits_segment, boxes_overlap,
-                           load_room_distribution, sample_room)
+from datagen.scene import RayCaster
+from datagen.dataset import (RoomDistribution, box_hits_pyramid, box_hits_segment, boxes_overlap,
+                             load_room_distribution, sample_room)
+from datagen.dataset.sampler import STREAMS
 from datagen.scene import SceneError
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "rooms"

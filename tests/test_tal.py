@@ -21,11 +21,11 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from datagen.cli import main
+from datagen.cli.main import main
 from datagen.scene import SceneError
-from datagen.simulate import resolve_config, simulate
-from datagen.store import write_result
-from datagen.tal import (GridFormat, HFormat, VolumeFormat, load_tal_config, read_tal_hdf5,
+from datagen.simulation import resolve_config, simulate
+from datagen.io import write_result
+from datagen.io import (GridFormat, HFormat, VolumeFormat, load_tal_config, read_tal_hdf5,
                          scene_from_tal_yaml, tal_arrays, tal_transform, write_tal_hdf5)
 
 C = 299_792_458.0
@@ -39,9 +39,9 @@ LASER = np.array([-0.5, 0.0, 0.25])
 # below (max per-point total error, relative L2 over bins above 1 % of the peak):
 #   lookin (cosine rays from the spot, ~5 % hit the square): single 256×256: 0.1 %, 2.0 %; confocal 256×256:
 #     0.7 %, 3.4 %; exhaustive 384×384: ~0.5 %, ~3.5 %;
-#   area (hidden-surface samples, datagen.area), 16 384 samples per laser point: single 0.04 %, 1.0 %;
+#   area (hidden-surface samples, datagen.transport.area), 16 384 samples per laser point: single 0.04 %, 1.0 %;
 #     confocal 0.04 %, 1.0 %; exhaustive 0.05 %, 1.5 %;
-#   quadrature (datagen.quadrature, default 2 cm edge): per-point totals 0.011 %, 0.20–0.34 % (the reference
+#   quadrature (datagen.transport.quadrature, default 2 cm edge): per-point totals 0.011 %, 0.20–0.34 % (the reference
 #     integrand's own binning error).
 # The tolerances are about twice those, so a wrong factor (K, an albedo, a cosine), a transposed grid or a
 # shifted time axis fails them by far.

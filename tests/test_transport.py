@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from conftest import patch_scene
 
-from datagen.irf import EnvelopeAccumulator, Irf, TimeAxis
-from datagen.reference import primary_area_quadrature
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
+from datagen.analysis import primary_area_quadrature
 from datagen.transport import Transport, TransportSettings
 
 AXIS = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000)
@@ -163,7 +163,7 @@ def test_secondary_through_laser_shadowed_middle_vertices_is_counted():
     dark-middle connections must supply all of it. Their mean over 6 seeds (48×48 lookins, 64×64 pixels) equals
     the area sampler's (which samples middle vertices anywhere; 6 seeds of 2^14) within 4 combined standard
     errors (measured: lookin 1.83e-11 ± 0.03e-11 at 96², area 1.80e-11 ± 0.04e-11 at 2^16)."""
-    from datagen.area import AreaSampler, AreaSettings
+    from datagen.transport import AreaSampler, AreaSettings
 
     scene = patch_scene(with_occluder=True)
     paper, stats = _secondary_total(scene, 0, lookins=(32, 32), pixels=(32, 32), dark_middle=False)
@@ -189,8 +189,8 @@ def test_skipping_unblockable_shadow_rays_changes_nothing():
     shadow rays."""
     import datagen
     from datagen.planner import plan_effects
-    from datagen.raycast import RayCaster
-    from datagen.transport import resolve_capture
+    from datagen.scene import RayCaster
+    from datagen.scene import resolve_capture
 
     scene = datagen.load_scene("scene_library/demo_room.yaml")
     config = datagen.resolve_config(scene, {"lookins": "12x12", "pixels": "32x32", "secondary": "exact"})

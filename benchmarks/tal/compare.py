@@ -50,7 +50,7 @@ LLVM_CANDIDATES = ("/usr/lib/llvm-19/lib/libLLVM.so.1", "/usr/lib/llvm-19/lib/li
 
 sys.path.insert(0, str(ROOT))
 
-from datagen.quadrature import QUADRATURE_EDGE  # noqa: E402  (after the path insert)
+from datagen.transport import QUADRATURE_EDGE  # noqa: E402  (after the path insert)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -94,7 +94,7 @@ def mitransient(config: Path, spp: int, seed: int, mode: str, out: Path, venv: P
                          "--threads", threads], venv, env)
         meta_path.write_text(json.dumps(meta))
     meta = json.loads(meta_path.read_text())
-    from datagen.tal import read_tal_hdf5
+    from datagen.io import read_tal_hdf5
     return np.asarray(read_tal_hdf5(path)["H"], dtype=np.float64), meta
 
 
@@ -151,7 +151,7 @@ def exact_hidden_square(config: Path, out: Path, n: int = 1024) -> np.ndarray:
     """Converged H of the hidden-square configs (third bounce, diffuse, no occluders), in tal's layout and
     normalisation: midpoint rule over n×n elements of the square (0.4 mm for n = 1024, well below the 3 mm
     bins), the same integrand as tests/test_tal.py's quadrature. Cached under out/exact/."""
-    from datagen.tal import scene_from_tal_yaml
+    from datagen.io import scene_from_tal_yaml
 
     path = out / "exact" / f"{config.stem}_n{n}.npy"
     if path.is_file():
@@ -211,8 +211,8 @@ def datagen_in_process(config: Path, setting: dict, seed: int) -> tuple[np.ndarr
     """datagen's tal-render pipeline in this process; returns H and the (wall, CPU) seconds of scene loading,
     simulation and layout. ``setting``: {"lookins": n} (lookin estimator, n×n), {"area_samples": m} or
     {"quadrature_edge": h}."""
-    from datagen.simulate import resolve_config, simulate
-    from datagen.tal import scene_from_tal_yaml, tal_arrays
+    from datagen.simulation import resolve_config, simulate
+    from datagen.io import scene_from_tal_yaml, tal_arrays
 
     t0, c0 = time.perf_counter(), time.process_time()
     scene, tal = scene_from_tal_yaml(config)
@@ -223,10 +223,10 @@ def datagen_in_process(config: Path, setting: dict, seed: int) -> tuple[np.ndarr
 
 
 def datagen_cli(config: Path, setting: dict, seed: int, out: Path) -> tuple[np.ndarray, float]:
-    from datagen.tal import read_tal_hdf5
+    from datagen.io import read_tal_hdf5
 
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "datagen.cli", "tal-render", str(config), "--out", str(out),
+    proc = subprocess.run([sys.executable, "-m", "datagen.cli.main", "tal-render", str(config), "--out", str(out),
                            *_setting(setting)[1], "--seed", str(seed), "--quiet"],
                           capture_output=True, text=True, cwd=ROOT)
     seconds = time.perf_counter() - t0
@@ -253,7 +253,7 @@ def variant_config(src: Path, dst: Path, **changes) -> Path:
 
 def reader_check(path: Path, venv: Path, env: dict) -> dict:
     """tal.io.read_capture on ``path`` vs datagen's read_tal_hdf5: same keys, shapes, enums and scalars."""
-    from datagen.tal import read_tal_hdf5
+    from datagen.io import read_tal_hdf5
 
     theirs = tal_side(["read", path], venv, env)
     ours = read_tal_hdf5(path)

@@ -1,0 +1,168 @@
+"""Command line: ``datagen simulate SCENE.yaml --out DIR``. The CLI only parses and calls the library.
+
+Defines the ``main`` group (the ``datagen`` entry point) with ``simulate`` and ``detect``, and registers the
+commands of :mod:`datagen.cli.tal` (``tal-render``, ``export-tal``), :mod:`datagen.cli.dataset` (``build``,
+``inspect``, ``verify``) and :mod:`datagen.cli.bench` (``bench accuracy``); those import at most
+:mod:`datagen.cli.errors`, never this module.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from .bench import bench
+from .dataset import build, inspect, verify
+from .errors import friendly_errors
+from .tal import export_tal, tal_render
+
+
+@click.group()
+@click.version_option(package_name="datagen")
+def main():
+    """datagen: simulate NLOS SPAD lidar transients (Scholes & Leach 2024) and build datasets."""
+
+
+def _parse_fraction(text: str, option: str) -> float:
+    """'1%' → 0.01, '0.01' → 0.01; click.BadParameter naming the option otherwise."""
+    t = str(text).strip()
+    try:
+        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+    except ValueError:
+        raise click.BadParameter(f"{option} must look like 1% or 0.01, got {text!r}") from None
+    if not 0 < value < 1:
+        raise click.BadParameter(f"{option} must be between 0 and 100 %, got {text!r}")
+    return value
+
+
+@main.command()
+@click.argument("scene_file", type=click.Path(path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory")
+@click.option("--lookins", default=None, help="lookin grid, e.g. 10x10 (default: the scene's)")
+@click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
+@click.option("--secondary", type=click.Choice(["none", "optimized", "full", "exact"]), default=None,
+              help="secondary (one more hidden bounce) estimator: exact = full at O(N) cost")
+@click.option("--estimator", type=click.Choice(["lookin", "area", "quadrature"]), default=None,
+              help="lookin (the paper's sampler), area (hidden-surface area sampling) or quadrature "
+                   "(deterministic, exact time binning; best for small hidden objects and point sensors)")
+@click.option("--edge", type=float, default=None, help="quadrature: sub-triangle edge in metres (default 0.02)")
+@click.option("--tolerance", default=None,
+              help="target relative L2 error, e.g. 1%: choose lookins/pixels (or the quadrature edge) from an "
+                   "on-the-fly error estimate")
+@click.option("--workers", type=int, default=None, help="processes sharing the lookins (result unchanged)")
+@click.option("--top-k", type=int, default=None, help="secondary paths kept per lookin and FoV point (optimized)")
+@click.option("--seed", type=int, default=None, help="root seed of every random stream")
+@click.option("--figures", is_flag=True, help="also write the paper's Figure 3 and 5 sampling views")
+@click.option("--quiet", is_flag=True, help="no progress bar")
+@friendly_errors
+def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, tolerance, workers, top_k, seed, figures,
+             quiet):
+    """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
+    from ..plot.envelope import plot_envelope
+    from ..scene import load_scene
+    from ..simulation import resolve_config
+    from ..simulation import simulate as run_simulation
+    from ..io import RESULT_NAME, write_result
+
+    scene = load_scene(scene_file)
+    tol = _parse_fraction(tolerance, "--tolerance") if tolerance is not None else None
+    config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
+                                    "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol,
+                                    "estimator": estimator, "quadrature_edge": edge})
+    if tol is not None:
+        from ..analysis.adaptive import simulate_to_tolerance
+        result = simulate_to_tolerance(scene, config, tol, progress=not quiet)
+        t = result.attrs["tolerance"]
+        cfg = result.attrs["config"]
+        if cfg["estimator"] == "quadrature":
+            setting, bound = f"quadrature edge {cfg['quadrature_edge']:.4g} m", "from edge refinement"
+        elif cfg["estimator"] == "area":
+            setting, bound = f"{cfg['area_samples']} hidden samples per laser point", "90 % upper bound"
+        else:
+            setting = f"lookins {'x'.join(map(str, cfg['lookins']))}, pixels {'x'.join(map(str, cfg['pixels']))}"
+            bound = "90 % upper bound"
+        click.echo(f"tolerance {tol:.2%}: {setting}, estimated error {t['estimate']:.2%} ({bound})"
+                   f"{'' if t['met'] else ' — NOT met'}")
+    else:
+        result = run_simulation(scene, config, progress=not quiet)
+    out.mkdir(parents=True, exist_ok=True)
+    write_result(result, out / RESULT_NAME)
+    plot_envelope(result, out / "envelope.png")
+    written = [out / RESULT_NAME, out / "envelope.png"]
+    if figures:
+        from ..plot.figures import write_sampling_figures
+        written += write_sampling_figures(scene, config, out)
+    click.echo(summary(result))
+    click.echo("wrote " + ", ".join(str(p) for p in written))
+
+
+@main.command()
+@click.argument("result_path", type=click.Path(path_type=Path))
+@click.option("--detector", "detector_file", required=True, type=click.Path(path_type=Path),
+              help="detector YAML, e.g. configs/detectors/cmos_spad_array.yaml")
+@click.option("--exposure", default=None, help="exposure per capture, e.g. 10ms (overrides the file)")
+@click.option("--seed", type=int, default=0, help="noise seed")
+@friendly_errors
+def detect(result_path, detector_file, exposure, seed):
+    """Re-draw SPAD histograms from a stored envelope (no transport): writes detections/<NAME>/counts.
+
+    The envelope is re-binned onto the detector's TDC bins (taken as piecewise constant within the stored
+    bins, so TDC bins finer than the stored ones do not gain time resolution).
+    """
+    import yaml
+
+    from .. import spad
+    from ..simulation import STREAM_NOISE, stream_rng
+    from ..io import read_result, write_detection
+    from ..units import parse_duration
+
+    result = read_result(result_path)
+    data = yaml.safe_load(Path(detector_file).read_text()) if Path(detector_file).is_file() else None
+    if not isinstance(data, dict):
+        raise FileNotFoundError(f"detector file not found or not a mapping: {detector_file}")
+    data = {"t_start": float(result.time_edges[0]), **data}
+    data.setdefault("bin_width", float(result.time_edges[1] - result.time_edges[0]))
+    if exposure is not None:
+        data.pop("n_cycles", None)
+        data["exposure"] = parse_duration(exposure)
+    try:
+        config = spad.DetectorConfig.model_validate(data)
+    except Exception as exc:  # pydantic ValidationError → one line naming the file
+        raise ValueError(f"{detector_file}: {' '.join(str(exc).split())}") from None
+    # the detector's TDC bins: the envelope (bins hold integrals) is re-binned onto them over the same window
+    n_bins = int(round((result.time_edges[-1] - config.t_start) / config.bin_width))
+    envelope = spad.rebin_envelope(result.envelope, result.time_edges, config.bin_edges(n_bins))
+    rng = stream_rng(seed, STREAM_NOISE)
+    counts = spad.sample_histogram(spad.rates_from_envelope(envelope, config), config, rng)
+    name = Path(detector_file).stem
+    path = write_detection(result_path, name, counts, {"detector": config.model_dump(mode="json"),
+                                                        "seed": seed, "n_cycles": int(config.cycles)})
+    click.echo(f"{name}: {int(counts.sum())} detections over {config.cycles} cycles ({config.model} model); "
+               f"wrote {path}/detections/{name}/counts")
+
+
+def summary(result) -> str:
+    """Peak time and area of the envelope and each component, counts and wall time, as a short table."""
+    lines = [f"{'component':<12}{'peak (ns)':>10}{'area (det/pulse)':>18}{'share':>8}"]
+    total = result.area()
+    for name in ["total"] + list(result.components):
+        area = total if name == "total" else result.area(name)
+        peak = result.peak_time(None if name == "total" else name) * 1e9 if area > 0 else float("nan")
+        lines.append(f"{name:<12}{peak:>10.2f}{area:>18.4e}{area / total if total else 0:>8.1%}")
+    t = result.attrs["timings_s"]
+    lines.append(f"SPAD counts: {int(result.counts.sum())} detections over {result.attrs['n_cycles']} laser cycles "
+                 f"({result.attrs['detector']['model']} model)")
+    lines.append(f"wall time {t['total']:.2f} s (transport {t['transport']:.2f} s)")
+    return "\n".join(lines)
+
+
+main.add_command(tal_render)     # tal interop commands (issue 6)
+main.add_command(export_tal)
+main.add_command(build)          # dataset commands (issue 4)
+main.add_command(inspect)
+main.add_command(verify)
+main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+"""Command line for the tal interop (:mod:`datagen.io.tal`, :mod:`datagen.io.tal_hdf5`): ``datagen tal-render``
+and ``datagen export-tal``.
+
+The commands only parse and call the library; :mod:`datagen.cli.main` registers them on its ``main`` group.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from .errors import friendly_errors
+
+
+def _h_summary(path: Path) -> str:
+    from ..io import read_tal_hdf5
+
+    data = read_tal_hdf5(path)
+    H = data["H"]
+    return (f"H {data['H_format'].name} {tuple(H.shape)}: sum {float(H.sum()):.6g}, max {float(H.max()):.6g}; "
+            f"delta_t {data['delta_t']:.6g} m, t_start {data['t_start']:.6g} m (OPL), "
+            f"first/last legs {'in' if data['t_accounts_first_and_last_bounces'] else 'not in'} the time axis")
+
+
+@click.command("tal-render")
+@click.argument("config_file", type=click.Path(path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output .hdf5 file")
+@click.option("--lookins", default=None, help="lookin estimator with this lookin grid, e.g. 1024x1024")
+@click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
+@click.option("--estimator", type=click.Choice(["quadrature", "area", "lookin"]), default=None,
+              help="quadrature (default: deterministic hidden-surface quadrature, datagen.quadrature), area "
+                   "(hidden-surface area sampling, datagen.area) or lookin (the paper's sampler)")
+@click.option("--edge", type=float, default=None,
+              help="quadrature: largest hidden sub-triangle edge in metres (default 0.02)")
+@click.option("--samples", type=int, default=None,
+              help="area estimator: hidden samples per laser point (default 65536; quadrature: for a planned "
+                   "secondary)")
+@click.option("--seed", type=int, default=None, help="root seed of every random stream")
+@click.option("--float32", "float32", is_flag=True, help="store H as float32 (as tal render does)")
+@click.option("--compression", type=click.IntRange(0, 9), default=0, help="gzip level for H (0: none)")
+@click.option("--quiet", is_flag=True, help="no progress bar")
+@friendly_errors
+def tal_render(config_file, out, lookins, pixels, estimator, edge, samples, seed, float32, compression, quiet):
+    """Render a `tal render` YAML (y-tal 0.20) with datagen and write a tal HDF5 capture to OUT.
+
+    H is what `tal render` estimates (radiance toward the sensor, tal's laser normalisation, OPL bins),
+    laid out on tal's grids; it loads with tal.io.read_capture.
+    """
+    import time
+
+    from ..simulation import resolve_config, simulate
+    from ..io import scene_from_tal_yaml, write_tal_hdf5
+
+    t0 = time.perf_counter()
+    scene, tal = scene_from_tal_yaml(config_file)
+    if estimator is None and (lookins or pixels):
+        estimator = "lookin"          # lookin options mean the lookin estimator (the default is quadrature)
+    elif estimator is None and samples is not None and edge is None:
+        estimator = "area"            # and --samples alone the area estimator
+    config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "estimator": estimator,
+                                    "quadrature_edge": edge, "area_samples": samples, "seed": seed})
+    result = simulate(scene, config, progress=not quiet)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    args = {"command": "tal-render", "config_file": str(config_file), "lookins": lookins, "pixels": pixels,
+            "estimator": estimator, "edge": edge, "samples": samples, "seed": seed, "float32": float32,
+            "compression": compression}
+    write_tal_hdf5(result, out, tal, compression_level=compression, dtype="float32" if float32 else "float64",
+                   scene_info={"args": args})
+    for note in tal.notes:
+        click.echo(f"note: {note}")
+    click.echo(_h_summary(out))
+    click.echo(f"wall time {time.perf_counter() - t0:.2f} s (transport {result.attrs['timings_s']['transport']:.2f} s)")
+    click.echo(f"wrote {out}")
+
+
+@click.command("export-tal")
+@click.argument("result_path", type=click.Path(path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output .hdf5 file")
+@click.option("--float32", "float32", is_flag=True, help="store H as float32")
+@click.option("--compression", type=click.IntRange(0, 9), default=0, help="gzip level for H (0: none)")
+@friendly_errors
+def export_tal(result_path, out, float32, compression):
+    """Write a datagen result (RESULT_PATH: a result directory or its result.zarr) as a tal HDF5 capture.
+
+    H is the result's envelope in its own convention (scene_info records which), Sx along the wall's
+    horizontal tangent and Sy along the wall's up direction.
+    """
+    from ..io import read_result, write_tal_hdf5
+
+    result = read_result(result_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_tal_hdf5(result, out, compression_level=compression, dtype="float32" if float32 else "float64")
+    click.echo(_h_summary(out))
+    click.echo(f"wrote {out}")

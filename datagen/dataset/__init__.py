@@ -1,0 +1,71 @@
+"""Dataset stage: procedural rooms → simulations → labelled, sharded Zarr datasets → a PyTorch loader.
+
+In: a dataset config (YAML, ``configs/datasets/*.yaml``: seed, splits, shard size, a room distribution
+``configs/rooms/*.yaml``, simulation overrides, a detector, label settings). Out: per sample ``i`` of split ``s``
+a :class:`Sample` (:func:`make_sample`: fixed-shape arrays — envelope (…, T) and components, SPAD counts, labels
+— plus JSON parameters and timings), a function of (config, s, i) only; a dataset directory built from them
+shard by shard (:func:`build_dataset`) with its card (:func:`read_card`) and integrity check
+(:func:`verify_dataset`); and :class:`NLOSDataset`, a torch ``Dataset`` of dicts of tensors (docs/datasets.md;
+docs/physics.md §7).
+
+Modules (they import each other directly, never through this package):
+
+- :mod:`~datagen.dataset.config`: :class:`DatasetConfig`, the seed streams (:data:`STREAMS`,
+  :func:`split_key`, :func:`resample_rng`) and :func:`make_sample`;
+- :mod:`~datagen.dataset.rooms`: the room distribution schema (:class:`RoomDistribution`,
+  :func:`load_room_distribution`, :func:`check_feasible`);
+- :mod:`~datagen.dataset.sampler`: :func:`sample_room` → :class:`SampledRoom` (its generator keys are
+  ``datagen.dataset.sampler.STREAMS``, not re-exported here: :data:`STREAMS` is the config's stream ids);
+- :mod:`~datagen.dataset.obb`: exact oriented-box geometry (overlaps, beam and view tests, points inside);
+- :mod:`~datagen.dataset.labels`: ground-truth labels (:class:`LabelSpec`, :func:`scene_labels`);
+- :mod:`~datagen.dataset.store`: the dataset's on-disk layout, build lock, card and verification;
+- :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
+- :mod:`~datagen.dataset.loader`: :class:`NLOSDataset` and :func:`plot_sample` (import torch and matplotlib
+  on first use: ``import datagen.dataset`` stays light).
+"""
+from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildReport, build_dataset,
+                    write_shard)
+from .config import (COMPONENT_ROOM, OTHER_COMPONENTS, RESAMPLE_NOISE, STREAMS, DatasetConfig, Sample, SplitSpec,
+                     StoreSpec, config_from_json, load_dataset_config, make_sample, resample_rng, sample_rngs,
+                     sample_seed_sequence, split_key)
+from .labels import PAD_INT, LabelSpec, camera_directions, camera_frame, label_shapes, occupancy_grid, scene_labels
+from .obb import (box_hits_pyramid, box_hits_segment, boxes_overlap, convex_overlap, obb_vertices, points_in_box,
+                  yaw_matrix)
+from .rooms import (MATERIAL_CLASSES, OBJECT_CLASSES, PACKING_LIMIT, UNIFORMS_PER_MATERIAL, CountRange, LabelRegion,
+                    MaterialDist, Range, RoomDistribution, check_feasible, load_room_distribution)
+from .sampler import SampledRoom, sample_room
+from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, UNITS, BuildLock, BuildLockedError, ShardTask,
+                    code_version, file_sha256, marker_path, plan_shards, read_card, read_marker, shard_file, shard_key,
+                    verify_dataset)
+
+__all__ = [
+    # config and samples
+    "STREAMS", "RESAMPLE_NOISE", "COMPONENT_ROOM", "OTHER_COMPONENTS", "split_key", "sample_seed_sequence",
+    "sample_rngs", "resample_rng", "SplitSpec", "StoreSpec", "DatasetConfig", "load_dataset_config",
+    "config_from_json", "Sample", "make_sample",
+    # room distributions and sampling
+    "OBJECT_CLASSES", "MATERIAL_CLASSES", "UNIFORMS_PER_MATERIAL", "PACKING_LIMIT", "Range", "CountRange",
+    "MaterialDist", "LabelRegion", "RoomDistribution", "load_room_distribution", "check_feasible", "SampledRoom",
+    "sample_room",
+    # oriented boxes
+    "yaw_matrix", "obb_vertices", "convex_overlap", "boxes_overlap", "box_hits_segment", "box_hits_pyramid",
+    "points_in_box",
+    # labels
+    "PAD_INT", "LabelSpec", "label_shapes", "camera_frame", "camera_directions", "occupancy_grid", "scene_labels",
+    # store
+    "FORMAT", "FORMAT_VERSION", "LOCK_NAME", "DONE_DIR", "UNITS", "BuildLockedError", "BuildLock", "ShardTask",
+    "plan_shards", "shard_key", "shard_file", "file_sha256", "marker_path", "read_marker", "read_card",
+    "code_version", "verify_dataset",
+    # build
+    "DEFAULT_RETRIES", "DEFAULT_TASKS_PER_CHILD", "BuildError", "BuildReport", "build_dataset", "write_shard",
+    # loader (lazy)
+    "NLOSDataset", "plot_sample",
+]
+
+
+def __getattr__(name: str):
+    """``NLOSDataset`` and ``plot_sample`` import torch on first use only (``import datagen.dataset`` stays light)."""
+    if name in ("NLOSDataset", "plot_sample"):
+        from . import loader
+        return getattr(loader, name)
+    raise AttributeError(f"module 'datagen.dataset' has no attribute {name!r}")

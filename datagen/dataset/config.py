@@ -1,0 +1,414 @@
+"""Dataset configuration and the pure function "make sample i" (docs/physics.md §7).
+
+A dataset config (YAML, see ``configs/datasets/*.yaml``) names a root ``seed``, the ``splits`` (name →
+``count`` and optional ``room_overrides`` for held-out material or geometry splits), the ``shard_size``, the
+room distribution (``room``: a path to ``configs/rooms/*.yaml`` or an inline mapping, see
+:mod:`datagen.dataset.rooms`), ``simulation`` overrides (passed to
+:func:`datagen.simulation.run.resolve_config`), the
+``detector`` (a preset path such as ``configs/detectors/hwu_single_pixel.yaml`` or an inline mapping of
+:class:`datagen.spad.DetectorConfig` fields), the ``labels`` (:class:`datagen.dataset.labels.LabelSpec`) and which
+fields to ``store``.
+
+Seeds. Every random stream of sample ``i`` of split ``s`` is drawn from
+``SeedSequence(seed, spawn_key=(split_key(s), i, stream))`` with the fixed stream ids of :data:`STREAMS`
+(geometry 0, materials 1, sensor 2, sampling 3, noise 4). ``split_key`` is the CRC-32 of the split's name, so
+adding, removing or reordering splits never changes another split's samples. A sample therefore depends only
+on (config, split, i): not on the worker count, the shard size or the engine that computed it.
+
+:func:`make_sample` runs room sampling → :func:`datagen.simulation.run.simulate` → labels and returns fixed-shape
+arrays (sample axis not included) plus the JSON-able parameters and per-stage timings.
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import time
+import zlib
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from ..scene import SceneError, format_validation_error
+
+STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
+"""Stream ids: the last entry of the spawn_key of each random stream of a sample (fixed forever)."""
+
+RESAMPLE_NOISE = STREAMS["noise"]
+"""Stream id of the loader's per-epoch noise, spawn_key (split_key, epoch, index, RESAMPLE_NOISE): a 4-entry
+key, so it never coincides with a build stream (3-entry keys)."""
+
+COMPONENT_ROOM = "room"
+OTHER_COMPONENTS = ("secondary", "first_bounce")
+"""Envelope components that are not the room or a hidden object; each has a fixed slot in ``components``."""
+
+PRESET_TIME_FIELDS = ("bin_width", "t_start")
+"""Fields of a detector preset file that the dataset's ``simulation.time`` axis replaces."""
+
+
+def split_key(name: str) -> int:
+    """Stable integer id of a split: CRC-32 of its UTF-8 name (first entry of every spawn_key)."""
+    return zlib.crc32(name.encode("utf-8"))
+
+
+def sample_seed_sequence(seed: int, split: str, index: int, stream: str) -> np.random.SeedSequence:
+    """``SeedSequence(seed, spawn_key=(split_key(split), index, STREAMS[stream]))`` (docs/physics.md §7)."""
+    return np.random.SeedSequence(seed, spawn_key=(split_key(split), int(index), STREAMS[stream]))
+
+
+def sample_rngs(seed: int, split: str, index: int) -> dict[str, np.random.Generator]:
+    """One independent PCG64 generator per stream of :data:`STREAMS` for sample ``index`` of ``split``."""
+    return {name: np.random.default_rng(sample_seed_sequence(seed, split, index, name)) for name in STREAMS}
+
+
+def resample_rng(seed: int, split: str, epoch: int, index: int) -> np.random.Generator:
+    """Generator of the loader's re-drawn SPAD noise: spawn_key (split_key, epoch, index, RESAMPLE_NOISE)."""
+    return np.random.default_rng(np.random.SeedSequence(
+        seed, spawn_key=(split_key(split), int(epoch), int(index), RESAMPLE_NOISE)))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Schema
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class SplitSpec(_Model):
+    """One split: ``count`` samples drawn from the room distribution with ``room_overrides`` deep-merged in
+    (e.g. ``{"materials": {"box": {"kinds": {"phong": 1.0}}}}`` for a held-out material split)."""
+
+    count: int = Field(ge=0)
+    room_overrides: dict = Field(default_factory=dict)
+
+
+class StoreSpec(_Model):
+    """Which per-sample fields are written and how.
+
+    Fields:
+        envelope: store the envelope (expected detected photons per pulse per bin) as ``envelope_dtype``.
+        counts: store the SPAD histogram (int64).
+        components: store per-component envelopes as ``components`` (sample, C, *envelope shape) with C =
+            room, object_0 … object_{max_objects-1} (zero for absent objects), then :data:`OTHER_COMPONENTS`.
+        labels: store the ground-truth labels of :func:`datagen.dataset.labels.scene_labels`.
+        params: store every sampled room parameter and the seeds as one JSON string per sample.
+        compression: codec of every inner chunk: "lz4" (Blosc-LZ4 with byte shuffle: decodes a sample in a
+            few µs, the default), "zstd" (smaller, ~20 µs per chunk to decode) or "none".
+        compression_level: its level (lz4 1 … 9, zstd 1 … 22).
+    """
+
+    envelope: bool = True
+    envelope_dtype: Literal["float32", "float64"] = "float32"
+    counts: bool = True
+    components: bool = False
+    labels: bool = True
+    params: bool = True
+    compression: Literal["lz4", "zstd", "none"] = "lz4"
+    compression_level: int = Field(5, ge=1, le=22)
+
+
+class DatasetConfig(_Model):
+    """A dataset: see the module docstring. Load from YAML with :func:`load_dataset_config`.
+
+    ``room`` and a string ``detector`` may be file paths in YAML; :func:`load_dataset_config` replaces them by
+    the files' mappings, so the config a worker receives and the card records are self-contained.
+    """
+
+    name: str = "dataset"
+    seed: int = Field(ge=0, lt=2**63)
+    shard_size: int = Field(64, ge=1)
+    splits: dict[str, SplitSpec]
+    room: str | dict
+    simulation: dict = Field(default_factory=dict)
+    detector: str | dict | None = None
+    labels: dict = Field(default_factory=dict)
+    store: StoreSpec = StoreSpec()
+
+    @field_validator("splits")
+    @classmethod
+    def _splits(cls, value: dict[str, SplitSpec]) -> dict[str, SplitSpec]:
+        if not value:
+            raise ValueError("give at least one split, e.g. {train: {count: 100}}")
+        for name in value:
+            if not name or "/" in name or name.startswith(("_", ".")):
+                raise ValueError(f"split name {name!r} must be non-empty, without '/', not starting with _ or .")
+        keys = {}
+        for name in value:
+            other = keys.setdefault(split_key(name), name)
+            if other != name:  # pragma: no cover - CRC-32 collision of two names
+                raise ValueError(f"splits {other!r} and {name!r} have the same split_key; rename one")
+        return value
+
+    @field_validator("simulation")
+    @classmethod
+    def _no_seed(cls, value: dict) -> dict:
+        if "seed" in value:
+            raise ValueError("the dataset's top-level seed keys every stream; remove simulation.seed")
+        return value
+
+    # ---- derived -----------------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        """The config as a JSON-able dict (what workers receive and the card records)."""
+        return self.model_dump(mode="json")
+
+    def fingerprint(self) -> str:
+        """sha256 of the canonical JSON of :meth:`to_json` (a build resumes only into the same config)."""
+        return hashlib.sha256(json.dumps(self.to_json(), sort_keys=True).encode()).hexdigest()
+
+    def simulation_overrides(self) -> dict:
+        """``simulation`` with the resolved ``detector`` merged in (input of resolve_config)."""
+        out = copy.deepcopy(self.simulation)
+        if self.detector is not None:
+            out["detector"] = copy.deepcopy(self.detector)
+        return out
+
+    def simulation_config(self, split: str):
+        """The split's resolved :class:`~datagen.simulation.run.SimulationConfig`: the room distribution's
+        ``simulation`` block under :meth:`simulation_overrides`, as ``resolve_config`` merges them for every
+        sampled scene (used for the card's per-split detector, which the loader's noise re-draw needs)."""
+        from ..simulation import SimulationConfig
+        dist = self.room_distribution(split)
+        merged = {**dict(getattr(dist, "simulation", {}) or {}), **self.simulation_overrides()}
+        return SimulationConfig.model_validate({k: v for k, v in merged.items() if v is not None})
+
+    def label_spec(self):
+        from .labels import LabelSpec
+        return LabelSpec.model_validate(self.labels)
+
+    def room_distribution(self, split: str):
+        """The split's room distribution (room with its ``room_overrides``); cached per process."""
+        return _distribution(json.dumps(self.room, sort_keys=True),
+                             json.dumps(self.splits[split].room_overrides, sort_keys=True))
+
+
+@lru_cache(maxsize=16)
+def _distribution(room_json: str, overrides_json: str):
+    from .rooms import load_room_distribution
+    dist = load_room_distribution(json.loads(room_json))
+    overrides = json.loads(overrides_json)
+    return dist.with_overrides(overrides) if overrides else dist
+
+
+def _find_file(value: str, base: Path | None, field_name: str) -> Path:
+    candidates = ([base / value] if base is not None else []) + [Path(value)]
+    for path in candidates:
+        if path.is_file():
+            return path
+    looked = ", ".join(str(p) for p in dict.fromkeys(candidates))
+    raise SceneError(f"{field_name}: file not found: {value!r} (looked at {looked})")
+
+
+def _read_yaml(path: Path, field_name: str) -> dict:
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{field_name}: {path} is not valid YAML: {exc}".replace("\n", " ")) from None
+    if not isinstance(data, dict):
+        raise SceneError(f"{field_name}: {path} must hold a mapping, got {type(data).__name__}")
+    return data
+
+
+def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None = None) -> DatasetConfig:
+    """Load, resolve and fully validate a dataset config.
+
+    ``room`` and a string ``detector`` are read from their files (relative paths are tried against the
+    config file's directory, then the working directory) and inlined; the room distribution of every split
+    (with its overrides), the label spec, the simulation overrides and the detector are validated now, so a
+    bad config fails before any work starts.
+
+    Args:
+        source: YAML path or an already parsed mapping.
+        base_dir: directory for relative paths when ``source`` is a mapping.
+    Returns:
+        :class:`DatasetConfig` with ``room`` and ``detector`` as mappings.
+    Raises:
+        SceneError: unreadable file or an invalid value; the message names the file, the dotted field
+            (e.g. ``splits.val.room_overrides.materials.box.albedo``) and the value.
+    """
+    where = None
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        if not path.is_file():
+            raise SceneError(f"dataset config not found: {path}")
+        data = _read_yaml(path, "dataset config")
+        base, where = path.parent, str(path)
+    else:
+        data, base = copy.deepcopy(source), Path(base_dir) if base_dir is not None else None
+    prefix = f"{where}: " if where else ""
+    try:
+        config = DatasetConfig.model_validate(data)
+    except ValidationError as exc:
+        raise SceneError(format_validation_error(exc, where)) from None
+    updates: dict[str, Any] = {}
+    if isinstance(config.room, str):
+        updates["room"] = _read_yaml(_find_file(config.room, base, f"{prefix}room"), f"{prefix}room")
+    if isinstance(config.detector, str):
+        det = _read_yaml(_find_file(config.detector, base, f"{prefix}detector"), f"{prefix}detector")
+        det = det["detector"] if set(det) == {"detector"} else det
+        # a preset's TDC axis is replaced by the dataset's time axis: the histogram bins are the envelope bins
+        updates["detector"] = {k: v for k, v in det.items() if k not in PRESET_TIME_FIELDS}
+    if updates:
+        config = config.model_copy(update=updates)
+    _validate_parts(config, prefix)
+    return config
+
+
+def config_from_json(data: dict) -> DatasetConfig:
+    """Rebuild a resolved config from :meth:`DatasetConfig.to_json` (in workers; no file access)."""
+    return DatasetConfig.model_validate(data)
+
+
+def _field_errors(exc: ValidationError, prefix: str, head: str) -> str:
+    """One ``file: head.dotted.field: message (got value)`` per problem, joined by '; '."""
+    lines = []
+    for err in exc.errors():
+        loc = ".".join([head] + [str(p) for p in err["loc"]])
+        value = err.get("input")
+        shown = "" if isinstance(value, dict) else f" (got {value!r})"
+        lines.append(f"{prefix}{loc}: {err['msg']}{shown}")
+    return "; ".join(lines)
+
+
+def _validate_parts(config: DatasetConfig, prefix: str) -> None:
+    from ..simulation import SimulationConfig
+    try:
+        config.label_spec()
+    except ValidationError as exc:
+        raise SceneError(_field_errors(exc, prefix, "labels")) from None
+    overrides = config.simulation_overrides()
+    detector = overrides.pop("detector", {})
+    try:
+        sim = SimulationConfig.model_validate(overrides)
+    except ValidationError as exc:
+        raise SceneError(_field_errors(exc, prefix, "simulation")) from None
+    try:
+        sim.model_copy(update={"detector": detector}).detector_config()
+    except ValidationError as exc:
+        head = "detector" if config.detector is not None else "simulation.detector"
+        raise SceneError(_field_errors(exc, prefix, head)) from None
+    try:
+        _distribution(json.dumps(config.room, sort_keys=True), "{}")
+    except (SceneError, ValueError) as exc:
+        raise SceneError(f"{prefix}room: {' '.join(str(exc).split())}") from None
+    for name in config.splits:
+        try:
+            config.room_distribution(name)
+        except (SceneError, ValueError) as exc:
+            raise SceneError(f"{prefix}splits.{name}.room_overrides: {' '.join(str(exc).split())}") from None
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Make one sample
+
+
+@dataclass
+class Sample:
+    """One computed sample.
+
+    Attributes:
+        arrays: field name → fixed-shape array (no sample axis): ``envelope`` (*S, T) float32/64 expected
+            detected photons per pulse per bin (S the capture's leading axes, e.g. (ny, nx) FoV pixels or
+            none), ``counts`` (*S, T) int64, ``components`` (C, *S, T) (slots named by
+            ``component_names``: room, object_0 … object_{K-1}, then secondary and any other component of the
+            result), the label arrays of
+            :func:`datagen.dataset.labels.scene_labels`, and ``params`` (0-d str, JSON).
+        time_edges: (T+1,) float64 seconds.
+        seconds: wall time per stage (room, simulate, labels, total), s.
+    """
+
+    arrays: dict[str, np.ndarray]
+    time_edges: np.ndarray
+    seconds: dict[str, float] = field(default_factory=dict)
+    component_names: list[str] = field(default_factory=list)
+
+
+def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
+    """Compute sample ``index`` of ``split``: room → envelope and SPAD counts → labels.
+
+    A pure function of (config, split, index): every random stream comes from :func:`sample_rngs`.
+
+    Raises:
+        SceneError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
+            more hidden objects than ``labels.max_objects``; the message names the sample.
+    """
+    from .labels import scene_labels
+    from .sampler import sample_room
+    from ..simulation import resolve_config, simulate
+
+    if split not in config.splits:
+        raise SceneError(f"split {split!r} is not in the config (splits: {sorted(config.splits)})")
+    if not 0 <= index < config.splits[split].count:
+        raise SceneError(f"index {index} is outside split {split!r} (count {config.splits[split].count})")
+    where = f"sample ({split}, {index})"
+    t0 = time.perf_counter()
+    rngs = sample_rngs(config.seed, split, index)
+    room = sample_room(config.room_distribution(split), {k: rngs[k] for k in ("geometry", "materials", "sensor")})
+    t1 = time.perf_counter()
+    sim_config = resolve_config(room.scene, config.simulation_overrides())
+    result = simulate(room.scene, sim_config, sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
+    t2 = time.perf_counter()
+    spec = config.label_spec()
+    if len(room.objects) > spec.max_objects:
+        raise SceneError(f"{where}: {len(room.objects)} hidden objects > labels.max_objects={spec.max_objects}")
+    labels = scene_labels(room, spec) if config.store.labels else {}
+    t3 = time.perf_counter()
+
+    arrays: dict[str, np.ndarray] = {}
+    component_names: list[str] = []
+    if config.store.envelope:
+        arrays["envelope"] = np.asarray(result.envelope, dtype=config.store.envelope_dtype)
+    if config.store.counts:
+        arrays["counts"] = np.asarray(result.counts, dtype=np.int64)
+    if config.store.components:
+        component_names, arrays["components"] = _component_slots(result, room, spec.max_objects,
+                                                                 config.store.envelope_dtype, where)
+    for name, value in labels.items():
+        arrays[name] = np.asarray(value)
+    if config.store.params:
+        params = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
+                  "streams": STREAMS, "room": room.params, "objects": room.objects,
+                  "effects": result.attrs.get("effects"),
+                  "plan": {k: v.get("on") for k, v in (result.attrs.get("plan") or {}).get("decisions", {}).items()}}
+        arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=_json_default), dtype=object)
+    seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
+    return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names)
+
+
+def _json_default(value):
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"not JSON-able: {type(value).__name__}")
+
+
+def _component_slots(result, room, max_objects: int, dtype: str, where: str) -> tuple[list[str], np.ndarray]:
+    """(C, *S, T) envelopes and their names: room, hidden object k (in ``room.objects`` order; zero when
+    absent), then :data:`OTHER_COMPONENTS` (zero when the simulation did not produce it, e.g. an effect the
+    planner switched off for this sample).
+
+    Object k is matched to its scene component by ``room.objects[k]["name"]`` when present, else by the
+    order of the hidden objects in the scene (the generator builds them in ``objects`` order)."""
+    names = list(result.components)
+    scene_hidden = [o.name for o in room.scene.objects if o.name in names and o.name != COMPONENT_ROOM]
+    order = [obj.get("name", scene_hidden[k] if k < len(scene_hidden) else None) for k, obj in enumerate(room.objects)]
+    if sorted(map(str, order)) != sorted(scene_hidden):
+        raise SceneError(f"{where}: cannot match hidden objects {order} to envelope components {scene_hidden}")
+    unknown = [n for n in names if n != COMPONENT_ROOM and n not in scene_hidden and n not in OTHER_COMPONENTS]
+    if unknown:
+        raise SceneError(f"{where}: components {unknown} have no slot in the dataset (known: room, the hidden "
+                         f"objects, {list(OTHER_COMPONENTS)})")
+    slots = [COMPONENT_ROOM] + [f"object_{k}" for k in range(max_objects)] + list(OTHER_COMPONENTS)
+    env = result.envelope
+    out = np.zeros((len(slots),) + env.shape, dtype=dtype)
+    out[0] = result.components[COMPONENT_ROOM]
+    for k, name in enumerate(order):
+        out[1 + k] = result.components[name]
+    for j, name in enumerate(OTHER_COMPONENTS):
+        if name in result.components:
+            out[1 + max_objects + j] = result.components[name]
+    return slots, out

@@ -1,0 +1,310 @@
+"""PyTorch loader of datagen datasets: a map-style ``Dataset`` returning a dict of tensors (docs/physics.md §7).
+
+``NLOSDataset(path, split="train", fields=None, noise="frozen", transform=None)`` reads the dataset built
+by :mod:`datagen.dataset.build`. Nothing is opened in ``__init__`` except the small JSON metadata, and no file handle
+or cache is pickled, so each ``DataLoader`` worker opens the store lazily on its first item.
+
+Reading. Zarr's per-chunk read path costs ~1 ms per sample and field; a sample has a dozen fields. Each
+field's shard file holds an index (offset, nbytes per inner chunk) at its end and one zstd-compressed chunk
+per sample, so the loader reads that index once per shard and worker (cached), then ``pread``s and decodes
+just the sample's chunk (~20 µs), which keeps shuffled access as fast as sequential access. Arrays whose
+codecs are not the ones :mod:`datagen.dataset.build` writes (or stores that are not local directories) fall back
+to zarr's own reader.
+
+Noise. ``noise="frozen"`` returns the stored SPAD counts (evaluation sets). ``noise="resample"`` re-draws
+them from the stored envelope with the split's detector (:func:`datagen.spad.rates_from_envelope`,
+:func:`datagen.spad.sample_histogram`) and the generator ``SeedSequence(seed, spawn_key=(split_key, epoch,
+index, 4))`` (:func:`datagen.dataset.resample_rng`): fresh every epoch (``set_epoch``), identical for the
+same epoch and index in any worker. The stored envelope is float32 by default, so the re-drawn rates carry
+its rounding (relative 6e-8).
+"""
+from __future__ import annotations
+
+import json
+import os
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any, Callable, Iterable, Literal
+
+import numpy as np
+import torch
+
+from .store import read_card
+from .config import resample_rng
+
+_EMPTY = 2**64 - 1
+"""Offset and length of an inner chunk absent from a shard index (zarr sharding spec: fill value)."""
+
+PLOT_DYNAMIC_RANGE = 1e-6
+"""Lowest envelope value drawn, relative to its peak (IRF tails and FFT round-off lie far below)."""
+
+OPEN_SHARDS = 8
+"""Shard files kept open (with their decoded index) per field and worker."""
+
+
+class _FieldReader:
+    """Sample reads of one array ``<root>/<split>/<name>``: fast path or zarr fallback (see module doc).
+
+    Per process it caches shard indexes and open file descriptors (``OPEN_SHARDS`` per field); neither is
+    pickled, so a DataLoader worker starts with empty caches."""
+
+    def __init__(self, root: Path, split: str, name: str):
+        self.root, self.split, self.name = root, split, name
+        self.prefix = str(root / split / name / "c") + "/"
+        meta = json.loads((root / split / name / "zarr.json").read_text())
+        self.shape = tuple(meta["shape"])
+        self.sample_shape = self.shape[1:]
+        self.suffix = "/0" * (len(self.shape) - 1)
+        self.fill = meta.get("fill_value", 0)
+        self.is_str = meta["data_type"] == "string"
+        self.dtype = None if self.is_str else np.dtype(meta["data_type"]).newbyteorder("<")
+        self._meta = meta
+        self._reset()
+
+    def _reset(self) -> None:
+        self.shard_size, self.decode = _fast_path(self._meta, self.sample_shape, self.dtype, self.is_str)
+        self._open: OrderedDict[int, tuple[int, np.ndarray]] = OrderedDict()
+        self._zarr = None
+
+    def _shard(self, shard: int) -> tuple[int, np.ndarray]:
+        """(open fd, (shard_size, 2) uint64 index of (offset, nbytes)) of shard ``shard``."""
+        entry = self._open.get(shard)
+        if entry is not None:
+            self._open.move_to_end(shard)
+            return entry
+        fd = os.open(f"{self.prefix}{shard}{self.suffix}", os.O_RDONLY)
+        nbytes = self.shard_size * 16 + 4   # (offset, nbytes) uint64 per inner chunk + crc32c
+        size = os.fstat(fd).st_size
+        index = np.frombuffer(os.pread(fd, nbytes, size - nbytes), dtype="<u8", count=2 * self.shard_size)
+        entry = (fd, index.reshape(self.shard_size, 2))
+        self._open[shard] = entry
+        if len(self._open) > OPEN_SHARDS:
+            os.close(self._open.popitem(last=False)[1][0])
+        return entry
+
+    def read(self, i: int) -> np.ndarray:
+        """Sample ``i`` as an array of shape ``sample_shape`` (0-d object array holding a str for strings)."""
+        if self.decode is None:
+            if self._zarr is None:
+                import zarr
+                self._zarr = zarr.open_array(str(self.root / self.split / self.name), mode="r")
+            return np.asarray(self._zarr[i])
+        shard, k = divmod(i, self.shard_size)
+        fd, index = self._shard(shard)
+        offset, nbytes = int(index[k, 0]), int(index[k, 1])
+        if offset == _EMPTY and nbytes == _EMPTY:
+            if self.is_str:
+                return np.asarray(self.fill or "", dtype=object)
+            return np.full(self.sample_shape, self.fill, dtype=self.dtype)
+        return self.decode(os.pread(fd, nbytes, offset))
+
+    def close(self) -> None:
+        for fd, _ in self._open.values():
+            os.close(fd)
+        self._open.clear()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
+    def __getstate__(self):   # nothing opened or cached crosses a process boundary
+        return {k: v for k, v in self.__dict__.items() if k not in ("_open", "_zarr", "decode", "shard_size")}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._reset()
+
+
+def _fast_path(meta: dict, sample_shape: tuple, dtype, is_str: bool) -> tuple[int | None, Callable | None]:
+    """(samples per shard, decode(bytes) → sample array) when the array is laid out as :mod:`datagen.dataset.build`
+    writes it (sharding codec, one sample per inner chunk, index at the end, bytes + blosc/zstd/no
+    compression); (None, None) otherwise (the reader then uses zarr)."""
+    codecs = meta.get("codecs", [])
+    if len(codecs) != 1 or codecs[0]["name"] != "sharding_indexed":
+        return None, None
+    conf = codecs[0]["configuration"]
+    shard_shape = meta["chunk_grid"]["configuration"]["chunk_shape"]
+    if (conf.get("index_location", "end") != "end" or list(conf["chunk_shape"]) != [1, *sample_shape]
+            or list(shard_shape[1:]) != list(sample_shape)
+            or meta.get("chunk_key_encoding", {}).get("configuration", {}).get("separator", "/") != "/"
+            or [c["name"] for c in conf["index_codecs"]] != ["bytes", "crc32c"]):
+        return None, None
+    inner = list(conf["codecs"])
+    decompress: Callable = bytes
+    if inner and inner[-1]["name"] == "zstd":
+        from numcodecs.zstd import decompress
+        inner = inner[:-1]
+    elif inner and inner[-1]["name"] == "blosc":
+        import numcodecs.blosc
+        from numcodecs.blosc import decompress
+        if numcodecs.blosc.use_threads is None:   # unset: blosc would look up the process on every call, and
+            numcodecs.blosc.use_threads = False   # threads only cost time on one-sample chunks
+        inner = inner[:-1]
+    names = [c["name"] for c in inner]
+    if is_str and names == ["vlen-utf8"]:
+        from numcodecs import VLenUTF8
+        vlen = VLenUTF8()
+        return shard_shape[0], lambda raw: np.asarray(vlen.decode(decompress(raw))[0], dtype=object)
+    if not is_str and names == ["bytes"] and inner[0].get("configuration", {}).get("endian", "little") == "little":
+        def decode(raw: bytes) -> np.ndarray:
+            return np.frombuffer(bytearray(decompress(raw)), dtype=dtype).reshape(sample_shape)
+        return shard_shape[0], decode
+    return None, None
+
+
+class NLOSDataset(torch.utils.data.Dataset):
+    """Map-style dataset over one split of a datagen dataset.
+
+    Args:
+        path: the dataset directory (``datagen build ... --out PATH``).
+        split: split name (see the card's ``splits``).
+        fields: fields to return (default: every stored numeric field; ``params`` returns the JSON string).
+            ``counts`` with ``noise="resample"`` is re-drawn from ``envelope`` (read even if not requested).
+        noise: "frozen" (stored counts) or "resample" (fresh SPAD noise per epoch, see the module doc).
+        transform: called on the dict of tensors before it is returned.
+    Item:
+        dict field → torch tensor with the stored shape and dtype: envelope (*S, T) float32 expected detected
+        photons per pulse per bin, counts (*S, T) int64, depth (H, W) float32 m, normal (H, W, 3),
+        occupancy (V, V, V) uint8, object_* (K, …), object_count (), …; see ``docs/datasets.md``.
+    Raises:
+        FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field or noise mode,
+        an incomplete build, or ``noise="resample"`` without a stored envelope.
+    """
+
+    def __init__(self, path: str | os.PathLike, split: str = "train", fields: Iterable[str] | None = None,
+                 noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None):
+        self.path = Path(path)
+        card = read_card(self.path)
+        if card.get("status") != "complete":
+            raise ValueError(f"{self.path}: the build is not complete ({card.get('shards_done')} of "
+                             f"{card.get('shards_total')} shards); resume it with `datagen build ... --resume`")
+        if split not in card["splits"]:
+            raise ValueError(f"split {split!r} not in {self.path} (splits: {sorted(card['splits'])})")
+        if noise not in ("frozen", "resample"):
+            raise ValueError(f"noise must be 'frozen' or 'resample', got {noise!r}")
+        info = card["splits"][split]
+        stored = list(info["fields"])
+        redraw = noise == "resample"
+        if redraw and "envelope" not in stored:
+            raise ValueError(f"noise='resample' needs the envelope, which {self.path} does not store")
+        if fields is None:
+            fields = [f for f in stored if f != "params"] + (["counts"] if redraw and "counts" not in stored else [])
+        fields = list(fields)
+        unknown = sorted(set(fields) - set(stored) - ({"counts"} if redraw else set()))
+        if unknown:
+            raise ValueError(f"fields {unknown} are not stored in {self.path}/{split} (stored: {stored})")
+        self.split, self.fields, self.noise, self.transform = split, tuple(fields), noise, transform
+        self.seed = int(card["config"]["seed"])
+        self.count = int(info["count"])
+        self.detector = info.get("detector")
+        self.epoch = 0
+        self.card = card
+        to_read = set(self.fields)
+        if redraw and "counts" in to_read:
+            to_read = (to_read - {"counts"}) | {"envelope"}
+        self._readers = {name: _FieldReader(self.path, split, name) for name in sorted(to_read)}
+        self.time_edges = _read_small(self.path / split / "time_edges")
+        self._detector_config = None
+
+    def __len__(self) -> int:
+        return self.count
+
+    def set_epoch(self, epoch: int) -> None:
+        """Select the epoch of the re-drawn noise (call before iterating; a DataLoader with
+        ``persistent_workers=True`` keeps its workers' copies, so re-create it or use the default)."""
+        self.epoch = int(epoch)
+
+    def _resampled_counts(self, envelope: np.ndarray, index: int) -> np.ndarray:
+        from .. import spad
+        if self._detector_config is None:
+            self._detector_config = spad.DetectorConfig.model_validate(self.detector)
+        det = self._detector_config
+        rng = resample_rng(self.seed, self.split, self.epoch, index)
+        return spad.sample_histogram(spad.rates_from_envelope(envelope.astype(np.float64), det), det, rng)
+
+    def read(self, index: int) -> dict[str, np.ndarray]:
+        """Sample ``index`` as numpy arrays (no transform), counts re-drawn if ``noise="resample"``."""
+        if not -self.count <= index < self.count:
+            raise IndexError(f"index {index} out of range for split {self.split!r} of {self.count} samples")
+        index = index % self.count
+        out = {name: reader.read(index) for name, reader in self._readers.items()}
+        if self.noise == "resample" and "counts" in self.fields:
+            out["counts"] = self._resampled_counts(out["envelope"], index)
+        return {name: out[name] for name in self.fields}
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        arrays = self.read(int(index))
+        item = {name: (str(a[()]) if a.dtype == object else torch.from_numpy(a)) for name, a in arrays.items()}
+        return self.transform(item) if self.transform is not None else item
+
+    def params(self, index: int) -> dict:
+        """Every sampled parameter and the seeds of sample ``index`` (needs ``store.params``)."""
+        if "params" not in self._readers:
+            if "params" not in self.card["splits"][self.split]["fields"]:
+                raise ValueError(f"{self.path} does not store params (store.params was false)")
+            self._readers_extra = getattr(self, "_readers_extra", None) or {
+                "params": _FieldReader(self.path, self.split, "params")}
+        reader = self._readers.get("params") or self._readers_extra["params"]
+        return json.loads(str(reader.read(int(index))[()]))
+
+    def plot(self, sample: dict | int, title: str | None = None):
+        """Figure of one sample: envelope and counts vs time, depth map, occupancy seen from above.
+
+        Args:
+            sample: an item (dict of tensors/arrays) or an index.
+        Returns:
+            matplotlib Figure (Agg-safe; the caller saves or shows it).
+        """
+        return plot_sample(sample if isinstance(sample, dict) else self[int(sample)], self.time_edges,
+                           title or (f"{self.split}[{sample}]" if not isinstance(sample, dict) else None))
+
+
+def _read_small(path: Path) -> np.ndarray:
+    import zarr
+    return np.asarray(zarr.open_array(str(path), mode="r")[...])
+
+
+def _np(value) -> np.ndarray:
+    return value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else np.asarray(value)
+
+
+def plot_sample(sample: dict, time_edges: np.ndarray, title: str | None = None, fig=None):
+    """Draw ``sample`` (dict of arrays/tensors) on a new Figure: envelope (log) and counts over time in ns,
+    the depth map (m, pixel rows along the FoV's up axis) and the occupancy grid's max projection along z."""
+    from matplotlib.figure import Figure
+
+    panels = [k for k in ("depth", "occupancy") if k in sample]
+    fig = fig or Figure(figsize=(4.2 * (1 + len(panels)) + 0.6, 3.6), layout="constrained")
+    axes = fig.subplots(1, 1 + len(panels), squeeze=False)[0]
+    t_ns = 0.5 * (time_edges[1:] + time_edges[:-1]) * 1e9
+    ax = axes[0]
+    if "envelope" in sample:
+        env = _np(sample["envelope"]).astype(np.float64)
+        env = env.reshape(-1, env.shape[-1]).sum(axis=0)
+        ax.semilogy(t_ns, np.where(env > 0, env, np.nan), lw=1, label="envelope (det./pulse/bin)")
+        if env.max() > 0:
+            ax.set_ylim(env.max() * PLOT_DYNAMIC_RANGE, env.max() * 2)
+        ax.set_ylabel("expected detections per pulse per bin")
+    if "counts" in sample:
+        counts = _np(sample["counts"]).reshape(-1, len(t_ns)).sum(axis=0)
+        twin = ax.twinx() if "envelope" in sample else ax
+        twin.step(t_ns, counts, where="mid", lw=0.6, color="0.4", label="SPAD counts")
+        twin.set_ylabel("counts")
+    ax.set_xlabel("time (ns)")
+    ax.set_title("envelope and counts")
+    for ax, key in zip(axes[1:], panels):
+        data = _np(sample[key])
+        if key == "depth":
+            im = ax.imshow(np.where(data > 0, data, np.nan), origin="lower", cmap="viridis")
+            fig.colorbar(im, ax=ax, label="depth (m)")
+            ax.set_title("depth from the FoV centre")
+        else:
+            ax.imshow(data.max(axis=2).T, origin="lower", cmap="Greys", interpolation="nearest")
+            ax.set_title("occupancy (max over z; x →, y ↑)")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if title:
+        fig.suptitle(title)
+    return fig

@@ -1,0 +1,514 @@
+"""Procedural rooms: a YAML distribution over L-bend rooms, hidden objects, materials and capture geometry.
+
+A :class:`RoomDistribution` (loaded from ``configs/rooms/*.yaml`` by :func:`load_room_distribution`) describes
+ranges for every parameter of the scene family built by :func:`datagen.scene.l_room` (corridor along +x
+ending at the relay wall x = ``relay_x`` facing −x, an L-bend room on the ``bend_side`` over the corridor's
+last ``room.depth`` metres), floor-to-ceiling pillars and boxes, per-class materials, the emitter and sensor
+positions, the laser spot and the sensor's field of view (FoV) on the relay wall. Loading validates every field
+(pydantic; errors name the file, the dotted field and the value) and checks up front that every room the
+distribution can make can hold its objects and capture (:func:`check_feasible`). Rooms are drawn from it by
+:func:`datagen.dataset.sampler.sample_room`.
+
+World frame right-handed, z up, metres; yaw in degrees about +z (counter-clockwise seen from above).
+"""
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from ..scene import BRDF_KINDS, Laser, Material, SceneError, check_counts, format_validation_error, read_yaml
+from ..units import parse_energy, parse_length
+
+OBJECT_CLASSES = ("box", "pillar")
+"""Hidden-object classes; the index is the class code of the labels (0 box, 1 pillar)."""
+
+MATERIAL_CLASSES = ("relay_wall", "wall", "floor", "ceiling", "pillar", "box")
+"""Classes with their own material distribution (scene labels of :func:`datagen.scene.l_room` + objects)."""
+
+UNIFORMS_PER_MATERIAL = 4
+"""Uniform draws per material (kind, albedo, specular, exponent), fixed whatever the kind: changing one
+class's distribution leaves every other draw of the materials stream where it was."""
+
+PACKING_LIMIT = 0.5
+"""Largest share of a region's floor that the inflated footprints of the maximum object count may cover.
+Random sequential placement of rectangles jams near 55 % coverage; above ~50 % rejection sampling stalls."""
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Distribution schema
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Range(_Model):
+    """Uniform range [min, max]; a bare number means min = max (a fixed value)."""
+
+    min: float
+    max: float
+
+    @model_validator(mode="before")
+    @classmethod
+    def _scalar(cls, v: Any) -> Any:
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            return {"min": v, "max": v}
+        if isinstance(v, (list, tuple)) and len(v) == 2:
+            return {"min": v[0], "max": v[1]}
+        return v
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "Range":
+        if not (math.isfinite(self.min) and math.isfinite(self.max)):
+            raise ValueError(f"min and max must be finite, got min {self.min}, max {self.max}")
+        if self.min > self.max:
+            raise ValueError(f"min ({self.min}) must be <= max ({self.max})")
+        return self
+
+    def draw(self, u: float) -> float:
+        """The value at quantile ``u`` ∈ [0, 1) of the uniform distribution."""
+        return float(self.min + u * (self.max - self.min))
+
+    def contains(self, x: float, tol: float = 1e-9) -> bool:
+        return self.min - tol <= x <= self.max + tol
+
+
+class CountRange(_Model):
+    """Integer count, uniform over {min, …, max}; a bare integer means exactly that many."""
+
+    min: int = Field(0, ge=0)
+    max: int = Field(0, ge=0)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _scalar(cls, v: Any) -> Any:
+        if isinstance(v, int) and not isinstance(v, bool):
+            return {"min": v, "max": v}
+        return v
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "CountRange":
+        if self.min > self.max:
+            raise ValueError(f"min ({self.min}) must be <= max ({self.max})")
+        return self
+
+
+def _bounded(lo: float | None, hi: float | None, strict_lo: bool = False):
+    def check(r: Range) -> Range:
+        if lo is not None and (r.min <= lo if strict_lo else r.min < lo):
+            raise ValueError(f"min must be {'>' if strict_lo else '>='} {lo}, got {r.min}")
+        if hi is not None and r.max > hi:
+            raise ValueError(f"max must be <= {hi}, got {r.max}")
+        return r
+    return AfterValidator(check)
+
+
+Positive = Annotated[Range, _bounded(0.0, None, strict_lo=True)]
+NonNegative = Annotated[Range, _bounded(0.0, None)]
+Unit = Annotated[Range, _bounded(0.0, 1.0)]
+Signed = Annotated[Range, _bounded(-1.0, 1.0)]
+Fraction = Annotated[Range, _bounded(0.0, 1.0, strict_lo=True)]
+
+
+class CorridorDist(_Model):
+    """Corridor from its open (or closed) end to the relay wall, along +x."""
+
+    length: Positive = Range(min=8.0, max=8.0)
+    width: Positive = Range(min=2.1, max=2.1)
+    closed_end: bool = False
+
+
+class RoomDist(_Model):
+    """The L-bend room: ``depth`` along x (its opening on the corridor), ``length`` sideways (m)."""
+
+    depth: Positive = Range(min=3.0, max=3.0)
+    length: Positive = Range(min=4.0, max=4.0)
+    bend_side: tuple[Literal[1, -1], ...] = (1,)
+
+    @field_validator("bend_side", mode="before")
+    @classmethod
+    def _choices(cls, v: Any) -> Any:
+        if v in ("either", "both"):
+            return (1, -1)
+        return (v,) if isinstance(v, int) and not isinstance(v, bool) else v
+
+    @field_validator("bend_side")
+    @classmethod
+    def _nonempty(cls, v: tuple) -> tuple:
+        if not v:
+            raise ValueError("give at least one bend side (1, -1 or [1, -1])")
+        return v
+
+
+class PointDist(_Model):
+    """Emitter or sensor position in the corridor.
+
+    ``standoff``: fraction of the corridor length between the relay wall and the point (x = relay_x −
+    standoff·length); ``lateral``: y as a fraction of the usable half-width (−1..1); ``height``: z in m.
+    """
+
+    standoff: Fraction = Range(min=0.75, max=0.75)
+    lateral: Signed = Range(min=0.0, max=0.0)
+    height: Positive = Range(min=1.0, max=1.0)
+
+    @field_validator("standoff")
+    @classmethod
+    def _inside(cls, v: Range) -> Range:
+        if v.max >= 1.0:
+            raise ValueError(f"max must be < 1 (the point must stay inside the corridor), got {v.max}")
+        return v
+
+
+class SpotDist(_Model):
+    """Laser spot on the relay wall's corridor end: y = lateral·(w/2 − edge_margin), z = height (m)."""
+
+    lateral: Signed = Range(min=0.0, max=0.0)
+    height: Positive = Range(min=2.5, max=2.5)
+
+
+class FovDist(_Model):
+    """FoV rectangle on the relay wall's corridor end: size ranges (m), pixels fixed; its centre is uniform
+    over the positions that keep it ``edge_margin`` inside the corridor end."""
+
+    width: Positive = Range(min=2.0, max=2.0)
+    height: Positive = Range(min=2.0, max=2.0)
+    pixels: tuple[int, int] = (1, 1)
+
+    @field_validator("pixels")
+    @classmethod
+    def _pixels(cls, v: tuple[int, int]) -> tuple[int, int]:
+        return check_counts(v, "pixel counts")
+
+
+class CaptureDist(_Model):
+    """Emitter, sensor (``null``: co-located with the emitter), laser spot, FoV, aperture, pulse."""
+
+    emitter: PointDist = PointDist()
+    sensor: PointDist | None = None
+    spot: SpotDist = SpotDist()
+    fov: FovDist = FovDist()
+    edge_margin: float = Field(0.05, ge=0.0, description="m kept between spot/FoV/emitter and the walls")
+    aperture_radius: float = Field(0.02, gt=0.0)
+    photons_per_pulse: float | None = Field(None, gt=0)
+    pulse_energy: float | None = Field(None, gt=0)
+    wavelength: float = Field(532e-9, gt=0)
+
+    @field_validator("aperture_radius", "wavelength", mode="before")
+    @classmethod
+    def _length(cls, v: Any) -> Any:
+        return parse_length(v)
+
+    @field_validator("pulse_energy", mode="before")
+    @classmethod
+    def _energy(cls, v: Any) -> Any:
+        return None if v is None else parse_energy(v)
+
+    @model_validator(mode="after")
+    def _laser(self) -> "CaptureDist":
+        Laser(spot=(0.0, 0.0, 0.0), **self.laser_settings())   # same rules as scene files
+        return self
+
+    def laser_settings(self) -> dict:
+        return {"photons_per_pulse": self.photons_per_pulse, "pulse_energy": self.pulse_energy,
+                "wavelength": self.wavelength}
+
+
+class RoomRegion(_Model):
+    """Placement in the L-room proper: relative ``weight`` and the object's bottom height above the floor."""
+
+    weight: float = Field(1.0, ge=0.0)
+    elevation: NonNegative = Range(min=0.0, max=0.0)
+
+
+class CorridorEndRegion(_Model):
+    """Placement in the corridor end: within ``depth`` m of the relay wall (like the demo's shelf box)."""
+
+    weight: float = Field(0.0, ge=0.0)
+    elevation: NonNegative = Range(min=0.0, max=0.0)
+    depth: float = Field(1.0, gt=0.0)
+
+
+class Placement(_Model):
+    room: RoomRegion = RoomRegion()
+    corridor_end: CorridorEndRegion = CorridorEndRegion()
+
+    @model_validator(mode="after")
+    def _some_weight(self) -> "Placement":
+        if self.room.weight + self.corridor_end.weight <= 0:
+            raise ValueError("room.weight + corridor_end.weight must be > 0")
+        return self
+
+    def regions(self) -> list[tuple[str, RoomRegion | CorridorEndRegion]]:
+        return [(n, r) for n, r in (("room", self.room), ("corridor_end", self.corridor_end)) if r.weight > 0]
+
+
+class Size3(_Model):
+    x: Positive
+    y: Positive
+    z: Positive = Range(min=1.0, max=1.0)
+
+
+class ObjectDist(_Model):
+    """One hidden-object class: count, size (m; a pillar's z is the ceiling), yaw (deg), placement."""
+
+    count: CountRange = CountRange()
+    size: Size3 = Size3(x=Range(min=0.5, max=0.5), y=Range(min=0.5, max=0.5), z=Range(min=0.5, max=0.5))
+    cube: bool = Field(False, description="box: one edge length drawn from size.x for all three axes")
+    yaw_deg: Range = Range(min=0.0, max=0.0)
+    placement: Placement = Placement()
+
+
+class ObjectsDist(_Model):
+    min_gap: float = Field(0.05, ge=0.0, description="m of clearance around every object")
+    max_tries: int = Field(200, ge=1, description="placement attempts per object before a layout restarts")
+    max_layouts: int = Field(20, ge=1, description="layout restarts before sample_room gives up")
+    box: ObjectDist = ObjectDist()
+    pillar: ObjectDist = ObjectDist()
+
+
+class MaterialDist(_Model):
+    """Per-class materials: albedo range, BRDF kind mixture weights (absent kinds weigh 0), lobe ranges.
+
+    ``exponent`` is drawn log-uniformly (lobe sharpness spans decades); ``axis`` is the sin θ reference.
+    """
+
+    albedo: Unit = Range(min=1.0, max=1.0)
+    kinds: dict[Literal["lambertian", "sin_theta", "phong"], float] = {"lambertian": 1.0}
+    specular: Unit = Range(min=0.5, max=0.5)
+    exponent: Positive = Range(min=50.0, max=50.0)
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+    @field_validator("kinds")
+    @classmethod
+    def _weights(cls, v: dict) -> dict:
+        bad = {k: w for k, w in v.items() if not (math.isfinite(w) and w >= 0)}
+        if bad:
+            raise ValueError(f"weights must be finite and >= 0, got {bad}")
+        if sum(v.values()) <= 0:
+            raise ValueError(f"at least one kind needs a positive weight, got {v}")
+        return v
+
+    @field_validator("axis")
+    @classmethod
+    def _axis(cls, v: tuple) -> tuple:
+        if not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+            raise ValueError(f"must be a finite non-zero vector, got {list(v)}")
+        return v
+
+    def draw(self, u: np.ndarray) -> Material:
+        """Material at uniforms ``u`` (4,) float64 in [0, 1): kind by inverse CDF, then albedo, k_s, n."""
+        weights = np.array([self.kinds.get(k, 0.0) for k in BRDF_KINDS], dtype=np.float64)
+        cdf = np.cumsum(weights) / weights.sum()
+        kind = BRDF_KINDS[min(int(np.searchsorted(cdf, u[0], side="right")), len(BRDF_KINDS) - 1)]
+        albedo = self.albedo.draw(u[1])
+        if kind == "phong":
+            lo, hi = math.log(self.exponent.min), math.log(self.exponent.max)
+            return Material(kind=kind, albedo=albedo, specular=self.specular.draw(u[2]),
+                            exponent=float(math.exp(lo + u[3] * (hi - lo))))
+        if kind == "sin_theta":
+            return Material(kind=kind, albedo=albedo, axis=self.axis)
+        return Material(kind=kind, albedo=albedo)
+
+
+class MaterialsDist(_Model):
+    relay_wall: MaterialDist = MaterialDist()
+    wall: MaterialDist = MaterialDist()
+    floor: MaterialDist = MaterialDist()
+    ceiling: MaterialDist = MaterialDist()
+    pillar: MaterialDist = MaterialDist()
+    box: MaterialDist = MaterialDist()
+
+
+class LabelRegion(_Model):
+    """Axis-aligned box (origin = min corner, size) in metres, e.g. for the occupancy grid."""
+
+    origin: tuple[float, float, float]
+    size: tuple[float, float, float]
+
+    @field_validator("size")
+    @classmethod
+    def _positive(cls, v: tuple) -> tuple:
+        if min(v) <= 0:
+            raise ValueError(f"sizes must be > 0, got {list(v)}")
+        return v
+
+
+class RoomDistribution(_Model):
+    """Distribution over procedural L-bend rooms (see module docstring and docs/rooms.md).
+
+    Fields: ``relay_x`` (m, the relay wall plane), ``corridor``, ``room``, ``ceiling`` (height range, m),
+    ``capture``, ``objects``, ``materials``, ``label_region`` (fixed occupancy-grid box; ``null``: the hull
+    of every room the distribution can make, see :meth:`label_box`) and ``simulation`` (passed to
+    :class:`~datagen.scene.Scene` ``defaults``, i.e. a scene file's simulation block).
+    """
+
+    name: str = "rooms"
+    relay_x: float = 6.0
+    corridor: CorridorDist = CorridorDist()
+    room: RoomDist = RoomDist()
+    ceiling: Positive = Range(min=2.85, max=2.85)
+    capture: CaptureDist = CaptureDist()
+    objects: ObjectsDist = ObjectsDist()
+    materials: MaterialsDist = MaterialsDist()
+    label_region: LabelRegion | None = None
+    simulation: dict = {}
+    source: str | None = Field(None, exclude=True, description="file it was loaded from (error messages)")
+
+    def with_overrides(self, overrides: dict) -> "RoomDistribution":
+        """A copy with ``overrides`` deep-merged in, re-validated and re-checked for feasibility.
+
+        Nested dicts merge key by key, except a ``kinds`` mixture, which is replaced whole (absent kinds
+        weigh 0): ``{"materials": {"box": {"kinds": {"phong": 1.0}}}}`` makes every box Phong.
+
+        Raises:
+            SceneError: unknown field or invalid value, naming the dotted field (source "overrides").
+        """
+        if not isinstance(overrides, dict):
+            raise SceneError(f"overrides: expected a mapping, got {type(overrides).__name__}")
+        data = _deep_merge(self.model_dump(mode="json"), overrides)
+        where = f"{self.source} + overrides" if self.source else "overrides"
+        return load_room_distribution(data, _source=where)
+
+    def label_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """Fixed label region (origin (3,), size (3,) float64 m) shared by every sample.
+
+        ``label_region`` when given, else the hull of every placement region the distribution can make:
+        x from the relay wall back to the deepest room or corridor-end region, y over both sides the
+        room can bend to (corridor half-width + room length), z from the floor to the highest ceiling.
+        """
+        if self.label_region is not None:
+            return np.array(self.label_region.origin, float), np.array(self.label_region.size, float)
+        depth = self.room.depth.max
+        for cls in (self.objects.box, self.objects.pillar):
+            if cls.count.max > 0 and cls.placement.corridor_end.weight > 0:
+                depth = max(depth, cls.placement.corridor_end.depth)
+        reach = self.corridor.width.max / 2 + self.room.length.max
+        y_lo = -reach if -1 in self.room.bend_side else -self.corridor.width.max / 2
+        y_hi = reach if 1 in self.room.bend_side else self.corridor.width.max / 2
+        origin = np.array([self.relay_x - depth, y_lo, 0.0])
+        size = np.array([depth, y_hi - y_lo, self.ceiling.max])
+        return origin, size
+
+
+def _deep_merge(base: dict, over: dict) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict) and key != "kinds":
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def load_room_distribution(source: str | Path | dict, _source: str | None = None) -> RoomDistribution:
+    """Load, validate and feasibility-check a room distribution from a YAML file or a parsed dict.
+
+    Raises:
+        SceneError: missing file, bad YAML, or an invalid/infeasible value; the message names the file,
+            the dotted field and the value (e.g. ``configs/rooms/x.yaml: corridor.width: min (3.0) must be
+            <= max (2.0)``).
+    """
+    if isinstance(source, dict):
+        data, where = source, _source or "room distribution"
+    else:
+        path = Path(source)
+        data = read_yaml(path, "room distribution file")
+        where = str(path)
+        if not isinstance(data, dict):
+            raise SceneError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")
+    data = {k: v for k, v in data.items() if k != "source"}
+    try:
+        dist = RoomDistribution.model_validate(data)
+    except ValidationError as exc:
+        raise SceneError(format_validation_error(exc, where)) from None
+    dist = dist.model_copy(update={"source": where})
+    check_feasible(dist)
+    return dist
+
+
+def _fail(dist: RoomDistribution, field: str, message: str) -> None:
+    raise SceneError(f"{dist.source or 'room distribution'}: {field}: {message}")
+
+
+def _min_footprint(sx: float, sy: float, yaw: Range) -> tuple[float, float]:
+    """Smallest axis-aligned extents (x, y) of an sx×sy footprint over yaws in ``yaw`` (37-point scan)."""
+    angles = np.deg2rad(np.linspace(yaw.min, yaw.max, 37))
+    c, s = np.abs(np.cos(angles)), np.abs(np.sin(angles))
+    ex, ey = c * sx + s * sy, s * sx + c * sy
+    best = int(np.argmin(np.maximum(ex, ey)))
+    return float(ex[best]), float(ey[best])
+
+
+def check_feasible(dist: RoomDistribution) -> None:
+    """Check up front that every room the distribution can make can hold its objects and capture.
+
+    Checks (with the smallest room, the largest objects): the corridor is longer than the room is deep;
+    spot, FoV and emitter/sensor fit the corridor end and under the lowest ceiling; each object class
+    can be placed (some region with weight > 0 fits its largest footprint at the best yaw and its
+    height under the ceiling); the maximum object count's inflated footprints cover at most
+    ``PACKING_LIMIT`` of the regions they may use.
+
+    Raises:
+        SceneError: naming the field, the value and the limit it breaks.
+    """
+    c, r, cap, obj = dist.corridor, dist.room, dist.capture, dist.objects
+    m, gap = cap.edge_margin, obj.min_gap
+    if r.depth.max >= c.length.min:
+        _fail(dist, "room.depth.max", f"{r.depth.max} m must be < corridor.length.min ({c.length.min} m): the "
+              "room opens off the corridor's last room.depth metres")
+    h_min, w_min = dist.ceiling.min, c.width.min
+    for name, point in (("capture.emitter", cap.emitter), ("capture.sensor", cap.sensor)):
+        if point is not None and point.height.max > h_min - m:
+            _fail(dist, f"{name}.height.max", f"{point.height.max} m is above the lowest ceiling "
+                  f"({h_min} m) minus capture.edge_margin ({m} m)")
+    if cap.spot.height.min < m or cap.spot.height.max > h_min - m:
+        _fail(dist, "capture.spot.height", f"[{cap.spot.height.min}, {cap.spot.height.max}] m must lie within "
+              f"[{m}, {h_min - m}] m (edge margin to the lowest ceiling {h_min} m)")
+    if w_min / 2 - m <= 0:
+        _fail(dist, "capture.edge_margin", f"{m} m leaves no room in the narrowest corridor ({w_min} m)")
+    if cap.fov.width.max > w_min - 2 * m:
+        _fail(dist, "capture.fov.width.max", f"{cap.fov.width.max} m does not fit the narrowest corridor end "
+              f"({w_min} m minus 2 × edge_margin {m} m)")
+    if cap.fov.height.max > h_min - 2 * m:
+        _fail(dist, "capture.fov.height.max", f"{cap.fov.height.max} m does not fit under the lowest ceiling "
+              f"({h_min} m minus 2 × edge_margin {m} m)")
+    region_area, need = {}, {}
+    for cls_name in ("pillar", "box"):
+        cls = getattr(obj, cls_name)
+        if cls.count.max == 0:
+            continue
+        sx, sy = cls.size.x.max, (cls.size.x.max if cls.cube else cls.size.y.max)
+        ex, ey = _min_footprint(sx, sy, cls.yaw_deg)
+        for reg_name, reg in cls.placement.regions():
+            if reg_name == "room":
+                dims = (r.depth.min, r.length.min)
+            else:
+                dims = (min(reg.depth, c.length.min), w_min)
+            field = f"objects.{cls_name}"
+            if cls_name == "box":
+                top = reg.elevation.max + (cls.size.x.max if cls.cube else cls.size.z.max)
+                if top > h_min - gap:
+                    _fail(dist, f"{field}.placement.{reg_name}.elevation.max",
+                          f"a box up to {top:.3g} m tall (elevation.max + size) does not fit under the lowest "
+                          f"ceiling ({h_min} m) minus objects.min_gap ({gap} m)")
+            if ex + 2 * gap > dims[0] or ey + 2 * gap > dims[1]:
+                where = ("room.depth.min × room.length.min" if reg_name == "room"
+                         else f"{field}.placement.corridor_end.depth × corridor.width.min")
+                _fail(dist, f"{field}.size", f"the largest {cls_name} footprint ({sx} × {sy} m, best yaw: "
+                      f"{ex:.3g} × {ey:.3g} m, + 2 × min_gap {gap} m) does not fit the smallest {reg_name} "
+                      f"region ({where} = {dims[0]:.3g} × {dims[1]:.3g} m)")
+            region_area[reg_name] = dims[0] * dims[1]
+        need[cls_name] = cls.count.max * (sx + gap) * (sy + gap)
+    if need:
+        area = sum(region_area.values())
+        total = sum(need.values())
+        if total > PACKING_LIMIT * area:
+            _fail(dist, "objects", f"room too small: up to {obj.pillar.count.max} pillars and "
+                  f"{obj.box.count.max} boxes need {total:.3g} m² of floor (largest sizes + min_gap), more than "
+                  f"{PACKING_LIMIT:.0%} of the {area:.3g} m² the smallest room offers; lower "
+                  "objects.*.count.max or sizes, or enlarge room.depth.min / room.length.min")

@@ -1,0 +1,236 @@
+"""Room sampling: one :class:`SampledRoom` (a scene and its parameters) drawn from a room distribution.
+
+:func:`sample_room` draws from a :class:`~datagen.dataset.rooms.RoomDistribution` with three independent
+generators (docs/physics.md §7):
+
+- ``geometry``: room dimensions, object counts, sizes, yaws, positions (rejection sampled);
+- ``materials``: every material, a fixed 4 uniforms per surface, so a changed material distribution never
+  moves the geometry of a sample (nor the material of another class);
+- ``sensor``: emitter, sensor, laser spot and FoV placement.
+
+Constraints on hidden objects, all checked exactly on oriented boxes (OBBs, rotated about z) inflated by
+``objects.min_gap``: inside their placement region (the L-room proper, or the corridor end in front of
+the relay wall), under the ceiling, no two overlapping (separating-axis test), none touching the laser beam
+(segment emitter→spot) nor the sensor's view of the FoV (the pyramid with apex at the sensor and the FoV
+rectangle as base); the separating-axis tests are :mod:`datagen.dataset.obb`'s.
+
+World frame right-handed, z up, metres; yaw in degrees about +z (counter-clockwise seen from above).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from ..scene import ROOM_LABELS, FieldOfView, Laser, Scene, SceneError, Sensor, box, l_room, pillar
+from .obb import box_hits_pyramid, box_hits_segment, boxes_overlap
+from .rooms import OBJECT_CLASSES, UNIFORMS_PER_MATERIAL, ObjectDist, PointDist, Range, RoomDistribution
+
+STREAMS = ("geometry", "materials", "sensor")
+"""Keys of the generator mapping :func:`sample_room` takes."""
+
+
+@dataclass
+class SampledRoom:
+    """One sampled room.
+
+    Attributes:
+        scene: ready for :func:`datagen.simulate`.
+        params: JSON-able record of every sampled parameter: ``room`` (relay_x, corridor_start,
+            corridor_length, corridor_width, room_depth, room_length, ceiling, bend_side, closed_end),
+            ``materials`` (per room label), ``laser`` (emitter, spot, pulse), ``sensor`` (position,
+            aperture_radius, fov center/size/pixels), ``objects`` (as :attr:`objects`), ``label_region``
+            (origin, size) and ``layout_tries``.
+        objects: one dict per hidden object: class ("box"|"pillar"), name, region ("room"|"corridor_end"),
+            center [x, y, z] m, size [dx, dy, dz] m (a pillar's dz is the ceiling height), yaw_deg, and
+            material (:class:`~datagen.scene.materials.Material` fields).
+    """
+
+    scene: Scene
+    params: dict
+    objects: list[dict]
+
+
+class _Layout:
+    """Room rectangle regions and capture shapes that a hidden object must respect."""
+
+    def __init__(self, room: dict, capture: dict, gap: float):
+        self.room, self.gap = room, gap
+        x1, w, s = room["relay_x"], room["corridor_width"], room["bend_side"]
+        x_room = x1 - room["room_depth"]
+        y_a, y_b = s * w / 2, s * (w / 2 + room["room_length"])
+        self.rect = {"room": (x_room, x1, min(y_a, y_b), max(y_a, y_b))}
+        self.x1, self.w = x1, w
+        self.emitter = np.array(capture["emitter"])
+        self.spot = np.array(capture["spot"])
+        self.sensor = np.array(capture["sensor"])
+        self.fov_corners = np.array(capture["fov_corners"])
+
+    def region(self, name: str, depth: float) -> tuple[float, float, float, float]:
+        if name == "room":
+            return self.rect["room"]
+        return (self.x1 - min(depth, self.room["corridor_length"]), self.x1, -self.w / 2, self.w / 2)
+
+    def reject_reason(self, obj: dict, placed: list[dict]) -> str | None:
+        g = self.gap
+        if any(boxes_overlap(obj, o, g) for o in placed):
+            return "overlap"
+        if box_hits_segment(obj, self.emitter, self.spot, g):
+            return "laser_beam"
+        if box_hits_pyramid(obj, self.sensor, self.fov_corners, g):
+            return "fov_view"
+        return None
+
+
+def _uniform(rng: np.random.Generator, r: Range) -> float:
+    return r.draw(float(rng.random()))
+
+
+def _sample_point(rng: np.random.Generator, p: PointDist, length: float, w: float, m: float,
+                  x1: float) -> list[float]:
+    return [x1 - _uniform(rng, p.standoff) * length, _uniform(rng, p.lateral) * (w / 2 - m),
+            _uniform(rng, p.height)]
+
+
+def _sample_capture(dist: RoomDistribution, room: dict, rng: np.random.Generator) -> dict:
+    cap, m = dist.capture, dist.capture.edge_margin
+    x1, w, h, length = room["relay_x"], room["corridor_width"], room["ceiling"], room["corridor_length"]
+    emitter = _sample_point(rng, cap.emitter, length, w, m, x1)
+    sensor = list(emitter) if cap.sensor is None else _sample_point(rng, cap.sensor, length, w, m, x1)
+    spot = [x1, _uniform(rng, cap.spot.lateral) * (w / 2 - m), _uniform(rng, cap.spot.height)]
+    fw, fh = _uniform(rng, cap.fov.width), _uniform(rng, cap.fov.height)
+    cy = float((rng.random() - 0.5) * (w - 2 * m - fw))          # |cy| <= (w - 2m - fw)/2
+    cz = float(m + fh / 2 + rng.random() * (h - 2 * m - fh))
+    center = [x1, cy, cz]
+    corners = [[x1, cy + a * fw / 2, cz + b * fh / 2] for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    return {"emitter": emitter, "sensor": sensor, "spot": spot, "fov_center": center, "fov_size": [fw, fh],
+            "fov_corners": corners}
+
+
+def _sample_object(rng: np.random.Generator, cls_name: str, cls: ObjectDist, layout: _Layout,
+                   ceiling: float, gap: float) -> tuple[dict | None, str]:
+    regions = cls.placement.regions()
+    weights = np.array([r.weight for _, r in regions])
+    k = min(int(np.searchsorted(np.cumsum(weights) / weights.sum(), rng.random(), side="right")),
+            len(regions) - 1)
+    reg_name, reg = regions[k]
+    sx = _uniform(rng, cls.size.x)
+    sy = sx if cls.cube else _uniform(rng, cls.size.y)
+    if cls_name == "pillar":
+        sz = ceiling
+    else:
+        sz = sx if cls.cube else _uniform(rng, cls.size.z)
+    yaw = _uniform(rng, cls.yaw_deg)
+    elevation = 0.0 if cls_name == "pillar" else _uniform(rng, reg.elevation)
+    u_x, u_y = rng.random(), rng.random()
+    x0, x1, y0, y1 = layout.region(reg_name, getattr(reg, "depth", 0.0))
+    a = math.radians(yaw)
+    ex = abs(math.cos(a)) * sx / 2 + abs(math.sin(a)) * sy / 2 + gap
+    ey = abs(math.sin(a)) * sx / 2 + abs(math.cos(a)) * sy / 2 + gap
+    if x1 - x0 < 2 * ex or y1 - y0 < 2 * ey:
+        return None, "region_too_small"
+    if cls_name == "box" and elevation + sz > ceiling - gap:
+        return None, "ceiling"
+    center = [x0 + ex + u_x * (x1 - x0 - 2 * ex), y0 + ey + u_y * (y1 - y0 - 2 * ey), elevation + sz / 2]
+    return {"class": cls_name, "region": reg_name, "center": [float(v) for v in center],
+            "size": [float(sx), float(sy), float(sz)], "yaw_deg": float(yaw)}, ""
+
+
+def _sample_layout(dist: RoomDistribution, layout: _Layout, room: dict,
+                   rng: np.random.Generator) -> tuple[list[dict], int]:
+    obj = dist.objects
+    n_pillars = int(rng.integers(obj.pillar.count.min, obj.pillar.count.max + 1))
+    n_boxes = int(rng.integers(obj.box.count.min, obj.box.count.max + 1))
+    wanted = [("pillar", obj.pillar)] * n_pillars + [("box", obj.box)] * n_boxes
+    reasons: dict[str, int] = {}
+    tries = 0
+    for _ in range(obj.max_layouts):
+        placed: list[dict] = []
+        for cls_name, cls in wanted:
+            for _ in range(obj.max_tries):
+                tries += 1
+                cand, why = _sample_object(rng, cls_name, cls, layout, room["ceiling"], obj.min_gap)
+                if cand is not None:
+                    why = layout.reject_reason(cand, placed)
+                    if why is None:
+                        placed.append(cand)
+                        break
+                reasons[why] = reasons.get(why, 0) + 1
+            else:
+                break   # this object failed: restart the layout
+        else:
+            return placed, tries
+    detail = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
+    raise SceneError(f"{dist.source or 'room distribution'}: objects: could not place {n_pillars} pillars and "
+                     f"{n_boxes} boxes in a {room['room_depth']:.3g} × {room['room_length']:.3g} m room after "
+                     f"{obj.max_layouts} layouts × {obj.max_tries} tries per object; rejections by constraint: "
+                     f"{detail}. Lower objects.*.count.max or sizes, or raise objects.max_tries")
+
+
+def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator]) -> SampledRoom:
+    """Draw one room from ``dist``.
+
+    Args:
+        dist: the distribution.
+        rngs: independent generators under keys "geometry", "materials" and "sensor" (see module doc); no
+            other randomness is used, so the same generator states give a bit-identical room.
+    Returns:
+        :class:`SampledRoom`.
+    Raises:
+        SceneError: a missing stream, or no valid object layout within the bounded rejection sampling (the
+            message counts rejections per constraint: region_too_small, ceiling, overlap, laser_beam,
+            fov_view).
+    """
+    missing = [k for k in STREAMS if k not in rngs]
+    if missing:
+        raise SceneError(f"sample_room: rngs lacks streams {missing} (needs {list(STREAMS)})")
+    g, ms, ss = rngs["geometry"], rngs["materials"], rngs["sensor"]
+    length = _uniform(g, dist.corridor.length)
+    width = _uniform(g, dist.corridor.width)
+    side = int(dist.room.bend_side[int(g.integers(len(dist.room.bend_side)))])
+    room = {"relay_x": float(dist.relay_x), "corridor_start": float(dist.relay_x - length),
+            "corridor_length": length, "corridor_width": width, "room_depth": _uniform(g, dist.room.depth),
+            "room_length": _uniform(g, dist.room.length), "ceiling": _uniform(g, dist.ceiling),
+            "bend_side": side, "closed_end": dist.corridor.closed_end}
+    capture = _sample_capture(dist, room, ss)
+    layout = _Layout(room, capture, dist.objects.min_gap)
+    objects, tries = _sample_layout(dist, layout, room, g)
+
+    mats = dist.materials
+    room_mats = {label: getattr(mats, label).draw(ms.random(UNIFORMS_PER_MATERIAL)) for label in ROOM_LABELS}
+    counters = {c: 0 for c in OBJECT_CLASSES}
+    scene_objects = l_room(room["relay_x"], room["corridor_start"], width, room["room_depth"],
+                           room["room_length"], room["ceiling"], side, room["closed_end"], room_mats)
+    for o in objects:
+        material = getattr(mats, o["class"]).draw(ms.random(UNIFORMS_PER_MATERIAL))
+        o["name"] = f"{o['class']}_{counters[o['class']]}"
+        counters[o["class"]] += 1
+        o["material"] = material.model_dump(mode="json")
+        if o["class"] == "pillar":
+            scene_objects.append(pillar(o["name"], tuple(o["center"][:2]), tuple(o["size"][:2]), o["size"][2],
+                                        o["yaw_deg"], material))
+        else:
+            scene_objects.append(box(o["name"], tuple(o["center"]), tuple(o["size"]), o["yaw_deg"], material))
+    objects = [{k: o[k] for k in ("class", "name", "region", "center", "size", "yaw_deg", "material")}
+               for o in objects]
+
+    cap = dist.capture
+    laser = Laser(emitter=tuple(capture["emitter"]), spot=tuple(capture["spot"]), **cap.laser_settings())
+    fov = FieldOfView(center=tuple(capture["fov_center"]), size=tuple(capture["fov_size"]), pixels=cap.fov.pixels)
+    sensor = Sensor(position=tuple(capture["sensor"]), aperture_radius=cap.aperture_radius, fov=fov)
+    scene = Scene(scene_objects, laser, sensor, name=dist.name, source=None, defaults=dict(dist.simulation))
+    origin, size = dist.label_box()
+    params = {
+        "room": room,
+        "materials": {label: m.model_dump(mode="json") for label, m in room_mats.items()},
+        "laser": {"emitter": capture["emitter"], "spot": capture["spot"], **cap.laser_settings()},
+        "sensor": {"position": capture["sensor"], "aperture_radius": cap.aperture_radius,
+                   "fov": {"center": capture["fov_center"], "size": capture["fov_size"],
+                           "pixels": list(cap.fov.pixels)}},
+        "objects": objects,
+        "label_region": {"origin": origin.tolist(), "size": size.tolist()},
+        "layout_tries": tries,
+    }
+    return SampledRoom(scene, params, objects)

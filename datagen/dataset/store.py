@@ -1,0 +1,345 @@
+"""Dataset store: the on-disk layout of a dataset, its build lock, its card and its verification (docs/physics.md §7).
+
+Layout of a dataset at ``PATH`` (a Zarr v3 group):
+
+``PATH/zarr.json``
+    root attributes = the dataset card (:func:`read_card`): config (room and detector inlined), code
+    version, library versions, stream ids and split keys, per-split field shapes, per-sample timing
+    statistics, every shard's per-array sha256, build runs; consolidated metadata once the build completes.
+``PATH/<split>/``
+    one group per split: ``time_edges`` (T+1,) float64 s, and one array per field with the sample axis
+    first, inner chunk = one sample, shard = ``shard_size`` samples (zarr's sharding codec, zstd inside).
+``PATH/_done/<split>/<shard>.json``
+    done marker of a shard, written (atomically) after all its arrays: sample range, per-array sha256 of the
+    shard file's bytes, per-sample timings, worker host/pid.
+``PATH/_build.lock``
+    held (``flock``) while a build runs; a second build into the same path is refused; the kernel drops the
+    lock when its process dies, so a killed build never blocks ``--resume``.
+
+Shards are computed and written by :mod:`datagen.dataset.build` (one write per array, then the done marker);
+this module plans them (:func:`plan_shards`), creates the arrays (:func:`create_arrays`), names shard files and
+markers, fills the card from the markers (:func:`finish_card`) and checks every shard's bytes against it
+(:func:`verify_dataset`).
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import hashlib
+import json
+import os
+import socket
+import subprocess
+import warnings
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from .config import DatasetConfig, Sample, config_from_json, split_key
+
+FORMAT = "datagen-dataset"
+FORMAT_VERSION = 1
+LOCK_NAME = "_build.lock"
+DONE_DIR = "_done"
+
+UNITS = {"envelope": "expected detected photons per laser pulse per bin",
+         "components": "expected detected photons per laser pulse per bin, per component",
+         "counts": "SPAD detections over the exposure (int64)",
+         "time_edges": "s", "depth": "m", "object_center": "m", "object_size": "m", "object_yaw": "rad",
+         "occupancy_origin": "m", "occupancy_pitch": "m", "params": "JSON"}
+
+
+class BuildLockedError(RuntimeError):
+    """Another build holds the dataset's lock."""
+
+
+@dataclass(frozen=True)
+class ShardTask:
+    """Samples [start, stop) of ``split``: shard number ``shard``."""
+
+    split: str
+    shard: int
+    start: int
+    stop: int
+
+    @property
+    def size(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def label(self) -> str:
+        return f"{self.split}/{self.shard:06d}"
+
+
+def plan_shards(config: DatasetConfig) -> list[ShardTask]:
+    """Every shard of every split, in split order."""
+    tasks = []
+    for split, spec in config.splits.items():
+        for shard, start in enumerate(range(0, spec.count, config.shard_size)):
+            tasks.append(ShardTask(split, shard, start, min(start + config.shard_size, spec.count)))
+    return tasks
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Paths, hashes, markers
+
+
+def shard_key(shard: int, ndim: int) -> str:
+    """Zarr v3 default chunk key ('/' separator) of shard ``shard`` of an array with ``ndim`` dimensions."""
+    return "/".join(["c", str(shard)] + ["0"] * (ndim - 1))
+
+
+def shard_file(root: str | Path, split: str, name: str, shard: int, ndim: int) -> Path:
+    """File holding shard ``shard`` of array ``<split>/<name>`` (``ndim`` dims including the sample axis)."""
+    return Path(root) / split / name / shard_key(shard, ndim)
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def marker_path(root: str | Path, split: str, shard: int) -> Path:
+    return Path(root) / DONE_DIR / split / f"{shard:06d}.json"
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write ``data`` as JSON to ``path`` (creating its directory) via a temporary file and a rename, so a reader
+    never sees a partial file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
+    os.replace(tmp, path)
+
+
+def read_marker(root: str | Path, split: str, shard: int) -> dict | None:
+    path = marker_path(root, split, shard)
+    try:
+        return json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Lock
+
+
+class BuildLock:
+    """Exclusive ``flock`` on ``<root>/_build.lock`` holding the owner's host, pid and start time.
+
+    The kernel releases the lock when the owner dies (even by SIGKILL), so there are no stale locks on local
+    filesystems; the recorded pid only makes the refusal message useful.
+
+    Raises (``acquire``):
+        BuildLockedError: another process holds it; the message names its host, pid and start time.
+    """
+
+    def __init__(self, root: str | Path):
+        self.path = Path(root) / LOCK_NAME
+        self._fd: int | None = None
+
+    def acquire(self) -> "BuildLock":
+        for _ in range(10):
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                os.close(fd)
+                if exc.errno not in (errno.EAGAIN, errno.EACCES):
+                    raise
+                raise BuildLockedError(f"{self.path.parent} is being built by another process "
+                                       f"({self._holder()}); wait for it to finish, or stop it first") from None
+            # the file may have been unlinked by a releasing owner between our open and flock: retry then
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                os.ftruncate(fd, 0)
+                info = {"host": socket.gethostname(), "pid": os.getpid(),
+                        "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+                os.write(fd, json.dumps(info).encode())
+                self._fd = fd
+                return self
+            os.close(fd)
+        raise BuildLockedError(f"could not lock {self.path}: the lock file keeps changing")  # pragma: no cover
+
+    def _holder(self) -> str:
+        try:
+            info = json.loads(self.path.read_text())
+            return f"pid {info['pid']} on {info['host']}, started {info['started']}"
+        except (OSError, ValueError, KeyError):
+            return "holder unknown"
+
+    def release(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.path)
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self) -> "BuildLock":
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Store creation
+
+
+def zarr_module():
+    """The ``zarr`` module, imported on first use rather than when this module is imported."""
+    import zarr
+    return zarr
+
+
+def consolidate(root: Path) -> None:
+    """Consolidate the store's metadata (once, at the end). ``_done/`` and the lock file are not Zarr nodes."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
+        warnings.filterwarnings("ignore", message="Object at .* is not recognized", category=UserWarning)
+        zarr_module().consolidate_metadata(str(root))
+
+
+def create_arrays(root: Path, config: DatasetConfig, probe: Sample) -> dict:
+    """Create every split group and array from the shapes of ``probe``; return the card's ``splits`` entry."""
+    zarr = zarr_module()
+    from zarr.codecs import BloscCodec, ZstdCodec
+
+    level = config.store.compression_level
+    numeric = {"lz4": [BloscCodec(cname="lz4", clevel=min(level, 9), shuffle="shuffle")],
+               "zstd": [ZstdCodec(level=level)], "none": None}[config.store.compression]
+    group = zarr.open_group(str(root), mode="a", zarr_format=3)
+    splits = {}
+    for split, spec in config.splits.items():
+        g = group.create_group(split, overwrite=True, attributes={"count": spec.count, "split_key": split_key(split),
+                                                  "shard_size": config.shard_size,
+                                                  "room_overrides": spec.room_overrides})
+        g.create_array("time_edges", data=probe.time_edges, attributes={"units": "s"})
+        fields = {}
+        for name, value in probe.arrays.items():
+            is_str = name == "params"
+            attrs = {"units": UNITS[name]} if name in UNITS else {}
+            if name == "components":
+                attrs["component_names"] = probe.component_names
+            g.create_array(name, shape=(spec.count,) + value.shape, chunks=(1,) + value.shape,
+                           shards=(config.shard_size,) + value.shape, dtype=str if is_str else value.dtype,
+                           fill_value="" if is_str else 0, compressors=[ZstdCodec(level=3)] if is_str else numeric,
+                           config={"write_empty_chunks": True}, attributes=attrs)
+            fields[name] = {"shape": list(value.shape), "dtype": "str" if is_str else value.dtype.str}
+        splits[split] = {"count": spec.count, "split_key": split_key(split),
+                         "n_shards": -(-spec.count // config.shard_size), "fields": fields}
+    return splits
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Card
+
+
+def code_version() -> str:
+    """``git describe --always --dirty --tags`` of the datagen checkout, else the package version."""
+    from ..simulation import library_versions
+    here = Path(__file__).resolve().parent
+    try:
+        out = subprocess.run(["git", "describe", "--always", "--dirty", "--tags"], cwd=here, capture_output=True,
+                             text=True, timeout=10)
+        if out.returncode == 0 and out.stdout.strip():
+            return f"git:{out.stdout.strip()}"
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return f"datagen {library_versions().get('datagen', 'unknown')}"
+
+
+def _stats(values: list[float]) -> dict:
+    if not values:
+        return {"n": 0}
+    v = np.asarray(values, dtype=np.float64)
+    return {"n": int(v.size), "mean": float(v.mean()), "median": float(np.median(v)),
+            "p95": float(np.percentile(v, 95)), "min": float(v.min()), "max": float(v.max())}
+
+
+def read_card(path: str | Path) -> dict:
+    """The dataset card (root attributes) of the dataset at ``path``.
+
+    Raises:
+        FileNotFoundError: no datagen dataset there.
+    """
+    meta = Path(path) / "zarr.json"
+    if not meta.is_file():
+        raise FileNotFoundError(f"no datagen dataset at {path} (no zarr.json)")
+    attrs = json.loads(meta.read_text()).get("attributes", {})
+    if attrs.get("format") != FORMAT:
+        raise FileNotFoundError(f"{path} is a Zarr store but not a datagen dataset (no dataset card)")
+    return attrs
+
+
+def finish_card(root: Path, card: dict, config: DatasetConfig) -> dict:
+    """Fill the card from every done marker (hashes, timings); mark complete when every shard is done."""
+    shards, totals, stages = {}, [], {}
+    done = 0
+    tasks = plan_shards(config)
+    for task in tasks:
+        marker = read_marker(root, task.split, task.shard)
+        if marker is None:
+            continue
+        done += 1
+        shards.setdefault(task.split, {})[f"{task.shard:06d}"] = {"start": marker["start"], "stop": marker["stop"],
+                                                                 "sha256": marker["sha256"]}
+        for s in marker["seconds"]:
+            totals.append(s["total"])
+            for k, v in s.items():
+                stages.setdefault(k, []).append(v)
+    card["shards"] = shards
+    card["timing"] = {"per_sample_s": _stats(totals),
+                      "per_stage_mean_s": {k: float(np.mean(v)) for k, v in stages.items()}}
+    card["status"] = "complete" if done == len(tasks) else "incomplete"
+    card["shards_done"], card["shards_total"] = done, len(tasks)
+    return card
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Verify
+
+
+def verify_dataset(path: str | Path) -> list[str]:
+    """Check that every shard of every split is present and its bytes hash to the card's sha256.
+
+    Returns:
+        one line per problem (empty: the dataset is intact), each naming the split, shard and array.
+    Raises:
+        FileNotFoundError: no datagen dataset at ``path``.
+    """
+    root = Path(path)
+    card = read_card(root)
+    problems = []
+    if card.get("status") != "complete":
+        problems.append(f"build not complete ({card.get('shards_done', 0)} of {card.get('shards_total', '?')} "
+                        "shards): run `datagen build CONFIG --out PATH --resume`")
+    config = config_from_json(card["config"])
+    for task in plan_shards(config):
+        entry = card.get("shards", {}).get(task.split, {}).get(f"{task.shard:06d}")
+        where = f"{task.label} (samples {task.start}-{task.stop - 1})"
+        if entry is None:
+            problems.append(f"{where}: not in the dataset card")
+            continue
+        if not marker_path(root, task.split, task.shard).is_file():
+            problems.append(f"{where}: done marker missing ({marker_path(root, task.split, task.shard)})")
+        for name, spec in card["splits"][task.split]["fields"].items():
+            file = shard_file(root, task.split, name, task.shard, 1 + len(spec["shape"]))
+            expected = entry["sha256"].get(name)
+            if not file.is_file():
+                problems.append(f"{where}: {name}: shard file missing ({file})")
+            elif expected is None:
+                problems.append(f"{where}: {name}: no hash in the dataset card")
+            elif file_sha256(file) != expected:
+                problems.append(f"{where}: {name}: sha256 mismatch (corrupted: {file})")
+    return problems

@@ -1,0 +1,30 @@
+"""I/O stage: simulation results on disk, and interoperability with y-tal (``tal``).
+
+In: a :class:`~datagen.simulation.run.Result` (``time_edges`` (T+1,) s, ``envelope`` channel_shape + (T,),
+``components`` by name, int64 SPAD ``counts``, capture grids ``laser_points`` / ``sensor_points`` (…, 3) m,
+``wall_normal`` (3,), attributes), a tal render YAML, or a tal HDF5 capture. Out: a Zarr v3 result store
+(:func:`write_result`, :func:`read_result`, :func:`write_detection`), a datagen :class:`~datagen.scene.Scene`
+with the :class:`TalCapture` saying how ``tal render`` would lay its result out (:func:`scene_from_tal_yaml`),
+and tal's HDF5 capture files (:func:`write_tal_hdf5`, :func:`read_tal_hdf5`; H (T, Sx, Sy) or
+(T, Lx, Ly, Sx, Sy) from :func:`tal_arrays`).
+
+Modules (they import each other directly, never through this package):
+
+- :mod:`~datagen.io.store`: the Zarr result store (docs/physics.md §7);
+- :mod:`~datagen.io.tal`: tal render YAML → scene and :class:`TalCapture` (frames, units, radiometry);
+- :mod:`~datagen.io.tal_hdf5`: tal's HDF5 capture layout, a result as tal's fields, HDF5 read/write.
+"""
+from .store import CAPTURE_ARRAYS, RESULT_NAME, read_result, write_detection, write_result
+from .tal import (TAL_DEFAULTS, TAL_KEYS, TalCapture, load_tal_config, scene_from_tal_config, scene_from_tal_yaml,
+                  tal_transform)
+from .tal_hdf5 import TAL_FIELDS, GridFormat, HFormat, VolumeFormat, read_tal_hdf5, tal_arrays, write_tal_hdf5
+
+__all__ = [
+    # result store
+    "RESULT_NAME", "CAPTURE_ARRAYS", "write_result", "read_result", "write_detection",
+    # tal render YAML
+    "TAL_DEFAULTS", "TAL_KEYS", "TalCapture", "load_tal_config", "scene_from_tal_config", "scene_from_tal_yaml",
+    "tal_transform",
+    # tal HDF5 captures
+    "HFormat", "GridFormat", "VolumeFormat", "TAL_FIELDS", "tal_arrays", "write_tal_hdf5", "read_tal_hdf5",
+]

@@ -1,0 +1,114 @@
+"""Storage of simulation results in Zarr v3 (docs/physics.md §7).
+
+A result directory holds ``result.zarr`` with arrays ``time_edges`` (s), ``envelope`` (expected detected
+photons per pulse per bin), ``components/<name>`` (same shape, summing to the envelope) and ``counts``
+(int64 SPAD histogram), the capture geometry (``laser_points``, ``sensor_points``, ``wall_normal``), and the
+result's attributes (resolved config, effects, timings, versions) as the group's attributes. Arrays are
+written whole; metadata is consolidated once at the end.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import zarr
+
+from ..simulation import Result
+
+RESULT_NAME = "result.zarr"
+
+
+CAPTURE_ARRAYS = ("laser_points", "sensor_points", "wall_normal")
+"""Capture geometry stored beside the envelope: (ly, lx, 3) and (ny, nx, 3) points (m), (3,) wall normal."""
+
+
+def _jsonable(value):
+    return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def _consolidate(path: Path) -> None:
+    with warnings.catch_warnings():   # consolidated metadata is a zarr-python v3 extension; we rely on it
+        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
+        zarr.consolidate_metadata(str(path))
+
+
+def _existing_store(path: str | Path) -> Path:
+    """The ``.zarr`` store at ``path`` (the store itself or the result directory holding it).
+
+    Raises:
+        FileNotFoundError: no result store there.
+    """
+    path = Path(path)
+    if (path / RESULT_NAME).exists():
+        path = path / RESULT_NAME
+    if not (path / "zarr.json").exists():
+        raise FileNotFoundError(f"no datagen result store at {path}")
+    return path
+
+
+def write_result(result: Result, path: str | Path, overwrite: bool = True) -> Path:
+    """Write ``result`` to ``path`` (a ``.zarr`` directory) and return the path.
+
+    The store is written to ``<path>.partial`` and renamed into place when complete, so an interrupted
+    write never leaves a store that looks finished.
+
+    Raises:
+        FileExistsError: ``path`` exists and ``overwrite`` is False.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists (pass overwrite=True to replace it)")
+    tmp = path.with_name(path.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+    root.create_array("time_edges", data=np.asarray(result.time_edges, dtype=np.float64))
+    root.create_array("envelope", data=np.asarray(result.envelope, dtype=np.float64))
+    root.create_array("counts", data=np.asarray(result.counts, dtype=np.int64))
+    comps = root.create_group("components")
+    for name, arr in result.components.items():
+        comps.create_array(name, data=np.asarray(arr, dtype=np.float64))
+    for name in CAPTURE_ARRAYS:                      # capture geometry (tal export needs it)
+        value = getattr(result, name, None)
+        if value is not None:
+            root.create_array(name, data=np.asarray(value, dtype=np.float64))
+    root.attrs.update(_jsonable(result.attrs))
+    _consolidate(tmp)
+    if path.exists():
+        shutil.rmtree(path)
+    tmp.rename(path)
+    return path
+
+
+def read_result(path: str | Path) -> Result:
+    """Read a result written by :func:`write_result` (``path`` is the ``.zarr`` or its directory).
+
+    Raises:
+        FileNotFoundError: no result store at ``path``.
+    """
+    path = _existing_store(path)
+    root = zarr.open_group(str(path), mode="r")
+    comps = root["components"]
+    names = root.attrs.get("component_names", sorted(comps.array_keys()))
+    geometry = {n: root[n][...] for n in CAPTURE_ARRAYS if n in root.array_keys()}
+    return Result(time_edges=root["time_edges"][...], envelope=root["envelope"][...],
+                  components={n: comps[n][...] for n in names}, counts=root["counts"][...],
+                  attrs=dict(root.attrs), **geometry)
+
+
+def write_detection(path: str | Path, name: str, counts: np.ndarray, attrs: dict) -> Path:
+    """Add (or replace) ``detections/<name>/counts`` (int64) with ``attrs`` to an existing result store.
+
+    Raises:
+        FileNotFoundError: no result store at ``path``.
+    """
+    path = _existing_store(path)
+    root = zarr.open_group(str(path), mode="a")
+    group = root.require_group("detections").require_group(name)
+    group.create_array("counts", data=np.asarray(counts, dtype=np.int64), overwrite=True)
+    group.attrs.update(_jsonable(attrs))
+    _consolidate(path)
+    return path

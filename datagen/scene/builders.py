@@ -1,0 +1,149 @@
+"""Scene builders: meshes and :class:`~datagen.scene.parts.SceneObject` s built in Python.
+
+:func:`quad_mesh` and :func:`box_mesh` return bare (vertices, faces) arrays; :func:`l_room` (corridor with an
+L-bend room behind the relay wall), :func:`pillar`, :func:`box`, :func:`quad` and :func:`import_mesh` (any mesh
+file trimesh reads) return labelled objects. The YAML object specs of :mod:`datagen.scene.load` call them.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from .materials import Material
+from .parts import ROOM_LABELS, SceneError, SceneObject, Vec3
+
+# ---------------------------------------------------------------------------------------------------------
+# Builders. Each returns (vertices, faces); normals are not needed (the ray caster orients them).
+
+
+def quad_mesh(corner: np.ndarray, edge_u: np.ndarray, edge_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rectangle (parallelogram) corner, corner+u, corner+u+v, corner+v as two triangles."""
+    corner, edge_u, edge_v = (np.asarray(a, dtype=np.float64) for a in (corner, edge_u, edge_v))
+    vertices = np.stack([corner, corner + edge_u, corner + edge_u + edge_v, corner + edge_v])
+    return vertices, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+
+
+def _merge(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    verts, faces, offset = [], [], 0
+    for v, f in parts:
+        verts.append(v)
+        faces.append(f + offset)
+        offset += len(v)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def _rotation_z(angle_deg: float) -> np.ndarray:
+    a = np.deg2rad(angle_deg)
+    return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
+def box_mesh(center: Vec3, size: Vec3, rotation_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Closed cuboid (12 triangles) of ``size`` (dx, dy, dz) m centred at ``center``, rotated about z."""
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    vertices = corners * np.asarray(size, dtype=np.float64) @ _rotation_z(rotation_deg).T + np.asarray(center)
+    # vertex index = 4*ix + 2*iy + iz
+    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], dtype=np.int64)
+    return vertices, faces
+
+
+def l_room(relay_x: float = 6.0, corridor_start: float = -2.0, corridor_width: float = 2.1,
+           room_depth: float = 3.0, room_length: float = 4.0, height: float = 3.0,
+           bend_side: Literal[1, -1] = 1, closed_corridor_end: bool = False,
+           materials: dict[str, Material] | None = None) -> list[SceneObject]:
+    """Corridor along +x ending at the relay wall (plane x = ``relay_x``, facing −x) with an L-bend room.
+
+    The corridor spans x ∈ [corridor_start, relay_x], y ∈ [−w/2, w/2], z ∈ [0, height]. The room opens off
+    the corridor's ``bend_side`` (+1: +y) over its last ``room_depth`` metres and extends ``room_length``
+    metres sideways; it is hidden from the corridor. The relay wall spans the corridor end and the room's
+    side. The corridor's far end is open unless ``closed_corridor_end`` (light escapes there).
+
+    Returns objects labelled relay_wall, wall, floor and ceiling (materials per label, Lambertian ρ = 1 by
+    default).
+    """
+    w, s = corridor_width, float(bend_side)
+    if min(corridor_width, room_depth, room_length, height) <= 0 or relay_x - corridor_start <= room_depth:
+        raise SceneError("l_room: widths, depth, length and height must be > 0 and the corridor longer than "
+                         f"the room depth (corridor {relay_x - corridor_start} m, room_depth {room_depth} m)")
+    mats = {label: Material() for label in ROOM_LABELS}
+    mats.update(materials or {})
+    y_in, y_far = -s * w / 2, s * (w / 2 + room_length)   # corridor's inner wall, room's far wall
+    y_open = s * w / 2                                      # corridor wall on the bend side
+    x_room = relay_x - room_depth
+    ez = np.array([0.0, 0.0, height])
+
+    def wall_x(x, y0, y1):
+        return quad_mesh([x, y0, 0.0], [0.0, y1 - y0, 0.0], ez)
+
+    def wall_y(y, x0, x1):
+        return quad_mesh([x0, y, 0.0], [x1 - x0, 0.0, 0.0], ez)
+
+    def slab(z, x0, x1, y0, y1):
+        return quad_mesh([x0, y0, z], [x1 - x0, 0.0, 0.0], [0.0, y1 - y0, 0.0])
+
+    walls = [wall_y(y_in, corridor_start, relay_x), wall_y(y_open, corridor_start, x_room),
+             wall_x(x_room, y_open, y_far), wall_y(y_far, x_room, relay_x)]
+    if closed_corridor_end:
+        walls.append(wall_x(corridor_start, y_in, y_open))
+    floor = [slab(0.0, corridor_start, relay_x, min(y_in, y_open), max(y_in, y_open)),
+             slab(0.0, x_room, relay_x, min(y_open, y_far), max(y_open, y_far))]
+    ceiling = [slab(height, corridor_start, relay_x, min(y_in, y_open), max(y_in, y_open)),
+               slab(height, x_room, relay_x, min(y_open, y_far), max(y_open, y_far))]
+    relay = wall_x(relay_x, y_in, y_far)
+    return [SceneObject("relay_wall", "relay_wall", mats["relay_wall"], *relay),
+            SceneObject("walls", "wall", mats["wall"], *_merge(walls)),
+            SceneObject("floor", "floor", mats["floor"], *_merge(floor)),
+            SceneObject("ceiling", "ceiling", mats["ceiling"], *_merge(ceiling))]
+
+
+def pillar(name: str, center_xy: tuple[float, float], size_xy: tuple[float, float], height: float,
+           rotation_deg: float = 0.0, material: Material | None = None, label: str = "pillar") -> SceneObject:
+    """Floor-to-ceiling cuboid pillar with footprint ``size_xy`` at ``center_xy``, rotated about z."""
+    v, f = box_mesh((center_xy[0], center_xy[1], height / 2), (size_xy[0], size_xy[1], height), rotation_deg)
+    return SceneObject(name, label, material or Material(), v, f)
+
+
+def box(name: str, center: Vec3, size: Vec3, rotation_deg: float = 0.0, material: Material | None = None,
+        label: str = "box") -> SceneObject:
+    """Cuboid box of ``size`` (dx, dy, dz) centred at ``center``, rotated about z."""
+    return SceneObject(name, label, material or Material(), *box_mesh(center, size, rotation_deg))
+
+
+def quad(name: str, corner: Vec3, edge_u: Vec3, edge_v: Vec3, material: Material | None = None,
+         label: str = "mesh") -> SceneObject:
+    """A single rectangle corner, corner+u, corner+u+v, corner+v (two triangles)."""
+    return SceneObject(name, label, material or Material(), *quad_mesh(corner, edge_u, edge_v))
+
+
+def import_mesh(name: str, path: str | Path, scale: float = 1.0, left_handed: bool = False,
+                rotation_deg: float = 0.0, translate: Vec3 = (0.0, 0.0, 0.0), material: Material | None = None,
+                label: str = "mesh") -> SceneObject:
+    """Load OBJ/PLY/STL/GLB (anything trimesh reads) as one object.
+
+    Coordinates are multiplied by ``scale`` (e.g. 0.01 for centimetres), then, if ``left_handed``, y is
+    flipped (Unreal's left-handed x-forward/y-right/z-up frame → ours, docs/physics.md §1; face winding is reversed
+    to keep orientation), then rotated about z and translated.
+
+    Raises:
+        SceneError: the file is missing or holds no triangles.
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"mesh file not found: {path}")
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for bad files
+        raise SceneError(f"cannot read mesh {path}: {exc}") from exc
+    vertices = np.asarray(loaded.vertices, dtype=np.float64) * scale
+    faces = np.asarray(loaded.faces, dtype=np.int64)
+    if len(faces) == 0:
+        raise SceneError(f"mesh {path} holds no triangles")
+    if left_handed:
+        vertices = vertices * np.array([1.0, -1.0, 1.0])
+        faces = faces[:, ::-1]
+    vertices = vertices @ _rotation_z(rotation_deg).T + np.asarray(translate, dtype=np.float64)
+    return SceneObject(name, label, material or Material(), vertices, faces)

@@ -1,0 +1,259 @@
+"""Capture geometry: where the laser points and the sensor grid lie on the relay wall (scene stage).
+
+:func:`resolve_capture` turns a scene's ``laser``, ``sensor`` and ``capture`` blocks into a :class:`Capture`
+(laser points with their relay-wall normals, the sensor grid's frame, aperture, photons per pulse), checking
+with the ray caster that each laser point lies on a surface the emitter sees and that the sensor sees its
+grid. Every estimator, the effect planner and the figures read the capture from here; the scan types and
+conventions are those of tal (docs/physics.md §8).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..vectors import dot, unit
+from .model import Scene
+from .parts import SceneError
+from .raycast import RayCaster
+
+FOV_PLANE_TOL = 10.0
+"""A hit lies on the FoV plane when within this many ray offsets of it (hit points are float64 rebuilt
+from float32 barycentrics, accurate to a few offsets)."""
+
+FOV_EDGE_REL = 1e-9
+"""A laser point within this fraction of the FoV size of the FoV's edge is on the boundary, which counts as
+outside (the demo room's spot lies exactly on its FoV's top edge; float rounding of the in-plane
+coordinates is ~1e-16 relative)."""
+
+
+@dataclass(frozen=True)
+class Capture:
+    """Resolved capture geometry (all float64, metres): laser points, sensor grid, sensor device.
+
+    Attributes:
+        kind: "single" | "confocal" | "exhaustive" (DESIGN.md §8, tal's scan types).
+        convention: "aperture" (detected photons per pulse) or "point_radiance" (tal / mitransient).
+        spots: (L, 3) laser points; spot_normals: (L, 3) relay-wall normals there (facing the hidden side);
+        spot_objects: (L,) object ids; laser_shape: (lx, ly) grid of the laser points (L = lx·ly).
+        emitter: (3,); emitter_legs: (L,) |spot − emitter|.
+        sensor: (3,) sensor position; aperture_area: m²; aperture_normal: unit vector toward the grid centre.
+        fov_center, fov_u, fov_v, fov_normal: the sensor grid's frame on the relay wall; fov_size: (w, h);
+        fov_pixels: (nx, ny) sensor points (cell centres) / pixel regions (cells).
+        photons: Φ, photons per pulse (1 for point radiance: per unit power at the spot).
+        legacy_single_pixel: the scene used the paper's one-pixel ``sensor.fov`` (envelope shape (T,)).
+    """
+
+    kind: str
+    convention: str
+    spots: np.ndarray
+    spot_normals: np.ndarray
+    spot_objects: np.ndarray
+    laser_shape: tuple[int, int]
+    emitter: np.ndarray
+    emitter_legs: np.ndarray
+    sensor: np.ndarray
+    aperture_area: float
+    aperture_normal: np.ndarray
+    fov_center: np.ndarray
+    fov_u: np.ndarray
+    fov_v: np.ndarray
+    fov_normal: np.ndarray
+    fov_size: tuple[float, float]
+    fov_pixels: tuple[int, int]
+    photons: float
+    legacy_single_pixel: bool = False
+
+    # -- the first laser point, for single-spot callers (figures, planner) --------------------------------
+    @property
+    def spot(self) -> np.ndarray:
+        return self.spots[0]
+
+    @property
+    def spot_normal(self) -> np.ndarray:
+        return self.spot_normals[0]
+
+    @property
+    def spot_object(self) -> int:
+        return int(self.spot_objects[0])
+
+    @property
+    def emitter_leg(self) -> float:
+        return float(self.emitter_legs[0])
+
+    @property
+    def n_pixels(self) -> int:
+        """Sensor points (or pixel regions) S."""
+        return self.fov_pixels[0] * self.fov_pixels[1]
+
+    @property
+    def n_lasers(self) -> int:
+        return len(self.spots)
+
+    @property
+    def n_channels(self) -> int:
+        """Output channels: S (single, confocal) or L·S (exhaustive)."""
+        return self.n_lasers * self.n_pixels if self.kind == "exhaustive" else self.n_pixels
+
+    def channel(self, laser: int, pixel: np.ndarray) -> np.ndarray:
+        """Output channel of sensor pixel(s) ``pixel`` lit from laser point ``laser`` (−1: not recorded)."""
+        pixel = np.asarray(pixel)
+        if self.kind == "exhaustive":
+            return np.where(pixel >= 0, laser * self.n_pixels + pixel, -1)
+        if self.kind == "confocal":
+            return np.where(pixel == laser, pixel, -1)
+        return pixel
+
+    def channel_shape(self) -> tuple[int, ...]:
+        """Leading shape of the envelope: () legacy single pixel, (ny, nx), or (ly, lx, ny, nx) exhaustive."""
+        if self.legacy_single_pixel:
+            return ()
+        nx, ny = self.fov_pixels
+        if self.kind == "exhaustive":
+            lx, ly = self.laser_shape
+            return (ly, lx, ny, nx)
+        return (ny, nx)
+
+    def sensor_points(self) -> np.ndarray:
+        """(ny, nx, 3) sensor points: cell centres of the sensor grid."""
+        nx, ny = self.fov_pixels
+        return _grid_points(self.fov_center, self.fov_size, self.fov_pixels, self.fov_u, self.fov_v).reshape(ny, nx, 3)
+
+    def fov_points(self, cu: np.ndarray, cv: np.ndarray) -> np.ndarray:
+        """World points (..., 3) of sensor-grid coordinates: ``cu`` in [0, nx] and ``cv`` in [0, ny] are a pixel
+        index plus the position inside that pixel (0.5: its centre), broadcast together."""
+        nx, ny = self.fov_pixels
+        a = (cu / nx - 0.5) * self.fov_size[0]
+        b = (cv / ny - 0.5) * self.fov_size[1]
+        return self.fov_center + a[..., None] * self.fov_u + b[..., None] * self.fov_v
+
+    def fov_margin(self, points: np.ndarray) -> np.ndarray:
+        """In-plane distance (m) of points (..., 3) inside the sensor grid's rectangle edges: > 0 inside,
+        < 0 outside (the off-plane distance is not included)."""
+        rel = points - self.fov_center
+        return np.minimum(0.5 * self.fov_size[0] - np.abs(rel @ self.fov_u),
+                          0.5 * self.fov_size[1] - np.abs(rel @ self.fov_v))
+
+    def spot_inside_fov(self, laser: int) -> bool:
+        """Whether laser point ``laser`` lies strictly inside the sensor grid's rectangle (a point on its edge,
+        within ``FOV_EDGE_REL`` of the FoV size, counts as outside)."""
+        return bool(self.fov_margin(self.spots[laser]) > FOV_EDGE_REL * max(self.fov_size))
+
+    def fov_pixel(self, points: np.ndarray, tol: float) -> np.ndarray:
+        """Sensor pixel index (row-major over (v, u)) of each point, −1 outside the FoV. (..., 3) → (...,)."""
+        rel = points - self.fov_center
+        a = (rel @ self.fov_u) / self.fov_size[0] + 0.5
+        b = (rel @ self.fov_v) / self.fov_size[1] + 0.5
+        inside = (np.abs(rel @ self.fov_normal) <= tol) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
+        nx, ny = self.fov_pixels
+        ix = np.clip((np.nan_to_num(a) * nx).astype(np.int64), 0, nx - 1)
+        iy = np.clip((np.nan_to_num(b) * ny).astype(np.int64), 0, ny - 1)
+        return np.where(inside, iy * nx + ix, -1)
+
+
+
+def _on_surface(caster: RayCaster, point: np.ndarray, direction: np.ndarray, tol: float) -> bool:
+    """True when a surface passes within ``tol`` of ``point`` along ``direction`` (a short probe ray)."""
+    probe = caster.intersect((point - 2 * tol * direction)[None], direction[None])
+    return bool(probe.hit[0] and probe.distance[0] <= 4 * tol)
+
+
+def _wall_frame(caster: RayCaster, sensor: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(u, v, n) of the relay wall around ``center`` as the sensor sees it (n facing the sensor)."""
+    hit_c = caster.intersect(sensor[None], unit(center - sensor)[None])
+    normal = hit_c.normals[0] if hit_c.hit[0] else unit(sensor - center)
+    u = np.cross(normal, np.array([0.0, 0.0, 1.0]))
+    u = unit(np.cross(normal, np.array([0.0, 1.0, 0.0]))) if np.linalg.norm(u) < 1e-9 else unit(u)
+    return u, np.cross(u, normal), normal
+
+
+def _grid_points(center, size, points, u, v) -> np.ndarray:
+    """(ny·nx, 3) cell centres of an nx×ny grid of size (w, h) around ``center`` in the (u, v) frame."""
+    nx, ny = points
+    a = ((np.arange(nx) + 0.5) / nx - 0.5) * size[0]
+    b = ((np.arange(ny) + 0.5) / ny - 0.5) * size[1]
+    return (np.asarray(center, float) + b[:, None, None] * v + a[None, :, None] * u).reshape(-1, 3)
+
+
+def _resolve_spot(caster: RayCaster, names: list[str], emitter: np.ndarray, spot: np.ndarray, where: str,
+                  field: str) -> tuple[np.ndarray, int, float]:
+    """Normal, object id and emitter leg of a laser point; SceneError when it is off every surface."""
+    leg = float(np.linalg.norm(spot - emitter))
+    if leg == 0:
+        raise SceneError(f"{where}{field} equals laser.emitter {spot.tolist()}")
+    hits = caster.intersect(emitter[None], unit(spot - emitter)[None])
+    tol = FOV_PLANE_TOL * caster.offset
+    if not hits.hit[0] or hits.distance[0] < leg - tol:
+        if hits.hit[0] and _on_surface(caster, spot, unit(spot - emitter), tol):
+            raise SceneError(f"{where}{field} {spot.tolist()} is hidden from the emitter: the beam hits "
+                             f"object {names[hits.object_id[0]]!r} at "
+                             f"{np.round(hits.points[0], 4).tolist()} first")
+        raise SceneError(f"{where}{field} {spot.tolist()} is off every surface (no surface there along "
+                         f"the beam from the emitter {emitter.tolist()})")
+    if hits.distance[0] > leg + tol:
+        raise SceneError(f"{where}{field} {spot.tolist()} is off every surface (the beam from the emitter "
+                         f"first hits {np.round(hits.points[0], 4).tolist()})")
+    return hits.normals[0], int(hits.object_id[0]), leg
+
+
+def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
+    """Find the laser points' surfaces and normals, set up the sensor grid, check the sensor sees it.
+
+    Raises:
+        SceneError: a laser point off every surface or hidden from the emitter; the sensor grid sees no
+            surface from the sensor.
+    """
+    where = f"{scene.source}: " if scene.source else ""
+    emitter = np.asarray(scene.laser.emitter, dtype=np.float64)
+    sensor = np.asarray(scene.sensor.position, dtype=np.float64)
+    cap = scene.capture
+    kind = cap.type if cap else "single"
+    convention = cap.convention if cap else "aperture"
+    if cap is not None and cap.type == "confocal":
+        grid, grid_field = cap.laser_grid, "capture.laser_grid"
+    elif cap is not None and cap.sensor_grid is not None:
+        grid, grid_field = cap.sensor_grid, "capture.sensor_grid"
+    else:
+        fov = scene.sensor.fov
+        grid, grid_field = fov, "sensor.fov"
+    center = np.asarray(grid.center, dtype=np.float64)
+    size = tuple(float(x) for x in grid.size)
+    pixels = tuple(grid.pixels) if grid_field == "sensor.fov" else tuple(grid.points)
+    if convention == "aperture" and min(size) <= 0:
+        raise SceneError(f"{where}{grid_field}.size must be > 0 for the aperture convention (pixel regions), "
+                         f"got {list(size)}")
+    u, v, normal = _wall_frame(caster, sensor, center)
+    if cap is None or cap.type == "single":
+        spots = np.asarray(scene.laser.spot, dtype=np.float64)[None]
+        laser_shape, fields = (1, 1), ["laser.spot"]
+    else:
+        lg = cap.laser_grid
+        lu, lv, _ = _wall_frame(caster, sensor, np.asarray(lg.center, float))
+        spots = _grid_points(lg.center, lg.size, lg.points, lu, lv)
+        laser_shape = tuple(lg.points)
+        fields = [f"capture.laser_grid point {i}" for i in range(len(spots))]
+    names = [o.name for o in scene.objects]
+    resolved = [_resolve_spot(caster, names, emitter, p, where, f) for p, f in zip(spots, fields)]
+    if float(np.dot(normal, resolved[0][0])) < 0:
+        raise SceneError(f"{where}sensor.position {sensor.tolist()} is behind the relay wall: it sees the back of "
+                         f"the wall at {grid_field} while the laser lights the other side")
+    photons = 1.0 if convention == "point_radiance" else scene.laser.photons
+    capture = Capture(kind, convention, spots, np.array([r[0] for r in resolved]),
+                      np.array([r[1] for r in resolved], dtype=np.int64), laser_shape, emitter,
+                      np.array([r[2] for r in resolved]), sensor, scene.sensor.aperture_area,
+                      unit(center - sensor), center, u, v, normal, size, pixels, photons,
+                      legacy_single_pixel=(cap is None and pixels == (1, 1)))
+    # Probe the sensor grid from the sensor: some of it must be a surface the sensor sees.
+    tol = FOV_PLANE_TOL * caster.offset
+    g = (np.arange(9) + 0.5) / 9 - 0.5
+    gu, gv = np.meshgrid(g * size[0], g * size[1])
+    targets = np.concatenate([center + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * v,
+                              capture.sensor_points().reshape(-1, 3)])
+    probe = caster.intersect(np.broadcast_to(sensor, targets.shape), unit(targets - sensor))
+    on_wall = probe.hit & (np.abs(dot(np.nan_to_num(probe.points) - center, normal)) <= tol)
+    if not on_wall.any():
+        raise SceneError(f"{where}{grid_field} (center {center.tolist()}, size {list(size)}) sees no surface "
+                         f"from the sensor at {sensor.tolist()}")
+    return capture
+
+

@@ -1,0 +1,182 @@
+"""Scene files: the YAML schema of a scene and its loading into a :class:`~datagen.scene.model.Scene`.
+
+:func:`load_scene` reads a scene YAML (see scene_library/demo_room.yaml), validates it with pydantic
+(:class:`SceneFile`; an error names the file, the field and the value, :func:`format_validation_error`) and
+builds its objects with the builders of :mod:`datagen.scene.builders` (one spec per ``builder``: l_room,
+pillar, box, quad, mesh). :func:`read_yaml` is the shared reader of YAML inputs (scene files, room
+distributions, tal configs).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from .builders import box, import_mesh, l_room, pillar, quad
+from .materials import Material
+from .model import Scene
+from .parts import CaptureSpec, Laser, SceneError, SceneObject, Sensor, Vec3
+
+
+class _Spec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class LRoomSpec(_Spec):
+    builder: Literal["l_room"]
+    relay_x: float = 6.0
+    corridor_start: float = -2.0
+    corridor_width: float = Field(2.1, gt=0)
+    room_depth: float = Field(3.0, gt=0)
+    room_length: float = Field(4.0, gt=0)
+    height: float = Field(3.0, gt=0)
+    bend_side: Literal[1, -1] = 1
+    closed_corridor_end: bool = False
+    materials: dict[Literal["wall", "floor", "ceiling", "relay_wall"], Material] = {}
+
+    def build(self) -> list[SceneObject]:
+        kwargs = self.model_dump(exclude={"builder", "materials"})
+        return l_room(**kwargs, materials=dict(self.materials))
+
+
+class PillarSpec(_Spec):
+    builder: Literal["pillar"]
+    name: str = "pillar"
+    label: str = "pillar"
+    center: tuple[float, float]
+    size: tuple[float, float]
+    height: float = Field(gt=0)
+    rotation_deg: float = 0.0
+    material: Material = Material()
+
+    def build(self) -> list[SceneObject]:
+        return [pillar(self.name, self.center, self.size, self.height, self.rotation_deg, self.material, self.label)]
+
+
+class BoxSpec(_Spec):
+    builder: Literal["box"]
+    name: str = "box"
+    label: str = "box"
+    center: Vec3
+    size: Vec3
+    rotation_deg: float = 0.0
+    material: Material = Material()
+
+    @field_validator("size")
+    @classmethod
+    def _positive(cls, v: Vec3) -> Vec3:
+        if min(v) <= 0:
+            raise ValueError(f"box sizes must be > 0, got {list(v)}")
+        return v
+
+    def build(self) -> list[SceneObject]:
+        return [box(self.name, self.center, self.size, self.rotation_deg, self.material, self.label)]
+
+
+class QuadSpec(_Spec):
+    builder: Literal["quad"]
+    name: str
+    label: str = "mesh"
+    corner: Vec3
+    edge_u: Vec3
+    edge_v: Vec3
+    material: Material = Material()
+
+    def build(self) -> list[SceneObject]:
+        return [quad(self.name, self.corner, self.edge_u, self.edge_v, self.material, self.label)]
+
+
+class MeshSpec(_Spec):
+    builder: Literal["mesh"]
+    name: str
+    label: str = "mesh"
+    path: str
+    scale: float = Field(1.0, gt=0)
+    left_handed: bool = False
+    rotation_deg: float = 0.0
+    translate: Vec3 = (0.0, 0.0, 0.0)
+    material: Material = Material()
+
+    def build(self, base: Path | None = None) -> list[SceneObject]:
+        path = Path(self.path)
+        if base is not None and not path.is_absolute():
+            path = base / path
+        return [import_mesh(self.name, path, self.scale, self.left_handed, self.rotation_deg, self.translate,
+                            self.material, self.label)]
+
+
+ObjectSpec = Annotated[Union[LRoomSpec, PillarSpec, BoxSpec, QuadSpec, MeshSpec], Field(discriminator="builder")]
+
+
+class SceneFile(_Spec):
+    """Schema of a scene YAML file (see scene_library/demo_room.yaml)."""
+
+    name: str = "scene"
+    objects: list[ObjectSpec]
+    laser: Laser
+    sensor: Sensor
+    capture: CaptureSpec | None = None
+    simulation: dict = {}
+
+
+def format_validation_error(exc: ValidationError, source: str | None = None) -> str:
+    """One line per problem: ``file: field.path: message (got value)``."""
+    lines = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"])
+        value = err.get("input")
+        shown = "" if isinstance(value, dict) else f" (got {value!r})"
+        lines.append(f"{source + ': ' if source else ''}{loc}: {err['msg']}{shown}")
+    return "; ".join(lines)
+
+
+def scene_from_dict(data: dict, source: str | None = None, base: Path | None = None) -> Scene:
+    """Build a :class:`Scene` from parsed YAML.
+
+    Raises:
+        SceneError: schema violations (naming file, field and value) and geometry errors.
+    """
+    if not isinstance(data, dict):
+        raise SceneError(f"{source or 'scene'}: expected a mapping at the top level, got {type(data).__name__}")
+    if "objects" not in data and {"geometry", "scan_type"} & set(data):
+        raise SceneError(f"{source or 'scene'}: this is a tal render config (it has "
+                         f"{', '.join(sorted({'geometry', 'scan_type'} & set(data)))}), not a datagen scene: "
+                         "render it with `datagen tal-render CONFIG.yaml --out FILE.hdf5`")
+    try:
+        spec = SceneFile.model_validate(data)
+    except ValidationError as exc:
+        raise SceneError(format_validation_error(exc, source)) from None
+    objects: list[SceneObject] = []
+    for i, obj in enumerate(spec.objects):
+        try:
+            objects.extend(obj.build(base) if isinstance(obj, MeshSpec) else obj.build())
+        except SceneError as exc:
+            raise SceneError(f"{source + ': ' if source else ''}objects.{i}: {exc}") from None
+    return Scene(objects, spec.laser, spec.sensor, spec.name, source, spec.simulation, spec.capture)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load and validate a scene YAML file.
+
+    Raises:
+        SceneError: missing file, YAML syntax error, or invalid content (message names file, field, value).
+    """
+    path = Path(path)
+    return scene_from_dict(read_yaml(path, "scene file"), str(path), path.parent)
+
+
+def read_yaml(path: Path, what: str) -> Any:
+    """Parsed content of the YAML file ``path`` (a ``what``: "scene file", "tal config", ...).
+
+    Raises:
+        SceneError: the file does not exist ("<what> not found: <path>") or is not valid YAML (names the file
+            and the parser's message).
+    """
+    if not path.is_file():
+        raise SceneError(f"{what} not found: {path}")
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{path}: not valid YAML: {exc}".replace("\n", " ")) from None

@@ -1,0 +1,211 @@
+"""Bidirectional reflectance distribution functions (BRDFs) and materials.
+
+Every BRDF here is reciprocal, f(ω_i, ω_o) = f(ω_o, ω_i), and energy-conserving: its hemispherical albedo
+a(ω_i) = ∫ f(ω_i, ω_o) cos θ_o dω_o ≤ albedo ≤ 1 for every incidence (docs/physics.md §2). Directions are
+unit vectors pointing *away* from the surface, in world coordinates; ``normals`` are unit surface normals on
+the side the light arrives from. f is in 1/sr.
+
+Kinds:
+
+- ``lambertian``: f = ρ/π (the paper's walls, box and relay wall; Scholes & Leach 2024 §3.1, B = cos φ with
+  the cosine written separately here).
+- ``sin_theta``: the paper's illustrative anisotropic lobe on the pillar (§3.2, B_j = sin θ̂_j^r, θ the
+  azimuth in the local tangent plane, measured from the material's ``axis`` projected onto that plane).
+  The paper's form depends on the outgoing azimuth only, which is neither reciprocal nor normalised; we use
+  the reciprocal, normalised separable form f = (ρ/2)·|sin θ_i|·|sin θ_o|, whose albedo is ρ·|sin θ_i| ≤ ρ
+  (∫|sin θ| dθ · ∫cos φ sin φ dφ = 4 · ½ = 2, hence the ½). With ``axis`` = +z on a vertical face it sends
+  light into the horizontal plane, as in the paper's Figure 5b.
+- ``phong``: normalised modified Phong (Lafortune & Willems 1994): f = ρ·[(1−k_s)/π + k_s·(n+2)/(2π)·
+  max(0, r_i·ω_o)^n], r_i the mirror direction of ω_i. Reciprocal since r_i·ω_o = r_o·ω_i; the lobe's
+  albedo is ≤ 1 for every incidence, so a(ω_i) ≤ ρ. Large n approaches a mirror.
+"""
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+BRDF_KINDS = ("lambertian", "sin_theta", "phong")
+LAMBERTIAN, SIN_THETA, PHONG = range(3)
+
+TANGENT_EPS = 1e-12
+"""Below this squared tangential length a direction is along the normal and its azimuth is undefined;
+the sin θ lobe is then 0 there (a set of measure zero)."""
+
+
+class Material(BaseModel):
+    """Surface material: albedo (reflectivity Γ of the paper) and BRDF kind with its lobe parameters.
+
+    Raises:
+        pydantic.ValidationError: albedo outside [0, 1], unknown kind, specular outside [0, 1],
+            exponent ≤ 0, or a zero-length anisotropy axis (the message names the field and value).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["lambertian", "sin_theta", "phong"] = "lambertian"
+    albedo: float = Field(1.0, ge=0.0, le=1.0, description="hemispherical reflectance scale ρ (Γ), 0..1")
+    specular: float = Field(0.5, ge=0.0, le=1.0, description="phong: fraction k_s of ρ in the glossy lobe")
+    exponent: float = Field(50.0, gt=0.0, allow_inf_nan=False, description="phong: lobe exponent n (larger is sharper)")
+    axis: tuple[float, float, float] = Field((0.0, 0.0, 1.0), description="sin_theta: azimuth reference axis")
+
+    @field_validator("axis")
+    @classmethod
+    def _axis_nonzero(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not np.all(np.isfinite(value)) or np.linalg.norm(value) == 0:
+            raise ValueError(f"axis must be a finite non-zero vector, got {value!r}")
+        return value
+
+    @property
+    def is_lambertian(self) -> bool:
+        """True when f does not depend on directions (enables the factorised secondary, docs/physics.md §3)."""
+        return self.kind == "lambertian" or (self.kind == "phong" and self.specular == 0.0)
+
+
+class MaterialTable:
+    """Materials of a scene as parallel arrays, indexed by object id, for vectorised BRDF evaluation.
+
+    Attributes:
+        kind: (n_objects,) int8 BRDF kind code (LAMBERTIAN, SIN_THETA, PHONG).
+        albedo, specular, exponent: (n_objects,) float64.
+        axis: (n_objects, 3) float64 unit anisotropy axes.
+    """
+
+    def __init__(self, materials: list[Material]):
+        self.materials = list(materials)
+        self.kind = np.array([BRDF_KINDS.index(m.kind) for m in materials], dtype=np.int8)
+        self.albedo = np.array([m.albedo for m in materials], dtype=np.float64)
+        self.specular = np.array([m.specular for m in materials], dtype=np.float64)
+        self.exponent = np.array([m.exponent for m in materials], dtype=np.float64)
+        axis = np.array([m.axis for m in materials], dtype=np.float64).reshape(-1, 3)
+        self.axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
+        self.lambertian = np.array([m.is_lambertian for m in materials], dtype=bool)
+
+    def evaluate(self, object_ids: np.ndarray, normals: np.ndarray, w_in: np.ndarray,
+                 w_out: np.ndarray) -> np.ndarray:
+        """BRDF values f(ω_in, ω_out) in 1/sr for each point (broadcasting over leading axes).
+
+        Args:
+            object_ids: (...,) int, object of each point (indexes this table).
+            normals: (..., 3) float64 unit normals on the lit side.
+            w_in, w_out: (..., 3) float64 unit directions away from the surface.
+        Returns:
+            (...,) float64; 0 where either direction is below the surface.
+        """
+        object_ids, normals, w_in, w_out = _broadcast(object_ids, normals, w_in, w_out)
+        cos_in = np.einsum("...k,...k->...", normals, w_in)
+        cos_out = np.einsum("...k,...k->...", normals, w_out)
+        f = np.zeros(object_ids.shape, dtype=np.float64)
+        kind = self.kind[object_ids]
+        rho = self.albedo[object_ids]
+        f = np.where(kind == LAMBERTIAN, rho / np.pi, f)
+        sel = kind == SIN_THETA
+        if np.any(sel):
+            axis = self.axis[object_ids[sel]]
+            n = normals[sel]
+            s_in = _abs_sin_azimuth(n, axis, w_in[sel])
+            s_out = _abs_sin_azimuth(n, axis, w_out[sel])
+            f[sel] = 0.5 * rho[sel] * s_in * s_out
+        sel = kind == PHONG
+        if np.any(sel):
+            ids = object_ids[sel]
+            ks, expo = self.specular[ids], self.exponent[ids]
+            n, wi, wo = normals[sel], w_in[sel], w_out[sel]
+            mirror = 2.0 * cos_in[sel][:, None] * n - wi
+            cos_alpha = np.clip(np.einsum("ij,ij->i", mirror, wo), 0.0, 1.0)
+            lobe = (expo + 2.0) / (2.0 * np.pi) * cos_alpha ** expo
+            f[sel] = rho[sel] * ((1.0 - ks) / np.pi + ks * lobe)
+        return np.where((cos_in > 0) & (cos_out > 0), f, 0.0)
+
+
+    # -- separable split (used by the exact factorised secondary, docs/physics.md §3) ---------------------
+
+    def separable_scale(self, object_ids: np.ndarray) -> np.ndarray:
+        """c in the split f(ω_i, ω_o) = c·g(ω_i)·g(ω_o) + lobe(ω_i, ω_o), per object id (1/sr).
+
+        Lambertian: c = ρ/π, g = 1, no lobe. sin θ: c = ρ/2, g = |sin azimuth|, no lobe (the lobe is a
+        product of an incoming and an outgoing factor). Phong: c = (1 − k_s)ρ/π, g = 1, lobe = ρ·k_s·(n+2)/(2π)
+        ·cos^n α (not separable: summed pairwise).
+        """
+        ids = np.asarray(object_ids)
+        kind, rho = self.kind[ids], self.albedo[ids]
+        return np.where(kind == SIN_THETA, 0.5 * rho,
+                        np.where(kind == PHONG, (1.0 - self.specular[ids]) * rho / np.pi, rho / np.pi))
+
+    def separable_factor(self, object_ids: np.ndarray, normals: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """g(ω) of :meth:`separable_scale`'s split, (...,) for (..., 3) directions away from the surface."""
+        object_ids, normals, w, _ = _broadcast(object_ids, normals, w, w)
+        g = (np.einsum("...k,...k->...", normals, w) > 0).astype(np.float64)
+        sel = self.kind[object_ids] == SIN_THETA
+        if np.any(sel):
+            g[sel] *= _abs_sin_azimuth(normals[sel], self.axis[object_ids[sel]], w[sel])
+        return g
+
+    def separable_factor_above(self, object_ids: np.ndarray, normals: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """:meth:`separable_factor` for directions known to lie above the surface (skips the cos test)."""
+        object_ids = np.asarray(object_ids)
+        g = np.ones(object_ids.shape, dtype=np.float64)
+        sel = self.kind[object_ids] == SIN_THETA
+        if np.any(sel):
+            g[sel] = _abs_sin_azimuth(normals[sel], self.axis[object_ids[sel]], w[sel])
+        return g
+
+    def has_lobe(self, object_ids: np.ndarray) -> np.ndarray:
+        """True where the material has a non-separable lobe (Phong with k_s > 0)."""
+        ids = np.asarray(object_ids)
+        return (self.kind[ids] == PHONG) & (self.specular[ids] > 0)
+
+    def lobe(self, object_ids: np.ndarray, normals: np.ndarray, w_in: np.ndarray,
+             w_out: np.ndarray) -> np.ndarray:
+        """The non-separable part of f (Phong glossy lobe; 0 for other kinds), broadcasting like evaluate."""
+        object_ids, normals, w_in, w_out = _broadcast(object_ids, normals, w_in, w_out)
+        cos_in = np.einsum("...k,...k->...", normals, w_in)
+        cos_out = np.einsum("...k,...k->...", normals, w_out)
+        out = np.zeros(object_ids.shape, dtype=np.float64)
+        sel = self.has_lobe(object_ids) & (cos_in > 0) & (cos_out > 0)
+        if np.any(sel):
+            ids = object_ids[sel]
+            mirror = 2.0 * cos_in[sel][..., None] * normals[sel] - w_in[sel]
+            cos_alpha = np.clip(np.einsum("...k,...k->...", mirror, w_out[sel]), 0.0, 1.0)
+            expo = self.exponent[ids]
+            out[sel] = self.albedo[ids] * self.specular[ids] * (expo + 2.0) / (2.0 * np.pi) * cos_alpha ** expo
+        return out
+
+
+def _broadcast(ids, normals, w_in, w_out):
+    ids = np.asarray(ids)
+    shape = np.broadcast_shapes(ids.shape, normals.shape[:-1], w_in.shape[:-1], w_out.shape[:-1])
+    return (np.broadcast_to(ids, shape), np.broadcast_to(normals, shape + (3,)),
+            np.broadcast_to(w_in, shape + (3,)), np.broadcast_to(w_out, shape + (3,)))
+
+
+def _abs_sin_azimuth(normals: np.ndarray, axis: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """|sin θ| of direction w's azimuth θ about the normal, measured from ``axis`` projected on the plane.
+
+    (n, 3) inputs, (n,) output. Where the axis is parallel to the normal the reference falls back to an
+    arbitrary fixed tangent (:func:`tangent_frame`).
+    """
+    t = axis - np.einsum("ij,ij->i", axis, normals)[:, None] * normals
+    t_len2 = np.einsum("ij,ij->i", t, t)
+    fallback, _ = tangent_frame(normals)
+    t = np.where((t_len2 > TANGENT_EPS)[:, None], t / np.sqrt(np.maximum(t_len2, TANGENT_EPS))[:, None], fallback)
+    b = np.cross(normals, t)
+    w_t = w - np.einsum("ij,ij->i", w, normals)[:, None] * normals
+    tan_len2 = np.einsum("ij,ij->i", w_t, w_t)
+    sin_az = np.abs(np.einsum("ij,ij->i", w_t, b)) / np.sqrt(np.maximum(tan_len2, TANGENT_EPS))
+    return np.where(tan_len2 > TANGENT_EPS, np.minimum(sin_az, 1.0), 0.0)
+
+
+def tangent_frame(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal tangents (t, b) with t × b = n for unit normals, (n, 3) → two (n, 3) arrays.
+
+    Duff et al., "Building an orthonormal basis, revisited", JCGT 6(1), 2017 (branch-free, stable for all n).
+    """
+    n = np.asarray(normals, dtype=np.float64)
+    sign = np.where(n[..., 2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[..., 2])
+    b = n[..., 0] * n[..., 1] * a
+    t = np.stack([1.0 + sign * n[..., 0] ** 2 * a, sign * b, -sign * n[..., 0]], axis=-1)
+    bt = np.stack([b, sign + n[..., 1] ** 2 * a, -n[..., 1]], axis=-1)
+    return t, bt

@@ -1,0 +1,14 @@
+"""Simulation: the main job, scene → sampling → transport → timing → detector (the layer above the planner).
+
+- :mod:`.config`: :class:`SimulationConfig` (sampling, estimator, time axis, IRF, detector, effects; pydantic),
+  :func:`resolve_config` (a scene file's ``simulation`` block merged with overrides) and the random streams
+  (:func:`stream_rng`, ``STREAM_SAMPLING`` / ``STREAM_NOISE``).
+- :mod:`.run`: :func:`simulate` → :class:`Result` (``time_edges`` (T+1,) s, ``envelope`` (…, T) detected
+  photons per pulse per bin, ``components``, ``counts`` (…, T) int64, ``attrs``); :func:`run_transport` (plan,
+  estimate, bin) → :class:`Transported`; :func:`make_result` (detector draw and metadata).
+"""
+from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, parse_grid, resolve_config, stream_rng
+from .run import Result, Transported, library_versions, make_result, run_transport, simulate
+
+__all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "SimulationConfig", "parse_grid", "resolve_config", "stream_rng",
+           "Result", "Transported", "library_versions", "make_result", "run_transport", "simulate"]

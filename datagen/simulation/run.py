@@ -1,0 +1,225 @@
+"""The main job: scene → sampling → transport → envelope L(t) → SPAD histogram.
+
+``simulate(scene, config)`` returns a :class:`Result` holding the binned envelope (expected detected photons
+per laser pulse per time bin), its components (room, each object, secondary) and a finite-exposure SPAD
+histogram drawn from it. The estimator is chosen by name from the transport registry
+(:func:`datagen.transport.estimator`); the effect planner decides first which effects to simulate. Random
+streams: :func:`datagen.simulation.config.stream_rng` (docs/physics.md §7).
+"""
+from __future__ import annotations
+
+import platform
+import time
+from dataclasses import dataclass, field
+from importlib import metadata
+from typing import Any
+
+import numpy as np
+
+from .. import spad
+from ..planner import Plan, plan_effects
+from ..scene import RayCaster, Scene
+from ..timing import EnvelopeAccumulator
+from ..transport import Estimator, Transport, estimator
+from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
+
+
+@dataclass
+class Result:
+    """Output of :func:`simulate`.
+
+    Attributes:
+        time_edges: (n_bins+1,) float64 seconds.
+        envelope: float64 expected detected photons per pulse per bin (point radiance: 1/(m²·sr) per unit
+            power at the spot, per bin), shaped ``channel_shape + (n_bins,)``: (n_bins,) for the paper's
+            single-pixel FoV, (ny, nx, n_bins) for a sensor grid / SPAD array / confocal scan, (ly, lx, ny,
+            nx, n_bins) for an exhaustive scan.
+        components: name → array shaped like ``envelope``; they sum to ``envelope``.
+        counts: int64 SPAD histogram over the exposure, shaped like ``envelope``.
+        attrs: JSON-able metadata (resolved config, capture, effect plan, timings, versions, statistics).
+        laser_points: (ly, lx, 3) float64 laser points on the relay wall (m); sensor_points: (ny, nx, 3);
+        wall_normal: (3,) relay-wall normal facing the sensor.
+    """
+
+    time_edges: np.ndarray
+    envelope: np.ndarray
+    components: dict[str, np.ndarray]
+    counts: np.ndarray
+    attrs: dict = field(default_factory=dict)
+    laser_points: np.ndarray | None = None
+    sensor_points: np.ndarray | None = None
+    wall_normal: np.ndarray | None = None
+
+    @property
+    def time_centers(self) -> np.ndarray:
+        return 0.5 * (self.time_edges[1:] + self.time_edges[:-1])
+
+    def peak_time(self, name: str | None = None) -> float:
+        """Time (s) of the maximum of the envelope or of a component (summed over channels)."""
+        y = self.envelope if name is None else self.components[name]
+        return float(self.time_centers[int(np.argmax(y.reshape(-1, y.shape[-1]).sum(0)))])
+
+    def area(self, name: str | None = None) -> float:
+        """Expected detections per pulse in the window (sum of bins) of the envelope or a component."""
+        y = self.envelope if name is None else self.components[name]
+        return float(y.sum())
+
+
+def library_versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("datagen", "numpy", "scipy", "trimesh", "embreex", "zarr", "pydantic", "torch"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+@dataclass
+class Transported:
+    """Binned transport output before the detector: per-component envelopes and bookkeeping.
+
+    Attributes:
+        names: component names; binned: (n_components, n_channels, n_bins) float64; outside: same without
+        the bin axis (energy outside the window); transport: the estimator used (capture, settings, stats);
+        plan: the effect :class:`~datagen.planner.Plan`; seconds: setup / transport / binning wall times.
+    """
+
+    names: list[str]
+    binned: np.ndarray
+    outside: np.ndarray
+    transport: Estimator
+    plan: Plan
+    seconds: dict
+
+
+def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generator,
+                  progress: bool = False) -> Transported:
+    """Plan the effects, run the configured estimator and bin its impulses (scene → transport → envelope).
+
+    The lookin settings from ``config`` are resolved first (they carry the physics switches and the capture);
+    the effect planner's decisions are applied to them; then the estimator registered under
+    ``config.estimator`` is built from them (:func:`datagen.transport.estimator`) and run into an
+    :class:`~datagen.timing.EnvelopeAccumulator`.
+    """
+    t0 = time.perf_counter()
+    caster = RayCaster(scene)
+    lookin = Transport(scene, config.transport_settings(), caster)
+    plan = plan_effects(scene, config, lookin.capture, caster)
+    lookin.configure(plan.apply(lookin.settings))
+    transport: Estimator = lookin if config.estimator == "lookin" else \
+        estimator(config.estimator).from_config(scene, config, lookin.settings, caster)
+    t_setup = time.perf_counter() - t0
+    capture = transport.capture
+    names = transport.component_names
+    n_ch = capture.n_channels
+    acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_ch)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        total, unit = transport.progress_total()
+        bar = tqdm(total=total, unit=unit, desc="transport", leave=False)
+    t1 = time.perf_counter()
+    transport.run(acc, rng, progress=(bar.update if bar is not None else None))
+    if bar is not None:
+        bar.close()
+    t_transport = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    binned = acc.binned().reshape(len(names), n_ch, -1)
+    outside = acc.outside().reshape(len(names), n_ch)
+    seconds = {"setup": t_setup, "transport": t_transport, "binning": time.perf_counter() - t2}
+    return Transported(names, binned, outside, transport, plan, seconds)
+
+
+def simulate(scene: Scene, config: SimulationConfig | None = None, progress: bool = False,
+             sampling_rng: np.random.Generator | None = None,
+             noise_rng: np.random.Generator | None = None) -> Result:
+    """Simulate the envelope and a SPAD histogram for ``scene``.
+
+    Args:
+        scene: the scene (see :func:`datagen.load_scene`).
+        config: sampling, time axis, IRF and detector; default: the scene's ``simulation`` block.
+        progress: show a tqdm bar over lookins.
+        sampling_rng, noise_rng: the scene-sampling and detector-noise streams; default
+            ``stream_rng(config.seed, STREAM_SAMPLING)`` and ``stream_rng(config.seed, STREAM_NOISE)``. Dataset
+            builds pass streams keyed by (dataset seed, split, index, stream) (docs/physics.md §7).
+    Returns:
+        :class:`Result`.
+    Raises:
+        SceneError: invalid scene/config (laser spot off every surface, FoV sees no surface, …).
+    """
+    config = config or resolve_config(scene)
+    t0 = time.perf_counter()
+    rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
+    tr = run_transport(scene, config, rng, progress)
+    return make_result(scene, config, tr, noise_rng, t0)
+
+
+def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
+                noise_rng: np.random.Generator | None, t0: float, extra_attrs: dict | None = None) -> Result:
+    """Detector draw and metadata around binned transport output (the last steps of :func:`simulate`)."""
+    transport, names = tr.transport, tr.names
+    capture = transport.capture
+    shape = capture.channel_shape() + (config.time.n_bins,)
+    components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
+    envelope = tr.binned.sum(axis=0).reshape(shape)
+    detector = config.detector_config()
+    plan = tr.plan.refine_pile_up(envelope, detector)
+    detector = plan.detector(detector)
+    warnings = list(scene.notes)                 # what loading changed (e.g. duplicate faces removed)
+    if not envelope.any():
+        warnings.append("no light path reaches the FoV: the envelope is zero (no path from the laser spot "
+                        "reaches the sensor grid within the time window; counts hold background only)")
+    t3 = time.perf_counter()
+    noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
+    counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
+    t_detect = time.perf_counter() - t3
+    st = transport.stats
+    settings = transport.settings
+    attrs = {
+        "scene": scene.name,
+        "scene_file": scene.source,
+        "config": config.model_dump(mode="json"),
+        "detector": detector.model_dump(mode="json"),
+        "n_cycles": int(detector.cycles),
+        "component_names": names,
+        "capture": {"type": capture.kind, "convention": capture.convention,
+                    "laser_grid": list(capture.laser_shape), "sensor_grid": list(capture.fov_pixels),
+                    "sensor_grid_size": list(capture.fov_size), "sensor_position": capture.sensor.tolist(),
+                    "emitter_position": capture.emitter.tolist(), "channel_shape": list(capture.channel_shape())},
+        "units": {"time_edges": "s",
+                  "envelope": ("expected detected photons per laser pulse per bin" if capture.convention ==
+                               "aperture" else "radiance toward the sensor per unit power at the laser spot, "
+                               "per bin, 1/(m^2 sr)"),
+                  "counts": "detections over the exposure (int64)"},
+        "time_zero": "laser pulse at the laser spot" if not config.count_laser_leg else "laser pulse leaves emitter",
+        "photons_per_pulse": capture.photons,
+        "plan": plan.to_attrs(),
+        "warnings": warnings,
+        "effects": {
+            "primary": True,
+            "estimator": config.estimator,
+            "secondary": settings.secondary,
+            "top_k": config.top_k if settings.secondary == "optimized" else None,
+            "sensor_sampling": getattr(settings, "sensor_sampling", None) or (
+                "quadrature: sensor points / FoV cells" if config.estimator == "quadrature"
+                else "area next-event connections"),
+            "shadow_rays": {"spot": settings.shadow_spot, "sensor": settings.shadow_sensor},
+            "non_lambertian_brdfs": sorted({o.material.kind for o in scene.objects} - {"lambertian"}),
+            "atmospheric_attenuation": settings.attenuation > 0,
+            "first_bounce": settings.first_bounce,
+            "emitter_to_spot_leg_in_time": config.count_laser_leg,
+            "fov_to_sensor_leg_in_time": config.count_sensor_leg,
+            "detector_model": detector.model,
+        },
+        "energy_outside_window": {n: float(v) for n, v in zip(names, tr.outside.sum(1))},
+        "stats": {k: int(v) for k, v in vars(st).items() if isinstance(v, (int, np.integer))},
+        **({"quadrature": transport.attrs()} if hasattr(transport, "attrs") else {}),
+        "timings_s": {**tr.seconds, "detector": t_detect, "total": time.perf_counter() - t0},
+        "versions": library_versions(),
+        **(extra_attrs or {}),
+    }
+    lx, ly = capture.laser_shape
+    return Result(config.time.edges, envelope, components, counts, attrs,
+                  laser_points=capture.spots.reshape(ly, lx, 3), sensor_points=capture.sensor_points(),
+                  wall_normal=capture.fov_normal.copy())

@@ -1,0 +1,29 @@
+"""Timing stage: the time axis, the instrument response (IRF) and the binning of path impulses into envelopes.
+
+In: path impulses from the transport stage — arrival times ``tau`` (float64 s), weights ``w`` (float64
+expected detected photons per laser pulse) and a component id each (room, each hidden object, secondary…) —
+or whole sub-triangles as "tents" (their three vertex times). Out: binned envelopes, (n_components, n_bins)
+float64 photons per pulse per bin on a :class:`TimeAxis`, each bin the exact integral of the impulses
+convolved with the :class:`Irf` (docs/physics.md §5): :meth:`EnvelopeAccumulator.binned`, plus the weight
+that fell outside the window (:meth:`EnvelopeAccumulator.outside`).
+
+Modules (they import each other directly, never through this package):
+
+- :mod:`~datagen.timing.irf`: :class:`TimeAxis`, :class:`Irf` (Gaussian / ex-Gaussian, CDF and bin
+  integrals), :func:`fwhm_to_sigma`, :func:`sigma_to_fwhm`;
+- :mod:`~datagen.timing.accumulator`: :class:`EnvelopeAccumulator` (fine-grid splatting + FFT, or the exact
+  direct mode for narrow IRFs) and the exact per-impulse reference :func:`bin_impulses`;
+- :mod:`~datagen.timing.tents`: closed forms of tent densities and their convolution with the IRF.
+"""
+from .accumulator import MAX_FINE_NODES, NEGATIVE_CLAMP_RTOL, STEPS_PER_SIGMA, EnvelopeAccumulator, bin_impulses
+from .irf import FWHM_PER_SIGMA, MARGIN_SIGMAS, TAIL_MARGIN_TAUS, Irf, TimeAxis, fwhm_to_sigma, sigma_to_fwhm
+from .tents import TENT_GAP_SMALL_SIGMAS, TENT_SMALL_SIGMAS, tent_cdf, tent_cdf2, tent_irf_cdf
+
+__all__ = [
+    # time axis and IRF
+    "FWHM_PER_SIGMA", "MARGIN_SIGMAS", "TAIL_MARGIN_TAUS", "TimeAxis", "Irf", "fwhm_to_sigma", "sigma_to_fwhm",
+    # binning
+    "STEPS_PER_SIGMA", "MAX_FINE_NODES", "NEGATIVE_CLAMP_RTOL", "EnvelopeAccumulator", "bin_impulses",
+    # tents
+    "TENT_SMALL_SIGMAS", "TENT_GAP_SMALL_SIGMAS", "tent_cdf", "tent_cdf2", "tent_irf_cdf",
+]

@@ -1,0 +1,231 @@
+"""Instrument response (IRF) and the time axis of the envelopes (docs/physics.md §5).
+
+:class:`TimeAxis` is the uniform histogram axis: ``n_bins`` half-open bins ``[e_b, e_{b+1})``. :class:`Irf`
+is the density ``h`` of the delay ``X`` = detection time − impulse time: a Gaussian of width sigma (sigma = 0:
+the ideal, delta IRF) or an ex-Gaussian (Gaussian jitter core plus exponential diffusion tail), with its CDF
+``F``, survival function and the stable bin integral :meth:`Irf.interval_mass`. Binning impulses with it is
+:mod:`datagen.timing.accumulator`'s job: a bin holds ``w * [F(e_{b+1} - tau) - F(e_b - tau)]``, an integral,
+never the density sampled at the bin centre.
+
+Conventions: times in seconds (strings such as ``"20ps"`` are accepted by the models, docs/physics.md §1).
+``Irf.cdf(x)`` is ``P(X < x)`` so that half-open bins ``[e_b, e_{b+1})`` are handled exactly, also for the
+delta IRF.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from scipy.special import ndtr
+from scipy.stats import exponnorm
+
+from ..units import parse_duration
+
+__all__ = [
+    "FWHM_PER_SIGMA",
+    "MARGIN_SIGMAS",
+    "TAIL_MARGIN_TAUS",
+    "TimeAxis",
+    "Irf",
+    "fwhm_to_sigma",
+    "sigma_to_fwhm",
+]
+
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+"""FWHM / sigma of a Gaussian, 2*sqrt(2 ln 2) ~= 2.3548."""
+
+MARGIN_SIGMAS = 8.5
+"""Gaussian support kept on each side of an impulse, in sigma: Phi(-8.5) ~ 1e-17, below float64 resolution."""
+
+TAIL_MARGIN_TAUS = 40.0
+"""Exponential-tail support kept after an impulse (ex-Gaussian), in tail constants: exp(-40) ~ 4e-18."""
+
+
+def fwhm_to_sigma(fwhm: float) -> float:
+    """Gaussian sigma (s) from its full width at half maximum (s): sigma = FWHM / (2*sqrt(2 ln 2)).
+
+    Raises:
+        ValueError: ``fwhm`` is negative or not finite.
+    """
+    fwhm = float(fwhm)
+    if not math.isfinite(fwhm) or fwhm < 0:
+        raise ValueError(f"fwhm must be finite and >= 0, got fwhm={fwhm!r}")
+    return fwhm / FWHM_PER_SIGMA
+
+
+def sigma_to_fwhm(sigma: float) -> float:
+    """Gaussian FWHM (s) from its standard deviation (s): FWHM = 2*sqrt(2 ln 2) * sigma.
+
+    Raises:
+        ValueError: ``sigma`` is negative or not finite.
+    """
+    sigma = float(sigma)
+    if not math.isfinite(sigma) or sigma < 0:
+        raise ValueError(f"sigma must be finite and >= 0, got sigma={sigma!r}")
+    return sigma * FWHM_PER_SIGMA
+
+
+class TimeAxis(BaseModel):
+    """Uniform histogram time axis: ``n_bins`` half-open bins ``[e_b, e_{b+1})`` of ``bin_width`` seconds.
+
+    Fields:
+        t_start: time of the first edge, seconds (may be negative; strings such as ``"-1ns"`` accepted).
+        bin_width: bin width, seconds, > 0 (e.g. ``"4ps"``).
+        n_bins: number of bins, >= 1.
+
+    Raises:
+        pydantic.ValidationError (a ValueError): a field is missing, not finite, out of range or not a
+            duration; the message names the field and the value (e.g. ``bin_width`` ... ``input_value=-1``).
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    t_start: float = Field(allow_inf_nan=False)
+    bin_width: float = Field(gt=0.0, allow_inf_nan=False)
+    n_bins: int = Field(ge=1)
+
+    @field_validator("t_start", "bin_width", mode="before")
+    @classmethod
+    def _parse_duration(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            return parse_duration(value)
+        return value
+
+    @property
+    def edges(self) -> np.ndarray:
+        """Bin edges, shape (n_bins + 1,), float64 seconds: ``t_start + b * bin_width``."""
+        return self.t_start + self.bin_width * np.arange(self.n_bins + 1, dtype=np.float64)
+
+    @property
+    def centers(self) -> np.ndarray:
+        """Bin centres, shape (n_bins,), float64 seconds."""
+        return self.t_start + self.bin_width * (np.arange(self.n_bins, dtype=np.float64) + 0.5)
+
+    @property
+    def t_stop(self) -> float:
+        """Time of the last edge, seconds (exclusive end of the window)."""
+        return self.t_start + self.bin_width * self.n_bins
+
+
+class Irf(BaseModel):
+    """Instrument response function: the density ``h`` of the delay X = detection time - impulse time.
+
+    Give exactly one of ``sigma`` or ``fwhm`` (seconds, numbers or strings like ``"600ps"``); ``fwhm`` is
+    converted to ``sigma`` on construction (``fwhm_to_sigma``) and is available as a property.
+
+    Kinds:
+        ``"gaussian"``: X ~ N(0, sigma^2). ``sigma = 0`` is the ideal (delta) IRF: each impulse lands wholly
+            in the bin containing it.
+        ``"exgaussian"``: X = N(0, sigma^2) + Exponential(mean ``tail``), the SPAD jitter core plus diffusion
+            tail (docs/physics.md §5); CDF from ``scipy.stats.exponnorm`` with K = tail / sigma, scale = sigma.
+            Requires sigma > 0 and tail > 0. Its mean is ``tail``, not 0.
+
+    Raises:
+        pydantic.ValidationError (a ValueError): both or neither of sigma/fwhm, a negative or non-finite
+            width, ``tail`` given for a Gaussian or missing/non-positive for an ex-Gaussian.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    sigma: float = Field(ge=0.0, allow_inf_nan=False)
+    kind: Literal["gaussian", "exgaussian"] = "gaussian"
+    tail: float | None = Field(default=None, allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _resolve_width(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        has_sigma = data.get("sigma") is not None
+        has_fwhm = data.get("fwhm") is not None
+        if has_sigma == has_fwhm:
+            raise ValueError(
+                f"give exactly one of sigma or fwhm, got sigma={data.get('sigma')!r}, fwhm={data.get('fwhm')!r}"
+            )
+        if has_fwhm:
+            fwhm = data.pop("fwhm")
+            fwhm_s = parse_duration(fwhm) if isinstance(fwhm, str) else fwhm
+            if isinstance(fwhm_s, (int, float)) and not isinstance(fwhm_s, bool):
+                data["sigma"] = fwhm_to_sigma(fwhm_s)  # raises naming fwhm if negative / not finite
+            else:
+                raise ValueError(f"fwhm must be a duration, got fwhm={fwhm!r}")
+        else:
+            data.pop("fwhm", None)
+        for key in ("sigma", "tail"):
+            if isinstance(data.get(key), str):
+                data[key] = parse_duration(data[key])
+        return data
+
+    @model_validator(mode="after")
+    def _check_kind(self) -> Irf:
+        if self.kind == "gaussian" and self.tail is not None:
+            raise ValueError(f"tail is only used by kind='exgaussian', got tail={self.tail!r} for a gaussian")
+        if self.kind == "exgaussian":
+            if self.tail is None or not self.tail > 0:
+                raise ValueError(f"kind='exgaussian' needs tail > 0 (seconds), got tail={self.tail!r}")
+            if not self.sigma > 0:
+                raise ValueError(f"kind='exgaussian' needs sigma > 0, got sigma={self.sigma!r}")
+        return self
+
+    @property
+    def fwhm(self) -> float:
+        """FWHM of the Gaussian core, seconds."""
+        return sigma_to_fwhm(self.sigma)
+
+    @property
+    def is_delta(self) -> bool:
+        """True for the ideal IRF (Gaussian with sigma = 0)."""
+        return self.sigma == 0.0
+
+    @property
+    def mean(self) -> float:
+        """Mean delay E[X], seconds: 0 for a Gaussian, ``tail`` for an ex-Gaussian."""
+        return 0.0 if self.kind == "gaussian" else float(self.tail)
+
+    @property
+    def support(self) -> tuple[float, float]:
+        """(before, after), seconds: X is taken to lie in [-before, after]; mass beyond is < ~1e-17.
+
+        before = MARGIN_SIGMAS * sigma; after adds TAIL_MARGIN_TAUS * tail for the ex-Gaussian.
+        """
+        before = MARGIN_SIGMAS * self.sigma
+        after = before + (TAIL_MARGIN_TAUS * self.tail if self.kind == "exgaussian" else 0.0)
+        return before, after
+
+    def cdf(self, x: np.ndarray | float) -> np.ndarray:
+        """P(X < x) for delays ``x`` (seconds), float64 array of x's shape.
+
+        Gaussian: ``ndtr(x / sigma)``; delta: ``x > 0``; ex-Gaussian: ``exponnorm.cdf(x, tail/sigma,
+        scale=sigma)``. Accurate in the left tail (no cancellation for the Gaussian).
+        """
+        x = np.asarray(x, dtype=np.float64)
+        if self.is_delta:
+            return (x > 0).astype(np.float64)
+        if self.kind == "gaussian":
+            return ndtr(x / self.sigma)
+        return exponnorm.cdf(x, self.tail / self.sigma, scale=self.sigma)
+
+    def sf(self, x: np.ndarray | float) -> np.ndarray:
+        """P(X >= x) = 1 - cdf(x), computed directly so the right tail keeps its relative accuracy."""
+        x = np.asarray(x, dtype=np.float64)
+        if self.is_delta:
+            return (x <= 0).astype(np.float64)
+        if self.kind == "gaussian":
+            return ndtr(-x / self.sigma)
+        return exponnorm.sf(x, self.tail / self.sigma, scale=self.sigma)
+
+    def interval_mass(self, lo: np.ndarray | float, hi: np.ndarray | float) -> np.ndarray:
+        """P(lo <= X < hi), float64, broadcast shape of ``lo`` and ``hi`` (seconds, lo <= hi).
+
+        The bin integral of the IRF (docs/physics.md §5; Gaussian: a difference of normal CDFs). Evaluated as a
+        difference of survival functions when ``lo`` is above the median and of CDFs otherwise, so a tiny
+        bin far in either tail keeps its relative accuracy instead of cancelling to 0.
+        """
+        lo, hi = np.broadcast_arrays(np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64))
+        c_lo = self.cdf(lo)
+        upper = c_lo >= 0.5
+        mass = np.where(upper, self.sf(lo) - self.sf(hi), self.cdf(hi) - c_lo)
+        return np.maximum(mass, 0.0)

@@ -1,0 +1,24 @@
+"""Transport: estimators of the transient path integral, from the scene to path impulses (docs/physics.md §2–3).
+
+In: a :class:`~datagen.scene.Scene`, its :class:`~datagen.scene.Capture` and a ray caster. Out: impulses
+(times in s, weights in detected photons per pulse, component ids ``component * n_channels + channel``) sent
+to a :class:`Sink`, usually the timing stage's :class:`~datagen.timing.EnvelopeAccumulator`.
+
+- :mod:`.physics`: the weight of each leg, written once (:class:`LegPhysics`), and :class:`PhysicsSettings`,
+  the physics switches every estimator's settings derive from.
+- :mod:`.base`: the sink, the estimator interface and the registry by name (:func:`estimator`).
+- one module per estimator: :mod:`.lookin` (the paper's lookins and hemispherical cameras, ``"lookin"``) with
+  its secondaries in :mod:`.secondary`; :mod:`.area` (hidden-surface area sampling, ``"area"``);
+  :mod:`.quadrature` (deterministic hidden-surface quadrature, ``"quadrature"``).
+"""
+from .base import Connections, Counters, Estimator, EstimatorEntry, Sink, estimator, estimator_names, register
+from .physics import PHYSICS_SWITCHES, LegPhysics, PhysicsSettings, fov_connection_weight, laser_irradiance
+from .lookin import CACHE_RAYS, SecondaryMode, Transport, TransportSettings, TransportStats
+from .area import AreaSampler, AreaSettings, AreaStats
+from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureSettings, QuadratureStats
+
+__all__ = ["Connections", "Counters", "Estimator", "EstimatorEntry", "Sink", "estimator", "estimator_names",
+           "register", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",
+           "laser_irradiance", "CACHE_RAYS", "SecondaryMode", "Transport", "TransportSettings", "TransportStats",
+           "AreaSampler", "AreaSettings", "AreaStats", "QUADRATURE_EDGE", "Quadrature", "QuadratureSettings",
+           "QuadratureStats"]

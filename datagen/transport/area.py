@@ -1,0 +1,510 @@
+"""Hidden-surface area sampler: the transient path integral with next-event connections (transient path tracing).
+
+The integral is DESIGN.md §2's, the same one the lookin estimator of :mod:`datagen.transport` converges to,
+written in *area* measure. Every factor comes from transport's per-leg helpers (laser emission
+``_spot_emission``, sensor collection ``_sensor_collection``, BRDFs ``_brdf``, attenuation); what differs is
+how the vertices are sampled:
+
+- **Hidden points x** come from two strategies combined by multiple importance sampling (balance heuristic,
+  Veach & Guibas 1995): M_a points by *area* over every triangle that can take part in a path (a face wholly
+  behind every laser-spot plane and the FoV plane cannot: the relay wall itself), and M_s points by
+  *cosine-weighted direction from the laser spot* (the first hits; density M_s·cosθ_l cosθ_x,in /(π r²) in
+  area measure, for points the spot sees). Each x weighs 1/(ρ_a(x) + ρ_s(x)), the inverse of the summed
+  sample densities. ``sampling`` sets how both sets are drawn: ``"stratified"`` (each triangle split into k²
+  congruent sub-triangles of edge ≤ h with one uniform point in each, so ρ_a = k_f²/A_f on face f; a
+  jittered √M_s×√M_s grid of directions), ``"sobol"`` (scrambled Sobol points, scipy.stats.qmc: randomised
+  QMC) or ``"random"`` (independent points). All three are unbiased. Area samples alone put as many points on
+  the far walls as on the ceiling 35 cm above the spot, whose irradiance is 100× higher; spot samples alone
+  miss every point the spot does not see (the secondary's middle vertex can lie in a laser shadow).
+- **Laser leg** (next-event connection to the laser spot x_l, a shadow ray): the irradiance
+  E(x) = Φ f_l cosθ_l cosθ_x,in / |x−x_l|² V(x_l, x), photons per m² (DESIGN.md §2: in area measure the
+  1/r² is genuine).
+- **FoV leg** (:meth:`AreaSampler._connect`): stratified points y on each sensor pixel region (a k_u×k_v grid
+  per hidden point, shifted by that point's two *padding* coordinates: Sobol dimensions 3–4 for "sobol", a
+  permuted jittered grid for "stratified", fresh jitter for "random"; shadow ray x→y) and ``fov_directions``
+  cosine-weighted rays from x that hit the FoV, combined by the balance heuristic; then the sensor leg
+  q f_y cosθ_y,out A_ap cosθ_ap / |x_s−y|² V(y, x_s) (paper A3 and aperture term). Point-radiance captures
+  connect to the sensor points instead.
+- **Primary**: w_x · E(x) · f_x(ω→x_l, ω→y) · cosθ_x,out cosθ_y,in / |y−x|² · w_y · collection(y) at time
+  (|x−x_l| + |y−x| [+ |x_s−y|]) / c.
+- **Secondary** (a vertex x' before x): at each x the irradiance arriving from other surfaces is estimated
+  with up to three partner strategies under the balance heuristic: ``spot_partners`` cosine directions from
+  the laser spot (density ∝ the laser irradiance pattern), ``direction_partners`` cosine directions from x
+  (density cosθ_x cosθ_x' /(π r²)) and ``area_partners`` points by area (1/A_hidden). Each partner x' has its
+  own laser connection E(x') and the estimate is Σ E(x') f_x'(ω→x_l, ω→x) G(x',x) V(x',x) / Σ_t P_t p_t(x'),
+  G = cosθ_x' cosθ_x / |x−x'|². Area or spot partners alone have *infinite variance* where two surfaces meet
+  (G ~ 1/r² at a room corner: the second moment diverges like 1/ε); the direction strategy bounds the
+  weight there by π E f / P_d, and the spot strategy keeps the brightly lit patch next to the spot cheap.
+
+Unlike the lookin estimator's secondary, whose middle vertex is a lookin (a point the laser spot sees),
+the middle vertex x here ranges over every surface, laser-shadowed ones included, as the integral asks: in the
+demo room 6.9 % of the secondary (2.2 % of the total) passes through laser-shadowed middle vertices
+(docs/accuracy.md).
+
+Sink component ids follow :class:`datagen.transport.Transport`: ``component * n_channels + channel`` with the
+component of the object x lies on for primary paths, ``len(scene.component_names())`` for secondary and one
+more for the direct first bounce when ``first_bounce`` is on (:attr:`AreaSampler.component_names`). Every
+laser point of the capture is sampled (confocal and exhaustive scans included).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
+                        to_world, unit_square_points)
+from ..scene import RayCaster, Scene, SceneError, resolve_capture
+from ..units import SPEED_OF_LIGHT
+from ..vectors import dot
+from .base import Connections, Counters, Sink, register
+from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
+
+MAX_CONNECTIONS = 1 << 17
+"""Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
+
+MIN_PARTNER_DISTANCE_OFFSETS = 10.0
+"""A partner x' closer to x than this many ray offsets is dropped: the shadow ray between them is shorter than
+the surface offsets and cannot be trusted (the pair lies on a set of measure zero in the integral)."""
+
+
+@dataclass(frozen=True)
+class AreaSettings(PhysicsSettings):
+    """Settings of the area sampler (:class:`AreaSampler`); the physics switches are those of
+    :class:`~datagen.transport.physics.PhysicsSettings`, which this class extends.
+
+    Attributes:
+        samples: M, hidden samples per run and laser point: M_a = M − M_s by area, M_s = round(spot_fraction
+            · M) by direction from the spot (stratified: the closest achievable counts, at least one point per
+            triangle and a square grid of directions; sobol: each rounded up to a power of two).
+        sampling: "stratified" | "sobol" | "random" (see the module docstring).
+        spot_fraction: share of the hidden samples drawn by direction from the laser spot, in [0, 1).
+        fov_samples: (k_u, k_v) stratified FoV points per sensor pixel region for every hidden sample.
+        fov_directions: D, cosine-weighted rays per hidden sample (and side) that connect where they hit the
+            FoV, combined with the stratified points by MIS (0: stratified points only).
+        secondary: "none" or "full" (the unbiased secondary; there is no "optimized" variant here).
+        spot_partners, direction_partners, area_partners: P_l, P_d, P_a secondary partners x' per hidden
+            sample for each strategy (sum ≥ 1 when secondary is "full").
+        batch: hidden samples processed together (lowered so that batch × FoV points ≤ ``MAX_CONNECTIONS``).
+
+    Raises:
+        SceneError: a field out of range (the message names the field and the value).
+    """
+
+    samples: int = 1 << 16
+    sampling: AreaSampling = "sobol"
+    spot_fraction: float = 0.5
+    fov_samples: tuple[int, int] = (4, 4)
+    fov_directions: int = 2
+    secondary: Literal["none", "full"] = "full"
+    spot_partners: int = 2
+    direction_partners: int = 1
+    area_partners: int = 1
+    batch: int = 4096
+    brdf_angles: bool = True
+    """Unlike the other estimators the area sampler evaluates BRDFs in full by default: its secondary can pair a
+    partner on one side of a hidden point with a FoV connection leaving the other side, where the Lambertian
+    shortcut (f = ρ/π without the side check) would let light through a thin two-sided panel. The planner's
+    decision (``from_transport``) still switches it off for all-Lambertian scenes."""
+
+    def __post_init__(self):
+        def bad(name, value, why):
+            raise SceneError(f"area sampler: {name} {why}, got {value!r}")
+
+        def count(name, low):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+                bad(name, v, f"must be an integer >= {low}")
+
+        count("samples", 1)
+        count("batch", 1)
+        for name in ("fov_directions", "spot_partners", "direction_partners", "area_partners"):
+            count(name, 0)
+        if self.sampling not in ("stratified", "sobol", "random"):
+            bad("sampling", self.sampling, "must be 'stratified', 'sobol' or 'random'")
+        if not (isinstance(self.spot_fraction, (int, float)) and 0 <= self.spot_fraction < 1):
+            bad("spot_fraction", self.spot_fraction, "must be in [0, 1) (area samples are needed for points "
+                                                     "the laser spot does not see)")
+        fs = tuple(self.fov_samples)
+        if len(fs) != 2 or any(isinstance(v, bool) or int(v) != v or v < 1 for v in fs):
+            bad("fov_samples", self.fov_samples, "must be two integers >= 1")
+        if self.secondary not in ("none", "full"):
+            bad("secondary", self.secondary, "must be 'none' or 'full'")
+        n_partners = self.spot_partners + self.direction_partners + self.area_partners
+        if self.secondary == "full" and n_partners < 1:
+            bad("spot_partners + direction_partners + area_partners", n_partners,
+                "must be >= 1 when secondary is 'full'")
+        self.check_physics("area sampler")
+        object.__setattr__(self, "fov_samples", (int(fs[0]), int(fs[1])))
+
+    @property
+    def spot_samples(self) -> int:
+        """M_s, hidden samples drawn by direction from each laser spot (before rounding)."""
+        return int(round(self.spot_fraction * self.samples))
+
+    @property
+    def area_samples(self) -> int:
+        """M_a, hidden samples drawn by area (before rounding; at least 1)."""
+        return max(1, self.samples - self.spot_samples)
+
+    @classmethod
+    def from_transport(cls, settings: PhysicsSettings, **kwargs) -> AreaSettings:
+        """Area settings with the physics switches of ``settings`` (any estimator's; the secondary is "full"
+        unless ``settings.secondary`` is "none"); ``kwargs`` set the sampling fields."""
+        base = {**settings.switches(), "secondary": "none" if settings.secondary == "none" else "full"}
+        return cls(**{**base, **kwargs})
+
+
+@dataclass
+class AreaStats(Counters):
+    """Counters from an area-sampler run (summed over laser points; ``add`` merges replicas)."""
+
+    area_samples: int = 0
+    spot_samples: int = 0
+    lit_samples: int = 0
+    fov_connections: int = 0
+    partners: int = 0
+    secondary_pairs: int = 0
+
+
+@register("area", AreaSettings, "hidden-surface area sampling with next-event connections to the laser spot and the FoV")
+class AreaSampler:
+    """Area-sampling estimator with next-event connections to the laser spot and the FoV.
+
+    Same interface as :class:`datagen.transport.Transport`: ``AreaSampler(scene, settings, caster).run(sink,
+    rng, progress)`` sends path impulses (times s, weights photons, component ids) to ``sink``.
+
+    ``secondary_only=True`` deposits only the secondary (no primary and no first-bounce impulses; the samples,
+    connections and random streams are unchanged), for estimators that compute the primary another way
+    (:mod:`datagen.transport.quadrature`). It is an argument, not an :class:`AreaSettings` field, so that the
+    settings' hashes (the reference cache keys of :mod:`datagen.analysis.reference`) stay as they were.
+
+    Attributes:
+        component_names: names of the sink components (primary components, "secondary"[, "first_bounce"]).
+        hidden_faces: (F_h,) int64 faces that can be hidden vertices; hidden_area: their area, m².
+        stats: :class:`AreaStats`; physics: the :class:`~datagen.transport.physics.LegPhysics` weighing every
+        leg (its ``stats.shadow_rays`` counts the shadow rays).
+
+    Raises:
+        SceneError: invalid settings (``secondary_only`` with secondary "none"); the capture errors of
+            :func:`datagen.scene.resolve_capture`; no triangle can take part in a path.
+    """
+
+    def __init__(self, scene: Scene, settings: AreaSettings | None = None, caster: RayCaster | None = None,
+                 secondary_only: bool = False):
+        self.scene = scene
+        self.settings = settings or AreaSettings()
+        if secondary_only and self.settings.secondary != "full":
+            raise SceneError(f"area sampler: secondary_only needs secondary 'full' (there is nothing else to "
+                             f"deposit), got secondary {self.settings.secondary!r}")
+        self.secondary_only = bool(secondary_only)
+        self.caster = caster or RayCaster(scene)
+        self.capture = resolve_capture(scene, self.caster)
+        self.physics = LegPhysics(scene, self.capture, self.caster, self.settings)
+        self.component_names = scene.component_names() + ["secondary"] + (
+            ["first_bounce"] if self.settings.first_bounce else [])
+        self.object_component = scene.object_component()
+        self.n_primary = len(scene.component_names())
+        self.tol = self.physics.tol
+        self.hidden_faces = self._hidden_faces()
+        if len(self.hidden_faces) == 0:
+            raise SceneError(f"{scene.source + ': ' if scene.source else ''}no surface lies in front of the laser "
+                             "spot or the FoV: nothing can be lit and seen")
+        self.hidden_area = float(self.caster.face_area[self.hidden_faces].sum())
+        self._is_hidden = np.zeros(len(self.caster.faces), dtype=bool)
+        self._is_hidden[self.hidden_faces] = True
+        self.stats = AreaStats()
+
+    @classmethod
+    def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster) -> "AreaSampler":
+        """The registry's constructor: ``config.area_samples`` hidden samples per laser point with the physics
+        of the planned lookin ``settings``. The planner's ``shadow_spot`` decision concerns the lookin
+        sampler's secondary; the area sampler's hidden points always need their laser shadow ray (lookins are
+        visible from the spot by construction), unless the user forces it off."""
+        return cls(scene, AreaSettings.from_transport(settings, samples=config.area_samples,
+                                                      shadow_spot=config.effects.get("shadow_spot") is not False),
+                   caster)
+
+    def configure(self, settings: AreaSettings) -> None:
+        """Use ``settings`` from now on (same physics object; e.g. the quadrature's shadow-ray decision)."""
+        self.settings = settings
+        self.physics.configure(settings)
+
+    def progress_total(self) -> tuple[int, str]:
+        """Hidden samples over all laser points."""
+        return self.settings.samples * self.capture.n_lasers, "sample"
+
+    def _hidden_faces(self) -> np.ndarray:
+        """Faces that can be a hidden vertex: non-degenerate and not wholly behind every laser-spot plane and
+        the FoV plane (such a face has cosθ_l ≤ 0 and cosθ_y,in ≤ 0 everywhere, so every path through it is
+        0: the relay wall itself)."""
+        c, cst = self.capture, self.caster
+        tri = cst.vertices[cst.faces]                                          # (F, 3, 3)
+        planes = np.unique(np.round(np.concatenate([c.spot_normals, dot(c.spots, c.spot_normals)[:, None]], 1),
+                                    12), axis=0)                               # distinct laser-spot planes
+        front_spot = np.zeros(len(tri), dtype=bool)
+        for n_x, n_y, n_z, d in planes:
+            front_spot |= (tri @ np.array([n_x, n_y, n_z]) - d > self.tol).any(axis=1)
+        front_fov = ((tri - c.fov_center) @ c.fov_normal > self.tol).any(axis=1)
+        return np.flatnonzero((cst.face_area > 0) & (front_spot | front_fov))
+
+    def _targets_per_sample(self) -> int:
+        c = self.capture
+        if c.convention == "point_radiance":
+            return c.n_pixels
+        return c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1]
+
+    def _from_spot(self, uv: np.ndarray, laser: int) -> tuple[SurfaceSamples, np.ndarray]:
+        """First hits of cosine-weighted rays from laser point ``laser`` through the points ``uv`` (n, 2) of
+        the unit square (Malley's method). Returns the hits (area field 0) and which rays hit (n,)."""
+        c, cst = self.capture, self.caster
+        local, _ = square_to_hemisphere(uv[:, 0], uv[:, 1], "cosine")
+        normal = np.broadcast_to(c.spot_normals[laser], local.shape)
+        hits = cst.intersect(np.broadcast_to(c.spots[laser] + cst.offset * c.spot_normals[laser], local.shape),
+                             to_world(local, normal))
+        face = np.where(hits.hit, hits.face, 0)
+        found = SurfaceSamples(np.nan_to_num(hits.points), cst.face_normals[face], face, cst.face_object[face],
+                               np.zeros(len(face)), uv[:, 2:4] if uv.shape[1] >= 4 else np.zeros((len(face), 2)))
+        return found, hits.hit
+
+    def _connect(self, x: np.ndarray, n_x: np.ndarray, laser: int, rng: np.random.Generator,
+                 pad: np.ndarray | None = None) -> Connections:
+        """Next-event connections of hidden points x (B, 3), from the side of normals n_x (B, 3), to the sensor.
+
+        Two strategies under the balance heuristic: the area strategy of transport's ``connect`` sensor
+        sampling (:meth:`datagen.transport.physics.LegPhysics.connect`: stratified points y on each sensor pixel
+        region, density ρ_a = 1/dA_y, a shadow ray x→y), but with its own grid shift *for every hidden point*
+        (``pad`` (B, 2) in [0,1)², the padding coordinates of the sampling pattern; None: independent jitter
+        per cell), since transport draws one grid per batch of lookins, which would correlate the FoV error of
+        thousands of area samples; and ``fov_directions`` cosine-weighted rays from x whose first hit lies in the FoV
+        (density p_d = cosθ_x cosθ_y /(π r²) in area measure). Each connection weighs cosθ_y / r² ·
+        collection(y) / (ρ_a + D·p_d), per unit radiant intensity of x toward y (:attr:`Connections.weight`).
+        Without the direction strategy a point a few cm from the FoV (a side wall meeting the relay wall, the
+        box 10 cm in front of it) has G(x, y) ~ 1/r² and a huge variance; with it the weight stays below
+        π·collection/(D cosθ_x). Point-radiance captures connect to the sensor points (transport's code).
+        """
+        c, s, cst = self.capture, self.settings, self.caster
+        if c.convention == "point_radiance":
+            return self.physics.connect(x, n_x, laser, rng, s.fov_samples)
+        nx, ny = c.fov_pixels
+        mu, mv = s.fov_samples
+        n_dir = s.fov_directions
+        pix = np.repeat(np.arange(c.n_pixels), mu * mv)
+        ch = c.channel(laser, pix)
+        keep = ch >= 0
+        pix, ch = pix[keep], ch[keep]
+        iy, ix = np.divmod(pix, nx)
+        cell = stratified_grid(mu, mv, None)[0] - 0.5 / np.array([mu, mv])      # cell corners, (M, 2)
+        corner = np.tile(cell, (c.n_pixels, 1))[keep]
+        jitter = rng.random((len(x), len(pix), 2)) if pad is None else pad[:, None, :]
+        uv = corner[None] + jitter / np.array([mu, mv])
+        targets = c.fov_points(ix + uv[..., 0], iy + uv[..., 1])                                # (B, S, 3)
+        rho_a = c.n_pixels * mu * mv / (c.fov_size[0] * c.fov_size[1])                         # 1/dA_y
+        to_y = targets - x[:, None, :]
+        r = np.linalg.norm(to_y, axis=-1)
+        w = to_y / np.maximum(r, 1e-300)[..., None]
+        cos_y = -dot(w, c.fov_normal)
+        bi, si = np.nonzero((dot(n_x[:, None, :], w) > 0) & (cos_y > 0))
+        vis = cst.visible(x[bi], n_x[bi], targets[bi, si], c.fov_normal)
+        self.physics.stats.shadow_rays += len(bi)
+        bi, si = bi[vis], si[vis]
+        y, wk, rr, cy, chan = targets[bi, si], w[bi, si], r[bi, si], cos_y[bi, si], ch[si]
+        n_y = np.broadcast_to(c.fov_normal, y.shape)
+        obj_y = np.full(len(bi), self.physics.wall_object)
+        if n_dir:
+            local, _ = square_to_hemisphere(rng.random((len(x), n_dir)), rng.random((len(x), n_dir)), "cosine")
+            n_b = np.broadcast_to(n_x[:, None], (len(x), n_dir, 3))
+            dirs = to_world(local, n_b)
+            hits = cst.intersect(x[:, None] + cst.offset * n_b, dirs)
+            hp = np.nan_to_num(hits.points)
+            hch = np.where(hits.hit, c.channel(laser, c.fov_pixel(hp, self.tol)), -1)
+            db, dk = np.nonzero(hch >= 0)
+            y = np.concatenate([y, hp[db, dk]])
+            wk = np.concatenate([wk, dirs[db, dk]])
+            rr = np.concatenate([rr, np.linalg.norm(hp[db, dk] - x[db], axis=-1)])   # from x, not the offset origin
+            cy = np.concatenate([cy, -dot(dirs[db, dk], c.fov_normal)])
+            chan = np.concatenate([chan, hch[db, dk]])
+            n_y = np.concatenate([n_y, hits.normals[db, dk]])
+            obj_y = np.concatenate([obj_y, hits.object_id[db, dk]])
+            bi = np.concatenate([bi, db])
+        collect, d_ys = self.physics.sensor_collection(y, n_y, obj_y, -wk)
+        p_d = dot(n_x[bi], wk) * cy / (np.pi * rr ** 2)
+        weight = fov_connection_weight(cy, rr, collect) / (rho_a + n_dir * p_d)
+        time = (rr + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT
+        return Connections(bi, wk, weight, time, rr + d_ys, chan)
+
+    # -- estimator -------------------------------------------------------------------------------------------
+
+    def run(self, sink: Sink, rng: np.random.Generator, progress: Callable[[int], None] | None = None) -> None:
+        """Sample hidden points and send every primary (and secondary) impulse to ``sink``.
+
+        ``progress`` is called with the number of hidden samples done after each batch (per laser point).
+        """
+        s, c = self.settings, self.capture
+        area_set, density_a = sample_surfaces(self.caster, self.hidden_faces, s.area_samples, s.sampling, rng)
+        batch = max(1, min(s.batch, MAX_CONNECTIONS // max(self._targets_per_sample(), 1)))
+        for laser in range(c.n_lasers):
+            parts, n_spot = [area_set], 0
+            if s.spot_samples > 0:
+                uv = unit_square_points(s.spot_samples, s.sampling, rng)
+                found, hit = self._from_spot(uv, laser)
+                parts.append(found.take(hit))
+                n_spot = len(uv)
+            xs = SurfaceSamples.concat(parts)
+            self.stats.area_samples += len(area_set)
+            self.stats.spot_samples += n_spot
+            for start in range(0, len(xs), batch):
+                part = xs.take(slice(start, start + batch))
+                self._batch(part, laser, density_a, n_spot, sink, rng)
+                if progress is not None:
+                    progress(len(part))
+        if s.first_bounce and not self.secondary_only:
+            self.physics.first_bounce(sink, self.n_primary + 1)
+
+    def _batch(self, xs: SurfaceSamples, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
+               rng: np.random.Generator) -> None:
+        c, s = self.capture, self.settings
+        e_x, r_lx, w_spot, geo = self.physics.irradiance(xs.points, xs.normals, laser)
+        self.stats.lit_samples += int((e_x > 0).sum())
+        density = density_a[xs.face] + n_spot * geo / np.pi                  # ρ_a + ρ_s, 1/m²
+        weight_x = np.divide(1.0, density, out=np.zeros_like(density), where=density > 0)
+        n_front = np.where(dot(xs.normals, w_spot)[:, None] < 0, -xs.normals, xs.normals)   # facing the spot
+        pad = None if s.sampling == "random" else xs.pad
+        out = self._connect(xs.points, n_front, laser, rng, pad)
+        self.stats.fov_connections += len(out.b)
+        leg = c.emitter_legs[laser]
+        laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
+        lit = e_x[out.b] > 0
+        if lit.any() and not self.secondary_only:
+            b = out.b[lit]
+            f = self.physics.brdf(xs.object_id[b], n_front[b], w_spot[b], out.direction[lit])
+            cos_k = np.maximum(dot(n_front[b], out.direction[lit]), 0.0)
+            weight = (weight_x[b] * e_x[b] * f * cos_k * out.weight[lit]
+                      * self.physics.attenuation(leg + r_lx[b] + out.phys[lit]))
+            comp = self.object_component[xs.object_id[b]] * c.n_channels + out.channel[lit]
+            sink.add(laser_t + r_lx[b] / SPEED_OF_LIGHT + out.time[lit], weight, comp)
+        if s.secondary == "full":
+            # FoV behind the spot-facing side: only where the FoV rectangle reaches behind x's plane
+            corners = (c.fov_center + np.array([[a * c.fov_size[0] / 2, b * c.fov_size[1] / 2]
+                                                for a in (-1, 1) for b in (-1, 1)]) @ np.stack([c.fov_u, c.fov_v]))
+            behind = np.flatnonzero((dot(corners[None] - xs.points[:, None], -n_front[:, None]) > 0).any(axis=1))
+            back = self._connect(xs.points[behind], -n_front[behind], laser, rng,
+                                 None if pad is None else pad[behind])
+            back.b = behind[back.b]
+            self.stats.fov_connections += len(back.b)
+            conn = {name: np.concatenate([getattr(out, name), getattr(back, name)])
+                    for name in ("b", "direction", "weight", "time", "phys", "channel")}
+            conn["normal"] = np.concatenate([n_front[out.b], -n_front[back.b]])
+            if len(conn["b"]):
+                self._secondary(xs, weight_x, laser, conn, sink, rng)
+
+    def _partners(self, x: np.ndarray, nf: np.ndarray, pos: np.ndarray, neg: np.ndarray, laser: int,
+                  rng: np.random.Generator) -> tuple[SurfaceSamples, np.ndarray]:
+        """Secondary partners of the n points x (n, 3): P_l from the spot, P_d from x, P_a by area.
+
+        The direction strategy samples the hemisphere of each side of x that has FoV connections (pos: the
+        +normal side, neg: the −normal side; both: each with probability ½). Returns the partners flattened
+        to n·P rows (owner-major; spot, then direction, then area partners) and whether each was found.
+        """
+        s, cst = self.settings, self.caster
+        n, pl, pd, pa = len(x), s.spot_partners, s.direction_partners, s.area_partners
+        blocks, found = [], []
+        if pl:
+            sp, hit = self._from_spot(rng.random((n * pl, 2)), laser)
+            blocks.append(sp)
+            found.append(hit)
+        if pd:
+            coin = rng.random((n, pd)) < 0.5
+            flip = np.where((pos & neg)[:, None], coin, ~pos[:, None])        # sample the −normal side
+            n_side = np.where(flip[..., None], -nf[:, None], nf[:, None])
+            local, _ = square_to_hemisphere(rng.random((n, pd)), rng.random((n, pd)), "cosine")
+            hits = cst.intersect(x[:, None] + cst.offset * n_side, to_world(local, n_side))
+            face = np.where(hits.hit, hits.face, 0).ravel()
+            blocks.append(SurfaceSamples(np.nan_to_num(hits.points).reshape(-1, 3), cst.face_normals[face], face,
+                                         cst.face_object[face], np.zeros(len(face)), np.zeros((len(face), 2))))
+            found.append(hits.hit.ravel())
+        if pa:
+            ap, _ = sample_surfaces(cst, self.hidden_faces, n * pa, "random", rng)
+            blocks.append(ap)
+            found.append(np.ones(n * pa, dtype=bool))
+        # blocks are strategy-major (n·P_t rows each, owner-major inside); gather owner-major rows
+        sizes = [k for k in (pl, pd, pa) if k]
+        offsets = np.cumsum([0] + [n * k for k in sizes])[:-1]
+        idx = np.concatenate([off + np.arange(n)[:, None] * k + np.arange(k)[None]
+                              for off, k in zip(offsets, sizes)], axis=1).ravel()
+        allp = SurfaceSamples.concat(blocks)
+        return allp.take(idx), np.concatenate(found)[idx]
+
+    def _secondary(self, xs: SurfaceSamples, weight_x: np.ndarray, laser: int, conn: dict, sink: Sink,
+                   rng: np.random.Generator) -> None:
+        """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc)."""
+        c, s, cst = self.capture, self.settings, self.caster
+        rows, inv = np.unique(conn["b"], return_inverse=True)       # hidden samples with FoV connections
+        n = len(rows)
+        x, nf = xs.points[rows], xs.normals[rows]
+        side = dot(nf[inv], conn["normal"]) > 0                    # the connection leaves x's +normal side
+        pos = np.zeros(n, dtype=bool)
+        neg = np.zeros(n, dtype=bool)
+        pos[inv[side]] = True
+        neg[inv[~side]] = True
+        n_sides = pos.astype(int) + neg.astype(int)
+        pl, pd, pa = s.spot_partners, s.direction_partners, s.area_partners
+        p_tot = pl + pd + pa
+        xp, found = self._partners(x, nf, pos, neg, laser, rng)
+        owner = np.repeat(np.arange(n), p_tot)
+        slot = np.tile(np.arange(p_tot), n)
+        needs_vis = (slot < pl) | (slot >= pl + pd)                  # spot and area partners; not first hits
+        # x' → x geometry
+        dpx = x[owner] - xp.points
+        rp = np.linalg.norm(dpx, axis=-1)
+        wpx = dpx / np.maximum(rp, 1e-300)[:, None]                   # unit x' → x
+        cos_p = np.abs(dot(xp.normals, wpx))
+        nfx_w = dot(nf[owner], wpx)                                  # < 0: x' on x's +normal side
+        cos_x = np.abs(nfx_w)
+        on_pos = nfx_w < 0
+        covered = np.where(on_pos, pos[owner], neg[owner])
+        keep = found & (rp > MIN_PARTNER_DISTANCE_OFFSETS * cst.offset) & (cos_p > 0) & (cos_x > 0) & covered
+        e_p = np.zeros(len(rp))
+        r_lp = np.zeros(len(rp))
+        w_sp = np.zeros((len(rp), 3))
+        geo_p = np.zeros(len(rp))
+        if keep.any():
+            e_p[keep], r_lp[keep], w_sp[keep], geo_p[keep] = self.physics.irradiance(xp.points[keep], xp.normals[keep],
+                                                                              laser)
+        keep &= e_p > 0
+        n_px = np.where(dot(xp.normals, wpx)[:, None] < 0, -xp.normals, xp.normals)   # x' normal facing x
+        n_xp = np.where(on_pos[:, None], nf[owner], -nf[owner])                        # x normal facing x'
+        check = keep & needs_vis
+        if check.any():
+            keep[check] = cst.visible(xp.points[check], n_px[check], x[owner][check], n_xp[check])
+            self.physics.stats.shadow_rays += int(check.sum())
+        self.stats.partners += int(keep.sum())
+        if not keep.any():
+            return
+        idx = np.flatnonzero(keep)
+        g = cos_p[idx] * cos_x[idx] / rp[idx] ** 2                    # G(x', x), 1/m²
+        p_spot = geo_p[idx] / np.pi                                   # densities in area measure, 1/m²
+        p_dir = g / (np.pi * n_sides[owner[idx]])
+        p_area = self._is_hidden[xp.face[idx]] / self.hidden_area
+        f_p = self.physics.brdf(xp.object_id[idx], n_px[idx], w_sp[idx], wpx[idx])
+        irr = np.zeros(len(rp))                                       # MIS terms of the irradiance at x
+        irr[idx] = e_p[idx] * f_p * g / (pl * p_spot + pd * p_dir + pa * p_area)
+        # every FoV connection of x with every partner of x
+        part = (inv[:, None] * p_tot + np.arange(p_tot)[None]).ravel()
+        ci = np.repeat(np.arange(len(inv)), p_tot)
+        use = irr[part] > 0
+        part, ci = part[use], ci[use]
+        if len(part) == 0:
+            return
+        b = conn["b"][ci]
+        n_side, w_out = conn["normal"][ci], conn["direction"][ci]
+        f_x = self.physics.brdf(xs.object_id[b], n_side, -wpx[part], w_out)
+        cos_k = np.maximum(dot(n_side, w_out), 0.0)
+        leg = c.emitter_legs[laser]
+        weight = (weight_x[b] * irr[part] * f_x * cos_k * conn["weight"][ci]
+                  * self.physics.attenuation(leg + r_lp[part] + rp[part] + conn["phys"][ci]))
+        t = (self.physics.laser_leg(laser) + r_lp[part] + rp[part]) / SPEED_OF_LIGHT + conn["time"][ci]
+        self.stats.secondary_pairs += len(part)
+        sink.add(t, weight, self.n_primary * c.n_channels + conn["channel"][ci])

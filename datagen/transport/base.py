@@ -1,0 +1,142 @@
+"""What every estimator shares: the sink it sends path impulses to, its interface and the registry by name.
+
+An estimator of the transient path integral (docs/physics.md §2–3) is built from a scene, its settings and a
+ray caster, and ``run(sink, rng, progress)`` sends *impulses* — arrival times (s), weights (detected photons per
+pulse, or radiance per unit power for point-radiance captures) and component ids
+(``component * n_channels + channel``) — to a :class:`Sink` (the time stage's
+:class:`~datagen.timing.EnvelopeAccumulator`). Estimators register under a name (:func:`register`), so that
+``simulate``, the accuracy ladder, ``--tolerance`` and the command line choose them in one place
+(:func:`estimator`, :func:`estimator_names`); a new estimator is one new module with one ``@register``.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+
+class Sink(Protocol):
+    """Where transport sends path impulses (e.g. :class:`datagen.timing.EnvelopeAccumulator`).
+
+    ``add(times (n,) s, weights (n,), component (n,) int)``.
+    """
+
+    def add(self, times: np.ndarray, weights: np.ndarray, component: np.ndarray) -> None: ...
+
+
+def sink_far_time(sink: Sink) -> float:
+    """A time (s) beyond every window of ``sink`` (for mass that must be counted as outside)."""
+    axis = getattr(sink, "axis", None)
+    return float(axis.t_stop + 1.0) if axis is not None else 1e9
+
+
+class Counters:
+    """Mixin for dataclasses of int counters: ``add`` sums another run's counters into this one."""
+
+    def add(self, other: "Counters") -> None:
+        for k, v in vars(other).items():
+            setattr(self, k, getattr(self, k) + v)
+
+
+@dataclass
+class Connections:
+    """Sensor-side impulses of a batch of hidden vertices: one row per (vertex, FoV point or sensor target).
+
+    Attributes:
+        b: (n,) int64 vertex index in the batch.
+        direction: (n, 3) unit ω_k from the vertex toward the FoV point.
+        weight: (n,) detected photons per unit radiant intensity of the vertex toward ω_k (geometry, far-side
+            BRDF and sensor collection; excludes the vertex's own BRDF and cos).
+        time: (n,) seconds from the vertex to detection; phys: (n,) metres of physical path (for attenuation).
+        channel: (n,) int64 output channel.
+    """
+
+    b: np.ndarray
+    direction: np.ndarray
+    weight: np.ndarray
+    time: np.ndarray
+    phys: np.ndarray
+    channel: np.ndarray
+
+    FIELDS = ("b", "direction", "weight", "time", "phys", "channel")
+
+    def take(self, sel) -> Connections:
+        """The rows ``sel`` (mask or indices)."""
+        return Connections(*(getattr(self, f)[sel] for f in self.FIELDS))
+
+
+class Estimator(Protocol):
+    """The interface every estimator offers (lookin, area, quadrature; docs/physics.md §3).
+
+    Attributes:
+        capture: the resolved :class:`~datagen.scene.Capture`.
+        settings: the estimator's settings (a :class:`~datagen.transport.physics.PhysicsSettings` subclass).
+        component_names: names of the sink components: primary components, "secondary"[, "first_bounce"].
+        stats: a dataclass of int counters (recorded in the result attributes).
+    """
+
+    capture: Any
+    settings: Any
+    component_names: list[str]
+    stats: Any
+
+    def run(self, sink: Sink, rng: np.random.Generator, progress: Callable[[int], None] | None = None) -> None:
+        """Send every impulse to ``sink``; ``progress`` gets the units of work done after each batch."""
+
+    def progress_total(self) -> tuple[int, str]:
+        """(units of work of a run, their name) for a progress bar."""
+
+
+@dataclass(frozen=True)
+class EstimatorEntry:
+    """A registered estimator.
+
+    Attributes:
+        name: the name users select it by (``estimator:`` in a config, ``--estimator``).
+        cls: the estimator class, ``cls(scene, settings, caster)``.
+        settings_class: its settings class; ``settings_class.from_transport(physics_settings, **fields)`` gives
+            settings with the physics switches of any estimator's settings and the given sampling fields.
+        from_config: ``(scene, config, lookin_settings, caster) → Estimator``: builds it from a simulation
+            config (any object with the config's fields, e.g. :class:`datagen.simulation.SimulationConfig`)
+            and the lookin settings the effect planner has already applied its decisions to (they carry the
+            physics switches).
+        summary: one line for help texts.
+    """
+
+    name: str
+    cls: type
+    settings_class: type
+    from_config: Callable[..., Estimator]
+    summary: str
+
+
+_REGISTRY: dict[str, EstimatorEntry] = {}
+
+
+def register(name: str, settings_class: type, summary: str) -> Callable:
+    """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
+    the classmethod ``from_config(scene, config, lookin_settings, caster)``."""
+    def wrap(cls):
+        _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary)
+        cls.name = name
+        return cls
+    return wrap
+
+
+def estimator(name: str) -> EstimatorEntry:
+    """The registered estimator ``name``.
+
+    Raises:
+        KeyError: no estimator has that name (the message lists the known ones).
+    """
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise KeyError(f"unknown estimator {name!r}; known: {list(_REGISTRY)}") from None
+
+
+def estimator_names() -> tuple[str, ...]:
+    """Names of the registered estimators, in registration order (lookin, area, quadrature)."""
+    return tuple(_REGISTRY)

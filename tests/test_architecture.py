@@ -1,0 +1,164 @@
+"""The package's shape: no import cycle, no module using another module's private name, layers in order.
+
+The layer contract itself is checked by import-linter (``lint-imports``, configured in pyproject.toml and run by
+scripts/test.sh); these tests check what it does not: cycles *inside* a layer (function-level imports
+included) and private names used across modules.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "datagen"
+
+LIBRARY_PRIVATES = {"_replace", "_asdict", "_fields", "_make", "_field_defaults"}
+"""Documented underscore names of the standard library (namedtuple), not private to any datagen module."""
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        out[name] = path
+    return out
+
+
+def _resolve(module: str, is_package: bool, level: int, target: str | None) -> str:
+    """Absolute module name of a relative import ``from {'.' * level}{target} import …`` inside ``module``."""
+    base = module.split(".") if is_package else module.split(".")[:-1]
+    if level > 1:
+        base = base[:len(base) - (level - 1)]
+    return ".".join(base + ([target] if target else []))
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """module → datagen modules it imports anywhere (function-level and TYPE_CHECKING imports included)."""
+    modules = _modules()
+    graph: dict[str, set[str]] = {name: set() for name in modules}
+    for name, path in modules.items():
+        tree = ast.parse(path.read_text(), str(path))
+        is_package = path.name == "__init__.py"
+        for node in ast.walk(tree):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = _resolve(name, is_package, node.level, node.module) if node.level else node.module or ""
+                # ``from package import submodule`` imports the submodule; else it imports ``base``
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+            for t in targets:
+                while t and t not in modules:                       # a name inside a module → the module
+                    t = t.rpartition(".")[0]
+                if t.startswith("datagen") and t != name:
+                    graph[name].add(t)
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_import_graph_has_no_cycle():
+    graph = _import_graph()
+    assert len(graph) > 40 and sum(len(v) for v in graph.values()) > 100      # the scan found the package
+    assert _cycles(graph) == []
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def _defined_names(tree: ast.AST) -> set[str]:
+    """Every name a module defines or binds (functions, classes, methods, attributes, variables, arguments)."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            names.add(node.attr)
+        elif isinstance(node, ast.arg):
+            names.add(node.arg)
+        elif isinstance(node, ast.alias):
+            names.add(node.asname or node.name.split(".")[0])
+    return names
+
+
+def private_uses(path: Path) -> list[str]:
+    """``file:line name`` for every private name (``_x``, not dunder) of another module used in ``path``: imported
+    (``from m import _x``) or reached as an attribute (``m._x``, ``obj._x``) when ``path`` does not define it."""
+    tree = ast.parse(path.read_text(), str(path))
+    own = _defined_names(tree)
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module != "__future__":
+            out += [f"{path.name}:{node.lineno} {a.name}" for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")]
+        elif isinstance(node, ast.Attribute):
+            name = node.attr
+            if (name.startswith("_") and not name.startswith("__") and name not in own
+                    and name not in LIBRARY_PRIVATES):
+                out.append(f"{path.name}:{node.lineno} {name}")
+    return out
+
+
+def test_no_module_uses_another_modules_private_name():
+    uses = [u for path in _modules().values() for u in private_uses(path)]
+    assert uses == []
+
+
+@pytest.mark.parametrize("folder", ["tests", "benchmarks"])
+def test_tests_and_benchmarks_use_only_public_names(folder):
+    root = PACKAGE.parent / folder
+    uses = [u for path in sorted(root.rglob("*.py")) for u in private_uses(path)]
+    assert uses == []
+
+
+def test_the_private_name_scan_sees_a_violation(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text("from datagen.transport.physics import _secret\nx = other._helper(1)\nself._mine = 2\n")
+    assert private_uses(bad) == ["bad.py:1 _secret", "bad.py:2 _helper"]
+
+
+MODULE_LINES_MAX = 600
+"""Longest module, in lines (the architecture issue's bound: larger modules are split by what they do)."""
+
+
+def test_modules_stay_small():
+    long = {name: n for name, path in _modules().items() if (n := len(path.read_text().splitlines())) > MODULE_LINES_MAX}
+    assert long == {}
