@@ -49,7 +49,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from scipy import special, stats
 
-from .units import parse_duration
+from ..units import parse_duration
 
 __all__ = [
     "DetectorConfig",
@@ -794,9 +794,19 @@ def detection_pmf(rates: Any) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # Synchronous models: poisson, pile_up, multi_stop
 # --------------------------------------------------------------------------------------------------
-def _first_photon_sequential(gen: np.random.Generator, r: np.ndarray, n: int) -> np.ndarray:
-    """Sequential conditional binomials ``N_i ~ Bin(D_i, 1 − e^{−r_i})``, ``D_{i+1} = D_i − N_i`` (DESIGN.md §6);
-    one vectorised binomial call per bin over all pixels of the chunk."""
+def first_photon_sequential(gen: np.random.Generator, r: np.ndarray, n: int) -> np.ndarray:
+    """Exact first-photon (pile-up) counts of ``n`` synchronous laser cycles by sequential conditional binomials
+    ``N_i ~ Bin(D_i, 1 − e^{−r_i})``, ``D_0 = n``, ``D_{i+1} = D_i − N_i`` (DESIGN.md §6); one vectorised binomial
+    call per bin over all pixels of the chunk.
+
+    Args:
+        gen: numpy Generator (advanced by the call).
+        r: float64 (pixels, bins) expected avalanches per laser cycle per bin, ≥ 0 (not checked).
+        n: number of laser cycles (int ≥ 0).
+    Returns:
+        int64 (pixels, bins) counts; each row sums to at most ``n``.  Same distribution as
+        :func:`first_photon_tree` (but other draws for the same ``gen``).
+    """
     p = -np.expm1(-r)
     out = np.zeros(r.shape, dtype=np.int64)
     remaining = np.full(r.shape[0], n, dtype=np.int64)
@@ -809,11 +819,19 @@ def _first_photon_sequential(gen: np.random.Generator, r: np.ndarray, n: int) ->
     return out
 
 
-def _first_photon_tree(gen: np.random.Generator, r: np.ndarray, n: int) -> np.ndarray:
+def first_photon_tree(gen: np.random.Generator, r: np.ndarray, n: int) -> np.ndarray:
     """The same multinomial drawn top-down on a binary tree of bin blocks: the number of cycles detecting in a
     block is split between its halves with ``P(left | block) = (1 − e^{−R_left}) / (1 − e^{−R_block})`` (the
     e^{−C} factors cancel, so no cancellation; block sums are pairwise).  Exact; log2(bins) vectorised calls,
-    which is what makes 10^6 bins fast."""
+    which is what makes 10^6 bins fast.
+
+    Args:
+        gen: numpy Generator (advanced by the call).
+        r: float64 (pixels, bins) expected avalanches per laser cycle per bin, ≥ 0 (not checked).
+        n: number of laser cycles (int ≥ 0).
+    Returns:
+        int64 (pixels, bins) counts; each row sums to at most ``n``.
+    """
     n_pix, bins = r.shape
     size = 1 << max(0, (bins - 1).bit_length())
     leaf = np.zeros((n_pix, size))
@@ -845,7 +863,7 @@ draw took 14 ms), so the binary tree is used whatever the bin count (~0.3 ms).""
 def _sample_first_photon(rates2d: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     """Exact multinomial first-photon counts of (pixels, bins) rates over n cycles (int64)."""
     sequential = rates2d.shape[1] <= SEQUENTIAL_MAX_BINS and rates2d.shape[0] >= SEQUENTIAL_MIN_PIXELS
-    draw = _first_photon_sequential if sequential else _first_photon_tree
+    draw = first_photon_sequential if sequential else first_photon_tree
     return np.concatenate(_run_chunked(lambda gen, rr: draw(gen, rr, n), [rates2d], rng), axis=0)
 
 
@@ -1270,16 +1288,29 @@ def free_running_rate(rates: Any, config: DetectorConfig) -> np.ndarray:
     return rho.reshape(r.shape[:-1])
 
 
-def _event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+def event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
     """Exact continuous-time simulation of a free-running SPAD over ``n_cycles`` periods, vectorised over pixels
     (one round = one avalanche per pixel).  Used when afterpulsing is on (afterpulses depend on the recorded
-    history); otherwise :func:`_event_simulation_batched` simulates the same process faster.  The avalanche intensity is piecewise constant on the period cells;
+    history); otherwise :func:`event_simulation_batched` simulates the same process faster.  The avalanche
+    intensity is piecewise constant on the period cells;
     the next avalanche after time s is found by inverting the cumulative intensity with an Exp(1) draw,
     skipping whole empty periods in O(1).  Non-paralyzable: the detector is live again at t + τ.  Paralyzable:
     every avalanche restarts the dead time and is recorded only if the previous one is ≥ τ earlier.
     Afterpulses: each recorded avalanche schedules, with probability P_ap, an afterpulse at
     t + τ + Exp(afterpulse_time_constant) and cancels any pending one (one trap per pixel); afterpulses falling
-    outside the gate are lost.  The detector starts live at t = 0; time stamps are phases modulo the period."""
+    outside the gate are lost.  The detector starts live at t = 0; time stamps are phases modulo the period.
+
+    Args:
+        r2: float64 (pixels, bins) expected avalanches per laser cycle in each histogram bin (window
+            ``config.bin_edges(bins)``, s; outside it the rate is ``background_rate`` × gate), ≥ 0 (not checked).
+        config: detector description (period, cycles, dead_time in s, paralyzable, afterpulse_probability,
+            afterpulse_time_constant in s, gate).
+        rng: numpy Generator (advanced by the call).
+    Returns:
+        int64 (pixels, bins) recorded detections per bin over ``config.cycles`` laser periods.
+    Raises:
+        ValueError: the histogram window exceeds the laser period.
+    """
     edges, q, cell_bin = _period_cells(r2, config)
     n_pix, n_cells = q.shape
     bins = r2.shape[1]
@@ -1415,13 +1446,25 @@ def _dead_time_path(key: np.ndarray, pix: np.ndarray, dead: int, start: np.ndarr
         jump = jump[jump]
 
 
-def _event_simulation_batched(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+def event_simulation_batched(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
     """Exact free-running simulation without afterpulsing, in segments of whole cycles, vectorised over all
     avalanches.  Avalanche counts per (pixel, cell, segment) are Poisson(S·q); positions are uniform within the
     cell (constant intensity there) and the cycle uniform within the segment; times are integer ticks
     (TICKS_PER_PERIOD per period).  Non-paralyzable dead time: :func:`_dead_time_path`; paralyzable: an avalanche
     is recorded iff the previous avalanche of that pixel is ≥ τ earlier.  State (live-from / last avalanche)
-    carries across segments, so the result is the same process as :func:`_event_simulation`."""
+    carries across segments, so the result is the same process as :func:`event_simulation`.
+
+    Args:
+        r2: float64 (pixels, bins) expected avalanches per laser cycle in each histogram bin (window
+            ``config.bin_edges(bins)``, s; outside it the rate is ``background_rate`` × gate), ≥ 0 (not checked).
+        config: detector description (period, cycles, dead_time in s, paralyzable, gate); afterpulsing is
+            ignored (use :func:`event_simulation`).
+        rng: numpy Generator (advanced by the call).
+    Returns:
+        int64 (pixels, bins) recorded detections per bin over ``config.cycles`` laser periods.
+    Raises:
+        ValueError: the histogram window exceeds the laser period.
+    """
     edges, q, cell_bin = _period_cells(r2, config)
     n_pix, n_cells = q.shape
     bins = r2.shape[1]
@@ -1605,9 +1648,9 @@ def sample_histogram(rates: Any, config: DetectorConfig, rng: np.random.Generato
     elif config.model == "multi_stop":
         counts = _multi_stop_sample(r2, n, _multi_stop_dead_bins(config), rng)
     elif config.afterpulse_probability > 0:
-        counts = _event_simulation(r2, config, rng)
+        counts = event_simulation(r2, config, rng)
     else:
-        counts = _event_simulation_batched(r2, config, rng)
+        counts = event_simulation_batched(r2, config, rng)
     if config.jitter > 0:
         kernel, first = gaussian_kernel(config.jitter, config.bin_width)
         counts = _jitter_counts(counts, kernel, first, rng)
