@@ -54,9 +54,9 @@ def main():
     rows.append((label, "sample_histogram (default: threaded sequential binomials)", t,
                  f"{counts.sum() / t:.3g} counts/s"))
     r2 = rates.reshape(-1, BINS)
-    t, _ = best_of(lambda: spad._first_photon_sequential(np.random.default_rng(1), r2, CYCLES))
+    t, _ = best_of(lambda: spad.first_photon_sequential(np.random.default_rng(1), r2, CYCLES))
     rows.append((label, "sequential binomials, 1 thread", t, ""))
-    t, _ = best_of(lambda: spad._first_photon_tree(np.random.default_rng(1), r2, CYCLES))
+    t, _ = best_of(lambda: spad.first_photon_tree(np.random.default_rng(1), r2, CYCLES))
     rows.append((label, "binary-tree binomials, 1 thread", t, ""))
     pmf = detection_pmf(r2)
     t, _ = best_of(lambda: np.random.default_rng(1).multinomial(CYCLES, pmf))

@@ -459,8 +459,8 @@ def test_round_based_and_batched_event_simulators_agree():
     c = free_cfg(n_cycles=50_000)
     r = peaked_rates()
     expected = expected_histogram(r, c)
-    a = spad._event_simulation(np.broadcast_to(r, (4, 50)).copy(), c, np.random.default_rng(1)).sum(axis=0)
-    b = spad._event_simulation_batched(np.broadcast_to(r, (4, 50)).copy(), c, np.random.default_rng(2)).sum(0)
+    a = spad.event_simulation(np.broadcast_to(r, (4, 50)).copy(), c, np.random.default_rng(1)).sum(axis=0)
+    b = spad.event_simulation_batched(np.broadcast_to(r, (4, 50)).copy(), c, np.random.default_rng(2)).sum(0)
     assert chi2_gof_p(a, 4 * expected) > P_MIN and chi2_gof_p(b, 4 * expected) > P_MIN
 
 

@@ -1,0 +1,107 @@
+"""SPAD / TCSPC detector models: from an expected photon envelope to time-tagged histograms.
+
+Notation (docs/physics.md §6).  For one laser cycle and TDC bin ``i`` the detector sees ``r_i`` expected
+*avalanches* (signal already thinned by the PDE, plus PDE·ambient and dark counts, all before pile-up);
+``C_i = Σ_{j<i} r_j`` is the exclusive cumulative sum and ``Λ = Σ_i r_i``.  Everywhere in this module
+
+* ``rates`` is a float64 array of shape ``(..., bins)``: expected avalanches per laser cycle per bin.  Any
+  leading axes are pixels and every function broadcasts over them.  float32 input is accepted and
+  converted to float64 before any arithmetic.
+* counts are int64 (float32 cannot count past 2**24); expected histograms are float64.
+* time is in seconds and rates in Hz; configuration files may write ``"50ns"`` or ``"20MHz"``.
+
+Histogram models (``DetectorConfig.model``):
+
+``"poisson"``
+    Independent Poisson counts ``N_i ~ Poisson(n·r_i)``.  Valid at low flux (Λ ≪ 1) or for detectors
+    without dead time.  docs/physics.md §6, first bullet.  Above 1e12 expected counts a bin is drawn from the
+    normal approximation (``POISSON_NORMAL_ABOVE``); a bin expecting more than int64 can count (9e18) is an
+    error naming the flux.
+``"pile_up"`` (default)
+    Synchronous TCSPC, one stop per cycle, detector re-armed every cycle (first-photon model, Coates
+    1968): ``P(first detection in bin i) = e^{-C_i}(1-e^{-r_i})``; ``n`` cycles give a multinomial.
+``"multi_stop"``
+    Multi-stop TDC reset every cycle; after a detection the SPAD is dead for ``d = round(τ/Δ)`` bins and
+    then re-armed within the same cycle.  Exact recursion on the discrete-bin model (no product
+    approximation).
+``"free_running"``
+    Free-running SPAD whose dead time crosses cycle boundaries (time-tagging TCSPC).  Exact
+    continuous-time event simulation for samples; the expected histogram is the stationary distribution
+    of the Markov chain on the detection phase (Rapp, Ma, Dawson & Goyal, "Dead time compensation for
+    high-flux ranging", IEEE Trans. Signal Process. 67(13), 2019), or a closed form for a paralyzable dead
+    time.
+
+Timing order (docs/physics.md §6): the laser pulse shape (already in the transport envelope) and the SPAD
+diffusion tail act *before* pile-up (they change which photon comes first); the Gaussian
+avalanche/electronic/TDC jitter acts *after* pile-up (it moves the recorded time stamp of the photon that
+already won).  At low flux the two orders agree; at high flux they do not (see :func:`apply_jitter_before`).
+
+Modules (each imports only the ones above it; import the functions from ``datagen.spad``):
+
+* :mod:`~datagen.spad.config`: :class:`DetectorConfig` and its YAML presets.
+* :mod:`~datagen.spad.arrays`: input checks and numerical helpers for ``(..., bins)`` arrays.
+* :mod:`~datagen.spad.effects`: jitter and diffusion-tail kernels, instrument response, crosstalk.
+* :mod:`~datagen.spad.rates`: envelope → rates (background, gate, DNL widths), rebinning.
+* :mod:`~datagen.spad.synchronous`: ``poisson``, ``pile_up``, ``multi_stop`` pmfs, expectations and samplers.
+* :mod:`~datagen.spad.free_running`: free-running dead time (Markov chain, closed form, event simulation).
+* :mod:`~datagen.spad.correction`: Coates pile-up correction.
+* :mod:`~datagen.spad.counters`: counting-mode detectors (no TDC).
+* :mod:`~datagen.spad.histogram`: :func:`expected_histogram` and :func:`sample_histogram` for every model.
+"""
+from __future__ import annotations
+
+from .config import FWHM_PER_SIGMA, DeadTimeKind, DetectorConfig, ModelName
+from .counters import counter_rate, counter_variance, sample_counter
+from .correction import coates
+from .effects import (
+    DIRECT_CONVOLUTION_TAPS,
+    EXP_TAIL_LENGTHS,
+    GAUSS_TAIL_SIGMAS,
+    MAX_KERNEL_TAPS,
+    apply_jitter_after,
+    apply_jitter_before,
+    exponential_kernel,
+    gaussian_kernel,
+    instrument_response,
+)
+from .free_running import (
+    EVENT_FLUSH,
+    EVENT_SEGMENT_ARRIVALS,
+    EXP_BLOCK_LIMIT,
+    MARKOV_CELL_HAZARD,
+    MARKOV_CHUNK_ELEMENTS,
+    MARKOV_MAX_ITER,
+    MARKOV_MAX_STATES,
+    MARKOV_TOL,
+    TICKS_PER_PERIOD,
+    event_simulation,
+    event_simulation_batched,
+    free_running_rate,
+)
+from .histogram import expected_histogram, sample_histogram
+from .rates import NEGATIVE_ENVELOPE_RTOL, gate_fraction, rates_from_envelope, rebin_envelope
+from .synchronous import (
+    MAX_EXPECTED_COUNTS,
+    POISSON_NORMAL_ABOVE,
+    SAMPLER_PIXEL_CHUNK,
+    SEQUENTIAL_MAX_BINS,
+    SEQUENTIAL_MIN_PIXELS,
+    detection_pmf,
+    first_photon_sequential,
+    first_photon_tree,
+)
+
+__all__ = [
+    # functions and the configuration
+    "DetectorConfig", "rates_from_envelope", "detection_pmf", "expected_histogram", "sample_histogram", "coates",
+    "gate_fraction", "rebin_envelope", "gaussian_kernel", "exponential_kernel", "apply_jitter_before",
+    "apply_jitter_after", "instrument_response", "counter_rate", "counter_variance", "sample_counter",
+    "free_running_rate", "first_photon_sequential", "first_photon_tree", "event_simulation",
+    "event_simulation_batched",
+    # named constants and types (documented in their modules)
+    "FWHM_PER_SIGMA", "ModelName", "DeadTimeKind", "NEGATIVE_ENVELOPE_RTOL", "GAUSS_TAIL_SIGMAS", "EXP_TAIL_LENGTHS",
+    "MAX_KERNEL_TAPS", "DIRECT_CONVOLUTION_TAPS", "SAMPLER_PIXEL_CHUNK", "SEQUENTIAL_MAX_BINS",
+    "SEQUENTIAL_MIN_PIXELS", "POISSON_NORMAL_ABOVE", "MAX_EXPECTED_COUNTS", "EXP_BLOCK_LIMIT", "MARKOV_MAX_STATES",
+    "MARKOV_CELL_HAZARD", "MARKOV_TOL", "MARKOV_MAX_ITER", "MARKOV_CHUNK_ELEMENTS", "EVENT_FLUSH", "TICKS_PER_PERIOD",
+    "EVENT_SEGMENT_ARRIVALS",
+]

@@ -1,0 +1,575 @@
+"""Free-running SPAD whose dead time crosses laser cycles (time-tagging TCSPC; docs/physics.md §6).
+
+Expected histogram: stationary distribution of the Markov chain on the detection phase (Rapp, Ma, Dawson &
+Goyal, "Dead time compensation for high-flux ranging", IEEE Trans. Signal Process. 67(13), 2019), or the closed
+form of a paralyzable dead time.  Samples: exact continuous-time event simulation (with afterpulsing), or the
+batched simulator of the same process without afterpulsing.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .arrays import as_rates, row_search
+from .config import DetectorConfig
+from .rates import gate_fraction
+
+__all__ = [
+    "EXP_BLOCK_LIMIT",
+    "MARKOV_MAX_STATES",
+    "MARKOV_CELL_HAZARD",
+    "MARKOV_TOL",
+    "MARKOV_MAX_ITER",
+    "EVENT_FLUSH",
+    "MARKOV_CHUNK_ELEMENTS",
+    "free_running_expected",
+    "free_running_rate",
+    "event_simulation",
+    "TICKS_PER_PERIOD",
+    "EVENT_SEGMENT_ARRIVALS",
+    "event_simulation_batched",
+]
+
+
+EXP_BLOCK_LIMIT = 600.0
+"""Largest exponent used inside a block of :func:`_decayed_cumsum` (e^600 ≈ 1e260 < float64 max)."""
+
+MARKOV_MAX_STATES = 60_000
+"""Cap on the number of phase cells of the free-running Markov chain (per pixel)."""
+
+MARKOV_CELL_HAZARD = 0.02
+"""Automatic oversampling keeps the expected avalanches per Markov cell below this."""
+
+MARKOV_TOL = 1e-13
+"""L1 convergence tolerance of the stationary distribution of the free-running chain."""
+
+MARKOV_MAX_ITER = 20_000
+"""Power iterations before falling back to ARPACK for a slowly mixing free-running chain."""
+
+EVENT_FLUSH = 4_000_000
+"""Detections buffered by the event simulator before they are binned."""
+
+
+def _period_cells(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cover the whole laser period with cells: the histogram bins plus background cells before/after the
+    window (avalanche rate ``background_rate`` × gate).  Returns (edges (cells+1,) in s within the period,
+    q (pixels, cells) expected avalanches per cycle, cell_bin (cells,) histogram bin or -1)."""
+    bins = r2.shape[1]
+    T = config.period
+    win = config.bin_edges(bins)
+    if win[-1] > T * (1 + 1e-9):
+        raise ValueError(f"the histogram window [{win[0]!r}, {win[-1]!r}] s exceeds the laser period {T!r} s; "
+                         "free-running time tags are taken modulo the period")
+    parts = [win]
+    n_pre = int(round(win[0] / config.bin_width))
+    if win[0] > 0:
+        parts.insert(0, np.linspace(0.0, win[0], max(n_pre, 1) + 1)[:-1])
+    tail = T - win[-1]
+    if tail > 1e-9 * T:
+        n_post = max(int(round(tail / config.bin_width)), 1)
+        parts.append(np.linspace(win[-1], T, n_post + 1)[1:])
+    edges = np.concatenate(parts)
+    if tail <= 1e-9 * T:
+        edges[-1] = T  # window ends at the period (within round-off)
+    n_before = 0 if win[0] <= 0 else parts[0].size
+    n_cells = edges.size - 1
+    cell_bin = np.full(n_cells, -1, dtype=np.int64)
+    cell_bin[n_before:n_before + bins] = np.arange(bins)
+    bg = config.background_rate * np.diff(edges) * gate_fraction(edges, config.gate)
+    q = np.broadcast_to(bg, (r2.shape[0], n_cells)).copy()
+    q[:, n_before:n_before + bins] = r2
+    return edges, q, cell_bin
+
+
+def _decayed_cumsum(v: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """U[..., t] = Σ_{s ≤ t} v[..., s]·exp(−(c[..., t] − c[..., s])) for nondecreasing c, computed in blocks
+    so that no exponent exceeds EXP_BLOCK_LIMIT (no overflow for totals ~1e4)."""
+    out = np.empty_like(v)
+    increments = np.max(np.diff(c, axis=-1, prepend=c[..., :1]), axis=tuple(range(c.ndim - 1)))
+    span = np.cumsum(increments)
+    n = c.shape[-1]
+    start = 0
+    carry = np.zeros(v.shape[:-1])
+    c_prev = c[..., 0]
+    while start < n:
+        stop = int(np.searchsorted(span, span[start] + EXP_BLOCK_LIMIT, side="right"))
+        stop = min(max(stop, start + 1), n)
+        cb = c[..., start:stop] - c[..., start:start + 1]
+        part = np.cumsum(v[..., start:stop] * np.exp(cb), axis=-1)
+        decay0 = np.exp(-(c[..., start] - c_prev))
+        out[..., start:stop] = (part + (carry * decay0)[..., None]) * np.exp(-cb)
+        carry = out[..., stop - 1]
+        c_prev = c[..., stop - 1]
+        start = stop
+    return out
+
+
+def _scatter_columns(values: np.ndarray, dest: np.ndarray, n_cols: int) -> np.ndarray:
+    """out[:, c] = Σ_{j: dest[j] = c} values[:, j] (fast replacement for np.add.at over columns)."""
+    order = np.argsort(dest, kind="stable")
+    sorted_dest = dest[order]
+    starts = np.flatnonzero(np.r_[True, sorted_dest[1:] != sorted_dest[:-1]])
+    out = np.zeros((values.shape[0], n_cols))
+    out[:, sorted_dest[starts]] = np.add.reduceat(values[:, order], starts, axis=1)
+    return out
+
+
+class _Chain:
+    """Discretised free-running chain on the detection phase for a batch of pixels (Rapp et al. 2019).
+
+    Cells j (avalanches q_j per cycle) cover the period.  A detection in cell j is taken at the cell centre,
+    so the detector is live again at centre_j + τ: inside cell a_j, with a live fraction φ_j of that cell.
+    From there the next detection is the first avalanche of the periodic Poisson process: in cell a_j with
+    probability 1 − e^{−φ_j q_a}, otherwise distributed by the full-period kernel
+    F(b, j') = e^{−(C_{j'} − C_b)} (1 − e^{−q_{j'}}) / (1 − e^{−Λ}) from b = a_j + 1 (whole empty periods
+    summed geometrically).  Applying the transition costs O(cells) per pixel (decayed prefix sums)."""
+
+    def __init__(self, q: np.ndarray, edges: np.ndarray, dead_time: float):
+        self.q, self.edges, self.dead_time = q, edges, dead_time
+        self.T = edges[-1]
+        self.M = q.shape[1]
+        centre = 0.5 * (edges[:-1] + edges[1:])
+        live = np.mod(centre + dead_time, self.T)
+        a = np.clip(np.searchsorted(edges, live, side="right") - 1, 0, self.M - 1)
+        phi = np.clip((edges[a + 1] - live) / (edges[a + 1] - edges[a]), 0.0, 1.0)
+        self.a, self.b = a, (a + 1) % self.M
+        self.p = -np.expm1(-q)
+        q2 = np.concatenate([q, q], axis=1)
+        self.c2 = np.zeros_like(q2)
+        np.cumsum(q2[:, :-1], axis=1, out=self.c2[:, 1:])
+        self.lam = q.sum(axis=1)
+        self.one_minus_survival = -np.expm1(-self.lam)
+        qa = q[:, a]
+        self.stay = -np.expm1(-phi[None, :] * qa)   # detect inside the partial cell a_j
+        self.go = np.exp(-phi[None, :] * qa)        # survive it
+
+    def step(self, pi: np.ndarray) -> np.ndarray:
+        """One transition of a batch of row distributions pi (pixels, cells)."""
+        M = self.M
+        y = _scatter_columns(pi * self.stay, self.a, M)
+        v2 = np.zeros((pi.shape[0], 2 * M))
+        v2[:, :M] = _scatter_columns(pi * self.go, self.b, M)
+        u = _decayed_cumsum(v2, self.c2)
+        oms = self.one_minus_survival[:, None]
+        wrap = np.divide(u[:, M:], oms, out=np.zeros_like(u[:, M:]), where=oms > 0)
+        y += self.p * (u[:, :M] + wrap)
+        return y
+
+    def window_mass(self, pi: np.ndarray) -> np.ndarray:
+        """(Wπ)_j: mass of detections in (centre_j − τ, centre_j], periodic, π uniform within cells."""
+        cum = np.zeros((pi.shape[0], self.M + 1))
+        np.cumsum(pi, axis=1, out=cum[:, 1:])
+        total = cum[:, -1:]
+        centre = 0.5 * (self.edges[:-1] + self.edges[1:])
+
+        def at(t):
+            k = np.floor(t / self.T)
+            u = t - k * self.T
+            idx = np.clip(np.searchsorted(self.edges, u, side="right") - 1, 0, self.M - 1)
+            frac = (u - self.edges[idx]) / (self.edges[idx + 1] - self.edges[idx])
+            return k[None, :] * total + cum[:, idx] + frac[None, :] * pi[:, idx]
+
+        return at(centre) - at(centre - self.dead_time)
+
+
+def _stationary(chain: _Chain) -> np.ndarray:
+    """Stationary detection-phase distribution (pixels, cells): vectorised power iteration started from the
+    low-flux guess π ∝ q, then ARPACK for any pixel whose chain mixes too slowly."""
+    q = chain.q
+    pi = q / np.where(chain.lam[:, None] > 0, chain.lam[:, None], 1.0)
+    todo = np.arange(q.shape[0])
+    sub = chain
+    for _ in range(MARKOV_MAX_ITER):
+        nxt = sub.step(pi[todo])
+        s = nxt.sum(axis=1, keepdims=True)
+        nxt /= np.where(s > 0, s, 1.0)
+        diff = np.abs(nxt - pi[todo]).sum(axis=1)
+        pi[todo] = nxt
+        keep = diff >= MARKOV_TOL
+        if not keep.any():
+            return pi
+        if not keep.all():
+            todo = todo[keep]
+            sub = _Chain(q[todo], chain.edges, chain.dead_time)
+    from scipy.sparse.linalg import LinearOperator, eigs
+
+    for k in todo:  # only for slowly mixing, nearly periodic chains
+        one = _Chain(q[k:k + 1], chain.edges, chain.dead_time)
+        op = LinearOperator((chain.M, chain.M), matvec=lambda x, c=one: c.step(np.real(x).reshape(1, -1))[0],
+                            dtype=np.float64)
+        _, vec = eigs(op, k=1, which="LR", v0=pi[k], tol=1e-14, maxiter=100_000)
+        vec = np.abs(vec[:, 0].real)
+        pi[k] = vec / vec.sum()
+    return pi
+
+
+def _refine_cells(edges: np.ndarray, q: np.ndarray, factor: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if factor == 1:
+        return edges, q, np.arange(q.shape[1])
+    frac = np.arange(factor) / factor
+    fine = (edges[:-1, None] + frac[None, :] * np.diff(edges)[:, None]).ravel()
+    fine = np.append(fine, edges[-1])
+    return fine, np.repeat(q / factor, factor, axis=1), np.repeat(np.arange(q.shape[1]), factor)
+
+
+def _auto_oversample(q: np.ndarray, edges: np.ndarray, dead_time: float) -> int:
+    n_cells = q.shape[1]
+    cap = max(1, MARKOV_MAX_STATES // n_cells)
+    need_hazard = math.ceil(float(q.max(initial=0.0)) / MARKOV_CELL_HAZARD) if q.size else 1
+    need_time = math.ceil(8.0 * float(np.diff(edges).max()) / dead_time) if dead_time > 0 else 1
+    return int(min(cap, max(4, need_hazard, need_time)))
+
+
+def _free_running_nonparalyzable(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    edges, q, cell_bin = _period_cells(r2, config)
+    factor = config.markov_oversample or _auto_oversample(q, edges, config.dead_time)
+    fine_edges, fine_q, parent = _refine_cells(edges, q, factor)
+    chain = _Chain(fine_q, fine_edges, config.dead_time)
+    pi = _stationary(chain)
+    wpi = chain.window_mass(pi) if config.dead_time > 0 else np.zeros_like(pi)
+    rho = chain.lam / (1.0 + np.sum(fine_q * wpi, axis=1))  # detections per cycle (dead-fraction identity)
+    per_cell = rho[:, None] * pi
+    fine_bin = cell_bin[parent]
+    hist = np.zeros_like(r2)
+    inside = fine_bin >= 0
+    np.add.at(hist, (slice(None), fine_bin[inside]), per_cell[:, inside])
+    return hist, rho
+
+
+def _free_running_paralyzable(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Closed form: an avalanche at t is counted iff no avalanche in (t − τ, t), so the stationary detection
+    density is λ(t)·exp(−∫_{t−τ}^{t} λ); integrated exactly over sub-intervals on which both ends are linear."""
+    edges, q, cell_bin = _period_cells(r2, config)
+    T, tau = config.period, config.dead_time
+    cum = np.zeros((q.shape[0], q.shape[1] + 1))
+    np.cumsum(q, axis=1, out=cum[:, 1:])
+    lam = cum[:, -1:]
+    # E(t) = R(t) − R(t − τ) is linear between cell edges and the points where t − τ crosses an edge
+    breaks = np.unique(np.concatenate([edges, np.mod(edges + tau, T)]) if tau > 0 else edges)
+    breaks = breaks[(breaks >= 0) & (breaks <= T)]
+    breaks = np.unique(np.concatenate([[0.0, T], breaks]))
+    lo, hi = breaks[:-1], breaks[1:]
+    keep = hi - lo > 1e-12 * T
+    lo, hi = lo[keep], hi[keep]
+
+    def big_r(t):  # cumulative intensity on the unrolled time axis, (pixels, len(t))
+        k = np.floor(t / T)
+        u = t - k * T
+        idx = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, q.shape[1] - 1)
+        frac = (u - edges[idx]) / (edges[idx + 1] - edges[idx])
+        return k, cum[:, idx] + frac[None, :] * q[:, idx]
+
+    def exposure_term(t):  # ∫_{t−τ}^{t} λ
+        k1, r1 = big_r(t)
+        k0, r0 = big_r(t - tau)
+        return (k1 - k0)[None, :] * lam + r1 - r0
+
+    e_lo, e_hi = exposure_term(lo), exposure_term(hi)
+    mid = 0.5 * (lo + hi)
+    cell = np.clip(np.searchsorted(edges, mid, side="right") - 1, 0, q.shape[1] - 1)
+    density = q[:, cell] / (edges[cell + 1] - edges[cell])[None, :]
+    x = e_hi - e_lo
+    small = np.abs(x) < 1e-8
+    safe_x = np.where(small, 1.0, x)
+    phi = np.where(small, 1.0 - 0.5 * x, -np.expm1(-x) / safe_x)
+    piece = density * (hi - lo)[None, :] * np.exp(-e_lo) * phi
+    hist = np.zeros_like(r2)
+    b = cell_bin[cell]
+    inside = b >= 0
+    np.add.at(hist, (slice(None), b[inside]), piece[:, inside])
+    return hist, piece.sum(axis=1)
+
+
+MARKOV_CHUNK_ELEMENTS = 4_000_000
+"""Pixels are processed in chunks so that one chunk's (pixels × cells) arrays stay below this size."""
+
+
+def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(per-cycle expected histogram (pixels, bins), detections per cycle (pixels,)), in pixel chunks.
+
+    Args:
+        r2: float64 (pixels, bins) expected avalanches per laser cycle per bin, ≥ 0.
+        config: detector description with ``model="free_running"`` (dead_time in s, paralyzable,
+            markov_oversample, period, gate, background_rate).
+    Returns:
+        ``(hist, rho)``: float64 (pixels, bins) expected detections per laser cycle in each bin (multiply by
+        ``config.cycles`` for the exposure), and float64 (pixels,) detections per cycle at all phases.
+    Raises:
+        ValueError: the histogram window exceeds the laser period.
+    """
+    solver = _free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable
+    cells = _period_cells(r2[:1], config)[1].shape[1]
+    per_pixel = cells * (2 if config.paralyzable else 2 * (config.markov_oversample or 8))
+    chunk = max(1, MARKOV_CHUNK_ELEMENTS // per_pixel)
+    hist = np.zeros_like(r2)
+    rho = np.zeros(r2.shape[0])
+    for start in range(0, r2.shape[0], chunk):
+        hist[start:start + chunk], rho[start:start + chunk] = solver(r2[start:start + chunk], config)
+    return hist, rho
+
+
+def free_running_rate(rates: Any, config: DetectorConfig) -> np.ndarray:
+    """Stationary detections per laser cycle of a free-running SPAD (all phases, in or out of the window).
+
+    Non-paralyzable: from the Markov chain on the detection phase (Rapp et al. 2019) and the exact identity
+    ``ρ = Λ / (1 + Σ_j q_j (Wπ)_j)`` (the detector is dead at t iff it detected in (t − τ, t]); for a constant
+    rate it reduces to the counter law m = n/(1 + nτ).  Paralyzable: closed form (m = n·e^{−nτ} for a
+    constant rate).
+
+    Args:
+        rates: (..., bins) expected avalanches per cycle per bin; config with ``model="free_running"``.
+    Returns:
+        float64 (...,) detections per cycle (multiply by ``repetition_rate`` for Hz).
+    Raises:
+        ValueError: invalid rates, another model, or a histogram window longer than the period.
+    """
+    r = as_rates(rates)
+    _require_model(config, "free_running")
+    _, rho = free_running_expected(r.reshape(-1, r.shape[-1]), config)
+    return rho.reshape(r.shape[:-1])
+
+
+def event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+    """Exact continuous-time simulation of a free-running SPAD over ``n_cycles`` periods, vectorised over pixels
+    (one round = one avalanche per pixel).  Used when afterpulsing is on (afterpulses depend on the recorded
+    history); otherwise :func:`event_simulation_batched` simulates the same process faster.  The avalanche
+    intensity is piecewise constant on the period cells;
+    the next avalanche after time s is found by inverting the cumulative intensity with an Exp(1) draw,
+    skipping whole empty periods in O(1).  Non-paralyzable: the detector is live again at t + τ.  Paralyzable:
+    every avalanche restarts the dead time and is recorded only if the previous one is ≥ τ earlier.
+    Afterpulses: each recorded avalanche schedules, with probability P_ap, an afterpulse at
+    t + τ + Exp(afterpulse_time_constant) and cancels any pending one (one trap per pixel); afterpulses falling
+    outside the gate are lost.  The detector starts live at t = 0; time stamps are phases modulo the period.
+
+    Args:
+        r2: float64 (pixels, bins) expected avalanches per laser cycle in each histogram bin (window
+            ``config.bin_edges(bins)``, s; outside it the rate is ``background_rate`` × gate), ≥ 0 (not checked).
+        config: detector description (period, cycles, dead_time in s, paralyzable, afterpulse_probability,
+            afterpulse_time_constant in s, gate).
+        rng: numpy Generator (advanced by the call).
+    Returns:
+        int64 (pixels, bins) recorded detections per bin over ``config.cycles`` laser periods.
+    Raises:
+        ValueError: the histogram window exceeds the laser period.
+    """
+    edges, q, cell_bin = _period_cells(r2, config)
+    n_pix, n_cells = q.shape
+    bins = r2.shape[1]
+    T, tau, n = config.period, config.dead_time, config.cycles
+    widths = np.diff(edges)
+    cum = np.zeros((n_pix, n_cells + 1))
+    np.cumsum(q, axis=1, out=cum[:, 1:])
+    lam = cum[:, -1].copy()
+    gate_ok = gate_fraction(edges, config.gate) > 0
+    p_ap, tau_ap = config.afterpulse_probability, config.afterpulse_time_constant
+    paralyzable = config.paralyzable
+    tiny = np.finfo(np.float64).tiny
+    never = np.iinfo(np.int64).max
+    last_phase_value = np.nextafter(T, 0.0)
+
+    cycle = np.zeros(n_pix, dtype=np.int64)   # where the search for the next avalanche starts
+    phase = np.zeros(n_pix)
+    last_cycle = np.full(n_pix, -1, dtype=np.int64)   # paralyzable: previous avalanche (-1: none yet)
+    last_phase = np.zeros(n_pix)
+    ap_cycle = np.full(n_pix, never, dtype=np.int64)  # pending afterpulse
+    ap_phase = np.zeros(n_pix)
+    active = lam > 0
+    buffers: list[np.ndarray] = []
+    buffered = 0
+    hist = np.zeros(n_pix * bins, dtype=np.int64)
+
+    def add_time(c, u, dt):
+        total = u + dt
+        k = np.floor(total / T)
+        u2 = total - k * T
+        wrap = u2 >= T
+        return c + (k + wrap).astype(np.int64), np.clip(np.where(wrap, u2 - T, u2), 0.0, last_phase_value)
+
+    while True:
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        c0, u0, lam_i = cycle[idx], phase[idx], lam[idx]
+        cell0 = np.clip(np.searchsorted(edges, u0, side="right") - 1, 0, n_cells - 1)
+        r_start = cum[idx, cell0] + (u0 - edges[cell0]) / widths[cell0] * q[idx, cell0]
+        target = r_start + rng.standard_exponential(idx.size)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            same = target <= lam_i
+            rem = target - lam_i
+            skip = np.where(same, 0.0, np.floor(rem / lam_i))
+            inner = np.where(same, target, rem - skip * lam_i)
+            inner = np.where(np.isfinite(inner), inner, lam_i)
+            over = (~same) & (inner > lam_i)
+            inner = np.where(over, inner - lam_i, inner)
+            new_cycle = c0 + np.where(same, 0.0, 1.0 + skip + over)
+        inner = np.clip(inner, tiny, lam_i)
+        beyond = ~(new_cycle < n)
+        b = row_search(cum, idx, inner)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u1 = edges[b] + (inner - cum[idx, b]) / q[idx, b] * widths[b]
+        u1 = np.where(beyond, 0.0, np.clip(u1, edges[b], np.nextafter(edges[b + 1], 0.0)))
+        c1 = np.where(beyond, float(n), new_cycle).astype(np.int64)
+        is_ap = np.zeros(idx.size, dtype=bool)
+        if p_ap > 0:
+            apc, apu = ap_cycle[idx], ap_phase[idx]
+            is_ap = (apc < c1) | ((apc == c1) & (apu < u1))
+            c1 = np.where(is_ap, apc, c1)
+            u1 = np.where(is_ap, apu, u1)
+        done = c1 >= n
+        active[idx[done]] = False
+        go = ~done
+        idx, c1, u1, is_ap = idx[go], c1[go], u1[go], is_ap[go]
+        if idx.size == 0:
+            continue
+        cell1 = np.clip(np.searchsorted(edges, u1, side="right") - 1, 0, n_cells - 1)
+        if paralyzable:
+            lc, lp = last_cycle[idx], last_phase[idx]
+            gap = (c1 - lc).astype(np.float64) * T + (u1 - lp)
+            record = (lc < 0) | (gap >= tau)
+            last_cycle[idx], last_phase[idx] = c1, u1
+            cycle[idx], phase[idx] = c1, u1
+        else:
+            lost = is_ap & ~gate_ok[cell1]
+            record = ~lost
+            nc, nu = add_time(c1, u1, tau)
+            cycle[idx] = np.where(lost, c1, nc)
+            phase[idx] = np.where(lost, u1, nu)
+        if p_ap > 0:
+            ap_cycle[idx[record | is_ap]] = never
+            spawn = record & (rng.random(idx.size) < p_ap)
+            if spawn.any():
+                delay = tau + tau_ap * rng.standard_exponential(int(spawn.sum()))
+                ac, au = add_time(c1[spawn], u1[spawn], delay)
+                ap_cycle[idx[spawn]], ap_phase[idx[spawn]] = ac, au
+        hist_bin = cell_bin[cell1]
+        keep = record & (hist_bin >= 0)
+        if keep.any():
+            buffers.append(idx[keep] * bins + hist_bin[keep])
+            buffered += int(keep.sum())
+            if buffered >= EVENT_FLUSH:
+                hist += np.bincount(np.concatenate(buffers), minlength=n_pix * bins)
+                buffers, buffered = [], 0
+    if buffers:
+        hist += np.bincount(np.concatenate(buffers), minlength=n_pix * bins)
+    return hist.reshape(n_pix, bins)
+
+
+TICKS_PER_PERIOD = 1 << 24
+"""Time resolution of the batched free-running simulator: the period is split into 2**24 integer ticks
+(3 fs at 20 MHz), so that sorting and dead-time comparisons are exact integer operations."""
+
+EVENT_SEGMENT_ARRIVALS = 4_000_000
+"""Expected avalanches (all pixels) generated per segment of the batched free-running simulator."""
+
+
+def _dead_time_path(key: np.ndarray, pix: np.ndarray, dead: int, start: np.ndarray) -> np.ndarray:
+    """Indices of the avalanches recorded by a non-paralyzable detector.
+
+    ``key`` (A,) int64 sorted times (pixel-offset ticks), ``pix`` (A,) pixel of each, ``start`` (pixels,) index
+    of each pixel's first recorded avalanche (A: none).  next[k] = first avalanche of the same pixel at or after
+    key[k] + dead; the recorded ones are the path start → next → next …, enumerated for all pixels at once by
+    pointer doubling (level m adds the nodes 2^m steps further), O(A log L)."""
+    size = key.size
+    nxt = np.searchsorted(key, key + dead, side="left")
+    bad = nxt >= size
+    nxt[bad] = size
+    ok = ~bad
+    ok[ok] = pix[nxt[ok]] == pix[ok]
+    nxt[~ok] = size
+    jump = np.append(nxt, size)
+    nodes = start[start < size]
+    while True:
+        add = jump[nodes]
+        add = add[add < size]
+        if add.size == 0:
+            return nodes
+        nodes = np.concatenate([nodes, add])
+        jump = jump[jump]
+
+
+def event_simulation_batched(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+    """Exact free-running simulation without afterpulsing, in segments of whole cycles, vectorised over all
+    avalanches.  Avalanche counts per (pixel, cell, segment) are Poisson(S·q); positions are uniform within the
+    cell (constant intensity there) and the cycle uniform within the segment; times are integer ticks
+    (TICKS_PER_PERIOD per period).  Non-paralyzable dead time: :func:`_dead_time_path`; paralyzable: an avalanche
+    is recorded iff the previous avalanche of that pixel is ≥ τ earlier.  State (live-from / last avalanche)
+    carries across segments, so the result is the same process as :func:`event_simulation`.
+
+    Args:
+        r2: float64 (pixels, bins) expected avalanches per laser cycle in each histogram bin (window
+            ``config.bin_edges(bins)``, s; outside it the rate is ``background_rate`` × gate), ≥ 0 (not checked).
+        config: detector description (period, cycles, dead_time in s, paralyzable, gate); afterpulsing is
+            ignored (use :func:`event_simulation`).
+        rng: numpy Generator (advanced by the call).
+    Returns:
+        int64 (pixels, bins) recorded detections per bin over ``config.cycles`` laser periods.
+    Raises:
+        ValueError: the histogram window exceeds the laser period.
+    """
+    edges, q, cell_bin = _period_cells(r2, config)
+    n_pix, n_cells = q.shape
+    bins = r2.shape[1]
+    n, T = config.cycles, config.period
+    dead = int(round(config.dead_time / T * TICKS_PER_PERIOD))
+    total_rate = float(q.sum())
+    hist = np.zeros(n_pix * bins, dtype=np.int64)
+    if total_rate == 0.0 or n_pix == 0:
+        return hist.reshape(n_pix, bins)
+    max_cycles_by_overflow = (np.iinfo(np.int64).max // 4) // (max(n_pix, 1) * TICKS_PER_PERIOD) - 2
+    seg = int(max(1, min(n, EVENT_SEGMENT_ARRIVALS / total_rate, max_cycles_by_overflow)))
+    cell_lo = np.floor(edges[:-1] / T * TICKS_PER_PERIOD).astype(np.int64)
+    cell_span = np.maximum(np.floor(edges[1:] / T * TICKS_PER_PERIOD).astype(np.int64) - cell_lo, 1)
+    never = np.iinfo(np.int64).min // 4
+    carry = np.full(n_pix, never, dtype=np.int64)  # live-from (non-paralyzable) or last avalanche, in ticks
+    paralyzable = config.paralyzable
+    pix_ids = np.arange(n_pix, dtype=np.int64)
+    done = 0
+    while done < n:
+        s = min(seg, n - done)
+        span = s * TICKS_PER_PERIOD
+        big = span + TICKS_PER_PERIOD
+        counts = rng.poisson(s * q).ravel()
+        flat = np.repeat(np.arange(counts.size, dtype=np.int64), counts)
+        pix, cell = np.divmod(flat, n_cells)
+        local = (rng.integers(0, s, flat.size, dtype=np.int64) * TICKS_PER_PERIOD + cell_lo[cell]
+                 + (rng.random(flat.size) * cell_span[cell]).astype(np.int64))
+        key = pix * big + local
+        order = np.argsort(key, kind="stable")
+        key, pix, cell, local = key[order], pix[order], cell[order], local[order]
+        if paralyzable:
+            prev = np.empty_like(local)
+            prev[1:] = local[:-1]
+            first = np.ones(key.size, dtype=bool)
+            first[1:] = pix[1:] != pix[:-1]
+            prev[first] = carry[pix[first]]
+            recorded = np.flatnonzero((local - prev) >= dead)
+            if key.size:
+                last = np.ones(key.size, dtype=bool)
+                last[:-1] = pix[1:] != pix[:-1]
+                carry[pix[last]] = local[last]
+        else:
+            start = np.searchsorted(key, pix_ids * big + np.maximum(carry, 0), side="left")
+            valid = start < key.size
+            valid[valid] = pix[start[valid]] == pix_ids[valid]
+            start[~valid] = key.size
+            recorded = _dead_time_path(key, pix, dead, start)
+            if recorded.size:
+                rec_pix = pix[recorded]
+                last_local = np.full(n_pix, never, dtype=np.int64)
+                np.maximum.at(last_local, rec_pix, local[recorded])
+                has = last_local > never
+                carry[has] = last_local[has] + dead
+        carry = np.where(carry > never, carry - span, never)
+        carry = np.maximum(carry, never)
+        hb = cell_bin[cell[recorded]]
+        inside = hb >= 0
+        hist += np.bincount(pix[recorded][inside] * bins + hb[inside], minlength=n_pix * bins)
+        done += s
+    return hist.reshape(n_pix, bins)
+
+
+def _require_model(config: DetectorConfig, model: str) -> None:
+    if config.model != model:
+        raise ValueError(f"this function needs model={model!r}, got model={config.model!r}")
