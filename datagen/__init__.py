@@ -19,6 +19,6 @@ __all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "r
 def __getattr__(name: str):
     """``datagen.NLOSDataset`` imports torch on first use only (``import datagen`` stays light for workers)."""
     if name == "NLOSDataset":
-        from .dataset.loader import NLOSDataset
+        from .dataset import NLOSDataset
         return NLOSDataset
     raise AttributeError(f"module 'datagen' has no attribute {name!r}")

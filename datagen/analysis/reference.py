@@ -42,8 +42,6 @@ __all__ = [
     "REFERENCE_SEED",
     "Reference",
     "converged_reference",
-    "primary_area_quadrature",
-    "subdivide_triangles",
 ]
 
 REFERENCE_VERSION = 1
@@ -65,7 +63,7 @@ class Reference:
 
     Attributes:
         envelope: channel_shape + (n_bins,) float64, expected detected photons per pulse per bin (the shape of
-            :attr:`datagen.simulate.Result.envelope`: (n_bins,) for the paper's single pixel).
+            :attr:`datagen.simulation.Result.envelope`: (n_bins,) for the paper's single pixel).
         components: name → array like ``envelope`` (primary components, "secondary"[, "first_bounce"]).
         time_edges: (n_bins+1,) float64 seconds.
         error_estimate: {"rel_l2", "total" (relative), "peak_time" (s)}: standard errors of the mean.
@@ -181,12 +179,12 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
     """Converged reference envelope of ``scene`` under ``config`` (see the module docstring).
 
     Args:
-        scene: the scene. config: a :class:`datagen.simulate.SimulationConfig` (default: the scene's); its
+        scene: the scene. config: a :class:`datagen.simulation.SimulationConfig` (default: the scene's); its
             time axis, IRF, secondary on/off (any mode but "none" means the full secondary), attenuation, PDE,
             time-of-flight legs and forced effects are used; sampling settings (lookins, pixels) are not.
         rel_tol: target of the rel_l2 error estimate (0.1 % by default).
         cache_dir: directory of the cache files (None: no cache).
-        samples: hidden samples per replica; ``sampler``: further :class:`datagen.area.AreaSettings` fields.
+        samples: hidden samples per replica; ``sampler``: further :class:`datagen.transport.AreaSettings` fields.
         max_seconds: stop adding replicas after this much compute (the result then has converged=False and
             says what it reached); min_replicas / max_replicas: bounds on R.
         progress: called after each replica with (R, error estimate).
