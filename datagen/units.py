@@ -1,6 +1,6 @@
 """Physical constants and unit parsing at the configuration boundary.
 
-Inside datagen every length is in metres and every time in seconds (DESIGN.md §1). Configuration files may
+Inside datagen every length is in metres and every time in seconds (docs/physics.md §1). Configuration files may
 write durations as strings with a unit (``"600ps"``, ``"100 ns"``, ``"10ms"``); :func:`parse_duration`
 converts them once, at the boundary.
 """

@@ -53,7 +53,7 @@ def _gl_rect(center, u, v, n):
 
 def two_patch_closed_form(materials, n=8):
     """(primary of patch 0, primary of patch 1, secondary) totals by tensor Gauss–Legendre rules over the
-    patches and the FoV (the secondary is a 6-D rule over patch × patch × FoV), every factor of DESIGN.md §2
+    patches and the FoV (the secondary is a 6-D rule over patch × patch × FoV), every factor of docs/physics.md §2
     written out; BRDF values from MaterialTable (tested in test_brdf.py)."""
     mt = MaterialTable([Material(albedo=RHO_WALL)] + list(materials))
     F, wF = _gl_rect(FOV_C, np.array([0, FOV, 0.0]), np.array([0, 0, FOV]), n)

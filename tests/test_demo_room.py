@@ -1,4 +1,4 @@
-"""The demonstration room shows what the paper reports where it is geometry (DESIGN.md §3, §4)."""
+"""The demonstration room shows what the paper reports where it is geometry (docs/physics.md §3, §4)."""
 from __future__ import annotations
 
 import numpy as np

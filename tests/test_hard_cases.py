@@ -5,7 +5,7 @@ error where the input is truly invalid. The geometric cases load their scene fro
 file's header says what is hard, what is expected and the tolerance).
 
 References never share code with the lookin estimator:
-- in-test Gauss–Legendre evaluations of the primary path integral of DESIGN.md §2, written out below
+- in-test Gauss–Legendre evaluations of the primary path integral of docs/physics.md §2, written out below
   (:func:`primary_integrand`); where the kernel is singular the rule is graded by a substitution that makes the
   integrand smooth (stated in each test). Their own error is checked by refining them (quoted per test).
 - ``datagen.analysis.reference.primary_area_quadrature`` (midpoint area quadrature with shadow rays), where its own
@@ -85,7 +85,7 @@ def lambertian(rho: float):
 
 
 def phong(rho: float, specular: float, exponent: float):
-    """Normalised modified Phong (Lafortune & Willems 1994), as documented in datagen/brdf.py."""
+    """Normalised modified Phong (Lafortune & Willems 1994), as documented in datagen/scene/materials.py."""
     def f(n, w_in, w_out):
         mirror = 2.0 * np.einsum("ij,ij->i", n, w_in)[:, None] * n - w_in
         cos_a = np.clip(np.einsum("ij,ij->i", mirror, w_out), 0.0, 1.0)
@@ -99,7 +99,7 @@ def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def primary_integrand(x, n_x, brdf_x, y, *, spot, sensor, fov_center, rho_wall, r_ap=0.02, laser_leg=0.0):
-    """The primary path integrand of DESIGN.md §2 for paired points, Φ = q = 1, unoccluded.
+    """The primary path integrand of docs/physics.md §2 for paired points, Φ = q = 1, unoccluded.
 
     Args:
         x: (M, 3) hidden-surface points (m) with unit normals n_x (M, 3) on the lit side; brdf_x(n, w_in, w_out).
@@ -425,7 +425,7 @@ def test_irf_much_narrower_than_bin_is_exact_and_conserves():
     """σ = 0.1 ps against 20 ps bins (and a 1 km axis of 4 ps bins).
 
     Expected: bins are exact integrals (each impulse lands in its own bin except the Φ-tail within ~1 ps of
-    an edge), energy is conserved, and memory is O(bins): the accumulator's direct mode (datagen/irf.py,
+    an edge), energy is conserved, and memory is O(bins): the accumulator's direct mode (datagen/timing/accumulator.py,
     point 3) instead of a fine grid of 800 nodes per bin. Tolerances: accumulator vs bin_impulses (exact
     erf differences) 1e-12 relative to the largest bin; conservation (window + outside = total) 1e-12;
     simulate() with σ = 0.1 ps vs the ideal IRF (σ = 0) on the same paths: equal totals to 1e-12 and L1

@@ -1,4 +1,4 @@
-"""Tests of datagen.timing.irf: bin integrals of the IRF, fine-grid splatting + FFT, energy conservation (DESIGN.md §5).
+"""Tests of datagen.timing.irf: bin integrals of the IRF, fine-grid splatting + FFT, energy conservation (docs/physics.md §5).
 
 Tolerances are stated next to each assertion. "rel" means relative to the total weight (or to the largest
 bin where stated).
@@ -38,7 +38,7 @@ def _conservation_error(acc: EnvelopeAccumulator) -> np.ndarray:
 
 
 def test_fwhm_sigma_conversion():
-    # DESIGN.md §4: FWHM 600 ps <-> sigma ~ 254.8 ps.
+    # docs/physics.md §4: FWHM 600 ps <-> sigma ~ 254.8 ps.
     assert fwhm_to_sigma(600 * PS) == pytest.approx(254.80e-12, rel=1e-4)
     assert sigma_to_fwhm(fwhm_to_sigma(123 * PS)) == pytest.approx(123 * PS, rel=1e-15)
     irf = Irf(fwhm="600ps")
@@ -156,7 +156,7 @@ def test_narrow_irf_conserves_energy_and_fills_own_bin():
     w_all = rng.exponential(1.0, t_all.size)
     acc1.add(t_all, w_all)
     assert _conservation_error(acc1)[0] <= 1e-12
-    # Naive sampling of the density at bin centres loses or invents energy per impulse (DESIGN.md §5):
+    # Naive sampling of the density at bin centres loses or invents energy per impulse (docs/physics.md §5):
     # an impulse 40 ps from the centre gets ~exp(-800) of its weight, one 0.1 ps from it 40x its weight.
     centre = axis.centers[7]
     for offset, lo, hi in ((40 * PS, 0.0, 1e-300), (0.1 * PS, 39.0, 40.0)):
@@ -339,7 +339,7 @@ def test_components_kept_separate_and_sum_to_single():
 
 
 def test_exgaussian_matches_reference_and_conserves():
-    # SPAD jitter: 40 ps FWHM core + 50 ps diffusion tail (DESIGN.md §5), 4 ps TDC bins.
+    # SPAD jitter: 40 ps FWHM core + 50 ps diffusion tail (docs/physics.md §5), 4 ps TDC bins.
     axis = TimeAxis(t_start=0.0, bin_width=4 * PS, n_bins=1000)
     irf = Irf(fwhm="40ps", kind="exgaussian", tail="50ps")
     e = np.linspace(-0.5 * NS, 3 * NS, 4001)

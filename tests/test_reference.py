@@ -25,7 +25,7 @@ def config(**kw) -> SimulationConfig:
 
 def patch_impulses(n: int = 32, s: float = 0.4, rho_w: float = 0.9, rho_p: float = 0.8):
     """Tensor Gauss–Legendre nodes of the patch scene's primary (conftest.patch_scene, no occluder): times (s)
-    and weights (photons), every factor of DESIGN.md §2 written out, as in test_transport.patch_closed_form."""
+    and weights (photons), every factor of docs/physics.md §2 written out, as in test_transport.patch_closed_form."""
     xg, wg = np.polynomial.legendre.leggauss(n)
     spot, n_l, sensor = np.array([2.0, 0, 0]), np.array([-1.0, 0, 0]), np.array([0.0, 0, -0.5])
     P = np.stack(np.broadcast_arrays(1.0, *np.meshgrid(0.5 * s * xg, 0.5 + 0.5 * s * xg, indexing="ij")),

@@ -1,4 +1,4 @@
-"""tal interop (datagen/tal.py, datagen/cli_tal.py): render-YAML translation, HDF5 layout and round trip, and
+"""tal interop (datagen/io/tal.py, datagen/cli/tal.py): render-YAML translation, HDF5 layout and round trip, and
 datagen's tal-render H on the hidden-square scene against an independent area quadrature, for every capture type.
 
 No tal / mitransient here (they live in benchmarks/tal's own venv); the quadrature below is the independent
@@ -7,7 +7,7 @@ reference. Primary (third-bounce) light, point-radiance convention, per unit pow
     L(y, t) = ∫_S dA_x  f_w cosθ_l cosθ_x,in / |x − x_l|² · f_s cosθ_x,out cosθ_y,in / |y − x|² · f_w
               · [OPL |x − x_l| + |y − x| in bin t]
 
-and tal render's H = K_l · L with K_l = π·e·cosθ_e/d_e² (datagen/tal.py docstring; confirmed against
+and tal render's H = K_l · L with K_l = π·e·cosθ_e/d_e² (datagen/io/tal.py docstring; confirmed against
 mitransient in benchmarks/tal/compare.py).
 """
 from __future__ import annotations
@@ -98,7 +98,7 @@ def quadrature(spot: np.ndarray, points: np.ndarray, edges: np.ndarray, n: int =
 
 
 def laser_scale(spot: np.ndarray) -> float:
-    """mitransient's K = π·cosθ_e/d_e² for a unit mono emission (datagen/tal.py)."""
+    """mitransient's K = π·cosθ_e/d_e² for a unit mono emission (datagen/io/tal.py)."""
     d = LASER - spot
     return math.pi * (d[2] / np.linalg.norm(d)) / float(d @ d)
 

@@ -22,7 +22,7 @@ def run_primary(scene, lookins, pixels, seed=0, **kw):
 
 def patch_closed_form(n=24):
     """Primary total for the patch scene from the closed-form integrand (no occluders in that scene):
-    a tensor Gauss–Legendre rule over patch × FoV, every factor of DESIGN.md §2 written out."""
+    a tensor Gauss–Legendre rule over patch × FoV, every factor of docs/physics.md §2 written out."""
     xg, wg = np.polynomial.legendre.leggauss(n)
     spot, n_l = np.array([2.0, 0, 0]), np.array([-1.0, 0, 0])
     sensor = np.array([0.0, 0, -0.5])
@@ -110,7 +110,7 @@ def secondary(scene, mode, lookins=(8, 8), pixels=(24, 24), seed=3, **kw):
 
 @pytest.mark.parametrize("kind", ["lambertian", "sin_theta", "phong"])
 def test_exact_secondary_equals_full_pairs(kind):
-    """The factorised O(N) secondary (DESIGN.md §3) sums the same pairs as the O(Ñ²) one: identical up to
+    """The factorised O(N) secondary (docs/physics.md §3) sums the same pairs as the O(Ñ²) one: identical up to
     time binning of its profiles (measured 1e-5 relative L2 on the demo room at 30×30×30×30)."""
     scene = demo_like_scene(kind)
     full, tr = secondary(scene, "full")

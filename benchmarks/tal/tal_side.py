@@ -159,7 +159,7 @@ def cmd_render(a) -> dict:
                 "threads": a.threads, "mode": a.mode, "dry_run": False}
         _, __, capture = _capture(config, H, args)
         if config["scan_type"] == "confocal":
-            capture.sensor_grid_xyz = capture.laser_grid_xyz   # the points measured (see datagen/tal.py)
+            capture.sensor_grid_xyz = capture.laser_grid_xyz   # the points measured (see datagen/io/tal.py)
         tal.io.write_capture(str(out), capture)
     return {"out": str(out), "seconds": seconds, "cpu_seconds": cpu, "spp": a.spp, "seed": a.seed, "mode": a.mode,
             "H_sum": float(np.sum(H, dtype=np.float64)), "shape": list(np.shape(H))}

@@ -11,15 +11,15 @@ shape, (..., n_bins)),
 
 :func:`run_accuracy` runs each estimator over its ladder of settings (:data:`LADDERS`) until its wall-time budget
 is spent, measures each run's wall time (transport + binning; the shared BVH build excluded) and its error
-against a :class:`datagen.reference.Reference`, marks the Pareto front (no other run is both faster and more
+against a :class:`datagen.analysis.reference.Reference`, marks the Pareto front (no other run is both faster and more
 accurate), and :func:`write_csv` / :func:`plot_accuracy` / :func:`format_table` report it
 (``datagen bench accuracy``).
 
 Estimators (selectable by name): ``lookin`` (the paper's sampler, primary + full secondary, at N and l×p),
 ``top1`` and ``top8`` (the optimized secondary keeping the K strongest pairs; biased low by design, so their
 error levels off), ``exact`` (the factorised exact secondary, docs/physics.md §3), ``area`` (the hidden-surface
-area sampler of :mod:`datagen.area`) and ``quadrature`` (the deterministic hidden-surface quadrature of
-:mod:`datagen.quadrature`, its edge h halving; a planned secondary comes from the area sampler, whose hidden
+area sampler of :mod:`datagen.transport.area`) and ``quadrature`` (the deterministic hidden-surface quadrature of
+:mod:`datagen.transport.quadrature`, its edge h halving; a planned secondary comes from the area sampler, whose hidden
 samples grow with the ladder, so that part of its error is Monte Carlo noise).
 """
 from __future__ import annotations
@@ -77,7 +77,7 @@ def envelope_error(estimate: Any, reference: Any, time_edges: np.ndarray | None 
 
     Args:
         estimate, reference: arrays (..., n_bins) of the same shape, or objects with ``.envelope`` (and
-            ``.time_edges``), e.g. :class:`datagen.simulate.Result`, :class:`datagen.reference.Reference`.
+            ``.time_edges``), e.g. :class:`datagen.simulation.Result`, :class:`datagen.analysis.reference.Reference`.
         time_edges: (n_bins+1,) seconds; default: the reference's (or the estimate's) ``time_edges``.
     Returns:
         {"rel_l2": relative L2 over bins above 1 % of the reference peak, "total": relative error of the sum,
@@ -224,7 +224,7 @@ def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float 
     ``OVERSHOOT`` × budget; the first step always runs.
 
     Args:
-        reference: from :func:`datagen.reference.converged_reference` for the same scene and config.
+        reference: from :func:`datagen.analysis.reference.converged_reference` for the same scene and config.
         config: the simulation config (default: the scene's); its sampling fields are overridden per step.
         estimators: names from :data:`ESTIMATORS` (default all).
         echo: called with one line per finished run.

@@ -7,7 +7,7 @@ and unbiased, E‖M − L‖² = E Σ‖X_k − M‖² / (K(K−1)), so
     ε̂ = sqrt(Σ_k ‖X_k − M‖² / (K(K−1))) / ‖M‖      over bins where M exceeds 1 % of its peak
 
 estimates the relative L2 error of M against the exact envelope L in the same measure the accuracy
-benchmark uses against the converged reference (``datagen.accuracy``). The only bias left is the time
+benchmark uses against the converged reference (``datagen.analysis.accuracy``). The only bias left is the time
 binning of path impulses (relative ~(fine step/σ)², below 1e-3 for the default grids), which ε̂ cannot see.
 
 The reported estimate is a 90 % upper confidence bound (×2.27, see UPPER_90). Starting from a cheap
@@ -60,7 +60,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         max_seconds: stop growing once the next level is predicted to exceed this wall time (the result
             then reports an estimate above the tolerance).
     Returns:
-        :class:`~datagen.simulate.Result` whose ``attrs["tolerance"]`` holds the target, the final estimate,
+        :class:`~datagen.simulation.Result` whose ``attrs["tolerance"]`` holds the target, the final estimate,
         whether it was met, and every level (grids, estimate, seconds).
     Raises:
         SceneError: tolerance outside (0, 1), or an envelope with no energy in the window.
@@ -151,7 +151,7 @@ def _quadrature_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: 
                              max_seconds: float | None, progress: bool) -> Result:
     """The quadrature estimator's edge h halved (at least) until its error estimate meets ``tolerance``.
 
-    The quadrature is deterministic with error ≈ c·h² (datagen.quadrature), so two levels h' > h give
+    The quadrature is deterministic with error ≈ c·h² (datagen.transport.quadrature), so two levels h' > h give
     E(h') − E(h) ≈ c(h'² − h²) and the error of E(h) is estimated as ‖E(h') − E(h)‖ / ((h'/h)² − 1), relative
     L2 over bins above 1 % of the peak (measured on the tal captures: 1.1–1.5× the true error at h' = 2h). A
     planned secondary is Monte Carlo (area sampler) and its noise enters the difference, which only makes the

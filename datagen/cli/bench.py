@@ -35,7 +35,7 @@ def bench():
 @click.option("--reference-budget", default="30min", show_default=True,
               help="most compute spent on the reference in this call (it resumes from the cache next time)")
 @click.option("--reference-samples", default=None, type=int,
-              help="hidden samples per reference replica (default datagen.reference.REFERENCE_SAMPLES)")
+              help="hidden samples per reference replica (default datagen.analysis.reference.REFERENCE_SAMPLES)")
 @click.option("--cache-dir", default=None, type=click.Path(path_type=Path),
               help="reference cache (default $DATAGEN_CACHE or ~/.cache/datagen, /references)")
 @click.option("--seed", default=0, show_default=True, type=int, help="seed of the estimator runs")

@@ -28,8 +28,8 @@ def _h_summary(path: Path) -> str:
 @click.option("--lookins", default=None, help="lookin estimator with this lookin grid, e.g. 1024x1024")
 @click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
 @click.option("--estimator", type=click.Choice(["quadrature", "area", "lookin"]), default=None,
-              help="quadrature (default: deterministic hidden-surface quadrature, datagen.quadrature), area "
-                   "(hidden-surface area sampling, datagen.area) or lookin (the paper's sampler)")
+              help="quadrature (default: deterministic hidden-surface quadrature, datagen.transport.quadrature), area "
+                   "(hidden-surface area sampling, datagen.transport.area) or lookin (the paper's sampler)")
 @click.option("--edge", type=float, default=None,
               help="quadrature: largest hidden sub-triangle edge in metres (default 0.02)")
 @click.option("--samples", type=int, default=None,

@@ -1,5 +1,5 @@
 """Figure: the envelope L(t) with its components (Scholes & Leach 2024, Figure 7); the sampling views
-(Figures 3 and 5) are in :mod:`datagen.figures`."""
+(Figures 3 and 5) are in :mod:`datagen.plot.figures`."""
 from __future__ import annotations
 
 from pathlib import Path

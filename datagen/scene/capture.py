@@ -32,7 +32,7 @@ class Capture:
     """Resolved capture geometry (all float64, metres): laser points, sensor grid, sensor device.
 
     Attributes:
-        kind: "single" | "confocal" | "exhaustive" (DESIGN.md §8, tal's scan types).
+        kind: "single" | "confocal" | "exhaustive" (docs/physics.md §8, tal's scan types).
         convention: "aperture" (detected photons per pulse) or "point_radiance" (tal / mitransient).
         spots: (L, 3) laser points; spot_normals: (L, 3) relay-wall normals there (facing the hidden side);
         spot_objects: (L,) object ids; laser_shape: (lx, ly) grid of the laser points (L = lx·ly).

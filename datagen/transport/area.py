@@ -1,9 +1,9 @@
 """Hidden-surface area sampler: the transient path integral with next-event connections (transient path tracing).
 
-The integral is DESIGN.md §2's, the same one the lookin estimator of :mod:`datagen.transport` converges to,
-written in *area* measure. Every factor comes from transport's per-leg helpers (laser emission
-``_spot_emission``, sensor collection ``_sensor_collection``, BRDFs ``_brdf``, attenuation); what differs is
-how the vertices are sampled:
+The integral is docs/physics.md §2's, the same one the lookin estimator of :mod:`datagen.transport.lookin`
+converges to, written in *area* measure. Every factor comes from the per-leg functions of
+:mod:`datagen.transport.physics` (laser irradiance ``irradiance``, sensor collection ``sensor_collection``, BRDFs
+``brdf``, attenuation, the FoV connection weight); what differs is how the vertices are sampled:
 
 - **Hidden points x** come from two strategies combined by multiple importance sampling (balance heuristic,
   Veach & Guibas 1995): M_a points by *area* over every triangle that can take part in a path (a face wholly
@@ -17,7 +17,7 @@ how the vertices are sampled:
   the far walls as on the ceiling 35 cm above the spot, whose irradiance is 100× higher; spot samples alone
   miss every point the spot does not see (the secondary's middle vertex can lie in a laser shadow).
 - **Laser leg** (next-event connection to the laser spot x_l, a shadow ray): the irradiance
-  E(x) = Φ f_l cosθ_l cosθ_x,in / |x−x_l|² V(x_l, x), photons per m² (DESIGN.md §2: in area measure the
+  E(x) = Φ f_l cosθ_l cosθ_x,in / |x−x_l|² V(x_l, x), photons per m² (docs/physics.md §2: in area measure the
   1/r² is genuine).
 - **FoV leg** (:meth:`AreaSampler._connect`): stratified points y on each sensor pixel region (a k_u×k_v grid
   per hidden point, shifted by that point's two *padding* coordinates: Sobol dimensions 3–4 for "sobol", a

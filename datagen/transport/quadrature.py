@@ -1,22 +1,23 @@
 """Hidden-surface quadrature: the primary transient by a deterministic area rule with exact time binning.
 
-The primary (three-bounce) envelope of DESIGN.md §2, for laser point x_l and sensor target y (a sensor point for
+The primary (three-bounce) envelope of docs/physics.md §2, for laser point x_l and sensor target y (a sensor point for
 point-radiance captures, an FoV cell of a pixel region for aperture captures), is an integral over hidden
 surface points x:
 
     L_p(t) = ∫_S dA_x  E_l(x) · f_x(ω→x_l, ω→y) · cosθ_x,out cosθ_y,in / |y−x|² · V(x, y) · collection(y) · dA_y
                        · e^{−μ·path} · δ(t − τ(x)),     τ(x) = (|x−x_l| + |y−x| [+ |x_s−y|] [+ emitter leg]) / c,
 
-with E_l(x) = Φ f_l cosθ_l cosθ_x,in / |x−x_l|² V(x_l, x) the laser irradiance (:meth:`datagen.area.AreaSampler.
-_irradiance`) and collection(y) transport's sensor leg (:meth:`datagen.transport.Transport._sensor_collection`).
-Every factor comes from those per-leg helpers; only the way x is visited differs from the samplers.
+with E_l(x) = Φ f_l cosθ_l cosθ_x,in / |x−x_l|² V(x_l, x) the laser irradiance
+(:meth:`datagen.transport.physics.LegPhysics.irradiance`) and collection(y) the sensor leg
+(:meth:`~datagen.transport.physics.LegPhysics.sensor_collection`). Every factor comes from those per-leg
+functions; only the way x is visited differs from the samplers.
 
 **The rule.** Every hidden face (:meth:`AreaSampler._hidden_faces`: the faces that can carry a primary path) is
-split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.area.subdivide_triangles`).
+split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.sampling.subdivide_triangles`).
 For each (sub-triangle T, laser point, target) the weight is evaluated at the centroid and multiplied by the area
 of T (the midpoint rule), and the path length at the three *vertices* of T and at its centroid. On T the path
 length is replaced by its linear interpolant, under which the area measure of T pushes forward to a tent density
-between the sorted vertex times (peak at the middle one); :meth:`datagen.irf.EnvelopeAccumulator.add_tents`
+between the sorted vertex times (peak at the middle one); :meth:`datagen.timing.EnvelopeAccumulator.add_tents`
 deposits its exact integrals over the accumulator's cells. The path length (a sum of distances) is convex, so the
 interpolant lies above it and the tent arrives late by O(h²/r); each tent is therefore shifted so that its mean
 is the triangle rule (1/12)·Σ τ(vertex) + (3/4)·τ(centroid), exact for quadratics (the shift is
@@ -39,7 +40,7 @@ sensor points.
 **Visibility.** Shadow rays are cast per (sub-triangle centroid, laser point) and per (centroid, target) only when
 an occluder can cross that leg. For each leg an exact conservative test is run first: no triangle may meet the
 convex hull of a hidden triangle and the leg's other end (the laser points' hull or the FoV rectangle), by
-separating planes (the planner's test, :func:`datagen.planner._may_meet`). A hidden square in front of a flat
+separating planes (the planner's test, :func:`datagen.scene.separation.may_meet`). A hidden square in front of a flat
 relay wall needs no shadow ray; the demo room does. Forcing ``shadow_spot`` / ``shadow_fov`` on or off overrides
 the test. The FoV → sensor leg follows ``shadow_sensor`` (the planner's decision, as for every estimator).
 
@@ -50,10 +51,10 @@ scans) the vertex distances are shared. Pairs are processed in blocks of at most
 rows, so memory stays bounded.
 
 **Secondary and first bounce.** When the plan asks for the secondary (paths with two hidden vertices), the
-quadrature does not drop it: the area sampler (:mod:`datagen.area`, ``secondary_only``) adds its unbiased
+quadrature does not drop it: the area sampler (:mod:`datagen.transport.area`, ``secondary_only``) adds its unbiased
 secondary with ``secondary_samples`` hidden samples per laser point (random: the only non-deterministic part,
-drawn from the ``rng`` given to :meth:`Quadrature.run`). The direct first bounce uses transport's
-``_first_bounce``.
+drawn from the ``rng`` given to :meth:`Quadrature.run`). The direct first bounce is
+:meth:`~datagen.transport.physics.LegPhysics.first_bounce`.
 
 Sink component ids follow :class:`datagen.transport.Transport`: ``component * n_channels + channel``.
 """
