@@ -48,6 +48,18 @@ def _grid(side: float, aspect: tuple[int, int]) -> tuple[int, int]:
     return (max(2, int(round(side * aspect[0]))), max(2, int(round(side * aspect[1]))))
 
 
+def describe_setting(config: dict) -> tuple[str, str]:
+    """(the sampling setting ``simulate_to_tolerance`` chose, how its error estimate bounds the error) for the
+    JSON config of a result (``result.attrs["config"]``), e.g. ("lookins 16x16, pixels 48x48", "90 % upper
+    bound")."""
+    if config["estimator"] == "quadrature":
+        return f"quadrature edge {config['quadrature_edge']:.4g} m", "from edge refinement"
+    if config["estimator"] == "area":
+        return f"{config['area_samples']} hidden samples per laser point", "90 % upper bound"
+    return (f"lookins {'x'.join(map(str, config['lookins']))}, pixels {'x'.join(map(str, config['pixels']))}",
+            "90 % upper bound")
+
+
 def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: float,
                           start: tuple[int, int] = (8, 8), start_pixels: tuple[int, int] = (24, 24),
                           max_seconds: float | None = None, progress: bool = False) -> Result:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import click
 
+from ..transport import estimator_names
 from .bench import bench
 from .dataset import build, inspect, verify
 from .errors import friendly_errors
@@ -42,7 +43,7 @@ def _parse_fraction(text: str, option: str) -> float:
 @click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
 @click.option("--secondary", type=click.Choice(["none", "optimized", "full", "exact"]), default=None,
               help="secondary (one more hidden bounce) estimator: exact = full at O(N) cost")
-@click.option("--estimator", type=click.Choice(["lookin", "area", "quadrature"]), default=None,
+@click.option("--estimator", type=click.Choice(list(estimator_names())), default=None,
               help="lookin (the paper's sampler), area (hidden-surface area sampling) or quadrature "
                    "(deterministic, exact time binning; best for small hidden objects and point sensors)")
 @click.option("--edge", type=float, default=None, help="quadrature: sub-triangle edge in metres (default 0.02)")
@@ -70,17 +71,10 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
                                     "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol,
                                     "estimator": estimator, "quadrature_edge": edge})
     if tol is not None:
-        from ..analysis.adaptive import simulate_to_tolerance
+        from ..analysis import describe_setting, simulate_to_tolerance
         result = simulate_to_tolerance(scene, config, tol, progress=not quiet)
         t = result.attrs["tolerance"]
-        cfg = result.attrs["config"]
-        if cfg["estimator"] == "quadrature":
-            setting, bound = f"quadrature edge {cfg['quadrature_edge']:.4g} m", "from edge refinement"
-        elif cfg["estimator"] == "area":
-            setting, bound = f"{cfg['area_samples']} hidden samples per laser point", "90 % upper bound"
-        else:
-            setting = f"lookins {'x'.join(map(str, cfg['lookins']))}, pixels {'x'.join(map(str, cfg['pixels']))}"
-            bound = "90 % upper bound"
+        setting, bound = describe_setting(result.attrs["config"])
         click.echo(f"tolerance {tol:.2%}: {setting}, estimated error {t['estimate']:.2%} ({bound})"
                    f"{'' if t['met'] else ' — NOT met'}")
     else:
