@@ -102,7 +102,7 @@ def test_card_records_config_versions_timings_hashes_and_consolidates(reference)
 
 
 def _start_cli_build(config_path: Path, out: Path, workers: int) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "datagen.cli.main", "build", str(config_path), "--out", str(out),
+    cmd = [sys.executable, "-m", "datagen.cli", "build", str(config_path), "--out", str(out),
            "--workers", str(workers), "--quiet"]
     return subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)

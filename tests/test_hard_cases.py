@@ -8,7 +8,7 @@ References never share code with the lookin estimator:
 - in-test Gauss–Legendre evaluations of the primary path integral of docs/physics.md §2, written out below
   (:func:`primary_integrand`); where the kernel is singular the rule is graded by a substitution that makes the
   integrand smooth (stated in each test). Their own error is checked by refining them (quoted per test).
-- ``datagen.analysis.reference.primary_area_quadrature`` (midpoint area quadrature with shadow rays), where its own
+- ``datagen.analysis.oracle.primary_area_quadrature`` (midpoint area quadrature with shadow rays), where its own
   error (h against h/2) is small;
 - closed forms (bin integrals of a Gaussian, exact integer sums).
 Error measure (issue 5): relative L2 of the binned envelope over the bins above 1 % of the reference peak.

@@ -2,7 +2,7 @@
 
 The tents are checked against closed forms computed independently (areas and centroids of a triangle clipped by
 the level sets of a linear time map); the quadrature against the project's independent midpoint reference
-(:func:`datagen.analysis.reference.primary_area_quadrature`), the area sampler (occluder scene) and tal's point-radiance
+(:func:`datagen.analysis.oracle.primary_area_quadrature`), the area sampler (occluder scene) and tal's point-radiance
 integrand (tests/test_tal.py), and scans against single-spot captures.
 """
 from __future__ import annotations
