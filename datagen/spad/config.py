@@ -11,6 +11,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from ..timing import FWHM_PER_SIGMA
 from ..units import parse_duration
 
 __all__ = [
@@ -20,9 +21,6 @@ __all__ = [
     "DetectorConfig",
 ]
 
-
-FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
-"""FWHM of a Gaussian divided by its standard deviation (≈ 2.3548)."""
 
 _RATE_UNITS = {"hz": 1.0, "khz": 1e3, "mhz": 1e6, "ghz": 1e9, "cps": 1.0, "kcps": 1e3, "mcps": 1e6}
 

@@ -14,8 +14,9 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import special, stats
+from scipy import special
 
+from ..timing import ex_gaussian_cdf
 from .arrays import as_rates, row_search
 from .config import DetectorConfig
 
@@ -250,7 +251,7 @@ def instrument_response(config: DetectorConfig, n_bins: int, first_bin: int = 0)
         if sigma == 0:
             tail = np.where(x > 0, -np.expm1(-np.maximum(x, 0) / tau), 0.0)
             return (1 - f) * (x >= 0) + f * tail
-        tail = stats.exponnorm.cdf(x, tau / sigma, loc=0.0, scale=sigma)
+        tail = ex_gaussian_cdf(x, sigma, tau)
         return (1 - f) * special.ndtr(x / sigma) + f * tail
 
     c = np.zeros(n_bins + 1)

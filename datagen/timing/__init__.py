@@ -16,12 +16,13 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.timing.tents`: closed forms of tent densities and their convolution with the IRF.
 """
 from .accumulator import MAX_FINE_NODES, NEGATIVE_CLAMP_RTOL, STEPS_PER_SIGMA, EnvelopeAccumulator, bin_impulses
-from .irf import FWHM_PER_SIGMA, MARGIN_SIGMAS, TAIL_MARGIN_TAUS, Irf, TimeAxis, fwhm_to_sigma, sigma_to_fwhm
+from .irf import (FWHM_PER_SIGMA, MARGIN_SIGMAS, TAIL_MARGIN_TAUS, Irf, TimeAxis, ex_gaussian_cdf, fwhm_to_sigma,
+                  sigma_to_fwhm)
 from .tents import TENT_GAP_SMALL_SIGMAS, TENT_SMALL_SIGMAS, tent_cdf, tent_cdf2, tent_irf_cdf
 
 __all__ = [
     # time axis and IRF
-    "FWHM_PER_SIGMA", "MARGIN_SIGMAS", "TAIL_MARGIN_TAUS", "TimeAxis", "Irf", "fwhm_to_sigma", "sigma_to_fwhm",
+    "FWHM_PER_SIGMA", "ex_gaussian_cdf", "MARGIN_SIGMAS", "TAIL_MARGIN_TAUS", "TimeAxis", "Irf", "fwhm_to_sigma", "sigma_to_fwhm",
     # binning
     "STEPS_PER_SIGMA", "MAX_FINE_NODES", "NEGATIVE_CLAMP_RTOL", "EnvelopeAccumulator", "bin_impulses",
     # tents

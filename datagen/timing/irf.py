@@ -25,6 +25,7 @@ from ..units import parse_duration
 
 __all__ = [
     "FWHM_PER_SIGMA",
+    "ex_gaussian_cdf",
     "MARGIN_SIGMAS",
     "TAIL_MARGIN_TAUS",
     "TimeAxis",
@@ -65,6 +66,13 @@ def sigma_to_fwhm(sigma: float) -> float:
     if not math.isfinite(sigma) or sigma < 0:
         raise ValueError(f"sigma must be finite and >= 0, got sigma={sigma!r}")
     return sigma * FWHM_PER_SIGMA
+
+
+def ex_gaussian_cdf(x: np.ndarray | float, sigma: float, tail: float) -> np.ndarray:
+    """CDF of the ex-Gaussian (a Gaussian of std ``sigma`` convolved with an exponential of mean ``tail``,
+    seconds; both > 0) at delays ``x`` (seconds): ``scipy.stats.exponnorm`` in a stable form, float64 of x's
+    shape. The IRF's diffusion tail (docs/physics.md §5) and the detector's jitter tail (datagen.spad) use it."""
+    return exponnorm.cdf(x, tail / sigma, scale=sigma)
 
 
 class TimeAxis(BaseModel):
@@ -206,7 +214,7 @@ class Irf(BaseModel):
             return (x > 0).astype(np.float64)
         if self.kind == "gaussian":
             return ndtr(x / self.sigma)
-        return exponnorm.cdf(x, self.tail / self.sigma, scale=self.sigma)
+        return ex_gaussian_cdf(x, self.sigma, self.tail)
 
     def sf(self, x: np.ndarray | float) -> np.ndarray:
         """P(X >= x) = 1 - cdf(x), computed directly so the right tail keeps its relative accuracy."""
