@@ -12,7 +12,6 @@ import platform
 import time
 from dataclasses import dataclass, field
 from importlib import metadata
-from typing import Any
 
 import numpy as np
 

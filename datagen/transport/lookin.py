@@ -292,7 +292,7 @@ class Transport(LookinSecondary):
 
     def _camera_out(self, obs: ObservedPoints, laser: int) -> Connections:
         """FoV points among the observed points (the paper's final bounce through the camera pixels)."""
-        c, s = self.capture, self.settings
+        c = self.capture
         tol = FOV_PLANE_TOL * self.caster.offset
         obj = obs.object_id.ravel()
         fov_ids = self.physics.fov_objects

@@ -35,7 +35,7 @@ The brute-force oracle of the tests (:mod:`datagen.analysis.oracle`) deliberatel
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -94,11 +94,6 @@ class PhysicsSettings:
             raise SceneError(f"{where}: attenuation must be finite and >= 0, got {self.attenuation!r}")
         if not np.isfinite(self.pde) or not 0 <= self.pde <= 1:
             raise SceneError(f"{where}: pde must be in [0, 1], got {self.pde!r}")
-
-
-def physics_field_names() -> tuple[str, ...]:
-    """Every field of :class:`PhysicsSettings` (the switches and the planner's blocker lists)."""
-    return tuple(f.name for f in fields(PhysicsSettings))
 
 
 def laser_irradiance(photons: float, emission: np.ndarray, cos_in: np.ndarray, r: np.ndarray) -> np.ndarray:
