@@ -292,3 +292,32 @@ def test_simulate_selects_the_area_estimator_by_name():
                                          area_samples=16384, detector={"repetition_rate": 1e7, "exposure": 1e-3}))
     assert r.attrs["effects"]["estimator"] == "area"
     assert r.envelope.sum() == pytest.approx(ref.sum(), rel=0.02)
+
+
+def thin_panel_scene() -> Scene:
+    """A two-sided panel in the plane y = 0 that cuts the FoV, lit on its +y side, and a patch facing the wall that
+    straddles the panel's plane: secondary paths patch → panel → FoV exist on both sides of the panel."""
+    objects = [
+        quad("relay_wall", (2.0, -2.0, -2.0), (0.0, 4.0, 0.0), (0.0, 0.0, 4.0), Material(albedo=0.9), label="relay_wall"),
+        quad("panel", (1.2, 0.0, -0.8), (0.7, 0.0, 0.0), (0.0, 0.0, 1.6), Material(albedo=0.8)),
+        quad("patch", (1.0, -0.3, -0.3), (0.0, 0.6, 0.0), (0.0, 0.0, 0.6), Material(albedo=0.8)),
+    ]
+    return Scene(objects, Laser(emitter=(0.0, 0.4, -0.5), spot=(2.0, 0.5, 0.0)),
+                 Sensor(position=(0.0, 0.0, -0.5), aperture_radius=0.02,
+                        fov=FieldOfView(center=(2.0, 0.0, -0.6), size=(0.8, 0.8))))
+
+
+def test_no_light_passes_through_a_thin_panel():
+    """The Lambertian shortcut (``brdf_angles`` off) weighs exactly the pairs the full BRDF does: a partner lit on one
+    side of the panel never feeds a FoV connection leaving its other side (before the fix the shortcut gave a
+    secondary 50 % above the full evaluation on such a panel)."""
+    scene = thin_panel_scene()
+    out = {}
+    for angles in (False, True):
+        sink = EnvelopeAccumulator(AXIS, IRF, 4)
+        sampler = AreaSampler(scene, AreaSettings(samples=1 << 12, brdf_angles=angles))
+        sampler.run(sink, np.random.default_rng(5))
+        out[angles] = sink.binned()
+    secondary = sampler.component_names.index("secondary")
+    assert out[True][secondary].sum() > 0
+    assert np.array_equal(out[False], out[True])

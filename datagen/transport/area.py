@@ -103,11 +103,6 @@ class AreaSettings(PhysicsSettings):
     direction_partners: int = 1
     area_partners: int = 1
     batch: int = 4096
-    brdf_angles: bool = True
-    """Unlike the other estimators the area sampler evaluates BRDFs in full by default: its secondary can pair a
-    partner on one side of a hidden point with a FoV connection leaving the other side, where the Lambertian
-    shortcut (f = ρ/π without the side check) would let light through a thin two-sided panel. The planner's
-    decision (``from_transport``) still switches it off for all-Lambertian scenes."""
 
     def __post_init__(self):
         def bad(name, value, why):
@@ -476,6 +471,7 @@ class AreaSampler:
         keep &= e_p > 0
         n_px = np.where(dot(xp.normals, wpx)[:, None] < 0, -xp.normals, xp.normals)   # x' normal facing x
         n_xp = np.where(on_pos[:, None], nf[owner], -nf[owner])                        # x normal facing x'
+        keep &= dot(n_px, w_sp) > 0                 # x' reflects toward x only on the side the laser lights
         check = keep & needs_vis
         if check.any():
             keep[check] = cst.visible(xp.points[check], n_px[check], x[owner][check], n_xp[check])
@@ -494,7 +490,7 @@ class AreaSampler:
         # every FoV connection of x with every partner of x
         part = (inv[:, None] * p_tot + np.arange(p_tot)[None]).ravel()
         ci = np.repeat(np.arange(len(inv)), p_tot)
-        use = irr[part] > 0
+        use = (irr[part] > 0) & (on_pos[part] == side[ci])    # light leaves x on the side it arrived from
         part, ci = part[use], ci[use]
         if len(part) == 0:
             return
