@@ -298,7 +298,8 @@ def thin_panel_scene() -> Scene:
     """A two-sided panel in the plane y = 0 that cuts the FoV, lit on its +y side, and a patch facing the wall that
     straddles the panel's plane: secondary paths patch → panel → FoV exist on both sides of the panel."""
     objects = [
-        quad("relay_wall", (2.0, -2.0, -2.0), (0.0, 4.0, 0.0), (0.0, 0.0, 4.0), Material(albedo=0.9), label="relay_wall"),
+        quad("relay_wall", (2.0, -2.0, -2.0), (0.0, 4.0, 0.0), (0.0, 0.0, 4.0), Material(albedo=0.9),
+             label="relay_wall"),
         quad("panel", (1.2, 0.0, -0.8), (0.7, 0.0, 0.0), (0.0, 0.0, 1.6), Material(albedo=0.8)),
         quad("patch", (1.0, -0.3, -0.3), (0.0, 0.6, 0.0), (0.0, 0.0, 0.6), Material(albedo=0.8)),
     ]

@@ -180,8 +180,9 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
     Args:
         scene: the scene; config: the simulation config (:class:`datagen.simulation.SimulationConfig`, or any
             object with its fields: ``tolerance``, ``effects``, time axis, IRF, detector, ``secondary``,
-            ``attenuation``, leg flags; the planner sits below the simulation layer and does not import it); capture: its resolved capture geometry
-            (one laser spot, or a confocal/exhaustive laser grid); caster: the scene's ray caster.
+            ``attenuation``, leg flags; the planner sits below the simulation layer and does not import it);
+            capture: its resolved capture geometry (one laser spot, or a confocal/exhaustive laser grid);
+            caster: the scene's ray caster.
     Returns:
         :class:`Plan` with a decision for every effect of :data:`EFFECTS`.
     Raises:

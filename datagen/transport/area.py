@@ -164,7 +164,8 @@ class AreaStats(Counters):
     secondary_pairs: int = 0
 
 
-@register("area", AreaSettings, "hidden-surface area sampling with next-event connections to the laser spot and the FoV")
+@register("area", AreaSettings,
+          "hidden-surface area sampling with next-event connections to the laser spot and the FoV")
 class AreaSampler:
     """Area-sampling estimator with next-event connections to the laser spot and the FoV.
 

@@ -120,7 +120,6 @@ def register(name: str, settings_class: type, summary: str) -> Callable:
     the classmethod ``from_config(scene, config, lookin_settings, caster)``."""
     def wrap(cls):
         _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary)
-        cls.name = name
         return cls
     return wrap
 

@@ -121,7 +121,8 @@ def _worker_batch(args):
     return _WORKER["transport"]._run_batch(*args)
 
 
-@register("lookin", TransportSettings, "the paper's sampler: lookins from the laser spot and their hemispherical cameras")
+@register("lookin", TransportSettings,
+          "the paper's sampler: lookins from the laser spot and their hemispherical cameras")
 class Transport(LookinSecondary):
     """Runs the lookin estimator over a scene and sends impulses to a sink (module doc).
 

@@ -5,24 +5,17 @@ area sampler (:mod:`.area`), the quadrature (:mod:`.quadrature`) — and the eff
 and the figures weigh a path with the functions here; they differ only in how they *sample* its vertices.
 For a path emitter → laser spot x_l → hidden point x → relay-wall point y (in the sensor's FoV) → sensor x_s:
 
-==========================  ===================================================  =========================
-leg                         weight (this module)                                 paper (Scholes & Leach
-                                                                                 2024, Sensors 24:6522)
-==========================  ===================================================  =========================
-laser spot, toward ω        f_l(ω_e, ω)·cosθ_l  (:meth:`LegPhysics.spot_emission`)  A1: Γ₁ B₁ (α₁ → 1/(N p))
-laser → hidden point        E = Φ f_l cosθ_l cosθ_x,in / r² · V                    A1 in area measure
-                            (:func:`laser_irradiance`, :meth:`LegPhysics.irradiance`)
-scattering at any vertex    f(ω_in, ω_out) (:meth:`LegPhysics.brdf`)               Γ, B (per surface)
-hidden point → FoV point    cosθ_y,in dA_y / r² · collection(y)                   A2 (α → pixel Ω or dA_y)
-                            (:func:`fov_connection_weight`)
-FoV point → sensor          q f_y cosθ_y,out A_ap cosθ_ap / d² · V                A3 and the aperture term
-                            (:meth:`LegPhysics.sensor_collection`)                 π f²/f_no², q
-whole path                  e^{−μ·(physical path)} (:meth:`LegPhysics.attenuation`)  C_atm
-time of flight              (switched legs + hidden legs) / c                      τ = path / c
-                            (:meth:`LegPhysics.laser_leg`, :meth:`LegPhysics.sensor_leg`)
-direct spot → sensor        Φ q f_l cosθ_l A_ap cosθ_ap / d² · V                   (first bounce)
-                            (:meth:`LegPhysics.first_bounce`)
-==========================  ===================================================  =========================
+- laser spot, toward ω: f_l(ω_e, ω)·cosθ_l (:meth:`LegPhysics.spot_emission`); paper A1: Γ₁ B₁ (α₁ → 1/(N p)).
+- laser → hidden point: E = Φ f_l cosθ_l cosθ_x,in / r² · V (:func:`laser_irradiance`,
+  :meth:`LegPhysics.irradiance`); A1 in area measure.
+- scattering at any vertex: f(ω_in, ω_out) (:meth:`LegPhysics.brdf`); the paper's Γ and B per surface.
+- hidden point → FoV point: cosθ_y,in dA_y / r² · collection(y) (:func:`fov_connection_weight`); A2 with α → the
+  pixel's Ω or dA_y.
+- FoV point → sensor: q f_y cosθ_y,out A_ap cosθ_ap / d² · V (:meth:`LegPhysics.sensor_collection`); A3 and the
+  aperture term π f²/f_no², q.
+- whole path: e^{−μ·(physical path)} (:meth:`LegPhysics.attenuation`); C_atm.
+- time of flight: (switched legs + hidden legs) / c (:meth:`LegPhysics.laser_leg`, :meth:`LegPhysics.sensor_leg`).
+- direct spot → sensor (first bounce): Φ q f_l cosθ_l A_ap cosθ_ap / d² · V (:meth:`LegPhysics.first_bounce`).
 
 A point reached by a ray of solid angle dω from a vertex has area element dA = r² dω / cosθ, so the 1/r² of a
 leg cancels when that leg is sampled by direction (lookins, camera pixels) and is genuine when it is sampled

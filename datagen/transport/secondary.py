@@ -244,7 +244,8 @@ class LookinSecondary:
 
         Weight: Φ_z = W_j f_x cosθ_x Ω photons reach z through pixel k (W_j the lookin's photons, Ω the pixel
         solid angle); z radiates Φ_z f_z cosθ_z,out per sr toward y, times the connection weight
-        cosθ_y dA_y / r² · collection(y) (:meth:`datagen.transport.physics.LegPhysics.connect`). Time: spot → x_j → z → y [→ sensor].
+        cosθ_y dA_y / r² · collection(y) (:meth:`datagen.transport.physics.LegPhysics.connect`).
+        Time: spot → x_j → z → y [→ sensor].
         """
         c, s = self.capture, self.settings
         # not lit on the side facing x_j, and in front of the spot's plane (the relay wall cannot reflect to it)
