@@ -87,6 +87,8 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
         from ..plot.figures import write_sampling_figures
         written += write_sampling_figures(scene, config, out)
     click.echo(summary(result))
+    for warning in result.attrs.get("warnings", []):   # e.g. duplicate faces removed, zero-area objects
+        click.echo(f"warning: {warning}", err=True)
     click.echo("wrote " + ", ".join(str(p) for p in written))
 
 

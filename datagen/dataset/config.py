@@ -77,7 +77,7 @@ def resample_rng(seed: int, split: str, epoch: int, index: int) -> np.random.Gen
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class SplitSpec(_Model):
