@@ -419,9 +419,9 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
             cluster.close()
 
 
-def _open_store(root: Path, config: DatasetConfig, probe: Sample, resume: bool) -> dict:
+def _open_store(root: Path, config: DatasetConfig, probe: Sample, resume: bool) -> tuple[dict, list[str]]:
     """Under the lock: initialise a fresh store (removing what it wrote if that fails), or read and check an
-    existing one (its card's layout is refreshed from the probe). Returns the card."""
+    existing one (its card's layout is refreshed from the probe). Returns the card and what was repaired."""
     exists = (root / "zarr.json").exists()
     if exists and not resume:
         raise FileExistsError(f"{root} already holds a dataset; pass --resume to continue it, or choose "
@@ -434,7 +434,7 @@ def _open_store(root: Path, config: DatasetConfig, probe: Sample, resume: bool) 
         try:
             if (root / DONE_DIR).exists():   # stale markers from an earlier, removed store must not count
                 shutil.rmtree(root / DONE_DIR)
-            return _initialize(root, config, probe)
+            return _initialize(root, config, probe), []
         except BaseException:
             for path in root.iterdir():      # a failed initialisation leaves nothing behind
                 if path.name != LOCK_NAME:
@@ -446,12 +446,13 @@ def _open_store(root: Path, config: DatasetConfig, probe: Sample, resume: bool) 
         raise SceneError(f"{root} was built from a different config (differs in: {', '.join(diff)}); "
                          "resume with the same config or build into another --out")
     if "splits" not in card or "time_edges" not in card:   # killed while creating the arrays
-        return _initialize(root, config, probe)
+        return _initialize(root, config, probe), ["card: initialisation completed (it was interrupted)"]
     layout = _card_layout(config, probe)
-    if any(card.get(k) != v for k, v in layout.items()):   # edited or damaged card: the probe is the truth
+    changed = [k for k, v in layout.items() if card.get(k) != v]
+    if changed:   # edited or damaged card: the config and the probe are the truth
         card.update(layout)
         zarr_module().open_group(str(root), mode="r+").update_attributes(card)
-    return card
+    return card, [f"card: {', '.join(changed)} rewritten from the config and the probe sample"] if changed else []
 
 
 def _build(config: DatasetConfig, root: Path, probe: Sample, client, workers: int | None, scheduler: str | None,
@@ -464,8 +465,8 @@ def _build(config: DatasetConfig, root: Path, probe: Sample, client, workers: in
     root.mkdir(parents=True, exist_ok=True)
     try:
         with BuildLock(root):
-            card = _open_store(root, config, probe, resume)
-            repairs = repair_store(root, card, config)
+            card, repairs = _open_store(root, config, probe, resume)
+            repairs += repair_store(root, card, config)
             report = _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_tasks_per_child,
                           progress, on_shard, engine, t_start)
             report.repairs = repairs
@@ -552,9 +553,10 @@ def _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_
             raise
         fatal = fatal or exc
     if fatal is not None:
-        raise StoreWriteError(fatal.errno, f"{os.strerror(fatal.errno)} while writing the dataset {root}: "
-                              f"{built} shard(s) finished in this run are kept; free space, then run again with "
-                              "--resume") from None
+        what = fatal.strerror if isinstance(fatal, StoreWriteError) else \
+            f"{os.strerror(fatal.errno)} while writing the dataset {root}"
+        raise StoreWriteError(fatal.errno, f"{what}; the {built} shard(s) finished in this run are kept: free "
+                              "space, then run again with --resume") from None
     if failures:
         lines = [f"  {split}/{shard:06d}: {reason.splitlines()[0]}"
                  for (split, shard), reason in sorted(failures.items())]

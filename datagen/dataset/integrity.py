@@ -262,8 +262,9 @@ def verify_dataset(path: str | Path) -> list[str]:
 
 def repair_store(root: str | Path, card: dict, config: DatasetConfig) -> list[str]:
     """Make an existing store safe to resume: rewrite every split group / array ``zarr.json`` that differs from
-    :func:`expected_metadata`, and un-mark every done shard whose files are missing or whose bytes differ from
-    its marker's sha256 (marker first, then its files), so the build recomputes it.
+    :func:`expected_metadata` (a stale consolidated copy is reported: the build consolidates again when it
+    completes), and un-mark every done shard whose files are missing or whose bytes differ from its marker's
+    sha256 (marker first, then its files), so the build recomputes it.
 
     Returns:
         one line per repair (what was rewritten or will be rebuilt).
@@ -278,6 +279,9 @@ def repair_store(root: str | Path, card: dict, config: DatasetConfig) -> list[st
             tmp.write_bytes(raw)
             os.replace(tmp, path)
             repairs.append(f"rewrote {path}")
+    stale = [line for line in metadata_problems(root, card) if "consolidated metadata" in line]
+    if stale:   # the build re-consolidates from the (now repaired) arrays' zarr.json when it completes
+        repairs.append(f"{stale[0]}: consolidated again at the end of the build")
     fields = card_fields(card)
     for task in plan_shards(config):
         marker = read_marker(root, task.split, task.shard)

@@ -34,7 +34,7 @@ def as_rates(rates: Any, name: str = "rates") -> np.ndarray:
         raise ValueError(f"{name} must have shape (..., bins) with bins >= 1, got shape {r.shape}")
     if not np.all(np.isfinite(r)):
         bad = np.argwhere(~np.isfinite(r))[0]
-        raise ValueError(f"{name} contains a non-finite value {r[tuple(bad)]!r} at index {tuple(int(b) for b in bad)}")
+        raise ValueError(f"{name} contains a non-finite value {float(r[tuple(bad)])!r} at index {tuple(int(b) for b in bad)}")
     if np.any(r < 0):
         bad = np.argwhere(r < 0)[0]
         raise ValueError(f"{name} must be >= 0; found {r[tuple(bad)]!r} at index {tuple(int(b) for b in bad)}")
