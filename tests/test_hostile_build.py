@@ -22,9 +22,10 @@ import numpy as np
 import pytest
 import yaml
 import zarr
-from click.testing import CliRunner
 
 from datagen.cli.main import main
+from test_hostile import alias_bomb, cli   # the same in-process runner and checks
+
 from datagen.dataset import (DONE_DIR, DatasetCorruptError, NLOSDataset, SplitSpec, build_dataset,
                              load_dataset_config, read_card, shard_file, verify_dataset)
 
@@ -46,17 +47,6 @@ def config_file(tmp_path: Path, edit=None, config=None) -> Path:
     path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
-
-
-def cli(args, code: int, *needles: str) -> str:
-    """``datagen args`` in process: exit ``code``, every needle in the output, no traceback."""
-    res = CliRunner().invoke(main, [str(a) for a in args])
-    assert res.exception is None or isinstance(res.exception, SystemExit), res.exception
-    assert res.exit_code == code, res.output
-    assert "Traceback" not in res.output
-    for needle in needles:
-        assert needle in res.output, (needle, res.output)
-    return res.output
 
 
 def build_args(config: Path, out: Path, *extra) -> list:
@@ -132,7 +122,6 @@ def test_unreachable_scheduler_is_one_line_in_bounded_time_and_writes_nothing(tm
 
 
 def test_dataset_config_alias_bomb(tmp_path):
-    from test_hostile import alias_bomb
     path = tmp_path / "bomb.yaml"
     path.write_text(alias_bomb())
     cli(build_args(path, tmp_path / "ds"), 2, str(path), "expands to more than")

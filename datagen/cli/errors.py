@@ -64,24 +64,6 @@ def friendly_errors(func):
     return wrapper
 
 
-def check_output_dir(path: Path, option: str = "--out") -> None:
-    """Refuse, before any work, an output directory that is a file, lies under a file or cannot be created.
-
-    Raises:
-        FileExistsError / PermissionError: naming the option and the path.
-    """
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise FileExistsError(f"{option} {path} is a file, not a directory")
-    parent = path
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise FileExistsError(f"{option} {path}: cannot create it, {parent} is a file")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise PermissionError(f"{option} {path}: {parent} is not writable")
-
-
 def check_output_file(path: Path, option: str) -> None:
     """Refuse an output file whose directory does not exist (or is a file) or that is a directory."""
     path = Path(path)

@@ -16,7 +16,7 @@ from pydantic import ValidationError
 from ..transport import estimator_names
 from .bench import bench
 from .dataset import build, inspect, verify
-from .errors import check_output_dir, friendly_errors
+from .errors import friendly_errors
 from .tal import export_tal, tal_render
 
 
@@ -79,7 +79,7 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
              figures, quiet):
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from ..plot.envelope import plot_envelope
-    from ..scene import load_scene
+    from ..scene import check_output_dir, load_scene
     from ..simulation import resolve_config
     from ..simulation import simulate as run_simulation
     from ..io import RESULT_NAME, write_result

@@ -1,5 +1,5 @@
 """Dataset integrity: what a built dataset's files must be, and the checks and repairs that use it
-(docs/datasets.md, "Integrity").
+(docs/reliability.md).
 
 The truth is the config recorded in the card plus the per-sample field shapes of the build's probe sample.
 From them :func:`expected_metadata` regenerates, in memory and with the same calls as the build

@@ -134,15 +134,8 @@ def check_dataset_dir(root: Path, resume: bool) -> None:
     Raises:
         FileExistsError / PermissionError: naming the path and what to do instead.
     """
-    if root.exists() and not root.is_dir():
-        raise FileExistsError(f"--out {root} is a file, not a dataset directory: choose another --out")
-    parent = root
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise FileExistsError(f"--out {root}: cannot create it, {parent} is a file")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise PermissionError(f"--out {root}: {parent} is not writable")
+    from ..scene import check_output_dir
+    check_output_dir(root, "--out")
     if not root.exists():
         return
     if (root / "zarr.json").exists():

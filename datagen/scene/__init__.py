@@ -30,8 +30,8 @@ from .separation import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
 from .capture import FOV_EDGE_REL, FOV_PLANE_TOL, Capture, resolve_capture
 from .coincident import (COPLANAR_TOL_REL, Coincidence, duplicate_faces, find_coincident_faces,
                          resolve_coincident_faces)
-from .load import (MAX_YAML_BYTES, MAX_YAML_VALUES, ObjectSpec, SceneFile, format_validation_error, load_scene,
-                   parse_yaml, read_yaml, scene_from_dict, short_repr)
+from .load import (MAX_YAML_BYTES, MAX_YAML_VALUES, ObjectSpec, SceneFile, check_output_dir, format_validation_error,
+                   load_scene, parse_yaml, read_yaml, scene_from_dict, short_repr)
 from .materials import BRDF_KINDS, LAMBERTIAN, PHONG, SIN_THETA, Material, MaterialTable, tangent_frame
 from .model import Scene
 from .parts import (MAX_APERTURE_RADIUS, MAX_EXTENT, RESERVED_NAMES, ROOM_LABELS, WAVELENGTH_RANGE, CaptureSpec,
@@ -52,7 +52,7 @@ __all__ = [
     "quad_mesh", "box_mesh", "l_room", "pillar", "box", "quad", "import_mesh",
     # scene files
     "SceneFile", "ObjectSpec", "format_validation_error", "scene_from_dict", "load_scene", "read_yaml", "parse_yaml",
-    "short_repr", "MAX_YAML_BYTES", "MAX_YAML_VALUES",
+    "short_repr", "check_output_dir", "MAX_YAML_BYTES", "MAX_YAML_VALUES",
     # materials
     "BRDF_KINDS", "LAMBERTIAN", "SIN_THETA", "PHONG", "Material", "MaterialTable", "tangent_frame",
     # ray casting

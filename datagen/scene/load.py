@@ -5,10 +5,12 @@
 builds its objects with the builders of :mod:`datagen.scene.builders` (one spec per ``builder``: l_room,
 pillar, box, quad, mesh). :func:`read_yaml` / :func:`parse_yaml` are the shared, bounded readers of YAML inputs
 (scene files, room distributions, dataset configs, detector presets, tal configs): size and alias expansion are
-capped so a hostile file fails in one short line instead of filling memory.
+capped so a hostile file fails in one short line instead of filling memory; :func:`check_output_dir` refuses an
+output directory that cannot be created before any work.
 """
 from __future__ import annotations
 
+import os
 import reprlib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
@@ -248,3 +250,22 @@ def parse_yaml(text: str, source: str) -> Any:
         elif isinstance(value, (list, tuple)):
             stack.extend(value)
     return data
+
+
+def check_output_dir(path: str | Path, option: str = "--out") -> None:
+    """Refuse, before any work, an output directory that is a file, lies under a file, or whose nearest
+    existing parent is not writable (shared by ``simulate --out`` and dataset builds).
+
+    Raises:
+        FileExistsError / PermissionError: naming ``option`` and the path.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(f"{option} {path} is a file, not a directory: choose another {option}")
+    parent = path
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise FileExistsError(f"{option} {path}: cannot create it, {parent} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise PermissionError(f"{option} {path}: {parent} is not writable")
