@@ -319,3 +319,27 @@ def test_sigkill_of_a_build_leaves_no_process_after_5_s(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigkill_of_simulate_with_workers_leaves_no_process_after_5_s(tmp_path):
+    """The lookin estimator's fork workers (``simulate --workers 2``) die with the simulate process too."""
+    proc = subprocess.Popen([sys.executable, "-m", "datagen.cli", "simulate", "scene_library/demo_room.yaml", "--out",
+                             str(tmp_path / "out"), "--quiet", "--lookins", "40x40", "--workers", "2"], cwd=ROOT,
+                            start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        t0 = time.monotonic()
+        while len(_session_processes(proc.pid)) < 3:       # simulate and its two workers
+            assert proc.poll() is None and time.monotonic() - t0 < 120, "the workers never started"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 5.0
+        while _session_processes(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert _session_processes(proc.pid) == []
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass

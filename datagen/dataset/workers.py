@@ -11,7 +11,7 @@ process when its parent dies, so:
   build already died ends at once);
 - every worker sets it in the pool initializer (:func:`init_worker`; its parent is the fork server) and also
   starts a watch thread that exits the worker when the build process is gone (a second line of defence, and
-  the only one where ``prctl`` does not exist);
+  the only one where ``prctl`` does not exist; both from :mod:`datagen.processes`);
 - the resource tracker exits by itself once every process holding its pipe (the build, the fork server, the
   workers) is gone.
 
@@ -19,63 +19,13 @@ Measured by tests/test_hostile_build.py: no process of a SIGKILLed build is left
 """
 from __future__ import annotations
 
-import ctypes
 import os
 import signal
-import sys
-import threading
-import time
+
+from ..processes import process_alive, set_parent_death_signal, watch_process
 
 BUILD_PID_ENV = "DATAGEN_BUILD_PID"
 """Environment variable holding the pid of the build process, read by the fork server's preload module."""
-
-PR_SET_PDEATHSIG = 1
-"""prctl option: signal sent to this process when its parent dies (linux/prctl.h)."""
-
-WATCH_INTERVAL_S = 0.5
-"""Seconds between a worker's checks that the build process is still alive."""
-
-
-def set_parent_death_signal(sig: int = signal.SIGKILL) -> bool:
-    """Ask the kernel to send ``sig`` to this process when its parent dies (Linux); False elsewhere."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        return libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        return False
-
-
-def process_alive(pid: int) -> bool:
-    """True while process ``pid`` exists and is not a zombie (a killed process its parent has not reaped)."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as fh:
-            return fh.read().rsplit(b")", 1)[1].split()[0] not in (b"Z", b"X")
-    except FileNotFoundError:
-        return False
-    except OSError:
-        pass
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def watch_process(pid: int, interval: float = WATCH_INTERVAL_S) -> threading.Thread:
-    """Start a daemon thread that kills this process (SIGKILL, as the parent-death signal would) once process
-    ``pid`` is gone."""
-    def watch():
-        while process_alive(pid):
-            time.sleep(interval)
-        os.kill(os.getpid(), signal.SIGKILL)
-
-    thread = threading.Thread(target=watch, name="datagen-build-watch", daemon=True)
-    thread.start()
-    return thread
 
 
 def guard_forkserver() -> None:

@@ -2,18 +2,18 @@
 
 :func:`simulation_memory` adds up, from the scene and the config alone (nothing is allocated), the arrays that
 grow with the inputs — the accumulator's fine grid and the result arrays (components × channels × time
-bins), the lookin grid, the camera rays of one slice (pixels per lookin), the capture's laser and sensor
-grids, the area sampler's hidden samples and the quadrature's sub-triangles (edge) — each with the field
-that sets it. :func:`check_simulation_memory` compares the total with the memory available to this process
+bins), the lookin grid, the camera rays of one slice (pixels per lookin) and the full secondary's pairs
+(pixels²), the capture's laser and sensor grids, the area sampler's hidden samples and the quadrature's
+sub-triangles (edge) — each with the field that sets it. :func:`check_simulation_memory` compares the total with the memory available to this process
 (:func:`available_memory`) and raises :class:`ResourceError` naming the dominant field, its value and both
 figures in GiB. ``simulate`` and ``simulate_to_tolerance`` call it before building anything
 (:func:`datagen.simulation.run.run_transport`); dataset builds add their shard buffers
 (:mod:`datagen.dataset.build`).
 
 The byte counts per element are upper estimates of the arrays the estimators hold at once (read off their
-code; docs/architecture.md): a setting refused here would have failed with a MemoryError (or the kernel's
-out-of-memory killer) after minutes of work, while every setting of the repository's scenes and configs
-estimates far below a GiB.
+code, and measured for the secondary's pairs): a setting refused here would have failed with a MemoryError (or
+the kernel's out-of-memory killer) after minutes of work, while the repository's scenes and configs estimate
+at most a few hundred MiB (the demo room at its default 10×10×60×60, full secondary: 131 MiB).
 """
 from __future__ import annotations
 
@@ -36,6 +36,11 @@ LOOKIN_BYTES = 400
 CAMERA_RAY_BYTES = 1000
 """Bytes per camera ray of one slice (observed point, normal, direction, distance, ids, FoV connection, laser
 light, secondary partners; about 100 float64 values with temporaries)."""
+
+SECONDARY_PAIR_BYTES = 8
+"""Bytes per (pixels per lookin)² of the full and optimized secondaries, which form every (lit point, FoV point)
+pair of a lookin at once: 2× the 3.9 bytes measured on the demo room (peak RSS above the same run without the
+secondary: +66 MB at 60×60 pixels, +790 MB at 120×120, 3×3 lookins)."""
 
 AREA_SAMPLE_BYTES = 500
 """Bytes per hidden sample of the area sampler (point, normal, ids, both connections, weights)."""
@@ -134,6 +139,9 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
         terms.append(("lookins", "x".join(map(str, config.lookins)), float(LOOKIN_BYTES) * n_lookins * lasers))
         slice_rays = max(n_pixels, CACHE_RAYS)
         terms.append(("pixels", "x".join(map(str, config.pixels)), float(CAMERA_RAY_BYTES) * slice_rays * workers))
+        if config.secondary in ("full", "optimized"):
+            terms.append(("pixels", f"{'x'.join(map(str, config.pixels))} (secondary {config.secondary}: pairs)",
+                          float(SECONDARY_PAIR_BYTES) * n_pixels ** 2 * workers))
     if config.estimator == "area" or (config.estimator == "quadrature" and config.secondary != "none"):
         terms.append(("area_samples", str(config.area_samples), float(AREA_SAMPLE_BYTES) * config.area_samples))
     if config.estimator == "quadrature":
