@@ -146,6 +146,15 @@ def test_box_of_1e308_names_the_box_not_the_laser_spot(tmp_path):
     assert "laser.spot" not in out
 
 
+def test_room_of_1e308_names_the_field(tmp_path):
+    def room(d):
+        d["objects"] = [{"builder": "l_room", "room_length": 1e308}]
+        d["laser"]["spot"], d["sensor"]["fov"]["center"] = [6.0, 0.0, 2.0], [6.0, 0.0, 1.5]
+    out = cli(simulate_args(scene_file(tmp_path, room), tmp_path / "out"), 2, "objects.0.l_room.room_length",
+              "1e+308")
+    assert "laser.spot" not in out
+
+
 def test_emitter_behind_the_relay_wall_is_blamed_on_the_emitter(tmp_path):
     path = scene_file(tmp_path, lambda d: set_path(d, "laser.emitter", [3.0, 0.0, -0.5]))
     out = cli(simulate_args(path, tmp_path / "out"), 2, "laser.emitter [3.0, 0.0, -0.5] is behind the relay wall")

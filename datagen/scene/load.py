@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from .builders import box, import_mesh, l_room, pillar, quad
 from .materials import Material
 from .model import Scene
-from .parts import CaptureSpec, Laser, SceneError, SceneObject, Sensor, Vec3
+from .parts import MAX_EXTENT, CaptureSpec, Laser, SceneError, SceneObject, Sensor, Vec3
 
 
 class _Spec(BaseModel):
@@ -30,12 +30,12 @@ class _Spec(BaseModel):
 
 class LRoomSpec(_Spec):
     builder: Literal["l_room"]
-    relay_x: float = 6.0
-    corridor_start: float = -2.0
-    corridor_width: float = Field(2.1, gt=0)
-    room_depth: float = Field(3.0, gt=0)
-    room_length: float = Field(4.0, gt=0)
-    height: float = Field(3.0, gt=0)
+    relay_x: float = Field(6.0, ge=-MAX_EXTENT, le=MAX_EXTENT)
+    corridor_start: float = Field(-2.0, ge=-MAX_EXTENT, le=MAX_EXTENT)
+    corridor_width: float = Field(2.1, gt=0, le=MAX_EXTENT)
+    room_depth: float = Field(3.0, gt=0, le=MAX_EXTENT)
+    room_length: float = Field(4.0, gt=0, le=MAX_EXTENT)
+    height: float = Field(3.0, gt=0, le=MAX_EXTENT)
     bend_side: Literal[1, -1] = 1
     closed_corridor_end: bool = False
     materials: dict[Literal["wall", "floor", "ceiling", "relay_wall"], Material] = {}
