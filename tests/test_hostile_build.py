@@ -269,6 +269,12 @@ def test_inspect_png_under_a_file(tmp_path, reference):
     cli(["inspect", reference, "--png", tmp_path / "file" / "x.png"], 2, "--png", "is a file")
 
 
+def test_damaged_card_is_one_line_naming_it(copy_of):
+    (copy_of / "zarr.json").write_bytes(b"\x00garbage")
+    cli(["verify", copy_of], 2, "zarr.json: the dataset card is not a JSON object")
+    cli(["inspect", copy_of], 2, "zarr.json: the dataset card is not a JSON object")
+
+
 def test_verify_and_loader_on_something_that_is_not_a_dataset(tmp_path):
     cli(["verify", tmp_path], 2, "no datagen dataset")
     with pytest.raises(FileNotFoundError, match="no datagen dataset"):

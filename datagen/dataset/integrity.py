@@ -233,7 +233,10 @@ def verify_dataset(path: str | Path) -> list[str]:
     if card.get("status") != "complete":
         problems.append(f"build not complete ({card.get('shards_done', 0)} of {card.get('shards_total', '?')} "
                         "shards): run `datagen build CONFIG --out PATH --resume`")
-    config = config_from_json(card["config"])
+    try:
+        config = config_from_json(card["config"])
+    except (KeyError, TypeError, ValueError) as exc:
+        return problems + [f"{root / 'zarr.json'}: the card holds no valid config ({type(exc).__name__}): damaged"]
     problems += card_problems(card, config)
     try:
         problems += metadata_problems(root, card)

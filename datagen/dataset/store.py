@@ -311,12 +311,16 @@ def read_card(path: str | Path) -> dict:
     """The dataset card (root attributes) of the dataset at ``path``.
 
     Raises:
-        FileNotFoundError: no datagen dataset there.
+        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json`` (names it).
     """
     meta = Path(path) / "zarr.json"
     if not meta.is_file():
         raise FileNotFoundError(f"no datagen dataset at {path} (no zarr.json)")
-    attrs = json.loads(meta.read_text()).get("attributes", {})
+    try:
+        attrs = json.loads(meta.read_bytes()).get("attributes", {})
+    except (ValueError, AttributeError) as exc:
+        raise ValueError(f"{meta}: the dataset card is not a JSON object ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:120]}): damaged; rebuild the dataset") from None
     if attrs.get("format") != FORMAT:
         raise FileNotFoundError(f"{path} is a Zarr store but not a datagen dataset (no dataset card)")
     return attrs
