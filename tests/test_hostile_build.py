@@ -299,53 +299,45 @@ def _session_processes(sid: int) -> list[int]:
     return pids
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
-def test_sigkill_of_a_build_leaves_no_process_after_5_s(tmp_path):
-    """Before: the fork server, the resource tracker and both workers survived (≈ 370 MB, still writing
-    shards 14 minutes later)."""
-    config = config_file(tmp_path, config=tiny(train=40, val=0))
-    out = tmp_path / "ds"
-    proc = subprocess.Popen([sys.executable, "-m", "datagen.cli", "build", str(config), "--out", str(out),
-                             "--workers", "2", "--quiet"], cwd=ROOT, start_new_session=True,
+def kill_and_count_survivors(args: list[str], started) -> list[int]:
+    """Start ``datagen args`` in its own session, wait until ``started()`` (at most 120 s), SIGKILL the datagen
+    process only, and return the processes of its session still alive 5 s later."""
+    proc = subprocess.Popen([sys.executable, "-m", "datagen.cli", *args], cwd=ROOT, start_new_session=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         t0 = time.monotonic()
-        while not list((out / DONE_DIR).glob("*/*.json")) if (out / DONE_DIR).exists() else True:
-            assert proc.poll() is None and time.monotonic() - t0 < 120, "the build made no progress"
+        while not started(proc.pid):
+            assert proc.poll() is None and time.monotonic() - t0 < 120, "the command made no progress"
             time.sleep(0.05)
-        assert len(_session_processes(proc.pid)) >= 4     # build, fork server, resource tracker, workers
-        proc.send_signal(signal.SIGKILL)                   # the build only: its children must follow
+        proc.send_signal(signal.SIGKILL)                   # the command only: its children must follow
         proc.wait(timeout=10)
         deadline = time.monotonic() + 5.0
         while _session_processes(proc.pid) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert _session_processes(proc.pid) == []
+        return _session_processes(proc.pid)
     finally:
         try:
             os.killpg(proc.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigkill_of_a_build_leaves_no_process_after_5_s(tmp_path):
+    """Before: the fork server, the resource tracker and both workers survived (≈ 370 MB, still writing
+    shards 14 minutes later)."""
+    config, out = config_file(tmp_path, config=tiny(train=40, val=0)), tmp_path / "ds"
+
+    def started(pid):   # a shard is done, and the build, fork server, resource tracker and workers are up
+        return bool(list(out.glob(f"{DONE_DIR}/*/*.json"))) and len(_session_processes(pid)) >= 4
+
+    assert kill_and_count_survivors(["build", str(config), "--out", str(out), "--workers", "2", "--quiet"],
+                                    started) == []
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigkill_of_simulate_with_workers_leaves_no_process_after_5_s(tmp_path):
     """The lookin estimator's fork workers (``simulate --workers 2``) die with the simulate process too."""
-    proc = subprocess.Popen([sys.executable, "-m", "datagen.cli", "simulate", "scene_library/demo_room.yaml", "--out",
-                             str(tmp_path / "out"), "--quiet", "--lookins", "40x40", "--workers", "2"], cwd=ROOT,
-                            start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        t0 = time.monotonic()
-        while len(_session_processes(proc.pid)) < 3:       # simulate and its two workers
-            assert proc.poll() is None and time.monotonic() - t0 < 120, "the workers never started"
-            time.sleep(0.05)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-        deadline = time.monotonic() + 5.0
-        while _session_processes(proc.pid) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert _session_processes(proc.pid) == []
-    finally:
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+    args = ["simulate", "scene_library/demo_room.yaml", "--out", str(tmp_path / "out"), "--quiet", "--lookins",
+            "40x40", "--workers", "2"]
+    assert kill_and_count_survivors(args, lambda pid: len(_session_processes(pid)) >= 3) == []
