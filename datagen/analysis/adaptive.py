@@ -35,6 +35,10 @@ MAX_GROWTH = 3.0
 
 MAX_LEVELS = 6
 
+TIME_CAP_S = 600.0
+"""Default wall-time cap of :func:`simulate_to_tolerance` (``max_seconds``): no level starts that is predicted
+to end after it; the result then carries the best estimate reached, with ``met`` False."""
+
 REPLICAS = 4
 """Independent replicas per level: the result is their mean, the error estimate their standard error."""
 
@@ -62,7 +66,7 @@ def describe_setting(config: dict) -> tuple[str, str]:
 
 def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: float,
                           start: tuple[int, int] = (8, 8), start_pixels: tuple[int, int] = (24, 24),
-                          max_seconds: float | None = None, progress: bool = False) -> Result:
+                          max_seconds: float | None = TIME_CAP_S, progress: bool = False) -> Result:
     """Simulate with the cheapest lookin/pixel grids predicted to reach ``tolerance`` relative L2 error.
 
     Args:
@@ -70,7 +74,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         tolerance: target relative L2 error of the envelope (e.g. 0.01), in (0, 1).
         start, start_pixels: the first level's grids (their aspect ratios are kept).
         max_seconds: stop growing once the next level is predicted to exceed this wall time (the result
-            then reports an estimate above the tolerance).
+            then reports an estimate above the tolerance); default :data:`TIME_CAP_S`, None: no cap.
     Returns:
         :class:`~datagen.simulation.Result` whose ``attrs["tolerance"]`` holds the target, the final estimate,
         whether it was met, and every level (grids, estimate, seconds).

@@ -8,23 +8,23 @@ from pathlib import Path
 
 import click
 
-from ..scene import SceneError
+from .errors import check_output_file, fail, friendly_errors
 
 
 def _dataset_errors(func):
-    """Bad input → one ``error: …`` line and exit 2; failed shards → their list and exit 1."""
+    """Bad input, a locked or damaged store, a full disk, an unreachable scheduler → one ``error: …`` line and
+    exit 2 (:func:`datagen.cli.errors.friendly_errors`); failed shards → their list and exit 1."""
 
     @wraps(func)
     def wrapper(*args, **kwargs):
         from ..dataset import BuildError, BuildLockedError
         try:
-            return func(*args, **kwargs)
+            return friendly_errors(func)(*args, **kwargs)
         except BuildError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(1)
-        except (SceneError, ValueError, FileNotFoundError, FileExistsError, BuildLockedError) as exc:
-            click.echo(f"error: {' '.join(str(exc).split())}", err=True)
-            sys.exit(2)
+        except BuildLockedError as exc:
+            fail(exc)
 
     return wrapper
 
@@ -46,11 +46,11 @@ def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worke
     """Build the dataset of CONFIG_FILE (configs/datasets/*.yaml) into OUT, shard by shard."""
     from ..dataset import build_dataset, load_dataset_config
 
-    if workers is not None and workers < 0:
-        raise ValueError(f"--workers must be >= 0, got {workers}")
     config = load_dataset_config(config_file)
     report = build_dataset(config, out, workers=workers, scheduler=scheduler, resume=resume, retries=retries,
                            max_tasks_per_child=tasks_per_worker, progress=not quiet)
+    for line in report.repairs:
+        click.echo(f"repaired: {line}", err=True)
     timing = report.card.get("timing", {}).get("per_sample_s", {})
     click.echo(f"{out}: {report.shards_built} shards built ({report.samples_built} samples, "
                f"{report.samples_per_second:.2f} samples/s, {report.engine}), {report.shards_skipped} already done; "
@@ -101,6 +101,8 @@ def inspect(path, split, n_samples, png, show_config):
 
     from ..dataset import NLOSDataset, plot_sample, read_card
 
+    if png is not None:
+        check_output_file(png, "--png")
     card = read_card(path)
     click.echo(card_summary(card))
     if show_config:

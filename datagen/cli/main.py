@@ -7,9 +7,11 @@ commands of :mod:`datagen.cli.tal` (``tal-render``, ``export-tal``), :mod:`datag
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
+from pydantic import ValidationError
 
 from ..transport import estimator_names
 from .bench import bench
@@ -36,6 +38,20 @@ def _parse_fraction(text: str, option: str) -> float:
     return value
 
 
+def _parse_time_cap(text: str | None) -> float | None:
+    """'120s' / '2.5' (seconds) → seconds > 0; click.BadParameter naming --time-cap otherwise."""
+    if text is None:
+        return None
+    from ..units import parse_duration
+    try:
+        value = parse_duration(text)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--time-cap") from None
+    if not (math.isfinite(value) and value > 0):
+        raise click.BadParameter(f"must be a finite duration > 0, got {text!r}", param_hint="--time-cap")
+    return value
+
+
 @main.command()
 @click.argument("scene_file", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory")
@@ -50,33 +66,42 @@ def _parse_fraction(text: str, option: str) -> float:
 @click.option("--tolerance", default=None,
               help="target relative L2 error, e.g. 1%: choose lookins/pixels (or the quadrature edge) from an "
                    "on-the-fly error estimate")
+@click.option("--time-cap", default=None,
+              help="--tolerance: wall-time cap, e.g. 120s (default 600 s); no level starts that would end after "
+                   "it, and the best result is written with its error estimate")
 @click.option("--workers", type=int, default=None, help="processes sharing the lookins (result unchanged)")
 @click.option("--top-k", type=int, default=None, help="secondary paths kept per lookin and FoV point (optimized)")
 @click.option("--seed", type=int, default=None, help="root seed of every random stream")
 @click.option("--figures", is_flag=True, help="also write the paper's Figure 3 and 5 sampling views")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @friendly_errors
-def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, tolerance, workers, top_k, seed, figures,
-             quiet):
+def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, tolerance, time_cap, workers, top_k, seed,
+             figures, quiet):
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from ..plot.envelope import plot_envelope
-    from ..scene import load_scene
+    from ..scene import check_output_dir, load_scene
     from ..simulation import resolve_config
     from ..simulation import simulate as run_simulation
     from ..io import RESULT_NAME, write_result
 
+    check_output_dir(out)
     scene = load_scene(scene_file)
     tol = _parse_fraction(tolerance, "--tolerance") if tolerance is not None else None
     config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
                                     "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol,
                                     "estimator": estimator, "quadrature_edge": edge})
+    cap = _parse_time_cap(time_cap)
     if tol is not None:
-        from ..analysis import describe_setting, simulate_to_tolerance
-        result = simulate_to_tolerance(scene, config, tol, progress=not quiet)
+        from ..analysis import TIME_CAP_S, describe_setting, simulate_to_tolerance
+        cap = TIME_CAP_S if cap is None else cap
+        result = simulate_to_tolerance(scene, config, tol, max_seconds=cap, progress=not quiet)
         t = result.attrs["tolerance"]
         setting, bound = describe_setting(result.attrs["config"])
-        click.echo(f"tolerance {tol:.2%}: {setting}, estimated error {t['estimate']:.2%} ({bound})"
-                   f"{'' if t['met'] else ' — NOT met'}")
+        missed = "" if t["met"] else f" — NOT met within --time-cap {cap:g} s (levels run: {len(t['levels'])})"
+        shown = f"{tol:.2%}" if tol >= 1e-4 else f"{tol:.3g}"
+        click.echo(f"tolerance {shown}: {setting}, estimated error {t['estimate']:.2%} ({bound}){missed}")
+    elif cap is not None:
+        raise click.BadParameter("--time-cap applies to --tolerance runs only", param_hint="--time-cap")
     else:
         result = run_simulation(scene, config, progress=not quiet)
     out.mkdir(parents=True, exist_ok=True)
@@ -87,6 +112,8 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
         from ..plot.figures import write_sampling_figures
         written += write_sampling_figures(scene, config, out)
     click.echo(summary(result))
+    for warning in result.attrs.get("warnings", []):   # e.g. duplicate faces removed, zero-area objects
+        click.echo(f"warning: {warning}", err=True)
     click.echo("wrote " + ", ".join(str(p) for p in written))
 
 
@@ -103,17 +130,18 @@ def detect(result_path, detector_file, exposure, seed):
     The envelope is re-binned onto the detector's TDC bins (taken as piecewise constant within the stored
     bins, so TDC bins finer than the stored ones do not gain time resolution).
     """
-    import yaml
-
     from .. import spad
+    from ..scene import SceneError, format_validation_error, read_yaml
     from ..simulation import STREAM_NOISE, stream_rng
     from ..io import read_result, write_detection
     from ..units import parse_duration
 
-    result = read_result(result_path)
-    data = yaml.safe_load(Path(detector_file).read_text()) if Path(detector_file).is_file() else None
+    data = read_yaml(Path(detector_file), "detector file")   # bounded; names the file on any error
+    if isinstance(data, dict) and set(data) == {"detector"}:
+        data = data["detector"]
     if not isinstance(data, dict):
-        raise FileNotFoundError(f"detector file not found or not a mapping: {detector_file}")
+        raise SceneError(f"{detector_file}: expected a mapping of detector fields, got {type(data).__name__}")
+    result = read_result(result_path)
     data = {"t_start": float(result.time_edges[0]), **data}
     data.setdefault("bin_width", float(result.time_edges[1] - result.time_edges[0]))
     if exposure is not None:
@@ -121,8 +149,8 @@ def detect(result_path, detector_file, exposure, seed):
         data["exposure"] = parse_duration(exposure)
     try:
         config = spad.DetectorConfig.model_validate(data)
-    except Exception as exc:  # pydantic ValidationError → one line naming the file
-        raise ValueError(f"{detector_file}: {' '.join(str(exc).split())}") from None
+    except ValidationError as exc:
+        raise SceneError(format_validation_error(exc, str(detector_file))) from None
     # the detector's TDC bins: the envelope (bins hold integrals) is re-binned onto them over the same window
     n_bins = int(round((result.time_edges[-1] - config.t_start) / config.bin_width))
     envelope = spad.rebin_envelope(result.envelope, result.time_edges, config.bin_edges(n_bins))

@@ -18,7 +18,9 @@ Modules (they import each other directly, never through this package):
   ``datagen.dataset.sampler.STREAMS``, not re-exported here: :data:`STREAMS` is the config's stream ids);
 - :mod:`~datagen.dataset.obb`: exact oriented-box geometry (overlaps, beam and view tests, points inside);
 - :mod:`~datagen.dataset.labels`: ground-truth labels (:class:`LabelSpec`, :func:`scene_labels`);
-- :mod:`~datagen.dataset.store`: the dataset's on-disk layout, build lock, card and verification;
+- :mod:`~datagen.dataset.store`: the dataset's on-disk layout, build lock and card;
+- :mod:`~datagen.dataset.integrity`: what the files must be; verification, resume repairs, the loader's checks;
+- :mod:`~datagen.dataset.workers`: worker processes that die with the build (no orphans after a SIGKILL);
 - :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
 - :mod:`~datagen.dataset.loader`: :class:`NLOSDataset` and :func:`plot_sample` (import torch and matplotlib
   on first use: ``import datagen.dataset`` stays light).
@@ -26,8 +28,8 @@ Modules (they import each other directly, never through this package):
 from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildReport, build_dataset,
                     write_shard)
 from .config import (COMPONENT_ROOM, OTHER_COMPONENTS, RESAMPLE_NOISE, STREAMS, DatasetConfig, Sample, SplitSpec,
-                     StoreSpec, config_from_json, load_dataset_config, make_sample, resample_rng, sample_rngs,
-                     sample_seed_sequence, split_key)
+                     StoreSpec, component_slots, config_from_json, load_dataset_config, make_sample, resample_rng,
+                     sample_rngs, sample_seed_sequence, split_key)
 from .labels import PAD_INT, LabelSpec, camera_directions, camera_frame, label_shapes, occupancy_grid, scene_labels
 from .obb import (box_hits_pyramid, box_hits_segment, boxes_overlap, convex_overlap, obb_vertices, points_in_box,
                   yaw_matrix)
@@ -35,12 +37,13 @@ from .rooms import (MATERIAL_CLASSES, OBJECT_CLASSES, PACKING_LIMIT, UNIFORMS_PE
                     MaterialDist, Range, RoomDistribution, check_feasible, load_room_distribution)
 from .sampler import SampledRoom, sample_room
 from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, UNITS, BuildLock, BuildLockedError, ShardTask,
-                    code_version, file_sha256, marker_path, plan_shards, read_card, read_marker, shard_file, shard_key,
-                    verify_dataset)
+                    code_version, file_sha256, marker_path, plan_shards, read_card, read_marker, shard_file, shard_key)
+from .integrity import (DatasetCorruptError, card_problems, check_split, expected_metadata, metadata_problems,
+                        repair_store, verify_dataset)
 
 __all__ = [
     # config and samples
-    "STREAMS", "RESAMPLE_NOISE", "COMPONENT_ROOM", "OTHER_COMPONENTS", "split_key", "sample_seed_sequence",
+    "STREAMS", "RESAMPLE_NOISE", "COMPONENT_ROOM", "OTHER_COMPONENTS", "component_slots", "split_key", "sample_seed_sequence",
     "sample_rngs", "resample_rng", "SplitSpec", "StoreSpec", "DatasetConfig", "load_dataset_config",
     "config_from_json", "Sample", "make_sample",
     # room distributions and sampling
@@ -55,7 +58,10 @@ __all__ = [
     # store
     "FORMAT", "FORMAT_VERSION", "LOCK_NAME", "DONE_DIR", "UNITS", "BuildLockedError", "BuildLock", "ShardTask",
     "plan_shards", "shard_key", "shard_file", "file_sha256", "marker_path", "read_marker", "read_card",
-    "code_version", "verify_dataset",
+    "code_version",
+    # integrity
+    "DatasetCorruptError", "expected_metadata", "metadata_problems", "card_problems", "check_split", "repair_store",
+    "verify_dataset",
     # build
     "DEFAULT_RETRIES", "DEFAULT_TASKS_PER_CHILD", "BuildError", "BuildReport", "build_dataset", "write_shard",
     # loader (lazy)

@@ -1,17 +1,22 @@
 """Dataset builds: sharded Zarr v3 stores written shard by shard, locally or on Dask (docs/physics.md §7).
 
-The layout of a dataset on disk, its lock, its card and its verification are :mod:`datagen.dataset.store`'s.
+The layout of a dataset on disk, its lock and its card are :mod:`datagen.dataset.store`'s; what its files must
+be, its verification and its repair :mod:`datagen.dataset.integrity`'s; the Dask engine
+:mod:`datagen.dataset.dask_engine`'s; workers that die with the build :mod:`datagen.dataset.workers`'.
 
-A shard is the unit of work: :func:`write_shard` computes its samples with
-:func:`datagen.dataset.make_sample` and writes each array's whole shard in one call, then the marker. A build
-skips shards that have a marker (resume), runs the rest on an engine (in process, a local process pool
-recycled every ``max_tasks_per_child`` shards, a Dask ``LocalCluster`` or a Dask scheduler address), retries
-failed shards and reports the ones that still fail, keeping every finished shard.
+A build checks everything before it writes anything (options, config, the output directory, a probe sample,
+the shard memory, the scheduler), so a refused command leaves no stub behind. A shard is the unit of work:
+:func:`write_shard` computes its samples with :func:`datagen.dataset.make_sample` and writes each array's whole
+shard in one call, then the marker. A build skips shards that have an intact marker (resume; damaged or missing
+shards are rebuilt), runs the rest on an engine (in process, a local process pool recycled every
+``max_tasks_per_child`` shards, a Dask ``LocalCluster`` or a Dask scheduler address), retries failed shards and
+reports the ones that still fail, keeping every finished shard; a full disk stops it at once, resumably.
 """
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import threading
 import time
@@ -24,18 +29,25 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from .config import (STREAMS, DatasetConfig, Sample, config_from_json, load_dataset_config, make_sample,
-                     split_key)
+from .config import (STREAMS, DatasetConfig, Sample, component_slots, config_from_json, load_dataset_config,
+                     make_sample)
 from ..scene import SceneError
-from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, BuildLock, ShardTask, code_version, consolidate,
-                    create_arrays, file_sha256, finish_card, marker_path, plan_shards, read_card, read_marker,
-                    shard_file, write_json_atomic, zarr_module)
+from .dask_engine import FATAL_ERRNOS, connect_dask, fatal_error, run_dask
+from .integrity import remove_shard_files, repair_store
+from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, BuildLock, ShardTask, check_dataset_dir,
+                    code_version, consolidate, create_arrays, file_sha256, finish_card, marker_path, plan_shards,
+                    probe_fields, read_card, read_marker, shard_file, split_entries, write_json_atomic, zarr_module)
+from .workers import BUILD_PID_ENV, init_worker
 
 DEFAULT_RETRIES = 2
 DEFAULT_TASKS_PER_CHILD = 4
 """Shards a local worker process computes before it is replaced (bounds leaked memory per worker)."""
 IN_FLIGHT_PER_WORKER = 2
 """Shards queued per local worker: keeps the pool busy without holding every task's future at once."""
+
+SHARD_BUFFER_COPIES = 3
+"""Copies of a shard's data a worker holds while writing it (the samples, their stacked arrays, the encoded
+chunks): the shard-size term of the build's memory estimate."""
 
 
 class BuildError(RuntimeError):
@@ -44,6 +56,10 @@ class BuildError(RuntimeError):
     def __init__(self, message: str, failures: dict[tuple[str, int], str]):
         super().__init__(message)
         self.failures = failures
+
+
+class StoreWriteError(OSError):
+    """The store cannot be written (:data:`FATAL_ERRNOS`); finished shards are kept, the build resumes later."""
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -56,10 +72,13 @@ _SAMPLE_DONE: Callable[[], None] | None = None
 """Called after each computed sample (progress bar): set in process, or by :func:`_init_pool_worker`."""
 
 
-def _init_pool_worker(queue) -> None:
-    """Pool worker initializer: report every computed sample on ``queue`` (a multiprocessing queue)."""
+def _init_pool_worker(queue, build_pid: int) -> None:
+    """Pool worker initializer: die with the build (:func:`datagen.dataset.workers.init_worker`) and report
+    every computed sample on ``queue`` (a multiprocessing queue, or None)."""
     global _SAMPLE_DONE
-    _SAMPLE_DONE = lambda: queue.put(1)  # noqa: E731
+    init_worker(build_pid)
+    if queue is not None:
+        _SAMPLE_DONE = lambda: queue.put(1)  # noqa: E731
 
 
 def _config_of(config_json: dict) -> DatasetConfig:
@@ -100,6 +119,7 @@ def write_shard(root: str, config_json: dict, task: ShardTask) -> dict:
     Raises:
         SceneError: a sample failed, or its field set / shapes / dtypes differ from the dataset's (the
             message names the sample and the field).
+        StoreWriteError: the disk is full, over quota or read-only (names the shard and the dataset).
     """
     zarr = zarr_module()
     config = _config_of(config_json)
@@ -114,16 +134,25 @@ def write_shard(root: str, config_json: dict, task: ShardTask) -> dict:
     with zarr.config.set({"array.write_empty_chunks": True}):   # every shard file exists, even all-zero ones
         arrays = {n: group[n] for n in sorted(group.array_keys()) if n != "time_edges"}
     stacked = _check_and_stack(samples, arrays, task)
+    # a shard rewritten after a kill or a repair starts from nothing: zarr would otherwise read (and trip on) a
+    # truncated or damaged file before overwriting it
+    remove_shard_files(root, task, {name: (arr.shape[1:], None) for name, arr in arrays.items()})
     hashes = {}
-    for name, arr in arrays.items():   # every check passed: now one write per array
-        arr[task.start:task.stop] = stacked[name]
-        hashes[name] = file_sha256(shard_file(root, task.split, name, task.shard, arr.ndim))
-    marker = {"split": task.split, "shard": task.shard, "start": task.start, "stop": task.stop,
-              "sha256": hashes, "seconds": [s.seconds for s in samples],
-              "shard_seconds": {"compute": t1 - t0, "write": time.perf_counter() - t1},
-              "worker": {"host": socket.gethostname(), "pid": os.getpid()},
-              "finished": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-    write_json_atomic(marker_path(root, task.split, task.shard), marker)
+    try:
+        for name, arr in arrays.items():   # every check passed: now one write per array
+            arr[task.start:task.stop] = stacked[name]
+            hashes[name] = file_sha256(shard_file(root, task.split, name, task.shard, arr.ndim))
+        marker = {"split": task.split, "shard": task.shard, "start": task.start, "stop": task.stop,
+                  "sha256": hashes, "seconds": [s.seconds for s in samples],
+                  "shard_seconds": {"compute": t1 - t0, "write": time.perf_counter() - t1},
+                  "worker": {"host": socket.gethostname(), "pid": os.getpid()},
+                  "finished": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+        write_json_atomic(marker_path(root, task.split, task.shard), marker)
+    except OSError as exc:
+        if exc.errno in FATAL_ERRNOS:
+            raise StoreWriteError(exc.errno, f"{os.strerror(exc.errno)} while writing shard {task.label} of "
+                                  f"{root}") from None
+        raise
     return marker
 
 
@@ -158,6 +187,8 @@ def _in_process(root: str, cfg: dict, tasks: list[ShardTask], retries: int) -> I
                 yield task, write_shard(root, cfg, task), None
                 break
             except Exception as exc:  # noqa: BLE001 - any failure of a shard is reported, not fatal
+                if fatal_error(exc):
+                    raise
                 if attempt == retries:
                     yield task, None, _reason(exc) + "\n" + traceback.format_exc(limit=-3)
 
@@ -171,13 +202,15 @@ def _run_pool(root: str, cfg: dict, tasks: list[ShardTask], workers: int, retrie
     import threading
 
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["datagen.dataset.build"])
+    # the fork server dies with this process (its preload module sets the parent-death signal), the workers
+    # with the fork server and with this process (their initializer): datagen.dataset.workers
+    os.environ[BUILD_PID_ENV] = str(os.getpid())
+    ctx.set_forkserver_preload(["datagen.dataset.forkserver_preload", "datagen.dataset.build"])
     queue = ctx.SimpleQueue() if on_sample is not None else None
 
     def new_pool():
         return ProcessPoolExecutor(workers, mp_context=ctx, max_tasks_per_child=tasks_per_child,
-                                   initializer=_init_pool_worker if queue is not None else None,
-                                   initargs=(queue,) if queue is not None else ())
+                                   initializer=_init_pool_worker, initargs=(queue, os.getpid()))
 
     def relay():   # per-sample progress from the workers
         while queue.get() is not None:
@@ -204,6 +237,8 @@ def _run_pool(root: str, cfg: dict, tasks: list[ShardTask], workers: int, retrie
                 except BrokenProcessPool as exc:
                     broken, reason = True, f"worker process died ({exc}); killed or out of memory?"
                 except Exception as exc:  # noqa: BLE001
+                    if fatal_error(exc):
+                        raise
                     reason = _reason(exc)
                 attempts[task] += 1
                 if attempts[task] > retries:
@@ -224,45 +259,23 @@ def _run_pool(root: str, cfg: dict, tasks: list[ShardTask], workers: int, retrie
             relay_thread.join(timeout=10)
 
 
-def _run_dask(root: str, cfg: dict, tasks: list[ShardTask], scheduler: str, workers: int | None,
-              retries: int) -> Iterator[Event]:
-    import logging
-    import uuid
-
-    from distributed import Client, LocalCluster, as_completed
-
-    cluster = None
-    if scheduler == "local":
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
-        client = Client(cluster)
-    else:
-        client = Client(scheduler, timeout="30s")
-    try:
-        run = uuid.uuid4().hex[:8]
-        futures = {client.submit(write_shard, root, cfg, task, key=f"datagen-shard-{task.split}-{task.shard}-{run}",
-                                 retries=retries, pure=False): task for task in tasks}
-        for fut in as_completed(futures):
-            task = futures[fut]
-            if fut.status == "finished":
-                yield task, fut.result(), None
-            else:
-                exc = fut.exception()
-                tb = "".join(traceback.format_tb(fut.traceback()))[-2000:] if fut.traceback() else ""
-                yield task, None, f"{type(exc).__name__}: {exc}\n{tb}"
-            fut.release()
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-
-
 # ---------------------------------------------------------------------------------------------------------
 # Card
 
 
-def _initialize(root: Path, config: DatasetConfig) -> dict:
-    """Compute a probe sample (its shapes fix the dataset's), write the card, create every array."""
+def _card_layout(config: DatasetConfig, probe: Sample) -> dict:
+    """The card entries the probe sample fixes: ``time_edges`` and ``splits`` (fields, counts, detectors)."""
+    splits = split_entries(config, probe_fields(probe))
+    for split in config.splits:
+        splits[split]["detector"] = config.simulation_config(split).detector_config().model_dump(mode="json")
+    return {"time_edges": {"t_start": float(probe.time_edges[0]), "n_bins": len(probe.time_edges) - 1,
+                           "bin_width": float(probe.time_edges[1] - probe.time_edges[0])},
+            "splits": splits}
+
+
+def _initialize(root: Path, config: DatasetConfig, probe: Sample) -> dict:
+    """Write the card and create every array, with the shapes of ``probe`` (sample 0 of the first non-empty
+    split, computed before anything was written)."""
     from ..simulation import library_versions
 
     card = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": config.name, "status": "incomplete",
@@ -273,20 +286,49 @@ def _initialize(root: Path, config: DatasetConfig) -> dict:
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), "runs": []}
     group = zarr_module().open_group(str(root), mode="a", zarr_format=3)
     group.update_attributes(card)
-    non_empty = [s for s, spec in config.splits.items() if spec.count > 0]
-    splits = {}
-    if non_empty:
-        probe = make_sample(config, non_empty[0], 0)
-        splits = create_arrays(root, config, probe)
-        card["time_edges"] = {"t_start": float(probe.time_edges[0]), "n_bins": len(probe.time_edges) - 1,
-                              "bin_width": float(probe.time_edges[1] - probe.time_edges[0])}
-    for split in config.splits:
-        sim = config.simulation_config(split)
-        splits.setdefault(split, {"count": 0, "split_key": split_key(split), "n_shards": 0, "fields": {}})
-        splits[split]["detector"] = sim.detector_config().model_dump(mode="json")
-    card["splits"] = splits
+    create_arrays(root, config, probe_fields(probe), probe.time_edges,
+                  component_slots(config.label_spec().max_objects))
+    card.update(_card_layout(config, probe))
     group.update_attributes(card)
     return card
+
+
+def _probe(config: DatasetConfig) -> Sample:
+    """Sample 0 of the first non-empty split: its shapes fix the dataset's (computed before any write)."""
+    return make_sample(config, next(s for s, spec in config.splits.items() if spec.count > 0), 0)
+
+
+def check_build_options(workers: int | None, scheduler: str | None, retries: int, max_tasks_per_child: int) -> None:
+    """Refuse invalid build options before anything runs or is written.
+
+    Raises:
+        ValueError: naming the option (CLI spelling) and the value.
+    """
+    def is_int(v):
+        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+    if workers is not None and not (is_int(workers) and workers >= 0):
+        raise ValueError(f"--workers must be an integer >= 0, got {workers!r}")
+    if not (is_int(retries) and retries >= 0):
+        raise ValueError(f"--retries must be an integer >= 0, got {retries!r}")
+    if not (is_int(max_tasks_per_child) and max_tasks_per_child >= 1):
+        raise ValueError(f"--tasks-per-worker must be an integer >= 1, got {max_tasks_per_child!r}")
+    if scheduler is not None and scheduler != "local" and (not isinstance(scheduler, str) or "://" not in scheduler):
+        raise ValueError(f"--scheduler must be 'local' or an address such as tcp://HOST:8786, got {scheduler!r}")
+
+
+def check_shard_memory(config: DatasetConfig, probe: Sample, processes: int) -> None:
+    """Refuse a shard size whose buffers (:data:`SHARD_BUFFER_COPIES` × shard_size × one sample's bytes, per
+    process) exceed the available memory.
+
+    Raises:
+        ResourceError: naming shard_size, its value and both figures in GiB.
+    """
+    from ..simulation import check_memory
+    per_sample = sum(len(str(a[()])) if a.dtype == object else a.nbytes for a in probe.arrays.values())
+    check_memory(SHARD_BUFFER_COPIES * config.shard_size * per_sample * max(1, processes), "shard_size",
+                 f"{config.shard_size} ({per_sample / 2**20:.3g} MiB per sample, {max(1, processes)} process(es))",
+                 f"{config.name}: ")
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -295,7 +337,8 @@ def _initialize(root: Path, config: DatasetConfig) -> dict:
 
 @dataclass
 class BuildReport:
-    """What a build did: shards computed now / skipped (already done), samples, wall time, engine."""
+    """What a build did: shards computed now / skipped (already done), samples, wall time, engine, and what
+    ``--resume`` repaired first (one line each: metadata rewritten, damaged shards rebuilt)."""
 
     path: Path
     shards_built: int
@@ -304,6 +347,7 @@ class BuildReport:
     seconds: float
     engine: str
     card: dict = field(default_factory=dict)
+    repairs: list[str] = field(default_factory=list)
 
     @property
     def samples_per_second(self) -> float:
@@ -325,6 +369,13 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
                   on_shard: Callable[[dict], None] | None = None) -> BuildReport:
     """Build (or resume) the dataset of ``config`` into ``out``.
 
+    Everything is checked before anything is written: the options, the config, ``out`` (not a file, not under
+    one, not a foreign or existing dataset without ``resume``), a probe sample (sample 0 of the first non-empty
+    split, which also fixes the arrays' shapes), the memory the shards need, and the Dask scheduler. A resumed
+    build first repairs the store (:func:`datagen.dataset.integrity.repair_store`): metadata that differs from
+    what the card implies is rewritten, and every done shard whose files are missing or whose bytes differ from
+    its marker's sha256 is rebuilt, bit-identical to an uninterrupted build.
+
     Args:
         config: a resolved :class:`DatasetConfig` or a YAML path.
         out: dataset directory (a Zarr v3 group).
@@ -332,114 +383,180 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
             workers.
         scheduler: None (local processes), "local" (Dask LocalCluster) or a Dask scheduler address
             ("tcp://host:8786"; the workers must see ``out`` at the same path).
-        resume: continue a build whose store exists: shards with a done marker are skipped.
-        retries: extra attempts of a failed shard.
-        max_tasks_per_child: shards per local worker process before it is replaced.
+        resume: continue a build whose store exists: intact shards with a done marker are skipped.
+        retries: extra attempts of a failed shard (>= 0).
+        max_tasks_per_child: shards per local worker process before it is replaced (>= 1).
         progress: tqdm bar in samples (rate and ETA).
         on_shard: called with each finished shard's marker (in this process).
     Returns:
         :class:`BuildReport`.
     Raises:
-        SceneError: invalid config, or ``--resume`` with a different config than the stored one.
-        FileExistsError: ``out`` holds a dataset (or other files) and ``resume`` is False.
+        ValueError: an invalid option (naming it); SceneError: invalid config or probe sample, or ``--resume``
+            with a different config than the stored one; ResourceError: the shards need more memory than
+            available; SchedulerError: the scheduler cannot be reached.
+        FileExistsError / PermissionError: ``out`` is a file, under one, not writable, holds a dataset (and
+            ``resume`` is False) or other files.
         BuildLockedError: another build is writing ``out``.
+        StoreWriteError: the disk filled up (or is read-only); finished shards are kept, resume later.
         BuildError: shards still failing after retries (finished shards are kept; resume later).
     """
+    check_build_options(workers, scheduler, retries, max_tasks_per_child)
     if not isinstance(config, DatasetConfig):
         config = load_dataset_config(config)
     root = Path(out)
-    root.mkdir(parents=True, exist_ok=True)
+    check_dataset_dir(root, resume)
+    probe = _probe(config)
+    processes = 1 if workers == 0 or scheduler else (workers or os.cpu_count() or 1)
+    check_shard_memory(config, probe, processes)
+    client, cluster = connect_dask(scheduler, workers) if scheduler else (None, None)
+    try:
+        return _build(config, root, probe, client, workers, scheduler, resume, retries, max_tasks_per_child,
+                      progress, on_shard)
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _open_store(root: Path, config: DatasetConfig, probe: Sample, resume: bool) -> tuple[dict, list[str]]:
+    """Under the lock: initialise a fresh store (removing what it wrote if that fails), or read and check an
+    existing one (its card's layout is refreshed from the probe). Returns the card and what was repaired."""
+    exists = (root / "zarr.json").exists()
+    if exists and not resume:
+        raise FileExistsError(f"{root} already holds a dataset; pass --resume to continue it, or choose "
+                              "another --out")
+    if not exists:
+        others = [p.name for p in root.iterdir() if p.name not in (LOCK_NAME, DONE_DIR)]
+        if others:
+            raise FileExistsError(f"{root} exists and is not empty ({', '.join(sorted(others)[:5])}); "
+                                  "choose another --out")
+        try:
+            if (root / DONE_DIR).exists():   # stale markers from an earlier, removed store must not count
+                shutil.rmtree(root / DONE_DIR)
+            return _initialize(root, config, probe), []
+        except BaseException:
+            for path in root.iterdir():      # a failed initialisation leaves nothing behind
+                if path.name != LOCK_NAME:
+                    shutil.rmtree(path, ignore_errors=True) if path.is_dir() else path.unlink(missing_ok=True)
+            raise
+    card = read_card(root)
+    if card.get("config_sha256") != config.fingerprint():
+        diff = _config_diff(card.get("config", {}), config.to_json())
+        raise SceneError(f"{root} was built from a different config (differs in: {', '.join(diff)}); "
+                         "resume with the same config or build into another --out")
+    if "splits" not in card or "time_edges" not in card:   # killed while creating the arrays
+        return _initialize(root, config, probe), ["card: initialisation completed (it was interrupted)"]
+    layout = _card_layout(config, probe)
+    changed = [k for k, v in layout.items() if card.get(k) != v]
+    if changed:   # edited or damaged card: the config and the probe are the truth
+        card.update(layout)
+        zarr_module().open_group(str(root), mode="r+").update_attributes(card)
+    return card, [f"card: {', '.join(changed)} rewritten from the config and the probe sample"] if changed else []
+
+
+def _build(config: DatasetConfig, root: Path, probe: Sample, client, workers: int | None, scheduler: str | None,
+           resume: bool, retries: int, max_tasks_per_child: int, progress: bool,
+           on_shard: Callable[[dict], None] | None) -> BuildReport:
     cfg_json = config.to_json()
     t_start = time.perf_counter()
     engine = ("dask:" + scheduler) if scheduler else ("in-process" if workers == 0 else "processes")
-    with BuildLock(root):
-        exists = (root / "zarr.json").exists()
-        if exists and not resume:
-            raise FileExistsError(f"{root} already holds a dataset; pass --resume to continue it, or choose "
-                                  "another --out")
-        if not exists:
-            others = [p.name for p in root.iterdir() if p.name not in (LOCK_NAME, DONE_DIR)]
-            if others:
-                raise FileExistsError(f"{root} exists and is not empty ({', '.join(sorted(others)[:5])}); "
-                                      "choose another --out")
-            # a fresh build: stale markers from an earlier, removed store must not count
-            if (root / DONE_DIR).exists():
-                import shutil
-                shutil.rmtree(root / DONE_DIR)
-            card = _initialize(root, config)
-        else:
-            card = read_card(root)
-            if card.get("config_sha256") != config.fingerprint():
-                diff = _config_diff(card.get("config", {}), cfg_json)
-                raise SceneError(f"{root} was built from a different config (differs in: {', '.join(diff)}); "
-                                 "resume with the same config or build into another --out")
-            if "splits" not in card:   # killed while creating the arrays
-                card = _initialize(root, config)
+    created = not root.exists()
+    root.mkdir(parents=True, exist_ok=True)
+    try:
+        with BuildLock(root):
+            card, repairs = _open_store(root, config, probe, resume)
+            repairs += repair_store(root, card, config)
+            report = _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_tasks_per_child,
+                          progress, on_shard, engine, t_start)
+            report.repairs = repairs
+            return report
+    except BaseException:
+        if created and not (root / "zarr.json").exists():
+            shutil.rmtree(root, ignore_errors=True)   # nothing of a dataset was written: leave no stub
+        raise
 
-        tasks = plan_shards(config)
-        todo = [t for t in tasks if read_marker(root, t.split, t.shard) is None]
-        skipped = len(tasks) - len(todo)
-        total = sum(t.size for t in tasks)
-        bar = None
-        if progress:
-            from tqdm.auto import tqdm
-            bar = tqdm(total=total, initial=total - sum(t.size for t in todo), unit="sample",
-                       desc=f"build {config.name}", smoothing=0.05, dynamic_ncols=True)
-        done_before = total - sum(t.size for t in todo)
-        progress_lock = threading.Lock()
-        computed = [0]   # samples computed so far in this run (retried ones included), for the bar
 
-        def on_sample():
-            with progress_lock:
-                computed[0] += 1
-                if bar is not None:
-                    bar.update(1)
+def _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_tasks_per_child, progress,
+         on_shard, engine, t_start) -> BuildReport:
+    tasks = plan_shards(config)
+    todo = [t for t in tasks if read_marker(root, t.split, t.shard) is None]
+    skipped = len(tasks) - len(todo)
+    total = sum(t.size for t in tasks)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=total, initial=total - sum(t.size for t in todo), unit="sample",
+                   desc=f"build {config.name}", smoothing=0.05, dynamic_ncols=True)
+    done_before = total - sum(t.size for t in todo)
+    progress_lock = threading.Lock()
+    computed = [0]   # samples computed so far in this run (retried ones included), for the bar
 
-        if not todo:
-            events: Iterator[Event] = iter(())
-        elif scheduler:   # the bar moves shard by shard
-            events = _run_dask(str(root), cfg_json, todo, scheduler, workers, retries)
-            on_sample = None
-        elif workers == 0:
-            events = _run_in_process(str(root), cfg_json, todo, retries, on_sample if bar is not None else None)
-        else:
-            n = min(workers or os.cpu_count() or 1, len(todo))
-            events = _run_pool(str(root), cfg_json, todo, n, retries, max_tasks_per_child,
-                               on_sample if bar is not None else None)
-        failures: dict[tuple[str, int], str] = {}
-        built = samples = 0
-        try:
-            for task, marker, reason in events:
-                if marker is not None:
-                    built += 1
-                    samples += task.size
-                    if on_shard is not None:
-                        on_shard(marker)
-                else:
-                    failures[(task.split, task.shard)] = reason or "unknown error"
-                if bar is not None:
-                    with progress_lock:
-                        if on_sample is None and marker is not None:   # shard-level progress (Dask)
-                            bar.update(task.size)
-                        elif marker is None:   # a failed shard's samples do not count (retries may overshoot
-                            bar.n = done_before + samples   # briefly; the bar is exact again at the end)
-                            bar.refresh()
-        finally:
+    def on_sample():
+        with progress_lock:
+            computed[0] += 1
+            if bar is not None:
+                bar.update(1)
+
+    if not todo:
+        events: Iterator[Event] = iter(())
+    elif scheduler:   # the bar moves shard by shard
+        events = run_dask(write_shard, str(root), cfg_json, todo, client, retries)
+        on_sample = None
+    elif workers == 0:
+        events = _run_in_process(str(root), cfg_json, todo, retries, on_sample if bar is not None else None)
+    else:
+        n = min(workers or os.cpu_count() or 1, len(todo))
+        events = _run_pool(str(root), cfg_json, todo, n, retries, max_tasks_per_child,
+                           on_sample if bar is not None else None)
+    failures: dict[tuple[str, int], str] = {}
+    built = samples = 0
+    fatal = None
+    try:
+        for task, marker, reason in events:
+            if marker is not None:
+                built += 1
+                samples += task.size
+                if on_shard is not None:
+                    on_shard(marker)
+            else:
+                failures[(task.split, task.shard)] = reason or "unknown error"
             if bar is not None:
                 with progress_lock:
-                    bar.n = done_before + samples
-                bar.close()
-        seconds = time.perf_counter() - t_start
+                    if on_sample is None and marker is not None:   # shard-level progress (Dask)
+                        bar.update(task.size)
+                    elif marker is None:   # a failed shard's samples do not count (retries may overshoot
+                        bar.n = done_before + samples   # briefly; the bar is exact again at the end)
+                        bar.refresh()
+    except OSError as exc:
+        fatal = exc if exc.errno in FATAL_ERRNOS else None
+        if fatal is None:
+            raise
+    finally:
+        if bar is not None:
+            with progress_lock:
+                bar.n = done_before + samples
+            bar.close()
+    seconds = time.perf_counter() - t_start
+    try:
         card = finish_card(root, card, config)
         card.setdefault("runs", []).append({
             "finished": datetime.now(timezone.utc).isoformat(timespec="seconds"), "engine": engine,
             "workers": workers, "shards_built": built, "shards_failed": len(failures), "samples": samples,
             "wall_s": seconds, "samples_per_s": samples / seconds if seconds > 0 else None,
             "host": socket.gethostname()})
-        group = zarr_module().open_group(str(root), mode="r+")
-        group.update_attributes(card)
+        zarr_module().open_group(str(root), mode="r+").update_attributes(card)   # written atomically by zarr
         if card["status"] == "complete":
             consolidate(root)
+    except OSError as exc:
+        if fatal is None and exc.errno not in FATAL_ERRNOS:
+            raise
+        fatal = fatal or exc
+    if fatal is not None:
+        what = fatal.strerror if isinstance(fatal, StoreWriteError) else \
+            f"{os.strerror(fatal.errno)} while writing the dataset {root}"
+        raise StoreWriteError(fatal.errno, f"{what}; the {built} shard(s) finished in this run are kept: free "
+                              "space, then run again with --resume") from None
     if failures:
         lines = [f"  {split}/{shard:06d}: {reason.splitlines()[0]}"
                  for (split, shard), reason in sorted(failures.items())]

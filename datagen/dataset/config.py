@@ -31,10 +31,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from ..scene import SceneError, format_validation_error
+from ..scene import SceneError, format_validation_error, read_yaml
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
 """Stream ids: the last entry of the spawn_key of each random stream of a sample (fixed forever)."""
@@ -46,6 +45,11 @@ key, so it never coincides with a build stream (3-entry keys)."""
 COMPONENT_ROOM = "room"
 OTHER_COMPONENTS = ("secondary", "first_bounce")
 """Envelope components that are not the room or a hidden object; each has a fixed slot in ``components``."""
+
+
+def component_slots(max_objects: int) -> list[str]:
+    """Names of the ``components`` slots: room, object_0 … object_{max_objects-1}, then :data:`OTHER_COMPONENTS`."""
+    return [COMPONENT_ROOM] + [f"object_{k}" for k in range(max_objects)] + list(OTHER_COMPONENTS)
 
 PRESET_TIME_FIELDS = ("bin_width", "t_start")
 """Fields of a detector preset file that the dataset's ``simulation.time`` axis replaces."""
@@ -77,7 +81,7 @@ def resample_rng(seed: int, split: str, epoch: int, index: int) -> np.random.Gen
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class SplitSpec(_Model):
@@ -135,6 +139,8 @@ class DatasetConfig(_Model):
     def _splits(cls, value: dict[str, SplitSpec]) -> dict[str, SplitSpec]:
         if not value:
             raise ValueError("give at least one split, e.g. {train: {count: 100}}")
+        if all(spec.count == 0 for spec in value.values()):
+            raise ValueError(f"every split has count 0 ({', '.join(value)}): nothing to build")
         for name in value:
             if not name or "/" in name or name.startswith(("_", ".")):
                 raise ValueError(f"split name {name!r} must be non-empty, without '/', not starting with _ or .")
@@ -206,9 +212,9 @@ def _find_file(value: str, base: Path | None, field_name: str) -> Path:
 
 def _read_yaml(path: Path, field_name: str) -> dict:
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise SceneError(f"{field_name}: {path} is not valid YAML: {exc}".replace("\n", " ")) from None
+        data = read_yaml(path, "YAML file")   # bounded in size and alias expansion
+    except SceneError as exc:
+        raise SceneError(f"{field_name}: {exc}") from None
     if not isinstance(data, dict):
         raise SceneError(f"{field_name}: {path} must hold a mapping, got {type(data).__name__}")
     return data
@@ -278,7 +284,7 @@ def _field_errors(exc: ValidationError, prefix: str, head: str) -> str:
 def _validate_parts(config: DatasetConfig, prefix: str) -> None:
     from ..simulation import SimulationConfig
     try:
-        config.label_spec()
+        spec = config.label_spec()
     except ValidationError as exc:
         raise SceneError(_field_errors(exc, prefix, "labels")) from None
     overrides = config.simulation_overrides()
@@ -298,9 +304,14 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
         raise SceneError(f"{prefix}room: {' '.join(str(exc).split())}") from None
     for name in config.splits:
         try:
-            config.room_distribution(name)
+            dist = config.room_distribution(name)
         except (SceneError, ValueError) as exc:
             raise SceneError(f"{prefix}splits.{name}.room_overrides: {' '.join(str(exc).split())}") from None
+        most = dist.objects.box.count.max + dist.objects.pillar.count.max
+        if config.splits[name].count and most > spec.max_objects:
+            raise SceneError(f"{prefix}labels.max_objects: {spec.max_objects} is fewer than the {most} hidden objects "
+                             f"split {name!r} may hold (objects.box.count.max + objects.pillar.count.max): raise it "
+                             f"to at least {most}")
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -402,7 +413,7 @@ def _component_slots(result, room, max_objects: int, dtype: str, where: str) -> 
     if unknown:
         raise SceneError(f"{where}: components {unknown} have no slot in the dataset (known: room, the hidden "
                          f"objects, {list(OTHER_COMPONENTS)})")
-    slots = [COMPONENT_ROOM] + [f"object_{k}" for k in range(max_objects)] + list(OTHER_COMPONENTS)
+    slots = component_slots(max_objects)
     env = result.envelope
     out = np.zeros((len(slots),) + env.shape, dtype=dtype)
     out[0] = result.components[COMPONENT_ROOM]

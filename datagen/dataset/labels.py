@@ -37,7 +37,7 @@ class LabelSpec(BaseModel):
             ``params["label_region"]`` (the distribution's :meth:`~datagen.dataset.rooms.RoomDistribution.label_box`).
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     max_objects: int = Field(8, ge=0)
     depth_map: tuple[int, int] = (64, 64)

@@ -31,6 +31,7 @@ import torch
 
 from .store import read_card
 from .config import resample_rng
+from .integrity import REMEDY, DatasetCorruptError, check_split, corrupt_chunk, read_shard_index, sample_index
 
 _EMPTY = 2**64 - 1
 """Offset and length of an inner chunk absent from a shard index (zarr sharding spec: fill value)."""
@@ -72,11 +73,16 @@ class _FieldReader:
         if entry is not None:
             self._open.move_to_end(shard)
             return entry
-        fd = os.open(f"{self.prefix}{shard}{self.suffix}", os.O_RDONLY)
-        nbytes = self.shard_size * 16 + 4   # (offset, nbytes) uint64 per inner chunk + crc32c
-        size = os.fstat(fd).st_size
-        index = np.frombuffer(os.pread(fd, nbytes, size - nbytes), dtype="<u8", count=2 * self.shard_size)
-        entry = (fd, index.reshape(self.shard_size, 2))
+        path = f"{self.prefix}{shard}{self.suffix}"
+        try:
+            fd = os.open(path, os.O_RDONLY)
+        except FileNotFoundError:
+            raise DatasetCorruptError(f"{path}: shard file missing; {REMEDY}") from None
+        try:
+            entry = (fd, read_shard_index(fd, path, self.shard_size))   # length, crc32c and bounds checked
+        except BaseException:
+            os.close(fd)
+            raise
         self._open[shard] = entry
         if len(self._open) > OPEN_SHARDS:
             os.close(self._open.popitem(last=False)[1][0])
@@ -85,10 +91,13 @@ class _FieldReader:
     def read(self, i: int) -> np.ndarray:
         """Sample ``i`` as an array of shape ``sample_shape`` (0-d object array holding a str for strings)."""
         if self.decode is None:
-            if self._zarr is None:
-                import zarr
-                self._zarr = zarr.open_array(str(self.root / self.split / self.name), mode="r")
-            return np.asarray(self._zarr[i])
+            try:
+                if self._zarr is None:
+                    import zarr
+                    self._zarr = zarr.open_array(str(self.root / self.split / self.name), mode="r")
+                return np.asarray(self._zarr[i])
+            except (OSError, ValueError, RuntimeError, MemoryError) as exc:
+                raise corrupt_chunk(str(self.root / self.split / self.name), i, exc) from None
         shard, k = divmod(i, self.shard_size)
         fd, index = self._shard(shard)
         offset, nbytes = int(index[k, 0]), int(index[k, 1])
@@ -96,7 +105,10 @@ class _FieldReader:
             if self.is_str:
                 return np.asarray(self.fill or "", dtype=object)
             return np.full(self.sample_shape, self.fill, dtype=self.dtype)
-        return self.decode(os.pread(fd, nbytes, offset))
+        try:
+            return self.decode(os.pread(fd, nbytes, offset))
+        except (OSError, ValueError, RuntimeError, MemoryError) as exc:   # damaged chunk bytes
+            raise corrupt_chunk(f"{self.prefix}{shard}{self.suffix}", i, exc) from None
 
     def close(self) -> None:
         for fd, _ in self._open.values():
@@ -170,7 +182,9 @@ class NLOSDataset(torch.utils.data.Dataset):
         occupancy (V, V, V) uint8, object_* (K, …), object_count (), …; see ``docs/datasets.md``.
     Raises:
         FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field or noise mode,
-        an incomplete build, or ``noise="resample"`` without a stored envelope.
+        an incomplete build, or ``noise="resample"`` without a stored envelope; DatasetCorruptError (a
+        ValueError): metadata that disagrees with the card (here), a damaged or missing shard (on reading);
+        TypeError: an index that is not an integer (``ds[1.5]``).
     """
 
     def __init__(self, path: str | os.PathLike, split: str = "train", fields: Iterable[str] | None = None,
@@ -204,6 +218,7 @@ class NLOSDataset(torch.utils.data.Dataset):
         to_read = set(self.fields)
         if redraw and "counts" in to_read:
             to_read = (to_read - {"counts"}) | {"envelope"}
+        check_split(self.path, card, split, sorted(to_read) + ["time_edges"])   # metadata as the card implies
         self._readers = {name: _FieldReader(self.path, split, name) for name in sorted(to_read)}
         self.time_edges = _read_small(self.path / split / "time_edges")
         self._detector_config = None
@@ -226,6 +241,7 @@ class NLOSDataset(torch.utils.data.Dataset):
 
     def read(self, index: int) -> dict[str, np.ndarray]:
         """Sample ``index`` as numpy arrays (no transform), counts re-drawn if ``noise="resample"``."""
+        index = sample_index(index)
         if not -self.count <= index < self.count:
             raise IndexError(f"index {index} out of range for split {self.split!r} of {self.count} samples")
         index = index % self.count
@@ -235,7 +251,7 @@ class NLOSDataset(torch.utils.data.Dataset):
         return {name: out[name] for name in self.fields}
 
     def __getitem__(self, index: int) -> dict[str, Any]:
-        arrays = self.read(int(index))
+        arrays = self.read(sample_index(index))
         item = {name: (str(a[()]) if a.dtype == object else torch.from_numpy(a)) for name, a in arrays.items()}
         return self.transform(item) if self.transform is not None else item
 

@@ -44,7 +44,7 @@ Random sequential placement of rectangles jams near 55 % coverage; above ~50 % r
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Range(_Model):

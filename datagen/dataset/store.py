@@ -18,8 +18,8 @@ Layout of a dataset at ``PATH`` (a Zarr v3 group):
 
 Shards are computed and written by :mod:`datagen.dataset.build` (one write per array, then the done marker);
 this module plans them (:func:`plan_shards`), creates the arrays (:func:`create_arrays`), names shard files and
-markers, fills the card from the markers (:func:`finish_card`) and checks every shard's bytes against it
-(:func:`verify_dataset`).
+markers and fills the card from the markers (:func:`finish_card`). What the files must be, and the checks of
+``datagen verify``, the repairs of ``--resume`` and the loader's checks, are :mod:`datagen.dataset.integrity`'s.
 """
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import DatasetConfig, Sample, config_from_json, split_key
+from .config import DatasetConfig, Sample, split_key
 
 FORMAT = "datagen-dataset"
 FORMAT_VERSION = 1
@@ -126,6 +126,29 @@ def read_marker(root: str | Path, split: str, shard: int) -> dict | None:
         return None
 
 
+def check_dataset_dir(root: Path, resume: bool) -> None:
+    """Refuse, before any work, a dataset directory that cannot be written or would be clobbered: ``root`` is
+    a file or lies under one, its nearest existing parent is not writable, it holds a dataset and ``resume``
+    is False, or it holds other files.
+
+    Raises:
+        FileExistsError / PermissionError: naming the path and what to do instead.
+    """
+    from ..scene import check_output_dir
+    check_output_dir(root, "--out")
+    if not root.exists():
+        return
+    if (root / "zarr.json").exists():
+        if not resume:
+            raise FileExistsError(f"{root} already holds a dataset; pass --resume to continue it, or choose "
+                                  "another --out")
+        return
+    others = [p.name for p in root.iterdir() if p.name not in (LOCK_NAME, DONE_DIR)]
+    if others:
+        raise FileExistsError(f"{root} exists and is not empty ({', '.join(sorted(others)[:5])}); "
+                              "choose another --out")
+
+
 # ---------------------------------------------------------------------------------------------------------
 # Lock
 
@@ -210,35 +233,52 @@ def consolidate(root: Path) -> None:
         zarr_module().consolidate_metadata(str(root))
 
 
-def create_arrays(root: Path, config: DatasetConfig, probe: Sample) -> dict:
-    """Create every split group and array from the shapes of ``probe``; return the card's ``splits`` entry."""
+def probe_fields(probe: Sample) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Per-sample shape and dtype of every field of ``probe`` as the card records them: dtype ``"str"`` for
+    ``params``, else the numpy dtype string (``"<f4"``)."""
+    return {name: (tuple(value.shape), "str" if name == "params" else value.dtype.str)
+            for name, value in probe.arrays.items()}
+
+
+def create_arrays(root, config: DatasetConfig, fields: dict[str, tuple[tuple[int, ...], str]],
+                  time_edges: np.ndarray, component_names: list[str]) -> dict:
+    """Create every split group and array: ``fields`` (name → (sample shape, dtype), :func:`probe_fields`),
+    ``time_edges`` (T+1,) s, ``component_names`` (attribute of ``components``). ``root`` is the dataset
+    directory or an open zarr group (the expected metadata of :mod:`datagen.dataset.integrity` is built in
+    memory with the same calls). Returns the card's ``splits`` entry."""
     zarr = zarr_module()
     from zarr.codecs import BloscCodec, ZstdCodec
 
     level = config.store.compression_level
     numeric = {"lz4": [BloscCodec(cname="lz4", clevel=min(level, 9), shuffle="shuffle")],
                "zstd": [ZstdCodec(level=level)], "none": None}[config.store.compression]
-    group = zarr.open_group(str(root), mode="a", zarr_format=3)
-    splits = {}
+    group = zarr.open_group(str(root), mode="a", zarr_format=3) if isinstance(root, (str, Path)) else root
     for split, spec in config.splits.items():
         g = group.create_group(split, overwrite=True, attributes={"count": spec.count, "split_key": split_key(split),
                                                   "shard_size": config.shard_size,
                                                   "room_overrides": spec.room_overrides})
-        g.create_array("time_edges", data=probe.time_edges, attributes={"units": "s"})
-        fields = {}
-        for name, value in probe.arrays.items():
-            is_str = name == "params"
+        g.create_array("time_edges", data=np.asarray(time_edges, dtype=np.float64), attributes={"units": "s"})
+        for name, (shape, dtype) in fields.items():
+            is_str = dtype == "str"
+            shape = tuple(shape)
             attrs = {"units": UNITS[name]} if name in UNITS else {}
             if name == "components":
-                attrs["component_names"] = probe.component_names
-            g.create_array(name, shape=(spec.count,) + value.shape, chunks=(1,) + value.shape,
-                           shards=(config.shard_size,) + value.shape, dtype=str if is_str else value.dtype,
+                attrs["component_names"] = list(component_names)
+            g.create_array(name, shape=(spec.count,) + shape, chunks=(1,) + shape,
+                           shards=(config.shard_size,) + shape, dtype=str if is_str else np.dtype(dtype),
                            fill_value="" if is_str else 0, compressors=[ZstdCodec(level=3)] if is_str else numeric,
                            config={"write_empty_chunks": True}, attributes=attrs)
-            fields[name] = {"shape": list(value.shape), "dtype": "str" if is_str else value.dtype.str}
-        splits[split] = {"count": spec.count, "split_key": split_key(split),
-                         "n_shards": -(-spec.count // config.shard_size), "fields": fields}
-    return splits
+    return split_entries(config, fields)
+
+
+def split_entries(config: DatasetConfig, fields: dict[str, tuple[tuple[int, ...], str]]) -> dict:
+    """The card's ``splits`` entry: per split its count, split key, shard count and the per-sample ``fields``
+    (shape, dtype ``"str"`` or a numpy dtype string)."""
+    out = {name: {"shape": list(shape), "dtype": "str" if dtype == "str" else np.dtype(dtype).str}
+           for name, (shape, dtype) in fields.items()}
+    return {split: {"count": spec.count, "split_key": split_key(split),
+                    "n_shards": -(-spec.count // config.shard_size), "fields": {k: dict(v) for k, v in out.items()}}
+            for split, spec in config.splits.items()}
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -271,12 +311,16 @@ def read_card(path: str | Path) -> dict:
     """The dataset card (root attributes) of the dataset at ``path``.
 
     Raises:
-        FileNotFoundError: no datagen dataset there.
+        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json`` (names it).
     """
     meta = Path(path) / "zarr.json"
     if not meta.is_file():
         raise FileNotFoundError(f"no datagen dataset at {path} (no zarr.json)")
-    attrs = json.loads(meta.read_text()).get("attributes", {})
+    try:
+        attrs = json.loads(meta.read_bytes()).get("attributes", {})
+    except (ValueError, AttributeError) as exc:
+        raise ValueError(f"{meta}: the dataset card is not a JSON object ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:120]}): damaged; rebuild the dataset") from None
     if attrs.get("format") != FORMAT:
         raise FileNotFoundError(f"{path} is a Zarr store but not a datagen dataset (no dataset card)")
     return attrs
@@ -304,42 +348,3 @@ def finish_card(root: Path, card: dict, config: DatasetConfig) -> dict:
     card["status"] = "complete" if done == len(tasks) else "incomplete"
     card["shards_done"], card["shards_total"] = done, len(tasks)
     return card
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Verify
-
-
-def verify_dataset(path: str | Path) -> list[str]:
-    """Check that every shard of every split is present and its bytes hash to the card's sha256.
-
-    Returns:
-        one line per problem (empty: the dataset is intact), each naming the split, shard and array.
-    Raises:
-        FileNotFoundError: no datagen dataset at ``path``.
-    """
-    root = Path(path)
-    card = read_card(root)
-    problems = []
-    if card.get("status") != "complete":
-        problems.append(f"build not complete ({card.get('shards_done', 0)} of {card.get('shards_total', '?')} "
-                        "shards): run `datagen build CONFIG --out PATH --resume`")
-    config = config_from_json(card["config"])
-    for task in plan_shards(config):
-        entry = card.get("shards", {}).get(task.split, {}).get(f"{task.shard:06d}")
-        where = f"{task.label} (samples {task.start}-{task.stop - 1})"
-        if entry is None:
-            problems.append(f"{where}: not in the dataset card")
-            continue
-        if not marker_path(root, task.split, task.shard).is_file():
-            problems.append(f"{where}: done marker missing ({marker_path(root, task.split, task.shard)})")
-        for name, spec in card["splits"][task.split]["fields"].items():
-            file = shard_file(root, task.split, name, task.shard, 1 + len(spec["shape"]))
-            expected = entry["sha256"].get(name)
-            if not file.is_file():
-                problems.append(f"{where}: {name}: shard file missing ({file})")
-            elif expected is None:
-                problems.append(f"{where}: {name}: no hash in the dataset card")
-            elif file_sha256(file) != expected:
-                problems.append(f"{where}: {name}: sha256 mismatch (corrupted: {file})")
-    return problems

@@ -57,6 +57,7 @@ def write_result(result: Result, path: str | Path, overwrite: bool = True) -> Pa
 
     Raises:
         FileExistsError: ``path`` exists and ``overwrite`` is False.
+        OSError: the write failed (e.g. a full disk; the message names ``path``); nothing is left behind.
     """
     path = Path(path)
     if path.exists() and not overwrite:
@@ -64,19 +65,25 @@ def write_result(result: Result, path: str | Path, overwrite: bool = True) -> Pa
     tmp = path.with_name(path.name + ".partial")
     if tmp.exists():
         shutil.rmtree(tmp)
-    root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
-    root.create_array("time_edges", data=np.asarray(result.time_edges, dtype=np.float64))
-    root.create_array("envelope", data=np.asarray(result.envelope, dtype=np.float64))
-    root.create_array("counts", data=np.asarray(result.counts, dtype=np.int64))
-    comps = root.create_group("components")
-    for name, arr in result.components.items():
-        comps.create_array(name, data=np.asarray(arr, dtype=np.float64))
-    for name in CAPTURE_ARRAYS:                      # capture geometry (tal export needs it)
-        value = getattr(result, name, None)
-        if value is not None:
-            root.create_array(name, data=np.asarray(value, dtype=np.float64))
-    root.attrs.update(_jsonable(result.attrs))
-    _consolidate(tmp)
+    try:
+        root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        root.create_array("time_edges", data=np.asarray(result.time_edges, dtype=np.float64))
+        root.create_array("envelope", data=np.asarray(result.envelope, dtype=np.float64))
+        root.create_array("counts", data=np.asarray(result.counts, dtype=np.int64))
+        comps = root.create_group("components")
+        for name, arr in result.components.items():
+            comps.create_array(name, data=np.asarray(arr, dtype=np.float64))
+        for name in CAPTURE_ARRAYS:                      # capture geometry (tal export needs it)
+            value = getattr(result, name, None)
+            if value is not None:
+                root.create_array(name, data=np.asarray(value, dtype=np.float64))
+        root.attrs.update(_jsonable(result.attrs))
+        _consolidate(tmp)
+    except BaseException as exc:   # e.g. a full disk: leave no half-written store behind
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError) and exc.filename is None:
+            raise OSError(exc.errno, f"{exc.strerror or exc} while writing {path}") from None
+        raise
     if path.exists():
         shutil.rmtree(path)
     tmp.rename(path)

@@ -13,11 +13,12 @@ right-handed, z up, metres (docs/physics.md §1).
 Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.scene.parts`: :class:`SceneError`, :class:`SceneObject`, :class:`Laser`,
-  :class:`FieldOfView`, :class:`Sensor`, :class:`WallGrid`, :class:`CaptureSpec`, ``ROOM_LABELS``;
+  :class:`FieldOfView`, :class:`Sensor`, :class:`WallGrid`, :class:`CaptureSpec`, ``ROOM_LABELS``, and the
+  input bounds (``MAX_EXTENT``, ``RESERVED_NAMES``, :func:`check_object_name`, ...);
 - :mod:`~datagen.scene.model`: the :class:`Scene` dataclass (checks and coincident faces on construction);
 - :mod:`~datagen.scene.coincident`: coplanar overlapping faces rejected or de-duplicated;
 - :mod:`~datagen.scene.builders`: meshes and objects built in Python;
-- :mod:`~datagen.scene.load`: the scene-file schema and :func:`load_scene`, :func:`read_yaml`;
+- :mod:`~datagen.scene.load`: the scene-file schema and :func:`load_scene`, :func:`read_yaml`, :func:`parse_yaml`;
 - :mod:`~datagen.scene.materials`: BRDFs (:class:`Material`, :class:`MaterialTable`);
 - :mod:`~datagen.scene.raycast`: :class:`RayCaster`, :class:`Hits`;
 - :mod:`~datagen.scene.capture`: :class:`Capture`, :func:`resolve_capture`, ``FOV_PLANE_TOL``, ``FOV_EDGE_REL``;
@@ -29,17 +30,20 @@ from .separation import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
 from .capture import FOV_EDGE_REL, FOV_PLANE_TOL, Capture, resolve_capture
 from .coincident import (COPLANAR_TOL_REL, Coincidence, duplicate_faces, find_coincident_faces,
                          resolve_coincident_faces)
-from .load import ObjectSpec, SceneFile, format_validation_error, load_scene, read_yaml, scene_from_dict
+from .load import (MAX_YAML_BYTES, MAX_YAML_VALUES, ObjectSpec, SceneFile, check_output_dir, format_validation_error,
+                   load_scene, parse_yaml, read_yaml, scene_from_dict, short_repr)
 from .materials import BRDF_KINDS, LAMBERTIAN, PHONG, SIN_THETA, Material, MaterialTable, tangent_frame
 from .model import Scene
-from .parts import (ROOM_LABELS, CaptureSpec, FieldOfView, Laser, SceneError, SceneObject, Sensor, Vec3, WallGrid,
-                    check_counts, check_finite)
+from .parts import (MAX_APERTURE_RADIUS, MAX_EXTENT, RESERVED_NAMES, ROOM_LABELS, WAVELENGTH_RANGE, CaptureSpec,
+                    FieldOfView, Laser, SceneError, SceneObject, Sensor, Vec3, WallGrid, check_counts, check_finite,
+                    check_object_name, check_sizes)
 from .raycast import RAY_OFFSET_REL, Hits, RayCaster
 
 __all__ = [
     # parts
     "ROOM_LABELS", "Vec3", "SceneError", "check_finite", "check_counts", "SceneObject", "Laser", "FieldOfView",
-    "Sensor", "WallGrid", "CaptureSpec",
+    "Sensor", "WallGrid", "CaptureSpec", "MAX_EXTENT", "MAX_APERTURE_RADIUS", "WAVELENGTH_RANGE", "RESERVED_NAMES",
+    "check_object_name", "check_sizes",
     # model
     "Scene",
     # coincident faces
@@ -47,7 +51,8 @@ __all__ = [
     # builders
     "quad_mesh", "box_mesh", "l_room", "pillar", "box", "quad", "import_mesh",
     # scene files
-    "SceneFile", "ObjectSpec", "format_validation_error", "scene_from_dict", "load_scene", "read_yaml",
+    "SceneFile", "ObjectSpec", "format_validation_error", "scene_from_dict", "load_scene", "read_yaml", "parse_yaml",
+    "short_repr", "check_output_dir", "MAX_YAML_BYTES", "MAX_YAML_VALUES",
     # materials
     "BRDF_KINDS", "LAMBERTIAN", "SIN_THETA", "PHONG", "Material", "MaterialTable", "tangent_frame",
     # ray casting

@@ -12,7 +12,7 @@ from typing import Literal
 import numpy as np
 
 from .materials import Material
-from .parts import ROOM_LABELS, SceneError, SceneObject, Vec3
+from .parts import ROOM_LABELS, SceneError, SceneObject, Vec3, check_sizes
 
 # ---------------------------------------------------------------------------------------------------------
 # Builders. Each returns (vertices, faces); normals are not needed (the ray caster orients them).
@@ -100,14 +100,24 @@ def l_room(relay_x: float = 6.0, corridor_start: float = -2.0, corridor_width: f
 
 def pillar(name: str, center_xy: tuple[float, float], size_xy: tuple[float, float], height: float,
            rotation_deg: float = 0.0, material: Material | None = None, label: str = "pillar") -> SceneObject:
-    """Floor-to-ceiling cuboid pillar with footprint ``size_xy`` at ``center_xy``, rotated about z."""
+    """Floor-to-ceiling cuboid pillar with footprint ``size_xy`` at ``center_xy``, rotated about z.
+
+    Raises:
+        SceneError: a size or the height not finite and > 0 (:func:`~datagen.scene.parts.check_sizes`).
+    """
+    check_sizes([*size_xy, height], f"pillar {name!r}: size and height")
     v, f = box_mesh((center_xy[0], center_xy[1], height / 2), (size_xy[0], size_xy[1], height), rotation_deg)
     return SceneObject(name, label, material or Material(), v, f)
 
 
 def box(name: str, center: Vec3, size: Vec3, rotation_deg: float = 0.0, material: Material | None = None,
         label: str = "box") -> SceneObject:
-    """Cuboid box of ``size`` (dx, dy, dz) centred at ``center``, rotated about z."""
+    """Cuboid box of ``size`` (dx, dy, dz) centred at ``center``, rotated about z.
+
+    Raises:
+        SceneError: a size not finite and > 0 (:func:`~datagen.scene.parts.check_sizes`).
+    """
+    check_sizes(size, f"box {name!r}: size")
     return SceneObject(name, label, material or Material(), *box_mesh(center, size, rotation_deg))
 
 
@@ -127,7 +137,8 @@ def import_mesh(name: str, path: str | Path, scale: float = 1.0, left_handed: bo
     to keep orientation), then rotated about z and translated.
 
     Raises:
-        SceneError: the file is missing or holds no triangles.
+        SceneError: the file is missing, unreadable (binary garbage, truncated, unknown format: the message
+            names the file and trimesh's reason in one line) or holds no triangles.
     """
     import trimesh
 
@@ -136,12 +147,14 @@ def import_mesh(name: str, path: str | Path, scale: float = 1.0, left_handed: bo
         raise SceneError(f"mesh file not found: {path}")
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for bad files
-        raise SceneError(f"cannot read mesh {path}: {exc}") from exc
-    vertices = np.asarray(loaded.vertices, dtype=np.float64) * scale
-    faces = np.asarray(loaded.faces, dtype=np.int64)
+        vertices = np.asarray(loaded.vertices, dtype=np.float64) * scale
+        faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many types (and ImportErrors) for bad files
+        reason = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
+        raise SceneError(f"cannot read mesh file {path}: {reason}") from None
     if len(faces) == 0:
-        raise SceneError(f"mesh {path} holds no triangles")
+        raise SceneError(f"mesh file {path} holds no triangles (empty, truncated, or not a valid "
+                         f"{path.suffix.lstrip('.').upper() or 'mesh'} file)")
     if left_handed:
         vertices = vertices * np.array([1.0, -1.0, 1.0])
         faces = faces[:, ::-1]

@@ -196,6 +196,20 @@ def _resolve_spot(caster: RayCaster, names: list[str], emitter: np.ndarray, spot
     return hits.normals[0], int(hits.object_id[0]), leg
 
 
+def _opposite_sides(scene: Scene, emitter: np.ndarray, sensor: np.ndarray, spot: np.ndarray, spot_normal: np.ndarray,
+                    where: str, grid_field: str) -> str:
+    """The message for an emitter and a sensor on opposite sides of the relay wall. The one on the other side
+    from the rest of the scene (the centroid of the vertices of every object not labelled relay_wall) is named
+    as misplaced; both positions are given."""
+    rest = [o.vertices for o in scene.objects if o.label != "relay_wall"] or [o.vertices for o in scene.objects]
+    bulk = float(np.dot(np.concatenate(rest).mean(axis=0) - spot, spot_normal))   # > 0: the emitter's side
+    if bulk < 0:
+        return (f"{where}laser.emitter {emitter.tolist()} is behind the relay wall: it lights laser.spot from the "
+                f"far side, away from the hidden scene and from sensor.position {sensor.tolist()}")
+    return (f"{where}sensor.position {sensor.tolist()} is behind the relay wall: it sees the back of the wall at "
+            f"{grid_field}, while laser.emitter {emitter.tolist()} lights the other side")
+
+
 def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     """Find the laser points' surfaces and normals, set up the sensor grid, check the sensor sees it.
 
@@ -235,8 +249,7 @@ def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     names = [o.name for o in scene.objects]
     resolved = [_resolve_spot(caster, names, emitter, p, where, f) for p, f in zip(spots, fields)]
     if float(np.dot(normal, resolved[0][0])) < 0:
-        raise SceneError(f"{where}sensor.position {sensor.tolist()} is behind the relay wall: it sees the back of "
-                         f"the wall at {grid_field} while the laser lights the other side")
+        raise SceneError(_opposite_sides(scene, emitter, sensor, spots[0], resolved[0][0], where, grid_field))
     photons = 1.0 if convention == "point_radiance" else scene.laser.photons
     capture = Capture(kind, convention, spots, np.array([r[0] for r in resolved]),
                       np.array([r[1] for r in resolved], dtype=np.int64), laser_shape, emitter,

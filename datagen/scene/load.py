@@ -3,11 +3,15 @@
 :func:`load_scene` reads a scene YAML (see scene_library/demo_room.yaml), validates it with pydantic
 (:class:`SceneFile`; an error names the file, the field and the value, :func:`format_validation_error`) and
 builds its objects with the builders of :mod:`datagen.scene.builders` (one spec per ``builder``: l_room,
-pillar, box, quad, mesh). :func:`read_yaml` is the shared reader of YAML inputs (scene files, room
-distributions, tal configs).
+pillar, box, quad, mesh). :func:`read_yaml` / :func:`parse_yaml` are the shared, bounded readers of YAML inputs
+(scene files, room distributions, dataset configs, detector presets, tal configs): size and alias expansion are
+capped so a hostile file fails in one short line instead of filling memory; :func:`check_output_dir` refuses an
+output directory that cannot be created before any work.
 """
 from __future__ import annotations
 
+import os
+import reprlib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -17,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from .builders import box, import_mesh, l_room, pillar, quad
 from .materials import Material
 from .model import Scene
-from .parts import CaptureSpec, Laser, SceneError, SceneObject, Sensor, Vec3
+from .parts import MAX_EXTENT, CaptureSpec, Laser, SceneError, SceneObject, Sensor, Vec3
 
 
 class _Spec(BaseModel):
@@ -26,12 +30,12 @@ class _Spec(BaseModel):
 
 class LRoomSpec(_Spec):
     builder: Literal["l_room"]
-    relay_x: float = 6.0
-    corridor_start: float = -2.0
-    corridor_width: float = Field(2.1, gt=0)
-    room_depth: float = Field(3.0, gt=0)
-    room_length: float = Field(4.0, gt=0)
-    height: float = Field(3.0, gt=0)
+    relay_x: float = Field(6.0, ge=-MAX_EXTENT, le=MAX_EXTENT)
+    corridor_start: float = Field(-2.0, ge=-MAX_EXTENT, le=MAX_EXTENT)
+    corridor_width: float = Field(2.1, gt=0, le=MAX_EXTENT)
+    room_depth: float = Field(3.0, gt=0, le=MAX_EXTENT)
+    room_length: float = Field(4.0, gt=0, le=MAX_EXTENT)
+    height: float = Field(3.0, gt=0, le=MAX_EXTENT)
     bend_side: Literal[1, -1] = 1
     closed_corridor_end: bool = False
     materials: dict[Literal["wall", "floor", "ceiling", "relay_wall"], Material] = {}
@@ -121,14 +125,35 @@ class SceneFile(_Spec):
     simulation: dict = {}
 
 
-def format_validation_error(exc: ValidationError, source: str | None = None) -> str:
-    """One line per problem: ``file: field.path: message (got value)``."""
+MAX_SHOWN = 80
+"""Characters of an offending value an error message shows (a 1e6-element list stays one short line)."""
+
+MAX_PROBLEMS = 5
+"""Validation problems listed in one error message (the count of the others follows)."""
+
+
+def short_repr(value: Any, limit: int = MAX_SHOWN) -> str:
+    """``repr(value)`` cut to ``limit`` characters (``…`` marks a cut), on one line."""
+    shorter = reprlib.Repr()
+    shorter.maxlist = shorter.maxtuple = shorter.maxdict = 8
+    shorter.maxstring = shorter.maxother = limit
+    text = " ".join(shorter.repr(value).split())
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+def format_validation_error(exc: ValidationError, source: str | None = None, head: str | None = None) -> str:
+    """One line: ``file: head.field.path: message (got value)`` per problem (at most :data:`MAX_PROBLEMS`,
+    values cut by :func:`short_repr`), joined by "; "."""
     lines = []
-    for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"])
+    errors = exc.errors()
+    for err in errors[:MAX_PROBLEMS]:
+        loc = ".".join(([head] if head else []) + [str(p) for p in err["loc"]])
         value = err.get("input")
-        shown = "" if isinstance(value, dict) else f" (got {value!r})"
-        lines.append(f"{source + ': ' if source else ''}{loc}: {err['msg']}{shown}")
+        shown = "" if isinstance(value, dict) else f" (got {short_repr(value)})"
+        msg = " ".join(str(err["msg"]).split()).removeprefix("Value error, ")[:300]
+        lines.append(f"{source + ': ' if source else ''}{loc + ': ' if loc else ''}{msg}{shown}")
+    if len(errors) > MAX_PROBLEMS:
+        lines.append(f"and {len(errors) - MAX_PROBLEMS} more problem(s)")
     return "; ".join(lines)
 
 
@@ -167,16 +192,80 @@ def load_scene(path: str | Path) -> Scene:
     return scene_from_dict(read_yaml(path, "scene file"), str(path), path.parent)
 
 
+MAX_YAML_BYTES = 8 << 20
+"""Largest YAML input read, bytes (8 MiB): scenes, configs and presets are a few kB; meshes live in their own
+files."""
+
+MAX_YAML_VALUES = 1_000_000
+"""Largest number of values a YAML document may expand to, an alias counting its anchor's values again at
+every use: bounds the memory and time an alias bomb ("billion laughs") can take; real inputs hold hundreds."""
+
+
 def read_yaml(path: Path, what: str) -> Any:
-    """Parsed content of the YAML file ``path`` (a ``what``: "scene file", "tal config", ...).
+    """Parsed content of the YAML file ``path`` (a ``what``: "scene file", "tal config", ...), bounded in size
+    (:data:`MAX_YAML_BYTES`) and in alias expansion (:data:`MAX_YAML_VALUES`).
 
     Raises:
-        SceneError: the file does not exist ("<what> not found: <path>") or is not valid YAML (names the file
-            and the parser's message).
+        SceneError: the file does not exist ("<what> not found: <path>"), is too large, is not UTF-8 text, is
+            not valid YAML or expands beyond the bound (each names the file, in one short line).
     """
+    path = Path(path)
     if not path.is_file():
         raise SceneError(f"{what} not found: {path}")
+    size = path.stat().st_size
+    if size > MAX_YAML_BYTES:
+        raise SceneError(f"{path}: {size} bytes is too large for a {what} (at most {MAX_YAML_BYTES} bytes)")
     try:
-        return yaml.safe_load(path.read_text())
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not a UTF-8 text file (byte {exc.start}): is it really a {what}?") from None
+    return parse_yaml(text, str(path))
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """Parse YAML ``text`` with the safe loader, then refuse documents that expand to more than
+    :data:`MAX_YAML_VALUES` values (aliases counted at every use, recursive aliases included).
+
+    Raises:
+        SceneError: invalid YAML or too large an expansion; one short line naming ``source``.
+    """
+    if len(text) > MAX_YAML_BYTES:
+        raise SceneError(f"{source}: {len(text)} characters is too large (at most {MAX_YAML_BYTES})")
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise SceneError(f"{path}: not valid YAML: {exc}".replace("\n", " ")) from None
+        raise SceneError(f"{source}: not valid YAML: {' '.join(str(exc).split())[:300]}") from None
+    except RecursionError:
+        raise SceneError(f"{source}: YAML nested too deeply") from None
+    count, stack = 0, [data]
+    while stack:
+        value = stack.pop()
+        count += 1
+        if count > MAX_YAML_VALUES:
+            raise SceneError(f"{source}: the YAML expands to more than {MAX_YAML_VALUES} values (its aliases "
+                             "repeat their anchors' content): not a datagen input")
+        if isinstance(value, dict):
+            stack.extend(value.keys())
+            stack.extend(value.values())
+        elif isinstance(value, (list, tuple)):
+            stack.extend(value)
+    return data
+
+
+def check_output_dir(path: str | Path, option: str = "--out") -> None:
+    """Refuse, before any work, an output directory that is a file, lies under a file, or whose nearest
+    existing parent is not writable (shared by ``simulate --out`` and dataset builds).
+
+    Raises:
+        FileExistsError / PermissionError: naming ``option`` and the path.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(f"{option} {path} is a file, not a directory: choose another {option}")
+    parent = path
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise FileExistsError(f"{option} {path}: cannot create it, {parent} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise PermissionError(f"{option} {path}: {parent} is not writable")

@@ -42,7 +42,7 @@ class Material(BaseModel):
             exponent ≤ 0, or a zero-length anisotropy axis (the message names the field and value).
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     kind: Literal["lambertian", "sin_theta", "phong"] = "lambertian"
     albedo: float = Field(1.0, ge=0.0, le=1.0, description="hemispherical reflectance scale ρ (Γ), 0..1")

@@ -32,10 +32,10 @@ class Scene:
         name: scene name; ``source``: file it came from (or None).
         defaults: the YAML's ``simulation`` block (time axis, IRF, detector…), merged under CLI options.
         notes: what construction changed (duplicate faces removed, see
-            :func:`datagen.scene.coincident.resolve_coincident_faces`).
+            :func:`datagen.scene.coincident.resolve_coincident_faces`) and objects of zero area.
 
     Raises:
-        SceneError: repeated object names, no objects, no FoV, or coincident faces with different materials
+        SceneError: repeated object names (ignoring case), no objects, no FoV, or coincident faces with different materials
             (:func:`datagen.scene.coincident.resolve_coincident_faces`).
     """
 
@@ -49,10 +49,10 @@ class Scene:
     notes: list[str] = field(default_factory=list, init=False)
 
     def __post_init__(self):
-        names = [o.name for o in self.objects]
-        dup = {n for n in names if names.count(n) > 1}
+        names = [o.name.lower() for o in self.objects]   # case-insensitive: component files on macOS/Windows
+        dup = {o.name for o in self.objects if names.count(o.name.lower()) > 1}
         if dup:
-            raise SceneError(f"{self._where()}object names must be unique; repeated: {sorted(dup)}")
+            raise SceneError(f"{self._where()}object names must be unique (ignoring case); repeated: {sorted(dup)}")
         if not self.objects:
             raise SceneError(f"{self._where()}a scene needs at least one object")
         cap = self.capture
@@ -62,6 +62,11 @@ class Scene:
             raise SceneError(f"{self._where()}sensor.fov is required unless capture gives a sensor_grid "
                              f"(or is confocal)")
         self.objects, self.notes = resolve_coincident_faces(self.objects, self.laser, self.sensor, self._where())
+        for o in self.objects:
+            tri = o.vertices[o.faces]
+            if not np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).any():
+                self.notes.append(f"object {o.name!r} has zero area (every triangle degenerate): it reflects no "
+                                  "light and its component is zero")
 
     def _where(self) -> str:
         return f"{self.source}: " if self.source else ""

@@ -11,6 +11,7 @@ relay wall; a :class:`Sensor` is the sensor position, its collection aperture an
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -25,16 +26,61 @@ ROOM_LABELS = ("wall", "floor", "ceiling", "relay_wall")
 
 Vec3 = tuple[float, float, float]
 
+MAX_EXTENT = 1.0e7
+"""Largest |coordinate| and size a scene accepts, metres (10 000 km, beyond the Earth's radius). It keeps every
+product of lengths (areas, squared distances, path lengths) far from float64 overflow: a 1e308 m box would
+otherwise reach the ray caster as inf and surface as a misleading 'laser spot off every surface'."""
+
+MAX_APERTURE_RADIUS = 10.0
+"""Largest collection aperture radius, metres (the largest telescopes are ~5 m in radius)."""
+
+WAVELENGTH_RANGE = (1e-9, 1e-3)
+"""Accepted laser wavelengths, metres: 1 nm (soft X-ray) to 1 mm (far infrared)."""
+
+RESERVED_NAMES = ("room", "secondary", "first_bounce", "total")
+"""Object names that would collide with envelope components ('room' sums the walls, floor, ceiling and relay
+wall; 'secondary' and 'first_bounce' are the transport's extra components) or with the 'total' row of the
+simulate summary: an object of that name would merge into, or hide, another component."""
+
+_NAME = re.compile(r"^\w[\w.+-]{0,63}$")
+
 
 class SceneError(ValueError):
     """A scene is invalid; the message names the file (when there is one), the field and the value."""
 
 
 def check_finite(v: Vec3) -> Vec3:
-    """Pydantic validator body: every coordinate finite (names no field; pydantic adds it)."""
+    """Pydantic validator body: every coordinate finite and within ±:data:`MAX_EXTENT` metres (names no field;
+    pydantic adds it)."""
     if not np.all(np.isfinite(v)):
         raise ValueError(f"must be finite, got {list(v)}")
+    if np.max(np.abs(v)) > MAX_EXTENT:
+        raise ValueError(f"must lie within ±{MAX_EXTENT:g} m, got {list(v)}")
     return v
+
+
+def check_object_name(name: str) -> str:
+    """An object name usable as an envelope component and as a file name in result stores: 1–64 letters,
+    digits, ``_ . + -`` starting with a letter, digit or ``_`` (not ``__``), not ``zarr.json`` and not one of
+    :data:`RESERVED_NAMES` (in any case).
+
+    Raises:
+        SceneError: the message names the value and the rule it breaks.
+    """
+    if not isinstance(name, str) or not _NAME.match(name) or name.startswith("__"):
+        raise SceneError(f"object name {name!r} is not allowed: use 1-64 letters, digits, '_', '.', '+' or '-', "
+                         "starting with a letter or digit (no path separators, spaces or '..')")
+    if name.lower() in RESERVED_NAMES or name.lower() == "zarr.json":
+        raise SceneError(f"object name {name!r} is reserved ('room', 'secondary' and 'first_bounce' name envelope "
+                         "components, 'total' the summary's total, 'zarr.json' a store's metadata): rename the object")
+    return name
+
+
+def check_sizes(sizes, what: str) -> None:
+    """Every size finite, > 0 and ≤ :data:`MAX_EXTENT` metres (SceneError naming ``what`` and the values)."""
+    v = np.asarray(sizes, dtype=np.float64)
+    if not (np.all(np.isfinite(v)) and np.all(v > 0) and np.all(v <= MAX_EXTENT)):
+        raise SceneError(f"{what} must be > 0 and <= {MAX_EXTENT:g} m, got {v.tolist()}")
 
 
 def check_counts(v: tuple[int, int], what: str) -> tuple[int, int]:
@@ -49,11 +95,15 @@ class SceneObject:
     """One labelled mesh.
 
     Attributes:
-        name: unique name, used for the object's envelope component.
+        name: unique name, used for the object's envelope component (rules: :func:`check_object_name`).
         label: semantic class (wall, floor, ceiling, relay_wall, pillar, box, mesh, …).
         material: its BRDF and albedo.
         vertices: (V, 3) float64 metres.
         faces: (F, 3) int64 vertex indices.
+
+    Raises:
+        SceneError: a reserved or unsafe name, a vertex not finite or beyond ±:data:`MAX_EXTENT` m, a face
+            index out of range, no faces.
     """
 
     name: str
@@ -63,11 +113,16 @@ class SceneObject:
     faces: np.ndarray
 
     def __post_init__(self):
+        check_object_name(self.name)
         vertices = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)
         faces = np.asarray(self.faces, dtype=np.int64).reshape(-1, 3)
         bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
         if bad.size:
             raise SceneError(f"object {self.name!r}: vertex {bad[0]} is not finite: {vertices[bad[0]].tolist()}")
+        far = np.flatnonzero(np.abs(vertices).max(axis=1, initial=0.0) > MAX_EXTENT)
+        if far.size:
+            raise SceneError(f"object {self.name!r}: vertex {far[0]} at {vertices[far[0]].tolist()} m lies beyond "
+                             f"±{MAX_EXTENT:g} m (the scene's extent limit): check its sizes, scale and position")
         if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
             raise SceneError(f"object {self.name!r}: face index out of range 0..{len(vertices) - 1}")
         if len(faces) == 0:
@@ -83,13 +138,13 @@ class Laser(BaseModel):
     and ``wavelength`` (m, or "532nm") as E·λ/(h·c).
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     emitter: Vec3 = (0.0, 0.0, 1.0)
     spot: Vec3
     photons_per_pulse: float | None = Field(None, gt=0, allow_inf_nan=False)
     pulse_energy: float | None = Field(None, gt=0, allow_inf_nan=False)
-    wavelength: float = Field(532e-9, gt=0)
+    wavelength: float = Field(532e-9, ge=WAVELENGTH_RANGE[0], le=WAVELENGTH_RANGE[1], allow_inf_nan=False)
 
     @field_validator("pulse_energy", mode="before")
     @classmethod
@@ -130,7 +185,7 @@ class FieldOfView(BaseModel):
     pixel.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     center: Vec3
     size: tuple[float, float]
@@ -144,8 +199,8 @@ class FieldOfView(BaseModel):
     @field_validator("size")
     @classmethod
     def _positive(cls, v: tuple[float, float]) -> tuple[float, float]:
-        if not (np.all(np.isfinite(v)) and min(v) > 0):
-            raise ValueError(f"both sizes must be positive, got {list(v)}")
+        if not (np.all(np.isfinite(v)) and min(v) > 0 and max(v) <= MAX_EXTENT):
+            raise ValueError(f"both sizes must be positive and <= {MAX_EXTENT:g} m, got {list(v)}")
         return v
 
     @field_validator("pixels")
@@ -161,10 +216,10 @@ class Sensor(BaseModel):
     omitted when the scene has a ``capture`` block with a sensor or laser grid.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     position: Vec3 = (0.0, 0.0, 1.0)
-    aperture_radius: float = Field(0.02, gt=0)
+    aperture_radius: float = Field(0.02, gt=0, le=MAX_APERTURE_RADIUS, allow_inf_nan=False)
     fov: FieldOfView | None = None
 
     @field_validator("aperture_radius", mode="before")
@@ -189,7 +244,7 @@ class WallGrid(BaseModel):
     tangent (n × z normalised) and v = u × n, as for :class:`FieldOfView`.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     center: Vec3
     size: tuple[float, float]
@@ -198,8 +253,8 @@ class WallGrid(BaseModel):
     @field_validator("size")
     @classmethod
     def _nonnegative(cls, v: tuple[float, float]) -> tuple[float, float]:
-        if not (np.all(np.isfinite(v)) and min(v) >= 0):
-            raise ValueError(f"both sizes must be >= 0, got {list(v)}")
+        if not (np.all(np.isfinite(v)) and min(v) >= 0 and max(v) <= MAX_EXTENT):
+            raise ValueError(f"both sizes must be >= 0 and <= {MAX_EXTENT:g} m, got {list(v)}")
         return v
 
     @field_validator("points")
@@ -221,7 +276,7 @@ class CaptureSpec(BaseModel):
     unit power delivered to the laser spot, per bin, in 1/(m²·sr); no PDE, aperture or sensor visibility.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     type: Literal["single", "confocal", "exhaustive"] = "single"
     convention: Literal["aperture", "point_radiance"] = "aperture"

@@ -6,9 +6,13 @@
 - :mod:`.run`: :func:`simulate` → :class:`Result` (``time_edges`` (T+1,) s, ``envelope`` (…, T) detected
   photons per pulse per bin, ``components``, ``counts`` (…, T) int64, ``attrs``); :func:`run_transport` (plan,
   estimate, bin) → :class:`Transported`; :func:`make_result` (detector draw and metadata).
+- :mod:`.budget`: the memory a simulation needs, estimated before allocating (:func:`simulation_memory`), and
+  the refusal (:class:`ResourceError`) when it exceeds the memory available.
 """
+from .budget import ResourceError, available_memory, check_memory, check_simulation_memory, simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, parse_grid, resolve_config, stream_rng
 from .run import Result, Transported, library_versions, make_result, run_transport, simulate
 
 __all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "SimulationConfig", "parse_grid", "resolve_config", "stream_rng",
-           "Result", "Transported", "library_versions", "make_result", "run_transport", "simulate"]
+           "Result", "Transported", "library_versions", "make_result", "run_transport", "simulate",
+           "ResourceError", "available_memory", "check_memory", "check_simulation_memory", "simulation_memory"]

@@ -79,7 +79,7 @@ class SimulationConfig(BaseModel):
         batch: lookins per batch (memory bound).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     lookins: tuple[int, int] = (10, 10)
     pixels: tuple[int, int] = (60, 60)
@@ -154,10 +154,13 @@ def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationCon
         SceneError: an invalid value, naming the scene file, the field and the value.
     """
     data = {**scene.defaults, **{k: v for k, v in (overrides or {}).items() if v is not None}}
+    where = f"{scene.source} (simulation)" if scene.source else "simulation"
     try:
         config = SimulationConfig.model_validate(data)
+    except ValidationError as exc:
+        raise SceneError(format_validation_error(exc, where)) from None
+    try:
         config.detector_config()
     except ValidationError as exc:
-        where = f"{scene.source} (simulation)" if scene.source else "simulation"
-        raise SceneError(format_validation_error(exc, where)) from None
+        raise SceneError(format_validation_error(exc, where, head="detector")) from None
     return config

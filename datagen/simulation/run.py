@@ -17,9 +17,10 @@ import numpy as np
 
 from .. import spad
 from ..planner import Plan, plan_effects
-from ..scene import RayCaster, Scene
+from ..scene import RayCaster, Scene, SceneError
 from ..timing import EnvelopeAccumulator
 from ..transport import Estimator, Transport, estimator
+from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 
 
@@ -100,8 +101,12 @@ def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generat
     the effect planner's decisions are applied to them; then the estimator registered under
     ``config.estimator`` is built from them (:func:`datagen.transport.estimator`) and run into an
     :class:`~datagen.timing.EnvelopeAccumulator`.
+
+    Raises:
+        ResourceError: the estimated memory exceeds what is available (:mod:`datagen.simulation.budget`).
     """
     t0 = time.perf_counter()
+    check_simulation_memory(scene, config)     # refuse what cannot fit before allocating anything
     caster = RayCaster(scene)
     lookin = Transport(scene, config.transport_settings(), caster)
     plan = plan_effects(scene, config, lookin.capture, caster)
@@ -171,7 +176,11 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
                         "reaches the sensor grid within the time window; counts hold background only)")
     t3 = time.perf_counter()
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
-    counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
+    try:
+        counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
+    except ValueError as exc:   # e.g. an exposure too long to event-simulate: name the file and the field
+        raise SceneError(f"{scene.source + ' (simulation): ' if scene.source else ''}detector: "
+                         f"{' '.join(str(exc).split())}") from None
     t_detect = time.perf_counter() - t3
     st = transport.stats
     settings = transport.settings

@@ -50,7 +50,8 @@ Modules (each imports only the ones above it; import the functions from ``datage
 """
 from __future__ import annotations
 
-from .config import FWHM_PER_SIGMA, DeadTimeKind, DetectorConfig, ModelName
+from .arrays import MAX_SIMULATED_EVENTS
+from .config import FWHM_PER_SIGMA, MAX_CYCLES, DeadTimeKind, DetectorConfig, ModelName
 from .counters import counter_rate, counter_variance, sample_counter
 from .correction import coates
 from .effects import (
@@ -103,5 +104,5 @@ __all__ = [
     "MAX_KERNEL_TAPS", "DIRECT_CONVOLUTION_TAPS", "SAMPLER_PIXEL_CHUNK", "SEQUENTIAL_MAX_BINS",
     "SEQUENTIAL_MIN_PIXELS", "POISSON_NORMAL_ABOVE", "MAX_EXPECTED_COUNTS", "EXP_BLOCK_LIMIT", "MARKOV_MAX_STATES",
     "MARKOV_CELL_HAZARD", "MARKOV_TOL", "MARKOV_MAX_ITER", "MARKOV_CHUNK_ELEMENTS", "EVENT_FLUSH", "TICKS_PER_PERIOD",
-    "EVENT_SEGMENT_ARRIVALS",
+    "EVENT_SEGMENT_ARRIVALS", "MAX_SIMULATED_EVENTS", "MAX_CYCLES",
 ]

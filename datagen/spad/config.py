@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..timing import FWHM_PER_SIGMA
@@ -19,6 +18,7 @@ __all__ = [
     "ModelName",
     "DeadTimeKind",
     "DetectorConfig",
+    "MAX_CYCLES",
 ]
 
 
@@ -34,6 +34,11 @@ _KIND_OF_MODEL: dict[str, str] = {
     "multi_stop": "synchronous",
     "free_running": "free_running",
 }
+
+
+MAX_CYCLES = 1 << 62
+"""Most laser cycles one exposure may hold (4.6e18): counts are int64 (9.2e18) and no bin can count more
+detections than there are cycles in the synchronous models."""
 
 
 def _parse_rate(value: Any) -> float:
@@ -103,14 +108,14 @@ class DetectorConfig(BaseModel):
             the message names the field and the value.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     pde: float = Field(1.0, ge=0.0, le=1.0)
     dcr: float = Field(0.0, ge=0.0)
     ambient_rate: float = Field(0.0, ge=0.0)
     repetition_rate: float = Field(gt=0.0)
     exposure: float | None = Field(None, gt=0.0)
-    n_cycles: int | None = Field(None, ge=1)
+    n_cycles: int | None = Field(None, ge=1, le=MAX_CYCLES)
     bin_width: float = Field(gt=0.0)
     bin_widths: tuple[float, ...] | None = None
     t_start: float = Field(0.0, ge=0.0)
@@ -181,6 +186,10 @@ class DetectorConfig(BaseModel):
         if (self.exposure is None) == (self.n_cycles is None):
             raise ValueError(f"give exactly one of exposure or n_cycles (got exposure={self.exposure!r}, "
                              f"n_cycles={self.n_cycles!r})")
+        if self.exposure is not None and self.exposure * self.repetition_rate > MAX_CYCLES:
+            raise ValueError(f"exposure={self.exposure!r} s at repetition_rate={self.repetition_rate!r} Hz is "
+                             f"{self.exposure * self.repetition_rate:.3g} laser cycles, more than {MAX_CYCLES:.3g} "
+                             "(int64 counts): shorten the exposure")
         if self.exposure is not None and round(self.exposure * self.repetition_rate) < 1:
             raise ValueError(f"exposure={self.exposure!r} s at repetition_rate={self.repetition_rate!r} Hz is "
                              "less than one laser cycle")
@@ -266,11 +275,13 @@ class DetectorConfig(BaseModel):
             ValueError: the file cannot be read or parsed, or a field is unknown or invalid; the message
                 names the file, the field and the offending value.
         """
+        from ..scene import read_yaml   # bounded in size and alias expansion; SceneError is a ValueError
+
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise ValueError(f"{path}: cannot read detector config: {exc}") from exc
+            data = read_yaml(path, "detector config")
+        except OSError as exc:
+            raise ValueError(f"{path}: cannot read detector config: {exc}") from None
         if isinstance(data, dict) and set(data) == {"detector"}:
             data = data["detector"]
         if not isinstance(data, dict):
@@ -278,8 +289,9 @@ class DetectorConfig(BaseModel):
         try:
             return cls(**data)
         except ValidationError as exc:
+            from ..scene import short_repr
             problems = []
             for err in exc.errors():
                 field = ".".join(str(p) for p in err["loc"]) or "(config)"
-                problems.append(f"field {field!r}: {err['msg']} (value: {err.get('input')!r})")
+                problems.append(f"field {field!r}: {err['msg']} (value: {short_repr(err.get('input'))})")
             raise ValueError(f"{path}: invalid detector config: " + "; ".join(problems)) from None

@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from .arrays import check_event_count
+
 __all__ = [
     "counter_rate",
     "counter_variance",
@@ -75,17 +77,21 @@ def sample_counter(true_rate: float, dead_time: float, window: float, rng: np.ra
     Returns:
         int64 (size,) counts.
     Raises:
-        ValueError: negative/NaN rate or negative dead time.
+        ValueError: negative/NaN rate or negative dead time; a window or rate that is not finite; more expected
+            arrivals than MAX_SIMULATED_EVENTS (:func:`datagen.spad.arrays.check_event_count`).
     """
     _as_counter_rate(true_rate, dead_time)
     n_rate = float(true_rate)
     out = np.zeros(size, dtype=np.int64)
     if n_rate == 0:
         return out
+    if not (math.isfinite(window) and window >= 0 and math.isfinite(n_rate)):
+        raise ValueError(f"window must be finite and >= 0 and true_rate finite, got {window!r} s, {n_rate!r} Hz")
     # Inter-arrival gaps of the Poisson input are iid Exp(n).  Non-paralyzable: a renewal process with
     # intervals τ + gap (the first without τ).  Paralyzable: an arrival is counted iff its gap ≥ τ.
     shift = 0.0 if paralyzable else dead_time
     mean_gap = shift + 1.0 / n_rate
+    check_event_count(size * window / mean_gap, "sample_counter")
     per = int(window / mean_gap * 1.1 + 10 * math.sqrt(window / mean_gap) + 20)
     rows = max(1, int(4e6 // per))
     for start in range(0, size, rows):

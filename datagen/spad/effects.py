@@ -17,7 +17,7 @@ import numpy as np
 from scipy import special
 
 from ..timing import ex_gaussian_cdf
-from .arrays import as_rates, row_search
+from .arrays import as_rates, check_event_count, row_search
 from .config import DetectorConfig
 
 __all__ = [
@@ -292,7 +292,8 @@ def sample_pile_up_crosstalk(rates: np.ndarray, config: DetectorConfig, rng: np.
     Returns:
         int64 (..., H, W, bins) counts over ``config.cycles`` cycles, before the after-pile-up jitter.
     Raises:
-        ValueError: ``rates`` has fewer than 3 dimensions.
+        ValueError: ``rates`` has fewer than 3 dimensions; more cycles with an avalanche than
+            MAX_SIMULATED_EVENTS (:func:`datagen.spad.arrays.check_event_count`).
     """
     if rates.ndim < 3:
         raise ValueError(f"crosstalk_probability > 0 models a pixel array and needs rates of shape (..., H, W, bins), "
@@ -300,6 +301,7 @@ def sample_pile_up_crosstalk(rates: np.ndarray, config: DetectorConfig, rng: np.
     h, w, bins = rates.shape[-3:]
     n_pix = h * w
     n = config.cycles
+    check_event_count(float(-np.expm1(-rates.sum(axis=-1)).sum()) * n, "pile_up crosstalk event simulation")
     widths = config.widths(bins)
     edges = np.concatenate([[0.0], np.cumsum(widths)])
     neighbours, n_nb = _neighbour_table(h, w)

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .arrays import as_rates, row_search
+from .arrays import as_rates, check_event_count, row_search
 from .config import DetectorConfig
 from .rates import gate_fraction
 
@@ -352,12 +352,17 @@ def event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Gene
     Returns:
         int64 (pixels, bins) recorded detections per bin over ``config.cycles`` laser periods.
     Raises:
-        ValueError: the histogram window exceeds the laser period.
+        ValueError: the histogram window exceeds the laser period; more expected avalanches than
+            MAX_SIMULATED_EVENTS in all, or than MAX_SIMULATED_EVENTS / 100 in one pixel (one Python step each;
+            :func:`datagen.spad.arrays.check_event_count`).
     """
     edges, q, cell_bin = _period_cells(r2, config)
     n_pix, n_cells = q.shape
     bins = r2.shape[1]
     T, tau, n = config.period, config.dead_time, config.cycles
+    per_pixel = q.sum(axis=1) * n
+    check_event_count(float(per_pixel.sum()), "free_running event simulation (afterpulsing)",
+                      float(per_pixel.max(initial=0.0)))
     widths = np.diff(edges)
     cum = np.zeros((n_pix, n_cells + 1))
     np.cumsum(q, axis=1, out=cum[:, 1:])
@@ -506,12 +511,14 @@ def event_simulation_batched(r2: np.ndarray, config: DetectorConfig, rng: np.ran
     Returns:
         int64 (pixels, bins) recorded detections per bin over ``config.cycles`` laser periods.
     Raises:
-        ValueError: the histogram window exceeds the laser period.
+        ValueError: the histogram window exceeds the laser period; more expected avalanches than
+            MAX_SIMULATED_EVENTS (:func:`datagen.spad.arrays.check_event_count`).
     """
     edges, q, cell_bin = _period_cells(r2, config)
     n_pix, n_cells = q.shape
     bins = r2.shape[1]
     n, T = config.cycles, config.period
+    check_event_count(float(q.sum()) * n, "free_running event simulation")
     dead = int(round(config.dead_time / T * TICKS_PER_PERIOD))
     total_rate = float(q.sum())
     hist = np.zeros(n_pix * bins, dtype=np.int64)

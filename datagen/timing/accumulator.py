@@ -216,23 +216,11 @@ class EnvelopeAccumulator:
     def __init__(self, axis: TimeAxis, irf: Irf, n_components: int, oversample: int | None = None) -> None:
         if isinstance(n_components, bool) or int(n_components) != n_components or n_components < 1:
             raise ValueError(f"n_components must be an integer >= 1, got n_components={n_components!r}")
-        before, after = irf.support
-        # Narrow IRF: exact per-bin deposit instead of an oversample >= 34 fine grid (module doc, point 3).
-        self.direct = oversample is None and not irf.is_delta and max(before, after) <= axis.bin_width
-        if oversample is None:
-            oversample = 1 if self.direct else self.default_oversample(axis, irf)
-        if isinstance(oversample, bool) or int(oversample) != oversample or oversample < 1:
-            raise ValueError(f"oversample must be an integer >= 1, got oversample={oversample!r}")
+        self.direct, self.oversample, self.n_left, self.n_right = self.fine_grid(axis, irf, oversample)
         self.axis = axis
         self.irf = irf
         self.n_components = int(n_components)
-        self.oversample = int(oversample)
         self.fine_step = axis.bin_width / self.oversample
-        if self.direct:
-            self.n_left = self.n_right = _DIRECT_GUARD_BINS
-        else:
-            self.n_left = int(math.ceil(after / self.fine_step))
-            self.n_right = int(math.ceil(before / self.fine_step))
         self.n_cells = axis.n_bins * self.oversample
         self.n_fine = self.n_cells + self.n_left + self.n_right
         if self.n_fine > MAX_FINE_NODES:
@@ -253,6 +241,24 @@ class EnvelopeAccumulator:
         self._total = np.zeros(self.n_components, dtype=np.float64)
         self._beyond = np.zeros(self.n_components, dtype=np.float64)
         self._binned: np.ndarray | None = None
+
+    @classmethod
+    def fine_grid(cls, axis: TimeAxis, irf: Irf, oversample: int | None = None) -> tuple[bool, int, int, int]:
+        """(direct mode?, oversample, n_left, n_right) for ``axis`` and ``irf``: the fine grid holds
+        ``axis.n_bins * oversample + n_left + n_right`` nodes per component (resource estimates call this before
+        allocating). Raises ValueError: ``oversample`` not an integer >= 1."""
+        before, after = irf.support
+        # Narrow IRF: exact per-bin deposit instead of an oversample >= 34 fine grid (module doc, point 3).
+        direct = oversample is None and not irf.is_delta and max(before, after) <= axis.bin_width
+        if oversample is None:
+            oversample = 1 if direct else cls.default_oversample(axis, irf)
+        if isinstance(oversample, bool) or int(oversample) != oversample or oversample < 1:
+            raise ValueError(f"oversample must be an integer >= 1, got oversample={oversample!r}")
+        oversample = int(oversample)
+        if direct:
+            return True, oversample, _DIRECT_GUARD_BINS, _DIRECT_GUARD_BINS
+        fine_step = axis.bin_width / oversample
+        return False, oversample, int(math.ceil(after / fine_step)), int(math.ceil(before / fine_step))
 
     @staticmethod
     def default_oversample(axis: TimeAxis, irf: Irf) -> int:

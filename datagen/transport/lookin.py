@@ -34,6 +34,7 @@ import numpy as np
 from ..sampling import Lookins, ObservedPoints, observe, sample_lookins
 from ..scene import FOV_PLANE_TOL, RayCaster, Scene, resolve_capture
 from ..scene import MaterialTable
+from ..processes import set_parent_death_signal
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Counters, Sink, register, sink_far_time
@@ -113,6 +114,7 @@ _WORKER: dict = {}
 
 
 def _worker_init(transport: "Transport") -> None:
+    set_parent_death_signal()     # a fork worker dies with the process that forked it (no orphans after kill -9)
     transport.caster = transport.physics.caster = RayCaster(transport.scene)      # a fresh BVH per process
     _WORKER["transport"] = transport
 

@@ -1,0 +1,191 @@
+"""Resource estimate before allocating: refuse a simulation whose largest arrays cannot fit in memory.
+
+:func:`simulation_memory` adds up, from the scene and the config alone (nothing is allocated), the arrays that
+grow with the inputs — the accumulator's fine grid and the result arrays (components × channels × time
+bins), the lookin grid, the camera rays of one slice (pixels per lookin) and the full secondary's pairs
+(pixels²), the capture's laser and sensor grids, the area sampler's hidden samples and the quadrature's
+sub-triangles (edge) — each with the field that sets it. :func:`check_simulation_memory` compares the total with the memory available to this process
+(:func:`available_memory`) and raises :class:`ResourceError` naming the dominant field, its value and both
+figures in GiB. ``simulate`` and ``simulate_to_tolerance`` call it before building anything
+(:func:`datagen.simulation.run.run_transport`); dataset builds add their shard buffers
+(:mod:`datagen.dataset.build`).
+
+The byte counts per element are upper estimates of the arrays the estimators hold at once (read off their
+code, and measured for the secondary's pairs): a setting refused here would have failed with a MemoryError (or
+the kernel's out-of-memory killer) after minutes of work, while the repository's scenes and configs estimate
+at most a few hundred MiB (the demo room at its default 10×10×60×60, full secondary: 131 MiB).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..scene import Scene, SceneError
+from ..timing import EnvelopeAccumulator
+from ..transport import CACHE_RAYS
+from .config import SimulationConfig
+
+GIB = float(1 << 30)
+
+LOOKIN_BYTES = 400
+"""Bytes per lookin ray: direction, hit point, normal, pdf, distance, object id and the ray caster's buffers
+(about 20 float64 values with temporaries)."""
+
+CAMERA_RAY_BYTES = 1000
+"""Bytes per camera ray of one slice (observed point, normal, direction, distance, ids, FoV connection, laser
+light, secondary partners; about 100 float64 values with temporaries)."""
+
+SECONDARY_PAIR_BYTES = 8
+"""Bytes per (pixels per lookin)² of the full and optimized secondaries, which form every (lit point, FoV point)
+pair of a lookin at once: 2× the 3.9 bytes measured on the demo room (peak RSS above the same run without the
+secondary: +66 MB at 60×60 pixels, +790 MB at 120×120, 3×3 lookins)."""
+
+AREA_SAMPLE_BYTES = 500
+"""Bytes per hidden sample of the area sampler (point, normal, ids, both connections, weights)."""
+
+QUADRATURE_CELL_BYTES = 250
+"""Bytes per quadrature sub-triangle (lattice vertices, cell indices, area, centroid, normal, ids, times)."""
+
+TARGET_BYTES = 100
+"""Bytes per quadrature target (FoV cell or sensor point) and per capture grid point."""
+
+ACCUMULATOR_COPIES = 2
+"""Fine-grid copies an accumulator holds at once (histogram, and the convolution's output)."""
+
+RESULT_COPIES = 2
+"""Copies of the (components + envelope + counts + rates) × channels × bins result arrays alive at once."""
+
+
+class ResourceError(SceneError):
+    """A simulation or build needs more memory than the machine has; the message names the field, its value,
+    the estimate and the available memory in GiB."""
+
+
+def available_memory() -> int | None:
+    """Bytes this process may still allocate: ``MemAvailable`` of /proc/meminfo, lowered by a cgroup v2
+    memory limit when one is set; psutil's estimate elsewhere; None when unknown (no check)."""
+    found = None
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                found = int(line.split()[1]) * 1024
+                break
+    except (OSError, ValueError, IndexError):
+        pass
+    if found is None:
+        try:
+            import psutil
+            found = int(psutil.virtual_memory().available)
+        except Exception:  # noqa: BLE001 - psutil missing or unsupported: no estimate
+            return None
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
+            found = min(found, max(0, int(limit) - used))
+    except (OSError, ValueError):
+        pass
+    return found
+
+
+def _capture_counts(scene: Scene) -> tuple[int, int, int, tuple[str, str]]:
+    """(laser points L, sensor points S, output channels, (field, value) of the largest grid)."""
+    cap, fov = scene.capture, scene.sensor.fov
+    if cap is not None and cap.type == "confocal":
+        n = math.prod(cap.laser_grid.points)
+        return n, n, n, ("capture.laser_grid.points", "x".join(map(str, cap.laser_grid.points)))
+    if cap is not None and cap.sensor_grid is not None:
+        sensor, s_field = math.prod(cap.sensor_grid.points), ("capture.sensor_grid.points",
+                                                              "x".join(map(str, cap.sensor_grid.points)))
+    else:
+        pixels = fov.pixels if fov is not None else (1, 1)
+        sensor, s_field = math.prod(pixels), ("sensor.fov.pixels", "x".join(map(str, pixels)))
+    if cap is not None and cap.type == "exhaustive":
+        lasers = math.prod(cap.laser_grid.points)
+        field = s_field if sensor >= lasers else ("capture.laser_grid.points", "x".join(map(str, cap.laser_grid.points)))
+        return lasers, sensor, lasers * sensor, field
+    return 1, sensor, sensor, s_field
+
+
+def _hidden_triangles(scene: Scene) -> np.ndarray:
+    """(F, 3, 3) triangles the quadrature may subdivide: every face not on the relay wall."""
+    tris = [o.vertices[o.faces] for o in scene.objects if o.label != "relay_wall"]
+    return np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+
+
+def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str, str, float]]:
+    """The arrays a simulation of ``scene`` under ``config`` holds at its peak, estimated without allocating.
+
+    Returns:
+        (field, value, bytes) per term, largest first: field is the config or scene field that sets the term
+        (``time.n_bins``, ``lookins``, ``pixels``, ``sensor.fov.pixels``, ``quadrature_edge``, …).
+    """
+    lasers, sensors, channels, grid_field = _capture_counts(scene)
+    n_components = len(scene.component_names()) + 2             # + secondary, first_bounce
+    _, over, left, right = EnvelopeAccumulator.fine_grid(config.time, config.irf)
+    n_fine = config.time.n_bins * over + left + right
+    n_bins = config.time.n_bins
+    grid = grid_field if channels > n_bins else ("time.n_bins", f"{n_bins} bins × {channels} channel(s)")
+    terms = [(grid[0], f"{grid[1]} ({over} fine nodes per bin, {n_components} components)",
+              8.0 * ACCUMULATOR_COPIES * n_components * channels * n_fine),
+             (grid[0], f"{grid[1]} (results)", 8.0 * RESULT_COPIES * (n_components + 3) * channels * n_bins),
+             (grid_field[0], grid_field[1], float(TARGET_BYTES) * (lasers + sensors))]
+    workers = max(1, config.workers)
+    if config.estimator == "lookin":
+        n_lookins = math.prod(config.lookins)
+        n_pixels = math.prod(config.pixels)
+        terms.append(("lookins", "x".join(map(str, config.lookins)), float(LOOKIN_BYTES) * n_lookins * lasers))
+        slice_rays = max(n_pixels, CACHE_RAYS)
+        terms.append(("pixels", "x".join(map(str, config.pixels)), float(CAMERA_RAY_BYTES) * slice_rays * workers))
+        if config.secondary in ("full", "optimized"):
+            terms.append(("pixels", f"{'x'.join(map(str, config.pixels))} (secondary {config.secondary}: pairs)",
+                          float(SECONDARY_PAIR_BYTES) * n_pixels ** 2 * workers))
+    if config.estimator == "area" or (config.estimator == "quadrature" and config.secondary != "none"):
+        terms.append(("area_samples", str(config.area_samples), float(AREA_SAMPLE_BYTES) * config.area_samples))
+    if config.estimator == "quadrature":
+        tri = _hidden_triangles(scene)   # k = ceil(longest edge / h) sub-triangles per side (sampling.subdivisions),
+        longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max(axis=1, initial=0.0)  # in float64:
+        cells = float((np.maximum(1.0, np.ceil(longest / config.quadrature_edge)) ** 2).sum())     # no overflow
+        fov = scene.sensor.fov     # FoV cells per pixel side: the quadrature caps them (at 64); not here
+        side = max(fov.size) / min(fov.pixels) if fov is not None else 0.0
+        k = config.quadrature_fov or max(1, math.ceil(side / config.quadrature_edge))
+        terms.append(("quadrature_edge", f"{config.quadrature_edge:g} m ({cells:.3g} sub-triangles)",
+                      float(QUADRATURE_CELL_BYTES) * cells))
+        terms.append(("quadrature_edge", f"{config.quadrature_edge:g} m ({k}x{k} FoV cells per pixel)",
+                      float(TARGET_BYTES) * sensors * k * k))
+    return sorted(terms, key=lambda t: -t[2])
+
+
+RAISE_TO_SHRINK = ("quadrature_edge",)
+"""Fields whose memory falls as they grow (the hint says "raise", not "lower")."""
+
+
+def check_memory(needed: float, field: str, value: str, where: str = "") -> None:
+    """Refuse ``needed`` bytes beyond :func:`available_memory` (no check when it is unknown).
+
+    Raises:
+        ResourceError: "``where``field value needs about X GiB … Y GiB available: lower field".
+    """
+    available = available_memory()
+    if available is not None and needed > available:
+        hint = "raise" if field in RAISE_TO_SHRINK else "lower"
+        raise ResourceError(f"{where}{field} {value} needs about {needed / GIB:.3g} GiB of memory, more than the "
+                            f"{available / GIB:.3g} GiB available: {hint} {field}")
+
+
+def check_simulation_memory(scene: Scene, config: SimulationConfig) -> float:
+    """Estimate the simulation's memory (:func:`simulation_memory`) and refuse it when it exceeds the memory
+    available; returns the estimate in bytes.
+
+    Raises:
+        ResourceError: naming the scene file, the dominant field, its value and both figures in GiB.
+    """
+    terms = simulation_memory(scene, config)
+    total = sum(t[2] for t in terms)
+    field, value, _ = terms[0]
+    where = f"{scene.source} (simulation): " if scene.source else "simulation: "
+    check_memory(total, field, value, where)
+    return total
+
