@@ -2,16 +2,17 @@
 with a watchdog; and open open3d's interactive window.
 
 Every picture is rendered by a fresh child process (:class:`RenderWorker`) running
-:mod:`datagen.plot.view_worker` as a script. Why: with open3d 0.20 on llvmpipe's Vulkan driver, Filament (its
-renderer) stalls some frames for 10 s to minutes with both cores spinning, and the stalls come from renderers
-created after the first one of a process or reused. Measured on the 2-core machine with the demo room at
-2100×1720 (supersampled), while other jobs loaded it (load average 5-7): 10 of 10 first frames of fresh
-processes took 4.4-7.1 s; in one process, re-created renderers took 3.3, 13.3, 4.7, 0.7, 1.4 s and then the
-sixth never finished (killed after 380 s); one reused renderer took 5.4-6.8 s every frame (8 frames).
-(Earlier, on a quieter machine: re-created renderers stalled in 3 of 6 tries, reused ones in 9 of 9, first
-frames of fresh processes in 2 of about 40.) A child that has not answered after :data:`RENDER_TIMEOUT_S` is
-killed and the picture retried in a new one. The child also keeps Filament's abort, when no Vulkan instance
-can be created, out of the caller (reported as :class:`~datagen.plot.view_worker.ViewUnavailable`).
+:mod:`datagen.plot.view_worker` as a script, with a watchdog. Why: open3d 0.20's renderer (Filament on
+llvmpipe's Vulkan driver) sometimes stalls a frame for tens of seconds to minutes with the cores spinning.
+Measured on the 2-core machine with the demo room at 2100×1720 (1050×860 supersampled) while other jobs
+loaded it (load average 6-9): in one process, a second ``OffscreenRenderer`` after a first one hung in 3 of 3
+tries (killed after 118-198 s), and frames of one reused renderer took 38-50 s; with a fresh child per
+picture, 20 pictures took 21 attempts: one stalled (killed after 30 s, the retry rendered), the others
+rendered in 1.4-2.5 s (median 1.8 s) after a 1.3-1.9 s child start. A child that has not answered within
+:data:`RENDER_TIMEOUT_S` (doubled at each retry) is killed and the picture retried in a new one. The child
+also keeps Filament's abort, when no Vulkan instance can be created, out of the caller (reported as
+:class:`~datagen.plot.view_worker.ViewUnavailable`). Every mesh must stay referenced until the frame is
+rendered: meshes freed after ``add_geometry`` made every frame stall (:func:`~datagen.plot.view_worker.render_job`).
 
 Lines and points are drawn as camera-facing triangles (:func:`ribbons`, :func:`discs`): open3d's Vulkan
 renderer draws every line 1 pixel wide whatever its ``line_width``. Rendering uses the unlit shader and no
@@ -37,9 +38,10 @@ from .view_camera import ViewCamera, safe_unit
 from .view_geometry import Drawables, build_drawables
 from .view_worker import ViewUnavailable, require_open3d
 
-RENDER_TIMEOUT_S = 30.0
-"""A picture not rendered after this long is abandoned and retried in a fresh child (a 1400×860 picture takes
-0.5-1 s on an idle machine, 4-7 s on a loaded one; Filament's stalls last 10 s to minutes)."""
+RENDER_TIMEOUT_S = 15.0
+"""A picture not rendered after this long is abandoned and retried in a fresh child, with twice the time at
+each retry (15, 30, 60, 120 s: a slow machine still gets there). A 1050×860 picture rendered in 1.4-2.5 s on
+the loaded 2-core machine; Filament's stalls last tens of seconds to minutes (module doc)."""
 
 RENDER_ATTEMPTS = 4
 """Renders tried (each in a fresh child after a stall) before giving up."""
@@ -60,6 +62,8 @@ class RenderWorker:
     def __init__(self):
         self.proc = None
         self.jobs = self.answers = self.log = None
+        self.attempts: list[tuple[float, float, str]] = []
+        """The last :meth:`render`'s attempts: (start s, render s, "ok" | "error" | "timeout") each."""
 
     def _start(self) -> None:
         parent_read, child_write = os.pipe()
@@ -98,7 +102,7 @@ class RenderWorker:
                                   f"{': ' + tail if tail else ''}){hint}") from None
 
     def render(self, job: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Render ``job`` (:func:`datagen.plot.view_worker.render_job`) in a fresh child.
+        """Render ``job`` (:func:`datagen.plot.view_worker.render_job`) in a fresh child (a new one after a stall).
 
         Returns:
             (H, W, 3) uint8 image, (4, 4) view and projection matrices.
@@ -106,17 +110,22 @@ class RenderWorker:
             ViewUnavailable: the child cannot render (open3d or Vulkan missing, or it died).
             RuntimeError: open3d raised, or every attempt stalled.
         """
-        for _ in range(RENDER_ATTEMPTS):
+        self.attempts = []
+        for attempt in range(RENDER_ATTEMPTS):
+            t0 = time.perf_counter()
             self._start()
+            t1 = time.perf_counter()
             self.jobs.send(job)
-            status, payload = self._receive(RENDER_TIMEOUT_S, "rendering")
+            status, payload = self._receive(RENDER_TIMEOUT_S * 2 ** attempt, "rendering")
             self.stop()                                   # done, failed or stalled: this child is finished
+            self.attempts.append((t1 - t0, time.perf_counter() - t1, status))
             if status == "ok":
                 return payload
             if status == "error":
                 raise RuntimeError(f"open3d's renderer failed: {payload}")
-        raise RuntimeError(f"open3d's offscreen renderer stalled {RENDER_ATTEMPTS} times (> {RENDER_TIMEOUT_S:g} s "
-                           "each); is the CPU overloaded?")
+        waited = ", ".join(f"{RENDER_TIMEOUT_S * 2 ** k:g}" for k in range(RENDER_ATTEMPTS))
+        raise RuntimeError(f"open3d's offscreen renderer stalled {RENDER_ATTEMPTS} times (killed after {waited} s); "
+                           "is the CPU overloaded?")
 
     def stop(self) -> None:
         """End the child (asked to stop, killed if it does not within 2 s)."""
