@@ -20,8 +20,8 @@ Agreement: the fraction of rays with the same hit face (first hits) and the same
 
 It only measures (issue 15): datagen would offer open3d as a ray-casting backend only if it were faster here,
 and it is not. Measured on the 2-core machine while other jobs loaded it (load average 5-8; 4 runs of the
-default, --repeat 5-7, interleaved): open3d's cast_rays took 0.93-1.10× embreex's time on the 900 367 first-hit
-rays with 1 thread and 0.95-1.16× with 2; test_occlusions 0.95-1.56× and 0.99-1.34× on the 298 899 shadow rays;
+default, --repeat 7, interleaved): open3d's cast_rays took 0.93-1.07× embreex's time on the 900 367 first-hit
+rays with 1 thread and 0.95-1.16× with 2; test_occlusions 1.00-1.56× and 0.99-1.98× on the 298 899 shadow rays;
 at its best it would change a whole simulate by -0.6 % to +2.3 %. Both give the same hit face and verdict on
 every ray. Two threads do not help batches of ~24 000 rays, and ``--workers 2`` already uses both cores.
 """
