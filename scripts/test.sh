@@ -2,6 +2,7 @@
 # Install datagen with its test extras, check the layer contract and run the test suite (README: "Run the tests").
 set -euo pipefail
 cd "$(dirname "$0")/.."
+bash scripts/debian_packages.sh      # libusb-1.0-0, mesa-vulkan-drivers for `datagen view` (root on Debian)
 python -m pip install --quiet --disable-pip-version-check -e ".[test]"
 lint-imports --no-cache          # layers of docs/architecture.md (pyproject.toml [tool.importlinter]); fails CI
 python -m pytest -q

@@ -13,8 +13,9 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "datagen"
 
-LIBRARY_PRIVATES = {"_replace", "_asdict", "_fields", "_make", "_field_defaults"}
-"""Documented underscore names of the standard library (namedtuple), not private to any datagen module."""
+LIBRARY_PRIVATES = {"_replace", "_asdict", "_fields", "_make", "_field_defaults", "_exit"}
+"""Documented underscore names of the standard library (namedtuple; ``os._exit``), not private to any datagen
+module."""
 
 
 def _modules() -> dict[str, Path]:

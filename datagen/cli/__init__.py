@@ -12,7 +12,8 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.cli.errors`: :func:`~datagen.cli.errors.friendly_errors`, shared by the command modules;
 - :mod:`~datagen.cli.tal`: ``tal-render``, ``export-tal``;
 - :mod:`~datagen.cli.dataset`: ``build``, ``inspect``, ``verify``;
-- :mod:`~datagen.cli.bench`: ``bench accuracy``.
+- :mod:`~datagen.cli.bench`: ``bench accuracy``;
+- :mod:`~datagen.cli.view`: ``view`` (3D pictures with open3d).
 """
 from .main import main
 

@@ -84,6 +84,28 @@ def card_summary(card: dict) -> str:
     return "\n".join(lines)
 
 
+PICTURE_WIDTH_IN = 6.4
+"""Width in inches of a sample's 3D picture in ``datagen inspect``'s figure (its envelope and labels: 13.5)."""
+
+
+def sample_pictures(path: Path, split: str, count: int, note) -> list | None:
+    """3D pictures of samples 0 … count − 1 of ``split`` for ``datagen inspect``: (500, 780, 3) uint8 each,
+    legend included (:func:`datagen.dataset.scene_of_sample`, :func:`datagen.plot.render_scene`).
+
+    Returns None after one ``note`` line when open3d or a Vulkan driver is missing, the renderer fails or a
+    sample's room cannot be drawn again; the caller then draws its figure without them."""
+    from ..dataset import scene_of_sample
+    from ..plot import ViewUnavailable, render_scene, require_open3d
+
+    try:
+        require_open3d()
+        return [render_scene(scene_of_sample(path, split, i)[0].scene, None, width=780, height=500,
+                             title=f"{split}[{i}]") for i in range(count)]
+    except (ViewUnavailable, RuntimeError, SceneError) as exc:
+        note(f"note: no 3D sample pictures: {' '.join(str(exc).split())}")
+        return None
+
+
 @click.command()
 @click.argument("path", type=click.Path(path_type=Path))
 @click.option("--split", default=None, help="split to draw (default: the first)")
@@ -93,7 +115,8 @@ def card_summary(card: dict) -> str:
 @click.option("--config", "show_config", is_flag=True, help="also print the full config of the card (YAML)")
 @_dataset_errors
 def inspect(path, split, n_samples, png, show_config):
-    """Summarise the dataset at PATH (its card) and draw a few samples to a PNG."""
+    """Summarise the dataset at PATH (its card) and draw a few samples to a PNG (with a 3D picture of each
+    sample's room when open3d can render)."""
     import matplotlib
     matplotlib.use("Agg")
     import yaml
@@ -115,9 +138,16 @@ def inspect(path, split, n_samples, png, show_config):
         return
     ds = NLOSDataset(path, split=split)
     n = max(1, min(n_samples, len(ds)))
-    fig = Figure(figsize=(13.5, 3.4 * n), layout="constrained")
+    pictures = sample_pictures(path, split, n, note=click.echo)
+    fig = Figure(figsize=(13.5 + (PICTURE_WIDTH_IN if pictures else 0), (4.2 if pictures else 3.4) * n),
+                 layout="constrained")
     subfigs = fig.subfigures(n, 1, squeeze=False)[:, 0]
     for i, sub in enumerate(subfigs):
+        if pictures:                          # the sample's 3D picture on the left of its envelope and labels
+            pic, sub = sub.subfigures(1, 2, width_ratios=[PICTURE_WIDTH_IN, 13.5])
+            ax = pic.add_subplot()
+            ax.imshow(pictures[i])
+            ax.set_axis_off()
         plot_sample(ds.read(i), ds.time_edges, f"{split}[{i}]", fig=sub)
     png = png or Path(path) / "inspect.png"
     fig.savefig(png, dpi=90)

@@ -2,8 +2,8 @@
 
 Defines the ``main`` group (the ``datagen`` entry point) with ``simulate`` and ``detect``, and registers the
 commands of :mod:`datagen.cli.tal` (``tal-render``, ``export-tal``), :mod:`datagen.cli.dataset` (``build``,
-``inspect``, ``verify``) and :mod:`datagen.cli.bench` (``bench accuracy``); those import at most
-:mod:`datagen.cli.errors`, never this module.
+``inspect``, ``verify``), :mod:`datagen.cli.bench` (``bench accuracy``) and :mod:`datagen.cli.view` (``view``);
+those import at most :mod:`datagen.cli.errors`, never this module.
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from .bench import bench
 from .dataset import build, inspect, verify
 from .errors import friendly_errors
 from .tal import export_tal, tal_render
+from .view import view
 
 
 @click.group()
@@ -72,7 +73,8 @@ def _parse_time_cap(text: str | None) -> float | None:
 @click.option("--workers", type=int, default=None, help="processes sharing the lookins (result unchanged)")
 @click.option("--top-k", type=int, default=None, help="secondary paths kept per lookin and FoV point (optimized)")
 @click.option("--seed", type=int, default=None, help="root seed of every random stream")
-@click.option("--figures", is_flag=True, help="also write the paper's Figure 3 and 5 sampling views")
+@click.option("--figures", is_flag=True,
+              help="also write the paper's Figure 3 and 5 sampling views and a 3D picture of the scene")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @friendly_errors
 def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, tolerance, time_cap, workers, top_k, seed,
@@ -109,8 +111,10 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
     plot_envelope(result, out / "envelope.png")
     written = [out / RESULT_NAME, out / "envelope.png"]
     if figures:
-        from ..plot.figures import write_sampling_figures
+        from ..plot import scene_view_figure, write_sampling_figures
         written += write_sampling_figures(scene, config, out)
+        # the 3D picture with the run's lookins; without open3d, one note line and no picture
+        written += scene_view_figure(scene, out / "scene_view.png", config, note=click.echo)
     click.echo(summary(result))
     for warning in result.attrs.get("warnings", []):   # e.g. duplicate faces removed, zero-area objects
         click.echo(f"warning: {warning}", err=True)
@@ -184,6 +188,7 @@ main.add_command(build)          # dataset commands (issue 4)
 main.add_command(inspect)
 main.add_command(verify)
 main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
+main.add_command(view)           # 3D pictures with open3d (issue 15)
 
 
 if __name__ == "__main__":

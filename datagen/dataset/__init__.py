@@ -11,7 +11,7 @@ docs/physics.md §7).
 Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.dataset.config`: :class:`DatasetConfig`, the seed streams (:data:`STREAMS`,
-  :func:`split_key`, :func:`resample_rng`) and :func:`make_sample`;
+  :func:`split_key`, :func:`resample_rng`), :func:`draw_room` and :func:`make_sample`;
 - :mod:`~datagen.dataset.rooms`: the room distribution schema (:class:`RoomDistribution`,
   :func:`load_room_distribution`, :func:`check_feasible`);
 - :mod:`~datagen.dataset.sampler`: :func:`sample_room` → :class:`SampledRoom` (its generator keys are
@@ -22,13 +22,16 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.integrity`: what the files must be; verification, resume repairs, the loader's checks;
 - :mod:`~datagen.dataset.workers`: worker processes that die with the build (no orphans after a SIGKILL);
 - :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
+- :mod:`~datagen.dataset.sample_scene`: :func:`scene_of_sample`, a built sample's room drawn again from the
+  card (``datagen view``, ``datagen inspect``);
 - :mod:`~datagen.dataset.loader`: :class:`NLOSDataset` and :func:`plot_sample` (import torch and matplotlib
   on first use: ``import datagen.dataset`` stays light).
 """
 from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildReport, build_dataset,
                     write_shard)
 from .config import (COMPONENT_ROOM, OTHER_COMPONENTS, RESAMPLE_NOISE, STREAMS, DatasetConfig, Sample, SplitSpec,
-                     StoreSpec, component_slots, config_from_json, load_dataset_config, make_sample, resample_rng,
+                     StoreSpec, component_slots, config_from_json, draw_room, load_dataset_config, make_sample,
+                     resample_rng,
                      sample_rngs, sample_seed_sequence, split_key)
 from .labels import PAD_INT, LabelSpec, camera_directions, camera_frame, label_shapes, occupancy_grid, scene_labels
 from .obb import (box_hits_pyramid, box_hits_segment, boxes_overlap, convex_overlap, obb_vertices, points_in_box,
@@ -36,6 +39,7 @@ from .obb import (box_hits_pyramid, box_hits_segment, boxes_overlap, convex_over
 from .rooms import (MATERIAL_CLASSES, OBJECT_CLASSES, PACKING_LIMIT, UNIFORMS_PER_MATERIAL, CountRange, LabelRegion,
                     MaterialDist, Range, RoomDistribution, check_feasible, load_room_distribution)
 from .sampler import SampledRoom, sample_room
+from .sample_scene import scene_of_sample
 from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, UNITS, BuildLock, BuildLockedError, ShardTask,
                     code_version, file_sha256, marker_path, plan_shards, read_card, read_marker, shard_file, shard_key)
 from .integrity import (DatasetCorruptError, card_problems, check_split, expected_metadata, metadata_problems,
@@ -45,7 +49,7 @@ __all__ = [
     # config and samples
     "STREAMS", "RESAMPLE_NOISE", "COMPONENT_ROOM", "OTHER_COMPONENTS", "component_slots", "split_key", "sample_seed_sequence",
     "sample_rngs", "resample_rng", "SplitSpec", "StoreSpec", "DatasetConfig", "load_dataset_config",
-    "config_from_json", "Sample", "make_sample",
+    "config_from_json", "Sample", "draw_room", "make_sample", "scene_of_sample",
     # room distributions and sampling
     "OBJECT_CLASSES", "MATERIAL_CLASSES", "UNIFORMS_PER_MATERIAL", "PACKING_LIMIT", "Range", "CountRange",
     "MaterialDist", "LabelRegion", "RoomDistribution", "load_room_distribution", "check_feasible", "SampledRoom",

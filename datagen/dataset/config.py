@@ -339,6 +339,28 @@ class Sample:
     component_names: list[str] = field(default_factory=list)
 
 
+def draw_room(config: DatasetConfig, split: str, index: int):
+    """The room of sample ``index`` of ``split``: :func:`datagen.dataset.sampler.sample_room` on the split's
+    distribution with the sample's geometry, materials and sensor streams (:func:`sample_rngs`), exactly as
+    :func:`make_sample` draws it (``datagen view`` and ``datagen inspect`` re-draw rooms with it).
+
+    Returns:
+        (room, rngs): the :class:`~datagen.dataset.sampler.SampledRoom` and the sample's streams (name →
+        Generator; ``sampling`` and ``noise`` not yet used).
+    Raises:
+        SceneError: the split is unknown, the index is out of range, or the room cannot be sampled.
+    """
+    from .sampler import sample_room
+
+    if split not in config.splits:
+        raise SceneError(f"split {split!r} is not in the config (splits: {sorted(config.splits)})")
+    if not 0 <= index < config.splits[split].count:
+        raise SceneError(f"index {index} is outside split {split!r} (count {config.splits[split].count})")
+    rngs = sample_rngs(config.seed, split, index)
+    room = sample_room(config.room_distribution(split), {k: rngs[k] for k in ("geometry", "materials", "sensor")})
+    return room, rngs
+
+
 def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     """Compute sample ``index`` of ``split``: room → envelope and SPAD counts → labels.
 
@@ -349,17 +371,11 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
             more hidden objects than ``labels.max_objects``; the message names the sample.
     """
     from .labels import scene_labels
-    from .sampler import sample_room
     from ..simulation import resolve_config, simulate
 
-    if split not in config.splits:
-        raise SceneError(f"split {split!r} is not in the config (splits: {sorted(config.splits)})")
-    if not 0 <= index < config.splits[split].count:
-        raise SceneError(f"index {index} is outside split {split!r} (count {config.splits[split].count})")
     where = f"sample ({split}, {index})"
     t0 = time.perf_counter()
-    rngs = sample_rngs(config.seed, split, index)
-    room = sample_room(config.room_distribution(split), {k: rngs[k] for k in ("geometry", "materials", "sensor")})
+    room, rngs = draw_room(config, split, index)
     t1 = time.perf_counter()
     sim_config = resolve_config(room.scene, config.simulation_overrides())
     result = simulate(room.scene, sim_config, sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])

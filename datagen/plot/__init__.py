@@ -4,12 +4,27 @@
   histogram (the paper's Figure 7).
 - :mod:`.energy` and :mod:`.figures`: the lookin estimator's sampling views (the paper's Figures 3 and 5):
   :func:`write_sampling_figures` (``datagen simulate --figures``).
+- 3D pictures of scenes with open3d (``datagen view``): :mod:`.view_camera` (the orthographic
+  :class:`ViewCamera`), :mod:`.view_geometry` (what is drawn: :func:`build_drawables`, class colours,
+  cut-away, :func:`lookin_points`), :mod:`.view_worker` (open3d's import and checks, one render; run as a
+  child process), :mod:`.view_render` (:func:`render_scene_image`: the child process with its watchdog),
+  :mod:`.view_overlay` (legend, scale bar: :func:`render_scene`, :func:`scene_view_figure`). open3d is
+  imported only inside the functions that render; without it they raise :class:`ViewUnavailable` (one line).
 
 matplotlib is imported with the Agg backend; nothing here changes a result.
 """
 from .envelope import plot_envelope
 from .energy import LaserEnergy, LookinEnergy, laser_energy, lookin_energy, pick_lookin
 from .figures import write_sampling_figures
+from .view_camera import ViewCamera, auto_camera
+from .view_geometry import CLASS_COLORS, Drawables, build_drawables, lookin_points
+from .view_overlay import DEFAULT_SIZE, LEGEND_WIDTH, compose, render_scene, scene_view_figure
+from .view_render import SceneImage, render_scene_image
+from .view_worker import ViewUnavailable, require_open3d
 
 __all__ = ["plot_envelope", "LaserEnergy", "LookinEnergy", "laser_energy", "lookin_energy", "pick_lookin",
-           "write_sampling_figures"]
+           "write_sampling_figures",
+           # 3D pictures (open3d)
+           "ViewCamera", "auto_camera", "CLASS_COLORS", "Drawables", "build_drawables", "lookin_points",
+           "DEFAULT_SIZE", "LEGEND_WIDTH", "compose", "render_scene", "scene_view_figure", "SceneImage",
+           "render_scene_image", "ViewUnavailable", "require_open3d"]

@@ -1,0 +1,57 @@
+"""The scene of one sample of a built dataset, drawn again from its card (``datagen view``, ``datagen inspect``).
+
+A dataset stores a sample's parameters, not its meshes. The room of sample (split, i) is a function of the
+config in the dataset card and the sample's seeds only (:func:`datagen.dataset.config.draw_room`), so it is
+drawn again here and, when the dataset stores ``params``, checked against the stored ones.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..scene import SceneError
+from .config import config_from_json, draw_room
+from .sampler import SampledRoom
+from .store import read_card
+
+
+def scene_of_sample(dataset_dir: str | Path, split: str | None = None, index: int = 0
+                    ) -> tuple[SampledRoom, str, dict]:
+    """Draw again the room of sample (``split``, ``index``) of the dataset built at ``dataset_dir``.
+
+    Args:
+        split: split name (default: the first split with samples).
+        index: sample index within the split.
+    Returns:
+        (room, split, card): the :class:`~datagen.dataset.sampler.SampledRoom` (``scene``, ``params``,
+        ``objects``), the split used and the dataset card.
+    Raises:
+        FileNotFoundError: no datagen dataset at ``dataset_dir``.
+        SceneError: unknown split, index out of range, or a room that differs from the stored sample's
+            parameters (a dataset built by another version of the room sampler).
+    """
+    card = read_card(dataset_dir)
+    if split is None:
+        split = next((s for s, info in card.get("splits", {}).items() if info.get("count", 0) > 0), None)
+        if split is None:
+            raise SceneError(f"{dataset_dir}: the dataset has no samples")
+    room, _ = draw_room(config_from_json(card["config"]), split, index)
+    stored = _stored_room_params(Path(dataset_dir), card, split, index)
+    if stored is not None:
+        mine = json.loads(json.dumps(room.params, default=lambda v: v.tolist()))
+        if stored.get("room") != mine.get("room") or stored.get("objects") != mine.get("objects"):
+            raise SceneError(f"{dataset_dir}: sample ({split}, {index}) drawn again from the card differs from "
+                             "its stored parameters (built by another version of datagen's room sampler?)")
+    return room, split, card
+
+
+def _stored_room_params(root: Path, card: dict, split: str, index: int) -> dict | None:
+    """The stored room parameters of one sample (``params["room"]``: ``room``, ``objects``, …), or None when
+    the dataset does not store ``params`` or its build is not complete."""
+    info = card.get("splits", {}).get(split, {})
+    if "params" not in info.get("fields", {}) or card.get("status") != "complete":
+        return None
+    from .loader import NLOSDataset
+
+    data = NLOSDataset(root, split=split, fields=["params"]).params(index)
+    return data.get("room") if isinstance(data, dict) else None
