@@ -96,6 +96,7 @@ def sample_pictures(path: Path, split: str, count: int, note) -> list | None:
     sample's room cannot be drawn again; the caller then draws its figure without them."""
     from ..dataset import scene_of_sample
     from ..plot import ViewUnavailable, render_scene, require_open3d
+    from ..scene import SceneError
 
     try:
         require_open3d()
