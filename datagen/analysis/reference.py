@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..simulation import PEAK_FLOOR, relative_standard_error
 from ..transport import AreaSampler, AreaSettings
 from ..timing import EnvelopeAccumulator
 from ..scene import RayCaster
@@ -53,8 +54,6 @@ REFERENCE_SEED = 20240611
 REFERENCE_SAMPLES = 1 << 17
 """Hidden samples per replica (per laser point): ~4 s on the demo room on one core, relative L2 ≈ 0.8 %."""
 
-PEAK_FLOOR = 0.01
-"""Bins where the reference exceeds this fraction of its peak enter the relative L2 (issue 5)."""
 
 
 @dataclass(frozen=True)
@@ -162,10 +161,8 @@ def _estimate(sums: _Sums, n_components: int, n_channels: int) -> tuple[np.ndarr
     if r < 2:
         return mean_comp, {"rel_l2": float("inf"), "total": float("inf"), "peak_time": float("inf")}
     var_mean = np.maximum(sums.env_sq / r - mean ** 2, 0.0) / (r - 1)
-    mask = mean > PEAK_FLOOR * mean.max() if mean.max() > 0 else np.zeros(mean.shape, dtype=bool)
-    norm = np.linalg.norm(mean[mask])
     totals = np.asarray(sums.totals)
-    est = {"rel_l2": float(np.sqrt(var_mean[mask].sum()) / norm) if norm > 0 else float("inf"),
+    est = {"rel_l2": relative_standard_error(mean, var_mean) if mean.max() > 0 else float("inf"),
            "total": float(totals.std(ddof=1) / np.sqrt(r) / abs(totals.mean())) if totals.mean() else float("inf"),
            "peak_time": float(np.std(sums.peaks, ddof=1) / np.sqrt(r))}
     return mean_comp, est

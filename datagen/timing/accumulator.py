@@ -547,26 +547,32 @@ class EnvelopeAccumulator:
                 would indicate a bug).
         """
         if self._binned is None:
-            out = np.zeros((self.n_components, self.axis.n_bins), dtype=np.float64)
-            kernel = self._kernel
-            for k in range(self.n_components):
-                s = self._hist[k]
-                if not s.any():
-                    continue
-                if kernel.size <= _DIRECT_KERNEL_MAX:
-                    cells = np.convolve(s, kernel, mode="valid")
-                else:
-                    cells = oaconvolve(s, kernel, mode="valid")
-                row = cells.reshape(self.axis.n_bins, self.oversample).sum(axis=1)
-                peak = np.abs(row).max()
-                if row.min() < -NEGATIVE_CLAMP_RTOL * peak:
-                    raise RuntimeError(
-                        f"component {k}: envelope value {row.min()!r} below -{NEGATIVE_CLAMP_RTOL} * max ({peak!r})"
-                    )
-                np.maximum(row, 0.0, out=row)
-                out[k] = row
-            self._binned = out
+            self._binned = self._convolve_rows(self._hist)
         return self._binned.copy()
+
+    def binned_total(self, n_channels: int = 1) -> np.ndarray:
+        """(n_channels, n_bins) ``binned()`` summed over components (ids ``component * n_channels + channel``),
+        one convolution per channel. Raises ValueError if ``n_channels`` does not divide ``n_components``."""
+        if n_channels < 1 or self.n_components % n_channels:
+            raise ValueError(f"n_channels {n_channels} does not divide the {self.n_components} components")
+        return self._convolve_rows(self._hist.reshape(-1, n_channels, self._hist.shape[-1]).sum(axis=0))
+
+    def _convolve_rows(self, hist: np.ndarray) -> np.ndarray:
+        """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes."""
+        out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
+        for k, s in enumerate(hist):
+            if not s.any():
+                continue
+            conv = np.convolve if self._kernel.size <= _DIRECT_KERNEL_MAX else oaconvolve
+            row = conv(s, self._kernel, mode="valid").reshape(self.axis.n_bins, self.oversample).sum(axis=1)
+            peak = np.abs(row).max()
+            if row.min() < -NEGATIVE_CLAMP_RTOL * peak:
+                raise RuntimeError(
+                    f"component {k}: envelope value {row.min()!r} below -{NEGATIVE_CLAMP_RTOL} * max ({peak!r})"
+                )
+            np.maximum(row, 0.0, out=row)
+            out[k] = row
+        return out
 
     def outside(self) -> np.ndarray:
         """Weight per component whose IRF-smeared mass falls outside the window, shape (n_components,).

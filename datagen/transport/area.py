@@ -65,6 +65,9 @@ from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
 MAX_CONNECTIONS = 1 << 17
 """Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
 
+MIN_REPLICA_SAMPLES = 16
+"""Fewest hidden samples per laser point of one replica (the config's ``area_samples`` lower bound)."""
+
 MIN_PARTNER_DISTANCE_OFFSETS = 10.0
 """A partner x' closer to x than this many ray offsets is dropped: the shadow ray between them is shorter than
 the surface offsets and cannot be trusted (the pair lies on a set of measure zero in the integral)."""
@@ -164,8 +167,19 @@ class AreaStats(Counters):
     secondary_pairs: int = 0
 
 
+def _area_replica(config, replicas: int) -> dict:
+    """One of ``replicas`` independent runs: ``config.area_samples`` / R hidden samples per laser point (rounded
+    up; at least ``MIN_REPLICA_SAMPLES``)."""
+    return {"area_samples": max(MIN_REPLICA_SAMPLES, -(-int(config.area_samples) // int(replicas)))}
+
+
+def _area_describe(config: dict) -> str:
+    return f"{config['area_samples']} hidden samples per laser point"
+
+
 @register("area", AreaSettings,
-          "hidden-surface area sampling with next-event connections to the laser spot and the FoV")
+          "hidden-surface area sampling with next-event connections to the laser spot and the FoV",
+          replica=_area_replica, describe=_area_describe)
 class AreaSampler:
     """Area-sampling estimator with next-event connections to the laser spot and the FoV.
 

@@ -199,7 +199,23 @@ def _leg_may_be_blocked(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray
     return bool(meet.any())
 
 
-@register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning")
+def _quadrature_replica(config, replicas: int) -> dict:
+    """One of ``replicas`` runs of the Monte Carlo secondary: ``config.area_samples`` / R hidden samples (the
+    primary is deterministic and shared, :meth:`Quadrature.run_replicas`)."""
+    return {"area_samples": max(16, -(-int(config.area_samples) // int(replicas)))}
+
+
+def _quadrature_refine(config) -> dict:
+    """The coarser setting of the error estimate: twice the edge (FoV cells follow it unless fixed)."""
+    return {"quadrature_edge": 2.0 * float(config.quadrature_edge)}
+
+
+def _quadrature_describe(config: dict) -> str:
+    return f"quadrature edge {config['quadrature_edge']:.4g} m"
+
+
+@register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning",
+          replica=_quadrature_replica, refine=_quadrature_refine, describe=_quadrature_describe, order=2)
 class Quadrature:
     """Deterministic hidden-surface quadrature of the primary with exact time binning (module doc).
 
@@ -402,6 +418,11 @@ class Quadrature:
 
     # -- estimator -----------------------------------------------------------------------------------------
 
+    @property
+    def monte_carlo(self) -> bool:
+        """Whether a run has noise: only the area sampler's secondary does."""
+        return self.settings.secondary == "full"
+
     def run(self, sink: Sink, rng: np.random.Generator | None = None,
             progress: Callable[[int], None] | None = None) -> None:
         """Send every primary tent (and the secondary's and first bounce's impulses) to ``sink``.
@@ -409,6 +430,28 @@ class Quadrature:
         ``progress`` is called with the number of (cell, connection) rows done after each block. ``rng`` is used
         only by the secondary (default: ``np.random.default_rng(0)``).
         """
+        self._primary(sink, progress)
+        if self.settings.secondary == "full":
+            self.area.run(sink, rng if rng is not None else np.random.default_rng(0))
+
+    def run_replicas(self, sinks: list[Sink], rngs: list[np.random.Generator],
+                     progress: Callable[[int], None] | None = None) -> None:
+        """Replicas (:func:`datagen.transport.run_replicas`): the deterministic primary once, added to every sink
+        (which must offer ``spawn`` and ``merge``, as :class:`~datagen.timing.EnvelopeAccumulator` does), and
+        the Monte Carlo secondary once per (sink, generator)."""
+        if len(sinks) == 1 or not hasattr(sinks[0], "spawn"):
+            for sink, rng in zip(sinks, rngs):
+                self.run(sink, rng, progress)
+            return
+        primary = sinks[0].spawn()
+        self._primary(primary, progress)
+        for sink, rng in zip(sinks, rngs):
+            sink.merge(primary)
+            if self.settings.secondary == "full":
+                self.area.run(sink, rng)
+
+    def _primary(self, sink: Sink, progress: Callable[[int], None] | None) -> None:
+        """The primary tents (and the first bounce) into ``sink``."""
         s, c = self.settings, self.capture
         M = self.n_cells
         per_block = max(1, s.batch // max(M, 1))
@@ -467,7 +510,5 @@ class Quadrature:
                 self.stats.tents += len(mi)
             if progress is not None:
                 progress(M * len(lasers))
-        if s.secondary == "full":
-            self.area.run(sink, rng if rng is not None else np.random.default_rng(0))
         if s.first_bounce:
             self.physics.first_bounce(sink, self.n_primary + 1)
