@@ -83,6 +83,31 @@ def test_dask_localcluster_build_equals_local_build(reference, tmp_path):
     assert verify_dataset(out) == []
 
 
+def test_card_records_the_tolerance_the_error_distribution_and_the_misses(reference, tmp_path):
+    """The card's accuracy block: tolerance, time cap, median / p95 / max of the stored envelope_error and the
+    samples that missed the tolerance (none at 5 %; a 0.1 % tolerance with a tight time cap misses every sample,
+    and each is flagged by name, never silently accepted); ``inspect`` prints them."""
+    card = read_card(reference)
+    acc = card["accuracy"]
+    stored = np.concatenate([zarr.open_group(str(reference), mode="r")[s]["envelope_error"][...]
+                             for s in ("train", "val", "test_phong")])
+    assert acc["tolerance"] == 0.05 and acc["time_cap_s"] == 0.5 and acc["n_missed"] == 0
+    assert acc["envelope_error"]["n"] == 10 and acc["envelope_error"]["max"] == pytest.approx(stored.max(), rel=1e-6)
+    assert acc["envelope_error"]["median"] == pytest.approx(np.median(stored.astype(np.float64)), rel=1e-6)
+    assert 0 < stored.max() <= 0.05
+    strict = tiny_config(shard_size=4, train=3, val=1, test_phong=0).model_copy(
+        update={"tolerance": 0.001, "time_cap": 0.2})
+    out = tmp_path / "strict"
+    build_dataset(strict, out, workers=0, progress=False)
+    card = read_card(out)
+    assert card["accuracy"]["n_missed"] == 4
+    assert {(m["split"], m["index"]) for m in card["accuracy"]["missed"]} == {("train", 0), ("train", 1),
+                                                                              ("train", 2), ("val", 0)}
+    assert all(m["envelope_error"] > 0.001 for m in card["accuracy"]["missed"])
+    text = CliRunner().invoke(main, ["inspect", str(out)]).output
+    assert "tolerance 0.10%" in text and "4 missed the tolerance" in text and "missed: train[0]" in text
+
+
 def test_card_records_config_versions_timings_hashes_and_consolidates(reference):
     card = read_card(reference)
     assert card["status"] == "complete" and card["shards_done"] == card["shards_total"] == 4

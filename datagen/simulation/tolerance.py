@@ -40,7 +40,8 @@ SAFETY_EDGE = 0.9
 
 
 def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: float,
-                          max_replicas: int | None = None, max_seconds: float | None = None,
+                          max_replicas: int | None = None, max_cost: float | None = None,
+                          max_seconds: float | None = None,
                           progress: bool = False, sampling_rng: np.random.Generator | None = None,
                           noise_rng: np.random.Generator | None = None) -> Result:
     """Simulate with the least sampling whose error estimate meets ``tolerance`` (module docstring).
@@ -50,6 +51,9 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             are the first round; the quadrature starts from ``config.quadrature_edge``).
         tolerance: target relative L2 error of the envelope (bins above 1 % of its peak), in (0, 1).
         max_replicas: most replicas in all (Monte Carlo estimators; deterministic cap).
+        max_cost: most work in all, in the estimator's nominal seconds (``nominal_seconds()``: counted work
+            times fixed rates, so the cap is deterministic; estimators without it are capped by ``max_replicas``
+            only). The first round always runs.
         max_seconds: stop once the next round is predicted to end after this much wall time (not deterministic).
         progress: print one line per round.
         sampling_rng, noise_rng: as for :func:`datagen.simulate`.
@@ -86,6 +90,12 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             break
         wanted = math.ceil(runs.count * min(MAX_GROWTH, (estimate / tolerance) ** 2 * SAFETY))
         target = max(runs.count + 1, wanted if cap is None else min(wanted, cap))
+        nominal = getattr(runs.transport, "nominal_seconds", None)
+        if max_cost is not None and nominal is not None:
+            affordable = int(max_cost / (nominal() / runs.count))
+            if affordable <= runs.count:
+                break
+            target = min(target, affordable)
         if max_seconds is not None:
             per_replica = (time.perf_counter() - t0) / runs.count
             affordable = int((max_seconds - (time.perf_counter() - t0)) / per_replica)
@@ -95,8 +105,10 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     _check_energy(scene, runs)
     tr = runs.transported()
     error = runs.error_attrs(tr, rng)
+    nominal = getattr(runs.transport, "nominal_seconds", None)
     info = {"target": tolerance, "estimate": error["rel_l2"], "met": bool(error["rel_l2"] <= tolerance),
-            "method": error["method"], "rounds": rounds}
+            "method": error["method"], "rounds": rounds,
+            "nominal_seconds": nominal() if nominal is not None else None}
     return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
 
 

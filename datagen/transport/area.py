@@ -65,6 +65,9 @@ from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
 MAX_CONNECTIONS = 1 << 17
 """Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
 
+NOMINAL_SECONDS = {"sample": 4e-6, "connection": 1e-6, "shadow_ray": 2e-7, "pair": 3e-7}
+"""Seconds per counted item of :meth:`AreaSampler.nominal_seconds` (one core of the reference machine)."""
+
 MIN_REPLICA_SAMPLES = 16
 """Fewest hidden samples per laser point of one replica (the config's ``area_samples`` lower bound)."""
 
@@ -241,6 +244,17 @@ class AreaSampler:
         """Use ``settings`` from now on (same physics object; e.g. the quadrature's shadow-ray decision)."""
         self.settings = settings
         self.physics.configure(settings)
+
+    def nominal_seconds(self) -> float:
+        """A deterministic measure of the work done so far (runs and replicas summed), in seconds of one core of
+        the reference machine (the 2-core CI machine, unloaded): a linear model of the counted hidden samples,
+        FoV connections, shadow rays and secondary pairs (coefficients ``NOMINAL_SECONDS``, fitted on
+        default-config rooms). Dataset builds cap the adaptive sampling with it, so that the cap, unlike a
+        wall clock, never depends on the machine's load."""
+        st = self.stats
+        n = NOMINAL_SECONDS
+        return float(n["sample"] * (st.area_samples + st.spot_samples) + n["connection"] * st.fov_connections
+                     + n["shadow_ray"] * self.physics.stats.shadow_rays + n["pair"] * st.secondary_pairs)
 
     def progress_total(self) -> tuple[int, str]:
         """Hidden samples over all laser points."""
