@@ -69,6 +69,11 @@ NOMINAL_SECONDS = {"sample": 4e-6, "connection": 1e-6, "shadow_ray": 2e-7, "pair
 """Seconds per counted item of :meth:`AreaSampler.nominal_seconds` (one core of the reference machine)."""
 
 MIN_REPLICA_SAMPLES = 16
+
+
+def _inverse(density: np.ndarray) -> np.ndarray:
+    """1/density where it is positive, else 0 (points no strategy can draw carry no weight)."""
+    return np.divide(1.0, density, out=np.zeros_like(density), where=density > 0)
 """Fewest hidden samples per laser point of one replica (the config's ``area_samples`` lower bound)."""
 
 MIN_PARTNER_DISTANCE_OFFSETS = 10.0
@@ -87,6 +92,8 @@ class AreaSettings(PhysicsSettings):
             triangle and a square grid of directions; sobol: each rounded up to a power of two).
         sampling: "stratified" | "sobol" | "random" (see the module docstring).
         spot_fraction: share of the hidden samples drawn by direction from the laser spot, in [0, 1).
+        fov_fraction: share drawn as FoV paths (a uniform FoV point y, then x the first hit of a cosine
+            direction from y; aperture captures only): spot_fraction + fov_fraction < 1.
         fov_samples: (k_u, k_v) stratified FoV points per sensor pixel region for every hidden sample.
         fov_directions: D, cosine-weighted rays per hidden sample (and side) that connect where they hit the
             FoV, combined with the stratified points by MIS (0: stratified points only).
@@ -101,9 +108,10 @@ class AreaSettings(PhysicsSettings):
 
     samples: int = 1 << 16
     sampling: AreaSampling = "sobol"
-    spot_fraction: float = 0.5
-    fov_samples: tuple[int, int] = (4, 4)
-    fov_directions: int = 2
+    spot_fraction: float = 0.4
+    fov_fraction: float = 0.4
+    fov_samples: tuple[int, int] = (3, 3)
+    fov_directions: int = 1
     secondary: Literal["none", "full"] = "full"
     spot_partners: int = 2
     direction_partners: int = 1
@@ -128,6 +136,9 @@ class AreaSettings(PhysicsSettings):
         if not (isinstance(self.spot_fraction, (int, float)) and 0 <= self.spot_fraction < 1):
             bad("spot_fraction", self.spot_fraction, "must be in [0, 1) (area samples are needed for points "
                                                      "the laser spot does not see)")
+        if not (isinstance(self.fov_fraction, (int, float)) and 0 <= self.fov_fraction
+                and self.spot_fraction + self.fov_fraction < 1):
+            bad("fov_fraction", self.fov_fraction, "must be >= 0 with spot_fraction + fov_fraction < 1")
         fs = tuple(self.fov_samples)
         if len(fs) != 2 or any(isinstance(v, bool) or int(v) != v or v < 1 for v in fs):
             bad("fov_samples", self.fov_samples, "must be two integers >= 1")
@@ -146,9 +157,14 @@ class AreaSettings(PhysicsSettings):
         return int(round(self.spot_fraction * self.samples))
 
     @property
+    def fov_paths(self) -> int:
+        """M_f, hidden points drawn by cosine direction from uniform FoV points (before rounding)."""
+        return int(round(self.fov_fraction * self.samples))
+
+    @property
     def area_samples(self) -> int:
         """M_a, hidden samples drawn by area (before rounding; at least 1)."""
-        return max(1, self.samples - self.spot_samples)
+        return max(1, self.samples - self.spot_samples - self.fov_paths)
 
     @classmethod
     def from_transport(cls, settings: PhysicsSettings, **kwargs) -> AreaSettings:
@@ -164,6 +180,7 @@ class AreaStats(Counters):
 
     area_samples: int = 0
     spot_samples: int = 0
+    fov_paths: int = 0
     lit_samples: int = 0
     fov_connections: int = 0
     partners: int = 0
@@ -228,6 +245,7 @@ class AreaSampler:
         self.hidden_area = float(self.caster.face_area[self.hidden_faces].sum())
         self._is_hidden = np.zeros(len(self.caster.faces), dtype=bool)
         self._is_hidden[self.hidden_faces] = True
+        self._fov_density = 0.0                   # M_f / A_FoV of the run under way (FoV paths), 1/m²
         self.stats = AreaStats()
 
     @classmethod
@@ -293,7 +311,7 @@ class AreaSampler:
                                np.zeros(len(face)), uv[:, 2:4] if uv.shape[1] >= 4 else np.zeros((len(face), 2)))
         return found, hits.hit
 
-    def _connect(self, x: np.ndarray, n_x: np.ndarray, laser: int, rng: np.random.Generator,
+    def _connect(self, x: np.ndarray, n_x: np.ndarray, rho_x: np.ndarray, laser: int, rng: np.random.Generator,
                  pad: np.ndarray | None = None) -> Connections:
         """Next-event connections of hidden points x (B, 3), from the side of normals n_x (B, 3), to the sensor.
 
@@ -311,7 +329,9 @@ class AreaSampler:
         """
         c, s, cst = self.capture, self.settings, self.caster
         if c.convention == "point_radiance":
-            return self.physics.connect(x, n_x, laser, rng, s.fov_samples)
+            out = self.physics.connect(x, n_x, laser, rng, s.fov_samples)
+            out.weight = out.weight * _inverse(rho_x)[out.b]
+            return out
         nx, ny = c.fov_pixels
         mu, mv = s.fov_samples
         n_dir = s.fov_directions
@@ -355,7 +375,8 @@ class AreaSampler:
             bi = np.concatenate([bi, db])
         collect, d_ys = self.physics.sensor_collection(y, n_y, obj_y, -wk)
         p_d = dot(n_x[bi], wk) * cy / (np.pi * rr ** 2)
-        weight = fov_connection_weight(cy, rr, collect) / (rho_a + n_dir * p_d)
+        weight = _inverse(rho_x[bi] * (rho_a + n_dir * p_d) + self._fov_density * p_d) * \
+            fov_connection_weight(cy, rr, collect)
         time = (rr + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT
         return Connections(bi, wk, weight, time, rr + d_ys, chan)
 
@@ -369,6 +390,9 @@ class AreaSampler:
         s, c = self.settings, self.capture
         area_set, density_a = sample_surfaces(self.caster, self.hidden_faces, s.area_samples, s.sampling, rng)
         batch = max(1, min(s.batch, MAX_CONNECTIONS // max(self._targets_per_sample(), 1)))
+        n_fov = s.fov_paths if c.convention == "aperture" else 0
+        fov_uv = unit_square_points(n_fov, s.sampling, rng) if n_fov else np.zeros((0, 4))
+        self._fov_density = len(fov_uv) / (c.fov_size[0] * c.fov_size[1])         # M_f / A_FoV, 1/m²
         for laser in range(c.n_lasers):
             parts, n_spot = [area_set], 0
             if s.spot_samples > 0:
@@ -379,50 +403,106 @@ class AreaSampler:
             xs = SurfaceSamples.concat(parts)
             self.stats.area_samples += len(area_set)
             self.stats.spot_samples += n_spot
+            self.stats.fov_paths += len(fov_uv)
             for start in range(0, len(xs), batch):
                 part = xs.take(slice(start, start + batch))
                 self._batch(part, laser, density_a, n_spot, sink, rng)
                 if progress is not None:
                     progress(len(part))
+            for start in range(0, len(fov_uv), batch):
+                self._fov_batch(fov_uv[start:start + batch], laser, density_a, n_spot, sink, rng)
+                if progress is not None:
+                    progress(len(fov_uv[start:start + batch]))
         if s.first_bounce and not self.secondary_only:
             self.physics.first_bounce(sink, self.n_primary + 1)
 
     def _batch(self, xs: SurfaceSamples, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
                rng: np.random.Generator) -> None:
+        """Hidden points by area or from the spot: next-event connections to the FoV from the side the spot
+        lights (and, for the secondary, from the other side where the FoV lies behind it)."""
         c, s = self.capture, self.settings
         e_x, r_lx, w_spot, geo = self.physics.irradiance(xs.points, xs.normals, laser)
         self.stats.lit_samples += int((e_x > 0).sum())
-        density = density_a[xs.face] + n_spot * geo / np.pi                  # ρ_a + ρ_s, 1/m²
-        weight_x = np.divide(1.0, density, out=np.zeros_like(density), where=density > 0)
+        rho_x = density_a[xs.face] + n_spot * geo / np.pi                    # ρ_a + ρ_s, 1/m²
         n_front = np.where(dot(xs.normals, w_spot)[:, None] < 0, -xs.normals, xs.normals)   # facing the spot
         pad = None if s.sampling == "random" else xs.pad
-        out = self._connect(xs.points, n_front, laser, rng, pad)
+        out = self._connect(xs.points, n_front, rho_x, laser, rng, pad)
         self.stats.fov_connections += len(out.b)
-        leg = c.emitter_legs[laser]
-        laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
-        lit = e_x[out.b] > 0
-        if lit.any() and not self.secondary_only:
-            b = out.b[lit]
-            f = self.physics.brdf(xs.object_id[b], n_front[b], w_spot[b], out.direction[lit])
-            cos_k = np.maximum(dot(n_front[b], out.direction[lit]), 0.0)
-            weight = (weight_x[b] * e_x[b] * f * cos_k * out.weight[lit]
-                      * self.physics.attenuation(leg + r_lx[b] + out.phys[lit]))
-            comp = self.object_component[xs.object_id[b]] * c.n_channels + out.channel[lit]
-            sink.add(laser_t + r_lx[b] / SPEED_OF_LIGHT + out.time[lit], weight, comp)
+        conn = {"normal": n_front[out.b], **{name: getattr(out, name) for name in Connections.FIELDS}}
+        lit = np.ones(len(out.b), dtype=bool)
         if s.secondary == "full":
             # FoV behind the spot-facing side: only where the FoV rectangle reaches behind x's plane
             corners = (c.fov_center + np.array([[a * c.fov_size[0] / 2, b * c.fov_size[1] / 2]
                                                 for a in (-1, 1) for b in (-1, 1)]) @ np.stack([c.fov_u, c.fov_v]))
             behind = np.flatnonzero((dot(corners[None] - xs.points[:, None], -n_front[:, None]) > 0).any(axis=1))
-            back = self._connect(xs.points[behind], -n_front[behind], laser, rng,
+            back = self._connect(xs.points[behind], -n_front[behind], rho_x[behind], laser, rng,
                                  None if pad is None else pad[behind])
             back.b = behind[back.b]
             self.stats.fov_connections += len(back.b)
-            conn = {name: np.concatenate([getattr(out, name), getattr(back, name)])
-                    for name in ("b", "direction", "weight", "time", "phys", "channel")}
+            conn = {name: np.concatenate([conn[name], getattr(back, name)]) for name in Connections.FIELDS}
             conn["normal"] = np.concatenate([n_front[out.b], -n_front[back.b]])
-            if len(conn["b"]):
-                self._secondary(xs, weight_x, laser, conn, sink, rng)
+            lit = np.concatenate([lit, np.zeros(len(back.b), dtype=bool)])
+        self._deposit(xs, e_x, r_lx, w_spot, conn, lit, laser, sink, rng)
+
+    def _fov_batch(self, uv: np.ndarray, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
+                   rng: np.random.Generator) -> None:
+        """FoV paths: y uniform on the FoV (``uv`` (n, 4) dims 0–1), x the first hit of a cosine direction from y
+        (dims 2–3); the pair (x, y) weighs f / (ρ_x(x)·(ρ_a + D·p_d) + M_f·p_d/A_FoV) as in :meth:`_connect`
+        (p_d = cosθ_x cosθ_y /(π r²), the density of this pair being M_f·p_d/A_FoV). No shadow ray x ↔ y: x is the
+        first hit. They put hidden points where the FoV kernel 1/r² is large (floors and walls next to the relay
+        wall), which area and spot samples reach rarely and then with large weights."""
+        c, cst = self.capture, self.caster
+        nx, ny = c.fov_pixels
+        y = c.fov_points(uv[:, 0] * nx, uv[:, 1] * ny)
+        local, _ = square_to_hemisphere(uv[:, 2], uv[:, 3], "cosine")
+        normal = np.broadcast_to(c.fov_normal, y.shape)
+        hits = cst.intersect(y + cst.offset * normal, to_world(local, normal))
+        chan = c.channel(laser, c.fov_pixel(y, self.tol))
+        keep = hits.hit & self._is_hidden[np.where(hits.hit, hits.face, 0)] & (chan >= 0)
+        if not keep.any():
+            return
+        face, y, chan = hits.face[keep], y[keep], chan[keep]
+        x, n_side = hits.points[keep], hits.normals[keep]                     # n_side faces y
+        xs = SurfaceSamples(x, cst.face_normals[face], face, cst.face_object[face], np.zeros(len(face)),
+                            np.zeros((len(face), 2)))
+        e_x, r_lx, w_spot, geo = self.physics.irradiance(x, xs.normals, laser)
+        self.stats.lit_samples += int((e_x > 0).sum())
+        rho_x = density_a[face] + n_spot * geo / np.pi
+        w = y - x
+        r = np.linalg.norm(w, axis=-1)
+        w = w / r[:, None]
+        cos_y = -dot(w, c.fov_normal)
+        collect, d_ys = self.physics.sensor_collection(y, normal[keep], np.full(len(y), self.physics.wall_object), -w)
+        p_d = dot(n_side, w) * cos_y / (np.pi * r ** 2)
+        rho_a = c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1] / (c.fov_size[0] * c.fov_size[1])
+        weight = _inverse(rho_x * (rho_a + self.settings.fov_directions * p_d) + self._fov_density * p_d) * \
+            fov_connection_weight(cos_y, r, collect)
+        conn = {"b": np.arange(len(x)), "direction": w, "weight": weight,
+                "time": (r + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT, "phys": r + d_ys, "channel": chan,
+                "normal": n_side}
+        self._deposit(xs, e_x, r_lx, w_spot, conn, dot(n_side, w_spot) > 0, laser, sink, rng)
+
+    def _deposit(self, xs: SurfaceSamples, e_x: np.ndarray, r_lx: np.ndarray, w_spot: np.ndarray, conn: dict,
+                 primary: np.ndarray, laser: int, sink: Sink, rng: np.random.Generator) -> None:
+        """Primary impulses of the connections ``conn`` (rows b into ``xs``, weights with the densities of x and
+        y; ``primary`` marks those leaving x on the side the spot lights) and the secondary's."""
+        c, s = self.capture, self.settings
+        b = conn["b"]
+        use = primary & (e_x[b] > 0)
+        if use.any() and not self.secondary_only:
+            bu, w_out, n_side = b[use], conn["direction"][use], conn["normal"][use]
+            f = self.physics.constant_brdf(xs.object_id[bu])
+            full = np.flatnonzero(np.isnan(f))
+            if len(full):
+                f[full] = self.physics.brdf(xs.object_id[bu[full]], n_side[full], w_spot[bu[full]], w_out[full])
+            weight = e_x[bu] * f * np.maximum(dot(n_side, w_out), 0.0) * conn["weight"][use]
+            if s.attenuation > 0:
+                weight = weight * self.physics.attenuation(c.emitter_legs[laser] + r_lx[bu] + conn["phys"][use])
+            comp = self.object_component[xs.object_id[bu]] * c.n_channels + conn["channel"][use]
+            laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
+            sink.add(laser_t + r_lx[bu] / SPEED_OF_LIGHT + conn["time"][use], weight, comp)
+        if s.secondary == "full" and len(b):
+            self._secondary(xs, laser, conn, sink, rng)
 
     def _partners(self, x: np.ndarray, nf: np.ndarray, pos: np.ndarray, neg: np.ndarray, laser: int,
                   rng: np.random.Generator) -> tuple[SurfaceSamples, np.ndarray]:
@@ -461,8 +541,7 @@ class AreaSampler:
         allp = SurfaceSamples.concat(blocks)
         return allp.take(idx), np.concatenate(found)[idx]
 
-    def _secondary(self, xs: SurfaceSamples, weight_x: np.ndarray, laser: int, conn: dict, sink: Sink,
-                   rng: np.random.Generator) -> None:
+    def _secondary(self, xs: SurfaceSamples, laser: int, conn: dict, sink: Sink, rng: np.random.Generator) -> None:
         """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc)."""
         c, s, cst = self.capture, self.settings, self.caster
         rows, inv = np.unique(conn["b"], return_inverse=True)       # hidden samples with FoV connections
@@ -516,20 +595,26 @@ class AreaSampler:
         f_p = self.physics.brdf(xp.object_id[idx], n_px[idx], w_sp[idx], wpx[idx])
         irr = np.zeros(len(rp))                                       # MIS terms of the irradiance at x
         irr[idx] = e_p[idx] * f_p * g / (pl * p_spot + pd * p_dir + pa * p_area)
-        # every FoV connection of x with every partner of x
+        # every FoV connection of x with every partner of x: per-connection and per-partner factors first, so
+        # that a pair costs a few scalar gathers (the BRDF at x per pair only where it is not a constant)
         part = (inv[:, None] * p_tot + np.arange(p_tot)[None]).ravel()
         ci = np.repeat(np.arange(len(inv)), p_tot)
         use = (irr[part] > 0) & (on_pos[part] == side[ci])    # light leaves x on the side it arrived from
         part, ci = part[use], ci[use]
         if len(part) == 0:
             return
-        b = conn["b"][ci]
-        n_side, w_out = conn["normal"][ci], conn["direction"][ci]
-        f_x = self.physics.brdf(xs.object_id[b], n_side, -wpx[part], w_out)
-        cos_k = np.maximum(dot(n_side, w_out), 0.0)
+        b_c = conn["b"]
+        per_conn = np.maximum(dot(conn["normal"], conn["direction"]), 0.0) * conn["weight"]
+        f_x = self.physics.constant_brdf(xs.object_id[b_c])[ci]
+        full = np.flatnonzero(np.isnan(f_x))
+        if len(full):
+            pc = ci[full]
+            f_x[full] = self.physics.brdf(xs.object_id[b_c[pc]], conn["normal"][pc], -wpx[part[full]],
+                                          conn["direction"][pc])
         leg = c.emitter_legs[laser]
-        weight = (weight_x[b] * irr[part] * f_x * cos_k * conn["weight"][ci]
-                  * self.physics.attenuation(leg + r_lp[part] + rp[part] + conn["phys"][ci]))
-        t = (self.physics.laser_leg(laser) + r_lp[part] + rp[part]) / SPEED_OF_LIGHT + conn["time"][ci]
+        weight = per_conn[ci] * irr[part] * f_x
+        if self.settings.attenuation > 0:
+            weight = weight * self.physics.attenuation(leg + r_lp[part] + rp[part] + conn["phys"][ci])
+        t = ((self.physics.laser_leg(laser) + r_lp + rp) / SPEED_OF_LIGHT)[part] + conn["time"][ci]
         self.stats.secondary_pairs += len(part)
         sink.add(t, weight, self.n_primary * c.n_channels + conn["channel"][ci])
