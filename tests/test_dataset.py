@@ -147,8 +147,8 @@ def test_bad_config_file_names_the_file(tmp_path):
 
 
 def test_each_sample_meets_the_tolerance_and_stores_its_error_estimate(smoke):
-    """envelope_error is the 0-d float32 estimate of the adaptive run; samples start from 8 replicas and add
-    more only when the estimate asks for it (train[4] of the smoke config: 15 replicas); the parameters record
+    """envelope_error is the 0-d float32 estimate of the adaptive run; samples start from 4 replicas and add
+    more only when the estimate asks for it (train[4] of the smoke config: 5 replicas); the parameters record
     the accuracy the sample reached."""
     import json
     assert smoke.tolerance == 0.05 and smoke.time_cap == 0.5
@@ -161,7 +161,7 @@ def test_each_sample_meets_the_tolerance_and_stores_its_error_estimate(smoke):
         assert acc["envelope_error"] == pytest.approx(float(err), rel=1e-6) and acc["tolerance"] == 0.05
         assert acc["met"] == (acc["envelope_error"] <= 0.05) and 0 < float(err) <= 0.05
         replicas.append(acc["replicas"])
-    assert replicas[0] == 8 and replicas[1] > 8
+    assert replicas[0] == 4 and replicas[1] > 4
 
 
 def test_sample_setup_regenerates_the_sample(smoke):
