@@ -66,10 +66,15 @@ def reference(tmp_path_factory):
 
 
 def test_two_workers_equal_one_worker_with_another_shard_size(reference, tmp_path):
+    """Bit-identical samples, the adaptive sampling included: the samples took different numbers of replicas
+    (train[4] more than the first round's 4) and envelope_error and params agree byte for byte."""
     out = tmp_path / "ds"
     report = build_dataset(tiny_config(shard_size=4), out, workers=2, progress=False)
     assert report.shards_built == 2 + 1 + 1 and report.engine == "processes"
     assert_same_arrays(reference, out)
+    params = zarr.open_group(str(out), mode="r")["train"]["params"][...]
+    replicas = [json.loads(str(p))["accuracy"]["replicas"] for p in params]
+    assert replicas[4] > 4 and min(replicas) == 4
     # the shard layouts really differ: train samples 0-3 | 4-5 here, 0-2 | 3-5 in the reference
     assert zarr.open_group(str(out), mode="r")["train"]["counts"].shards == (4, 256)
     assert zarr.open_group(str(reference), mode="r")["train"]["counts"].shards == (3, 256)

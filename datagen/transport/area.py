@@ -66,8 +66,10 @@ from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
 MAX_CONNECTIONS = 1 << 17
 """Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
 
-NOMINAL_SECONDS = {"sample": 4e-6, "connection": 1e-6, "shadow_ray": 2e-7, "pair": 3e-7}
-"""Seconds per counted item of :meth:`AreaSampler.nominal_seconds` (one core of the reference machine)."""
+NOMINAL_SECONDS = {"sample": 4.0e-6, "pair": 3.2e-7}
+"""Seconds per hidden sample (FoV connections and shadow rays included) and per secondary pair of
+:meth:`AreaSampler.nominal_seconds`: a non-negative least-squares fit of the CPU time of 36 runs (6 default-config
+rooms, 4096–16384 samples; residual 10 %) on the shared 2-core machine."""
 
 MIN_REPLICA_SAMPLES = 16
 
@@ -263,14 +265,13 @@ class AreaSampler(AreaSecondary):
 
     def nominal_seconds(self) -> float:
         """A deterministic measure of the work done so far (runs and replicas summed), in seconds of one core of
-        the reference machine (the 2-core CI machine, unloaded): a linear model of the counted hidden samples,
-        FoV connections, shadow rays and secondary pairs (coefficients ``NOMINAL_SECONDS``, fitted on
-        default-config rooms). Dataset builds cap the adaptive sampling with it, so that the cap, unlike a
-        wall clock, never depends on the machine's load."""
+        the reference machine: a linear model of the counted hidden samples and secondary pairs (rates
+        ``NOMINAL_SECONDS``). Dataset builds cap the adaptive sampling with it, so that the cap, unlike a wall
+        clock, never depends on the machine's load."""
         st = self.stats
         n = NOMINAL_SECONDS
-        return float(n["sample"] * (st.area_samples + st.spot_samples) + n["connection"] * st.fov_connections
-                     + n["shadow_ray"] * self.physics.stats.shadow_rays + n["pair"] * st.secondary_pairs)
+        return float(n["sample"] * (st.area_samples + st.spot_samples + st.fov_paths)
+                     + n["pair"] * st.secondary_pairs)
 
     def progress_total(self) -> tuple[int, str]:
         """Hidden samples over all laser points."""
