@@ -187,6 +187,14 @@ class Replicas:
         if n <= 0:
             return
         bar = _progress_bar(self.transport, n) if progress else None
+        if not self.monte_carlo:                 # one deterministic run, straight into the total: no spread
+            t1 = time.perf_counter()
+            run_replicas(self.transport, [self.total], [replica_rng(self.root, 0)], bar.update if bar else None)
+            self.sums.count = 1
+            self.seconds["transport"] += time.perf_counter() - t1
+            if bar is not None:
+                bar.close()
+            return
         group = max(1, REPLICA_SINK_BYTES // (8 * self.total.n_components * self.total.n_fine))
         start, stop = self.count, self.count + n
         for first in range(start, stop, group):                  # replica sinks of one group at a time (memory)
@@ -219,20 +227,29 @@ class Replicas:
 
     def refinement_error(self, tr: Transported, rng: np.random.Generator) -> float | None:
         """A deterministic estimator's error from its coarser setting (registry ``refine``): ‖P(h) − P(2h)‖ /
-        (2^order − 1) relative to the envelope, P the primary (the coarse run has no Monte Carlo secondary, whose
-        noise the replicas measure). None for Monte Carlo estimators."""
+        (2^order − 1) relative to the envelope, P the primary (no Monte Carlo secondary, whose noise the replicas
+        measure, nor the direct first bounce). The estimator's own coarse sums (``transport.coarse``: the
+        quadrature's rule at 2h from the same evaluations) are used when it has them, else a coarse run. None for
+        Monte Carlo estimators."""
         if self.entry.refine is None:
             return None
         t0 = time.perf_counter()
-        no_secondary = {"secondary": "none", "effects": {**self.replica_config.effects, "secondary": False}}
-        coarse_cfg = self.replica_config.model_copy(update={**self.entry.refine(self.replica_config),
-                                                            **no_secondary})
-        coarse = run_transport(self.scene, coarse_cfg, rng)
+        keep = [i for i, n in enumerate(tr.names) if n not in ("secondary", "first_bounce")]
+        coarse_acc = getattr(self.transport, "coarse", None)
+        channels = slice(None)
+        if coarse_acc is not None:                 # holds the coarse primary only, per channel (some channels)
+            channels = getattr(self.transport, "coarse_channels", slice(None))
+            coarse_p = coarse_acc.binned_total(self.n_channels)[channels]
+        else:
+            no_secondary = {"secondary": "none", "effects": {**self.replica_config.effects, "secondary": False}}
+            coarse_cfg = self.replica_config.model_copy(update={**self.entry.refine(self.replica_config),
+                                                                **no_secondary})
+            coarse = run_transport(self.scene, coarse_cfg, rng)
+            coarse_p = coarse.binned[[i for i, n in enumerate(coarse.names)
+                                      if n not in ("secondary", "first_bounce")]].sum(axis=0)
         self.seconds["refinement"] = time.perf_counter() - t0
-        primary = [i for i, n in enumerate(tr.names) if n != "secondary"]
-        fine_p = tr.binned[primary].sum(axis=0)
-        coarse_p = coarse.binned[[i for i, n in enumerate(coarse.names) if n != "secondary"]].sum(axis=0)
-        return relative_difference(fine_p, coarse_p, tr.binned.sum(axis=0)) / (2.0 ** self.entry.order - 1.0)
+        fine_p = tr.binned[keep].sum(axis=0)[channels]
+        return relative_difference(fine_p, coarse_p, tr.binned.sum(axis=0)[channels]) / (2.0 ** self.entry.order - 1.0)
 
     def error_attrs(self, tr: Transported, rng: np.random.Generator) -> dict:
         """``attrs["error"]`` of the result: the estimate (relative L2 of the envelope over bins above 1 % of its

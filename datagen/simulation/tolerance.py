@@ -102,8 +102,8 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             if affordable < 1:
                 break
             target = min(target, runs.count + affordable)
-    _check_energy(scene, runs)
     tr = runs.transported()
+    _check_energy(scene, tr)
     error = runs.error_attrs(tr, rng)
     nominal = getattr(runs.transport, "nominal_seconds", None)
     info = {"target": tolerance, "estimate": error["rel_l2"], "met": bool(error["rel_l2"] <= tolerance),
@@ -112,8 +112,8 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
 
 
-def _check_energy(scene: Scene, runs: Replicas) -> None:
-    if runs.sums.mean().max() <= 0:
+def _check_energy(scene: Scene, tr) -> None:
+    if tr.binned.max() <= 0:
         raise SceneError(f"{scene.source or scene.name}: the envelope is zero in the time window; no error "
                          f"estimate is possible (check the time axis and the FoV)")
 
@@ -130,8 +130,8 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
         if level:
             runs = Replicas(scene, config.model_copy(update={"quadrature_edge": h}), rng)
         runs.run(config.replicas)
-        _check_energy(scene, runs)
         tr = runs.transported()
+        _check_energy(scene, tr)
         primary = _primary(tr)
         if previous is None:
             error = runs.error_attrs(tr, rng)

@@ -100,6 +100,7 @@ class AreaSettings(PhysicsSettings):
         spot_partners, direction_partners, area_partners: P_l, P_d, P_a secondary partners x' per hidden
             sample for each strategy (sum ≥ 1 when secondary is "full").
         batch: hidden samples processed together (lowered so that batch × FoV points ≤ ``MAX_CONNECTIONS``).
+        workers: processes sharing the replicas of :meth:`AreaSampler.run_replicas` (results do not depend on it).
 
     Raises:
         SceneError: a field out of range (the message names the field and the value).
@@ -116,6 +117,7 @@ class AreaSettings(PhysicsSettings):
     direction_partners: int = 1
     area_partners: int = 1
     batch: int = 4096
+    workers: int = 1
 
     def __post_init__(self):
         def bad(name, value, why):
@@ -128,6 +130,7 @@ class AreaSettings(PhysicsSettings):
 
         count("samples", 1)
         count("batch", 1)
+        count("workers", 1)
         for name in ("fov_directions", "spot_partners", "direction_partners", "area_partners"):
             count(name, 0)
         if self.sampling not in ("stratified", "sobol", "random"):
@@ -184,6 +187,21 @@ class AreaStats(Counters):
     fov_connections: int = 0
     partners: int = 0
     secondary_pairs: int = 0
+
+
+_WORKER: dict = {}
+
+
+def _worker_init(sampler: "AreaSampler") -> None:
+    sampler.caster = sampler.physics.caster = RayCaster(sampler.scene)      # a fresh BVH per process
+    _WORKER["sampler"] = sampler
+
+
+def _worker_replica(sink: Sink, rng: np.random.Generator):
+    sampler = _WORKER["sampler"]
+    sampler.stats, rays = AreaStats(), sampler.physics.stats.shadow_rays
+    sampler.run(sink, rng)
+    return sink, sampler.stats, sampler.physics.stats.shadow_rays - rays
 
 
 def _area_replica(config, replicas: int) -> dict:
@@ -255,8 +273,8 @@ class AreaSampler(AreaSecondary):
         sampler's secondary; the area sampler's hidden points always need their laser shadow ray (lookins are
         visible from the spot by construction), unless the user forces it off."""
         return cls(scene, AreaSettings.from_transport(settings, samples=config.area_samples,
-                                                      shadow_spot=config.effects.get("shadow_spot") is not False),
-                   caster)
+                                                      shadow_spot=config.effects.get("shadow_spot") is not False,
+                                                      workers=config.workers), caster)
 
     def configure(self, settings: AreaSettings) -> None:
         """Use ``settings`` from now on (same physics object; e.g. the quadrature's shadow-ray decision)."""
@@ -387,9 +405,10 @@ class AreaSampler(AreaSecondary):
         ``progress`` is called with the number of hidden samples done after each batch (per laser point).
         """
         s, c = self.settings, self.capture
-        area_set, density_a = sample_surfaces(self.caster, self.hidden_faces, s.area_samples, s.sampling, rng)
+        n_fov = s.fov_paths if c.convention == "aperture" else 0      # point sensors: FoV paths go to area samples
+        area_set, density_a = sample_surfaces(self.caster, self.hidden_faces, s.area_samples + s.fov_paths - n_fov,
+                                              s.sampling, rng)
         batch = max(1, min(s.batch, MAX_CONNECTIONS // max(self._targets_per_sample(), 1)))
-        n_fov = s.fov_paths if c.convention == "aperture" else 0
         fov_uv = unit_square_points(n_fov, s.sampling, rng) if n_fov else np.zeros((0, 4))
         self._fov_density = len(fov_uv) / (c.fov_size[0] * c.fov_size[1])         # M_f / A_FoV, 1/m²
         for laser in range(c.n_lasers):
@@ -414,6 +433,31 @@ class AreaSampler(AreaSecondary):
                     progress(len(fov_uv[start:start + batch]))
         if s.first_bounce and not self.secondary_only:
             self.physics.first_bounce(sink, self.n_primary + 1)
+
+    def run_replicas(self, sinks: list[Sink], rngs: list[np.random.Generator],
+                     progress: Callable[[int], None] | None = None) -> None:
+        """Independent runs into ``sinks``, one per generator (:func:`datagen.transport.run_replicas`); with
+        ``workers`` > 1 and sinks that can ``spawn``/``merge`` (:class:`~datagen.timing.EnvelopeAccumulator`),
+        replicas run in that many forked processes (each with its own ray caster) and are merged in order, so
+        the sinks hold the same sums whatever the worker count."""
+        workers = min(self.settings.workers, len(sinks))
+        if workers <= 1 or not hasattr(sinks[0], "spawn"):
+            for sink, rng in zip(sinks, rngs):
+                self.run(sink, rng, progress)
+            return
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_worker_init,
+                                 initargs=(self,)) as pool:
+            futures = [pool.submit(_worker_replica, sink.spawn(), rng) for sink, rng in zip(sinks, rngs)]
+            for sink, fut in zip(sinks, futures):
+                part, stats, rays = fut.result()
+                sink.merge(part)
+                self.stats.add(stats)
+                self.physics.stats.shadow_rays += rays
+                if progress is not None:
+                    progress(self.settings.samples * self.capture.n_lasers)
 
     def _batch(self, xs: SurfaceSamples, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
                rng: np.random.Generator) -> None:
