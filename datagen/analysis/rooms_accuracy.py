@@ -115,7 +115,12 @@ def summarize(rows: list[RoomRow]) -> list[SettingSummary]:
         e = np.array([g.rel_l2 for g in group])
         out.append(SettingSummary(estimator, setting, len(group), float(np.median(t)), float(np.percentile(t, 95)),
                                   float(np.median(e)), float(np.percentile(e, 95)), float(e.max())))
-    return sorted(out, key=lambda s: (order.get(s.estimator, len(order)), s.seconds_median))
+    def step(s: SettingSummary) -> int:
+        ladder = LADDERS.get(s.estimator)
+        names = [ladder.describe(st) for st in ladder.ladder] if ladder is not None else []
+        return names.index(s.setting) if s.setting in names else len(names)
+
+    return sorted(out, key=lambda s: (order.get(s.estimator, len(order)), step(s), s.seconds_median))
 
 
 def write_rooms_csv(rows: list[RoomRow], summary: list[SettingSummary], path: str | Path) -> Path:
