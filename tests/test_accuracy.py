@@ -173,7 +173,7 @@ def tiny_scene_yaml(path):
 def test_bench_accuracy_cli_writes_csv_png_and_table(tmp_path):
     scene = tiny_scene_yaml(tmp_path / "tiny.yaml")
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--budget", "4s", "--out", str(out),
+    res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--budget", "8s", "--out", str(out),
                                     "--rel-tol", "0.05", "--reference-samples", "1024",
                                     "--cache-dir", str(tmp_path / "cache"), "--estimators", "lookin,top1,area"])
     assert res.exit_code == 0, res.output
