@@ -1,11 +1,18 @@
-"""Benchmark of dataset builds and the loader (issue 4). Plain script::
+"""Benchmark of dataset builds, their accuracy and the loader (issues 4 and 12). Plain script::
 
-    python benchmarks/bench_dataset.py                       # all three measurements
+    python benchmarks/bench_dataset.py                       # every measurement
+    python benchmarks/bench_dataset.py --quick               # 16-sample build, 8 accuracy checks, no big build
     python benchmarks/bench_dataset.py --big-config smoke    # the 1000-sample build on the smoke config
 
 Reports
 * build throughput (samples/s) of ``configs/datasets/default.yaml`` cut to ``--samples`` (40) train samples,
-  ``--workers`` (2) local worker processes;
+  ``--workers`` (2) local worker processes, and the distribution of the samples' stored ``envelope_error``
+  (median, p95, max; samples that missed the tolerance);
+* accuracy (``--honesty`` 24 samples of the default config's ``val`` split, which no test uses): each sample as
+  the build stores it (``make_sample``) against ``datagen.converged_reference`` of its own scene and simulation
+  config (``datagen.sample_setup``; rel_tol 3e-3, cached under ``--cache-dir``): the actual relative L2 error,
+  the stored estimate, their ratio; checks median actual ≤ 1 %, worst ≤ 2 %, actual ≤ 2 × estimate for every
+  sample (the reference's own error, ≤ 0.3 %, is included in "actual");
 * loader throughput (samples/s) of ``NLOSDataset`` on that store with ``DataLoader(num_workers=2,
   batch_size=64, shuffle=True, persistent_workers=True)``, frozen and re-drawn noise, after a warm-up epoch;
   plus the time of one ``__getitem__`` in the main process;
@@ -16,6 +23,7 @@ Timings depend on the machine's load: run it on an otherwise idle machine.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import shutil
@@ -90,6 +98,10 @@ def bench_build(tmp: Path, samples: int, workers: int) -> tuple[Path, float]:
     print(f"build  default config, {samples} samples, {workers} workers, shard size {config.shard_size}: "
           f"{report.samples_per_second:.2f} samples/s ({report.seconds:.1f} s wall incl. pool start-up; "
           f"per sample {timing['mean']:.3f} s mean, {timing['p95']:.3f} s p95 in a worker)")
+    acc = report.card["accuracy"]
+    e = acc["envelope_error"]
+    print(f"build  envelope_error (estimated relative L2) at tolerance {acc['tolerance']:.2%}: median "
+          f"{e['median']:.3%}, p95 {e['p95']:.3%}, max {e['max']:.3%}; {acc['n_missed']} of {e['n']} samples missed")
     # load-independent view: CPU seconds of one sample in this process (the build is one thread per sample)
     from datagen.dataset import make_sample
     make_sample(config, "train", 0)
@@ -100,6 +112,42 @@ def bench_build(tmp: Path, samples: int, workers: int) -> tuple[Path, float]:
     print(f"build  {cpu:.3f} CPU-s per default sample in one process: {workers / cpu:.1f} samples/s expected on "
           f"{workers} idle cores")
     return out, report.samples_per_second
+
+
+def bench_accuracy(n: int, cache: Path, split: str = "val") -> dict:
+    """Stored envelope and envelope_error of ``n`` samples of ``split`` against converged references."""
+    import numpy as np
+
+    import datagen
+    from datagen.analysis import relative_l2
+    from datagen.dataset import make_sample
+
+    config = load_dataset_config(CONFIGS["default"])
+    rows = []
+    print(f"\naccuracy: {n} samples of the default config's {split!r} split (no test uses them) against "
+          f"converged_reference(rel_tol=3e-3); tolerance {config.tolerance:.2%}")
+    print("| sample | replicas | stored estimate | actual rel L2 | actual / estimate | reference error |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for i in range(n):
+        sample = make_sample(config, split, i)
+        estimate = float(sample.arrays["envelope_error"])
+        replicas = json.loads(str(sample.arrays["params"][()]))["accuracy"]["replicas"]
+        scene, sim = datagen.sample_setup(config, split, i)
+        ref = datagen.converged_reference(scene, sim, rel_tol=3e-3, cache_dir=cache)
+        actual = relative_l2(sample.arrays["envelope"].astype(np.float64), ref.envelope)
+        rows.append((i, replicas, estimate, actual, ref.error_estimate["rel_l2"]))
+        print(f"| {split}[{i}] | {replicas} | {estimate:.3%} | {actual:.3%} | {actual / estimate:.2f} | "
+              f"{ref.error_estimate['rel_l2']:.3%} |", flush=True)
+    est = np.array([r[2] for r in rows])
+    act = np.array([r[3] for r in rows])
+    ratio = act / est
+    checks = {"median actual <= 1 %": float(np.median(act)) <= 0.01, "worst actual <= 2 %": float(act.max()) <= 0.02,
+              "actual <= 2 x estimate for every sample": bool((ratio <= 2.0).all())}
+    print(f"accuracy: median actual {np.median(act):.3%}, worst {act.max():.3%}; estimate median {np.median(est):.3%}; "
+          f"actual/estimate median {np.median(ratio):.2f}, max {ratio.max():.2f}")
+    for name, ok in checks.items():
+        print(f"accuracy check {name}: {'PASS' if ok else 'FAIL'}")
+    return {"rows": rows, "checks": checks}
 
 
 def bench_loader(path: Path, epochs: int = 5) -> dict:
@@ -161,13 +209,22 @@ def main():
     parser.add_argument("--big", type=int, default=1000)
     parser.add_argument("--big-config", choices=sorted(CONFIGS), default="default")
     parser.add_argument("--skip-big", action="store_true")
+    parser.add_argument("--honesty", type=int, default=24, help="val samples checked against converged references")
+    parser.add_argument("--cache-dir", type=Path, default=None,
+                        help="reference cache (default $DATAGEN_CACHE or ~/.cache/datagen, /references)")
+    parser.add_argument("--quick", action="store_true", help="16-sample build, 8 accuracy checks, no big build")
     args = parser.parse_args()
+    if args.quick:
+        args.samples, args.honesty, args.skip_big = 16, 8, True
     print(f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}, "
           f"load average {os.getloadavg()[0]:.1f}")
     tmp = Path(tempfile.mkdtemp(prefix="bench_dataset_"))
     try:
         path, _ = bench_build(tmp, args.samples, args.workers)
         bench_loader(path)
+        if args.honesty:
+            from datagen.cli.bench import default_cache_dir
+            bench_accuracy(args.honesty, args.cache_dir or default_cache_dir())
         if not args.skip_big:
             bench_memory(tmp, args.big, args.workers, args.big_config)
     finally:

@@ -8,17 +8,28 @@ Public entry points::
 
     # datasets (docs/datasets.md): `datagen build configs/datasets/smoke.yaml --out data/smoke`, then
     ds = datagen.NLOSDataset("data/smoke", split="train", noise="resample")   # a torch Dataset
+
+    # any dataset sample at any accuracy, against the converged reference (docs/accuracy.md)
+    scene, config = datagen.sample_setup("configs/datasets/default.yaml", "val", 3)
+    reference = datagen.converged_reference(scene, config, rel_tol=3e-3)
 """
 from .scene import Scene, SceneError, load_scene
-from .simulation import Result, SimulationConfig, resolve_config, simulate
+from .simulation import Result, SimulationConfig, resolve_config, simulate, simulate_to_tolerance
 
 __all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
-           "NLOSDataset"]
+           "simulate_to_tolerance", "NLOSDataset", "sample_setup", "converged_reference"]
 
 
 def __getattr__(name: str):
-    """``datagen.NLOSDataset`` imports torch on first use only (``import datagen`` stays light for workers)."""
+    """``datagen.NLOSDataset`` imports torch on first use only (``import datagen`` stays light for workers);
+    ``sample_setup`` and ``converged_reference`` load the dataset and analysis layers on first use."""
     if name == "NLOSDataset":
         from .dataset import NLOSDataset
         return NLOSDataset
+    if name == "sample_setup":
+        from .dataset import sample_setup
+        return sample_setup
+    if name == "converged_reference":
+        from .analysis import converged_reference
+        return converged_reference
     raise AttributeError(f"module 'datagen' has no attribute {name!r}")

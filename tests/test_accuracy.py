@@ -138,7 +138,7 @@ def test_run_accuracy_on_a_small_scene():
 
     cfg = config(secondary="full")
     ref = converged_reference(scene, cfg, rel_tol=3e-2, samples=1 << 10)
-    rows = run_accuracy(scene, ref, cfg, budget=0.3, estimators=("lookin", "area"))
+    rows = run_accuracy(scene, ref, cfg, budget=1.0, estimators=("lookin", "area"))
     assert {r.estimator for r in rows} == {"lookin", "area"}
     assert all(np.isfinite([r.seconds, r.rel_l2, r.total, r.peak_time]).all() for r in rows)
     assert any(r.pareto for r in rows)
@@ -173,7 +173,7 @@ def tiny_scene_yaml(path):
 def test_bench_accuracy_cli_writes_csv_png_and_table(tmp_path):
     scene = tiny_scene_yaml(tmp_path / "tiny.yaml")
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--budget", "0.3s", "--out", str(out),
+    res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--budget", "8s", "--out", str(out),
                                     "--rel-tol", "0.05", "--reference-samples", "1024",
                                     "--cache-dir", str(tmp_path / "cache"), "--estimators", "lookin,top1,area"])
     assert res.exit_code == 0, res.output
@@ -185,6 +185,32 @@ def test_bench_accuracy_cli_writes_csv_png_and_table(tmp_path):
     assert (out / "accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "| estimator | setting |" in res.output and "reference:" in res.output
     assert list((tmp_path / "cache").glob("reference_*.npz"))
+
+
+def test_bench_accuracy_over_dataset_rooms_reports_median_and_p95(tmp_path):
+    """--dataset CONFIG --samples N: the ladders run on rooms 0 … N-1 of the val split, each against its own
+    reference; the CSV has a line per (room, step) and a median / p95 summary per setting."""
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["bench", "accuracy", "--dataset", "configs/datasets/smoke.yaml", "--samples", "2",
+                                    "--budget", "20s", "--out", str(out), "--rel-tol", "0.05",
+                                    "--reference-samples", "1024", "--cache-dir", str(tmp_path / "cache"),
+                                    "--estimators", "area"])
+    assert res.exit_code == 0, res.output
+    with (out / "accuracy.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    rooms = {r["room"] for r in rows if r["kind"] == "room"}
+    assert rooms == {"val[0]", "val[1]"}
+    summary = [r for r in rows if r["kind"] == "summary"]
+    assert summary and all(r["estimator"] == "area" for r in summary)
+    first = summary[0]
+    per_room = [float(r["rel_l2"]) for r in rows if r["kind"] == "room" and r["setting"] == first["setting"]]
+    assert float(first["rel_l2"]) == pytest.approx(float(np.median(per_room)), rel=1e-5)
+    assert int(first["rooms"]) == len(per_room) == 2
+    assert (out / "accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "| estimator | setting | rooms |" in res.output and "references: 2 rooms" in res.output
+    res = CliRunner().invoke(main, ["bench", "accuracy", "--dataset", "configs/datasets/smoke.yaml", "--samples",
+                                    "99", "--out", str(out)])
+    assert res.exit_code == 2 and "--samples must be in [1, 8]" in res.output
 
 
 def test_bench_accuracy_cli_bad_input_is_one_line(tmp_path):

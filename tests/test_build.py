@@ -66,10 +66,15 @@ def reference(tmp_path_factory):
 
 
 def test_two_workers_equal_one_worker_with_another_shard_size(reference, tmp_path):
+    """Bit-identical samples, the adaptive sampling included: the samples took different numbers of replicas
+    (train[4] more than the first round's 4) and envelope_error and params agree byte for byte."""
     out = tmp_path / "ds"
     report = build_dataset(tiny_config(shard_size=4), out, workers=2, progress=False)
     assert report.shards_built == 2 + 1 + 1 and report.engine == "processes"
     assert_same_arrays(reference, out)
+    params = zarr.open_group(str(out), mode="r")["train"]["params"][...]
+    replicas = [json.loads(str(p))["accuracy"]["replicas"] for p in params]
+    assert replicas[4] > 4 and min(replicas) == 4
     # the shard layouts really differ: train samples 0-3 | 4-5 here, 0-2 | 3-5 in the reference
     assert zarr.open_group(str(out), mode="r")["train"]["counts"].shards == (4, 256)
     assert zarr.open_group(str(reference), mode="r")["train"]["counts"].shards == (3, 256)
@@ -81,6 +86,31 @@ def test_dask_localcluster_build_equals_local_build(reference, tmp_path):
     assert report.engine == "dask:local" and report.samples_built == 10
     assert_same_arrays(reference, out)
     assert verify_dataset(out) == []
+
+
+def test_card_records_the_tolerance_the_error_distribution_and_the_misses(reference, tmp_path):
+    """The card's accuracy block: tolerance, time cap, median / p95 / max of the stored envelope_error and the
+    samples that missed the tolerance (none at 5 %; a 0.1 % tolerance with a tight time cap misses every sample,
+    and each is flagged by name, never silently accepted); ``inspect`` prints them."""
+    card = read_card(reference)
+    acc = card["accuracy"]
+    stored = np.concatenate([zarr.open_group(str(reference), mode="r")[s]["envelope_error"][...]
+                             for s in ("train", "val", "test_phong")])
+    assert acc["tolerance"] == 0.05 and acc["time_cap_s"] == 0.5 and acc["n_missed"] == 0
+    assert acc["envelope_error"]["n"] == 10 and acc["envelope_error"]["max"] == pytest.approx(stored.max(), rel=1e-6)
+    assert acc["envelope_error"]["median"] == pytest.approx(np.median(stored.astype(np.float64)), rel=1e-6)
+    assert 0 < stored.max() <= 0.05
+    strict = tiny_config(shard_size=4, train=3, val=1, test_phong=0).model_copy(
+        update={"tolerance": 0.001, "time_cap": 0.2})
+    out = tmp_path / "strict"
+    build_dataset(strict, out, workers=0, progress=False)
+    card = read_card(out)
+    assert card["accuracy"]["n_missed"] == 4
+    assert {(m["split"], m["index"]) for m in card["accuracy"]["missed"]} == {("train", 0), ("train", 1),
+                                                                              ("train", 2), ("val", 0)}
+    assert all(m["envelope_error"] > 0.001 for m in card["accuracy"]["missed"])
+    text = CliRunner().invoke(main, ["inspect", str(out)]).output
+    assert "tolerance 0.10%" in text and "4 missed the tolerance" in text and "missed: train[0]" in text
 
 
 def test_card_records_config_versions_timings_hashes_and_consolidates(reference):

@@ -123,6 +123,9 @@ def test_detector_preset_path_loads_with_the_dataset_time_axis():
     ({"detector": {"pde": 2.0, "repetition_rate": 1e7, "exposure": "1ms"}}, "detector.pde"),
     ({"store": {"envelope_dtype": "float16"}}, "store.envelope_dtype"),
     ({"shard_size": 0}, "shard_size"),
+    ({"tolerance": "150%"}, "tolerance"),
+    ({"tolerance": "one percent%"}, "tolerance: .*must look like 1% or 0.01"),
+    ({"time_cap": "-2s"}, "time_cap"),
 ])
 def test_bad_config_names_the_field(change, expected):
     data = smoke_data()
@@ -141,6 +144,44 @@ def test_bad_config_file_names_the_file(tmp_path):
         load_dataset_config(path)
     with pytest.raises(SceneError, match="dataset config not found"):
         load_dataset_config(tmp_path / "nope.yaml")
+
+
+def test_each_sample_meets_the_tolerance_and_stores_its_error_estimate(smoke):
+    """envelope_error is the 0-d float32 estimate of the adaptive run; samples start from 4 replicas and add
+    more only when the estimate asks for it (train[4] of the smoke config: 5 replicas); the parameters record
+    the accuracy the sample reached."""
+    import json
+    assert smoke.tolerance == 0.05 and smoke.time_cap == 0.5
+    replicas = []
+    for i in (3, 4):
+        s = make_sample(smoke, "train", i)
+        err = s.arrays["envelope_error"]
+        assert err.shape == () and err.dtype == np.float32
+        acc = json.loads(str(s.arrays["params"][()]))["accuracy"]
+        assert acc["envelope_error"] == pytest.approx(float(err), rel=1e-6) and acc["tolerance"] == 0.05
+        assert acc["met"] == (acc["envelope_error"] <= 0.05) and 0 < float(err) <= 0.05
+        replicas.append(acc["replicas"])
+    assert replicas[0] == 4 and replicas[1] > 4
+
+
+def test_sample_setup_regenerates_the_sample(smoke):
+    """sample_setup gives the scene and simulation config of a sample: simulating them to the dataset's tolerance
+    with the sample's streams reproduces the stored envelope bit for bit (and a converged reference of the same
+    pair is what the accuracy benchmark compares against)."""
+    import datagen
+    from datagen.simulation import simulate_to_tolerance
+
+    scene, config = datagen.sample_setup(SMOKE, "val", 1)
+    assert config.estimator == "area" and config.time.n_bins == 256
+    rngs = sample_rngs(smoke.seed, "val", 1)
+    again = simulate_to_tolerance(scene, config, smoke.tolerance, max_cost=smoke.time_cap,
+                                  sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
+    stored = make_sample(smoke, "val", 1).arrays
+    assert np.array_equal(np.asarray(again.envelope, dtype=np.float32), stored["envelope"])
+    assert np.float32(again.attrs["tolerance"]["estimate"]) == stored["envelope_error"]
+    assert callable(datagen.converged_reference)
+    with pytest.raises(SceneError, match="index 8 is outside split 'val'"):
+        datagen.sample_setup(smoke, "val", 8)
 
 
 def test_make_sample_rejects_unknown_split_and_index(smoke):

@@ -47,6 +47,18 @@ def test_items_equal_the_stored_arrays(dataset_path):
         ds[8]
 
 
+def test_the_loader_returns_each_samples_envelope_error(dataset_path):
+    """envelope_error (the sample's estimated relative L2 error) comes back as a 0-d float32 tensor, the value
+    its parameters record, and batches of it are (batch,)."""
+    ds = NLOSDataset(dataset_path, split="train", fields=("envelope", "envelope_error"))
+    item = ds[2]
+    assert item["envelope_error"].shape == () and item["envelope_error"].dtype == torch.float32
+    assert float(item["envelope_error"]) == pytest.approx(ds.params(2)["accuracy"]["envelope_error"], rel=1e-6)
+    assert 0 < float(item["envelope_error"]) <= 0.05
+    batch = next(iter(DataLoader(ds, batch_size=4)))
+    assert batch["envelope_error"].shape == (4,)
+
+
 def test_dataloader_two_workers_returns_the_same_tensors_as_zero(dataset_path):
     ds = NLOSDataset(dataset_path, split="train", fields=("envelope", "counts", "depth", "object_count"))
     ds[0]   # open shards in this process: nothing opened may travel to the workers

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..simulation import PEAK_FLOOR, relative_standard_error
 from ..transport import AreaSampler, AreaSettings
 from ..timing import EnvelopeAccumulator
 from ..scene import RayCaster
@@ -38,23 +39,28 @@ from ..scene import Scene, SceneError
 
 __all__ = [
     "PEAK_FLOOR",
+    "REFERENCE_SAMPLER",
     "REFERENCE_SAMPLES",
     "REFERENCE_SEED",
     "Reference",
     "converged_reference",
 ]
 
-REFERENCE_VERSION = 1
+REFERENCE_VERSION = 2
 """Bumped whenever the reference estimator changes, so stale cache files are not reused."""
 
 REFERENCE_SEED = 20240611
 """Default root seed of the reference replicas (replica i: SeedSequence(seed, spawn_key=(i,)))."""
 
+REFERENCE_SAMPLER = {"spot_fraction": 0.5, "fov_fraction": 0.0, "fov_samples": (4, 4), "fov_directions": 2}
+"""The reference's sampling strategies: hidden points by area and from the spot only (no FoV paths), 4×4 FoV
+points and 2 cosine directions per point, i.e. the area sampler as validated against the closed forms before
+issue 12. Estimators with the default :class:`~datagen.transport.AreaSettings` (FoV paths, 3×3 points) thus
+share no importance-sampling choice with their reference beyond the per-leg physics."""
+
 REFERENCE_SAMPLES = 1 << 17
 """Hidden samples per replica (per laser point): ~4 s on the demo room on one core, relative L2 ≈ 0.8 %."""
 
-PEAK_FLOOR = 0.01
-"""Bins where the reference exceeds this fraction of its peak enter the relative L2 (issue 5)."""
 
 
 @dataclass(frozen=True)
@@ -162,10 +168,8 @@ def _estimate(sums: _Sums, n_components: int, n_channels: int) -> tuple[np.ndarr
     if r < 2:
         return mean_comp, {"rel_l2": float("inf"), "total": float("inf"), "peak_time": float("inf")}
     var_mean = np.maximum(sums.env_sq / r - mean ** 2, 0.0) / (r - 1)
-    mask = mean > PEAK_FLOOR * mean.max() if mean.max() > 0 else np.zeros(mean.shape, dtype=bool)
-    norm = np.linalg.norm(mean[mask])
     totals = np.asarray(sums.totals)
-    est = {"rel_l2": float(np.sqrt(var_mean[mask].sum()) / norm) if norm > 0 else float("inf"),
+    est = {"rel_l2": relative_standard_error(mean, var_mean) if mean.max() > 0 else float("inf"),
            "total": float(totals.std(ddof=1) / np.sqrt(r) / abs(totals.mean())) if totals.mean() else float("inf"),
            "peak_time": float(np.std(sums.peaks, ddof=1) / np.sqrt(r))}
     return mean_comp, est
@@ -202,7 +206,8 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
         raise SceneError(f"converged_reference: need 2 <= min_replicas <= max_replicas, got {min_replicas!r}, "
                          f"{max_replicas!r}")
     config = config or resolve_config(scene)
-    settings = AreaSettings.from_transport(config.transport_settings(), samples=samples, **sampler)
+    settings = AreaSettings.from_transport(config.transport_settings(), samples=samples,
+                                           **{**REFERENCE_SAMPLER, **sampler})
     caster = caster or RayCaster(scene)
     sampler_ = AreaSampler(scene, settings, caster)
     names = sampler_.component_names

@@ -58,7 +58,8 @@ def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worke
 
 
 def card_summary(card: dict) -> str:
-    """Short text summary of a dataset card: status, versions, splits and their fields, timings."""
+    """Short text summary of a dataset card: status, versions, splits and their fields, the envelope errors
+    against the tolerance (and the samples that missed it), timings."""
     lines = [f"dataset {card.get('name')!r}: {card.get('status')} "
              f"({card.get('shards_done')}/{card.get('shards_total')} shards), seed {card['config']['seed']}, "
              f"shard size {card['config']['shard_size']}",
@@ -73,6 +74,16 @@ def card_summary(card: dict) -> str:
                      f"(split_key {info['split_key']})")
         for name, spec in info["fields"].items():
             lines.append(f"    {name:<18} {str(tuple(spec['shape'])):<16} {spec['dtype']}")
+    acc = card.get("accuracy")
+    if acc and acc["envelope_error"].get("n"):
+        e = acc["envelope_error"]
+        lines.append(f"envelope error (estimated relative L2, tolerance {acc['tolerance']:.2%}, time cap "
+                     f"{acc['time_cap_s']:g} s): median {e['median']:.2%}, p95 {e['p95']:.2%}, max {e['max']:.2%} "
+                     f"over {e['n']} samples; {acc['n_missed']} missed the tolerance")
+        for m in acc["missed"][:10]:
+            lines.append(f"    missed: {m['split']}[{m['index']}] estimated error {m['envelope_error']:.2%}")
+        if acc["n_missed"] > 10:
+            lines.append(f"    … and {acc['n_missed'] - 10} more (the card's accuracy.missed lists them)")
     ts = card.get("timing", {}).get("per_sample_s", {})
     if ts.get("n"):
         lines.append(f"per-sample build time: mean {ts['mean']:.3f} s, median {ts['median']:.3f} s, "

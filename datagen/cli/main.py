@@ -65,11 +65,12 @@ def _parse_time_cap(text: str | None) -> float | None:
                    "(deterministic, exact time binning; best for small hidden objects and point sensors)")
 @click.option("--edge", type=float, default=None, help="quadrature: sub-triangle edge in metres (default 0.02)")
 @click.option("--tolerance", default=None,
-              help="target relative L2 error, e.g. 1%: choose lookins/pixels (or the quadrature edge) from an "
-                   "on-the-fly error estimate")
+              help="target relative L2 error, e.g. 1%: add independent replicas (or refine the quadrature edge) "
+                   "until the on-the-fly error estimate meets it")
 @click.option("--time-cap", default=None,
-              help="--tolerance: wall-time cap, e.g. 120s (default 600 s); no level starts that would end after "
+              help="--tolerance: wall-time cap, e.g. 120s (default 600 s); no round starts that would end after "
                    "it, and the best result is written with its error estimate")
+@click.option("--samples", type=int, default=None, help="area estimator: hidden samples per laser point")
 @click.option("--workers", type=int, default=None, help="processes sharing the lookins (result unchanged)")
 @click.option("--top-k", type=int, default=None, help="secondary paths kept per lookin and FoV point (optimized)")
 @click.option("--seed", type=int, default=None, help="root seed of every random stream")
@@ -77,7 +78,8 @@ def _parse_time_cap(text: str | None) -> float | None:
               help="also write the paper's Figure 3 and 5 sampling views and a 3D picture of the scene")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @friendly_errors
-def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, tolerance, time_cap, workers, top_k, seed,
+def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, tolerance, time_cap, samples, workers,
+             top_k, seed,
              figures, quiet):
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from ..plot.envelope import plot_envelope
@@ -91,17 +93,16 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
     tol = _parse_fraction(tolerance, "--tolerance") if tolerance is not None else None
     config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
                                     "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol,
-                                    "estimator": estimator, "quadrature_edge": edge})
+                                    "estimator": estimator, "quadrature_edge": edge, "area_samples": samples})
     cap = _parse_time_cap(time_cap)
     if tol is not None:
-        from ..analysis import TIME_CAP_S, describe_setting, simulate_to_tolerance
+        from ..simulation import TIME_CAP_S, simulate_to_tolerance
         cap = TIME_CAP_S if cap is None else cap
         result = simulate_to_tolerance(scene, config, tol, max_seconds=cap, progress=not quiet)
         t = result.attrs["tolerance"]
-        setting, bound = describe_setting(result.attrs["config"])
-        missed = "" if t["met"] else f" — NOT met within --time-cap {cap:g} s (levels run: {len(t['levels'])})"
+        missed = "" if t["met"] else f" — NOT met within --time-cap {cap:g} s (rounds run: {len(t['rounds'])})"
         shown = f"{tol:.2%}" if tol >= 1e-4 else f"{tol:.3g}"
-        click.echo(f"tolerance {shown}: {setting}, estimated error {t['estimate']:.2%} ({bound}){missed}")
+        click.echo(f"tolerance {shown}: estimated error {t['estimate']:.2%}{missed}")
     elif cap is not None:
         raise click.BadParameter("--time-cap applies to --tolerance runs only", param_hint="--time-cap")
     else:
@@ -168,13 +169,17 @@ def detect(result_path, detector_file, exposure, seed):
 
 
 def summary(result) -> str:
-    """Peak time and area of the envelope and each component, counts and wall time, as a short table."""
+    """Peak time and area of the envelope and each component, the estimated error, counts and wall time."""
     lines = [f"{'component':<12}{'peak (ns)':>10}{'area (det/pulse)':>18}{'share':>8}"]
     total = result.area()
     for name in ["total"] + list(result.components):
         area = total if name == "total" else result.area(name)
         peak = result.peak_time(None if name == "total" else name) * 1e9 if area > 0 else float("nan")
         lines.append(f"{name:<12}{peak:>10.2f}{area:>18.4e}{area / total if total else 0:>8.1%}")
+    err = result.attrs.get("error")
+    if err is not None:
+        lines.append(f"estimated error of the envelope: {err['rel_l2']:.2%} relative L2 ({err['replicas']} "
+                     f"replica{'s' if err['replicas'] != 1 else ''} of {err['replica_setting']})")
     t = result.attrs["timings_s"]
     lines.append(f"SPAD counts: {int(result.counts.sum())} detections over {result.attrs['n_cycles']} laser cycles "
                  f"({result.attrs['detector']['model']} model)")

@@ -11,7 +11,8 @@ docs/physics.md §7).
 Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.dataset.config`: :class:`DatasetConfig`, the seed streams (:data:`STREAMS`,
-  :func:`split_key`, :func:`resample_rng`), :func:`draw_room` and :func:`make_sample`;
+  :func:`split_key`, :func:`resample_rng`), :func:`draw_room`, :func:`make_sample` and :func:`sample_setup` (a
+  sample's scene and simulation config, to regenerate it at any accuracy);
 - :mod:`~datagen.dataset.rooms`: the room distribution schema (:class:`RoomDistribution`,
   :func:`load_room_distribution`, :func:`check_feasible`);
 - :mod:`~datagen.dataset.sampler`: :func:`sample_room` → :class:`SampledRoom` (its generator keys are
@@ -31,8 +32,7 @@ from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildR
                     write_shard)
 from .config import (COMPONENT_ROOM, OTHER_COMPONENTS, RESAMPLE_NOISE, STREAMS, DatasetConfig, Sample, SplitSpec,
                      StoreSpec, component_slots, config_from_json, draw_room, load_dataset_config, make_sample,
-                     resample_rng,
-                     sample_rngs, sample_seed_sequence, split_key)
+                     resample_rng, sample_rngs, sample_seed_sequence, sample_setup, split_key)
 from .labels import PAD_INT, LabelSpec, camera_directions, camera_frame, label_shapes, occupancy_grid, scene_labels
 from .obb import (box_hits_pyramid, box_hits_segment, boxes_overlap, convex_overlap, obb_vertices, points_in_box,
                   yaw_matrix)
@@ -49,7 +49,7 @@ __all__ = [
     # config and samples
     "STREAMS", "RESAMPLE_NOISE", "COMPONENT_ROOM", "OTHER_COMPONENTS", "component_slots", "split_key", "sample_seed_sequence",
     "sample_rngs", "resample_rng", "SplitSpec", "StoreSpec", "DatasetConfig", "load_dataset_config",
-    "config_from_json", "Sample", "draw_room", "make_sample", "scene_of_sample",
+    "config_from_json", "Sample", "draw_room", "make_sample", "sample_setup", "scene_of_sample",
     # room distributions and sampling
     "OBJECT_CLASSES", "MATERIAL_CLASSES", "UNIFORMS_PER_MATERIAL", "PACKING_LIMIT", "Range", "CountRange",
     "MaterialDist", "LabelRegion", "RoomDistribution", "load_room_distribution", "check_feasible", "SampledRoom",

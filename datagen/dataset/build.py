@@ -144,6 +144,7 @@ def write_shard(root: str, config_json: dict, task: ShardTask) -> dict:
             hashes[name] = file_sha256(shard_file(root, task.split, name, task.shard, arr.ndim))
         marker = {"split": task.split, "shard": task.shard, "start": task.start, "stop": task.stop,
                   "sha256": hashes, "seconds": [s.seconds for s in samples],
+                  "envelope_error": [float(s.arrays["envelope_error"]) for s in samples],
                   "shard_seconds": {"compute": t1 - t0, "write": time.perf_counter() - t1},
                   "worker": {"host": socket.gethostname(), "pid": os.getpid()},
                   "finished": datetime.now(timezone.utc).isoformat(timespec="seconds")}

@@ -120,6 +120,12 @@ class StoreSpec(_Model):
 class DatasetConfig(_Model):
     """A dataset: see the module docstring. Load from YAML with :func:`load_dataset_config`.
 
+    ``tolerance`` (e.g. "1%", default 1 %) is the per-sample target of the envelope's estimated relative L2 error
+    and ``time_cap`` (e.g. "2s") the most nominal compute a sample may spend reaching it
+    (:func:`datagen.simulation.simulate_to_tolerance`; nominal seconds are counted work at fixed rates, so the
+    adaptive choice is deterministic). Each sample stores its estimate as ``envelope_error``; the card lists the
+    samples that missed the tolerance.
+
     ``room`` and a string ``detector`` may be file paths in YAML; :func:`load_dataset_config` replaces them by
     the files' mappings, so the config a worker receives and the card records are self-contained.
     """
@@ -133,6 +139,28 @@ class DatasetConfig(_Model):
     detector: str | dict | None = None
     labels: dict = Field(default_factory=dict)
     store: StoreSpec = StoreSpec()
+    tolerance: float = Field(0.01, gt=0, lt=1)
+    time_cap: float = Field(2.0, gt=0, allow_inf_nan=False)
+
+    @field_validator("tolerance", mode="before")
+    @classmethod
+    def _fraction(cls, value: Any) -> Any:
+        """'1%' → 0.01 (a bare number is a fraction)."""
+        if isinstance(value, str) and value.strip().endswith("%"):
+            try:
+                return float(value.strip()[:-1]) / 100.0
+            except ValueError:
+                raise ValueError(f"must look like 1% or 0.01, got {value!r}") from None
+        return value
+
+    @field_validator("time_cap", mode="before")
+    @classmethod
+    def _duration(cls, value: Any) -> Any:
+        """'2s', '500ms' → seconds (a bare number is seconds)."""
+        if isinstance(value, str):
+            from ..units import parse_duration
+            return parse_duration(value)
+        return value
 
     @field_validator("splits")
     @classmethod
@@ -325,7 +353,8 @@ class Sample:
     Attributes:
         arrays: field name → fixed-shape array (no sample axis): ``envelope`` (*S, T) float32/64 expected
             detected photons per pulse per bin (S the capture's leading axes, e.g. (ny, nx) FoV pixels or
-            none), ``counts`` (*S, T) int64, ``components`` (C, *S, T) (slots named by
+            none), ``envelope_error`` () float32 the envelope's estimated relative L2 error (bins above 1 % of its
+            peak), ``counts`` (*S, T) int64, ``components`` (C, *S, T) (slots named by
             ``component_names``: room, object_0 … object_{K-1}, then secondary and any other component of the
             result), the label arrays of
             :func:`datagen.dataset.labels.scene_labels`, and ``params`` (0-d str, JSON).
@@ -361,24 +390,54 @@ def draw_room(config: DatasetConfig, split: str, index: int):
     return room, rngs
 
 
-def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
-    """Compute sample ``index`` of ``split``: room → envelope and SPAD counts → labels.
+def _setup(config: DatasetConfig, split: str, index: int):
+    """(sampled room, its resolved simulation config, the sample's generators) of sample ``index`` of ``split``."""
+    from ..simulation import resolve_config
 
-    A pure function of (config, split, index): every random stream comes from :func:`sample_rngs`.
+    room, rngs = draw_room(config, split, index)
+    return room, resolve_config(room.scene, config.simulation_overrides()), rngs
+
+
+def sample_setup(config: DatasetConfig | str | Path, split: str, index: int):
+    """The scene and simulation config of sample ``index`` of ``split``: regenerate it at any accuracy, e.g.
+    ``datagen.converged_reference(*datagen.sample_setup("configs/datasets/default.yaml", "val", 3))``.
+
+    Args:
+        config: a resolved :class:`DatasetConfig` or a dataset YAML path.
+    Returns:
+        (:class:`~datagen.scene.Scene`, :class:`~datagen.simulation.SimulationConfig`): the room the sample was
+        drawn from and its resolved simulation settings (the dataset's ``simulation`` block over the room's).
+        The sample itself is ``simulate_to_tolerance(scene, sim_config, config.tolerance, max_cost=
+        config.time_cap, sampling_rng=..., noise_rng=...)`` with the sample's streams (:func:`sample_rngs`).
+    Raises:
+        SceneError: an unknown split, an index out of range, an invalid config file.
+    """
+    if not isinstance(config, DatasetConfig):
+        config = load_dataset_config(config)
+    room, sim_config, _ = _setup(config, split, index)
+    return room.scene, sim_config
+
+
+def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
+    """Compute sample ``index`` of ``split``: room → envelope to the config's tolerance and SPAD counts → labels.
+
+    A pure function of (config, split, index): every random stream comes from :func:`sample_rngs`, and the
+    adaptive sampling (replicas added until the error estimate meets ``config.tolerance``, within
+    ``config.time_cap`` nominal seconds) depends on nothing else.
 
     Raises:
         SceneError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
             more hidden objects than ``labels.max_objects``; the message names the sample.
     """
     from .labels import scene_labels
-    from ..simulation import resolve_config, simulate
+    from ..simulation import simulate_to_tolerance
 
     where = f"sample ({split}, {index})"
     t0 = time.perf_counter()
-    room, rngs = draw_room(config, split, index)
+    room, sim_config, rngs = _setup(config, split, index)
     t1 = time.perf_counter()
-    sim_config = resolve_config(room.scene, config.simulation_overrides())
-    result = simulate(room.scene, sim_config, sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
+    result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.time_cap,
+                                   sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
     t2 = time.perf_counter()
     spec = config.label_spec()
     if len(room.objects) > spec.max_objects:
@@ -390,6 +449,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     component_names: list[str] = []
     if config.store.envelope:
         arrays["envelope"] = np.asarray(result.envelope, dtype=config.store.envelope_dtype)
+    arrays["envelope_error"] = np.asarray(result.attrs["tolerance"]["estimate"], dtype=np.float32)
     if config.store.counts:
         arrays["counts"] = np.asarray(result.counts, dtype=np.int64)
     if config.store.components:
@@ -400,11 +460,19 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     if config.store.params:
         params = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
                   "streams": STREAMS, "room": room.params, "objects": room.objects,
-                  "effects": result.attrs.get("effects"),
+                  "effects": result.attrs.get("effects"), "accuracy": _accuracy(result.attrs),
                   "plan": {k: v.get("on") for k, v in (result.attrs.get("plan") or {}).get("decisions", {}).items()}}
         arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=_json_default), dtype=object)
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
     return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names)
+
+
+def _accuracy(attrs: dict) -> dict:
+    """What the sample's adaptive sampling did: target, estimate, met, replicas and their setting, nominal s."""
+    tol, err = attrs["tolerance"], attrs["error"]
+    return {"tolerance": tol["target"], "envelope_error": err["rel_l2"], "met": tol["met"],
+            "replicas": err["replicas"], "replica_setting": err["replica_setting"],
+            "nominal_seconds": tol["nominal_seconds"]}
 
 
 def _json_default(value):

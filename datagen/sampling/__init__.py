@@ -10,9 +10,9 @@
 from .directions import HemispherePdf, concentric_disk, square_to_hemisphere, stratified_grid, to_world
 from .lookins import Lookins, ObservedPoints, camera_solid_angle, observe, sample_lookins
 from .surfaces import (AreaSampling, SurfaceSamples, padding, sample_surfaces, stratified_edge, subdivide_triangles,
-                       subdivide_with_vertices, subdivisions, unit_square_points, unit_triangle)
+                       subdivide_with_vertices, subdivisions, unit_square_points, unit_triangle, coarse_cells)
 
 __all__ = ["HemispherePdf", "concentric_disk", "square_to_hemisphere", "stratified_grid", "to_world", "Lookins",
            "ObservedPoints", "camera_solid_angle", "observe", "sample_lookins", "AreaSampling", "SurfaceSamples",
-           "padding", "sample_surfaces", "stratified_edge", "subdivide_triangles", "subdivide_with_vertices",
+           "padding", "coarse_cells", "sample_surfaces", "stratified_edge", "subdivide_triangles", "subdivide_with_vertices",
            "subdivisions", "unit_square_points", "unit_triangle"]

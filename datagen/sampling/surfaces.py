@@ -189,21 +189,45 @@ def sample_surfaces(caster: RayCaster, faces: np.ndarray, samples: int, method: 
 
 
 
-def subdivide_with_vertices(tri: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def subdivide_with_vertices(tri: np.ndarray, h: float, even: bool = False
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Split triangles (F, 3, 3) into k² congruent sub-triangles each, k = ceil(longest edge / h), keeping their
     vertices: the same split and order as :func:`subdivide_triangles`.
 
+    Args:
+        even: round every k up to an even number, so that the sub-triangles group 4 by 4 into the split at
+            k/2 (:func:`coarse_cells`).
     Returns:
         vertices (V, 3) float64, the lattice points (shared by neighbouring sub-triangles of one face);
         cells (M, 3) int64 indices into ``vertices``; areas (M,) m²; parent face index (M,) int64.
     Raises:
         SceneError: h not finite or ≤ 0.
     """
+    out = _lattice_split(tri, h, even)
+    return out[0], out[1], out[2], out[3]
+
+
+def coarse_cells(tri: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """The split at k/2 of :func:`subdivide_with_vertices` (``even=True``), in terms of the fine one: each coarse
+    sub-triangle is the union of 4 fine ones and its centroid is that of the middle (inverted) one.
+
+    Returns:
+        coarse cells (Mc, 3) int64 indices into the fine ``vertices`` (the coarse corners are fine lattice points);
+        central (Mc,) int64, the index of the fine cell whose centroid is the coarse centroid (its area is a
+        quarter of the coarse one).
+    """
+    out = _lattice_split(tri, h, True)
+    return out[4], out[5]
+
+
+def _lattice_split(tri: np.ndarray, h: float, even: bool):
     if not np.isfinite(h) or h <= 0:
         raise SceneError(f"subdivide_with_vertices: h must be finite and > 0, got {h!r}")
     ks = subdivisions(tri, h)
-    verts, cells, areas, parents = [], [], [], []
-    offset = 0
+    if even:
+        ks = ks + ks % 2
+    verts, cells, areas, parents, coarse, central = [], [], [], [], [], []
+    offset = cell_offset = 0
     for k in np.unique(ks):
         faces = np.flatnonzero(ks == k)
         i, j = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
@@ -220,11 +244,30 @@ def subdivide_with_vertices(tri: np.ndarray, h: float) -> tuple[np.ndarray, np.n
         e1, e2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
         a, b = i[lattice] / k, j[lattice] / k
         p = t[:, None, 0] + a[None, :, None] * e1[:, None] + b[None, :, None] * e2[:, None]     # (f, n_lat, 3)
+        vert_base = offset + n_lat * np.arange(len(faces))[:, None, None]
         verts.append(p.reshape(-1, 3))
-        cells.append((local[None] + offset + n_lat * np.arange(len(faces))[:, None, None]).reshape(-1, 3))
-        offset += n_lat * len(faces)
+        cells.append((local[None] + vert_base).reshape(-1, 3))
         area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1) / k ** 2
         areas.append(np.repeat(area, len(local)))
         parents.append(np.repeat(faces, len(local)))
-    return (np.concatenate(verts), np.concatenate(cells).astype(np.int64), np.concatenate(areas),
-            np.concatenate(parents).astype(np.int64))
+        if even:
+            # coarse up (I, J): corners (2I, 2J), (2I+2, 2J), (2I, 2J+2), middle child the fine down cell (2I, 2J);
+            # coarse down (I, J): corners (2I+2, 2J), (2I, 2J+2), (2I+2, 2J+2), middle child the fine up (2I+1, 2J+1)
+            cell_of = np.full((2, k, k), -1, dtype=np.int64)
+            cell_of[0][up] = np.arange(len(iu))
+            cell_of[1][down] = len(iu) + np.arange(len(idn))
+            kc = k // 2
+            ic, jc = np.meshgrid(np.arange(kc), np.arange(kc), indexing="ij")
+            cu = (ic + jc) < kc
+            cd = (ic + jc) < kc - 1
+            I, J, Id, Jd = 2 * ic[cu], 2 * jc[cu], 2 * ic[cd], 2 * jc[cd]
+            c_local = np.concatenate([np.stack([index[I, J], index[I + 2, J], index[I, J + 2]], 1),
+                                      np.stack([index[Id + 2, Jd], index[Id, Jd + 2], index[Id + 2, Jd + 2]], 1)])
+            mid = np.concatenate([cell_of[1][I, J], cell_of[0][Id + 1, Jd + 1]])
+            coarse.append((c_local[None] + vert_base).reshape(-1, 3))
+            central.append((mid[None] + cell_offset + len(local) * np.arange(len(faces))[:, None]).reshape(-1))
+        offset += n_lat * len(faces)
+        cell_offset += len(local) * len(faces)
+    as_int = lambda parts: np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, dtype=np.int64)
+    return (np.concatenate(verts), np.concatenate(cells).astype(np.int64), np.concatenate(areas), as_int(parents),
+            np.concatenate(coarse).astype(np.int64) if coarse else np.zeros((0, 3), dtype=np.int64), as_int(central))

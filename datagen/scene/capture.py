@@ -210,6 +210,20 @@ def _opposite_sides(scene: Scene, emitter: np.ndarray, sensor: np.ndarray, spot:
             f"{grid_field}, while laser.emitter {emitter.tolist()} lights the other side")
 
 
+def _resolve_spots(caster: RayCaster, names: list[str], emitter: np.ndarray, spots: np.ndarray, where: str,
+                   fields: list[str]) -> list[tuple[np.ndarray, int, float]]:
+    """:func:`_resolve_spot` of every laser point, with one batch of beams (a scan's thousand points); a point
+    the batch finds wrong is resolved alone, which raises its own message."""
+    legs = np.linalg.norm(spots - emitter, axis=1)
+    if (legs > 0).all():
+        hits = caster.intersect(np.broadcast_to(emitter, spots.shape), unit(spots - emitter))
+        tol = FOV_PLANE_TOL * caster.offset
+        good = hits.hit & (np.abs(hits.distance - legs) <= tol)
+        if good.all():
+            return [(hits.normals[i], int(hits.object_id[i]), float(legs[i])) for i in range(len(spots))]
+    return [_resolve_spot(caster, names, emitter, p, where, f) for p, f in zip(spots, fields)]
+
+
 def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     """Find the laser points' surfaces and normals, set up the sensor grid, check the sensor sees it.
 
@@ -247,7 +261,7 @@ def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
         laser_shape = tuple(lg.points)
         fields = [f"capture.laser_grid point {i}" for i in range(len(spots))]
     names = [o.name for o in scene.objects]
-    resolved = [_resolve_spot(caster, names, emitter, p, where, f) for p, f in zip(spots, fields)]
+    resolved = _resolve_spots(caster, names, emitter, spots, where, fields)
     if float(np.dot(normal, resolved[0][0])) < 0:
         raise SceneError(_opposite_sides(scene, emitter, sensor, spots[0], resolved[0][0], where, grid_field))
     photons = 1.0 if convention == "point_radiance" else scene.laser.photons

@@ -5,14 +5,24 @@
   (:func:`stream_rng`, ``STREAM_SAMPLING`` / ``STREAM_NOISE``).
 - :mod:`.run`: :func:`simulate` → :class:`Result` (``time_edges`` (T+1,) s, ``envelope`` (…, T) detected
   photons per pulse per bin, ``components``, ``counts`` (…, T) int64, ``attrs``); :func:`run_transport` (plan,
-  estimate, bin) → :class:`Transported`; :func:`make_result` (detector draw and metadata).
+  estimate, bin) → :class:`Transported`; :class:`Replicas` (independent replicas of one estimator and their
+  mean); :func:`make_result` (detector draw and metadata).
+- :mod:`.replicas`: the error estimate every result carries (``attrs["error"]``: the replicas' standard error
+  in the relative L2 measure of :func:`datagen.analysis.relative_l2`), replica streams.
+- :mod:`.tolerance`: :func:`simulate_to_tolerance` (replicas added, or the quadrature edge refined, until the
+  estimate meets a target; ``simulate --tolerance``, dataset builds).
 - :mod:`.budget`: the memory a simulation needs, estimated before allocating (:func:`simulation_memory`), and
   the refusal (:class:`ResourceError`) when it exceeds the memory available.
 """
 from .budget import ResourceError, available_memory, check_memory, check_simulation_memory, simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, parse_grid, resolve_config, stream_rng
-from .run import Result, Transported, library_versions, make_result, run_transport, simulate
+from .replicas import PEAK_FLOOR, ReplicaSums, relative_standard_error, replica_rng, replica_root
+from .tolerance import TIME_CAP_S, simulate_to_tolerance
+from .run import (Replicas, Result, Transported, library_versions, make_result, prepare_transport, run_transport,
+                  simulate)
 
 __all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "SimulationConfig", "parse_grid", "resolve_config", "stream_rng",
-           "Result", "Transported", "library_versions", "make_result", "run_transport", "simulate",
+           "PEAK_FLOOR", "ReplicaSums", "relative_standard_error", "replica_rng", "replica_root", "Replicas",
+           "Result", "Transported", "library_versions", "make_result", "prepare_transport", "run_transport",
+           "simulate", "simulate_to_tolerance", "TIME_CAP_S",
            "ResourceError", "available_memory", "check_memory", "check_simulation_memory", "simulation_memory"]

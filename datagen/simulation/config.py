@@ -68,6 +68,10 @@ class SimulationConfig(BaseModel):
             connections to ``connect_samples`` stratified points per sensor pixel; forced for point radiance).
         conv_refine: the exact secondary's profile grid is this many times finer than the envelope's grid.
         workers: processes sharing the lookins (1 = in process; the result does not depend on it).
+        replicas: R, independent replicas a Monte Carlo estimator's sampling is split into (``area_samples`` /
+            R hidden samples, or lookin grids of side / √R, each); their mean is the envelope and their spread
+            its error estimate (``attrs["error"]``, :mod:`datagen.simulation.replicas`). ``simulate_to_tolerance``
+            starts from them and adds replicas of the same size.
         tolerance: relative accuracy the effect planner works to (effects below it are skipped).
         effects: per effect "auto" (the planner decides) or true/false (forced); see datagen.planner.
         seed: root of every random stream.
@@ -95,6 +99,7 @@ class SimulationConfig(BaseModel):
     connect_samples: tuple[int, int] = (4, 4)
     conv_refine: int = Field(1, ge=1, le=64)
     workers: int = Field(1, ge=1)
+    replicas: int = Field(8, ge=2, le=4096)
     tolerance: float = Field(0.01, gt=0, lt=1)
     effects: dict[str, bool | Literal["auto"]] = Field(default_factory=dict)
     seed: int = Field(0, ge=0)

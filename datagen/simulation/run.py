@@ -19,9 +19,10 @@ from .. import spad
 from ..planner import Plan, plan_effects
 from ..scene import RayCaster, Scene, SceneError
 from ..timing import EnvelopeAccumulator
-from ..transport import Estimator, Transport, estimator
+from ..transport import Estimator, Transport, estimator, run_replicas
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
+from .replicas import ReplicaSums, relative_difference, replica_root, replica_rng
 
 
 @dataclass
@@ -93,19 +94,16 @@ class Transported:
     seconds: dict
 
 
-def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generator,
-                  progress: bool = False) -> Transported:
-    """Plan the effects, run the configured estimator and bin its impulses (scene → transport → envelope).
+def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator, Plan]:
+    """Plan the effects and build the configured estimator (scene → planner → transport), ready to run.
 
     The lookin settings from ``config`` are resolved first (they carry the physics switches and the capture);
     the effect planner's decisions are applied to them; then the estimator registered under
-    ``config.estimator`` is built from them (:func:`datagen.transport.estimator`) and run into an
-    :class:`~datagen.timing.EnvelopeAccumulator`.
+    ``config.estimator`` is built from them (:func:`datagen.transport.estimator`).
 
     Raises:
         ResourceError: the estimated memory exceeds what is available (:mod:`datagen.simulation.budget`).
     """
-    t0 = time.perf_counter()
     check_simulation_memory(scene, config)     # refuse what cannot fit before allocating anything
     caster = RayCaster(scene)
     lookin = Transport(scene, config.transport_settings(), caster)
@@ -113,16 +111,20 @@ def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generat
     lookin.configure(plan.apply(lookin.settings))
     transport: Estimator = lookin if config.estimator == "lookin" else \
         estimator(config.estimator).from_config(scene, config, lookin.settings, caster)
+    return transport, plan
+
+
+def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generator,
+                  progress: bool = False) -> Transported:
+    """One run of the configured estimator at the config's setting, binned (scene → transport → envelope;
+    no replicas, no error estimate: :class:`Replicas` does that)."""
+    t0 = time.perf_counter()
+    transport, plan = prepare_transport(scene, config)
     t_setup = time.perf_counter() - t0
-    capture = transport.capture
     names = transport.component_names
-    n_ch = capture.n_channels
+    n_ch = transport.capture.n_channels
     acc = EnvelopeAccumulator(config.time, config.irf, len(names) * n_ch)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-        total, unit = transport.progress_total()
-        bar = tqdm(total=total, unit=unit, desc="transport", leave=False)
+    bar = _progress_bar(transport, 1) if progress else None
     t1 = time.perf_counter()
     transport.run(acc, rng, progress=(bar.update if bar is not None else None))
     if bar is not None:
@@ -135,15 +137,158 @@ def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generat
     return Transported(names, binned, outside, transport, plan, seconds)
 
 
+def _progress_bar(transport: Estimator, replicas: int):
+    from tqdm.auto import tqdm
+    total, unit = transport.progress_total()
+    return tqdm(total=total * replicas, unit=unit, desc="transport", leave=False)
+
+
+REPLICA_SINK_BYTES = 1 << 26
+"""Replica accumulators alive at once are bounded to this many bytes of fine histograms (64 MiB; at least one):
+long time axes (a 1.67 M-bin corridor) run their replicas one by one."""
+
+
+class Replicas:
+    """The configured estimator built once and run replica by replica (docs/accuracy.md; :mod:`.replicas`).
+
+    A Monte Carlo estimator (one whose registry entry gives ``replica``) runs at the *replica setting*, the
+    config's sampling split R = ``config.replicas`` ways (e.g. ``area_samples`` / R hidden samples); replica r
+    draws from :func:`~datagen.simulation.replicas.replica_rng` (root, r), so the result of R replicas does not
+    depend on how they were run (in one call or in rounds, on any number of workers). A deterministic estimator
+    (the quadrature without a Monte Carlo secondary) runs once.
+
+    Args:
+        scene, config: as for :func:`simulate`. rng: the sampling stream (the replicas' root is drawn from it).
+    Attributes:
+        entry: the estimator's :class:`~datagen.transport.EstimatorEntry`; replica_config: the config of one
+        replica; transport: the estimator; sums: :class:`~datagen.simulation.replicas.ReplicaSums`;
+        monte_carlo: whether the run has noise (replicas); seconds: setup / transport / binning wall times.
+    """
+
+    def __init__(self, scene: Scene, config: SimulationConfig, rng: np.random.Generator):
+        t0 = time.perf_counter()
+        self.scene, self.config = scene, config
+        self.entry = estimator(config.estimator)
+        check_simulation_memory(scene, config)   # the grids as the user gave them (a replica's are smaller)
+        update = self.entry.replica(config, config.replicas) if self.entry.replica is not None else {}
+        self.replica_config = config.model_copy(update=update)
+        self.transport, self.plan = prepare_transport(scene, self.replica_config)
+        self.monte_carlo = self.entry.replica is not None and getattr(self.transport, "monte_carlo", True)
+        self.names = self.transport.component_names
+        self.n_channels = self.transport.capture.n_channels
+        self.total = EnvelopeAccumulator(config.time, config.irf, len(self.names) * self.n_channels)
+        self.sums = ReplicaSums.zeros(self.n_channels, config.time.n_bins)
+        self.root = replica_root(rng)
+        self.seconds = {"setup": time.perf_counter() - t0, "transport": 0.0, "binning": 0.0}
+
+    @property
+    def count(self) -> int:
+        """Replicas run so far."""
+        return self.sums.count
+
+    def run(self, n: int, progress: bool = False) -> None:
+        """Run the next ``n`` replicas (one, at most, for a deterministic estimator)."""
+        if not self.monte_carlo:
+            n = 1 - self.count
+        if n <= 0:
+            return
+        bar = _progress_bar(self.transport, n) if progress else None
+        if not self.monte_carlo:                 # one deterministic run, straight into the total: no spread
+            t1 = time.perf_counter()
+            run_replicas(self.transport, [self.total], [replica_rng(self.root, 0)], bar.update if bar else None)
+            self.sums.count = 1
+            self.seconds["transport"] += time.perf_counter() - t1
+            if bar is not None:
+                bar.close()
+            return
+        group = max(1, REPLICA_SINK_BYTES // (8 * self.total.n_components * self.total.n_fine))
+        start, stop = self.count, self.count + n
+        for first in range(start, stop, group):                  # replica sinks of one group at a time (memory)
+            sinks = [self.total.spawn() for _ in range(min(group, stop - first))]
+            rngs = [replica_rng(self.root, first + k) for k in range(len(sinks))]
+            t1 = time.perf_counter()
+            run_replicas(self.transport, sinks, rngs, bar.update if bar is not None else None)
+            t2 = time.perf_counter()
+            for sink in sinks:
+                self.total.merge(sink)
+                self.sums.add(sink.binned_total(self.n_channels))
+            del sinks
+            self.seconds["transport"] += t2 - t1
+            self.seconds["binning"] += time.perf_counter() - t2
+        if bar is not None:
+            bar.close()
+
+    def error(self) -> float:
+        """The Monte Carlo part of the error estimate of the mean (0 for a deterministic run)."""
+        return self.sums.error() if self.monte_carlo else 0.0
+
+    def transported(self) -> Transported:
+        """The mean of the replicas run so far, binned."""
+        t0 = time.perf_counter()
+        r = max(self.count, 1)
+        binned = self.total.binned().reshape(len(self.names), self.n_channels, -1) / r
+        outside = self.total.outside().reshape(len(self.names), self.n_channels) / r
+        self.seconds["binning"] += time.perf_counter() - t0
+        return Transported(self.names, binned, outside, self.transport, self.plan, dict(self.seconds))
+
+    def refinement_error(self, tr: Transported, rng: np.random.Generator) -> float | None:
+        """A deterministic estimator's error from its coarser setting (registry ``refine``): ‖P(h) − P(2h)‖ /
+        (2^order − 1) relative to the envelope, P the primary (no Monte Carlo secondary, whose noise the replicas
+        measure, nor the direct first bounce). The estimator's own coarse sums (``transport.coarse``: the
+        quadrature's rule at 2h from the same evaluations) are used when it has them, else a coarse run. None for
+        Monte Carlo estimators."""
+        if self.entry.refine is None:
+            return None
+        t0 = time.perf_counter()
+        keep = [i for i, n in enumerate(tr.names) if n not in ("secondary", "first_bounce")]
+        coarse_acc = getattr(self.transport, "coarse", None)
+        channels = slice(None)
+        if coarse_acc is not None:                 # holds the coarse primary only, per channel (some channels)
+            channels = getattr(self.transport, "coarse_channels", slice(None))
+            coarse_p = coarse_acc.binned_total(self.n_channels)[channels]
+        else:
+            no_secondary = {"secondary": "none", "effects": {**self.replica_config.effects, "secondary": False}}
+            coarse_cfg = self.replica_config.model_copy(update={**self.entry.refine(self.replica_config),
+                                                                **no_secondary})
+            coarse = run_transport(self.scene, coarse_cfg, rng)
+            coarse_p = coarse.binned[[i for i, n in enumerate(coarse.names)
+                                      if n not in ("secondary", "first_bounce")]].sum(axis=0)
+        self.seconds["refinement"] = time.perf_counter() - t0
+        fine_p = tr.binned[keep].sum(axis=0)[channels]
+        return relative_difference(fine_p, coarse_p, tr.binned.sum(axis=0)[channels]) / (2.0 ** self.entry.order - 1.0)
+
+    def error_attrs(self, tr: Transported, rng: np.random.Generator) -> dict:
+        """``attrs["error"]`` of the result: the estimate (relative L2 of the envelope over bins above 1 % of its
+        peak), its parts and how it was made."""
+        mc = self.error()
+        refined = self.refinement_error(tr, rng)
+        total = float(np.hypot(mc, refined or 0.0))
+        describe = self.entry.describe or (lambda cfg: cfg["estimator"])
+        setting = describe(self.replica_config.model_dump(mode="json"))
+        parts = []
+        if self.monte_carlo:
+            parts.append(f"standard error of the mean of {self.count} independent replicas ({setting} each)")
+        if refined is not None:
+            parts.append(f"edge refinement ‖E(h) − E(2h)‖/{2 ** self.entry.order - 1} of the primary ({setting})")
+        return {"rel_l2": total, "monte_carlo": mc, "refinement": refined, "replicas": self.count,
+                "replica_setting": setting,
+                "method": " and ".join(parts) + "; relative L2 over bins above 1 % of the peak"}
+
+
 def simulate(scene: Scene, config: SimulationConfig | None = None, progress: bool = False,
              sampling_rng: np.random.Generator | None = None,
              noise_rng: np.random.Generator | None = None) -> Result:
-    """Simulate the envelope and a SPAD histogram for ``scene``.
+    """Simulate the envelope and a SPAD histogram for ``scene``, with an estimate of the envelope's error.
+
+    A Monte Carlo estimator runs as ``config.replicas`` independent replicas that share its sampling (their
+    mean is the envelope; :class:`Replicas`); the quadrature runs once and estimates its error from a coarser
+    edge. ``attrs["error"]["rel_l2"]`` is the estimated relative L2 error of the envelope over bins above 1 %
+    of its peak (:mod:`datagen.simulation.replicas`).
 
     Args:
         scene: the scene (see :func:`datagen.load_scene`).
         config: sampling, time axis, IRF and detector; default: the scene's ``simulation`` block.
-        progress: show a tqdm bar over lookins.
+        progress: show a tqdm bar over the estimator's work.
         sampling_rng, noise_rng: the scene-sampling and detector-noise streams; default
             ``stream_rng(config.seed, STREAM_SAMPLING)`` and ``stream_rng(config.seed, STREAM_NOISE)``. Dataset
             builds pass streams keyed by (dataset seed, split, index, stream) (docs/physics.md §7).
@@ -155,8 +300,10 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     config = config or resolve_config(scene)
     t0 = time.perf_counter()
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
-    tr = run_transport(scene, config, rng, progress)
-    return make_result(scene, config, tr, noise_rng, t0)
+    runs = Replicas(scene, config, rng)
+    runs.run(config.replicas, progress)
+    tr = runs.transported()
+    return make_result(scene, config, tr, noise_rng, t0, {"error": runs.error_attrs(tr, rng)})
 
 
 def make_result(scene: Scene, config: SimulationConfig, tr: Transported,

@@ -2,8 +2,7 @@
 
 Transport produces path impulses: an arrival time ``tau`` (seconds, float64) and a weight ``w`` (expected
 detected photons per laser pulse, float64), each belonging to a component (room, box, pillar, secondary...).
-The envelope this module returns holds, for every output bin ``[e_b, e_{b+1})`` of a
-:class:`~datagen.timing.irf.TimeAxis`,
+The envelope this module returns holds, for every output bin ``[e_b, e_{b+1})`` of a ``TimeAxis``,
 
     out_b = sum_i w_i * integral_{e_b}^{e_{b+1}} h(t - tau_i) dt
           = sum_i w_i * [F(e_{b+1} - tau_i) - F(e_b - tau_i)]
@@ -22,14 +21,12 @@ Method (docs/physics.md §5), used by :class:`EnvelopeAccumulator`:
 2. The fine histogram is convolved ONCE with the fine-cell-integrated IRF ``p_n = F((n+1/2)delta) -
    F((n-1/2)delta)`` (FFT, overlap-add), giving the exact integral of the envelope over each fine cell for
    impulses sitting on nodes; ``oversample`` consecutive cells are summed into one output bin.
-
 3. Narrow IRF (its whole support, ``MARGIN_SIGMAS * sigma`` before and after, within one bin: sigma <=
    bin_width / 8.5, e.g. 0.1 ps against 20 ps bins). A fine grid would need ``oversample >= 34`` nodes per
    bin (memory and FFT cost growing as bin_width / sigma). Instead each impulse puts its *exact* bin
    integrals into the bin ``b`` that contains it and its two neighbours: ``w*F(e_b - tau)`` into ``b-1``,
    ``w*P(X >= e_{b+1} - tau)`` into ``b+1`` and the rest into ``b`` ("direct" mode, two CDF evaluations
    per impulse, no splatting error, memory O(n_components * n_bins)).
-
 4. Tents (:meth:`EnvelopeAccumulator.add_tents`, used by the hidden-surface quadrature of
    ``datagen.transport.quadrature``): the pushforward of the area measure of a triangle under a path length
    that is linear on it is a piecewise-linear "tent" density between the sorted vertex times t0 <= t1 <= t2 (peak 2w/(t2-t0)
@@ -553,26 +550,32 @@ class EnvelopeAccumulator:
                 would indicate a bug).
         """
         if self._binned is None:
-            out = np.zeros((self.n_components, self.axis.n_bins), dtype=np.float64)
-            kernel = self._kernel
-            for k in range(self.n_components):
-                s = self._hist[k]
-                if not s.any():
-                    continue
-                if kernel.size <= _DIRECT_KERNEL_MAX:
-                    cells = np.convolve(s, kernel, mode="valid")
-                else:
-                    cells = oaconvolve(s, kernel, mode="valid")
-                row = cells.reshape(self.axis.n_bins, self.oversample).sum(axis=1)
-                peak = np.abs(row).max()
-                if row.min() < -NEGATIVE_CLAMP_RTOL * peak:
-                    raise RuntimeError(
-                        f"component {k}: envelope value {row.min()!r} below -{NEGATIVE_CLAMP_RTOL} * max ({peak!r})"
-                    )
-                np.maximum(row, 0.0, out=row)
-                out[k] = row
-            self._binned = out
+            self._binned = self._convolve_rows(self._hist)
         return self._binned.copy()
+
+    def binned_total(self, n_channels: int = 1) -> np.ndarray:
+        """(n_channels, n_bins) ``binned()`` summed over components (ids ``component * n_channels + channel``),
+        one convolution per channel. Raises ValueError if ``n_channels`` does not divide ``n_components``."""
+        if n_channels < 1 or self.n_components % n_channels:
+            raise ValueError(f"n_channels {n_channels} does not divide the {self.n_components} components")
+        return self._convolve_rows(self._hist.reshape(-1, n_channels, self._hist.shape[-1]).sum(axis=0))
+
+    def _convolve_rows(self, hist: np.ndarray) -> np.ndarray:
+        """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes."""
+        out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
+        for k, s in enumerate(hist):
+            if not s.any():
+                continue
+            conv = np.convolve if self._kernel.size <= _DIRECT_KERNEL_MAX else oaconvolve
+            row = conv(s, self._kernel, mode="valid").reshape(self.axis.n_bins, self.oversample).sum(axis=1)
+            peak = np.abs(row).max()
+            if row.min() < -NEGATIVE_CLAMP_RTOL * peak:
+                raise RuntimeError(
+                    f"component {k}: envelope value {row.min()!r} below -{NEGATIVE_CLAMP_RTOL} * max ({peak!r})"
+                )
+            np.maximum(row, 0.0, out=row)
+            out[k] = row
+        return out
 
     def outside(self) -> np.ndarray:
         """Weight per component whose IRF-smeared mass falls outside the window, shape (n_components,).

@@ -11,14 +11,15 @@ to a :class:`Sink`, usually the timing stage's :class:`~datagen.timing.EnvelopeA
   its secondaries in :mod:`.secondary`; :mod:`.area` (hidden-surface area sampling, ``"area"``);
   :mod:`.quadrature` (deterministic hidden-surface quadrature, ``"quadrature"``).
 """
-from .base import Connections, Counters, Estimator, EstimatorEntry, Sink, estimator, estimator_names, register
+from .base import (Connections, Counters, Estimator, EstimatorEntry, Sink, estimator, estimator_names, register,
+                   run_replicas)
 from .physics import PHYSICS_SWITCHES, LegPhysics, PhysicsSettings, fov_connection_weight, laser_irradiance
 from .lookin import CACHE_RAYS, SecondaryMode, Transport, TransportSettings, TransportStats
 from .area import AreaSampler, AreaSettings, AreaStats
 from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureSettings, QuadratureStats
 
 __all__ = ["Connections", "Counters", "Estimator", "EstimatorEntry", "Sink", "estimator", "estimator_names",
-           "register", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",
+           "register", "run_replicas", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",
            "laser_irradiance", "CACHE_RAYS", "SecondaryMode", "Transport", "TransportSettings", "TransportStats",
            "AreaSampler", "AreaSettings", "AreaStats", "QUADRATURE_EDGE", "Quadrature", "QuadratureSettings",
            "QuadratureStats"]

@@ -60,14 +60,24 @@ from ..scene import RayCaster, Scene, SceneError, resolve_capture
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Counters, Sink, register
+from .area_secondary import AreaSecondary
 from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
 
 MAX_CONNECTIONS = 1 << 17
 """Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
 
-MIN_PARTNER_DISTANCE_OFFSETS = 10.0
-"""A partner x' closer to x than this many ray offsets is dropped: the shadow ray between them is shorter than
-the surface offsets and cannot be trusted (the pair lies on a set of measure zero in the integral)."""
+NOMINAL_SECONDS = {"sample": 4.0e-6, "pair": 3.2e-7}
+"""Seconds per hidden sample (FoV connections and shadow rays included) and per secondary pair of
+:meth:`AreaSampler.nominal_seconds`: a non-negative least-squares fit of the CPU time of 36 runs (6 default-config
+rooms, 4096–16384 samples; residual 10 %) on the shared 2-core machine."""
+
+MIN_REPLICA_SAMPLES = 16
+
+
+def _inverse(density: np.ndarray) -> np.ndarray:
+    """1/density where it is positive, else 0 (points no strategy can draw carry no weight)."""
+    return np.divide(1.0, density, out=np.zeros_like(density), where=density > 0)
+"""Fewest hidden samples per laser point of one replica (the config's ``area_samples`` lower bound)."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +91,8 @@ class AreaSettings(PhysicsSettings):
             triangle and a square grid of directions; sobol: each rounded up to a power of two).
         sampling: "stratified" | "sobol" | "random" (see the module docstring).
         spot_fraction: share of the hidden samples drawn by direction from the laser spot, in [0, 1).
+        fov_fraction: share drawn as FoV paths (a uniform FoV point y, then x the first hit of a cosine
+            direction from y; aperture captures only): spot_fraction + fov_fraction < 1.
         fov_samples: (k_u, k_v) stratified FoV points per sensor pixel region for every hidden sample.
         fov_directions: D, cosine-weighted rays per hidden sample (and side) that connect where they hit the
             FoV, combined with the stratified points by MIS (0: stratified points only).
@@ -88,6 +100,7 @@ class AreaSettings(PhysicsSettings):
         spot_partners, direction_partners, area_partners: P_l, P_d, P_a secondary partners x' per hidden
             sample for each strategy (sum ≥ 1 when secondary is "full").
         batch: hidden samples processed together (lowered so that batch × FoV points ≤ ``MAX_CONNECTIONS``).
+        workers: processes sharing the replicas of :meth:`AreaSampler.run_replicas` (results do not depend on it).
 
     Raises:
         SceneError: a field out of range (the message names the field and the value).
@@ -95,14 +108,16 @@ class AreaSettings(PhysicsSettings):
 
     samples: int = 1 << 16
     sampling: AreaSampling = "sobol"
-    spot_fraction: float = 0.5
-    fov_samples: tuple[int, int] = (4, 4)
-    fov_directions: int = 2
+    spot_fraction: float = 0.4
+    fov_fraction: float = 0.4
+    fov_samples: tuple[int, int] = (3, 3)
+    fov_directions: int = 1
     secondary: Literal["none", "full"] = "full"
     spot_partners: int = 2
     direction_partners: int = 1
     area_partners: int = 1
     batch: int = 4096
+    workers: int = 1
 
     def __post_init__(self):
         def bad(name, value, why):
@@ -115,6 +130,7 @@ class AreaSettings(PhysicsSettings):
 
         count("samples", 1)
         count("batch", 1)
+        count("workers", 1)
         for name in ("fov_directions", "spot_partners", "direction_partners", "area_partners"):
             count(name, 0)
         if self.sampling not in ("stratified", "sobol", "random"):
@@ -122,6 +138,9 @@ class AreaSettings(PhysicsSettings):
         if not (isinstance(self.spot_fraction, (int, float)) and 0 <= self.spot_fraction < 1):
             bad("spot_fraction", self.spot_fraction, "must be in [0, 1) (area samples are needed for points "
                                                      "the laser spot does not see)")
+        if not (isinstance(self.fov_fraction, (int, float)) and 0 <= self.fov_fraction
+                and self.spot_fraction + self.fov_fraction < 1):
+            bad("fov_fraction", self.fov_fraction, "must be >= 0 with spot_fraction + fov_fraction < 1")
         fs = tuple(self.fov_samples)
         if len(fs) != 2 or any(isinstance(v, bool) or int(v) != v or v < 1 for v in fs):
             bad("fov_samples", self.fov_samples, "must be two integers >= 1")
@@ -140,9 +159,14 @@ class AreaSettings(PhysicsSettings):
         return int(round(self.spot_fraction * self.samples))
 
     @property
+    def fov_paths(self) -> int:
+        """M_f, hidden points drawn by cosine direction from uniform FoV points (before rounding)."""
+        return int(round(self.fov_fraction * self.samples))
+
+    @property
     def area_samples(self) -> int:
         """M_a, hidden samples drawn by area (before rounding; at least 1)."""
-        return max(1, self.samples - self.spot_samples)
+        return max(1, self.samples - self.spot_samples - self.fov_paths)
 
     @classmethod
     def from_transport(cls, settings: PhysicsSettings, **kwargs) -> AreaSettings:
@@ -158,15 +182,42 @@ class AreaStats(Counters):
 
     area_samples: int = 0
     spot_samples: int = 0
+    fov_paths: int = 0
     lit_samples: int = 0
     fov_connections: int = 0
     partners: int = 0
     secondary_pairs: int = 0
 
 
+_WORKER: dict = {}
+
+
+def _worker_init(sampler: "AreaSampler") -> None:
+    sampler.caster = sampler.physics.caster = RayCaster(sampler.scene)      # a fresh BVH per process
+    _WORKER["sampler"] = sampler
+
+
+def _worker_replica(sink: Sink, rng: np.random.Generator):
+    sampler = _WORKER["sampler"]
+    sampler.stats, rays = AreaStats(), sampler.physics.stats.shadow_rays
+    sampler.run(sink, rng)
+    return sink, sampler.stats, sampler.physics.stats.shadow_rays - rays
+
+
+def _area_replica(config, replicas: int) -> dict:
+    """One of ``replicas`` independent runs: ``config.area_samples`` / R hidden samples per laser point (rounded
+    up; at least ``MIN_REPLICA_SAMPLES``)."""
+    return {"area_samples": max(MIN_REPLICA_SAMPLES, -(-int(config.area_samples) // int(replicas)))}
+
+
+def _area_describe(config: dict) -> str:
+    return f"{config['area_samples']} hidden samples per laser point"
+
+
 @register("area", AreaSettings,
-          "hidden-surface area sampling with next-event connections to the laser spot and the FoV")
-class AreaSampler:
+          "hidden-surface area sampling with next-event connections to the laser spot and the FoV",
+          replica=_area_replica, describe=_area_describe)
+class AreaSampler(AreaSecondary):
     """Area-sampling estimator with next-event connections to the laser spot and the FoV.
 
     Same interface as :class:`datagen.transport.Transport`: ``AreaSampler(scene, settings, caster).run(sink,
@@ -179,7 +230,8 @@ class AreaSampler:
 
     Attributes:
         component_names: names of the sink components (primary components, "secondary"[, "first_bounce"]).
-        hidden_faces: (F_h,) int64 faces that can be hidden vertices; hidden_area: their area, m².
+        hidden_faces: (F_h,) int64 faces that can be hidden vertices; hidden_area: their area, m²; is_hidden:
+        (F,) bool over every face of the caster.
         stats: :class:`AreaStats`; physics: the :class:`~datagen.transport.physics.LegPhysics` weighing every
         leg (its ``stats.shadow_rays`` counts the shadow rays).
 
@@ -209,8 +261,9 @@ class AreaSampler:
             raise SceneError(f"{scene.source + ': ' if scene.source else ''}no surface lies in front of the laser "
                              "spot or the FoV: nothing can be lit and seen")
         self.hidden_area = float(self.caster.face_area[self.hidden_faces].sum())
-        self._is_hidden = np.zeros(len(self.caster.faces), dtype=bool)
-        self._is_hidden[self.hidden_faces] = True
+        self.is_hidden = np.zeros(len(self.caster.faces), dtype=bool)
+        self.is_hidden[self.hidden_faces] = True
+        self._fov_density = 0.0                   # M_f / A_FoV of the run under way (FoV paths), 1/m²
         self.stats = AreaStats()
 
     @classmethod
@@ -220,13 +273,23 @@ class AreaSampler:
         sampler's secondary; the area sampler's hidden points always need their laser shadow ray (lookins are
         visible from the spot by construction), unless the user forces it off."""
         return cls(scene, AreaSettings.from_transport(settings, samples=config.area_samples,
-                                                      shadow_spot=config.effects.get("shadow_spot") is not False),
-                   caster)
+                                                      shadow_spot=config.effects.get("shadow_spot") is not False,
+                                                      workers=config.workers), caster)
 
     def configure(self, settings: AreaSettings) -> None:
         """Use ``settings`` from now on (same physics object; e.g. the quadrature's shadow-ray decision)."""
         self.settings = settings
         self.physics.configure(settings)
+
+    def nominal_seconds(self) -> float:
+        """A deterministic measure of the work done so far (runs and replicas summed), in seconds of one core of
+        the reference machine: a linear model of the counted hidden samples and secondary pairs (rates
+        ``NOMINAL_SECONDS``). Dataset builds cap the adaptive sampling with it, so that the cap, unlike a wall
+        clock, never depends on the machine's load."""
+        st = self.stats
+        n = NOMINAL_SECONDS
+        return float(n["sample"] * (st.area_samples + st.spot_samples + st.fov_paths)
+                     + n["pair"] * st.secondary_pairs)
 
     def progress_total(self) -> tuple[int, str]:
         """Hidden samples over all laser points."""
@@ -252,7 +315,7 @@ class AreaSampler:
             return c.n_pixels
         return c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1]
 
-    def _from_spot(self, uv: np.ndarray, laser: int) -> tuple[SurfaceSamples, np.ndarray]:
+    def from_spot(self, uv: np.ndarray, laser: int) -> tuple[SurfaceSamples, np.ndarray]:
         """First hits of cosine-weighted rays from laser point ``laser`` through the points ``uv`` (n, 2) of
         the unit square (Malley's method). Returns the hits (area field 0) and which rays hit (n,)."""
         c, cst = self.capture, self.caster
@@ -265,7 +328,7 @@ class AreaSampler:
                                np.zeros(len(face)), uv[:, 2:4] if uv.shape[1] >= 4 else np.zeros((len(face), 2)))
         return found, hits.hit
 
-    def _connect(self, x: np.ndarray, n_x: np.ndarray, laser: int, rng: np.random.Generator,
+    def _connect(self, x: np.ndarray, n_x: np.ndarray, rho_x: np.ndarray, laser: int, rng: np.random.Generator,
                  pad: np.ndarray | None = None) -> Connections:
         """Next-event connections of hidden points x (B, 3), from the side of normals n_x (B, 3), to the sensor.
 
@@ -283,7 +346,9 @@ class AreaSampler:
         """
         c, s, cst = self.capture, self.settings, self.caster
         if c.convention == "point_radiance":
-            return self.physics.connect(x, n_x, laser, rng, s.fov_samples)
+            out = self.physics.connect(x, n_x, laser, rng, s.fov_samples)
+            out.weight = out.weight * _inverse(rho_x)[out.b]
+            return out
         nx, ny = c.fov_pixels
         mu, mv = s.fov_samples
         n_dir = s.fov_directions
@@ -327,7 +392,8 @@ class AreaSampler:
             bi = np.concatenate([bi, db])
         collect, d_ys = self.physics.sensor_collection(y, n_y, obj_y, -wk)
         p_d = dot(n_x[bi], wk) * cy / (np.pi * rr ** 2)
-        weight = fov_connection_weight(cy, rr, collect) / (rho_a + n_dir * p_d)
+        weight = _inverse(rho_x[bi] * (rho_a + n_dir * p_d) + self._fov_density * p_d) * \
+            fov_connection_weight(cy, rr, collect)
         time = (rr + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT
         return Connections(bi, wk, weight, time, rr + d_ys, chan)
 
@@ -339,169 +405,144 @@ class AreaSampler:
         ``progress`` is called with the number of hidden samples done after each batch (per laser point).
         """
         s, c = self.settings, self.capture
-        area_set, density_a = sample_surfaces(self.caster, self.hidden_faces, s.area_samples, s.sampling, rng)
+        n_fov = s.fov_paths if c.convention == "aperture" else 0      # point sensors: FoV paths go to area samples
+        area_set, density_a = sample_surfaces(self.caster, self.hidden_faces, s.area_samples + s.fov_paths - n_fov,
+                                              s.sampling, rng)
         batch = max(1, min(s.batch, MAX_CONNECTIONS // max(self._targets_per_sample(), 1)))
+        fov_uv = unit_square_points(n_fov, s.sampling, rng) if n_fov else np.zeros((0, 4))
+        self._fov_density = len(fov_uv) / (c.fov_size[0] * c.fov_size[1])         # M_f / A_FoV, 1/m²
         for laser in range(c.n_lasers):
             parts, n_spot = [area_set], 0
             if s.spot_samples > 0:
                 uv = unit_square_points(s.spot_samples, s.sampling, rng)
-                found, hit = self._from_spot(uv, laser)
+                found, hit = self.from_spot(uv, laser)
                 parts.append(found.take(hit))
                 n_spot = len(uv)
             xs = SurfaceSamples.concat(parts)
             self.stats.area_samples += len(area_set)
             self.stats.spot_samples += n_spot
+            self.stats.fov_paths += len(fov_uv)
             for start in range(0, len(xs), batch):
                 part = xs.take(slice(start, start + batch))
                 self._batch(part, laser, density_a, n_spot, sink, rng)
                 if progress is not None:
                     progress(len(part))
+            for start in range(0, len(fov_uv), batch):
+                self._fov_batch(fov_uv[start:start + batch], laser, density_a, n_spot, sink, rng)
+                if progress is not None:
+                    progress(len(fov_uv[start:start + batch]))
         if s.first_bounce and not self.secondary_only:
             self.physics.first_bounce(sink, self.n_primary + 1)
 
+    def run_replicas(self, sinks: list[Sink], rngs: list[np.random.Generator],
+                     progress: Callable[[int], None] | None = None) -> None:
+        """Independent runs into ``sinks``, one per generator (:func:`datagen.transport.run_replicas`); with
+        ``workers`` > 1 and sinks that can ``spawn``/``merge`` (:class:`~datagen.timing.EnvelopeAccumulator`),
+        replicas run in that many forked processes (each with its own ray caster) and are merged in order, so
+        the sinks hold the same sums whatever the worker count."""
+        workers = min(self.settings.workers, len(sinks))
+        if workers <= 1 or not hasattr(sinks[0], "spawn"):
+            for sink, rng in zip(sinks, rngs):
+                self.run(sink, rng, progress)
+            return
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_worker_init,
+                                 initargs=(self,)) as pool:
+            futures = [pool.submit(_worker_replica, sink.spawn(), rng) for sink, rng in zip(sinks, rngs)]
+            for sink, fut in zip(sinks, futures):
+                part, stats, rays = fut.result()
+                sink.merge(part)
+                self.stats.add(stats)
+                self.physics.stats.shadow_rays += rays
+                if progress is not None:
+                    progress(self.settings.samples * self.capture.n_lasers)
+
     def _batch(self, xs: SurfaceSamples, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
                rng: np.random.Generator) -> None:
+        """Hidden points by area or from the spot: next-event connections to the FoV from the side the spot
+        lights (and, for the secondary, from the other side where the FoV lies behind it)."""
         c, s = self.capture, self.settings
         e_x, r_lx, w_spot, geo = self.physics.irradiance(xs.points, xs.normals, laser)
         self.stats.lit_samples += int((e_x > 0).sum())
-        density = density_a[xs.face] + n_spot * geo / np.pi                  # ρ_a + ρ_s, 1/m²
-        weight_x = np.divide(1.0, density, out=np.zeros_like(density), where=density > 0)
+        rho_x = density_a[xs.face] + n_spot * geo / np.pi                    # ρ_a + ρ_s, 1/m²
         n_front = np.where(dot(xs.normals, w_spot)[:, None] < 0, -xs.normals, xs.normals)   # facing the spot
         pad = None if s.sampling == "random" else xs.pad
-        out = self._connect(xs.points, n_front, laser, rng, pad)
+        out = self._connect(xs.points, n_front, rho_x, laser, rng, pad)
         self.stats.fov_connections += len(out.b)
-        leg = c.emitter_legs[laser]
-        laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
-        lit = e_x[out.b] > 0
-        if lit.any() and not self.secondary_only:
-            b = out.b[lit]
-            f = self.physics.brdf(xs.object_id[b], n_front[b], w_spot[b], out.direction[lit])
-            cos_k = np.maximum(dot(n_front[b], out.direction[lit]), 0.0)
-            weight = (weight_x[b] * e_x[b] * f * cos_k * out.weight[lit]
-                      * self.physics.attenuation(leg + r_lx[b] + out.phys[lit]))
-            comp = self.object_component[xs.object_id[b]] * c.n_channels + out.channel[lit]
-            sink.add(laser_t + r_lx[b] / SPEED_OF_LIGHT + out.time[lit], weight, comp)
+        conn = {"normal": n_front[out.b], **{name: getattr(out, name) for name in Connections.FIELDS}}
+        lit = np.ones(len(out.b), dtype=bool)
         if s.secondary == "full":
             # FoV behind the spot-facing side: only where the FoV rectangle reaches behind x's plane
             corners = (c.fov_center + np.array([[a * c.fov_size[0] / 2, b * c.fov_size[1] / 2]
                                                 for a in (-1, 1) for b in (-1, 1)]) @ np.stack([c.fov_u, c.fov_v]))
             behind = np.flatnonzero((dot(corners[None] - xs.points[:, None], -n_front[:, None]) > 0).any(axis=1))
-            back = self._connect(xs.points[behind], -n_front[behind], laser, rng,
+            back = self._connect(xs.points[behind], -n_front[behind], rho_x[behind], laser, rng,
                                  None if pad is None else pad[behind])
             back.b = behind[back.b]
             self.stats.fov_connections += len(back.b)
-            conn = {name: np.concatenate([getattr(out, name), getattr(back, name)])
-                    for name in ("b", "direction", "weight", "time", "phys", "channel")}
+            conn = {name: np.concatenate([conn[name], getattr(back, name)]) for name in Connections.FIELDS}
             conn["normal"] = np.concatenate([n_front[out.b], -n_front[back.b]])
-            if len(conn["b"]):
-                self._secondary(xs, weight_x, laser, conn, sink, rng)
+            lit = np.concatenate([lit, np.zeros(len(back.b), dtype=bool)])
+        self._deposit(xs, e_x, r_lx, w_spot, conn, lit, laser, sink, rng)
 
-    def _partners(self, x: np.ndarray, nf: np.ndarray, pos: np.ndarray, neg: np.ndarray, laser: int,
-                  rng: np.random.Generator) -> tuple[SurfaceSamples, np.ndarray]:
-        """Secondary partners of the n points x (n, 3): P_l from the spot, P_d from x, P_a by area.
-
-        The direction strategy samples the hemisphere of each side of x that has FoV connections (pos: the
-        +normal side, neg: the −normal side; both: each with probability ½). Returns the partners flattened
-        to n·P rows (owner-major; spot, then direction, then area partners) and whether each was found.
-        """
-        s, cst = self.settings, self.caster
-        n, pl, pd, pa = len(x), s.spot_partners, s.direction_partners, s.area_partners
-        blocks, found = [], []
-        if pl:
-            sp, hit = self._from_spot(rng.random((n * pl, 2)), laser)
-            blocks.append(sp)
-            found.append(hit)
-        if pd:
-            coin = rng.random((n, pd)) < 0.5
-            flip = np.where((pos & neg)[:, None], coin, ~pos[:, None])        # sample the −normal side
-            n_side = np.where(flip[..., None], -nf[:, None], nf[:, None])
-            local, _ = square_to_hemisphere(rng.random((n, pd)), rng.random((n, pd)), "cosine")
-            hits = cst.intersect(x[:, None] + cst.offset * n_side, to_world(local, n_side))
-            face = np.where(hits.hit, hits.face, 0).ravel()
-            blocks.append(SurfaceSamples(np.nan_to_num(hits.points).reshape(-1, 3), cst.face_normals[face], face,
-                                         cst.face_object[face], np.zeros(len(face)), np.zeros((len(face), 2))))
-            found.append(hits.hit.ravel())
-        if pa:
-            ap, _ = sample_surfaces(cst, self.hidden_faces, n * pa, "random", rng)
-            blocks.append(ap)
-            found.append(np.ones(n * pa, dtype=bool))
-        # blocks are strategy-major (n·P_t rows each, owner-major inside); gather owner-major rows
-        sizes = [k for k in (pl, pd, pa) if k]
-        offsets = np.cumsum([0] + [n * k for k in sizes])[:-1]
-        idx = np.concatenate([off + np.arange(n)[:, None] * k + np.arange(k)[None]
-                              for off, k in zip(offsets, sizes)], axis=1).ravel()
-        allp = SurfaceSamples.concat(blocks)
-        return allp.take(idx), np.concatenate(found)[idx]
-
-    def _secondary(self, xs: SurfaceSamples, weight_x: np.ndarray, laser: int, conn: dict, sink: Sink,
+    def _fov_batch(self, uv: np.ndarray, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
                    rng: np.random.Generator) -> None:
-        """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc)."""
-        c, s, cst = self.capture, self.settings, self.caster
-        rows, inv = np.unique(conn["b"], return_inverse=True)       # hidden samples with FoV connections
-        n = len(rows)
-        x, nf = xs.points[rows], xs.normals[rows]
-        side = dot(nf[inv], conn["normal"]) > 0                    # the connection leaves x's +normal side
-        pos = np.zeros(n, dtype=bool)
-        neg = np.zeros(n, dtype=bool)
-        pos[inv[side]] = True
-        neg[inv[~side]] = True
-        n_sides = pos.astype(int) + neg.astype(int)
-        pl, pd, pa = s.spot_partners, s.direction_partners, s.area_partners
-        p_tot = pl + pd + pa
-        xp, found = self._partners(x, nf, pos, neg, laser, rng)
-        owner = np.repeat(np.arange(n), p_tot)
-        slot = np.tile(np.arange(p_tot), n)
-        needs_vis = (slot < pl) | (slot >= pl + pd)                  # spot and area partners; not first hits
-        # x' → x geometry
-        dpx = x[owner] - xp.points
-        rp = np.linalg.norm(dpx, axis=-1)
-        wpx = dpx / np.maximum(rp, 1e-300)[:, None]                   # unit x' → x
-        cos_p = np.abs(dot(xp.normals, wpx))
-        nfx_w = dot(nf[owner], wpx)                                  # < 0: x' on x's +normal side
-        cos_x = np.abs(nfx_w)
-        on_pos = nfx_w < 0
-        covered = np.where(on_pos, pos[owner], neg[owner])
-        keep = found & (rp > MIN_PARTNER_DISTANCE_OFFSETS * cst.offset) & (cos_p > 0) & (cos_x > 0) & covered
-        e_p = np.zeros(len(rp))
-        r_lp = np.zeros(len(rp))
-        w_sp = np.zeros((len(rp), 3))
-        geo_p = np.zeros(len(rp))
-        if keep.any():
-            e_p[keep], r_lp[keep], w_sp[keep], geo_p[keep] = self.physics.irradiance(xp.points[keep], xp.normals[keep],
-                                                                              laser)
-        keep &= e_p > 0
-        n_px = np.where(dot(xp.normals, wpx)[:, None] < 0, -xp.normals, xp.normals)   # x' normal facing x
-        n_xp = np.where(on_pos[:, None], nf[owner], -nf[owner])                        # x normal facing x'
-        keep &= dot(n_px, w_sp) > 0                 # x' reflects toward x only on the side the laser lights
-        check = keep & needs_vis
-        if check.any():
-            keep[check] = cst.visible(xp.points[check], n_px[check], x[owner][check], n_xp[check])
-            self.physics.stats.shadow_rays += int(check.sum())
-        self.stats.partners += int(keep.sum())
+        """FoV paths: y uniform on the FoV (``uv`` (n, 4) dims 0–1), x the first hit of a cosine direction from y
+        (dims 2–3); the pair (x, y) weighs f / (ρ_x(x)·(ρ_a + D·p_d) + M_f·p_d/A_FoV) as in :meth:`_connect`
+        (p_d = cosθ_x cosθ_y /(π r²), the density of this pair being M_f·p_d/A_FoV). No shadow ray x ↔ y: x is the
+        first hit. They put hidden points where the FoV kernel 1/r² is large (floors and walls next to the relay
+        wall), which area and spot samples reach rarely and then with large weights."""
+        c, cst = self.capture, self.caster
+        nx, ny = c.fov_pixels
+        y = c.fov_points(uv[:, 0] * nx, uv[:, 1] * ny)
+        local, _ = square_to_hemisphere(uv[:, 2], uv[:, 3], "cosine")
+        normal = np.broadcast_to(c.fov_normal, y.shape)
+        hits = cst.intersect(y + cst.offset * normal, to_world(local, normal))
+        chan = c.channel(laser, c.fov_pixel(y, self.tol))
+        keep = hits.hit & self.is_hidden[np.where(hits.hit, hits.face, 0)] & (chan >= 0)
         if not keep.any():
             return
-        idx = np.flatnonzero(keep)
-        g = cos_p[idx] * cos_x[idx] / rp[idx] ** 2                    # G(x', x), 1/m²
-        p_spot = geo_p[idx] / np.pi                                   # densities in area measure, 1/m²
-        p_dir = g / (np.pi * n_sides[owner[idx]])
-        p_area = self._is_hidden[xp.face[idx]] / self.hidden_area
-        f_p = self.physics.brdf(xp.object_id[idx], n_px[idx], w_sp[idx], wpx[idx])
-        irr = np.zeros(len(rp))                                       # MIS terms of the irradiance at x
-        irr[idx] = e_p[idx] * f_p * g / (pl * p_spot + pd * p_dir + pa * p_area)
-        # every FoV connection of x with every partner of x
-        part = (inv[:, None] * p_tot + np.arange(p_tot)[None]).ravel()
-        ci = np.repeat(np.arange(len(inv)), p_tot)
-        use = (irr[part] > 0) & (on_pos[part] == side[ci])    # light leaves x on the side it arrived from
-        part, ci = part[use], ci[use]
-        if len(part) == 0:
-            return
-        b = conn["b"][ci]
-        n_side, w_out = conn["normal"][ci], conn["direction"][ci]
-        f_x = self.physics.brdf(xs.object_id[b], n_side, -wpx[part], w_out)
-        cos_k = np.maximum(dot(n_side, w_out), 0.0)
-        leg = c.emitter_legs[laser]
-        weight = (weight_x[b] * irr[part] * f_x * cos_k * conn["weight"][ci]
-                  * self.physics.attenuation(leg + r_lp[part] + rp[part] + conn["phys"][ci]))
-        t = (self.physics.laser_leg(laser) + r_lp[part] + rp[part]) / SPEED_OF_LIGHT + conn["time"][ci]
-        self.stats.secondary_pairs += len(part)
-        sink.add(t, weight, self.n_primary * c.n_channels + conn["channel"][ci])
+        face, y, chan = hits.face[keep], y[keep], chan[keep]
+        x, n_side = hits.points[keep], hits.normals[keep]                     # n_side faces y
+        xs = SurfaceSamples(x, cst.face_normals[face], face, cst.face_object[face], np.zeros(len(face)),
+                            np.zeros((len(face), 2)))
+        e_x, r_lx, w_spot, geo = self.physics.irradiance(x, xs.normals, laser)
+        self.stats.lit_samples += int((e_x > 0).sum())
+        rho_x = density_a[face] + n_spot * geo / np.pi
+        w = y - x
+        r = np.linalg.norm(w, axis=-1)
+        w = w / r[:, None]
+        cos_y = -dot(w, c.fov_normal)
+        collect, d_ys = self.physics.sensor_collection(y, normal[keep], np.full(len(y), self.physics.wall_object), -w)
+        p_d = dot(n_side, w) * cos_y / (np.pi * r ** 2)
+        rho_a = c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1] / (c.fov_size[0] * c.fov_size[1])
+        weight = _inverse(rho_x * (rho_a + self.settings.fov_directions * p_d) + self._fov_density * p_d) * \
+            fov_connection_weight(cos_y, r, collect)
+        conn = {"b": np.arange(len(x)), "direction": w, "weight": weight,
+                "time": (r + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT, "phys": r + d_ys, "channel": chan,
+                "normal": n_side}
+        self._deposit(xs, e_x, r_lx, w_spot, conn, dot(n_side, w_spot) > 0, laser, sink, rng)
+
+    def _deposit(self, xs: SurfaceSamples, e_x: np.ndarray, r_lx: np.ndarray, w_spot: np.ndarray, conn: dict,
+                 primary: np.ndarray, laser: int, sink: Sink, rng: np.random.Generator) -> None:
+        """Primary impulses of the connections ``conn`` (rows b into ``xs``, weights with the densities of x and
+        y; ``primary`` marks those leaving x on the side the spot lights) and the secondary's."""
+        c, s = self.capture, self.settings
+        b = conn["b"]
+        use = primary & (e_x[b] > 0)
+        if use.any() and not self.secondary_only:
+            bu, w_out, n_side = b[use], conn["direction"][use], conn["normal"][use]
+            f = self.physics.constant_brdf(xs.object_id[bu])
+            full = np.flatnonzero(np.isnan(f))
+            if len(full):
+                f[full] = self.physics.brdf(xs.object_id[bu[full]], n_side[full], w_spot[bu[full]], w_out[full])
+            weight = e_x[bu] * f * np.maximum(dot(n_side, w_out), 0.0) * conn["weight"][use]
+            if s.attenuation > 0:
+                weight = weight * self.physics.attenuation(c.emitter_legs[laser] + r_lx[bu] + conn["phys"][use])
+            comp = self.object_component[xs.object_id[bu]] * c.n_channels + conn["channel"][use]
+            laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
+            sink.add(laser_t + r_lx[bu] / SPEED_OF_LIGHT + conn["time"][use], weight, comp)
+        if s.secondary == "full" and len(b):
+            self.secondary_paths(xs, laser, conn, sink, rng)

@@ -89,6 +89,21 @@ class Estimator(Protocol):
         """(units of work of a run, their name) for a progress bar."""
 
 
+def run_replicas(transport: Estimator, sinks: list[Sink], rngs: list[np.random.Generator],
+                 progress: Callable[[int], None] | None = None) -> None:
+    """Run ``transport`` once per (sink, generator) pair: independent replicas of the same setting.
+
+    An estimator with its own ``run_replicas(sinks, rngs, progress)`` (e.g. one process pool for every
+    replica's batches) is asked to do it; otherwise ``run`` is called once per replica, in order.
+    """
+    own = getattr(transport, "run_replicas", None)
+    if own is not None:
+        own(sinks, rngs, progress)
+        return
+    for sink, rng in zip(sinks, rngs):
+        transport.run(sink, rng, progress)
+
+
 @dataclass(frozen=True)
 class EstimatorEntry:
     """A registered estimator.
@@ -103,6 +118,16 @@ class EstimatorEntry:
             and the lookin settings the effect planner has already applied its decisions to (they carry the
             physics switches).
         summary: one line for help texts.
+        replica: ``(config, replicas) → config updates`` giving one of ``replicas`` independent runs whose mean
+            spends the config's sampling (e.g. ``{"area_samples": M / R}``); None for a deterministic estimator,
+            whose error comes from ``refine`` instead. An estimator object whose ``monte_carlo`` attribute is
+            False (e.g. the quadrature without its Monte Carlo secondary) runs once.
+        refine: ``config → config updates`` of the coarser setting (e.g. twice the quadrature edge) whose
+            difference estimates a deterministic estimator's error, with its ``order`` (error ∝ h^order);
+            None for Monte Carlo estimators.
+        describe: ``JSON config → str``, the sampling setting in words (e.g. "65536 hidden samples per laser
+            point").
+        order: convergence order of ``refine`` (2: the error falls as h²).
     """
 
     name: str
@@ -110,16 +135,33 @@ class EstimatorEntry:
     settings_class: type
     from_config: Callable[..., Estimator]
     summary: str
+    replica: Callable[[Any, int], dict] | None = None
+    refine: Callable[[Any], dict] | None = None
+    describe: Callable[[dict], str] | None = None
+    order: int = 2
 
 
 _REGISTRY: dict[str, EstimatorEntry] = {}
 
 
-def register(name: str, settings_class: type, summary: str) -> Callable:
+def register(name: str, settings_class: type, summary: str, *, replica: Callable[[Any, int], dict] | None = None,
+             refine: Callable[[Any], dict] | None = None, describe: Callable[[dict], str] | None = None,
+             order: int = 2) -> Callable:
     """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
-    the classmethod ``from_config(scene, config, lookin_settings, caster)``."""
+    the classmethod ``from_config(scene, config, lookin_settings, caster)``. A Monte Carlo estimator gives
+    ``replica`` (how to split its sampling into independent replicas, whose spread is the error estimate of
+    every result); a deterministic one gives ``refine`` and ``order``; one with both parts gives both (the
+    quadrature: a deterministic primary and a Monte Carlo secondary; :class:`EstimatorEntry`).
+
+    Raises:
+        ValueError: neither ``replica`` nor ``refine`` (no result could say how accurate it is).
+    """
+    if replica is None and refine is None:
+        raise ValueError(f"estimator {name!r}: give replica (Monte Carlo), refine (deterministic) or both")
+
     def wrap(cls):
-        _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary)
+        _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary, replica, refine,
+                                         describe, order)
         return cls
     return wrap
 

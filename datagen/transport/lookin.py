@@ -123,8 +123,20 @@ def _worker_batch(args):
     return _WORKER["transport"]._run_batch(*args)
 
 
+def _lookin_replica(config, replicas: int) -> dict:
+    """One of ``replicas`` independent runs: each side of the lookin grid divided by √R (rounded, at least 1),
+    the camera unchanged."""
+    side = np.sqrt(replicas)
+    return {"lookins": tuple(max(1, int(round(n / side))) for n in config.lookins)}
+
+
+def _lookin_describe(config: dict) -> str:
+    return f"lookins {'x'.join(map(str, config['lookins']))}, pixels {'x'.join(map(str, config['pixels']))}"
+
+
 @register("lookin", TransportSettings,
-          "the paper's sampler: lookins from the laser spot and their hemispherical cameras")
+          "the paper's sampler: lookins from the laser spot and their hemispherical cameras",
+          replica=_lookin_replica, describe=_lookin_describe)
 class Transport(LookinSecondary):
     """Runs the lookin estimator over a scene and sends impulses to a sink (module doc).
 
@@ -188,57 +200,65 @@ class Transport(LookinSecondary):
         ``settings.workers``. With ``workers > 1`` and a sink that can ``spawn`` partial accumulators
         (:class:`~datagen.timing.EnvelopeAccumulator`), batches run in worker processes.
         """
+        self.run_replicas([sink], [rng], progress)
+
+    def run_replicas(self, sinks: list[Sink], rngs: list[np.random.Generator],
+                     progress: Callable[[int], None] | None = None) -> None:
+        """Independent runs into ``sinks``, one per generator of ``rngs`` (:func:`datagen.transport.run_replicas`),
+        each as :meth:`run` does it; the batches of every replica share one pool of ``workers`` processes."""
         s, c = self.settings, self.capture
-        conv = self.conv_grid(sink) if s.secondary == "exact" else None
-        root = np.random.SeedSequence(int(rng.integers(0, 2 ** 63)))
+        convs = [self.conv_grid(sink) if s.secondary == "exact" else None for sink in sinks]
         tasks = []
-        for laser in range(c.n_lasers):
-            look_rng = np.random.default_rng(root.spawn(1)[0]) if s.jitter else None
-            look = self.lookins(look_rng, laser)
-            self.stats.lookins_cast += look.n_rays
-            idx = np.flatnonzero(look.hit)
-            self.stats.lookins_hit += len(idx)
-            for start in range(0, len(idx), s.batch):
-                sel = idx[start:start + s.batch]
-                tasks.append((laser, look.n_rays, look.directions[sel], look.pdf[sel], look.points[sel],
-                              look.normals[sel], look.object_id[sel], look.distance[sel],
-                              root.spawn(1)[0] if s.jitter else None))
-        spawn = getattr(sink, "spawn", None)
-        parallel = s.workers > 1 and spawn is not None and len(tasks) > 1
-        results = self._map(tasks, spawn, conv, parallel, sink)
-        for n_done, (partial, partial_conv, stats) in results:
+        for replica, rng in enumerate(rngs):
+            root = np.random.SeedSequence(int(rng.integers(0, 2 ** 63)))
+            for laser in range(c.n_lasers):
+                look_rng = np.random.default_rng(root.spawn(1)[0]) if s.jitter else None
+                look = self.lookins(look_rng, laser)
+                self.stats.lookins_cast += look.n_rays
+                idx = np.flatnonzero(look.hit)
+                self.stats.lookins_hit += len(idx)
+                for start in range(0, len(idx), s.batch):
+                    sel = idx[start:start + s.batch]
+                    tasks.append((replica, (laser, look.n_rays, look.directions[sel], look.pdf[sel], look.points[sel],
+                                            look.normals[sel], look.object_id[sel], look.distance[sel],
+                                            root.spawn(1)[0] if s.jitter else None)))
+        spawns = [getattr(sink, "spawn", None) for sink in sinks]
+        parallel = s.workers > 1 and all(sp is not None for sp in spawns) and len(tasks) > 1
+        results = self._map(tasks, spawns, convs, parallel, sinks)
+        for (replica, task), (partial, partial_conv, stats) in zip(tasks, results):
             if partial is not None:
-                sink.merge(partial)
+                sinks[replica].merge(partial)
             if partial_conv is not None:
-                conv.merge(partial_conv)
+                convs[replica].merge(partial_conv)
             self.stats.add(stats)
             if progress is not None:
-                progress(n_done)
-        if s.first_bounce:
-            self.physics.first_bounce(sink, self.n_primary + 1)
-        if conv is not None:
-            conv.flush(sink, self.n_primary * c.n_channels, sink_far_time(sink))
+                progress(len(task[2]))
+        for sink, conv in zip(sinks, convs):
+            if s.first_bounce:
+                self.physics.first_bounce(sink, self.n_primary + 1)
+            if conv is not None:
+                conv.flush(sink, self.n_primary * c.n_channels, sink_far_time(sink))
         if progress is not None and not tasks:
             progress(0)
 
-    def _map(self, tasks, spawn, conv, parallel, sink):
-        """Yield (lookins done, partial sink, partial conv grid, stats) per batch, in batch order."""
+    def _map(self, tasks, spawns, convs, parallel, sinks):
+        """Yield (partial sink, partial conv grid, stats) per (replica, batch) task, in task order."""
         if not parallel:
-            for task in tasks:
-                part = spawn() if spawn is not None else None
+            for replica, task in tasks:
+                part = spawns[replica]() if spawns[replica] is not None else None
                 stats = TransportStats()
-                part_conv = conv.empty_like() if conv is not None else None
-                self._batch(task, part if part is not None else sink, part_conv, stats)
-                yield len(task[2]), (part, part_conv, stats)
+                part_conv = convs[replica].empty_like() if convs[replica] is not None else None
+                self._batch(task, part if part is not None else sinks[replica], part_conv, stats)
+                yield part, part_conv, stats
             return
         ctx = mp.get_context("fork")
         with ProcessPoolExecutor(self.settings.workers, mp_context=ctx, initializer=_worker_init,
                                  initargs=(self,)) as pool:
-            futures = [pool.submit(_worker_batch, (task, spawn(), conv.empty_like() if conv else None))
-                       for task in tasks]
-            for task, fut in zip(tasks, futures):
-                part, part_conv, stats = fut.result()
-                yield len(task[2]), (part, part_conv, stats)
+            futures = [pool.submit(_worker_batch, (task, spawns[replica](),
+                                                   convs[replica].empty_like() if convs[replica] else None))
+                       for replica, task in tasks]
+            for fut in futures:
+                yield fut.result()
 
     def _run_batch(self, task, part, part_conv):
         stats = TransportStats()

@@ -214,6 +214,13 @@ class LegPhysics:
             f[sel] = self.materials.evaluate(obj_b[sel], full(normals), sign_in * full(w_in), sign_out * full(w_out))
         return f
 
+    def constant_brdf(self, obj: np.ndarray) -> np.ndarray:
+        """f = ρ/π for objects whose BRDF needs no angles (Lambertian, unless ``brdf_angles``), NaN for the others
+        (evaluate those with :meth:`brdf`); (n,) float64 from obj (n,) int."""
+        if self.settings.brdf_angles:
+            return np.full(np.shape(obj), np.nan)
+        return self.lambert_f[obj]
+
     def separable_factor(self, obj: np.ndarray, n: np.ndarray, rows: np.ndarray, w: np.ndarray) -> np.ndarray:
         """g(ω) of the separable BRDF split f = c·g(ω_in)·g(ω_out) + lobe at the vertices ``rows`` (indices into
         obj (B,) and n (B, 3)) for directions w (n, 3) above them; 1 for Lambertian and Phong surfaces, so only

@@ -66,7 +66,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..sampling import subdivide_with_vertices
+from ..sampling import coarse_cells, subdivide_with_vertices
 from ..scene import RayCaster, Scene, SceneError
 from ..scene import hull_planes, may_meet, outward_planes
 from ..units import SPEED_OF_LIGHT
@@ -155,6 +155,10 @@ class QuadratureSettings(PhysicsSettings):
                             samples=self.secondary_samples, secondary=self.secondary)
 
 
+COARSE_CHANNELS = 64
+"""The coarse rule of the error estimate (:attr:`Quadrature.coarse`) is deposited for at most about this many
+channels, every k-th (a scan's 1024 channels: every 16th), so that it costs a few per cent of the run."""
+
 MAX_FOV_CELLS = 64
 """Cap on the automatic FoV cells per pixel side (aperture captures)."""
 
@@ -199,7 +203,23 @@ def _leg_may_be_blocked(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray
     return bool(meet.any())
 
 
-@register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning")
+def _quadrature_replica(config, replicas: int) -> dict:
+    """One of ``replicas`` runs of the Monte Carlo secondary: ``config.area_samples`` / R hidden samples (the
+    primary is deterministic and shared, :meth:`Quadrature.run_replicas`)."""
+    return {"area_samples": max(16, -(-int(config.area_samples) // int(replicas)))}
+
+
+def _quadrature_refine(config) -> dict:
+    """The coarser setting of the error estimate: twice the edge (FoV cells follow it unless fixed)."""
+    return {"quadrature_edge": 2.0 * float(config.quadrature_edge)}
+
+
+def _quadrature_describe(config: dict) -> str:
+    return f"quadrature edge {config['quadrature_edge']:.4g} m"
+
+
+@register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning",
+          replica=_quadrature_replica, refine=_quadrature_refine, describe=_quadrature_describe, order=2)
 class Quadrature:
     """Deterministic hidden-surface quadrature of the primary with exact time binning (module doc).
 
@@ -213,6 +233,10 @@ class Quadrature:
         component_names: names of the sink components (primary components, "secondary"[, "first_bounce"]).
         n_cells: M, sub-triangles; targets: (T, 3) FoV targets; total_rows: (cell, connection) rows of a run.
         stats: :class:`QuadratureStats`.
+        coarse: after a run on a point-sensor capture, the primary at twice the edge (summed over components,
+        channel rows; only the channels ``coarse_channels``), from the same evaluations: every sub-triangle split is even, so 4 fine
+        sub-triangles make a coarse one whose centroid is the middle one's (:func:`datagen.sampling.coarse_cells`);
+        ‖P(h) − P(2h)‖/3 over those channels is the error estimate of the result.
 
     Raises:
         SceneError: invalid settings; the capture errors of :func:`datagen.scene.resolve_capture`; no face
@@ -259,7 +283,14 @@ class Quadrature:
             self.area.configure(replace(self.area.settings, shadow_spot=decided["shadow_spot"]))
         # -- hidden sub-triangles ------------------------------------------------------------------------------
         tri = self.caster.vertices[self.caster.faces[faces]]
-        self.vertices, self.cells, self.cell_area, parent = subdivide_with_vertices(tri, s.edge)
+        self.vertices, self.cells, self.cell_area, parent = subdivide_with_vertices(tri, s.edge, even=True)
+        coarse, central = coarse_cells(tri, s.edge)
+        self.coarse_of = np.full(len(self.cells), -1, dtype=np.int64)    # fine cell → coarse cell it is the middle of
+        self.coarse_of[central] = np.arange(len(central))
+        self.coarse_cells = coarse
+        self.coarse: Sink | None = None
+        self.coarse_stride = max(1, -(-c.n_channels // COARSE_CHANNELS))
+        self.coarse_channels = np.arange(0, c.n_channels, self.coarse_stride)
         self.cell_face = faces[parent]
         self.centroids = self.vertices[self.cells].mean(axis=1)
         self.cell_normal = self.caster.face_normals[self.cell_face]
@@ -402,6 +433,11 @@ class Quadrature:
 
     # -- estimator -----------------------------------------------------------------------------------------
 
+    @property
+    def monte_carlo(self) -> bool:
+        """Whether a run has noise: only the area sampler's secondary does."""
+        return self.settings.secondary == "full"
+
     def run(self, sink: Sink, rng: np.random.Generator | None = None,
             progress: Callable[[int], None] | None = None) -> None:
         """Send every primary tent (and the secondary's and first bounce's impulses) to ``sink``.
@@ -409,6 +445,40 @@ class Quadrature:
         ``progress`` is called with the number of (cell, connection) rows done after each block. ``rng`` is used
         only by the secondary (default: ``np.random.default_rng(0)``).
         """
+        self.coarse = self._coarse_sink(sink)
+        self._primary(sink, progress)
+        if self.settings.secondary == "full":
+            self.area.run(sink, rng if rng is not None else np.random.default_rng(0))
+
+    def run_replicas(self, sinks: list[Sink], rngs: list[np.random.Generator],
+                     progress: Callable[[int], None] | None = None) -> None:
+        """Replicas (:func:`datagen.transport.run_replicas`): the deterministic primary once, added to every sink
+        (which must offer ``spawn`` and ``merge``, as :class:`~datagen.timing.EnvelopeAccumulator` does), and
+        the Monte Carlo secondary once per (sink, generator)."""
+        if len(sinks) == 1 or not hasattr(sinks[0], "spawn"):
+            for sink, rng in zip(sinks, rngs):
+                self.run(sink, rng, progress)
+            return
+        primary = sinks[0].spawn()
+        self.coarse = self._coarse_sink(sinks[0])
+        self._primary(primary, progress)
+        for sink, rng in zip(sinks, rngs):
+            sink.merge(primary)
+            if self.settings.secondary == "full":
+                self.area.run(sink, rng)
+
+    def _coarse_sink(self, sink: Sink) -> Sink | None:
+        """An empty accumulator like ``sink`` for :attr:`coarse` (the primary at 2h, summed over components
+        into the channel rows 0 … n_channels−1), or None if ``sink`` cannot spawn one or the capture integrates
+        FoV cells (aperture): their discretisation error is common to both rules, so the estimate comes from a
+        run at 2h with coarser FoV cells instead (:class:`datagen.simulation.Replicas`)."""
+        if not (hasattr(sink, "spawn") and hasattr(sink, "add_tents")) or self.capture.convention == "aperture":
+            return None
+        return type(sink)(sink.axis, sink.irf, self.capture.n_channels,
+                          None if sink.direct else sink.oversample)
+
+    def _primary(self, sink: Sink, progress: Callable[[int], None] | None) -> None:
+        """The primary tents (and the first bounce) into ``sink``."""
         s, c = self.settings, self.capture
         M = self.n_cells
         per_block = max(1, s.batch // max(M, 1))
@@ -465,9 +535,14 @@ class Quadrature:
                 else:
                     sink.add(times.mean(axis=1), weight, comp)
                 self.stats.tents += len(mi)
+                if self.coarse is not None:      # the rule at 2h from the same evaluations (error estimate)
+                    sel = np.flatnonzero((self.coarse_of[mi] >= 0) & (channels[bi] % self.coarse_stride == 0))
+                    cv = self.coarse_cells[self.coarse_of[mi[sel]]]
+                    lb, tb = inv_l[bi[sel]][:, None], inv_t[bi[sel]][:, None]
+                    cpath = lg["rv"][cv, lb] + tg["rv"][cv, tb]
+                    cpath = cpath + (0.75 * (centre[sel] - cpath.mean(axis=1)) + offset[sel])[:, None]
+                    self.coarse.add_tents(cpath / SPEED_OF_LIGHT, 4.0 * weight[sel], channels[bi[sel]])
             if progress is not None:
                 progress(M * len(lasers))
-        if s.secondary == "full":
-            self.area.run(sink, rng if rng is not None else np.random.default_rng(0))
         if s.first_bounce:
             self.physics.first_bounce(sink, self.n_primary + 1)

@@ -1,0 +1,174 @@
+"""Simulate to a tolerance: add sampling until the result's own error estimate meets a target (docs/accuracy.md).
+
+Monte Carlo estimators (area, lookin): the config's sampling is split into R = ``config.replicas`` independent
+replicas (:class:`~datagen.simulation.run.Replicas`); their spread gives the relative L2 error estimate ε̂ of
+their mean (:mod:`datagen.simulation.replicas`). While ε̂ > tolerance, more replicas of the same size are
+added: ε̂ falls as R^(-1/2), so the next round brings the total to R·(ε̂/tol)²·``SAFETY`` (at most ×``MAX_GROWTH``
+per round), within ``max_replicas``. Replica r is always drawn from the same stream, so the result depends only
+on the scene, the config and the tolerance: never on timing, worker count or machine load. The earlier rounds
+are not wasted: every replica is part of the mean.
+
+The quadrature (deterministic, error ∝ h²): its edge is refined instead, h → h·sqrt(tol/ε̂)·``SAFETY_EDGE`` (at
+most h/2), the error of a level estimated from the previous one as ‖P(h') − P(h)‖/((h'/h)² − 1) (the first
+level from a run at 2h), added in quadrature to the replica spread of its Monte Carlo secondary.
+
+A wall-clock cap (``max_seconds``) is available for interactive use; it makes the result depend on the
+machine's speed, so dataset builds cap the replica count instead (``max_replicas``, deterministic).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..scene import Scene, SceneError
+from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
+from .replicas import relative_difference
+from .run import Replicas, Result, make_result
+
+TIME_CAP_S = 600.0
+"""Default wall-time cap of ``simulate --tolerance`` (``max_seconds``): no round starts that is predicted to end
+after it; the result then carries the best estimate reached, with ``met`` False (docs/reliability.md)."""
+
+SAFETY = 1.1
+"""Factor on the predicted replica count, so that the next round lands below the tolerance rather than on it."""
+
+MAX_GROWTH = 8.0
+"""Largest growth of the replica count per round (guards a noisy first estimate)."""
+
+MAX_ROUNDS = 8
+
+SAFETY_EDGE = 0.9
+"""Factor on the quadrature's predicted edge."""
+
+
+def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: float,
+                          max_replicas: int | None = None, max_cost: float | None = None,
+                          max_seconds: float | None = None,
+                          progress: bool = False, sampling_rng: np.random.Generator | None = None,
+                          noise_rng: np.random.Generator | None = None) -> Result:
+    """Simulate with the least sampling whose error estimate meets ``tolerance`` (module docstring).
+
+    Args:
+        scene, config: as for :func:`datagen.simulate` (``config.replicas`` replicas of the config's sampling
+            are the first round; the quadrature starts from ``config.quadrature_edge``).
+        tolerance: target relative L2 error of the envelope (bins above 1 % of its peak), in (0, 1).
+        max_replicas: most replicas in all (Monte Carlo estimators; deterministic cap).
+        max_cost: most work in all, in the estimator's nominal seconds (``nominal_seconds()``: counted work
+            times fixed rates, so the cap is deterministic; estimators without it are capped by ``max_replicas``
+            only). The first round always runs.
+        max_seconds: stop once the next round is predicted to end after this much wall time (not deterministic).
+        progress: print one line per round.
+        sampling_rng, noise_rng: as for :func:`datagen.simulate`.
+    Returns:
+        :class:`~datagen.simulation.run.Result` with ``attrs["error"]`` (as every result) and
+        ``attrs["tolerance"]``: target, estimate, met, and every round (replicas or edge, estimate, seconds).
+        A result that could not meet the target within the caps says so (``met`` False), never silently.
+    Raises:
+        SceneError: tolerance outside (0, 1), or an envelope with no energy in the window.
+    """
+    if not (isinstance(tolerance, (int, float)) and 0 < tolerance < 1):
+        raise SceneError(f"tolerance must be in (0, 1), got {tolerance!r}")
+    t0 = time.perf_counter()
+    rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
+    cfg = config.model_copy(update={"tolerance": tolerance})
+    runs = Replicas(scene, cfg, rng)
+    if not runs.monte_carlo or runs.entry.replica is None:
+        return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0)
+    cap = max(int(max_replicas), cfg.replicas) if max_replicas is not None else None
+    rounds = []
+    target = cfg.replicas
+    for _ in range(MAX_ROUNDS):
+        t_round = time.perf_counter()
+        runs.run(target - runs.count)
+        estimate = runs.error()
+        seconds = time.perf_counter() - t_round
+        rounds.append({"replicas": runs.count, "estimate": estimate, "seconds": seconds})
+        if progress:
+            print(f"{runs.count} replicas ({runs.entry.describe(runs.replica_config.model_dump(mode='json'))} each): "
+                  f"estimated error {estimate:.3%} ({seconds:.2f} s)")
+        if estimate <= tolerance or (cap is not None and runs.count >= cap):
+            break
+        if not math.isfinite(estimate) and runs.sums.mean().max() <= 0:
+            break
+        wanted = math.ceil(runs.count * min(MAX_GROWTH, (min(estimate / tolerance, MAX_GROWTH)) ** 2 * SAFETY))
+        target = max(runs.count + 1, wanted if cap is None else min(wanted, cap))
+        nominal = getattr(runs.transport, "nominal_seconds", None)
+        if max_cost is not None and nominal is not None:
+            affordable = int(max_cost / (nominal() / runs.count))
+            if affordable <= runs.count:
+                break
+            target = min(target, affordable)
+        if max_seconds is not None:
+            per_replica = (time.perf_counter() - t0) / runs.count
+            affordable = int((max_seconds - (time.perf_counter() - t0)) / per_replica)
+            if affordable < 1:
+                break
+            target = min(target, runs.count + affordable)
+    tr = runs.transported()
+    _check_energy(scene, tr)
+    error = runs.error_attrs(tr, rng)
+    nominal = getattr(runs.transport, "nominal_seconds", None)
+    info = {"target": tolerance, "estimate": error["rel_l2"], "met": bool(error["rel_l2"] <= tolerance),
+            "method": error["method"], "rounds": rounds,
+            "nominal_seconds": nominal() if nominal is not None else None}
+    return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
+
+
+def _check_energy(scene: Scene, tr) -> None:
+    if tr.binned.max() <= 0:
+        raise SceneError(f"{scene.source or scene.name}: the envelope is zero in the time window; no error "
+                         f"estimate is possible (check the time axis and the FoV)")
+
+
+def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas, tolerance: float,
+                         max_seconds: float | None, progress: bool, rng: np.random.Generator,
+                         noise_rng: np.random.Generator | None, t0: float) -> Result:
+    """The quadrature: the edge shrinks until the estimate of the latest level meets ``tolerance``."""
+    entry = runs.entry
+    h = float(config.quadrature_edge)
+    rounds, previous = [], None
+    for level in range(MAX_ROUNDS + 2):
+        t_level = time.perf_counter()
+        if level:
+            runs = Replicas(scene, config.model_copy(update={"quadrature_edge": h}), rng)
+        runs.run(config.replicas)
+        tr = runs.transported()
+        _check_energy(scene, tr)
+        primary = _primary(tr)
+        if previous is None:
+            error = runs.error_attrs(tr, rng)
+            estimate = error["rel_l2"]
+        else:
+            ratio = previous[0] / h
+            refined = relative_difference(primary, previous[1], tr.binned.sum(axis=0)) / (ratio ** entry.order - 1)
+            estimate = float(np.hypot(runs.error(), refined))
+            error = {"rel_l2": estimate, "monte_carlo": runs.error(),
+                     "refinement": refined, "replicas": runs.count,
+                     "replica_setting": entry.describe(runs.replica_config.model_dump(mode="json")),
+                     "method": f"edge refinement ‖P(h') − P(h)‖/((h'/h)^{entry.order} − 1) of the primary between "
+                               f"the last two levels, with the replica spread of the Monte Carlo secondary; "
+                               f"relative L2 over bins above 1 % of the peak"}
+        seconds = time.perf_counter() - t_level
+        rounds.append({"quadrature_edge": h, "estimate": estimate, "seconds": seconds})
+        if progress:
+            print(f"level {level}: quadrature edge {h:.4g} m: estimated error {estimate:.3%} ({seconds:.2f} s)")
+        if estimate <= tolerance or level == MAX_ROUNDS + 1:
+            break
+        shrink = min(0.5, math.sqrt(tolerance / estimate) * SAFETY_EDGE)
+        # cost ∝ h^-2 (point sensors) to h^-4 (aperture): predict with the steeper law
+        if max_seconds is not None and (time.perf_counter() - t0) + seconds / shrink ** 4 > max_seconds:
+            break
+        previous = (h, primary)
+        h *= shrink
+    info = {"target": tolerance, "estimate": estimate, "met": bool(estimate <= tolerance),
+            "method": error["method"], "rounds": rounds}
+    cfg = config.model_copy(update={"quadrature_edge": h})
+    return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
+
+
+def _primary(tr) -> np.ndarray:
+    """(n_channels, n_bins) sum of every component but the Monte Carlo secondary."""
+    keep = [i for i, name in enumerate(tr.names) if name != "secondary"]
+    return tr.binned[keep].sum(axis=0)

@@ -1,0 +1,141 @@
+"""The area sampler's secondary: a partner vertex x' before each hidden point x, three strategies under MIS.
+
+:class:`AreaSecondary` is a mixin of :class:`datagen.transport.area.AreaSampler` (docs/physics.md §2, the module
+docstring of :mod:`datagen.transport.area`): at each hidden point x with FoV connections, partners x' come from
+the laser spot (cosine directions: density ∝ the laser irradiance pattern), from x (cosine directions: bounds
+the corner singularity G ~ 1/r²) and by area (small objects); each has its own laser connection E(x') and the
+irradiance estimate Σ E(x') f_x'(ω→x_l, ω→x) G(x', x) V(x', x) / Σ_t P_t p_t(x') feeds every FoV connection of
+x that leaves the side the light arrived on. Weights come from :mod:`datagen.transport.physics`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..sampling import SurfaceSamples, sample_surfaces, square_to_hemisphere, to_world
+from ..units import SPEED_OF_LIGHT
+from ..vectors import dot
+from .base import Sink
+
+MIN_PARTNER_DISTANCE_OFFSETS = 10.0
+"""A partner x' closer to x than this many ray offsets is dropped: the shadow ray between them is shorter than
+the surface offsets and cannot be trusted (the pair lies on a set of measure zero in the integral)."""
+
+
+class AreaSecondary:
+    """Partners and secondary impulses of :class:`~datagen.transport.area.AreaSampler` (a mixin: it uses the
+    sampler's settings, caster, capture, physics, hidden faces and stats)."""
+
+    def partners(self, x: np.ndarray, nf: np.ndarray, pos: np.ndarray, neg: np.ndarray, laser: int,
+                  rng: np.random.Generator) -> tuple[SurfaceSamples, np.ndarray]:
+        """Secondary partners of the n points x (n, 3): P_l from the spot, P_d from x, P_a by area.
+
+        The direction strategy samples the hemisphere of each side of x that has FoV connections (pos: the
+        +normal side, neg: the −normal side; both: each with probability ½). Returns the partners flattened
+        to n·P rows (owner-major; spot, then direction, then area partners) and whether each was found.
+        """
+        s, cst = self.settings, self.caster
+        n, pl, pd, pa = len(x), s.spot_partners, s.direction_partners, s.area_partners
+        blocks, found = [], []
+        if pl:
+            sp, hit = self.from_spot(rng.random((n * pl, 2)), laser)
+            blocks.append(sp)
+            found.append(hit)
+        if pd:
+            coin = rng.random((n, pd)) < 0.5
+            flip = np.where((pos & neg)[:, None], coin, ~pos[:, None])        # sample the −normal side
+            n_side = np.where(flip[..., None], -nf[:, None], nf[:, None])
+            local, _ = square_to_hemisphere(rng.random((n, pd)), rng.random((n, pd)), "cosine")
+            hits = cst.intersect(x[:, None] + cst.offset * n_side, to_world(local, n_side))
+            face = np.where(hits.hit, hits.face, 0).ravel()
+            blocks.append(SurfaceSamples(np.nan_to_num(hits.points).reshape(-1, 3), cst.face_normals[face], face,
+                                         cst.face_object[face], np.zeros(len(face)), np.zeros((len(face), 2))))
+            found.append(hits.hit.ravel())
+        if pa:
+            ap, _ = sample_surfaces(cst, self.hidden_faces, n * pa, "random", rng)
+            blocks.append(ap)
+            found.append(np.ones(n * pa, dtype=bool))
+        # blocks are strategy-major (n·P_t rows each, owner-major inside); gather owner-major rows
+        sizes = [k for k in (pl, pd, pa) if k]
+        offsets = np.cumsum([0] + [n * k for k in sizes])[:-1]
+        idx = np.concatenate([off + np.arange(n)[:, None] * k + np.arange(k)[None]
+                              for off, k in zip(offsets, sizes)], axis=1).ravel()
+        allp = SurfaceSamples.concat(blocks)
+        return allp.take(idx), np.concatenate(found)[idx]
+
+    def secondary_paths(self, xs: SurfaceSamples, laser: int, conn: dict, sink: Sink, rng: np.random.Generator) -> None:
+        """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc)."""
+        c, s, cst = self.capture, self.settings, self.caster
+        rows, inv = np.unique(conn["b"], return_inverse=True)       # hidden samples with FoV connections
+        n = len(rows)
+        x, nf = xs.points[rows], xs.normals[rows]
+        side = dot(nf[inv], conn["normal"]) > 0                    # the connection leaves x's +normal side
+        pos = np.zeros(n, dtype=bool)
+        neg = np.zeros(n, dtype=bool)
+        pos[inv[side]] = True
+        neg[inv[~side]] = True
+        n_sides = pos.astype(int) + neg.astype(int)
+        pl, pd, pa = s.spot_partners, s.direction_partners, s.area_partners
+        p_tot = pl + pd + pa
+        xp, found = self.partners(x, nf, pos, neg, laser, rng)
+        owner = np.repeat(np.arange(n), p_tot)
+        slot = np.tile(np.arange(p_tot), n)
+        needs_vis = (slot < pl) | (slot >= pl + pd)                  # spot and area partners; not first hits
+        # x' → x geometry
+        dpx = x[owner] - xp.points
+        rp = np.linalg.norm(dpx, axis=-1)
+        wpx = dpx / np.maximum(rp, 1e-300)[:, None]                   # unit x' → x
+        cos_p = np.abs(dot(xp.normals, wpx))
+        nfx_w = dot(nf[owner], wpx)                                  # < 0: x' on x's +normal side
+        cos_x = np.abs(nfx_w)
+        on_pos = nfx_w < 0
+        covered = np.where(on_pos, pos[owner], neg[owner])
+        keep = found & (rp > MIN_PARTNER_DISTANCE_OFFSETS * cst.offset) & (cos_p > 0) & (cos_x > 0) & covered
+        e_p = np.zeros(len(rp))
+        r_lp = np.zeros(len(rp))
+        w_sp = np.zeros((len(rp), 3))
+        geo_p = np.zeros(len(rp))
+        if keep.any():
+            e_p[keep], r_lp[keep], w_sp[keep], geo_p[keep] = self.physics.irradiance(xp.points[keep], xp.normals[keep],
+                                                                              laser)
+        keep &= e_p > 0
+        n_px = np.where(dot(xp.normals, wpx)[:, None] < 0, -xp.normals, xp.normals)   # x' normal facing x
+        n_xp = np.where(on_pos[:, None], nf[owner], -nf[owner])                        # x normal facing x'
+        keep &= dot(n_px, w_sp) > 0                 # x' reflects toward x only on the side the laser lights
+        check = keep & needs_vis
+        if check.any():
+            keep[check] = cst.visible(xp.points[check], n_px[check], x[owner][check], n_xp[check])
+            self.physics.stats.shadow_rays += int(check.sum())
+        self.stats.partners += int(keep.sum())
+        if not keep.any():
+            return
+        idx = np.flatnonzero(keep)
+        g = cos_p[idx] * cos_x[idx] / rp[idx] ** 2                    # G(x', x), 1/m²
+        p_spot = geo_p[idx] / np.pi                                   # densities in area measure, 1/m²
+        p_dir = g / (np.pi * n_sides[owner[idx]])
+        p_area = self.is_hidden[xp.face[idx]] / self.hidden_area
+        f_p = self.physics.brdf(xp.object_id[idx], n_px[idx], w_sp[idx], wpx[idx])
+        irr = np.zeros(len(rp))                                       # MIS terms of the irradiance at x
+        irr[idx] = e_p[idx] * f_p * g / (pl * p_spot + pd * p_dir + pa * p_area)
+        # every FoV connection of x with every partner of x: per-connection and per-partner factors first, so
+        # that a pair costs a few scalar gathers (the BRDF at x per pair only where it is not a constant)
+        part = (inv[:, None] * p_tot + np.arange(p_tot)[None]).ravel()
+        ci = np.repeat(np.arange(len(inv)), p_tot)
+        use = (irr[part] > 0) & (on_pos[part] == side[ci])    # light leaves x on the side it arrived from
+        part, ci = part[use], ci[use]
+        if len(part) == 0:
+            return
+        b_c = conn["b"]
+        per_conn = np.maximum(dot(conn["normal"], conn["direction"]), 0.0) * conn["weight"]
+        f_x = self.physics.constant_brdf(xs.object_id[b_c])[ci]
+        full = np.flatnonzero(np.isnan(f_x))
+        if len(full):
+            pc = ci[full]
+            f_x[full] = self.physics.brdf(xs.object_id[b_c[pc]], conn["normal"][pc], -wpx[part[full]],
+                                          conn["direction"][pc])
+        leg = c.emitter_legs[laser]
+        weight = per_conn[ci] * irr[part] * f_x
+        if self.settings.attenuation > 0:
+            weight = weight * self.physics.attenuation(leg + r_lp[part] + rp[part] + conn["phys"][ci])
+        t = ((self.physics.laser_leg(laser) + r_lp + rp) / SPEED_OF_LIGHT)[part] + conn["time"][ci]
+        self.stats.secondary_pairs += len(part)
+        sink.add(t, weight, self.n_primary * c.n_channels + conn["channel"][ci])
