@@ -8,17 +8,22 @@ Public entry points::
 
     # datasets (docs/datasets.md): `datagen build configs/datasets/smoke.yaml --out data/smoke`, then
     ds = datagen.NLOSDataset("data/smoke", split="train", noise="resample")   # a torch Dataset
+    noise = datagen.SPADNoise(ds.detector, exposure=("1ms", "10ms"))          # batched SPAD noise in torch
 """
 from .scene import Scene, SceneError, load_scene
 from .simulation import Result, SimulationConfig, resolve_config, simulate
 
 __all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
-           "NLOSDataset"]
+           "NLOSDataset", "SPADNoise"]
 
 
 def __getattr__(name: str):
-    """``datagen.NLOSDataset`` imports torch on first use only (``import datagen`` stays light for workers)."""
+    """``datagen.NLOSDataset`` and ``datagen.SPADNoise`` import torch on first use only (``import datagen`` stays
+    light for workers)."""
     if name == "NLOSDataset":
         from .dataset import NLOSDataset
         return NLOSDataset
+    if name == "SPADNoise":
+        from .spad.torch_noise import SPADNoise
+        return SPADNoise
     raise AttributeError(f"module 'datagen' has no attribute {name!r}")
