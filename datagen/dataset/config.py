@@ -317,7 +317,9 @@ class Sample:
             none), ``counts`` (*S, T) int64, ``components`` (C, *S, T) (slots named by
             ``component_names``: room, object_0 … object_{K-1}, then secondary and any other component of the
             result), the label arrays of
-            :func:`datagen.dataset.labels.scene_labels`, and ``params`` (0-d str, JSON).
+            :func:`datagen.dataset.labels.scene_labels`, ``photons_per_pulse`` (0-d float64: the laser's Φ, the
+            scale inside the envelope) and ``params`` (0-d str, JSON; its ``plan`` holds each effect decision's
+            on, forced and reason).
         time_edges: (T+1,) float64 seconds.
         seconds: wall time per stage (room, simulate, labels, total), s.
     """
@@ -370,11 +372,12 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
                                                                  config.store.envelope_dtype, where)
     for name, value in labels.items():
         arrays[name] = np.asarray(value)
+    arrays["photons_per_pulse"] = np.asarray(result.attrs["photons_per_pulse"], dtype=np.float64)  # envelope scale Φ
     if config.store.params:
+        plan = {effect: {k: d[k] for k in ("on", "forced", "reason")} for effect, d in result.attrs["plan"].items()}
         params = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
                   "streams": STREAMS, "room": room.params, "objects": room.objects,
-                  "effects": result.attrs.get("effects"),
-                  "plan": {k: v.get("on") for k, v in (result.attrs.get("plan") or {}).get("decisions", {}).items()}}
+                  "effects": result.attrs.get("effects"), "plan": plan}
         arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=_json_default), dtype=object)
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
     return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names)
