@@ -221,3 +221,14 @@ def test_bad_envelopes_and_dtype_limits():
     with pytest.raises(ValueError, match="float32"):
         datagen.SPADNoise(detector(n_cycles=None, exposure=10.0))
     assert datagen.SPADNoise(detector(n_cycles=None, exposure=10.0), dtype=torch.float64) is not None
+
+
+def test_expected_counts_equal_expected_histogram():
+    det = detector(gate=[0.5e-9, 6.0e-9])
+    env = np.stack([envelope(0.04), envelope(0.4)]).astype(np.float32)
+    ours = datagen.SPADNoise(det).expected(torch.as_tensor(env)).numpy()
+    np.testing.assert_allclose(ours, spad.expected_histogram(spad.rates_from_envelope(env, det), det),
+                               rtol=1e-9, atol=1e-9)
+    poisson = detector(model="poisson")
+    np.testing.assert_allclose(datagen.SPADNoise(poisson).expected(torch.as_tensor(env)).numpy(),
+                               spad.expected_histogram(spad.rates_from_envelope(env, poisson), poisson), rtol=1e-12)

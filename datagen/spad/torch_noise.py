@@ -191,6 +191,27 @@ class SPADNoise(torch.nn.Module):
             rates.mul_(gate)
         return rates.addcmul_((pde * params["ambient_rate"] + params["dcr"]).view(lead), weight)
 
+    def expected(self, envelope: torch.Tensor, params: Mapping[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Expected counts over the exposure: n·p_i (pile-up) or n·r_i (poisson), float64 (B, ..., T).
+
+        Args:
+            envelope: (B, ..., T) detected photons per pulse per bin (≥ 0).
+            params: per-sample parameters as :meth:`draw_params` returns them; default the detector's own
+                (e.g. the expected empty-room counts from a stored ``reference`` envelope, for subtraction).
+        """
+        if params is None:
+            det, batch = self.detector, envelope.shape[0]
+            params = {name: torch.full((batch,), float(value), dtype=torch.float64, device=envelope.device)
+                      for name, value in (("exposure", det.cycles / det.repetition_rate), ("cycles", det.cycles),
+                                          ("ambient_rate", det.ambient_rate), ("dcr", det.dcr), ("pde", det.pde))}
+        rates = self.rates(envelope, params).reshape(-1, envelope.shape[-1])
+        cycles = params["cycles"].repeat_interleave(rates.shape[0] // max(envelope.shape[0], 1))[:, None]
+        if self.detector.model == "poisson":
+            return (rates * cycles).reshape(envelope.shape)
+        survive = torch.cumsum(rates, dim=-1).neg_().exp_()
+        pmf = torch.cat([1.0 - survive[:, :1], survive[:, :-1] - survive[:, 1:]], dim=-1)
+        return (pmf * cycles).reshape(envelope.shape)
+
     # ---- sampling -----------------------------------------------------------------------------------------
     def forward(self, envelope: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """Counts of one exposure per sample: (B, ..., T) ``dtype`` on the envelope's device (see :meth:`sample`)."""
@@ -213,11 +234,13 @@ class SPADNoise(torch.nn.Module):
         if envelope.dim() < 2:
             raise ValueError(f"SPADNoise: envelope must be (batch, ..., bins), got shape {tuple(envelope.shape)}")
         rows = envelope.reshape(-1, envelope.shape[-1])
-        low, high = rows.amin(dim=-1), rows.amax(dim=-1)
-        if not bool(torch.isfinite(rows.sum())) or bool((low < -NEGATIVE_ENVELOPE_RTOL * high).any()):
+        low, high = rows.amin(dim=-1), rows.amax(dim=-1)          # NaN propagates into both; ±inf into one
+        fine, negative = torch.stack([((low >= -NEGATIVE_ENVELOPE_RTOL * high) & torch.isfinite(high)).all(),
+                                      (low < 0).any()]).tolist()
+        if not fine:
             raise ValueError("SPADNoise: the envelope has a non-finite value or a value more negative than FFT "
                              f"round-off (below -{NEGATIVE_ENVELOPE_RTOL:g} × its row's maximum)")
-        if bool((low < 0).any()):
+        if negative:
             envelope = envelope.clamp_min(0.0)                       # round-off, as rates_from_envelope does
         batch = envelope.shape[0]
         params = self.draw_params(batch, generator, envelope.device)
