@@ -163,3 +163,26 @@ def test_zstd_store_reads_through_the_fast_path(tmp_path_factory):
     for i in (0, 5):
         for name in ("envelope", "counts", "occupancy"):
             assert ds[i][name].numpy().tobytes() == group[name][i].tobytes()
+
+
+def test_reference_is_the_same_room_without_its_objects(tmp_path_factory):
+    """store.reference: the empty room of sample i equals, bit for bit, sample i of a split with the same name
+    whose distribution has no objects (room, materials, capture and sampling streams are drawn identically)."""
+    config = load_dataset_config(SMOKE)
+    store = config.store.model_copy(update={"reference": True})
+    with_ref = config.model_copy(update={"splits": {"train": SplitSpec(count=5)}, "store": store})
+    empty = {"objects": {"pillar": {"count": {"min": 0, "max": 0}}, "box": {"count": {"min": 0, "max": 0}}}}
+    without = config.model_copy(update={"splits": {"train": SplitSpec(count=5, room_overrides=empty)}})
+    a, b = tmp_path_factory.mktemp("ref") / "a", tmp_path_factory.mktemp("ref") / "b"
+    build_dataset(with_ref, a, workers=0, progress=False)
+    build_dataset(without, b, workers=0, progress=False)
+    ref = datagen.NLOSDataset(a, fields=("envelope", "reference", "object_count"))
+    plain = datagen.NLOSDataset(b, fields=("envelope", "object_count"))
+    changed = 0
+    for i in range(5):
+        assert int(plain[i]["object_count"]) == 0
+        assert torch.equal(ref[i]["reference"], plain[i]["envelope"])
+        same = torch.equal(ref[i]["reference"], ref[i]["envelope"])
+        assert same or int(ref[i]["object_count"]) > 0          # an empty room is its own reference
+        changed += not same           # (an object no lookin of the 4×4 smoke sampling reaches changes nothing)
+    assert changed >= 1

@@ -21,6 +21,7 @@ arrays (sample axis not included) plus the JSON-able parameters and per-stage ti
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import json
 import time
@@ -98,6 +99,10 @@ class StoreSpec(_Model):
             room, object_0 … object_{max_objects-1} (zero for absent objects), then :data:`OTHER_COMPONENTS`.
         labels: store the ground-truth labels of :func:`datagen.dataset.labels.scene_labels`.
         params: store every sampled room parameter and the seeds as one JSON string per sample.
+        reference: also simulate the same room without its hidden objects (same capture, same sampling seed)
+            and store its envelope as ``reference`` (as ``envelope_dtype``): the empty-room return that NLOS
+            set-ups subtract to isolate the hidden objects (docs/datasets.md, "What each config teaches").
+            Doubles the transport cost.
         compression: codec of every inner chunk: "lz4" (Blosc-LZ4 with byte shuffle: decodes a sample in a
             few µs, the default), "zstd" (smaller, ~20 µs per chunk to decode) or "none".
         compression_level: its level (lz4 1 … 9, zstd 1 … 22).
@@ -109,6 +114,7 @@ class StoreSpec(_Model):
     components: bool = False
     labels: bool = True
     params: bool = True
+    reference: bool = False
     compression: Literal["lz4", "zstd", "none"] = "lz4"
     compression_level: int = Field(5, ge=1, le=22)
 
@@ -316,7 +322,7 @@ class Sample:
             detected photons per pulse per bin (S the capture's leading axes, e.g. (ny, nx) FoV pixels or
             none), ``counts`` (*S, T) int64, ``components`` (C, *S, T) (slots named by
             ``component_names``: room, object_0 … object_{K-1}, then secondary and any other component of the
-            result), the label arrays of
+            result), ``reference`` (*S, T) the empty room's envelope if store.reference, the label arrays of
             :func:`datagen.dataset.labels.scene_labels`, ``photons_per_pulse`` (0-d float64: the laser's Φ, the
             scale inside the envelope) and ``params`` (0-d str, JSON; its ``plan`` holds each effect decision's
             on, forced and reason).
@@ -370,6 +376,13 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     if config.store.components:
         component_names, arrays["components"] = _component_slots(result, room, spec.max_objects,
                                                                  config.store.envelope_dtype, where)
+    if config.store.reference:          # the empty room: same walls, capture and sampling stream, no hidden objects
+        hidden = {o["name"] for o in room.objects}
+        empty = dataclasses.replace(room.scene, objects=[o for o in room.scene.objects if o.name not in hidden])
+        again = sample_rngs(config.seed, split, index)
+        arrays["reference"] = np.asarray(simulate(empty, sim_config, sampling_rng=again["sampling"],
+                                                  noise_rng=again["noise"]).envelope,
+                                         dtype=config.store.envelope_dtype)
     for name, value in labels.items():
         arrays[name] = np.asarray(value)
     arrays["photons_per_pulse"] = np.asarray(result.attrs["photons_per_pulse"], dtype=np.float64)  # envelope scale Φ
