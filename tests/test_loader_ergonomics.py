@@ -186,3 +186,23 @@ def test_reference_is_the_same_room_without_its_objects(tmp_path_factory):
         assert same or int(ref[i]["object_count"]) > 0          # an empty room is its own reference
         changed += not same           # (an object no lookin of the 4×4 smoke sampling reaches changes nothing)
     assert changed >= 1
+
+
+def test_cli_build_splits_cuts_the_config_to_a_prefix(tmp_path):
+    """``datagen build … --splits train=3``: only that split, 3 samples, each equal to the full build's."""
+    from click.testing import CliRunner
+    from datagen.cli.main import main
+
+    out = tmp_path / "cut"
+    result = CliRunner().invoke(main, ["build", str(SMOKE), "--out", str(out), "--workers", "0", "--quiet",
+                                       "--splits", "train=3"])
+    assert result.exit_code == 0, result.output
+    ds = datagen.NLOSDataset(out, fields=("envelope", "counts"))
+    assert len(ds) == 3 and set(ds.card["splits"]) == {"train"}
+    config = load_dataset_config(SMOKE)
+    from datagen.dataset import make_sample
+    full = make_sample(config, "train", 2)
+    assert ds[2]["envelope"].numpy().tobytes() == full.arrays["envelope"].tobytes()
+    for bad, text in (("tran=3", "no split 'tran'"), ("train=x", "NAME=COUNT"), ("train=-1", ">= 0")):
+        result = CliRunner().invoke(main, ["build", str(SMOKE), "--out", str(tmp_path / "x"), "--splits", bad])
+        assert result.exit_code == 2 and text in result.output and result.output.count("\n") == 1, result.output
