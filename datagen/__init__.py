@@ -12,20 +12,25 @@ Public entry points::
     # any dataset sample at any accuracy, against the converged reference (docs/accuracy.md)
     scene, config = datagen.sample_setup("configs/datasets/default.yaml", "val", 3)
     reference = datagen.converged_reference(scene, config, rel_tol=3e-3)
+    noise = datagen.SPADNoise(ds.detector, exposure=("1ms", "10ms"))          # batched SPAD noise in torch
 """
 from .scene import Scene, SceneError, load_scene
 from .simulation import Result, SimulationConfig, resolve_config, simulate, simulate_to_tolerance
 
 __all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
-           "simulate_to_tolerance", "NLOSDataset", "sample_setup", "converged_reference"]
+           "simulate_to_tolerance", "NLOSDataset", "SPADNoise", "sample_setup", "converged_reference"]
 
 
 def __getattr__(name: str):
-    """``datagen.NLOSDataset`` imports torch on first use only (``import datagen`` stays light for workers);
-    ``sample_setup`` and ``converged_reference`` load the dataset and analysis layers on first use."""
+    """``datagen.NLOSDataset`` and ``datagen.SPADNoise`` import torch on first use only (``import datagen`` stays
+    light for workers); ``sample_setup`` and ``converged_reference`` load the dataset and analysis layers on
+    first use."""
     if name == "NLOSDataset":
         from .dataset import NLOSDataset
         return NLOSDataset
+    if name == "SPADNoise":
+        from .spad.torch_noise import SPADNoise
+        return SPADNoise
     if name == "sample_setup":
         from .dataset import sample_setup
         return sample_setup

@@ -41,12 +41,17 @@ def _dataset_errors(func):
 @click.option("--tasks-per-worker", type=int, default=4, show_default=True,
               help="shards a local worker process computes before it is replaced (bounds memory)")
 @click.option("--quiet", is_flag=True, help="no progress bar")
+@click.option("--splits", "split_counts", default=None, metavar="NAME=N,...",
+              help="build only these splits with these counts, e.g. train=1024,val=256 (sample i is the same as in "
+                   "the full build: a smaller build is a prefix of it)")
 @_dataset_errors
-def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worker, quiet):
+def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worker, quiet, split_counts):
     """Build the dataset of CONFIG_FILE (configs/datasets/*.yaml) into OUT, shard by shard."""
     from ..dataset import build_dataset, load_dataset_config
 
     config = load_dataset_config(config_file)
+    if split_counts is not None:
+        config = config.model_copy(update={"splits": _cut_splits(config, split_counts, config_file)})
     report = build_dataset(config, out, workers=workers, scheduler=scheduler, resume=resume, retries=retries,
                            max_tasks_per_child=tasks_per_worker, progress=not quiet)
     for line in report.repairs:
@@ -55,6 +60,24 @@ def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worke
     click.echo(f"{out}: {report.shards_built} shards built ({report.samples_built} samples, "
                f"{report.samples_per_second:.2f} samples/s, {report.engine}), {report.shards_skipped} already done; "
                f"status {report.card.get('status')}; per sample {timing.get('mean', float('nan')):.3f} s mean")
+
+
+def _cut_splits(config, text: str, config_file) -> dict:
+    """``--splits train=1024,val=256``: those splits of ``config`` (with their overrides) at those counts."""
+    splits = {}
+    for part in text.split(","):
+        name, _, count = part.partition("=")
+        name = name.strip()
+        if name not in config.splits:
+            raise ValueError(f"{config_file}: --splits: no split {name!r} (splits: {', '.join(config.splits)})")
+        try:
+            n = int(count)
+        except ValueError:
+            raise ValueError(f"--splits: {part!r} is not NAME=COUNT with an integer count") from None
+        if n < 0:
+            raise ValueError(f"--splits: count of {name!r} must be >= 0, got {n}")
+        splits[name] = config.splits[name].model_copy(update={"count": n})
+    return splits
 
 
 def card_summary(card: dict) -> str:

@@ -21,6 +21,7 @@ arrays (sample axis not included) plus the JSON-able parameters and per-stage ti
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import json
 import time
@@ -102,6 +103,10 @@ class StoreSpec(_Model):
             room, object_0 … object_{max_objects-1} (zero for absent objects), then :data:`OTHER_COMPONENTS`.
         labels: store the ground-truth labels of :func:`datagen.dataset.labels.scene_labels`.
         params: store every sampled room parameter and the seeds as one JSON string per sample.
+        reference: also simulate the same room without its hidden objects (same capture, same sampling seed)
+            and store its envelope as ``reference`` (as ``envelope_dtype``): the empty-room return that NLOS
+            set-ups subtract to isolate the hidden objects (docs/datasets.md, "What each config teaches").
+            Doubles the transport cost.
         compression: codec of every inner chunk: "lz4" (Blosc-LZ4 with byte shuffle: decodes a sample in a
             few µs, the default), "zstd" (smaller, ~20 µs per chunk to decode) or "none".
         compression_level: its level (lz4 1 … 9, zstd 1 … 22).
@@ -113,6 +118,7 @@ class StoreSpec(_Model):
     components: bool = False
     labels: bool = True
     params: bool = True
+    reference: bool = False
     compression: Literal["lz4", "zstd", "none"] = "lz4"
     compression_level: int = Field(5, ge=1, le=22)
 
@@ -356,8 +362,10 @@ class Sample:
             none), ``envelope_error`` () float32 the envelope's estimated relative L2 error (bins above 1 % of its
             peak), ``counts`` (*S, T) int64, ``components`` (C, *S, T) (slots named by
             ``component_names``: room, object_0 … object_{K-1}, then secondary and any other component of the
-            result), the label arrays of
-            :func:`datagen.dataset.labels.scene_labels`, and ``params`` (0-d str, JSON).
+            result), ``reference`` (*S, T) the empty room's envelope if store.reference, the label arrays of
+            :func:`datagen.dataset.labels.scene_labels`, ``photons_per_pulse`` (0-d float64: the laser's Φ, the
+            scale inside the envelope) and ``params`` (0-d str, JSON; its ``plan`` holds each effect decision's
+            on, forced and reason).
         time_edges: (T+1,) float64 seconds.
         seconds: wall time per stage (room, simulate, labels, total), s.
     """
@@ -430,7 +438,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
             more hidden objects than ``labels.max_objects``; the message names the sample.
     """
     from .labels import scene_labels
-    from ..simulation import simulate_to_tolerance
+    from ..simulation import simulate, simulate_to_tolerance
 
     where = f"sample ({split}, {index})"
     t0 = time.perf_counter()
@@ -455,13 +463,21 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     if config.store.components:
         component_names, arrays["components"] = _component_slots(result, room, spec.max_objects,
                                                                  config.store.envelope_dtype, where)
+    if config.store.reference:          # the empty room: same walls, capture and sampling stream, no hidden objects
+        hidden = {o["name"] for o in room.objects}
+        empty = dataclasses.replace(room.scene, objects=[o for o in room.scene.objects if o.name not in hidden])
+        again = sample_rngs(config.seed, split, index)
+        arrays["reference"] = np.asarray(simulate(empty, sim_config, sampling_rng=again["sampling"],
+                                                  noise_rng=again["noise"]).envelope,
+                                         dtype=config.store.envelope_dtype)
     for name, value in labels.items():
         arrays[name] = np.asarray(value)
+    arrays["photons_per_pulse"] = np.asarray(result.attrs["photons_per_pulse"], dtype=np.float64)  # envelope scale Φ
     if config.store.params:
+        plan = {effect: {k: d[k] for k in ("on", "forced", "reason")} for effect, d in result.attrs["plan"].items()}
         params = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
                   "streams": STREAMS, "room": room.params, "objects": room.objects,
-                  "effects": result.attrs.get("effects"), "accuracy": _accuracy(result.attrs),
-                  "plan": {k: v.get("on") for k, v in (result.attrs.get("plan") or {}).get("decisions", {}).items()}}
+                  "effects": result.attrs.get("effects"), "accuracy": _accuracy(result.attrs), "plan": plan}
         arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=_json_default), dtype=object)
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
     return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names)

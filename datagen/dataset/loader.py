@@ -1,15 +1,27 @@
 """PyTorch loader of datagen datasets: a map-style ``Dataset`` returning a dict of tensors (docs/physics.md §7).
 
-``NLOSDataset(path, split="train", fields=None, noise="frozen", transform=None)`` reads the dataset built
-by :mod:`datagen.dataset.build`. Nothing is opened in ``__init__`` except the small JSON metadata, and no file handle
-or cache is pickled, so each ``DataLoader`` worker opens the store lazily on its first item.
+``NLOSDataset(path, split="train", fields=None, noise="frozen", transform=None, counts_dtype=None,
+object_order="stored")`` reads the dataset built by :mod:`datagen.dataset.build`. Nothing is opened in
+``__init__`` except the small JSON metadata, and no file handle or cache is pickled, so each ``DataLoader``
+worker opens the store lazily on its first item.
 
 Reading. Zarr's per-chunk read path costs ~1 ms per sample and field; a sample has a dozen fields. Each
-field's shard file holds an index (offset, nbytes per inner chunk) at its end and one zstd-compressed chunk
-per sample, so the loader reads that index once per shard and worker (cached), then ``pread``s and decodes
-just the sample's chunk (~20 µs), which keeps shuffled access as fast as sequential access. Arrays whose
-codecs are not the ones :mod:`datagen.dataset.build` writes (or stores that are not local directories) fall back
-to zarr's own reader.
+field's shard file holds an index (offset, nbytes per inner chunk) at its end and one compressed chunk per
+sample (``store.compression``: Blosc-LZ4 with byte shuffle by default, zstd or none), so the loader reads that
+index once per shard and worker (cached), then ``pread``s and decodes just the sample's chunk (a few µs to
+~20 µs), which keeps shuffled access as fast as sequential access. Arrays whose codecs are not the ones
+:mod:`datagen.dataset.build` writes (or stores that are not local directories) fall back to zarr's own reader.
+
+Normalisation. Every item also carries ``cycles`` (laser cycles of the exposure, repetition_rate ×
+exposure), ``photons_per_pulse`` (the laser's Φ, the scale inside the envelope) and ``background`` (expected
+background counts per bin over the exposure, (PDE·ambient + DCR)·bin_width·cycles): ``envelope × cycles`` is
+the expected signal counts at low flux, ``counts / cycles`` the detections per cycle, ``envelope /
+photons_per_pulse`` the transient per emitted photon (docs/datasets.md, "Loading").
+
+Object slots. ``object_*`` arrays (and the ``object_k`` slots of ``components``) list the hidden objects in the
+room generator's order, pillars first then boxes, padding last (class −1, 0.0 elsewhere);
+``object_order="distance"`` sorts the real objects by the distance of their centre to the relay-wall plane
+(nearest first), padding still last.
 
 Noise. ``noise="frozen"`` returns the stored SPAD counts (evaluation sets). ``noise="resample"`` re-draws
 them from the stored envelope with the split's detector (:func:`datagen.spad.rates_from_envelope`,
@@ -20,6 +32,7 @@ its rounding (relative 6e-8).
 """
 from __future__ import annotations
 
+import inspect
 import json
 import os
 from collections import OrderedDict
@@ -41,6 +54,15 @@ PLOT_DYNAMIC_RANGE = 1e-6
 
 OPEN_SHARDS = 8
 """Shard files kept open (with their decoded index) per field and worker."""
+
+SCALE_FIELDS = ("cycles", "photons_per_pulse", "background")
+"""Per-item normalisation fields the loader adds (float64 0-d tensors; see the module doc)."""
+
+OBJECT_FIELDS = ("object_class", "object_center", "object_size", "object_yaw", "object_albedo", "object_brdf")
+"""Per-object label arrays (first axis: object slot) that ``object_order`` permutes."""
+
+TRANSFORM_KEYWORDS = ("index", "params")
+"""Keyword arguments a ``transform`` may declare to receive the sample index and its parsed params."""
 
 
 class _FieldReader:
@@ -172,23 +194,33 @@ class NLOSDataset(torch.utils.data.Dataset):
     Args:
         path: the dataset directory (``datagen build ... --out PATH``).
         split: split name (see the card's ``splits``).
-        fields: fields to return (default: every stored numeric field; ``params`` returns the JSON string).
-            ``counts`` with ``noise="resample"`` is re-drawn from ``envelope`` (read even if not requested).
-        noise: "frozen" (stored counts) or "resample" (fresh SPAD noise per epoch, see the module doc).
-        transform: called on the dict of tensors before it is returned.
+        fields: fields to return (default: every stored numeric field and :data:`SCALE_FIELDS`; ``params``
+            returns the JSON string). ``counts`` with ``noise="resample"`` is re-drawn from ``envelope`` (read even
+            if not requested).
+        noise: "frozen" (stored counts) or "resample" (fresh SPAD noise per epoch, see the module doc). For
+            noise drawn on the training device, load ``envelope`` and apply :meth:`spad_noise` to each batch.
+        transform: called on the dict of tensors before it is returned: ``transform(item)``, or with the
+            keywords it declares among ``index`` (int) and ``params`` (the parsed params dict, needs
+            ``store.params``), e.g. ``def transform(item, index, params)``.
+        counts_dtype: dtype of ``counts`` (e.g. ``torch.float32``); default the stored int64.
+        object_order: "stored" (pillars first, then boxes, as generated) or "distance" (nearest to the relay
+            wall first); either way padding slots come last.
     Item:
         dict field → torch tensor with the stored shape and dtype: envelope (*S, T) float32 expected detected
         photons per pulse per bin, counts (*S, T) int64, depth (H, W) float32 m, normal (H, W, 3),
-        occupancy (V, V, V) uint8, object_* (K, …), object_count (), …; see ``docs/datasets.md``.
+        occupancy (V, V, V) uint8, object_* (K, …), object_count (), …; cycles, photons_per_pulse and
+        background () float64; see ``docs/datasets.md``.
     Raises:
-        FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field or noise mode,
-        an incomplete build, or ``noise="resample"`` without a stored envelope; DatasetCorruptError (a
-        ValueError): metadata that disagrees with the card (here), a damaged or missing shard (on reading);
-        TypeError: an index that is not an integer (``ds[1.5]``).
+        FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field, noise mode or
+        object order, an incomplete build, ``noise="resample"`` without a stored envelope, or a transform
+        asking for params that are not stored; DatasetCorruptError (a ValueError): metadata that disagrees with
+        the card (here), a damaged or missing shard (on reading); TypeError: an index that is not an integer
+        (``ds[1.5]``).
     """
 
     def __init__(self, path: str | os.PathLike, split: str = "train", fields: Iterable[str] | None = None,
-                 noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None):
+                 noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None,
+                 counts_dtype: torch.dtype | None = None, object_order: Literal["stored", "distance"] = "stored"):
         self.path = Path(path)
         card = read_card(self.path)
         if card.get("status") != "complete":
@@ -198,30 +230,49 @@ class NLOSDataset(torch.utils.data.Dataset):
             raise ValueError(f"split {split!r} not in {self.path} (splits: {sorted(card['splits'])})")
         if noise not in ("frozen", "resample"):
             raise ValueError(f"noise must be 'frozen' or 'resample', got {noise!r}")
+        if object_order not in ("stored", "distance"):
+            raise ValueError(f"object_order must be 'stored' or 'distance', got {object_order!r}")
         info = card["splits"][split]
         stored = list(info["fields"])
         redraw = noise == "resample"
         if redraw and "envelope" not in stored:
             raise ValueError(f"noise='resample' needs the envelope, which {self.path} does not store")
+        scales = [f for f in SCALE_FIELDS if f != "photons_per_pulse" or self._photons_source(stored)]
         if fields is None:
-            fields = [f for f in stored if f != "params"] + (["counts"] if redraw and "counts" not in stored else [])
+            fields = ([f for f in stored if f != "params"] + (["counts"] if redraw and "counts" not in stored else [])
+                      + [f for f in scales if f not in stored])
         fields = list(fields)
-        unknown = sorted(set(fields) - set(stored) - ({"counts"} if redraw else set()))
+        unknown = sorted(set(fields) - set(stored) - ({"counts"} if redraw else set()) - set(scales))
         if unknown:
-            raise ValueError(f"fields {unknown} are not stored in {self.path}/{split} (stored: {stored})")
+            raise ValueError(f"fields {unknown} are not stored in {self.path}/{split} (stored: {stored}"
+                             f"{'' if scales == list(SCALE_FIELDS) else '; photons_per_pulse needs params'})")
         self.split, self.fields, self.noise, self.transform = split, tuple(fields), noise, transform
+        self.counts_dtype, self.object_order = counts_dtype, object_order
         self.seed = int(card["config"]["seed"])
         self.count = int(info["count"])
         self.detector = info.get("detector")
         self.epoch = 0
         self.card = card
-        to_read = set(self.fields)
+        self._keywords = _transform_keywords(transform)
+        if "params" in self._keywords and "params" not in stored:
+            raise ValueError(f"the transform asks for params, which {self.path} does not store (store.params)")
+        to_read = set(self.fields) - (set(SCALE_FIELDS) - set(stored))
         if redraw and "counts" in to_read:
             to_read = (to_read - {"counts"}) | {"envelope"}
+        if "photons_per_pulse" in self.fields and "photons_per_pulse" not in stored:
+            to_read.add("params")
+        if object_order == "distance" and to_read & set(OBJECT_FIELDS + ("components",)):
+            to_read |= {"object_center", "object_count"}
+        if "params" in self._keywords:
+            to_read.add("params")
         check_split(self.path, card, split, sorted(to_read) + ["time_edges"])   # metadata as the card implies
         self._readers = {name: _FieldReader(self.path, split, name) for name in sorted(to_read)}
         self.time_edges = _read_small(self.path / split / "time_edges")
         self._detector_config = None
+
+    @staticmethod
+    def _photons_source(stored: list[str]) -> bool:
+        return "photons_per_pulse" in stored or "params" in stored
 
     def __len__(self) -> int:
         return self.count
@@ -231,29 +282,78 @@ class NLOSDataset(torch.utils.data.Dataset):
         ``persistent_workers=True`` keeps its workers' copies, so re-create it or use the default)."""
         self.epoch = int(epoch)
 
+    def detector_config(self):
+        """The split's :class:`datagen.spad.DetectorConfig` (what the stored counts were drawn with)."""
+        if self._detector_config is None:
+            from .. import spad
+            self._detector_config = spad.DetectorConfig.model_validate(self.detector)
+        return self._detector_config
+
+    def spad_noise(self, **ranges):
+        """A :class:`datagen.SPADNoise` for this split's detector: batched SPAD noise on the training device.
+
+        ``ranges`` are SPADNoise's keywords (``exposure``, ``ambient_rate``, ``dcr``, ``pde`` as numbers or
+        (low, high) ranges drawn per sample, ``dtype``), e.g. ``ds.spad_noise(exposure=("1ms", "10ms"))``."""
+        from ..spad.torch_noise import SPADNoise
+        return SPADNoise(self.detector_config(), **ranges)
+
+    def scales(self, photons_per_pulse: float | None = None) -> dict[str, float]:
+        """The split's normalisation constants: cycles, background (expected counts per bin over the exposure)
+        and, when given, photons_per_pulse (see the module doc)."""
+        det = self.detector_config()
+        width = float(self.time_edges[1] - self.time_edges[0])
+        out = {"cycles": float(det.cycles), "background": det.background_rate * width * det.cycles}
+        if photons_per_pulse is not None:
+            out["photons_per_pulse"] = float(photons_per_pulse)
+        return out
+
     def _resampled_counts(self, envelope: np.ndarray, index: int) -> np.ndarray:
         from .. import spad
-        if self._detector_config is None:
-            self._detector_config = spad.DetectorConfig.model_validate(self.detector)
-        det = self._detector_config
+        det = self.detector_config()
         rng = resample_rng(self.seed, self.split, self.epoch, index)
         return spad.sample_histogram(spad.rates_from_envelope(envelope.astype(np.float64), det), det, rng)
 
     def read(self, index: int) -> dict[str, np.ndarray]:
-        """Sample ``index`` as numpy arrays (no transform), counts re-drawn if ``noise="resample"``."""
-        index = sample_index(index)
+        """Sample ``index`` as numpy arrays (no transform), counts re-drawn if ``noise="resample"``, objects in
+        ``object_order``, with the normalisation fields."""
+        out = self._read(sample_index(index))
+        return {name: out[name] for name in self.fields}
+
+    def _read(self, index: int) -> dict[str, np.ndarray]:
+        """Every array read for sample ``index`` (the fields, and what they were derived from)."""
         if not -self.count <= index < self.count:
             raise IndexError(f"index {index} out of range for split {self.split!r} of {self.count} samples")
         index = index % self.count
         out = {name: reader.read(index) for name, reader in self._readers.items()}
         if self.noise == "resample" and "counts" in self.fields:
             out["counts"] = self._resampled_counts(out["envelope"], index)
-        return {name: out[name] for name in self.fields}
+        if self.object_order == "distance" and "object_center" in out:
+            out.update(_objects_by_distance(out, float(self.card["config"]["room"]["relay_x"])))
+        wanted = [f for f in SCALE_FIELDS if f in self.fields]
+        if wanted:
+            photons = None
+            if "photons_per_pulse" in wanted:
+                photons = (float(out["photons_per_pulse"]) if "photons_per_pulse" in out
+                           else _photons_from_params(json.loads(str(out["params"][()]))))
+            scales = self.scales(photons)
+            out.update({f: np.asarray(scales[f], dtype=np.float64) for f in wanted})
+        return out
 
     def __getitem__(self, index: int) -> dict[str, Any]:
-        arrays = self.read(sample_index(index))
-        item = {name: (str(a[()]) if a.dtype == object else torch.from_numpy(a)) for name, a in arrays.items()}
-        return self.transform(item) if self.transform is not None else item
+        index = sample_index(index)
+        out = self._read(index)
+        item = {name: (str(out[name][()]) if out[name].dtype == object else torch.from_numpy(out[name]))
+                for name in self.fields}
+        if self.counts_dtype is not None and "counts" in item:
+            item["counts"] = item["counts"].to(self.counts_dtype)
+        if self.transform is None:
+            return item
+        extra = {}
+        if "index" in self._keywords:
+            extra["index"] = index % self.count
+        if "params" in self._keywords:
+            extra["params"] = json.loads(str(out["params"][()]))
+        return self.transform(item, **extra)
 
     def params(self, index: int) -> dict:
         """Every sampled parameter and the seeds of sample ``index`` (needs ``store.params``)."""
@@ -275,6 +375,39 @@ class NLOSDataset(torch.utils.data.Dataset):
         """
         return plot_sample(sample if isinstance(sample, dict) else self[int(sample)], self.time_edges,
                            title or (f"{self.split}[{sample}]" if not isinstance(sample, dict) else None))
+
+
+def _transform_keywords(transform: Callable | None) -> tuple[str, ...]:
+    """The keywords of :data:`TRANSFORM_KEYWORDS` that ``transform`` declares (all with ``**kwargs``)."""
+    if transform is None:
+        return ()
+    try:
+        parameters = inspect.signature(transform).parameters
+    except (TypeError, ValueError):   # builtins without a signature: the one-argument call
+        return ()
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
+        return TRANSFORM_KEYWORDS
+    return tuple(k for k in TRANSFORM_KEYWORDS if k in parameters)
+
+
+def _photons_from_params(params: dict) -> float:
+    """Φ of the sample's laser from its params (datasets built before ``photons_per_pulse`` was stored)."""
+    from ..scene import Laser
+    return float(Laser(**params["room"]["laser"]).photons)
+
+
+def _objects_by_distance(arrays: dict[str, np.ndarray], relay_x: float) -> dict[str, np.ndarray]:
+    """The per-object arrays (and components' object slots) of one sample with the real objects sorted by
+    relay_x − centre x (nearest to the relay wall first), padding slots kept last."""
+    count = int(arrays["object_count"])
+    order = np.arange(len(arrays["object_center"]))
+    order[:count] = np.argsort(relay_x - arrays["object_center"][:count, 0], kind="stable")
+    out = {name: arrays[name][order] for name in OBJECT_FIELDS if name in arrays}
+    if "components" in arrays:
+        components = arrays["components"].copy()
+        components[1:1 + len(order)] = arrays["components"][1:1 + len(order)][order]
+        out["components"] = components
+    return out
 
 
 def _read_small(path: Path) -> np.ndarray:

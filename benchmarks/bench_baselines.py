@@ -1,0 +1,117 @@
+"""What each shipped dataset config teaches (issue 16): build a small set per config on 2 cores, train the
+baseline of ``examples/train_single_pixel.py`` briefly, print each documented target's validation metric
+next to its trivial baseline. Plain script::
+
+    python benchmarks/bench_baselines.py                 # default: 256 + 128, objects: 512 + 128 samples; seed 0
+    python benchmarks/bench_baselines.py --seeds 0,1     # the same with two training seeds
+    python benchmarks/bench_baselines.py --quick         # half the training samples, 20 epochs
+    python benchmarks/bench_baselines.py --out out/bench_baselines   # where the builds go (reused when complete)
+
+Configs and targets (docs/datasets.md, "What each config teaches"):
+
+* ``configs/datasets/default.yaml`` (counts): ``fov_distance`` and ``first_return`` (taught), ``object_count``
+  and ``nearest_object`` (not taught: shown at their trivial baseline);
+* ``configs/datasets/objects.yaml``: ``object_count``, ``nearest_object`` from the counts alone and with the
+  stored empty-room reference subtracted (``--input subtracted``), and ``first_return``.
+
+``smoke.yaml`` is a build check (40 tiny samples), not a training set, and is not run. A target counts as
+taught ("yes") when its RMSE is at most ``TAUGHT_RMSE`` × the trivial baseline's (the training mean), or its
+accuracy beats the majority class by at least ``TAUGHT_SE`` binomial standard errors of the majority's
+accuracy. The machine is shared: the build and training times are indicative only.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from datagen.dataset import SplitSpec, build_dataset, load_dataset_config, read_card  # noqa: E402
+from examples.train_single_pixel import train  # noqa: E402
+
+TAUGHT_RMSE = 0.8
+TAUGHT_SE = 3.0
+
+RUNS = [  # config, input, targets
+    ("default", "counts", ["fov_distance", "first_return", "object_count", "nearest_object"]),
+    ("objects", "counts", ["object_count", "nearest_object", "first_return"]),
+    ("objects", "subtracted", ["object_count", "nearest_object", "first_return"]),
+]
+SIZES = {"default": (256, 128), "objects": (512, 128)}
+
+
+def build(name: str, out: Path, n_train: int, n_val: int) -> Path:
+    """Build (or reuse a complete build of the same config) ``configs/datasets/<name>.yaml`` cut to the sizes."""
+    config = load_dataset_config(ROOT / "configs" / "datasets" / f"{name}.yaml")
+    config = config.model_copy(update={"splits": {"train": SplitSpec(count=n_train), "val": SplitSpec(count=n_val)},
+                                       "shard_size": 32})
+    path = out / f"{name}-{n_train}-{n_val}"
+    if path.exists():
+        try:
+            card = read_card(path)
+            if card.get("status") == "complete" and card.get("config_sha256") == config.fingerprint():
+                print(f"{name}: reusing {path}")
+                return path
+        except FileNotFoundError:
+            pass
+        import shutil
+        shutil.rmtree(path)
+    t0 = time.perf_counter()
+    build_dataset(config, path, workers=2, progress=False)
+    print(f"{name}: built {n_train} + {n_val} samples in {time.perf_counter() - t0:.0f} s -> {path}")
+    return path
+
+
+def verdict(r) -> tuple[str, str]:
+    """(margin text, yes/no) for one result."""
+    if r.kind == "regression":
+        return f"RMSE x{r.ratio:.2f}", "yes" if r.ratio <= TAUGHT_RMSE else "no"
+    se = math.sqrt(max(r.trivial * (1 - r.trivial), 1e-9) / r.count)
+    return f"{r.ratio:+.3f} ({r.ratio / se:+.1f} se)", "yes" if r.ratio >= TAUGHT_SE * se else "no"
+
+
+def main():
+    parser = argparse.ArgumentParser(description="baselines per shipped dataset config")
+    parser.add_argument("--out", default=str(ROOT / "out" / "bench_baselines"))
+    parser.add_argument("--quick", action="store_true", help="half the training samples, 20 epochs")
+    parser.add_argument("--seeds", default="0", help="training seeds, comma separated")
+    parser.add_argument("--epochs", type=int, default=30)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    seeds = [int(x) for x in args.seeds.split(",")]
+    scale = 2 if args.quick else 1
+    if args.quick:
+        args.epochs = min(args.epochs, 20)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    paths = {name: build(name, out, n_tr // scale, n_va) for name, (n_tr, n_va) in SIZES.items()}
+    rows = []
+    for name, inp, targets in RUNS:
+        for seed in seeds:
+            t0 = time.perf_counter()
+            results = train(paths[name], targets, inp, epochs=args.epochs, seed=seed, log=None)
+            print(f"{name} / {inp} / seed {seed}: trained in {time.perf_counter() - t0:.0f} s")
+            rows += [(name, inp, seed, r) for r in results]
+    print(f"\nvalidation metric vs trivial baseline (train {', '.join(f'{k} {v[0] // scale}' for k, v in SIZES.items())}"
+          f"; val 128 each; {args.epochs} epochs; taught = RMSE <= {TAUGHT_RMSE} x trivial or accuracy >= "
+          f"{TAUGHT_SE:g} se above the majority class)")
+    print(f"{'config':8s} {'input':11s} {'seed':>4s} {'target':15s} {'metric':>11s} {'network':>8s} {'trivial':>8s} "
+          f"{'margin':>18s} {'taught':>6s}")
+    for name, inp, seed, r in rows:
+        margin, taught = verdict(r)
+        metric = f"RMSE {r.unit}" if r.kind == "regression" else "accuracy"
+        print(f"{name:8s} {inp:11s} {seed:4d} {r.target:15s} {metric:>11s} {r.model:8.3f} {r.trivial:8.3f} "
+              f"{margin:>18s} {taught:>6s}")
+    print(f"\ntotal {time.perf_counter() - t_start:.0f} s (machine shared with other jobs)")
+
+
+if __name__ == "__main__":
+    main()

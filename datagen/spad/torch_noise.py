@@ -1,0 +1,325 @@
+"""Batched SPAD noise on the training device: :class:`SPADNoise`, a ``torch.nn.Module`` that draws
+finite-exposure histograms from a batch of envelopes with a ``torch.Generator``.
+
+The physics is the detector model of docs/physics.md §6, as :func:`datagen.spad.rates_from_envelope` and
+:func:`datagen.spad.sample_histogram` implement it for one capture at a time in numpy:
+
+    r_i = g_i · ( (q / q_env)·L_i + (q·ambient_rate + DCR)·Δ_i )          expected avalanches per cycle, bin i
+
+with L the envelope (detected photons per pulse and bin, simulated with the PDE q_env, docs/physics.md §2), q
+the PDE of the drawn detector, Δ_i the bin widths (``DetectorConfig.widths``, DNL included) and g_i the gate
+fraction of each bin (:func:`datagen.spad.gate_fraction`). Over n = round(exposure × repetition_rate) cycles:
+
+* ``pile_up`` (synchronous first photon, Coates 1968): the counts are Multinomial(n; p_0 … p_{T−1}, p_none)
+  with p_i = e^{−C_i}(1 − e^{−r_i}) = e^{−C_i} − e^{−C_{i+1}}, C_i = Σ_{j<i} r_j, p_none = e^{−Λ};
+* ``poisson``: independent Poisson(n·r_i).
+
+Per sample (the first axis), the exposure, the ambient rate, the dark count rate and the PDE may each be
+fixed or drawn uniformly from a ``(low, high)`` range with the caller's generator: detector randomisation
+as reconstruction networks' loaders vary exposure and background, with the SPAD's own physics.
+
+Sampler (exact). numpy draws the pile-up multinomial as sequential conditional binomials on a binary tree
+of bins (:func:`datagen.spad.first_photon_tree`); torch's binomial sampler costs 70–180 ns per element, so
+that route would cost more per sample than numpy's. Here the n cycles are Poissonised: with
+m = n − POISSONIZATION_MARGIN·√n, X_i ~ Poisson(m·p_i) for every bin and X_none ~ Poisson(m·p_none), all
+independent (``torch.poisson``). Given their total s, (X, X_none) is Multinomial(s; p). A row with s > n is
+redrawn (that conditions on s ≤ n, a function of s only, so the law given s is unchanged; probability
+≈ Φ(−margin) ≈ 2 %); the n − s missing cycles are then a further Multinomial(n − s; p): their detections
+A ~ Binomial(n − s, 1 − p_none), each placed in bin i with probability p_i / (1 − p_none) by inverse CDF.
+The sum is exactly Multinomial(n; p). The pmf is computed as the difference of the float64 survival
+e^{−C_{i+1}} (absolute error ~1e-16 per cycle, as the numpy pmf). Draws differ from numpy's for the same
+seed; the law is the same (tests/test_torch_noise.py: χ² per bin and moments against
+:func:`datagen.spad.sample_histogram`, including strong pile-up).
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import torch
+from pydantic import ValidationError
+
+from .config import DetectorConfig
+from .rates import NEGATIVE_ENVELOPE_RTOL, gate_fraction
+from .synchronous import MAX_EXPECTED_COUNTS
+
+__all__ = ["POISSONIZATION_MARGIN", "RANDOMISED_FIELDS", "SPADNoise", "first_photon", "row_search"]
+
+POISSONIZATION_MARGIN = 2.0
+"""The pile-up sampler's Poisson stage uses m = n − margin·√n cycles: a row's Poisson total exceeds n (and the
+row is redrawn) with probability ≈ Φ(−margin) ≈ 2.3 %, and ≈ (margin + 0.8)·√n·(1 − p_none) detections are
+placed by inverse CDF afterwards."""
+
+RANDOMISED_FIELDS = ("exposure", "ambient_rate", "dcr", "pde")
+"""Detector fields :class:`SPADNoise` can draw per sample from a (low, high) range."""
+
+_UNSUPPORTED = {
+    "jitter_sigma": "Gaussian jitter after pile-up", "jitter_fwhm": "Gaussian jitter after pile-up",
+    "diffusion_tail": "the diffusion tail", "crosstalk_probability": "crosstalk",
+    "afterpulse_probability": "afterpulsing",
+}
+
+
+def _range(det: DetectorConfig, name: str, value: Any, default: float) -> tuple[float, float]:
+    """(low, high) from a number, a (low, high) pair or None (``default``), each value validated as the field
+    ``name`` of ``det`` (units such as "1ms" accepted); ValueError naming the field and the value."""
+    def parse(v: Any) -> float:
+        data = det.model_dump() | {name: v} | ({"n_cycles": None} if name == "exposure" else {})
+        try:
+            return float(getattr(DetectorConfig.model_validate(data), name))
+        except ValidationError as exc:
+            raise ValueError(f"SPADNoise: {name}: {exc.errors()[0]['msg']} (got {v!r})") from None
+
+    if value is None:
+        return float(default), float(default)
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise ValueError(f"SPADNoise: {name} must be a number or a (low, high) pair, got {value!r}")
+        low, high = (parse(v) for v in value)
+    else:
+        low = high = parse(value)
+    if not low <= high:
+        raise ValueError(f"SPADNoise: {name} range must have low <= high, got {value!r}")
+    return low, high
+
+
+class SPADNoise(torch.nn.Module):
+    """Finite-exposure SPAD histograms from a batch of envelopes, on the envelopes' device.
+
+    Args:
+        detector: the detector the envelopes were simulated for: a :class:`datagen.spad.DetectorConfig` or a
+            mapping of its fields (e.g. ``NLOSDataset.detector``). Model ``pile_up`` or ``poisson``; its
+            ``bin_width``/``bin_widths``, ``t_start`` and ``gate`` fix the time axis and the gate; Gaussian
+            jitter, the diffusion tail, crosstalk and afterpulsing are not modelled here (NotImplementedError).
+        exposure: seconds per sample, a number or a (low, high) range drawn uniformly per sample; strings
+            such as ``"1ms"`` are accepted. Default: the detector's exposure (or ``n_cycles``).
+        ambient_rate: ambient photons per second at the detector before the PDE (Hz), number or range.
+        dcr: dark count rate (Hz), number or range.
+        pde: photon detection efficiency, number or range in [0, 1]. The envelope is rescaled by
+            pde / envelope_pde (it already contains the PDE it was simulated with, docs/physics.md §2).
+        envelope_pde: the PDE inside the envelopes; default ``detector.pde``.
+        dtype: dtype of the returned counts (float32 default: exact up to 2**24 counts per bin).
+    Raises:
+        ValueError: invalid field or range (the message names it); a float32 ``dtype`` with more than 2**24
+            cycles; a randomised PDE with ``envelope_pde`` 0. NotImplementedError: an effect listed above.
+
+    Example::
+
+        noise = datagen.SPADNoise(ds.detector, exposure=("1ms", "10ms"), ambient_rate=(0, 1e5), pde=(0.2, 0.4))
+        counts = noise(batch["envelope"].to(device), generator=gen)      # (B, ..., T) float32 counts
+    """
+
+    def __init__(self, detector: DetectorConfig | Mapping[str, Any], *, exposure: Any = None,
+                 ambient_rate: Any = None, dcr: Any = None, pde: Any = None, envelope_pde: float | None = None,
+                 dtype: torch.dtype = torch.float32):
+        super().__init__()
+        det = detector if isinstance(detector, DetectorConfig) else DetectorConfig.model_validate(dict(detector))
+        if det.model not in ("pile_up", "poisson"):
+            raise NotImplementedError(f"SPADNoise: detector model {det.model!r} is not modelled in torch (only "
+                                      "'pile_up' and 'poisson'); use datagen.spad.sample_histogram")
+        for field, what in _UNSUPPORTED.items():
+            if getattr(det, field):
+                raise NotImplementedError(f"SPADNoise: {field}={getattr(det, field)!r}: {what} is not modelled "
+                                          "in torch; use datagen.spad.sample_histogram")
+        self.detector = det
+        default_exposure = det.exposure if det.exposure is not None else det.cycles / det.repetition_rate
+        self.ranges = {"exposure": _range(det, "exposure", exposure, default_exposure),
+                       "ambient_rate": _range(det, "ambient_rate", ambient_rate, det.ambient_rate),
+                       "dcr": _range(det, "dcr", dcr, det.dcr),
+                       "pde": _range(det, "pde", pde, det.pde)}
+        self.envelope_pde = float(det.pde if envelope_pde is None else envelope_pde)
+        if self.envelope_pde == 0 and self.ranges["pde"] != (0.0, 0.0):
+            raise ValueError("SPADNoise: envelope_pde is 0, so the envelope cannot be rescaled to another pde")
+        self.fixed_cycles = det.n_cycles if exposure is None and det.n_cycles is not None else None
+        max_cycles = self.fixed_cycles or round(self.ranges["exposure"][1] * det.repetition_rate)
+        if round(self.ranges["exposure"][0] * det.repetition_rate) < 1 and self.fixed_cycles is None:
+            raise ValueError(f"SPADNoise: exposure {self.ranges['exposure'][0]!r} s is less than one laser cycle at "
+                             f"{det.repetition_rate!r} Hz")
+        if dtype == torch.float32 and max_cycles > 2**24:
+            raise ValueError(f"SPADNoise: {max_cycles} cycles can give more than 2**24 counts in a bin, which float32 "
+                             "cannot count exactly; pass dtype=torch.float64")
+        self.dtype = dtype
+        self._axis: dict[tuple[int, str], tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def extra_repr(self) -> str:
+        ranges = ", ".join(f"{k}={lo:g}" if lo == hi else f"{k}=({lo:g}, {hi:g})" for k, (lo, hi) in self.ranges.items())
+        return f"model={self.detector.model}, {ranges}, envelope_pde={self.envelope_pde:g}"
+
+    # ---- parameters ---------------------------------------------------------------------------------------
+    def draw_params(self, batch: int, generator: torch.Generator | None = None,
+                    device: torch.device | str = "cpu") -> dict[str, torch.Tensor]:
+        """Per-sample detector parameters: ``exposure`` (s), ``ambient_rate`` (Hz), ``dcr`` (Hz), ``pde`` and
+        ``cycles`` (laser cycles, round(exposure × repetition_rate)), each float64 (batch,) on ``device``.
+
+        Always draws (batch, 4) uniforms from ``generator`` (fixed fields included), so the stream layout does
+        not depend on which fields are randomised."""
+        u = torch.rand((batch, len(RANDOMISED_FIELDS)), generator=generator, dtype=torch.float64, device=device)
+        out = {name: lo + (hi - lo) * u[:, k] for k, (name, (lo, hi)) in
+               enumerate((f, self.ranges[f]) for f in RANDOMISED_FIELDS)}
+        if self.fixed_cycles is not None:
+            out["cycles"] = torch.full((batch,), float(self.fixed_cycles), dtype=torch.float64, device=device)
+        else:
+            out["cycles"] = torch.round(out["exposure"] * self.detector.repetition_rate).clamp_min(1.0)
+        return out
+
+    def _time_axis(self, n_bins: int, device: torch.device) -> tuple[torch.Tensor | None, torch.Tensor]:
+        """(gate fraction g_i or None when every bin is fully inside the gate, g_i × width_i in s), float64
+        (n_bins,) on ``device`` (cached per bin count and device)."""
+        key = (n_bins, str(device))
+        if key not in self._axis:
+            det = self.detector
+            gate = gate_fraction(det.bin_edges(n_bins), det.gate)
+            weight = torch.as_tensor(gate * det.widths(n_bins), device=device)
+            self._axis[key] = (None if bool((gate == 1.0).all()) else torch.as_tensor(gate, device=device), weight)
+        return self._axis[key]
+
+    def rates(self, envelope: torch.Tensor, params: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """Expected avalanches per cycle and bin (docs/physics.md §6; the module doc's formula).
+
+        Args:
+            envelope: (B, ..., T) detected photons per pulse per bin (any float dtype, ≥ 0).
+            params: :meth:`draw_params` output for B samples.
+        Returns:
+            float64 (B, ..., T) rates ≥ 0.
+        """
+        gate, weight = self._time_axis(envelope.shape[-1], envelope.device)
+        lead = (-1,) + (1,) * (envelope.dim() - 1)
+        pde = params["pde"]
+        scale = pde / self.envelope_pde if self.envelope_pde > 0 else torch.zeros_like(pde)
+        rates = torch.mul(envelope, scale.view(lead))                # float64 (type promotion)
+        if gate is not None:
+            rates.mul_(gate)
+        return rates.addcmul_((pde * params["ambient_rate"] + params["dcr"]).view(lead), weight)
+
+    def expected(self, envelope: torch.Tensor, params: Mapping[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Expected counts over the exposure: n·p_i (pile-up) or n·r_i (poisson), float64 (B, ..., T).
+
+        Args:
+            envelope: (B, ..., T) detected photons per pulse per bin (≥ 0).
+            params: per-sample parameters as :meth:`draw_params` returns them; default the detector's own
+                (e.g. the expected empty-room counts from a stored ``reference`` envelope, for subtraction).
+        """
+        if params is None:
+            det, batch = self.detector, envelope.shape[0]
+            params = {name: torch.full((batch,), float(value), dtype=torch.float64, device=envelope.device)
+                      for name, value in (("exposure", det.cycles / det.repetition_rate), ("cycles", det.cycles),
+                                          ("ambient_rate", det.ambient_rate), ("dcr", det.dcr), ("pde", det.pde))}
+        rates = self.rates(envelope, params).reshape(-1, envelope.shape[-1])
+        cycles = params["cycles"].repeat_interleave(rates.shape[0] // max(envelope.shape[0], 1))[:, None]
+        if self.detector.model == "poisson":
+            return (rates * cycles).reshape(envelope.shape)
+        survive = torch.cumsum(rates, dim=-1).neg_().exp_()
+        pmf = torch.cat([1.0 - survive[:, :1], survive[:, :-1] - survive[:, 1:]], dim=-1)
+        return (pmf * cycles).reshape(envelope.shape)
+
+    # ---- sampling -----------------------------------------------------------------------------------------
+    def forward(self, envelope: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Counts of one exposure per sample: (B, ..., T) ``dtype`` on the envelope's device (see :meth:`sample`)."""
+        return self.sample(envelope, generator)[0]
+
+    def sample(self, envelope: torch.Tensor,
+               generator: torch.Generator | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Draw the detector parameters and the counts of a batch.
+
+        Args:
+            envelope: (B, ..., T) expected detected photons per pulse per bin (float, ≥ 0, finite); the leading
+                axis is the sample, the others (pixels) share their sample's detector parameters.
+            generator: a ``torch.Generator`` on the envelope's device (None: torch's default generator).
+        Returns:
+            (counts (B, ..., T) ``dtype``, params): params as :meth:`draw_params` (float64 (B,)).
+        Raises:
+            ValueError: an envelope of fewer than 2 dimensions, a negative or non-finite value, or (poisson
+                model) a bin expecting more than MAX_EXPECTED_COUNTS counts.
+        """
+        if envelope.dim() < 2:
+            raise ValueError(f"SPADNoise: envelope must be (batch, ..., bins), got shape {tuple(envelope.shape)}")
+        rows = envelope.reshape(-1, envelope.shape[-1])
+        low, high = rows.amin(dim=-1), rows.amax(dim=-1)          # NaN propagates into both; ±inf into one
+        fine, negative = torch.stack([((low >= -NEGATIVE_ENVELOPE_RTOL * high) & torch.isfinite(high)).all(),
+                                      (low < 0).any()]).tolist()
+        if not fine:
+            raise ValueError("SPADNoise: the envelope has a non-finite value or a value more negative than FFT "
+                             f"round-off (below -{NEGATIVE_ENVELOPE_RTOL:g} × its row's maximum)")
+        if negative:
+            envelope = envelope.clamp_min(0.0)                       # round-off, as rates_from_envelope does
+        batch = envelope.shape[0]
+        params = self.draw_params(batch, generator, envelope.device)
+        rates = self.rates(envelope, params).reshape(-1, envelope.shape[-1])
+        cycles = params["cycles"].repeat_interleave(rates.shape[0] // max(batch, 1))
+        if self.detector.model == "poisson":
+            lam = rates * cycles[:, None]
+            if bool((lam > MAX_EXPECTED_COUNTS).any()):
+                raise ValueError(f"SPADNoise: a bin expects {float(lam.max()):.3g} counts, more than "
+                                 f"{MAX_EXPECTED_COUNTS:.3g}: the flux is too high")
+            counts = torch.poisson(lam, generator=generator)
+        else:
+            counts = first_photon(rates, cycles, generator)
+        return counts.reshape(envelope.shape).to(self.dtype), params
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Exact samplers on (rows, T) float64 tensors
+
+
+def row_search(cum: torch.Tensor, rows: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """For each k the index b with cum[rows[k], b−1] ≤ target[k] < cum[rows[k], b] (cum[·, −1] := −∞, and b = m − 1
+    when target ≥ every entry), by a branchless binary search over nondecreasing rows: the torch twin of
+    :func:`datagen.spad.arrays.row_search`.
+
+    Args:
+        cum: float (n, m), each row nondecreasing.
+        rows: int64 (k,) row of each query.
+        target: float (k,) values to locate.
+    Returns:
+        int64 (k,) in [0, m − 1].
+    """
+    m = cum.shape[1]
+    flat = cum.reshape(-1)
+    last = flat.numel() - 1
+    base = rows * m - 1                          # flat index of cum[row, b − 1] is base + b
+    found = torch.zeros_like(rows)               # invariant: cum[row, found − 1] ≤ target
+    step = 1 << max(0, (m - 1).bit_length() - 1)
+    while step:
+        probe = found + step                     # move right by step if cum[row, probe − 1] ≤ target
+        ok = torch.le(flat[(base + probe).clamp_(max=last)], target) & (probe <= m - 1)
+        found.add_(ok * step)
+        step >>= 1
+    return found
+
+
+def first_photon(rates: torch.Tensor, cycles: torch.Tensor, generator: torch.Generator | None = None
+                 ) -> torch.Tensor:
+    """Exact synchronous first-photon (pile-up) counts of ``cycles`` laser cycles per row (docs/physics.md §6).
+
+    Args:
+        rates: float64 (rows, T) expected avalanches per cycle per bin, ≥ 0 (finite).
+        cycles: float64 (rows,) laser cycles (integers ≥ 0).
+        generator: torch Generator on the rates' device.
+    Returns:
+        float64 (rows, T) counts: Multinomial(cycles; e^{−C_i}(1 − e^{−r_i}) per bin, e^{−Λ} no detection) per
+        row, drawn as the module doc describes; each row sums to at most ``cycles``.
+    """
+    n_rows, bins = rates.shape
+    survive = torch.cumsum(rates, dim=-1).neg_().exp_()            # e^{−C_{i+1}}: no detection up to bin i
+    trials = (cycles - POISSONIZATION_MARGIN * cycles.sqrt()).clamp_min_(0.0)
+    lam = torch.empty_like(survive)                                 # m·p_i, p_i = e^{−C_i} − e^{−C_{i+1}}
+    lam[:, 0] = 1.0 - survive[:, 0]
+    torch.sub(survive[:, :-1], survive[:, 1:], out=lam[:, 1:])
+    lam.mul_(trials[:, None])
+    none = survive[:, -1]
+    counts = torch.poisson(lam, generator=generator)
+    spare = cycles - counts.sum(dim=-1) - torch.poisson(trials * none, generator=generator)
+    redo = torch.nonzero(spare < 0).squeeze(1)
+    while redo.numel():                 # Poisson total above the cycles: redraw those rows
+        again = torch.poisson(lam[redo], generator=generator)
+        counts[redo] = again
+        spare[redo] = cycles[redo] - again.sum(dim=-1) - torch.poisson(trials[redo] * none[redo], generator=generator)
+        redo = redo[spare[redo] < 0]
+    detect = (1.0 - none).clamp_(0.0, 1.0)
+    extra = torch.binomial(spare, detect, generator=generator).long()
+    row = torch.repeat_interleave(torch.arange(n_rows, device=rates.device), extra)
+    if row.numel():                     # the spare cycles' detections, by inverse CDF on 1 − e^{−C_{i+1}}
+        u = torch.rand(row.shape, generator=generator, dtype=torch.float64, device=rates.device)
+        at = row_search(survive.neg_(), row, u.mul_(detect[row]).sub_(1.0))
+        counts.view(-1).index_add_(0, row * bins + at, torch.ones_like(u))
+    return counts
