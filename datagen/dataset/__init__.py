@@ -12,12 +12,19 @@ Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.dataset.config`: :class:`DatasetConfig`, the seed streams (:data:`STREAMS`,
   :func:`split_key`, :func:`resample_rng`) and :func:`make_sample`;
+- :mod:`~datagen.dataset.ranges`: uniform ranges and counts of the distributions (:class:`Range`,
+  :class:`CountRange`);
 - :mod:`~datagen.dataset.rooms`: the room distribution schema (:class:`RoomDistribution`,
   :func:`load_room_distribution`, :func:`check_feasible`);
+- :mod:`~datagen.dataset.scan`: scanned captures in room distributions (``capture.scan``: confocal or
+  exhaustive laser grids over a rectangle of the relay wall);
+- :mod:`~datagen.dataset.assets`: mesh assets as hidden objects (asset folders, reading, placing);
 - :mod:`~datagen.dataset.sampler`: :func:`sample_room` → :class:`SampledRoom` (its generator keys are
   ``datagen.dataset.sampler.STREAMS``, not re-exported here: :data:`STREAMS` is the config's stream ids);
 - :mod:`~datagen.dataset.obb`: exact oriented-box geometry (overlaps, beam and view tests, points inside);
 - :mod:`~datagen.dataset.labels`: ground-truth labels (:class:`LabelSpec`, :func:`scene_labels`);
+- :mod:`~datagen.dataset.wall_view`: the networks' orthographic depth / normal / albedo / mask images seen from
+  the scanned wall rectangle;
 - :mod:`~datagen.dataset.store`: the dataset's on-disk layout, build lock, card and verification;
 - :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
 - :mod:`~datagen.dataset.loader`: :class:`NLOSDataset` and :func:`plot_sample` (import torch and matplotlib

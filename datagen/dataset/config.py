@@ -125,6 +125,8 @@ class DatasetConfig(_Model):
     shard_size: int = Field(64, ge=1)
     splits: dict[str, SplitSpec]
     room: str | dict
+    room_overrides: dict = Field(default_factory=dict, description="deep-merged into the room for every split, "
+                                 "before the split's own room_overrides")
     simulation: dict = Field(default_factory=dict)
     detector: str | dict | None = None
     labels: dict = Field(default_factory=dict)
@@ -154,8 +156,12 @@ class DatasetConfig(_Model):
 
     # ---- derived -----------------------------------------------------------------------------------
     def to_json(self) -> dict:
-        """The config as a JSON-able dict (what workers receive and the card records)."""
-        return self.model_dump(mode="json")
+        """The config as a JSON-able dict (what workers receive and the card records); an empty
+        ``room_overrides`` is left out, so configs written before it existed keep their fingerprint."""
+        data = self.model_dump(mode="json")
+        if not data["room_overrides"]:
+            del data["room_overrides"]
+        return data
 
     def fingerprint(self) -> str:
         """sha256 of the canonical JSON of :meth:`to_json` (a build resumes only into the same config)."""
@@ -182,17 +188,20 @@ class DatasetConfig(_Model):
         return LabelSpec.model_validate(self.labels)
 
     def room_distribution(self, split: str):
-        """The split's room distribution (room with its ``room_overrides``); cached per process."""
-        return _distribution(json.dumps(self.room, sort_keys=True),
+        """The split's room distribution: room with the dataset's ``room_overrides``, then the split's; cached
+        per process."""
+        return _distribution(json.dumps(self.room, sort_keys=True), json.dumps(self.room_overrides, sort_keys=True),
                              json.dumps(self.splits[split].room_overrides, sort_keys=True))
 
 
 @lru_cache(maxsize=16)
-def _distribution(room_json: str, overrides_json: str):
+def _distribution(room_json: str, *overrides_json: str):
     from .rooms import load_room_distribution
     dist = load_room_distribution(json.loads(room_json))
-    overrides = json.loads(overrides_json)
-    return dist.with_overrides(overrides) if overrides else dist
+    for text in overrides_json:
+        overrides = json.loads(text)
+        dist = dist.with_overrides(overrides) if overrides else dist
+    return dist
 
 
 def _find_file(value: str, base: Path | None, field_name: str) -> Path:
@@ -247,7 +256,10 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
         raise SceneError(format_validation_error(exc, where)) from None
     updates: dict[str, Any] = {}
     if isinstance(config.room, str):
-        updates["room"] = _read_yaml(_find_file(config.room, base, f"{prefix}room"), f"{prefix}room")
+        room_file = _find_file(config.room, base, f"{prefix}room")
+        updates["room"] = _room_with_assets(_read_yaml(room_file, f"{prefix}room"), room_file.parent, str(room_file))
+    else:
+        updates["room"] = _room_with_assets(config.room, base, f"{prefix}room")
     if isinstance(config.detector, str):
         det = _read_yaml(_find_file(config.detector, base, f"{prefix}detector"), f"{prefix}detector")
         det = det["detector"] if set(det) == {"detector"} else det
@@ -257,6 +269,13 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
         config = config.model_copy(update=updates)
     _validate_parts(config, prefix)
     return config
+
+
+def _room_with_assets(room: dict, base: Path | None, where: str) -> dict:
+    """The room mapping with its mesh asset folders as absolute paths (relative to ``base``, then the working
+    directory), so workers and the card need no file context."""
+    from .rooms import resolve_room_assets
+    return resolve_room_assets(room, base, where) if isinstance(room, dict) else room
 
 
 def config_from_json(data: dict) -> DatasetConfig:
@@ -296,6 +315,10 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
         _distribution(json.dumps(config.room, sort_keys=True), "{}")
     except (SceneError, ValueError) as exc:
         raise SceneError(f"{prefix}room: {' '.join(str(exc).split())}") from None
+    try:
+        _distribution(json.dumps(config.room, sort_keys=True), json.dumps(config.room_overrides, sort_keys=True))
+    except (SceneError, ValueError) as exc:
+        raise SceneError(f"{prefix}room_overrides: {' '.join(str(exc).split())}") from None
     for name in config.splits:
         try:
             config.room_distribution(name)
