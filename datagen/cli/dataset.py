@@ -138,3 +138,32 @@ def verify(path):
     card = read_card(path)
     n_arrays = sum(len(info["fields"]) * info["n_shards"] for info in card["splits"].values())
     click.echo(f"{path}: ok, {card['shards_total']} shards ({n_arrays} shard files) match the card's sha256")
+
+
+@click.command()
+@click.argument("pred", type=click.Path(path_type=Path))
+@click.option("--dataset", "dataset", required=True, type=click.Path(path_type=Path), help="dataset directory")
+@click.option("--split", default="test", show_default=True, help="split the predictions belong to")
+@click.option("--depth-field", default="wall_depth", show_default=True,
+              help="label the depth predictions are compared with (wall_depth: orthographic from the scanned wall)")
+@click.option("--threshold", type=float, default=0.5, show_default=True, help="occupancy: occupied above this")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="folder for scores.csv and scores.json (default: beside PRED)")
+@_dataset_errors
+def score(pred, dataset, split, depth_field, threshold, out):
+    """Score reconstructions PRED (.npz: depth (N, H, W) m and/or occupancy (N, V, V, V), optional index (N,))
+    against a split's labels: depth MAE/RMSE over the hidden objects, occupancy IoU (docs/datasets.md)."""
+    from ..dataset.score import score_predictions, write_scores
+
+    scores = score_predictions(pred, dataset, split, depth_field, threshold)
+    csv_path, json_path = write_scores(scores, out or Path(pred).parent)
+    s = scores["summary"]
+    parts = [f"{s['samples']} samples"]
+    if s.get("depth_field"):
+        parts.append(f"depth MAE {s['mean_depth_mae']:.4g} m, RMSE {s['mean_depth_rmse']:.4g} m (mean over samples; "
+                     f"pooled over {s['depth_pixels']} pixels: {s['pooled_depth_mae']:.4g} / "
+                     f"{s['pooled_depth_rmse']:.4g} m)")
+    if s.get("occupancy_threshold") is not None:
+        parts.append(f"occupancy IoU {s['mean_occupancy_iou']:.4g}")
+    click.echo(f"{split}: " + "; ".join(parts))
+    click.echo(f"wrote {csv_path} and {json_path}")

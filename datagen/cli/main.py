@@ -13,7 +13,7 @@ import click
 
 from ..transport import estimator_names
 from .bench import bench
-from .dataset import build, inspect, verify
+from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
 from .tal import export_tal, tal_render
 
@@ -155,6 +155,7 @@ main.add_command(export_tal)
 main.add_command(build)          # dataset commands (issue 4)
 main.add_command(inspect)
 main.add_command(verify)
+main.add_command(score)          # scoring reconstructions (issue 13)
 main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
 
 

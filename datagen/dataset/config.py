@@ -343,12 +343,15 @@ class Sample:
             :func:`datagen.dataset.labels.scene_labels`, and ``params`` (0-d str, JSON).
         time_edges: (T+1,) float64 seconds.
         seconds: wall time per stage (room, simulate, labels, total), s.
+        axes: field name → axis names (per sample) of the fields whose axes have a fixed meaning
+            (:func:`datagen.dataset.export.axis_names`: e.g. envelope of a confocal scan ["scan_y", "scan_x", "time"]).
     """
 
     arrays: dict[str, np.ndarray]
     time_edges: np.ndarray
     seconds: dict[str, float] = field(default_factory=dict)
     component_names: list[str] = field(default_factory=list)
+    axes: dict[str, list[str]] = field(default_factory=dict)
 
 
 def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
@@ -360,6 +363,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         SceneError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
             more hidden objects than ``labels.max_objects``; the message names the sample.
     """
+    from .export import axis_names
     from .labels import scene_labels
     from .sampler import sample_room
     from ..simulation import resolve_config, simulate
@@ -400,7 +404,11 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
                   "plan": {k: v.get("on") for k, v in (result.attrs.get("plan") or {}).get("decisions", {}).items()}}
         arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=_json_default), dtype=object)
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
-    return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names)
+    kind = None if room.scene.capture is None and room.scene.sensor.fov.pixels == (1, 1) else (
+        room.scene.capture.type if room.scene.capture is not None else "single")
+    axes = {name: names for name, value in arrays.items()
+            if (names := axis_names(name, np.ndim(value), kind)) is not None}
+    return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names, axes)
 
 
 def _json_default(value):

@@ -164,17 +164,21 @@ class NLOSDataset(torch.utils.data.Dataset):
             ``counts`` with ``noise="resample"`` is re-drawn from ``envelope`` (read even if not requested).
         noise: "frozen" (stored counts) or "resample" (fresh SPAD noise per epoch, see the module doc).
         transform: called on the dict of tensors before it is returned.
+        layout: "stored" (the stored shapes) or "network": scans as (1, T, H, W) float32 and wall-view labels as
+            (C, H, W), the reconstruction networks' layout (:mod:`datagen.dataset.layout`).
     Item:
         dict field → torch tensor with the stored shape and dtype: envelope (*S, T) float32 expected detected
         photons per pulse per bin, counts (*S, T) int64, depth (H, W) float32 m, normal (H, W, 3),
         occupancy (V, V, V) uint8, object_* (K, …), object_count (), …; see ``docs/datasets.md``.
     Raises:
-        FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field or noise mode,
-        an incomplete build, or ``noise="resample"`` without a stored envelope.
+        FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field, noise mode or
+        layout, an incomplete build, ``noise="resample"`` without a stored envelope, or ``layout="network"`` for
+        a capture that is not a scan.
     """
 
     def __init__(self, path: str | os.PathLike, split: str = "train", fields: Iterable[str] | None = None,
-                 noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None):
+                 noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None,
+                 layout: Literal["stored", "network"] = "stored"):
         self.path = Path(path)
         card = read_card(self.path)
         if card.get("status") != "complete":
@@ -207,6 +211,13 @@ class NLOSDataset(torch.utils.data.Dataset):
         self._readers = {name: _FieldReader(self.path, split, name) for name in sorted(to_read)}
         self.time_edges = _read_small(self.path / split / "time_edges")
         self._detector_config = None
+        # -- network layout (datagen.dataset.layout): checked here, applied per item -------------------------
+        if layout not in ("stored", "network"):
+            raise ValueError(f"layout must be 'stored' or 'network', got {layout!r}")
+        self.layout = layout
+        if layout == "network":
+            from .layout import network_shapes
+            network_shapes(info["fields"])
 
     def __len__(self) -> int:
         return self.count
@@ -236,6 +247,9 @@ class NLOSDataset(torch.utils.data.Dataset):
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         arrays = self.read(int(index))
+        if self.layout == "network":
+            from .layout import to_network
+            arrays = to_network(arrays)
         item = {name: (str(a[()]) if a.dtype == object else torch.from_numpy(a)) for name, a in arrays.items()}
         return self.transform(item) if self.transform is not None else item
 

@@ -49,7 +49,7 @@ UNITS = {"envelope": "expected detected photons per laser pulse per bin",
          "components": "expected detected photons per laser pulse per bin, per component",
          "counts": "SPAD detections over the exposure (int64)",
          "time_edges": "s", "depth": "m", "object_center": "m", "object_size": "m", "object_yaw": "rad",
-         "occupancy_origin": "m", "occupancy_pitch": "m", "params": "JSON"}
+         "occupancy_origin": "m", "occupancy_pitch": "m", "params": "JSON", "wall_depth": "m"}
 
 
 class BuildLockedError(RuntimeError):
@@ -231,11 +231,14 @@ def create_arrays(root: Path, config: DatasetConfig, probe: Sample) -> dict:
             attrs = {"units": UNITS[name]} if name in UNITS else {}
             if name == "components":
                 attrs["component_names"] = probe.component_names
+            if name in probe.axes:                  # axis order of scans and wall views (docs/datasets.md)
+                attrs["axes"] = probe.axes[name]
             g.create_array(name, shape=(spec.count,) + value.shape, chunks=(1,) + value.shape,
                            shards=(config.shard_size,) + value.shape, dtype=str if is_str else value.dtype,
                            fill_value="" if is_str else 0, compressors=[ZstdCodec(level=3)] if is_str else numeric,
                            config={"write_empty_chunks": True}, attributes=attrs)
-            fields[name] = {"shape": list(value.shape), "dtype": "str" if is_str else value.dtype.str}
+            fields[name] = {"shape": list(value.shape), "dtype": "str" if is_str else value.dtype.str,
+                            **({"axes": probe.axes[name]} if name in probe.axes else {})}
         splits[split] = {"count": spec.count, "split_key": split_key(split),
                          "n_shards": -(-spec.count // config.shard_size), "fields": fields}
     return splits
