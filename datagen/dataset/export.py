@@ -22,12 +22,13 @@ from ..scene import RayCaster, SceneError, resolve_capture
 
 def axis_names(name: str, ndim: int, capture_kind: str | None) -> list[str] | None:
     """Axis names of stored field ``name`` (per sample, ``ndim`` axes) for a capture of ``capture_kind``
-    (``"confocal"``, ``"exhaustive"``, ``"single"``; None: the paper's single pixel). ``*_y`` axes grow up the
-    relay wall (v), ``*_x`` along its horizontal tangent u = n × z; None for fields without a fixed meaning."""
+    (``"confocal"``, ``"exhaustive"``, ``"single"`` with a sensor grid; None: the paper's single pixel, whose
+    (T,) arrays need no names). ``*_y`` axes grow up the relay wall (v), ``*_x`` along its horizontal tangent
+    u = n × z; None for fields without names."""
     lead = {"confocal": ["scan_y", "scan_x"], "exhaustive": ["laser_y", "laser_x", "sensor_y", "sensor_x"],
             "single": ["pixel_y", "pixel_x"]}.get(capture_kind or "", [])
     if name in ("envelope", "counts"):
-        return (lead + ["time"])[-ndim:] if ndim == len(lead) + 1 else ["time"] if ndim == 1 else None
+        return lead + ["time"] if lead and ndim == len(lead) + 1 else None
     if name == "components":
         inner = axis_names("envelope", ndim - 1, capture_kind)
         return None if inner is None else ["component"] + inner
