@@ -103,3 +103,16 @@ def test_score_closed_forms(wall_smoke, tmp_path):
     np.savez(tmp_path / "bad.npz", depth=pred[:, :, :8])
     bad = CliRunner().invoke(main, ["score", str(tmp_path / "bad.npz"), "--dataset", str(wall_smoke)])
     assert bad.exit_code == 2 and "depth has shape (4, 16, 8), the labels' wall_depth is (4, 16, 16)" in bad.output
+
+
+def test_inspect_draws_a_scan_sample(wall_smoke, tmp_path):
+    png = tmp_path / "inspect.png"
+    r = CliRunner().invoke(main, ["inspect", str(wall_smoke), "--split", "test", "--samples", "2", "--png", str(png)])
+    assert r.exit_code == 0, r.output
+    assert "envelope           (16, 16, 128)" in r.output and png.stat().st_size > 10_000
+    from matplotlib.figure import Figure
+    from datagen.dataset.figures import plot_scan_sample
+    ds = NLOSDataset(wall_smoke, split="test")
+    fig = plot_scan_sample(ds.read(0), ds.time_edges, "t", fig=Figure())
+    titles = [ax.get_title() for ax in fig.axes]
+    assert titles[0] == "peak time" and "label: wall_depth" in titles and sum(t.startswith("t = ") for t in titles) == 3

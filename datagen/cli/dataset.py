@@ -115,8 +115,13 @@ def inspect(path, split, n_samples, png, show_config):
     n = max(1, min(n_samples, len(ds)))
     fig = Figure(figsize=(13.5, 3.4 * n), layout="constrained")
     subfigs = fig.subfigures(n, 1, squeeze=False)[:, 0]
+    from ..dataset.figures import plot_scan_sample, scan_image_shape
     for i, sub in enumerate(subfigs):
-        plot_sample(ds.read(i), ds.time_edges, f"{split}[{i}]", fig=sub)
+        sample = ds.read(i)
+        if "envelope" in sample and scan_image_shape(sample["envelope"]) is not None:   # a scan: images
+            plot_scan_sample(sample, ds.time_edges, f"{split}[{i}]", fig=sub)
+        else:
+            plot_sample(sample, ds.time_edges, f"{split}[{i}]", fig=sub)
     png = png or Path(path) / "inspect.png"
     fig.savefig(png, dpi=90)
     click.echo(f"wrote {png}")
