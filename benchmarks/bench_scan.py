@@ -14,7 +14,7 @@ Reports, each in one run on this machine (timings are wall seconds in process, o
    two worker processes would reach (2 / mean: build processes share nothing).
 3. **A 128 × 128 × 512 confocal capture of a ≈ 10 k-triangle mesh** (a torus of 10 000 triangles, 0.8 m across,
    1 m in front of a 2 m relay wall; tal's bunny example is 128 × 128 × 750 and takes 2–4 min with mitransient):
-   time at 32 × 32, 64 × 64 and 128 × 128 points, and the error of the envelope at the benchmark's edge against the
+   time at 32 × 32 and 64 × 64 points (``--full``: and 128 × 128), one FoV cell per pixel, and the error of the envelope at the benchmark's edge against the
    same capture at half the edge on an 8 × 8 sub-scan (the quadrature's error falls as h², so that reference is
    4× closer to the integral).
 """
@@ -49,7 +49,8 @@ def per_laser_point(sizes: tuple[int, int], area_samples: int) -> list[tuple]:
     for n in sizes:
         d = dist.with_overrides({"capture": {"scan": {"points": [n, n], "width": 1.2, "height": 1.2}}})
         room = sample_room(d, {k: np.random.default_rng(r.bit_generator.seed_seq) for k, r in rngs.items()})
-        for est, extra in (("quadrature", {}), ("area", {"area_samples": area_samples})):
+        # one FoV cell per pixel (its centre), so the quadrature's connections are the laser points at every n
+        for est, extra in (("quadrature", {"quadrature_fov": 1}), ("area", {"area_samples": area_samples})):
             config = datagen.resolve_config(room.scene, {"estimator": est, **extra})
             _, sec = timed(datagen.simulate, room.scene, config)
             rows.append((est, n, sec))
@@ -75,7 +76,7 @@ def torus_scene(n: int) -> Scene:
                  Sensor(position=emitter), capture=CaptureSpec(type="confocal", laser_grid=grid))
 
 
-TORUS_CONFIG = {"estimator": "quadrature", "secondary": "none", "count_sensor_leg": False,
+TORUS_CONFIG = {"estimator": "quadrature", "quadrature_fov": 1, "secondary": "none", "count_sensor_leg": False,
                 "time": {"t_start": 0.0, "bin_width": 32e-12, "n_bins": 512}, "irf": {"fwhm": 70e-12},
                 "effects": {"first_bounce": False, "secondary": False, "shadow_spot": True, "shadow_sensor": True},
                 "detector": {"model": "poisson", "repetition_rate": 1e7, "exposure": "8ms"}}
@@ -106,30 +107,37 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="smaller scans and smoke-sized dataset samples")
     parser.add_argument("--samples", type=int, default=3, help="dataset samples per config")
     parser.add_argument("--edge", type=float, default=0.02, help="quadrature edge of the torus capture (m)")
+    parser.add_argument("--full", action="store_true", help="also time the 128 × 128 torus capture (~15 min today)")
+    parser.add_argument("--skip", default="", help="comma-separated parts to skip: 1, 2, 3")
     args = parser.parse_args()
     print(f"machine: {platform.node()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} "
           "(timings from a shared machine are noisy: compare ratios)")
 
-    sizes = (2, 4) if args.quick else (4, 8)
-    rows = per_laser_point(sizes, 4096 if args.quick else 16384)
-    print("\n1. confocal room, cost per laser point (rooms/confocal.yaml, one draw, 1.2 m × 1.2 m scan)")
-    print(f"{'estimator':<12}{'points':>8}{'seconds':>10}")
-    for est, n, sec in rows:
-        print(f"{est:<12}{n * n:>8}{sec:>10.2f}")
-    for est in ("quadrature", "area"):
-        (n0, s0), (n1, s1) = [(n, s) for e, n, s in rows if e == est]
-        print(f"{est}: {(s1 - s0) / (n1 * n1 - n0 * n0):.3f} s per extra laser point")
-
-    print("\n2. dataset samples (make_sample in process)")
-    for name in (("confocal_smoke", "wall_smoke") if args.quick else ("confocal", "wall")):
-        mean, worst = dataset_samples(name, args.samples)
-        print(f"{name:<16} {mean:8.2f} s per sample (max {worst:.2f}) → {2 / mean:.3f} samples/s on 2 workers")
-
+    skip = set(args.skip.split(","))
+    if "1" not in skip:
+        sizes = (2, 4) if args.quick else (4, 8)
+        rows = per_laser_point(sizes, 4096 if args.quick else 16384)
+        print("\n1. confocal room, cost per laser point (rooms/confocal.yaml, one draw, 1.2 m × 1.2 m scan)")
+        print(f"{'estimator':<12}{'points':>8}{'seconds':>10}")
+        for est, n, sec in rows:
+            print(f"{est:<12}{n * n:>8}{sec:>10.2f}")
+        for est in ("quadrature", "area"):
+            (n0, s0), (n1, s1) = [(n, s) for e, n, s in rows if e == est]
+            print(f"{est}: {(s1 - s0) / (n1 * n1 - n0 * n0):.3f} s per extra laser point", flush=True)
+    if "2" not in skip:
+        print("\n2. dataset samples (make_sample in process)")
+        for name in (("confocal_smoke", "wall_smoke") if args.quick else ("confocal", "wall")):
+            mean, worst = dataset_samples(name, args.samples)
+            print(f"{name:<16} {mean:8.2f} s per sample (max {worst:.2f}) → {2 / mean:.3f} samples/s on 2 workers",
+                  flush=True)
+    if "3" in skip:
+        return
     print(f"\n3. confocal capture of a 10 000-triangle torus, 512 bins of 32 ps, quadrature h = {args.edge} m")
-    tsizes = (16, 32) if args.quick else (32, 64, 128)
+    tsizes = (16, 32) if args.quick else (32, 64, 128) if args.full else (32, 64)
     print(f"{'points':>10}{'seconds':>10}{'sub-triangles':>15}{'triangles':>11}")
-    for n, sec, cells, faces in torus_capture(tsizes, args.edge):
-        print(f"{f'{n}×{n}':>10}{sec:>10.2f}{cells:>15}{faces:>11}")
+    for n in tsizes:
+        for n, sec, cells, faces in torus_capture((n,), args.edge):
+            print(f"{f'{n}×{n}':>10}{sec:>10.2f}{cells:>15}{faces:>11}", flush=True)
     print(f"error at h = {args.edge} m against h = {args.edge / 2} m (8 × 8 sub-scan): {torus_error(args.edge):.4f}")
 
 

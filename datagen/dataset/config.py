@@ -344,7 +344,7 @@ class Sample:
         time_edges: (T+1,) float64 seconds.
         seconds: wall time per stage (room, simulate, labels, total), s.
         axes: field name → axis names (per sample) of the fields whose axes have a fixed meaning
-            (:func:`datagen.dataset.export.axis_names`: e.g. envelope of a confocal scan ["scan_y", "scan_x", "time"]).
+            (:func:`datagen.dataset.layout.axis_names`: e.g. envelope of a confocal scan ["scan_y", "scan_x", "time"]).
     """
 
     arrays: dict[str, np.ndarray]
@@ -363,7 +363,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         SceneError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
             more hidden objects than ``labels.max_objects``; the message names the sample.
     """
-    from .export import axis_names
+    from .layout import axis_names
     from .labels import scene_labels
     from .sampler import sample_room
     from ..simulation import resolve_config, simulate

@@ -7,8 +7,6 @@ function of (config, split, index) (docs/physics.md §7), so :func:`sample_resul
 :class:`datagen.simulation.Result` with the attributes :func:`datagen.io.write_tal_hdf5` reads (capture type and
 convention, emitter and sensor positions, which time legs the axis counts). ``datagen export-tal DATASET --split
 S --index I --out F.hdf5`` writes it in tal's HDF5 layout.
-
-:func:`axis_names` names the axes of the stored per-sample arrays (recorded in the card and on each array).
 """
 from __future__ import annotations
 
@@ -18,23 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from ..scene import RayCaster, SceneError, resolve_capture
-
-
-def axis_names(name: str, ndim: int, capture_kind: str | None) -> list[str] | None:
-    """Axis names of stored field ``name`` (per sample, ``ndim`` axes) for a capture of ``capture_kind``
-    (``"confocal"``, ``"exhaustive"``, ``"single"`` with a sensor grid; None: the paper's single pixel, whose
-    (T,) arrays need no names). ``*_y`` axes grow up the relay wall (v), ``*_x`` along its horizontal tangent
-    u = n × z; None for fields without names."""
-    lead = {"confocal": ["scan_y", "scan_x"], "exhaustive": ["laser_y", "laser_x", "sensor_y", "sensor_x"],
-            "single": ["pixel_y", "pixel_x"]}.get(capture_kind or "", [])
-    if name in ("envelope", "counts"):
-        return lead + ["time"] if lead and ndim == len(lead) + 1 else None
-    if name == "components":
-        inner = axis_names("envelope", ndim - 1, capture_kind)
-        return None if inner is None else ["component"] + inner
-    view = {"wall_depth": ["view_y", "view_x"], "wall_albedo": ["view_y", "view_x"],
-            "wall_normal": ["view_y", "view_x", "xyz"], "wall_mask": ["object", "view_y", "view_x"]}
-    return view.get(name)
 
 
 def sample_result(path: str | Path, split: str, index: int, field: str = "envelope"):

@@ -13,12 +13,30 @@ their network shapes; :func:`to_network` moves the axes of one sample (numpy, be
 
 Row h grows up the relay wall and column w along its horizontal tangent (docs/datasets.md, "Scanned captures"),
 for the scan and the wall-view labels alike: pixel (h, w) of a label belongs to scan point (h, w).
+:func:`axis_names` names the axes of the stored per-sample arrays (recorded in the card and on each array).
 """
 from __future__ import annotations
 
 import numpy as np
 
 SCAN_FIELDS = ("envelope", "counts")
+
+
+def axis_names(name: str, ndim: int, capture_kind: str | None) -> list[str] | None:
+    """Axis names of stored field ``name`` (per sample, ``ndim`` axes) for a capture of ``capture_kind``
+    (``"confocal"``, ``"exhaustive"``, ``"single"`` with a sensor grid; None: the paper's single pixel, whose
+    (T,) arrays need no names). ``*_y`` axes grow up the relay wall (v), ``*_x`` along its horizontal tangent
+    u = n × z; None for fields without names."""
+    lead = {"confocal": ["scan_y", "scan_x"], "exhaustive": ["laser_y", "laser_x", "sensor_y", "sensor_x"],
+            "single": ["pixel_y", "pixel_x"]}.get(capture_kind or "", [])
+    if name in ("envelope", "counts"):
+        return lead + ["time"] if lead and ndim == len(lead) + 1 else None
+    if name == "components":
+        inner = axis_names("envelope", ndim - 1, capture_kind)
+        return None if inner is None else ["component"] + inner
+    view = {"wall_depth": ["view_y", "view_x"], "wall_albedo": ["view_y", "view_x"],
+            "wall_normal": ["view_y", "view_x", "xyz"], "wall_mask": ["object", "view_y", "view_x"]}
+    return view.get(name)
 
 
 def _scan_shape(shape: tuple[int, ...]) -> tuple[int, int] | None:
