@@ -28,7 +28,13 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.store`: the dataset's on-disk layout, build lock, card and verification;
 - :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
 - :mod:`~datagen.dataset.loader`: :class:`NLOSDataset` and :func:`plot_sample` (import torch and matplotlib
-  on first use: ``import datagen.dataset`` stays light).
+  on first use: ``import datagen.dataset`` stays light);
+- :mod:`~datagen.dataset.layout`: the networks' (1, T, H, W) layout of scans (``NLOSDataset(layout="network")``)
+  and the axis names the card records;
+- :mod:`~datagen.dataset.export`: one stored sample as a simulation result with its wall grids (``datagen
+  export-tal DATASET --split --index``);
+- :mod:`~datagen.dataset.score`: scoring reconstructions against a split's labels (``datagen score``);
+- :mod:`~datagen.dataset.figures`: pictures of scanned samples (``datagen inspect``).
 """
 from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildReport, build_dataset,
                     write_shard)

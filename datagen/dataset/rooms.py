@@ -3,8 +3,10 @@
 A :class:`RoomDistribution` (loaded from ``configs/rooms/*.yaml`` by :func:`load_room_distribution`) describes
 ranges for every parameter of the scene family built by :func:`datagen.scene.l_room` (corridor along +x
 ending at the relay wall x = ``relay_x`` facing −x, an L-bend room on the ``bend_side`` over the corridor's
-last ``room.depth`` metres), floor-to-ceiling pillars and boxes, per-class materials, the emitter and sensor
-positions, the laser spot and the sensor's field of view (FoV) on the relay wall. Loading validates every field
+last ``room.depth`` metres; or, with ``family: wall``, the relay wall alone), floor-to-ceiling pillars, boxes and
+meshes from asset files (:mod:`datagen.dataset.assets`), per-class materials, the emitter and sensor positions, the
+laser spot and the sensor's field of view (FoV) on the relay wall, or a scanned capture (``capture.scan``,
+:mod:`datagen.dataset.scan`). Loading validates every field
 (pydantic; errors name the file, the dotted field and the value) and checks up front that every room the
 distribution can make can hold its objects and capture (:func:`check_feasible`). Rooms are drawn from it by
 :func:`datagen.dataset.sampler.sample_room`.

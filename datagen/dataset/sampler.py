@@ -8,11 +8,12 @@ generators (docs/physics.md §7):
   moves the geometry of a sample (nor the material of another class);
 - ``sensor``: emitter, sensor, laser spot and FoV placement.
 
-Constraints on hidden objects, all checked exactly on oriented boxes (OBBs, rotated about z) inflated by
-``objects.min_gap``: inside their placement region (the L-room proper, or the corridor end in front of
+Constraints on hidden objects, all checked exactly on oriented boxes (OBBs, rotated about z; a mesh's tight box)
+inflated by ``objects.min_gap``: inside their placement region (the L-room proper, or the corridor end in front of
 the relay wall), under the ceiling, no two overlapping (separating-axis test), none touching the laser beam
-(segment emitter→spot) nor the sensor's view of the FoV (the pyramid with apex at the sensor and the FoV
-rectangle as base); the separating-axis tests are :mod:`datagen.dataset.obb`'s.
+(segment emitter→spot; for a scan the pyramid emitter → laser rectangle) nor the sensor's view of the FoV (the
+pyramid with apex at the sensor and the FoV or sensor-grid rectangle as base); the separating-axis tests are
+:mod:`datagen.dataset.obb`'s.
 
 World frame right-handed, z up, metres; yaw in degrees about +z (counter-clockwise seen from above).
 """
@@ -51,13 +52,15 @@ class SampledRoom:
     Attributes:
         scene: ready for :func:`datagen.simulate`.
         params: JSON-able record of every sampled parameter: ``room`` (relay_x, corridor_start,
-            corridor_length, corridor_width, room_depth, room_length, ceiling, bend_side, closed_end),
-            ``materials`` (per room label), ``laser`` (emitter, spot, pulse), ``sensor`` (position,
-            aperture_radius, fov center/size/pixels), ``objects`` (as :attr:`objects`), ``label_region``
+            corridor_length, corridor_width, room_depth, room_length, ceiling, bend_side, closed_end; ``family``
+            when not "l_room"), ``materials`` (per room label), ``laser`` (emitter, spot, pulse), ``sensor``
+            (position, aperture_radius, fov center/size/pixels or None, and ``scan``: type, convention,
+            laser_grid, sensor_grid, for scanned captures), ``objects`` (as :attr:`objects`), ``label_region``
             (origin, size) and ``layout_tries``.
-        objects: one dict per hidden object: class ("box"|"pillar"), name, region ("room"|"corridor_end"),
-            center [x, y, z] m, size [dx, dy, dz] m (a pillar's dz is the ceiling height), yaw_deg, and
-            material (:class:`~datagen.scene.materials.Material` fields).
+        objects: one dict per hidden object: class ("box"|"pillar"|"mesh"), name, region ("room"|"corridor_end"),
+            center [x, y, z] m, size [dx, dy, dz] m (its oriented bounding box; a pillar's dz is the ceiling
+            height), yaw_deg, material (:class:`~datagen.scene.materials.Material` fields), and for meshes the
+            :data:`MESH_KEYS`.
     """
 
     scene: Scene
