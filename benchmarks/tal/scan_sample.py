@@ -11,7 +11,8 @@ Runs in datagen's environment and calls ``tal_side.py`` in the tal venv of ``set
 3. ``tal.io.read_capture`` loads each file (``tal_side.py read``) and tal's ``bp`` / ``fbp`` reconstruct it over the
    box in front of the wall (``tal_side.py bp-box``: coarse 4 cm volume, then a 1 m cube of 2 cm voxels around its
    maximum, half-maximum centroid), after ``tal.reconstruct.compensate_laser_cos_dsqr`` (for datagen's aperture
-   convention with a co-located sensor it undoes the wall → sensor leg's cos/d²).
+   convention with a co-located sensor it undoes the wall → sensor leg's cos/d²), then again also undoing the cos θ_ap
+   of datagen's staring aperture (``--aperture-cos``).
 4. The distance of each centroid to the sample's labelled position: the centroid of the hidden object's visible
    surface in the wall-view labels (scan point + n · wall_depth over its mask). Results: out/scan_sample/results.json.
 """
@@ -74,18 +75,18 @@ def main() -> None:
         pts = np.array(grid["center"]) + b_[:, None, None] * [0, 0, 1.0] + a_[None, :, None] * [0, 1.0, 0]
         mask = labels["wall_mask"][0] > 0
         target = (pts + labels["wall_depth"][..., None] * np.array([-1.0, 0.0, 0.0]))[mask].mean(0)
-        bp = tal_side(["bp-box", path, "--lo", x0 - 1.6, -1.0, 0.05, "--hi", x0 - 0.45, 1.0, 2.05], a.venv)
         row = {"index": i, "asset": Path(params["objects"][0]["asset"]).name, "target_xyz": target.tolist(),
-               "tal_read": {"H_shape": read.get("H", {}).get("shape") if isinstance(read.get("H"), dict) else None,
-                            "is_confocal": read.get("is_confocal")}}
-        for name in ("bp", "fbp"):
-            found = np.array(bp[name]["half_max_centroid_xyz"])
-            row[name] = {"xyz": found.tolist(), "distance_m": float(np.linalg.norm(found - target)),
-                         "seconds": bp[name]["seconds"]}
+               "tal_read": {"is_confocal": read.get("is_confocal")}}
+        for extra, tag in (([], "laser_cos_dsqr"), (["--aperture-cos"], "laser_cos_dsqr+aperture_cos")):
+            bp = tal_side(["bp-box", path, "--lo", x0 - 1.6, -1.0, 0.05, "--hi", x0 - 0.45, 1.0, 2.05] + extra, a.venv)
+            for name in ("bp", "fbp"):
+                found = np.array(bp[name]["half_max_centroid_xyz"])
+                row[f"{name} ({tag})"] = {"xyz": found.tolist(), "distance_m": float(np.linalg.norm(found - target)),
+                                          "seconds": bp[name]["seconds"]}
+            print(f"sample {i} ({row['asset']}, tal read it: confocal {read.get('is_confocal')}), compensation {tag}: "
+                  f"bp {row[f'bp ({tag})']['distance_m'] * 100:.1f} cm, fbp {row[f'fbp ({tag})']['distance_m'] * 100:.1f}"
+                  f" cm from the labelled surface {np.round(target, 3).tolist()}", flush=True)
         rows.append(row)
-        print(f"sample {i} ({row['asset']}): tal read it (confocal {read.get('is_confocal')}); "
-              f"bp {row['bp']['distance_m'] * 100:.1f} cm, fbp {row['fbp']['distance_m'] * 100:.1f} cm from the "
-              f"labelled surface {np.round(target, 3).tolist()}", flush=True)
     (out / "results.json").write_text(json.dumps(rows, indent=1))
 
 
