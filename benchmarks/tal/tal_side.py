@@ -17,6 +17,10 @@ Commands (each prints one JSON object on its last stdout line):
   bp FILE [--resolution M]
       tal.reconstruct.bp / fbp on a confocal capture (coarse volume, then a fine one around its maximum);
       the strongest voxel's position.
+  bp-box FILE --lo X Y Z --hi X Y Z [--coarse M] [--resolution M] [--window M] [--aperture-cos]
+      the same for a confocal capture in any frame (a datagen dataset sample, scan_sample.py): coarse volume over
+      the box [lo, hi], fine cube of side --window around its maximum, half-maximum centroid; --aperture-cos also
+      undoes the cos θ_ap of datagen's staring aperture (it faces the grid's mean point).
 """
 from __future__ import annotations
 
@@ -233,6 +237,46 @@ def cmd_bp(a) -> dict:
     return out
 
 
+def cmd_bp_box(a) -> dict:
+    """bp and fbp (see cmd_bp) of a confocal capture over the box [lo, hi]: coarse pass, then a fine cube of side
+    ``--window`` around the coarse maximum; the half-maximum centroid of each."""
+    import tal
+    from tal.enums import CameraSystem, VolumeFormat
+
+    d = tal.io.read_capture(a.file)
+    d.H = d.H.astype(np.float64)
+    # datagen's aperture convention: the wall → sensor leg falls as cos/d² from the (co-located) sensor, the same
+    # form tal compensates for its laser
+    tal.reconstruct.compensate_laser_cos_dsqr(d)
+    if a.aperture_cos:   # datagen's staring aperture faces the grid's mean point: undo its cos θ_ap too
+        axis = d.sensor_grid_xyz.reshape(-1, 3).mean(0) - d.sensor_xyz
+        rel = d.sensor_grid_xyz - d.sensor_xyz
+        d.H = d.H / ((rel @ (axis / np.linalg.norm(axis))) / np.linalg.norm(rel, axis=-1))[None]
+    spacing = float(np.linalg.norm(d.sensor_grid_xyz[1, 0] - d.sensor_grid_xyz[0, 0]))
+    lo, hi = np.array(a.lo), np.array(a.hi)
+    out = {"grid_spacing_m": spacing, "aperture_cos": bool(a.aperture_cos)}
+    for name in ("bp", "fbp"):
+        t0 = time.perf_counter()
+        kwargs = {} if name == "bp" else {"wl_mean": 4 * spacing, "wl_sigma": 4 * spacing / np.sqrt(2)}
+
+        def solve(vol):
+            mod = tal.reconstruct.bp if name == "bp" else tal.reconstruct.fbp
+            return np.abs(mod.solve(d, volume_xyz=vol, volume_format=VolumeFormat.X_Y_Z_3,
+                                    camera_system=CameraSystem.DIRECT_LIGHT, progress=False, **kwargs))
+
+        coarse = tal.reconstruct.get_volume_min_max_resolution(lo, hi, a.coarse)
+        mag = solve(coarse)
+        c = coarse[np.unravel_index(int(np.argmax(mag)), mag.shape)]
+        fine = tal.reconstruct.get_volume_min_max_resolution(np.maximum(c - a.window / 2, lo),
+                                                             np.minimum(c + a.window / 2, hi), a.resolution)
+        mag = solve(fine)
+        strong = mag >= 0.5 * mag.max()
+        centroid = (fine[strong] * mag[strong][:, None]).sum(0) / mag[strong].sum()
+        out[name] = {"coarse_argmax_xyz": c.tolist(), "half_max_centroid_xyz": centroid.tolist(),
+                     "strong_voxels": int(strong.sum()), "seconds": time.perf_counter() - t0}
+    return out
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -248,8 +292,16 @@ def main() -> None:
     b = sub.add_parser("bp")
     b.add_argument("file")
     b.add_argument("--resolution", type=float, default=0.02)
+    bb = sub.add_parser("bp-box")
+    bb.add_argument("file")
+    bb.add_argument("--lo", type=float, nargs=3, required=True)
+    bb.add_argument("--hi", type=float, nargs=3, required=True)
+    bb.add_argument("--coarse", type=float, default=0.04)
+    bb.add_argument("--resolution", type=float, default=0.02)
+    bb.add_argument("--window", type=float, default=1.0)
+    bb.add_argument("--aperture-cos", action="store_true", help="also divide H by the staring aperture's cos")
     a = p.parse_args()
-    result = {"render": cmd_render, "read": cmd_read, "bp": cmd_bp}[a.cmd](a)
+    result = {"render": cmd_render, "read": cmd_read, "bp": cmd_bp, "bp-box": cmd_bp_box}[a.cmd](a)
     print(json.dumps(result, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 

@@ -177,13 +177,18 @@ def inspect(path, split, n_samples, png, show_config):
     fig = Figure(figsize=(13.5 + (PICTURE_WIDTH_IN if pictures else 0), (4.2 if pictures else 3.4) * n),
                  layout="constrained")
     subfigs = fig.subfigures(n, 1, squeeze=False)[:, 0]
+    from ..dataset.figures import plot_scan_sample, scan_image_shape
     for i, sub in enumerate(subfigs):
         if pictures:                          # the sample's 3D picture on the left of its envelope and labels
             pic, sub = sub.subfigures(1, 2, width_ratios=[PICTURE_WIDTH_IN, 13.5])
             ax = pic.add_subplot()
             ax.imshow(pictures[i])
             ax.set_axis_off()
-        plot_sample(ds.read(i), ds.time_edges, f"{split}[{i}]", fig=sub)
+        sample = ds.read(i)
+        if "envelope" in sample and scan_image_shape(sample["envelope"]) is not None:   # a scan: images
+            plot_scan_sample(sample, ds.time_edges, f"{split}[{i}]", fig=sub)
+        else:
+            plot_sample(sample, ds.time_edges, f"{split}[{i}]", fig=sub)
     png = png or Path(path) / "inspect.png"
     fig.savefig(png, dpi=90)
     click.echo(f"wrote {png}")
@@ -205,3 +210,32 @@ def verify(path):
     card = read_card(path)
     n_arrays = sum(len(info["fields"]) * info["n_shards"] for info in card["splits"].values())
     click.echo(f"{path}: ok, {card['shards_total']} shards ({n_arrays} shard files) match the card's sha256")
+
+
+@click.command()
+@click.argument("pred", type=click.Path(path_type=Path))
+@click.option("--dataset", "dataset", required=True, type=click.Path(path_type=Path), help="dataset directory")
+@click.option("--split", default="test", show_default=True, help="split the predictions belong to")
+@click.option("--depth-field", default="wall_depth", show_default=True,
+              help="label the depth predictions are compared with (wall_depth: orthographic from the scanned wall)")
+@click.option("--threshold", type=float, default=0.5, show_default=True, help="occupancy: occupied above this")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="folder for scores.csv and scores.json (default: beside PRED)")
+@_dataset_errors
+def score(pred, dataset, split, depth_field, threshold, out):
+    """Score reconstructions PRED (.npz: depth (N, H, W) m and/or occupancy (N, V, V, V), optional index (N,))
+    against a split's labels: depth MAE/RMSE over the hidden objects, occupancy IoU (docs/datasets.md)."""
+    from ..dataset.score import score_predictions, write_scores
+
+    scores = score_predictions(pred, dataset, split, depth_field, threshold)
+    csv_path, json_path = write_scores(scores, out or Path(pred).parent)
+    s = scores["summary"]
+    parts = [f"{s['samples']} samples"]
+    if s.get("depth_field"):
+        parts.append(f"depth MAE {s['mean_depth_mae']:.4g} m, RMSE {s['mean_depth_rmse']:.4g} m (mean over samples; "
+                     f"pooled over {s['depth_pixels']} pixels: {s['pooled_depth_mae']:.4g} / "
+                     f"{s['pooled_depth_rmse']:.4g} m)")
+    if s.get("occupancy_threshold") is not None:
+        parts.append(f"occupancy IoU {s['mean_occupancy_iou']:.4g}")
+    click.echo(f"{split}: " + "; ".join(parts))
+    click.echo(f"wrote {csv_path} and {json_path}")

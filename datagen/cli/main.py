@@ -15,7 +15,7 @@ from pydantic import ValidationError
 
 from ..transport import estimator_names
 from .bench import bench
-from .dataset import build, inspect, verify
+from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
 from .tal import export_tal, tal_render
 from .view import view
@@ -192,6 +192,7 @@ main.add_command(export_tal)
 main.add_command(build)          # dataset commands (issue 4)
 main.add_command(inspect)
 main.add_command(verify)
+main.add_command(score)          # scoring reconstructions (issue 13)
 main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
 main.add_command(view)           # 3D pictures with open3d (issue 15)
 

@@ -79,19 +79,37 @@ def tal_render(config_file, out, lookins, pixels, estimator, edge, samples, seed
 @click.command("export-tal")
 @click.argument("result_path", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output .hdf5 file")
+@click.option("--split", default=None, help="RESULT_PATH is a dataset: the split of the sample to export")
+@click.option("--index", type=int, default=None, help="RESULT_PATH is a dataset: the index of the sample in --split")
+@click.option("--counts", "use_counts", is_flag=True,
+              help="dataset sample: export the SPAD counts instead of the envelope as H")
 @click.option("--float32", "float32", is_flag=True, help="store H as float32")
 @click.option("--compression", type=click.IntRange(0, 9), default=0, help="gzip level for H (0: none)")
 @friendly_errors
-def export_tal(result_path, out, float32, compression):
-    """Write a datagen result (RESULT_PATH: a result directory or its result.zarr) as a tal HDF5 capture.
+def export_tal(result_path, out, split, index, use_counts, float32, compression):
+    """Write a datagen result, or one sample of a dataset, as a tal HDF5 capture.
 
-    H is the result's envelope in its own convention (scene_info records which), Sx along the wall's
-    horizontal tangent and Sy along the wall's up direction.
+    RESULT_PATH: a result directory or its result.zarr; or a dataset directory with --split and --index (the
+    sample's wall grids are regenerated from the dataset's config, datagen.dataset.export). H is the envelope
+    (or --counts) in its own convention (scene_info records which), Sx along the wall's horizontal tangent and Sy
+    along the wall's up direction.
     """
     from ..io import read_result, write_tal_hdf5
 
-    result = read_result(result_path)
+    info = None
+    if split is not None or index is not None:
+        from ..dataset.export import sample_result
+
+        if split is None or index is None:
+            raise ValueError("a dataset sample needs both --split and --index")
+        result = sample_result(result_path, split, index, "counts" if use_counts else "envelope")
+        info = {"dataset": result.attrs["dataset"]}
+    elif use_counts:
+        raise ValueError("--counts applies to a dataset sample (give --split and --index)")
+    else:
+        result = read_result(result_path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_tal_hdf5(result, out, compression_level=compression, dtype="float32" if float32 else "float64")
+    write_tal_hdf5(result, out, compression_level=compression, dtype="float32" if float32 else "float64",
+                   scene_info=info)
     click.echo(_h_summary(out))
     click.echo(f"wrote {out}")

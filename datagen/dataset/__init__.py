@@ -13,12 +13,19 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.config`: :class:`DatasetConfig`, the seed streams (:data:`STREAMS`,
   :func:`split_key`, :func:`resample_rng`), :func:`draw_room`, :func:`make_sample` and :func:`sample_setup` (a
   sample's scene and simulation config, to regenerate it at any accuracy);
+- :mod:`~datagen.dataset.ranges`: uniform ranges and counts of the distributions (:class:`Range`,
+  :class:`CountRange`);
 - :mod:`~datagen.dataset.rooms`: the room distribution schema (:class:`RoomDistribution`,
   :func:`load_room_distribution`, :func:`check_feasible`);
+- :mod:`~datagen.dataset.scan`: scanned captures in room distributions (``capture.scan``: confocal or
+  exhaustive laser grids over a rectangle of the relay wall);
+- :mod:`~datagen.dataset.assets`: mesh assets as hidden objects (asset folders, reading, placing);
 - :mod:`~datagen.dataset.sampler`: :func:`sample_room` → :class:`SampledRoom` (its generator keys are
   ``datagen.dataset.sampler.STREAMS``, not re-exported here: :data:`STREAMS` is the config's stream ids);
 - :mod:`~datagen.dataset.obb`: exact oriented-box geometry (overlaps, beam and view tests, points inside);
 - :mod:`~datagen.dataset.labels`: ground-truth labels (:class:`LabelSpec`, :func:`scene_labels`);
+- :mod:`~datagen.dataset.wall_view`: the networks' orthographic depth / normal / albedo / mask images seen from
+  the scanned wall rectangle;
 - :mod:`~datagen.dataset.store`: the dataset's on-disk layout, build lock and card;
 - :mod:`~datagen.dataset.integrity`: what the files must be; verification, resume repairs, the loader's checks;
 - :mod:`~datagen.dataset.workers`: worker processes that die with the build (no orphans after a SIGKILL);
@@ -26,7 +33,13 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.sample_scene`: :func:`scene_of_sample`, a built sample's room drawn again from the
   card (``datagen view``, ``datagen inspect``);
 - :mod:`~datagen.dataset.loader`: :class:`NLOSDataset` and :func:`plot_sample` (import torch and matplotlib
-  on first use: ``import datagen.dataset`` stays light).
+  on first use: ``import datagen.dataset`` stays light);
+- :mod:`~datagen.dataset.layout`: the networks' (1, T, H, W) layout of scans (``NLOSDataset(layout="network")``)
+  and the axis names the card records;
+- :mod:`~datagen.dataset.export`: one stored sample as a simulation result with its wall grids (``datagen
+  export-tal DATASET --split --index``);
+- :mod:`~datagen.dataset.score`: scoring reconstructions against a split's labels (``datagen score``);
+- :mod:`~datagen.dataset.figures`: pictures of scanned samples (``datagen inspect``).
 """
 from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildReport, build_dataset,
                     write_shard)

@@ -266,7 +266,7 @@ def _run_pool(root: str, cfg: dict, tasks: list[ShardTask], workers: int, retrie
 
 def _card_layout(config: DatasetConfig, probe: Sample) -> dict:
     """The card entries the probe sample fixes: ``time_edges`` and ``splits`` (fields, counts, detectors)."""
-    splits = split_entries(config, probe_fields(probe))
+    splits = split_entries(config, probe_fields(probe), probe.axes)
     for split in config.splits:
         splits[split]["detector"] = config.simulation_config(split).detector_config().model_dump(mode="json")
     return {"time_edges": {"t_start": float(probe.time_edges[0]), "n_bins": len(probe.time_edges) - 1,
@@ -288,7 +288,7 @@ def _initialize(root: Path, config: DatasetConfig, probe: Sample) -> dict:
     group = zarr_module().open_group(str(root), mode="a", zarr_format=3)
     group.update_attributes(card)
     create_arrays(root, config, probe_fields(probe), probe.time_edges,
-                  component_slots(config.label_spec().max_objects))
+                  component_slots(config.label_spec().max_objects), probe.axes)
     card.update(_card_layout(config, probe))
     group.update_attributes(card)
     return card

@@ -141,6 +141,8 @@ class DatasetConfig(_Model):
     shard_size: int = Field(64, ge=1)
     splits: dict[str, SplitSpec]
     room: str | dict
+    room_overrides: dict = Field(default_factory=dict, description="deep-merged into the room for every split, "
+                                 "before the split's own room_overrides")
     simulation: dict = Field(default_factory=dict)
     detector: str | dict | None = None
     labels: dict = Field(default_factory=dict)
@@ -194,8 +196,12 @@ class DatasetConfig(_Model):
 
     # ---- derived -----------------------------------------------------------------------------------
     def to_json(self) -> dict:
-        """The config as a JSON-able dict (what workers receive and the card records)."""
-        return self.model_dump(mode="json")
+        """The config as a JSON-able dict (what workers receive and the card records); an empty
+        ``room_overrides`` is left out, so configs written before it existed keep their fingerprint."""
+        data = self.model_dump(mode="json")
+        if not data["room_overrides"]:
+            del data["room_overrides"]
+        return data
 
     def fingerprint(self) -> str:
         """sha256 of the canonical JSON of :meth:`to_json` (a build resumes only into the same config)."""
@@ -222,17 +228,20 @@ class DatasetConfig(_Model):
         return LabelSpec.model_validate(self.labels)
 
     def room_distribution(self, split: str):
-        """The split's room distribution (room with its ``room_overrides``); cached per process."""
-        return _distribution(json.dumps(self.room, sort_keys=True),
+        """The split's room distribution: room with the dataset's ``room_overrides``, then the split's; cached
+        per process."""
+        return _distribution(json.dumps(self.room, sort_keys=True), json.dumps(self.room_overrides, sort_keys=True),
                              json.dumps(self.splits[split].room_overrides, sort_keys=True))
 
 
 @lru_cache(maxsize=16)
-def _distribution(room_json: str, overrides_json: str):
+def _distribution(room_json: str, *overrides_json: str):
     from .rooms import load_room_distribution
     dist = load_room_distribution(json.loads(room_json))
-    overrides = json.loads(overrides_json)
-    return dist.with_overrides(overrides) if overrides else dist
+    for text in overrides_json:
+        overrides = json.loads(text)
+        dist = dist.with_overrides(overrides) if overrides else dist
+    return dist
 
 
 def _find_file(value: str, base: Path | None, field_name: str) -> Path:
@@ -287,7 +296,10 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
         raise SceneError(format_validation_error(exc, where)) from None
     updates: dict[str, Any] = {}
     if isinstance(config.room, str):
-        updates["room"] = _read_yaml(_find_file(config.room, base, f"{prefix}room"), f"{prefix}room")
+        room_file = _find_file(config.room, base, f"{prefix}room")
+        updates["room"] = _room_with_assets(_read_yaml(room_file, f"{prefix}room"), room_file.parent, str(room_file))
+    else:
+        updates["room"] = _room_with_assets(config.room, base, f"{prefix}room")
     if isinstance(config.detector, str):
         det = _read_yaml(_find_file(config.detector, base, f"{prefix}detector"), f"{prefix}detector")
         det = det["detector"] if set(det) == {"detector"} else det
@@ -297,6 +309,13 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
         config = config.model_copy(update=updates)
     _validate_parts(config, prefix)
     return config
+
+
+def _room_with_assets(room: dict, base: Path | None, where: str) -> dict:
+    """The room mapping with its mesh asset folders as absolute paths (relative to ``base``, then the working
+    directory), so workers and the card need no file context."""
+    from .rooms import resolve_room_assets
+    return resolve_room_assets(room, base, where) if isinstance(room, dict) else room
 
 
 def config_from_json(data: dict) -> DatasetConfig:
@@ -336,6 +355,10 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
         _distribution(json.dumps(config.room, sort_keys=True), "{}")
     except (SceneError, ValueError) as exc:
         raise SceneError(f"{prefix}room: {' '.join(str(exc).split())}") from None
+    try:
+        _distribution(json.dumps(config.room, sort_keys=True), json.dumps(config.room_overrides, sort_keys=True))
+    except (SceneError, ValueError) as exc:
+        raise SceneError(f"{prefix}room_overrides: {' '.join(str(exc).split())}") from None
     for name in config.splits:
         try:
             dist = config.room_distribution(name)
@@ -368,12 +391,15 @@ class Sample:
             on, forced and reason).
         time_edges: (T+1,) float64 seconds.
         seconds: wall time per stage (room, simulate, labels, total), s.
+        axes: field name → axis names (per sample) of the fields whose axes have a fixed meaning
+            (:func:`datagen.dataset.layout.axis_names`: e.g. envelope of a confocal scan ["scan_y", "scan_x", "time"]).
     """
 
     arrays: dict[str, np.ndarray]
     time_edges: np.ndarray
     seconds: dict[str, float] = field(default_factory=dict)
     component_names: list[str] = field(default_factory=list)
+    axes: dict[str, list[str]] = field(default_factory=dict)
 
 
 def draw_room(config: DatasetConfig, split: str, index: int):
@@ -437,6 +463,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         SceneError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
             more hidden objects than ``labels.max_objects``; the message names the sample.
     """
+    from .layout import axis_names
     from .labels import scene_labels
     from ..simulation import simulate, simulate_to_tolerance
 
@@ -480,7 +507,11 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
                   "effects": result.attrs.get("effects"), "accuracy": _accuracy(result.attrs), "plan": plan}
         arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=_json_default), dtype=object)
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
-    return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names)
+    kind = None if room.scene.capture is None and room.scene.sensor.fov.pixels == (1, 1) else (
+        room.scene.capture.type if room.scene.capture is not None else "single")
+    axes = {name: names for name, value in arrays.items()
+            if (names := axis_names(name, np.ndim(value), kind)) is not None}
+    return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names, axes)
 
 
 def _accuracy(attrs: dict) -> dict:

@@ -55,15 +55,24 @@ def card_fields(card: dict) -> dict[str, tuple[tuple[int, ...], str]]:
     return {}
 
 
+def card_axes(card: dict) -> dict[str, list[str]]:
+    """Axis names of the fields that record them in the card (scans and wall views, docs/datasets.md)."""
+    for info in card.get("splits", {}).values():
+        if info.get("fields"):
+            return {name: spec["axes"] for name, spec in info["fields"].items() if "axes" in spec}
+    return {}
+
+
 @lru_cache(maxsize=8)
-def _expected(config_json: str, fields_json: str, n_edges: int) -> dict[str, bytes]:
+def _expected(config_json: str, fields_json: str, n_edges: int, axes_json: str = "{}") -> dict[str, bytes]:
     from .store import create_arrays
     zarr = zarr_module()
     config = config_from_json(json.loads(config_json))
     fields = {name: (tuple(shape), dtype) for name, (shape, dtype) in json.loads(fields_json).items()}
     files: dict = {}
     group = zarr.open_group(zarr.storage.MemoryStore(files), mode="w", zarr_format=3)
-    create_arrays(group, config, fields, np.zeros(n_edges), component_slots(config.label_spec().max_objects))
+    create_arrays(group, config, fields, np.zeros(n_edges), component_slots(config.label_spec().max_objects),
+                  json.loads(axes_json))
     return {key: buf.to_bytes() for key, buf in files.items() if key.endswith("zarr.json") and "/" in key}
 
 
@@ -80,7 +89,7 @@ def expected_metadata(card: dict) -> dict[str, bytes]:
         raise DatasetCorruptError(f"the dataset card records no fields or time axis (initialisation was "
                                   f"interrupted); {REMEDY}")
     return dict(_expected(json.dumps(card["config"], sort_keys=True), json.dumps(fields, sort_keys=True),
-                          int(card["time_edges"]["n_bins"]) + 1))
+                          int(card["time_edges"]["n_bins"]) + 1, json.dumps(card_axes(card), sort_keys=True)))
 
 
 def _describe(actual: dict, expected: dict) -> str:

@@ -8,18 +8,23 @@ randomness):
   camera at the FoV centre (the same camera model as the paper's lookin cameras, Scholes & Leach 2024 §3.1,
   implemented by :func:`datagen.sampling.square_to_hemisphere`);
 - an occupancy voxel grid over a box that is fixed for the whole distribution, so grids align across
-  samples.
+  samples (mesh objects: their exact inside when closed, their surface voxels when open);
+- for scanned captures (or on request), the networks' orthographic wall-view images of the hidden objects:
+  depth, normal, albedo and per-object masks on the scan grid (:mod:`datagen.dataset.wall_view`).
 """
 from __future__ import annotations
 
 import numpy as np
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from ..sampling.directions import square_to_hemisphere
+from ..sampling import square_to_hemisphere, subdivide_with_vertices
 from ..scene import BRDF_KINDS, RayCaster, SceneError, check_counts
 from .obb import points_in_box, yaw_matrix
 from .rooms import OBJECT_CLASSES, LabelRegion
 from .sampler import SampledRoom
+from .wall_view import view_rectangle, wall_frame, wall_view_labels
 
 PAD_INT = -1
 """Padding of integer per-object arrays (class, BRDF kind) beyond ``object_count``; float arrays pad with 0."""
@@ -35,6 +40,9 @@ class LabelSpec(BaseModel):
             voxels of pitch = longest side / V starting at the region's min corner).
         occupancy_region: fixed box (origin, size) m for the grid; None: the room's
             ``params["label_region"]`` (the distribution's :meth:`~datagen.dataset.rooms.RoomDistribution.label_box`).
+        wall_view: the orthographic wall-view labels (:func:`datagen.dataset.wall_view.wall_view_labels`):
+            "scan" (default) on the scan grid when the capture scans, none otherwise; (H, W) at that resolution
+            over the scan rectangle (or the FoV of a single-spot capture); "none": never.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -43,41 +51,57 @@ class LabelSpec(BaseModel):
     depth_map: tuple[int, int] = (64, 64)
     voxels: int = Field(32, ge=1)
     occupancy_region: LabelRegion | None = None
+    wall_view: Literal["scan", "none"] | tuple[int, int] = "scan"
 
     @field_validator("depth_map")
     @classmethod
     def _pixels(cls, v: tuple[int, int]) -> tuple[int, int]:
         return check_counts(v, "both pixel counts")
 
+    @field_validator("wall_view")
+    @classmethod
+    def _wall_view(cls, v):
+        return v if isinstance(v, str) else check_counts(v, "both wall_view pixel counts")
 
-def label_shapes(spec: LabelSpec) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
-    """Shape and dtype of every array :func:`scene_labels` returns under ``spec`` (for preallocating stores)."""
+    def wall_pixels(self, params: dict) -> tuple[int, int] | None:
+        """(H, W) of the wall-view labels of a room with ``params``, or None when it has none."""
+        if self.wall_view == "none":
+            return None
+        if self.wall_view == "scan":
+            scan = (params.get("sensor") or {}).get("scan")
+            return None if scan is None else tuple(scan["laser_grid"]["points"][::-1])
+        return tuple(self.wall_view)
+
+
+def label_shapes(spec: LabelSpec, wall_pixels: tuple[int, int] | None = None
+                 ) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """Shape and dtype of every array :func:`scene_labels` returns under ``spec`` (for preallocating stores);
+    ``wall_pixels`` (H, W) adds the wall-view labels (:meth:`LabelSpec.wall_pixels` of the rooms)."""
     k, (h, w), v = spec.max_objects, spec.depth_map, spec.voxels
     i4, f4 = np.dtype(np.int32), np.dtype(np.float32)
-    return {"object_count": ((), i4), "object_class": ((k,), i4), "object_center": ((k, 3), f4),
-            "object_size": ((k, 3), f4), "object_yaw": ((k,), f4), "object_albedo": ((k,), f4),
-            "object_brdf": ((k,), i4), "depth": ((h, w), f4), "normal": ((h, w, 3), f4),
-            "occupancy": ((v, v, v), np.dtype(np.uint8)), "occupancy_origin": ((3,), f4),
-            "occupancy_pitch": ((), f4)}
+    out = {"object_count": ((), i4), "object_class": ((k,), i4), "object_center": ((k, 3), f4),
+           "object_size": ((k, 3), f4), "object_yaw": ((k,), f4), "object_albedo": ((k,), f4),
+           "object_brdf": ((k,), i4), "depth": ((h, w), f4), "normal": ((h, w, 3), f4),
+           "occupancy": ((v, v, v), np.dtype(np.uint8)), "occupancy_origin": ((3,), f4),
+           "occupancy_pitch": ((), f4)}
+    if wall_pixels is not None:
+        hh, ww = wall_pixels
+        out.update({"wall_depth": ((hh, ww), f4), "wall_normal": ((hh, ww, 3), f4), "wall_albedo": ((hh, ww), f4),
+                    "wall_mask": ((k, hh, ww), np.dtype(np.uint8))})
+    return out
 
 
 def camera_frame(room: SampledRoom, caster: RayCaster) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Position and frame (u, v, n) of the depth camera: FoV centre; n the relay-wall normal facing the
-    sensor, u = n × z (the FoV width axis), v = u × n (the FoV height axis), as in the transport's capture.
+    """Position and frame (u, v, n) of the depth camera: the FoV centre (a scanned capture: the centre of its
+    laser grid); n the relay-wall normal facing the sensor, u = n × z (the FoV width axis), v = u × n (the FoV
+    height axis), as in the transport's capture (:func:`datagen.dataset.wall_view.wall_frame`).
 
     Returns four (3,) float64 arrays: centre, u, v, n.
     """
     fov = room.scene.sensor.fov
-    center = np.asarray(fov.center, dtype=np.float64)
-    sensor = np.asarray(room.scene.sensor.position, dtype=np.float64)
-    to_wall = (center - sensor) / np.linalg.norm(center - sensor)
-    hit = caster.intersect(sensor[None], to_wall[None])
-    n = hit.normals[0] if hit.hit[0] else -to_wall
-    u = np.cross(n, [0.0, 0.0, 1.0])
-    if np.linalg.norm(u) < 1e-9:
-        u = np.cross(n, [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    return center, u, np.cross(u, n), n
+    center = np.asarray(fov.center if fov is not None else view_rectangle(room.params)[0], dtype=np.float64)
+    u, v, n = wall_frame(caster, np.asarray(room.scene.sensor.position, dtype=np.float64), center)
+    return center, u, v, n
 
 
 def camera_directions(pixels: tuple[int, int], u: np.ndarray, v: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -94,10 +118,14 @@ def camera_directions(pixels: tuple[int, int], u: np.ndarray, v: np.ndarray, n: 
     return local[..., :1] * u + local[..., 1:2] * v + local[..., 2:3] * n
 
 
-def occupancy_grid(objects: list[dict], origin: np.ndarray, pitch: float, voxels: int) -> np.ndarray:
-    """(V, V, V) uint8: 1 where a voxel centre origin + pitch·(i+½, j+½, k+½) lies in an object's box.
+def occupancy_grid(objects: list[dict], origin: np.ndarray, pitch: float, voxels: int,
+                   meshes: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> np.ndarray:
+    """(V, V, V) uint8: 1 where a voxel centre origin + pitch·(i+½, j+½, k+½) lies in an object.
 
-    Only the voxels inside each object's axis-aligned bounds are tested (exact point-in-oriented-box).
+    Only the voxels inside each object's axis-aligned bounds are tested. Boxes and pillars: exact
+    point-in-oriented-box. Objects of class "mesh" whose name is in ``meshes`` (name → world (vertices (V, 3),
+    faces (F, 3))): a closed (watertight) mesh marks the voxel centres inside it (trimesh's ray-parity test), an
+    open one the voxels its surface passes through (points no farther apart than pitch / 2 on every face).
     """
     grid = np.zeros((voxels,) * 3, dtype=np.uint8)
     for obj in objects:
@@ -107,11 +135,34 @@ def occupancy_grid(objects: list[dict], origin: np.ndarray, pitch: float, voxels
         hi = np.clip(np.ceil((c + half - origin) / pitch + 0.5).astype(int), 0, voxels)
         if np.any(hi <= lo):
             continue
+        mesh = (meshes or {}).get(obj.get("name")) if obj.get("class") == "mesh" else None
+        if mesh is not None and not _mesh_inside(grid, mesh, origin, pitch, lo, hi):
+            continue
         axes = [origin[a] + pitch * (np.arange(lo[a], hi[a]) + 0.5) for a in range(3)]
         pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
-        inside = points_in_box(pts.reshape(-1, 3), obj).reshape(pts.shape[:3])
+        if mesh is not None:
+            import trimesh
+            inside = trimesh.Trimesh(*mesh, process=False).contains(pts.reshape(-1, 3)).reshape(pts.shape[:3])
+        else:
+            inside = points_in_box(pts.reshape(-1, 3), obj).reshape(pts.shape[:3])
         grid[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] |= inside.astype(np.uint8)
     return grid
+
+
+def _mesh_inside(grid: np.ndarray, mesh: tuple[np.ndarray, np.ndarray], origin: np.ndarray, pitch: float,
+                 lo: np.ndarray, hi: np.ndarray) -> bool:
+    """True for a closed mesh (the caller tests voxel centres inside it); for an open mesh, marks the voxels its
+    surface passes through in ``grid`` and returns False."""
+    import trimesh
+
+    vertices, faces = mesh
+    if trimesh.Trimesh(vertices, faces, process=False).is_watertight:
+        return True
+    points, _, _, _ = subdivide_with_vertices(vertices[faces], pitch / 2)
+    idx = np.floor((points - origin) / pitch).astype(np.int64)
+    idx = idx[np.all((idx >= lo) & (idx < hi), axis=1)]
+    grid[idx[:, 0], idx[:, 1], idx[:, 2]] = 1
+    return False
 
 
 def scene_labels(room: SampledRoom, spec: LabelSpec) -> dict[str, np.ndarray]:
@@ -171,7 +222,11 @@ def scene_labels(room: SampledRoom, spec: LabelSpec) -> dict[str, np.ndarray]:
     else:
         raise SceneError("labels.occupancy_region: not given and the room's params hold no label_region")
     pitch = float(np.max(size)) / spec.voxels
-    out["occupancy"] = occupancy_grid(objects, origin, pitch, spec.voxels)
+    meshes = {o.name: (o.vertices, o.faces) for o in room.scene.objects if o.label == "mesh"}
+    out["occupancy"] = occupancy_grid(objects, origin, pitch, spec.voxels, meshes)
     out["occupancy_origin"] = origin.astype(np.float32)
     out["occupancy_pitch"] = np.array(pitch, dtype=np.float32)
+    wall_pixels = spec.wall_pixels(room.params)
+    if wall_pixels is not None:
+        out.update(wall_view_labels(room, caster, wall_pixels, k))
     return out

@@ -205,6 +205,8 @@ class NLOSDataset(torch.utils.data.Dataset):
         counts_dtype: dtype of ``counts`` (e.g. ``torch.float32``); default the stored int64.
         object_order: "stored" (pillars first, then boxes, as generated) or "distance" (nearest to the relay
             wall first); either way padding slots come last.
+        layout: "stored" (the stored shapes) or "network": scans as (1, T, H, W) float32 and wall-view labels as
+            (C, H, W), the reconstruction networks' layout (:mod:`datagen.dataset.layout`).
     Item:
         dict field → torch tensor with the stored shape and dtype: envelope (*S, T) float32 expected detected
         photons per pulse per bin, counts (*S, T) int64, depth (H, W) float32 m, normal (H, W, 3),
@@ -212,15 +214,16 @@ class NLOSDataset(torch.utils.data.Dataset):
         background () float64; see ``docs/datasets.md``.
     Raises:
         FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field, noise mode or
-        object order, an incomplete build, ``noise="resample"`` without a stored envelope, or a transform
-        asking for params that are not stored; DatasetCorruptError (a ValueError): metadata that disagrees with
-        the card (here), a damaged or missing shard (on reading); TypeError: an index that is not an integer
-        (``ds[1.5]``).
+        object order or layout, an incomplete build, ``noise="resample"`` without a stored envelope, a transform
+        asking for params that are not stored, or ``layout="network"`` for a capture that is not a scan;
+        DatasetCorruptError (a ValueError): metadata that disagrees with the card (here), a damaged or missing
+        shard (on reading); TypeError: an index that is not an integer (``ds[1.5]``).
     """
 
     def __init__(self, path: str | os.PathLike, split: str = "train", fields: Iterable[str] | None = None,
                  noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None,
-                 counts_dtype: torch.dtype | None = None, object_order: Literal["stored", "distance"] = "stored"):
+                 counts_dtype: torch.dtype | None = None, object_order: Literal["stored", "distance"] = "stored",
+                 layout: Literal["stored", "network"] = "stored"):
         self.path = Path(path)
         card = read_card(self.path)
         if card.get("status") != "complete":
@@ -269,6 +272,13 @@ class NLOSDataset(torch.utils.data.Dataset):
         self._readers = {name: _FieldReader(self.path, split, name) for name in sorted(to_read)}
         self.time_edges = _read_small(self.path / split / "time_edges")
         self._detector_config = None
+        # -- network layout (datagen.dataset.layout): checked here, applied per item -------------------------
+        if layout not in ("stored", "network"):
+            raise ValueError(f"layout must be 'stored' or 'network', got {layout!r}")
+        self.layout = layout
+        if layout == "network":
+            from .layout import network_shapes
+            network_shapes(info["fields"])
 
     @staticmethod
     def _photons_source(stored: list[str]) -> bool:
@@ -342,8 +352,11 @@ class NLOSDataset(torch.utils.data.Dataset):
     def __getitem__(self, index: int) -> dict[str, Any]:
         index = sample_index(index)
         out = self._read(index)
-        item = {name: (str(out[name][()]) if out[name].dtype == object else torch.from_numpy(out[name]))
-                for name in self.fields}
+        arrays = {name: out[name] for name in self.fields}
+        if self.layout == "network":
+            from .layout import to_network
+            arrays = to_network(arrays)
+        item = {name: (str(a[()]) if a.dtype == object else torch.from_numpy(a)) for name, a in arrays.items()}
         if self.counts_dtype is not None and "counts" in item:
             item["counts"] = item["counts"].to(self.counts_dtype)
         if self.transform is None:

@@ -3,8 +3,10 @@
 A :class:`RoomDistribution` (loaded from ``configs/rooms/*.yaml`` by :func:`load_room_distribution`) describes
 ranges for every parameter of the scene family built by :func:`datagen.scene.l_room` (corridor along +x
 ending at the relay wall x = ``relay_x`` facing −x, an L-bend room on the ``bend_side`` over the corridor's
-last ``room.depth`` metres), floor-to-ceiling pillars and boxes, per-class materials, the emitter and sensor
-positions, the laser spot and the sensor's field of view (FoV) on the relay wall. Loading validates every field
+last ``room.depth`` metres; or, with ``family: wall``, the relay wall alone), floor-to-ceiling pillars, boxes and
+meshes from asset files (:mod:`datagen.dataset.assets`), per-class materials, the emitter and sensor positions, the
+laser spot and the sensor's field of view (FoV) on the relay wall, or a scanned capture (``capture.scan``,
+:mod:`datagen.dataset.scan`). Loading validates every field
 (pydantic; errors name the file, the dotted field and the value) and checks up front that every room the
 distribution can make can hold its objects and capture (:func:`check_feasible`). Rooms are drawn from it by
 :func:`datagen.dataset.sampler.sample_room`.
@@ -16,18 +18,21 @@ from __future__ import annotations
 import copy
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from ..scene import BRDF_KINDS, Laser, Material, SceneError, check_counts, format_validation_error, read_yaml
 from ..units import parse_energy, parse_length
+from .assets import asset_files, resolve_assets
+from .ranges import CountRange, Fraction, Model, NonNegative, Positive, Range, Signed, Unit
+from .scan import ScanDist, scan_fits
 
-OBJECT_CLASSES = ("box", "pillar")
-"""Hidden-object classes; the index is the class code of the labels (0 box, 1 pillar)."""
+OBJECT_CLASSES = ("box", "pillar", "mesh")
+"""Hidden-object classes; the index is the class code of the labels (0 box, 1 pillar, 2 mesh)."""
 
-MATERIAL_CLASSES = ("relay_wall", "wall", "floor", "ceiling", "pillar", "box")
+MATERIAL_CLASSES = ("relay_wall", "wall", "floor", "ceiling", "pillar", "box", "mesh")
 """Classes with their own material distribution (scene labels of :func:`datagen.scene.l_room` + objects)."""
 
 UNIFORMS_PER_MATERIAL = 4
@@ -43,79 +48,7 @@ Random sequential placement of rectangles jams near 55 % coverage; above ~50 % r
 # Distribution schema
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-class Range(_Model):
-    """Uniform range [min, max]; a bare number means min = max (a fixed value)."""
-
-    min: float
-    max: float
-
-    @model_validator(mode="before")
-    @classmethod
-    def _scalar(cls, v: Any) -> Any:
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            return {"min": v, "max": v}
-        if isinstance(v, (list, tuple)) and len(v) == 2:
-            return {"min": v[0], "max": v[1]}
-        return v
-
-    @model_validator(mode="after")
-    def _ordered(self) -> "Range":
-        if not (math.isfinite(self.min) and math.isfinite(self.max)):
-            raise ValueError(f"min and max must be finite, got min {self.min}, max {self.max}")
-        if self.min > self.max:
-            raise ValueError(f"min ({self.min}) must be <= max ({self.max})")
-        return self
-
-    def draw(self, u: float) -> float:
-        """The value at quantile ``u`` ∈ [0, 1) of the uniform distribution."""
-        return float(self.min + u * (self.max - self.min))
-
-    def contains(self, x: float, tol: float = 1e-9) -> bool:
-        return self.min - tol <= x <= self.max + tol
-
-
-class CountRange(_Model):
-    """Integer count, uniform over {min, …, max}; a bare integer means exactly that many."""
-
-    min: int = Field(0, ge=0)
-    max: int = Field(0, ge=0)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _scalar(cls, v: Any) -> Any:
-        if isinstance(v, int) and not isinstance(v, bool):
-            return {"min": v, "max": v}
-        return v
-
-    @model_validator(mode="after")
-    def _ordered(self) -> "CountRange":
-        if self.min > self.max:
-            raise ValueError(f"min ({self.min}) must be <= max ({self.max})")
-        return self
-
-
-def _bounded(lo: float | None, hi: float | None, strict_lo: bool = False):
-    def check(r: Range) -> Range:
-        if lo is not None and (r.min <= lo if strict_lo else r.min < lo):
-            raise ValueError(f"min must be {'>' if strict_lo else '>='} {lo}, got {r.min}")
-        if hi is not None and r.max > hi:
-            raise ValueError(f"max must be <= {hi}, got {r.max}")
-        return r
-    return AfterValidator(check)
-
-
-Positive = Annotated[Range, _bounded(0.0, None, strict_lo=True)]
-NonNegative = Annotated[Range, _bounded(0.0, None)]
-Unit = Annotated[Range, _bounded(0.0, 1.0)]
-Signed = Annotated[Range, _bounded(-1.0, 1.0)]
-Fraction = Annotated[Range, _bounded(0.0, 1.0, strict_lo=True)]
-
-
-class CorridorDist(_Model):
+class CorridorDist(Model):
     """Corridor from its open (or closed) end to the relay wall, along +x."""
 
     length: Positive = Range(min=8.0, max=8.0)
@@ -123,7 +56,7 @@ class CorridorDist(_Model):
     closed_end: bool = False
 
 
-class RoomDist(_Model):
+class RoomDist(Model):
     """The L-bend room: ``depth`` along x (its opening on the corridor), ``length`` sideways (m)."""
 
     depth: Positive = Range(min=3.0, max=3.0)
@@ -145,7 +78,7 @@ class RoomDist(_Model):
         return v
 
 
-class PointDist(_Model):
+class PointDist(Model):
     """Emitter or sensor position in the corridor.
 
     ``standoff``: fraction of the corridor length between the relay wall and the point (x = relay_x −
@@ -164,14 +97,14 @@ class PointDist(_Model):
         return v
 
 
-class SpotDist(_Model):
+class SpotDist(Model):
     """Laser spot on the relay wall's corridor end: y = lateral·(w/2 − edge_margin), z = height (m)."""
 
     lateral: Signed = Range(min=0.0, max=0.0)
     height: Positive = Range(min=2.5, max=2.5)
 
 
-class FovDist(_Model):
+class FovDist(Model):
     """FoV rectangle on the relay wall's corridor end: size ranges (m), pixels fixed; its centre is uniform
     over the positions that keep it ``edge_margin`` inside the corridor end."""
 
@@ -185,13 +118,15 @@ class FovDist(_Model):
         return check_counts(v, "pixel counts")
 
 
-class CaptureDist(_Model):
-    """Emitter, sensor (``null``: co-located with the emitter), laser spot, FoV, aperture, pulse."""
+class CaptureDist(Model):
+    """Emitter, sensor (``null``: co-located with the emitter), laser spot, FoV, aperture, pulse; ``scan``
+    (:class:`~datagen.dataset.scan.ScanDist`) replaces the single spot and FoV by a scanned capture."""
 
     emitter: PointDist = PointDist()
     sensor: PointDist | None = None
     spot: SpotDist = SpotDist()
     fov: FovDist = FovDist()
+    scan: ScanDist | None = None
     edge_margin: float = Field(0.05, ge=0.0, description="m kept between spot/FoV/emitter and the walls")
     aperture_radius: float = Field(0.02, gt=0.0)
     photons_per_pulse: float | None = Field(None, gt=0)
@@ -218,22 +153,30 @@ class CaptureDist(_Model):
                 "wavelength": self.wavelength}
 
 
-class RoomRegion(_Model):
+class RoomRegion(Model):
     """Placement in the L-room proper: relative ``weight`` and the object's bottom height above the floor."""
 
     weight: float = Field(1.0, ge=0.0)
     elevation: NonNegative = Range(min=0.0, max=0.0)
 
 
-class CorridorEndRegion(_Model):
-    """Placement in the corridor end: within ``depth`` m of the relay wall (like the demo's shelf box)."""
+class CorridorEndRegion(Model):
+    """Placement in the corridor end: between ``min_depth`` and ``depth`` m from the relay wall (like the demo's
+    shelf box, or a hidden object in front of a bare wall)."""
 
     weight: float = Field(0.0, ge=0.0)
     elevation: NonNegative = Range(min=0.0, max=0.0)
     depth: float = Field(1.0, gt=0.0)
+    min_depth: float = Field(0.0, ge=0.0)
+
+    @model_validator(mode="after")
+    def _depths(self) -> "CorridorEndRegion":
+        if self.min_depth >= self.depth:
+            raise ValueError(f"min_depth ({self.min_depth}) must be < depth ({self.depth})")
+        return self
 
 
-class Placement(_Model):
+class Placement(Model):
     room: RoomRegion = RoomRegion()
     corridor_end: CorridorEndRegion = CorridorEndRegion()
 
@@ -247,13 +190,13 @@ class Placement(_Model):
         return [(n, r) for n, r in (("room", self.room), ("corridor_end", self.corridor_end)) if r.weight > 0]
 
 
-class Size3(_Model):
+class Size3(Model):
     x: Positive
     y: Positive
     z: Positive = Range(min=1.0, max=1.0)
 
 
-class ObjectDist(_Model):
+class ObjectDist(Model):
     """One hidden-object class: count, size (m; a pillar's z is the ceiling), yaw (deg), placement."""
 
     count: CountRange = CountRange()
@@ -263,15 +206,44 @@ class ObjectDist(_Model):
     placement: Placement = Placement()
 
 
-class ObjectsDist(_Model):
+class MeshObjectDist(Model):
+    """Hidden meshes drawn from asset files (:mod:`datagen.dataset.assets`): ``assets`` folders or files
+    (relative to the room file, then the working directory; resolved to absolute paths on loading), one file
+    drawn uniformly per object; ``size`` the longest side of its bounding box (m; the mesh is scaled
+    uniformly); ``yaw_deg`` about +z; ``tilt_deg`` about a horizontal axis of uniform azimuth (0: upright);
+    ``placement`` and ``elevation`` (bottom height) as for boxes."""
+
+    count: CountRange = CountRange()
+    assets: list[str] = Field(default_factory=list)
+    size: Positive = Range(min=0.5, max=0.5)
+    yaw_deg: Range = Range(min=0.0, max=0.0)
+    tilt_deg: Range = Range(min=0.0, max=0.0)
+    placement: Placement = Placement()
+
+    @field_validator("tilt_deg")
+    @classmethod
+    def _tilt(cls, v: Range) -> Range:
+        if v.min < 0 or v.max > 180:
+            raise ValueError(f"tilt must lie in [0, 180] degrees, got [{v.min}, {v.max}]")
+        return v
+
+    @model_validator(mode="after")
+    def _assets(self) -> "MeshObjectDist":
+        if self.count.max > 0 and not self.assets:
+            raise ValueError("give assets (folders or mesh files) when count.max > 0")
+        return self
+
+
+class ObjectsDist(Model):
     min_gap: float = Field(0.05, ge=0.0, description="m of clearance around every object")
     max_tries: int = Field(200, ge=1, description="placement attempts per object before a layout restarts")
     max_layouts: int = Field(20, ge=1, description="layout restarts before sample_room gives up")
     box: ObjectDist = ObjectDist()
     pillar: ObjectDist = ObjectDist()
+    mesh: MeshObjectDist = MeshObjectDist()
 
 
-class MaterialDist(_Model):
+class MaterialDist(Model):
     """Per-class materials: albedo range, BRDF kind mixture weights (absent kinds weigh 0), lobe ranges.
 
     ``exponent`` is drawn log-uniformly (lobe sharpness spans decades); ``axis`` is the sin θ reference.
@@ -315,16 +287,17 @@ class MaterialDist(_Model):
         return Material(kind=kind, albedo=albedo)
 
 
-class MaterialsDist(_Model):
+class MaterialsDist(Model):
     relay_wall: MaterialDist = MaterialDist()
     wall: MaterialDist = MaterialDist()
     floor: MaterialDist = MaterialDist()
     ceiling: MaterialDist = MaterialDist()
     pillar: MaterialDist = MaterialDist()
     box: MaterialDist = MaterialDist()
+    mesh: MaterialDist = MaterialDist()
 
 
-class LabelRegion(_Model):
+class LabelRegion(Model):
     """Axis-aligned box (origin = min corner, size) in metres, e.g. for the occupancy grid."""
 
     origin: tuple[float, float, float]
@@ -338,16 +311,19 @@ class LabelRegion(_Model):
         return v
 
 
-class RoomDistribution(_Model):
+class RoomDistribution(Model):
     """Distribution over procedural L-bend rooms (see module docstring and docs/rooms.md).
 
-    Fields: ``relay_x`` (m, the relay wall plane), ``corridor``, ``room``, ``ceiling`` (height range, m),
-    ``capture``, ``objects``, ``materials``, ``label_region`` (fixed occupancy-grid box; ``null``: the hull
-    of every room the distribution can make, see :meth:`label_box`) and ``simulation`` (passed to
+    Fields: ``family`` ("l_room": the corridor and its L-bend room; "wall": the relay wall alone, the corridor
+    end's w × ceiling rectangle, with hidden objects in front of it and nothing else, the set-up of LFE and
+    NLOST's training data), ``relay_x`` (m, the relay wall plane), ``corridor``, ``room``, ``ceiling`` (height
+    range, m), ``capture``, ``objects``, ``materials``, ``label_region`` (fixed occupancy-grid box; ``null``: the
+    hull of every room the distribution can make, see :meth:`label_box`) and ``simulation`` (passed to
     :class:`~datagen.scene.Scene` ``defaults``, i.e. a scene file's simulation block).
     """
 
     name: str = "rooms"
+    family: Literal["l_room", "wall"] = "l_room"
     relay_x: float = 6.0
     corridor: CorridorDist = CorridorDist()
     room: RoomDist = RoomDist()
@@ -383,11 +359,11 @@ class RoomDistribution(_Model):
         """
         if self.label_region is not None:
             return np.array(self.label_region.origin, float), np.array(self.label_region.size, float)
-        depth = self.room.depth.max
-        for cls in (self.objects.box, self.objects.pillar):
+        depth = self.room.depth.max if self.family == "l_room" else 0.0
+        for cls in (self.objects.box, self.objects.pillar, self.objects.mesh):
             if cls.count.max > 0 and cls.placement.corridor_end.weight > 0:
                 depth = max(depth, cls.placement.corridor_end.depth)
-        reach = self.corridor.width.max / 2 + self.room.length.max
+        reach = self.corridor.width.max / 2 + (self.room.length.max if self.family == "l_room" else 0.0)
         y_lo = -reach if -1 in self.room.bend_side else -self.corridor.width.max / 2
         y_hi = reach if 1 in self.room.bend_side else self.corridor.width.max / 2
         origin = np.array([self.relay_x - depth, y_lo, 0.0])
@@ -405,8 +381,30 @@ def _deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
-def load_room_distribution(source: str | Path | dict, _source: str | None = None) -> RoomDistribution:
+def resolve_room_assets(data: dict, base: Path | None, where: str) -> dict:
+    """A copy of a room mapping with ``objects.mesh.assets`` resolved to absolute paths (relative entries:
+    against ``base``, the room file's folder, then the working directory); other content unchanged.
+
+    Raises:
+        SceneError: an asset folder or file that exists nowhere (naming it and ``where``).
+    """
+    mesh = ((data.get("objects") or {}) if isinstance(data, dict) else {}).get("mesh")
+    if not isinstance(mesh, dict) or not isinstance(mesh.get("assets"), (list, str)):
+        return data
+    entries = [mesh["assets"]] if isinstance(mesh["assets"], str) else list(mesh["assets"])
+    if not all(isinstance(e, str) for e in entries):
+        return data      # the schema reports the bad entry
+    out = copy.deepcopy(data)
+    out["objects"]["mesh"]["assets"] = resolve_assets(entries, base, f"{where}: objects.mesh.assets")
+    return out
+
+
+def load_room_distribution(source: str | Path | dict, _source: str | None = None,
+                           base_dir: str | Path | None = None) -> RoomDistribution:
     """Load, validate and feasibility-check a room distribution from a YAML file or a parsed dict.
+
+    Mesh asset folders (``objects.mesh.assets``) are resolved against the file's folder (``base_dir`` for a
+    dict), then the working directory, and stored as absolute paths.
 
     Raises:
         SceneError: missing file, bad YAML, or an invalid/infeasible value; the message names the file,
@@ -415,13 +413,14 @@ def load_room_distribution(source: str | Path | dict, _source: str | None = None
     """
     if isinstance(source, dict):
         data, where = source, _source or "room distribution"
+        base = Path(base_dir) if base_dir is not None else None
     else:
         path = Path(source)
         data = read_yaml(path, "room distribution file")
-        where = str(path)
+        where, base = str(path), path.parent
         if not isinstance(data, dict):
             raise SceneError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")
-    data = {k: v for k, v in data.items() if k != "source"}
+    data = resolve_room_assets({k: v for k, v in data.items() if k != "source"}, base, where)
     try:
         dist = RoomDistribution.model_validate(data)
     except ValidationError as exc:
@@ -447,18 +446,19 @@ def _min_footprint(sx: float, sy: float, yaw: Range) -> tuple[float, float]:
 def check_feasible(dist: RoomDistribution) -> None:
     """Check up front that every room the distribution can make can hold its objects and capture.
 
-    Checks (with the smallest room, the largest objects): the corridor is longer than the room is deep;
-    spot, FoV and emitter/sensor fit the corridor end and under the lowest ceiling; each object class
-    can be placed (some region with weight > 0 fits its largest footprint at the best yaw and its
-    height under the ceiling); the maximum object count's inflated footprints cover at most
-    ``PACKING_LIMIT`` of the regions they may use.
+    Checks (with the smallest room, the largest objects): the corridor is longer than the room is deep (L-rooms);
+    spot, FoV or scan grids and emitter/sensor fit the corridor end and under the lowest ceiling; each object
+    class can be placed (some region with weight > 0 fits its largest footprint at the best yaw and its height
+    under the ceiling; a mesh's footprint is its largest size squared; the wall family has no L-room region); the
+    maximum object count's inflated footprints cover at most ``PACKING_LIMIT`` of the regions they may use; mesh
+    asset entries hold at least one mesh file.
 
     Raises:
         SceneError: naming the field, the value and the limit it breaks.
     """
     c, r, cap, obj = dist.corridor, dist.room, dist.capture, dist.objects
     m, gap = cap.edge_margin, obj.min_gap
-    if r.depth.max >= c.length.min:
+    if dist.family == "l_room" and r.depth.max >= c.length.min:
         _fail(dist, "room.depth.max", f"{r.depth.max} m must be < corridor.length.min ({c.length.min} m): the "
               "room opens off the corridor's last room.depth metres")
     h_min, w_min = dist.ceiling.min, c.width.min
@@ -466,39 +466,55 @@ def check_feasible(dist: RoomDistribution) -> None:
         if point is not None and point.height.max > h_min - m:
             _fail(dist, f"{name}.height.max", f"{point.height.max} m is above the lowest ceiling "
                   f"({h_min} m) minus capture.edge_margin ({m} m)")
-    if cap.spot.height.min < m or cap.spot.height.max > h_min - m:
-        _fail(dist, "capture.spot.height", f"[{cap.spot.height.min}, {cap.spot.height.max}] m must lie within "
-              f"[{m}, {h_min - m}] m (edge margin to the lowest ceiling {h_min} m)")
     if w_min / 2 - m <= 0:
         _fail(dist, "capture.edge_margin", f"{m} m leaves no room in the narrowest corridor ({w_min} m)")
-    if cap.fov.width.max > w_min - 2 * m:
-        _fail(dist, "capture.fov.width.max", f"{cap.fov.width.max} m does not fit the narrowest corridor end "
-              f"({w_min} m minus 2 × edge_margin {m} m)")
-    if cap.fov.height.max > h_min - 2 * m:
-        _fail(dist, "capture.fov.height.max", f"{cap.fov.height.max} m does not fit under the lowest ceiling "
-              f"({h_min} m minus 2 × edge_margin {m} m)")
+    if cap.scan is not None:
+        for field, problem in scan_fits(cap.scan, w_min, h_min, m):
+            _fail(dist, field, problem)
+    else:
+        if cap.spot.height.min < m or cap.spot.height.max > h_min - m:
+            _fail(dist, "capture.spot.height", f"[{cap.spot.height.min}, {cap.spot.height.max}] m must lie within "
+                  f"[{m}, {h_min - m}] m (edge margin to the lowest ceiling {h_min} m)")
+        if cap.fov.width.max > w_min - 2 * m:
+            _fail(dist, "capture.fov.width.max", f"{cap.fov.width.max} m does not fit the narrowest corridor end "
+                  f"({w_min} m minus 2 × edge_margin {m} m)")
+        if cap.fov.height.max > h_min - 2 * m:
+            _fail(dist, "capture.fov.height.max", f"{cap.fov.height.max} m does not fit under the lowest ceiling "
+                  f"({h_min} m minus 2 × edge_margin {m} m)")
+    if obj.mesh.count.max > 0:
+        try:
+            asset_files(tuple(obj.mesh.assets))
+        except SceneError as exc:
+            _fail(dist, "objects.mesh.assets", str(exc).removeprefix("objects.mesh.assets: "))
     region_area, need = {}, {}
-    for cls_name in ("pillar", "box"):
+    for cls_name in ("pillar", "box", "mesh"):
         cls = getattr(obj, cls_name)
         if cls.count.max == 0:
             continue
-        sx, sy = cls.size.x.max, (cls.size.x.max if cls.cube else cls.size.y.max)
+        if cls_name == "mesh":
+            sx = sy = sz = cls.size.max
+        else:
+            sx, sy = cls.size.x.max, (cls.size.x.max if cls.cube else cls.size.y.max)
+            sz = cls.size.x.max if cls.cube else cls.size.z.max
         ex, ey = _min_footprint(sx, sy, cls.yaw_deg)
+        field = f"objects.{cls_name}"
         for reg_name, reg in cls.placement.regions():
             if reg_name == "room":
+                if dist.family == "wall":
+                    _fail(dist, f"{field}.placement.room.weight", f"{reg.weight}: the wall family has no L-bend "
+                          "room; place objects in corridor_end (in front of the relay wall) only")
                 dims = (r.depth.min, r.length.min)
             else:
-                dims = (min(reg.depth, c.length.min), w_min)
-            field = f"objects.{cls_name}"
-            if cls_name == "box":
-                top = reg.elevation.max + (cls.size.x.max if cls.cube else cls.size.z.max)
+                dims = (min(reg.depth, c.length.min) - reg.min_depth, w_min)
+            if cls_name != "pillar":
+                top = reg.elevation.max + sz
                 if top > h_min - gap:
                     _fail(dist, f"{field}.placement.{reg_name}.elevation.max",
-                          f"a box up to {top:.3g} m tall (elevation.max + size) does not fit under the lowest "
-                          f"ceiling ({h_min} m) minus objects.min_gap ({gap} m)")
+                          f"a {cls_name} up to {top:.3g} m tall (elevation.max + size) does not fit under the "
+                          f"lowest ceiling ({h_min} m) minus objects.min_gap ({gap} m)")
             if ex + 2 * gap > dims[0] or ey + 2 * gap > dims[1]:
                 where = ("room.depth.min × room.length.min" if reg_name == "room"
-                         else f"{field}.placement.corridor_end.depth × corridor.width.min")
+                         else f"{field}.placement.corridor_end.depth − min_depth × corridor.width.min")
                 _fail(dist, f"{field}.size", f"the largest {cls_name} footprint ({sx} × {sy} m, best yaw: "
                       f"{ex:.3g} × {ey:.3g} m, + 2 × min_gap {gap} m) does not fit the smallest {reg_name} "
                       f"region ({where} = {dims[0]:.3g} × {dims[1]:.3g} m)")
@@ -508,7 +524,7 @@ def check_feasible(dist: RoomDistribution) -> None:
         area = sum(region_area.values())
         total = sum(need.values())
         if total > PACKING_LIMIT * area:
-            _fail(dist, "objects", f"room too small: up to {obj.pillar.count.max} pillars and "
-                  f"{obj.box.count.max} boxes need {total:.3g} m² of floor (largest sizes + min_gap), more than "
-                  f"{PACKING_LIMIT:.0%} of the {area:.3g} m² the smallest room offers; lower "
+            _fail(dist, "objects", f"room too small: up to {obj.pillar.count.max} pillars, {obj.box.count.max} "
+                  f"boxes and {obj.mesh.count.max} meshes need {total:.3g} m² of floor (largest sizes + min_gap), "
+                  f"more than {PACKING_LIMIT:.0%} of the {area:.3g} m² the smallest room offers; lower "
                   "objects.*.count.max or sizes, or enlarge room.depth.min / room.length.min")

@@ -8,11 +8,12 @@ generators (docs/physics.md §7):
   moves the geometry of a sample (nor the material of another class);
 - ``sensor``: emitter, sensor, laser spot and FoV placement.
 
-Constraints on hidden objects, all checked exactly on oriented boxes (OBBs, rotated about z) inflated by
-``objects.min_gap``: inside their placement region (the L-room proper, or the corridor end in front of
+Constraints on hidden objects, all checked exactly on oriented boxes (OBBs, rotated about z; a mesh's tight box)
+inflated by ``objects.min_gap``: inside their placement region (the L-room proper, or the corridor end in front of
 the relay wall), under the ceiling, no two overlapping (separating-axis test), none touching the laser beam
-(segment emitter→spot) nor the sensor's view of the FoV (the pyramid with apex at the sensor and the FoV
-rectangle as base); the separating-axis tests are :mod:`datagen.dataset.obb`'s.
+(segment emitter→spot; for a scan the pyramid emitter → laser rectangle) nor the sensor's view of the FoV (the
+pyramid with apex at the sensor and the FoV or sensor-grid rectangle as base); the separating-axis tests are
+:mod:`datagen.dataset.obb`'s.
 
 World frame right-handed, z up, metres; yaw in degrees about +z (counter-clockwise seen from above).
 """
@@ -24,12 +25,24 @@ from typing import Mapping
 
 import numpy as np
 
-from ..scene import ROOM_LABELS, FieldOfView, Laser, Scene, SceneError, Sensor, box, l_room, pillar
+from ..scene import (ROOM_LABELS, FieldOfView, Laser, Scene, SceneError, SceneObject, Sensor, box, l_room, pillar,
+                     quad)
+from .assets import asset_box, asset_files, load_asset, place_asset
 from .obb import box_hits_pyramid, box_hits_segment, boxes_overlap
-from .rooms import OBJECT_CLASSES, UNIFORMS_PER_MATERIAL, ObjectDist, PointDist, Range, RoomDistribution
+from .rooms import (OBJECT_CLASSES, UNIFORMS_PER_MATERIAL, MeshObjectDist, ObjectDist, PointDist, Range,
+                    RoomDistribution)
+from .scan import draw_scan, rectangle_corners, scan_capture
 
 STREAMS = ("geometry", "materials", "sensor")
 """Keys of the generator mapping :func:`sample_room` takes."""
+
+OBJECT_KEYS = ("class", "name", "region", "center", "size", "yaw_deg", "material")
+"""Keys of every hidden object's record (``center``, ``size``, ``yaw_deg``: its oriented bounding box)."""
+
+MESH_KEYS = ("asset", "asset_index", "scale", "tilt_deg", "tilt_axis_deg", "transform")
+"""Extra keys of a mesh object: the asset file (absolute path), its index in the distribution's sorted asset
+list, the size (longest side of its bounding box, m), the tilt and its axis azimuth (degrees) and the (4, 4)
+file → world transform (row-major; :func:`datagen.dataset.assets.place_asset`)."""
 
 
 @dataclass
@@ -39,13 +52,15 @@ class SampledRoom:
     Attributes:
         scene: ready for :func:`datagen.simulate`.
         params: JSON-able record of every sampled parameter: ``room`` (relay_x, corridor_start,
-            corridor_length, corridor_width, room_depth, room_length, ceiling, bend_side, closed_end),
-            ``materials`` (per room label), ``laser`` (emitter, spot, pulse), ``sensor`` (position,
-            aperture_radius, fov center/size/pixels), ``objects`` (as :attr:`objects`), ``label_region``
+            corridor_length, corridor_width, room_depth, room_length, ceiling, bend_side, closed_end; ``family``
+            when not "l_room"), ``materials`` (per room label), ``laser`` (emitter, spot, pulse), ``sensor``
+            (position, aperture_radius, fov center/size/pixels or None, and ``scan``: type, convention,
+            laser_grid, sensor_grid, for scanned captures), ``objects`` (as :attr:`objects`), ``label_region``
             (origin, size) and ``layout_tries``.
-        objects: one dict per hidden object: class ("box"|"pillar"), name, region ("room"|"corridor_end"),
-            center [x, y, z] m, size [dx, dy, dz] m (a pillar's dz is the ceiling height), yaw_deg, and
-            material (:class:`~datagen.scene.materials.Material` fields).
+        objects: one dict per hidden object: class ("box"|"pillar"|"mesh"), name, region ("room"|"corridor_end"),
+            center [x, y, z] m, size [dx, dy, dz] m (its oriented bounding box; a pillar's dz is the ceiling
+            height), yaw_deg, material (:class:`~datagen.scene.materials.Material` fields), and for meshes the
+            :data:`MESH_KEYS`.
     """
 
     scene: Scene
@@ -64,20 +79,27 @@ class _Layout:
         self.rect = {"room": (x_room, x1, min(y_a, y_b), max(y_a, y_b))}
         self.x1, self.w = x1, w
         self.emitter = np.array(capture["emitter"])
-        self.spot = np.array(capture["spot"])
         self.sensor = np.array(capture["sensor"])
-        self.fov_corners = np.array(capture["fov_corners"])
+        scan = capture.get("scan")
+        if scan is None:
+            self.spot, self.beam_base = np.array(capture["spot"]), None
+            self.fov_corners = np.array(capture["fov_corners"])
+        else:   # the beams sweep the pyramid emitter → laser rectangle; the sensor views its grid's rectangle
+            self.spot, self.beam_base = None, np.array(rectangle_corners(scan["laser_grid"]))
+            self.fov_corners = np.array(rectangle_corners(scan["sensor_grid"] or scan["laser_grid"]))
 
-    def region(self, name: str, depth: float) -> tuple[float, float, float, float]:
+    def region(self, name: str, depth: float, min_depth: float = 0.0) -> tuple[float, float, float, float]:
         if name == "room":
             return self.rect["room"]
-        return (self.x1 - min(depth, self.room["corridor_length"]), self.x1, -self.w / 2, self.w / 2)
+        return (self.x1 - min(depth, self.room["corridor_length"]), self.x1 - min_depth, -self.w / 2, self.w / 2)
 
     def reject_reason(self, obj: dict, placed: list[dict]) -> str | None:
         g = self.gap
         if any(boxes_overlap(obj, o, g) for o in placed):
             return "overlap"
-        if box_hits_segment(obj, self.emitter, self.spot, g):
+        if self.beam_base is None and box_hits_segment(obj, self.emitter, self.spot, g):
+            return "laser_beam"
+        if self.beam_base is not None and box_hits_pyramid(obj, self.emitter, self.beam_base, g):
             return "laser_beam"
         if box_hits_pyramid(obj, self.sensor, self.fov_corners, g):
             return "fov_view"
@@ -94,11 +116,29 @@ def _sample_point(rng: np.random.Generator, p: PointDist, length: float, w: floa
             _uniform(rng, p.height)]
 
 
+def _check_aperture(dist: RoomDistribution, sensor, center, corners, field: str) -> None:
+    """SceneError when a corner of the imaged rectangle lies behind the sensor's aperture plane (the aperture
+    faces the rectangle's centre, docs/physics.md §2: cos θ_ap ≤ 0 there, so part of it would be black)."""
+    s, c = np.asarray(sensor, float), np.asarray(center, float)
+    behind = [q for q in corners if float(np.dot(np.asarray(q) - s, c - s)) <= 0]
+    if behind:
+        raise SceneError(f"{dist.source or 'room distribution'}: {field}: the sensor at "
+                         f"{np.round(s, 3).tolist()} sees the rectangle corner {np.round(behind[0], 3).tolist()} "
+                         "behind its aperture plane (the aperture faces the rectangle's centre); move "
+                         "capture.sensor (or the emitter it follows) farther from the wall or nearer the "
+                         "rectangle's centre line")
+
+
 def _sample_capture(dist: RoomDistribution, room: dict, rng: np.random.Generator) -> dict:
     cap, m = dist.capture, dist.capture.edge_margin
     x1, w, h, length = room["relay_x"], room["corridor_width"], room["ceiling"], room["corridor_length"]
     emitter = _sample_point(rng, cap.emitter, length, w, m, x1)
     sensor = list(emitter) if cap.sensor is None else _sample_point(rng, cap.sensor, length, w, m, x1)
+    if cap.scan is not None:
+        scan = draw_scan(cap.scan, rng, x1, w, h, m)
+        grid = scan["sensor_grid"] or scan["laser_grid"]
+        _check_aperture(dist, sensor, grid["center"], rectangle_corners(grid), "capture.scan")
+        return {"emitter": emitter, "sensor": sensor, "spot": scan["laser_grid"]["center"], "scan": scan}
     spot = [x1, _uniform(rng, cap.spot.lateral) * (w / 2 - m), _uniform(rng, cap.spot.height)]
     fw, fh = _uniform(rng, cap.fov.width), _uniform(rng, cap.fov.height)
     cy = float((rng.random() - 0.5) * (w - 2 * m - fw))          # |cy| <= (w - 2m - fw)/2
@@ -109,33 +149,47 @@ def _sample_capture(dist: RoomDistribution, room: dict, rng: np.random.Generator
             "fov_corners": corners}
 
 
-def _sample_object(rng: np.random.Generator, cls_name: str, cls: ObjectDist, layout: _Layout,
+def _mesh_shape(rng: np.random.Generator, cls: MeshObjectDist) -> tuple[dict, tuple[float, float, float]]:
+    """Asset (uniform over the files), size, tilt and tilt axis of one mesh object; its box size (3,)."""
+    files = asset_files(tuple(cls.assets))
+    index = int(rng.integers(len(files)))
+    size, tilt, axis = _uniform(rng, cls.size), _uniform(rng, cls.tilt_deg), float(rng.random() * 360.0)
+    box_size, _ = asset_box(load_asset(files[index]), size, tilt, axis)
+    shape = {"asset": files[index], "asset_index": index, "scale": size, "tilt_deg": tilt, "tilt_axis_deg": axis}
+    return shape, tuple(float(v) for v in box_size)
+
+
+def _sample_object(rng: np.random.Generator, cls_name: str, cls: ObjectDist | MeshObjectDist, layout: _Layout,
                    ceiling: float, gap: float) -> tuple[dict | None, str]:
     regions = cls.placement.regions()
     weights = np.array([r.weight for _, r in regions])
     k = min(int(np.searchsorted(np.cumsum(weights) / weights.sum(), rng.random(), side="right")),
             len(regions) - 1)
     reg_name, reg = regions[k]
-    sx = _uniform(rng, cls.size.x)
-    sy = sx if cls.cube else _uniform(rng, cls.size.y)
+    extra: dict = {}
+    if cls_name == "mesh":
+        extra, (sx, sy, sz) = _mesh_shape(rng, cls)
+    else:
+        sx = _uniform(rng, cls.size.x)
+        sy = sx if cls.cube else _uniform(rng, cls.size.y)
     if cls_name == "pillar":
         sz = ceiling
-    else:
+    elif cls_name == "box":
         sz = sx if cls.cube else _uniform(rng, cls.size.z)
     yaw = _uniform(rng, cls.yaw_deg)
     elevation = 0.0 if cls_name == "pillar" else _uniform(rng, reg.elevation)
     u_x, u_y = rng.random(), rng.random()
-    x0, x1, y0, y1 = layout.region(reg_name, getattr(reg, "depth", 0.0))
+    x0, x1, y0, y1 = layout.region(reg_name, getattr(reg, "depth", 0.0), getattr(reg, "min_depth", 0.0))
     a = math.radians(yaw)
     ex = abs(math.cos(a)) * sx / 2 + abs(math.sin(a)) * sy / 2 + gap
     ey = abs(math.sin(a)) * sx / 2 + abs(math.cos(a)) * sy / 2 + gap
     if x1 - x0 < 2 * ex or y1 - y0 < 2 * ey:
         return None, "region_too_small"
-    if cls_name == "box" and elevation + sz > ceiling - gap:
+    if cls_name != "pillar" and elevation + sz > ceiling - gap:
         return None, "ceiling"
     center = [x0 + ex + u_x * (x1 - x0 - 2 * ex), y0 + ey + u_y * (y1 - y0 - 2 * ey), elevation + sz / 2]
     return {"class": cls_name, "region": reg_name, "center": [float(v) for v in center],
-            "size": [float(sx), float(sy), float(sz)], "yaw_deg": float(yaw)}, ""
+            "size": [float(sx), float(sy), float(sz)], "yaw_deg": float(yaw), **extra}, ""
 
 
 def _sample_layout(dist: RoomDistribution, layout: _Layout, room: dict,
@@ -143,7 +197,9 @@ def _sample_layout(dist: RoomDistribution, layout: _Layout, room: dict,
     obj = dist.objects
     n_pillars = int(rng.integers(obj.pillar.count.min, obj.pillar.count.max + 1))
     n_boxes = int(rng.integers(obj.box.count.min, obj.box.count.max + 1))
-    wanted = [("pillar", obj.pillar)] * n_pillars + [("box", obj.box)] * n_boxes
+    # drawn only when meshes can occur, so distributions without them keep their geometry stream
+    n_meshes = int(rng.integers(obj.mesh.count.min, obj.mesh.count.max + 1)) if obj.mesh.count.max > 0 else 0
+    wanted = [("pillar", obj.pillar)] * n_pillars + [("box", obj.box)] * n_boxes + [("mesh", obj.mesh)] * n_meshes
     reasons: dict[str, int] = {}
     tries = 0
     for _ in range(obj.max_layouts):
@@ -163,7 +219,8 @@ def _sample_layout(dist: RoomDistribution, layout: _Layout, room: dict,
         else:
             return placed, tries
     detail = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
-    raise SceneError(f"{dist.source or 'room distribution'}: objects: could not place {n_pillars} pillars and "
+    meshes = f", {n_meshes} meshes" if n_meshes else ""
+    raise SceneError(f"{dist.source or 'room distribution'}: objects: could not place {n_pillars} pillars{meshes} and "
                      f"{n_boxes} boxes in a {room['room_depth']:.3g} × {room['room_length']:.3g} m room after "
                      f"{obj.max_layouts} layouts × {obj.max_tries} tries per object; rejections by constraint: "
                      f"{detail}. Lower objects.*.count.max or sizes, or raise objects.max_tries")
@@ -194,6 +251,8 @@ def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator])
             "corridor_length": length, "corridor_width": width, "room_depth": _uniform(g, dist.room.depth),
             "room_length": _uniform(g, dist.room.length), "ceiling": _uniform(g, dist.ceiling),
             "bend_side": side, "closed_end": dist.corridor.closed_end}
+    if dist.family != "l_room":
+        room["family"] = dist.family
     capture = _sample_capture(dist, room, ss)
     layout = _Layout(room, capture, dist.objects.min_gap)
     objects, tries = _sample_layout(dist, layout, room, g)
@@ -201,8 +260,12 @@ def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator])
     mats = dist.materials
     room_mats = {label: getattr(mats, label).draw(ms.random(UNIFORMS_PER_MATERIAL)) for label in ROOM_LABELS}
     counters = {c: 0 for c in OBJECT_CLASSES}
-    scene_objects = l_room(room["relay_x"], room["corridor_start"], width, room["room_depth"],
-                           room["room_length"], room["ceiling"], side, room["closed_end"], room_mats)
+    if dist.family == "wall":   # the relay wall alone: the corridor end's w × ceiling rectangle
+        scene_objects = [quad("relay_wall", (room["relay_x"], -width / 2, 0.0), (0.0, width, 0.0),
+                              (0.0, 0.0, room["ceiling"]), room_mats["relay_wall"], "relay_wall")]
+    else:
+        scene_objects = l_room(room["relay_x"], room["corridor_start"], width, room["room_depth"],
+                               room["room_length"], room["ceiling"], side, room["closed_end"], room_mats)
     for o in objects:
         material = getattr(mats, o["class"]).draw(ms.random(UNIFORMS_PER_MATERIAL))
         o["name"] = f"{o['class']}_{counters[o['class']]}"
@@ -211,24 +274,35 @@ def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator])
         if o["class"] == "pillar":
             scene_objects.append(pillar(o["name"], tuple(o["center"][:2]), tuple(o["size"][:2]), o["size"][2],
                                         o["yaw_deg"], material))
+        elif o["class"] == "mesh":
+            asset = load_asset(o["asset"])
+            vertices, transform = place_asset(asset, o["scale"], o["tilt_deg"], o["tilt_axis_deg"], o["center"],
+                                              o["yaw_deg"])
+            o["transform"] = transform.tolist()
+            scene_objects.append(SceneObject(o["name"], "mesh", material, vertices, asset.faces))
         else:
             scene_objects.append(box(o["name"], tuple(o["center"]), tuple(o["size"]), o["yaw_deg"], material))
-    objects = [{k: o[k] for k in ("class", "name", "region", "center", "size", "yaw_deg", "material")}
-               for o in objects]
+    objects = [{k: o[k] for k in OBJECT_KEYS + (MESH_KEYS if o["class"] == "mesh" else ())} for o in objects]
 
     cap = dist.capture
     laser = Laser(emitter=tuple(capture["emitter"]), spot=tuple(capture["spot"]), **cap.laser_settings())
-    fov = FieldOfView(center=tuple(capture["fov_center"]), size=tuple(capture["fov_size"]), pixels=cap.fov.pixels)
+    scan = capture.get("scan")
+    if scan is None:
+        fov = FieldOfView(center=tuple(capture["fov_center"]), size=tuple(capture["fov_size"]),
+                          pixels=cap.fov.pixels)
+        fov_params = {"center": capture["fov_center"], "size": capture["fov_size"], "pixels": list(cap.fov.pixels)}
+    else:
+        fov = fov_params = None
     sensor = Sensor(position=tuple(capture["sensor"]), aperture_radius=cap.aperture_radius, fov=fov)
-    scene = Scene(scene_objects, laser, sensor, name=dist.name, source=None, defaults=dict(dist.simulation))
+    scene = Scene(scene_objects, laser, sensor, name=dist.name, source=None, defaults=dict(dist.simulation),
+                  capture=None if scan is None else scan_capture(scan))
     origin, size = dist.label_box()
     params = {
         "room": room,
         "materials": {label: m.model_dump(mode="json") for label, m in room_mats.items()},
         "laser": {"emitter": capture["emitter"], "spot": capture["spot"], **cap.laser_settings()},
-        "sensor": {"position": capture["sensor"], "aperture_radius": cap.aperture_radius,
-                   "fov": {"center": capture["fov_center"], "size": capture["fov_size"],
-                           "pixels": list(cap.fov.pixels)}},
+        "sensor": {"position": capture["sensor"], "aperture_radius": cap.aperture_radius, "fov": fov_params,
+                   **({"scan": scan} if scan is not None else {})},
         "objects": objects,
         "label_region": {"origin": origin.tolist(), "size": size.tolist()},
         "layout_tries": tries,

@@ -50,7 +50,7 @@ UNITS = {"envelope": "expected detected photons per laser pulse per bin",
          "components": "expected detected photons per laser pulse per bin, per component",
          "counts": "SPAD detections over the exposure (int64)",
          "time_edges": "s", "depth": "m", "object_center": "m", "object_size": "m", "object_yaw": "rad",
-         "occupancy_origin": "m", "occupancy_pitch": "m", "params": "JSON"}
+         "occupancy_origin": "m", "occupancy_pitch": "m", "params": "JSON", "wall_depth": "m"}
 
 
 MISSED_LISTED = 1000
@@ -246,9 +246,10 @@ def probe_fields(probe: Sample) -> dict[str, tuple[tuple[int, ...], str]]:
 
 
 def create_arrays(root, config: DatasetConfig, fields: dict[str, tuple[tuple[int, ...], str]],
-                  time_edges: np.ndarray, component_names: list[str]) -> dict:
+                  time_edges: np.ndarray, component_names: list[str],
+                  axes: dict[str, list[str]] | None = None) -> dict:
     """Create every split group and array: ``fields`` (name → (sample shape, dtype), :func:`probe_fields`),
-    ``time_edges`` (T+1,) s, ``component_names`` (attribute of ``components``). ``root`` is the dataset
+    ``time_edges`` (T+1,) s, ``component_names`` (attribute of ``components``), ``axes`` (field → axis names). ``root`` is the dataset
     directory or an open zarr group (the expected metadata of :mod:`datagen.dataset.integrity` is built in
     memory with the same calls). Returns the card's ``splits`` entry."""
     zarr = zarr_module()
@@ -269,17 +270,21 @@ def create_arrays(root, config: DatasetConfig, fields: dict[str, tuple[tuple[int
             attrs = {"units": UNITS[name]} if name in UNITS else {}
             if name == "components":
                 attrs["component_names"] = list(component_names)
+            if axes and name in axes:               # axis order of scans and wall views (docs/datasets.md)
+                attrs["axes"] = list(axes[name])
             g.create_array(name, shape=(spec.count,) + shape, chunks=(1,) + shape,
                            shards=(config.shard_size,) + shape, dtype=str if is_str else np.dtype(dtype),
                            fill_value="" if is_str else 0, compressors=[ZstdCodec(level=3)] if is_str else numeric,
                            config={"write_empty_chunks": True}, attributes=attrs)
-    return split_entries(config, fields)
+    return split_entries(config, fields, axes)
 
 
-def split_entries(config: DatasetConfig, fields: dict[str, tuple[tuple[int, ...], str]]) -> dict:
+def split_entries(config: DatasetConfig, fields: dict[str, tuple[tuple[int, ...], str]],
+                  axes: dict[str, list[str]] | None = None) -> dict:
     """The card's ``splits`` entry: per split its count, split key, shard count and the per-sample ``fields``
-    (shape, dtype ``"str"`` or a numpy dtype string)."""
-    out = {name: {"shape": list(shape), "dtype": "str" if dtype == "str" else np.dtype(dtype).str}
+    (shape, dtype ``"str"`` or a numpy dtype string, and the axis names of scans and wall views, ``axes``)."""
+    out = {name: {"shape": list(shape), "dtype": "str" if dtype == "str" else np.dtype(dtype).str,
+                  **({"axes": list(axes[name])} if axes and name in axes else {})}
            for name, (shape, dtype) in fields.items()}
     return {split: {"count": spec.count, "split_key": split_key(split),
                     "n_shards": -(-spec.count // config.shard_size), "fields": {k: dict(v) for k, v in out.items()}}

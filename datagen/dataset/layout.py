@@ -1,0 +1,94 @@
+"""The reconstruction networks' tensor layout of a scanned sample (``NLOSDataset(..., layout="network")``).
+
+LFE, NLOST, LEAP and Mu et al. feed a scan as a (1, T, H, W) float tensor (channel, time, scan rows, scan
+columns) and their labels as (1, H, W) images. :func:`network_shapes` checks a split's stored fields and gives
+their network shapes; :func:`to_network` moves the axes of one sample (numpy, before the tensors are made):
+
+- ``envelope``, ``counts``: stored (H, W, T) for confocal scans and sensor grids → (1, T, H, W) float32; an
+  exhaustive scan with one sensor point, (Ly, Lx, 1, 1, T) → (1, T, Ly, Lx). Other shapes (the paper's single
+  pixel (T,), exhaustive scans with a sensor grid) have no such layout and are refused.
+- ``components`` (C, H, W, T) → (C, T, H, W) float32.
+- ``wall_depth``, ``wall_albedo`` (H, W) → (1, H, W); ``wall_normal`` (H, W, 3) → (3, H, W); ``wall_mask``
+  (K, H, W) unchanged.
+
+Row h grows up the relay wall and column w along its horizontal tangent (docs/datasets.md, "Scanned captures"),
+for the scan and the wall-view labels alike: pixel (h, w) of a label belongs to scan point (h, w).
+:func:`axis_names` names the axes of the stored per-sample arrays (recorded in the card and on each array).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+SCAN_FIELDS = ("envelope", "counts")
+
+
+def axis_names(name: str, ndim: int, capture_kind: str | None) -> list[str] | None:
+    """Axis names of stored field ``name`` (per sample, ``ndim`` axes) for a capture of ``capture_kind``
+    (``"confocal"``, ``"exhaustive"``, ``"single"`` with a sensor grid; None: the paper's single pixel, whose
+    (T,) arrays need no names). ``*_y`` axes grow up the relay wall (v), ``*_x`` along its horizontal tangent
+    u = n × z; None for fields without names."""
+    lead = {"confocal": ["scan_y", "scan_x"], "exhaustive": ["laser_y", "laser_x", "sensor_y", "sensor_x"],
+            "single": ["pixel_y", "pixel_x"]}.get(capture_kind or "", [])
+    if name in ("envelope", "counts"):
+        return lead + ["time"] if lead and ndim == len(lead) + 1 else None
+    if name == "components":
+        inner = axis_names("envelope", ndim - 1, capture_kind)
+        return None if inner is None else ["component"] + inner
+    view = {"wall_depth": ["view_y", "view_x"], "wall_albedo": ["view_y", "view_x"],
+            "wall_normal": ["view_y", "view_x", "xyz"], "wall_mask": ["object", "view_y", "view_x"]}
+    return view.get(name)
+
+
+def _scan_shape(shape: tuple[int, ...]) -> tuple[int, int] | None:
+    """(H, W) of a stored per-sample scan shape, or None when it has no (1, T, H, W) layout."""
+    if len(shape) == 3:
+        return shape[0], shape[1]
+    if len(shape) == 5 and shape[2:4] == (1, 1):
+        return shape[0], shape[1]
+    return None
+
+
+def network_shapes(fields: dict[str, dict]) -> dict[str, tuple[int, ...]]:
+    """Network shape of every stored field of a split (the card's ``splits[s]["fields"]``: name → {shape, ...}).
+
+    Raises:
+        ValueError: the scan (envelope or counts) has no (1, T, H, W) layout, naming its shape.
+    """
+    out = {}
+    for name in SCAN_FIELDS:
+        if name in fields:
+            shape = tuple(fields[name]["shape"])
+            hw = _scan_shape(shape)
+            if hw is None:
+                raise ValueError(f"layout='network' needs a scanned capture (stored {name} (H, W, T) or an "
+                                 f"exhaustive scan with one sensor point), got {name} of shape {shape}")
+            out[name] = (1, shape[-1]) + hw
+    if "components" in fields:
+        shape = tuple(fields["components"]["shape"])
+        out["components"] = (shape[0], shape[-1]) + _scan_shape(shape[1:])
+    for name, channels in (("wall_depth", 1), ("wall_albedo", 1), ("wall_normal", 3)):
+        if name in fields:
+            out[name] = (channels,) + tuple(fields[name]["shape"][:2])
+    return out
+
+
+def to_network(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """One sample's arrays in the network layout (module doc); other fields are returned unchanged."""
+    out = dict(arrays)
+    for name in SCAN_FIELDS:
+        if name in arrays:
+            a = np.asarray(arrays[name])
+            h, w = _scan_shape(a.shape)
+            out[name] = np.ascontiguousarray(np.moveaxis(a.reshape(h, w, a.shape[-1]), -1, 0)[None],
+                                             dtype=np.float32)
+    if "components" in arrays:
+        c = np.asarray(arrays["components"])
+        h, w = _scan_shape(c.shape[1:])
+        out["components"] = np.ascontiguousarray(np.moveaxis(c.reshape(len(c), h, w, c.shape[-1]), -1, 1),
+                                                 dtype=np.float32)
+    for name in ("wall_depth", "wall_albedo"):
+        if name in arrays:
+            out[name] = np.asarray(arrays[name])[None]
+    if "wall_normal" in arrays:
+        out["wall_normal"] = np.ascontiguousarray(np.moveaxis(np.asarray(arrays["wall_normal"]), -1, 0))
+    return out
