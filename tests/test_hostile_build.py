@@ -90,9 +90,11 @@ REFUSED = {   # case: (config edit or None, extra CLI args, what the message nam
     "tasks-per-worker 0": (None, ["--tasks-per-worker", "0"], "--tasks-per-worker must be an integer >= 1"),
     "workers -1": (None, ["--workers", "-1"], "--workers must be an integer >= 0, got -1"),
     "scheduler not an address": (None, ["--scheduler", "foo"], "--scheduler must be 'local' or an address"),
-    "lookins too many": (lambda d: d["simulation"].update(lookins="100000x100000"), [], "lookins 100000x100000"),
+    "lookins too many": (lambda d: d["simulation"].update(estimator="lookin", lookins="100000x100000"), [],
+                         "lookins 100000x100000"),
     "exposure 1e12 s": (lambda d: d["detector"].update(exposure="1e12s"), [], "detector"),
     "shard_size huge": (lambda d: d.update(shard_size=10**9), [], "shard_size 1000000000"),
+    "area_samples too many": (lambda d: d["simulation"].update(area_samples=10**13), [], "area_samples"),
 }
 
 
