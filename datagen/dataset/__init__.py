@@ -20,7 +20,7 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.labels`: ground-truth labels (:class:`LabelSpec`, :func:`scene_labels`);
 - :mod:`~datagen.dataset.store`: the dataset's on-disk layout, build lock, card and verification;
 - :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
-- :mod:`~datagen.dataset.loader`: :class:`NLOSDataset` and :func:`plot_sample` (import torch and matplotlib
+- :mod:`~datagen.dataset.loader`: :class:`NLOSDataset`, :class:`BatchNoise` and :func:`plot_sample` (import torch and matplotlib
   on first use: ``import datagen.dataset`` stays light).
 """
 from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildReport, build_dataset,
@@ -59,13 +59,14 @@ __all__ = [
     # build
     "DEFAULT_RETRIES", "DEFAULT_TASKS_PER_CHILD", "BuildError", "BuildReport", "build_dataset", "write_shard",
     # loader (lazy)
-    "NLOSDataset", "plot_sample",
+    "NLOSDataset", "BatchNoise", "plot_sample",
 ]
 
 
 def __getattr__(name: str):
-    """``NLOSDataset`` and ``plot_sample`` import torch on first use only (``import datagen.dataset`` stays light)."""
-    if name in ("NLOSDataset", "plot_sample"):
+    """``NLOSDataset``, ``BatchNoise`` and ``plot_sample`` import torch on first use only (``import datagen.dataset``
+    stays light)."""
+    if name in ("NLOSDataset", "BatchNoise", "plot_sample"):
         from . import loader
         return getattr(loader, name)
     raise AttributeError(f"module 'datagen.dataset' has no attribute {name!r}")
