@@ -10,9 +10,13 @@ Measures, in one process with one torch thread, repetitions interleaved, medians
 1. noise cost per sample (CPU time, ``time.process_time``): the loader's re-draw, ``NLOSDataset(noise=
    "resample")[i]`` minus ``NLOSDataset(noise="frozen")[i]`` for the counts field (numpy: rates, the pile-up
    tree sampler, the per-item generator), against ``SPADNoise`` on batches of 64 and 256 of the same envelopes;
-2. a training loop (the baseline network of ``examples/train_single_pixel.py``, batch 64, AdamW) over in-memory
-   data, wall time per epoch: frozen stored counts against counts drawn per batch with ``SPADNoise`` on the
-   training device (here the CPU). Both read the same tensors, so the difference is the noise alone.
+2. a training loop (the baseline network of ``examples/train_single_pixel.py``, batch 64, AdamW, one torch
+   thread) over in-memory data, CPU and wall time per epoch: frozen stored counts against counts drawn per
+   batch with ``SPADNoise`` in the loop (the training device, here the CPU). Both read the same tensors, so the
+   difference is the noise alone;
+3. the same network fed by ``DataLoader(num_workers=2, batch_size=64, persistent_workers=True)``, wall time per
+   epoch: frozen counts, today's per-item re-draw (``noise="resample"``), ``SPADNoise`` in the loop, and
+   ``SPADNoise`` in the workers (``datagen.dataset.BatchNoise`` as ``collate_fn``).
 The machine is shared with other jobs: ratios measured in one run are the result, not the absolute times.
 """
 from __future__ import annotations
@@ -30,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import datagen  # noqa: E402
-from datagen.dataset import SplitSpec, build_dataset, load_dataset_config  # noqa: E402
+from datagen.dataset import BatchNoise, SplitSpec, build_dataset, load_dataset_config  # noqa: E402
 from examples.train_single_pixel import Net  # noqa: E402
 
 
@@ -126,6 +130,43 @@ def main():
         for name, values in loop.items():
             cpu, wall = statistics.median(c for c, _ in values), statistics.median(w for _, w in values)
             print(f"{name:30s} {cpu:12.3f} {cpu / ref_cpu - 1:+9.1%} {wall:13.3f} {wall / ref_wall - 1:+9.1%}")
+        def loader_epoch(loader, make_x) -> float:
+            t0 = time.perf_counter()
+            for _ in range(2):
+                for batch in loader:
+                    loss = net(make_x(batch)).square().mean()
+                    opt.zero_grad()
+                    loss.backward()
+                    opt.step()
+            return (time.perf_counter() - t0) / 2
+
+        def dl(ds, **kw):
+            return torch.utils.data.DataLoader(ds, batch_size=64, shuffle=True, num_workers=2,
+                                               persistent_workers=True, **kw)
+
+        env_ds = datagen.NLOSDataset(path, fields=("envelope",))
+        modes = {
+            "frozen counts": (dl(frozen), lambda b: (torch.log1p(b["counts"].double()) / scale).float()[:, None]),
+            "per-item re-draw (workers)": (dl(resample),
+                                           lambda b: (torch.log1p(b["counts"].double()) / scale).float()[:, None]),
+            "SPADNoise in the loop": (dl(env_ds), lambda b: (torch.log1p(noise(b["envelope"], gen)) / scale)
+                                      .float()[:, None]),
+            "SPADNoise in the workers": (dl(env_ds, collate_fn=BatchNoise(noise, seed=1)),
+                                         lambda b: (torch.log1p(b["counts"]) / scale).float()[:, None]),
+        }
+        walls = {name: [] for name in modes}
+        for name, (loader, make_x) in modes.items():
+            loader_epoch(loader, make_x)       # start the workers, warm up
+        for rep in range(args.reps):
+            for name, (loader, make_x) in modes.items():
+                walls[name].append(loader_epoch(loader, make_x))
+        ref = statistics.median(walls["frozen counts"])
+        print(f"\nthe same loop fed by DataLoader(num_workers=2, batch_size=64), wall time per epoch, median of "
+              f"{args.reps}")
+        print(f"{'':30s} {'wall s/epoch':>13s} {'vs frozen':>10s}")
+        for name, values in walls.items():
+            med = statistics.median(values)
+            print(f"{name:30s} {med:13.3f} {med / ref - 1:+9.1%}")
         print("\n(machine shared with other jobs: compare the ratios, not the absolute times)")
 
 

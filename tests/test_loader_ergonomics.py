@@ -206,3 +206,24 @@ def test_cli_build_splits_cuts_the_config_to_a_prefix(tmp_path):
     for bad, text in (("tran=3", "no split 'tran'"), ("train=x", "NAME=COUNT"), ("train=-1", ">= 0")):
         result = CliRunner().invoke(main, ["build", str(SMOKE), "--out", str(tmp_path / "x"), "--splits", bad])
         assert result.exit_code == 2 and text in result.output and result.output.count("\n") == 1, result.output
+
+
+def test_batch_noise_in_the_workers_repeats_and_keeps_the_mean(lz4_path):
+    from datagen.dataset import BatchNoise
+
+    ds = datagen.NLOSDataset(lz4_path, fields=("envelope", "object_count"))
+
+    def epoch(seed):
+        loader = torch.utils.data.DataLoader(ds, batch_size=3, num_workers=2,
+                                             collate_fn=BatchNoise(ds.spad_noise(), seed=seed))
+        return list(loader)
+
+    a, b, c = epoch(1), epoch(1), epoch(2)
+    assert a[0]["counts"].shape == (3, 256) and a[0]["counts"].dtype == torch.float32
+    assert a[0]["cycles"].tolist() == [100_000.0] * 3 and a[0]["object_count"].shape == (3,)
+    assert all(torch.equal(x["counts"], y["counts"]) for x, y in zip(a, b))
+    assert not torch.equal(a[0]["counts"], c[0]["counts"]) and not torch.equal(a[0]["counts"], a[1]["counts"][:3])
+    expected = ds.spad_noise().expected(torch.cat([x["envelope"] for x in a])).sum(-1)
+    drawn = torch.cat([x["counts"] for x in a + c]).sum(-1).double().view(2, -1)
+    z = (drawn.mean(0) - expected) / torch.sqrt(expected / 2)      # totals: variance at most the mean (pile-up)
+    assert z.abs().max() < 4

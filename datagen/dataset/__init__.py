@@ -32,8 +32,8 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
 - :mod:`~datagen.dataset.sample_scene`: :func:`scene_of_sample`, a built sample's room drawn again from the
   card (``datagen view``, ``datagen inspect``);
-- :mod:`~datagen.dataset.loader`: :class:`NLOSDataset` and :func:`plot_sample` (import torch and matplotlib
-  on first use: ``import datagen.dataset`` stays light);
+- :mod:`~datagen.dataset.loader`: :class:`NLOSDataset`, :class:`BatchNoise` and :func:`plot_sample` (import
+  torch and matplotlib on first use: ``import datagen.dataset`` stays light);
 - :mod:`~datagen.dataset.layout`: the networks' (1, T, H, W) layout of scans (``NLOSDataset(layout="network")``)
   and the axis names the card records;
 - :mod:`~datagen.dataset.export`: one stored sample as a simulation result with its wall grids (``datagen
@@ -82,13 +82,14 @@ __all__ = [
     # build
     "DEFAULT_RETRIES", "DEFAULT_TASKS_PER_CHILD", "BuildError", "BuildReport", "build_dataset", "write_shard",
     # loader (lazy)
-    "NLOSDataset", "plot_sample",
+    "NLOSDataset", "BatchNoise", "plot_sample",
 ]
 
 
 def __getattr__(name: str):
-    """``NLOSDataset`` and ``plot_sample`` import torch on first use only (``import datagen.dataset`` stays light)."""
-    if name in ("NLOSDataset", "plot_sample"):
+    """``NLOSDataset``, ``BatchNoise`` and ``plot_sample`` import torch on first use only (``import datagen.dataset``
+    stays light)."""
+    if name in ("NLOSDataset", "BatchNoise", "plot_sample"):
         from . import loader
         return getattr(loader, name)
     raise AttributeError(f"module 'datagen.dataset' has no attribute {name!r}")

@@ -390,6 +390,36 @@ class NLOSDataset(torch.utils.data.Dataset):
                            title or (f"{self.split}[{sample}]" if not isinstance(sample, dict) else None))
 
 
+class BatchNoise:
+    """``collate_fn`` drawing SPAD counts per batch inside the ``DataLoader`` workers: ``default_collate``, then
+    ``batch[key] = noise(batch["envelope"])`` with a :class:`datagen.SPADNoise` and a generator per worker
+    (seeded by ``seed`` and the worker id, so a run repeats for a given worker count and sampler seed), plus
+    ``batch["cycles"]`` of each drawn exposure. For CPU training, where the noise then runs beside the training
+    step as loading does; on a GPU apply the module to the batch on the device instead.
+
+    Example::
+
+        ds = datagen.NLOSDataset(path, fields=("envelope", "depth"))
+        loader = DataLoader(ds, batch_size=64, num_workers=2, collate_fn=BatchNoise(ds.spad_noise(), seed=1))
+    """
+
+    def __init__(self, noise, seed: int = 0, key: str = "counts"):
+        self.noise, self.seed, self.key = noise, int(seed), key
+        self._generator: torch.Generator | None = None
+
+    def __call__(self, items: list[dict]) -> dict:
+        batch = torch.utils.data.default_collate(items)
+        if self._generator is None:
+            info = torch.utils.data.get_worker_info()
+            self._generator = torch.Generator().manual_seed(self.seed * 1_000_003 + (info.id + 1 if info else 0))
+        batch[self.key], drawn = self.noise.sample(batch["envelope"], self._generator)
+        batch["cycles"] = drawn["cycles"]
+        return batch
+
+    def __getstate__(self):      # each worker starts its own generator
+        return {**self.__dict__, "_generator": None}
+
+
 def _transform_keywords(transform: Callable | None) -> tuple[str, ...]:
     """The keywords of :data:`TRANSFORM_KEYWORDS` that ``transform`` declares (all with ``**kwargs``)."""
     if transform is None:
