@@ -22,8 +22,8 @@ from typing import Iterable
 import numpy as np
 
 from ..scene import ROOM_LABELS, RayCaster, Scene, box_mesh, resolve_capture
-from ..simulation import STREAM_SAMPLING, SimulationConfig, stream_rng
-from ..transport import Transport
+from ..simulation import STREAM_SAMPLING, SimulationConfig, replica_rng, replica_root, stream_rng
+from ..transport import Transport, estimator
 from .view_camera import ViewCamera, auto_camera, frame, safe_unit, scene_size
 
 CLASS_COLORS: dict[str, tuple[float, float, float]] = {
@@ -267,8 +267,9 @@ def on_faces(o3d, points: np.ndarray, meshes: list, tol: float) -> np.ndarray:
 def lookin_points(scene: Scene, config: SimulationConfig, rng: np.random.Generator | None = None) -> np.ndarray:
     """Hit points of the lookins a simulation of ``scene`` with ``config`` casts (the lookin estimator).
 
-    Follows :meth:`datagen.transport.Transport.run`: one root ``SeedSequence`` from ``rng``, then per laser
-    point one child stream for its lookins (jittered grids) and one per batch of hit lookins
+    Follows :class:`datagen.simulation.Replicas` and :meth:`datagen.transport.Transport.run_replicas`: the
+    config's first round of ``replicas`` runs on the replica grid, each with one root ``SeedSequence``, then per
+    laser point one child stream for its lookins (jittered grids) and one per batch of hit lookins
     (tests/test_view.py checks the points equal those of a run).
 
     Args:
@@ -279,15 +280,19 @@ def lookin_points(scene: Scene, config: SimulationConfig, rng: np.random.Generat
         (N, 3) float64 metres, the lookins that hit a surface, over every laser point.
     """
     rng = rng if rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
-    transport = Transport(scene, config.transport_settings())
+    root_seed = replica_root(rng)                                     # as simulation.run.Replicas
+    entry = estimator("lookin")
+    one = config.model_copy(update=entry.replica(config, config.replicas)) if entry.replica else config
+    transport = Transport(scene, one.transport_settings())
     s = transport.settings
-    root = np.random.SeedSequence(int(rng.integers(0, 2 ** 63)))
     out = []
-    for laser in range(transport.capture.n_lasers):
-        look = transport.lookins(np.random.default_rng(root.spawn(1)[0]) if s.jitter else None, laser)
-        if s.jitter:
-            root.spawn(-(-int(look.hit.sum()) // s.batch))           # the run's per-batch streams
-        out.append(look.points[look.hit])
+    for replica in range(config.replicas):                            # as Transport.run_replicas
+        root = np.random.SeedSequence(int(replica_rng(root_seed, replica).integers(0, 2 ** 63)))
+        for laser in range(transport.capture.n_lasers):
+            look = transport.lookins(np.random.default_rng(root.spawn(1)[0]) if s.jitter else None, laser)
+            if s.jitter:
+                root.spawn(-(-int(look.hit.sum()) // s.batch))       # the run's per-batch streams
+            out.append(look.points[look.hit])
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
