@@ -301,14 +301,7 @@ def plot_accuracy(rows: list[AccuracyRow], path: str | Path, reference: Referenc
                   title: str = "") -> Path:
     """Log-log PNG of relative L2 error against wall time: one curve per estimator, the Pareto front as a
     black step line with circled points, and the reference's own error estimate as a dotted line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots(figsize=(7.5, 5.0))
+    fig, ax = loglog_axes()
     for name in dict.fromkeys(r.estimator for r in rows):
         sel = [r for r in rows if r.estimator == name]
         ax.plot([r.seconds for r in sel], [max(r.rel_l2, 1e-12) for r in sel], "o-", ms=4,
@@ -321,14 +314,35 @@ def plot_accuracy(rows: list[AccuracyRow], path: str | Path, reference: Referenc
     if reference is not None:
         ax.axhline(reference.error_estimate["rel_l2"], color="gray", ls=":",
                    label=f"reference error estimate ({reference.error_estimate['rel_l2']:.1e})")
+    return save_loglog(fig, ax, path, "wall time (s)", "relative L2 error of L(t) (bins > 1 % of peak)",
+                       title or "accuracy vs time")
+
+
+def loglog_axes():
+    """(figure, axes) of a 7.5 × 5 in matplotlib figure (Agg backend) for an error-against-time plot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(figsize=(7.5, 5.0))
+
+
+def save_loglog(fig, ax, path: str | Path, xlabel: str, ylabel: str, title: str) -> Path:
+    """Log-log axes with labels, title, grid and legend; the figure written to ``path`` (PNG, 120 dpi, parent
+    directories made) and closed. Returns the path."""
+    import matplotlib.pyplot as plt
+
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("wall time (s)")
-    ax.set_ylabel("relative L2 error of L(t) (bins > 1 % of peak)")
-    ax.set_title(title or "accuracy vs time")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..scene import Scene, SceneError
-from .accuracy import LADDERS, AccuracyRow, run_accuracy
+from .accuracy import LADDERS, AccuracyRow, loglog_axes, run_accuracy, save_loglog
 from .reference import REFERENCE_SAMPLES, Reference, converged_reference
 
 __all__ = ["RoomRow", "SettingSummary", "format_rooms_table", "plot_rooms", "run_rooms_accuracy", "summarize",
@@ -145,14 +145,7 @@ def write_rooms_csv(rows: list[RoomRow], summary: list[SettingSummary], path: st
 def plot_rooms(summary: list[SettingSummary], path: str | Path, title: str = "") -> Path:
     """Log-log PNG: median rel L2 error against median wall time per setting, one curve per estimator, the
     p95 error over the rooms as the top of each error bar, the 1 % line dotted."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots(figsize=(7.5, 5.0))
+    fig, ax = loglog_axes()
     for name in dict.fromkeys(s.estimator for s in summary):
         sel = [s for s in summary if s.estimator == name]
         t = np.array([s.seconds_median for s in sel])
@@ -161,17 +154,8 @@ def plot_rooms(summary: list[SettingSummary], path: str | Path, title: str = "")
         ax.errorbar(t, med, yerr=[np.zeros_like(med), p95 - med], fmt="o-", ms=4, capsize=2,
                     label=LADDERS[name].label if name in LADDERS else name)
     ax.axhline(0.01, color="gray", ls=":", label="1 %")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("wall time per room (s, median)")
-    ax.set_ylabel("relative L2 error of L(t): median, bar to p95")
-    ax.set_title(title or "accuracy vs time over rooms")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_loglog(fig, ax, path, "wall time per room (s, median)",
+                       "relative L2 error of L(t): median, bar to p95", title or "accuracy vs time over rooms")
 
 
 def format_rooms_table(summary: list[SettingSummary]) -> str:
