@@ -493,23 +493,24 @@ def _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_
     progress_lock = threading.Lock()
     computed = [0]   # samples computed so far in this run (retried ones included), for the bar
 
-    def on_sample():
+    def count_sample():
         with progress_lock:
             computed[0] += 1
             if bar is not None:
                 bar.update(1)
 
+    on_sample = count_sample if bar is not None else None   # None: shard-level progress (Dask) or no bar
     if not todo:
         events: Iterator[Event] = iter(())
     elif scheduler:   # the bar moves shard by shard
         events = run_dask(write_shard, str(root), cfg_json, todo, client, retries)
         on_sample = None
     elif workers == 0:
-        events = _run_in_process(str(root), cfg_json, todo, retries, on_sample if bar is not None else None)
+        events = _run_in_process(str(root), cfg_json, todo, retries, on_sample)
     else:
         n = min(workers or os.cpu_count() or 1, len(todo))
         events = _run_pool(str(root), cfg_json, todo, n, retries, max_tasks_per_child,
-                           on_sample if bar is not None else None)
+                           on_sample)
     failures: dict[tuple[str, int], str] = {}
     built = samples = 0
     fatal = None
