@@ -109,7 +109,7 @@ def test_card_records_the_tolerance_the_error_distribution_and_the_misses(refere
     assert {(m["split"], m["index"]) for m in card["accuracy"]["missed"]} == {("train", 0), ("train", 1),
                                                                               ("train", 2), ("val", 0)}
     assert all(m["envelope_error"] > 0.001 for m in card["accuracy"]["missed"])
-    text = CliRunner().invoke(main, ["inspect", str(out)]).output
+    text = CliRunner().invoke(main, ["inspect", str(out), "--no-3d"]).output
     assert "tolerance 0.10%" in text and "4 missed the tolerance" in text and "missed: train[0]" in text
 
 
@@ -284,10 +284,13 @@ def test_cli_build_inspect_and_refusals(tmp_path):
     assert res.exit_code == 2 and "already holds a dataset" in res.output
     res = runner.invoke(main, ["build", str(config_path), "--out", str(out), "--resume", "--quiet"])
     assert res.exit_code == 0 and "0 shards built" in res.output and "3 already done" in res.output
-    res = runner.invoke(main, ["inspect", str(out), "--samples", "2", "--png", str(tmp_path / "x.png")])
+    res = runner.invoke(main, ["inspect", str(out), "--samples", "2", "--png", str(tmp_path / "x.png"), "--no-3d"])
     assert res.exit_code == 0, res.output
     assert "split train: 4 samples in 1 shards" in res.output and "envelope" in res.output
     assert (tmp_path / "x.png").stat().st_size > 20_000
+    from PIL import Image
+    assert Image.open(tmp_path / "x.png").size[0] == round(13.5 * 90)   # --no-3d: no picture column, no renderer
+    assert "3D" not in res.output
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump({**config.to_json(), "shard_size": -1}))
     res = runner.invoke(main, ["build", str(bad), "--out", str(tmp_path / "b")])

@@ -107,7 +107,8 @@ def test_score_closed_forms(wall_smoke, tmp_path):
 
 def test_inspect_draws_a_scan_sample(wall_smoke, tmp_path):
     png = tmp_path / "inspect.png"
-    r = CliRunner().invoke(main, ["inspect", str(wall_smoke), "--split", "test", "--samples", "2", "--png", str(png)])
+    r = CliRunner().invoke(main, ["inspect", str(wall_smoke), "--split", "test", "--samples", "2", "--png", str(png),
+                                  "--no-3d"])
     assert r.exit_code == 0, r.output
     assert "envelope           (16, 16, 128)" in r.output and png.stat().st_size > 10_000
     from matplotlib.figure import Figure

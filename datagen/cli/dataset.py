@@ -148,10 +148,12 @@ def sample_pictures(path: Path, split: str, count: int, note) -> list | None:
 @click.option("--png", type=click.Path(path_type=Path), default=None,
               help="figure to write (default: PATH/inspect.png)")
 @click.option("--config", "show_config", is_flag=True, help="also print the full config of the card (YAML)")
+@click.option("--no-3d", "no_3d", is_flag=True,
+              help="no 3D pictures of the samples' rooms (faster: no open3d renderer is started)")
 @_dataset_errors
-def inspect(path, split, n_samples, png, show_config):
+def inspect(path, split, n_samples, png, show_config, no_3d):
     """Summarise the dataset at PATH (its card) and draw a few samples to a PNG (with a 3D picture of each
-    sample's room when open3d can render)."""
+    sample's room when open3d can render, unless --no-3d)."""
     import matplotlib
     matplotlib.use("Agg")
     import yaml
@@ -173,7 +175,7 @@ def inspect(path, split, n_samples, png, show_config):
         return
     ds = NLOSDataset(path, split=split)
     n = max(1, min(n_samples, len(ds)))
-    pictures = sample_pictures(path, split, n, note=click.echo)
+    pictures = None if no_3d else sample_pictures(path, split, n, note=click.echo)
     fig = Figure(figsize=(13.5 + (PICTURE_WIDTH_IN if pictures else 0), (4.2 if pictures else 3.4) * n),
                  layout="constrained")
     subfigs = fig.subfigures(n, 1, squeeze=False)[:, 0]
