@@ -181,7 +181,8 @@ def test_cli_renders_a_dataset_sample_with_its_lookins(o3d, smoke_dataset, tmp_p
     res = CliRunner().invoke(main, ["view", str(path), "--split", "train", "--index", "1", "--lookins", "4x4",
                                     "--out", str(out), "--size", "700x430"])
     assert res.exit_code == 0, res.output
-    assert "wrote" in res.output and " lookins" in res.output   # the area-sampled smoke set: lookins as given
+    n_lookins = int(res.output.split(" lookins")[0].split(", ")[-1])   # "…, N lookins": the lookins that hit
+    assert "wrote" in res.output and 8 < n_lookins <= 16   # the 4×4 grid given, less the rays that leave the room
     assert Image.open(out).size == (700, 430)
     bad = CliRunner().invoke(main, ["view", str(path), "--split", "train", "--index", "9", "--out", str(out)])
     assert bad.exit_code == 2 and bad.output.startswith("error: ") and "index 9" in bad.output
