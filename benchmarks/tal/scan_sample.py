@@ -2,7 +2,7 @@
 
 Runs in datagen's environment and calls ``tal_side.py`` in the tal venv of ``setup_env.sh`` (as compare.py does)::
 
-    python benchmarks/tal/scan_sample.py [--venv /opt/venvs/tal-bench] [--samples 2]
+    python benchmarks/tal/scan_sample.py [--venv /opt/venvs/tal-bench] [--samples 4]
 
 1. Builds a small dataset from ``configs/datasets/wall.yaml`` with one hidden mesh before the wall (the shipped box
    primitive, upright, facing the wall; ``--letters`` uses the alphanumerics instead), a confocal 32 × 32 scan of the
@@ -45,7 +45,7 @@ def tal_side(args: list[str], venv: Path) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--venv", type=Path, default=Path(os.environ.get("TAL_BENCH_VENV", "/opt/venvs/tal-bench")))
-    p.add_argument("--samples", type=int, default=2)
+    p.add_argument("--samples", type=int, default=4)
     p.add_argument("--letters", action="store_true", help="alphanumerics instead of the box primitive")
     a = p.parse_args()
     out = HERE / "out" / "scan_sample"
@@ -56,7 +56,7 @@ def main() -> None:
         "name": "tal_scan_sample", "shard_size": a.samples, "splits": {"test": {"count": a.samples}},
         "room_overrides": {"capture": {"scan": {"points": [32, 32]}}, "objects": {"mesh": {
             "assets": [str(assets)], "yaw_deg": 0.0, "tilt_deg": 0.0, "size": {"min": 0.4, "max": 0.6}}}}})
-    dataset = out / ("dataset_letters" if a.letters else "dataset")
+    dataset = out / f"dataset_{'letters' if a.letters else 'box'}_{a.samples}"
     if not (dataset / "zarr.json").exists():
         build_dataset(config, dataset, workers=0, progress=False)
     ds = NLOSDataset(dataset, split="test", fields=["wall_depth", "wall_mask"])
