@@ -50,9 +50,9 @@ def test_confocal_scan_matches_a_converged_reference():
 
 def test_each_laser_point_equals_a_single_spot_simulation():
     """Laser point p of a confocal scan is the single-spot capture with the spot at p and the sensor imaging p's
-    pixel region: same sub-triangles, same weights. One difference is by design: the scan's detector stares
-    with its aperture facing the scan's centre c (Capture.aperture_normal), the single capture's faces p, so with
-    one FoV cell per pixel (its centre p) the two differ by exactly cos θ_ap = unit(p − s)·unit(c − s)."""
+    pixel region: same sub-triangles, same weights, and the same aperture direction (a confocal detector follows
+    the laser, Capture.aperture_normals; a single capture faces its FoV's centre p), so the envelopes are equal.
+    The grid is 1.2 m wide, so a staring aperture would differ by up to cos θ_ap ≈ 0.9 at the corners."""
     room = wall_room(3, 1, {"points": [6, 5], "width": 1.2, "height": 1.0})
     over = {"estimator": "quadrature", "quadrature_edge": 0.08, "quadrature_fov": 1, "secondary": "none",
             "count_sensor_leg": False, "time": {"t_start": 0.0, "bin_width": 64e-12, "n_bins": 256},
@@ -63,7 +63,9 @@ def test_each_laser_point_equals_a_single_spot_simulation():
     grid = capture.spots.reshape(5, 6, 3)
     scene = room.scene
     s = np.asarray(scene.sensor.position)
-    axis = (capture.fov_center - s) / np.linalg.norm(capture.fov_center - s)
+    assert np.allclose(capture.aperture_normals(grid[0, 0]), (grid[0, 0] - s) / np.linalg.norm(grid[0, 0] - s))
+    corner_cos = float(capture.aperture_normal @ (grid[0, 0] - s) / np.linalg.norm(grid[0, 0] - s))
+    assert corner_cos < 0.99, corner_cos                # the test tells a following aperture from a staring one
     for iy, ix in [(0, 0), (2, 3), (4, 5), (1, 4)]:
         p = grid[iy, ix]
         fov = FieldOfView(center=tuple(p), size=(1.2 / 6, 1.0 / 5), pixels=(1, 1))
@@ -72,8 +74,7 @@ def test_each_laser_point_equals_a_single_spot_simulation():
                        defaults=scene.defaults)
         spot = datagen.simulate(single, datagen.resolve_config(single, over))
         assert spot.envelope.shape == (256,) and spot.envelope.sum() > 0
-        cos_ap = float((p - s) @ axis / np.linalg.norm(p - s))
-        np.testing.assert_allclose(scan.envelope[iy, ix], cos_ap * spot.envelope, rtol=1e-9,
+        np.testing.assert_allclose(scan.envelope[iy, ix], spot.envelope, rtol=1e-9,
                                    atol=1e-12 * spot.envelope.max())
 
 

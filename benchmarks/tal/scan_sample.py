@@ -2,7 +2,7 @@
 
 Runs in datagen's environment and calls ``tal_side.py`` in the tal venv of ``setup_env.sh`` (as compare.py does)::
 
-    python benchmarks/tal/scan_sample.py [--venv /opt/venvs/tal-bench] [--samples 2]
+    python benchmarks/tal/scan_sample.py [--venv /opt/venvs/tal-bench] [--samples 4]
 
 1. Builds a small dataset from ``configs/datasets/wall.yaml`` with one hidden mesh before the wall (the shipped box
    primitive, upright, facing the wall; ``--letters`` uses the alphanumerics instead), a confocal 32 × 32 scan of the
@@ -11,8 +11,8 @@ Runs in datagen's environment and calls ``tal_side.py`` in the tal venv of ``set
 3. ``tal.io.read_capture`` loads each file (``tal_side.py read``) and tal's ``bp`` / ``fbp`` reconstruct it over the
    box in front of the wall (``tal_side.py bp-box``: coarse 4 cm volume, then a 1 m cube of 2 cm voxels around its
    maximum, half-maximum centroid), after ``tal.reconstruct.compensate_laser_cos_dsqr`` (for datagen's aperture
-   convention with a co-located sensor it undoes the wall → sensor leg's cos/d²), then again also undoing the cos θ_ap
-   of datagen's staring aperture (``--aperture-cos``).
+   convention with a co-located sensor it undoes the wall → sensor leg's cos/d²; the confocal aperture follows the
+   laser, so there is no cos θ_ap left).
 4. The distance of each centroid to the sample's labelled position: the centroid of the hidden object's visible
    surface in the wall-view labels (scan point + n · wall_depth over its mask). Results: out/scan_sample/results.json.
 """
@@ -27,10 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen.dataset import NLOSDataset, build_dataset, load_dataset_config
-
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
+sys.path.insert(0, str(ROOT))    # this checkout's datagen (the export-tal subprocess runs from ROOT too)
+
+from datagen.dataset import NLOSDataset, build_dataset, load_dataset_config  # noqa: E402
 
 
 def tal_side(args: list[str], venv: Path) -> dict:
@@ -44,7 +45,7 @@ def tal_side(args: list[str], venv: Path) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--venv", type=Path, default=Path(os.environ.get("TAL_BENCH_VENV", "/opt/venvs/tal-bench")))
-    p.add_argument("--samples", type=int, default=2)
+    p.add_argument("--samples", type=int, default=4)
     p.add_argument("--letters", action="store_true", help="alphanumerics instead of the box primitive")
     a = p.parse_args()
     out = HERE / "out" / "scan_sample"
@@ -55,7 +56,7 @@ def main() -> None:
         "name": "tal_scan_sample", "shard_size": a.samples, "splits": {"test": {"count": a.samples}},
         "room_overrides": {"capture": {"scan": {"points": [32, 32]}}, "objects": {"mesh": {
             "assets": [str(assets)], "yaw_deg": 0.0, "tilt_deg": 0.0, "size": {"min": 0.4, "max": 0.6}}}}})
-    dataset = out / ("dataset_letters" if a.letters else "dataset")
+    dataset = out / f"dataset_{'letters' if a.letters else 'box'}_{a.samples}"
     if not (dataset / "zarr.json").exists():
         build_dataset(config, dataset, workers=0, progress=False)
     ds = NLOSDataset(dataset, split="test", fields=["wall_depth", "wall_mask"])
@@ -63,7 +64,7 @@ def main() -> None:
     for i in range(a.samples):
         path = out / f"sample_{i}.hdf5"
         subprocess.run([sys.executable, "-m", "datagen.cli", "export-tal", str(dataset), "--split", "test", "--index",
-                        str(i), "--out", str(path)], check=True, capture_output=True)
+                        str(i), "--out", str(path)], check=True, capture_output=True, cwd=ROOT)
         read = tal_side(["read", path], a.venv)
         params = ds.params(i)
         grid = params["room"]["sensor"]["scan"]["laser_grid"]
@@ -77,15 +78,14 @@ def main() -> None:
         target = (pts + labels["wall_depth"][..., None] * np.array([-1.0, 0.0, 0.0]))[mask].mean(0)
         row = {"index": i, "asset": Path(params["objects"][0]["asset"]).name, "target_xyz": target.tolist(),
                "tal_read": {"is_confocal": read.get("is_confocal")}}
-        for extra, tag in (([], "laser_cos_dsqr"), (["--aperture-cos"], "laser_cos_dsqr+aperture_cos")):
-            bp = tal_side(["bp-box", path, "--lo", x0 - 1.6, -1.0, 0.05, "--hi", x0 - 0.45, 1.0, 2.05] + extra, a.venv)
-            for name in ("bp", "fbp"):
-                found = np.array(bp[name]["half_max_centroid_xyz"])
-                row[f"{name} ({tag})"] = {"xyz": found.tolist(), "distance_m": float(np.linalg.norm(found - target)),
-                                          "seconds": bp[name]["seconds"]}
-            print(f"sample {i} ({row['asset']}, tal read it: confocal {read.get('is_confocal')}), compensation {tag}: "
-                  f"bp {row[f'bp ({tag})']['distance_m'] * 100:.1f} cm, fbp {row[f'fbp ({tag})']['distance_m'] * 100:.1f}"
-                  f" cm from the labelled surface {np.round(target, 3).tolist()}", flush=True)
+        bp = tal_side(["bp-box", path, "--lo", x0 - 1.6, -1.0, 0.05, "--hi", x0 - 0.45, 1.0, 2.05], a.venv)
+        for name in ("bp", "fbp"):
+            found = np.array(bp[name]["half_max_centroid_xyz"])
+            row[name] = {"xyz": found.tolist(), "distance_m": float(np.linalg.norm(found - target)),
+                         "seconds": bp[name]["seconds"]}
+        print(f"sample {i} ({row['asset']}, tal read it: confocal {read.get('is_confocal')}): "
+              f"bp {row['bp']['distance_m'] * 100:.1f} cm, fbp {row['fbp']['distance_m'] * 100:.1f} cm "
+              f"from the labelled surface {np.round(target, 3).tolist()}", flush=True)
         rows.append(row)
     (out / "results.json").write_text(json.dumps(rows, indent=1))
 

@@ -17,10 +17,9 @@ Commands (each prints one JSON object on its last stdout line):
   bp FILE [--resolution M]
       tal.reconstruct.bp / fbp on a confocal capture (coarse volume, then a fine one around its maximum);
       the strongest voxel's position.
-  bp-box FILE --lo X Y Z --hi X Y Z [--coarse M] [--resolution M] [--window M] [--aperture-cos]
+  bp-box FILE --lo X Y Z --hi X Y Z [--coarse M] [--resolution M] [--window M]
       the same for a confocal capture in any frame (a datagen dataset sample, scan_sample.py): coarse volume over
-      the box [lo, hi], fine cube of side --window around its maximum, half-maximum centroid; --aperture-cos also
-      undoes the cos θ_ap of datagen's staring aperture (it faces the grid's mean point).
+      the box [lo, hi], fine cube of side --window around its maximum, half-maximum centroid.
 """
 from __future__ import annotations
 
@@ -246,15 +245,11 @@ def cmd_bp_box(a) -> dict:
     d = tal.io.read_capture(a.file)
     d.H = d.H.astype(np.float64)
     # datagen's aperture convention: the wall → sensor leg falls as cos/d² from the (co-located) sensor, the same
-    # form tal compensates for its laser
+    # form tal compensates for its laser (a confocal scan's aperture follows the laser: no cos θ_ap to undo)
     tal.reconstruct.compensate_laser_cos_dsqr(d)
-    if a.aperture_cos:   # datagen's staring aperture faces the grid's mean point: undo its cos θ_ap too
-        axis = d.sensor_grid_xyz.reshape(-1, 3).mean(0) - d.sensor_xyz
-        rel = d.sensor_grid_xyz - d.sensor_xyz
-        d.H = d.H / ((rel @ (axis / np.linalg.norm(axis))) / np.linalg.norm(rel, axis=-1))[None]
     spacing = float(np.linalg.norm(d.sensor_grid_xyz[1, 0] - d.sensor_grid_xyz[0, 0]))
     lo, hi = np.array(a.lo), np.array(a.hi)
-    out = {"grid_spacing_m": spacing, "aperture_cos": bool(a.aperture_cos)}
+    out = {"grid_spacing_m": spacing}
     for name in ("bp", "fbp"):
         t0 = time.perf_counter()
         kwargs = {} if name == "bp" else {"wl_mean": 4 * spacing, "wl_sigma": 4 * spacing / np.sqrt(2)}
@@ -299,7 +294,6 @@ def main() -> None:
     bb.add_argument("--coarse", type=float, default=0.04)
     bb.add_argument("--resolution", type=float, default=0.02)
     bb.add_argument("--window", type=float, default=1.0)
-    bb.add_argument("--aperture-cos", action="store_true", help="also divide H by the staring aperture's cos")
     a = p.parse_args()
     result = {"render": cmd_render, "read": cmd_read, "bp": cmd_bp, "bp-box": cmd_bp_box}[a.cmd](a)
     print(json.dumps(result, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))

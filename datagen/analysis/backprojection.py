@@ -7,8 +7,8 @@ docs/physics.md §1). Backprojection (Velten et al. 2012) sums every transient a
     B(x) = Σ_p w_p · H[p, bin(τ(x, p))],
 
 with per-point weights w_p that undo the radiometric fall-off of the wall → sensor leg (the sensor's collection
-from p is ∝ cos θ_s cos θ_ap / d_s², docs/physics.md §2; :func:`wall_leg_weights`). Filtered backprojection applies the discrete Laplacian
-of B (the 3-D 7-point stencil, −∇²), which sharpens the backprojected ellipsoid shells to the surfaces they meet
+from p is ∝ cos θ_s / d_s², the aperture facing p, docs/physics.md §2; :func:`wall_leg_weights`). Filtered
+backprojection applies the discrete Laplacian of B (the 3-D 7-point stencil, −∇²), which sharpens the backprojected ellipsoid shells to the surfaces they meet
 (Arellano et al. 2017; tal.reconstruct.fbp with a Laplacian filter). :func:`locate` returns the magnitude-weighted
 centroid of the voxels above half the maximum, the position estimate docs/tal.md uses for tal's reconstructions.
 """
@@ -23,19 +23,17 @@ VOXEL_CHUNK = 4096
 
 
 def wall_leg_weights(points: np.ndarray, normal: np.ndarray, sensor: np.ndarray) -> np.ndarray:
-    """(P,) weights d_s² / (cos θ_s · cos θ_ap) that undo the sensor leg's fall-off at each scan point ((P, 3) m;
-    ``normal`` the wall normal facing the sensor at ``sensor`` (3,); the aperture faces the mean scan point),
-    for the aperture convention (docs/physics.md §2). The laser leg needs none there: the beam delivers its
-    photons to every laser point whatever its distance (tal's point-radiance files carry an extra cos θ_e/d_e²,
+    """(P,) weights d_s² / cos θ_s that undo the sensor leg's fall-off at each scan point ((P, 3) m; ``normal``
+    the wall normal facing the sensor at ``sensor`` (3,)), for the aperture convention (docs/physics.md §2). A
+    confocal scan's aperture follows the laser (cos θ_ap = 1 at each scan point, docs/scans.md), so only the
+    wall's cosine and the distance remain. The laser leg needs none there: the beam delivers its photons to
+    every laser point whatever its distance (tal's point-radiance files carry an extra cos θ_e/d_e²,
     tal.reconstruct.compensate_laser_cos_dsqr)."""
     points = np.asarray(points, float).reshape(-1, 3)
     to_s = sensor - points
     d_s = np.linalg.norm(to_s, axis=1)
-    axis = points.mean(0) - sensor
-    axis /= np.linalg.norm(axis)
     cos_s = to_s @ normal / d_s
-    cos_ap = (-to_s @ axis) / d_s
-    return d_s ** 2 / np.maximum(cos_s * cos_ap, 1e-12)
+    return d_s ** 2 / np.maximum(cos_s, 1e-12)
 
 
 def backproject(h: np.ndarray, time_edges: np.ndarray, points: np.ndarray, voxels: np.ndarray,

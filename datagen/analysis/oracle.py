@@ -63,7 +63,7 @@ def primary_area_quadrature(scene: Scene, axis: TimeAxis, irf: Irf, h_hidden: fl
     to_s = cap.sensor - y
     d_ys = np.linalg.norm(to_s, axis=1)
     w_ys = to_s / d_ys[:, None]
-    cos_ap = np.maximum(-(w_ys @ cap.aperture_normal), 0.0)
+    cos_ap = np.maximum(-np.sum(w_ys * cap.aperture_normals(y), axis=-1), 0.0)
     sensor_geo = pde * np.einsum("ij,ij->i", n_y, w_ys) * cap.aperture_area * cos_ap / d_ys ** 2
     acc = EnvelopeAccumulator(axis, irf, 1)
     step = max(1, chunk // max(len(y), 1))

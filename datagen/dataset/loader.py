@@ -29,6 +29,15 @@ them from the stored envelope with the split's detector (:func:`datagen.spad.rat
 index, 4))`` (:func:`datagen.dataset.resample_rng`): fresh every epoch (``set_epoch``), identical for the
 same epoch and index in any worker. The stored envelope is float32 by default, so the re-drawn rates carry
 its rounding (relative 6e-8).
+
+Detector randomisation. With ``noise="resample"``, ``detector_ranges`` (e.g. ``{"exposure": ("1ms", "10ms"),
+"ambient_rate": (0, 1e5), "pde": (0.2, 0.4)}``; fields of :data:`datagen.spad.ranges.RANDOMISED_FIELDS`, each a
+number or a (low, high) range, the others the split's detector) draws each sample's detector per epoch from the
+same generator (four uniforms through a ``torch.Generator`` seeded from it, :func:`datagen.spad.ranges.
+draw_detector_params`, the rule :class:`datagen.SPADNoise` uses), rescales the envelope by pde / the split's PDE
+(the envelope contains the PDE it was simulated with, docs/physics.md §2) and draws the counts with that
+detector. The item records the draw as :data:`DETECTOR_FIELDS` (float64 0-d: exposure s, ambient_rate Hz, dcr
+Hz, pde) and its ``cycles`` and ``background`` are the drawn detector's.
 """
 from __future__ import annotations
 
@@ -60,6 +69,9 @@ SCALE_FIELDS = ("cycles", "photons_per_pulse", "background")
 
 OBJECT_FIELDS = ("object_class", "object_center", "object_size", "object_yaw", "object_albedo", "object_brdf")
 """Per-object label arrays (first axis: object slot) that ``object_order`` permutes."""
+
+DETECTOR_FIELDS = ("exposure", "ambient_rate", "dcr", "pde")
+"""The drawn detector parameters an item carries with ``detector_ranges`` (float64 0-d; see the module doc)."""
 
 TRANSFORM_KEYWORDS = ("index", "params")
 """Keyword arguments a ``transform`` may declare to receive the sample index and its parsed params."""
@@ -207,6 +219,9 @@ class NLOSDataset(torch.utils.data.Dataset):
             wall first); either way padding slots come last.
         layout: "stored" (the stored shapes) or "network": scans as (1, T, H, W) float32 and wall-view labels as
             (C, H, W), the reconstruction networks' layout (:mod:`datagen.dataset.layout`).
+        detector_ranges: with ``noise="resample"``, field → number or (low, high) range of the detector's
+            ``exposure`` (s or "1ms"), ``ambient_rate`` (Hz), ``dcr`` (Hz), ``pde``, drawn per sample and epoch
+            (module doc "Detector randomisation"); the item gains :data:`DETECTOR_FIELDS`.
     Item:
         dict field → torch tensor with the stored shape and dtype: envelope (*S, T) float32 expected detected
         photons per pulse per bin, counts (*S, T) int64, depth (H, W) float32 m, normal (H, W, 3),
@@ -214,7 +229,8 @@ class NLOSDataset(torch.utils.data.Dataset):
         background () float64; see ``docs/datasets.md``.
     Raises:
         FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field, noise mode or
-        object order or layout, an incomplete build, ``noise="resample"`` without a stored envelope, a transform
+        object order or layout, an incomplete build, ``noise="resample"`` without a stored envelope,
+        ``detector_ranges`` without ``noise="resample"`` or with an unknown field or invalid range, a transform
         asking for params that are not stored, or ``layout="network"`` for a capture that is not a scan;
         DatasetCorruptError (a ValueError): metadata that disagrees with the card (here), a damaged or missing
         shard (on reading); TypeError: an index that is not an integer (``ds[1.5]``).
@@ -223,7 +239,7 @@ class NLOSDataset(torch.utils.data.Dataset):
     def __init__(self, path: str | os.PathLike, split: str = "train", fields: Iterable[str] | None = None,
                  noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None,
                  counts_dtype: torch.dtype | None = None, object_order: Literal["stored", "distance"] = "stored",
-                 layout: Literal["stored", "network"] = "stored"):
+                 layout: Literal["stored", "network"] = "stored", detector_ranges: dict[str, Any] | None = None):
         self.path = Path(path)
         card = read_card(self.path)
         if card.get("status") != "complete":
@@ -240,7 +256,10 @@ class NLOSDataset(torch.utils.data.Dataset):
         redraw = noise == "resample"
         if redraw and "envelope" not in stored:
             raise ValueError(f"noise='resample' needs the envelope, which {self.path} does not store")
+        if detector_ranges is not None and not redraw:
+            raise ValueError("detector_ranges needs noise='resample' (the stored counts have a fixed detector)")
         scales = [f for f in SCALE_FIELDS if f != "photons_per_pulse" or self._photons_source(stored)]
+        scales += list(DETECTOR_FIELDS) if detector_ranges is not None else []
         if fields is None:
             fields = ([f for f in stored if f != "params"] + (["counts"] if redraw and "counts" not in stored else [])
                       + [f for f in scales if f not in stored])
@@ -248,18 +267,28 @@ class NLOSDataset(torch.utils.data.Dataset):
         unknown = sorted(set(fields) - set(stored) - ({"counts"} if redraw else set()) - set(scales))
         if unknown:
             raise ValueError(f"fields {unknown} are not stored in {self.path}/{split} (stored: {stored}"
-                             f"{'' if scales == list(SCALE_FIELDS) else '; photons_per_pulse needs params'})")
+                             f"{'' if 'photons_per_pulse' in scales else '; photons_per_pulse needs params'})")
         self.split, self.fields, self.noise, self.transform = split, tuple(fields), noise, transform
         self.counts_dtype, self.object_order = counts_dtype, object_order
         self.seed = int(card["config"]["seed"])
         self.count = int(info["count"])
         self.detector = info.get("detector")
+        self._detector_config = None
+        self._ranges = self._cycles = None
+        if detector_ranges is not None:     # datagen.spad.ranges: parsed and checked once, drawn per item
+            from ..spad.ranges import detector_ranges as parse_ranges, fixed_cycles
+            det = self.detector_config()
+            self._ranges = parse_ranges(det, dict(detector_ranges), owner="NLOSDataset detector_ranges")
+            self._cycles = fixed_cycles(det, dict(detector_ranges).get("exposure"))
+            if det.pde == 0 and self._ranges["pde"] != (0.0, 0.0):
+                raise ValueError("NLOSDataset detector_ranges: the split's pde is 0, so the envelope cannot be "
+                                 "rescaled to another pde")
         self.epoch = 0
         self.card = card
         self._keywords = _transform_keywords(transform)
         if "params" in self._keywords and "params" not in stored:
             raise ValueError(f"the transform asks for params, which {self.path} does not store (store.params)")
-        to_read = set(self.fields) - (set(SCALE_FIELDS) - set(stored))
+        to_read = set(self.fields) - (set(SCALE_FIELDS) - set(stored)) - set(DETECTOR_FIELDS)
         if redraw and "counts" in to_read:
             to_read = (to_read - {"counts"}) | {"envelope"}
         if "photons_per_pulse" in self.fields and "photons_per_pulse" not in stored:
@@ -271,7 +300,6 @@ class NLOSDataset(torch.utils.data.Dataset):
         check_split(self.path, card, split, sorted(to_read) + ["time_edges"])   # metadata as the card implies
         self._readers = {name: _FieldReader(self.path, split, name) for name in sorted(to_read)}
         self.time_edges = _read_small(self.path / split / "time_edges")
-        self._detector_config = None
         # -- network layout (datagen.dataset.layout): checked here, applied per item -------------------------
         if layout not in ("stored", "network"):
             raise ValueError(f"layout must be 'stored' or 'network', got {layout!r}")
@@ -307,21 +335,39 @@ class NLOSDataset(torch.utils.data.Dataset):
         from ..spad.torch_noise import SPADNoise
         return SPADNoise(self.detector_config(), **ranges)
 
-    def scales(self, photons_per_pulse: float | None = None) -> dict[str, float]:
+    def scales(self, photons_per_pulse: float | None = None, detector=None) -> dict[str, float]:
         """The split's normalisation constants: cycles, background (expected counts per bin over the exposure)
-        and, when given, photons_per_pulse (see the module doc)."""
-        det = self.detector_config()
+        and, when given, photons_per_pulse (see the module doc); of ``detector`` (a drawn
+        :class:`datagen.spad.DetectorConfig`) instead of the split's when given."""
+        det = detector or self.detector_config()
         width = float(self.time_edges[1] - self.time_edges[0])
         out = {"cycles": float(det.cycles), "background": det.background_rate * width * det.cycles}
         if photons_per_pulse is not None:
             out["photons_per_pulse"] = float(photons_per_pulse)
         return out
 
-    def _resampled_counts(self, envelope: np.ndarray, index: int) -> np.ndarray:
-        from .. import spad
+    def draw_detector(self, index: int) -> tuple[Any, dict[str, float] | None, np.random.Generator]:
+        """(detector, drawn, generator) of sample ``index`` in this epoch: the split's detector and None without
+        ``detector_ranges``, else the drawn :class:`datagen.spad.DetectorConfig` and its parameters (exposure,
+        ambient_rate, dcr, pde, cycles as floats); the generator then draws the counts."""
         det = self.detector_config()
         rng = resample_rng(self.seed, self.split, self.epoch, index)
-        return spad.sample_histogram(spad.rates_from_envelope(envelope.astype(np.float64), det), det, rng)
+        if self._ranges is None:
+            return det, None, rng
+        from ..spad import DetectorConfig
+        from ..spad.ranges import draw_detector_params
+        gen = torch.Generator().manual_seed(int(rng.integers(2**63)))
+        p = draw_detector_params(self._ranges, det.repetition_rate, self._cycles, 1, gen)
+        drawn = {name: float(v[0]) for name, v in p.items()}
+        update = {f: drawn[f] for f in ("ambient_rate", "dcr", "pde")} | {"exposure": None,
+                                                                          "n_cycles": int(drawn["cycles"])}
+        return DetectorConfig.model_validate(det.model_dump() | update), drawn, rng
+
+    def _resampled_counts(self, envelope: np.ndarray, det, rng: np.random.Generator) -> np.ndarray:
+        from .. import spad
+        scale = det.pde / self.detector_config().pde if self._ranges is not None else 1.0
+        rates = spad.rates_from_envelope(envelope.astype(np.float64) * scale, det)
+        return spad.sample_histogram(rates, det, rng)
 
     def read(self, index: int) -> dict[str, np.ndarray]:
         """Sample ``index`` as numpy arrays (no transform), counts re-drawn if ``noise="resample"``, objects in
@@ -335,8 +381,13 @@ class NLOSDataset(torch.utils.data.Dataset):
             raise IndexError(f"index {index} out of range for split {self.split!r} of {self.count} samples")
         index = index % self.count
         out = {name: reader.read(index) for name, reader in self._readers.items()}
-        if self.noise == "resample" and "counts" in self.fields:
-            out["counts"] = self._resampled_counts(out["envelope"], index)
+        det, drawn = None, None
+        if self.noise == "resample":
+            det, drawn, rng = self.draw_detector(index)
+            if "counts" in self.fields:
+                out["counts"] = self._resampled_counts(out["envelope"], det, rng)
+            if drawn is not None:
+                out.update({f: np.asarray(drawn[f], dtype=np.float64) for f in DETECTOR_FIELDS})
         if self.object_order == "distance" and "object_center" in out:
             out.update(_objects_by_distance(out, float(self.card["config"]["room"]["relay_x"])))
         wanted = [f for f in SCALE_FIELDS if f in self.fields]
@@ -345,7 +396,7 @@ class NLOSDataset(torch.utils.data.Dataset):
             if "photons_per_pulse" in wanted:
                 photons = (float(out["photons_per_pulse"]) if "photons_per_pulse" in out
                            else _photons_from_params(json.loads(str(out["params"][()]))))
-            scales = self.scales(photons)
+            scales = self.scales(photons, det if drawn is not None else None)
             out.update({f: np.asarray(scales[f], dtype=np.float64) for f in wanted})
         return out
 

@@ -117,8 +117,9 @@ def _sample_point(rng: np.random.Generator, p: PointDist, length: float, w: floa
 
 
 def _check_aperture(dist: RoomDistribution, sensor, center, corners, field: str) -> None:
-    """SceneError when a corner of the imaged rectangle lies behind the sensor's aperture plane (the aperture
-    faces the rectangle's centre, docs/physics.md §2: cos θ_ap ≤ 0 there, so part of it would be black)."""
+    """SceneError when a corner of the imaged rectangle lies behind the sensor's aperture plane (a staring
+    aperture faces the rectangle's centre, docs/physics.md §2: cos θ_ap ≤ 0 there, so part of it would be black).
+    Exhaustive scans only: a confocal scan's aperture follows the laser (docs/scans.md)."""
     s, c = np.asarray(sensor, float), np.asarray(center, float)
     behind = [q for q in corners if float(np.dot(np.asarray(q) - s, c - s)) <= 0]
     if behind:
@@ -136,8 +137,9 @@ def _sample_capture(dist: RoomDistribution, room: dict, rng: np.random.Generator
     sensor = list(emitter) if cap.sensor is None else _sample_point(rng, cap.sensor, length, w, m, x1)
     if cap.scan is not None:
         scan = draw_scan(cap.scan, rng, x1, w, h, m)
-        grid = scan["sensor_grid"] or scan["laser_grid"]
-        _check_aperture(dist, sensor, grid["center"], rectangle_corners(grid), "capture.scan")
+        if scan["sensor_grid"] is not None:   # a confocal aperture follows the laser: nothing lies behind it
+            grid = scan["sensor_grid"]
+            _check_aperture(dist, sensor, grid["center"], rectangle_corners(grid), "capture.scan")
         return {"emitter": emitter, "sensor": sensor, "spot": scan["laser_grid"]["center"], "scan": scan}
     spot = [x1, _uniform(rng, cap.spot.lateral) * (w / 2 - m), _uniform(rng, cap.spot.height)]
     fw, fh = _uniform(rng, cap.fov.width), _uniform(rng, cap.fov.height)

@@ -37,7 +37,9 @@ class Capture:
         spots: (L, 3) laser points; spot_normals: (L, 3) relay-wall normals there (facing the hidden side);
         spot_objects: (L,) object ids; laser_shape: (lx, ly) grid of the laser points (L = lx·ly).
         emitter: (3,); emitter_legs: (L,) |spot − emitter|.
-        sensor: (3,) sensor position; aperture_area: m²; aperture_normal: unit vector toward the grid centre.
+        sensor: (3,) sensor position; aperture_area: m²; aperture_normal: unit vector toward the grid centre
+        (the staring aperture of single-spot and exhaustive captures; a confocal scan's aperture follows the
+        laser, :meth:`aperture_normals`).
         fov_center, fov_u, fov_v, fov_normal: the sensor grid's frame on the relay wall; fov_size: (w, h);
         fov_pixels: (nx, ny) sensor points (cell centres) / pixel regions (cells).
         photons: Φ, photons per pulse (1 for point radiance: per unit power at the spot).
@@ -138,6 +140,25 @@ class Capture:
         """Whether laser point ``laser`` lies strictly inside the sensor grid's rectangle (a point on its edge,
         within ``FOV_EDGE_REL`` of the FoV size, counts as outside)."""
         return bool(self.fov_margin(self.spots[laser]) > FOV_EDGE_REL * max(self.fov_size))
+
+    def aperture_normals(self, points: np.ndarray) -> np.ndarray:
+        """Unit aperture normal(s) (pointing from the sensor into the scene) seen by FoV points (n, 3): (3,) or (n, 3).
+
+        Single-spot and exhaustive captures stare: one normal toward the sensor grid's centre
+        (``aperture_normal``; a SPAD array behind one lens, or a sensor point). A confocal scan steers the
+        detector's line of sight with the laser through the same galvo mirrors, so while laser point p is
+        scanned the aperture faces p: each point gets the normal toward the centre of the pixel region holding it
+        (its laser point; cos θ_ap = 1 at p), and laser point p's envelope equals the single-spot capture of p
+        (docs/scans.md, docs/physics.md §2). Points outside the grid take the nearest edge pixel's normal (their
+        channel is not recorded).
+        """
+        if self.kind != "confocal":
+            return self.aperture_normal
+        rel = np.asarray(points, dtype=np.float64) - self.fov_center
+        nx, ny = self.fov_pixels
+        ix = np.clip(np.floor(((rel @ self.fov_u) / self.fov_size[0] + 0.5) * nx), 0, nx - 1)
+        iy = np.clip(np.floor(((rel @ self.fov_v) / self.fov_size[1] + 0.5) * ny), 0, ny - 1)
+        return unit(self.fov_points(ix + 0.5, iy + 0.5) - self.sensor)
 
     def fov_pixel(self, points: np.ndarray, tol: float) -> np.ndarray:
         """Sensor pixel index (row-major over (v, u)) of each point, −1 outside the FoV. (..., 3) → (...,)."""

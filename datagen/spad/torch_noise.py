@@ -37,9 +37,9 @@ import math
 from typing import Any, Mapping
 
 import torch
-from pydantic import ValidationError
 
 from .config import DetectorConfig
+from .ranges import RANDOMISED_FIELDS, detector_ranges, draw_detector_params, fixed_cycles
 from .rates import NEGATIVE_ENVELOPE_RTOL, gate_fraction
 from .synchronous import MAX_EXPECTED_COUNTS
 
@@ -50,37 +50,11 @@ POISSONIZATION_MARGIN = 2.0
 row is redrawn) with probability ≈ Φ(−margin) ≈ 2.3 %, and ≈ (margin + 0.8)·√n·(1 − p_none) detections are
 placed by inverse CDF afterwards."""
 
-RANDOMISED_FIELDS = ("exposure", "ambient_rate", "dcr", "pde")
-"""Detector fields :class:`SPADNoise` can draw per sample from a (low, high) range."""
-
 _UNSUPPORTED = {
     "jitter_sigma": "Gaussian jitter after pile-up", "jitter_fwhm": "Gaussian jitter after pile-up",
     "diffusion_tail": "the diffusion tail", "crosstalk_probability": "crosstalk",
     "afterpulse_probability": "afterpulsing",
 }
-
-
-def _range(det: DetectorConfig, name: str, value: Any, default: float) -> tuple[float, float]:
-    """(low, high) from a number, a (low, high) pair or None (``default``), each value validated as the field
-    ``name`` of ``det`` (units such as "1ms" accepted); ValueError naming the field and the value."""
-    def parse(v: Any) -> float:
-        data = det.model_dump() | {name: v} | ({"n_cycles": None} if name == "exposure" else {})
-        try:
-            return float(getattr(DetectorConfig.model_validate(data), name))
-        except ValidationError as exc:
-            raise ValueError(f"SPADNoise: {name}: {exc.errors()[0]['msg']} (got {v!r})") from None
-
-    if value is None:
-        return float(default), float(default)
-    if isinstance(value, (list, tuple)):
-        if len(value) != 2:
-            raise ValueError(f"SPADNoise: {name} must be a number or a (low, high) pair, got {value!r}")
-        low, high = (parse(v) for v in value)
-    else:
-        low = high = parse(value)
-    if not low <= high:
-        raise ValueError(f"SPADNoise: {name} range must have low <= high, got {value!r}")
-    return low, high
 
 
 class SPADNoise(torch.nn.Module):
@@ -122,15 +96,12 @@ class SPADNoise(torch.nn.Module):
                 raise NotImplementedError(f"SPADNoise: {field}={getattr(det, field)!r}: {what} is not modelled "
                                           "in torch; use datagen.spad.sample_histogram")
         self.detector = det
-        default_exposure = det.exposure if det.exposure is not None else det.cycles / det.repetition_rate
-        self.ranges = {"exposure": _range(det, "exposure", exposure, default_exposure),
-                       "ambient_rate": _range(det, "ambient_rate", ambient_rate, det.ambient_rate),
-                       "dcr": _range(det, "dcr", dcr, det.dcr),
-                       "pde": _range(det, "pde", pde, det.pde)}
+        given = {"exposure": exposure, "ambient_rate": ambient_rate, "dcr": dcr, "pde": pde}
+        self.ranges = detector_ranges(det, {k: v for k, v in given.items() if v is not None})
         self.envelope_pde = float(det.pde if envelope_pde is None else envelope_pde)
         if self.envelope_pde == 0 and self.ranges["pde"] != (0.0, 0.0):
             raise ValueError("SPADNoise: envelope_pde is 0, so the envelope cannot be rescaled to another pde")
-        self.fixed_cycles = det.n_cycles if exposure is None and det.n_cycles is not None else None
+        self.fixed_cycles = fixed_cycles(det, exposure)
         max_cycles = self.fixed_cycles or round(self.ranges["exposure"][1] * det.repetition_rate)
         if round(self.ranges["exposure"][0] * det.repetition_rate) < 1 and self.fixed_cycles is None:
             raise ValueError(f"SPADNoise: exposure {self.ranges['exposure'][0]!r} s is less than one laser cycle at "
@@ -152,15 +123,9 @@ class SPADNoise(torch.nn.Module):
         ``cycles`` (laser cycles, round(exposure × repetition_rate)), each float64 (batch,) on ``device``.
 
         Always draws (batch, 4) uniforms from ``generator`` (fixed fields included), so the stream layout does
-        not depend on which fields are randomised."""
-        u = torch.rand((batch, len(RANDOMISED_FIELDS)), generator=generator, dtype=torch.float64, device=device)
-        out = {name: lo + (hi - lo) * u[:, k] for k, (name, (lo, hi)) in
-               enumerate((f, self.ranges[f]) for f in RANDOMISED_FIELDS)}
-        if self.fixed_cycles is not None:
-            out["cycles"] = torch.full((batch,), float(self.fixed_cycles), dtype=torch.float64, device=device)
-        else:
-            out["cycles"] = torch.round(out["exposure"] * self.detector.repetition_rate).clamp_min(1.0)
-        return out
+        not depend on which fields are randomised (:func:`datagen.spad.ranges.draw_detector_params`)."""
+        return draw_detector_params(self.ranges, self.detector.repetition_rate, self.fixed_cycles, batch,
+                                    generator, device)
 
     def _time_axis(self, n_bins: int, device: torch.device) -> tuple[torch.Tensor | None, torch.Tensor]:
         """(gate fraction g_i or None when every bin is fully inside the gate, g_i × width_i in s), float64

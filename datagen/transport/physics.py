@@ -244,8 +244,10 @@ class LegPhysics:
         """What a photon landing at FoV points (n, 3) becomes at the sensor, and the FoV → sensor distance (n,).
 
         Aperture convention: the detected fraction q·f_y(ω_in, ω_s)·cosθ_y,out·A_ap·cosθ_ap/d²·V(y, x_s)
-        (paper A3 and the aperture term, docs/physics.md §2). Point radiance: f_y(ω_in, ω_s), the radiance
-        toward the sensor per unit irradiance. ω_in is ``sign_in · w_in`` (see :meth:`brdf`).
+        (paper A3 and the aperture term, docs/physics.md §2); the aperture normal is
+        :meth:`~datagen.scene.Capture.aperture_normals` (a confocal scan's follows the laser). Point radiance:
+        f_y(ω_in, ω_s), the radiance toward the sensor per unit irradiance. ω_in is ``sign_in · w_in`` (see
+        :meth:`brdf`).
         """
         c = self.capture
         to_sensor = c.sensor - points
@@ -255,7 +257,7 @@ class LegPhysics:
         if c.convention == "point_radiance":
             return f, d
         cos_out = np.maximum(dot(normals, w_s), 0.0)
-        cos_ap = np.maximum(-dot(w_s, c.aperture_normal), 0.0)
+        cos_ap = np.maximum(-dot(w_s, c.aperture_normals(points)), 0.0)
         out = self.settings.pde * f * cos_out * c.aperture_area * cos_ap / d ** 2
         if self.settings.shadow_sensor:
             idx = np.flatnonzero(out > 0)
@@ -331,7 +333,7 @@ class LegPhysics:
         w_s = unit(c.sensor - spot)
         d = float(np.linalg.norm(c.sensor - spot))
         emit = self.spot_emission(w_s[None], laser)
-        cos_ap = max(-float(dot(w_s, c.aperture_normal)), 0.0)
+        cos_ap = max(-float(dot(w_s, c.aperture_normals(spot))), 0.0)
         vis = self.caster.visible(spot[None], c.spot_normals[laser][None], c.sensor, None)
         weight = c.photons * self.settings.pde * emit * c.aperture_area * cos_ap / d ** 2 * vis
         weight = weight * self.attenuation(np.array([c.emitter_legs[laser] + d]))
