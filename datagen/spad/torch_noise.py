@@ -24,7 +24,7 @@ that route would cost more per sample than numpy's. Here the n cycles are Poisso
 m = n − POISSONIZATION_MARGIN·√n, X_i ~ Poisson(m·p_i) for every bin and X_none ~ Poisson(m·p_none), all
 independent (``torch.poisson``). Given their total s, (X, X_none) is Multinomial(s; p). A row with s > n is
 redrawn (that conditions on s ≤ n, a function of s only, so the law given s is unchanged; probability
-≈ Φ(−margin) ≈ 2 %); the n − s missing cycles are then a further Multinomial(n − s; p): their detections
+≈ Φ(−margin) ≈ 0.1 %); the n − s missing cycles are then a further Multinomial(n − s; p): their detections
 A ~ Binomial(n − s, 1 − p_none), each placed in bin i with probability p_i / (1 − p_none) by inverse CDF.
 The sum is exactly Multinomial(n; p). The pmf is computed as the difference of the float64 survival
 e^{−C_{i+1}} (absolute error ~1e-16 per cycle, as the numpy pmf). Draws differ from numpy's for the same
@@ -45,10 +45,10 @@ from .synchronous import MAX_EXPECTED_COUNTS
 
 __all__ = ["POISSONIZATION_MARGIN", "RANDOMISED_FIELDS", "SPADNoise", "first_photon", "row_search"]
 
-POISSONIZATION_MARGIN = 2.0
+POISSONIZATION_MARGIN = 3.0
 """The pile-up sampler's Poisson stage uses m = n − margin·√n cycles: a row's Poisson total exceeds n (and the
-row is redrawn) with probability ≈ Φ(−margin) ≈ 2.3 %, and ≈ (margin + 0.8)·√n·(1 − p_none) detections are
-placed by inverse CDF afterwards."""
+row is redrawn) with probability ≈ Φ(−margin) ≈ 0.13 %, and ≈ (margin + 0.8)·√n·(1 − p_none) detections are
+placed by inverse CDF afterwards (3 measured cheapest of 1, 2, 3, 4: fewer redrawn rows, a few more placements)."""
 
 RANDOMISED_FIELDS = ("exposure", "ambient_rate", "dcr", "pde")
 """Detector fields :class:`SPADNoise` can draw per sample from a (low, high) range."""
@@ -234,7 +234,7 @@ class SPADNoise(torch.nn.Module):
         if envelope.dim() < 2:
             raise ValueError(f"SPADNoise: envelope must be (batch, ..., bins), got shape {tuple(envelope.shape)}")
         rows = envelope.reshape(-1, envelope.shape[-1])
-        low, high = rows.amin(dim=-1), rows.amax(dim=-1)          # NaN propagates into both; ±inf into one
+        low, high = torch.aminmax(rows, dim=-1)                     # NaN propagates into both; ±inf into one
         fine, negative = torch.stack([((low >= -NEGATIVE_ENVELOPE_RTOL * high) & torch.isfinite(high)).all(),
                                       (low < 0).any()]).tolist()
         if not fine:
@@ -274,17 +274,19 @@ def row_search(cum: torch.Tensor, rows: torch.Tensor, target: torch.Tensor) -> t
         int64 (k,) in [0, m − 1].
     """
     m = cum.shape[1]
-    flat = cum.reshape(-1)
-    last = flat.numel() - 1
     base = rows * m - 1                          # flat index of cum[row, b − 1] is base + b
-    found = torch.zeros_like(rows)               # invariant: cum[row, found − 1] ≤ target
-    step = 1 << max(0, (m - 1).bit_length() - 1)
-    while step:
-        probe = found + step                     # move right by step if cum[row, probe − 1] ≤ target
-        ok = torch.le(flat[(base + probe).clamp_(max=last)], target) & (probe <= m - 1)
-        found.add_(ok * step)
+    if m == 1:
+        return torch.zeros_like(rows)
+    flat = cum.reshape(-1)
+    # pos = base + found, invariant cum[row, found − 1] ≤ target. The first probe splits [0, m) into [0, m − big)
+    # and [m − big, m), so every later probe (steps big/2 … 1) stays inside the row: no clamps, no bound tests.
+    big = 1 << ((m - 1).bit_length() - 1)
+    pos = base.add(torch.le(flat[base + (m - big)], target), alpha=m - big)
+    step = big >> 1
+    while step:                                  # move right by step if cum[row, found + step − 1] ≤ target
+        pos.add_(torch.le(flat[pos + step], target), alpha=step)
         step >>= 1
-    return found
+    return pos - base
 
 
 def first_photon(rates: torch.Tensor, cycles: torch.Tensor, generator: torch.Generator | None = None
