@@ -9,9 +9,9 @@ Reads the ``train`` and ``val`` splits with ``NLOSDataset(..., layout="network")
 the batch from the stored envelope with :class:`datagen.SPADNoise` (the split's detector); validation reads the
 stored (frozen) counts. Input log(1 + counts), standardised.
 
-Network (:class:`DepthNet`, ≈ 0.1 M parameters): the same temporal encoder at every scan point (three stride-2
-1-D convolutions over time, i.e. (k, 1, 1) 3-D convolutions, then a linear layer to 32 features), then three 2-D
-convolutions over the scan grid to one depth per pixel. Loss: mean squared depth error over the pixels where the
+Network (:class:`DepthNet`, ≈ 24 k parameters): the same temporal encoder at every scan point ((k, 1, 1) 3-D
+convolutions over time), then 2-D convolutions over the scan grid to one depth per pixel; ≈ 1 s of CPU per
+epoch of 200 samples of 16 × 16 × 256 on 2 threads. Loss: mean squared depth error over the pixels where the
 label sees the hidden object (``wall_depth > 0``), the pixels ``datagen score`` scores. The trivial baseline is
 the training set's mean depth over those pixels, the same for every pixel and sample.
 """
@@ -39,25 +39,28 @@ def load_split(path, split: str) -> dict[str, torch.Tensor]:
 
 
 class DepthNet(torch.nn.Module):
-    """(B, 1, T, H, W) standardised scan → (B, H, W) standardised depth (module doc)."""
+    """(B, 1, T, H, W) standardised scan → (B, H, W) standardised depth (module doc). ≈ 24 k parameters at 256
+    bins: (k, 1, 1) 3-D convolutions encode each scan point's transient (8-bin patches, then two stride-2
+    layers), a 1 × 1 convolution maps its T/32 × 16 features to 32, three 2-D convolutions mix neighbours."""
 
     def __init__(self, bins: int, features: int = 32):
         super().__init__()
-        layers, c, length = [], 1, bins
-        for width in (8, 16, 16):
-            layers += [torch.nn.Conv1d(c, width, 9, stride=2, padding=4), torch.nn.GELU()]
-            c, length = width, (length + 1) // 2
-        self.temporal = torch.nn.Sequential(*layers, torch.nn.Flatten(), torch.nn.Linear(c * length, features),
-                                            torch.nn.GELU())
+        if bins % 32:
+            raise ValueError(f"DepthNet: the scan needs a multiple of 32 time bins, got {bins}")
+        relu = torch.nn.ReLU
+        self.temporal = torch.nn.Sequential(
+            torch.nn.Conv3d(1, 16, (8, 1, 1), stride=(8, 1, 1)), relu(),
+            torch.nn.Conv3d(16, 16, (3, 1, 1), stride=(2, 1, 1), padding=(1, 0, 0)), relu(),
+            torch.nn.Conv3d(16, 16, (3, 1, 1), stride=(2, 1, 1), padding=(1, 0, 0)), relu())
         self.spatial = torch.nn.Sequential(
-            torch.nn.Conv2d(features, 32, 3, padding=1), torch.nn.GELU(),
-            torch.nn.Conv2d(32, 32, 3, padding=1), torch.nn.GELU(),
+            torch.nn.Conv2d(16 * (bins // 32), features, 1), relu(),
+            torch.nn.Conv2d(features, 32, 3, padding=1), relu(),
+            torch.nn.Conv2d(32, 32, 3, padding=1), relu(),
             torch.nn.Conv2d(32, 1, 1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        b, _, t, h, w = x.shape
-        per_point = self.temporal(x.permute(0, 3, 4, 1, 2).reshape(b * h * w, 1, t))       # (B·H·W, F)
-        return self.spatial(per_point.view(b, h, w, -1).permute(0, 3, 1, 2))[:, 0]
+        b, _, _, h, w = x.shape
+        return self.spatial(self.temporal(x).reshape(b, -1, h, w))[:, 0]
 
 
 def draw_counts(noise: datagen.SPADNoise, envelope: torch.Tensor, gen: torch.Generator) -> torch.Tensor:

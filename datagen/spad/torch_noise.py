@@ -47,8 +47,9 @@ __all__ = ["POISSONIZATION_MARGIN", "RANDOMISED_FIELDS", "SPADNoise", "first_pho
 
 POISSONIZATION_MARGIN = 3.0
 """The pile-up sampler's Poisson stage uses m = n − margin·√n cycles: a row's Poisson total exceeds n (and the
-row is redrawn) with probability ≈ Φ(−margin) ≈ 0.13 %, and ≈ (margin + 0.8)·√n·(1 − p_none) detections are
-placed by inverse CDF afterwards (3 measured cheapest of 1, 2, 3, 4: fewer redrawn rows, a few more placements)."""
+row is redrawn) with probability ≈ Φ(−margin) ≈ 0.13 %, and ≈ (margin + 0.8)·√n·(1 − p_none) detections
+are placed by inverse CDF afterwards (3 measured cheapest of 1, 2, 3, 4: fewer redrawn rows, a few more
+placements)."""
 
 RANDOMISED_FIELDS = ("exposure", "ambient_rate", "dcr", "pde")
 """Detector fields :class:`SPADNoise` can draw per sample from a (low, high) range."""
