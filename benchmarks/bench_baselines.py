@@ -108,11 +108,11 @@ def scan_rows(path: Path, seeds: list[int], epochs: int, out: Path) -> list[tupl
         pred = train_depth_image.train(path, epochs=epochs, seed=seed, log=None)
         print(f"{path.name} / depth CNN / seed {seed}: trained in {time.perf_counter() - t0:.0f} s")
         trivial = scored("trivial", {"depth": pred["trivial"], "index": pred["index"]})
-        rows.append(("depth CNN (counts)", seed) + scored(f"net-seed{seed}", pred) + trivial[:2] + trivial[2:])
+        rows.append(("depth CNN (counts)", seed) + scored(f"net-seed{seed}", pred)[:2] + trivial)
     t0 = time.perf_counter()
     bp = backprojection_baseline.predict(path, "val", "counts")
     print(f"{path.name} / backprojection: {time.perf_counter() - t0:.0f} s")
-    rows.append(("backprojection (counts)", None) + scored("backprojection", bp) + trivial[:2] + trivial[2:])
+    rows.append(("backprojection (counts)", None) + scored("backprojection", bp)[:2] + trivial)
     return rows
 
 

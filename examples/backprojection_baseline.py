@@ -1,8 +1,8 @@
 """Classical baseline for the confocal wall scans: filtered backprojection → a depth image per sample, written in
 the layout of ``datagen score``.
 
-    python -m examples.backprojection_baseline data/wall_baseline --split val --out out/bp_val.npz
-    datagen score out/bp_val.npz --dataset data/wall_baseline --split val
+    python -m examples.backprojection_baseline data/wall_baseline    # → data/wall_baseline_bp_val.npz
+    datagen score data/wall_baseline_bp_val.npz --dataset data/wall_baseline --split val
 
 For each scan point p (row iy, column ix of the scan grid, docs/scans.md "Axis order") the voxels
 p + d·n̂ in front of it (n̂ the relay wall's normal towards the hidden side, d from ``--near`` to ``--far`` at
@@ -80,12 +80,12 @@ def main(argv=None):
     parser.add_argument("data")
     parser.add_argument("--split", default="val")
     parser.add_argument("--input", choices=("counts", "envelope"), default="counts")
-    parser.add_argument("--out", default=None, help="predictions .npz (default: bp_<split>.npz beside the data)")
+    parser.add_argument("--out", default=None, help="predictions .npz (default: DATA_bp_<split>.npz)")
     parser.add_argument("--limit", type=int, default=None, help="only the first N samples")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     pred = predict(args.data, args.split, args.input, args.limit)
-    out = Path(args.out or Path(args.data) / f"bp_{args.split}.npz")
+    out = Path(args.out or f"{Path(args.data)}_bp_{args.split}.npz")
     np.savez(out, **pred)
     print(f"{len(pred['index'])} depth images ({time.perf_counter() - t0:.1f} s) -> {out}")
     print(f"score: datagen score {out} --dataset {args.data} --split {args.split}")

@@ -1,8 +1,8 @@
 """Baseline network for the confocal wall scans: a small CNN from the (1, T, H, W) scan to the ``wall_depth`` image,
 CPU-sized; writes its validation predictions in the layout of ``datagen score``.
 
-    python -m examples.train_depth_image data/wall_baseline --epochs 40 --out out/net_val.npz
-    datagen score out/net_val.npz --dataset data/wall_baseline --split val
+    python -m examples.train_depth_image data/wall_baseline          # → data/wall_baseline_net_val.npz
+    datagen score data/wall_baseline_net_val.npz --dataset data/wall_baseline --split val
 
 Reads the ``train`` and ``val`` splits with ``NLOSDataset(..., layout="network")`` (envelope and counts as
 (1, T, H, W), ``wall_depth`` as (1, H, W)) into memory. Training inputs are fresh SPAD counts every step, drawn in
@@ -119,12 +119,12 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     parser.add_argument("--train", default="train")
     parser.add_argument("--val", default="val")
-    parser.add_argument("--out", default=None, help="predictions .npz (default: net_<val>.npz beside the data); the "
+    parser.add_argument("--out", default=None, help="predictions .npz (default: DATA_net_<val>.npz); the "
                                                     "trivial baseline goes to the same name with _trivial")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val)
-    out = Path(args.out or Path(args.data) / f"net_{args.val}.npz")
+    out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
     trivial = out.with_name(out.stem + "_trivial.npz")
     np.savez(trivial, depth=pred["trivial"], index=pred["index"])

@@ -30,6 +30,13 @@ The sum is exactly Multinomial(n; p). The pmf is computed as the difference of t
 e^{−C_{i+1}} (absolute error ~1e-16 per cycle, as the numpy pmf). Draws differ from numpy's for the same
 seed; the law is the same (tests/test_torch_noise.py: χ² per bin and moments against
 :func:`datagen.spad.sample_histogram`, including strong pile-up).
+
+Cost (benchmarks/bench_loader_noise.py; one CPU thread, 1 536 bins, the default config's flux). ``torch.poisson``
+is ≈ 65 % of the time and sets the floor (≈ 24 µs per sample): ≈ 7 ns per bin below 0.1 expected counts,
+50–95 ns between 3 and 10 (it multiplies one uniform per count), 35–50 ns above 10. Drawing a Poisson total and
+placing its events by inverse CDF is the same law but costs 40–140 ns per event in torch (``searchsorted``),
+so it lost to per-bin draws wherever it was tried: whole rows with fewer expected counts than bins, the bins
+below a threshold of 0.03–1 expected count, or every bin's share min(λ, τ) for τ from 0.01 to 10.
 """
 from __future__ import annotations
 
