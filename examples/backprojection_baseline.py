@@ -12,7 +12,7 @@ leg's fall-off undone (:func:`~datagen.analysis.backprojection.wall_leg_weights`
 :func:`~datagen.analysis.backprojection.laplacian_filter` sharpens it (filtered backprojection, Arellano et al.
 2017). The depth of pixel (iy, ix) is the d of the filtered volume's maximum along its column: the orthographic
 distance from the wall, as the ``wall_depth`` label. It reads the measured (stored, frozen) counts by default
-(``--input envelope``: the noise-free envelope). No training; ≈ 0.1 s per 16 × 16 × 256 scan.
+(``--input envelope``: the noise-free envelope). No training; ≈ 0.2 s per 16 × 16 × 256 scan.
 """
 from __future__ import annotations
 
