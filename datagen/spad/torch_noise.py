@@ -40,7 +40,6 @@ below a threshold of 0.03–1 expected count, or every bin's share min(λ, τ) f
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
 import torch
