@@ -14,7 +14,7 @@ from datagen.dataset import LabelSpec, SampledRoom, load_room_distribution, occu
 from datagen.dataset.assets import asset_files, load_asset, place_asset
 from datagen.dataset.obb import box_hits_pyramid, yaw_matrix
 from datagen.dataset.sampler import STREAMS
-from datagen.scene import (CaptureSpec, FieldOfView, Laser, Material, RayCaster, Scene, SceneError, Sensor, quad,
+from datagen.scene import (CaptureSpec, Laser, Material, RayCaster, Scene, SceneError, Sensor, quad,
                            resolve_capture)
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -23,7 +23,6 @@ import pytest
 import yaml
 import zarr
 
-from datagen.cli.main import main
 from test_hostile import alias_bomb, cli   # the same in-process runner and checks
 
 from datagen.dataset import (DONE_DIR, DatasetCorruptError, NLOSDataset, SplitSpec, build_dataset,

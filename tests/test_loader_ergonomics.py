@@ -12,7 +12,7 @@ import zarr
 
 import datagen
 from datagen import spad
-from datagen.dataset import (LabelSpec, SplitSpec, build_dataset, load_dataset_config, sample_rngs, sample_room,
+from datagen.dataset import (SplitSpec, build_dataset, load_dataset_config, sample_rngs, sample_room,
                              scene_labels)
 from datagen.planner import EFFECTS
 from datagen.scene import Laser
