@@ -93,13 +93,13 @@ def test_score_closed_forms(wall_smoke, tmp_path):
     np.savez(path, depth=pred[:, None], occupancy=occ_pred, index=np.arange(4))
     r = CliRunner().invoke(main, ["score", str(path), "--dataset", str(wall_smoke), "--split", "test"])
     assert r.exit_code == 0, r.output
-    scores = json.loads((tmp_path / "scores.json").read_text())
+    scores = json.loads((tmp_path / "pred_scores.json").read_text())
     s = scores["summary"]
     assert s["mean_depth_mae"] == pytest.approx(0.05, rel=1e-5) and s["mean_depth_rmse"] == pytest.approx(0.05, rel=1e-5)
     assert s["depth_pixels"] == int(mask.sum()) > 0
     ious = [row["occupancy_iou"] for row in scores["rows"]]
     assert ious[2] == 0.0 and all(v == 1.0 for k, v in enumerate(ious) if k != 2)
-    assert (tmp_path / "scores.csv").read_text().splitlines()[0] == "index,depth_mae,depth_rmse,depth_pixels,occupancy_iou"
+    assert (tmp_path / "pred_scores.csv").read_text().splitlines()[0] == "index,depth_mae,depth_rmse,depth_pixels,occupancy_iou"
     np.savez(tmp_path / "bad.npz", depth=pred[:, :, :8])
     bad = CliRunner().invoke(main, ["score", str(tmp_path / "bad.npz"), "--dataset", str(wall_smoke)])
     assert bad.exit_code == 2 and "depth has shape (4, 16, 8), the labels' wall_depth is (4, 16, 16)" in bad.output

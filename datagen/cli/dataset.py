@@ -222,7 +222,7 @@ def verify(path):
               help="label the depth predictions are compared with (wall_depth: orthographic from the scanned wall)")
 @click.option("--threshold", type=float, default=0.5, show_default=True, help="occupancy: occupied above this")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="folder for scores.csv and scores.json (default: beside PRED)")
+              help="folder for PRED_scores.csv and PRED_scores.json (default: beside PRED)")
 @_dataset_errors
 def score(pred, dataset, split, depth_field, threshold, out):
     """Score reconstructions PRED (.npz: depth (N, H, W) m and/or occupancy (N, V, V, V), optional index (N,))
@@ -230,7 +230,7 @@ def score(pred, dataset, split, depth_field, threshold, out):
     from ..dataset.score import score_predictions, write_scores
 
     scores = score_predictions(pred, dataset, split, depth_field, threshold)
-    csv_path, json_path = write_scores(scores, out or Path(pred).parent)
+    csv_path, json_path = write_scores(scores, out or Path(pred).parent, f"{Path(pred).stem}_scores")
     s = scores["summary"]
     parts = [f"{s['samples']} samples"]
     if s.get("depth_field"):

@@ -19,8 +19,9 @@ Metrics per sample (docs/datasets.md, "Scoring"): ``depth_mae`` = mean |d̂ − 
 (d̂ − d)² over the pixels where the label sees a hidden object (label depth > 0: the union of the wall masks);
 predictions outside that mask do not count. ``occupancy_iou`` = |P ∩ L| / |P ∪ L| of the occupied voxels (NaN
 when both are empty). The summary gives the mean over samples of each metric (NaNs left out), the pixel-pooled
-depth MAE / RMSE and the number of samples. :func:`write_scores` writes ``scores.csv`` (one row per sample) and
-``scores.json`` (summary and rows).
+depth MAE / RMSE and the number of samples. :func:`write_scores` writes ``<PRED>_scores.csv`` (one row per sample)
+and ``<PRED>_scores.json`` (summary and rows), named after the predictions file so that several predictions in one
+folder keep their own scores.
 """
 from __future__ import annotations
 
@@ -131,13 +132,14 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
     return {"summary": summary, "rows": rows}
 
 
-def write_scores(scores: dict, out: str | Path) -> tuple[Path, Path]:
-    """Write ``scores.csv`` (one row per sample) and ``scores.json`` (summary + rows) into folder ``out``."""
+def write_scores(scores: dict, out: str | Path, stem: str = "scores") -> tuple[Path, Path]:
+    """Write ``<stem>.csv`` (one row per sample) and ``<stem>.json`` (summary + rows) into folder ``out``
+    (``datagen score`` names them after the predictions file: ``pred_scores.csv`` for ``pred.npz``)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     columns = ["index"] + [c for c in ("depth_mae", "depth_rmse", "depth_pixels", "occupancy_iou")
                            if any(c in r for r in scores["rows"])]
-    csv_path, json_path = out / "scores.csv", out / "scores.json"
+    csv_path, json_path = out / f"{stem}.csv", out / f"{stem}.json"
     with csv_path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=columns)
         writer.writeheader()
