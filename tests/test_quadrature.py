@@ -15,7 +15,8 @@ from datagen.analysis import relative_l2
 from datagen.sampling import subdivide_triangles
 from datagen.transport import AreaSampler, AreaSettings
 from datagen.scene import Material
-from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses, tent_curvature
+from datagen.timing.curvature import deposit_curvature
 from datagen.sampling import subdivide_with_vertices
 from datagen.transport import Quadrature, QuadratureSettings
 from datagen.analysis import primary_area_quadrature
@@ -180,6 +181,21 @@ def test_wide_tents_by_curvature_equal_the_per_node_closed_form():
     assert np.abs(fast.fine_histogram() - ref).max() < 1e-9 * ref.max()
     np.testing.assert_allclose(fast.binned(), exact.binned(), rtol=0, atol=1e-9 * exact.binned().max())
     np.testing.assert_allclose(fast.outside(), exact.outside(), rtol=0, atol=1e-9 * w.sum())
+
+
+def test_compiled_curvature_deposit_equals_tent_curvature():
+    """deposit_curvature (numba) adds the same values as tent_curvature (numpy), weighted, to 1e-12."""
+    rng = np.random.default_rng(3)
+    c = np.sort(rng.uniform(5, 60, (500, 3)), axis=1)
+    c[::7, 1] = c[::7, 0] + rng.uniform(0, 1, len(c[::7]))            # sides narrower than a node
+    c[1::9, 1] = c[1::9, 2]
+    w, comp = rng.uniform(0.5, 2.0, len(c)), rng.integers(0, 2, len(c))
+    node, value = tent_curvature(c)
+    ref = np.zeros(2 * 80)
+    np.add.at(ref, (comp[:, None] * 80 + node).ravel(), (value * w[:, None]).ravel())
+    got = np.zeros(2 * 80)
+    deposit_curvature(c, w, comp, 80, got)
+    assert np.abs(got - ref).max() < 1e-12 * np.abs(ref).max()
 
 
 # -- quadrature: scenes -------------------------------------------------------------------------------------

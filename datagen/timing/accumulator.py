@@ -54,7 +54,8 @@ from scipy.signal import oaconvolve
 
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
-from .tents import tent_cdf, tent_cdf2, tent_curvature, tent_irf_cdf
+from .curvature import deposit_curvature
+from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
 
 __all__ = [
     "STEPS_PER_SIGMA",
@@ -76,7 +77,8 @@ NEGATIVE_CLAMP_RTOL = 1e-12
 
 CURVATURE_MIN_NODES = 4.0
 """Fine-grid mode: tents spanning at least this many fine nodes are deposited through their second differences
-(:func:`datagen.timing.tents.tent_curvature`, 16 values per tent instead of one evaluation per node covered),
+(:func:`datagen.timing.tents.tent_curvature`, 16 values per tent instead of one evaluation per node covered,
+compiled: :func:`datagen.timing.curvature.deposit_curvature`),
 summed twice along the nodes when the histogram is read; the same deposits up to round-off (~1e-16 of a tent's
 weight per node summed, measured ≤ 1e-11 relative on scans), so rows holding them clamp negatives within
 CURVATURE_CLAMP_RTOL of their maximum instead of NEGATIVE_CLAMP_RTOL."""
@@ -403,11 +405,8 @@ class EnvelopeAccumulator:
     def _add_curvature(self, coord: np.ndarray, w: np.ndarray, c: int | np.ndarray) -> None:
         if self._curvature is None:
             self._curvature = np.zeros_like(self._hist)
-        node, value = tent_curvature(coord)
-        idx = (c if isinstance(c, int) else c[:, None]) * self.n_fine + node
-        lo = int(idx.min())
-        part = np.bincount((idx - lo).reshape(-1), weights=(value * w[:, None]).reshape(-1))
-        self._curvature.reshape(-1)[lo:lo + len(part)] += part
+        comp = np.full(len(w), c, dtype=np.int64) if isinstance(c, int) else c
+        deposit_curvature(coord, w, comp, self.n_fine, self._curvature.reshape(-1))
 
     def _fold(self) -> np.ndarray:
         """The fine histogram with the pending curvature deposits summed in (twice along the nodes)."""

@@ -114,10 +114,13 @@ def tent_irf_cdf(irf: Irf, e: np.ndarray, t0: np.ndarray, t1: np.ndarray, t2: np
     return np.where(narrow, irf.cdf(e - (t0 + t1 + t2) / 3.0), np.clip(full, 0.0, 1.0))
 
 
-def _cubic_bspline(u: np.ndarray) -> np.ndarray:
-    """The centred cubic B-spline B3 = hat * hat (support [-2, 2], unit mass), elementwise."""
-    a = np.abs(u)
-    return np.where(a < 1.0, 2.0 / 3.0 - u * u + 0.5 * a ** 3, np.where(a < 2.0, (2.0 - a) ** 3 / 6.0, 0.0))
+def _cubic_bspline_weights(c: np.ndarray) -> np.ndarray:
+    """(n, 4) values B3(floor(c) - 1 + j - c), j = 0..3, of the centred cubic B-spline B3 = hat * hat at the four
+    nodes around each c (n,) (f = c - floor(c): (1-f)³/6, (4 - 6f² + 3f³)/6, (1 + 3f + 3f² - 3f³)/6, f³/6)."""
+    f = c - np.floor(c)
+    f2 = f * f
+    f3 = f2 * f
+    return np.stack([(1.0 - f) ** 3, 4.0 - 6.0 * f2 + 3.0 * f3, 1.0 + 3.0 * (f + f2 - f3), f3], axis=1) / 6.0
 
 
 _BINOMIAL4 = (1.0, -4.0, 6.0, -4.0, 1.0)
@@ -169,7 +172,7 @@ def tent_curvature(coord: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         second = np.where(narrow, first + 4.0, np.floor(b)[:, None] + np.arange(-1.0, 3.0))
         few = np.flatnonzero(narrow[:, 0])
         for node, end, sgn in ((first, a, 1.0), (second, b, -1.0)):
-            value = sgn * quotient * _cubic_bspline(node - end[:, None])
+            value = sgn * quotient * _cubic_bspline_weights(end)
             value[few] = factor[few] * _cubic_bspline_slope(node[few] - a[few, None], node[few] - b[few, None])
             nodes.append(node.astype(np.int64) + 1)
             values.append(value)
