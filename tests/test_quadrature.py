@@ -198,6 +198,26 @@ def test_compiled_curvature_deposit_equals_tent_curvature():
     assert np.abs(got - ref).max() < 1e-12 * np.abs(ref).max()
 
 
+def test_confocal_scan_shares_the_laser_legs_visibility():
+    """A confocal room scan (one FoV cell per pixel: each target is its laser point) casts no hidden → FoV rays:
+    the laser leg's visibility is the same segment's. Same envelope as with those rays forced, about half the rays."""
+    from datagen.dataset import load_dataset_config
+    from datagen.dataset.config import draw_room
+
+    config = load_dataset_config("configs/datasets/confocal_smoke.yaml")
+    scene = draw_room(config, "train", 0)[0].scene
+    sim = resolve_config(scene, config.simulation_overrides())
+    runs = {}
+    for forced in (None, True):
+        q = Quadrature(scene, QuadratureSettings(edge=0.4, fov_cells=1, shadow_spot=True, shadow_fov=forced))
+        acc = EnvelopeAccumulator(sim.time, sim.irf, len(q.component_names) * q.capture.n_channels)
+        q.run(acc)
+        runs[forced] = (acc.binned(), q.stats.shadow_rays, q.settings.shadow_fov)
+    (shared, rays, fov), (ref, forced_rays, forced_fov) = runs[None], runs[True]
+    assert not fov and forced_fov and rays < 0.51 * forced_rays and ref.max() > 0
+    np.testing.assert_allclose(shared, ref, rtol=0, atol=1e-12 * ref.max())
+
+
 # -- quadrature: scenes -------------------------------------------------------------------------------------
 
 AXIS = TimeAxis(t_start=0.0, bin_width=20 * PS, n_bins=700)
