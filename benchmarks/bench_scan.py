@@ -10,8 +10,11 @@ Reports, each in one run on this machine (timings are wall seconds in process, o
    shares the sub-triangles) and with the area sampler (today a separate run per laser point); the seconds per
    extra laser point is the slope between the two scan sizes.
 2. **Dataset samples.** ``make_sample`` of ``configs/datasets/confocal.yaml`` (32 × 32 × 512) and
-   ``configs/datasets/wall.yaml`` (64 × 64 × 512): seconds per sample (mean over ``--samples``) and the samples/s
-   two worker processes would reach (2 / mean: build processes share nothing).
+   ``configs/datasets/wall.yaml`` (64 × 64 × 512): seconds per sample (mean over ``--samples``), the samples/s
+   two worker processes would reach (2 / mean: build processes share nothing) and the per-sample error: the
+   stored estimate (``envelope_error``) and, for the confocal rooms, the error measured on an 8 × 8 sub-scan of
+   the same pixel size against the quadrature at a quarter of the config's edge (error ∝ h², so that reference is
+   16× closer to the integral; ``--no-reference`` skips it: minutes).
 3. **A 128 × 128 × 512 confocal capture of a ≈ 10 k-triangle mesh** (a torus of 10 000 triangles, 0.8 m across,
    1 m in front of a 2 m relay wall; tal's bunny example is 128 × 128 × 750 and takes 2–4 min with mitransient):
    time at 32 × 32 and 64 × 64 points (``--full``: and 128 × 128), one FoV cell per pixel, and the error of the envelope at the benchmark's edge against the
@@ -57,10 +60,31 @@ def per_laser_point(sizes: tuple[int, int], area_samples: int) -> list[tuple]:
     return rows
 
 
-def dataset_samples(name: str, count: int) -> tuple[float, float]:
+def dataset_samples(name: str, count: int) -> tuple[float, float, float]:
+    """(mean, max seconds per sample, max stored error estimate) of ``count`` samples of a dataset config."""
     config = load_dataset_config(ROOT / f"configs/datasets/{name}.yaml")
-    seconds = [make_sample(config, "train", i).seconds["total"] for i in range(count)]
-    return float(np.mean(seconds)), float(np.max(seconds))
+    samples = [make_sample(config, "train", i) for i in range(count)]
+    seconds = [s.seconds["total"] for s in samples]
+    return float(np.mean(seconds)), float(np.max(seconds)), max(float(s.arrays["envelope_error"]) for s in samples)
+
+
+def scan_error(name: str, index: int, points: int = 8) -> tuple[float, float]:
+    """Relative L2 of sample ``index``'s envelope at the config's edge against the edge / 4, on a
+    ``points`` × ``points`` sub-scan of the same pixel size (the sample's room, capture and time axis), and the
+    config's edge (FoV cells automatic: no larger than the edge, so the reference also integrates each pixel finer)."""
+    from datagen.dataset import sample_setup
+
+    config = load_dataset_config(ROOT / f"configs/datasets/{name}.yaml")
+    scene, sim = sample_setup(config, "train", index)
+    grid = scene.capture.laser_grid
+    n = grid.points[0]
+    scene.capture = CaptureSpec(**{**scene.capture.__dict__, "laser_grid": {
+        "center": list(grid.center), "size": [grid.size[0] * points / n, grid.size[1] * points / grid.points[1]],
+        "points": [points, points]}})
+    h = float(sim.quadrature_edge)
+    a, b = (datagen.simulate(scene, sim.model_copy(update={"quadrature_edge": e})).envelope
+            for e in (h, h / 4))
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b)), h
 
 
 def torus_scene(n: int) -> Scene:
@@ -109,6 +133,7 @@ def main() -> None:
     parser.add_argument("--edge", type=float, default=0.02, help="quadrature edge of the torus capture (m)")
     parser.add_argument("--full", action="store_true", help="also time the 128 × 128 torus capture (~15 min today)")
     parser.add_argument("--skip", default="", help="comma-separated parts to skip: 1, 2, 3")
+    parser.add_argument("--no-reference", action="store_true", help="skip the measured error of part 2")
     args = parser.parse_args()
     print(f"machine: {platform.node()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} "
           "(timings from a shared machine are noisy: compare ratios)")
@@ -124,13 +149,22 @@ def main() -> None:
         for est in ("quadrature", "area"):
             (n0, s0), (n1, s1) = [(n, s) for e, n, s in rows if e == est]
             print(f"{est}: {(s1 - s0) / (n1 * n1 - n0 * n0):.3f} s per extra laser point", flush=True)
+    targets = []
     if "2" not in skip:
         print("\n2. dataset samples (make_sample in process)")
         for name in (("confocal_smoke", "wall_smoke") if args.quick else ("confocal", "wall")):
-            mean, worst = dataset_samples(name, args.samples)
-            print(f"{name:<16} {mean:8.2f} s per sample (max {worst:.2f}) → {2 / mean:.3f} samples/s on 2 workers",
-                  flush=True)
+            mean, worst, estimate = dataset_samples(name, args.samples)
+            print(f"{name:<16} {mean:8.2f} s per sample (max {worst:.2f}) → {2 / mean:.3f} samples/s on 2 workers; "
+                  f"largest stored error estimate {estimate:.2%}", flush=True)
+            if name.startswith("confocal") and not args.no_reference:
+                errors = [scan_error(name, i) for i in range(min(args.samples, 2))]
+                measured = max(e for e, _ in errors)
+                print(f"{name:<16} measured error (8 × 8 sub-scans, h = {errors[0][1]} m vs h / 4): "
+                      + ", ".join(f"{e:.2%}" for e, _ in errors), flush=True)
+                targets.append(f"(a) {name}: {2 / mean:.3f} samples/s on 2 workers (target >= 0.5) at <= "
+                               f"{measured:.2%} measured (target <= 2 %)")
     if "3" in skip:
+        print("\n" + "\n".join(targets))
         return
     print(f"\n3. confocal capture of a 10 000-triangle torus, 512 bins of 32 ps, quadrature h = {args.edge} m")
     tsizes = (16, 32) if args.quick else (32, 64, 128) if args.full else (32, 64)
@@ -138,7 +172,13 @@ def main() -> None:
     for n in tsizes:
         for n, sec, cells, faces in torus_capture((n,), args.edge):
             print(f"{f'{n}×{n}':>10}{sec:>10.2f}{cells:>15}{faces:>11}", flush=True)
-    print(f"error at h = {args.edge} m against h = {args.edge / 2} m (8 × 8 sub-scan): {torus_error(args.edge):.4f}")
+    err = torus_error(args.edge)
+    print(f"error at h = {args.edge} m against h = {args.edge / 2} m (8 × 8 sub-scan): {err:.4f}")
+    big = max(tsizes)
+    targets.append(f"(b) torus {big}×{big} × 512: {sec:.1f} s (target 128×128 in <= 20 s"
+                   f"{'' if big == 128 else f'; 128×128 not run, ≈ {sec * (128 / big) ** 2:.0f} s scaling with points'}) "
+                   f"at {err:.2%} (target <= 1 %)")
+    print("\n" + "\n".join(targets))
 
 
 if __name__ == "__main__":

@@ -15,7 +15,8 @@ from datagen.analysis import relative_l2
 from datagen.sampling import subdivide_triangles
 from datagen.transport import AreaSampler, AreaSettings
 from datagen.scene import Material
-from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses, tent_curvature
+from datagen.timing.curvature import deposit_curvature
 from datagen.sampling import subdivide_with_vertices
 from datagen.transport import Quadrature, QuadratureSettings
 from datagen.analysis import primary_area_quadrature
@@ -151,6 +152,70 @@ def test_zero_span_tents_are_impulses_and_mass_is_conserved(irf):
         c.add_tents(np.zeros((2, 2)), [1.0, 1.0])
     with pytest.raises(ValueError, match="negative"):
         c.add_tents(np.zeros((1, 3)), [-1.0])
+
+
+def test_wide_tents_by_curvature_equal_the_per_node_closed_form():
+    """Fine-grid mode: tents of >= CURVATURE_MIN_NODES nodes go through their second differences
+    (tent_curvature, summed twice when read); the same fine histogram as the per-node closed form (the
+    threshold set to inf) to 1e-9 of its maximum, over widths from 4 nodes to hundreds, sides from 0 (flat
+    sides) to 1e-7 nodes and both sides narrower than a node, in several components."""
+    axis = TimeAxis(t_start=0.0, bin_width=20 * PS, n_bins=400)
+    irf = Irf(fwhm=60 * PS)
+    rng = np.random.default_rng(7)
+    t = np.sort(rng.uniform(100, 7800, (3000, 3)), axis=1)
+    t[:3000:4] = t[:3000:4, :1] + np.sort(rng.uniform(0, 40, (750, 3)), axis=1)      # 0–40 ps: a few nodes
+    t[1::50, 1] = t[1::50, 0]                                       # flat rising side
+    t[2::50, 1] = t[2::50, 2] - 1e-7                                  # side of 1e-7 ps
+    t[3::50] = t[3::50, :1] + np.array([0.0, 0.3, 25.0])              # one side below a node
+    t = t * PS
+    w = rng.uniform(0.1, 2.0, len(t))
+    comp = rng.integers(0, 3, len(t))
+    fast, exact = EnvelopeAccumulator(axis, irf, 3), EnvelopeAccumulator(axis, irf, 3)
+    exact.curvature_min_nodes = np.inf
+    span = (t[:, 2] - t[:, 0]) / fast.fine_step
+    assert (span >= fast.curvature_min_nodes).mean() > 0.5 and (span < fast.curvature_min_nodes).any()
+    for part in np.array_split(rng.permutation(len(t)), 3):            # several calls, folded once
+        fast.add_tents(t[part], w[part], comp[part])
+        exact.add_tents(t[part], w[part], comp[part])
+    ref = exact.fine_histogram()
+    assert np.abs(fast.fine_histogram() - ref).max() < 1e-9 * ref.max()
+    np.testing.assert_allclose(fast.binned(), exact.binned(), rtol=0, atol=1e-9 * exact.binned().max())
+    np.testing.assert_allclose(fast.outside(), exact.outside(), rtol=0, atol=1e-9 * w.sum())
+
+
+def test_compiled_curvature_deposit_equals_tent_curvature():
+    """deposit_curvature (numba) adds the same values as tent_curvature (numpy), weighted, to 1e-12."""
+    rng = np.random.default_rng(3)
+    c = np.sort(rng.uniform(5, 60, (500, 3)), axis=1)
+    c[::7, 1] = c[::7, 0] + rng.uniform(0, 1, len(c[::7]))            # sides narrower than a node
+    c[1::9, 1] = c[1::9, 2]
+    w, comp = rng.uniform(0.5, 2.0, len(c)), rng.integers(0, 2, len(c))
+    node, value = tent_curvature(c)
+    ref = np.zeros(2 * 80)
+    np.add.at(ref, (comp[:, None] * 80 + node).ravel(), (value * w[:, None]).ravel())
+    got = np.zeros(2 * 80)
+    deposit_curvature(c, w, comp, 80, got)
+    assert np.abs(got - ref).max() < 1e-12 * np.abs(ref).max()
+
+
+def test_confocal_scan_shares_the_laser_legs_visibility():
+    """A confocal room scan (one FoV cell per pixel: each target is its laser point) casts no hidden → FoV rays:
+    the laser leg's visibility is the same segment's. Same envelope as with those rays forced, about half the rays."""
+    from datagen.dataset import load_dataset_config
+    from datagen.dataset.config import draw_room
+
+    config = load_dataset_config("configs/datasets/confocal_smoke.yaml")
+    scene = draw_room(config, "train", 0)[0].scene
+    sim = resolve_config(scene, config.simulation_overrides())
+    runs = {}
+    for forced in (None, True):
+        q = Quadrature(scene, QuadratureSettings(edge=0.4, fov_cells=1, shadow_spot=True, shadow_fov=forced))
+        acc = EnvelopeAccumulator(sim.time, sim.irf, len(q.component_names) * q.capture.n_channels)
+        q.run(acc)
+        runs[forced] = (acc.binned(), q.stats.shadow_rays, q.settings.shadow_fov)
+    (shared, rays, fov), (ref, forced_rays, forced_fov) = runs[None], runs[True]
+    assert not fov and forced_fov and rays < 0.51 * forced_rays and ref.max() > 0
+    np.testing.assert_allclose(shared, ref, rtol=0, atol=1e-12 * ref.max())
 
 
 # -- quadrature: scenes -------------------------------------------------------------------------------------

@@ -13,18 +13,23 @@ Modules (they import each other directly, never through this package):
   integrals), :func:`fwhm_to_sigma`, :func:`sigma_to_fwhm`;
 - :mod:`~datagen.timing.accumulator`: :class:`EnvelopeAccumulator` (fine-grid splatting + FFT, or the exact
   direct mode for narrow IRFs) and the exact per-impulse reference :func:`bin_impulses`;
-- :mod:`~datagen.timing.tents`: closed forms of tent densities and their convolution with the IRF.
+- :mod:`~datagen.timing.curvature`: the compiled (numba) deposit of those second differences;
+- :mod:`~datagen.timing.impulses`: input checks of impulses and :func:`bin_impulses`;
+- :mod:`~datagen.timing.tents`: closed forms of tent densities, their convolution with the IRF and their
+  O(1)-per-tent second differences (:func:`tent_curvature`).
 """
-from .accumulator import MAX_FINE_NODES, NEGATIVE_CLAMP_RTOL, STEPS_PER_SIGMA, EnvelopeAccumulator, bin_impulses
+from .accumulator import CURVATURE_MIN_NODES, MAX_FINE_NODES, NEGATIVE_CLAMP_RTOL, STEPS_PER_SIGMA, EnvelopeAccumulator, bin_impulses
 from .irf import (FWHM_PER_SIGMA, MARGIN_SIGMAS, TAIL_MARGIN_TAUS, Irf, TimeAxis, ex_gaussian_cdf, fwhm_to_sigma,
                   sigma_to_fwhm)
-from .tents import TENT_GAP_SMALL_SIGMAS, TENT_SMALL_SIGMAS, tent_cdf, tent_cdf2, tent_irf_cdf
+from .tents import (TENT_GAP_SMALL_SIGMAS, TENT_SMALL_SIGMAS, tent_cdf, tent_cdf2, tent_curvature,
+                    tent_irf_cdf)
 
 __all__ = [
     # time axis and IRF
     "FWHM_PER_SIGMA", "ex_gaussian_cdf", "MARGIN_SIGMAS", "TAIL_MARGIN_TAUS", "TimeAxis", "Irf", "fwhm_to_sigma", "sigma_to_fwhm",
     # binning
-    "STEPS_PER_SIGMA", "MAX_FINE_NODES", "NEGATIVE_CLAMP_RTOL", "EnvelopeAccumulator", "bin_impulses",
+    "STEPS_PER_SIGMA", "MAX_FINE_NODES", "CURVATURE_MIN_NODES", "NEGATIVE_CLAMP_RTOL", "EnvelopeAccumulator", "bin_impulses",
     # tents
-    "TENT_SMALL_SIGMAS", "TENT_GAP_SMALL_SIGMAS", "tent_cdf", "tent_cdf2", "tent_irf_cdf",
+    "TENT_SMALL_SIGMAS", "TENT_GAP_SMALL_SIGMAS", "tent_cdf", "tent_cdf2", "tent_curvature",
+    "tent_irf_cdf",
 ]

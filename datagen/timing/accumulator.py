@@ -52,13 +52,16 @@ from typing import Any
 import numpy as np
 from scipy.signal import oaconvolve
 
+from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
+from .curvature import deposit_curvature
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
 
 __all__ = [
     "STEPS_PER_SIGMA",
     "MAX_FINE_NODES",
     "NEGATIVE_CLAMP_RTOL",
+    "CURVATURE_MIN_NODES",
     "EnvelopeAccumulator",
     "bin_impulses",
 ]
@@ -72,6 +75,16 @@ MAX_FINE_NODES = 1 << 24
 NEGATIVE_CLAMP_RTOL = 1e-12
 """FFT round-off is ~1e-16 * max |envelope|; negatives within this fraction of the max are set to 0."""
 
+CURVATURE_MIN_NODES = 4.0
+"""Fine-grid mode: tents spanning at least this many fine nodes are deposited through their second differences
+(:func:`datagen.timing.tents.tent_curvature`, 16 values per tent instead of one evaluation per node covered,
+compiled: :func:`datagen.timing.curvature.deposit_curvature`),
+summed twice along the nodes when the histogram is read; the same deposits up to round-off (~1e-16 of a tent's
+weight per node summed, measured ≤ 1e-11 relative on scans), so rows holding them clamp negatives within
+CURVATURE_CLAMP_RTOL of their maximum instead of NEGATIVE_CLAMP_RTOL."""
+
+CURVATURE_CLAMP_RTOL = 1e-9
+
 _CHUNK = 1 << 18
 """Impulses processed per internal chunk in EnvelopeAccumulator.add (bounds temporaries to a few MiB)."""
 
@@ -81,92 +94,9 @@ _DIRECT_KERNEL_MAX = 32
 _TENT_ROWS = 1 << 21
 """Evaluation rows (tents x nodes they cover) processed at once by EnvelopeAccumulator.add_tents."""
 
-_REFERENCE_BLOCK = 1 << 21
-"""Elements (impulses x edges) evaluated at once by bin_impulses."""
-
 _DIRECT_GUARD_BINS = 2
 """Direct (narrow-IRF) mode: bins kept on each side of the window. An impulse in bin b touches b-1..b+1, so
 impulses in bins -1 and n_bins still deposit into the guards; anything farther out is wholly outside."""
-
-
-
-def _as_real_array(values: Any, name: str) -> np.ndarray:
-    """Flattened view of numeric ``values``, kept in its dtype (callers convert to float64 per chunk)."""
-    arr = np.asarray(values)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        try:
-            arr = arr.astype(np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name} must be real numbers, got dtype {arr.dtype}") from exc
-    return arr.reshape(-1)
-
-
-def _check_finite(arr: np.ndarray, name: str, offset: int = 0) -> None:
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
-        raise ValueError(
-            f"{name} contain {int(bad.sum())} non-finite value(s) (NaN or inf); "
-            f"first at index {offset + first}: {arr[first]!r}"
-        )
-
-
-def _check_weights(arr: np.ndarray, offset: int = 0) -> None:
-    _check_finite(arr, "weights", offset)
-    neg = arr < 0
-    if neg.any():
-        first = int(np.flatnonzero(neg)[0])
-        raise ValueError(
-            f"weights must be >= 0 (expected photons); {int(neg.sum())} negative, "
-            f"first at index {offset + first}: {arr[first]!r}"
-        )
-
-
-def _times_weights(times: Any, weights: Any) -> tuple[np.ndarray, np.ndarray]:
-    t = _as_real_array(times, "times")
-    w = _as_real_array(weights, "weights")
-    if w.size == 1 and t.size != 1:
-        w = np.broadcast_to(w, t.shape)
-    if w.shape != t.shape:
-        raise ValueError(f"times and weights must have the same length, got {t.size} and {w.size}")
-    return t, w
-
-
-def bin_impulses(times: Any, weights: Any, axis: TimeAxis, irf: Irf) -> np.ndarray:
-    """Exact binned envelope of one component: ``out_b = sum_i w_i * P(e_b - tau_i <= X < e_{b+1} - tau_i)``.
-
-    The reference for :class:`EnvelopeAccumulator` (docs/physics.md §5: bins are integrals; for a Gaussian each
-    term is a difference of normal CDFs, evaluated stably by :meth:`Irf.interval_mass`). Cost O(n * n_bins):
-    meant for small inputs, tests and quadrature.
-
-    Args:
-        times: impulse arrival times, seconds, any shape (flattened), float64-convertible.
-        weights: expected detected photons per pulse, same shape as ``times`` (or a scalar), >= 0.
-        axis: output time axis.
-        irf: instrument response.
-
-    Returns:
-        (axis.n_bins,) float64, photons per pulse in each bin.
-
-    Raises:
-        ValueError: non-finite times or weights, negative weights, mismatched lengths (the message names
-            which input).
-    """
-    t, w = _times_weights(times, weights)
-    t, w = t.astype(np.float64), w.astype(np.float64)
-    _check_finite(t, "times")
-    _check_weights(w)
-    keep = w != 0
-    t, w = t[keep], w[keep]
-    edges = axis.edges
-    out = np.zeros(axis.n_bins, dtype=np.float64)
-    block = max(1, _REFERENCE_BLOCK // edges.size)
-    for start in range(0, t.size, block):
-        tb, wb = t[start : start + block], w[start : start + block]
-        x = edges[None, :] - tb[:, None]
-        mass = irf.interval_mass(x[:, :-1], x[:, 1:])
-        out += wb @ mass
-    return out
 
 
 # ------------------------------------------------------------------------------------------------- tents
@@ -238,6 +168,9 @@ class EnvelopeAccumulator:
         self._total = np.zeros(self.n_components, dtype=np.float64)
         self._beyond = np.zeros(self.n_components, dtype=np.float64)
         self._binned: np.ndarray | None = None
+        self._curvature: np.ndarray | None = None          # second differences of wide tents' deposits
+        self._clamp_rtol = NEGATIVE_CLAMP_RTOL
+        self.curvature_min_nodes = CURVATURE_MIN_NODES      # inf: every tent by its per-node closed form
 
     @classmethod
     def fine_grid(cls, axis: TimeAxis, irf: Irf, oversample: int | None = None) -> tuple[bool, int, int, int]:
@@ -302,11 +235,11 @@ class EnvelopeAccumulator:
             ValueError: NaN/inf in times or weights (message names which, the count and the first index),
                 negative weights, mismatched lengths, component ids out of range or not integers.
         """
-        t, w = _times_weights(times, weights)
+        t, w = times_weights(times, weights)
         comp = self._components(component, t.size)
         for start in range(0, t.size, _CHUNK):
-            _check_finite(np.asarray(t[start : start + _CHUNK], dtype=np.float64), "times", start)
-            _check_weights(np.asarray(w[start : start + _CHUNK], dtype=np.float64), start)
+            check_finite(np.asarray(t[start : start + _CHUNK], dtype=np.float64), "times", start)
+            check_weights(np.asarray(w[start : start + _CHUNK], dtype=np.float64), start)
             if not isinstance(comp, int):
                 cb = comp[start : start + _CHUNK]
                 if cb.size and (cb.min() < 0 or cb.max() >= self.n_components):
@@ -409,11 +342,11 @@ class EnvelopeAccumulator:
         t = np.asarray(times)
         if t.ndim != 2 or t.shape[1] != 3:
             raise ValueError(f"times must have shape (n, 3) (vertex times of each triangle), got {t.shape}")
-        _, w = _times_weights(t[:, 0], weights)
+        _, w = times_weights(t[:, 0], weights)
         comp = self._components(component, len(t))
         t = t.astype(np.float64)
-        _check_finite(t.reshape(-1), "times")
-        _check_weights(np.asarray(w, dtype=np.float64))
+        check_finite(t.reshape(-1), "times")
+        check_weights(np.asarray(w, dtype=np.float64))
         if not isinstance(comp, int) and comp.size and (comp.min() < 0 or comp.max() >= self.n_components):
             bad = int(comp[(comp < 0) | (comp >= self.n_components)][0])
             raise ValueError(f"component ids must be in [0, {self.n_components}), got {bad}")
@@ -447,6 +380,13 @@ class EnvelopeAccumulator:
             if not isinstance(comp, int):
                 comp = comp[inside]
         clipped = (lo < 0) | (hi > self.n_fine - 1)
+        if coord is not None and not self.irf.is_delta:             # wide tents: O(1) curvature deposits
+            wide = (coord[:, 2] - coord[:, 0] >= self.curvature_min_nodes) & (lo >= 1) & (hi + 2 <= self.n_fine - 1)
+            if wide.any():
+                self._add_curvature(coord[wide], w[wide], comp if isinstance(comp, int) else comp[wide])
+                keep = ~wide
+                t, w, lo, hi, coord, clipped = t[keep], w[keep], lo[keep], hi[keep], coord[keep], clipped[keep]
+                comp = comp if isinstance(comp, int) else comp[keep]
         first = np.maximum(lo, 0).astype(np.int64)
         last = np.minimum(hi, self.n_fine - 1).astype(np.int64)
         # evaluation points per tent: edges first..last+1 (cells, bins) or nodes first-1..last+1 (splat weights)
@@ -461,6 +401,22 @@ class EnvelopeAccumulator:
             self._tent_rows(flat, t[sel], w[sel], comp if isinstance(comp, int) else comp[sel], first[sel],
                             counts[sel], None if coord is None else coord[sel], clipped[sel])
             group = stop
+
+    def _add_curvature(self, coord: np.ndarray, w: np.ndarray, c: int | np.ndarray) -> None:
+        if self._curvature is None:
+            self._curvature = np.zeros_like(self._hist)
+        comp = np.full(len(w), c, dtype=np.int64) if isinstance(c, int) else c
+        deposit_curvature(coord, w, comp, self.n_fine, self._curvature.reshape(-1))
+
+    def _fold(self) -> np.ndarray:
+        """The fine histogram with the pending curvature deposits summed in (twice along the nodes)."""
+        if self._curvature is not None:
+            np.cumsum(self._curvature, axis=1, out=self._curvature)
+            np.cumsum(self._curvature, axis=1, out=self._curvature)
+            self._hist += self._curvature
+            self._curvature = None
+            self._clamp_rtol = CURVATURE_CLAMP_RTOL
+        return self._hist
 
     def _tent_rows(self, flat: np.ndarray, t: np.ndarray, w: np.ndarray, c: int | np.ndarray, first: np.ndarray,
                    counts: np.ndarray, coord: np.ndarray | None, clipped: np.ndarray) -> None:
@@ -520,7 +476,9 @@ class EnvelopeAccumulator:
             raise ValueError(f"cannot merge accumulators with different grids: {other._hist.shape} vs "
                              f"{self._hist.shape}")
         self._binned = None
-        self._hist += other._hist
+        self._fold()
+        self._hist += other._fold()
+        self._clamp_rtol = max(self._clamp_rtol, other._clamp_rtol)
         self._total += other._total
         self._beyond += other._beyond
 
@@ -534,7 +492,7 @@ class EnvelopeAccumulator:
         In direct mode (narrow IRF) the nodes are the bin centres (2 guard bins each side) and each holds the
         exact integral of the envelope over its bin.
         """
-        return self._hist.copy()
+        return self._fold().copy()
 
     def binned(self) -> np.ndarray:
         """Binned envelopes, shape (n_components, n_bins), float64 photons per pulse per bin.
@@ -543,14 +501,15 @@ class EnvelopeAccumulator:
         impulses on fine nodes; for others the linear-splatting error is ~ (fine_step / sigma)^2 relative.
         The convolution runs by overlap-add FFT (direct for kernels <= _DIRECT_KERNEL_MAX taps), whose
         round-off is ~1e-16 of the component's maximum: bins far below that in a tail are not accurate.
-        Negative round-off no larger than NEGATIVE_CLAMP_RTOL * max is set to 0.
+        Negative round-off no larger than NEGATIVE_CLAMP_RTOL * max (CURVATURE_CLAMP_RTOL after wide tents) is
+        set to 0.
 
         Raises:
             RuntimeError: a value more negative than the clamp threshold (cannot happen for weights >= 0;
                 would indicate a bug).
         """
         if self._binned is None:
-            self._binned = self._convolve_rows(self._hist)
+            self._binned = self._convolve_rows(self._fold())
         return self._binned.copy()
 
     def binned_total(self, n_channels: int = 1) -> np.ndarray:
@@ -558,7 +517,7 @@ class EnvelopeAccumulator:
         one convolution per channel. Raises ValueError if ``n_channels`` does not divide ``n_components``."""
         if n_channels < 1 or self.n_components % n_channels:
             raise ValueError(f"n_channels {n_channels} does not divide the {self.n_components} components")
-        return self._convolve_rows(self._hist.reshape(-1, n_channels, self._hist.shape[-1]).sum(axis=0))
+        return self._convolve_rows(self._fold().reshape(-1, n_channels, self._hist.shape[-1]).sum(axis=0))
 
     def _convolve_rows(self, hist: np.ndarray) -> np.ndarray:
         """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes."""
@@ -569,9 +528,9 @@ class EnvelopeAccumulator:
             conv = np.convolve if self._kernel.size <= _DIRECT_KERNEL_MAX else oaconvolve
             row = conv(s, self._kernel, mode="valid").reshape(self.axis.n_bins, self.oversample).sum(axis=1)
             peak = np.abs(row).max()
-            if row.min() < -NEGATIVE_CLAMP_RTOL * peak:
+            if row.min() < -self._clamp_rtol * peak:
                 raise RuntimeError(
-                    f"component {k}: envelope value {row.min()!r} below -{NEGATIVE_CLAMP_RTOL} * max ({peak!r})"
+                    f"component {k}: envelope value {row.min()!r} below -{self._clamp_rtol} * max ({peak!r})"
                 )
             np.maximum(row, 0.0, out=row)
             out[k] = row
@@ -586,6 +545,7 @@ class EnvelopeAccumulator:
         total_weight()`` up to float round-off and the IRF mass beyond its support (< 1e-15 relative).
         """
         result = self._beyond.copy()
+        self._fold()
         if self.direct:  # guard bins hold exact out-of-window bin integrals
             return result + self._hist[:, : self.n_left].sum(1) + self._hist[:, self.n_left + self.n_cells :].sum(1)
         for k in range(self.n_components):

@@ -42,7 +42,9 @@ an occluder can cross that leg. For each leg an exact conservative test is run f
 convex hull of a hidden triangle and the leg's other end (the laser points' hull or the FoV rectangle), by
 separating planes (the planner's test, :func:`datagen.scene.separation.may_meet`). A hidden square in front of a flat
 relay wall needs no shadow ray; the demo room does. Forcing ``shadow_spot`` / ``shadow_fov`` on or off overrides
-the test. The FoV → sensor leg follows ``shadow_sensor`` (the planner's decision, as for every estimator).
+the test. Confocal captures whose targets are the laser points themselves (point radiance, or one FoV cell per
+pixel) cast no ray on the hidden → FoV leg unless ``shadow_fov`` is forced: it is the laser leg's segment, whose
+visibility the irradiance already holds. The FoV → sensor leg follows ``shadow_sensor`` (the planner's decision, as for every estimator).
 
 **Scans.** Confocal and exhaustive captures reuse one subdivision for every laser point: the laser leg is
 evaluated per (cell, laser point), the target leg per (cell, target), and path lengths at vertices per (vertex,
@@ -314,6 +316,11 @@ class Quadrature:
             self.target_area = pw * ph / (k * k)
             self.fov_cells = k
         self._connections()
+        if (s.shadow_fov is None and self.settings.shadow_fov and self.settings.shadow_spot and c.kind == "confocal"
+                and np.array_equal(self.targets[self.conn_target], c.spots[self.conn_laser])):
+            # each target is its laser point: V(x, y) = V(x_l, x), already in the laser leg's irradiance
+            self.settings = replace(self.settings, shadow_fov=False)
+            self.visibility["shadow_fov"] = "each target is its laser point: the laser leg's shadow rays"
         self.total_rows = self.n_cells * len(self.conn_laser)
         self.stats.cells, self.stats.targets, self.stats.connections = self.n_cells, len(self.targets), \
             len(self.conn_laser)
