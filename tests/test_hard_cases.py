@@ -865,19 +865,22 @@ def test_zero_albedo_scene_is_exactly_zero():
 def test_envelope_is_linear_in_photons_per_pulse_at_extremes(photons):
     """Φ from 1e-200 to 1e30: the envelope scales linearly (1e-11 relative in every bin above 1e-3 of the
     peak: the FFT's round-off, ~1e-16 of the peak, does not scale exactly with Φ), with finite pile-up
-    counts (at most one detection per cycle). Below Φ ~ 1e-290 the envelope (~1e-9 Φ per bin) would be
+    counts (at most one detection per cycle) and the same relative error estimate. Below Φ ~ 1e-290 the envelope (~1e-9 Φ per bin) would be
     subnormal; that is float64's range, not a defect."""
     def with_photons(value):
         def mutate(d):
             d["laser"]["photons_per_pulse"] = value
             d["simulation"]["detector"]["model"] = "pile_up"
         return scene_from_dict(_mutated(mutate))
-    unit = run(with_photons(1.0), lookins="32x32", pixels="16x16").envelope
+    unit_run = run(with_photons(1.0), lookins="32x32", pixels="16x16")
+    unit = unit_run.envelope
     scaled = run(with_photons(photons), lookins="32x32", pixels="16x16")
     m = unit > 1e-3 * unit.max()
     np.testing.assert_allclose(scaled.envelope[m] / photons, unit[m], rtol=1e-11)
     assert np.isfinite(scaled.envelope).all()
     assert scaled.counts.dtype == np.int64 and 0 <= scaled.counts.sum() <= scaled.attrs["n_cycles"]
+    unit_error = unit_run.attrs["error"]["rel_l2"]                      # the error estimate is scale-free too (not 0/0)
+    assert scaled.attrs["error"]["rel_l2"] == pytest.approx(unit_error, rel=1e-9) and 0 < unit_error < 1
 
 
 def test_huge_flux_with_poisson_detector_gives_finite_counts_or_clear_error():

@@ -59,15 +59,22 @@ def relative_difference(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> floa
 class ReplicaSums:
     """Running sums of the replicas' envelopes: what the error estimate needs, independent of R in size.
 
+    The sums are kept in units of ``scale``, a power of two near the first non-zero replica's peak, so that the
+    squares neither underflow nor overflow at extreme fluxes (Φ = 1e-200 photons per pulse gives bins of ~1e-209,
+    whose squares are 0 in float64); a power of two makes the scaling exact, so the mean is the same bits as an
+    unscaled sum.
+
     Attributes:
-        envelope: (n_channels, n_bins) Σ_r of each replica's envelope (summed over components), photons per pulse.
-        envelope_sq: (n_channels, n_bins) Σ_r of its square.
+        envelope: (n_channels, n_bins) Σ_r of each replica's envelope (summed over components) / ``scale``.
+        envelope_sq: (n_channels, n_bins) Σ_r of its square, in ``scale``² units.
         count: R, replicas added.
+        scale: photons per pulse per unit of the sums (0 until a replica with energy arrives).
     """
 
     envelope: np.ndarray
     envelope_sq: np.ndarray
     count: int = 0
+    scale: float = 0.0
 
     @classmethod
     def zeros(cls, n_channels: int, n_bins: int) -> ReplicaSums:
@@ -75,18 +82,23 @@ class ReplicaSums:
 
     def add(self, envelope: np.ndarray) -> None:
         """Add one replica's envelope (n_channels, n_bins)."""
-        self.envelope += envelope
-        self.envelope_sq += envelope ** 2
+        if self.scale == 0.0:
+            peak = float(np.abs(envelope).max()) if envelope.size else 0.0
+            if peak > 0 and np.isfinite(peak):
+                self.scale = float(2.0 ** np.round(np.log2(peak)))
+        scaled = envelope / self.scale if self.scale else envelope
+        self.envelope += scaled
+        self.envelope_sq += scaled ** 2
         self.count += 1
 
     def mean(self) -> np.ndarray:
-        """(n_channels, n_bins) mean envelope of the replicas."""
-        return self.envelope / max(self.count, 1)
+        """(n_channels, n_bins) mean envelope of the replicas, photons per pulse."""
+        return self.envelope / max(self.count, 1) * (self.scale or 1.0)
 
     def error(self) -> float:
         """ε̂, the relative standard error of the mean envelope (module docstring); inf for fewer than 2
         replicas (unless the envelope is zero: then 0)."""
-        mean = self.mean()
+        mean = self.envelope / max(self.count, 1)                     # in scale units: the ratio needs no more
         if self.count < 2:
             return float("inf") if mean.any() else 0.0
         var_mean = np.maximum(self.envelope_sq / self.count - mean ** 2, 0.0) / (self.count - 1)
