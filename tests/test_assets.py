@@ -86,10 +86,13 @@ def test_mesh_objects_are_placed_inside_their_region_and_box(wall_rooms, wall_di
         np.testing.assert_allclose(0.5 * (local.max(0) + local.min(0)), 0.0, atol=1e-9)
         assert 0.5 - 1e-9 <= max(np.ptp(local, axis=0)) / 1.0 <= 0.9 * np.sqrt(3) + 1e-9
         # the recorded file → world transform reproduces the scene's vertices from the file
-        raw = trimesh.load(obj["asset"], force="mesh", process=False)
+        file = asset_files(tuple(wall_dist.objects.mesh.assets))[obj["asset_index"]]
+        raw = trimesh.load(file, force="mesh", process=False)
         m = np.array(obj["transform"])
         np.testing.assert_allclose(raw.vertices @ m[:3, :3].T + m[:3, 3], v, atol=1e-9)
-        assert obj["asset"] == asset_files(tuple(wall_dist.objects.mesh.assets))[obj["asset_index"]]
+        # the recorded name is location-free: the file's path from the folder holding the asset entry
+        assert not Path(obj["asset"]).is_absolute() and file.endswith("/" + obj["asset"])
+        assert obj["asset"] == f"{Path(file).parent.name}/{Path(file).name}"     # e.g. alphanumeric/J.ply
     assert len(seen) >= 20                                              # draws spread over the library
 
 
@@ -198,3 +201,18 @@ def test_wall_view_ignores_room_surfaces():
     labels = scene_labels(SampledRoom(scene, room.params, room.objects), LabelSpec(max_objects=1, voxels=4))
     assert labels["wall_mask"].sum() == (labels["wall_depth"] > 0).sum() > 0
     assert labels["wall_depth"].max() == pytest.approx(0.8, rel=1e-6)
+
+
+def test_config_fingerprint_does_not_depend_on_where_the_checkout_lives(tmp_path):
+    """The loaded config holds the mesh asset folder as an absolute path (workers need it); the fingerprint that
+    resume and verify compare is the same for a copy of the configs and assets elsewhere."""
+    import shutil
+    from datagen.dataset import load_dataset_config
+    for part in ("configs", "assets"):
+        shutil.copytree(ROOT / part, tmp_path / "elsewhere" / part)
+    here = load_dataset_config(ROOT / "configs/datasets/wall.yaml")
+    there = load_dataset_config(tmp_path / "elsewhere/configs/datasets/wall.yaml")
+    assert here.room["objects"]["mesh"]["assets"] != there.room["objects"]["mesh"]["assets"]   # absolute, differ
+    assert here.fingerprint() == there.fingerprint()
+    moved = there.model_copy(update={"seed": there.seed + 1})
+    assert moved.fingerprint() != here.fingerprint()                                         # still a fingerprint

@@ -92,6 +92,20 @@ def asset_files(entries: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(files)
 
 
+def asset_name(entries: tuple[str, ...], file: str) -> str:
+    """Location-free name of an asset file: its path from the folder that holds its entry, e.g. ``meshes/A.ply``
+    for the entry ``/any/checkout/assets/meshes`` (a file entry: its own name). Pure string arithmetic on resolved
+    paths (no file access), so a recorded name means the same on every machine."""
+    path = Path(file)
+    for entry in entries:
+        root = Path(entry)
+        if path == root:
+            return root.name
+        if root in path.parents:
+            return str(path.relative_to(root.parent))
+    return path.name
+
+
 def asset_digest(files: tuple[str, ...]) -> list[dict]:
     """[{file, sha256}] of every asset file (recorded in the dataset card: a changed asset changes samples)."""
     return [{"file": f, "sha256": hashlib.sha256(Path(f).read_bytes()).hexdigest()} for f in files]

@@ -204,8 +204,15 @@ class DatasetConfig(_Model):
         return data
 
     def fingerprint(self) -> str:
-        """sha256 of the canonical JSON of :meth:`to_json` (a build resumes only into the same config)."""
-        return hashlib.sha256(json.dumps(self.to_json(), sort_keys=True).encode()).hexdigest()
+        """sha256 of the canonical JSON of :meth:`to_json` (a build resumes only into the same config), with the
+        mesh asset entries, which loading resolves to absolute paths, reduced to their folder or file names: the
+        same config has the same fingerprint in any checkout or copy (the card's ``asset_digest`` records each
+        file's sha256)."""
+        data = self.to_json()
+        mesh = (data["room"].get("objects") or {}).get("mesh") if isinstance(data.get("room"), dict) else None
+        if isinstance(mesh, dict) and isinstance(mesh.get("assets"), list):
+            mesh["assets"] = [Path(entry).name for entry in mesh["assets"]]
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
     def simulation_overrides(self) -> dict:
         """``simulation`` with the resolved ``detector`` merged in (input of resolve_config)."""

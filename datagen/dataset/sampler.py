@@ -27,7 +27,7 @@ import numpy as np
 
 from ..scene import (ROOM_LABELS, FieldOfView, Laser, Scene, SceneError, SceneObject, Sensor, box, l_room, pillar,
                      quad)
-from .assets import asset_box, asset_files, load_asset, place_asset
+from .assets import asset_box, asset_files, asset_name, load_asset, place_asset
 from .obb import box_hits_pyramid, box_hits_segment, boxes_overlap
 from .rooms import (OBJECT_CLASSES, UNIFORMS_PER_MATERIAL, MeshObjectDist, ObjectDist, PointDist, Range,
                     RoomDistribution)
@@ -40,9 +40,9 @@ OBJECT_KEYS = ("class", "name", "region", "center", "size", "yaw_deg", "material
 """Keys of every hidden object's record (``center``, ``size``, ``yaw_deg``: its oriented bounding box)."""
 
 MESH_KEYS = ("asset", "asset_index", "scale", "tilt_deg", "tilt_axis_deg", "transform")
-"""Extra keys of a mesh object: the asset file (absolute path), its index in the distribution's sorted asset
-list, the size (longest side of its bounding box, m), the tilt and its axis azimuth (degrees) and the (4, 4)
-file → world transform (row-major; :func:`datagen.dataset.assets.place_asset`)."""
+"""Extra keys of a mesh object: the asset file (its location-free name, e.g. ``meshes/A.ply``:
+:func:`datagen.dataset.assets.asset_name`), its index in the distribution's sorted asset list, the size (longest
+side of its bounding box, m), the tilt and its axis azimuth (degrees) and the (4, 4) file → world transform (row-major; :func:`datagen.dataset.assets.place_asset`)."""
 
 
 @dataclass
@@ -157,7 +157,8 @@ def _mesh_shape(rng: np.random.Generator, cls: MeshObjectDist) -> tuple[dict, tu
     index = int(rng.integers(len(files)))
     size, tilt, axis = _uniform(rng, cls.size), _uniform(rng, cls.tilt_deg), float(rng.random() * 360.0)
     box_size, _ = asset_box(load_asset(files[index]), size, tilt, axis)
-    shape = {"asset": files[index], "asset_index": index, "scale": size, "tilt_deg": tilt, "tilt_axis_deg": axis}
+    shape = {"asset": asset_name(tuple(cls.assets), files[index]), "asset_index": index, "scale": size,
+             "tilt_deg": tilt, "tilt_axis_deg": axis}
     return shape, tuple(float(v) for v in box_size)
 
 
@@ -277,7 +278,7 @@ def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator])
             scene_objects.append(pillar(o["name"], tuple(o["center"][:2]), tuple(o["size"][:2]), o["size"][2],
                                         o["yaw_deg"], material))
         elif o["class"] == "mesh":
-            asset = load_asset(o["asset"])
+            asset = load_asset(asset_files(tuple(dist.objects.mesh.assets))[o["asset_index"]])
             vertices, transform = place_asset(asset, o["scale"], o["tilt_deg"], o["tilt_axis_deg"], o["center"],
                                               o["yaw_deg"])
             o["transform"] = transform.tolist()
