@@ -14,12 +14,14 @@ Configs and targets (docs/datasets.md, "What each config teaches"):
 * ``configs/datasets/objects.yaml``: ``object_count``, ``nearest_object`` from the counts alone and with the
   stored empty-room reference subtracted (``--input subtracted``), and ``first_return``;
 * ``configs/datasets/wall_baseline.yaml`` (the scanned wall distribution of ``wall.yaml`` at 16 × 16 × 256, built
-  as shipped: 200 + 50 samples): the ``wall_depth`` image over the object pixels from
+  as shipped: 200 + 50 samples) and ``configs/datasets/confocal_baseline.yaml`` (the rooms of ``confocal.yaml`` at
+  16 × 16 × 256, 200 + 50 samples): the ``wall_depth`` image over the object pixels from
   ``examples/train_depth_image.py`` (per training seed) and ``examples/backprojection_baseline.py`` (no
-  training), each scored by ``datagen score``'s :func:`~datagen.dataset.score.score_predictions` on ``val``
-  against the trivial baseline (the training mean depth over the object pixels).
+  training; depths searched to ``BP_FAR``), each scored by ``datagen score``'s
+  :func:`~datagen.dataset.score.score_predictions` on ``val`` against the trivial baseline (the training mean
+  depth over the object pixels).
 
-``--configs default,objects,wall_baseline`` (the default) selects what runs.
+``--configs default,objects,wall_baseline,confocal_baseline`` (the default) selects what runs.
 
 ``smoke.yaml`` is a build check (40 tiny samples), not a training set, and is not run. A target counts as
 taught ("yes") when its RMSE is at most ``TAUGHT_RMSE`` × the trivial baseline's (the training mean), or its
@@ -55,8 +57,9 @@ RUNS = [  # config, input, targets
     ("objects", "subtracted", ["object_count", "nearest_object", "first_return"]),
 ]
 SIZES = {"default": (256, 128), "objects": (512, 128)}
-SCAN_CONFIG = "wall_baseline"          # built as shipped (its splits: 200 + 50), never cut by --quick
+SCAN_CONFIGS = ("wall_baseline", "confocal_baseline")   # built as shipped (200 + 50 each), never cut by --quick
 SCAN_EPOCHS = 40
+BP_FAR = {"wall_baseline": 1.9, "confocal_baseline": 4.0}   # m searched by the backprojection (objects ≤ 1.5 / ≈ 3 m out)
 
 
 def build(name: str, out: Path, n_train: int | None = None, n_val: int | None = None) -> Path:
@@ -93,14 +96,15 @@ def verdict(r) -> tuple[str, str]:
     return f"{r.ratio:+.3f} ({r.ratio / se:+.1f} se)", "yes" if r.ratio >= TAUGHT_SE * se else "no"
 
 
-def scan_rows(path: Path, seeds: list[int], epochs: int, out: Path) -> list[tuple]:
-    """[(method, seed or None, MAE, RMSE, trivial MAE, trivial RMSE, samples)] of the depth-image baselines on
+def scan_rows(path: Path, seeds: list[int], epochs: int, out: Path, far: float) -> list[tuple]:
+    """[(method, seed or None, MAE, RMSE, trivial MAE, trivial RMSE, samples scored)] of the depth-image baselines on
     ``val``, each written as a ``datagen score`` .npz under ``out`` and scored with it (mean over samples)."""
     def scored(name: str, pred: dict) -> tuple[float, float, int]:
         f = out / f"{path.name}-{name}.npz"
         np.savez(f, depth=pred["depth"], index=pred["index"])
-        s = score_predictions(f, path, "val")["summary"]
-        return s["mean_depth_mae"], s["mean_depth_rmse"], s["samples"]
+        scores = score_predictions(f, path, "val")
+        s, seen = scores["summary"], sum(r["depth_pixels"] > 0 for r in scores["rows"])
+        return s["mean_depth_mae"], s["mean_depth_rmse"], f"the {seen} of {s['samples']} samples with object pixels"
 
     rows, trivial = [], None
     for seed in seeds:
@@ -109,10 +113,11 @@ def scan_rows(path: Path, seeds: list[int], epochs: int, out: Path) -> list[tupl
         print(f"{path.name} / depth CNN / seed {seed}: trained in {time.perf_counter() - t0:.0f} s")
         trivial = scored("trivial", {"depth": pred["trivial"], "index": pred["index"]})
         rows.append(("depth CNN (counts)", seed) + scored(f"net-seed{seed}", pred)[:2] + trivial)
-    t0 = time.perf_counter()
-    bp = backprojection_baseline.predict(path, "val", "counts")
-    print(f"{path.name} / backprojection: {time.perf_counter() - t0:.0f} s")
-    rows.append(("backprojection (counts)", None) + scored("backprojection", bp)[:2] + trivial)
+    for field in ("counts", "envelope"):        # the envelope: the noise-free bound of the same method
+        t0 = time.perf_counter()
+        bp = backprojection_baseline.predict(path, "val", field, far=far)
+        print(f"{path.name} / backprojection of the {field}: {time.perf_counter() - t0:.0f} s")
+        rows.append((f"backprojection ({field})", None) + scored(f"backprojection-{field}", bp)[:2] + trivial)
     return rows
 
 
@@ -123,7 +128,8 @@ def main():
     parser.add_argument("--seeds", default="0", help="training seeds, comma separated")
     parser.add_argument("--epochs", type=int, default=30)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--configs", default="default,objects," + SCAN_CONFIG, help="comma separated")
+    parser.add_argument("--configs", default=",".join(("default", "objects") + SCAN_CONFIGS),
+                        help="comma separated")
     args = parser.parse_args()
     configs = args.configs.split(",")
     torch.set_num_threads(args.threads)
@@ -135,8 +141,9 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     paths = {name: build(name, out, n_tr // scale, n_va) for name, (n_tr, n_va) in SIZES.items() if name in configs}
-    if SCAN_CONFIG in configs:
-        paths[SCAN_CONFIG] = build(SCAN_CONFIG, out)
+    for name in SCAN_CONFIGS:
+        if name in configs:
+            paths[name] = build(name, out)
     rows = []
     for name, inp, targets in (run for run in RUNS if run[0] in configs):
         for seed in seeds:
@@ -155,16 +162,16 @@ def main():
             metric = f"RMSE {r.unit}" if r.kind == "regression" else "accuracy"
             print(f"{name:8s} {inp:11s} {seed:4d} {r.target:15s} {metric:>11s} {r.model:8.3f} {r.trivial:8.3f} "
                   f"{margin:>18s} {taught:>6s}")
-    if SCAN_CONFIG in configs:
+    for name in (c for c in SCAN_CONFIGS if c in configs):
         epochs = SCAN_EPOCHS // scale
-        scan = scan_rows(paths[SCAN_CONFIG], seeds, epochs, out)
-        print(f"\n{SCAN_CONFIG}: val wall_depth over the object pixels (datagen score, mean over {scan[0][-1]} "
-              f"samples; CNN {epochs} epochs; trivial = training mean depth; taught = RMSE <= {TAUGHT_RMSE} x trivial)")
-        print(f"{'method':24s} {'seed':>4s} {'MAE m':>7s} {'RMSE m':>7s} {'trivial MAE':>11s} {'trivial RMSE':>12s} "
+        scan = scan_rows(paths[name], seeds, epochs, out, BP_FAR[name])
+        print(f"\n{name}: val wall_depth over the object pixels (datagen score, mean over {scan[0][-1]}; CNN "
+              f"{epochs} epochs; trivial = training mean depth; taught = RMSE <= {TAUGHT_RMSE} x trivial)")
+        print(f"{'method':26s} {'seed':>4s} {'MAE m':>7s} {'RMSE m':>7s} {'trivial MAE':>11s} {'trivial RMSE':>12s} "
               f"{'margin':>11s} {'taught':>6s}")
         for method, seed, mae, rmse, t_mae, t_rmse, _ in scan:
             taught = "yes" if rmse <= TAUGHT_RMSE * t_rmse else "no"
-            print(f"{method:24s} {'-' if seed is None else seed:>4} {mae:7.3f} {rmse:7.3f} {t_mae:11.3f} "
+            print(f"{method:26s} {'-' if seed is None else seed:>4} {mae:7.3f} {rmse:7.3f} {t_mae:11.3f} "
                   f"{t_rmse:12.3f} {f'RMSE x{rmse / t_rmse:.2f}':>11s} {taught:>6s}")
     print(f"\ntotal {time.perf_counter() - t_start:.0f} s (machine shared with other jobs)")
 

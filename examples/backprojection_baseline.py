@@ -26,8 +26,9 @@ import datagen
 from datagen.analysis.backprojection import backproject, laplacian_filter, wall_leg_weights
 
 NEAR, FAR, STEP = 0.3, 1.9, 0.02
-"""Depths searched (m in front of the wall): the wall configs place objects 0.5–1.5 m out (configs/rooms/wall.yaml),
-plus their half-depth and margin."""
+"""Depths searched by default (m in front of the wall): the wall configs place objects 0.5–1.5 m out
+(configs/rooms/wall.yaml), plus their half-depth and margin. The confocal rooms (configs/rooms/confocal.yaml) place
+them up to ≈ 3 m from the relay wall: search to ``--far 4.0`` there."""
 
 
 def scan_geometry(params: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -66,11 +67,13 @@ def depth_image(scan: np.ndarray, time_edges: np.ndarray, params: dict, near: fl
     return depths[np.argmax(filtered, axis=-1)].astype(np.float32)
 
 
-def predict(path: str | Path, split: str, field: str = "counts", limit: int | None = None) -> dict[str, np.ndarray]:
-    """{"depth": (N, H, W) float32 m, "index": (N,) int64} for the first ``limit`` samples of ``split``."""
+def predict(path: str | Path, split: str, field: str = "counts", limit: int | None = None, near: float = NEAR,
+            far: float = FAR) -> dict[str, np.ndarray]:
+    """{"depth": (N, H, W) float32 m, "index": (N,) int64} for the first ``limit`` samples of ``split``, searching
+    depths ``near`` to ``far`` (m in front of the wall)."""
     ds = datagen.NLOSDataset(path, split=split, fields=(field,))
     n = len(ds) if limit is None else min(limit, len(ds))
-    depth = np.stack([depth_image(ds.read(i)[field].astype(np.float64), ds.time_edges, ds.params(i))
+    depth = np.stack([depth_image(ds.read(i)[field].astype(np.float64), ds.time_edges, ds.params(i), near, far)
                       for i in range(n)])
     return {"depth": depth, "index": np.arange(n)}
 
@@ -82,9 +85,12 @@ def main(argv=None):
     parser.add_argument("--input", choices=("counts", "envelope"), default="counts")
     parser.add_argument("--out", default=None, help="predictions .npz (default: DATA_bp_<split>.npz)")
     parser.add_argument("--limit", type=int, default=None, help="only the first N samples")
+    parser.add_argument("--near", type=float, default=NEAR, help=f"nearest depth searched, m (default {NEAR})")
+    parser.add_argument("--far", type=float, default=FAR,
+                        help=f"farthest depth searched, m (default {FAR}; confocal_baseline's rooms: 4.0)")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    pred = predict(args.data, args.split, args.input, args.limit)
+    pred = predict(args.data, args.split, args.input, args.limit, args.near, args.far)
     out = Path(args.out or f"{Path(args.data)}_bp_{args.split}.npz")
     np.savez(out, **pred)
     print(f"{len(pred['index'])} depth images ({time.perf_counter() - t0:.1f} s) -> {out}")

@@ -10,6 +10,7 @@ import torch
 
 from datagen.dataset import NLOSDataset, SplitSpec, build_dataset, load_dataset_config
 from datagen.dataset.score import score_predictions
+from datagen.units import parse_duration
 from examples import backprojection_baseline, train_depth_image
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "datasets"
@@ -55,3 +56,21 @@ def test_depth_network_predictions_and_trivial_baseline(wall, tmp_path):
         np.testing.assert_allclose(f["depth"], labels[labels > 0].mean(), rtol=1e-6)
     summary = score_predictions(out, wall, "test")["summary"]
     assert summary["samples"] == 2 and np.isfinite(summary["mean_depth_rmse"])
+
+
+
+@pytest.mark.parametrize("small, shipped", [("wall_baseline", "wall"), ("confocal_baseline", "confocal")])
+def test_baseline_configs_draw_from_the_shipped_distribution(small, shipped):
+    """The baselines' small sets (benchmarks/bench_baselines.py) are their shipped config's distribution: the same
+    room file with only the scan's point count overridden, the same detector, estimator and object count, and the
+    same time window (so the targets they teach are the shipped config's targets)."""
+    a, b = (load_dataset_config(CONFIGS / f"{name}.yaml") for name in (small, shipped))
+    assert a.room == b.room
+    assert a.room_overrides == {"capture": {"scan": {"points": [16, 16]}}}
+    assert a.detector == b.detector
+    assert a.simulation["estimator"] == b.simulation["estimator"] == "quadrature"
+    assert a.labels["max_objects"] == b.labels["max_objects"]
+    ta, tb = a.simulation["time"], b.simulation["time"]
+    assert parse_duration(ta["t_start"]) == parse_duration(tb["t_start"]) == 0.0
+    window = [parse_duration(t["bin_width"]) * t["n_bins"] for t in (ta, tb)]
+    assert window[0] == pytest.approx(window[1], rel=1e-12), window
