@@ -97,6 +97,8 @@ def test_score_closed_forms(wall_smoke, tmp_path):
     s = scores["summary"]
     assert s["mean_depth_mae"] == pytest.approx(0.05, rel=1e-5) and s["mean_depth_rmse"] == pytest.approx(0.05, rel=1e-5)
     assert s["depth_pixels"] == int(mask.sum()) > 0
+    assert s["depth_samples"] == int(mask.reshape(4, -1).any(axis=1).sum())
+    assert f"mean over the {s['depth_samples']} samples with object pixels" in r.output
     ious = [row["occupancy_iou"] for row in scores["rows"]]
     assert ious[2] == 0.0 and all(v == 1.0 for k, v in enumerate(ious) if k != 2)
     assert (tmp_path / "pred_scores.csv").read_text().splitlines()[0] == "index,depth_mae,depth_rmse,depth_pixels,occupancy_iou"

@@ -234,8 +234,8 @@ def score(pred, dataset, split, depth_field, threshold, out):
     s = scores["summary"]
     parts = [f"{s['samples']} samples"]
     if s.get("depth_field"):
-        parts.append(f"depth MAE {s['mean_depth_mae']:.4g} m, RMSE {s['mean_depth_rmse']:.4g} m (mean over samples; "
-                     f"pooled over {s['depth_pixels']} pixels: {s['pooled_depth_mae']:.4g} / "
+        parts.append(f"depth MAE {s['mean_depth_mae']:.4g} m, RMSE {s['mean_depth_rmse']:.4g} m (mean over the "
+                     f"{s['depth_samples']} samples with object pixels; pooled over {s['depth_pixels']} pixels: {s['pooled_depth_mae']:.4g} / "
                      f"{s['pooled_depth_rmse']:.4g} m)")
     if s.get("occupancy_threshold") is not None:
         parts.append(f"occupancy IoU {s['mean_occupancy_iou']:.4g}")

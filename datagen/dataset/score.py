@@ -19,7 +19,8 @@ Metrics per sample (docs/datasets.md, "Scoring"): ``depth_mae`` = mean |d̂ − 
 (d̂ − d)² over the pixels where the label sees a hidden object (label depth > 0: the union of the wall masks);
 predictions outside that mask do not count. ``occupancy_iou`` = |P ∩ L| / |P ∪ L| of the occupied voxels (NaN
 when both are empty). The summary gives the mean over samples of each metric (NaNs left out), the pixel-pooled
-depth MAE / RMSE and the number of samples. :func:`write_scores` writes ``<PRED>_scores.csv`` (one row per sample)
+depth MAE / RMSE, the number of samples and ``depth_samples``, how many of them have object pixels (the
+samples the depth means are over: a sample whose objects are out of the wall's view has NaN depth metrics). :func:`write_scores` writes ``<PRED>_scores.csv`` (one row per sample)
 and ``<PRED>_scores.json`` (summary and rows), named after the predictions file so that several predictions in one
 folder keep their own scores.
 """
@@ -129,6 +130,7 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
         summary["pooled_depth_mae"] = pooled[0] / pooled[2] if pooled[2] else math.nan
         summary["pooled_depth_rmse"] = math.sqrt(pooled[1] / pooled[2]) if pooled[2] else math.nan
         summary["depth_pixels"] = pooled[2]
+        summary["depth_samples"] = sum(1 for r in rows if r.get("depth_pixels", 0) > 0)
     return {"summary": summary, "rows": rows}
 
 
