@@ -60,6 +60,7 @@ from ..scene import RayCaster, Scene, SceneError, resolve_capture
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Counters, Sink, register
+from .area_kernels import fov_targets
 from .area_secondary import AreaSecondary
 from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
 
@@ -360,18 +361,15 @@ class AreaSampler(AreaSecondary):
         cell = stratified_grid(mu, mv, None)[0] - 0.5 / np.array([mu, mv])      # cell corners, (M, 2)
         corner = np.tile(cell, (c.n_pixels, 1))[keep]
         jitter = rng.random((len(x), len(pix), 2)) if pad is None else pad[:, None, :]
-        uv = corner[None] + jitter / np.array([mu, mv])
-        targets = c.fov_points(ix + uv[..., 0], iy + uv[..., 1])                                # (B, S, 3)
         rho_a = c.n_pixels * mu * mv / (c.fov_size[0] * c.fov_size[1])                         # 1/dA_y
-        to_y = targets - x[:, None, :]
-        r = np.linalg.norm(to_y, axis=-1)
-        w = to_y / np.maximum(r, 1e-300)[..., None]
-        cos_y = -dot(w, c.fov_normal)
-        bi, si = np.nonzero((dot(n_x[:, None, :], w) > 0) & (cos_y > 0))
-        vis = cst.visible(x[bi], n_x[bi], targets[bi, si], c.fov_normal)
+        fov = (c.fov_center, c.fov_u, c.fov_v, c.fov_normal, np.asarray(c.fov_size, dtype=np.float64),
+               np.asarray(c.fov_pixels, dtype=np.float64))
+        bi, si, y, wk, rr, cy = fov_targets(np.ascontiguousarray(x), np.ascontiguousarray(n_x), ix, iy,
+                                            np.ascontiguousarray(corner), np.ascontiguousarray(jitter),
+                                            (float(mu), float(mv)), fov)
+        vis = cst.visible(x[bi], n_x[bi], y, c.fov_normal)
         self.physics.stats.shadow_rays += len(bi)
-        bi, si = bi[vis], si[vis]
-        y, wk, rr, cy, chan = targets[bi, si], w[bi, si], r[bi, si], cos_y[bi, si], ch[si]
+        bi, y, wk, rr, cy, chan = bi[vis], y[vis], wk[vis], rr[vis], cy[vis], ch[si[vis]]
         n_y = np.broadcast_to(c.fov_normal, y.shape)
         obj_y = np.full(len(bi), self.physics.wall_object)
         if n_dir:
