@@ -60,7 +60,7 @@ from ..scene import RayCaster, Scene, SceneError, resolve_capture
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Counters, Sink, register
-from .area_kernels import fov_targets
+from .area_kernels import fov_targets, sensor_collection, spot_irradiance
 from .area_secondary import AreaSecondary
 from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
 
@@ -388,7 +388,7 @@ class AreaSampler(AreaSecondary):
             n_y = np.concatenate([n_y, hits.normals[db, dk]])
             obj_y = np.concatenate([obj_y, hits.object_id[db, dk]])
             bi = np.concatenate([bi, db])
-        collect, d_ys = self.physics.sensor_collection(y, n_y, obj_y, -wk)
+        collect, d_ys = sensor_collection(self.physics, y, n_y, obj_y, -wk)
         p_d = dot(n_x[bi], wk) * cy / (np.pi * rr ** 2)
         weight = _inverse(rho_x[bi] * (rho_a + n_dir * p_d) + self._fov_density * p_d) * \
             fov_connection_weight(cy, rr, collect)
@@ -462,7 +462,7 @@ class AreaSampler(AreaSecondary):
         """Hidden points by area or from the spot: next-event connections to the FoV from the side the spot
         lights (and, for the secondary, from the other side where the FoV lies behind it)."""
         c, s = self.capture, self.settings
-        e_x, r_lx, w_spot, geo = self.physics.irradiance(xs.points, xs.normals, laser)
+        e_x, r_lx, w_spot, geo = spot_irradiance(self.physics, xs.points, xs.normals, laser)
         self.stats.lit_samples += int((e_x > 0).sum())
         rho_x = density_a[xs.face] + n_spot * geo / np.pi                    # ρ_a + ρ_s, 1/m²
         n_front = np.where(dot(xs.normals, w_spot)[:, None] < 0, -xs.normals, xs.normals)   # facing the spot
@@ -506,14 +506,14 @@ class AreaSampler(AreaSecondary):
         x, n_side = hits.points[keep], hits.normals[keep]                     # n_side faces y
         xs = SurfaceSamples(x, cst.face_normals[face], face, cst.face_object[face], np.zeros(len(face)),
                             np.zeros((len(face), 2)))
-        e_x, r_lx, w_spot, geo = self.physics.irradiance(x, xs.normals, laser)
+        e_x, r_lx, w_spot, geo = spot_irradiance(self.physics, x, xs.normals, laser)
         self.stats.lit_samples += int((e_x > 0).sum())
         rho_x = density_a[face] + n_spot * geo / np.pi
         w = y - x
         r = np.linalg.norm(w, axis=-1)
         w = w / r[:, None]
         cos_y = -dot(w, c.fov_normal)
-        collect, d_ys = self.physics.sensor_collection(y, normal[keep], np.full(len(y), self.physics.wall_object), -w)
+        collect, d_ys = sensor_collection(self.physics, y, normal[keep], np.full(len(y), self.physics.wall_object), -w)
         p_d = dot(n_side, w) * cos_y / (np.pi * r ** 2)
         rho_a = c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1] / (c.fov_size[0] * c.fov_size[1])
         weight = _inverse(rho_x * (rho_a + self.settings.fov_directions * p_d) + self._fov_density * p_d) * \

@@ -267,3 +267,109 @@ def secondary_pairs(inv, side, p_tot, irr, on_pos, wpx, r_lp, rp, normal, direct
             c_out[k] = comp0 + channel[c]
             k += 1
     return t_out[:k], w_out[:k], c_out[:k]
+
+
+@njit(cache=True)
+def _spot_geometry(points, normals, spot, spot_n, tol):
+    n = points.shape[0]
+    r = np.empty(n)
+    w = np.empty((n, 3))
+    cos_in = np.empty(n)
+    cos_l = np.empty(n)
+    lit = np.empty(n, np.bool_)
+    n_lit = np.empty((n, 3))
+    for i in range(n):
+        d0, d1, d2 = spot[0] - points[i, 0], spot[1] - points[i, 1], spot[2] - points[i, 2]
+        rr = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        q = max(rr, 1e-300)
+        w0, w1, w2 = d0 / q, d1 / q, d2 / q
+        nfw = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2
+        r[i] = rr
+        w[i, 0], w[i, 1], w[i, 2] = w0, w1, w2
+        cos_in[i] = abs(nfw)
+        cos_l[i] = -(w0 * spot_n[0] + w1 * spot_n[1] + w2 * spot_n[2])
+        lit[i] = cos_l[i] > 0.0 and abs(nfw) > 0.0 and rr > tol
+        sign = -1.0 if nfw < 0.0 else 1.0
+        for k in range(3):
+            n_lit[i, k] = sign * normals[i, k]
+    return r, w, cos_in, cos_l, lit, n_lit
+
+
+@njit(cache=True)
+def _spot_terms(idx, r, w, cos_in, cos_l, photons, mat, obj, spot_n, w_e):
+    n = r.shape[0]
+    e = np.zeros(n)
+    geo = np.zeros(n)
+    for i in idx:
+        o0, o1, o2 = -w[i, 0], -w[i, 1], -w[i, 2]
+        cos = max(spot_n[0] * o0 + spot_n[1] * o1 + spot_n[2] * o2, 0.0)
+        f = brdf_value(mat, obj, spot_n[0], spot_n[1], spot_n[2], w_e[0], w_e[1], w_e[2], o0, o1, o2)
+        r2 = r[i] ** 2
+        geo[i] = cos_l[i] * cos_in[i] / r2
+        e[i] = photons * (f * cos) * cos_in[i] / r2
+    return e, geo
+
+
+def spot_irradiance(physics, points: np.ndarray, face_normals: np.ndarray, laser: int
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`datagen.transport.physics.LegPhysics.irradiance` of ``physics`` in two compiled passes around its
+    shadow-ray batch: the same returns (E photons/m² (n,), r m (n,), unit direction to the spot (n, 3), geo
+    1/m² (n,)) for points (n, 3) with face normals (n, 3), lit on the side facing laser point ``laser``; E =
+    Φ f_l cosθ_l cosθ_in / r² V (:func:`~datagen.transport.physics.laser_irradiance` of
+    :meth:`~datagen.transport.physics.LegPhysics.spot_emission`)."""
+    c = physics.capture
+    spot, spot_n = c.spots[laser], c.spot_normals[laser]
+    points, face_normals = np.ascontiguousarray(points), np.ascontiguousarray(face_normals)
+    r, w, cos_in, cos_l, lit, n_lit = _spot_geometry(points, face_normals, spot, spot_n, physics.tol)
+    idx = np.flatnonzero(lit)
+    if physics.settings.shadow_spot and len(idx):
+        physics.stats.shadow_rays += len(idx)
+        idx = idx[physics.caster.visible(points[idx], n_lit[idx], spot, spot_n)]
+    w_e = c.emitter - spot
+    w_e = w_e / np.linalg.norm(w_e)
+    e, geo = _spot_terms(idx, r, w, cos_in, cos_l, float(c.photons), material_arrays(physics),
+                         int(c.spot_objects[laser]), spot_n, w_e)
+    return e, r, w, geo
+
+
+@njit(cache=True)
+def _sensor_terms(points, normals, obj, w_in, sensor, ap_n, scale, mat):
+    n = points.shape[0]
+    shared = ap_n.shape[0] == 1
+    out = np.empty(n)
+    d = np.empty(n)
+    w_s = np.empty((n, 3))
+    for i in range(n):
+        t0, t1, t2 = sensor[0] - points[i, 0], sensor[1] - points[i, 1], sensor[2] - points[i, 2]
+        dd = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        s0, s1, s2 = t0 / dd, t1 / dd, t2 / dd
+        n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
+        f = brdf_value(mat, obj[i], n0, n1, n2, w_in[i, 0], w_in[i, 1], w_in[i, 2], s0, s1, s2)
+        a = 0 if shared else i
+        cos_out = max(n0 * s0 + n1 * s1 + n2 * s2, 0.0)
+        cos_ap = max(-(s0 * ap_n[a, 0] + s1 * ap_n[a, 1] + s2 * ap_n[a, 2]), 0.0)
+        pde, area = scale
+        out[i] = pde * f * cos_out * area * cos_ap / dd ** 2
+        d[i] = dd
+        w_s[i, 0], w_s[i, 1], w_s[i, 2] = s0, s1, s2
+    return out, d, w_s
+
+
+def sensor_collection(physics, points: np.ndarray, normals: np.ndarray, object_id: np.ndarray, w_in: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`datagen.transport.physics.LegPhysics.sensor_collection` of ``physics`` for the aperture convention
+    (q f_y(ω_in, ω_s) cosθ_y,out A_ap cosθ_ap / d² · V(y, x_s), and d) with the arithmetic in one compiled pass
+    before its shadow-ray batch; points, normals, w_in (n, 3), object_id (n,) → two (n,) float64 arrays."""
+    c = physics.capture
+    points = np.ascontiguousarray(points)
+    ap_n = np.ascontiguousarray(np.asarray(c.aperture_normals(points), dtype=np.float64).reshape(-1, 3))
+    out, d, w_s = _sensor_terms(points, np.ascontiguousarray(normals), np.ascontiguousarray(object_id),
+                                np.ascontiguousarray(w_in), c.sensor, ap_n,
+                                (float(physics.settings.pde), float(c.aperture_area)), material_arrays(physics))
+    if physics.settings.shadow_sensor:
+        idx = np.flatnonzero(out > 0)
+        idx = idx[physics.may_be_blocked(c.sensor, -w_s[idx], d[idx], physics.sensor_spheres)]
+        if len(idx):
+            physics.stats.shadow_rays += len(idx)
+            out[idx[~physics.caster.visible(points[idx], normals[idx], c.sensor, None)]] = 0.0
+    return out, d

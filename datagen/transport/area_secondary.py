@@ -14,7 +14,8 @@ import numpy as np
 from ..sampling import SurfaceSamples, sample_surfaces, square_to_hemisphere, to_world
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
-from .area_kernels import material_arrays, partner_geometry, partner_irradiance, secondary_pairs
+from .area_kernels import (material_arrays, partner_geometry, partner_irradiance, secondary_pairs,
+                           spot_irradiance)
 from .base import Sink
 
 MIN_PARTNER_DISTANCE_OFFSETS = 10.0
@@ -66,7 +67,10 @@ class AreaSecondary:
     def secondary_paths(self, xs: SurfaceSamples, laser: int, conn: dict, sink: Sink, rng: np.random.Generator) -> None:
         """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc)."""
         c, s, cst = self.capture, self.settings, self.caster
-        rows, inv = np.unique(conn["b"], return_inverse=True)       # hidden samples with FoV connections
+        used = np.zeros(len(xs.points), dtype=bool)                 # hidden samples with FoV connections
+        used[conn["b"]] = True
+        rows = np.flatnonzero(used)                                 # np.unique(b, return_inverse=True) in O(n)
+        inv = (np.cumsum(used) - 1)[conn["b"]]
         n = len(rows)
         x, nf = xs.points[rows], xs.normals[rows]
         side = dot(nf[inv], conn["normal"]) > 0                    # the connection leaves x's +normal side
@@ -85,8 +89,8 @@ class AreaSecondary:
         w_sp = np.zeros((len(rp), 3))
         geo_p = np.zeros(len(rp))
         if keep.any():
-            e_p[keep], r_lp[keep], w_sp[keep], geo_p[keep] = self.physics.irradiance(xp.points[keep], xp.normals[keep],
-                                                                              laser)
+            e_p[keep], r_lp[keep], w_sp[keep], geo_p[keep] = spot_irradiance(self.physics, xp.points[keep],
+                                                                         xp.normals[keep], laser)
         keep &= (e_p > 0) & (dot(n_px, w_sp) > 0)   # x' reflects toward x only on the side the laser lights
         slot = np.tile(np.arange(p_tot), n)
         check = keep & ((slot < pl) | (slot >= pl + pd))           # spot and area partners; not first hits
