@@ -60,7 +60,7 @@ from ..scene import RayCaster, Scene, SceneError, resolve_capture
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Counters, Sink, register
-from .area_kernels import fov_targets, sensor_collection, spot_irradiance
+from .area_kernels import fov_targets, material_arrays, primary_impulses, sensor_collection, spot_irradiance
 from .area_secondary import AreaSecondary
 from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
 
@@ -529,18 +529,13 @@ class AreaSampler(AreaSecondary):
         y; ``primary`` marks those leaving x on the side the spot lights) and the secondary's."""
         c, s = self.capture, self.settings
         b = conn["b"]
-        use = primary & (e_x[b] > 0)
-        if use.any() and not self.secondary_only:
-            bu, w_out, n_side = b[use], conn["direction"][use], conn["normal"][use]
-            f = self.physics.constant_brdf(xs.object_id[bu])
-            full = np.flatnonzero(np.isnan(f))
-            if len(full):
-                f[full] = self.physics.brdf(xs.object_id[bu[full]], n_side[full], w_spot[bu[full]], w_out[full])
-            weight = e_x[bu] * f * np.maximum(dot(n_side, w_out), 0.0) * conn["weight"][use]
-            if s.attenuation > 0:
-                weight = weight * self.physics.attenuation(c.emitter_legs[laser] + r_lx[bu] + conn["phys"][use])
-            comp = self.object_component[xs.object_id[bu]] * c.n_channels + conn["channel"][use]
-            laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
-            sink.add(laser_t + r_lx[bu] / SPEED_OF_LIGHT + conn["time"][use], weight, comp)
+        if not self.secondary_only:
+            legs = (float(s.attenuation), float(c.emitter_legs[laser]), float(self.physics.laser_leg(laser)))
+            t, weight, comp = primary_impulses(b, primary, e_x, xs.object_id, w_spot, r_lx, conn["normal"],
+                                               conn["direction"], conn["weight"], conn["phys"], conn["time"],
+                                               conn["channel"], self.object_component, c.n_channels,
+                                               material_arrays(self.physics), legs)
+            if len(t):
+                sink.add(t, weight, comp)
         if s.secondary == "full" and len(b):
             self.secondary_paths(xs, laser, conn, sink, rng)

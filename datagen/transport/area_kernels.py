@@ -373,3 +373,38 @@ def sensor_collection(physics, points: np.ndarray, normals: np.ndarray, object_i
             physics.stats.shadow_rays += len(idx)
             out[idx[~physics.caster.visible(points[idx], normals[idx], c.sensor, None)]] = 0.0
     return out, d
+
+
+@njit(cache=True)
+def primary_impulses(b, primary, e_x, obj, w_spot, r_lx, normal, direction, weight, phys, time, channel,
+                     component, n_channels, mat, legs):
+    """Primary impulses of FoV connections (rows ``b`` into the hidden samples) that leave x on the side the spot
+    lights (``primary``) from a lit x (E > 0): times (s), weights (photons), component ids, in connection order.
+
+    Weight = E(x) · f_x(ω→x_l, ω) · max(n·ω, 0) · weight · e^{−μ(emitter leg + r_lx + phys)} (no factor when
+    μ = 0), time = laser leg / c + r_lx / c + time, component = component[obj]·n_channels + channel; ``legs`` =
+    (μ 1/m, emitter leg m, laser leg counted in the time m); ``mat`` from :func:`material_arrays`; e_x, obj,
+    w_spot (toward the spot), r_lx per hidden sample; the rest per connection.
+    """
+    mu, emitter_leg, laser_leg = legs
+    laser_t = laser_leg / SPEED_OF_LIGHT
+    nc = b.shape[0]
+    t_out = np.empty(nc)
+    w_out = np.empty(nc)
+    c_out = np.empty(nc, np.int64)
+    k = 0
+    for c in range(nc):
+        x = b[c]
+        if not (primary[c] and e_x[x] > 0.0):
+            continue
+        n0, n1, n2 = normal[c, 0], normal[c, 1], normal[c, 2]
+        o0, o1, o2 = direction[c, 0], direction[c, 1], direction[c, 2]
+        f = brdf_value(mat, obj[x], n0, n1, n2, w_spot[x, 0], w_spot[x, 1], w_spot[x, 2], o0, o1, o2)
+        w = e_x[x] * f * max(n0 * o0 + n1 * o1 + n2 * o2, 0.0) * weight[c]
+        if mu > 0.0:
+            w = w * math.exp(-mu * (emitter_leg + r_lx[x] + phys[c]))
+        t_out[k] = laser_t + r_lx[x] / SPEED_OF_LIGHT + time[c]
+        w_out[k] = w
+        c_out[k] = component[obj[x]] * n_channels + channel[c]
+        k += 1
+    return t_out[:k], w_out[:k], c_out[:k]
