@@ -43,6 +43,15 @@ def material_arrays(physics) -> tuple:
 
 
 @njit(cache=True, inline="always")
+def _toward(p0, p1, p2, q0, q1, q2):
+    """|q − p| and the unit direction p → q (the numpy code's ``d / max(|d|, 1e-300)``)."""
+    d0, d1, d2 = q0 - p0, q1 - p1, q2 - p2
+    r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    s = max(r, 1e-300)
+    return r, d0 / s, d1 / s, d2 / s
+
+
+@njit(cache=True, inline="always")
 def _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, w0, w1, w2):
     """|sin| of w's azimuth about n from the axis a (materials' ``_abs_sin_azimuth``, Duff et al. fallback)."""
     an = a0 * n0 + a1 * n1 + a2 * n2
@@ -137,10 +146,7 @@ def fov_targets(x, n_x, ix, iy, corner, jitter, cells, fov):
             t0 = center[0] + a * fu[0] + c * fv[0]
             t1 = center[1] + a * fu[1] + c * fv[1]
             t2 = center[2] + a * fu[2] + c * fv[2]
-            d0, d1, d2 = t0 - x[b, 0], t1 - x[b, 1], t2 - x[b, 2]
-            rr = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            q = max(rr, 1e-300)
-            w0, w1, w2 = d0 / q, d1 / q, d2 / q
+            rr, w0, w1, w2 = _toward(x[b, 0], x[b, 1], x[b, 2], t0, t1, t2)
             cos_y = -(w0 * fn[0] + w1 * fn[1] + w2 * fn[2])
             if n_x[b, 0] * w0 + n_x[b, 1] * w1 + n_x[b, 2] * w2 > 0.0 and cos_y > 0.0:
                 bi[k], si[k] = b, s
@@ -175,10 +181,7 @@ def partner_geometry(x, nf, pos, neg, p_tot, points, normals, found, min_distanc
     n_xp = np.empty((m, 3))
     for i in range(m):
         o = i // p_tot
-        d0, d1, d2 = x[o, 0] - points[i, 0], x[o, 1] - points[i, 1], x[o, 2] - points[i, 2]
-        r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        q = max(r, 1e-300)
-        w0, w1, w2 = d0 / q, d1 / q, d2 / q
+        r, w0, w1, w2 = _toward(points[i, 0], points[i, 1], points[i, 2], x[o, 0], x[o, 1], x[o, 2])
         pw = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2
         xw = nf[o, 0] * w0 + nf[o, 1] * w1 + nf[o, 2] * w2
         rp[i] = r
@@ -279,10 +282,7 @@ def _spot_geometry(points, normals, spot, spot_n, tol):
     lit = np.empty(n, np.bool_)
     n_lit = np.empty((n, 3))
     for i in range(n):
-        d0, d1, d2 = spot[0] - points[i, 0], spot[1] - points[i, 1], spot[2] - points[i, 2]
-        rr = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        q = max(rr, 1e-300)
-        w0, w1, w2 = d0 / q, d1 / q, d2 / q
+        rr, w0, w1, w2 = _toward(points[i, 0], points[i, 1], points[i, 2], spot[0], spot[1], spot[2])
         nfw = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2
         r[i] = rr
         w[i, 0], w[i, 1], w[i, 2] = w0, w1, w2
@@ -367,11 +367,7 @@ def sensor_collection(physics, points: np.ndarray, normals: np.ndarray, object_i
                                 np.ascontiguousarray(w_in), c.sensor, ap_n,
                                 (float(physics.settings.pde), float(c.aperture_area)), material_arrays(physics))
     if physics.settings.shadow_sensor:
-        idx = np.flatnonzero(out > 0)
-        idx = idx[physics.may_be_blocked(c.sensor, -w_s[idx], d[idx], physics.sensor_spheres)]
-        if len(idx):
-            physics.stats.shadow_rays += len(idx)
-            out[idx[~physics.caster.visible(points[idx], normals[idx], c.sensor, None)]] = 0.0
+        physics.sensor_shadows(out, points, normals, w_s, d)
     return out, d
 
 
