@@ -275,6 +275,7 @@ class AreaSampler(AreaSecondary):
         visible from the spot by construction), unless the user forces it off."""
         return cls(scene, AreaSettings.from_transport(settings, samples=config.area_samples,
                                                       shadow_spot=config.effects.get("shadow_spot") is not False,
+                                                      sensor_blockers=settings.sensor_blockers,
                                                       workers=config.workers), caster)
 
     def configure(self, settings: AreaSettings) -> None:
