@@ -11,8 +11,8 @@ from datagen.sampling import sample_surfaces
 from datagen.scene import Material, MaterialTable, Scene, SceneObject
 from datagen.transport import AreaSampler, AreaSettings
 from datagen.transport.area_kernels import (brdf_value, fov_targets, material_arrays, partner_geometry,
-                                            partner_irradiance, primary_impulses, secondary_pairs, sensor_collection,
-                                            spot_irradiance)
+                                            partner_irradiance, partner_rays, primary_impulses, secondary_pairs,
+                                            sensor_collection, spot_irradiance)
 from datagen.units import SPEED_OF_LIGHT
 
 RTOL = 1e-12
@@ -136,7 +136,15 @@ def test_partner_and_pair_kernels_equal_the_numpy_formulas(demo, mu):
     np.testing.assert_array_equal(n_px, np.where(side_p[:, None] < 0, -xp.normals, xp.normals))
     np.testing.assert_array_equal(n_xp, np.where(side_x[:, None] < 0, xs.normals[owner], -xs.normals[owner]))
     e_p, r_lp, w_sp, geo_p = physics.irradiance(xp.points, xp.normals, 0)
-    keep &= e_p > 0
+    rows = np.flatnonzero(keep)
+    for a, b in zip(spot_irradiance(physics, xp.points, xp.normals, 0, rows),
+                    physics.irradiance(xp.points[rows], xp.normals[rows], 0)):
+        _close(a[rows], b)
+    expected_keep = keep & (e_p > 0) & (np.einsum("ij,ij->i", n_px, w_sp) > 0)
+    check = partner_rays(keep, e_p, n_px, w_sp, p, (2, 3))
+    np.testing.assert_array_equal(keep, expected_keep)
+    np.testing.assert_array_equal(check, np.flatnonzero(expected_keep & (np.arange(n * p) % p != 2)))
+    keep = expected_keep & (e_p > 0)
     assert keep.sum() > 100
     n_sides = pos.astype(int) + neg.astype(int)
     hidden_w = sampler.is_hidden[xp.face] / sampler.hidden_area

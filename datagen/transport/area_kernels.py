@@ -273,15 +273,15 @@ def secondary_pairs(inv, side, p_tot, irr, on_pos, wpx, r_lp, rp, normal, direct
 
 
 @njit(cache=True)
-def _spot_geometry(points, normals, spot, spot_n, tol):
+def _spot_geometry(points, normals, rows, spot, spot_n, tol):
     n = points.shape[0]
-    r = np.empty(n)
-    w = np.empty((n, 3))
-    cos_in = np.empty(n)
-    cos_l = np.empty(n)
-    lit = np.empty(n, np.bool_)
-    n_lit = np.empty((n, 3))
-    for i in range(n):
+    r = np.zeros(n)
+    w = np.zeros((n, 3))
+    cos_in = np.zeros(n)
+    cos_l = np.zeros(n)
+    lit = np.zeros(n, np.bool_)
+    n_lit = np.zeros((n, 3))
+    for i in rows:
         rr, w0, w1, w2 = _toward(points[i, 0], points[i, 1], points[i, 2], spot[0], spot[1], spot[2])
         nfw = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2
         r[i] = rr
@@ -310,17 +310,19 @@ def _spot_terms(idx, r, w, cos_in, cos_l, photons, mat, obj, spot_n, w_e):
     return e, geo
 
 
-def spot_irradiance(physics, points: np.ndarray, face_normals: np.ndarray, laser: int
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def spot_irradiance(physics, points: np.ndarray, face_normals: np.ndarray, laser: int,
+                    rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:meth:`datagen.transport.physics.LegPhysics.irradiance` of ``physics`` in two compiled passes around its
     shadow-ray batch: the same returns (E photons/m² (n,), r m (n,), unit direction to the spot (n, 3), geo
     1/m² (n,)) for points (n, 3) with face normals (n, 3), lit on the side facing laser point ``laser``; E =
     Φ f_l cosθ_l cosθ_in / r² V (:func:`~datagen.transport.physics.laser_irradiance` of
-    :meth:`~datagen.transport.physics.LegPhysics.spot_emission`)."""
+    :meth:`~datagen.transport.physics.LegPhysics.spot_emission`). ``rows`` (int64 indices): evaluate only
+    those points, the others get zeros (as if they were not passed)."""
     c = physics.capture
     spot, spot_n = c.spots[laser], c.spot_normals[laser]
     points, face_normals = np.ascontiguousarray(points), np.ascontiguousarray(face_normals)
-    r, w, cos_in, cos_l, lit, n_lit = _spot_geometry(points, face_normals, spot, spot_n, physics.tol)
+    rows = np.arange(len(points)) if rows is None else rows
+    r, w, cos_in, cos_l, lit, n_lit = _spot_geometry(points, face_normals, rows, spot, spot_n, physics.tol)
     idx = np.flatnonzero(lit)
     if physics.settings.shadow_spot and len(idx):
         physics.stats.shadow_rays += len(idx)
@@ -404,3 +406,22 @@ def primary_impulses(b, primary, e_x, obj, w_spot, r_lx, normal, direction, weig
         c_out[k] = component[obj[x]] * n_channels + channel[c]
         k += 1
     return t_out[:k], w_out[:k], c_out[:k]
+
+
+@njit(cache=True)
+def partner_rays(keep, e_p, n_px, w_sp, p_tot, first_hits):
+    """Keep (in place) the partners x' lit by the laser (E > 0) that reflect toward x from their lit side
+    (n_px·w_sp > 0), and return the rows among them that need an x' ↔ x shadow ray: all but the slots
+    [first_hits[0], first_hits[1]) of each owner's ``p_tot`` (first hits of rays from x, visible by construction)."""
+    lo, hi = first_hits
+    m = keep.shape[0]
+    idx = np.empty(m, np.int64)
+    k = 0
+    for i in range(m):
+        if keep[i]:
+            keep[i] = e_p[i] > 0.0 and n_px[i, 0] * w_sp[i, 0] + n_px[i, 1] * w_sp[i, 1] + n_px[i, 2] * w_sp[i, 2] > 0.0
+        slot = i % p_tot
+        if keep[i] and not (lo <= slot < hi):
+            idx[k] = i
+            k += 1
+    return idx[:k]

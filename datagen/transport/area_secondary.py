@@ -14,7 +14,7 @@ import numpy as np
 from ..sampling import SurfaceSamples, sample_surfaces, square_to_hemisphere, to_world
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
-from .area_kernels import (material_arrays, partner_geometry, partner_irradiance, secondary_pairs,
+from .area_kernels import (material_arrays, partner_geometry, partner_irradiance, partner_rays, secondary_pairs,
                            spot_irradiance)
 from .base import Sink
 
@@ -84,20 +84,11 @@ class AreaSecondary:
         xp, found = self.partners(x, nf, pos, neg, laser, rng)
         rp, wpx, cos_p, cos_x, on_pos, keep, n_px, n_xp = partner_geometry(
             x, nf, pos, neg, p_tot, xp.points, xp.normals, found, MIN_PARTNER_DISTANCE_OFFSETS * cst.offset)
-        e_p = np.zeros(len(rp))
-        r_lp = np.zeros(len(rp))
-        w_sp = np.zeros((len(rp), 3))
-        geo_p = np.zeros(len(rp))
-        if keep.any():
-            e_p[keep], r_lp[keep], w_sp[keep], geo_p[keep] = spot_irradiance(self.physics, xp.points[keep],
-                                                                         xp.normals[keep], laser)
-        keep &= (e_p > 0) & (dot(n_px, w_sp) > 0)   # x' reflects toward x only on the side the laser lights
-        slot = np.tile(np.arange(p_tot), n)
-        check = keep & ((slot < pl) | (slot >= pl + pd))           # spot and area partners; not first hits
-        if check.any():
-            owner = np.repeat(np.arange(n), p_tot)
-            keep[check] = cst.visible(xp.points[check], n_px[check], x[owner][check], n_xp[check])
-            self.physics.stats.shadow_rays += int(check.sum())
+        e_p, r_lp, w_sp, geo_p = spot_irradiance(self.physics, xp.points, xp.normals, laser, np.flatnonzero(keep))
+        check = partner_rays(keep, e_p, n_px, w_sp, p_tot, (pl, pl + pd))   # spot and area partners: not first hits
+        if len(check):
+            keep[check] = cst.visible(xp.points[check], n_px[check], x[check // p_tot], n_xp[check])
+            self.physics.stats.shadow_rays += len(check)
         self.stats.partners += int(keep.sum())
         if not keep.any():
             return
