@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from numba import njit
+
 from .model import Scene
 
 RAY_OFFSET_REL = 1e-5
@@ -131,18 +133,10 @@ class RayCaster:
         """
         p, q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
         shape = np.broadcast_shapes(p.shape, q.shape)[:-1]
-        center = self.center
+        n = int(np.prod(shape, dtype=np.int64))
+        rows = [_rows(v, shape) for v in (p, n_p if n_p is not None else p, q, n_q if n_q is not None else q)]
         # ends pushed off their surfaces, centred, in float32 (Embree's precision; the offset is ~100 ULPs)
-        a = (p - center if n_p is None else p - center + self.offset * np.asarray(n_p)).astype(np.float32)
-        b = (q - center if n_q is None else q - center + self.offset * np.asarray(n_q)).astype(np.float32)
-        seg = np.broadcast_to(b - a, shape + (3,)).reshape(-1, 3)
-        a = np.broadcast_to(a, shape + (3,)).reshape(-1, 3)
-        length = np.sqrt(np.einsum("ij,ij->i", seg, seg))
-        ok = length > self.offset
-        if not ok.all():
-            seg, a, length = seg[ok], a[ok], length[ok]
-        d = seg / length[:, None]
-        tmax = length - np.float32(self.offset)
+        a, d, tmax, ok = _segments(*rows, n_p is not None, n_q is not None, self.center, self.offset, n)
         res = np.empty(len(a), dtype=np.int32)
         for start in range(0, len(a), CHUNK):
             sl = slice(start, start + CHUNK)
@@ -150,3 +144,47 @@ class RayCaster:
         out = np.ones(len(ok), dtype=bool)
         out[ok] = res == -1
         return out.reshape(shape)
+
+
+def _rows(v: np.ndarray, shape: tuple) -> np.ndarray:
+    """(n, 3) float64 rows of v for a batch of ``shape``, or (1, 3) when v is one point (broadcast)."""
+    v = np.asarray(v, dtype=np.float64)
+    if v.size == 3:
+        return v.reshape(1, 3)
+    return np.ascontiguousarray(np.broadcast_to(v, shape + (3,))).reshape(-1, 3)
+
+
+@njit(cache=True)
+def _segments(p, n_p, q, n_q, use_np, use_nq, center, offset, n):
+    """Shadow-ray segments of :meth:`RayCaster.visible` in one pass: the ends a = p − centre (+ offset·n_p) and
+    b likewise in float32, d = (b − a)/|b − a| and t_max = |b − a| − offset in float32 arithmetic (the numpy
+    expressions they replace, rounded the same way); rows shorter than the offset are dropped (ok False)."""
+    a_out = np.empty((n, 3), np.float32)
+    d_out = np.empty((n, 3), np.float32)
+    tmax = np.empty(n, np.float32)
+    ok = np.empty(n, np.bool_)
+    off32 = np.float32(offset)
+    a = np.empty(3, np.float32)
+    seg = np.empty(3, np.float32)
+    k = 0
+    for i in range(n):
+        ip, inp, iq, inq = (0 if p.shape[0] == 1 else i), (0 if n_p.shape[0] == 1 else i), \
+            (0 if q.shape[0] == 1 else i), (0 if n_q.shape[0] == 1 else i)
+        for c in range(3):
+            av = p[ip, c] - center[c]
+            if use_np:
+                av = av + offset * n_p[inp, c]
+            bv = q[iq, c] - center[c]
+            if use_nq:
+                bv = bv + offset * n_q[inq, c]
+            a[c] = np.float32(av)
+            seg[c] = np.float32(bv) - a[c]
+        length = np.sqrt(seg[0] * seg[0] + seg[1] * seg[1] + seg[2] * seg[2])
+        ok[i] = length > off32
+        if ok[i]:
+            for c in range(3):
+                a_out[k, c] = a[c]
+                d_out[k, c] = seg[c] / length
+            tmax[k] = length - off32
+            k += 1
+    return a_out[:k], d_out[:k], tmax[:k], ok
