@@ -5,7 +5,9 @@
 Extracts ``--baseline`` (git archive) into a temporary directory and measures, alternately in fresh processes of
 this checkout and of the baseline, the CPU seconds per sample of ``configs/datasets/default.yaml`` train
 samples 1..N (``make_sample``, after a warm-up sample that pays imports and numba's cached-kernel load) and of the
-demo room at the area sampler's ≤ 1 % setting (49152 hidden samples in 2 replicas, one process); prints the
+demo room at the area sampler's ≤ 1 % setting (49152 hidden samples in 2 replicas, one process) and of tal's
+hidden-square single capture (benchmarks/tal/hidden_square.yaml: the quadrature at h = 4 cm, the area sampler at
+65536 samples; the tal comparison's settings, docs/tal.md); prints the
 best of ``--rounds`` rounds of each and the new/old ratio, and checks that the envelopes agree to float32
 rounding (the kernels keep the random streams; only the floating-point order of a few sums differs).
 """
@@ -40,7 +42,18 @@ datagen.simulate(scene, sim)
 t0 = time.process_time()
 demo = datagen.simulate(scene, sim)
 demo_cpu = time.process_time() - t0
-print(json.dumps({"dataset": dataset_cpu, "demo": demo_cpu, "envs": envs, "demo_env": demo.envelope.ravel().tolist()}))
+from datagen.io import scene_from_tal_yaml
+tal_scene, _ = scene_from_tal_yaml(sys.argv[1] + "/benchmarks/tal/hidden_square.yaml")
+tal_cpu = {}
+for name, setting in (("tal_quadrature", {"estimator": "quadrature", "quadrature_edge": 0.04}),
+                      ("tal_area", {"estimator": "area", "area_samples": 65536})):
+    cfg = datagen.resolve_config(tal_scene, {**setting, "seed": 0})
+    datagen.simulate(tal_scene, cfg)
+    t0 = time.process_time()
+    datagen.simulate(tal_scene, cfg)
+    tal_cpu[name] = time.process_time() - t0
+print(json.dumps({"dataset": dataset_cpu, "demo": demo_cpu, **tal_cpu, "envs": envs,
+                  "demo_env": demo.envelope.ravel().tolist()}))
 """
 
 
@@ -74,7 +87,9 @@ def main() -> None:
     print(f"\n| area sampler | baseline {args.baseline} CPU-s | kernels CPU-s | new/old |")
     print("|---|---:|---:|---:|")
     for key, label in (("dataset", f"default-config sample (mean of {args.samples})"),
-                       ("demo", "demo room, 49152 hidden samples in 2 replicas, 1 process")):
+                       ("demo", "demo room, 49152 hidden samples in 2 replicas, 1 process"),
+                       ("tal_quadrature", "tal hidden square, single spot 16×16, quadrature h = 4 cm"),
+                       ("tal_area", "tal hidden square, single spot 16×16, area sampler 65536 samples")):
         old = min(r[key] for r in runs["old"])
         new = min(r[key] for r in runs["new"])
         print(f"| {label} | {old:.3f} | {new:.3f} | {new / old:.2f} |")
