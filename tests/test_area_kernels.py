@@ -10,9 +10,10 @@ import datagen
 from datagen.sampling import sample_surfaces
 from datagen.scene import Material, MaterialTable, Scene, SceneObject
 from datagen.transport import AreaSampler, AreaSettings
-from datagen.transport.area_kernels import (brdf_value, fov_targets, material_arrays, partner_geometry,
+from datagen.transport.area_kernels import (brdf_value, connection_weights, fov_targets, material_arrays, partner_geometry,
                                             partner_irradiance, partner_rays, primary_impulses, secondary_pairs,
                                             sensor_collection, spot_irradiance)
+from datagen.transport.physics import fov_connection_weight
 from datagen.units import SPEED_OF_LIGHT
 
 RTOL = 1e-12
@@ -192,3 +193,25 @@ def test_partner_and_pair_kernels_equal_the_numpy_formulas(demo, mu):
     _close(wt, w0)
     _close(t, r_lx[bu] / SPEED_OF_LIGHT + time[u])
     np.testing.assert_array_equal(comp, sampler.object_component[xs.object_id[bu]] * 5 + channel[u])
+
+
+@pytest.mark.parametrize("count_sensor", [1.0, 0.0])
+def test_connection_weights_equal_the_balance_heuristic_with_fov_connection_weight(count_sensor):
+    rng = np.random.default_rng(13)
+    n, m = 500, 2000
+    b = rng.integers(0, n, m)
+    n_x = _unit(rng.normal(size=(n, 3)))
+    rho_x = np.where(rng.random(n) < 0.1, 0.0, rng.uniform(0.1, 50, n))
+    w = _unit(n_x[b] + rng.normal(size=(m, 3)))
+    r, cos_y = rng.uniform(0.05, 4, m), rng.uniform(0, 1, m)
+    collect, d_ys = rng.uniform(0, 1e-3, m), rng.uniform(1, 3, m)
+    rho_a, n_dir, fov_density = 900.0, 1.0, 12.5
+    weight, time, phys = connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys,
+                                            (rho_a, n_dir, fov_density, count_sensor))
+    p_d = np.einsum("ij,ij->i", n_x[b], w) * cos_y / (np.pi * r ** 2)
+    density = rho_x[b] * (rho_a + n_dir * p_d) + fov_density * p_d
+    expected = np.divide(1.0, density, out=np.zeros(m), where=density > 0) * fov_connection_weight(cos_y, r, collect)
+    assert (density <= 0).sum() > 10
+    _close(weight, expected)
+    _close(time, (r + count_sensor * d_ys) / SPEED_OF_LIGHT)
+    _close(phys, r + d_ys)

@@ -57,12 +57,12 @@ import numpy as np
 from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
                         to_world, unit_square_points)
 from ..scene import RayCaster, Scene, SceneError, resolve_capture
-from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Counters, Sink, register
-from .area_kernels import fov_targets, material_arrays, primary_impulses, sensor_collection, spot_irradiance
+from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
+                           spot_irradiance)
 from .area_secondary import AreaSecondary
-from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
+from .physics import LegPhysics, PhysicsSettings
 
 MAX_CONNECTIONS = 1 << 17
 """Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
@@ -311,6 +311,13 @@ class AreaSampler(AreaSecondary):
         front_fov = ((tri - c.fov_center) @ c.fov_normal > self.tol).any(axis=1)
         return np.flatnonzero((cst.face_area > 0) & (front_spot | front_fov))
 
+    def _weight_constants(self) -> tuple[float, float, float, float]:
+        """(ρ_a = 1/dA_y of the stratified FoV points, D, M_f/A_FoV, sensor leg counted) for
+        :func:`~datagen.transport.area_kernels.connection_weights` (aperture captures)."""
+        c, s = self.capture, self.settings
+        rho_a = c.n_pixels * s.fov_samples[0] * s.fov_samples[1] / (c.fov_size[0] * c.fov_size[1])
+        return (float(rho_a), float(s.fov_directions), float(self._fov_density), float(s.count_sensor_leg))
+
     def _targets_per_sample(self) -> int:
         c = self.capture
         if c.convention == "point_radiance":
@@ -362,7 +369,6 @@ class AreaSampler(AreaSecondary):
         cell = stratified_grid(mu, mv, None)[0] - 0.5 / np.array([mu, mv])      # cell corners, (M, 2)
         corner = np.tile(cell, (c.n_pixels, 1))[keep]
         jitter = rng.random((len(x), len(pix), 2)) if pad is None else pad[:, None, :]
-        rho_a = c.n_pixels * mu * mv / (c.fov_size[0] * c.fov_size[1])                         # 1/dA_y
         fov = (c.fov_center, c.fov_u, c.fov_v, c.fov_normal, np.asarray(c.fov_size, dtype=np.float64),
                np.asarray(c.fov_pixels, dtype=np.float64))
         bi, si, y, wk, rr, cy = fov_targets(np.ascontiguousarray(x), np.ascontiguousarray(n_x), ix, iy,
@@ -390,11 +396,9 @@ class AreaSampler(AreaSecondary):
             obj_y = np.concatenate([obj_y, hits.object_id[db, dk]])
             bi = np.concatenate([bi, db])
         collect, d_ys = sensor_collection(self.physics, y, n_y, obj_y, -wk)
-        p_d = dot(n_x[bi], wk) * cy / (np.pi * rr ** 2)
-        weight = _inverse(rho_x[bi] * (rho_a + n_dir * p_d) + self._fov_density * p_d) * \
-            fov_connection_weight(cy, rr, collect)
-        time = (rr + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT
-        return Connections(bi, wk, weight, time, rr + d_ys, chan)
+        weight, time, phys = connection_weights(bi, np.ascontiguousarray(n_x), rho_x, wk, rr, cy, collect, d_ys,
+                                                self._weight_constants())
+        return Connections(bi, wk, weight, time, phys, chan)
 
     # -- estimator -------------------------------------------------------------------------------------------
 
@@ -515,12 +519,10 @@ class AreaSampler(AreaSecondary):
         w = w / r[:, None]
         cos_y = -dot(w, c.fov_normal)
         collect, d_ys = sensor_collection(self.physics, y, normal[keep], np.full(len(y), self.physics.wall_object), -w)
-        p_d = dot(n_side, w) * cos_y / (np.pi * r ** 2)
-        rho_a = c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1] / (c.fov_size[0] * c.fov_size[1])
-        weight = _inverse(rho_x * (rho_a + self.settings.fov_directions * p_d) + self._fov_density * p_d) * \
-            fov_connection_weight(cos_y, r, collect)
-        conn = {"b": np.arange(len(x)), "direction": w, "weight": weight,
-                "time": (r + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT, "phys": r + d_ys, "channel": chan,
+        b = np.arange(len(x))
+        weight, time, phys = connection_weights(b, np.ascontiguousarray(n_side), rho_x, w, r, cos_y, collect, d_ys,
+                                                self._weight_constants())
+        conn = {"b": b, "direction": w, "weight": weight, "time": time, "phys": phys, "channel": chan,
                 "normal": n_side}
         self._deposit(xs, e_x, r_lx, w_spot, conn, dot(n_side, w_spot) > 0, laser, sink, rng)
 

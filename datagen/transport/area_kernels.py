@@ -425,3 +425,32 @@ def partner_rays(keep, e_p, n_px, w_sp, p_tot, first_hits):
             idx[k] = i
             k += 1
     return idx[:k]
+
+
+@njit(cache=True)
+def connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys, consts):
+    """Weights, times and path lengths of FoV connections (hidden point ``b`` → FoV point y): the balance heuristic
+    of :meth:`datagen.transport.area.AreaSampler._connect` times
+    :func:`~datagen.transport.physics.fov_connection_weight`,
+
+        weight = cosθ_y / r² · collection / (ρ_x (ρ_a + D p_d) + (M_f/A_FoV) p_d)   (0 where the density is 0),
+        p_d = cosθ_x cosθ_y / (π r²),  cosθ_x = n_x[b]·ω,
+
+    time = (r + d_ys if the sensor leg counts, else r) / c, phys = r + d_ys. b (n,) rows of n_x (B, 3) and
+    rho_x (B,); w (n, 3) unit x → y; r, cos_y, collect, d_ys (n,); consts = (ρ_a 1/m², D, M_f/A_FoV 1/m²,
+    sensor leg counted 1.0 or 0.0)."""
+    rho_a, n_dir, fov_density, count_sensor = consts
+    n = b.shape[0]
+    weight = np.empty(n)
+    time = np.empty(n)
+    phys = np.empty(n)
+    for i in range(n):
+        k = b[i]
+        r2 = r[i] ** 2
+        p_d = (n_x[k, 0] * w[i, 0] + n_x[k, 1] * w[i, 1] + n_x[k, 2] * w[i, 2]) * cos_y[i] / (np.pi * r2)
+        density = rho_x[k] * (rho_a + n_dir * p_d) + fov_density * p_d
+        inverse = 1.0 / density if density > 0.0 else 0.0
+        weight[i] = inverse * (cos_y[i] / r2 * collect[i])
+        time[i] = (r[i] + d_ys[i] if count_sensor else r[i]) / SPEED_OF_LIGHT
+        phys[i] = r[i] + d_ys[i]
+    return weight, time, phys

@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..sampling import SurfaceSamples, sample_surfaces, square_to_hemisphere, to_world
-from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .area_kernels import (material_arrays, partner_geometry, partner_irradiance, partner_rays, secondary_pairs,
                            spot_irradiance)
