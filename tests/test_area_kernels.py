@@ -10,9 +10,9 @@ import datagen
 from datagen.sampling import sample_surfaces
 from datagen.scene import Material, MaterialTable, Scene, SceneObject
 from datagen.transport import AreaSampler, AreaSettings
-from datagen.transport.area_kernels import (brdf_value, connection_weights, fov_targets, material_arrays, partner_geometry,
-                                            partner_irradiance, partner_rays, primary_impulses, secondary_pairs,
-                                            sensor_collection, spot_irradiance)
+from datagen.transport.area_kernels import (brdf_value, connection_weights, fov_targets, material_arrays,
+                                            partner_geometry, partner_irradiance, partner_rays, primary_impulses,
+                                            secondary_pairs, sensor_collection, spot_irradiance)
 from datagen.transport.physics import fov_connection_weight
 from datagen.units import SPEED_OF_LIGHT
 
@@ -96,7 +96,8 @@ def test_fov_targets_equal_capture_geometry(demo):
     jitter = rng.random((40, s, 2))
     fov = (c.fov_center, c.fov_u, c.fov_v, c.fov_normal, np.asarray(c.fov_size, float), np.asarray(c.fov_pixels, float))
     bi, si, y, w, r, cy = fov_targets(x, n_x, ix, iy, corner, jitter, (2.0, 2.0), fov)
-    targets = c.fov_points(ix + (corner[None, :, 0] + jitter[..., 0] / 2), iy + (corner[None, :, 1] + jitter[..., 1] / 2))
+    targets = c.fov_points(ix + (corner[None, :, 0] + jitter[..., 0] / 2),
+                           iy + (corner[None, :, 1] + jitter[..., 1] / 2))
     to_y = targets - x[:, None]
     rr = np.linalg.norm(to_y, axis=-1)
     ww = to_y / rr[..., None]
