@@ -79,3 +79,40 @@ def test_a_scene_far_from_the_world_origin_gives_the_same_primary():
         tr.run(acc, np.random.default_rng(0))
         totals.append(acc.total_weight().sum())
     assert totals[0] > 0 and totals[1] == pytest.approx(totals[0], rel=1e-9)
+
+
+def test_compiled_hits_and_segments_follow_the_documented_formulas_and_broadcast():
+    """intersect: t = (n·p₀ − n·o)/(n·d) of the hit face (float64), points o + t·d, normals facing the origin,
+    ids of the hit face; misses give inf / nan / 0 / −1. Broadcast batches equal their flattened rays, for
+    intersect and visible (the compiled passes of datagen/scene/raycast.py index rows, not numpy broadcasting)."""
+    import datagen
+
+    scene = datagen.load_scene("scene_library/demo_room.yaml")
+    rc = RayCaster(scene)
+    rng = np.random.default_rng(2)
+    lo, hi = scene.bounds()
+    o = rng.uniform(lo + 0.1, hi - 0.1, (20, 3))
+    d = rng.normal(size=(30, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    h = rc.intersect(o[:, None], d[None])                                   # (20, 30)
+    flat = rc.intersect(np.repeat(o, 30, axis=0), np.tile(d, (20, 1)))
+    for name in ("hit", "distance", "points", "normals", "face", "object_id"):
+        np.testing.assert_array_equal(getattr(h, name).reshape(getattr(flat, name).shape), getattr(flat, name))
+    hit = flat.hit
+    assert 0.5 < hit.mean() <= 1.0
+    oo, dd = np.repeat(o, 30, axis=0)[hit], np.tile(d, (20, 1))[hit]
+    n = rc.face_normals[flat.face[hit]]
+    p0 = rc.vertices[rc.faces[flat.face[hit], 0]]
+    t = np.einsum("ij,ij->i", n, p0 - oo) / np.einsum("ij,ij->i", n, dd)
+    np.testing.assert_allclose(flat.distance[hit], t, rtol=1e-9)
+    np.testing.assert_allclose(flat.points[hit], oo + t[:, None] * dd, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(np.einsum("ij,ij->i", flat.normals[hit], dd) < 0, True)
+    np.testing.assert_array_equal(flat.object_id[hit], rc.face_object[flat.face[hit]])
+    miss = rc.intersect(np.array([[0.0, 0.0, 1e3]]), np.array([[0.0, 0.0, 1.0]]))
+    assert not miss.hit[0] and miss.distance[0] == np.inf and np.isnan(miss.points).all()
+    assert (miss.normals == 0).all() and miss.face[0] == -1 and miss.object_id[0] == -1
+    q = rng.uniform(lo + 0.1, hi - 0.1, (30, 3))
+    v = rc.visible(o[:, None], None, q[None], None)
+    np.testing.assert_array_equal(v.ravel(), rc.visible(np.repeat(o, 30, axis=0), None, np.tile(q, (20, 1)), None))
+    np.testing.assert_array_equal(v, rc.visible(q[None], None, o[:, None], None))   # the segment either way
+    assert 0.05 < v.mean() < 0.95

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from numba import njit
+
 from .model import Scene
 
 RAY_OFFSET_REL = 1e-5
@@ -95,28 +97,19 @@ class RayCaster:
         origins = np.asarray(origins, dtype=np.float64)
         directions = np.asarray(directions, dtype=np.float64)
         shape = np.broadcast_shapes(origins.shape, directions.shape)[:-1]
-        o32 = np.broadcast_to((origins - self.center).astype(np.float32), shape + (3,)).reshape(-1, 3)
-        d32 = np.broadcast_to(directions.astype(np.float32), shape + (3,)).reshape(-1, 3)
-        n = len(o32)
+        n = int(np.prod(shape, dtype=np.int64))
+        o, d = _rows(origins, shape), _rows(directions, shape)
+        o32, d32 = _float32_rays(o, d, self.center, n)
         face = np.empty(n, dtype=np.int64)
         tfar = np.empty(n, dtype=np.float64)
         for start in range(0, n, CHUNK):
             sl = slice(start, start + CHUNK)
-            res = self._embree.run(np.ascontiguousarray(o32[sl]), np.ascontiguousarray(d32[sl]), output=1)
+            res = self._embree.run(o32[sl], d32[sl], output=1)
             face[sl], tfar[sl] = res["primID"], res["tfar"]
-        face = face.reshape(shape)
-        hit = face >= 0
-        f = np.where(hit, face, 0)
-        normals = self.face_normals[f]
-        denom = np.einsum("...k,...k->...", directions, normals)
-        num = self._plane_offset[f] - np.einsum("...k,...k->...", origins, normals)
-        steep = np.abs(denom) > GRAZING_COS
-        t = np.where(steep, num / np.where(steep, denom, 1.0), tfar.reshape(shape))
-        distance = np.where(hit, t, np.inf)
-        points = origins + directions * np.where(hit, t, np.nan)[..., None]
-        normals *= np.where(denom > 0, -1.0, 1.0)[..., None] * hit[..., None]     # face the origin; 0 if no hit
-        obj = np.where(hit, self.face_object[f], -1)
-        return Hits(hit, distance, points, normals, np.where(hit, face, -1), obj)
+        hit, distance, points, normals, face, obj = _first_hits(o, d, face, tfar, self.face_normals,
+                                                                self._plane_offset, self.face_object, GRAZING_COS)
+        return Hits(hit.reshape(shape), distance.reshape(shape), points.reshape(shape + (3,)),
+                    normals.reshape(shape + (3,)), face.reshape(shape), obj.reshape(shape))
 
     def visible(self, p: np.ndarray, n_p: np.ndarray | None, q: np.ndarray, n_q: np.ndarray | None) -> np.ndarray:
         """Mutual visibility of point pairs by shadow rays (Embree occlusion queries).
@@ -131,18 +124,10 @@ class RayCaster:
         """
         p, q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
         shape = np.broadcast_shapes(p.shape, q.shape)[:-1]
-        center = self.center
+        n = int(np.prod(shape, dtype=np.int64))
+        rows = [_rows(v, shape) for v in (p, n_p if n_p is not None else p, q, n_q if n_q is not None else q)]
         # ends pushed off their surfaces, centred, in float32 (Embree's precision; the offset is ~100 ULPs)
-        a = (p - center if n_p is None else p - center + self.offset * np.asarray(n_p)).astype(np.float32)
-        b = (q - center if n_q is None else q - center + self.offset * np.asarray(n_q)).astype(np.float32)
-        seg = np.broadcast_to(b - a, shape + (3,)).reshape(-1, 3)
-        a = np.broadcast_to(a, shape + (3,)).reshape(-1, 3)
-        length = np.sqrt(np.einsum("ij,ij->i", seg, seg))
-        ok = length > self.offset
-        if not ok.all():
-            seg, a, length = seg[ok], a[ok], length[ok]
-        d = seg / length[:, None]
-        tmax = length - np.float32(self.offset)
+        a, d, tmax, ok = _segments(*rows, n_p is not None, n_q is not None, self.center, self.offset, n)
         res = np.empty(len(a), dtype=np.int32)
         for start in range(0, len(a), CHUNK):
             sl = slice(start, start + CHUNK)
@@ -150,3 +135,91 @@ class RayCaster:
         out = np.ones(len(ok), dtype=bool)
         out[ok] = res == -1
         return out.reshape(shape)
+
+
+def _rows(v: np.ndarray, shape: tuple) -> np.ndarray:
+    """(n, 3) float64 rows of v for a batch of ``shape``, or (1, 3) when v is one point (broadcast)."""
+    v = np.asarray(v, dtype=np.float64)
+    if v.size == 3:
+        return v.reshape(1, 3)
+    return np.ascontiguousarray(np.broadcast_to(v, shape + (3,))).reshape(-1, 3)
+
+
+@njit(cache=True)
+def _segments(p, n_p, q, n_q, use_np, use_nq, center, offset, n):
+    """Shadow-ray segments of :meth:`RayCaster.visible` in one pass: the ends a = p − centre (+ offset·n_p) and
+    b likewise in float32, d = (b − a)/|b − a| and t_max = |b − a| − offset in float32 arithmetic (the numpy
+    expressions they replace, rounded the same way); rows shorter than the offset are dropped (ok False)."""
+    a_out = np.empty((n, 3), np.float32)
+    d_out = np.empty((n, 3), np.float32)
+    tmax = np.empty(n, np.float32)
+    ok = np.empty(n, np.bool_)
+    off32 = np.float32(offset)
+    a = np.empty(3, np.float32)
+    seg = np.empty(3, np.float32)
+    k = 0
+    for i in range(n):
+        ip, inp, iq, inq = (0 if p.shape[0] == 1 else i), (0 if n_p.shape[0] == 1 else i), \
+            (0 if q.shape[0] == 1 else i), (0 if n_q.shape[0] == 1 else i)
+        for c in range(3):
+            av = p[ip, c] - center[c]
+            if use_np:
+                av = av + offset * n_p[inp, c]
+            bv = q[iq, c] - center[c]
+            if use_nq:
+                bv = bv + offset * n_q[inq, c]
+            a[c] = np.float32(av)
+            seg[c] = np.float32(bv) - a[c]
+        length = np.sqrt(seg[0] * seg[0] + seg[1] * seg[1] + seg[2] * seg[2])
+        ok[i] = length > off32
+        if ok[i]:
+            for c in range(3):
+                a_out[k, c] = a[c]
+                d_out[k, c] = seg[c] / length
+            tmax[k] = length - off32
+            k += 1
+    return a_out[:k], d_out[:k], tmax[:k], ok
+
+
+@njit(cache=True)
+def _float32_rays(o, d, center, n):
+    """Ray origins (centred) and directions of :meth:`RayCaster.intersect` as contiguous (n, 3) float32."""
+    o32 = np.empty((n, 3), np.float32)
+    d32 = np.empty((n, 3), np.float32)
+    for i in range(n):
+        io, jd = (0 if o.shape[0] == 1 else i), (0 if d.shape[0] == 1 else i)
+        for c in range(3):
+            o32[i, c] = np.float32(o[io, c] - center[c])
+            d32[i, c] = np.float32(d[jd, c])
+    return o32, d32
+
+
+@njit(cache=True)
+def _first_hits(o, d, face, tfar, face_normals, plane_offset, face_object, grazing):
+    """:class:`Hits` fields of :meth:`RayCaster.intersect` from Embree's faces and float32 distances: the float64
+    ray-plane distance t = (n·p₀ − n·o)/(n·d) unless |n·d| ≤ ``grazing`` (Embree's), points o + t·d (nan, no
+    hit), normals facing the origin (0, no hit), face and object ids (−1, no hit); the numpy expressions they
+    replace, in the same order."""
+    n = face.shape[0]
+    hit = face >= 0
+    distance = np.empty(n)
+    points = np.empty((n, 3))
+    normals = np.empty((n, 3))
+    face_out = np.empty(n, np.int64)
+    obj = np.empty(n, np.int64)
+    for i in range(n):
+        io, jd = (0 if o.shape[0] == 1 else i), (0 if d.shape[0] == 1 else i)
+        f = face[i] if hit[i] else 0
+        n0, n1, n2 = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+        denom = d[jd, 0] * n0 + d[jd, 1] * n1 + d[jd, 2] * n2
+        num = plane_offset[f] - (o[io, 0] * n0 + o[io, 1] * n1 + o[io, 2] * n2)
+        t = num / denom if abs(denom) > grazing else tfar[i]
+        distance[i] = t if hit[i] else np.inf
+        tp = t if hit[i] else np.nan
+        scale = (-1.0 if denom > 0 else 1.0) * (1.0 if hit[i] else 0.0)
+        for c in range(3):
+            points[i, c] = o[io, c] + d[jd, c] * tp
+            normals[i, c] = face_normals[f, c] * scale
+        face_out[i] = face[i] if hit[i] else -1
+        obj[i] = face_object[f] if hit[i] else -1
+    return hit, distance, points, normals, face_out, obj

@@ -57,11 +57,12 @@ import numpy as np
 from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
                         to_world, unit_square_points)
 from ..scene import RayCaster, Scene, SceneError, resolve_capture
-from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Counters, Sink, register
+from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
+                           spot_irradiance)
 from .area_secondary import AreaSecondary
-from .physics import LegPhysics, PhysicsSettings, fov_connection_weight
+from .physics import LegPhysics, PhysicsSettings
 
 MAX_CONNECTIONS = 1 << 17
 """Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
@@ -274,6 +275,7 @@ class AreaSampler(AreaSecondary):
         visible from the spot by construction), unless the user forces it off."""
         return cls(scene, AreaSettings.from_transport(settings, samples=config.area_samples,
                                                       shadow_spot=config.effects.get("shadow_spot") is not False,
+                                                      sensor_blockers=settings.sensor_blockers,
                                                       workers=config.workers), caster)
 
     def configure(self, settings: AreaSettings) -> None:
@@ -308,6 +310,13 @@ class AreaSampler(AreaSecondary):
             front_spot |= (tri @ np.array([n_x, n_y, n_z]) - d > self.tol).any(axis=1)
         front_fov = ((tri - c.fov_center) @ c.fov_normal > self.tol).any(axis=1)
         return np.flatnonzero((cst.face_area > 0) & (front_spot | front_fov))
+
+    def _weight_constants(self) -> tuple[float, float, float, float]:
+        """(ρ_a = 1/dA_y of the stratified FoV points, D, M_f/A_FoV, sensor leg counted) for
+        :func:`~datagen.transport.area_kernels.connection_weights` (aperture captures)."""
+        c, s = self.capture, self.settings
+        rho_a = c.n_pixels * s.fov_samples[0] * s.fov_samples[1] / (c.fov_size[0] * c.fov_size[1])
+        return (float(rho_a), float(s.fov_directions), float(self._fov_density), float(s.count_sensor_leg))
 
     def _targets_per_sample(self) -> int:
         c = self.capture
@@ -360,18 +369,14 @@ class AreaSampler(AreaSecondary):
         cell = stratified_grid(mu, mv, None)[0] - 0.5 / np.array([mu, mv])      # cell corners, (M, 2)
         corner = np.tile(cell, (c.n_pixels, 1))[keep]
         jitter = rng.random((len(x), len(pix), 2)) if pad is None else pad[:, None, :]
-        uv = corner[None] + jitter / np.array([mu, mv])
-        targets = c.fov_points(ix + uv[..., 0], iy + uv[..., 1])                                # (B, S, 3)
-        rho_a = c.n_pixels * mu * mv / (c.fov_size[0] * c.fov_size[1])                         # 1/dA_y
-        to_y = targets - x[:, None, :]
-        r = np.linalg.norm(to_y, axis=-1)
-        w = to_y / np.maximum(r, 1e-300)[..., None]
-        cos_y = -dot(w, c.fov_normal)
-        bi, si = np.nonzero((dot(n_x[:, None, :], w) > 0) & (cos_y > 0))
-        vis = cst.visible(x[bi], n_x[bi], targets[bi, si], c.fov_normal)
+        fov = (c.fov_center, c.fov_u, c.fov_v, c.fov_normal, np.asarray(c.fov_size, dtype=np.float64),
+               np.asarray(c.fov_pixels, dtype=np.float64))
+        bi, si, y, wk, rr, cy = fov_targets(np.ascontiguousarray(x), np.ascontiguousarray(n_x), ix, iy,
+                                            np.ascontiguousarray(corner), np.ascontiguousarray(jitter),
+                                            (float(mu), float(mv)), fov)
+        vis = cst.visible(x[bi], n_x[bi], y, c.fov_normal)
         self.physics.stats.shadow_rays += len(bi)
-        bi, si = bi[vis], si[vis]
-        y, wk, rr, cy, chan = targets[bi, si], w[bi, si], r[bi, si], cos_y[bi, si], ch[si]
+        bi, y, wk, rr, cy, chan = bi[vis], y[vis], wk[vis], rr[vis], cy[vis], ch[si[vis]]
         n_y = np.broadcast_to(c.fov_normal, y.shape)
         obj_y = np.full(len(bi), self.physics.wall_object)
         if n_dir:
@@ -390,12 +395,10 @@ class AreaSampler(AreaSecondary):
             n_y = np.concatenate([n_y, hits.normals[db, dk]])
             obj_y = np.concatenate([obj_y, hits.object_id[db, dk]])
             bi = np.concatenate([bi, db])
-        collect, d_ys = self.physics.sensor_collection(y, n_y, obj_y, -wk)
-        p_d = dot(n_x[bi], wk) * cy / (np.pi * rr ** 2)
-        weight = _inverse(rho_x[bi] * (rho_a + n_dir * p_d) + self._fov_density * p_d) * \
-            fov_connection_weight(cy, rr, collect)
-        time = (rr + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT
-        return Connections(bi, wk, weight, time, rr + d_ys, chan)
+        collect, d_ys = sensor_collection(self.physics, y, n_y, obj_y, -wk)
+        weight, time, phys = connection_weights(bi, np.ascontiguousarray(n_x), rho_x, wk, rr, cy, collect, d_ys,
+                                                self._weight_constants())
+        return Connections(bi, wk, weight, time, phys, chan)
 
     # -- estimator -------------------------------------------------------------------------------------------
 
@@ -464,7 +467,7 @@ class AreaSampler(AreaSecondary):
         """Hidden points by area or from the spot: next-event connections to the FoV from the side the spot
         lights (and, for the secondary, from the other side where the FoV lies behind it)."""
         c, s = self.capture, self.settings
-        e_x, r_lx, w_spot, geo = self.physics.irradiance(xs.points, xs.normals, laser)
+        e_x, r_lx, w_spot, geo = spot_irradiance(self.physics, xs.points, xs.normals, laser)
         self.stats.lit_samples += int((e_x > 0).sum())
         rho_x = density_a[xs.face] + n_spot * geo / np.pi                    # ρ_a + ρ_s, 1/m²
         n_front = np.where(dot(xs.normals, w_spot)[:, None] < 0, -xs.normals, xs.normals)   # facing the spot
@@ -508,20 +511,18 @@ class AreaSampler(AreaSecondary):
         x, n_side = hits.points[keep], hits.normals[keep]                     # n_side faces y
         xs = SurfaceSamples(x, cst.face_normals[face], face, cst.face_object[face], np.zeros(len(face)),
                             np.zeros((len(face), 2)))
-        e_x, r_lx, w_spot, geo = self.physics.irradiance(x, xs.normals, laser)
+        e_x, r_lx, w_spot, geo = spot_irradiance(self.physics, x, xs.normals, laser)
         self.stats.lit_samples += int((e_x > 0).sum())
         rho_x = density_a[face] + n_spot * geo / np.pi
         w = y - x
         r = np.linalg.norm(w, axis=-1)
         w = w / r[:, None]
         cos_y = -dot(w, c.fov_normal)
-        collect, d_ys = self.physics.sensor_collection(y, normal[keep], np.full(len(y), self.physics.wall_object), -w)
-        p_d = dot(n_side, w) * cos_y / (np.pi * r ** 2)
-        rho_a = c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1] / (c.fov_size[0] * c.fov_size[1])
-        weight = _inverse(rho_x * (rho_a + self.settings.fov_directions * p_d) + self._fov_density * p_d) * \
-            fov_connection_weight(cos_y, r, collect)
-        conn = {"b": np.arange(len(x)), "direction": w, "weight": weight,
-                "time": (r + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT, "phys": r + d_ys, "channel": chan,
+        collect, d_ys = sensor_collection(self.physics, y, normal[keep], np.full(len(y), self.physics.wall_object), -w)
+        b = np.arange(len(x))
+        weight, time, phys = connection_weights(b, np.ascontiguousarray(n_side), rho_x, w, r, cos_y, collect, d_ys,
+                                                self._weight_constants())
+        conn = {"b": b, "direction": w, "weight": weight, "time": time, "phys": phys, "channel": chan,
                 "normal": n_side}
         self._deposit(xs, e_x, r_lx, w_spot, conn, dot(n_side, w_spot) > 0, laser, sink, rng)
 
@@ -531,18 +532,13 @@ class AreaSampler(AreaSecondary):
         y; ``primary`` marks those leaving x on the side the spot lights) and the secondary's."""
         c, s = self.capture, self.settings
         b = conn["b"]
-        use = primary & (e_x[b] > 0)
-        if use.any() and not self.secondary_only:
-            bu, w_out, n_side = b[use], conn["direction"][use], conn["normal"][use]
-            f = self.physics.constant_brdf(xs.object_id[bu])
-            full = np.flatnonzero(np.isnan(f))
-            if len(full):
-                f[full] = self.physics.brdf(xs.object_id[bu[full]], n_side[full], w_spot[bu[full]], w_out[full])
-            weight = e_x[bu] * f * np.maximum(dot(n_side, w_out), 0.0) * conn["weight"][use]
-            if s.attenuation > 0:
-                weight = weight * self.physics.attenuation(c.emitter_legs[laser] + r_lx[bu] + conn["phys"][use])
-            comp = self.object_component[xs.object_id[bu]] * c.n_channels + conn["channel"][use]
-            laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
-            sink.add(laser_t + r_lx[bu] / SPEED_OF_LIGHT + conn["time"][use], weight, comp)
+        if not self.secondary_only:
+            legs = (float(s.attenuation), float(c.emitter_legs[laser]), float(self.physics.laser_leg(laser)))
+            t, weight, comp = primary_impulses(b, primary, e_x, xs.object_id, w_spot, r_lx, conn["normal"],
+                                               conn["direction"], conn["weight"], conn["phys"], conn["time"],
+                                               conn["channel"], self.object_component, c.n_channels,
+                                               material_arrays(self.physics), legs)
+            if len(t):
+                sink.add(t, weight, comp)
         if s.secondary == "full" and len(b):
             self.secondary_paths(xs, laser, conn, sink, rng)

@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..sampling import SurfaceSamples, sample_surfaces, square_to_hemisphere, to_world
-from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
+from .area_kernels import (material_arrays, partner_geometry, partner_irradiance, partner_rays, secondary_pairs,
+                           spot_irradiance)
 from .base import Sink
 
 MIN_PARTNER_DISTANCE_OFFSETS = 10.0
@@ -65,7 +66,10 @@ class AreaSecondary:
     def secondary_paths(self, xs: SurfaceSamples, laser: int, conn: dict, sink: Sink, rng: np.random.Generator) -> None:
         """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc)."""
         c, s, cst = self.capture, self.settings, self.caster
-        rows, inv = np.unique(conn["b"], return_inverse=True)       # hidden samples with FoV connections
+        used = np.zeros(len(xs.points), dtype=bool)                 # hidden samples with FoV connections
+        used[conn["b"]] = True
+        rows = np.flatnonzero(used)                                 # np.unique(b, return_inverse=True) in O(n)
+        inv = (np.cumsum(used) - 1)[conn["b"]]
         n = len(rows)
         x, nf = xs.points[rows], xs.normals[rows]
         side = dot(nf[inv], conn["normal"]) > 0                    # the connection leaves x's +normal side
@@ -77,65 +81,27 @@ class AreaSecondary:
         pl, pd, pa = s.spot_partners, s.direction_partners, s.area_partners
         p_tot = pl + pd + pa
         xp, found = self.partners(x, nf, pos, neg, laser, rng)
-        owner = np.repeat(np.arange(n), p_tot)
-        slot = np.tile(np.arange(p_tot), n)
-        needs_vis = (slot < pl) | (slot >= pl + pd)                  # spot and area partners; not first hits
-        # x' → x geometry
-        dpx = x[owner] - xp.points
-        rp = np.linalg.norm(dpx, axis=-1)
-        wpx = dpx / np.maximum(rp, 1e-300)[:, None]                   # unit x' → x
-        cos_p = np.abs(dot(xp.normals, wpx))
-        nfx_w = dot(nf[owner], wpx)                                  # < 0: x' on x's +normal side
-        cos_x = np.abs(nfx_w)
-        on_pos = nfx_w < 0
-        covered = np.where(on_pos, pos[owner], neg[owner])
-        keep = found & (rp > MIN_PARTNER_DISTANCE_OFFSETS * cst.offset) & (cos_p > 0) & (cos_x > 0) & covered
-        e_p = np.zeros(len(rp))
-        r_lp = np.zeros(len(rp))
-        w_sp = np.zeros((len(rp), 3))
-        geo_p = np.zeros(len(rp))
-        if keep.any():
-            e_p[keep], r_lp[keep], w_sp[keep], geo_p[keep] = self.physics.irradiance(xp.points[keep], xp.normals[keep],
-                                                                              laser)
-        keep &= e_p > 0
-        n_px = np.where(dot(xp.normals, wpx)[:, None] < 0, -xp.normals, xp.normals)   # x' normal facing x
-        n_xp = np.where(on_pos[:, None], nf[owner], -nf[owner])                        # x normal facing x'
-        keep &= dot(n_px, w_sp) > 0                 # x' reflects toward x only on the side the laser lights
-        check = keep & needs_vis
-        if check.any():
-            keep[check] = cst.visible(xp.points[check], n_px[check], x[owner][check], n_xp[check])
-            self.physics.stats.shadow_rays += int(check.sum())
+        rp, wpx, cos_p, cos_x, on_pos, keep, n_px, n_xp = partner_geometry(
+            x, nf, pos, neg, p_tot, xp.points, xp.normals, found, MIN_PARTNER_DISTANCE_OFFSETS * cst.offset)
+        e_p, r_lp, w_sp, geo_p = spot_irradiance(self.physics, xp.points, xp.normals, laser, np.flatnonzero(keep))
+        check = partner_rays(keep, e_p, n_px, w_sp, p_tot, (pl, pl + pd))   # spot and area partners: not first hits
+        if len(check):
+            keep[check] = cst.visible(xp.points[check], n_px[check], x[check // p_tot], n_xp[check])
+            self.physics.stats.shadow_rays += len(check)
         self.stats.partners += int(keep.sum())
         if not keep.any():
             return
-        idx = np.flatnonzero(keep)
-        g = cos_p[idx] * cos_x[idx] / rp[idx] ** 2                    # G(x', x), 1/m²
-        p_spot = geo_p[idx] / np.pi                                   # densities in area measure, 1/m²
-        p_dir = g / (np.pi * n_sides[owner[idx]])
-        p_area = self.is_hidden[xp.face[idx]] / self.hidden_area
-        f_p = self.physics.brdf(xp.object_id[idx], n_px[idx], w_sp[idx], wpx[idx])
-        irr = np.zeros(len(rp))                                       # MIS terms of the irradiance at x
-        irr[idx] = e_p[idx] * f_p * g / (pl * p_spot + pd * p_dir + pa * p_area)
-        # every FoV connection of x with every partner of x: per-connection and per-partner factors first, so
-        # that a pair costs a few scalar gathers (the BRDF at x per pair only where it is not a constant)
-        part = (inv[:, None] * p_tot + np.arange(p_tot)[None]).ravel()
-        ci = np.repeat(np.arange(len(inv)), p_tot)
-        use = (irr[part] > 0) & (on_pos[part] == side[ci])    # light leaves x on the side it arrived from
-        part, ci = part[use], ci[use]
-        if len(part) == 0:
+        mat = material_arrays(self.physics)
+        # the irradiance at x from each partner (MIS terms), then every FoV connection of x with every partner
+        irr = partner_irradiance(keep, e_p, geo_p, cos_p, cos_x, rp, n_sides, p_tot,
+                                 self.is_hidden[xp.face] / self.hidden_area, (pl, pd, pa), xp.object_id, n_px, w_sp,
+                                 wpx, mat)
+        legs = (float(s.attenuation), float(c.emitter_legs[laser]), float(self.physics.laser_leg(laser)))
+        t, weight, comp = secondary_pairs(inv, side, p_tot, irr, on_pos, wpx, r_lp, rp, conn["normal"],
+                                          conn["direction"], conn["weight"], conn["phys"], conn["time"],
+                                          conn["channel"], xs.object_id[conn["b"]], mat, legs,
+                                          self.n_primary * c.n_channels)
+        if len(t) == 0:
             return
-        b_c = conn["b"]
-        per_conn = np.maximum(dot(conn["normal"], conn["direction"]), 0.0) * conn["weight"]
-        f_x = self.physics.constant_brdf(xs.object_id[b_c])[ci]
-        full = np.flatnonzero(np.isnan(f_x))
-        if len(full):
-            pc = ci[full]
-            f_x[full] = self.physics.brdf(xs.object_id[b_c[pc]], conn["normal"][pc], -wpx[part[full]],
-                                          conn["direction"][pc])
-        leg = c.emitter_legs[laser]
-        weight = per_conn[ci] * irr[part] * f_x
-        if self.settings.attenuation > 0:
-            weight = weight * self.physics.attenuation(leg + r_lp[part] + rp[part] + conn["phys"][ci])
-        t = ((self.physics.laser_leg(laser) + r_lp + rp) / SPEED_OF_LIGHT)[part] + conn["time"][ci]
-        self.stats.secondary_pairs += len(part)
-        sink.add(t, weight, self.n_primary * c.n_channels + conn["channel"][ci])
+        self.stats.secondary_pairs += len(t)
+        sink.add(t, weight, comp)

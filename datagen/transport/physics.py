@@ -260,12 +260,20 @@ class LegPhysics:
         cos_ap = np.maximum(-dot(w_s, c.aperture_normals(points)), 0.0)
         out = self.settings.pde * f * cos_out * c.aperture_area * cos_ap / d ** 2
         if self.settings.shadow_sensor:
-            idx = np.flatnonzero(out > 0)
-            idx = idx[self.may_be_blocked(c.sensor, -w_s[idx], d[idx], self.sensor_spheres)]
-            if len(idx):
-                self.stats.shadow_rays += len(idx)
-                out[idx[~self.caster.visible(points[idx], normals[idx], c.sensor, None)]] = 0.0
+            self.sensor_shadows(out, points, normals, w_s, d)
         return out, d
+
+    def sensor_shadows(self, out: np.ndarray, points: np.ndarray, normals: np.ndarray, w_s: np.ndarray,
+                       d: np.ndarray) -> None:
+        """Set ``out`` (n,) to 0 where the FoV point → sensor segment is blocked: shadow rays from points (n, 3)
+        with normals (n, 3) for the entries > 0 whose segment (unit directions to the sensor w_s (n, 3), lengths
+        d (n,)) may meet a sensor blocker (:meth:`may_be_blocked`)."""
+        c = self.capture
+        idx = np.flatnonzero(out > 0)
+        idx = idx[self.may_be_blocked(c.sensor, -w_s[idx], d[idx], self.sensor_spheres)]
+        if len(idx):
+            self.stats.shadow_rays += len(idx)
+            out[idx[~self.caster.visible(points[idx], normals[idx], c.sensor, None)]] = 0.0
 
     def sensor_leg(self, d: np.ndarray) -> np.ndarray | float:
         """Metres of the FoV → sensor leg that count in the time of flight: d, or 0 unless ``count_sensor_leg``."""

@@ -1,0 +1,456 @@
+"""Compiled (numba) passes of the area sampler between its ray batches: the same formulas, fewer array passes.
+
+The area sampler (:mod:`datagen.transport.area`, :mod:`datagen.transport.area_secondary`) casts its rays in
+batches (Embree); between them it used to run dozens of numpy passes over (hidden sample × FoV point) and
+(connection × partner) arrays. The kernels here do that arithmetic in one pass each and take every random
+number pre-drawn by the caller, so the random streams are those of the numpy code. The formulas are those of
+:mod:`datagen.transport.physics` and :class:`datagen.scene.materials.MaterialTable` (docs/physics.md §2):
+
+- :func:`brdf_value`: f(ω_in, ω_out) of one point, :meth:`MaterialTable.evaluate`'s Lambertian, sin θ and
+  Phong kinds (0 where a direction lies below the surface);
+- :func:`fov_targets`: the stratified FoV points of :meth:`AreaSampler._connect` and their geometry;
+- :func:`partner_geometry` / :func:`partner_irradiance`: the x' → x geometry of the secondary's partners and
+  the MIS irradiance term E(x') f_x' G / Σ_t P_t p_t(x');
+- :func:`secondary_pairs`: every (FoV connection, partner) pair's time, weight (per-connection weight × partner
+  irradiance × BRDF at x × e^{−μ·path}) and component.
+
+``tests/test_area_kernels.py`` compares each kernel with the numpy formulas of :mod:`datagen.transport.physics`
+and :class:`~datagen.scene.materials.MaterialTable` (relative 1e-12). The kernels compile once per process
+(``cache=True`` stores them next to this file, or in numba's user-wide cache when the package is read-only).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..scene.materials import LAMBERTIAN, PHONG, SIN_THETA, TANGENT_EPS
+from ..units import SPEED_OF_LIGHT
+
+__all__ = ["brdf_value", "fov_targets", "material_arrays", "partner_geometry", "partner_irradiance",
+           "secondary_pairs"]
+
+
+def material_arrays(physics) -> tuple:
+    """The material table of a :class:`~datagen.transport.physics.LegPhysics` as the tuple the kernels take:
+    (kind int8, albedo, specular, exponent, axis (n, 3), constant f) per object id, where constant f is
+    :meth:`~datagen.transport.physics.LegPhysics.constant_brdf` (ρ/π without angle work, NaN: evaluate)."""
+    m = physics.materials
+    ids = np.arange(len(m.kind))
+    return (m.kind, m.albedo, m.specular, m.exponent, np.ascontiguousarray(m.axis),
+            np.ascontiguousarray(physics.constant_brdf(ids), dtype=np.float64))
+
+
+@njit(cache=True, inline="always")
+def _toward(p0, p1, p2, q0, q1, q2):
+    """|q − p| and the unit direction p → q (the numpy code's ``d / max(|d|, 1e-300)``)."""
+    d0, d1, d2 = q0 - p0, q1 - p1, q2 - p2
+    r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    s = max(r, 1e-300)
+    return r, d0 / s, d1 / s, d2 / s
+
+
+@njit(cache=True, inline="always")
+def _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, w0, w1, w2):
+    """|sin| of w's azimuth about n from the axis a (materials' ``_abs_sin_azimuth``, Duff et al. fallback)."""
+    an = a0 * n0 + a1 * n1 + a2 * n2
+    t0, t1, t2 = a0 - an * n0, a1 - an * n1, a2 - an * n2
+    t_len2 = t0 * t0 + t1 * t1 + t2 * t2
+    if t_len2 > TANGENT_EPS:
+        s = math.sqrt(max(t_len2, TANGENT_EPS))
+        t0, t1, t2 = t0 / s, t1 / s, t2 / s
+    else:                                            # tangent_frame: Duff et al., JCGT 6(1), 2017
+        sign = 1.0 if n2 >= 0.0 else -1.0
+        a = -1.0 / (sign + n2)
+        b = n0 * n1 * a
+        t0, t1, t2 = 1.0 + sign * n0 ** 2 * a, sign * b, -sign * n0
+    b0, b1, b2 = n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0
+    wn = w0 * n0 + w1 * n1 + w2 * n2
+    u0, u1, u2 = w0 - wn * n0, w1 - wn * n1, w2 - wn * n2
+    tan_len2 = u0 * u0 + u1 * u1 + u2 * u2
+    if not tan_len2 > TANGENT_EPS:
+        return 0.0
+    sin_az = abs(u0 * b0 + u1 * b1 + u2 * b2) / math.sqrt(max(tan_len2, TANGENT_EPS))
+    return min(sin_az, 1.0)
+
+
+@njit(cache=True, inline="always")
+def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
+    """f(ω_in, ω_out) in 1/sr at a point of object ``obj`` with unit normal n (lit side) for unit directions
+    ω_in = (i0, i1, i2), ω_out = (o0, o1, o2) away from the surface; ``mat`` from :func:`material_arrays`.
+
+    The constant f of ``mat`` when it is not NaN (Lambertian without angle work,
+    :meth:`~datagen.transport.physics.LegPhysics.brdf`), else :meth:`MaterialTable.evaluate`: 0 unless both
+    cosines are > 0; Lambertian ρ/π; sin θ ½ρ|sin φ_in||sin φ_out|; Phong ρ((1−k_s)/π + k_s (e+2)/(2π) cos^e α).
+    """
+    kind, albedo, specular, exponent, axis, const_f = mat
+    f = const_f[obj]
+    if not math.isnan(f):
+        return f
+    cos_in = n0 * i0 + n1 * i1 + n2 * i2
+    cos_out = n0 * o0 + n1 * o1 + n2 * o2
+    if not (cos_in > 0.0 and cos_out > 0.0):
+        return 0.0
+    k, rho = kind[obj], albedo[obj]
+    if k == SIN_THETA:
+        a0, a1, a2 = axis[obj, 0], axis[obj, 1], axis[obj, 2]
+        return 0.5 * rho * _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, i0, i1, i2) * \
+            _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, o0, o1, o2)
+    if k == PHONG:
+        ks, expo = specular[obj], exponent[obj]
+        m0, m1, m2 = 2.0 * cos_in * n0 - i0, 2.0 * cos_in * n1 - i1, 2.0 * cos_in * n2 - i2
+        cos_alpha = min(max(m0 * o0 + m1 * o1 + m2 * o2, 0.0), 1.0)
+        power = cos_alpha ** expo if cos_alpha > 0.0 or expo <= 0.0 else 0.0      # 0^e = 0 without pow
+        lobe = (expo + 2.0) / (2.0 * np.pi) * power
+        return rho * ((1.0 - ks) / np.pi + ks * lobe)
+    if k == LAMBERTIAN:
+        return rho / np.pi
+    return 0.0
+
+
+@njit(cache=True)
+def fov_targets(x, n_x, ix, iy, corner, jitter, cells, fov):
+    """Stratified FoV points of every hidden point and the geometry of the pairs that face each other.
+
+    Args:
+        x, n_x: (B, 3) hidden points and the normals of the side they connect from.
+        ix, iy: (S,) int pixel column and row of each target cell; corner: (S, 2) the cell's corner inside
+            its pixel (in pixel units); jitter: (B, S, 2) or (B, 1, 2) shift in [0, 1)² of each cell (or of
+            all cells of a row); cells: (mu, mv) cells per pixel.
+        fov: (center (3,), u (3,), v (3,), normal (3,), size (2,), pixels (2,)) of the sensor grid
+            (:meth:`datagen.scene.Capture.fov_points`).
+    Returns:
+        (bi (n,) int64, si (n,) int64, y (n, 3), w (n, 3) unit x → y, r (n,) |y − x|, cos_y (n,)) for the
+        pairs with n_x·w > 0 and cosθ_y = −w·n_fov > 0, row-major in (b, s) as ``np.nonzero``.
+    """
+    center, fu, fv, fn, size, pixels = fov
+    mu, mv = cells
+    nb, ns = x.shape[0], ix.shape[0]
+    shared = jitter.shape[1] == 1
+    cap = nb * ns
+    bi = np.empty(cap, np.int64)
+    si = np.empty(cap, np.int64)
+    y = np.empty((cap, 3))
+    w = np.empty((cap, 3))
+    r = np.empty(cap)
+    cy = np.empty(cap)
+    k = 0
+    for b in range(nb):
+        for s in range(ns):
+            j = 0 if shared else s
+            cu = ix[s] + (corner[s, 0] + jitter[b, j, 0] / mu)
+            cv = iy[s] + (corner[s, 1] + jitter[b, j, 1] / mv)
+            a = (cu / pixels[0] - 0.5) * size[0]
+            c = (cv / pixels[1] - 0.5) * size[1]
+            t0 = center[0] + a * fu[0] + c * fv[0]
+            t1 = center[1] + a * fu[1] + c * fv[1]
+            t2 = center[2] + a * fu[2] + c * fv[2]
+            rr, w0, w1, w2 = _toward(x[b, 0], x[b, 1], x[b, 2], t0, t1, t2)
+            cos_y = -(w0 * fn[0] + w1 * fn[1] + w2 * fn[2])
+            if n_x[b, 0] * w0 + n_x[b, 1] * w1 + n_x[b, 2] * w2 > 0.0 and cos_y > 0.0:
+                bi[k], si[k] = b, s
+                y[k, 0], y[k, 1], y[k, 2] = t0, t1, t2
+                w[k, 0], w[k, 1], w[k, 2] = w0, w1, w2
+                r[k], cy[k] = rr, cos_y
+                k += 1
+    return bi[:k], si[:k], y[:k], w[:k], r[:k], cy[:k]
+
+
+@njit(cache=True)
+def partner_geometry(x, nf, pos, neg, p_tot, points, normals, found, min_distance):
+    """Geometry of the partners x' (n·P rows, owner-major) of the n hidden points x (secondary_paths).
+
+    Args:
+        x, nf: (n, 3) hidden points and their face normals; pos, neg: (n,) bool, x has FoV connections on its
+            +normal / −normal side; p_tot: P partners per point; points, normals: (n·P, 3) partners and their
+            face normals; found: (n·P,) bool; min_distance: metres below which a pair is dropped.
+    Returns:
+        rp (m,) |x − x'|; wpx (m, 3) unit x' → x; cos_p, cos_x (m,) |cos| at x' and x; on_pos (m,) bool, x' on
+        x's +normal side; keep (m,) bool (found, farther than ``min_distance``, both cosines > 0, x has
+        connections on that side); n_px (m, 3) x' normal facing x; n_xp (m, 3) x normal facing x'.
+    """
+    m = points.shape[0]
+    rp = np.empty(m)
+    wpx = np.empty((m, 3))
+    cos_p = np.empty(m)
+    cos_x = np.empty(m)
+    on_pos = np.empty(m, np.bool_)
+    keep = np.empty(m, np.bool_)
+    n_px = np.empty((m, 3))
+    n_xp = np.empty((m, 3))
+    for i in range(m):
+        o = i // p_tot
+        r, w0, w1, w2 = _toward(points[i, 0], points[i, 1], points[i, 2], x[o, 0], x[o, 1], x[o, 2])
+        pw = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2
+        xw = nf[o, 0] * w0 + nf[o, 1] * w1 + nf[o, 2] * w2
+        rp[i] = r
+        wpx[i, 0], wpx[i, 1], wpx[i, 2] = w0, w1, w2
+        cos_p[i], cos_x[i] = abs(pw), abs(xw)
+        on_pos[i] = xw < 0.0
+        covered = pos[o] if xw < 0.0 else neg[o]
+        keep[i] = found[i] and r > min_distance and abs(pw) > 0.0 and abs(xw) > 0.0 and covered
+        sp = -1.0 if pw < 0.0 else 1.0
+        sx = 1.0 if xw < 0.0 else -1.0
+        for k in range(3):
+            n_px[i, k] = sp * normals[i, k]
+            n_xp[i, k] = sx * nf[o, k]
+    return rp, wpx, cos_p, cos_x, on_pos, keep, n_px, n_xp
+
+
+@njit(cache=True)
+def partner_irradiance(keep, e_p, geo_p, cos_p, cos_x, rp, n_sides, p_tot, hidden_w, counts, obj, n_px, w_sp,
+                       wpx, mat):
+    """MIS irradiance term of each kept partner: E(x') f_x'(ω→x_l, ω→x) G / (P_l p_l + P_d p_d + P_a p_a), 0 for
+    the others (m,).
+
+    G = cosθ_x' cosθ_x / r², p_l = geo/π (cosine directions from the spot), p_d = G / (π · sides of x)
+    (cosine directions from x), p_a = ``hidden_w`` (1/A_hidden on hidden faces, else 0); ``counts`` =
+    (P_l, P_d, P_a); f from :func:`brdf_value` with the x' normal facing x ``n_px``, ω_in = ``w_sp`` toward
+    the spot, ω_out = ``wpx`` toward x; ``n_sides`` (n,) per owner (row // ``p_tot``).
+    """
+    pl, pd, pa = counts
+    m = keep.shape[0]
+    irr = np.zeros(m)
+    for i in range(m):
+        if not keep[i]:
+            continue
+        g = cos_p[i] * cos_x[i] / rp[i] ** 2
+        p_spot = geo_p[i] / np.pi
+        p_dir = g / (np.pi * n_sides[i // p_tot])
+        f = brdf_value(mat, obj[i], n_px[i, 0], n_px[i, 1], n_px[i, 2], w_sp[i, 0], w_sp[i, 1], w_sp[i, 2],
+                       wpx[i, 0], wpx[i, 1], wpx[i, 2])
+        irr[i] = e_p[i] * f * g / (pl * p_spot + pd * p_dir + pa * hidden_w[i])
+    return irr
+
+
+@njit(cache=True)
+def secondary_pairs(inv, side, p_tot, irr, on_pos, wpx, r_lp, rp, normal, direction, weight, phys, time, channel,
+                    obj_x, mat, legs, comp0):
+    """Every (FoV connection, partner of its hidden point) pair whose partner irradiance is > 0 and whose light
+    leaves x on the side it arrived from: arrival times (s), weights (photons) and component ids.
+
+    Args:
+        inv: (c,) owner row of each connection; side: (c,) bool, the connection leaves x's +normal side;
+            p_tot: partners per owner (partner j of owner o is row o·P + j of irr, on_pos, wpx, r_lp, rp).
+        irr: (m,) :func:`partner_irradiance`; on_pos: (m,) bool; wpx: (m, 3) unit x' → x; r_lp, rp: (m,)
+            metres x_l → x' and x' → x.
+        normal, direction, weight, phys, time, channel: the connections (:class:`~.base.Connections` fields and
+            the side's normal at x), obj_x (c,) the object of each connection's x; mat: :func:`material_arrays`.
+        legs: (μ 1/m, emitter leg m, laser leg counted in the time m); comp0: first secondary component id.
+    Returns:
+        (t (k,), w (k,), comp (k,) int64), connection-major, partners in row order. Weight =
+        max(n·ω, 0)·weight · irr · f_x(ω_in = x → x', ω_out) · e^{−μ(emitter leg + r_lp + rp + phys)} (no factor
+        when μ = 0); time = (laser leg + r_lp + rp)/c + time.
+    """
+    mu, emitter_leg, laser_leg = legs
+    const_f = mat[5]
+    nc = inv.shape[0]
+    cap = nc * p_tot
+    t_out = np.empty(cap)
+    w_out = np.empty(cap)
+    c_out = np.empty(cap, np.int64)
+    k = 0
+    for c in range(nc):
+        n0, n1, n2 = normal[c, 0], normal[c, 1], normal[c, 2]
+        o0, o1, o2 = direction[c, 0], direction[c, 1], direction[c, 2]
+        per_conn = max(n0 * o0 + n1 * o1 + n2 * o2, 0.0) * weight[c]
+        f_const = const_f[obj_x[c]]
+        for j in range(inv[c] * p_tot, (inv[c] + 1) * p_tot):
+            if not (irr[j] > 0.0 and on_pos[j] == side[c]):
+                continue
+            f = f_const
+            if math.isnan(f):
+                f = brdf_value(mat, obj_x[c], n0, n1, n2, -wpx[j, 0], -wpx[j, 1], -wpx[j, 2], o0, o1, o2)
+            w = per_conn * irr[j] * f
+            if mu > 0.0:
+                w = w * math.exp(-mu * (emitter_leg + r_lp[j] + rp[j] + phys[c]))
+            t_out[k] = (laser_leg + r_lp[j] + rp[j]) / SPEED_OF_LIGHT + time[c]
+            w_out[k] = w
+            c_out[k] = comp0 + channel[c]
+            k += 1
+    return t_out[:k], w_out[:k], c_out[:k]
+
+
+@njit(cache=True)
+def _spot_geometry(points, normals, rows, spot, spot_n, tol):
+    n = points.shape[0]
+    r = np.zeros(n)
+    w = np.zeros((n, 3))
+    cos_in = np.zeros(n)
+    cos_l = np.zeros(n)
+    lit = np.zeros(n, np.bool_)
+    n_lit = np.zeros((n, 3))
+    for i in rows:
+        rr, w0, w1, w2 = _toward(points[i, 0], points[i, 1], points[i, 2], spot[0], spot[1], spot[2])
+        nfw = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2
+        r[i] = rr
+        w[i, 0], w[i, 1], w[i, 2] = w0, w1, w2
+        cos_in[i] = abs(nfw)
+        cos_l[i] = -(w0 * spot_n[0] + w1 * spot_n[1] + w2 * spot_n[2])
+        lit[i] = cos_l[i] > 0.0 and abs(nfw) > 0.0 and rr > tol
+        sign = -1.0 if nfw < 0.0 else 1.0
+        for k in range(3):
+            n_lit[i, k] = sign * normals[i, k]
+    return r, w, cos_in, cos_l, lit, n_lit
+
+
+@njit(cache=True)
+def _spot_terms(idx, r, w, cos_in, cos_l, photons, mat, obj, spot_n, w_e):
+    n = r.shape[0]
+    e = np.zeros(n)
+    geo = np.zeros(n)
+    for i in idx:
+        o0, o1, o2 = -w[i, 0], -w[i, 1], -w[i, 2]
+        cos = max(spot_n[0] * o0 + spot_n[1] * o1 + spot_n[2] * o2, 0.0)
+        f = brdf_value(mat, obj, spot_n[0], spot_n[1], spot_n[2], w_e[0], w_e[1], w_e[2], o0, o1, o2)
+        r2 = r[i] ** 2
+        geo[i] = cos_l[i] * cos_in[i] / r2
+        e[i] = photons * (f * cos) * cos_in[i] / r2
+    return e, geo
+
+
+def spot_irradiance(physics, points: np.ndarray, face_normals: np.ndarray, laser: int,
+                    rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`datagen.transport.physics.LegPhysics.irradiance` of ``physics`` in two compiled passes around its
+    shadow-ray batch: the same returns (E photons/m² (n,), r m (n,), unit direction to the spot (n, 3), geo
+    1/m² (n,)) for points (n, 3) with face normals (n, 3), lit on the side facing laser point ``laser``; E =
+    Φ f_l cosθ_l cosθ_in / r² V (:func:`~datagen.transport.physics.laser_irradiance` of
+    :meth:`~datagen.transport.physics.LegPhysics.spot_emission`). ``rows`` (int64 indices): evaluate only
+    those points, the others get zeros (as if they were not passed)."""
+    c = physics.capture
+    spot, spot_n = c.spots[laser], c.spot_normals[laser]
+    points, face_normals = np.ascontiguousarray(points), np.ascontiguousarray(face_normals)
+    rows = np.arange(len(points)) if rows is None else rows
+    r, w, cos_in, cos_l, lit, n_lit = _spot_geometry(points, face_normals, rows, spot, spot_n, physics.tol)
+    idx = np.flatnonzero(lit)
+    if physics.settings.shadow_spot and len(idx):
+        physics.stats.shadow_rays += len(idx)
+        idx = idx[physics.caster.visible(points[idx], n_lit[idx], spot, spot_n)]
+    w_e = c.emitter - spot
+    w_e = w_e / np.linalg.norm(w_e)
+    e, geo = _spot_terms(idx, r, w, cos_in, cos_l, float(c.photons), material_arrays(physics),
+                         int(c.spot_objects[laser]), spot_n, w_e)
+    return e, r, w, geo
+
+
+@njit(cache=True)
+def _sensor_terms(points, normals, obj, w_in, sensor, ap_n, scale, mat):
+    n = points.shape[0]
+    shared = ap_n.shape[0] == 1
+    out = np.empty(n)
+    d = np.empty(n)
+    w_s = np.empty((n, 3))
+    for i in range(n):
+        t0, t1, t2 = sensor[0] - points[i, 0], sensor[1] - points[i, 1], sensor[2] - points[i, 2]
+        dd = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        s0, s1, s2 = t0 / dd, t1 / dd, t2 / dd
+        n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
+        f = brdf_value(mat, obj[i], n0, n1, n2, w_in[i, 0], w_in[i, 1], w_in[i, 2], s0, s1, s2)
+        a = 0 if shared else i
+        cos_out = max(n0 * s0 + n1 * s1 + n2 * s2, 0.0)
+        cos_ap = max(-(s0 * ap_n[a, 0] + s1 * ap_n[a, 1] + s2 * ap_n[a, 2]), 0.0)
+        pde, area = scale
+        out[i] = pde * f * cos_out * area * cos_ap / dd ** 2
+        d[i] = dd
+        w_s[i, 0], w_s[i, 1], w_s[i, 2] = s0, s1, s2
+    return out, d, w_s
+
+
+def sensor_collection(physics, points: np.ndarray, normals: np.ndarray, object_id: np.ndarray, w_in: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`datagen.transport.physics.LegPhysics.sensor_collection` of ``physics`` for the aperture convention
+    (q f_y(ω_in, ω_s) cosθ_y,out A_ap cosθ_ap / d² · V(y, x_s), and d) with the arithmetic in one compiled pass
+    before its shadow-ray batch; points, normals, w_in (n, 3), object_id (n,) → two (n,) float64 arrays."""
+    c = physics.capture
+    points = np.ascontiguousarray(points)
+    ap_n = np.ascontiguousarray(np.asarray(c.aperture_normals(points), dtype=np.float64).reshape(-1, 3))
+    out, d, w_s = _sensor_terms(points, np.ascontiguousarray(normals), np.ascontiguousarray(object_id),
+                                np.ascontiguousarray(w_in), c.sensor, ap_n,
+                                (float(physics.settings.pde), float(c.aperture_area)), material_arrays(physics))
+    if physics.settings.shadow_sensor:
+        physics.sensor_shadows(out, points, normals, w_s, d)
+    return out, d
+
+
+@njit(cache=True)
+def primary_impulses(b, primary, e_x, obj, w_spot, r_lx, normal, direction, weight, phys, time, channel,
+                     component, n_channels, mat, legs):
+    """Primary impulses of FoV connections (rows ``b`` into the hidden samples) that leave x on the side the spot
+    lights (``primary``) from a lit x (E > 0): times (s), weights (photons), component ids, in connection order.
+
+    Weight = E(x) · f_x(ω→x_l, ω) · max(n·ω, 0) · weight · e^{−μ(emitter leg + r_lx + phys)} (no factor when
+    μ = 0), time = laser leg / c + r_lx / c + time, component = component[obj]·n_channels + channel; ``legs`` =
+    (μ 1/m, emitter leg m, laser leg counted in the time m); ``mat`` from :func:`material_arrays`; e_x, obj,
+    w_spot (toward the spot), r_lx per hidden sample; the rest per connection.
+    """
+    mu, emitter_leg, laser_leg = legs
+    laser_t = laser_leg / SPEED_OF_LIGHT
+    nc = b.shape[0]
+    t_out = np.empty(nc)
+    w_out = np.empty(nc)
+    c_out = np.empty(nc, np.int64)
+    k = 0
+    for c in range(nc):
+        x = b[c]
+        if not (primary[c] and e_x[x] > 0.0):
+            continue
+        n0, n1, n2 = normal[c, 0], normal[c, 1], normal[c, 2]
+        o0, o1, o2 = direction[c, 0], direction[c, 1], direction[c, 2]
+        f = brdf_value(mat, obj[x], n0, n1, n2, w_spot[x, 0], w_spot[x, 1], w_spot[x, 2], o0, o1, o2)
+        w = e_x[x] * f * max(n0 * o0 + n1 * o1 + n2 * o2, 0.0) * weight[c]
+        if mu > 0.0:
+            w = w * math.exp(-mu * (emitter_leg + r_lx[x] + phys[c]))
+        t_out[k] = laser_t + r_lx[x] / SPEED_OF_LIGHT + time[c]
+        w_out[k] = w
+        c_out[k] = component[obj[x]] * n_channels + channel[c]
+        k += 1
+    return t_out[:k], w_out[:k], c_out[:k]
+
+
+@njit(cache=True)
+def partner_rays(keep, e_p, n_px, w_sp, p_tot, first_hits):
+    """Keep (in place) the partners x' lit by the laser (E > 0) that reflect toward x from their lit side
+    (n_px·w_sp > 0), and return the rows among them that need an x' ↔ x shadow ray: all but the slots
+    [first_hits[0], first_hits[1]) of each owner's ``p_tot`` (first hits of rays from x, visible by construction)."""
+    lo, hi = first_hits
+    m = keep.shape[0]
+    idx = np.empty(m, np.int64)
+    k = 0
+    for i in range(m):
+        if keep[i]:
+            keep[i] = e_p[i] > 0.0 and n_px[i, 0] * w_sp[i, 0] + n_px[i, 1] * w_sp[i, 1] + n_px[i, 2] * w_sp[i, 2] > 0.0
+        slot = i % p_tot
+        if keep[i] and not (lo <= slot < hi):
+            idx[k] = i
+            k += 1
+    return idx[:k]
+
+
+@njit(cache=True)
+def connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys, consts):
+    """Weights, times and path lengths of FoV connections (hidden point ``b`` → FoV point y): the balance heuristic
+    of :meth:`datagen.transport.area.AreaSampler._connect` times
+    :func:`~datagen.transport.physics.fov_connection_weight`,
+
+        weight = cosθ_y / r² · collection / (ρ_x (ρ_a + D p_d) + (M_f/A_FoV) p_d)   (0 where the density is 0),
+        p_d = cosθ_x cosθ_y / (π r²),  cosθ_x = n_x[b]·ω,
+
+    time = (r + d_ys if the sensor leg counts, else r) / c, phys = r + d_ys. b (n,) rows of n_x (B, 3) and
+    rho_x (B,); w (n, 3) unit x → y; r, cos_y, collect, d_ys (n,); consts = (ρ_a 1/m², D, M_f/A_FoV 1/m²,
+    sensor leg counted 1.0 or 0.0)."""
+    rho_a, n_dir, fov_density, count_sensor = consts
+    n = b.shape[0]
+    weight = np.empty(n)
+    time = np.empty(n)
+    phys = np.empty(n)
+    for i in range(n):
+        k = b[i]
+        r2 = r[i] ** 2
+        p_d = (n_x[k, 0] * w[i, 0] + n_x[k, 1] * w[i, 1] + n_x[k, 2] * w[i, 2]) * cos_y[i] / (np.pi * r2)
+        density = rho_x[k] * (rho_a + n_dir * p_d) + fov_density * p_d
+        inverse = 1.0 / density if density > 0.0 else 0.0
+        weight[i] = inverse * (cos_y[i] / r2 * collect[i])
+        time[i] = (r[i] + d_ys[i] if count_sensor else r[i]) / SPEED_OF_LIGHT
+        phys[i] = r[i] + d_ys[i]
+    return weight, time, phys
