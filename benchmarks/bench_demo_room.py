@@ -32,7 +32,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="10x10 only")
     parser.add_argument("--repeat", type=int, default=3, help="runs per exact-secondary timing (best is kept)")
     parser.add_argument("--exact-only", action="store_true", help="only the exact-secondary timings")
-    parser.add_argument("--area-only", action="store_true", help="only the area sampler to 1 %")
+    parser.add_argument("--area-only", action="store_true", help="only the area sampler to 1 %%")
     parser.add_argument("--cache-dir", default=None, help="converged-reference cache (default: bench accuracy's)")
     args = parser.parse_args()
     if args.exact_only:
