@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["deposit_curvature"]
+__all__ = ["b3", "b3_slope", "deposit_curvature"]
 
 
 @njit(cache=True, inline="always")
-def _b3(u: float) -> float:
+def b3(u: float) -> float:
     """Centred cubic B-spline B3 = hat * hat at u (support [-2, 2])."""
     a = abs(u)
     if a < 1.0:
@@ -26,7 +26,7 @@ def _b3(u: float) -> float:
 
 
 @njit(cache=True, inline="always")
-def _b3_slope(ua: float, ub: float) -> float:
+def b3_slope(ua: float, ub: float) -> float:
     """(B3(ua) - B3(ub)) / (ua - ub), ua >= ub, from B3 = (1/6) Σ_j (-1)^j C(4, j) (u + 2 - j)_+³
     (as :func:`datagen.timing.tents.tent_curvature`)."""
     if ub >= 2.0 or ua <= -2.0:
@@ -58,15 +58,15 @@ def _deposit(coord, w, comp, n_fine, flat):
             if gap < 1.0:                              # one group of 8 nodes around a: exact divided difference
                 for j in range(8):
                     node = fa - 1.0 + j
-                    flat[row + int(node)] += factor * _b3_slope(node - a, node - b)
+                    flat[row + int(node)] += factor * b3_slope(node - a, node - b)
             else:
                 q = factor / gap
                 fb = np.floor(b)
                 for j in range(4):
                     na = fa - 1.0 + j
                     nb = fb - 1.0 + j
-                    flat[row + int(na)] += q * _b3(na - a)
-                    flat[row + int(nb)] -= q * _b3(nb - b)
+                    flat[row + int(na)] += q * b3(na - a)
+                    flat[row + int(nb)] -= q * b3(nb - b)
 
 
 def deposit_curvature(coord: np.ndarray, weights: np.ndarray, comp: np.ndarray, n_fine: int,
