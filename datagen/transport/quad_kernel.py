@@ -86,31 +86,35 @@ def _may_block(centroid, m, spots, l, idx, lo, hi, plane, edges, margin) -> bool
 
 
 @njit(cache=True, inline="always")
-def _legs(m, l, t, centroid, normal, spots, spot_n, spot_f, photons, targets, fov_n, collect, tol, f_lamb, kind, rho,
-          ks, expo):
-    """(E, f · G, r_l, r_y) of one pair (E · f · G = 0: no contribution), f the hidden BRDF (module doc). One
-    exit and scalar indexing only: early returns holding array views cost ~100 ns per call in numba."""
+def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targets, fov_n, collect, tol, f_lamb, kind,
+          rho, ks, expo):
+    """(E, f · G, r_l, r_y) of one pair (E · f · G = 0: no contribution), f the hidden BRDF (module doc); ``same``:
+    the target is the laser point (confocal), whose leg is then the laser leg. One exit and scalar indexing only:
+    early returns holding array views cost ~100 ns per call in numba."""
     n0, n1, n2 = normal[m, 0], normal[m, 1], normal[m, 2]
     w0, w1, w2 = spots[l, 0] - centroid[m, 0], spots[l, 1] - centroid[m, 1], spots[l, 2] - centroid[m, 2]
     r_l = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-    inv = 1.0 / max(r_l, 1e-300)
-    w0, w1, w2 = w0 * inv, w1 * inv, w2 * inv
+    inv_l = 1.0 / max(r_l, 1e-300)
+    w0, w1, w2 = w0 * inv_l, w1 * inv_l, w2 * inv_l
     nfw = n0 * w0 + n1 * w1 + n2 * w2
     cos_in = abs(nfw)
     cos_l = -(w0 * spot_n[l, 0] + w1 * spot_n[l, 1] + w2 * spot_n[l, 2])
     e = 0.0
     fg = 0.0
-    r_y = 0.0
+    r_y = r_l
     if cos_l > 0.0 and cos_in > 0.0 and r_l > tol:
-        e = photons * (spot_f[l] * cos_l) * cos_in / (r_l * r_l)
-        d0, d1, d2 = targets[t, 0] - centroid[m, 0], targets[t, 1] - centroid[m, 1], targets[t, 2] - centroid[m, 2]
-        r_y = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        inv = 1.0 / max(r_y, 1e-300)
-        d0, d1, d2 = d0 * inv, d1 * inv, d2 * inv
-        nw = n0 * d0 + n1 * d1 + n2 * d2
+        e = photons * (spot_f[l] * cos_l) * cos_in * (inv_l * inv_l)
+        if same:
+            d0, d1, d2, inv_y, nw = w0, w1, w2, inv_l, nfw
+        else:
+            d0, d1, d2 = targets[t, 0] - centroid[m, 0], targets[t, 1] - centroid[m, 1], targets[t, 2] - centroid[m, 2]
+            r_y = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            inv_y = 1.0 / max(r_y, 1e-300)
+            d0, d1, d2 = d0 * inv_y, d1 * inv_y, d2 * inv_y
+            nw = n0 * d0 + n1 * d1 + n2 * d2
         cos_y = -(d0 * fov_n[0] + d1 * fov_n[1] + d2 * fov_n[2])
         if abs(nw) > 0.0 and cos_y > 0.0 and r_y > tol and (nw > 0.0) == (nfw > 0.0):
-            g = abs(nw) * cos_y / (r_y * r_y) * collect[t]
+            g = abs(nw) * cos_y * (inv_y * inv_y) * collect[t]
             f = f_lamb[m]
             if kind[m] == PHONG:        # Phong (datagen.scene.materials.MaterialTable.evaluate), lit-side normal
                 sgn = 1.0 if nfw > 0.0 else -1.0
@@ -136,21 +140,31 @@ def _tent(paths, row, v0, v1, v2, centre, offset, speed, t_start, step, shift, n
     deposit_tent(c0, c1, c2, w, comp, n_fine, min_nodes, hist, curv, total, beyond)
 
 
+GEO = ("vertices", "cells", "area", "comp_base", "coarse_of", "coarse_cells")
+POSE = ("centroid", "normal", "cell_face", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol", "f_lamb", "kind",
+        "rho", "ks", "expo")
+CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
+LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
+GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
+OCC = ("shadow", "occ_ptr", "occ_idx", "plane", "edges", "margin", "max_tests")
+"""The kernel's inputs by group (:func:`datagen.transport.quad_primary.run_compiled` builds them): passed as
+separate arguments, since arrays taken out of a tuple inside numba's inner loop cost an atomic reference count
+each (measured ~100 ns per pair)."""
+
+
 @njit(cache=True)
-def _pairs(listed, block, paths, ray_cell, ray_conn, visible, geo, pose, conn, legs, grid, coarse, has_coarse, occ):
-    """Both passes (module doc); every tuple is unpacked once here: arrays taken out of a tuple inside the inner
-    loop cost an atomic reference count each (~100 ns per pair)."""
-    b0 = block[0]
-    vertices, cells, area, comp_base, coarse_of, coarse_cells = geo
-    centroid, normal, cell_face, spot_n, spot_f, photons, fov_n, collect, tol, brdf = pose
-    f_lamb, kind, rho, ks, expo = brdf
-    conn_laser, conn_target, conn_channel = conn
-    spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride = legs
-    t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond = grid
-    ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond = coarse
-    shadow, occ_ptr, occ_idx, plane, edges, margin, max_tests = occ
+def _pairs(listed, b0, b1, paths, ray_cell, ray_conn, visible,
+           vertices, cells, area, comp_base, coarse_of, coarse_cells,
+           centroid, normal, cell_face, spot_n, spot_f, photons, fov_n, collect, tol, f_lamb, kind, rho, ks, expo,
+           conn_laser, conn_target, conn_channel, conn_same,
+           spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride,
+           t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond,
+           has_coarse, ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond,
+           shadow, occ_ptr, occ_idx, plane, edges, margin, max_tests):
+    """Both passes (module doc): ``listed`` False: the pairs of connections [b0, b1), listing those that need a
+    shadow ray; True: the listed pairs whose ray found the laser point ``visible``."""
     M = centroid.shape[0]
-    n = ray_cell.shape[0] if listed else (block[1] - block[0]) * M
+    n = ray_cell.shape[0] if listed else (b1 - b0) * M
     n_rays = 0
     tents = 0
     for i in range(n):
@@ -159,11 +173,11 @@ def _pairs(listed, block, paths, ray_cell, ray_conn, visible, geo, pose, conn, l
                 continue
             m, b = ray_cell[i], ray_conn[i]
         else:
-            b = block[0] + i // M
-            m = i - (b - block[0]) * M
+            b = b0 + i // M
+            m = i - (b - b0) * M
         l, t, ch = conn_laser[b], conn_target[b], conn_channel[b]
-        e, g, r_l, r_y = _legs(m, l, t, centroid, normal, spots, spot_n, spot_f, photons, targets, fov_n, collect,
-                               tol, f_lamb, kind, rho, ks, expo)
+        e, g, r_l, r_y = _legs(m, l, t, conn_same[b], centroid, normal, spots, spot_n, spot_f, photons, targets,
+                               fov_n, collect, tol, f_lamb, kind, rho, ks, expo)
         if not (e > 0.0 and g > 0.0):
             continue
         if shadow and not listed:
@@ -182,13 +196,13 @@ def _pairs(listed, block, paths, ray_cell, ray_conn, visible, geo, pose, conn, l
         offset = 0.0 + laser_off[l] + sensor_off[t]
         centre = r_l + r_y
         row = b - b0
-        _tent(paths, row, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed, t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond, weight, comp_base[m] + ch)
+        _tent(paths, row, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed, t_start, step, shift, n_fine,
+              min_nodes, hist, curv, total, beyond, weight, comp_base[m] + ch)
         tents += 1
         k = coarse_of[m]
         if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
             _tent(paths, row, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2], centre, offset, speed,
-                  ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal,
-                  cbeyond, 4.0 * weight, ch)
+                  ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond, 4.0 * weight, ch)
     return n_rays, tents
 
 
@@ -202,19 +216,25 @@ def vertex_paths(vertices, spots, targets, conn_laser, conn_target, start, stop,
             out[b - start, v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
 
 
+def _flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ) -> tuple:
+    """The arguments of :func:`_pairs` after (listed, b0, b1, paths, ray_cell, ray_conn, visible)."""
+    return (*geo, *pose[:9], *pose[9], *conn, *legs, *grid, bool(has_coarse), *coarse, *occ)
+
+
 def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_conn
                ) -> tuple[int, int]:
     """Deposit every contributing pair of the connections ``block`` (start, stop) that needs no shadow ray and
     list the others in ``ray_cell`` / ``ray_conn`` (capacity cells × connections). ``paths``: the block's
-    :func:`vertex_paths`. Returns (rays listed, tents deposited)."""
+    :func:`vertex_paths`; the groups: :data:`GEO`, :data:`POSE` (the BRDF arrays as one tuple), :data:`CONN`,
+    :data:`LEGS`, :data:`GRID` (``grid``, ``coarse``), :data:`OCC`. Returns (rays listed, tents deposited)."""
     none = np.zeros(1, dtype=np.uint8)
-    return _pairs(False, (int(block[0]), int(block[1])), paths, ray_cell, ray_conn, none, geo, pose, conn, legs,
-                  grid, coarse, has_coarse, occ)
+    return _pairs(False, int(block[0]), int(block[1]), paths, ray_cell, ray_conn, none,
+                  *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))
 
 
 def deposit_pairs(block, paths, ray_cell, ray_conn, visible, geo, pose, conn, legs, grid, coarse, has_coarse, occ
                   ) -> int:
     """Deposit the listed pairs (of the connections ``block``) whose shadow ray found the laser point visible
     (``visible`` uint8). Returns the tents deposited."""
-    return _pairs(True, (int(block[0]), int(block[1])), paths, ray_cell, ray_conn, visible, geo, pose, conn, legs,
-                  grid, coarse, has_coarse, occ)[1]
+    return _pairs(True, int(block[0]), int(block[1]), paths, ray_cell, ray_conn, visible,
+                  *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))[1]

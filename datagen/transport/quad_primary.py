@@ -113,7 +113,8 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
            i64(q.coarse_cells.reshape(-1, 3)))
     pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), f64(c.spot_normals), f64(spot_f),
             float(c.photons), f64(c.fov_normal), f64(collect * q.target_area), float(q.area.tol), brdf)
-    conn = (i64(q.conn_laser), i64(q.conn_target), i64(q.conn_channel))
+    same = (c.spots[q.conn_laser] == y[q.conn_target]).all(axis=1)         # the target is the laser point
+    conn = (i64(q.conn_laser), i64(q.conn_target), i64(q.conn_channel), same.astype(np.uint8))
     legs = (f64(c.spots), f64(y), f64(c.emitter_legs), f64(laser_off), f64(d_y), f64(sensor_off),
             float(q.settings.attenuation), float(SPEED_OF_LIGHT), int(q.coarse_stride))
     occ = _occluder_lists(q)
