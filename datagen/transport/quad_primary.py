@@ -5,9 +5,9 @@
 over the (sub-triangle, connection) pairs deposits every contributing pair whose laser leg no triangle can block,
 Embree shadow rays decide the listed others, and a second compiled pass deposits the visible ones. Which
 triangles can block a face's laser legs comes from the separating-plane test per hidden face
-(:func:`leg_occluders`): the kernel asks for a ray only when a pair's segment passes within a margin of one of
-them, so the result is the one shadow rays on every lit pair give (tests/test_quadrature.py: to 1e-9 of the numpy
-path, with occluders).
+(:func:`leg_occluders`): the kernel tests those exactly and asks for a ray only when a pair's segment passes within
+a margin of one of their edges (:mod:`.quad_kernel` on how this differs from Embree's float32 rays;
+``Quadrature.segment_tests`` = False: a ray for every lit pair, the numpy path's visibility).
 """
 from __future__ import annotations
 
@@ -85,7 +85,7 @@ def _occluder_lists(q) -> tuple:
         idx = occ_of.astype(np.int64)
         plane, edges = occluder_planes(caster.vertices[caster.faces[occluders]])
     margin = MARGIN_OFFSETS * caster.offset
-    return shadow, ptr, idx, plane, edges, float(margin), MAX_OCCLUDER_TESTS
+    return shadow, ptr, idx, plane, edges, float(margin), MAX_OCCLUDER_TESTS if q.segment_tests else -1
 
 
 def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:
