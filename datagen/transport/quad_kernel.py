@@ -15,14 +15,14 @@ depend on the incoming direction:
   for the error estimate) goes to the accumulator's fine grid by :func:`datagen.timing.tent_kernel.deposit_tent`.
 
 Visibility of the laser leg (``shadow``): only the triangles that may cross a segment from T's face to the laser
-points (``occ_ptr`` / ``occ_idx``, the separating-plane test per face) are tested, exactly in float64
-(:func:`_blocked`): a segment that misses them all by more than ``margin`` is visible, one that crosses a
-triangle more than ``margin`` inside its edges is blocked, and only the rest (within ``margin`` of an edge, or a
-face with more than ``max_tests`` candidates) is listed for an Embree shadow ray (:func:`candidates`) and deposited
-after it (:func:`deposit_pairs`). Embree's float32 rays leak through shared edges now and then (measured: a
-segment 0.5–2 mm inside a box's face at 4.7 m, reported unblocked); the exact test does not, so the compiled
-envelope differs from the numpy path's by such pairs (2e-8 relative on a confocal room scan). With ``max_tests``
-= −1 every lit pair gets its ray and the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9).
+points (the separating-plane test per face), grouped in runs of one object with a bounding sphere, are tested,
+exactly in float64 (:func:`_blocked`): a segment that misses them all by more than ``margin`` is visible, one that
+crosses a triangle more than ``margin`` inside its edges is blocked, and only the rest (within ``margin`` of an
+edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited after it (:func:`deposit_pairs`).
+Embree's float32 rays leak through shared edges now and then (measured: a segment 0.5–2 mm inside a box's face
+4.7 m from its start, reported unblocked); the exact test does not, so the compiled envelope differs from the
+numpy path's by such pairs (2e-8 relative on a confocal room scan). With ``every_ray`` each lit pair gets its ray
+and the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9).
 """
 from __future__ import annotations
 
@@ -62,33 +62,42 @@ def _dist(a, i, b, j) -> float:
 
 
 @njit(cache=True, inline="always")
-def _blocked(centroid, m, spots, l, idx, lo, hi, plane, edges, margin) -> int:
-    """Whether a triangle of idx[lo:hi] blocks the segment centroid[m] → spots[l]: 0 no (every one is missed by more
-    than ``margin``, or an end lies on its plane: its own surface, which the ray's pushed-off end clears), 1 yes
-    (one is crossed with both ends more than ``margin`` off its plane and the crossing more than ``margin`` inside
-    its edges: Embree's float32 ray, pushed off by one offset, meets it too), 2 within ``margin`` (a shadow ray
-    decides)."""
+def _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, idx, plane, edges, margin) -> int:
+    """Whether a candidate triangle of hidden face f (its runs, each inside a bounding sphere) blocks the segment
+    centroid[m] → spots[l]: 0 no (every one is missed by more than ``margin``, or an end lies on its plane: its own
+    surface, which the ray's pushed-off end clears), 1 yes (one is crossed with both ends more than ``margin`` off
+    its plane and the crossing more than ``margin`` inside its edges: Embree's ray meets it too), 2 within
+    ``margin`` (a shadow ray decides)."""
     x0, x1, x2 = centroid[m, 0], centroid[m, 1], centroid[m, 2]
     s0, s1, s2 = spots[l, 0], spots[l, 1], spots[l, 2]
+    e0, e1, e2 = s0 - x0, s1 - x1, s2 - x2
+    length2 = e0 * e0 + e1 * e1 + e2 * e2
     out = 0
-    for i in range(lo, hi):
-        k = idx[i]
-        n0, n1, n2, o = plane[k, 0], plane[k, 1], plane[k, 2], plane[k, 3]
-        d0 = n0 * x0 + n1 * x1 + n2 * x2 - o
-        d1 = n0 * s0 + n1 * s1 + n2 * s2 - o
-        if abs(d0) <= margin or abs(d1) <= margin or (d0 > 0.0) == (d1 > 0.0):
-            continue
-        t = d0 / (d0 - d1)
-        p0 = x0 + t * (s0 - x0)
-        p1 = x1 + t * (s1 - x1)
-        p2 = x2 + t * (s2 - x2)
-        inner = np.inf
-        for j in range(3):
-            inner = min(inner, edges[k, j, 0] * p0 + edges[k, j, 1] * p1 + edges[k, j, 2] * p2 - edges[k, j, 3])
-        if inner > margin:
-            return 1
-        if inner >= -margin:
-            out = 2
+    for r in range(run_ptr[f], run_ptr[f + 1]):
+        c0, c1, c2 = spheres[r, 0] - x0, spheres[r, 1] - x1, spheres[r, 2] - x2
+        u = min(max((c0 * e0 + c1 * e1 + c2 * e2) / length2, 0.0), 1.0)
+        q0, q1, q2 = c0 - u * e0, c1 - u * e1, c2 - u * e2
+        reach = spheres[r, 3] + margin
+        if q0 * q0 + q1 * q1 + q2 * q2 > reach * reach:
+            continue                                 # the segment misses the run's bounding sphere
+        for i in range(run_lo[r], run_hi[r]):
+            k = idx[i]
+            n0, n1, n2, o = plane[k, 0], plane[k, 1], plane[k, 2], plane[k, 3]
+            d0 = n0 * x0 + n1 * x1 + n2 * x2 - o
+            d1 = n0 * s0 + n1 * s1 + n2 * s2 - o
+            if abs(d0) <= margin or abs(d1) <= margin or (d0 > 0.0) == (d1 > 0.0):
+                continue
+            t = d0 / (d0 - d1)
+            p0 = x0 + t * e0
+            p1 = x1 + t * e1
+            p2 = x2 + t * e2
+            inner = np.inf
+            for j in range(3):
+                inner = min(inner, edges[k, j, 0] * p0 + edges[k, j, 1] * p1 + edges[k, j, 2] * p2 - edges[k, j, 3])
+            if inner > margin:
+                return 1
+            if inner >= -margin:
+                out = 2
     return out
 
 
@@ -153,7 +162,7 @@ POSE = ("centroid", "normal", "cell_face", "spot_n", "spot_f", "photons", "fov_n
 CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
-OCC = ("shadow", "occ_ptr", "occ_idx", "plane", "edges", "margin", "max_tests")
+OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "every_ray")
 """The kernel's inputs by group (:func:`datagen.transport.quad_primary.run_compiled` builds them): passed as
 separate arguments, since arrays taken out of a tuple inside numba's inner loop cost an atomic reference count
 each (measured ~100 ns per pair)."""
@@ -167,7 +176,7 @@ def _pairs(listed, b0, b1, paths, ray_cell, ray_conn, visible,
            spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride,
            t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond,
            has_coarse, ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond,
-           shadow, occ_ptr, occ_idx, plane, edges, margin, max_tests):
+           shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, every_ray):
     """Both passes (module doc): ``listed`` False: the pairs of connections [b0, b1), listing those that need a
     shadow ray; True: the listed pairs whose ray found the laser point ``visible``."""
     M = centroid.shape[0]
@@ -188,10 +197,8 @@ def _pairs(listed, b0, b1, paths, ray_cell, ray_conn, visible,
         if not (e > 0.0 and g > 0.0):
             continue
         if shadow and not listed:
-            f = cell_face[m]
-            lo, hi = occ_ptr[f], occ_ptr[f + 1]
-            blocked = 2 if hi - lo > max_tests else _blocked(centroid, m, spots, l, occ_idx, lo, hi, plane, edges,
-                                                              margin)
+            blocked = 2 if every_ray else _blocked(centroid, m, spots, l, run_ptr, cell_face[m], run_lo, run_hi,
+                                                   spheres, occ_idx, plane, edges, margin)
             if blocked == 1:
                 continue
             if blocked == 2:

@@ -19,15 +19,11 @@ from ..scene import RayCaster, hull_planes, may_meet, outward_planes
 from ..units import SPEED_OF_LIGHT
 from .quad_kernel import candidates, deposit_pairs, occluder_planes, vertex_paths
 
-__all__ = ["MAX_OCCLUDER_TESTS", "PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "leg_occluders", "run_compiled"]
+__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "leg_occluders", "run_compiled"]
 
 PAIR_TEST_MAX_PAIRS = 1 << 22
 """The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
 shadow rays are kept."""
-
-MAX_OCCLUDER_TESTS = 64
-"""A face with more triangles that may block its laser legs casts a shadow ray per lit pair instead of the
-kernel's segment tests."""
 
 PAIR_BLOCK = 1 << 22
 """(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
@@ -68,24 +64,37 @@ def leg_occluders(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray, tol:
 
 
 def _occluder_lists(q) -> tuple:
-    """The kernel's occluder tuple for quadrature ``q``: per hidden face (CSR ``ptr``, ``idx``) the triangles
-    that may block its laser legs, their planes and edge planes, the margin and MAX_OCCLUDER_TESTS."""
+    """The kernel's :data:`~datagen.transport.quad_kernel.OCC` group for quadrature ``q``: per hidden face the
+    triangles that may block its laser legs (:func:`leg_occluders`), in runs of one object each (CSR
+    ``run_ptr`` over runs; run r holds ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``),
+    their planes and edge planes, the margin, and whether every lit pair casts a ray instead."""
     caster, faces = q.caster, q.area.hidden_faces
     shadow = bool(q.settings.shadow_spot)
     found = leg_occluders(caster, faces, q.laser_hull, q.area.tol) if shadow else None
+    every_ray = shadow and (found is None or not q.segment_tests)
     if found is None:                       # no test (too many pairs): every lit pair of every face casts a ray
-        ptr = np.arange(len(faces) + 1, dtype=np.int64) * (MAX_OCCLUDER_TESTS + 1) if shadow else \
-            np.zeros(len(faces) + 1, dtype=np.int64)
-        idx = np.zeros(int(ptr[-1]), dtype=np.int64)
-        plane, edges = np.zeros((1, 4)), np.zeros((1, 3, 4))
+        occluders, meet = np.zeros(0, dtype=np.int64), np.zeros((0, len(faces)), dtype=bool)
     else:
         occluders, meet = found
-        face_of, occ_of = np.nonzero(meet.T)                 # face-major
-        ptr = np.concatenate([[0], np.cumsum(np.bincount(face_of, minlength=len(faces)))]).astype(np.int64)
-        idx = occ_of.astype(np.int64)
-        plane, edges = occluder_planes(caster.vertices[caster.faces[occluders]])
+    face_of, occ_of = np.nonzero(meet.T)                              # face-major
+    obj = caster.face_object[occluders[occ_of]]
+    order = np.lexsort((occ_of, obj, face_of))                        # by face, then object
+    face_of, occ_of, obj = face_of[order], occ_of[order], obj[order]
+    new_run = np.ones(len(face_of), dtype=bool)
+    new_run[1:] = (face_of[1:] != face_of[:-1]) | (obj[1:] != obj[:-1])
+    run_lo = np.flatnonzero(new_run)
+    run_hi = np.append(run_lo[1:], len(face_of))
+    run_ptr = np.searchsorted(face_of[run_lo], np.arange(len(faces) + 1)).astype(np.int64)
+    tri = caster.vertices[caster.faces[occluders]]
+    spheres = np.zeros((len(run_lo), 4))
+    for r, (lo, hi) in enumerate(zip(run_lo, run_hi)):
+        pts = tri[occ_of[lo:hi]].reshape(-1, 3)
+        centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+        spheres[r] = [*centre, np.sqrt(((pts - centre) ** 2).sum(axis=1).max())]
+    plane, edges = occluder_planes(tri) if len(tri) else (np.zeros((1, 4)), np.zeros((1, 3, 4)))
     margin = MARGIN_OFFSETS * caster.offset
-    return shadow, ptr, idx, plane, edges, float(margin), MAX_OCCLUDER_TESTS if q.segment_tests else -1
+    return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), spheres, occ_of.astype(np.int64),
+            plane, edges, float(margin), bool(every_ray))
 
 
 def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:
