@@ -153,9 +153,11 @@ class QuadratureSettings(PhysicsSettings):
                             samples=self.secondary_samples, secondary=self.secondary)
 
 
-COARSE_CHANNELS = 64
+COARSE_CHANNELS = 4096
 """The coarse rule of the error estimate (:attr:`Quadrature.coarse`) is deposited for at most about this many
-channels, every k-th (a scan's 1024 channels: every 16th), so that it costs a few per cent of the run."""
+channels, every k-th (a 32 × 32 or 64 × 64 scan: all; 128 × 128: every 4th). A sample of 64 channels of a
+confocal room scan put the estimate at 4.5 % where all channels give 2.6 %; with the compiled primary the coarse
+tents cost ~10 % of the run."""
 
 MAX_FOV_CELLS = 64
 """Cap on the automatic FoV cells per pixel side (aperture captures)."""
