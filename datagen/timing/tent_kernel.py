@@ -4,7 +4,7 @@
 the fine-grid mode (Gaussian or ex-Gaussian IRF, not the direct mode): the tent's weight is added to the
 component's total; a tent wholly outside the fine grid counts as beyond it; a tent spanning at least
 ``min_nodes`` nodes and clear of the grid's ends goes to the curvature array as the sixteen second differences of
-:func:`datagen.timing.tents.tent_curvature` (through :mod:`datagen.timing.curvature`'s B-spline formulas); any
+:func:`datagen.timing.tents.tent_curvature` (:func:`datagen.timing.curvature.add_tent_curvature`); any
 other tent puts on each node p it covers the second difference F2(p+1) − 2 F2(p) + F2(p−1) of its second
 antiderivative :func:`datagen.timing.tents.tent_cdf2` (clamped at 0, the accumulator's per-node form), and a
 tent cut by the grid's ends adds the mass it could not deposit to beyond. The grid's arrays come from
@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .curvature import b3, b3_slope
+from .curvature import add_tent_curvature
 
 __all__ = ["TentGrid", "deposit_tent", "sort3"]
 
@@ -85,26 +85,7 @@ def deposit_tent(c0: float, c1: float, c2: float, w: float, comp: int, n_fine: i
         return
     row = comp * n_fine
     if c2 - c0 >= min_nodes and lo >= 1.0 and hi + 2.0 <= n_fine - 1:
-        scale = 2.0 / (c2 - c0) * w
-        crow = row + 1                                  # the second difference at g is stored at g + 1
-        for side in range(2):
-            a = c0 if side == 0 else c1
-            b = c1 if side == 0 else c2
-            factor = scale if side == 0 else -scale
-            gap = b - a
-            fa = np.floor(a)
-            if gap < 1.0:
-                for j in range(8):
-                    node = fa - 1.0 + j
-                    curvature[crow + int(node)] += factor * b3_slope(node - a, node - b)
-            else:
-                q = factor / gap
-                fb = np.floor(b)
-                for j in range(4):
-                    na = fa - 1.0 + j
-                    nb = fb - 1.0 + j
-                    curvature[crow + int(na)] += q * b3(na - a)
-                    curvature[crow + int(nb)] -= q * b3(nb - b)
+        add_tent_curvature(c0, c1, c2, w, row + 1, curvature)
         return
     first = int(max(lo, 0.0))
     last = int(min(hi, n_fine - 1.0))
