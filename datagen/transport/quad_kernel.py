@@ -22,7 +22,10 @@ edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited afte
 Embree's float32 rays leak through shared edges now and then (measured: a segment 0.5–2 mm inside a box's face
 4.7 m from its start, reported unblocked); the exact test does not, so the compiled envelope differs from the
 numpy path's by such pairs (2e-8 relative on a confocal room scan). With ``every_ray`` each lit pair gets its ray
-and the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9).
+and the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The inner side of a closed
+outward surface (``closed``, :func:`datagen.transport.quad_primary.closed_outward`) is never lit: no test, no
+ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of a coarse
+torus's envelope).
 """
 from __future__ import annotations
 
@@ -157,7 +160,7 @@ def _tent(paths, row, v0, v1, v2, centre, offset, speed, t_start, step, shift, n
 
 
 GEO = ("vertices", "cells", "area", "comp_base", "coarse_of", "coarse_cells")
-POSE = ("centroid", "normal", "cell_face", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol", "f_lamb", "kind",
+POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol", "f_lamb", "kind",
         "rho", "ks", "expo")
 CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
@@ -171,7 +174,8 @@ each (measured ~100 ns per pair)."""
 @njit(cache=True)
 def _pairs(listed, b0, b1, paths, ray_cell, ray_conn, visible,
            vertices, cells, area, comp_base, coarse_of, coarse_cells,
-           centroid, normal, cell_face, spot_n, spot_f, photons, fov_n, collect, tol, f_lamb, kind, rho, ks, expo,
+           centroid, normal, cell_face, closed, spot_n, spot_f, photons, fov_n, collect, tol, f_lamb, kind, rho, ks,
+           expo,
            conn_laser, conn_target, conn_channel, conn_same,
            spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride,
            t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond,
@@ -196,6 +200,10 @@ def _pairs(listed, b0, b1, paths, ray_cell, ray_conn, visible,
                                fov_n, collect, tol, f_lamb, kind, rho, ks, expo)
         if not (e > 0.0 and g > 0.0):
             continue
+        if shadow and closed[m] and (normal[m, 0] * (spots[l, 0] - centroid[m, 0])
+                                     + normal[m, 1] * (spots[l, 1] - centroid[m, 1])
+                                     + normal[m, 2] * (spots[l, 2] - centroid[m, 2])) < 0.0:
+            continue                    # the inner side of a closed surface (quad_primary.closed_outward)
         if shadow and not listed:
             blocked = 2 if every_ray else _blocked(centroid, m, spots, l, run_ptr, cell_face[m], run_lo, run_hi,
                                                    spheres, occ_idx, plane, edges, margin)
@@ -236,7 +244,7 @@ def vertex_paths(vertices, spots, targets, conn_laser, conn_target, start, stop,
 
 def _flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ) -> tuple:
     """The arguments of :func:`_pairs` after (listed, b0, b1, paths, ray_cell, ray_conn, visible)."""
-    return (*geo, *pose[:9], *pose[9], *conn, *legs, *grid, bool(has_coarse), *coarse, *occ)
+    return (*geo, *pose[:10], *pose[10], *conn, *legs, *grid, bool(has_coarse), *coarse, *occ)
 
 
 def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_conn

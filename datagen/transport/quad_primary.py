@@ -97,6 +97,30 @@ def _occluder_lists(q) -> tuple:
             plane, edges, float(margin), bool(every_ray))
 
 
+def closed_outward(caster: RayCaster, objects: np.ndarray, spots: np.ndarray) -> np.ndarray:
+    """(len(objects),) bool: whether each object's triangles form a closed surface with outward normals (every
+    directed edge once, its reverse once; positive signed volume) and every laser point (spots (L, 3)) lies outside
+    its bounding box. A segment from a point outside such a surface to a point on its inner side crosses the
+    surface, so the inner side of its faces is never lit."""
+    out = np.zeros(len(objects), dtype=bool)
+    for i, obj in enumerate(objects):
+        f = caster.faces[caster.face_object == obj]
+        box = caster.vertices[f].reshape(-1, 3)
+        inside = ((spots >= box.min(axis=0) - caster.offset) & (spots <= box.max(axis=0) + caster.offset)).all(axis=1)
+        if inside.any():
+            continue
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        directed = np.unique(edges, axis=0)
+        if len(directed) != len(edges):
+            continue
+        both = np.concatenate([directed, edges[:, ::-1]])
+        if len(np.unique(both, axis=0)) != len(directed):       # every reverse present: a closed, oriented surface
+            continue
+        tri = caster.vertices[f]
+        out[i] = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() > 0
+    return out
+
+
 def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:
     """The primary of quadrature ``q`` into the fine grid ``grid`` (and the coarse rule into ``coarse``, or None),
     :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` arrays (module doc). Updates ``q.stats``."""
@@ -120,7 +144,9 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
             f64(mat.specular[q.cell_object]), f64(mat.exponent[q.cell_object]))
     geo = (f64(q.vertices), i64(q.cells), f64(q.cell_area), comp_base, i64(q.coarse_of),
            i64(q.coarse_cells.reshape(-1, 3)))
-    pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), f64(c.spot_normals), f64(spot_f),
+    objects = np.unique(q.cell_object)
+    closed = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, q.cell_object)].astype(np.uint8)
+    pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), closed, f64(c.spot_normals), f64(spot_f),
             float(c.photons), f64(c.fov_normal), f64(collect * q.target_area), float(q.area.tol), brdf)
     same = (c.spots[q.conn_laser] == y[q.conn_target]).all(axis=1)         # the target is the laser point
     conn = (i64(q.conn_laser), i64(q.conn_target), i64(q.conn_channel), same.astype(np.uint8))
