@@ -26,17 +26,19 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-import datagen
-from datagen.dataset import load_dataset_config, load_room_distribution, make_sample, sample_room
-from datagen.dataset.sampler import STREAMS
-from datagen.scene import CaptureSpec, Laser, Material, Scene, SceneObject, Sensor, quad
-
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))          # this checkout's datagen, not whichever one is installed
+
+import datagen  # noqa: E402
+from datagen.dataset import load_dataset_config, load_room_distribution, make_sample, sample_room  # noqa: E402
+from datagen.dataset.sampler import STREAMS  # noqa: E402
+from datagen.scene import CaptureSpec, Laser, Material, Scene, SceneObject, Sensor, quad  # noqa: E402
 
 
 def timed(fn, *args, **kwargs):

@@ -3,14 +3,14 @@
 For each pair of a block of connections (laser point l, target y, channel) and each sub-triangle T (centroid x,
 face normal n, area A) the kernel evaluates what :meth:`datagen.transport.quadrature.Quadrature._primary` builds
 from the per-leg functions of :mod:`datagen.transport.physics` (the documented source of every factor), for
-Lambertian hidden surfaces and laser points (``brdf_angles`` off) and a relay wall whose collection does not
-depend on the incoming direction:
+Lambertian or Phong hidden surfaces, Lambertian laser points and relay wall (``brdf_angles`` off; the wall's
+collection then does not depend on the incoming direction):
 
 - laser leg (:meth:`~datagen.transport.physics.LegPhysics.irradiance`): E = Φ (ρ_l/π) cosθ_l cosθ_x,in / r_l²,
   lit on the side of T facing x_l, when cosθ_l > 0, cosθ_x,in > 0 and r_l > tol;
 - target leg (:func:`~datagen.transport.physics.fov_connection_weight`): G = |cosθ_x,out| cosθ_y / r_y² ·
   collection(y) dA_y, on the side facing y;
-- weight A · E · ρ/π · G (· e^{−μ·path}) when both legs reach the same side; path lengths at the vertices of T and
+- weight A · E · f · G (· e^{−μ·path}), f = ρ/π or Phong's (:meth:`datagen.scene.materials.MaterialTable.evaluate`), when both legs reach the same side; path lengths at the vertices of T and
   the tent shift of the module doc of :mod:`datagen.transport.quadrature`; the tent (and the coarse rule's tent
   for the error estimate) goes to the accumulator's fine grid by :func:`datagen.timing.tent_kernel.deposit_tent`.
 

@@ -50,7 +50,9 @@ visibility the irradiance already holds. The FoV → sensor leg follows ``shadow
 evaluated per (cell, laser point), the target leg per (cell, target), and path lengths at vertices per (vertex,
 laser point) and (vertex, target); when the targets are the laser points themselves (point-radiance confocal
 scans) the vertex distances are shared. Pairs are processed in blocks of at most ``batch`` (cell, connection)
-rows, so memory stays bounded.
+rows, so memory stays bounded. The common case (Lambertian or Phong hidden surfaces, a fine-grid accumulator) runs
+compiled, one pass per (sub-triangle, connection) pair with exact segment tests instead of most shadow rays
+(:mod:`.quad_primary`, :mod:`.quad_kernel`); the numpy blocks are its reference.
 
 **Secondary and first bounce.** When the plan asks for the secondary (paths with two hidden vertices), the
 quadrature does not drop it: the area sampler (:mod:`datagen.transport.area`, ``secondary_only``) adds its unbiased
