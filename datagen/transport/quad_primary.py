@@ -122,8 +122,10 @@ def closed_outward(caster: RayCaster, objects: np.ndarray, spots: np.ndarray) ->
 
 
 def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:
-    """The primary of quadrature ``q`` into the fine grid ``grid`` (and the coarse rule into ``coarse``, or None),
-    :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` arrays (module doc). Updates ``q.stats``."""
+    """The primary of :class:`~datagen.transport.quadrature.Quadrature` ``q`` into the fine grid ``grid`` (and the
+    coarse rule of its error estimate into ``coarse``, or None), both :class:`datagen.timing.tent_kernel.TentGrid`
+    from :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` (module doc). Photons per pulse; updates ``q.stats``
+    (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block."""
     c, legs_ = q.capture, q.physics
     M = q.n_cells
     y = q.targets
@@ -171,7 +173,7 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
             li = q.conn_laser[bi]
             x, n = q.centroids[mi], q.cell_normal[mi]
             lit = np.where((np.einsum("ij,ij->i", n, c.spots[li] - x) < 0)[:, None], -n, n)
-            visible = caster_visible(q, x, lit, c.spots[li], c.spot_normals[li])
+            visible = np.ascontiguousarray(q.caster.visible(x, lit, c.spots[li], c.spot_normals[li]), dtype=np.uint8)
             tents += deposit_pairs(block, paths, mi, bi, visible, geo, pose, conn, legs, grid, coarse, has_coarse,
                                    occ)
             q.stats.shadow_rays += n_rays
@@ -180,7 +182,3 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
         if progress is not None:
             progress(M * (block[1] - block[0]))
 
-
-def caster_visible(q, x: np.ndarray, n_x: np.ndarray, s: np.ndarray, n_s: np.ndarray) -> np.ndarray:
-    """Shadow rays x → s of quadrature ``q`` (:meth:`datagen.scene.RayCaster.visible`), as a uint8 array."""
-    return np.ascontiguousarray(q.caster.visible(x, n_x, s, n_s), dtype=np.uint8)
