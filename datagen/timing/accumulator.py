@@ -55,6 +55,7 @@ from scipy.signal import oaconvolve
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
 from .curvature import deposit_curvature
+from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
 
 __all__ = [
@@ -90,6 +91,9 @@ _CHUNK = 1 << 18
 
 _DIRECT_KERNEL_MAX = 32
 """Kernels up to this length are convolved directly (exact, no FFT noise); longer ones by overlap-add FFT."""
+
+_CONVOLVE_ROWS = 256
+"""Fine-histogram rows convolved with the IRF in one batched FFT call (:meth:`EnvelopeAccumulator.binned`)."""
 
 _TENT_ROWS = 1 << 21
 """Evaluation rows (tents x nodes they cover) processed at once by EnvelopeAccumulator.add_tents."""
@@ -402,6 +406,19 @@ class EnvelopeAccumulator:
                             counts[sel], None if coord is None else coord[sel], clipped[sel])
             group = stop
 
+    def tent_grid(self) -> TentGrid | None:
+        """The fine grid as arrays for compiled tent deposits (:func:`datagen.timing.tent_kernel.deposit_tent`,
+        the same deposits as :meth:`add_tents`), or None in the direct and delta-IRF modes. The views stay valid
+        until the histogram is read (:meth:`binned`, :meth:`fine_histogram`, :meth:`outside`, :meth:`merge`)."""
+        if self.direct or self.irf.is_delta:
+            return None
+        if self._curvature is None:
+            self._curvature = np.zeros_like(self._hist)
+        self._binned = None
+        return TentGrid(float(self.axis.t_start), float(self.fine_step), self.n_left - 0.5, int(self.n_fine),
+                        float(self.curvature_min_nodes), self._hist.reshape(-1), self._curvature.reshape(-1),
+                        self._total, self._beyond)
+
     def _add_curvature(self, coord: np.ndarray, w: np.ndarray, c: int | np.ndarray) -> None:
         if self._curvature is None:
             self._curvature = np.zeros_like(self._hist)
@@ -520,20 +537,24 @@ class EnvelopeAccumulator:
         return self._convolve_rows(self._fold().reshape(-1, n_channels, self._hist.shape[-1]).sum(axis=0))
 
     def _convolve_rows(self, hist: np.ndarray) -> np.ndarray:
-        """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes."""
+        """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes (the non-zero rows in
+        batches of ``_CONVOLVE_ROWS``, one FFT convolution per batch)."""
         out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
-        for k, s in enumerate(hist):
-            if not s.any():
-                continue
-            conv = np.convolve if self._kernel.size <= _DIRECT_KERNEL_MAX else oaconvolve
-            row = conv(s, self._kernel, mode="valid").reshape(self.axis.n_bins, self.oversample).sum(axis=1)
-            peak = np.abs(row).max()
-            if row.min() < -self._clamp_rtol * peak:
-                raise RuntimeError(
-                    f"component {k}: envelope value {row.min()!r} below -{self._clamp_rtol} * max ({peak!r})"
-                )
-            np.maximum(row, 0.0, out=row)
-            out[k] = row
+        rows = np.flatnonzero(hist.any(axis=1))
+        for start in range(0, len(rows), _CONVOLVE_ROWS):
+            ks = rows[start:start + _CONVOLVE_ROWS]
+            if self._kernel.size <= _DIRECT_KERNEL_MAX:
+                conv = np.stack([np.convolve(hist[k], self._kernel, mode="valid") for k in ks])
+            else:
+                conv = oaconvolve(hist[ks], self._kernel[None], mode="valid", axes=1)
+            block = conv.reshape(len(ks), self.axis.n_bins, self.oversample).sum(axis=2)
+            peak = np.abs(block).max(axis=1)
+            low = block.min(axis=1) < -self._clamp_rtol * peak
+            if low.any():
+                i = int(np.flatnonzero(low)[0])
+                raise RuntimeError(f"component {int(ks[i])}: envelope value {block[i].min()!r} below "
+                                   f"-{self._clamp_rtol} * max ({peak[i]!r})")
+            out[ks] = np.maximum(block, 0.0)
         return out
 
     def outside(self) -> np.ndarray:
@@ -548,13 +569,10 @@ class EnvelopeAccumulator:
         self._fold()
         if self.direct:  # guard bins hold exact out-of-window bin integrals
             return result + self._hist[:, : self.n_left].sum(1) + self._hist[:, self.n_left + self.n_cells :].sum(1)
-        for k in range(self.n_components):
-            nz = np.flatnonzero(self._hist[k])
-            for start in range(0, nz.size, _CHUNK * 4):
-                g = nz[start : start + _CHUNK * 4]
-                # Offsets in fine steps from node g to the window edges (exact integers before scaling).
-                lo = (self.n_left - 0.5 - g) * self.fine_step
-                hi = (self.n_cells + self.n_left - 0.5 - g) * self.fine_step
-                frac = self.irf.cdf(lo) + self.irf.sf(hi)
-                result[k] += self._hist[k, g] @ frac
-        return result
+        # the same fraction for node g in every component: one evaluation per node (nodes with no weight add 0)
+        g = np.arange(self.n_fine)
+        # Offsets in fine steps from node g to the window edges (exact integers before scaling).
+        lo = (self.n_left - 0.5 - g) * self.fine_step
+        hi = (self.n_cells + self.n_left - 0.5 - g) * self.fine_step
+        frac = self.irf.cdf(lo) + self.irf.sf(hi)
+        return result + self._hist @ frac

@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["deposit_curvature"]
+__all__ = ["add_tent_curvature", "b3", "b3_slope", "deposit_curvature"]
 
 
 @njit(cache=True, inline="always")
-def _b3(u: float) -> float:
+def b3(u: float) -> float:
     """Centred cubic B-spline B3 = hat * hat at u (support [-2, 2])."""
     a = abs(u)
     if a < 1.0:
@@ -26,7 +26,7 @@ def _b3(u: float) -> float:
 
 
 @njit(cache=True, inline="always")
-def _b3_slope(ua: float, ub: float) -> float:
+def b3_slope(ua: float, ub: float) -> float:
     """(B3(ua) - B3(ub)) / (ua - ub), ua >= ub, from B3 = (1/6) Σ_j (-1)^j C(4, j) (u + 2 - j)_+³
     (as :func:`datagen.timing.tents.tent_curvature`)."""
     if ub >= 2.0 or ua <= -2.0:
@@ -43,30 +43,36 @@ def _b3_slope(ua: float, ub: float) -> float:
     return out / 6.0
 
 
+@njit(cache=True, inline="always")
+def add_tent_curvature(c0: float, c1: float, c2: float, w: float, start: int, flat: np.ndarray) -> None:
+    """Add ``w`` × the sixteen second differences of the unit tent with sorted node coordinates c0 <= c1 <= c2 to
+    ``flat[start + node]`` (``start``: the component's row offset + 1, the second difference at g being stored at
+    g + 1)."""
+    scale = 2.0 / (c2 - c0) * w
+    for side in range(2):
+        a = c0 if side == 0 else c1
+        b = c1 if side == 0 else c2
+        factor = scale if side == 0 else -scale
+        gap = b - a
+        fa = np.floor(a)
+        if gap < 1.0:                              # one group of 8 nodes around a: exact divided difference
+            for j in range(8):
+                node = fa - 1.0 + j
+                flat[start + int(node)] += factor * b3_slope(node - a, node - b)
+        else:
+            q = factor / gap
+            fb = np.floor(b)
+            for j in range(4):
+                na = fa - 1.0 + j
+                nb = fb - 1.0 + j
+                flat[start + int(na)] += q * b3(na - a)
+                flat[start + int(nb)] -= q * b3(nb - b)
+
+
 @njit(cache=True)
 def _deposit(coord, w, comp, n_fine, flat):
     for i in range(coord.shape[0]):
-        c0, c1, c2 = coord[i, 0], coord[i, 1], coord[i, 2]
-        scale = 2.0 / (c2 - c0) * w[i]
-        row = comp[i] * n_fine + 1                     # the second difference at g is stored at g + 1
-        for side in range(2):
-            a = c0 if side == 0 else c1
-            b = c1 if side == 0 else c2
-            factor = scale if side == 0 else -scale
-            gap = b - a
-            fa = np.floor(a)
-            if gap < 1.0:                              # one group of 8 nodes around a: exact divided difference
-                for j in range(8):
-                    node = fa - 1.0 + j
-                    flat[row + int(node)] += factor * _b3_slope(node - a, node - b)
-            else:
-                q = factor / gap
-                fb = np.floor(b)
-                for j in range(4):
-                    na = fa - 1.0 + j
-                    nb = fb - 1.0 + j
-                    flat[row + int(na)] += q * _b3(na - a)
-                    flat[row + int(nb)] -= q * _b3(nb - b)
+        add_tent_curvature(coord[i, 0], coord[i, 1], coord[i, 2], w[i], comp[i] * n_fine + 1, flat)
 
 
 def deposit_curvature(coord: np.ndarray, weights: np.ndarray, comp: np.ndarray, n_fine: int,

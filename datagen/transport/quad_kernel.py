@@ -1,0 +1,266 @@
+"""Compiled (numba) primary of the hidden-surface quadrature: one pass per (sub-triangle, connection) pair.
+
+For each pair of a block of connections (laser point l, target y, channel) and each sub-triangle T (centroid x,
+face normal n, area A) the kernel evaluates what :meth:`datagen.transport.quadrature.Quadrature._primary` builds
+from the per-leg functions of :mod:`datagen.transport.physics` (the documented source of every factor), for
+Lambertian or Phong hidden surfaces, Lambertian laser points and relay wall (``brdf_angles`` off; the wall's
+collection then does not depend on the incoming direction):
+
+- laser leg (:meth:`~datagen.transport.physics.LegPhysics.irradiance`): E = Φ (ρ_l/π) cosθ_l cosθ_x,in / r_l²,
+  lit on the side of T facing x_l, when cosθ_l > 0, cosθ_x,in > 0 and r_l > tol;
+- target leg (:func:`~datagen.transport.physics.fov_connection_weight`): G = |cosθ_x,out| cosθ_y / r_y² ·
+  collection(y) dA_y, on the side facing y;
+- weight A · E · f · G (· e^{−μ·path}), f = ρ/π or Phong's (:meth:`datagen.scene.materials.MaterialTable.evaluate`), when both legs reach the same side; path lengths at the vertices of T and
+  the tent shift of the module doc of :mod:`datagen.transport.quadrature`; the tent (and the coarse rule's tent
+  for the error estimate) goes to the accumulator's fine grid by :func:`datagen.timing.tent_kernel.deposit_tent`.
+
+Visibility of the laser leg (``shadow``): only the triangles that may cross a segment from T's face to the laser
+points (the separating-plane test per face), grouped in runs of one object with a bounding sphere, are tested,
+exactly in float64 (:func:`_blocked`): a segment that misses them all by more than ``margin`` is visible, one that
+crosses a triangle more than ``margin`` inside its edges is blocked, and only the rest (within ``margin`` of an
+edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited after it (:func:`deposit_pairs`).
+Embree's float32 rays leak through shared edges now and then (measured: a segment 0.5–2 mm inside a box's face
+4.7 m from its start, reported unblocked); the exact test does not, so the compiled envelope differs from the
+numpy path's by such pairs (2e-8 relative on a confocal room scan). With ``every_ray`` each lit pair gets its ray
+and the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The inner side of a closed
+outward surface (``closed``, :func:`datagen.transport.quad_primary.closed_outward`) is never lit: no test, no
+ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of a coarse
+torus's envelope).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..scene.materials import PHONG
+from ..timing.tent_kernel import deposit_tent, sort3
+
+__all__ = ["candidates", "deposit_pairs", "occluder_planes", "vertex_paths"]
+
+
+def occluder_planes(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Planes of triangles (k, 3, 3) for the kernel's segment test: (k, 4) unit normal and offset n·p₀, and
+    (k, 3, 4) in-plane inward edge normals and offsets (distance of a point of the plane to edge i, metres,
+    positive inside). Degenerate triangles get a zero normal (never crossed)."""
+    e = np.roll(tri, -1, axis=1) - tri                                   # edge i: v_i → v_{i+1}
+    n = np.cross(e[:, 0], e[:, 1])
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 0
+    n = np.where(ok[:, None], n / np.where(ok, norm, 1.0)[:, None], 0.0)
+    plane = np.concatenate([n, np.einsum("ij,ij->i", n, tri[:, 0])[:, None]], axis=1)
+    m = np.cross(n[:, None, :], e)                                        # points inward for a CCW edge
+    mn = np.linalg.norm(m, axis=2, keepdims=True)
+    m = np.where(mn > 0, m / np.where(mn > 0, mn, 1.0), 0.0)
+    edges = np.concatenate([m, np.einsum("ijk,ijk->ij", m, tri)[..., None]], axis=2)
+    return plane, edges
+
+
+@njit(cache=True, inline="always")
+def _dist(a, i, b, j) -> float:
+    """|a[i] − b[j]| for rows of two (n, 3) arrays (scalar indexing: no array views in the inner loops)."""
+    d0, d1, d2 = a[i, 0] - b[j, 0], a[i, 1] - b[j, 1], a[i, 2] - b[j, 2]
+    return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@njit(cache=True, inline="always")
+def _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, idx, plane, edges, margin) -> int:
+    """Whether a candidate triangle of hidden face f (its runs, each inside a bounding sphere) blocks the segment
+    centroid[m] → spots[l]: 0 no (every one is missed by more than ``margin``, or an end lies on its plane: its own
+    surface, which the ray's pushed-off end clears), 1 yes (one is crossed with both ends more than ``margin`` off
+    its plane and the crossing more than ``margin`` inside its edges: Embree's ray meets it too), 2 within
+    ``margin`` (a shadow ray decides)."""
+    x0, x1, x2 = centroid[m, 0], centroid[m, 1], centroid[m, 2]
+    s0, s1, s2 = spots[l, 0], spots[l, 1], spots[l, 2]
+    e0, e1, e2 = s0 - x0, s1 - x1, s2 - x2
+    length2 = e0 * e0 + e1 * e1 + e2 * e2
+    out = 0
+    for r in range(run_ptr[f], run_ptr[f + 1]):
+        c0, c1, c2 = spheres[r, 0] - x0, spheres[r, 1] - x1, spheres[r, 2] - x2
+        u = min(max((c0 * e0 + c1 * e1 + c2 * e2) / length2, 0.0), 1.0)
+        q0, q1, q2 = c0 - u * e0, c1 - u * e1, c2 - u * e2
+        reach = spheres[r, 3] + margin
+        if q0 * q0 + q1 * q1 + q2 * q2 > reach * reach:
+            continue                                 # the segment misses the run's bounding sphere
+        for i in range(run_lo[r], run_hi[r]):
+            k = idx[i]
+            n0, n1, n2, o = plane[k, 0], plane[k, 1], plane[k, 2], plane[k, 3]
+            d0 = n0 * x0 + n1 * x1 + n2 * x2 - o
+            d1 = n0 * s0 + n1 * s1 + n2 * s2 - o
+            if abs(d0) <= margin or abs(d1) <= margin or (d0 > 0.0) == (d1 > 0.0):
+                continue
+            t = d0 / (d0 - d1)
+            p0 = x0 + t * e0
+            p1 = x1 + t * e1
+            p2 = x2 + t * e2
+            inner = np.inf
+            for j in range(3):
+                inner = min(inner, edges[k, j, 0] * p0 + edges[k, j, 1] * p1 + edges[k, j, 2] * p2 - edges[k, j, 3])
+            if inner > margin:
+                return 1
+            if inner >= -margin:
+                out = 2
+    return out
+
+
+@njit(cache=True, inline="always")
+def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targets, fov_n, collect, tol, f_lamb, kind,
+          rho, ks, expo):
+    """(E, f · G, r_l, r_y) of one pair (E · f · G = 0: no contribution), f the hidden BRDF (module doc); ``same``:
+    the target is the laser point (confocal), whose leg is then the laser leg. One exit and scalar indexing only:
+    early returns holding array views cost ~100 ns per call in numba."""
+    n0, n1, n2 = normal[m, 0], normal[m, 1], normal[m, 2]
+    w0, w1, w2 = spots[l, 0] - centroid[m, 0], spots[l, 1] - centroid[m, 1], spots[l, 2] - centroid[m, 2]
+    r_l = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    inv_l = 1.0 / max(r_l, 1e-300)
+    w0, w1, w2 = w0 * inv_l, w1 * inv_l, w2 * inv_l
+    nfw = n0 * w0 + n1 * w1 + n2 * w2
+    cos_in = abs(nfw)
+    cos_l = -(w0 * spot_n[l, 0] + w1 * spot_n[l, 1] + w2 * spot_n[l, 2])
+    e = 0.0
+    fg = 0.0
+    r_y = r_l
+    if cos_l > 0.0 and cos_in > 0.0 and r_l > tol:
+        e = photons * (spot_f[l] * cos_l) * cos_in * (inv_l * inv_l)
+        if same:
+            d0, d1, d2, inv_y, nw = w0, w1, w2, inv_l, nfw
+        else:
+            d0, d1, d2 = targets[t, 0] - centroid[m, 0], targets[t, 1] - centroid[m, 1], targets[t, 2] - centroid[m, 2]
+            r_y = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            inv_y = 1.0 / max(r_y, 1e-300)
+            d0, d1, d2 = d0 * inv_y, d1 * inv_y, d2 * inv_y
+            nw = n0 * d0 + n1 * d1 + n2 * d2
+        cos_y = -(d0 * fov_n[0] + d1 * fov_n[1] + d2 * fov_n[2])
+        if abs(nw) > 0.0 and cos_y > 0.0 and r_y > tol and (nw > 0.0) == (nfw > 0.0):
+            g = abs(nw) * cos_y * (inv_y * inv_y) * collect[t]
+            f = f_lamb[m]
+            if kind[m] == PHONG:        # Phong (datagen.scene.materials.MaterialTable.evaluate), lit-side normal
+                sgn = 1.0 if nfw > 0.0 else -1.0
+                c2 = 2.0 * (sgn * nfw) * sgn
+                cos_a = min(max((c2 * n0 - w0) * d0 + (c2 * n1 - w1) * d1 + (c2 * n2 - w2) * d2, 0.0), 1.0)
+                lobe = (expo[m] + 2.0) / (2.0 * np.pi) * cos_a ** expo[m]
+                f = rho[m] * ((1.0 - ks[m]) / np.pi + ks[m] * lobe)
+            fg = f * g
+    return e, fg, r_l, r_y
+
+
+@njit(cache=True, inline="always")
+def _tent(paths, row, v0, v1, v2, centre, offset, speed, t_start, step, shift, n_fine, min_nodes, hist, curv, total,
+          beyond, w, comp):
+    """The tent of triangle (v0, v1, v2) (vertex path lengths ``paths[row]``): the shift to the triangle rule's
+    mean, deposit."""
+    p0, p1, p2 = paths[row, v0], paths[row, v1], paths[row, v2]
+    shift_path = 0.75 * (centre - (p0 + p1 + p2) / 3.0) + offset
+    c0 = ((p0 + shift_path) / speed - t_start) / step + shift
+    c1 = ((p1 + shift_path) / speed - t_start) / step + shift
+    c2 = ((p2 + shift_path) / speed - t_start) / step + shift
+    c0, c1, c2 = sort3(c0, c1, c2)
+    deposit_tent(c0, c1, c2, w, comp, n_fine, min_nodes, hist, curv, total, beyond)
+
+
+GEO = ("vertices", "cells", "area", "comp_base", "coarse_of", "coarse_cells")
+POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol", "f_lamb", "kind",
+        "rho", "ks", "expo")
+CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
+LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
+GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
+OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "every_ray")
+"""The kernel's inputs by group (:func:`datagen.transport.quad_primary.run_compiled` builds them): passed as
+separate arguments, since arrays taken out of a tuple inside numba's inner loop cost an atomic reference count
+each (measured ~100 ns per pair)."""
+
+
+@njit(cache=True)
+def _pairs(listed, b0, b1, paths, ray_cell, ray_conn, visible,
+           vertices, cells, area, comp_base, coarse_of, coarse_cells,
+           centroid, normal, cell_face, closed, spot_n, spot_f, photons, fov_n, collect, tol, f_lamb, kind, rho, ks,
+           expo,
+           conn_laser, conn_target, conn_channel, conn_same,
+           spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride,
+           t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond,
+           has_coarse, ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond,
+           shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, every_ray):
+    """Both passes (module doc): ``listed`` False: the pairs of connections [b0, b1), listing those that need a
+    shadow ray; True: the listed pairs whose ray found the laser point ``visible``."""
+    M = centroid.shape[0]
+    n = ray_cell.shape[0] if listed else (b1 - b0) * M
+    n_rays = 0
+    tents = 0
+    for i in range(n):
+        if listed:
+            if not visible[i]:
+                continue
+            m, b = ray_cell[i], ray_conn[i]
+        else:
+            b = b0 + i // M
+            m = i - (b - b0) * M
+        l, t, ch = conn_laser[b], conn_target[b], conn_channel[b]
+        e, g, r_l, r_y = _legs(m, l, t, conn_same[b], centroid, normal, spots, spot_n, spot_f, photons, targets,
+                               fov_n, collect, tol, f_lamb, kind, rho, ks, expo)
+        if not (e > 0.0 and g > 0.0):
+            continue
+        if shadow and closed[m] and (normal[m, 0] * (spots[l, 0] - centroid[m, 0])
+                                     + normal[m, 1] * (spots[l, 1] - centroid[m, 1])
+                                     + normal[m, 2] * (spots[l, 2] - centroid[m, 2])) < 0.0:
+            continue                    # the inner side of a closed surface (quad_primary.closed_outward)
+        if shadow and not listed:
+            blocked = 2 if every_ray else _blocked(centroid, m, spots, l, run_ptr, cell_face[m], run_lo, run_hi,
+                                                   spheres, occ_idx, plane, edges, margin)
+            if blocked == 1:
+                continue
+            if blocked == 2:
+                ray_cell[n_rays] = m
+                ray_conn[n_rays] = b
+                n_rays += 1
+                continue
+        weight = area[m] * e * g
+        if mu > 0.0:
+            weight = weight * math.exp(-mu * (emitter_leg[l] + r_l + r_y + d_y[t]))
+        if not weight > 0.0:
+            continue
+        offset = 0.0 + laser_off[l] + sensor_off[t]
+        centre = r_l + r_y
+        row = b - b0
+        _tent(paths, row, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed, t_start, step, shift, n_fine,
+              min_nodes, hist, curv, total, beyond, weight, comp_base[m] + ch)
+        tents += 1
+        k = coarse_of[m]
+        if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
+            _tent(paths, row, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2], centre, offset, speed,
+                  ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond, 4.0 * weight, ch)
+    return n_rays, tents
+
+
+@njit(cache=True)
+def vertex_paths(vertices, spots, targets, conn_laser, conn_target, start, stop, out):
+    """out[b − start, v] = |v − x_l| + |v − y| (metres) for the connections b of [start, stop) and every vertex v
+    (the numpy path's vertex distances, :meth:`datagen.transport.quadrature.Quadrature._primary`)."""
+    for b in range(start, stop):
+        l, t = conn_laser[b], conn_target[b]
+        for v in range(vertices.shape[0]):
+            out[b - start, v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
+
+
+def _flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ) -> tuple:
+    """The arguments of :func:`_pairs` after (listed, b0, b1, paths, ray_cell, ray_conn, visible)."""
+    return (*geo, *pose[:10], *pose[10], *conn, *legs, *grid, bool(has_coarse), *coarse, *occ)
+
+
+def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_conn
+               ) -> tuple[int, int]:
+    """Deposit every contributing pair of the connections ``block`` (start, stop) that needs no shadow ray and
+    list the others in ``ray_cell`` / ``ray_conn`` (capacity cells × connections). ``paths``: the block's
+    :func:`vertex_paths`; the groups: :data:`GEO`, :data:`POSE` (the BRDF arrays as one tuple), :data:`CONN`,
+    :data:`LEGS`, :data:`GRID` (``grid``, ``coarse``), :data:`OCC`. Returns (rays listed, tents deposited)."""
+    none = np.zeros(1, dtype=np.uint8)
+    return _pairs(False, int(block[0]), int(block[1]), paths, ray_cell, ray_conn, none,
+                  *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))
+
+
+def deposit_pairs(block, paths, ray_cell, ray_conn, visible, geo, pose, conn, legs, grid, coarse, has_coarse, occ
+                  ) -> int:
+    """Deposit the listed pairs (of the connections ``block``) whose shadow ray found the laser point visible
+    (``visible`` uint8). Returns the tents deposited."""
+    return _pairs(True, int(block[0]), int(block[1]), paths, ray_cell, ray_conn, visible,
+                  *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))[1]

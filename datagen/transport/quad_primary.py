@@ -1,0 +1,184 @@
+"""The quadrature's primary through the compiled kernel (:mod:`.quad_kernel`), and its shadow-ray culling.
+
+:func:`run_compiled` runs :meth:`datagen.transport.quadrature.Quadrature._primary` for the cases the kernel covers
+(:meth:`~datagen.transport.quadrature.Quadrature.compiled_case`): per block of connections, one compiled pass
+over the (sub-triangle, connection) pairs deposits every contributing pair whose laser leg no triangle can block,
+Embree shadow rays decide the listed others, and a second compiled pass deposits the visible ones. Which
+triangles can block a face's laser legs comes from the separating-plane test per hidden face
+(:func:`leg_occluders`): the kernel tests those exactly and asks for a ray only when a pair's segment passes within
+a margin of one of their edges (:mod:`.quad_kernel` on how this differs from Embree's float32 rays;
+``Quadrature.segment_tests`` = False: a ray for every lit pair, the numpy path's visibility).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..scene import RayCaster, hull_planes, may_meet, outward_planes
+from ..units import SPEED_OF_LIGHT
+from .quad_kernel import candidates, deposit_pairs, occluder_planes, vertex_paths
+
+__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "leg_occluders", "run_compiled"]
+
+PAIR_TEST_MAX_PAIRS = 1 << 22
+"""The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
+shadow rays are kept."""
+
+PAIR_BLOCK = 1 << 22
+"""(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
+
+MARGIN_OFFSETS = 8.0
+"""The kernel's segment test counts a triangle as possibly blocking within this many ray offsets
+(:attr:`datagen.scene.RayCaster.offset`, ~100 float32 ULPs of the scene) of the segment: Embree's rays start
+pushed off the surfaces by one offset and run in float32."""
+
+
+def leg_occluders(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray, tol: float,
+                  first_only: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+    """(occluders (k,) face ids, (k, F) bool): whether occluder i may meet a segment from a point of triangle
+    ``faces[j]`` to a point of the convex hull of ``apexes`` (A, 3) (separating planes,
+    :func:`datagen.scene.separation.may_meet`; exact when False; a face never blocks itself). None: more than
+    PAIR_TEST_MAX_PAIRS pairs to test. ``first_only``: rows after the first chunk holding a meeting pair are left
+    False (enough to know whether any pair meets)."""
+    occluders = np.flatnonzero(caster.face_area > 0)
+    if len(faces) * len(occluders) > PAIR_TEST_MAX_PAIRS:
+        return None
+    tri = caster.vertices[caster.faces]
+    t = tri[faces]
+    apexes = np.unique(np.round(apexes, 12), axis=0)
+    if len(apexes) == 1:
+        s = np.broadcast_to(apexes[0], (len(t), 3))
+        quads = np.stack([t, np.stack([s, t[:, 0], t[:, 1]], 1), np.stack([s, t[:, 1], t[:, 2]], 1),
+                          np.stack([s, t[:, 2], t[:, 0]], 1)], axis=1)
+        opposite = np.stack([s, t[:, 2], t[:, 0], t[:, 1]], axis=1)
+        n, o, valid = outward_planes(quads, opposite)
+        hull_v = np.concatenate([s[:, None], t], axis=1)
+    else:
+        hull_v = np.concatenate([np.broadcast_to(apexes, (len(t),) + apexes.shape), t], axis=1)
+        n, o, valid = hull_planes(hull_v)
+    normals = caster.face_normals[occluders]
+    offsets = np.einsum("ij,ij->i", normals, tri[occluders, 0])
+    return occluders, may_meet(tri[occluders], normals, offsets, np.ones(len(occluders), dtype=bool), n, o, valid,
+                               hull_v, tol, exclude=(occluders, faces), first_only=first_only)
+
+
+def _occluder_lists(q) -> tuple:
+    """The kernel's :data:`~datagen.transport.quad_kernel.OCC` group for quadrature ``q``: per hidden face the
+    triangles that may block its laser legs (:func:`leg_occluders`), in runs of one object each (CSR
+    ``run_ptr`` over runs; run r holds ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``),
+    their planes and edge planes, the margin, and whether every lit pair casts a ray instead."""
+    caster, faces = q.caster, q.area.hidden_faces
+    shadow = bool(q.settings.shadow_spot)
+    found = leg_occluders(caster, faces, q.laser_hull, q.area.tol) if shadow else None
+    every_ray = shadow and (found is None or not q.segment_tests)
+    if found is None:                       # no test (too many pairs): every lit pair of every face casts a ray
+        occluders, meet = np.zeros(0, dtype=np.int64), np.zeros((0, len(faces)), dtype=bool)
+    else:
+        occluders, meet = found
+    face_of, occ_of = np.nonzero(meet.T)                              # face-major
+    obj = caster.face_object[occluders[occ_of]]
+    order = np.lexsort((occ_of, obj, face_of))                        # by face, then object
+    face_of, occ_of, obj = face_of[order], occ_of[order], obj[order]
+    new_run = np.ones(len(face_of), dtype=bool)
+    new_run[1:] = (face_of[1:] != face_of[:-1]) | (obj[1:] != obj[:-1])
+    run_lo = np.flatnonzero(new_run)
+    run_hi = np.append(run_lo[1:], len(face_of))
+    run_ptr = np.searchsorted(face_of[run_lo], np.arange(len(faces) + 1)).astype(np.int64)
+    tri = caster.vertices[caster.faces[occluders]]
+    spheres = np.zeros((len(run_lo), 4))
+    for r, (lo, hi) in enumerate(zip(run_lo, run_hi)):
+        pts = tri[occ_of[lo:hi]].reshape(-1, 3)
+        centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+        spheres[r] = [*centre, np.sqrt(((pts - centre) ** 2).sum(axis=1).max())]
+    plane, edges = occluder_planes(tri) if len(tri) else (np.zeros((1, 4)), np.zeros((1, 3, 4)))
+    margin = MARGIN_OFFSETS * caster.offset
+    return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), spheres, occ_of.astype(np.int64),
+            plane, edges, float(margin), bool(every_ray))
+
+
+def closed_outward(caster: RayCaster, objects: np.ndarray, spots: np.ndarray) -> np.ndarray:
+    """(len(objects),) bool: whether each object's triangles form a closed surface with outward normals (every
+    directed edge once, its reverse once; positive signed volume) and every laser point (spots (L, 3)) lies outside
+    its bounding box. A segment from a point outside such a surface to a point on its inner side crosses the
+    surface, so the inner side of its faces is never lit."""
+    out = np.zeros(len(objects), dtype=bool)
+    for i, obj in enumerate(objects):
+        f = caster.faces[caster.face_object == obj]
+        box = caster.vertices[f].reshape(-1, 3)
+        inside = ((spots >= box.min(axis=0) - caster.offset) & (spots <= box.max(axis=0) + caster.offset)).all(axis=1)
+        if inside.any():
+            continue
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        directed = np.unique(edges, axis=0)
+        if len(directed) != len(edges):
+            continue
+        both = np.concatenate([directed, edges[:, ::-1]])
+        if len(np.unique(both, axis=0)) != len(directed):       # every reverse present: a closed, oriented surface
+            continue
+        tri = caster.vertices[f]
+        out[i] = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() > 0
+    return out
+
+
+def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:
+    """The primary of :class:`~datagen.transport.quadrature.Quadrature` ``q`` into the fine grid ``grid`` (and the
+    coarse rule of its error estimate into ``coarse``, or None), both :class:`datagen.timing.tent_kernel.TentGrid`
+    from :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` (module doc). Photons per pulse; updates ``q.stats``
+    (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block."""
+    c, legs_ = q.capture, q.physics
+    M = q.n_cells
+    y = q.targets
+    n_y = np.broadcast_to(c.fov_normal, y.shape)
+    rays = legs_.stats.shadow_rays
+    collect, d_y = legs_.sensor_collection(y, n_y, np.full(len(y), legs_.wall_object), n_y)
+    q.stats.shadow_rays += legs_.stats.shadow_rays - rays
+    f_lamb = q.materials.albedo[q.cell_object] / np.pi
+    spot_f = q.materials.albedo[c.spot_objects] / np.pi
+    comp_base = (q.object_component[q.cell_object] * c.n_channels).astype(np.int64)
+    laser_off = np.broadcast_to(np.asarray(legs_.laser_leg(np.arange(c.n_lasers)), dtype=np.float64),
+                                (c.n_lasers,)).copy()
+    sensor_off = np.broadcast_to(np.asarray(legs_.sensor_leg(d_y), dtype=np.float64), (len(y),)).copy()
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+    i64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)
+    mat = q.materials
+    brdf = (f64(f_lamb), i64(mat.kind[q.cell_object]), f64(mat.albedo[q.cell_object]),
+            f64(mat.specular[q.cell_object]), f64(mat.exponent[q.cell_object]))
+    geo = (f64(q.vertices), i64(q.cells), f64(q.cell_area), comp_base, i64(q.coarse_of),
+           i64(q.coarse_cells.reshape(-1, 3)))
+    objects = np.unique(q.cell_object)
+    closed = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, q.cell_object)].astype(np.uint8)
+    pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), closed, f64(c.spot_normals), f64(spot_f),
+            float(c.photons), f64(c.fov_normal), f64(collect * q.target_area), float(q.area.tol), brdf)
+    same = (c.spots[q.conn_laser] == y[q.conn_target]).all(axis=1)         # the target is the laser point
+    conn = (i64(q.conn_laser), i64(q.conn_target), i64(q.conn_channel), same.astype(np.uint8))
+    legs = (f64(c.spots), f64(y), f64(c.emitter_legs), f64(laser_off), f64(d_y), f64(sensor_off),
+            float(q.settings.attenuation), float(SPEED_OF_LIGHT), int(q.coarse_stride))
+    occ = _occluder_lists(q)
+    grid = tuple(grid)
+    has_coarse = coarse is not None
+    coarse = tuple(coarse) if has_coarse else grid
+    n_conn = len(q.conn_laser)
+    per_block = max(1, PAIR_BLOCK // max(M, 1))
+    ray_cell = np.empty(max(1, M * min(per_block, n_conn)), dtype=np.int64)
+    ray_conn = np.empty_like(ray_cell)
+    paths = np.empty((min(per_block, n_conn), len(q.vertices)))
+    for start in range(0, n_conn, per_block):
+        block = (start, min(n_conn, start + per_block))
+        vertex_paths(geo[0], legs[0], legs[1], conn[0], conn[1], block[0], block[1], paths)
+        n_rays, tents = candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell,
+                                   ray_conn)
+        if n_rays:
+            mi, bi = ray_cell[:n_rays], ray_conn[:n_rays]
+            li = q.conn_laser[bi]
+            x, n = q.centroids[mi], q.cell_normal[mi]
+            lit = np.where((np.einsum("ij,ij->i", n, c.spots[li] - x) < 0)[:, None], -n, n)
+            visible = np.ascontiguousarray(q.caster.visible(x, lit, c.spots[li], c.spot_normals[li]), dtype=np.uint8)
+            tents += deposit_pairs(block, paths, mi, bi, visible, geo, pose, conn, legs, grid, coarse, has_coarse,
+                                   occ)
+            q.stats.shadow_rays += n_rays
+        q.stats.tents += tents
+        q.stats.pair_rows += M * (block[1] - block[0])
+        if progress is not None:
+            progress(M * (block[1] - block[0]))
+
