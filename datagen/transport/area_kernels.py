@@ -25,6 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ..scene.brdf_kernel import phong_value
 from ..scene.materials import LAMBERTIAN, PHONG, SIN_THETA, TANGENT_EPS
 from ..units import SPEED_OF_LIGHT
 
@@ -98,12 +99,7 @@ def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
         return 0.5 * rho * _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, i0, i1, i2) * \
             _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, o0, o1, o2)
     if k == PHONG:
-        ks, expo = specular[obj], exponent[obj]
-        m0, m1, m2 = 2.0 * cos_in * n0 - i0, 2.0 * cos_in * n1 - i1, 2.0 * cos_in * n2 - i2
-        cos_alpha = min(max(m0 * o0 + m1 * o1 + m2 * o2, 0.0), 1.0)
-        power = cos_alpha ** expo if cos_alpha > 0.0 or expo <= 0.0 else 0.0      # 0^e = 0 without pow
-        lobe = (expo + 2.0) / (2.0 * np.pi) * power
-        return rho * ((1.0 - ks) / np.pi + ks * lobe)
+        return phong_value(rho, specular[obj], exponent[obj], cos_in, n0, n1, n2, i0, i1, i2, o0, o1, o2)
     if k == LAMBERTIAN:
         return rho / np.pi
     return 0.0

@@ -34,6 +34,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ..scene.brdf_kernel import phong_value
 from ..scene.materials import PHONG
 from ..timing.tent_kernel import deposit_tent, sort3
 
@@ -135,12 +136,10 @@ def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targe
         if abs(nw) > 0.0 and cos_y > 0.0 and r_y > tol and (nw > 0.0) == (nfw > 0.0):
             g = abs(nw) * cos_y * (inv_y * inv_y) * collect[t]
             f = f_lamb[m]
-            if kind[m] == PHONG:        # Phong (datagen.scene.materials.MaterialTable.evaluate), lit-side normal
+            if kind[m] == PHONG:        # Phong with the lit-side normal (datagen.scene.brdf_kernel)
                 sgn = 1.0 if nfw > 0.0 else -1.0
-                c2 = 2.0 * (sgn * nfw) * sgn
-                cos_a = min(max((c2 * n0 - w0) * d0 + (c2 * n1 - w1) * d1 + (c2 * n2 - w2) * d2, 0.0), 1.0)
-                lobe = (expo[m] + 2.0) / (2.0 * np.pi) * cos_a ** expo[m]
-                f = rho[m] * ((1.0 - ks[m]) / np.pi + ks[m] * lobe)
+                f = phong_value(rho[m], ks[m], expo[m], cos_in, sgn * n0, sgn * n1, sgn * n2, w0, w1, w2,
+                                d0, d1, d2)
             fg = f * g
     return e, fg, r_l, r_y
 
