@@ -11,7 +11,9 @@ Reports, each in one run on this machine (timings are wall seconds in process, o
    extra laser point is the slope between the two scan sizes.
 2. **Dataset samples.** ``make_sample`` of ``configs/datasets/confocal.yaml`` (32 × 32 × 512) and
    ``configs/datasets/wall.yaml`` (64 × 64 × 512): seconds per sample (mean over ``--samples``), the samples/s
-   two worker processes would reach (2 / mean: build processes share nothing) and the per-sample error: the
+   two worker processes would reach (2 / mean) and, for the target line, a real ``datagen build`` of ``--build``
+   (32) train samples of ``confocal.yaml`` on 2 workers (samples 0, 1, … can be cheaper than the split's
+   average, and a build pays its pool start-up); the per-sample error: the
    stored estimate (``envelope_error``) and, for the confocal rooms, the error measured on an 8 × 8 sub-scan of
    the same pixel size against the quadrature at a quarter of the config's edge (error ∝ h², so that reference is
    16× closer to the integral; ``--no-reference`` skips it: minutes).
@@ -77,6 +79,24 @@ def dataset_samples(name: str, count: int) -> tuple[float, float, float, float]:
             float(np.mean(cpu)))
 
 
+def dataset_build(name: str, count: int, workers: int = 2) -> tuple[float, float]:
+    """(samples/s, wall seconds) of a real build of ``count`` train samples of a dataset config on ``workers``
+    local worker processes (shards of count / workers samples, so that every worker is busy), pool start-up
+    included: what a user's ``datagen build`` gets, unlike the per-sample times of :func:`dataset_samples`
+    (samples 0, 1, … can be cheaper than the split's average)."""
+    import tempfile
+
+    from datagen.dataset import SplitSpec, build_dataset
+
+    config = load_dataset_config(ROOT / f"configs/datasets/{name}.yaml")
+    config = config.model_copy(update={"splits": {"train": SplitSpec(count=count)},
+                                       "shard_size": max(1, -(-count // workers))})
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        report = build_dataset(config, Path(tmp) / name, workers=workers, progress=False)
+        return report.samples_per_second, time.perf_counter() - t0
+
+
 def scan_error(name: str, index: int, points: int = 8) -> tuple[float, float]:
     """Relative L2 of sample ``index``'s envelope at the config's edge against the edge / 4, on a
     ``points`` × ``points`` sub-scan of the same pixel size (the sample's room, capture and time axis), and the
@@ -138,7 +158,9 @@ def torus_error(edge: float) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller scans and smoke-sized dataset samples")
-    parser.add_argument("--samples", type=int, default=3, help="dataset samples per config")
+    parser.add_argument("--samples", type=int, default=3, help="dataset samples per config timed in process")
+    parser.add_argument("--build", type=int, default=32,
+                        help="train samples of confocal.yaml built on 2 workers for its samples/s (0: skip)")
     parser.add_argument("--edge", type=float, default=0.02, help="quadrature edge of the torus capture (m)")
     parser.add_argument("--full", action="store_true", help="also time the 128 × 128 torus capture (~15 min today)")
     parser.add_argument("--skip", default="", help="comma-separated parts to skip: 1, 2, 3")
@@ -171,8 +193,14 @@ def main() -> None:
                 measured = max(e for e, _ in errors)
                 print(f"{name:<16} measured error (8 × 8 sub-scans, h = {errors[0][1]} m vs h / 4): "
                       + ", ".join(f"{e:.2%}" for e, _ in errors), flush=True)
-                targets.append(f"(a) {name}: {2 / mean:.3f} samples/s on 2 workers (target >= 0.5) at <= "
-                               f"{measured:.2%} measured (target <= 2 %)")
+                rate = 2 / mean
+                if args.build and not args.quick:
+                    rate, wall = dataset_build(name, args.build)
+                    print(f"{name:<16} datagen build of {args.build} train samples on 2 workers: {rate:.3f} "
+                          f"samples/s ({wall:.0f} s)", flush=True)
+                targets.append(f"(a) {name}: {rate:.3f} samples/s on 2 workers "
+                               f"({'a real build' if args.build and not args.quick else 'from in-process times'}; "
+                               f"target >= 0.5) at <= {measured:.2%} measured (target <= 2 %)")
     if "3" in skip:
         print("\n" + "\n".join(targets))
         return
