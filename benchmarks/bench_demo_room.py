@@ -95,7 +95,7 @@ def area_timings(repeat: int, cache_dir: str | None) -> None:
             times.append(time.perf_counter() - t0)
             est.append(r.attrs["error"]["rel_l2"])
             act.append(relative_l2(r.envelope, ref.envelope))
-        print(f"| demo room | {workers} | {min(times):.2f} | {', '.join(f'{t:.2f}' for t in times)} | "
+        print(f"| demo room | {workers} | {min(times):.3f} | {', '.join(f'{t:.3f}' for t in times)} | "
               f"{max(est):.2%} (max) | {max(act):.2%} (max) |", flush=True)
 
 
