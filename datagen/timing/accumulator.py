@@ -50,6 +50,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numba import njit
 from scipy.signal import oaconvolve
 
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
@@ -91,6 +92,19 @@ _CHUNK = 1 << 18
 
 _DIRECT_KERNEL_MAX = 32
 """Kernels up to this length are convolved directly (exact, no FFT noise); longer ones by overlap-add FFT."""
+
+@njit(cache=True)
+def _rows_dot(a, v):
+    """a @ v for a (rows, n) float64 and v (n,), in one thread: a BLAS gemv here starts OpenBLAS's threads,
+    whose spinning afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
+    out = np.zeros(a.shape[0])
+    for i in range(a.shape[0]):
+        s = 0.0
+        for j in range(a.shape[1]):
+            s += a[i, j] * v[j]
+        out[i] = s
+    return out
+
 
 _CONVOLVE_ROWS = 256
 """Fine-histogram rows convolved with the IRF in one batched FFT call (:meth:`EnvelopeAccumulator.binned`)."""
@@ -583,4 +597,4 @@ class EnvelopeAccumulator:
         lo = (self.n_left - 0.5 - g) * self.fine_step
         hi = (self.n_cells + self.n_left - 0.5 - g) * self.fine_step
         frac = self.irf.cdf(lo) + self.irf.sf(hi)
-        return result + self._hist @ frac
+        return result + _rows_dot(self._hist, frac)
