@@ -22,6 +22,11 @@ Timings depend on the machine's load: run it on an otherwise idle machine.
 """
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
+
 import argparse
 import json
 import os

@@ -11,6 +11,11 @@ relative L2 difference to the full O(Ñ²) secondary, then the area sampler at i
 """
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
+
 import argparse
 import time
 

@@ -27,6 +27,11 @@ every ray. Two threads do not help batches of ~24 000 rays, and ``--workers 2`` 
 """
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
+
 import argparse
 import time
 from dataclasses import replace

@@ -9,6 +9,11 @@ Prints a table of wall-clock times (best of ``REPEATS``) for
 """
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
+
 import os
 import platform
 import time
