@@ -22,16 +22,12 @@ Timings depend on the machine's load: run it on an otherwise idle machine.
 """
 from __future__ import annotations
 
-import sys as _sys
-from pathlib import Path as _Path
-
-_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
-
 import argparse
 import json
 import os
 import platform
 import shutil
+import sys
 import tempfile
 import threading
 import time
@@ -39,10 +35,12 @@ from pathlib import Path
 
 import psutil
 
-from datagen.dataset import build_dataset
-from datagen.dataset import SplitSpec, load_dataset_config
-
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))          # this checkout's datagen, not whichever one is installed
+
+from datagen.dataset import build_dataset  # noqa: E402
+from datagen.dataset import SplitSpec, load_dataset_config  # noqa: E402
+
 CONFIGS = {"default": ROOT / "configs/datasets/default.yaml", "smoke": ROOT / "configs/datasets/smoke.yaml"}
 
 

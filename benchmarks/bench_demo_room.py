@@ -11,19 +11,19 @@ relative L2 difference to the full O(Ñ²) secondary, then the area sampler at i
 """
 from __future__ import annotations
 
-import sys as _sys
-from pathlib import Path as _Path
-
-_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
-
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-import datagen
-from datagen.scene import Material
-from datagen.scene import Scene, SceneObject
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))          # this checkout's datagen, not whichever one is installed
+
+import datagen  # noqa: E402
+from datagen.scene import Material  # noqa: E402
+from datagen.scene import Scene, SceneObject  # noqa: E402
 
 
 def with_albedo(scene: Scene, albedo: float) -> Scene:

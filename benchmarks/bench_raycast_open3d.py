@@ -27,20 +27,19 @@ every ray. Two threads do not help batches of ~24 000 rays, and ``--workers 2`` 
 """
 from __future__ import annotations
 
-import sys as _sys
-from pathlib import Path as _Path
-
-_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
-
 import argparse
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from datagen.scene import RayCaster, Scene, load_scene
-from datagen.simulation import resolve_config, simulate
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))          # this checkout's datagen, not whichever one is installed
+
+from datagen.scene import RayCaster, Scene, load_scene  # noqa: E402
+from datagen.simulation import resolve_config, simulate  # noqa: E402
 
 SCENE = Path(__file__).resolve().parent.parent / "scene_library" / "demo_room.yaml"
 

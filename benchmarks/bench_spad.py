@@ -9,19 +9,20 @@ Prints a table of wall-clock times (best of ``REPEATS``) for
 """
 from __future__ import annotations
 
-import sys as _sys
-from pathlib import Path as _Path
-
-_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
-
 import os
 import platform
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from datagen import spad
-from datagen.spad import DetectorConfig, detection_pmf, expected_histogram, rates_from_envelope, sample_histogram
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))          # this checkout's datagen, not whichever one is installed
+
+from datagen import spad  # noqa: E402
+from datagen.spad import (DetectorConfig, detection_pmf, expected_histogram,  # noqa: E402
+                          rates_from_envelope, sample_histogram)
 
 REPEATS = 3
 PIXELS = (64, 64)

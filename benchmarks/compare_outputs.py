@@ -37,11 +37,6 @@ are the paths inside the store or file) and ``logs/<job>.{stdout,stderr}``. A wh
 """
 from __future__ import annotations
 
-import sys as _sys
-from pathlib import Path as _Path
-
-_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
-
 import argparse
 import hashlib
 import json

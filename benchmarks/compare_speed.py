@@ -27,11 +27,6 @@ Benchmark modes (fast; about 100 s per tree and repeat on 2 cores, so --repeat 3
 """
 from __future__ import annotations
 
-import sys as _sys
-from pathlib import Path as _Path
-
-_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
-
 import argparse
 import json
 import os

@@ -5,11 +5,6 @@ expected histogram (no noise), so the differences are the detector models, not s
 """
 from __future__ import annotations
 
-import sys as _sys
-from pathlib import Path as _Path
-
-_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # this checkout's datagen, not an installed one
-
 from pathlib import Path
 
 import matplotlib
