@@ -221,8 +221,9 @@ class Quadrature:
         n_cells: M, sub-triangles; targets: (T, 3) FoV targets; total_rows: (cell, connection) rows of a run.
         stats: :class:`QuadratureStats`.
         coarse: after a run on a point-sensor capture, the primary at twice the edge (summed over components,
-        channel rows; only the channels ``coarse_channels``), from the same evaluations: every sub-triangle split is even, so 4 fine
-        sub-triangles make a coarse one whose centroid is the middle one's (:func:`datagen.sampling.coarse_cells`);
+        channel rows; only the channels ``coarse_channels``, every ``coarse_stride``-th, chosen by the run: at
+        most about ``COARSE_CHANNELS`` compiled, ``COARSE_CHANNELS_NUMPY`` in numpy), from the same evaluations:
+        every sub-triangle split is even, so 4 fine sub-triangles make a coarse one whose centroid is the middle one's (:func:`datagen.sampling.coarse_cells`);
         ‖P(h) − P(2h)‖/3 over those channels is the error estimate of the result.
 
     Raises:
@@ -278,8 +279,6 @@ class Quadrature:
         self.coarse_of[central] = np.arange(len(central))
         self.coarse_cells = coarse
         self.coarse: Sink | None = None
-        self.coarse_stride = max(1, -(-c.n_channels // COARSE_CHANNELS))
-        self.coarse_channels = np.arange(0, c.n_channels, self.coarse_stride)
         self.cell_hidden = parent                                       # index into area.hidden_faces
         self.cell_face = faces[parent]
         self.centroids = self.vertices[self.cells].mean(axis=1)
