@@ -89,6 +89,9 @@ def main(argv=None):
     parser.add_argument("--far", type=float, default=FAR,
                         help=f"farthest depth searched, m (default {FAR}; confocal_baseline's rooms: 4.0)")
     args = parser.parse_args(argv)
+    if not 0 <= args.near < args.far - STEP:
+        parser.error(f"--near {args.near} and --far {args.far}: need 0 <= near < far - {STEP} m (depths searched in "
+                     f"{STEP} m steps)")
     t0 = time.perf_counter()
     pred = predict(args.data, args.split, args.input, args.limit, args.near, args.far)
     out = Path(args.out or f"{Path(args.data)}_bp_{args.split}.npz")

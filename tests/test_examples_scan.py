@@ -74,3 +74,11 @@ def test_baseline_configs_draw_from_the_shipped_distribution(small, shipped):
     assert parse_duration(ta["t_start"]) == parse_duration(tb["t_start"]) == 0.0
     window = [parse_duration(t["bin_width"]) * t["n_bins"] for t in (ta, tb)]
     assert window[0] == pytest.approx(window[1], rel=1e-12), window
+
+
+def test_backprojection_refuses_an_empty_depth_range(wall, capsys):
+    """--far at or below --near: a one-line usage error (exit 2) naming both values, not a numpy traceback."""
+    with pytest.raises(SystemExit) as exc:
+        backprojection_baseline.main([str(wall), "--far", "0.2"])
+    assert exc.value.code == 2
+    assert "--near 0.3 and --far 0.2: need 0 <= near < far - 0.02 m" in capsys.readouterr().err
