@@ -67,7 +67,7 @@ def plot_scan_sample(sample: dict, time_edges: np.ndarray, title: str | None = N
         ax.set_yticks([])
     axes[k].semilogy(t_ns, np.where(total > 0, total, np.nan), lw=1)
     axes[k].set_xlabel("time (ns)")
-    axes[k].set_title("envelope summed over the scan")
+    axes[k].set_title("envelope, scan sum")
     if title:
         fig.suptitle(title)
     return fig
