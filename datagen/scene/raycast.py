@@ -80,6 +80,13 @@ class RayCaster:
         self._embree = rtcore_scene.EmbreeScene()
         mesh_construction.TriangleMesh(self._embree, (tri - self.center).astype(np.float32))
 
+    def commit(self) -> None:
+        """Build the BVH now (Embree builds it at the first query, with its TBB thread pool). Call before forking
+        worker processes: they then only query the inherited BVH, since TBB is not fork-safe (a child that
+        builds a BVH can wait forever on a TBB lock that was held in the parent at the fork)."""
+        if not self._embree.is_committed:
+            self._embree.run(np.zeros((1, 3), np.float32), np.array([[0.0, 0.0, 1.0]], np.float32))
+
     def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
         """First hit along each ray.
 

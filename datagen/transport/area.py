@@ -54,6 +54,7 @@ from typing import Literal
 
 import numpy as np
 
+from ..processes import set_parent_death_signal
 from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
                         to_world, unit_square_points)
 from ..scene import RayCaster, Scene, SceneError, resolve_capture
@@ -194,8 +195,8 @@ _WORKER: dict = {}
 
 
 def _worker_init(sampler: "AreaSampler") -> None:
-    sampler.caster = sampler.physics.caster = RayCaster(sampler.scene)      # a fresh BVH per process
-    _WORKER["sampler"] = sampler
+    set_parent_death_signal()     # a fork worker dies with the process that forked it (no orphans after kill -9)
+    _WORKER["sampler"] = sampler  # queries the BVH committed before the fork (RayCaster.commit)
 
 
 def _worker_replica(sink: Sink, rng: np.random.Generator):
@@ -441,7 +442,7 @@ class AreaSampler(AreaSecondary):
                      progress: Callable[[int], None] | None = None) -> None:
         """Independent runs into ``sinks``, one per generator (:func:`datagen.transport.run_replicas`); with
         ``workers`` > 1 and sinks that can ``spawn``/``merge`` (:class:`~datagen.timing.EnvelopeAccumulator`),
-        replicas run in this process and ``workers`` − 1 forked ones (each with its own ray caster) and are merged
+        replicas run in this process and ``workers`` − 1 forked ones (querying the BVH built before the fork) and are merged
         in order, so the sinks hold the same sums whatever the worker count."""
         workers = min(self.settings.workers, len(sinks))
         if workers <= 1 or not hasattr(sinks[0], "spawn"):
@@ -454,6 +455,7 @@ class AreaSampler(AreaSecondary):
         # this process runs every workers-th replica (0, W, 2W, ...) itself while workers − 1 forked processes run
         # the others: one fork and two pickles fewer per run, and the parent's warm caster does not sit idle
         own = set(range(0, len(sinks), workers))
+        self.caster.commit()
         with ProcessPoolExecutor(workers - 1, mp_context=mp.get_context("fork"), initializer=_worker_init,
                                  initargs=(self,)) as pool:
             futures = {r: pool.submit(_worker_replica, sinks[r].spawn(), rngs[r])

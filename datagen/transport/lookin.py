@@ -115,8 +115,7 @@ _WORKER: dict = {}
 
 def _worker_init(transport: "Transport") -> None:
     set_parent_death_signal()     # a fork worker dies with the process that forked it (no orphans after kill -9)
-    transport.caster = transport.physics.caster = RayCaster(transport.scene)      # a fresh BVH per process
-    _WORKER["transport"] = transport
+    _WORKER["transport"] = transport  # queries the BVH committed before the fork (RayCaster.commit)
 
 
 def _worker_batch(args):
@@ -252,6 +251,7 @@ class Transport(LookinSecondary):
                 yield part, part_conv, stats
             return
         ctx = mp.get_context("fork")
+        self.caster.commit()
         with ProcessPoolExecutor(self.settings.workers, mp_context=ctx, initializer=_worker_init,
                                  initargs=(self,)) as pool:
             futures = [pool.submit(_worker_batch, (task, spawns[replica](),
