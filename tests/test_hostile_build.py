@@ -342,3 +342,11 @@ def test_sigkill_of_simulate_with_workers_leaves_no_process_after_5_s(tmp_path):
     args = ["simulate", "scene_library/demo_room.yaml", "--out", str(tmp_path / "out"), "--quiet", "--lookins",
             "40x40", "--workers", "2"]
     assert kill_and_count_survivors(args, lambda pid: len(_session_processes(pid)) >= 3) == []
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigkill_of_an_area_simulate_with_workers_leaves_no_process_after_5_s(tmp_path):
+    """The area sampler's forked replicas (datagen.processes.ForkedCall) die with the simulate process too."""
+    args = ["simulate", "scene_library/demo_room.yaml", "--out", str(tmp_path / "out"), "--quiet", "--estimator",
+            "area", "--samples", "20000000", "--workers", "2"]
+    assert kill_and_count_survivors(args, lambda pid: len(_session_processes(pid)) >= 2) == []

@@ -54,7 +54,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..processes import set_parent_death_signal
+from ..processes import ForkedCall
 from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
                         to_world, unit_square_points)
 from ..scene import RayCaster, Scene, SceneError, resolve_capture
@@ -191,16 +191,8 @@ class AreaStats(Counters):
     secondary_pairs: int = 0
 
 
-_WORKER: dict = {}
-
-
-def _worker_init(sampler: "AreaSampler") -> None:
-    set_parent_death_signal()     # a fork worker dies with the process that forked it (no orphans after kill -9)
-    _WORKER["sampler"] = sampler  # queries the BVH committed before the fork (RayCaster.commit)
-
-
-def _worker_replica(sink: Sink, rng: np.random.Generator):
-    sampler = _WORKER["sampler"]
+def _forked_replica(sampler: "AreaSampler", sink: Sink, rng: np.random.Generator):
+    """One replica in a forked child (:class:`~datagen.processes.ForkedCall`): the sink and counters it filled."""
     sampler.stats, rays = AreaStats(), sampler.physics.stats.shadow_rays
     sampler.run(sink, rng)
     return sink, sampler.stats, sampler.physics.stats.shadow_rays - rays
@@ -449,31 +441,33 @@ class AreaSampler(AreaSecondary):
             for sink, rng in zip(sinks, rngs):
                 self.run(sink, rng, progress)
             return
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        # this process runs every workers-th replica (0, W, 2W, ...) itself while workers − 1 forked processes run
-        # the others: one fork and two pickles fewer per run, and the parent's warm caster does not sit idle
-        own = set(range(0, len(sinks), workers))
+        # this process runs every workers-th replica (0, W, 2W, ...) itself while forked children run the others
+        # (ForkedCall: the child inherits this sampler, its sink and generator, and queries the BVH committed
+        # before the fork, RayCaster.commit); results are merged in replica order
+        own = range(0, len(sinks), workers)
         self.caster.commit()
-        with ProcessPoolExecutor(workers - 1, mp_context=mp.get_context("fork"), initializer=_worker_init,
-                                 initargs=(self,)) as pool:
-            futures = {r: pool.submit(_worker_replica, sinks[r].spawn(), rngs[r])
-                       for r in range(len(sinks)) if r not in own}
+        calls: dict[int, ForkedCall] = {}
+        try:
+            for r in range(len(sinks)):
+                if r % workers:
+                    calls[r] = ForkedCall(_forked_replica, self, sinks[r].spawn(), rngs[r])
             parts = {}
-            for r in sorted(own):
+            for r in own:
                 parts[r] = sinks[r].spawn()
                 self.run(parts[r], rngs[r])
             for r, sink in enumerate(sinks):
-                if r in own:
-                    sink.merge(parts[r])
-                else:
-                    part, stats, rays = futures[r].result()
-                    sink.merge(part)
+                if r in calls:
+                    part, stats, rays = calls[r].result()
                     self.stats.add(stats)
                     self.physics.stats.shadow_rays += rays
+                else:
+                    part = parts[r]
+                sink.merge(part)
                 if progress is not None:
                     progress(self.settings.samples * self.capture.n_lasers)
+        finally:
+            for call in calls.values():
+                call.cancel()
 
     def _batch(self, xs: SurfaceSamples, laser: int, density_a: np.ndarray, n_spot: int, sink: Sink,
                rng: np.random.Generator) -> None:
