@@ -418,3 +418,64 @@ def test_a_confocal_scan_is_planned_over_its_whole_laser_grid():
     shadowed = alcove(with_box=True)
     shadowed.capture = capture
     assert plan_for(shadowed).on("shadow_spot")
+
+
+def test_coarse_kernel_sums_equal_a_numpy_sum_with_the_material_table():
+    """The planner's compiled primary / secondary sums (planner/coarse_kernel.py, which factor the Lambertian and
+    sin θ BRDFs out of the FoV-cell sum) equal a brute-force numpy sum over every (element, partner, cell) with
+    MaterialTable.evaluate, for random geometry and all three BRDF kinds (relative 1e-12)."""
+    from datagen.planner.coarse_kernel import primary_energy, secondary_candidates, secondary_energy
+    from datagen.scene.materials import Material, MaterialTable
+
+    rng = np.random.default_rng(7)
+    mats = MaterialTable([Material(kind="lambertian", albedo=0.7), Material(kind="sin_theta", albedo=0.9),
+                          Material(kind="phong", albedo=0.8, specular=0.6, exponent=12.0),
+                          Material(kind="sin_theta", albedo=0.5, axis=(1.0, 0.0, 0.0))])
+    lamb = np.where(mats.kind == 0, mats.albedo / np.pi, np.nan)
+    mat = (mats.kind, mats.albedo, mats.specular, mats.exponent, np.ascontiguousarray(mats.axis), lamb)
+    m, k = 40, 6
+    x = rng.normal(size=(m, 3))
+    n_geo = rng.normal(size=(m, 3))
+    n_geo[:4] = (0.0, 0.0, 1.0)                       # normals along the sin θ axis: the tangent-frame fallback
+    n_geo /= np.linalg.norm(n_geo, axis=1, keepdims=True)
+    obj = rng.integers(0, 4, m)
+    area = rng.uniform(0.01, 0.1, m)
+    spot = np.array([0.0, 0.0, -3.0])
+    w_lx = (x - spot) / np.linalg.norm(x - spot, axis=1, keepdims=True)
+    side = np.sign(np.einsum("ij,ij->i", n_geo, -w_lx))
+    n_lit = side[:, None] * n_geo
+    irradiance = rng.uniform(0.5, 2.0, m) * (rng.random(m) < 0.8)
+    lit = np.flatnonzero(irradiance > 0)
+    y = rng.normal(size=(k, 3)) * 0.5 + (0.0, 0.0, -4.0)
+    d_xy = y[None] - x[:, None]
+    w_xy = d_xy / np.linalg.norm(d_xy, axis=-1, keepdims=True)
+    s_xy = np.sign(np.einsum("mk,mjk->mj", n_geo, w_xy))
+    geo = rng.uniform(0.1, 1.0, (m, k)) * (rng.random((m, k)) < 0.7)
+    sees = np.flatnonzero(geo.sum(axis=1) > 0)
+
+    def f_sum(rows, normals, w_in):          # Σ_y f(ω_in, →y) geo over the cells on the side of ``normals``
+        f = mats.evaluate(obj[rows, None], normals[:, None], w_in[:, None], w_xy[rows])
+        same = s_xy[rows] == np.sign(np.einsum("ij,ij->i", normals, n_geo[rows]))[:, None]
+        return np.sum(f * geo[rows] * same, axis=1)
+
+    primary = np.sum(irradiance[lit] * area[lit] * f_sum(lit, n_lit[lit], -w_lx[lit]))
+    assert primary > 0
+    assert primary_energy(lit, irradiance, area, obj, n_lit, w_lx, side, s_xy, w_xy, geo, mat) == \
+        pytest.approx(primary, rel=1e-12)
+
+    a, b = [g.ravel() for g in np.meshgrid(lit, sees, indexing="ij")]
+    d = x[b] - x[a]
+    r = np.linalg.norm(d, axis=1)
+    w = d / np.maximum(r, 1e-300)[:, None]
+    cos_a, n_b_dot = np.einsum("ij,ij->i", n_lit[a], w), np.einsum("ij,ij->i", n_geo[b], w)
+    ok = (cos_a > 0) & (n_b_dot != 0) & (r > 1e-6)
+    a, b, w, r, cos_a, n_b = a[ok], b[ok], w[ok], r[ok], cos_a[ok], -np.sign(n_b_dot[ok])[:, None] * n_geo[b[ok]]
+    f_a = mats.evaluate(obj[a], n_lit[a], -w_lx[a], w)
+    secondary = np.sum(irradiance[a] * area[a] * f_a * cos_a * np.abs(n_b_dot[ok]) / r ** 2 * area[b]
+                       * f_sum(b, n_b, -w))
+    cand = secondary_candidates(lit, sees, x, n_lit, n_geo, 1e-6)
+    np.testing.assert_array_equal(cand[0], a)
+    np.testing.assert_array_equal(cand[1], b)
+    assert secondary > 0
+    assert secondary_energy(*cand, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat) == \
+        pytest.approx(secondary, rel=1e-12)

@@ -12,13 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..sampling import subdivide_triangles, subdivisions
-from ..scene import CHUNK_ELEMENTS
-from ..transport import fov_connection_weight, laser_irradiance
+from ..transport import fov_connection_weight, laser_irradiance, material_arrays
+from .coarse_kernel import primary_energy, secondary_candidates, secondary_energy
 from .geometry import PlanGeometry
 
 COARSE_ELEMENTS = 160
-"""Target number of hidden-surface elements of the coarse quadrature (cost ∝ elements²: ~0.03 s for the
-demo room; 256 elements moved its ratio by 6 % for 3× the time)."""
+"""Target number of hidden-surface elements of the coarse quadrature (cost ∝ elements²: ~0.01 s for the
+demo room with the compiled sums of :mod:`.coarse_kernel`; 256 elements moved its ratio by 6 % for 3× the time)."""
 
 COARSE_ELEMENTS_MAX = 250
 """Hard cap on coarse elements; meshes with more triangles are sampled by area instead of subdivided."""
@@ -101,7 +101,6 @@ def coarse_energies(g: PlanGeometry) -> CoarseEnergies:
     ``sensor_collection``). Surfaces are two-sided: each vertex reflects on the side the light comes from.
     """
     c, tol, caster, tr = g.capture, g.tol, g.caster, g.physics
-    mats = g.scene.materials
     x, n_geo, area, obj = hidden_elements(g)
     zero = np.zeros(len(g.lasers))
     # FoV cells (point radiance: sensor points, per unit area) that lie on a surface the sensor looks at
@@ -140,11 +139,13 @@ def coarse_energies(g: PlanGeometry) -> CoarseEnergies:
     primary, secondary = zero.copy(), zero.copy()
     for i, laser in enumerate(g.lasers):
         primary[i], secondary[i] = coarse_one_laser(g, int(laser), x, n_geo, area, obj, w_xy, s_xy, geo,
-                                                     sees_fov, mats)
+                                                     sees_fov)
     return CoarseEnergies(primary, secondary, len(x))
 
 
-def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov, mats) -> tuple[float, float]:
+def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov) -> tuple[float, float]:
+    """(primary, secondary) energy of laser point ``laser`` (photons per pulse): the spot leg and its shadow rays
+    here, the sums over element pairs and FoV cells in :mod:`.coarse_kernel`."""
     c, tol, caster = g.capture, g.tol, g.caster
     spot, spot_n = c.spots[laser], c.spot_normals[laser]
     # laser spot → element: irradiance E_l (photons/m²) on the side facing the spot
@@ -161,37 +162,14 @@ def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov, m
         return 0.0, 0.0
     irradiance = np.zeros(len(x))
     irradiance[lit] = laser_irradiance(c.photons, g.physics.spot_emission(w_lx[lit], laser), cos_in[lit], r_lx[lit])
+    mat = material_arrays(g.physics)
     # primary: E_l dA_x f_x(→spot, →y) geo
-    mask = s_xy[lit] == side[lit, None]
-    f_x = mats.evaluate(obj[lit, None], n_lit[lit, None], -w_lx[lit, None], w_xy[lit])
-    primary = float(np.sum(irradiance[lit] * area[lit] * np.sum(f_x * geo[lit] * mask, axis=1)))
+    primary = primary_energy(lit, irradiance, area, obj, n_lit, w_lx, side, s_xy, w_xy, geo, mat)
     # secondary: E_l dA_x f_x(→spot, →x') cos cos'/r² V dA_x' f_x'(→x, →y) geo
-    xa, xb = np.meshgrid(lit, np.flatnonzero(sees_fov), indexing="ij")
-    xa, xb = xa.ravel(), xb.ravel()
-    d = x[xb] - x[xa]
-    r = np.linalg.norm(d, axis=1)
-    w = d / np.maximum(r, 1e-300)[:, None]
-    cos_a = np.einsum("ij,ij->i", n_lit[xa], w)
-    side_b = np.sign(np.einsum("ij,ij->i", n_geo[xb], -w))
-    cos_b = np.abs(np.einsum("ij,ij->i", n_geo[xb], w))
-    keep = np.flatnonzero((cos_a > 0) & (cos_b > 0) & (r > tol))
-    keep = keep[caster.visible(x[xa[keep]], n_lit[xa[keep]], x[xb[keep]], side_b[keep, None] * n_geo[xb[keep]])]
-    if len(keep) == 0:
+    xa, xb, w, r, cos_a, cos_b, side_b = secondary_candidates(lit, np.flatnonzero(sees_fov), x, n_lit, n_geo, tol)
+    vis = caster.visible(x[xa], n_lit[xa], x[xb], side_b[:, None] * n_geo[xb])
+    if not vis.any():
         return primary, 0.0
-    xa, xb, w, r, cos_a, cos_b, side_b = xa[keep], xb[keep], w[keep], r[keep], cos_a[keep], cos_b[keep], side_b[keep]
-    transfer = (irradiance[xa] * area[xa] * mats.evaluate(obj[xa], n_lit[xa], -w_lx[xa], w)
-                * cos_a * cos_b / r ** 2 * area[xb])
-    # Lambertian x': f = ρ/π, so its detected fraction is ρ/π × Σ_y geo over the cells its lit side sees
-    lamb = mats.lambertian[obj[xb]]
-    seen = np.where(side_b[lamb, None] == s_xy[xb[lamb]], geo[xb[lamb]], 0.0).sum(axis=1)
-    secondary = float(np.sum(transfer[lamb] * mats.albedo[obj[xb[lamb]]] / np.pi * seen))
-    other = np.flatnonzero(~lamb)
-    step = max(1, CHUNK_ELEMENTS // (3 * geo.shape[1]))
-    for s in range(0, len(other), step):
-        i = other[s:s + step]
-        b = xb[i]
-        n_b = side_b[i, None] * n_geo[b]
-        f_b = mats.evaluate(obj[b, None], n_b[:, None], -w[i, None], w_xy[b])
-        mask = s_xy[b] == side_b[i, None]
-        secondary += float(np.sum(transfer[i] * np.sum(f_b * geo[b] * mask, axis=1)))
-    return primary, secondary
+    secondary = secondary_energy(xa[vis], xb[vis], w[vis], r[vis], cos_a[vis], cos_b[vis], side_b[vis], irradiance,
+                                 area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat)
+    return float(primary), float(secondary)

@@ -29,7 +29,7 @@ from ..scene.brdf_kernel import phong_value
 from ..scene.materials import LAMBERTIAN, PHONG, SIN_THETA, TANGENT_EPS
 from ..units import SPEED_OF_LIGHT
 
-__all__ = ["brdf_value", "fov_targets", "material_arrays", "partner_geometry", "partner_irradiance",
+__all__ = ["abs_sin_azimuth", "brdf_value", "fov_targets", "material_arrays", "partner_geometry", "partner_irradiance",
            "secondary_pairs"]
 
 
@@ -53,8 +53,9 @@ def _toward(p0, p1, p2, q0, q1, q2):
 
 
 @njit(cache=True, inline="always")
-def _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, w0, w1, w2):
-    """|sin| of w's azimuth about n from the axis a (materials' ``_abs_sin_azimuth``, Duff et al. fallback)."""
+def abs_sin_azimuth(n0, n1, n2, a0, a1, a2, w0, w1, w2):
+    """|sin| of w's azimuth about n from the axis a (materials' ``_abs_sin_azimuth``, Duff et al. fallback): the
+    angular factor of the sin θ BRDF, f = ½ρ·abs_sin_azimuth(ω_in)·abs_sin_azimuth(ω_out) (:func:`brdf_value`)."""
     an = a0 * n0 + a1 * n1 + a2 * n2
     t0, t1, t2 = a0 - an * n0, a1 - an * n1, a2 - an * n2
     t_len2 = t0 * t0 + t1 * t1 + t2 * t2
@@ -96,8 +97,8 @@ def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
     k, rho = kind[obj], albedo[obj]
     if k == SIN_THETA:
         a0, a1, a2 = axis[obj, 0], axis[obj, 1], axis[obj, 2]
-        return 0.5 * rho * _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, i0, i1, i2) * \
-            _abs_sin_azimuth(n0, n1, n2, a0, a1, a2, o0, o1, o2)
+        return 0.5 * rho * abs_sin_azimuth(n0, n1, n2, a0, a1, a2, i0, i1, i2) * \
+            abs_sin_azimuth(n0, n1, n2, a0, a1, a2, o0, o1, o2)
     if k == PHONG:
         return phong_value(rho, specular[obj], exponent[obj], cos_in, n0, n1, n2, i0, i1, i2, o0, o1, o2)
     if k == LAMBERTIAN:
