@@ -417,3 +417,39 @@ def test_pickled_accumulator_keeps_numpys_cached_dtypes_and_its_sums():
     back = pickle.loads(pickle.dumps(acc))
     back.add(t[::-1], w, component=0)
     assert np.array_equal(back.binned(), ref.binned())
+
+
+@pytest.mark.parametrize("irf", [Irf(fwhm=70e-12), Irf(fwhm=0.0)], ids=["gaussian", "delta"])
+def test_compiled_splat_equals_numpy_cloud_in_cell(irf):
+    """EnvelopeAccumulator.add's compiled splat (timing/splat_kernel.py) against the cloud-in-cell written with
+    numpy (node x = (t − t_start)/δ + n_left − ½, weights (1 − frac, frac) on ⌊x⌋, ⌊x⌋ + 1, or the containing cell
+    for the delta IRF; np.add.at): the same histogram bit for bit, totals and beyond to 1e-15, for impulses inside,
+    at both ends and far outside the grid, zero weights, one component id and an array of them."""
+    axis = TimeAxis(t_start=1e-9, bin_width=16e-12, n_bins=64)
+    rng = np.random.default_rng(3)
+    n = 5000
+    t = axis.t_start + rng.uniform(-0.3, 1.3, n) * axis.n_bins * axis.bin_width
+    t[:4] = [axis.t_start - 1.0, axis.t_start + 1.0, axis.t_start, axis.t_start + axis.n_bins * axis.bin_width]
+    w = rng.random(n) * (rng.random(n) < 0.9)
+    comp = rng.integers(0, 3, n)
+    for c in (comp, 2):
+        acc = EnvelopeAccumulator(axis, irf, 3)
+        acc.add(t, w, c)
+        cc = np.broadcast_to(c, n)
+        hist, beyond = np.zeros((3, acc.n_fine)), np.zeros(3)
+        if irf.is_delta:
+            g = np.floor((t - axis.t_start) / acc.fine_step) + acc.n_left
+            inside = (g >= 0) & (g < acc.n_fine)
+            np.add.at(hist, (cc[inside], g[inside].astype(int)), w[inside])
+        else:
+            x = (t - axis.t_start) / acc.fine_step + (acc.n_left - 0.5)
+            inside = (x >= 0) & (x <= acc.n_fine - 1)
+            i = np.minimum(np.floor(x[inside]), acc.n_fine - 2).astype(int)
+            right = w[inside] * (x[inside] - i)
+            np.add.at(hist, (cc[inside], i), w[inside] - right)
+            np.add.at(hist, (cc[inside], i + 1), right)
+        np.add.at(beyond, cc[~inside], w[~inside])
+        assert 0 < (~inside & (w > 0)).sum() < n // 2
+        np.testing.assert_array_equal(acc.fine_histogram(), hist)
+        np.testing.assert_allclose(acc.total_weight(), np.bincount(cc, weights=w, minlength=3), rtol=1e-15, atol=0)
+        np.testing.assert_allclose(acc.total_weight() - hist.sum(axis=1), beyond, rtol=1e-12, atol=0)

@@ -56,6 +56,7 @@ from scipy.signal import oaconvolve
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
 from .curvature import deposit_curvature
+from .splat_kernel import splat_nodes
 from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
 
@@ -270,11 +271,12 @@ class EnvelopeAccumulator:
         for start in range(0, t.size, _CHUNK):
             tb = np.asarray(t[start : start + _CHUNK], dtype=np.float64)
             wb = np.asarray(w[start : start + _CHUNK], dtype=np.float64)
-            keep = wb != 0
-            tb, wb = tb[keep], wb[keep]
-            if tb.size == 0:
-                continue
-            cb = comp if isinstance(comp, int) else comp[start : start + _CHUNK][keep].astype(np.int64)
+            cb = comp if isinstance(comp, int) else comp[start : start + _CHUNK].astype(np.int64, copy=False)
+            if self.direct:                       # the compiled splat skips zero weights itself
+                keep = wb != 0
+                tb, wb, cb = tb[keep], wb[keep], (cb if isinstance(cb, int) else cb[keep])
+                if tb.size == 0:
+                    continue
             self._splat(flat, tb, wb, cb)
 
     def _component_sums(self, w: np.ndarray, c: int | np.ndarray) -> np.ndarray:
@@ -305,37 +307,14 @@ class EnvelopeAccumulator:
         np.add.at(flat, idx + 1, right)
 
     def _splat(self, flat: np.ndarray, t: np.ndarray, w: np.ndarray, c: int | np.ndarray) -> None:
-        self._total += self._component_sums(w, c)
         if self.direct:
+            self._total += self._component_sums(w, c)
             self._splat_direct(flat, t, w, c)
             return
-        # Fractional node coordinate: node g is at t_start + (g - n_left + 1/2) * fine_step.
-        with np.errstate(over="ignore"):  # absurdly distant times overflow to +-inf: simply "beyond"
-            x = (t - self.axis.t_start) / self.fine_step + (self.n_left - 0.5)
-            if self.irf.is_delta:
-                # Nearest node = the fine cell containing t, so the impulse stays in its own bin.
-                g = np.floor((t - self.axis.t_start) / self.fine_step) + self.n_left
-                inside = (g >= 0) & (g < self.n_fine)
-            else:
-                inside = (x >= 0) & (x <= self.n_fine - 1)
-        if not inside.all():
-            out = ~inside
-            self._beyond += self._component_sums(w[out], c if isinstance(c, int) else c[out])
-            w, x = w[inside], x[inside]
-            if not isinstance(c, int):
-                c = c[inside]
-            if self.irf.is_delta:
-                g = g[inside]
-        base = c * self.n_fine  # row offset of the component in the flattened histogram
-        if self.irf.is_delta:
-            np.add.at(flat, base + g.astype(np.int64), w)
-            return
-        i = np.minimum(np.floor(x), self.n_fine - 2).astype(np.int64)
-        w_right = w * (x - i)
-        w_left = w - w_right
-        idx = base + i
-        np.add.at(flat, idx, w_left)
-        np.add.at(flat, idx + 1, w_right)
+        per_impulse = np.zeros(0, np.int64) if isinstance(c, int) else np.ascontiguousarray(c, dtype=np.int64)
+        splat_nodes(flat, self._total, self._beyond, np.ascontiguousarray(t, dtype=np.float64),
+                    np.ascontiguousarray(w, dtype=np.float64), per_impulse, c if isinstance(c, int) else 0,
+                    float(self.axis.t_start), float(self.fine_step), self.n_left, self.n_fine, self.irf.is_delta)
 
     def add_tents(self, times: Any, weights: Any, component: int | np.ndarray = 0) -> None:
         """Add tent densities: for each row of ``times`` (n, 3), the path times (s) at a triangle's vertices,
