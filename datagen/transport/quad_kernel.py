@@ -204,14 +204,14 @@ def _pairs(listed, b0, b1, paths, ray_cell, ray_count, visible, group_ptr, group
                     m = ray_cell[slot + i]
                 else:
                     m = i
-                e, g, r_l, r_y = _legs(m, l, t, conn_same[b], centroid, normal, spots, spot_n, spot_f, photons,
-                                       targets, fov_n, collect, tol, f_lamb, kind, rho, ks, expo)
-                if not (e > 0.0 and g > 0.0):
-                    continue
                 if shadow and closed[m] and (normal[m, 0] * (spots[l, 0] - centroid[m, 0])
                                              + normal[m, 1] * (spots[l, 1] - centroid[m, 1])
                                              + normal[m, 2] * (spots[l, 2] - centroid[m, 2])) < 0.0:
                     continue                    # the inner side of a closed surface (quad_primary.closed_outward)
+                e, g, r_l, r_y = _legs(m, l, t, conn_same[b], centroid, normal, spots, spot_n, spot_f, photons,
+                                       targets, fov_n, collect, tol, f_lamb, kind, rho, ks, expo)
+                if not (e > 0.0 and g > 0.0):
+                    continue
                 if shadow and not listed:
                     f = cell_face[m]
                     blocked = 2 if face_ray[f] else _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi,
@@ -244,13 +244,18 @@ def _pairs(listed, b0, b1, paths, ray_cell, ray_count, visible, group_ptr, group
 
 
 @njit(cache=True, parallel=True)
-def vertex_paths(vertices, spots, targets, conn_laser, conn_target, start, stop, out):
+def vertex_paths(vertices, spots, targets, conn_laser, conn_target, conn_same, start, stop, out):
     """out[b − start, v] = |v − x_l| + |v − y| (metres) for the connections b of [start, stop) and every vertex v
-    (the numpy path's vertex distances, :meth:`datagen.transport.quadrature.Quadrature._primary`)."""
+    (the numpy path's vertex distances, :meth:`datagen.transport.quadrature.Quadrature._primary`; 2·|v − x_l| where
+    ``conn_same[b]``: the target is the laser point)."""
     for b in prange(start, stop):
         l, t = conn_laser[b], conn_target[b]
-        for v in range(vertices.shape[0]):
-            out[b - start, v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
+        if conn_same[b]:
+            for v in range(vertices.shape[0]):
+                out[b - start, v] = 2.0 * _dist(vertices, v, spots, l)
+        else:
+            for v in range(vertices.shape[0]):
+                out[b - start, v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
 
 
 def _flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ) -> tuple:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numba
 import numpy as np
 
 from ..scene import RayCaster, hull_planes, may_meet, outward_planes
@@ -30,6 +31,11 @@ MAX_CANDIDATES = 128
 """A hidden face of a big mesh (no numpy occluder test) with more triangles that may block its laser legs casts a
 shadow ray for every lit pair instead of the kernel's segment tests (the torus of docs/scans.md: at most 128 with a
 2 m × 2 m scan, 70 % of the faces none)."""
+
+PARALLEL_MIN_PAIRS = 1 << 25
+"""Runs with fewer (sub-triangle, connection) pairs (a confocal room sample: ~10 M) use one thread: a dataset build
+already keeps every core busy with one worker process each, and numba's OpenMP threads cost ~5 % more CPU time there
+(measured on confocal.yaml samples); longer runs (the 128 × 128 torus of docs/scans.md: 164 M) use all of numba's."""
 
 PAIR_BLOCK = 1 << 22
 """(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
@@ -165,7 +171,17 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
     """The primary of :class:`~datagen.transport.quadrature.Quadrature` ``q`` into the fine grid ``grid`` (and the
     coarse rule of its error estimate into ``coarse``, or None), both :class:`datagen.timing.tent_kernel.TentGrid`
     from :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` (module doc). Photons per pulse; updates ``q.stats``
-    (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block."""
+    (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block. Runs of at least
+    ``PARALLEL_MIN_PAIRS`` pairs use numba's threads, shorter ones one thread; the result is the same bit for bit."""
+    threads = numba.get_num_threads()
+    numba.set_num_threads(threads if q.n_cells * len(q.conn_laser) >= PARALLEL_MIN_PAIRS else 1)
+    try:
+        _run_compiled(q, grid, coarse, progress)
+    finally:
+        numba.set_num_threads(threads)
+
+
+def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:
     c, legs_ = q.capture, q.physics
     M = q.n_cells
     y = q.targets
@@ -211,7 +227,7 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
     for start in range(0, n_conn, per_block):
         block = (start, min(n_conn, start + per_block))
         groups = channel_groups(q.conn_channel, *block)
-        vertex_paths(geo[0], legs[0], legs[1], conn[0], conn[1], block[0], block[1], paths)
+        vertex_paths(geo[0], legs[0], legs[1], conn[0], conn[1], conn[3], block[0], block[1], paths)
         tents = candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count,
                            groups)
         counts = ray_count[:block[1] - block[0]]
