@@ -243,9 +243,9 @@ class Replicas:
         """A deterministic estimator's error from its coarser setting (registry ``refine``): ‖P(h) − P(2h)‖ /
         (2^order − 1) relative to the envelope, P the primary (no Monte Carlo secondary, whose noise the replicas
         measure, nor the direct first bounce). The estimator's own coarse sums (``transport.coarse``: the
-        quadrature's rule at 2h from the same evaluations, or its rule at h/2 on a sub-scan when ``transport.coarse_ratio``
-        is 0.5: then ‖P(h) − P(h/2)‖ / (1 − 2^−order)) are used when it has them, else a coarse run. None for Monte
-        Carlo estimators."""
+        quadrature's rule at 2h from the same evaluations, or its rule at h/2 on a sub-scan when
+        ``transport.coarse_ratio`` is 0.5: then ‖P(h) − P(h/2)‖ / (1 − 2^−order)) are used when it has them, else a
+        coarse run. None for Monte Carlo estimators."""
         if self.entry.refine is None:
             return None
         t0 = time.perf_counter()
@@ -281,7 +281,8 @@ class Replicas:
         if self.monte_carlo:
             parts.append(f"standard error of the mean of {self.count} independent replicas ({setting} each)")
         if refined is not None:
-            half = getattr(self.transport, "coarse", None) is not None and getattr(self.transport, "coarse_ratio", 2) < 1
+            half = (getattr(self.transport, "coarse", None) is not None
+                    and getattr(self.transport, "coarse_ratio", 2.0) < 1)
             parts.append(f"edge refinement ‖E(h) − E(h/2)‖/(1 − 2^−{self.entry.order}) on a sub-scan" if half else
                          f"edge refinement ‖E(h) − E(2h)‖/{2 ** self.entry.order - 1}")
             parts[-1] += f" of the primary ({setting})"

@@ -21,8 +21,8 @@ crosses a triangle more than ``margin`` inside its edges is blocked, and only th
 edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited after it (:func:`deposit_pairs`).
 Embree's float32 rays leak through shared edges now and then (measured: a segment 0.5–2 mm inside a box's face
 4.7 m from its start, reported unblocked); the exact test does not, so the compiled envelope differs from the
-numpy path's by such pairs (2e-8 relative on a confocal room scan). With ``face_ray`` (per hidden face) each lit pair gets its ray
-and the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The inner side of a closed
+numpy path's by such pairs (2e-8 relative on a confocal room scan). Where ``face_ray`` (per hidden face) each lit
+pair gets its ray; with every face so, the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The inner side of a closed
 outward surface (``closed``, :func:`datagen.transport.quad_primary.closed_outward`) is never lit: no test, no
 ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of a coarse
 torus's envelope).

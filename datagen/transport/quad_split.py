@@ -25,7 +25,8 @@ import numpy as np
 
 from ..sampling import coarse_cells, subdivide_with_vertices, subdivisions
 
-__all__ = ["EVEN_EXTRA", "MIN_REFINE_LASERS", "REFINE_STRIDE", "apply_split", "choose_split", "refine_lasers", "refined"]
+__all__ = ["EVEN_EXTRA", "MIN_REFINE_LASERS", "REFINE_STRIDE", "apply_split", "choose_split", "refine_lasers",
+           "refined"]
 
 REFINE_STRIDE = 8
 """The plain split's error estimate runs the rule at h/2 on every ``REFINE_STRIDE``-th laser point of each grid axis."""

@@ -13,7 +13,8 @@ with E_l(x) = Φ f_l cosθ_l cosθ_x,in / |x−x_l|² V(x_l, x) the laser irradi
 functions; only the way x is visited differs from the samplers.
 
 **The rule.** Every hidden face (:meth:`AreaSampler._hidden_faces`: the faces that can carry a primary path) is
-split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.sampling.subdivide_triangles`).
+split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.sampling.subdivide_triangles`;
+k even or not, with the error estimate that goes with each: :mod:`.quad_split`).
 For each (sub-triangle T, laser point, target) the weight is evaluated at the centroid and multiplied by the area
 of T (the midpoint rule), and the path length at the three *vertices* of T and at its centroid. On T the path
 length is replaced by its linear interpolant, under which the area measure of T pushes forward to a tent density
@@ -51,8 +52,10 @@ evaluated per (cell, laser point), the target leg per (cell, target), and path l
 laser point) and (vertex, target); when the targets are the laser points themselves (point-radiance confocal
 scans) the vertex distances are shared. Pairs are processed in blocks of at most ``batch`` (cell, connection)
 rows, so memory stays bounded. The common case (Lambertian or Phong hidden surfaces, a fine-grid accumulator) runs
-compiled, one pass per (sub-triangle, connection) pair with exact segment tests instead of most shadow rays
-(:mod:`.quad_primary`, :mod:`.quad_kernel`); the numpy blocks are its reference.
+compiled, one pass per (sub-triangle, connection) pair with exact segment tests instead of most shadow rays (for
+a big mesh too: per-face occluder candidates from a compiled hull test), channels in parallel on numba's threads for
+long runs, bit-identical for any thread count (:mod:`.quad_primary`, :mod:`.quad_kernel`); the numpy blocks are its
+reference.
 
 **Secondary and first bounce.** When the plan asks for the secondary (paths with two hidden vertices), the
 quadrature does not drop it: the area sampler (:mod:`datagen.transport.area`, ``secondary_only``) adds its unbiased
@@ -225,11 +228,14 @@ class Quadrature:
         component_names: names of the sink components (primary components, "secondary"[, "first_bounce"]).
         n_cells: M, sub-triangles; targets: (T, 3) FoV targets; total_rows: (cell, connection) rows of a run.
         stats: :class:`QuadratureStats`.
-        coarse: after a run on a point-sensor capture, the primary at twice the edge (summed over components,
-        channel rows; only the channels ``coarse_channels``, every ``coarse_stride``-th, chosen by the run: at
-        most about ``COARSE_CHANNELS`` compiled, ``COARSE_CHANNELS_NUMPY`` in numpy), from the same evaluations:
-        every sub-triangle split is even, so 4 fine sub-triangles make a coarse one whose centroid is the middle one's (:func:`datagen.sampling.coarse_cells`);
-        ‖P(h) − P(2h)‖/3 over those channels is the error estimate of the result.
+        coarse: after a run on a point-sensor capture (or FoV cells that stay the same at 2h), the rule the error
+        estimate compares with (summed over components, channel rows; only the channels ``coarse_channels``), as
+        :mod:`.quad_split` says: with the even split (``refine_lasers`` None, ``coarse_ratio`` 2) the primary at twice
+        the edge from the same evaluations (4 fine sub-triangles make a coarse one whose centroid is the middle
+        one's, :func:`datagen.sampling.coarse_cells`; every ``coarse_stride``-th channel: at most about
+        ``COARSE_CHANNELS`` compiled, ``COARSE_CHANNELS_NUMPY`` in numpy), ‖P(h) − P(2h)‖/3 over those channels
+        being the estimate; with the plain split (``coarse_ratio`` 1/2) the primary at half the edge on the
+        laser points ``refine_lasers`` (a sub-scan), (4/3)·‖P(h) − P(h/2)‖ being the estimate.
 
     Raises:
         SceneError: invalid settings; the capture errors of :func:`datagen.scene.resolve_capture`; no face
