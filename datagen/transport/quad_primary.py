@@ -32,10 +32,11 @@ MAX_CANDIDATES = 128
 shadow ray for every lit pair instead of the kernel's segment tests (the torus of docs/scans.md: at most 128 with a
 2 m × 2 m scan, 70 % of the faces none)."""
 
-PARALLEL_MIN_PAIRS = 1 << 25
-"""Runs with fewer (sub-triangle, connection) pairs (a confocal room sample: ~10 M) use one thread: a dataset build
-already keeps every core busy with one worker process each, and numba's OpenMP threads cost ~5 % more CPU time there
-(measured on confocal.yaml samples); longer runs (the 128 × 128 torus of docs/scans.md: 164 M) use all of numba's."""
+PARALLEL_MIN_PAIRS = 1 << 26
+"""Runs over fewer (sub-triangle, target) pairs (confocal.yaml samples: 27–33 M, wall.yaml: 6–11 M) use one thread:
+a dataset build already keeps every core busy with one worker process each, and numba's OpenMP threads cost ≈ 5 %
+more CPU time there (measured on confocal.yaml samples); longer runs (the 128 × 128 torus of docs/scans.md: 164 M)
+use all of numba's."""
 
 PAIR_BLOCK = 1 << 22
 """(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
@@ -171,10 +172,12 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
     """The primary of :class:`~datagen.transport.quadrature.Quadrature` ``q`` into the fine grid ``grid`` (and the
     coarse rule of its error estimate into ``coarse``, or None), both :class:`datagen.timing.tent_kernel.TentGrid`
     from :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` (module doc). Photons per pulse; updates ``q.stats``
-    (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block. Runs of at least
-    ``PARALLEL_MIN_PAIRS`` pairs use numba's threads, shorter ones one thread; the result is the same bit for bit."""
+    (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block. Runs over at least
+    ``PARALLEL_MIN_PAIRS`` (sub-triangle, target) pairs use numba's threads (so does the rule at h/2 of a plain
+    split's estimate, :func:`datagen.transport.quad_split.refined`, with the same targets and 4× the sub-triangles),
+    shorter ones one thread; the result is the same bit for bit."""
     threads = numba.get_num_threads()
-    numba.set_num_threads(threads if q.n_cells * len(q.conn_laser) >= PARALLEL_MIN_PAIRS else 1)
+    numba.set_num_threads(threads if q.n_cells * len(q.targets) >= PARALLEL_MIN_PAIRS else 1)
     try:
         _run_compiled(q, grid, coarse, progress)
     finally:
