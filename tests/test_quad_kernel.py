@@ -184,30 +184,32 @@ def test_big_mesh_occluder_candidates_replace_most_rays(monkeypatch):
 
 @pytest.mark.parametrize("fov_cells", [1, 2])
 def test_threads_give_bit_identical_envelopes(monkeypatch, fov_cells):
-    """The pair kernel runs channel groups in parallel: one thread and numba's default give the same envelope bit
-    for bit, with one connection per channel and with 2 × 2 FoV cells per pixel (4 connections per channel),
-    and equal the numpy path to 1e-9 with a ray for every lit pair."""
+    """The pair kernel runs channel groups in parallel: in the calling thread only (a short run), on one of numba's
+    threads and on numba's default count the envelope is the same bit for bit, with one connection per channel and
+    with 2 × 2 FoV cells per pixel (4 connections per channel), and equals the numpy path to 1e-9 with a ray for
+    every lit pair."""
     import numba
 
     from datagen.transport import quad_primary
 
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one core: nothing runs in parallel")
-    monkeypatch.setattr(quad_primary, "PARALLEL_MIN_PAIRS", 0)
     scene = _torus_scene(6)
     sim = _torus_config(scene, 0.05).model_copy(update={"quadrature_fov": fov_cells})
+    serial, q = _run(scene, sim, monkeypatch, segment_tests=False)             # 1.4 M pairs: no threads
     default = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
+        monkeypatch.setattr(quad_primary, "PARALLEL_MIN_PAIRS", 0)
         one, _ = _run(scene, sim, monkeypatch, segment_tests=False)
     finally:
         numba.set_num_threads(default)
     monkeypatch.setattr(quad_primary, "PARALLEL_MIN_PAIRS", 0)
-    many, q = _run(scene, sim, monkeypatch, segment_tests=False)
+    many, _ = _run(scene, sim, monkeypatch, segment_tests=False)
     ref, _ = _run(scene, sim, monkeypatch, use_compiled=False)
-    assert len(q.conn_laser) == fov_cells ** 2 * 36
-    assert np.array_equal(one.envelope, many.envelope) and np.linalg.norm(one.envelope) > 0
-    assert np.linalg.norm(many.envelope - ref.envelope) <= 1e-9 * np.linalg.norm(ref.envelope)
+    assert len(q.conn_laser) == fov_cells ** 2 * 36 and q.n_cells * len(q.targets) < quad_primary.PARALLEL_MIN_PAIRS
+    assert np.array_equal(serial.envelope, one.envelope) and np.array_equal(one.envelope, many.envelope)
+    assert np.linalg.norm(many.envelope - ref.envelope) <= 1e-9 * np.linalg.norm(ref.envelope) > 0
 
 
 def test_plain_split_and_its_sub_scan_estimate_against_a_converged_reference(monkeypatch):

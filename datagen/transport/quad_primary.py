@@ -36,7 +36,9 @@ PARALLEL_MIN_PAIRS = 1 << 26
 """Runs over fewer (sub-triangle, target) pairs (confocal.yaml samples: 27–33 M, wall.yaml: 6–11 M) use one thread:
 a dataset build already keeps every core busy with one worker process each, and numba's OpenMP threads cost ≈ 5 %
 more CPU time there (measured on confocal.yaml samples); longer runs (the 128 × 128 torus of docs/scans.md: 164 M)
-use all of numba's."""
+use all of numba's. Either way the kernels are numba's parallel ones: a process that ran one has GNU OpenMP
+started, and a child it forks must not run them (numba stops such a child); the build's workers come from a fork
+server, which runs none."""
 
 PAIR_BLOCK = 1 << 22
 """(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
