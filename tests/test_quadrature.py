@@ -392,7 +392,7 @@ def test_simulate_records_the_quadrature_and_keeps_a_planned_secondary():
 def test_bad_settings_name_the_field():
     for kw, field in (({"edge": 0.0}, "edge"), ({"edge": float("nan")}, "edge"), ({"fov_cells": 0}, "fov_cells"),
                       ({"secondary": "exact"}, "secondary"), ({"batch": 0}, "batch"),
-                      ({"shadow_spot": "yes"}, "shadow_spot")):
+                      ({"shadow_spot": "yes"}, "shadow_spot"), ({"split": "odd"}, "split")):
         with pytest.raises(SceneError, match=field):
             QuadratureSettings(**kw)
     scene = small_scene()

@@ -243,15 +243,18 @@ class Replicas:
         """A deterministic estimator's error from its coarser setting (registry ``refine``): ‖P(h) − P(2h)‖ /
         (2^order − 1) relative to the envelope, P the primary (no Monte Carlo secondary, whose noise the replicas
         measure, nor the direct first bounce). The estimator's own coarse sums (``transport.coarse``: the
-        quadrature's rule at 2h from the same evaluations) are used when it has them, else a coarse run. None for
-        Monte Carlo estimators."""
+        quadrature's rule at 2h from the same evaluations, or its rule at h/2 on a sub-scan when
+        ``transport.coarse_ratio`` is 0.5: then ‖P(h) − P(h/2)‖ / (1 − 2^−order)) are used when it has them, else a
+        coarse run. None for Monte Carlo estimators."""
         if self.entry.refine is None:
             return None
         t0 = time.perf_counter()
         keep = [i for i, n in enumerate(tr.names) if n not in ("secondary", "first_bounce")]
         coarse_acc = getattr(self.transport, "coarse", None)
         channels = slice(None)
+        ratio = 2.0                                # the compared rule's edge over the result's (h/2: 0.5)
         if coarse_acc is not None:                 # holds the coarse primary only, per channel (some channels)
+            ratio = getattr(self.transport, "coarse_ratio", 2.0)
             channels = getattr(self.transport, "coarse_channels", slice(None))
             coarse_p = coarse_acc.binned_total(self.n_channels)[channels]
         else:
@@ -263,7 +266,8 @@ class Replicas:
                                       if n not in ("secondary", "first_bounce")]].sum(axis=0)
         self.seconds["refinement"] = time.perf_counter() - t0
         fine_p = tr.binned[keep].sum(axis=0)[channels]
-        return relative_difference(fine_p, coarse_p, tr.binned.sum(axis=0)[channels]) / (2.0 ** self.entry.order - 1.0)
+        scale = tr.binned.sum(axis=0)[channels]
+        return relative_difference(fine_p, coarse_p, scale) / abs(ratio ** self.entry.order - 1.0)
 
     def error_attrs(self, tr: Transported, rng: np.random.Generator) -> dict:
         """``attrs["error"]`` of the result: the estimate (relative L2 of the envelope over bins above 1 % of its
@@ -277,7 +281,11 @@ class Replicas:
         if self.monte_carlo:
             parts.append(f"standard error of the mean of {self.count} independent replicas ({setting} each)")
         if refined is not None:
-            parts.append(f"edge refinement ‖E(h) − E(2h)‖/{2 ** self.entry.order - 1} of the primary ({setting})")
+            half = (getattr(self.transport, "coarse", None) is not None
+                    and getattr(self.transport, "coarse_ratio", 2.0) < 1)
+            parts.append(f"edge refinement ‖E(h) − E(h/2)‖/(1 − 2^−{self.entry.order}) on a sub-scan" if half else
+                         f"edge refinement ‖E(h) − E(2h)‖/{2 ** self.entry.order - 1}")
+            parts[-1] += f" of the primary ({setting})"
         return {"rel_l2": total, "monte_carlo": mc, "refinement": refined, "replicas": self.count,
                 "replica_setting": setting,
                 "method": " and ".join(parts) + "; relative L2 over bins above 1 % of the peak"}

@@ -21,8 +21,8 @@ crosses a triangle more than ``margin`` inside its edges is blocked, and only th
 edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited after it (:func:`deposit_pairs`).
 Embree's float32 rays leak through shared edges now and then (measured: a segment 0.5–2 mm inside a box's face
 4.7 m from its start, reported unblocked); the exact test does not, so the compiled envelope differs from the
-numpy path's by such pairs (2e-8 relative on a confocal room scan). With ``every_ray`` each lit pair gets its ray
-and the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The inner side of a closed
+numpy path's by such pairs (2e-8 relative on a confocal room scan). Where ``face_ray`` (per hidden face) each lit
+pair gets its ray; with every face so, the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The inner side of a closed
 outward surface (``closed``, :func:`datagen.transport.quad_primary.closed_outward`) is never lit: no test, no
 ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of a coarse
 torus's envelope).
@@ -32,13 +32,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ..scene.brdf_kernel import phong_value
 from ..scene.materials import PHONG
 from ..timing.tent_kernel import deposit_tent, sort3
 
-__all__ = ["candidates", "deposit_pairs", "occluder_planes", "vertex_paths"]
+__all__ = ["candidates", "channel_groups", "deposit_pairs", "face_candidates", "occluder_planes", "vertex_paths"]
 
 
 def occluder_planes(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -164,14 +164,14 @@ POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photon
 CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
-OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "every_ray")
+OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "face_ray")
 """The kernel's inputs by group (:func:`datagen.transport.quad_primary.run_compiled` builds them): passed as
 separate arguments, since arrays taken out of a tuple inside numba's inner loop cost an atomic reference count
 each (measured ~100 ns per pair)."""
 
 
-@njit(cache=True)
-def _pairs(listed, b0, b1, paths, ray_cell, ray_conn, visible,
+@njit(cache=True, parallel=True)
+def _pairs(listed, b0, b1, paths, ray_cell, ray_count, visible, group_ptr, group_conn,
            vertices, cells, area, comp_base, coarse_of, coarse_cells,
            centroid, normal, cell_face, closed, spot_n, spot_f, photons, fov_n, collect, tol, f_lamb, kind, rho, ks,
            expo,
@@ -179,87 +179,172 @@ def _pairs(listed, b0, b1, paths, ray_cell, ray_conn, visible,
            spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride,
            t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond,
            has_coarse, ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond,
-           shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, every_ray):
-    """Both passes (module doc): ``listed`` False: the pairs of connections [b0, b1), listing those that need a
-    shadow ray; True: the listed pairs whose ray found the laser point ``visible``."""
+           shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray):
+    """Both passes (module doc) over the connections [b0, b1), in groups of one channel each (connections
+    ``group_conn[group_ptr[g]:group_ptr[g + 1]]``, ascending), the groups in parallel: a channel's rows of the grids
+    are written by its group only, in the same order for any number of threads. ``listed`` False: every pair,
+    listing those that need a shadow ray (connection b's in ``ray_cell[(b − b0)·M:]``, ``ray_count[b − b0]`` of
+    them); True: the listed pairs whose ray found the laser point ``visible`` (same slots)."""
     M = centroid.shape[0]
-    n = ray_cell.shape[0] if listed else (b1 - b0) * M
-    n_rays = 0
-    tents = 0
-    for i in range(n):
-        if listed:
-            if not visible[i]:
-                continue
-            m, b = ray_cell[i], ray_conn[i]
-        else:
-            b = b0 + i // M
-            m = i - (b - b0) * M
-        l, t, ch = conn_laser[b], conn_target[b], conn_channel[b]
-        e, g, r_l, r_y = _legs(m, l, t, conn_same[b], centroid, normal, spots, spot_n, spot_f, photons, targets,
-                               fov_n, collect, tol, f_lamb, kind, rho, ks, expo)
-        if not (e > 0.0 and g > 0.0):
-            continue
-        if shadow and closed[m] and (normal[m, 0] * (spots[l, 0] - centroid[m, 0])
-                                     + normal[m, 1] * (spots[l, 1] - centroid[m, 1])
-                                     + normal[m, 2] * (spots[l, 2] - centroid[m, 2])) < 0.0:
-            continue                    # the inner side of a closed surface (quad_primary.closed_outward)
-        if shadow and not listed:
-            blocked = 2 if every_ray else _blocked(centroid, m, spots, l, run_ptr, cell_face[m], run_lo, run_hi,
-                                                   spheres, occ_idx, plane, edges, margin)
-            if blocked == 1:
-                continue
-            if blocked == 2:
-                ray_cell[n_rays] = m
-                ray_conn[n_rays] = b
-                n_rays += 1
-                continue
-        weight = area[m] * e * g
-        if mu > 0.0:
-            weight = weight * math.exp(-mu * (emitter_leg[l] + r_l + r_y + d_y[t]))
-        if not weight > 0.0:
-            continue
-        offset = 0.0 + laser_off[l] + sensor_off[t]
-        centre = r_l + r_y
-        row = b - b0
-        _tent(paths, row, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed, t_start, step, shift, n_fine,
-              min_nodes, hist, curv, total, beyond, weight, comp_base[m] + ch)
-        tents += 1
-        k = coarse_of[m]
-        if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
-            _tent(paths, row, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2], centre, offset, speed,
-                  ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond, 4.0 * weight, ch)
-    return n_rays, tents
+    n_groups = len(group_ptr) - 1
+    group_tents = np.zeros(n_groups, dtype=np.int64)
+    for grp in prange(n_groups):
+        tents = 0
+        for gi in range(group_ptr[grp], group_ptr[grp + 1]):
+            b = group_conn[gi]
+            row = b - b0
+            slot = row * M
+            n_items = ray_count[row] if listed else M
+            n_rays = 0
+            l, t, ch = conn_laser[b], conn_target[b], conn_channel[b]
+            for i in range(n_items):
+                if listed:
+                    if not visible[slot + i]:
+                        continue
+                    m = ray_cell[slot + i]
+                else:
+                    m = i
+                if shadow and closed[m] and (normal[m, 0] * (spots[l, 0] - centroid[m, 0])
+                                             + normal[m, 1] * (spots[l, 1] - centroid[m, 1])
+                                             + normal[m, 2] * (spots[l, 2] - centroid[m, 2])) < 0.0:
+                    continue                    # the inner side of a closed surface (quad_primary.closed_outward)
+                e, g, r_l, r_y = _legs(m, l, t, conn_same[b], centroid, normal, spots, spot_n, spot_f, photons,
+                                       targets, fov_n, collect, tol, f_lamb, kind, rho, ks, expo)
+                if not (e > 0.0 and g > 0.0):
+                    continue
+                if shadow and not listed:
+                    f = cell_face[m]
+                    blocked = 2 if face_ray[f] else _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi,
+                                                             spheres, occ_idx, plane, edges, margin)
+                    if blocked == 1:
+                        continue
+                    if blocked == 2:
+                        ray_cell[slot + n_rays] = m
+                        n_rays += 1
+                        continue
+                weight = area[m] * e * g
+                if mu > 0.0:
+                    weight = weight * math.exp(-mu * (emitter_leg[l] + r_l + r_y + d_y[t]))
+                if not weight > 0.0:
+                    continue
+                offset = 0.0 + laser_off[l] + sensor_off[t]
+                centre = r_l + r_y
+                _tent(paths, row, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed, t_start, step, shift,
+                      n_fine, min_nodes, hist, curv, total, beyond, weight, comp_base[m] + ch)
+                tents += 1
+                k = coarse_of[m]
+                if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
+                    _tent(paths, row, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2], centre, offset,
+                          speed, ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond,
+                          4.0 * weight, ch)
+            if not listed:
+                ray_count[row] = n_rays
+        group_tents[grp] = tents
+    return group_tents.sum()
 
 
-@njit(cache=True)
-def vertex_paths(vertices, spots, targets, conn_laser, conn_target, start, stop, out):
+@njit(cache=True, parallel=True)
+def vertex_paths(vertices, spots, targets, conn_laser, conn_target, conn_same, start, stop, out):
     """out[b − start, v] = |v − x_l| + |v − y| (metres) for the connections b of [start, stop) and every vertex v
-    (the numpy path's vertex distances, :meth:`datagen.transport.quadrature.Quadrature._primary`)."""
-    for b in range(start, stop):
+    (the numpy path's vertex distances, :meth:`datagen.transport.quadrature.Quadrature._primary`; 2·|v − x_l| where
+    ``conn_same[b]``: the target is the laser point)."""
+    for b in prange(start, stop):
         l, t = conn_laser[b], conn_target[b]
-        for v in range(vertices.shape[0]):
-            out[b - start, v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
+        if conn_same[b]:
+            for v in range(vertices.shape[0]):
+                out[b - start, v] = 2.0 * _dist(vertices, v, spots, l)
+        else:
+            for v in range(vertices.shape[0]):
+                out[b - start, v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
 
 
 def _flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ) -> tuple:
-    """The arguments of :func:`_pairs` after (listed, b0, b1, paths, ray_cell, ray_conn, visible)."""
+    """The arguments of :func:`_pairs` after (listed, b0, b1, paths, ray_cell, ray_count, visible, group_ptr,
+    group_conn)."""
     return (*geo, *pose[:10], *pose[10], *conn, *legs, *grid, bool(has_coarse), *coarse, *occ)
 
 
-def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_conn
-               ) -> tuple[int, int]:
+def channel_groups(conn_channel: np.ndarray, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+    """The connections [start, stop) in groups of one channel each: (group_ptr (G + 1,), group_conn (stop − start,))
+    int64, each group's connections ascending (a stable sort by channel)."""
+    ch = conn_channel[start:stop]
+    order = np.argsort(ch, kind="stable")
+    new = np.ones(len(order), dtype=bool)
+    new[1:] = ch[order][1:] != ch[order][:-1]
+    return (np.append(np.flatnonzero(new), len(order)).astype(np.int64), (order + start).astype(np.int64))
+
+
+def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count, groups
+               ) -> int:
     """Deposit every contributing pair of the connections ``block`` (start, stop) that needs no shadow ray and
-    list the others in ``ray_cell`` / ``ray_conn`` (capacity cells × connections). ``paths``: the block's
-    :func:`vertex_paths`; the groups: :data:`GEO`, :data:`POSE` (the BRDF arrays as one tuple), :data:`CONN`,
-    :data:`LEGS`, :data:`GRID` (``grid``, ``coarse``), :data:`OCC`. Returns (rays listed, tents deposited)."""
+    list the others: connection b's cells in ``ray_cell[(b − start)·M:]`` (capacity cells × connections),
+    ``ray_count[b − start]`` of them. ``paths``: the block's :func:`vertex_paths`; ``groups``:
+    :func:`channel_groups`; the groups of arguments: :data:`GEO`, :data:`POSE` (the BRDF arrays as one tuple),
+    :data:`CONN`, :data:`LEGS`, :data:`GRID` (``grid``, ``coarse``), :data:`OCC`. Returns the tents deposited."""
     none = np.zeros(1, dtype=np.uint8)
-    return _pairs(False, int(block[0]), int(block[1]), paths, ray_cell, ray_conn, none,
+    return _pairs(False, int(block[0]), int(block[1]), paths, ray_cell, ray_count, none, *groups,
                   *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))
 
 
-def deposit_pairs(block, paths, ray_cell, ray_conn, visible, geo, pose, conn, legs, grid, coarse, has_coarse, occ
-                  ) -> int:
-    """Deposit the listed pairs (of the connections ``block``) whose shadow ray found the laser point visible
-    (``visible`` uint8). Returns the tents deposited."""
-    return _pairs(True, int(block[0]), int(block[1]), paths, ray_cell, ray_conn, visible,
-                  *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))[1]
+def deposit_pairs(block, paths, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid, coarse,
+                  has_coarse, occ) -> int:
+    """Deposit the listed pairs (of the connections ``block``, slots as :func:`candidates` left them) whose shadow
+    ray found the laser point visible (``visible`` uint8 per slot). Returns the tents deposited."""
+    return _pairs(True, int(block[0]), int(block[1]), paths, ray_cell, ray_count, visible, *groups,
+                  *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))
+
+
+@njit(cache=True, parallel=True)
+def face_candidates(tri, plane, faces, front, front_plane, hull_n, hull_o, hull_valid, hull_v, tol, cap, out):
+    """Per hidden face i (``faces[i]``: its row of ``tri``, or −1) the triangles of ``tri`` (k, 3, 3) (planes
+    ``plane`` (k, 4), :func:`occluder_planes`) that may meet the convex hull of that face and the laser points
+    (outward planes ``hull_n`` (F, P, 3), ``hull_o`` (F, P), ``hull_valid`` (F, P), vertices ``hull_v`` (F, V, 3)):
+    the separating planes of :func:`datagen.scene.separation.may_meet` (the hull's face planes and the triangle's own
+    plane; touching within ``tol`` counts as apart; a face never meets itself) and, where ``front[i]`` (only the side
+    its normal points to is lit: a closed outward surface), the face's own plane ``front_plane[i]`` (unit normal,
+    offset n·p₀; (F, 4)): a segment from the face to a laser point in front of it lies in front of that plane, so a
+    triangle wholly behind it (within ``tol``) cannot meet it. Writes up to ``cap`` of them into ``out[i]`` (F, cap)
+    and returns their counts (F,) int64 (``cap`` + 1: more than ``cap``, the rest not listed)."""
+    n_faces, k = len(faces), tri.shape[0]
+    count = np.zeros(n_faces, dtype=np.int64)
+    for i in prange(n_faces):
+        c = 0
+        for j in range(k):
+            if j == faces[i]:
+                continue
+            apart = False
+            if front[i]:
+                apart = True
+                for a in range(3):
+                    if (front_plane[i, 0] * tri[j, a, 0] + front_plane[i, 1] * tri[j, a, 1]
+                            + front_plane[i, 2] * tri[j, a, 2] - front_plane[i, 3]) > tol:
+                        apart = False
+                        break
+            for p in range(hull_n.shape[1]):
+                if apart:
+                    break
+                if not hull_valid[i, p]:
+                    continue
+                apart = True
+                for a in range(3):
+                    if (hull_n[i, p, 0] * tri[j, a, 0] + hull_n[i, p, 1] * tri[j, a, 1]
+                            + hull_n[i, p, 2] * tri[j, a, 2] - hull_o[i, p]) < -tol:
+                        apart = False
+                        break
+            if not apart and (plane[j, 0] != 0.0 or plane[j, 1] != 0.0 or plane[j, 2] != 0.0):
+                above = False
+                below = False
+                for v in range(hull_v.shape[1]):
+                    d = (plane[j, 0] * hull_v[i, v, 0] + plane[j, 1] * hull_v[i, v, 1]
+                         + plane[j, 2] * hull_v[i, v, 2] - plane[j, 3])
+                    above = above or d > tol
+                    below = below or d < -tol
+                apart = not (above and below)
+            if not apart:
+                if c < cap:
+                    out[i, c] = j
+                c += 1
+                if c > cap:
+                    break
+        count[i] = c
+    return count

@@ -13,17 +13,32 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numba
 import numpy as np
 
 from ..scene import RayCaster, hull_planes, may_meet, outward_planes
 from ..units import SPEED_OF_LIGHT
-from .quad_kernel import candidates, deposit_pairs, occluder_planes, vertex_paths
+from .quad_kernel import (candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes,
+                          vertex_paths)
 
 __all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "leg_occluders", "run_compiled"]
 
 PAIR_TEST_MAX_PAIRS = 1 << 22
 """The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
 shadow rays are kept."""
+
+MAX_CANDIDATES = 128
+"""A hidden face of a big mesh (no numpy occluder test) with more triangles that may block its laser legs casts a
+shadow ray for every lit pair instead of the kernel's segment tests (the torus of docs/scans.md: at most 128 with a
+2 m × 2 m scan, 70 % of the faces none)."""
+
+PARALLEL_MIN_PAIRS = 1 << 26
+"""Runs over fewer (sub-triangle, target) pairs (confocal.yaml samples: 27–33 M, wall.yaml: 6–11 M) use one thread:
+a dataset build already keeps every core busy with one worker process each, and numba's OpenMP threads cost ≈ 5 %
+more CPU time there (measured on confocal.yaml samples); longer runs (the 128 × 128 torus of docs/scans.md: 164 M)
+use all of numba's. Either way the kernels are numba's parallel ones: a process that ran one has GNU OpenMP
+started, and a child it forks must not run them (numba stops such a child); the build's workers come from a fork
+server, which runs none."""
 
 PAIR_BLOCK = 1 << 22
 """(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
@@ -63,20 +78,28 @@ def leg_occluders(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray, tol:
                                hull_v, tol, exclude=(occluders, faces), first_only=first_only)
 
 
-def _occluder_lists(q) -> tuple:
+def _occluder_lists(q, front: np.ndarray) -> tuple:
     """The kernel's :data:`~datagen.transport.quad_kernel.OCC` group for quadrature ``q``: per hidden face the
-    triangles that may block its laser legs (:func:`leg_occluders`), in runs of one object each (CSR
-    ``run_ptr`` over runs; run r holds ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``),
-    their planes and edge planes, the margin, and whether every lit pair casts a ray instead."""
+    triangles that may block its laser legs, in runs of one object each (CSR ``run_ptr`` over runs; run r holds
+    ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``), their planes and edge planes, the
+    margin, and per hidden face whether every lit pair casts a ray instead. The triangles come from
+    :func:`leg_occluders`, or, when that has too many pairs to test (a big mesh), from the compiled
+    :func:`~datagen.transport.quad_kernel.face_candidates`, which also separates by a face's own plane where only
+    its front is lit (``front`` (F,) bool per hidden face: :func:`closed_outward`); a face with more than
+    ``MAX_CANDIDATES`` of them casts rays."""
     caster, faces = q.caster, q.area.hidden_faces
     shadow = bool(q.settings.shadow_spot)
     found = leg_occluders(caster, faces, q.laser_hull, q.area.tol) if shadow else None
-    every_ray = shadow and (found is None or not q.segment_tests)
-    if found is None:                       # no test (too many pairs): every lit pair of every face casts a ray
-        occluders, meet = np.zeros(0, dtype=np.int64), np.zeros((0, len(faces)), dtype=bool)
-    else:
+    face_ray = np.full(len(faces), shadow and not q.segment_tests, dtype=np.uint8)
+    if found is not None:
         occluders, meet = found
-    face_of, occ_of = np.nonzero(meet.T)                              # face-major
+        face_of, occ_of = np.nonzero(meet.T)                          # face-major
+    elif shadow and q.segment_tests:        # too many pairs for numpy: the compiled test per face
+        occluders, face_of, occ_of, many = _face_candidates(q, front)
+        face_ray[many] = 1
+    else:                                   # no test: every lit pair of every face casts a ray
+        occluders, face_of, occ_of = (np.zeros(0, dtype=np.int64),) * 3
+        face_ray[:] = shadow
     obj = caster.face_object[occluders[occ_of]]
     order = np.lexsort((occ_of, obj, face_of))                        # by face, then object
     face_of, occ_of, obj = face_of[order], occ_of[order], obj[order]
@@ -94,7 +117,33 @@ def _occluder_lists(q) -> tuple:
     plane, edges = occluder_planes(tri) if len(tri) else (np.zeros((1, 4)), np.zeros((1, 3, 4)))
     margin = MARGIN_OFFSETS * caster.offset
     return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), spheres, occ_of.astype(np.int64),
-            plane, edges, float(margin), bool(every_ray))
+            plane, edges, float(margin), face_ray)
+
+
+def _face_candidates(q, front: np.ndarray) -> tuple:
+    """(occluders (k,) face ids, face_of (n,), occ_of (n,) pairs of hidden face and index into occluders,
+    face-major, and (F,) bool: hidden faces with more than ``MAX_CANDIDATES``) by
+    :func:`~datagen.transport.quad_kernel.face_candidates` against the hull of each face and the laser points."""
+    caster, faces = q.caster, q.area.hidden_faces
+    occluders = np.flatnonzero(caster.face_area > 0)
+    tri = caster.vertices[caster.faces[occluders]]
+    t = caster.vertices[caster.faces[faces]]
+    apexes = np.unique(np.round(q.laser_hull, 12), axis=0)
+    hull_v = np.concatenate([np.broadcast_to(apexes, (len(t),) + apexes.shape), t], axis=1)
+    n, o, valid = hull_planes(hull_v)
+    normal = caster.face_normals[faces]
+    front_plane = np.concatenate([normal, np.einsum("ij,ij->i", normal, t[:, 0])[:, None]], axis=1)
+    own = np.searchsorted(occluders, faces)                      # the face itself among the occluders (or none)
+    own = np.where((own < len(occluders)) & (occluders[np.minimum(own, len(occluders) - 1)] == faces), own, -1)
+    plane, _ = occluder_planes(tri)
+    out = np.empty((len(faces), MAX_CANDIDATES), dtype=np.int64)
+    count = face_candidates(tri, plane, own, front.astype(np.uint8), front_plane, n, o, valid, hull_v,
+                            float(q.area.tol), MAX_CANDIDATES, out)
+    many = count > MAX_CANDIDATES
+    listed = np.where(many, 0, count)
+    face_of = np.repeat(np.arange(len(faces)), listed)
+    occ_of = out[np.arange(MAX_CANDIDATES)[None, :] < listed[:, None]]
+    return occluders, face_of, occ_of, many
 
 
 def closed_outward(caster: RayCaster, objects: np.ndarray, spots: np.ndarray) -> np.ndarray:
@@ -125,7 +174,19 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
     """The primary of :class:`~datagen.transport.quadrature.Quadrature` ``q`` into the fine grid ``grid`` (and the
     coarse rule of its error estimate into ``coarse``, or None), both :class:`datagen.timing.tent_kernel.TentGrid`
     from :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` (module doc). Photons per pulse; updates ``q.stats``
-    (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block."""
+    (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block. Runs over at least
+    ``PARALLEL_MIN_PAIRS`` (sub-triangle, target) pairs use numba's threads (so does the rule at h/2 of a plain
+    split's estimate, :func:`datagen.transport.quad_split.refined`, with the same targets and 4× the sub-triangles),
+    shorter ones one thread; the result is the same bit for bit."""
+    threads = numba.get_num_threads()
+    numba.set_num_threads(threads if q.n_cells * len(q.targets) >= PARALLEL_MIN_PAIRS else 1)
+    try:
+        _run_compiled(q, grid, coarse, progress)
+    finally:
+        numba.set_num_threads(threads)
+
+
+def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:
     c, legs_ = q.capture, q.physics
     M = q.n_cells
     y = q.targets
@@ -146,36 +207,46 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
             f64(mat.specular[q.cell_object]), f64(mat.exponent[q.cell_object]))
     geo = (f64(q.vertices), i64(q.cells), f64(q.cell_area), comp_base, i64(q.coarse_of),
            i64(q.coarse_cells.reshape(-1, 3)))
-    objects = np.unique(q.cell_object)
-    closed = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, q.cell_object)].astype(np.uint8)
+    face_object = q.caster.face_object[q.area.hidden_faces]
+    objects = np.unique(face_object)
+    front = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, face_object)]    # per hidden face
+    closed = front[q.cell_hidden].astype(np.uint8)
     pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), closed, f64(c.spot_normals), f64(spot_f),
             float(c.photons), f64(c.fov_normal), f64(collect * q.target_area), float(q.area.tol), brdf)
     same = (c.spots[q.conn_laser] == y[q.conn_target]).all(axis=1)         # the target is the laser point
     conn = (i64(q.conn_laser), i64(q.conn_target), i64(q.conn_channel), same.astype(np.uint8))
     legs = (f64(c.spots), f64(y), f64(c.emitter_legs), f64(laser_off), f64(d_y), f64(sensor_off),
             float(q.settings.attenuation), float(SPEED_OF_LIGHT), int(q.coarse_stride))
-    occ = _occluder_lists(q)
+    cached = getattr(q, "occluder_cache", None)         # the same faces and laser points: kept for the estimate's
+    if cached is None or cached[0] != q.segment_tests:     # sub-scan (quad_split.refined) and later runs
+        q.occluder_cache = cached = (q.segment_tests, _occluder_lists(q, front))
+    occ = cached[1]
     grid = tuple(grid)
     has_coarse = coarse is not None
     coarse = tuple(coarse) if has_coarse else grid
     n_conn = len(q.conn_laser)
     per_block = max(1, PAIR_BLOCK // max(M, 1))
-    ray_cell = np.empty(max(1, M * min(per_block, n_conn)), dtype=np.int64)
-    ray_conn = np.empty_like(ray_cell)
+    ray_cell = np.empty(max(1, M * min(per_block, n_conn)), dtype=np.int64)      # M slots per connection
+    ray_count = np.zeros(min(per_block, n_conn), dtype=np.int64)
     paths = np.empty((min(per_block, n_conn), len(q.vertices)))
     for start in range(0, n_conn, per_block):
         block = (start, min(n_conn, start + per_block))
-        vertex_paths(geo[0], legs[0], legs[1], conn[0], conn[1], block[0], block[1], paths)
-        n_rays, tents = candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell,
-                                   ray_conn)
+        groups = channel_groups(q.conn_channel, *block)
+        vertex_paths(geo[0], legs[0], legs[1], conn[0], conn[1], conn[3], block[0], block[1], paths)
+        tents = candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count,
+                           groups)
+        counts = ray_count[:block[1] - block[0]]
+        n_rays = int(counts.sum())
         if n_rays:
-            mi, bi = ray_cell[:n_rays], ray_conn[:n_rays]
+            slot = np.flatnonzero(np.arange(M)[None, :] < counts[:, None])            # listed slots, in order
+            mi, bi = ray_cell[slot], block[0] + slot // M
             li = q.conn_laser[bi]
             x, n = q.centroids[mi], q.cell_normal[mi]
             lit = np.where((np.einsum("ij,ij->i", n, c.spots[li] - x) < 0)[:, None], -n, n)
-            visible = np.ascontiguousarray(q.caster.visible(x, lit, c.spots[li], c.spot_normals[li]), dtype=np.uint8)
-            tents += deposit_pairs(block, paths, mi, bi, visible, geo, pose, conn, legs, grid, coarse, has_coarse,
-                                   occ)
+            visible = np.zeros(len(ray_cell), dtype=np.uint8)
+            visible[slot] = q.caster.visible(x, lit, c.spots[li], c.spot_normals[li])
+            tents += deposit_pairs(block, paths, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid,
+                                   coarse, has_coarse, occ)
             q.stats.shadow_rays += n_rays
         q.stats.tents += tents
         q.stats.pair_rows += M * (block[1] - block[0])

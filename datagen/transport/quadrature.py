@@ -13,7 +13,8 @@ with E_l(x) = Φ f_l cosθ_l cosθ_x,in / |x−x_l|² V(x_l, x) the laser irradi
 functions; only the way x is visited differs from the samplers.
 
 **The rule.** Every hidden face (:meth:`AreaSampler._hidden_faces`: the faces that can carry a primary path) is
-split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.sampling.subdivide_triangles`).
+split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.sampling.subdivide_triangles`;
+k even or not, with the error estimate that goes with each: :mod:`.quad_split`).
 For each (sub-triangle T, laser point, target) the weight is evaluated at the centroid and multiplied by the area
 of T (the midpoint rule), and the path length at the three *vertices* of T and at its centroid. On T the path
 length is replaced by its linear interpolant, under which the area measure of T pushes forward to a tent density
@@ -51,8 +52,10 @@ evaluated per (cell, laser point), the target leg per (cell, target), and path l
 laser point) and (vertex, target); when the targets are the laser points themselves (point-radiance confocal
 scans) the vertex distances are shared. Pairs are processed in blocks of at most ``batch`` (cell, connection)
 rows, so memory stays bounded. The common case (Lambertian or Phong hidden surfaces, a fine-grid accumulator) runs
-compiled, one pass per (sub-triangle, connection) pair with exact segment tests instead of most shadow rays
-(:mod:`.quad_primary`, :mod:`.quad_kernel`); the numpy blocks are its reference.
+compiled, one pass per (sub-triangle, connection) pair with exact segment tests instead of most shadow rays (for
+a big mesh too: per-face occluder candidates from a compiled hull test), channels in parallel on numba's threads for
+long runs, bit-identical for any thread count (:mod:`.quad_primary`, :mod:`.quad_kernel`); the numpy blocks are its
+reference.
 
 **Secondary and first bounce.** When the plan asks for the secondary (paths with two hidden vertices), the
 quadrature does not drop it: the area sampler (:mod:`datagen.transport.area`, ``secondary_only``) adds its unbiased
@@ -70,7 +73,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..sampling import coarse_cells, subdivide_with_vertices
+from ..sampling import subdivide_with_vertices
 from ..scene import RayCaster, Scene, SceneError
 from ..scene.materials import LAMBERTIAN, PHONG
 from ..units import SPEED_OF_LIGHT
@@ -79,6 +82,7 @@ from .area import AreaSampler, AreaSettings
 from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
 from .quad_primary import PAIR_TEST_MAX_PAIRS, leg_occluders, run_compiled
+from .quad_split import apply_split, choose_split, refined
 
 __all__ = ["QUADRATURE_EDGE", "Quadrature", "QuadratureSettings", "QuadratureStats", "subdivide_with_vertices"]
 
@@ -105,6 +109,7 @@ class QuadratureSettings(PhysicsSettings):
         shadow_spot, shadow_fov: shadow rays on the laser → hidden and hidden → FoV legs: None decides by the
             exact occluder test (module doc), True / False forces them.
         batch: (sub-triangle, connection) rows per block.
+        split: "even", "plain" or "auto" (:mod:`.quad_split`: the sub-triangles and the error estimate's rule).
 
     Raises:
         SceneError: a field out of range (the message names the field and the value).
@@ -117,6 +122,7 @@ class QuadratureSettings(PhysicsSettings):
     shadow_spot: bool | None = None
     shadow_fov: bool | None = None
     batch: int = MAX_PAIR_ROWS
+    split: Literal["auto", "even", "plain"] = "auto"
 
     def __post_init__(self):
         def bad(name, value, why):
@@ -133,6 +139,8 @@ class QuadratureSettings(PhysicsSettings):
             integer("fov_cells", self.fov_cells, 1)
         integer("secondary_samples", self.secondary_samples, 1)
         integer("batch", self.batch, 1)
+        if self.split not in ("auto", "even", "plain"):
+            bad("split", self.split, "must be 'auto', 'even' or 'plain'")
         if self.secondary not in ("none", "full"):
             bad("secondary", self.secondary, "must be 'none' or 'full'")
         self.check_physics("quadrature")
@@ -220,11 +228,14 @@ class Quadrature:
         component_names: names of the sink components (primary components, "secondary"[, "first_bounce"]).
         n_cells: M, sub-triangles; targets: (T, 3) FoV targets; total_rows: (cell, connection) rows of a run.
         stats: :class:`QuadratureStats`.
-        coarse: after a run on a point-sensor capture, the primary at twice the edge (summed over components,
-        channel rows; only the channels ``coarse_channels``, every ``coarse_stride``-th, chosen by the run: at
-        most about ``COARSE_CHANNELS`` compiled, ``COARSE_CHANNELS_NUMPY`` in numpy), from the same evaluations:
-        every sub-triangle split is even, so 4 fine sub-triangles make a coarse one whose centroid is the middle one's (:func:`datagen.sampling.coarse_cells`);
-        ‖P(h) − P(2h)‖/3 over those channels is the error estimate of the result.
+        coarse: after a run on a point-sensor capture (or FoV cells that stay the same at 2h), the rule the error
+        estimate compares with (summed over components, channel rows; only the channels ``coarse_channels``), as
+        :mod:`.quad_split` says: with the even split (``refine_lasers`` None, ``coarse_ratio`` 2) the primary at twice
+        the edge from the same evaluations (4 fine sub-triangles make a coarse one whose centroid is the middle
+        one's, :func:`datagen.sampling.coarse_cells`; every ``coarse_stride``-th channel: at most about
+        ``COARSE_CHANNELS`` compiled, ``COARSE_CHANNELS_NUMPY`` in numpy), ‖P(h) − P(2h)‖/3 over those channels
+        being the estimate; with the plain split (``coarse_ratio`` 1/2) the primary at half the edge on the
+        laser points ``refine_lasers`` (a sub-scan), (4/3)·‖P(h) − P(h/2)‖ being the estimate.
 
     Raises:
         SceneError: invalid settings; the capture errors of :func:`datagen.scene.resolve_capture`; no face
@@ -273,18 +284,10 @@ class Quadrature:
             self.area.configure(replace(self.area.settings, shadow_spot=decided["shadow_spot"]))
         # -- hidden sub-triangles ------------------------------------------------------------------------------
         tri = self.caster.vertices[self.caster.faces[faces]]
-        self.vertices, self.cells, self.cell_area, parent = subdivide_with_vertices(tri, s.edge, even=True)
-        coarse, central = coarse_cells(tri, s.edge)
-        self.coarse_of = np.full(len(self.cells), -1, dtype=np.int64)    # fine cell → coarse cell it is the middle of
-        self.coarse_of[central] = np.arange(len(central))
-        self.coarse_cells = coarse
+        self.refine_lasers = choose_split(tri, s.edge, c, s.split)        # None: the even split (.quad_split)
+        apply_split(self, tri, s.edge, even=self.refine_lasers is None)
+        self.coarse_ratio = 2.0 if self.refine_lasers is None else 0.5
         self.coarse: Sink | None = None
-        self.cell_hidden = parent                                       # index into area.hidden_faces
-        self.cell_face = faces[parent]
-        self.centroids = self.vertices[self.cells].mean(axis=1)
-        self.cell_normal = self.caster.face_normals[self.cell_face]
-        self.cell_object = self.caster.face_object[self.cell_face]
-        self.n_cells = len(self.cells)
         # -- targets: sensor points (point radiance) or FoV cells of each pixel region (aperture) --------------
         nx, ny = c.fov_pixels
         if c.convention == "point_radiance":
@@ -486,10 +489,19 @@ class Quadrature:
         n_channels = self.capture.n_channels
         self.coarse_stride = max(1, -(-n_channels // (COARSE_CHANNELS if compiled else COARSE_CHANNELS_NUMPY)))
         self.coarse_channels = np.arange(0, n_channels, self.coarse_stride)
+        coarse = self.coarse if self.refine_lasers is None else None
         if compiled:
-            run_compiled(self, sink.tent_grid(), None if self.coarse is None else self.coarse.tent_grid(), progress)
+            run_compiled(self, sink.tent_grid(), None if coarse is None else coarse.tent_grid(), progress)
         else:
-            self._primary_numpy(sink, progress)
+            self._primary_numpy(sink, coarse, progress)
+        if self.refine_lasers is not None and self.coarse is not None:     # the plain split's estimate: h/2
+            sub = refined(self, QuadratureStats())                            # on a sub-scan (.quad_split)
+            self.coarse_channels = np.unique(sub.conn_channel)
+            if compiled:
+                run_compiled(sub, self.coarse.tent_grid(), None, None)
+            else:
+                sub._primary_numpy(self.coarse, None, None)
+            self.refine_stats = sub.stats
         if self.settings.first_bounce:
             self.physics.first_bounce(sink, self.n_primary + 1)
 
@@ -501,8 +513,9 @@ class Quadrature:
                     and np.isin(m.kind[self.cell_object], (LAMBERTIAN, PHONG)).all()
                     and not self.settings.shadow_fov and not self.settings.brdf_angles)
 
-    def _primary_numpy(self, sink: Sink, progress: Callable[[int], None] | None) -> None:
-        """The primary tents into ``sink``, in numpy blocks of (cell, connection) rows."""
+    def _primary_numpy(self, sink: Sink, coarse: Sink | None, progress: Callable[[int], None] | None) -> None:
+        """The primary tents into ``sink`` (and the rule at 2h into ``coarse``), in numpy blocks of (cell,
+        connection) rows."""
         s, c = self.settings, self.capture
         M = self.n_cells
         per_block = max(1, s.batch // max(M, 1))
@@ -559,12 +572,12 @@ class Quadrature:
                 else:
                     sink.add(times.mean(axis=1), weight, comp)
                 self.stats.tents += len(mi)
-                if self.coarse is not None:      # the rule at 2h from the same evaluations (error estimate)
+                if coarse is not None:           # the rule at 2h from the same evaluations (error estimate)
                     sel = np.flatnonzero((self.coarse_of[mi] >= 0) & (channels[bi] % self.coarse_stride == 0))
                     cv = self.coarse_cells[self.coarse_of[mi[sel]]]
                     lb, tb = inv_l[bi[sel]][:, None], inv_t[bi[sel]][:, None]
                     cpath = lg["rv"][cv, lb] + tg["rv"][cv, tb]
                     cpath = cpath + (0.75 * (centre[sel] - cpath.mean(axis=1)) + offset[sel])[:, None]
-                    self.coarse.add_tents(cpath / SPEED_OF_LIGHT, 4.0 * weight[sel], channels[bi[sel]])
+                    coarse.add_tents(cpath / SPEED_OF_LIGHT, 4.0 * weight[sel], channels[bi[sel]])
             if progress is not None:
                 progress(M * len(lasers))
