@@ -81,6 +81,10 @@ class SimulationConfig(BaseModel):
             flight (docs/physics.md §1; default False / True as in the paper's code).
         detector: SPAD parameters (datagen.spad.DetectorConfig); its pde scales the envelope.
         batch: lookins per batch (memory bound).
+        split_components: one envelope per primary component (the room, each hidden object: ``Result.components``);
+            False: the primary summed into one component, "primary" (:meth:`datagen.scene.Scene.with_summed_primary`;
+            "secondary" and "first_bounce" stay apart), which spares a fine histogram and an IRF convolution per
+            object (a dataset that stores no components sets it False; the envelope is the same sum).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -110,6 +114,7 @@ class SimulationConfig(BaseModel):
     count_sensor_leg: bool = True
     detector: dict = Field(default_factory=dict)
     batch: int = Field(32, ge=1)
+    split_components: bool = True
 
     @field_validator("effects")
     @classmethod
