@@ -102,7 +102,7 @@ def dataset_build(name: str, count: int, workers: int = 2) -> tuple[float, float
 def scan_error(name: str, index: int) -> tuple[float, float]:
     """Relative L2 of train sample ``index``'s envelope (the whole scan, at the edge its tolerance loop ended at: the
     config's edge, or finer when the estimate asked for it) against the same capture at a quarter of that edge
-    (error ∝ h², so 16× closer to the integral) with the same FoV cells per pixel (one for the confocal scans:
+    and of the config's grading ratio (error ∝ h², so 16× closer to the integral) with the same FoV cells per pixel (one for the confocal scans:
     each target is its laser point), and that edge. The whole scan: the error sits in the scan rows nearest the
     floor (on train 30, three quarters of its square in the lowest row), which an 8 × 8 sub-scan of the centre misses."""
     from datagen.dataset import sample_rngs, sample_setup
@@ -115,7 +115,10 @@ def scan_error(name: str, index: int) -> tuple[float, float]:
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
     h = float(result.attrs["config"]["quadrature_edge"])
     fov = int(result.attrs["quadrature"]["fov_cells_per_pixel_side"])
-    ref = datagen.simulate(scene, sim.model_copy(update={"quadrature_edge": h / 4, "quadrature_fov": fov})).envelope
+    grading = sim.quadrature_grading            # a graded config's reference: every piece 4× smaller too
+    ref = datagen.simulate(scene, sim.model_copy(update={
+        "quadrature_edge": h / 4, "quadrature_fov": fov,
+        "quadrature_grading": None if grading is None else grading / 4})).envelope
     return float(np.linalg.norm(result.envelope - ref) / np.linalg.norm(ref)), h
 
 
