@@ -165,6 +165,7 @@ def test_detector_preset_path_loads_with_the_dataset_time_axis():
     ({"tolerance": "150%"}, "tolerance"),
     ({"tolerance": "one percent%"}, "tolerance: .*must look like 1% or 0.01"),
     ({"time_cap": "-2s"}, "time_cap"),
+    ({"simulation": {"quadrature_grading": -0.5}}, "simulation.quadrature_grading"),
     ({"store": {"components": True}, "simulation": {"split_components": False}},
      "store.components: true needs the per-object components"),
 ])

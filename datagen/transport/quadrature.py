@@ -136,7 +136,8 @@ class QuadratureSettings(PhysicsSettings):
             bad("edge", self.edge, "must be a finite length > 0 (metres)")
         if self.fov_cells is not None:
             integer("fov_cells", self.fov_cells, 1)
-        if self.grading is not None and not (isinstance(self.grading, (int, float)) and 0 < self.grading < np.inf):
+        if self.grading is not None and (isinstance(self.grading, bool) or not isinstance(self.grading, (int, float))
+                                         or not 0 < self.grading < np.inf):
             bad("grading", self.grading, "must be None or a finite ratio > 0")
         integer("secondary_samples", self.secondary_samples, 1)
         integer("batch", self.batch, 1)
