@@ -59,8 +59,8 @@ def test_bad_tolerance_is_refused(reference):
 
 @pytest.mark.parametrize("tol", [0.02, 0.005])
 def test_quadrature_edge_is_refined_until_the_tolerance_holds(reference, tol):
-    """The quadrature's estimate ‖E(h') − E(h)‖/((h'/h)² − 1) (error ∝ h²; the first level against 2h) drives the
-    edge down until it meets the tolerance; the actual error against the independent reference is within it and
+    """The quadrature's estimate ‖E(h') − E(h)‖/((h'/h)² − 1) (error ∝ h²; the first level against 2h: the FoV cells
+    follow the edge, so a level has no estimate of its own) drives the edge down until it meets the tolerance; the actual error against the independent reference is within it and
     within 2× the estimate. Measured: tol 2 % → h 0.16, 0.08 m, estimate 1.6 %, actual 0.94 %; tol 0.5 % → h 0.16,
     0.042 m, estimate 0.37 %, actual 0.26 %."""
     scene, ref = reference
@@ -75,6 +75,27 @@ def test_quadrature_edge_is_refined_until_the_tolerance_holds(reference, tol):
     assert describe_setting(result.attrs["config"]) == f"quadrature edge {edges[-1]:.4g} m"
     actual = relative_l2(result.envelope, ref)
     assert actual <= tol and actual <= 2.0 * info["estimate"] + 2e-4   # the reference's own error ~1e-4
+
+
+def test_quadrature_with_its_own_estimate_takes_gentle_steps_until_one_stalls(reference):
+    """With fixed FoV cells each level has its own estimate ‖E(h) − E(2h)‖/3 (the coarse rule from the same
+    evaluations), so the edge shrinks by sqrt(tol/ε̂)·0.9 (up to MAX_SHRINK) instead of halving; a step that leaves
+    the estimate within STALLED of the previous one (the patch's even split unchanged) is followed by h/2.
+    Measured (tol 0.6 %): h 0.16, 0.1245, 0.0623 m; estimates 0.80, 0.75, 0.31 %; actual 0.50 %."""
+    from datagen.simulation.tolerance import MAX_SHRINK, STALLED
+
+    scene, ref = reference
+    config = SimulationConfig(time=AXIS, irf=IRF, secondary="none", detector=DETECTOR, estimator="quadrature",
+                              quadrature_edge=0.16, quadrature_fov=16)
+    result = simulate_to_tolerance(scene, config, 0.006)
+    rounds = result.attrs["tolerance"]["rounds"]
+    edges = [r["quadrature_edge"] for r in rounds]
+    estimates = [r["estimate"] for r in rounds]
+    assert len(rounds) == 3 and result.attrs["tolerance"]["met"]
+    assert 0.5 < edges[1] / edges[0] <= MAX_SHRINK
+    assert estimates[1] > STALLED * estimates[0] and edges[2] / edges[1] == pytest.approx(0.5)
+    actual = relative_l2(result.envelope, ref)
+    assert actual <= 0.006 and actual <= 2.0 * estimates[-1]
 
 
 def test_area_replicas_are_added_until_the_tolerance_holds(reference):

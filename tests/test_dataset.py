@@ -74,6 +74,45 @@ def test_sample_fields_shapes_dtypes_and_components_sum(smoke):
     assert set(s.seconds) == {"room", "simulate", "labels", "total"}
 
 
+def test_a_dataset_without_components_simulates_the_primary_summed(smoke):
+    """store.components false → simulation.split_components false: one "primary" component (secondary and first
+    bounce apart), the same random streams, so the same envelope (float32 storage) and error estimate as the
+    sample simulated with per-object components."""
+    data = smoke_data()
+    data["store"]["components"] = False
+    summed_config = load_dataset_config(data, base_dir=SMOKE.parent)
+    assert summed_config.simulation_overrides()["split_components"] is False
+    assert smoke.simulation_overrides()["split_components"] is True
+    summed, split = make_sample(summed_config, "val", 0).arrays, make_sample(smoke, "val", 0).arrays
+    assert "components" not in summed and "components" in split
+    env = split["envelope"].astype(np.float64)
+    np.testing.assert_allclose(summed["envelope"], env, rtol=1e-5, atol=1e-6 * env.max())
+    assert summed["envelope_error"] == pytest.approx(float(split["envelope_error"]), rel=1e-5)
+
+
+def test_split_components_false_sums_the_primary_of_every_estimator():
+    """The quadrature and the area sampler on a scene of three primary components (room, patch, occluder): with
+    ``split_components`` False the result holds "primary" (and the secondary) and the envelope equals the sum of
+    the per-object run to round-off."""
+    from test_quadrature import small_scene
+
+    from datagen.simulation import resolve_config, simulate
+
+    scene = small_scene(occluder=True)
+    for extra in ({"estimator": "quadrature", "secondary": "none"}, {"estimator": "area", "area_samples": 4096}):
+        base = {**extra, "time": {"t_start": 0.0, "bin_width": 50e-12, "n_bins": 400}, "irf": {"fwhm": 100e-12},
+                "quadrature_edge": 0.04, "detector": {"repetition_rate": 1e7, "exposure": 1e-3}}
+        split = simulate(scene, resolve_config(scene, base))
+        summed = simulate(scene, resolve_config(scene, {**base, "split_components": False}))
+        assert list(split.components)[:3] == ["room", "patch", "occluder"]
+        assert [n for n in summed.components if n not in ("secondary", "first_bounce")] == ["primary"]
+        assert split.envelope.max() > 0
+        np.testing.assert_allclose(summed.envelope, split.envelope, rtol=1e-10, atol=1e-12 * split.envelope.max())
+        primary = sum(v for k, v in split.components.items() if k not in ("secondary", "first_bounce"))
+        np.testing.assert_allclose(summed.components["primary"], primary, rtol=1e-10, atol=1e-12 * primary.max())
+        assert summed.attrs["error"]["rel_l2"] == pytest.approx(split.attrs["error"]["rel_l2"], rel=1e-8)
+
+
 def test_held_out_material_split_makes_every_box_phong(smoke):
     """test_phong overrides the box material mixture: every box there is Phong (kind index 2), while the
     train split's boxes are Lambertian (0)."""
@@ -126,6 +165,9 @@ def test_detector_preset_path_loads_with_the_dataset_time_axis():
     ({"tolerance": "150%"}, "tolerance"),
     ({"tolerance": "one percent%"}, "tolerance: .*must look like 1% or 0.01"),
     ({"time_cap": "-2s"}, "time_cap"),
+    ({"simulation": {"quadrature_grading": -0.5}}, "simulation.quadrature_grading"),
+    ({"store": {"components": True}, "simulation": {"split_components": False}},
+     "store.components: true needs the per-object components"),
 ])
 def test_bad_config_names_the_field(change, expected):
     data = smoke_data()

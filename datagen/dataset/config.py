@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..scene import SceneError, format_validation_error, read_yaml
 
@@ -194,6 +194,13 @@ class DatasetConfig(_Model):
             raise ValueError("the dataset's top-level seed keys every stream; remove simulation.seed")
         return value
 
+    @model_validator(mode="after")
+    def _components_split(self) -> "DatasetConfig":
+        if self.store.components and self.simulation.get("split_components") is False:
+            raise ValueError("store.components: true needs the per-object components; remove "
+                             "simulation.split_components: false")
+        return self
+
     # ---- derived -----------------------------------------------------------------------------------
     def to_json(self) -> dict:
         """The config as a JSON-able dict (what workers receive and the card records); an empty
@@ -215,8 +222,11 @@ class DatasetConfig(_Model):
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
     def simulation_overrides(self) -> dict:
-        """``simulation`` with the resolved ``detector`` merged in (input of resolve_config)."""
+        """``simulation`` with the resolved ``detector`` merged in (input of resolve_config), and
+        ``split_components`` from ``store.components`` unless the block sets it: a dataset that stores no
+        components simulates the primary as one (the envelope is the same sum; less memory and binning)."""
         out = copy.deepcopy(self.simulation)
+        out.setdefault("split_components", self.store.components)
         if self.detector is not None:
             out["detector"] = copy.deepcopy(self.detector)
         return out

@@ -13,6 +13,7 @@ functions of :mod:`datagen.scene.builders`.
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,6 +34,8 @@ class Scene:
         defaults: the YAML's ``simulation`` block (time axis, IRF, detector…), merged under CLI options.
         notes: what construction changed (duplicate faces removed, see
             :func:`datagen.scene.coincident.resolve_coincident_faces`) and objects of zero area.
+        summed_primary: one primary component, "primary", for every object (:meth:`component_names`) instead of
+            the room and each hidden object (set by :meth:`with_summed_primary`).
 
     Raises:
         SceneError: repeated object names (ignoring case), no objects, no FoV, or coincident faces with different materials
@@ -46,6 +49,7 @@ class Scene:
     source: str | None = None
     defaults: dict = field(default_factory=dict)
     capture: CaptureSpec | None = None
+    summed_primary: bool = False
     notes: list[str] = field(default_factory=list, init=False)
 
     def __post_init__(self):
@@ -96,13 +100,25 @@ class Scene:
         return [o.label for o in self.objects]
 
     def component_names(self) -> list[str]:
-        """Primary components: 'room' (walls/floor/ceiling/relay wall) then each other object by name."""
+        """Primary components: 'room' (walls/floor/ceiling/relay wall) then each other object by name; only
+        'primary' when :attr:`summed_primary`."""
+        if self.summed_primary:
+            return ["primary"]
         return ["room"] + [o.name for o in self.objects if o.label not in ROOM_LABELS]
 
     def object_component(self) -> np.ndarray:
         """(n_objects,) int64: the primary component index of each object (see :meth:`component_names`)."""
+        if self.summed_primary:
+            return np.zeros(len(self.objects), dtype=np.int64)
         names = self.component_names()
         return np.array([0 if o.label in ROOM_LABELS else names.index(o.name) for o in self.objects])
+
+    def with_summed_primary(self) -> "Scene":
+        """This scene with one primary component (:attr:`summed_primary`): a shallow copy sharing the objects,
+        capture and notes (construction's checks are not repeated)."""
+        out = copy.copy(self)
+        out.summed_primary = True
+        return out
 
     def bounds(self) -> np.ndarray:
         """(2, 3) axis-aligned bounding box of all objects and the laser/sensor positions."""

@@ -123,7 +123,8 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
         (``time.n_bins``, ``lookins``, ``pixels``, ``sensor.fov.pixels``, ``quadrature_edge``, …).
     """
     lasers, sensors, channels, grid_field = _capture_counts(scene)
-    n_components = len(scene.component_names()) + 2             # + secondary, first_bounce
+    primary = len(scene.component_names()) if config.split_components else 1
+    n_components = primary + 2                                  # + secondary, first_bounce
     _, over, left, right = EnvelopeAccumulator.fine_grid(config.time, config.irf)
     n_fine = config.time.n_bins * over + left + right
     n_bins = config.time.n_bins

@@ -63,7 +63,9 @@ class SimulationConfig(BaseModel):
             deterministic hidden-surface quadrature of datagen.transport.quadrature: sub-triangles of edge
             ``quadrature_edge`` metres with exact time binning; aperture captures integrate each pixel region
             with ``quadrature_fov`` × ``quadrature_fov`` FoV cells (None: cells no larger than the edge); a
-            planned secondary comes from the area sampler with ``area_samples`` hidden samples per laser point).
+            planned secondary comes from the area sampler with ``area_samples`` hidden samples per laser point);
+            ``quadrature_grading`` r (None: off) first cuts hidden triangles into 4 while longer than r × their
+            distance to the scanned points, so sub-triangles near the scan are finer (datagen.transport.quad_grading).
         sensor_sampling: "camera" (the paper: FoV points from the lookin cameras) or "connect" (next-event
             connections to ``connect_samples`` stratified points per sensor pixel; forced for point radiance).
         conv_refine: the exact secondary's profile grid is this many times finer than the envelope's grid.
@@ -81,6 +83,10 @@ class SimulationConfig(BaseModel):
             flight (docs/physics.md §1; default False / True as in the paper's code).
         detector: SPAD parameters (datagen.spad.DetectorConfig); its pde scales the envelope.
         batch: lookins per batch (memory bound).
+        split_components: one envelope per primary component (the room, each hidden object: ``Result.components``);
+            False: the primary summed into one component, "primary" (:meth:`datagen.scene.Scene.with_summed_primary`;
+            "secondary" and "first_bounce" stay apart), which spares a fine histogram and an IRF convolution per
+            object (a dataset that stores no components sets it False; the envelope is the same sum).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -95,6 +101,7 @@ class SimulationConfig(BaseModel):
     area_samples: int = Field(65536, ge=16)
     quadrature_edge: float = Field(QUADRATURE_EDGE, gt=0.0, allow_inf_nan=False)
     quadrature_fov: int | None = Field(None, ge=1)
+    quadrature_grading: float | None = Field(None, gt=0, allow_inf_nan=False)
     sensor_sampling: Literal["camera", "connect"] = "camera"
     connect_samples: tuple[int, int] = (4, 4)
     conv_refine: int = Field(1, ge=1, le=64)
@@ -110,6 +117,7 @@ class SimulationConfig(BaseModel):
     count_sensor_leg: bool = True
     detector: dict = Field(default_factory=dict)
     batch: int = Field(32, ge=1)
+    split_components: bool = True
 
     @field_validator("effects")
     @classmethod

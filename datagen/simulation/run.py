@@ -105,7 +105,8 @@ class Transported:
 def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator, Plan]:
     """Plan the effects and build the configured estimator (scene → planner → transport), ready to run.
 
-    The lookin settings from ``config`` are resolved first (they carry the physics switches and the capture);
+    Without ``config.split_components`` the estimator sees the scene with one primary component
+    (:meth:`~datagen.scene.Scene.with_summed_primary`). The lookin settings from ``config`` are resolved first (they carry the physics switches and the capture);
     the effect planner's decisions are applied to them; then the estimator registered under
     ``config.estimator`` is built from them (:func:`datagen.transport.estimator`).
 
@@ -113,6 +114,8 @@ def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator
         ResourceError: the estimated memory exceeds what is available (:mod:`datagen.simulation.budget`).
     """
     check_simulation_memory(scene, config)     # refuse what cannot fit before allocating anything
+    if not config.split_components:
+        scene = scene.with_summed_primary()
     caster = RayCaster(scene)
     lookin = Transport(scene, config.transport_settings(), caster)
     plan = plan_effects(scene, config, lookin.capture, caster)

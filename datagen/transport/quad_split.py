@@ -65,9 +65,10 @@ def choose_split(tri: np.ndarray, edge: float, capture, split: str = "auto") -> 
     return lasers if float(((k + k % 2) ** 2).sum()) > EVEN_EXTRA * float((k ** 2).sum()) else None
 
 
-def apply_split(q, tri: np.ndarray, edge: float, even: bool) -> None:
-    """Set the sub-triangles of quadrature ``q`` from the hidden faces ``tri`` (F, 3, 3) (``q.area.hidden_faces``)
-    split at ``edge``: ``vertices`` (V, 3), ``cells`` (M, 3), ``cell_area`` (M,) m², ``cell_hidden`` (M,) index
+def apply_split(q, tri: np.ndarray, edge: float, even: bool, piece_of: np.ndarray | None = None) -> None:
+    """Set the sub-triangles of quadrature ``q`` from the hidden faces ``tri`` (F, 3, 3) (``q.area.hidden_faces``,
+    or pieces of them: ``piece_of`` (F,) the hidden face of each piece, from the grading of
+    :func:`datagen.transport.quad_grading.graded_triangles`) split at ``edge``: ``vertices`` (V, 3), ``cells`` (M, 3), ``cell_area`` (M,) m², ``cell_hidden`` (M,) index
     into the hidden faces, ``cell_face``, ``centroids``, ``cell_normal``, ``cell_object``, ``n_cells``, and the coarse
     rule's ``coarse_cells`` (Mc, 3) / ``coarse_of`` (M,) (−1: not the middle of a coarse cell; all −1 when not
     ``even``)."""
@@ -77,8 +78,8 @@ def apply_split(q, tri: np.ndarray, edge: float, even: bool) -> None:
     if even:
         q.coarse_cells, central = coarse_cells(tri, edge)
         q.coarse_of[central] = np.arange(len(central))
-    q.cell_hidden = parent                                        # index into area.hidden_faces
-    q.cell_face = q.area.hidden_faces[parent]
+    q.cell_hidden = parent if piece_of is None else piece_of[parent]   # index into area.hidden_faces
+    q.cell_face = q.area.hidden_faces[q.cell_hidden]
     q.centroids = q.vertices[q.cells].mean(axis=1)
     q.cell_normal = q.caster.face_normals[q.cell_face]
     q.cell_object = q.caster.face_object[q.cell_face]
@@ -91,8 +92,8 @@ def refined(q, stats):
     points, every object in component 0 (its primary goes to the channel rows of the estimate's accumulator), and
     counters ``stats``."""
     sub = copy.copy(q)
-    tri = q.caster.vertices[q.caster.faces[q.area.hidden_faces]]
-    apply_split(sub, tri, 0.5 * q.settings.edge, even=True)
+    tri, piece_of = q.split_faces                                 # graded pieces, if the run grades them
+    apply_split(sub, tri, 0.5 * q.settings.edge, even=True, piece_of=piece_of)
     sub.coarse_of = np.full(sub.n_cells, -1, dtype=np.int64)
     keep = np.isin(q.conn_laser, q.refine_lasers)
     sub.conn_laser, sub.conn_target, sub.conn_channel = q.conn_laser[keep], q.conn_target[keep], q.conn_channel[keep]

@@ -81,6 +81,7 @@ from ..vectors import dot
 from .area import AreaSampler, AreaSettings
 from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
+from .quad_grading import graded_triangles
 from .quad_primary import PAIR_TEST_MAX_PAIRS, leg_occluders, run_compiled
 from .quad_split import apply_split, choose_split, refined
 
@@ -104,6 +105,9 @@ class QuadratureSettings(PhysicsSettings):
         edge: h, the largest sub-triangle edge, metres (> 0).
         fov_cells: k, FoV cells per pixel side for aperture captures (None: ceil(pixel side / edge), at most
             ``MAX_FOV_CELLS``).
+        grading: None, or r: hidden triangles are first cut into 4 while longer than r × their distance to the
+            laser points and FoV (down to 0.4 h), so sub-triangles near the scan are finer
+            (:func:`datagen.transport.quad_grading.graded_triangles`).
         secondary: "none" or "full" (the area sampler's unbiased secondary); secondary_samples: its hidden
             samples per laser point.
         shadow_spot, shadow_fov: shadow rays on the laser → hidden and hidden → FoV legs: None decides by the
@@ -117,6 +121,7 @@ class QuadratureSettings(PhysicsSettings):
 
     edge: float = QUADRATURE_EDGE
     fov_cells: int | None = None
+    grading: float | None = None
     secondary: Literal["none", "full"] = "none"
     secondary_samples: int = 1 << 16
     shadow_spot: bool | None = None
@@ -137,6 +142,9 @@ class QuadratureSettings(PhysicsSettings):
             bad("edge", self.edge, "must be a finite length > 0 (metres)")
         if self.fov_cells is not None:
             integer("fov_cells", self.fov_cells, 1)
+        if self.grading is not None and (isinstance(self.grading, bool) or not isinstance(self.grading, (int, float))
+                                         or not 0 < self.grading < np.inf):
+            bad("grading", self.grading, "must be None or a finite ratio > 0")
         integer("secondary_samples", self.secondary_samples, 1)
         integer("batch", self.batch, 1)
         if self.split not in ("auto", "even", "plain"):
@@ -284,8 +292,12 @@ class Quadrature:
             self.area.configure(replace(self.area.settings, shadow_spot=decided["shadow_spot"]))
         # -- hidden sub-triangles ------------------------------------------------------------------------------
         tri = self.caster.vertices[self.caster.faces[faces]]
+        piece_of = np.arange(len(tri))
+        if s.grading is not None:                                       # finer near the scan (quad_grading)
+            tri, piece_of = graded_triangles(tri, np.concatenate([c.spots, fov_hull]), s.grading, 0.4 * s.edge)
+        self.split_faces = (tri, piece_of)                              # what the estimate's rule at h/2 splits
         self.refine_lasers = choose_split(tri, s.edge, c, s.split)        # None: the even split (.quad_split)
-        apply_split(self, tri, s.edge, even=self.refine_lasers is None)
+        apply_split(self, tri, s.edge, even=self.refine_lasers is None, piece_of=piece_of)
         self.coarse_ratio = 2.0 if self.refine_lasers is None else 0.5
         self.coarse: Sink | None = None
         # -- targets: sensor points (point radiance) or FoV cells of each pixel region (aperture) --------------
@@ -326,7 +338,7 @@ class Quadrature:
         the user forces ``shadow_spot`` (the planner's decision concerns the lookin sampler's secondary)."""
         forced_spot = config.effects.get("shadow_spot")
         return cls(scene, QuadratureSettings.from_transport(
-            settings, edge=config.quadrature_edge, fov_cells=config.quadrature_fov,
+            settings, edge=config.quadrature_edge, fov_cells=config.quadrature_fov, grading=config.quadrature_grading,
             secondary_samples=config.area_samples,
             shadow_spot=forced_spot if isinstance(forced_spot, bool) else None), caster)
 

@@ -1,0 +1,56 @@
+"""Graded hidden triangles of the quadrature (datagen.transport.quad_grading): the pieces tile their triangles, are
+short near the scanned points and untouched far from them, and the graded quadrature of a confocal room is closer
+to a fine reference than the plain one at the same edge."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from datagen.transport.quad_grading import graded_triangles
+
+
+def _area(t: np.ndarray) -> np.ndarray:
+    return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+
+def test_pieces_tile_each_triangle_and_shrink_with_the_distance():
+    """A 4 m floor triangle under a scan 0.3 m above it: pieces sum to each triangle's area (1e-12), every piece
+    is ≤ ratio × its distance to the scan box or ≤ min_edge, a triangle 20 m away is one piece."""
+    tri = np.array([[[0.0, 0, 0], [4.0, 0, 0], [0.0, 4.0, 0]],
+                    [[30.0, 0, 0], [31.0, 0, 0], [30.0, 1.0, 0]]])
+    scan = np.array([[0.5, 0.5, 0.3], [1.5, 1.5, 1.5]])
+    pieces, origin = graded_triangles(tri, scan, ratio=0.5, min_edge=0.05)
+    assert np.array_equal(origin, np.sort(origin)) and (origin == 1).sum() == 1
+    for f in (0, 1):
+        assert _area(pieces[origin == f]).sum() == pytest.approx(_area(tri[f:f + 1])[0], rel=1e-12)
+    longest = np.linalg.norm(pieces - np.roll(pieces, 1, axis=1), axis=2).max(axis=1)
+    centre = pieces.mean(axis=1)
+    dist = np.linalg.norm(np.maximum(0, np.maximum(scan.min(0) - centre, centre - scan.max(0))), axis=1)
+    assert ((longest <= 0.5 * dist + 1e-12) | (longest <= 0.05)).all()
+    assert longest[origin == 0].min() < 0.2 and longest[origin == 0].max() > 0.5       # graded, not uniform
+    with pytest.raises(ValueError, match="ratio and min_edge"):
+        graded_triangles(tri, scan, ratio=0.0, min_edge=0.05)
+
+
+def test_graded_quadrature_of_a_confocal_room_is_closer_to_the_fine_reference():
+    """confocal_smoke train 0 (an L-room, 8 × 8 confocal scan): at h = 0.4 m the graded quadrature (ratio 0.5) is
+    several times closer to the plain quadrature at h = 0.1 m than the plain one at 0.4 m, its sub-triangles cover
+    the same area, and its own estimate stays an honest scale of that error. Measured: plain 6.9 % (estimate
+    7.2 %), graded 0.39 % (estimate 0.63 %; about the reference's own error, ≈ (0.1 / 0.4)² × 6.9 %)."""
+    from datagen.dataset import load_dataset_config
+    from datagen.dataset.config import draw_room
+    from datagen.simulation import resolve_config, simulate
+    from datagen.transport import Quadrature, QuadratureSettings
+
+    config = load_dataset_config("configs/datasets/confocal_smoke.yaml")
+    scene = draw_room(config, "train", 0)[0].scene
+    sim = resolve_config(scene, {**config.simulation_overrides(), "quadrature_fov": 1})
+    run = lambda **kw: simulate(scene, sim.model_copy(update=kw))
+    ref = run(quadrature_edge=0.1, quadrature_grading=None).envelope
+    plain = run(quadrature_edge=0.4, quadrature_grading=None)
+    graded = run(quadrature_edge=0.4, quadrature_grading=0.5)
+    err = lambda r: float(np.linalg.norm(r.envelope - ref) / np.linalg.norm(ref))
+    assert err(graded) < 0.2 * err(plain)
+    assert err(graded) <= 2.0 * graded.attrs["error"]["rel_l2"] and graded.attrs["error"]["rel_l2"] <= 3.0 * err(graded)
+    areas = [Quadrature(scene, QuadratureSettings(edge=0.4, grading=g)).cell_area.sum() for g in (None, 0.5)]
+    assert areas[1] == pytest.approx(areas[0], rel=1e-12)
