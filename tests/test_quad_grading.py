@@ -54,3 +54,28 @@ def test_graded_quadrature_of_a_confocal_room_is_closer_to_the_fine_reference():
     assert err(graded) <= 2.0 * graded.attrs["error"]["rel_l2"] and graded.attrs["error"]["rel_l2"] <= 3.0 * err(graded)
     areas = [Quadrature(scene, QuadratureSettings(edge=0.4, grading=g)).cell_area.sum() for g in (None, 0.5)]
     assert areas[1] == pytest.approx(areas[0], rel=1e-12)
+
+
+@pytest.mark.parametrize("split", ["even", "plain"])
+def test_graded_sub_triangles_map_to_their_hidden_faces_in_both_splits(split):
+    """With grading, every sub-triangle (of the run and, for the plain split, of the estimate's rule at h/2) names the
+    hidden face it lies in: the sub-triangle areas summed per hidden face equal that face's area (1e-9), and the
+    normals and objects are that face's."""
+    from datagen.dataset import load_dataset_config
+    from datagen.dataset.config import draw_room
+    from datagen.transport import Quadrature, QuadratureSettings
+    from datagen.transport.quad_split import refined
+
+    config = load_dataset_config("configs/datasets/confocal_smoke.yaml")
+    scene = draw_room(config, "train", 0)[0].scene
+    q = Quadrature(scene, QuadratureSettings(edge=0.4, grading=0.5, split=split, fov_cells=1))
+    runs = [q] + ([refined(q, q.stats)] if split == "plain" else [])
+    assert (q.refine_lasers is not None) == (split == "plain")
+    faces = q.area.hidden_faces
+    face_area = _area(q.caster.vertices[q.caster.faces[faces]])
+    for run in runs:
+        assert len(run.cell_hidden) > 2 * len(faces)                          # graded: finer than the faces
+        per_face = np.bincount(run.cell_hidden, weights=run.cell_area, minlength=len(faces))
+        np.testing.assert_allclose(per_face, face_area, rtol=1e-9)
+        assert np.array_equal(run.cell_face, faces[run.cell_hidden])
+        np.testing.assert_array_equal(run.cell_normal, q.caster.face_normals[faces[run.cell_hidden]])
