@@ -31,12 +31,18 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from ..scene.brdf_kernel import phong_value
 from ..scene.materials import PHONG
 from ..timing.tent_kernel import deposit_tent, sort3
+
+if numba.config.THREADING_LAYER == "default":
+    # the parallel kernels' threads: GNU OpenMP before TBB (numba tries TBB first; the TBB beside Embree here is
+    # older than numba needs, so that try ends in a NumbaWarning on every first parallel run)
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
 __all__ = ["candidates", "channel_groups", "deposit_pairs", "face_candidates", "occluder_planes", "vertex_paths"]
 
