@@ -25,6 +25,7 @@ import numpy as np
 from ..scene import Scene, SceneError
 from ..timing import EnvelopeAccumulator
 from ..transport import CACHE_RAYS
+from ..transport.quad_grading import GRADING_MIN_EDGE, graded_triangles
 from .config import SimulationConfig
 
 GIB = float(1 << 30)
@@ -115,6 +116,21 @@ def _hidden_triangles(scene: Scene) -> np.ndarray:
     return np.concatenate(tris) if tris else np.zeros((0, 3, 3))
 
 
+def _near_box(scene: Scene) -> np.ndarray:
+    """(P, 3) points whose axis-aligned box holds every laser point and FoV point of ``scene``'s capture, for the
+    quadrature's grading (which measures distances to that box): the laser spot, and each grid's and the FoV's centre
+    ± half its diagonal along every axis (their plane is not resolved here, so the box is the same or larger and the
+    grading estimate cuts as much as the run or more)."""
+    points = [np.asarray(scene.laser.spot, dtype=np.float64)]
+    rects = [scene.sensor.fov] if scene.sensor.fov is not None else []
+    if scene.capture is not None:
+        rects += [g for g in (scene.capture.laser_grid, scene.capture.sensor_grid) if g is not None]
+    for rect in rects:
+        centre, half = np.asarray(rect.center, dtype=np.float64), 0.5 * math.hypot(*rect.size)
+        points += [centre - half, centre + half]
+    return np.array(points)
+
+
 def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str, str, float]]:
     """The arrays a simulation of ``scene`` under ``config`` holds at its peak, estimated without allocating.
 
@@ -147,8 +163,13 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
         terms.append(("area_samples", str(config.area_samples), float(AREA_SAMPLE_BYTES) * config.area_samples))
     if config.estimator == "quadrature":
         tri = _hidden_triangles(scene)   # k = ceil(longest edge / h) sub-triangles per side (sampling.subdivisions),
+        k_min = 1.0
+        if config.quadrature_grading is not None and len(tri):      # graded pieces, each split at least in 2 × 2
+            tri, _ = graded_triangles(tri, _near_box(scene), config.quadrature_grading,
+                                      GRADING_MIN_EDGE * config.quadrature_edge)
+            k_min = 2.0
         longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max(axis=1, initial=0.0)  # in float64:
-        cells = float((np.maximum(1.0, np.ceil(longest / config.quadrature_edge)) ** 2).sum())     # no overflow
+        cells = float((np.maximum(k_min, np.ceil(longest / config.quadrature_edge)) ** 2).sum())   # no overflow
         fov = scene.sensor.fov     # FoV cells per pixel side: the quadrature caps them (at 64); not here
         side = max(fov.size) / min(fov.pixels) if fov is not None else 0.0
         k = config.quadrature_fov or max(1, math.ceil(side / config.quadrature_edge))

@@ -13,7 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["graded_triangles"]
+__all__ = ["GRADING_MIN_EDGE", "graded_triangles"]
+
+GRADING_MIN_EDGE = 0.4
+"""Grading stops at pieces of this fraction of the quadrature edge h (``min_edge`` = 0.4 h): the lattice split then
+cuts each into at least 4, so the finest sub-triangles are ≈ h/5."""
 
 
 def _box_distance(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -81,7 +81,7 @@ from ..vectors import dot
 from .area import AreaSampler, AreaSettings
 from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
-from .quad_grading import graded_triangles
+from .quad_grading import GRADING_MIN_EDGE, graded_triangles
 from .quad_primary import PAIR_TEST_MAX_PAIRS, leg_occluders, run_compiled
 from .quad_split import apply_split, choose_split, refined
 
@@ -294,7 +294,8 @@ class Quadrature:
         tri = self.caster.vertices[self.caster.faces[faces]]
         piece_of = np.arange(len(tri))
         if s.grading is not None:                                       # finer near the scan (quad_grading)
-            tri, piece_of = graded_triangles(tri, np.concatenate([c.spots, fov_hull]), s.grading, 0.4 * s.edge)
+            tri, piece_of = graded_triangles(tri, np.concatenate([c.spots, fov_hull]), s.grading,
+                                             GRADING_MIN_EDGE * s.edge)
         self.split_faces = (tri, piece_of)                              # what the estimate's rule at h/2 splits
         self.refine_lasers = choose_split(tri, s.edge, c, s.split)        # None: the even split (.quad_split)
         apply_split(self, tri, s.edge, even=self.refine_lasers is None, piece_of=piece_of)
