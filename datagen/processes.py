@@ -70,8 +70,8 @@ class ForkedCall:
     The child inherits ``fn`` and ``args`` (nothing is pickled on the way in), dies with this process (parent-death
     signal), sends its return value pickled through a pipe and leaves with ``os._exit`` (no atexit handlers, no
     flush of inherited stdio buffers). Cheaper than a one-task ``ProcessPoolExecutor`` (no management thread,
-    queues or shutdown handshake, ≈ 10 ms per call for a 300 MB parent): the area sampler forks one per replica
-    it does not run itself. Its child is reaped by a daemon thread once the result is read, so the parent does not
+    queues or shutdown handshake: ≈ 25 ms less per 2-worker demo-room run, docs/accuracy.md), and usable inside
+    daemonic processes: the area sampler forks one per replica it does not run itself. Its child is reaped by a daemon thread once the result is read, so the parent does not
     wait for the child's exit. Call :meth:`cancel` if the result will not be read (an exception in the parent):
     the child is killed and reaped. Linux/POSIX only (``os.fork``).
 

@@ -51,3 +51,23 @@ def test_cancel_kills_and_reaps_a_running_child():
     call.cancel()
     assert time.monotonic() - t0 < 5.0 and _reaped_within(call.pid, 0.0)
     call.cancel()                                   # a second cancel is a no-op
+
+
+def _call_in_daemon(queue):
+    queue.put(ForkedCall(lambda: 41 + 1).result())
+
+
+def test_forked_call_works_inside_a_daemonic_process():
+    """multiprocessing forbids daemonic processes children of its own (a ProcessPoolExecutor there fails); a forked
+    call is a plain fork and works (e.g. a simulate inside a daemonic worker of another pool)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=_call_in_daemon, args=(queue,), daemon=True)
+    proc.start()
+    try:
+        assert queue.get(timeout=30) == 42
+    finally:
+        proc.join(timeout=30)
+    assert proc.exitcode == 0
