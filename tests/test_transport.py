@@ -139,17 +139,31 @@ def test_workers_do_not_change_the_result():
 
 
 @pytest.mark.parametrize("replicas", [2, 5])
-def test_area_replicas_do_not_depend_on_the_worker_count(replicas):
-    """The area sampler's replicas on 1, 2 and 3 workers (this process runs every W-th replica itself, forked
-    processes the others): bit-identical envelopes, components, error estimates and hidden-sample counts."""
+def test_area_replicas_do_not_depend_on_the_worker_count(replicas, monkeypatch):
+    """The area sampler's replicas on 1, 2 and 3 workers (this process runs every W-th replica itself, W − 1 forked
+    processes the others, so never more than W at once): bit-identical envelopes, components, error estimates and
+    hidden-sample counts."""
     from pathlib import Path
 
     import datagen
+    import datagen.transport.area as area
 
+    from datagen.processes import ForkedCall
+
+    forks = []
+
+    def counted(*args):
+        forks.append(args)
+        return ForkedCall(*args)
+
+    monkeypatch.setattr(area, "ForkedCall", counted)
     scene = datagen.load_scene(Path(__file__).resolve().parents[1] / "scene_library" / "demo_room.yaml")
-    runs = [datagen.simulate(scene, datagen.resolve_config(scene, {"estimator": "area", "area_samples": 1024 * replicas,
-                                                                   "replicas": replicas, "workers": w}))
-            for w in (1, 2, 3)]
+    runs = []
+    for w in (1, 2, 3):
+        forks.clear()
+        runs.append(datagen.simulate(scene, datagen.resolve_config(
+            scene, {"estimator": "area", "area_samples": 1024 * replicas, "replicas": replicas, "workers": w})))
+        assert len(forks) == min(w, replicas) - 1
     for r in runs[1:]:
         np.testing.assert_array_equal(r.envelope, runs[0].envelope)
         assert r.components.keys() == runs[0].components.keys()

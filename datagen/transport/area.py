@@ -191,11 +191,15 @@ class AreaStats(Counters):
     secondary_pairs: int = 0
 
 
-def _forked_replica(sampler: "AreaSampler", sink: Sink, rng: np.random.Generator):
-    """One replica in a forked child (:class:`~datagen.processes.ForkedCall`): the sink and counters it filled."""
-    sampler.stats, rays = AreaStats(), sampler.physics.stats.shadow_rays
-    sampler.run(sink, rng)
-    return sink, sampler.stats, sampler.physics.stats.shadow_rays - rays
+def _forked_replicas(sampler: "AreaSampler", sinks: list[Sink], rngs: list[np.random.Generator]) -> list[tuple]:
+    """Replicas one after another in a forked child (:class:`~datagen.processes.ForkedCall`): per replica the sink
+    it filled, its counters and its shadow rays."""
+    out = []
+    for sink, rng in zip(sinks, rngs):
+        sampler.stats, rays = AreaStats(), sampler.physics.stats.shadow_rays
+        sampler.run(sink, rng)
+        out.append((sink, sampler.stats, sampler.physics.stats.shadow_rays - rays))
+    return out
 
 
 def _area_replica(config, replicas: int) -> dict:
@@ -434,35 +438,35 @@ class AreaSampler(AreaSecondary):
                      progress: Callable[[int], None] | None = None) -> None:
         """Independent runs into ``sinks``, one per generator (:func:`datagen.transport.run_replicas`); with
         ``workers`` > 1 and sinks that can ``spawn``/``merge`` (:class:`~datagen.timing.EnvelopeAccumulator`),
-        replicas run in this process and ``workers`` − 1 forked ones (querying the BVH built before the fork) and are merged
-        in order, so the sinks hold the same sums whatever the worker count."""
+        replicas run in this process and ``workers`` − 1 forked ones (querying the BVH built before the fork), at
+        most ``workers`` at a time, and are merged in order, so the sinks hold the same sums whatever the worker
+        count."""
         workers = min(self.settings.workers, len(sinks))
         if workers <= 1 or not hasattr(sinks[0], "spawn"):
             for sink, rng in zip(sinks, rngs):
                 self.run(sink, rng, progress)
             return
-        # this process runs every workers-th replica (0, W, 2W, ...) itself while forked children run the others
-        # (ForkedCall: the child inherits this sampler, its sink and generator, and queries the BVH committed
-        # before the fork, RayCaster.commit); results are merged in replica order
-        own = range(0, len(sinks), workers)
+        # replica r runs in process r mod W: this one (0) and W − 1 forked children (ForkedCall: a child inherits this
+        # sampler, its sinks and generators, and queries the BVH committed before the fork, RayCaster.commit), each
+        # running its share one replica after another; results are merged in replica order
+        share = {k: list(range(k, len(sinks), workers)) for k in range(workers)}
         self.caster.commit()
         calls: dict[int, ForkedCall] = {}
         try:
-            for r in range(len(sinks)):
-                if r % workers:
-                    calls[r] = ForkedCall(_forked_replica, self, sinks[r].spawn(), rngs[r])
+            for k in range(1, workers):
+                calls[k] = ForkedCall(_forked_replicas, self, [sinks[r].spawn() for r in share[k]],
+                                      [rngs[r] for r in share[k]])
             parts = {}
-            for r in own:
+            for r in share[0]:
                 parts[r] = sinks[r].spawn()
                 self.run(parts[r], rngs[r])
-            for r, sink in enumerate(sinks):
-                if r in calls:
-                    part, stats, rays = calls[r].result()
+            for k, call in calls.items():
+                for r, (part, stats, rays) in zip(share[k], call.result()):
+                    parts[r] = part
                     self.stats.add(stats)
                     self.physics.stats.shadow_rays += rays
-                else:
-                    part = parts[r]
-                sink.merge(part)
+            for r, sink in enumerate(sinks):
+                sink.merge(parts[r])
                 if progress is not None:
                     progress(self.settings.samples * self.capture.n_lasers)
         finally:
