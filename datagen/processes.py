@@ -71,9 +71,10 @@ class ForkedCall:
     signal), sends its return value pickled through a pipe and leaves with ``os._exit`` (no atexit handlers, no
     flush of inherited stdio buffers). Cheaper than a one-task ``ProcessPoolExecutor`` (no management thread,
     queues or shutdown handshake: ≈ 25 ms less per 2-worker demo-room run, docs/accuracy.md), and usable inside
-    daemonic processes: the area sampler forks one per replica it does not run itself. Its child is reaped by a daemon thread once the result is read, so the parent does not
-    wait for the child's exit. Call :meth:`cancel` if the result will not be read (an exception in the parent):
-    the child is killed and reaped. Linux/POSIX only (``os.fork``).
+    daemonic processes: the area sampler forks one per worker beyond the first. Its child is reaped by a daemon
+    thread once the result is read, so the parent does not wait for the child's exit. Call :meth:`cancel` if the
+    result will not be read (an exception in the parent): the child is killed and reaped. Linux/POSIX only
+    (``os.fork``).
 
     Raises (from :meth:`result`):
         ChildProcessError: the child died without a result (killed, out of memory), naming its pid and status.

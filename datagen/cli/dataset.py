@@ -235,8 +235,8 @@ def score(pred, dataset, split, depth_field, threshold, out):
     parts = [f"{s['samples']} samples"]
     if s.get("depth_field"):
         parts.append(f"depth MAE {s['mean_depth_mae']:.4g} m, RMSE {s['mean_depth_rmse']:.4g} m (mean over the "
-                     f"{s['depth_samples']} samples with object pixels; pooled over {s['depth_pixels']} pixels: {s['pooled_depth_mae']:.4g} / "
-                     f"{s['pooled_depth_rmse']:.4g} m)")
+                     f"{s['depth_samples']} samples with object pixels; pooled over {s['depth_pixels']} pixels: "
+                     f"{s['pooled_depth_mae']:.4g} / {s['pooled_depth_rmse']:.4g} m)")
     if s.get("occupancy_threshold") is not None:
         parts.append(f"occupancy IoU {s['mean_occupancy_iou']:.4g}")
     click.echo(f"{split}: " + "; ".join(parts))

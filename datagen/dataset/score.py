@@ -20,9 +20,9 @@ Metrics per sample (docs/datasets.md, "Scoring"): ``depth_mae`` = mean |d̂ − 
 predictions outside that mask do not count. ``occupancy_iou`` = |P ∩ L| / |P ∪ L| of the occupied voxels (NaN
 when both are empty). The summary gives the mean over samples of each metric (NaNs left out), the pixel-pooled
 depth MAE / RMSE, the number of samples and ``depth_samples``, how many of them have object pixels (the
-samples the depth means are over: a sample whose objects are out of the wall's view has NaN depth metrics). :func:`write_scores` writes ``<PRED>_scores.csv`` (one row per sample)
-and ``<PRED>_scores.json`` (summary and rows), named after the predictions file so that several predictions in one
-folder keep their own scores.
+samples the depth means are over: a sample whose objects are out of the wall's view has NaN depth metrics).
+:func:`write_scores` writes ``<PRED>_scores.csv`` (one row per sample) and ``<PRED>_scores.json`` (summary and
+rows), named after the predictions file so that several predictions in one folder keep their own scores.
 """
 from __future__ import annotations
 

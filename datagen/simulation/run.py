@@ -106,9 +106,9 @@ def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator
     """Plan the effects and build the configured estimator (scene → planner → transport), ready to run.
 
     Without ``config.split_components`` the estimator sees the scene with one primary component
-    (:meth:`~datagen.scene.Scene.with_summed_primary`). The lookin settings from ``config`` are resolved first (they carry the physics switches and the capture);
-    the effect planner's decisions are applied to them; then the estimator registered under
-    ``config.estimator`` is built from them (:func:`datagen.transport.estimator`).
+    (:meth:`~datagen.scene.Scene.with_summed_primary`). The lookin settings from ``config`` are resolved first
+    (they carry the physics switches and the capture); the effect planner's decisions are applied to them; then
+    the estimator registered under ``config.estimator`` is built from them (:func:`datagen.transport.estimator`).
 
     Raises:
         ResourceError: the estimated memory exceeds what is available (:mod:`datagen.simulation.budget`).

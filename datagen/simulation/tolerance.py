@@ -12,9 +12,10 @@ The quadrature (deterministic, error ∝ h²): its edge is refined instead, h �
 level's error is its own estimate ‖P(h) − P(2h)‖/3 when the run makes its rule at 2h from the same evaluations
 (the quadrature's coarse rule: point-radiance captures, and aperture captures whose FoV cells are the same at
 2h, e.g. the scan configs); the edge then shrinks by at most ``MAX_SHRINK`` (cost ∝ h⁻²: a level at 0.73 h
-costs 1.9× where h/2 costs 4×), or halves after a level whose estimate barely fell (``STALLED``). Otherwise a level's error is estimated from the previous one as
-‖P(h') − P(h)‖/((h/h')² − 1) (the first level from a run at 2h) and the edge at least halves. Either is added in
-quadrature to the replica spread of its Monte Carlo secondary.
+costs 1.9× where h/2 costs 4×), or halves after a level whose estimate barely fell (``STALLED``). Otherwise a
+level's error is estimated from the previous one as ‖P(h') − P(h)‖/((h/h')² − 1) (the first level from a run at
+2h) and the edge at least halves. Either is added in quadrature to the replica spread of its Monte Carlo
+secondary.
 
 A wall-clock cap (``max_seconds``) is available for interactive use; it makes the result depend on the
 machine's speed, so dataset builds cap the replica count instead (``max_replicas``, deterministic).

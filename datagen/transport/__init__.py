@@ -19,7 +19,8 @@ from .lookin import CACHE_RAYS, SecondaryMode, Transport, TransportSettings, Tra
 from .area import AreaSampler, AreaSettings, AreaStats
 from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureSettings, QuadratureStats
 
-__all__ = ["abs_sin_azimuth", "brdf_value", "material_arrays", "Connections", "Counters", "Estimator", "EstimatorEntry", "Sink", "estimator", "estimator_names",
+__all__ = ["abs_sin_azimuth", "brdf_value", "material_arrays", "Connections", "Counters", "Estimator",
+           "EstimatorEntry", "Sink", "estimator", "estimator_names",
            "register", "run_replicas", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",
            "laser_irradiance", "CACHE_RAYS", "SecondaryMode", "Transport", "TransportSettings", "TransportStats",
            "AreaSampler", "AreaSettings", "AreaStats", "QUADRATURE_EDGE", "Quadrature", "QuadratureSettings",

@@ -10,9 +10,10 @@ collection then does not depend on the incoming direction):
   lit on the side of T facing x_l, when cosθ_l > 0, cosθ_x,in > 0 and r_l > tol;
 - target leg (:func:`~datagen.transport.physics.fov_connection_weight`): G = |cosθ_x,out| cosθ_y / r_y² ·
   collection(y) dA_y, on the side facing y;
-- weight A · E · f · G (· e^{−μ·path}), f = ρ/π or Phong's (:meth:`datagen.scene.materials.MaterialTable.evaluate`), when both legs reach the same side; path lengths at the vertices of T and
-  the tent shift of the module doc of :mod:`datagen.transport.quadrature`; the tent (and the coarse rule's tent
-  for the error estimate) goes to the accumulator's fine grid by :func:`datagen.timing.tent_kernel.deposit_tent`.
+- weight A · E · f · G (· e^{−μ·path}), f = ρ/π or Phong's (:meth:`datagen.scene.materials.MaterialTable.evaluate`),
+  when both legs reach the same side; path lengths at the vertices of T and the tent shift of the module doc of
+  :mod:`datagen.transport.quadrature`; the tent (and the coarse rule's tent for the error estimate) goes to the
+  accumulator's fine grid by :func:`datagen.timing.tent_kernel.deposit_tent`.
 
 Visibility of the laser leg (``shadow``): only the triangles that may cross a segment from T's face to the laser
 points (the separating-plane test per face), grouped in runs of one object with a bounding sphere, are tested,
@@ -22,10 +23,10 @@ edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited afte
 Embree's float32 rays leak through shared edges now and then (measured: a segment 0.5–2 mm inside a box's face
 4.7 m from its start, reported unblocked); the exact test does not, so the compiled envelope differs from the
 numpy path's by such pairs (2e-8 relative on a confocal room scan). Where ``face_ray`` (per hidden face) each lit
-pair gets its ray; with every face so, the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The inner side of a closed
-outward surface (``closed``, :func:`datagen.transport.quad_primary.closed_outward`) is never lit: no test, no
-ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of a coarse
-torus's envelope).
+pair gets its ray; with every face so, the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The
+inner side of a closed outward surface (``closed``, :func:`datagen.transport.quad_primary.closed_outward`) is never
+lit: no test, no ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of
+a coarse torus's envelope).
 """
 from __future__ import annotations
 
@@ -165,8 +166,8 @@ def _tent(paths, row, v0, v1, v2, centre, offset, speed, t_start, step, shift, n
 
 
 GEO = ("vertices", "cells", "area", "comp_base", "coarse_of", "coarse_cells")
-POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol", "f_lamb", "kind",
-        "rho", "ks", "expo")
+POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol", "f_lamb",
+        "kind", "rho", "ks", "expo")
 CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")

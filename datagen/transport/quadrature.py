@@ -82,7 +82,7 @@ from .area import AreaSampler, AreaSettings
 from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
 from .quad_grading import GRADING_MIN_EDGE, graded_triangles
-from .quad_primary import PAIR_TEST_MAX_PAIRS, leg_occluders, run_compiled
+from .quad_primary import leg_occluders, run_compiled
 from .quad_split import apply_split, choose_split, refined
 
 __all__ = ["QUADRATURE_EDGE", "Quadrature", "QuadratureSettings", "QuadratureStats", "subdivide_with_vertices"]
