@@ -424,7 +424,7 @@ def test_coarse_kernel_sums_equal_a_numpy_sum_with_the_material_table():
     """The planner's compiled primary / secondary sums (planner/coarse_kernel.py, which factor the Lambertian and
     sin θ BRDFs out of the FoV-cell sum) equal a brute-force numpy sum over every (element, partner, cell) with
     MaterialTable.evaluate, for random geometry and all three BRDF kinds (relative 1e-12)."""
-    from datagen.planner.coarse_kernel import primary_energy, secondary_candidates, secondary_energy
+    from datagen.planner.coarse_kernel import outgoing_sums, primary_energy, secondary_candidates, secondary_energy
     from datagen.scene.materials import Material, MaterialTable
 
     rng = np.random.default_rng(7)
@@ -477,5 +477,6 @@ def test_coarse_kernel_sums_equal_a_numpy_sum_with_the_material_table():
     np.testing.assert_array_equal(cand[0], a)
     np.testing.assert_array_equal(cand[1], b)
     assert secondary > 0
-    assert secondary_energy(*cand, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat) == \
+    table = outgoing_sums(obj, n_geo, s_xy, w_xy, geo, mat)
+    assert secondary_energy(*cand, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat, table) == \
         pytest.approx(secondary, rel=1e-12)

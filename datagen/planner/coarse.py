@@ -13,7 +13,7 @@ import numpy as np
 
 from ..sampling import subdivide_triangles, subdivisions
 from ..transport import fov_connection_weight, laser_irradiance, material_arrays
-from .coarse_kernel import primary_energy, secondary_candidates, secondary_energy
+from .coarse_kernel import outgoing_sums, primary_energy, secondary_candidates, secondary_energy
 from .geometry import PlanGeometry
 
 COARSE_ELEMENTS = 160
@@ -136,14 +136,16 @@ def coarse_energies(g: PlanGeometry) -> CoarseEnergies:
                                           -w_xy[mi, ki])
         geo[mi, ki] = fov_connection_weight(cos_xo[mi, ki] * cos_yi[mi, ki], r_xy[mi, ki], area_y * collect)
     sees_fov = geo.sum(axis=1) > 0
+    mat = material_arrays(g.physics)
+    table = outgoing_sums(obj, n_geo, s_xy, w_xy, geo, mat)     # y-sums of the factoring BRDFs, every laser
     primary, secondary = zero.copy(), zero.copy()
     for i, laser in enumerate(g.lasers):
         primary[i], secondary[i] = coarse_one_laser(g, int(laser), x, n_geo, area, obj, w_xy, s_xy, geo,
-                                                     sees_fov)
+                                                     sees_fov, mat, table)
     return CoarseEnergies(primary, secondary, len(x))
 
 
-def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov) -> tuple[float, float]:
+def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov, mat, table) -> tuple[float, float]:
     """(primary, secondary) energy of laser point ``laser`` (photons per pulse): the spot leg and its shadow rays
     here, the sums over element pairs and FoV cells in :mod:`.coarse_kernel`."""
     c, tol, caster = g.capture, g.tol, g.caster
@@ -162,7 +164,6 @@ def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov) -
         return 0.0, 0.0
     irradiance = np.zeros(len(x))
     irradiance[lit] = laser_irradiance(c.photons, g.physics.spot_emission(w_lx[lit], laser), cos_in[lit], r_lx[lit])
-    mat = material_arrays(g.physics)
     # primary: E_l dA_x f_x(→spot, →y) geo
     primary = primary_energy(lit, irradiance, area, obj, n_lit, w_lx, side, s_xy, w_xy, geo, mat)
     # secondary: E_l dA_x f_x(→spot, →x') cos cos'/r² V dA_x' f_x'(→x, →y) geo
@@ -171,5 +172,5 @@ def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov) -
     if not vis.any():
         return primary, 0.0
     secondary = secondary_energy(xa[vis], xb[vis], w[vis], r[vis], cos_a[vis], cos_b[vis], side_b[vis], irradiance,
-                                 area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat)
+                                 area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat, table)
     return float(primary), float(secondary)

@@ -121,13 +121,12 @@ def outgoing_sums(obj, n_geo, s_xy, w_xy, geo, mat):
 
 @njit(cache=True)
 def secondary_energy(xa, xb, w, r, cos_a, cos_b, side_b, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_xy,
-                     geo, mat):
+                     geo, mat, table):
     """Σ over visible pairs (a, b) of E_l(a) dA_a f_a(→spot, →b) cos_a cos_b / r² dA_b Σ_y f_b(→a, →y) geo(b, y),
     the cells y on b's side facing a (arguments as :func:`secondary_candidates` returns them, restricted to the
-    visible pairs, and as :func:`primary_energy`); the y-sums of factoring BRDFs from :func:`outgoing_sums`.
-    Returns float, photons per pulse."""
+    visible pairs, and as :func:`primary_energy`); ``table`` (M, 2): the y-sums of factoring BRDFs,
+    :func:`outgoing_sums` (the same for every laser point). Returns float, photons per pulse."""
     kind, _, _, _, axis, const_f = mat
-    table = outgoing_sums(obj, n_geo, s_xy, w_xy, geo, mat)
     total = 0.0
     for p in range(xa.shape[0]):
         a, b = xa[p], xb[p]
