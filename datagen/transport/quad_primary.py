@@ -60,7 +60,17 @@ def leg_occluders(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray, tol:
     if len(faces) * len(occluders) > PAIR_TEST_MAX_PAIRS:
         return None
     tri = caster.vertices[caster.faces]
-    t = tri[faces]
+    n, o, valid, hull_v = _leg_hulls(tri[faces], apexes)
+    normals = caster.face_normals[occluders]
+    offsets = np.einsum("ij,ij->i", normals, tri[occluders, 0])
+    return occluders, may_meet(tri[occluders], normals, offsets, np.ones(len(occluders), dtype=bool), n, o, valid,
+                               hull_v, tol, exclude=(occluders, faces), first_only=first_only)
+
+
+def _leg_hulls(t: np.ndarray, apexes: np.ndarray) -> tuple:
+    """Per triangle of ``t`` (F, 3, 3) the convex hull of it and the points ``apexes`` (A, 3) (duplicates within
+    1e-12 m merged): (normals, offsets, valid) of its planes and its vertices (F, A + 3, 3), as
+    :func:`datagen.scene.separation.may_meet` takes them (one apex: the tetrahedron's four faces)."""
     apexes = np.unique(np.round(apexes, 12), axis=0)
     if len(apexes) == 1:
         s = np.broadcast_to(apexes[0], (len(t), 3))
@@ -68,14 +78,9 @@ def leg_occluders(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray, tol:
                           np.stack([s, t[:, 2], t[:, 0]], 1)], axis=1)
         opposite = np.stack([s, t[:, 2], t[:, 0], t[:, 1]], axis=1)
         n, o, valid = outward_planes(quads, opposite)
-        hull_v = np.concatenate([s[:, None], t], axis=1)
-    else:
-        hull_v = np.concatenate([np.broadcast_to(apexes, (len(t),) + apexes.shape), t], axis=1)
-        n, o, valid = hull_planes(hull_v)
-    normals = caster.face_normals[occluders]
-    offsets = np.einsum("ij,ij->i", normals, tri[occluders, 0])
-    return occluders, may_meet(tri[occluders], normals, offsets, np.ones(len(occluders), dtype=bool), n, o, valid,
-                               hull_v, tol, exclude=(occluders, faces), first_only=first_only)
+        return n, o, valid, np.concatenate([s[:, None], t], axis=1)
+    hull_v = np.concatenate([np.broadcast_to(apexes, (len(t),) + apexes.shape), t], axis=1)
+    return (*hull_planes(hull_v), hull_v)
 
 
 def _occluder_lists(q, front: np.ndarray) -> tuple:
@@ -128,9 +133,7 @@ def _face_candidates(q, front: np.ndarray) -> tuple:
     occluders = np.flatnonzero(caster.face_area > 0)
     tri = caster.vertices[caster.faces[occluders]]
     t = caster.vertices[caster.faces[faces]]
-    apexes = np.unique(np.round(q.laser_hull, 12), axis=0)
-    hull_v = np.concatenate([np.broadcast_to(apexes, (len(t),) + apexes.shape), t], axis=1)
-    n, o, valid = hull_planes(hull_v)
+    n, o, valid, hull_v = _leg_hulls(t, q.laser_hull)
     normal = caster.face_normals[faces]
     front_plane = np.concatenate([normal, np.einsum("ij,ij->i", normal, t[:, 0])[:, None]], axis=1)
     own = np.searchsorted(occluders, faces)                      # the face itself among the occluders (or none)
