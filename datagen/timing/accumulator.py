@@ -76,7 +76,9 @@ MAX_FINE_NODES = 1 << 24
 """Cap on fine nodes per component (128 MiB of float64 each) so a bad axis/IRF pair fails loudly, not by OOM."""
 
 NEGATIVE_CLAMP_RTOL = 1e-12
-"""FFT round-off is ~1e-16 * max |envelope|; negatives within this fraction of the max are set to 0."""
+"""FFT round-off is ~1e-16 of the convolution's input, the fine histogram, whose largest node can exceed the
+window's envelope by many orders (returns before a gate sit in its guard nodes); negatives within this fraction
+of max(|fine histogram|, |envelope|) of their row are set to 0."""
 
 CURVATURE_MIN_NODES = 4.0
 """Fine-grid mode: tents spanning at least this many fine nodes are deposited through their second differences
@@ -549,12 +551,12 @@ class EnvelopeAccumulator:
             else:
                 conv = oaconvolve(hist[ks], self._kernel[None], mode="valid", axes=1)
             block = conv.reshape(len(ks), self.axis.n_bins, self.oversample).sum(axis=2)
-            peak = np.abs(block).max(axis=1)
-            low = block.min(axis=1) < -self._clamp_rtol * peak
+            scale = np.maximum(np.abs(block).max(axis=1), np.abs(hist[ks]).max(axis=1))
+            low = block.min(axis=1) < -self._clamp_rtol * scale
             if low.any():
                 i = int(np.flatnonzero(low)[0])
                 raise RuntimeError(f"component {int(ks[i])}: envelope value {block[i].min()!r} below "
-                                   f"-{self._clamp_rtol} * max ({peak[i]!r})")
+                                   f"-{self._clamp_rtol} * max(|fine histogram|, |envelope|) ({scale[i]!r})")
             out[ks] = np.maximum(block, 0.0)
         return out
 
