@@ -82,6 +82,9 @@ JOBS = [
     _job("demo_tolerance_2pct_exact", "simulate", ["--tolerance", "2%", "--secondary", "exact"]),
     # b. the smoke dataset, every array of every split
     _job("smoke_dataset", "build", ["configs/datasets/smoke.yaml"]),
+    # the scan configs' smoke variants (the quadrature on confocal scans: a mesh before a wall, and rooms)
+    _job("wall_smoke_dataset", "build", ["configs/datasets/wall_smoke.yaml"]),
+    _job("confocal_smoke_dataset", "build", ["configs/datasets/confocal_smoke.yaml"]),
     # c. tal-render (default settings: the quadrature estimator, edge 0.02 m), every HDF5 dataset
     _job("tal_hidden_square", "tal", ["benchmarks/tal/hidden_square.yaml"]),
     _job("tal_hidden_square_confocal", "tal", ["benchmarks/tal/hidden_square_confocal.yaml"]),
