@@ -9,6 +9,12 @@ Reading (:mod:`datagen.dataset.shard_reader`): each field's shard index is read 
 (cached), then each sample is one ``pread`` and decode of its chunk, so shuffled access is as fast as sequential
 access.
 
+Integrity (docs/reliability.md, "Verify and the loader"). On opening, the split's metadata is checked against
+the card; on each read, the shard index's length, crc32c and bounds, and that the chunk decodes. Neither sees a
+byte changed inside a chunk's compressed data (it decodes to other values): ``verify=True`` hashes each shard
+file whole against the sha256 the card records before returning any sample of it, once per process (each
+``DataLoader`` worker hashes the shards it reads once, as no cache is pickled).
+
 Normalisation. Every item also carries ``cycles`` (laser cycles of the exposure, repetition_rate ×
 exposure), ``photons_per_pulse`` (the laser's Φ, the scale inside the envelope) and ``background`` (expected
 background counts per bin over the exposure, (PDE·ambient + DCR)·bin_width·cycles): ``envelope × cycles`` is
@@ -73,7 +79,7 @@ class NLOSDataset(torch.utils.data.Dataset):
 
     Args:
         path: the dataset directory (``datagen build ... --out PATH``).
-        split: split name (see the card's ``splits``).
+        split: split name, a str (see the card's ``splits``).
         fields: fields to return (default: every stored numeric field and :data:`SCALE_FIELDS`; ``params``
             returns the JSON string). ``counts`` with ``noise="resample"`` is re-drawn from ``envelope`` (read even
             if not requested).
@@ -82,7 +88,12 @@ class NLOSDataset(torch.utils.data.Dataset):
         transform: called on the dict of tensors before it is returned: ``transform(item)``, or with the
             keywords it declares among ``index`` (int) and ``params`` (the parsed params dict, needs
             ``store.params``), e.g. ``def transform(item, index, params)``.
-        counts_dtype: dtype of ``counts`` (e.g. ``torch.float32``); default the stored int64.
+        counts_dtype: dtype of ``counts`` (e.g. ``torch.float32``); default the stored int64. It must hold every
+            count exactly (:func:`datagen.spad.torch_noise.check_counts_dtype`): an integer or floating torch dtype
+            whose exact range (``iinfo.max``; 2**24 float32, 2**11 float16, 2**8 bfloat16) reaches the laser
+            cycles of the split's exposure (of the longest one in ``detector_ranges``), the most a pile-up bin
+            counts; bool, complex and narrower dtypes are refused here, and each item's counts are checked
+            against that range on reading (models whose bins can count more than the cycles).
         object_order: "stored" (pillars first, then boxes, as generated) or "distance" (nearest to the relay
             wall first); either way padding slots come last.
         layout: "stored" (the stored shapes) or "network": scans as (1, T, H, W) float32 and wall-view labels as
@@ -90,24 +101,35 @@ class NLOSDataset(torch.utils.data.Dataset):
         detector_ranges: with ``noise="resample"``, field → number or (low, high) range of the detector's
             ``exposure`` (s or "1ms"), ``ambient_rate`` (Hz), ``dcr`` (Hz), ``pde``, drawn per sample and epoch
             (module doc "Detector randomisation"); the item gains :data:`DETECTOR_FIELDS`.
+        verify: hash each shard file read against the sha256 the card records (the done marker's if the card
+            has none) before returning any sample of it: once per shard and process (each DataLoader worker
+            hashes the shards it reads), reading each shard file once more in full. Without it a byte changed
+            inside a chunk's compressed data is returned as data (module doc "Integrity").
     Item:
         dict field → torch tensor with the stored shape and dtype: envelope (*S, T) float32 expected detected
         photons per pulse per bin, counts (*S, T) int64, depth (H, W) float32 m, normal (H, W, 3),
         occupancy (V, V, V) uint8, object_* (K, …), object_count (), …; cycles, photons_per_pulse and
         background () float64; see ``docs/datasets.md``.
     Raises:
-        FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field, noise mode or
+        FileNotFoundError: no datagen dataset at ``path``; TypeError: a ``split`` that is not a str (names the
+        splits), a ``counts_dtype`` that is not a torch.dtype; ValueError: unknown split, field, noise mode or
         object order or layout, an incomplete build, ``noise="resample"`` without a stored envelope,
         ``detector_ranges`` without ``noise="resample"`` or with an unknown field or invalid range, a transform
-        asking for params that are not stored, or ``layout="network"`` for a capture that is not a scan;
+        asking for params that are not stored, ``layout="network"`` for a capture that is not a scan, a
+        ``counts_dtype`` that cannot hold the counts (here, or on reading an item's counts beyond it);
         DatasetCorruptError (a ValueError): metadata that disagrees with the card (here), a damaged or missing
-        shard (on reading); TypeError: an index that is not an integer (``ds[1.5]``).
+        shard, or with ``verify=True`` a shard whose sha256 differs (on reading); TypeError: an index that is
+        not an integer (``ds[1.5]``).
     """
 
     def __init__(self, path: str | os.PathLike, split: str = "train", fields: Iterable[str] | None = None,
                  noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None,
                  counts_dtype: torch.dtype | None = None, object_order: Literal["stored", "distance"] = "stored",
-                 layout: Literal["stored", "network"] = "stored", detector_ranges: dict[str, Any] | None = None):
+                 layout: Literal["stored", "network"] = "stored", detector_ranges: dict[str, Any] | None = None,
+                 verify: bool = False):
+        if not isinstance(split, str):
+            raise TypeError(f"split must be one split name (a str), got {split!r} ({type(split).__name__}); "
+                            f"splits: {sorted(read_card(Path(path))['splits'])}")
         self.path = Path(path)
         card = read_card(self.path)
         if card.get("status") != "complete":
@@ -151,6 +173,14 @@ class NLOSDataset(torch.utils.data.Dataset):
             if det.pde == 0 and self._ranges["pde"] != (0.0, 0.0):
                 raise ValueError("NLOSDataset detector_ranges: the split's pde is 0, so the envelope cannot be "
                                  "rescaled to another pde")
+        if counts_dtype is not None:
+            from ..spad.torch_noise import check_counts_dtype, exact_count_limit
+            cycles = 0 if self.detector is None else self.detector_config().cycles
+            if self._ranges is not None:
+                cycles = self._cycles or max(1, round(self._ranges["exposure"][1] * det.repetition_rate))
+            self._counts_limit = exact_count_limit(check_counts_dtype(counts_dtype, cycles, "counts_dtype",
+                                                                      "NLOSDataset"))
+        self.verify = bool(verify)
         self.epoch = 0
         self.card = card
         self._keywords = _transform_keywords(transform)
@@ -166,7 +196,7 @@ class NLOSDataset(torch.utils.data.Dataset):
         if "params" in self._keywords:
             to_read.add("params")
         check_split(self.path, card, split, sorted(to_read) + ["time_edges"])   # metadata as the card implies
-        self._readers = {name: FieldReader(self.path, split, name) for name in sorted(to_read)}
+        self._readers = {name: self._field_reader(name) for name in sorted(to_read)}
         self.time_edges = _read_small(self.path / split / "time_edges")
         # -- network layout (datagen.dataset.layout): checked here, applied per item -------------------------
         if layout not in ("stored", "network"):
@@ -175,6 +205,12 @@ class NLOSDataset(torch.utils.data.Dataset):
         if layout == "network":
             from .layout import network_shapes
             network_shapes(info["fields"])
+
+    def _field_reader(self, name: str) -> FieldReader:
+        """The reader of field ``name``, with the card's per-shard sha256 of it when ``verify``."""
+        shards = self.card.get("shards", {}).get(self.split, {}) if self.verify else None
+        hashes = None if shards is None else {int(k): e.get("sha256", {}).get(name) for k, e in shards.items()}
+        return FieldReader(self.path, self.split, name, hashes)
 
     @staticmethod
     def _photons_source(stored: list[str]) -> bool:
@@ -277,6 +313,11 @@ class NLOSDataset(torch.utils.data.Dataset):
             arrays = to_network(arrays)
         item = {name: (str(a[()]) if a.dtype == object else torch.from_numpy(a)) for name, a in arrays.items()}
         if self.counts_dtype is not None and "counts" in item:
+            most = int(item["counts"].max()) if item["counts"].numel() else 0
+            if most > self._counts_limit:
+                raise ValueError(f"NLOSDataset: counts_dtype={self.counts_dtype} holds counts up to "
+                                 f"{self._counts_limit} exactly, but sample {index % self.count} of {self.split!r} "
+                                 f"counts {most} in a bin; pass a wider counts_dtype")
             item["counts"] = item["counts"].to(self.counts_dtype)
         if self.transform is None:
             return item
@@ -292,8 +333,7 @@ class NLOSDataset(torch.utils.data.Dataset):
         if "params" not in self._readers:
             if "params" not in self.card["splits"][self.split]["fields"]:
                 raise ValueError(f"{self.path} does not store params (store.params was false)")
-            self._readers_extra = getattr(self, "_readers_extra", None) or {
-                "params": FieldReader(self.path, self.split, "params")}
+            self._readers_extra = getattr(self, "_readers_extra", None) or {"params": self._field_reader("params")}
         reader = self._readers.get("params") or self._readers_extra["params"]
         return json.loads(str(reader.read(int(index))[()]))
 

@@ -6,6 +6,11 @@ sample (``store.compression``: Blosc-LZ4 with byte shuffle by default, zstd or n
 index once per shard and worker (cached), then ``pread``s and decodes just the sample's chunk (a few µs to
 ~20 µs), which keeps shuffled access as fast as sequential access. Arrays whose codecs are not the ones
 :mod:`datagen.dataset.build` writes (or stores that are not local directories) fall back to zarr's own reader.
+
+Checks on each read: the shard index's length, crc32c and bounds, and that the chunk decodes
+(:func:`datagen.dataset.integrity.read_shard_index`, :func:`~datagen.dataset.integrity.corrupt_chunk`). A byte
+changed inside a chunk's compressed data can still decode, to other values; with ``hashes`` (the loader's
+``verify=True``) each shard file is first hashed whole against its recorded sha256, once per process.
 """
 from __future__ import annotations
 
@@ -18,6 +23,7 @@ from typing import Callable
 import numpy as np
 
 from .integrity import EMPTY_CHUNK, REMEDY, DatasetCorruptError, corrupt_chunk, read_shard_index
+from .store import file_sha256, read_marker
 
 __all__ = ["OPEN_SHARDS", "FieldReader"]
 
@@ -28,11 +34,12 @@ OPEN_SHARDS = 8
 class FieldReader:
     """Sample reads of one array ``<root>/<split>/<name>``: fast path or zarr fallback (see the module doc).
 
-    Per process it caches shard indexes and open file descriptors (``OPEN_SHARDS`` per field); neither is
-    pickled, so a DataLoader worker starts with empty caches."""
+    Per process it caches shard indexes and open file descriptors (``OPEN_SHARDS`` per field) and, given
+    ``hashes`` (shard number → recorded sha256 hex or None), the shards whose hash matched (:meth:`verify`); none
+    of it is pickled, so a DataLoader worker starts with empty caches and hashes again what it reads."""
 
-    def __init__(self, root: Path, split: str, name: str):
-        self.root, self.split, self.name = root, split, name
+    def __init__(self, root: Path, split: str, name: str, hashes: dict[int, str | None] | None = None):
+        self.root, self.split, self.name, self.hashes = root, split, name, hashes
         self.prefix = str(root / split / name / "c") + "/"
         meta = json.loads((root / split / name / "zarr.json").read_text())
         self.shape = tuple(meta["shape"])
@@ -48,6 +55,32 @@ class FieldReader:
         self.shard_size, self.decode = _fast_path(self._meta, self.sample_shape, self.dtype, self.is_str)
         self._open: OrderedDict[int, tuple[int, np.ndarray]] = OrderedDict()
         self._zarr = None
+        self._verified: set[int] = set()
+
+    def verify(self, shard: int) -> None:
+        """Hash shard file ``shard`` (:func:`datagen.dataset.store.file_sha256`) against its recorded sha256:
+        ``hashes[shard]``, else the done marker's (:func:`datagen.dataset.store.read_marker`); once per process.
+
+        Raises:
+            DatasetCorruptError: the file is missing, no hash is recorded, or the hashes differ (names the file
+                and :data:`datagen.dataset.integrity.REMEDY`).
+        """
+        if shard in self._verified:
+            return
+        path = f"{self.prefix}{shard}{self.suffix}"
+        expected = (self.hashes or {}).get(shard) or (read_marker(self.root, self.split, shard) or {}).get(
+            "sha256", {}).get(self.name)
+        try:
+            actual = file_sha256(Path(path))
+        except FileNotFoundError:
+            raise DatasetCorruptError(f"{path}: shard file missing; {REMEDY}") from None
+        if expected is None:
+            raise DatasetCorruptError(f"{path}: no sha256 recorded in the dataset card or the done marker, so "
+                                      f"verify=True cannot check it; {REMEDY}")
+        if actual != expected:
+            raise DatasetCorruptError(f"{path}: sha256 {actual[:16]}… differs from the recorded {expected[:16]}…: "
+                                      f"the shard changed after the build (damaged); {REMEDY}")
+        self._verified.add(shard)
 
     def _shard(self, shard: int) -> tuple[int, np.ndarray]:
         """(open fd, (shard_size, 2) uint64 index of (offset, nbytes)) of shard ``shard``."""
@@ -71,7 +104,10 @@ class FieldReader:
         return entry
 
     def read(self, i: int) -> np.ndarray:
-        """Sample ``i`` as an array of shape ``sample_shape`` (0-d object array holding a str for strings)."""
+        """Sample ``i`` as an array of shape ``sample_shape`` (0-d object array holding a str for strings); with
+        ``hashes``, its shard file is verified first (:meth:`verify`)."""
+        if self.hashes is not None:
+            self.verify(i // self._meta["chunk_grid"]["configuration"]["chunk_shape"][0])
         if self.decode is None:
             try:
                 if self._zarr is None:
@@ -104,7 +140,8 @@ class FieldReader:
             pass
 
     def __getstate__(self):   # nothing opened or cached crosses a process boundary
-        return {k: v for k, v in self.__dict__.items() if k not in ("_open", "_zarr", "decode", "shard_size")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_open", "_zarr", "decode", "shard_size",
+                                                                  "_verified")}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
