@@ -34,6 +34,7 @@ Modules (they import each other directly, never through this package):
   card (``datagen view``, ``datagen inspect``);
 - :mod:`~datagen.dataset.loader`: :class:`NLOSDataset`, :class:`BatchNoise` and :func:`plot_sample` (import
   torch and matplotlib on first use: ``import datagen.dataset`` stays light);
+- :mod:`~datagen.dataset.shard_reader`: the loader's per-sample reads of shard files (one ``pread`` each);
 - :mod:`~datagen.dataset.layout`: the networks' (1, T, H, W) layout of scans (``NLOSDataset(layout="network")``)
   and the axis names the card records;
 - :mod:`~datagen.dataset.export`: one stored sample as a simulation result with its wall grids (``datagen

@@ -5,12 +5,15 @@ object_order="stored")`` reads the dataset built by :mod:`datagen.dataset.build`
 ``__init__`` except the small JSON metadata, and no file handle or cache is pickled, so each ``DataLoader``
 worker opens the store lazily on its first item.
 
-Reading. Zarr's per-chunk read path costs ~1 ms per sample and field; a sample has a dozen fields. Each
-field's shard file holds an index (offset, nbytes per inner chunk) at its end and one compressed chunk per
-sample (``store.compression``: Blosc-LZ4 with byte shuffle by default, zstd or none), so the loader reads that
-index once per shard and worker (cached), then ``pread``s and decodes just the sample's chunk (a few µs to
-~20 µs), which keeps shuffled access as fast as sequential access. Arrays whose codecs are not the ones
-:mod:`datagen.dataset.build` writes (or stores that are not local directories) fall back to zarr's own reader.
+Reading (:mod:`datagen.dataset.shard_reader`): each field's shard index is read once per shard and worker
+(cached), then each sample is one ``pread`` and decode of its chunk, so shuffled access is as fast as sequential
+access.
+
+Integrity (docs/reliability.md, "Verify and the loader"). On opening, the split's metadata is checked against
+the card; on each read, the shard index's length, crc32c and bounds, and that the chunk decodes. Neither sees a
+byte changed inside a chunk's compressed data (it decodes to other values): ``verify=True`` hashes each shard
+file whole against the sha256 the card records before returning any sample of it, once per process (each
+``DataLoader`` worker hashes the shards it reads once, as no cache is pickled).
 
 Normalisation. Every item also carries ``cycles`` (laser cycles of the exposure, repetition_rate ×
 exposure), ``photons_per_pulse`` (the laser's Φ, the scale inside the envelope) and ``background`` (expected
@@ -44,7 +47,6 @@ from __future__ import annotations
 import inspect
 import json
 import os
-from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, Iterable, Literal
 
@@ -53,16 +55,11 @@ import torch
 
 from .store import read_card
 from .config import resample_rng
-from .integrity import REMEDY, DatasetCorruptError, check_split, corrupt_chunk, read_shard_index, sample_index
-
-_EMPTY = 2**64 - 1
-"""Offset and length of an inner chunk absent from a shard index (zarr sharding spec: fill value)."""
+from .integrity import check_split, sample_index
+from .shard_reader import FieldReader
 
 PLOT_DYNAMIC_RANGE = 1e-6
 """Lowest envelope value drawn, relative to its peak (IRF tails and FFT round-off lie far below)."""
-
-OPEN_SHARDS = 8
-"""Shard files kept open (with their decoded index) per field and worker."""
 
 SCALE_FIELDS = ("cycles", "photons_per_pulse", "background")
 """Per-item normalisation fields the loader adds (float64 0-d tensors; see the module doc)."""
@@ -77,135 +74,12 @@ TRANSFORM_KEYWORDS = ("index", "params")
 """Keyword arguments a ``transform`` may declare to receive the sample index and its parsed params."""
 
 
-class _FieldReader:
-    """Sample reads of one array ``<root>/<split>/<name>``: fast path or zarr fallback (see module doc).
-
-    Per process it caches shard indexes and open file descriptors (``OPEN_SHARDS`` per field); neither is
-    pickled, so a DataLoader worker starts with empty caches."""
-
-    def __init__(self, root: Path, split: str, name: str):
-        self.root, self.split, self.name = root, split, name
-        self.prefix = str(root / split / name / "c") + "/"
-        meta = json.loads((root / split / name / "zarr.json").read_text())
-        self.shape = tuple(meta["shape"])
-        self.sample_shape = self.shape[1:]
-        self.suffix = "/0" * (len(self.shape) - 1)
-        self.fill = meta.get("fill_value", 0)
-        self.is_str = meta["data_type"] == "string"
-        self.dtype = None if self.is_str else np.dtype(meta["data_type"]).newbyteorder("<")
-        self._meta = meta
-        self._reset()
-
-    def _reset(self) -> None:
-        self.shard_size, self.decode = _fast_path(self._meta, self.sample_shape, self.dtype, self.is_str)
-        self._open: OrderedDict[int, tuple[int, np.ndarray]] = OrderedDict()
-        self._zarr = None
-
-    def _shard(self, shard: int) -> tuple[int, np.ndarray]:
-        """(open fd, (shard_size, 2) uint64 index of (offset, nbytes)) of shard ``shard``."""
-        entry = self._open.get(shard)
-        if entry is not None:
-            self._open.move_to_end(shard)
-            return entry
-        path = f"{self.prefix}{shard}{self.suffix}"
-        try:
-            fd = os.open(path, os.O_RDONLY)
-        except FileNotFoundError:
-            raise DatasetCorruptError(f"{path}: shard file missing; {REMEDY}") from None
-        try:
-            entry = (fd, read_shard_index(fd, path, self.shard_size))   # length, crc32c and bounds checked
-        except BaseException:
-            os.close(fd)
-            raise
-        self._open[shard] = entry
-        if len(self._open) > OPEN_SHARDS:
-            os.close(self._open.popitem(last=False)[1][0])
-        return entry
-
-    def read(self, i: int) -> np.ndarray:
-        """Sample ``i`` as an array of shape ``sample_shape`` (0-d object array holding a str for strings)."""
-        if self.decode is None:
-            try:
-                if self._zarr is None:
-                    import zarr
-                    self._zarr = zarr.open_array(str(self.root / self.split / self.name), mode="r")
-                return np.asarray(self._zarr[i])
-            except (OSError, ValueError, RuntimeError, MemoryError) as exc:
-                raise corrupt_chunk(str(self.root / self.split / self.name), i, exc) from None
-        shard, k = divmod(i, self.shard_size)
-        fd, index = self._shard(shard)
-        offset, nbytes = int(index[k, 0]), int(index[k, 1])
-        if offset == _EMPTY and nbytes == _EMPTY:
-            if self.is_str:
-                return np.asarray(self.fill or "", dtype=object)
-            return np.full(self.sample_shape, self.fill, dtype=self.dtype)
-        try:
-            return self.decode(os.pread(fd, nbytes, offset))
-        except (OSError, ValueError, RuntimeError, MemoryError) as exc:   # damaged chunk bytes
-            raise corrupt_chunk(f"{self.prefix}{shard}{self.suffix}", i, exc) from None
-
-    def close(self) -> None:
-        for fd, _ in self._open.values():
-            os.close(fd)
-        self._open.clear()
-
-    def __del__(self):
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown
-            pass
-
-    def __getstate__(self):   # nothing opened or cached crosses a process boundary
-        return {k: v for k, v in self.__dict__.items() if k not in ("_open", "_zarr", "decode", "shard_size")}
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._reset()
-
-
-def _fast_path(meta: dict, sample_shape: tuple, dtype, is_str: bool) -> tuple[int | None, Callable | None]:
-    """(samples per shard, decode(bytes) → sample array) when the array is laid out as :mod:`datagen.dataset.build`
-    writes it (sharding codec, one sample per inner chunk, index at the end, bytes + blosc/zstd/no
-    compression); (None, None) otherwise (the reader then uses zarr)."""
-    codecs = meta.get("codecs", [])
-    if len(codecs) != 1 or codecs[0]["name"] != "sharding_indexed":
-        return None, None
-    conf = codecs[0]["configuration"]
-    shard_shape = meta["chunk_grid"]["configuration"]["chunk_shape"]
-    if (conf.get("index_location", "end") != "end" or list(conf["chunk_shape"]) != [1, *sample_shape]
-            or list(shard_shape[1:]) != list(sample_shape)
-            or meta.get("chunk_key_encoding", {}).get("configuration", {}).get("separator", "/") != "/"
-            or [c["name"] for c in conf["index_codecs"]] != ["bytes", "crc32c"]):
-        return None, None
-    inner = list(conf["codecs"])
-    decompress: Callable = bytes
-    if inner and inner[-1]["name"] == "zstd":
-        from numcodecs.zstd import decompress
-        inner = inner[:-1]
-    elif inner and inner[-1]["name"] == "blosc":
-        import numcodecs.blosc
-        from numcodecs.blosc import decompress
-        if numcodecs.blosc.use_threads is None:   # unset: blosc would look up the process on every call, and
-            numcodecs.blosc.use_threads = False   # threads only cost time on one-sample chunks
-        inner = inner[:-1]
-    names = [c["name"] for c in inner]
-    if is_str and names == ["vlen-utf8"]:
-        from numcodecs import VLenUTF8
-        vlen = VLenUTF8()
-        return shard_shape[0], lambda raw: np.asarray(vlen.decode(decompress(raw))[0], dtype=object)
-    if not is_str and names == ["bytes"] and inner[0].get("configuration", {}).get("endian", "little") == "little":
-        def decode(raw: bytes) -> np.ndarray:
-            return np.frombuffer(bytearray(decompress(raw)), dtype=dtype).reshape(sample_shape)
-        return shard_shape[0], decode
-    return None, None
-
-
 class NLOSDataset(torch.utils.data.Dataset):
     """Map-style dataset over one split of a datagen dataset.
 
     Args:
         path: the dataset directory (``datagen build ... --out PATH``).
-        split: split name (see the card's ``splits``).
+        split: split name, a str (see the card's ``splits``).
         fields: fields to return (default: every stored numeric field and :data:`SCALE_FIELDS`; ``params``
             returns the JSON string). ``counts`` with ``noise="resample"`` is re-drawn from ``envelope`` (read even
             if not requested).
@@ -214,7 +88,12 @@ class NLOSDataset(torch.utils.data.Dataset):
         transform: called on the dict of tensors before it is returned: ``transform(item)``, or with the
             keywords it declares among ``index`` (int) and ``params`` (the parsed params dict, needs
             ``store.params``), e.g. ``def transform(item, index, params)``.
-        counts_dtype: dtype of ``counts`` (e.g. ``torch.float32``); default the stored int64.
+        counts_dtype: dtype of ``counts`` (e.g. ``torch.float32``); default the stored int64. It must hold every
+            count exactly (:func:`datagen.spad.torch_noise.check_counts_dtype`): an integer or floating torch dtype
+            whose exact range (``iinfo.max``; 2**24 float32, 2**11 float16, 2**8 bfloat16) reaches the laser
+            cycles of the split's exposure (of the longest one in ``detector_ranges``), the most a pile-up bin
+            counts; bool, complex and narrower dtypes are refused here, and each item's counts are checked
+            against that range on reading (models whose bins can count more than the cycles).
         object_order: "stored" (pillars first, then boxes, as generated) or "distance" (nearest to the relay
             wall first); either way padding slots come last.
         layout: "stored" (the stored shapes) or "network": scans as (1, T, H, W) float32 and wall-view labels as
@@ -222,24 +101,35 @@ class NLOSDataset(torch.utils.data.Dataset):
         detector_ranges: with ``noise="resample"``, field → number or (low, high) range of the detector's
             ``exposure`` (s or "1ms"), ``ambient_rate`` (Hz), ``dcr`` (Hz), ``pde``, drawn per sample and epoch
             (module doc "Detector randomisation"); the item gains :data:`DETECTOR_FIELDS`.
+        verify: hash each shard file read against the sha256 the card records (the done marker's if the card
+            has none) before returning any sample of it: once per shard and process (each DataLoader worker
+            hashes the shards it reads), reading each shard file once more in full. Without it a byte changed
+            inside a chunk's compressed data is returned as data (module doc "Integrity").
     Item:
         dict field → torch tensor with the stored shape and dtype: envelope (*S, T) float32 expected detected
         photons per pulse per bin, counts (*S, T) int64, depth (H, W) float32 m, normal (H, W, 3),
         occupancy (V, V, V) uint8, object_* (K, …), object_count (), …; cycles, photons_per_pulse and
         background () float64; see ``docs/datasets.md``.
     Raises:
-        FileNotFoundError: no datagen dataset at ``path``; ValueError: unknown split, field, noise mode or
+        FileNotFoundError: no datagen dataset at ``path``; TypeError: a ``split`` that is not a str (names the
+        splits), a ``counts_dtype`` that is not a torch.dtype; ValueError: unknown split, field, noise mode or
         object order or layout, an incomplete build, ``noise="resample"`` without a stored envelope,
         ``detector_ranges`` without ``noise="resample"`` or with an unknown field or invalid range, a transform
-        asking for params that are not stored, or ``layout="network"`` for a capture that is not a scan;
+        asking for params that are not stored, ``layout="network"`` for a capture that is not a scan, a
+        ``counts_dtype`` that cannot hold the counts (here, or on reading an item's counts beyond it);
         DatasetCorruptError (a ValueError): metadata that disagrees with the card (here), a damaged or missing
-        shard (on reading); TypeError: an index that is not an integer (``ds[1.5]``).
+        shard, or with ``verify=True`` a shard whose sha256 differs (on reading); TypeError: an index that is
+        not an integer (``ds[1.5]``).
     """
 
     def __init__(self, path: str | os.PathLike, split: str = "train", fields: Iterable[str] | None = None,
                  noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None,
                  counts_dtype: torch.dtype | None = None, object_order: Literal["stored", "distance"] = "stored",
-                 layout: Literal["stored", "network"] = "stored", detector_ranges: dict[str, Any] | None = None):
+                 layout: Literal["stored", "network"] = "stored", detector_ranges: dict[str, Any] | None = None,
+                 verify: bool = False):
+        if not isinstance(split, str):
+            raise TypeError(f"split must be one split name (a str), got {split!r} ({type(split).__name__}); "
+                            f"splits: {sorted(read_card(Path(path))['splits'])}")
         self.path = Path(path)
         card = read_card(self.path)
         if card.get("status") != "complete":
@@ -283,6 +173,14 @@ class NLOSDataset(torch.utils.data.Dataset):
             if det.pde == 0 and self._ranges["pde"] != (0.0, 0.0):
                 raise ValueError("NLOSDataset detector_ranges: the split's pde is 0, so the envelope cannot be "
                                  "rescaled to another pde")
+        if counts_dtype is not None:
+            from ..spad.torch_noise import check_counts_dtype, exact_count_limit
+            cycles = 0 if self.detector is None else self.detector_config().cycles
+            if self._ranges is not None:
+                cycles = self._cycles or max(1, round(self._ranges["exposure"][1] * det.repetition_rate))
+            self._counts_limit = exact_count_limit(check_counts_dtype(counts_dtype, cycles, "counts_dtype",
+                                                                      "NLOSDataset"))
+        self.verify = bool(verify)
         self.epoch = 0
         self.card = card
         self._keywords = _transform_keywords(transform)
@@ -298,7 +196,7 @@ class NLOSDataset(torch.utils.data.Dataset):
         if "params" in self._keywords:
             to_read.add("params")
         check_split(self.path, card, split, sorted(to_read) + ["time_edges"])   # metadata as the card implies
-        self._readers = {name: _FieldReader(self.path, split, name) for name in sorted(to_read)}
+        self._readers = {name: self._field_reader(name) for name in sorted(to_read)}
         self.time_edges = _read_small(self.path / split / "time_edges")
         # -- network layout (datagen.dataset.layout): checked here, applied per item -------------------------
         if layout not in ("stored", "network"):
@@ -307,6 +205,12 @@ class NLOSDataset(torch.utils.data.Dataset):
         if layout == "network":
             from .layout import network_shapes
             network_shapes(info["fields"])
+
+    def _field_reader(self, name: str) -> FieldReader:
+        """The reader of field ``name``, with the card's per-shard sha256 of it when ``verify``."""
+        shards = self.card.get("shards", {}).get(self.split, {}) if self.verify else None
+        hashes = None if shards is None else {int(k): e.get("sha256", {}).get(name) for k, e in shards.items()}
+        return FieldReader(self.path, self.split, name, hashes)
 
     @staticmethod
     def _photons_source(stored: list[str]) -> bool:
@@ -409,6 +313,11 @@ class NLOSDataset(torch.utils.data.Dataset):
             arrays = to_network(arrays)
         item = {name: (str(a[()]) if a.dtype == object else torch.from_numpy(a)) for name, a in arrays.items()}
         if self.counts_dtype is not None and "counts" in item:
+            most = int(item["counts"].max()) if item["counts"].numel() else 0
+            if most > self._counts_limit:
+                raise ValueError(f"NLOSDataset: counts_dtype={self.counts_dtype} holds counts up to "
+                                 f"{self._counts_limit} exactly, but sample {index % self.count} of {self.split!r} "
+                                 f"counts {most} in a bin; pass a wider counts_dtype")
             item["counts"] = item["counts"].to(self.counts_dtype)
         if self.transform is None:
             return item
@@ -424,8 +333,7 @@ class NLOSDataset(torch.utils.data.Dataset):
         if "params" not in self._readers:
             if "params" not in self.card["splits"][self.split]["fields"]:
                 raise ValueError(f"{self.path} does not store params (store.params was false)")
-            self._readers_extra = getattr(self, "_readers_extra", None) or {
-                "params": _FieldReader(self.path, self.split, "params")}
+            self._readers_extra = getattr(self, "_readers_extra", None) or {"params": self._field_reader("params")}
         reader = self._readers.get("params") or self._readers_extra["params"]
         return json.loads(str(reader.read(int(index))[()]))
 

@@ -40,6 +40,8 @@ below a threshold of 0.03–1 expected count, or every bin's share min(λ, τ) f
 """
 from __future__ import annotations
 
+import math
+import numbers
 from typing import Any, Mapping
 
 import torch
@@ -49,12 +51,16 @@ from .ranges import RANDOMISED_FIELDS, detector_ranges, draw_detector_params, fi
 from .rates import NEGATIVE_ENVELOPE_RTOL, gate_fraction
 from .synchronous import MAX_EXPECTED_COUNTS
 
-__all__ = ["POISSONIZATION_MARGIN", "RANDOMISED_FIELDS", "SPADNoise", "first_photon", "row_search"]
+__all__ = ["POISSONIZATION_MARGIN", "RANDOMISED_FIELDS", "SPADNoise", "as_generator", "check_counts_dtype",
+           "exact_count_limit", "first_photon", "row_search"]
 
 POISSONIZATION_MARGIN = 2.0
 """The pile-up sampler's Poisson stage uses m = n − margin·√n cycles: a row's Poisson total exceeds n (and the
 row is redrawn) with probability ≈ Φ(−margin) ≈ 2.3 %, and ≈ (margin + 0.8)·√n·(1 − p_none) detections are
 placed by inverse CDF afterwards (margins 1, 2, 3 and 4 cost within 5 % of each other per sample)."""
+
+COUNT_DTYPES = (torch.int32, torch.float32, torch.int64, torch.float64)
+"""Count dtypes suggested, smallest first, when a requested one cannot hold the counts."""
 
 _UNSUPPORTED = {
     "jitter_sigma": "Gaussian jitter after pile-up", "jitter_fwhm": "Gaussian jitter after pile-up",
@@ -77,11 +83,19 @@ class SPADNoise(torch.nn.Module):
         dcr: dark count rate (Hz), number or range.
         pde: photon detection efficiency, number or range in [0, 1]. The envelope is rescaled by
             pde / envelope_pde (it already contains the PDE it was simulated with, docs/physics.md §2).
-        envelope_pde: the PDE inside the envelopes; default ``detector.pde``.
-        dtype: dtype of the returned counts (float32 default: exact up to 2**24 counts per bin).
+        envelope_pde: the PDE inside the envelopes, a finite number in [0, 1]; default ``detector.pde``.
+        dtype: dtype of the returned counts (float32 default). It must hold every count a bin can reach exactly
+            (:func:`check_counts_dtype`): an integer or floating torch dtype whose exact range (``iinfo.max``;
+            2**24 for float32, 2**11 float16, 2**8 bfloat16, 2**53 float64) reaches the most laser cycles of an
+            exposure (a bin counts at most once per cycle in the pile-up model). bool, complex and narrower
+            dtypes are refused here; with the ``poisson`` model, whose bins can count more than the cycles,
+            :meth:`sample` also refuses a batch whose counts exceed the dtype's exact range.
     Raises:
-        ValueError: invalid field or range (the message names it); a float32 ``dtype`` with more than 2**24
-            cycles; a randomised PDE with ``envelope_pde`` 0. NotImplementedError: an effect listed above.
+        ValueError: invalid field or range (the message names it and the value; exposure, ambient_rate, dcr and
+            pde must be finite, ≥ 0, pde ≤ 1); ``envelope_pde`` negative, above 1, NaN or infinite; a ``dtype``
+            that cannot hold the counts (e.g. float32 with more than 2**24 cycles, uint8 with more than 255);
+            a randomised PDE with ``envelope_pde`` 0. TypeError: ``dtype`` not a torch.dtype.
+            NotImplementedError: an effect listed above.
 
     Example::
 
@@ -104,7 +118,7 @@ class SPADNoise(torch.nn.Module):
         self.detector = det
         given = {"exposure": exposure, "ambient_rate": ambient_rate, "dcr": dcr, "pde": pde}
         self.ranges = detector_ranges(det, {k: v for k, v in given.items() if v is not None})
-        self.envelope_pde = float(det.pde if envelope_pde is None else envelope_pde)
+        self.envelope_pde = float(det.pde if envelope_pde is None else _probability(envelope_pde, "envelope_pde"))
         if self.envelope_pde == 0 and self.ranges["pde"] != (0.0, 0.0):
             raise ValueError("SPADNoise: envelope_pde is 0, so the envelope cannot be rescaled to another pde")
         self.fixed_cycles = fixed_cycles(det, exposure)
@@ -112,10 +126,8 @@ class SPADNoise(torch.nn.Module):
         if round(self.ranges["exposure"][0] * det.repetition_rate) < 1 and self.fixed_cycles is None:
             raise ValueError(f"SPADNoise: exposure {self.ranges['exposure'][0]!r} s is less than one laser cycle at "
                              f"{det.repetition_rate!r} Hz")
-        if dtype == torch.float32 and max_cycles > 2**24:
-            raise ValueError(f"SPADNoise: {max_cycles} cycles can give more than 2**24 counts in a bin, which float32 "
-                             "cannot count exactly; pass dtype=torch.float64")
-        self.dtype = dtype
+        self.dtype = check_counts_dtype(dtype, max_cycles)
+        self.count_limit = exact_count_limit(dtype)
         self._axis: dict[tuple[int, str], tuple[torch.Tensor, torch.Tensor]] = {}
 
     def extra_repr(self) -> str:
@@ -123,15 +135,16 @@ class SPADNoise(torch.nn.Module):
         return f"model={self.detector.model}, {ranges}, envelope_pde={self.envelope_pde:g}"
 
     # ---- parameters ---------------------------------------------------------------------------------------
-    def draw_params(self, batch: int, generator: torch.Generator | None = None,
+    def draw_params(self, batch: int, generator: torch.Generator | int | None = None,
                     device: torch.device | str = "cpu") -> dict[str, torch.Tensor]:
         """Per-sample detector parameters: ``exposure`` (s), ``ambient_rate`` (Hz), ``dcr`` (Hz), ``pde`` and
         ``cycles`` (laser cycles, round(exposure × repetition_rate)), each float64 (batch,) on ``device``.
 
         Always draws (batch, 4) uniforms from ``generator`` (fixed fields included), so the stream layout does
-        not depend on which fields are randomised (:func:`datagen.spad.ranges.draw_detector_params`)."""
+        not depend on which fields are randomised (:func:`datagen.spad.ranges.draw_detector_params`); an int
+        seeds a new generator (:func:`as_generator`)."""
         return draw_detector_params(self.ranges, self.detector.repetition_rate, self.fixed_cycles, batch,
-                                    generator, device)
+                                    as_generator(generator, device), device)
 
     def _time_axis(self, n_bins: int, device: torch.device) -> tuple[torch.Tensor | None, torch.Tensor]:
         """(gate fraction g_i or None when every bin is fully inside the gate, g_i × width_i in s), float64
@@ -169,7 +182,10 @@ class SPADNoise(torch.nn.Module):
             envelope: (B, ..., T) detected photons per pulse per bin (≥ 0).
             params: per-sample parameters as :meth:`draw_params` returns them; default the detector's own
                 (e.g. the expected empty-room counts from a stored ``reference`` envelope, for subtraction).
+        Raises:
+            ValueError: an envelope of fewer than 2 dimensions or with 0 bins (the message gives its shape).
         """
+        check_envelope_shape(envelope)
         if params is None:
             det, batch = self.detector, envelope.shape[0]
             params = {name: torch.full((batch,), float(value), dtype=torch.float64, device=envelope.device)
@@ -184,26 +200,33 @@ class SPADNoise(torch.nn.Module):
         return (pmf * cycles).reshape(envelope.shape)
 
     # ---- sampling -----------------------------------------------------------------------------------------
-    def forward(self, envelope: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    def forward(self, envelope: torch.Tensor, generator: torch.Generator | int | None = None) -> torch.Tensor:
         """Counts of one exposure per sample: (B, ..., T) ``dtype`` on the envelope's device (see :meth:`sample`)."""
         return self.sample(envelope, generator)[0]
 
-    def sample(self, envelope: torch.Tensor,
-               generator: torch.Generator | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def sample(self, envelope: torch.Tensor, generator: torch.Generator | int | None = None
+               ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Draw the detector parameters and the counts of a batch.
 
         Args:
-            envelope: (B, ..., T) expected detected photons per pulse per bin (float, ≥ 0, finite); the leading
-                axis is the sample, the others (pixels) share their sample's detector parameters.
-            generator: a ``torch.Generator`` on the envelope's device (None: torch's default generator).
+            envelope: (B, ..., T) expected detected photons per pulse per bin (float, ≥ 0, finite), T ≥ 1; the
+                leading axis is the sample, the others (pixels) share their sample's detector parameters. An
+                envelope with no element (B = 0 or an empty pixel axis) gives empty counts.
+            generator: a ``torch.Generator`` on the envelope's device, or an int seed of a new one (the same int
+                gives the same draw: pass a Generator to draw fresh noise per batch); None: torch's default.
         Returns:
             (counts (B, ..., T) ``dtype``, params): params as :meth:`draw_params` (float64 (B,)).
         Raises:
-            ValueError: an envelope of fewer than 2 dimensions, a negative or non-finite value, or (poisson
-                model) a bin expecting more than MAX_EXPECTED_COUNTS counts.
+            ValueError: an envelope of fewer than 2 dimensions or with 0 bins, a negative or non-finite value,
+                (poisson model) a bin expecting more than MAX_EXPECTED_COUNTS counts or counting more than
+                ``dtype`` holds exactly. TypeError: an envelope that is not a tensor, a generator that is neither
+                a torch.Generator nor an int (e.g. a numpy Generator).
         """
-        if envelope.dim() < 2:
-            raise ValueError(f"SPADNoise: envelope must be (batch, ..., bins), got shape {tuple(envelope.shape)}")
+        check_envelope_shape(envelope)
+        generator = as_generator(generator, envelope.device)
+        if envelope.numel() == 0:
+            params = self.draw_params(envelope.shape[0], generator, envelope.device)
+            return torch.zeros(envelope.shape, dtype=self.dtype, device=envelope.device), params
         rows = envelope.reshape(-1, envelope.shape[-1])
         low, high = torch.aminmax(rows, dim=-1)                     # NaN propagates into both; ±inf into one
         fine, negative = torch.stack([((low >= -NEGATIVE_ENVELOPE_RTOL * high) & torch.isfinite(high)).all(),
@@ -223,9 +246,95 @@ class SPADNoise(torch.nn.Module):
                 raise ValueError(f"SPADNoise: a bin expects {float(lam.max()):.3g} counts, more than "
                                  f"{MAX_EXPECTED_COUNTS:.3g}: the flux is too high")
             counts = torch.poisson(lam, generator=generator)
+            if self.count_limit < 2**53 and float(counts.max()) > self.count_limit:
+                raise ValueError(f"SPADNoise: dtype={self.dtype} holds counts up to {self.count_limit} exactly, but "
+                                 f"a bin counted {float(counts.max()):.0f}; pass a wider dtype")
         else:
             counts = first_photon(rates, cycles, generator)
         return counts.reshape(envelope.shape).to(self.dtype), params
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Argument checks (shared with datagen.dataset.NLOSDataset's counts_dtype)
+
+
+def exact_count_limit(dtype: torch.dtype) -> int:
+    """The largest n such that every count 0 … n is exact in ``dtype``: ``iinfo(dtype).max`` for integers,
+    2 / eps for floats (2**11 float16, 2**8 bfloat16, 2**24 float32, 2**53 float64).
+
+    Raises:
+        TypeError: ``dtype`` is not a torch.dtype. ValueError: bool or complex (not a count).
+    """
+    if not isinstance(dtype, torch.dtype):
+        raise TypeError(f"must be a torch.dtype such as torch.int32, got {dtype!r} ({type(dtype).__name__})")
+    if dtype == torch.bool or dtype.is_complex:
+        raise ValueError(f"{dtype} cannot hold counts; use an integer or floating dtype such as torch.int32")
+    return int(2 / torch.finfo(dtype).eps) if dtype.is_floating_point else int(torch.iinfo(dtype).max)
+
+
+def check_counts_dtype(dtype: Any, max_count: int, name: str = "dtype", owner: str = "SPADNoise") -> torch.dtype:
+    """``dtype`` if it holds every count from 0 to ``max_count`` exactly (:func:`exact_count_limit`).
+
+    Args:
+        dtype: the requested torch dtype of counts.
+        max_count: the most counts a bin can reach (the laser cycles of the longest exposure).
+        name, owner: the parameter and who asks, named in the messages.
+    Raises:
+        TypeError: not a torch.dtype. ValueError: bool, complex, or an exact range below ``max_count``; the
+            message names the parameter, the dtype, both numbers and a dtype that fits.
+    """
+    try:
+        limit = exact_count_limit(dtype)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(f"{owner}: {name}={dtype!r}: {exc}") from None
+    if limit < max_count:
+        fits = next((d for d in COUNT_DTYPES if exact_count_limit(d) >= max_count), torch.float64)
+        raise ValueError(f"{owner}: {name}={dtype} holds counts up to {limit} exactly, but a bin can count up to "
+                         f"{max_count} (the laser cycles of an exposure); pass {name}={fits}")
+    return dtype
+
+
+def as_generator(generator: Any, device: torch.device | str = "cpu") -> torch.Generator | None:
+    """``generator`` as a ``torch.Generator``: a Generator or None unchanged, an int (Python or numpy) in
+    [0, 2**64) as a new Generator on ``device`` seeded with it.
+
+    Raises:
+        TypeError: anything else (a numpy Generator, a float, a bool), naming its type. ValueError: an int seed
+            outside [0, 2**64).
+    """
+    if generator is None or isinstance(generator, torch.Generator):
+        return generator
+    if isinstance(generator, bool) or not isinstance(generator, numbers.Integral):
+        kind = f"{type(generator).__module__.split('.')[0]}.{type(generator).__name__}"
+        raise TypeError(f"SPADNoise: generator must be a torch.Generator or an int seed, got {kind} (numpy "
+                        "generators cannot drive torch's samplers)")
+    if not 0 <= int(generator) < 2**64:
+        raise ValueError(f"SPADNoise: generator seed must be in [0, 2**64), got {int(generator)}")
+    return torch.Generator(device=device).manual_seed(int(generator))
+
+
+def check_envelope_shape(envelope: Any) -> None:
+    """Refuse an envelope that is not a (batch, ..., bins) tensor with at least one bin.
+
+    Raises:
+        TypeError: not a torch.Tensor. ValueError: fewer than 2 dimensions or 0 bins (naming the shape).
+    """
+    if not isinstance(envelope, torch.Tensor):
+        raise TypeError(f"SPADNoise: envelope must be a torch.Tensor, got {type(envelope).__name__}")
+    if envelope.dim() < 2 or envelope.shape[-1] == 0:
+        raise ValueError(f"SPADNoise: envelope must be (batch, ..., bins) with at least one bin, got shape "
+                         f"{tuple(envelope.shape)}")
+
+
+def _probability(value: Any, name: str) -> float:
+    """``value`` as a float in [0, 1]; ValueError naming ``name`` and the value otherwise (NaN, ±inf included)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if isinstance(value, bool) or not 0.0 <= number <= 1.0:
+        raise ValueError(f"SPADNoise: {name} must be a finite number in [0, 1], got {value!r}")
+    return number
 
 
 # ---------------------------------------------------------------------------------------------------------
