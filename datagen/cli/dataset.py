@@ -43,7 +43,8 @@ def _dataset_errors(func):
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @click.option("--splits", "split_counts", default=None, metavar="NAME=N,...",
               help="build only these splits with these counts, e.g. train=1024,val=256 (sample i is the same as in "
-                   "the full build: a smaller build is a prefix of it)")
+                   "the full build: a smaller build is a prefix of it; the other splits are left out, a split at 0 "
+                   "is kept empty, at least one count must be > 0)")
 @_dataset_errors
 def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worker, quiet, split_counts):
     """Build the dataset of CONFIG_FILE (configs/datasets/*.yaml) into OUT, shard by shard."""
@@ -63,13 +64,21 @@ def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worke
 
 
 def _cut_splits(config, text: str, config_file) -> dict:
-    """``--splits train=1024,val=256``: those splits of ``config`` (with their overrides) at those counts."""
+    """``--splits train=1024,val=256``: those splits of ``config`` (with their overrides) at those counts; the
+    other splits are left out. A split may be given count 0 (it is kept, empty) as long as one has samples.
+
+    Raises:
+        ValueError: an unknown or repeated split, a count that is not an integer >= 0, or every count 0 (one
+            line naming --splits and the value).
+    """
     splits = {}
     for part in text.split(","):
         name, _, count = part.partition("=")
         name = name.strip()
         if name not in config.splits:
             raise ValueError(f"{config_file}: --splits: no split {name!r} (splits: {', '.join(config.splits)})")
+        if name in splits:
+            raise ValueError(f"--splits {text!r}: split {name!r} is given twice")
         try:
             n = int(count)
         except ValueError:
@@ -77,6 +86,9 @@ def _cut_splits(config, text: str, config_file) -> dict:
         if n < 0:
             raise ValueError(f"--splits: count of {name!r} must be >= 0, got {n}")
         splits[name] = config.splits[name].model_copy(update={"count": n})
+    if not any(spec.count for spec in splits.values()):
+        raise ValueError(f"--splits {text!r}: every split it builds has count 0 (the splits it leaves out are not "
+                         "built): nothing to build; give at least one split a count > 0")
     return splits
 
 
@@ -203,7 +215,10 @@ def verify(path):
     """Check that every shard of the dataset at PATH is present and hashes as its card says (exit 1 if not)."""
     from ..dataset import read_card, verify_dataset
 
-    problems = verify_dataset(path)
+    notes: list[str] = []
+    problems = verify_dataset(path, notes)
+    for line in notes:
+        click.echo(f"note: {line}", err=True)
     if problems:
         for line in problems:
             click.echo(f"BAD {line}", err=True)

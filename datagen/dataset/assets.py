@@ -8,6 +8,12 @@ asset index means the same file on every worker), :func:`load_asset` reads one i
 (bounding box centred on the origin, longest side 1) and :func:`place_asset` gives the world vertices and the
 oriented bounding box of a scaled, tilted and yawed copy.
 
+Size and identity of the assets. :func:`mesh_triangles` reads a mesh file's triangle count from its header (or
+counts its face records) without loading it; :func:`load_asset` and dataset builds refuse a file with more than
+:data:`MAX_ASSET_TRIANGLES` before any heavy work. :func:`asset_record` lists a dataset's asset files by
+location-free name with their sha256 and triangle count: the card pins it at build time, and ``build --resume``
+and ``datagen verify`` compare it with the files on disk (:func:`asset_changes`; docs/reliability.md, "Builds").
+
 Transform of a placed asset (metres, right-handed, z up): file coordinates p → world
 ``R_z(yaw) · (s · R_tilt · N(p) − c) + center``, with N the normalisation, s the drawn size (the longest side of
 the normalised bounding box), R_tilt a rotation by ``tilt_deg`` about the horizontal axis at azimuth
@@ -30,6 +36,14 @@ from .obb import yaw_matrix
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 """File suffixes listed from an asset folder (lower case; trimesh reads each)."""
+
+MAX_ASSET_TRIANGLES = 100_000
+"""Most triangles a mesh asset may have. Each triangle of a hidden mesh is at least one quadrature sub-triangle,
+so a sample's time grows linearly with them: one sample of ``configs/datasets/wall_smoke.yaml`` (16 × 16 scan)
+with an icosphere asset took 1.5 s at 5 120 triangles and 88–112 s at 81 920 (measured, 2 shared cores), so 2
+million would take some 45 minutes per sample (extrapolated), and reading such a file with trimesh alone takes
+2.5 s and 1.1 GB. Decimate larger meshes first (e.g. Open3D's ``simplify_quadric_decimation``): the quadrature's
+few centimetres of resolution (``quadrature_edge``) do not see finer detail."""
 
 
 @dataclass(frozen=True)
@@ -92,6 +106,13 @@ def asset_files(entries: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(files)
 
 
+def refresh_assets() -> None:
+    """Forget the per-process caches of :func:`asset_files` and :func:`load_asset`, so files added, removed or
+    changed since they were filled are seen (a build calls it first: it pins the files it draws from)."""
+    asset_files.cache_clear()
+    load_asset.cache_clear()
+
+
 def asset_name(entries: tuple[str, ...], file: str) -> str:
     """Location-free name of an asset file: its path from the folder that holds its entry, e.g. ``meshes/A.ply``
     for the entry ``/any/checkout/assets/meshes`` (a file entry: its own name). Pure string arithmetic on resolved
@@ -106,9 +127,155 @@ def asset_name(entries: tuple[str, ...], file: str) -> str:
     return path.name
 
 
-def asset_digest(files: tuple[str, ...]) -> list[dict]:
-    """[{file, sha256}] of every asset file (recorded in the dataset card: a changed asset changes samples)."""
-    return [{"file": f, "sha256": hashlib.sha256(Path(f).read_bytes()).hexdigest()} for f in files]
+def _file_sha256(path: Path) -> str:
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
+
+
+def _count_token(path: Path, token: bytes, at_start: bytes | None = None) -> int:
+    """Occurrences of ``token`` in the file (read in 1 MiB blocks; bounded memory), plus one if the file starts
+    with ``at_start``."""
+    count, tail = 0, b""
+    with open(path, "rb") as fh:
+        first = True
+        while block := fh.read(1 << 20):
+            if first and at_start is not None and block.startswith(at_start):
+                count += 1
+            first = False
+            data = tail + block
+            count += data.count(token)     # the carried tail is shorter than a token: nothing counted twice
+            tail = data[-(len(token) - 1):] if len(token) > 1 else b""
+    return count
+
+
+def _gltf_triangles(doc: dict) -> int:
+    """Triangles of every triangle-list primitive of a glTF document (indices' count / 3, else positions')."""
+    accessors = doc.get("accessors") or []
+    total = 0
+    for mesh in doc.get("meshes") or []:
+        for prim in mesh.get("primitives") or []:
+            if prim.get("mode", 4) != 4:
+                continue
+            index = prim["indices"] if prim.get("indices") is not None else prim["attributes"]["POSITION"]
+            total += int(accessors[index]["count"]) // 3
+    return total
+
+
+def mesh_triangles(path: str | Path) -> int | None:
+    """Triangle count of a mesh file read without loading its geometry: the header of binary STL (its count),
+    PLY (``element face``) and OFF, the JSON of GLB / glTF (its triangle primitives), and a count of the face
+    records of OBJ and ASCII STL (one pass over the file in blocks). A PLY, OFF or OBJ polygon counts as one
+    (a lower bound of its triangles).
+
+    Returns:
+        the count, or None when the file cannot be read this way (trimesh then reads it, or names the error).
+    """
+    import json
+    import struct
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(84)
+        if suffix == ".stl":
+            if len(head) == 84:
+                n = struct.unpack("<I", head[80:84])[0]
+                if size == 84 + 50 * n:
+                    return int(n)
+            return _count_token(path, b"endfacet")
+        if suffix == ".obj":
+            return _count_token(path, b"\nf ", at_start=b"f ")
+        if suffix in (".ply", ".off"):
+            with open(path, "rb") as fh:
+                lines = [fh.readline(4096) for _ in range(200)]    # headers are short; comments count too
+            words = [line.split(b"#")[0].split() for line in lines]
+            if suffix == ".ply":
+                for w in words:
+                    if w[:2] == [b"element", b"face"] and len(w) == 3:
+                        return int(w[2])
+                    if w[:1] == [b"end_header"]:
+                        return None
+                return None
+            numbers = [x for w in words for x in w if not x.isalpha() and x not in (b"OFF", b"COFF", b"NOFF")]
+            return int(numbers[1]) if len(numbers) >= 2 else None
+        if suffix == ".glb":
+            magic, _, _, length, kind = struct.unpack("<4sIII4s", head[:20])
+            if magic != b"glTF" or kind != b"JSON":
+                return None
+            with open(path, "rb") as fh:
+                fh.seek(20)
+                return _gltf_triangles(json.loads(fh.read(length)))
+        if suffix == ".gltf":
+            return _gltf_triangles(json.loads(path.read_bytes()))
+    except (OSError, ValueError, KeyError, IndexError, TypeError, struct.error):
+        return None
+    return None
+
+
+def check_asset_size(path: str | Path) -> int | None:
+    """Refuse a mesh asset with more than :data:`MAX_ASSET_TRIANGLES` triangles (:func:`mesh_triangles`, no
+    geometry is loaded). Returns its triangle count (None: not countable without loading).
+
+    Raises:
+        SceneError: naming the file, its triangle count and the limit.
+    """
+    n = mesh_triangles(path)
+    if n is not None and n > MAX_ASSET_TRIANGLES:
+        raise SceneError(f"mesh asset {path}: {n} triangles, more than the {MAX_ASSET_TRIANGLES} a hidden mesh may "
+                         f"have (datagen.dataset.assets.MAX_ASSET_TRIANGLES: a sample's time grows with them); "
+                         f"decimate it, e.g. with Open3D's simplify_quadric_decimation")
+    return n
+
+
+def asset_record(entry_groups: list[tuple[str, ...]], refuse_large: bool = True) -> list[dict]:
+    """What a dataset's card pins of its mesh assets: one ``{"file", "sha256", "triangles"}`` per file of the
+    resolved entries in ``entry_groups`` (one tuple of asset folders / files per room distribution), with
+    ``file`` the location-free :func:`asset_name`, sorted by it (``triangles``: :func:`mesh_triangles`, None when
+    not countable from the header). Files are listed afresh (the caches are refreshed: :func:`refresh_assets`);
+    with ``refuse_large`` every file's size is checked (:func:`check_asset_size`) before any is hashed.
+
+    Raises:
+        SceneError: an entry is missing or holds no mesh; a file has more than :data:`MAX_ASSET_TRIANGLES`
+            triangles (naming it, its count and the limit).
+    """
+    refresh_assets()
+    named: dict[str, str] = {}
+    for entries in entry_groups:
+        for file in asset_files(tuple(entries)):
+            named.setdefault(asset_name(tuple(entries), file), file)
+    count = check_asset_size if refuse_large else mesh_triangles
+    sizes = {name: count(file) for name, file in named.items()}     # every file, before any hash
+    return [{"file": name, "sha256": _file_sha256(Path(named[name])), "triangles": sizes[name]}
+            for name in sorted(named)]
+
+
+def current_asset_record(entry_groups: list[tuple[str, ...]]) -> list[dict]:
+    """:func:`asset_record` of the files on disk now, large ones included, with the entries that no longer exist
+    left out (their recorded files then show as removed in :func:`asset_changes`): what ``datagen verify``
+    compares with the card."""
+    kept = [k for entries in entry_groups if (k := tuple(e for e in entries if Path(e).exists()))]
+    return asset_record(kept, refuse_large=False) if kept else []
+
+
+def asset_changes(recorded: list[dict], current: list[dict], entry_groups: list[tuple[str, ...]]) -> list[str]:
+    """The differences between a card's asset list and the files now, one line each, in name order:
+    ``<asset folder>: <name> was added`` / ``was removed`` / ``changed (sha256 <old> → <new>)``, the folder
+    being the resolved entry whose name the file's name starts with."""
+    folders = {Path(e).name: e for entries in entry_groups for e in entries}
+    old = {r["file"]: r["sha256"] for r in recorded}
+    new = {r["file"]: r["sha256"] for r in current}
+    lines = []
+    for name in sorted(set(old) | set(new)):
+        where = folders.get(name.split("/")[0], "objects.mesh.assets")
+        if name not in old:
+            lines.append(f"{where}: {name} was added")
+        elif name not in new:
+            lines.append(f"{where}: {name} was removed")
+        elif old[name] != new[name]:
+            lines.append(f"{where}: {name} changed (sha256 {old[name][:12]}… → {new[name][:12]}…)")
+    return lines
 
 
 @lru_cache(maxsize=512)
@@ -116,10 +283,13 @@ def load_asset(path: str) -> Asset:
     """Read a mesh file with trimesh into its normalised frame (cached per process).
 
     Raises:
-        SceneError: the file cannot be read, holds no triangles, or has zero extent (the message names it).
+        SceneError: the file cannot be read, holds no triangles, has zero extent, or has more than
+            :data:`MAX_ASSET_TRIANGLES` triangles (read from its header first: nothing is loaded then); the message
+            names it.
     """
     import trimesh
 
+    check_asset_size(path)
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for bad files  # noqa: BLE001
@@ -168,3 +338,19 @@ def place_asset(asset: Asset, size: float, tilt_deg: float, axis_deg: float, cen
     m[:3, :3], m[:3, 3] = linear, shift
     world = m @ asset.file_to_normalised
     return asset.vertices @ linear.T + shift, world
+
+
+def config_asset_entries(config) -> list[tuple[str, ...]]:
+    """The resolved asset entries (folders or files) of every split's room distribution of a
+    :class:`datagen.dataset.DatasetConfig` that draws meshes (``objects.mesh.count.max > 0``), one tuple per
+    distinct list, in split order: the input of :func:`asset_record`.
+
+    Raises:
+        SceneError: a split's room distribution cannot be loaded (e.g. an asset folder is gone; names it).
+    """
+    groups: list[tuple[str, ...]] = []
+    for split in config.splits:
+        mesh = config.room_distribution(split).objects.mesh
+        if mesh.count.max > 0 and tuple(mesh.assets) not in groups:
+            groups.append(tuple(mesh.assets))
+    return groups

@@ -4,13 +4,16 @@ The layout of a dataset on disk, its lock and its card are :mod:`datagen.dataset
 be, its verification and its repair :mod:`datagen.dataset.integrity`'s; the Dask engine
 :mod:`datagen.dataset.dask_engine`'s; workers that die with the build :mod:`datagen.dataset.workers`'.
 
-A build checks everything before it writes anything (options, config, the output directory, a probe sample,
-the shard memory, the scheduler), so a refused command leaves no stub behind. A shard is the unit of work:
-:func:`write_shard` computes its samples with :func:`datagen.dataset.make_sample` and writes each array's whole
-shard in one call, then the marker. A build skips shards that have an intact marker (resume; damaged or missing
-shards are rebuilt), runs the rest on an engine (in process, a local process pool recycled every
-``max_tasks_per_child`` shards, a Dask ``LocalCluster`` or a Dask scheduler address), retries failed shards and
-reports the ones that still fail, keeping every finished shard; a full disk stops it at once, resumably.
+A build checks everything before it writes anything (options, config, the output directory, with ``--resume``
+the stored config and mesh assets, the size of every mesh asset, a probe sample, the shard memory, the
+scheduler), so a refused command leaves no stub behind; the cheap checks come before the probe sample, which
+may take minutes. The card pins the mesh assets (:func:`datagen.dataset.assets.asset_record`), so a resume
+never mixes samples drawn from two asset lists. A shard is the unit of work: :func:`write_shard` computes its
+samples with :func:`datagen.dataset.make_sample` and writes each array's whole shard in one call, then the
+marker. A build skips shards that have an intact marker (resume; damaged or missing shards are rebuilt), runs
+the rest on an engine (in process, a local process pool recycled every ``max_tasks_per_child`` shards, a Dask
+``LocalCluster`` or a Dask scheduler address), retries failed shards and reports the ones that still fail,
+keeping every finished shard; a full disk stops it at once, resumably.
 """
 from __future__ import annotations
 
@@ -29,14 +32,16 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .assets import asset_record, config_asset_entries
 from .config import (STREAMS, DatasetConfig, Sample, component_slots, config_from_json, load_dataset_config,
                      make_sample)
 from ..scene import SceneError
 from .dask_engine import FATAL_ERRNOS, connect_dask, fatal_error, run_dask
 from .integrity import remove_shard_files, repair_store
 from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, BuildLock, ShardTask, check_dataset_dir,
-                    code_version, consolidate, create_arrays, file_sha256, finish_card, marker_path, plan_shards,
-                    probe_fields, read_card, read_marker, shard_file, split_entries, write_json_atomic, zarr_module)
+                    check_same_assets, check_same_config, code_version, consolidate, create_arrays, file_sha256,
+                    finish_card, marker_path, plan_shards, probe_fields, read_card, read_marker, shard_file,
+                    split_entries, write_json_atomic, zarr_module)
 from .workers import BUILD_PID_ENV, init_worker
 
 DEFAULT_RETRIES = 2
@@ -274,13 +279,15 @@ def _card_layout(config: DatasetConfig, probe: Sample) -> dict:
             "splits": splits}
 
 
-def _initialize(root: Path, config: DatasetConfig, probe: Sample) -> dict:
-    """Write the card and create every array, with the shapes of ``probe`` (sample 0 of the first non-empty
-    split, computed before anything was written)."""
+def _initialize(root: Path, config: DatasetConfig, probe: Sample, assets: list[dict]) -> dict:
+    """Write the card (with the pinned mesh ``assets``, :func:`datagen.dataset.assets.asset_record`) and create
+    every array, with the shapes of ``probe`` (sample 0 of the first non-empty split, computed before anything
+    was written)."""
     from ..simulation import library_versions
 
     card = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": config.name, "status": "incomplete",
-            "config": config.to_json(), "config_sha256": config.fingerprint(), "code_version": code_version(),
+            "config": config.to_json(), "config_sha256": config.fingerprint(), "assets": assets,
+            "code_version": code_version(),
             "versions": library_versions(), "streams": STREAMS,
             "seed_rule": "SeedSequence(seed, spawn_key=(split_key, index, stream)), split_key = CRC-32 of the "
                          "split name; loader noise: SeedSequence(seed, spawn_key=(split_key, epoch, index, 4))",
@@ -294,9 +301,18 @@ def _initialize(root: Path, config: DatasetConfig, probe: Sample) -> dict:
     return card
 
 
+def _first_split(config: DatasetConfig) -> str:
+    """The first split with samples (the probe's); ValueError when every split has count 0 (a YAML config is
+    refused when it loads, one cut with ``model_copy`` here)."""
+    split = next((s for s, spec in config.splits.items() if spec.count > 0), None)
+    if split is None:
+        raise ValueError(f"{config.name}: every split has count 0 ({', '.join(config.splits)}): nothing to build")
+    return split
+
+
 def _probe(config: DatasetConfig) -> Sample:
     """Sample 0 of the first non-empty split: its shapes fix the dataset's (computed before any write)."""
-    return make_sample(config, next(s for s, spec in config.splits.items() if spec.count > 0), 0)
+    return make_sample(config, _first_split(config), 0)
 
 
 def check_build_options(workers: int | None, scheduler: str | None, retries: int, max_tasks_per_child: int) -> None:
@@ -355,15 +371,6 @@ class BuildReport:
         return self.samples_built / self.seconds if self.seconds > 0 else float("nan")
 
 
-def _config_diff(a, b, prefix: str = "") -> list[str]:
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = []
-        for key in sorted(set(a) | set(b)):
-            out += _config_diff(a.get(key), b.get(key), f"{prefix}{key}.")
-        return out
-    return [] if a == b else [prefix.rstrip(".")]
-
-
 def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: int | None = None,
                   scheduler: str | None = None, resume: bool = False, retries: int = DEFAULT_RETRIES,
                   max_tasks_per_child: int = DEFAULT_TASKS_PER_CHILD, progress: bool = True,
@@ -372,10 +379,13 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
 
     Everything is checked before anything is written: the options, the config, ``out`` (not a file, not under
     one, not a foreign or existing dataset without ``resume``), a probe sample (sample 0 of the first non-empty
-    split, which also fixes the arrays' shapes), the memory the shards need, and the Dask scheduler. A resumed
-    build first repairs the store (:func:`datagen.dataset.integrity.repair_store`): metadata that differs from
-    what the card implies is rewritten, and every done shard whose files are missing or whose bytes differ from
-    its marker's sha256 is rebuilt, bit-identical to an uninterrupted build.
+    split, which also fixes the arrays' shapes), the memory the shards need, and the Dask scheduler. Before the
+    probe (which may take minutes), every mesh asset's triangle count is read from its header and refused above
+    :data:`datagen.dataset.assets.MAX_ASSET_TRIANGLES`, and a resume compares the stored config and the pinned
+    mesh assets (:func:`datagen.dataset.store.check_same_config`, :func:`~datagen.dataset.store.check_same_assets`).
+    A resumed build first repairs the store (:func:`datagen.dataset.integrity.repair_store`): metadata that
+    differs from what the card implies is rewritten, and every done shard whose files are missing or whose
+    bytes differ from its marker's sha256 is rebuilt, bit-identical to an uninterrupted build.
 
     Args:
         config: a resolved :class:`DatasetConfig` or a YAML path.
@@ -392,9 +402,10 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
     Returns:
         :class:`BuildReport`.
     Raises:
-        ValueError: an invalid option (naming it); SceneError: invalid config or probe sample, or ``--resume``
-            with a different config than the stored one; ResourceError: the shards need more memory than
-            available; SchedulerError: the scheduler cannot be reached.
+        ValueError: an invalid option (naming it), or every split has count 0; SceneError: invalid config or
+            probe sample, a mesh asset over :data:`~datagen.dataset.assets.MAX_ASSET_TRIANGLES` triangles, or
+            ``--resume`` with a different config or other mesh assets than the stored ones; ResourceError: the
+            shards need more memory than available; SchedulerError: the scheduler cannot be reached.
         FileExistsError / PermissionError: ``out`` is a file, under one, not writable, holds a dataset (and
             ``resume`` is False) or other files.
         BuildLockedError: another build is writing ``out``.
@@ -404,15 +415,23 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
     check_build_options(workers, scheduler, retries, max_tasks_per_child)
     if not isinstance(config, DatasetConfig):
         config = load_dataset_config(config)
+    _first_split(config)
     root = Path(out)
     check_dataset_dir(root, resume)
+    stored = read_card(root) if resume and (root / "zarr.json").exists() else None
+    if stored is not None:
+        check_same_config(root, stored, config)   # first: no asset is read and no sample computed for a wrong one
+    entries = config_asset_entries(config)
+    assets = asset_record(entries)     # every mesh's size from its header, then its sha256: before the probe
+    if stored is not None:
+        check_same_assets(root, stored, assets, entries)
     probe = _probe(config)
     processes = 1 if workers == 0 or scheduler else (workers or os.cpu_count() or 1)
     check_shard_memory(config, probe, processes)
     client, cluster = connect_dask(scheduler, workers) if scheduler else (None, None)
     try:
-        return _build(config, root, probe, client, workers, scheduler, resume, retries, max_tasks_per_child,
-                      progress, on_shard)
+        return _build(config, root, probe, (assets, entries), client, workers, scheduler, resume, retries,
+                      max_tasks_per_child, progress, on_shard)
     finally:
         if client is not None:
             client.close()
@@ -420,9 +439,12 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
             cluster.close()
 
 
-def _open_store(root: Path, config: DatasetConfig, probe: Sample, resume: bool) -> tuple[dict, list[str]]:
+def _open_store(root: Path, config: DatasetConfig, probe: Sample, pinned: tuple[list[dict], list[tuple[str, ...]]],
+                resume: bool) -> tuple[dict, list[str]]:
     """Under the lock: initialise a fresh store (removing what it wrote if that fails), or read and check an
-    existing one (its card's layout is refreshed from the probe). Returns the card and what was repaired."""
+    existing one (``check_same_config``, ``check_same_assets``; the layout is refreshed from the probe, and a
+    card without pinned assets gets the ``pinned`` ones, with a note). Returns the card and the repairs."""
+    assets, entries = pinned
     exists = (root / "zarr.json").exists()
     if exists and not resume:
         raise FileExistsError(f"{root} already holds a dataset; pass --resume to continue it, or choose "
@@ -435,30 +457,37 @@ def _open_store(root: Path, config: DatasetConfig, probe: Sample, resume: bool) 
         try:
             if (root / DONE_DIR).exists():   # stale markers from an earlier, removed store must not count
                 shutil.rmtree(root / DONE_DIR)
-            return _initialize(root, config, probe), []
+            return _initialize(root, config, probe, assets), []
         except BaseException:
             for path in root.iterdir():      # a failed initialisation leaves nothing behind
                 if path.name != LOCK_NAME:
                     shutil.rmtree(path, ignore_errors=True) if path.is_dir() else path.unlink(missing_ok=True)
             raise
     card = read_card(root)
-    if card.get("config_sha256") != config.fingerprint():
-        diff = _config_diff(card.get("config", {}), config.to_json())
-        raise SceneError(f"{root} was built from a different config (differs in: {', '.join(diff)}); "
-                         "resume with the same config or build into another --out")
+    check_same_config(root, card, config)
+    check_same_assets(root, card, assets, entries)
     if "splits" not in card or "time_edges" not in card:   # killed while creating the arrays
-        return _initialize(root, config, probe), ["card: initialisation completed (it was interrupted)"]
+        return _initialize(root, config, probe, assets), ["card: initialisation completed (it was interrupted)"]
+    repairs = []
+    if "assets" not in card:   # built before the card pinned its assets: pin the current ones from now on
+        card["assets"] = assets
+        zarr_module().open_group(str(root), mode="r+").update_attributes({"assets": assets})
+        if assets:
+            repairs.append(f"card: pinned the {len(assets)} mesh asset files found now (name, sha256); the card "
+                           "had no asset list (built before datagen recorded it), so the shards built before "
+                           "were not checked against it")
     layout = _card_layout(config, probe)
     changed = [k for k, v in layout.items() if card.get(k) != v]
     if changed:   # edited or damaged card: the config and the probe are the truth
         card.update(layout)
         zarr_module().open_group(str(root), mode="r+").update_attributes(card)
-    return card, [f"card: {', '.join(changed)} rewritten from the config and the probe sample"] if changed else []
+        repairs.append(f"card: {', '.join(changed)} rewritten from the config and the probe sample")
+    return card, repairs
 
 
-def _build(config: DatasetConfig, root: Path, probe: Sample, client, workers: int | None, scheduler: str | None,
-           resume: bool, retries: int, max_tasks_per_child: int, progress: bool,
-           on_shard: Callable[[dict], None] | None) -> BuildReport:
+def _build(config: DatasetConfig, root: Path, probe: Sample, pinned: tuple[list[dict], list[tuple[str, ...]]],
+           client, workers: int | None, scheduler: str | None, resume: bool, retries: int, max_tasks_per_child: int,
+           progress: bool, on_shard: Callable[[dict], None] | None) -> BuildReport:
     cfg_json = config.to_json()
     t_start = time.perf_counter()
     engine = ("dask:" + scheduler) if scheduler else ("in-process" if workers == 0 else "processes")
@@ -466,7 +495,7 @@ def _build(config: DatasetConfig, root: Path, probe: Sample, client, workers: in
     root.mkdir(parents=True, exist_ok=True)
     try:
         with BuildLock(root):
-            card, repairs = _open_store(root, config, probe, resume)
+            card, repairs = _open_store(root, config, probe, pinned, resume)
             repairs += repair_store(root, card, config)
             report = _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_tasks_per_child,
                           progress, on_shard, engine, t_start)

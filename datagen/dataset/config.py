@@ -213,13 +213,9 @@ class DatasetConfig(_Model):
     def fingerprint(self) -> str:
         """sha256 of the canonical JSON of :meth:`to_json` (a build resumes only into the same config), with the
         mesh asset entries, which loading resolves to absolute paths, reduced to their folder or file names: the
-        same config has the same fingerprint in any checkout or copy (the card's ``asset_digest`` records each
-        file's sha256)."""
-        data = self.to_json()
-        mesh = (data["room"].get("objects") or {}).get("mesh") if isinstance(data.get("room"), dict) else None
-        if isinstance(mesh, dict) and isinstance(mesh.get("assets"), list):
-            mesh["assets"] = [Path(entry).name for entry in mesh["assets"]]
-        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+        same config has the same fingerprint in any checkout or copy (the card's ``assets`` records each
+        file's sha256: :func:`datagen.dataset.assets.asset_record`)."""
+        return hashlib.sha256(json.dumps(location_free_json(self.to_json()), sort_keys=True).encode()).hexdigest()
 
     def simulation_overrides(self) -> dict:
         """``simulation`` with the resolved ``detector`` merged in (input of resolve_config), and
@@ -249,6 +245,17 @@ class DatasetConfig(_Model):
         per process."""
         return _distribution(json.dumps(self.room, sort_keys=True), json.dumps(self.room_overrides, sort_keys=True),
                              json.dumps(self.splits[split].room_overrides, sort_keys=True))
+
+
+def location_free_json(data: dict) -> dict:
+    """:meth:`DatasetConfig.to_json` output (or a card's ``config``) with the mesh asset entries reduced to their
+    folder or file names, as :meth:`DatasetConfig.fingerprint` hashes it (a copy; the input is unchanged)."""
+    data = copy.deepcopy(data)
+    room = data.get("room")
+    mesh = (room.get("objects") or {}).get("mesh") if isinstance(room, dict) else None
+    if isinstance(mesh, dict) and isinstance(mesh.get("assets"), list):
+        mesh["assets"] = [Path(entry).name if isinstance(entry, str) else entry for entry in mesh["assets"]]
+    return data
 
 
 @lru_cache(maxsize=16)

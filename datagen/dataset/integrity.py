@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .assets import asset_changes, config_asset_entries, current_asset_record
 from .config import DatasetConfig, component_slots, config_from_json
 from .labels import label_shapes
 from .store import (ShardTask, file_sha256, marker_path, plan_shards, read_card, read_marker,
@@ -224,17 +225,41 @@ def _time_axis_problems(root: Path, config: DatasetConfig) -> list[str]:
     return problems
 
 
-def verify_dataset(path: str | Path) -> list[str]:
-    """Check a dataset completely: the build is complete; the card agrees with its config
-    (:func:`card_problems`); every split group's and array's metadata, and its consolidated copy, is what the
-    card implies (:func:`metadata_problems`); the time axis holds the config's edges; every shard of every
-    split is present, its bytes hash to the card's sha256 and its done marker records the same hashes.
+def asset_problems(card: dict, config: DatasetConfig, notes: list[str] | None = None) -> list[str]:
+    """The mesh asset files now against those the card pins (:func:`datagen.dataset.assets.asset_changes`): one
+    line naming the asset folder, the first file added, removed or changed and how many more. A card that pins
+    none (built before datagen recorded them) while its config draws meshes adds a line to ``notes`` instead."""
+    entries = config_asset_entries(config)
+    recorded = card.get("assets")
+    if recorded is None:
+        if entries and notes is not None:
+            notes.append("the card pins no mesh assets (built before datagen recorded them): the asset files were "
+                         "not checked")
+        return []
+    changes = asset_changes(recorded, current_asset_record(entries), entries)
+    if not changes:
+        return []
+    more = f" (+{len(changes) - 1} more changes)" if len(changes) > 1 else ""
+    return [f"mesh assets: {changes[0]} since the build{more}: the samples were drawn from the assets the card lists "
+            "(its 'assets': name and sha256 of each file); restore them, or build into a new --out"]
 
+
+def verify_dataset(path: str | Path, notes: list[str] | None = None) -> list[str]:
+    """Check a dataset completely: the build is complete; the card agrees with its config
+    (:func:`card_problems`); the mesh asset files are those the card pins (:func:`asset_problems`); every split
+    group's and array's metadata, and its consolidated copy, is what the card implies
+    (:func:`metadata_problems`); the time axis holds the config's edges; every shard of every split is present,
+    its bytes hash to the card's sha256 and its done marker records the same hashes.
+
+    Args:
+        path: the dataset directory.
+        notes: when given, receives lines about what could not be checked (e.g. a card without pinned assets).
     Returns:
         one line per problem (empty: the dataset is intact), each naming the file, or the split, shard and
         array.
     Raises:
-        FileNotFoundError: no datagen dataset at ``path``.
+        FileNotFoundError: no datagen dataset at ``path``. SceneError: the card's room distribution cannot be
+            loaded (e.g. its asset folder is gone; names it).
     """
     root = Path(path)
     card = read_card(root)
@@ -247,6 +272,7 @@ def verify_dataset(path: str | Path) -> list[str]:
     except (KeyError, TypeError, ValueError) as exc:
         return problems + [f"{root / 'zarr.json'}: the card holds no valid config ({type(exc).__name__}): damaged"]
     problems += card_problems(card, config)
+    problems += asset_problems(card, config, notes)
     try:
         problems += metadata_problems(root, card)
     except DatasetCorruptError as exc:

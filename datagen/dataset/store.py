@@ -18,7 +18,8 @@ Layout of a dataset at ``PATH`` (a Zarr v3 group):
 
 Shards are computed and written by :mod:`datagen.dataset.build` (one write per array, then the done marker);
 this module plans them (:func:`plan_shards`), creates the arrays (:func:`create_arrays`), names shard files and
-markers and fills the card from the markers (:func:`finish_card`). What the files must be, and the checks of
+markers, fills the card from the markers (:func:`finish_card`) and compares a card with the config and the mesh
+assets of a resume (:func:`check_same_config`, :func:`check_same_assets`). What the files must be, and the checks of
 ``datagen verify``, the repairs of ``--resume`` and the loader's checks, are :mod:`datagen.dataset.integrity`'s.
 """
 from __future__ import annotations
@@ -38,7 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import DatasetConfig, Sample, split_key
+from ..scene import SceneError
+from .assets import asset_changes
+from .config import DatasetConfig, Sample, location_free_json, split_key
 
 FORMAT = "datagen-dataset"
 FORMAT_VERSION = 1
@@ -367,3 +370,60 @@ def finish_card(root: Path, card: dict, config: DatasetConfig) -> dict:
     card["status"] = "complete" if done == len(tasks) else "incomplete"
     card["shards_done"], card["shards_total"] = done, len(tasks)
     return card
+
+
+def _config_diff(a, b, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for key in sorted(set(a) | set(b)):
+            out += _config_diff(a.get(key), b.get(key), f"{prefix}{key}.")
+        return out
+    return [] if a == b else [prefix.rstrip(".")]
+
+
+def _at(data, dotted: str):
+    for key in dotted.split("."):
+        data = data.get(key) if isinstance(data, dict) else None
+    return data
+
+
+def _short(value) -> str:
+    text = "(absent)" if value is None else json.dumps(value, sort_keys=True)
+    return text if len(text) <= 80 else text[:79] + "…"
+
+
+def check_same_config(root: Path, card: dict, config: DatasetConfig) -> None:
+    """Refuse to resume the dataset at ``root`` (its ``card``) with a ``config`` whose fingerprint differs from
+    the stored one (compared location-free: :func:`datagen.dataset.config.location_free_json`).
+
+    Raises:
+        SceneError: one line naming the differing fields (dotted paths), the first one's value in the card and
+            in ``config``, and what to do.
+    """
+    if card.get("config_sha256") == config.fingerprint():
+        return
+    stored, current = location_free_json(card.get("config") or {}), location_free_json(config.to_json())
+    diff = _config_diff(stored, current) or ["config_sha256"]
+    first = diff[0]
+    more = f", … ({len(diff)} fields)" if len(diff) > 5 else ""
+    raise SceneError(f"{root} was built from a different config (differs in: {', '.join(diff[:5])}{more}): "
+                     f"{first} is {_short(_at(stored, first))} in the dataset's card, {_short(_at(current, first))} "
+                     "in this config; resume with the same config or build into another --out")
+
+
+def check_same_assets(root: Path, card: dict, assets: list[dict], asset_entries: list[tuple[str, ...]]) -> None:
+    """Refuse to resume the dataset at ``root`` when the mesh ``assets`` on disk
+    (:func:`datagen.dataset.assets.asset_record` of ``asset_entries``) differ from those its ``card`` pins. A
+    card written before assets were pinned pins none: nothing to compare (the build pins the current ones).
+
+    Raises:
+        SceneError: one line naming the asset folder and the first file added, removed or changed, the number
+            of other changes, and what to do.
+    """
+    recorded = card.get("assets")
+    changes = asset_changes(recorded, assets, asset_entries) if recorded is not None else []
+    if changes:
+        more = f" (+{len(changes) - 1} more changes)" if len(changes) > 1 else ""
+        raise SceneError(f"{root}: the mesh assets differ from those the dataset was built from: {changes[0]}{more}; "
+                         "a resume would draw its samples from another asset list: restore the assets the card "
+                         "lists (its 'assets': name and sha256 of each file) or build into a new --out")
