@@ -545,6 +545,10 @@ def _load_mesh(i: int, entry: TalGeometry, m: np.ndarray, material: Material, la
 
 
 def scene_from_tal_yaml(path: str | Path) -> tuple[Scene, TalCapture]:
-    """:func:`load_tal_config` then :func:`scene_from_tal_config` (mesh paths relative to the YAML's folder)."""
+    """:func:`load_tal_config` then :func:`scene_from_tal_config` (mesh paths relative to the YAML's folder).
+
+    Raises:
+        SceneError: as those two (one line naming the file, the field and the value).
+    """
     config = load_tal_config(path)
     return scene_from_tal_config(config, Path(config["_source"]).parent, config["_source"])
