@@ -43,7 +43,7 @@ __all__ = [
 
 
 # ---------------------------------------------------------------------------------------------------------
-# tal render YAML: the schema (tal 0.20's render/scene_defaults.yaml and what datagen supports of it)
+# tal render YAML: the schema (tal 0.20's render options and defaults, and what datagen supports of them)
 
 LUMINANCE_WEIGHTS = (0.212671, 0.715160, 0.072169)
 """Mitsuba's RGB → luminance weights (sRGB/Rec. 709 Y), used by its mono variants for RGB inputs."""
