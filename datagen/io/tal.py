@@ -22,132 +22,277 @@ the emission summed over the channels tal adds up (rgb variants: R+G+B; mono var
 """
 from __future__ import annotations
 
-import copy
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Callable, Literal
 
 import numpy as np
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, ValidationError,
+                      ValidationInfo, field_validator, model_validator)
 
-from ..scene import Material, Scene, SceneError, SceneObject, read_yaml, scene_from_dict
+from ..scene import (Material, Scene, SceneError, SceneObject, format_validation_error, read_yaml, scene_from_dict,
+                     short_repr)
 from ..units import SPEED_OF_LIGHT
 
 __all__ = [
-    "TAL_DEFAULTS", "TAL_KEYS", "TalCapture", "load_tal_config", "scene_from_tal_config", "scene_from_tal_yaml",
-    "tal_transform",
+    "TAL_DEFAULTS", "TAL_KEYS", "TalCapture", "TalGeometry", "TalMaterial", "TalMesh", "TalRenderConfig",
+    "load_tal_config", "scene_from_tal_config", "scene_from_tal_yaml", "tal_transform",
 ]
 
 
 # ---------------------------------------------------------------------------------------------------------
-# tal render YAML
-
-TAL_DEFAULTS: dict[str, Any] = {
-    "name": "tal_scene",
-    "mitsuba_variant": "llvm_ad_rgb",
-    "integrator_max_depth": -1,
-    "integrator_filter_bounces": -1,
-    "integrator_discard_direct_paths": False,
-    "integrator_nlos_laser_sampling": True,
-    "integrator_nlos_hidden_geometry_sampling": False,
-    "integrator_nlos_hidden_geometry_sampling_do_rroulette": False,
-    "integrator_nlos_hidden_geometry_sampling_includes_relay_wall": True,
-    "sample_count": 1_000_000,
-    "account_first_and_last_bounces": False,
-    "num_bins": 4096,
-    "bin_width_opl": 0.003,
-    "start_opl": 0.0,
-    "auto_detect_bins": False,
-    "histogram_mode": "time",
-    "wl_mean": None,
-    "wl_sigma": None,
-    "scan_type": "single",
-    "sensor_x": -0.5, "sensor_y": 0.0, "sensor_z": 0.25,
-    "laser_x": -0.5, "laser_y": 0.0, "laser_z": 0.25,
-    "sensor_width": 256, "sensor_height": 256,
-    "laser_lookat_x": None, "laser_lookat_y": None,
-    "laser_width": 32, "laser_height": 32,
-    "laser_aperture_start_x": 0, "laser_aperture_start_y": 0,
-    "laser_aperture_end_x": 1, "laser_aperture_end_y": 1,
-    "laser_emission_mode": "rgb",
-    "laser_emission": "1.0, 1.0, 1.0",
-    "relay_wall": "relay_wall",
-}
-"""tal 0.20's ``render/scene_defaults.yaml`` (without its example ``geometry``, which a config replaces)."""
-
-TAL_KEYS = frozenset(TAL_DEFAULTS) | {"geometry", "datagen"}
-"""Top-level keys accepted in a tal render YAML. ``datagen`` is ours: a mapping of datagen simulation options
-(lookins, pixels, seed, …) that tal ignores."""
-
-_GEOMETRY_KEYS = frozenset({"name", "description", "mesh", "material", "displacement_x", "displacement_y",
-                            "displacement_z", "rot_degrees_x", "rot_degrees_y", "rot_degrees_z", "scale_x",
-                            "scale_y", "scale_z"})
-_MESH_TYPES = ("rectangle", "obj", "ply")
-_IGNORED_MC_KEYS = ("integrator_nlos_laser_sampling", "integrator_nlos_hidden_geometry_sampling",
-                    "integrator_nlos_hidden_geometry_sampling_do_rroulette",
-                    "integrator_nlos_hidden_geometry_sampling_includes_relay_wall", "sample_count",
-                    "integrator_discard_direct_paths")
-"""Monte Carlo knobs of mitransient: they change its noise, not the quantity estimated, so datagen ignores them
-(datagen never renders the direct wall→sensor light that discard_direct_paths removes)."""
+# tal render YAML: the schema (tal 0.20's render options and defaults, and what datagen supports of them)
 
 LUMINANCE_WEIGHTS = (0.212671, 0.715160, 0.072169)
 """Mitsuba's RGB → luminance weights (sRGB/Rec. 709 Y), used by its mono variants for RGB inputs."""
 
 
-class _Where:
-    """Prefix for error messages: the config file, if any."""
-
-    def __init__(self, source: str | None):
-        self.prefix = f"{source}: " if source else ""
-
-    def error(self, message: str) -> SceneError:
-        return SceneError(self.prefix + message)
-
-
-def _number(value: Any, key: str, where: _Where, *, integer: bool = False, minimum: float | None = None) -> Any:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise where.error(f"{key}: expected a {'whole ' if integer else ''}number, got {value!r}")
-    if integer and float(value) != int(value):
-        raise where.error(f"{key}: expected a whole number, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise where.error(f"{key}: must be >= {minimum}, got {value!r}")
-    return int(value) if integer else float(value)
-
-
-def _bool(value: Any, key: str, where: _Where) -> bool:
-    if not isinstance(value, bool):
-        raise where.error(f"{key}: expected true or false, got {value!r}")
+def _yaml_number(value: Any) -> Any:
+    """Numbers only: pydantic's lax mode would also read "16" and true as numbers."""
+    if isinstance(value, (bool, str)):
+        raise ValueError("Input should be a valid number")
     return value
 
 
-def _channels(value: Any, key: str, where: _Where) -> list[float]:
-    """'1.0, 1.0, 1.0' / 0.5 / [1, 1, 1] → list of floats (tal writes RGB values as comma-separated text)."""
-    if isinstance(value, str):
-        parts = [p for p in value.replace(",", " ").split()]
-    elif isinstance(value, (list, tuple)):
-        parts = list(value)
-    else:
-        parts = [value]
+def _or(default: Any) -> BeforeValidator:
+    """tal reads some options as ``value or default``: 0, null (and any other falsy value) mean the default."""
+    return BeforeValidator(lambda value: value or default)
+
+
+def _only(ok: Callable[[Any], bool], message: str) -> AfterValidator:
+    """Refuse a value with datagen's reason (what it supports of tal's options)."""
+    def check(value: Any) -> Any:
+        if not ok(value):
+            raise ValueError(message)
+        return value
+    return AfterValidator(check)
+
+
+_Float = Annotated[float, BeforeValidator(_yaml_number)]
+_Int = Annotated[int, BeforeValidator(_yaml_number)]
+_Count = Annotated[_Int, Field(ge=1)]
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False, validate_default=True)
+
+
+def _channels(value: Any) -> list[float]:
+    """'1.0, 1.0, 1.0' / 0.5 / [1, 1, 1] → list of floats (tal writes RGB values as comma-separated text);
+    ValueError unless they are finite and non-negative."""
+    parts = value.replace(",", " ").split() if isinstance(value, str) else \
+        list(value) if isinstance(value, (list, tuple)) else [value]
     try:
         out = [float(p) for p in parts]
     except (TypeError, ValueError):
-        raise where.error(f"{key}: expected a number or 'r, g, b', got {value!r}") from None
+        raise ValueError("expected a number or 'r, g, b'") from None
     if not out or not all(math.isfinite(v) and v >= 0 for v in out):
-        raise where.error(f"{key}: expected non-negative numbers, got {value!r}")
+        raise ValueError("expected non-negative numbers")
     return out
 
 
+def _albedo(text: Any) -> float:
+    """Albedo of tal's ``custom`` material: Mitsuba XML of a diffuse BSDF (optionally inside ``twosided``) with
+    a grey ``rgb``/``float``/``spectrum`` reflectance ≤ 1; ValueError for anything else."""
+    if not isinstance(text, str):
+        raise ValueError("a custom material needs Mitsuba XML text")
+    try:
+        node = ET.fromstring(text.strip())
+    except ET.ParseError as exc:
+        raise ValueError(f"not valid XML: {exc}") from None
+    while node.tag == "bsdf" and node.get("type") == "twosided":
+        inner = node.find("bsdf")
+        if inner is None:
+            raise ValueError("twosided BSDF without an inner <bsdf>")
+        node = inner
+    if node.tag != "bsdf" or node.get("type") != "diffuse":
+        raise ValueError(f"BSDF type {node.get('type')!r} is not supported (diffuse)")
+    refl = [c for c in node if c.get("name") == "reflectance"]
+    if not refl:
+        return 0.5   # Mitsuba's diffuse default reflectance
+    if refl[0].tag not in ("rgb", "float", "spectrum") or refl[0].get("value") is None:
+        raise ValueError(f"reflectance <{refl[0].tag}> is not supported (rgb, float, spectrum value)")
+    values = _channels(refl[0].get("value"))
+    if max(values) - min(values) > 1e-9 * max(max(values), 1e-300):
+        raise ValueError(f"reflectance {values} is not grey; datagen albedos are one number")
+    if values[0] > 1:
+        raise ValueError(f"reflectance {values[0]} > 1 does not conserve energy")
+    return values[0]
+
+
+class TalMesh(BaseModel):
+    """``geometry[i].mesh``: a tal ``rectangle`` (2 × 2 m in z = 0, normal +z) or an obj/ply file."""
+
+    model_config = _STRICT
+    type: Literal["rectangle", "obj", "ply"]
+    filename: str | None = None
+
+    @model_validator(mode="after")
+    def _needs_file(self) -> TalMesh:
+        if self.type != "rectangle" and self.filename is None:
+            raise ValueError(f"an {self.type} mesh needs a filename")
+        return self
+
+
+class TalMaterial(BaseModel):
+    """``geometry[i].material``: ``white`` (albedo 1) or ``custom`` Mitsuba XML of a grey diffuse BSDF."""
+
+    model_config = _STRICT
+    id: Literal["white", "custom"]
+    text: str | None = None
+
+    @field_validator("text")
+    @classmethod
+    def _diffuse(cls, text: str | None, info: ValidationInfo) -> str | None:
+        if info.data.get("id") == "custom":
+            _albedo(text)
+        return text
+
+    @property
+    def albedo(self) -> float:
+        return 1.0 if self.id == "white" else _albedo(self.text)
+
+
+class TalGeometry(BaseModel):
+    """One ``geometry`` entry. Transform as Mitsuba applies tal's XML (:func:`tal_transform`)."""
+
+    model_config = _STRICT
+    name: Annotated[str, Field(min_length=1)]
+    description: str | None = None
+    mesh: TalMesh
+    material: TalMaterial
+    displacement_x: _Float | None = None
+    displacement_y: _Float | None = None
+    displacement_z: _Float | None = None
+    rot_degrees_x: _Float | None = None
+    rot_degrees_y: _Float | None = None
+    rot_degrees_z: _Float | None = None
+    scale_x: _Float | None = None
+    scale_y: _Float | None = None
+    scale_z: _Float | None = None
+
+
+def _bad(path: str, message: str, value: Any) -> ValueError:
+    """A cross-field problem, worded like a field's (``path: message (got value)``)."""
+    return ValueError(f"{path}: {message} (got {short_repr(value)})")
+
+
+class TalRenderConfig(BaseModel):
+    """A tal render YAML: tal 0.20's keys with its defaults, restricted to what datagen translates.
+
+    ``integrator_nlos_*``, ``sample_count`` and ``integrator_discard_direct_paths`` are mitransient's Monte Carlo
+    knobs: they change its noise, not the quantity estimated, so datagen checks and ignores them (it never
+    renders the direct wall→sensor light that discard_direct_paths removes). ``datagen`` is ours: a mapping of
+    datagen simulation options (lookins, pixels, seed, …) that tal ignores.
+    """
+
+    model_config = _STRICT
+    name: str | None = Field("tal_scene", coerce_numbers_to_str=True)
+    mitsuba_variant: Annotated[str, _only(lambda v: v.startswith(("llvm_", "cuda_")) and "spectral" not in v
+                                          and "polarized" not in v, "not supported (llvm_/cuda_ … rgb or mono "
+                                          "variants only)")] = "llvm_ad_rgb"
+    integrator_max_depth: Annotated[_Int, _only(lambda d: d == -1 or d >= 3, "renders no light from the hidden "
+                                                "scene (datagen needs -1 or >= 3)")] = -1
+    integrator_filter_bounces: Annotated[_Int, _only(lambda b: b == -1, "not supported (-1; use "
+                                                     "integrator_max_depth: 3 for third-bounce light only)")] = -1
+    integrator_discard_direct_paths: StrictBool = False
+    integrator_nlos_laser_sampling: StrictBool = True
+    integrator_nlos_hidden_geometry_sampling: StrictBool = False
+    integrator_nlos_hidden_geometry_sampling_do_rroulette: StrictBool = False
+    integrator_nlos_hidden_geometry_sampling_includes_relay_wall: StrictBool = True
+    sample_count: _Count = 1_000_000
+    account_first_and_last_bounces: StrictBool = False
+    num_bins: _Count = 4096
+    bin_width_opl: Annotated[_Float, Field(gt=0)] = 0.003
+    start_opl: _Float = 0.0
+    auto_detect_bins: Annotated[StrictBool | None, _only(lambda a: not a, "true is not supported (give num_bins "
+                                                         "and start_opl)")] = False
+    histogram_mode: Literal["time"] = "time"
+    wl_mean: _Float | None = None
+    wl_sigma: _Float | None = None
+    scan_type: Literal["single", "confocal", "exhaustive"] = "single"
+    sensor_x: _Float = -0.5
+    sensor_y: _Float = 0.0
+    sensor_z: _Float = 0.25
+    laser_x: _Float = -0.5
+    laser_y: _Float = 0.0
+    laser_z: _Float = 0.25
+    sensor_width: _Count = 256
+    sensor_height: _Count = 256
+    laser_lookat_x: _Float | None = None     # tal: `laser_lookat_x or sensor_width / 2` (single scans)
+    laser_lookat_y: _Float | None = None
+    laser_width: _Count = 32
+    laser_height: _Count = 32
+    laser_aperture_start_x: Annotated[_Float, Field(ge=0, lt=1), _or(0.0)] = 0    # fractions of the wall
+    laser_aperture_start_y: Annotated[_Float, Field(ge=0, lt=1), _or(0.0)] = 0
+    laser_aperture_end_x: Annotated[_Float, Field(gt=0, le=1), _or(1.0)] = 1      # so an end of 0 means 1
+    laser_aperture_end_y: Annotated[_Float, Field(gt=0, le=1), _or(1.0)] = 1
+    laser_emission_mode: Annotated[Literal["rgb", "mono"], _or("rgb")] = "rgb"
+    laser_emission: Annotated[list[float], BeforeValidator(_channels), _or("1.0, 1.0, 1.0")] = "1.0, 1.0, 1.0"
+    relay_wall: str = "relay_wall"
+    geometry: Annotated[list[TalGeometry], Field(min_length=1)]
+    datagen: dict | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> TalRenderConfig:
+        names = [g.name for g in self.geometry]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise _bad(f"geometry.{i}.name", f"repeats geometry.{names.index(name)}.name; names must be unique",
+                           name)
+        if self.relay_wall not in names:
+            raise _bad("relay_wall", f"not one of the geometry names {names}", self.relay_wall)
+        i = names.index(self.relay_wall)
+        wall = self.geometry[i]
+        if wall.mesh.type != "rectangle":
+            raise _bad(f"geometry.{i}.mesh.type", "the relay wall must be a rectangle (tal's sensor grid follows "
+                       "the rectangle's UV)", wall.mesh.type)
+        for axis in "xyz":
+            if getattr(wall, f"rot_degrees_{axis}"):
+                raise _bad(f"geometry.{i}.rot_degrees_{axis}", "relay wall rotation is not supported (tal: NYI)",
+                           getattr(wall, f"rot_degrees_{axis}"))
+        if wall.scale_z not in (None, 1.0, -1.0, 0.0):
+            raise _bad(f"geometry.{i}.scale_z", "the relay wall's scale_z must be 1 or -1 (its normal)", wall.scale_z)
+        for a in "xy":
+            start, end = getattr(self, f"laser_aperture_start_{a}"), getattr(self, f"laser_aperture_end_{a}")
+            if start >= end:
+                raise _bad(f"laser_aperture_end_{a}", f"must be > laser_aperture_start_{a} {start}", end)
+        sensor, laser = [self.sensor_width, self.sensor_height], [self.laser_width, self.laser_height]
+        if self.scan_type == "confocal" and sensor != laser:
+            raise _bad("laser_width", f"scan_type confocal needs [laser_width, laser_height] == [sensor_width, "
+                       f"sensor_height] = {sensor}", laser)
+        mono = self.laser_emission_mode == "mono"
+        if len(self.laser_emission) not in ((1,) if mono else (1, 3)):
+            raise _bad("laser_emission", "mono mode needs one value" if mono else "rgb mode needs 1 or 3 values",
+                       self.laser_emission)
+        return self
+
+
+TAL_DEFAULTS: dict[str, Any] = {k: f.default for k, f in TalRenderConfig.model_fields.items()
+                                if k not in ("geometry", "datagen")}
+"""tal 0.20's ``render/scene_defaults.yaml`` (without its example ``geometry``, which a config replaces)."""
+
+TAL_KEYS = frozenset(TalRenderConfig.model_fields)
+"""Top-level keys accepted in a tal render YAML (``datagen`` is ours, see :class:`TalRenderConfig`)."""
+
+
+def _validated(config: dict, source: str | None) -> TalRenderConfig:
+    try:
+        return TalRenderConfig.model_validate(config)
+    except ValidationError as exc:
+        raise SceneError(format_validation_error(exc, source)) from None
+
+
 def load_tal_config(path: str | Path) -> dict:
-    """Read a tal render YAML and merge it over tal 0.20's defaults (as ``tal render`` does).
+    """Read a tal render YAML, merge it over tal 0.20's defaults (as ``tal render`` does) and validate it
+    (:class:`TalRenderConfig`).
 
     ``path`` may be the YAML file or tal's scene folder holding ``<folder>/<folder>.yaml``.
 
     Returns:
-        the merged config dict (tal's keys; ``geometry`` a list of dicts), validated by
-        :func:`scene_from_tal_config` later.
+        the merged config dict as written (tal's keys; ``geometry`` a list of dicts) and ``_source``, the file.
     Raises:
-        SceneError: missing file, YAML syntax error, not a mapping, or an unknown top-level key.
+        SceneError: missing file, YAML syntax error, not a mapping, or an invalid or unsupported option (one
+        line: file, field, value).
     """
     path = Path(path)
     if path.is_dir() and (path / f"{path.name}.yaml").is_file():
@@ -155,11 +300,8 @@ def load_tal_config(path: str | Path) -> dict:
     data = read_yaml(path, "tal config") or {}
     if not isinstance(data, dict):
         raise SceneError(f"{path}: expected a mapping at the top level, got {type(data).__name__}")
-    unknown = sorted(set(data) - TAL_KEYS)
-    if unknown:
-        raise SceneError(f"{path}: unknown tal option {unknown[0]!r} (tal 0.20 render keys: see "
-                         "tal/render/scene_defaults.yaml)")
-    merged = {**copy.deepcopy(TAL_DEFAULTS), **data}
+    merged = {**TAL_DEFAULTS, **data}
+    _validated(merged, str(path))
     merged["_source"] = str(path)
     return merged
 
@@ -192,68 +334,6 @@ def tal_transform(entry: dict) -> np.ndarray:
 
 def _apply(m: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ m[:3, :3].T + m[:3, 3]
-
-
-def _albedo(material: Any, key: str, where: _Where) -> float:
-    """Albedo of a tal material entry: ``white`` (reflectance 1) or ``custom`` Mitsuba XML of a diffuse BSDF
-    (optionally inside ``twosided``) with a grey ``rgb``/``float``/``spectrum`` reflectance."""
-    if not isinstance(material, dict) or "id" not in material:
-        raise where.error(f"{key}: expected a mapping with an 'id' (white or custom), got {material!r}")
-    mid = material["id"]
-    if mid == "white":
-        return 1.0
-    if mid != "custom":
-        raise where.error(f"{key}.id {mid!r} is not supported (white, custom with a diffuse BSDF)")
-    text = material.get("text")
-    if not isinstance(text, str):
-        raise where.error(f"{key}.text: a custom material needs Mitsuba XML text, got {text!r}")
-    try:
-        node = ET.fromstring(text.strip())
-    except ET.ParseError as exc:
-        raise where.error(f"{key}.text: not valid XML: {exc}") from None
-    while node.tag == "bsdf" and node.get("type") == "twosided":
-        inner = node.find("bsdf")
-        if inner is None:
-            raise where.error(f"{key}.text: twosided BSDF without an inner <bsdf>")
-        node = inner
-    if node.tag != "bsdf" or node.get("type") != "diffuse":
-        raise where.error(f"{key}.text: BSDF type {node.get('type')!r} is not supported (diffuse)")
-    refl = [c for c in node if c.get("name") == "reflectance"]
-    if not refl:
-        return 0.5   # Mitsuba's diffuse default reflectance
-    if refl[0].tag not in ("rgb", "float", "spectrum") or refl[0].get("value") is None:
-        raise where.error(f"{key}.text: reflectance <{refl[0].tag}> is not supported (rgb, float, spectrum value)")
-    values = _channels(refl[0].get("value"), f"{key}.text reflectance", where)
-    if max(values) - min(values) > 1e-9 * max(max(values), 1e-300):
-        raise where.error(f"{key}.text: reflectance {values} is not grey; datagen albedos are one number")
-    if values[0] > 1:
-        raise where.error(f"{key}.text: reflectance {values[0]} > 1 does not conserve energy")
-    return values[0]
-
-
-def _emission_sum(config: dict, where: _Where) -> float:
-    """e_sum: the laser emission summed as tal sums H's channels (see the module docstring)."""
-    variant = config["mitsuba_variant"]
-    if not isinstance(variant, str) or not variant.startswith(("llvm_", "cuda_")):
-        raise where.error(f"mitsuba_variant {variant!r} is not supported (llvm_/cuda_ … rgb or mono)")
-    if "spectral" in variant or "polarized" in variant:
-        raise where.error(f"mitsuba_variant {variant!r} is not supported (rgb or mono variants only)")
-    mono = "mono" in variant
-    mode = config["laser_emission_mode"] or "rgb"
-    value = config["laser_emission"] or "1.0, 1.0, 1.0"
-    if mode == "rgb":
-        rgb = _channels(value, "laser_emission", where)
-        if len(rgb) == 1:
-            rgb = rgb * 3
-        if len(rgb) != 3:
-            raise where.error(f"laser_emission: rgb mode needs 3 values, got {value!r}")
-        return float(np.dot(LUMINANCE_WEIGHTS, rgb)) if mono else float(sum(rgb))
-    if mode == "mono":
-        v = _channels(value, "laser_emission", where)
-        if len(v) != 1:
-            raise where.error(f"laser_emission: mono mode needs one value, got {value!r}")
-        return v[0] if mono else 3.0 * v[0]
-    raise where.error(f"laser_emission_mode {mode!r} is not supported (rgb, mono)")
 
 
 @dataclass(frozen=True)
@@ -301,165 +381,81 @@ def _tal_grid(nx: int, ny: int, sx: float, sy: float, ax=(0.0, 1.0), ay=(0.0, 1.
 
 def scene_from_tal_config(config: dict, base: str | Path | None = None,
                           source: str | None = None) -> tuple[Scene, TalCapture]:
-    """Translate a merged tal render config (:func:`load_tal_config`) into a datagen scene and its tal layout.
+    """Translate a tal render config (:func:`load_tal_config`; keys it lacks take tal's defaults) into a datagen
+    scene and its tal layout.
 
-    Supported: ``geometry`` entries with ``mesh.type`` rectangle/obj/ply (obj/ply read by trimesh, paths
-    relative to ``base`` or the working directory) with displacement/rotation/scale, materials ``white`` and
-    ``custom`` diffuse (grey albedo); ``relay_wall`` (a rectangle, not rotated; scale_z = ±1 picks the normal);
-    ``scan_type`` single/confocal/exhaustive with sensor/laser grid sizes, ``laser_lookat_*`` and the laser
-    aperture bounds; ``num_bins``, ``bin_width_opl``, ``start_opl``, ``account_first_and_last_bounces``; laser and
-    sensor positions; ``laser_emission`` (rgb/mono) with rgb/mono variants; ``integrator_max_depth`` −1 or ≥ 3
-    (3: primary only; otherwise datagen adds its one-more-bounce secondary and omits longer paths, noted).
-    datagen's estimator defaults to the hidden-surface quadrature (``estimator: quadrature``, sub-triangles of
-    ``quadrature_edge`` metres; deterministic, the fastest to 1 % on tal's captures, docs/tal.md).
+    What is supported is :class:`TalRenderConfig` (the table in docs/tal.md). obj/ply files are read by trimesh,
+    relative to ``base`` or the working directory. ``integrator_max_depth`` 3 gives primary light only; −1 or
+    ≥ 4 adds datagen's one-more-bounce secondary (longer paths omitted, noted). The estimator defaults to the
+    hidden-surface quadrature (``estimator: quadrature``; deterministic, the fastest to 1 % on tal's captures,
+    docs/tal.md).
 
     Returns:
         (scene, capture): the datagen Scene (capture block with ``convention: point_radiance``, simulation
         defaults: time axis, ideal IRF, legs, secondary) and the :class:`TalCapture`.
     Raises:
-        SceneError: an unsupported or invalid option, naming it, e.g. "geometry[2].mesh.type 'sphere' is not
-        supported (rectangle, obj, ply)".
+        SceneError: an unsupported or invalid option, on one line naming the file, the field and the value,
+        e.g. "scene.yaml: geometry.2.mesh.type: Input should be 'rectangle', 'obj' or 'ply' (got 'sphere')"; a
+        mesh file that is missing or unreadable; a laser behind the relay wall or on a laser grid point.
     """
     source = source or config.get("_source")
-    where = _Where(source)
+    prefix = f"{source}: " if source else ""
     base = Path(base) if base is not None else (Path(source).parent if source else None)
-    cfg = {k: v for k, v in config.items() if k != "_source"}
-    unknown = sorted(set(cfg) - TAL_KEYS)
-    if unknown:
-        raise where.error(f"unknown tal option {unknown[0]!r}")
+    cfg = {**TAL_DEFAULTS, **{k: v for k, v in config.items() if k != "_source"}}
+    tc = _validated(cfg, source)
 
-    # -- histogram / integrator options ------------------------------------------------------------------
-    if cfg["histogram_mode"] != "time":
-        raise where.error(f"histogram_mode {cfg['histogram_mode']!r} is not supported (time)")
-    if cfg["auto_detect_bins"]:
-        raise where.error("auto_detect_bins: true is not supported (give num_bins and start_opl)")
-    if _number(cfg["integrator_filter_bounces"], "integrator_filter_bounces", where, integer=True) != -1:
-        raise where.error(f"integrator_filter_bounces {cfg['integrator_filter_bounces']} is not supported "
-                          "(-1; use integrator_max_depth: 3 for third-bounce light only)")
-    max_depth = _number(cfg["integrator_max_depth"], "integrator_max_depth", where, integer=True)
+    # -- integrator ----------------------------------------------------------------------------------------
     notes = []
-    if max_depth == 3:
-        secondary = "none"
-    elif max_depth == -1 or max_depth >= 4:
-        secondary = "full"
-        if max_depth != 4:
-            notes.append(f"integrator_max_depth {max_depth}: datagen simulates third- and fourth-bounce light "
-                         "(primary + secondary), not longer paths")
+    secondary = "none" if tc.integrator_max_depth == 3 else "full"
+    if tc.integrator_max_depth not in (3, 4):
+        notes.append(f"integrator_max_depth {tc.integrator_max_depth}: datagen simulates third- and fourth-bounce "
+                     "light (primary + secondary), not longer paths")
+    mono = "mono" in tc.mitsuba_variant        # e_sum: the laser emission summed as tal sums H's channels
+    if tc.laser_emission_mode == "rgb":
+        rgb = tc.laser_emission * 3 if len(tc.laser_emission) == 1 else tc.laser_emission
+        e_sum = float(np.dot(LUMINANCE_WEIGHTS, rgb)) if mono else float(sum(rgb))
     else:
-        raise where.error(f"integrator_max_depth {max_depth} renders no light from the hidden scene "
-                          "(datagen needs -1 or >= 3)")
-    for key in _IGNORED_MC_KEYS:       # validated like tal would use them, then ignored
-        if key == "sample_count":
-            _number(cfg[key], key, where, minimum=1)
-        else:
-            _bool(cfg[key], key, where)
-    num_bins = _number(cfg["num_bins"], "num_bins", where, integer=True, minimum=1)
-    bin_width = _number(cfg["bin_width_opl"], "bin_width_opl", where)
-    if bin_width <= 0:
-        raise where.error(f"bin_width_opl: must be > 0, got {cfg['bin_width_opl']!r}")
-    start = _number(cfg["start_opl"], "start_opl", where)
-    legs = _bool(cfg["account_first_and_last_bounces"], "account_first_and_last_bounces", where)
-    e_sum = _emission_sum(cfg, where)
+        e_sum = tc.laser_emission[0] if mono else 3.0 * tc.laser_emission[0]
 
     # -- geometry ----------------------------------------------------------------------------------------
-    geometry = cfg.get("geometry")
-    if not isinstance(geometry, list) or not geometry:
-        raise where.error("geometry: expected a list of geometry entries")
-    names = []
-    for i, entry in enumerate(geometry):
-        if not isinstance(entry, dict):
-            raise where.error(f"geometry[{i}]: expected a mapping, got {entry!r}")
-        bad = sorted(set(entry) - _GEOMETRY_KEYS)
-        if bad:
-            raise where.error(f"geometry[{i}].{bad[0]} is not a tal geometry option")
-        if not isinstance(entry.get("name"), str) or not entry["name"]:
-            raise where.error(f"geometry[{i}].name: expected a name, got {entry.get('name')!r}")
-        names.append(entry["name"])
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise where.error(f"geometry names must be unique; repeated: {dup}")
-    rw_name = cfg["relay_wall"]
-    if rw_name not in names:
-        raise where.error(f"relay_wall {rw_name!r} is not one of the geometry names {names}")
-
     objects_dict, meshes = [], []
-    relay = None
-    for i, entry in enumerate(geometry):
-        key = f"geometry[{i}]"
-        mesh = entry.get("mesh")
-        if not isinstance(mesh, dict) or "type" not in mesh:
-            raise where.error(f"{key}.mesh: expected a mapping with a 'type', got {mesh!r}")
-        mtype = mesh["type"]
-        if mtype not in _MESH_TYPES:
-            raise where.error(f"{key}.mesh.type {mtype!r} is not supported ({', '.join(_MESH_TYPES)})")
-        for k in _GEOMETRY_KEYS - {"name", "description", "mesh", "material"}:
-            if entry.get(k) is not None:
-                _number(entry[k], f"{key}.{k}", where)
-        albedo = _albedo(entry.get("material"), f"{key}.material", where)
-        material = {"kind": "lambertian", "albedo": albedo}
-        m = tal_transform(entry)
-        is_relay = entry["name"] == rw_name
+    for i, entry in enumerate(tc.geometry):
+        material = {"kind": "lambertian", "albedo": entry.material.albedo}
+        m = tal_transform(entry.model_dump())
+        is_relay = entry.name == tc.relay_wall
         if is_relay:
-            if mtype != "rectangle":
-                raise where.error(f"{key}.mesh.type {mtype!r}: the relay wall must be a rectangle (tal's sensor "
-                                  "grid follows the rectangle's UV)")
-            for axis in "xyz":
-                if entry.get(f"rot_degrees_{axis}"):
-                    raise where.error(f"{key}.rot_degrees_{axis}: relay wall rotation is not supported (tal: NYI)")
-            sz = entry.get("scale_z")
-            if sz is not None and float(sz) not in (1.0, -1.0, 0.0):
-                raise where.error(f"{key}.scale_z {sz}: the relay wall's scale_z must be 1 or -1 (its normal)")
-            sx, sy = abs(m[0, 0]), abs(m[1, 1])
-            if sx == 0 or sy == 0:
-                raise where.error(f"{key}: the relay wall has zero size (scale_x {sx}, scale_y {sy})")
-            relay = {"center": m[:3, 3].copy(), "sx": sx, "sy": sy,
-                     "normal": np.array([0.0, 0.0, 1.0 if (sz is None or float(sz) >= 0) else -1.0])}
+            sz = entry.scale_z
+            relay = {"center": m[:3, 3].copy(), "sx": abs(m[0, 0]), "sy": abs(m[1, 1]),
+                     "normal": np.array([0.0, 0.0, 1.0 if (sz is None or sz >= 0) else -1.0])}
         label = "relay_wall" if is_relay else "mesh"
-        if mtype == "rectangle":
+        if entry.mesh.type == "rectangle":
             corner = _apply(m, np.array([-1.0, -1.0, 0.0]))
             eu = _apply(m, np.array([1.0, -1.0, 0.0])) - corner
             ev = _apply(m, np.array([-1.0, 1.0, 0.0])) - corner
             if np.linalg.norm(np.cross(eu, ev)) == 0:
-                raise where.error(f"{key}: the rectangle has zero area (check scale_x/scale_y)")
-            objects_dict.append({"builder": "quad", "name": entry["name"], "label": label,
+                raise SceneError(f"{prefix}geometry.{i}: the rectangle has zero area (check scale_x/scale_y)")
+            objects_dict.append({"builder": "quad", "name": entry.name, "label": label,
                                  "corner": corner.tolist(), "edge_u": eu.tolist(), "edge_v": ev.tolist(),
                                  "material": material})
         else:
             meshes.append((i, entry, m, Material(**material), label))
 
     # -- capture -----------------------------------------------------------------------------------------
-    scan = cfg["scan_type"]
-    if scan not in ("single", "confocal", "exhaustive"):
-        raise where.error(f"scan_type {scan!r} is not supported (single, confocal, exhaustive)")
-    sw = _number(cfg["sensor_width"], "sensor_width", where, integer=True, minimum=1)
-    sh = _number(cfg["sensor_height"], "sensor_height", where, integer=True, minimum=1)
-    lw = _number(cfg["laser_width"], "laser_width", where, integer=True, minimum=1)
-    lh = _number(cfg["laser_height"], "laser_height", where, integer=True, minimum=1)
-    sensor_xyz = np.array([_number(cfg[f"sensor_{a}"], f"sensor_{a}", where) for a in "xyz"])
-    laser_xyz = np.array([_number(cfg[f"laser_{a}"], f"laser_{a}", where) for a in "xyz"])
-    ap = {}
-    for k in ("start_x", "start_y", "end_x", "end_y"):
-        key = f"laser_aperture_{k}"
-        # tal reads these as `value or default`, so 0 (or null) for an end means 1
-        v = cfg[key]
-        ap[k] = (1.0 if k.startswith("end") else 0.0) if not v else _number(v, key, where)
-    for a in "xy":
-        if not 0 <= ap[f"start_{a}"] < ap[f"end_{a}"] <= 1:
-            raise where.error(f"laser_aperture_start_{a} {ap[f'start_{a}']} / laser_aperture_end_{a} "
-                              f"{ap[f'end_{a}']}: need 0 <= start < end <= 1")
+    scan, start, bin_width, num_bins = tc.scan_type, tc.start_opl, tc.bin_width_opl, tc.num_bins
+    legs = tc.account_first_and_last_bounces
+    sw, sh, lw, lh = tc.sensor_width, tc.sensor_height, tc.laser_width, tc.laser_height
+    sensor_xyz = np.array([tc.sensor_x, tc.sensor_y, tc.sensor_z])
+    laser_xyz = np.array([tc.laser_x, tc.laser_y, tc.laser_z])
+    ap = {"start_x": tc.laser_aperture_start_x, "end_x": tc.laser_aperture_end_x,
+          "start_y": tc.laser_aperture_start_y, "end_y": tc.laser_aperture_end_y}
     c, sx, sy, n = relay["center"], relay["sx"], relay["sy"], relay["normal"]
     sensor_grid = _tal_grid(sw, sh, sx, sy) + c
     if scan == "single":
-        lx = cfg["laser_lookat_x"] or sw / 2      # tal: `laser_lookat_x or sensor_width / 2`
-        ly = cfg["laser_lookat_y"] or sh / 2
-        lx = _number(lx, "laser_lookat_x", where)
-        ly = _number(ly, "laser_lookat_y", where)
+        lx = tc.laser_lookat_x or sw / 2      # tal: `laser_lookat_x or sensor_width / 2`
+        ly = tc.laser_lookat_y or sh / 2
         spot = c + np.array([sx * (2 * lx / sw - 1), sy * (2 * ly / sh - 1), 0.0])
         laser_grid = spot.reshape(1, 1, 3)
     else:
-        if scan == "confocal" and (lw, lh) != (sw, sh):
-            raise where.error(f"scan_type confocal needs sensor_width/height == laser_width/height, got "
-                              f"{sw}x{sh} and {lw}x{lh}")
         laser_grid = _tal_grid(lw, lh, sx, sy, (ap["start_x"], ap["end_x"]), (ap["start_y"], ap["end_y"])) + c
         if scan == "confocal":
             sensor_grid = laser_grid     # the points actually measured (tal writes the full-wall grid here)
@@ -467,10 +463,11 @@ def scene_from_tal_config(config: dict, base: str | Path | None = None,
     to_emitter = laser_xyz - laser_grid
     d_e = np.linalg.norm(to_emitter, axis=-1)
     if np.any(d_e == 0):
-        raise where.error(f"laser position {laser_xyz.tolist()} lies on a laser grid point")
+        raise SceneError(f"{prefix}laser position {laser_xyz.tolist()} lies on a laser grid point")
     cos_e = (to_emitter @ n) / d_e
     if np.any(cos_e <= 0):
-        raise where.error(f"laser position {laser_xyz.tolist()} is behind the relay wall (normal {n.tolist()})")
+        raise SceneError(f"{prefix}laser position {laser_xyz.tolist()} is behind the relay wall (normal "
+                         f"{n.tolist()})")
     laser_scale = np.pi * e_sum * cos_e / d_e ** 2
 
     def cell_grid(nx: int, ny: int, ax, ay) -> dict:
@@ -488,9 +485,7 @@ def scene_from_tal_config(config: dict, base: str | Path | None = None,
     if scan in ("confocal", "exhaustive"):
         capture["laser_grid"] = cell_grid(lw, lh, *aperture)
 
-    extra = cfg.get("datagen") or {}
-    if not isinstance(extra, dict):
-        raise where.error(f"datagen: expected a mapping of datagen simulation options, got {extra!r}")
+    extra = tc.datagen or {}
     simulation = {
         "time": {"t_start": start / SPEED_OF_LIGHT, "bin_width": bin_width / SPEED_OF_LIGHT, "n_bins": num_bins},
         "irf": {"sigma": 0.0},
@@ -507,7 +502,7 @@ def scene_from_tal_config(config: dict, base: str | Path | None = None,
         **extra,
     }
     data = {
-        "name": str(cfg.get("name") or "tal_scene"),
+        "name": str(tc.name or "tal_scene"),
         "objects": objects_dict,
         "laser": {"emitter": laser_xyz.tolist(), "spot": np.asarray(spot, dtype=float).tolist()},
         "sensor": {"position": sensor_xyz.tolist()},
@@ -516,44 +511,44 @@ def scene_from_tal_config(config: dict, base: str | Path | None = None,
     }
     # the relay wall is always a rectangle, so the dict has an object; obj/ply meshes (arbitrary tal transforms,
     # which no scene-file builder expresses) join as SceneObjects, in the config's order
-    mesh_objects = [_load_mesh(i, entry, m, material, label, base, where) for i, entry, m, material, label in meshes]
+    mesh_objects = [_load_mesh(i, entry, m, material, label, base, prefix) for i, entry, m, material, label in meshes]
     scene = scene_from_dict(data, source)
     if mesh_objects:
-        order = {e["name"]: k for k, e in enumerate(geometry)}
+        order = {e.name: k for k, e in enumerate(tc.geometry)}
         scene = replace(scene, objects=sorted(list(scene.objects) + mesh_objects, key=lambda o: order[o.name]))
     tal_cap = TalCapture(scan, sensor_grid, laser_grid, n, sensor_xyz, laser_xyz, bin_width, start, legs,
-                         laser_scale, {k: v for k, v in cfg.items()}, tuple(notes))
+                         laser_scale, cfg, tuple(notes))
     return scene, tal_cap
 
 
-def _load_mesh(i: int, entry: dict, m: np.ndarray, material: Material, label: str, base: Path | None,
-               where: _Where) -> SceneObject:
+def _load_mesh(i: int, entry: TalGeometry, m: np.ndarray, material: Material, label: str, base: Path | None,
+               prefix: str) -> SceneObject:
     import trimesh
 
-    key = f"geometry[{i}]"
-    filename = entry["mesh"].get("filename")
-    if not isinstance(filename, str):
-        raise where.error(f"{key}.mesh.filename: an {entry['mesh']['type']} mesh needs a filename")
+    key, filename = f"{prefix}geometry.{i}.mesh.filename", entry.mesh.filename
     path = Path(filename)
     candidates = [path] if path.is_absolute() else ([base / path] if base is not None else []) + [path]
     found = next((p for p in candidates if p.is_file()), None)
     if found is None:
-        raise where.error(f"{key}.mesh.filename {filename!r} not found (looked in "
-                          f"{', '.join(str(p) for p in candidates)})")
+        raise SceneError(f"{key}: not found (looked in {', '.join(str(p) for p in candidates)}) (got {filename!r})")
     try:
         loaded = trimesh.load(found, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for bad files
-        raise where.error(f"{key}.mesh.filename {filename!r}: cannot read mesh: {exc}") from None
+        raise SceneError(f"{key}: cannot read the mesh: {' '.join(str(exc).split())} (got {filename!r})") from None
     faces = np.asarray(loaded.faces, dtype=np.int64)
     if len(faces) == 0:
-        raise where.error(f"{key}.mesh.filename {filename!r} holds no triangles")
+        raise SceneError(f"{key}: the mesh holds no triangles (got {filename!r})")
     vertices = _apply(m, np.asarray(loaded.vertices, dtype=np.float64))
     if np.linalg.det(m[:3, :3]) < 0:
         faces = faces[:, ::-1]   # a mirroring transform flips the winding; keep the outward side outward
-    return SceneObject(entry["name"], label, material, vertices, faces)
+    return SceneObject(entry.name, label, material, vertices, faces)
 
 
 def scene_from_tal_yaml(path: str | Path) -> tuple[Scene, TalCapture]:
-    """:func:`load_tal_config` then :func:`scene_from_tal_config` (mesh paths relative to the YAML's folder)."""
+    """:func:`load_tal_config` then :func:`scene_from_tal_config` (mesh paths relative to the YAML's folder).
+
+    Raises:
+        SceneError: as those two (one line naming the file, the field and the value).
+    """
     config = load_tal_config(path)
     return scene_from_tal_config(config, Path(config["_source"]).parent, config["_source"])
