@@ -94,8 +94,9 @@ def _check_index(pred: Path, index: np.ndarray, n: int, split: str, count: int) 
     if np.any(counts > 1):
         value = int(values[np.argmax(counts > 1)])
         where = np.flatnonzero(index == value)
-        raise SceneError(f"{pred}: index repeats {value} ({int(counts.max())}× at most; first at positions "
-                         f"{int(where[0])} and {int(where[1])}): each sample is scored once")
+        shown = ", ".join(str(int(k)) for k in where[:5]) + (", …" if len(where) > 5 else "")
+        raise SceneError(f"{pred}: index repeats {value} ({len(where)} times, at positions {shown}): each sample "
+                         "is scored at most once")
 
 
 def _first_bad(values: np.ndarray, bad: np.ndarray) -> tuple[float, tuple[int, ...]]:
