@@ -19,7 +19,6 @@ import pytest
 from click.testing import CliRunner
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
-from hypothesis.extra import numpy as hnp
 
 from test_hostile import cli   # the in-process runner: exit code, needles, no traceback, one error line
 from test_hostile_build import tiny
