@@ -165,13 +165,15 @@ def sample_pictures(path: Path, split: str, count: int, note) -> list | None:
 @_dataset_errors
 def inspect(path, split, n_samples, png, show_config, no_3d):
     """Summarise the dataset at PATH (its card) and draw a few samples to a PNG (with a 3D picture of each
-    sample's room when open3d can render, unless --no-3d)."""
+    sample's room when open3d can render, unless --no-3d). An unfinished build gets its summary, then one
+    ``error:`` line naming the shards not built and ``--resume`` (exit 2)."""
     import matplotlib
     matplotlib.use("Agg")
     import yaml
     from matplotlib.figure import Figure
 
     from ..dataset import NLOSDataset, plot_sample, read_card
+    from ..dataset.integrity import require_complete
 
     if png is not None:
         check_output_file(png, "--png")
@@ -179,9 +181,7 @@ def inspect(path, split, n_samples, png, show_config, no_3d):
     click.echo(card_summary(card))
     if show_config:
         click.echo(yaml.safe_dump(card["config"], sort_keys=False))
-    if card.get("status") != "complete":
-        click.echo("(no figure: the build is not complete)")
-        return
+    require_complete(path, card)   # the summary shows the progress; no figure of an unfinished build
     split = split or next((s for s, i in card["splits"].items() if i["count"] > 0), None)
     if split is None:
         return

@@ -17,7 +17,7 @@ from ..transport import estimator_names
 from .bench import bench
 from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
-from .tal import export_tal, tal_render
+from .tal import export_tal, read_result_input, tal_render
 from .view import view
 
 
@@ -133,20 +133,25 @@ def detect(result_path, detector_file, exposure, seed):
     """Re-draw SPAD histograms from a stored envelope (no transport): writes detections/<NAME>/counts.
 
     The envelope is re-binned onto the detector's TDC bins (taken as piecewise constant within the stored
-    bins, so TDC bins finer than the stored ones do not gain time resolution).
+    bins, so TDC bins finer than the stored ones do not gain time resolution). RESULT_PATH is the output of
+    `datagen simulate`; a dataset folder is refused with one line saying what to use instead.
     """
     from .. import spad
     from ..scene import SceneError, format_validation_error, read_yaml
     from ..simulation import STREAM_NOISE, stream_rng
-    from ..io import read_result, write_detection
+    from ..io import write_detection
     from ..units import parse_duration
 
+    # a dataset folder gets one line saying what to use instead (an unfinished one: the incomplete refusal)
+    result = read_result_input(result_path, "detect", "detect re-draws the counts of one `datagen simulate` "
+                               "result; for a dataset draw SPAD noise with other detector settings in the loader: "
+                               "NLOSDataset(PATH, noise='resample', detector_ranges={...}) (docs/datasets.md, "
+                               "Loading)")
     data = read_yaml(Path(detector_file), "detector file")   # bounded; names the file on any error
     if isinstance(data, dict) and set(data) == {"detector"}:
         data = data["detector"]
     if not isinstance(data, dict):
         raise SceneError(f"{detector_file}: expected a mapping of detector fields, got {type(data).__name__}")
-    result = read_result(result_path)
     data = {"t_start": float(result.time_edges[0]), **data}
     data.setdefault("bin_width", float(result.time_edges[1] - result.time_edges[0]))
     if exposure is not None:

@@ -5,6 +5,7 @@ The commands only parse and call the library; :mod:`datagen.cli.main` registers 
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import click
@@ -12,6 +13,52 @@ import click
 from ..transport import estimator_names
 
 from .errors import friendly_errors
+
+
+def check_out_file(out: Path) -> None:
+    """Refuse, before any work, an ``--out`` file that is a directory, lies under a file, or whose nearest
+    existing parent directory is not writable (the HDF5 is written beside it as ``OUT.partial``, then renamed).
+
+    Raises:
+        IsADirectoryError / NotADirectoryError / PermissionError: naming ``--out`` and the path.
+    """
+    out = Path(out)
+    if out.is_dir():
+        raise IsADirectoryError(f"--out {out} is a directory; give the .hdf5 file to write, e.g. "
+                                f"{out / 'capture.hdf5'}")
+    parent = out.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise NotADirectoryError(f"--out {out}: cannot create it, {parent} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise PermissionError(f"--out {out}: {parent} is not writable")
+
+
+def read_result_input(path: Path, command: str, dataset_hint: str):
+    """The :class:`datagen.simulation.Result` stored at ``path`` (the output of ``datagen simulate``: OUT or
+    OUT/result.zarr) for ``command`` (``export-tal``, ``detect``).
+
+    Raises:
+        DatasetIncompleteError: ``path`` is a dataset whose build is not complete (as every reader refuses it);
+        ValueError: ``path`` is a (complete) dataset (the message ends with ``dataset_hint``, what to do
+        instead) or a Zarr store that is not a result; FileNotFoundError: no store at ``path``.
+    """
+    from ..dataset.integrity import is_dataset, require_complete
+    from ..io import read_result
+
+    path = Path(path)
+    for root in (path, path.parent):                       # a dataset, or one of its split folders
+        if is_dataset(root):
+            require_complete(root)
+            what = "a datagen dataset" if root == path else f"a split folder of the datagen dataset {root}"
+            raise ValueError(f"{path} is {what}, not a result store; {dataset_hint}")
+    try:
+        return read_result(path)
+    except (KeyError, AttributeError, TypeError):            # a Zarr store without a result's arrays
+        raise ValueError(f"{path} is a Zarr store but not a datagen result (it lacks the envelope, counts or "
+                         f"components arrays); {command} takes the output of `datagen simulate` (OUT or "
+                         "OUT/result.zarr)") from None
 
 
 def _h_summary(path: Path) -> str:
@@ -54,6 +101,7 @@ def tal_render(config_file, out, lookins, pixels, estimator, edge, samples, seed
     from ..simulation import resolve_config, simulate
     from ..io import scene_from_tal_yaml, write_tal_hdf5
 
+    check_out_file(out)
     t0 = time.perf_counter()
     scene, tal = scene_from_tal_yaml(config_file)
     if estimator is None and (lookins or pixels):
@@ -92,22 +140,27 @@ def export_tal(result_path, out, split, index, use_counts, float32, compression)
     RESULT_PATH: a result directory or its result.zarr; or a dataset directory with --split and --index (the
     sample's wall grids are regenerated from the dataset's config, datagen.dataset.export). H is the envelope
     (or --counts) in its own convention (scene_info records which), Sx along the wall's horizontal tangent and Sy
-    along the wall's up direction.
+    along the wall's up direction. OUT is checked before any work; a dataset whose build is not complete is
+    refused (naming the shards not built and --resume).
     """
-    from ..io import read_result, write_tal_hdf5
+    from ..dataset.integrity import require_complete
+    from ..io import write_tal_hdf5
 
+    check_out_file(out)
     info = None
     if split is not None or index is not None:
         from ..dataset.export import sample_result
 
         if split is None or index is None:
             raise ValueError("a dataset sample needs both --split and --index")
+        require_complete(result_path)   # an unfinished build's unbuilt samples read as zeros: refused
         result = sample_result(result_path, split, index, "counts" if use_counts else "envelope")
         info = {"dataset": result.attrs["dataset"]}
     elif use_counts:
         raise ValueError("--counts applies to a dataset sample (give --split and --index)")
     else:
-        result = read_result(result_path)
+        result = read_result_input(result_path, "export-tal", "give --split and --index to export one of its "
+                                   "samples")
     out.parent.mkdir(parents=True, exist_ok=True)
     write_tal_hdf5(result, out, compression_level=compression, dtype="float32" if float32 else "float64",
                    scene_info=info)

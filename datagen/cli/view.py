@@ -26,13 +26,17 @@ def load_view_input(path: str | Path, split: str | None = None, index: int = 0):
         "dataset") and, for a dataset, ``room`` (:class:`~datagen.dataset.SampledRoom`), ``split``,
         ``index``, ``card``.
     Raises:
-        SceneError / FileNotFoundError / ValueError: unreadable or invalid input (one line).
+        SceneError / FileNotFoundError / ValueError: unreadable or invalid input (one line);
+        DatasetIncompleteError (a ValueError): a dataset whose build is not complete (names the shards not
+        built and ``--resume``).
     """
     from ..scene import SceneError, load_scene, read_yaml
 
     path = Path(path)
     if path.is_dir():
         from ..dataset import scene_of_sample
+        from ..dataset.integrity import require_complete
+        require_complete(path)        # an unfinished build is refused as by every reader (names --resume)
         room, split, card = scene_of_sample(path, split, index)
         return room.scene, {"kind": "dataset", "room": room, "split": split, "index": index, "card": card}
     if split is not None:

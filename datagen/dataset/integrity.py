@@ -14,6 +14,10 @@ From them :func:`expected_metadata` regenerates, in memory and with the same cal
 - the loader (:class:`datagen.dataset.NLOSDataset`): :func:`check_split` before reading, and
   :func:`read_shard_index` / :func:`corrupt_chunk` while reading, so damaged data raises
   :class:`DatasetCorruptError` instead of returning garbage.
+
+Every command that reads a dataset (the loader, ``score``, ``inspect``, ``view``, ``export-tal``, ``detect``)
+first calls :func:`require_complete`, which refuses an unfinished build with one message naming the missing
+shards and ``--resume`` (:class:`DatasetIncompleteError`; docs/reliability.md, "Reading a dataset").
 """
 from __future__ import annotations
 
@@ -42,6 +46,11 @@ INDEX_ENTRY_BYTES = 16
 class DatasetCorruptError(ValueError):
     """A dataset's files disagree with its card (a damaged or missing shard, edited metadata); the message
     names the file and the remedy (:data:`REMEDY`)."""
+
+
+class DatasetIncompleteError(ValueError):
+    """A dataset whose build has not finished (interrupted, failed shards, or still running); the message
+    names the dataset, the shards not built and the remedy (:func:`require_complete`)."""
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -399,3 +408,80 @@ def sample_index(index) -> int:
         return operator.index(index)
     except TypeError:
         raise TypeError(f"sample index must be an integer, got {index!r} ({type(index).__name__})") from None
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Readers: the build must be complete
+
+
+RESUME = "datagen build CONFIG --out {path} --resume"
+"""The remedy an incomplete build's refusal names (``CONFIG``: the dataset config the build was started with)."""
+
+
+def number_ranges(numbers) -> str:
+    """Sorted integers as compact ranges: ``[3, 5, 6, 7, 8, 9]`` → ``"3, 5-9"`` (empty: ``""``)."""
+    values = sorted(set(int(n) for n in numbers))
+    parts, i = [], 0
+    while i < len(values):
+        j = i
+        while j + 1 < len(values) and values[j + 1] == values[j] + 1:
+            j += 1
+        parts.append(str(values[i]) if i == j else f"{values[i]}-{values[j]}")
+        i = j + 1
+    return ", ".join(parts)
+
+
+def missing_shards(root: str | Path, config: DatasetConfig) -> dict[str, tuple[list[int], int]]:
+    """Per split with unbuilt shards: (shard numbers without a done marker, shard count of the split), in split
+    order; the done markers are the truth while a build runs (the card is filled from them at its end)."""
+    out: dict[str, tuple[list[int], int]] = {}
+    totals: dict[str, int] = {}
+    for task in plan_shards(config):
+        totals[task.split] = totals.get(task.split, 0) + 1
+        if not marker_path(root, task.split, task.shard).is_file():
+            out.setdefault(task.split, ([], 0))[0].append(task.shard)
+    return {split: (shards, totals[split]) for split, (shards, _) in out.items()}
+
+
+def require_complete(path: str | Path, card: dict | None = None) -> dict:
+    """Refuse to read a dataset whose build has not finished; the one check every reader makes first (the
+    loader, ``datagen score``, ``inspect``, ``view``, ``export-tal``, ``detect``).
+
+    Args:
+        path: the dataset directory.
+        card: its card, when already read (:func:`datagen.dataset.read_card`); read here otherwise.
+    Returns:
+        the card (a dict), when its status is ``complete``.
+    Raises:
+        FileNotFoundError: no datagen dataset at ``path``; ValueError: a damaged card;
+        DatasetIncompleteError (a ValueError): the build is not complete. The message names the dataset, the
+        splits and the shard numbers that are not built (``train shards 3, 5-9 of 12``, from the done
+        markers) and the remedy ``datagen build CONFIG --out PATH --resume``.
+    """
+    root = Path(path)
+    card = read_card(root) if card is None else card
+    if card.get("status") == "complete":
+        return card
+    remedy = RESUME.format(path=root)
+    try:
+        missing = missing_shards(root, config_from_json(card["config"]))
+    except (KeyError, TypeError, ValueError):
+        raise DatasetIncompleteError(f"{root}: the dataset build is not complete and its card holds no valid "
+                                     f"config (interrupted while it initialised?); run `{remedy}`") from None
+    if not missing:
+        what = "every shard is built but the build did not finish (its card was not completed)"
+    else:
+        what = "; ".join(f"{split} shard{'s' if len(shards) > 1 else ''} {number_ranges(shards)} of {total}"
+                            for split, (shards, total) in missing.items()) + " not built"
+    raise DatasetIncompleteError(f"{root}: the dataset build is not complete ({what}); finish it with "
+                                 f"`{remedy}`")
+
+
+def is_dataset(path: str | Path) -> bool:
+    """Whether ``path`` holds a datagen dataset: a ``zarr.json`` whose attributes are a dataset card (a
+    ``zarr.json`` that is not JSON is not recognisably one: False)."""
+    try:
+        read_card(path)
+    except (FileNotFoundError, ValueError):
+        return False
+    return True

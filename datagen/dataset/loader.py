@@ -132,9 +132,8 @@ class NLOSDataset(torch.utils.data.Dataset):
                             f"splits: {sorted(read_card(Path(path))['splits'])}")
         self.path = Path(path)
         card = read_card(self.path)
-        if card.get("status") != "complete":
-            raise ValueError(f"{self.path}: the build is not complete ({card.get('shards_done')} of "
-                             f"{card.get('shards_total')} shards); resume it with `datagen build ... --resume`")
+        from .integrity import require_complete   # the check every reader makes (names the missing shards)
+        require_complete(self.path, card)
         if split not in card["splits"]:
             raise ValueError(f"split {split!r} not in {self.path} (splits: {sorted(card['splits'])})")
         if noise not in ("frozen", "resample"):

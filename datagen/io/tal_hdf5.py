@@ -288,6 +288,9 @@ def write_tal_hdf5(result, path: str | Path, tal: TalCapture | None = None, *, c
                    dtype: str = "float64", **kwargs) -> Path:
     """Write ``result`` as a tal HDF5 capture (layout in the module docstring); returns the path.
 
+    The file is written to ``<path>.partial`` and renamed into place; on any failure the partial file is
+    removed, so nothing is left behind.
+
     Args:
         result: a datagen Result with capture grids (see :func:`tal_arrays`).
         tal: the :class:`TalCapture` of a tal render YAML (lay out and scale H as ``tal render`` does).
@@ -295,7 +298,8 @@ def write_tal_hdf5(result, path: str | Path, tal: TalCapture | None = None, *, c
         dtype: "float64" (exact round trip) or "float32" (what ``tal render`` writes; half the size).
         kwargs: ``laser_xyz``, ``sensor_xyz``, ``scene_info`` (see :func:`tal_arrays`).
     Raises:
-        SceneError: see :func:`tal_arrays`; ValueError: bad compression level or dtype.
+        SceneError: see :func:`tal_arrays`; ValueError: bad compression level or dtype; IsADirectoryError:
+        ``path`` is a directory; OSError: the write failed (e.g. a full disk).
     """
     import h5py
 
@@ -306,32 +310,38 @@ def write_tal_hdf5(result, path: str | Path, tal: TalCapture | None = None, *, c
     data = tal_arrays(result, tal, **kwargs)
     path = Path(path)
     tmp = path.with_name(path.name + ".partial")
-    with h5py.File(tmp, "w") as f:
-        for key in TAL_FIELDS:
-            value = data[key]
-            if key in _ENUM_FIELDS:
-                if value is None or (key == "volume_format" and value == VolumeFormat.UNKNOWN):
-                    f[key] = h5py.Empty("f8")     # as tal render writes it; reads back as UNKNOWN
-                    continue
-                enum = type(value)
-                dt = h5py.enum_dtype({m.name: m.value for m in enum}, basetype="i")
-                ds = f.create_dataset(key, (1,), dtype=dt)
-                ds[0] = int(value)
-            elif value is None:
-                f[key] = h5py.Empty("f8")
-            elif key == "scene_info":
-                f[key] = yaml.safe_dump(value, sort_keys=False)
-            elif key == "H":
-                arr = np.asarray(value, dtype=dtype)
-                if compression_level:
-                    f.create_dataset(key, data=arr, compression="gzip", compression_opts=compression_level)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a directory; give the .hdf5 file to write")
+    try:
+        with h5py.File(tmp, "w") as f:
+            for key in TAL_FIELDS:
+                value = data[key]
+                if key in _ENUM_FIELDS:
+                    if value is None or (key == "volume_format" and value == VolumeFormat.UNKNOWN):
+                        f[key] = h5py.Empty("f8")     # as tal render writes it; reads back as UNKNOWN
+                        continue
+                    enum = type(value)
+                    dt = h5py.enum_dtype({m.name: m.value for m in enum}, basetype="i")
+                    ds = f.create_dataset(key, (1,), dtype=dt)
+                    ds[0] = int(value)
+                elif value is None:
+                    f[key] = h5py.Empty("f8")
+                elif key == "scene_info":
+                    f[key] = yaml.safe_dump(value, sort_keys=False)
+                elif key == "H":
+                    arr = np.asarray(value, dtype=dtype)
+                    if compression_level:
+                        f.create_dataset(key, data=arr, compression="gzip", compression_opts=compression_level)
+                    else:
+                        f[key] = arr
+                elif key == "t_accounts_first_and_last_bounces":
+                    f[key] = np.bool_(value)
                 else:
-                    f[key] = arr
-            elif key == "t_accounts_first_and_last_bounces":
-                f[key] = np.bool_(value)
-            else:
-                f[key] = value
-    tmp.replace(path)
+                    f[key] = value
+        tmp.replace(path)
+    except BaseException:   # a full disk, an interrupt, a target that cannot be replaced: leave nothing behind
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
