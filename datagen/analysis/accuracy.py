@@ -27,7 +27,7 @@ from __future__ import annotations
 import csv
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, get_args
 
@@ -119,6 +119,7 @@ class Estimator:
             area: :class:`datagen.transport.AreaSettings` fields; quadrature:
             :class:`datagen.transport.QuadratureSettings` fields).
         cost: nominal cost of a step (used with measured times to predict the next step's time).
+        describe: a step's setting in a few characters (the table's "setting" column).
     """
 
     name: str
@@ -126,14 +127,7 @@ class Estimator:
     kind: str
     ladder: tuple[dict, ...]
     cost: Callable[[dict], float]
-
-    def describe(self, step: dict) -> str:
-        if self.kind == "area":
-            return f"M={step['samples']}"
-        if self.kind == "quadrature":
-            return f"h={step['edge']:g} m, M2={step['secondary_samples']}"   # M2: area secondary, when planned
-        (n, _), (l, p) = step["lookins"], step["pixels"]
-        return f"{n}x{n}x{l}x{p}"
+    describe: Callable[[dict], str]
 
 
 _LOOKIN_STEPS = ((3, 12), (4, 16), (6, 20), (8, 24), (10, 30), (12, 36), (16, 44), (20, 52), (24, 60), (32, 60),
@@ -146,6 +140,11 @@ def _lookin_ladder(secondary: str, top_k: int = 1) -> tuple[dict, ...]:
                  for n, p in _LOOKIN_STEPS)
 
 
+def _lookin_setting(step: dict) -> str:
+    (n, _), (l, p) = step["lookins"], step["pixels"]
+    return f"{n}x{n}x{l}x{p}"
+
+
 def _pair_cost(step: dict) -> float:
     n, p = step["lookins"][0] ** 2, step["pixels"][0] * step["pixels"][1]
     return n * p * (1.0 + p / 400.0)            # rays, plus the O((l·p)²) pairs per lookin
@@ -156,16 +155,22 @@ def _ray_cost(step: dict) -> float:
 
 
 LADDERS: dict[str, Estimator] = {
-    "lookin": Estimator("lookin", "lookin, full secondary", "lookin", _lookin_ladder("full"), _pair_cost),
-    "top1": Estimator("top1", "lookin, optimized top-1", "lookin", _lookin_ladder("optimized", 1), _pair_cost),
-    "top8": Estimator("top8", "lookin, optimized top-8", "lookin", _lookin_ladder("optimized", 8), _pair_cost),
-    "exact": Estimator("exact", "lookin, exact secondary", "lookin", _lookin_ladder("exact"), _ray_cost),
+    "lookin": Estimator("lookin", "lookin, full secondary", "lookin", _lookin_ladder("full"), _pair_cost,
+                        _lookin_setting),
+    "top1": Estimator("top1", "lookin, optimized top-1", "lookin", _lookin_ladder("optimized", 1), _pair_cost,
+                      _lookin_setting),
+    "top8": Estimator("top8", "lookin, optimized top-8", "lookin", _lookin_ladder("optimized", 8), _pair_cost,
+                      _lookin_setting),
+    "exact": Estimator("exact", "lookin, exact secondary", "lookin", _lookin_ladder("exact"), _ray_cost,
+                       _lookin_setting),
     "area": Estimator("area", "area sampler", "area",
-                      tuple({"samples": 1 << k} for k in range(9, 24)), lambda s: float(s["samples"])),
+                      tuple({"samples": 1 << k} for k in range(9, 24)), lambda s: float(s["samples"]),
+                      lambda s: f"M={s['samples']}"),
     "quadrature": Estimator("quadrature", "hidden-surface quadrature", "quadrature",
                             tuple({"edge": 1.6 / 2 ** i, "secondary_samples": 1 << min(13 + 2 * i, 20)}
                                   for i in range(9)),
-                            lambda s: s["edge"] ** -4 + s["secondary_samples"] / 16.0),
+                            lambda s: s["edge"] ** -4 + s["secondary_samples"] / 16.0,
+                            lambda s: f"h={s['edge']:g} m, M2={s['secondary_samples']}"),   # M2: planned secondary
 }
 """Every estimator of the benchmark by name."""
 
@@ -195,9 +200,9 @@ def run_estimator(scene: Scene, config, estimator: Estimator, step: dict, caster
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,)))
     t0 = time.perf_counter()
     entry = transport_estimator(estimator.kind)
+    if base.secondary == "none" and "secondary" in step:      # the config asks for no secondary at all
+        step = {**step, "secondary": "none"}
     settings = entry.settings_class.from_transport(base, **step)
-    if estimator.kind == "lookin" and base.secondary == "none":     # the config asks for no secondary at all
-        settings = replace(settings, secondary="none")
     runner = entry.cls(scene, settings, caster)
     names, cap = runner.component_names, runner.capture
     acc = EnvelopeAccumulator(config.time, config.irf, len(names) * cap.n_channels)

@@ -76,7 +76,7 @@ def _h_summary(path: Path) -> str:
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output .hdf5 file")
 @click.option("--lookins", default=None, help="lookin estimator with this lookin grid, e.g. 1024x1024")
 @click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
-@click.option("--estimator", type=click.Choice(["quadrature"] + [n for n in estimator_names() if n != "quadrature"]),
+@click.option("--estimator", type=click.Choice(estimator_names()),
               default=None,
               help="quadrature (default: deterministic hidden-surface quadrature, datagen.transport.quadrature), area "
                    "(hidden-surface area sampling, datagen.transport.area) or lookin (the paper's sampler)")

@@ -65,6 +65,7 @@ def lookins_for(scene, info: dict, grid: str | None, seed: int | None = None) ->
         return None
     from ..plot import lookin_points
     from ..simulation import resolve_config
+    from ..transport import estimator
 
     overrides: dict[str, Any] = {}
     rng = None
@@ -78,7 +79,7 @@ def lookins_for(scene, info: dict, grid: str | None, seed: int | None = None) ->
     if seed is not None:
         overrides["seed"] = seed
     sim = resolve_config(scene, overrides)
-    if sim.estimator != "lookin":
+    if not estimator(sim.estimator).casts_lookins:
         raise ValueError(f"--lookins: this scene simulates with the {sim.estimator!r} estimator, which casts "
                          "no lookins: give --lookins NxN")
     return lookin_points(scene, sim, rng)

@@ -88,7 +88,8 @@ class Drawables:
         meshes: list of (name, vertices (3F, 3) float64 triangle soup, colours (3F, 3) float64 in [0, 1]).
         lines: list of (name, segments (E, 2, 3) float64, colour (3,), width in output pixels).
         points: list of (name, points (N, 3) float64, colour (3,), size in output pixels).
-        legend: list of (text, kind "patch" | "line" | "point" | "lookin", colour (3,)).
+        legend: list of (text, kind "patch" | "line" | "point" | "ringed" (lookins: points ringed in
+            LOOKIN_COLOR), colour (3,)).
         cut: names of the objects with cut-away faces.
         camera: the framed :class:`~datagen.plot.view_camera.ViewCamera`.
     """
@@ -417,6 +418,6 @@ def build_drawables(o3d, scene: Scene, *, lookins: np.ndarray | None = None, sha
                                  (on_cut, LOOKIN_CUT_COLOR, "lookins on cut-away surfaces")):
             if sel.any():                                    # a coloured dot in a black ring
                 d.points.append((what, pts[sel] + 1.5 * bias, color, 3.5))
-                d.legend.append((f"{what} ({int(sel.sum())} of {len(pts)} hit points)", "lookin", color))
+                d.legend.append((f"{what} ({int(sel.sum())} of {len(pts)} hit points)", "ringed", color))
     d.camera = frame(cam, np.concatenate(frame_pts), aspect)
     return d

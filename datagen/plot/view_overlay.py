@@ -15,6 +15,7 @@ import numpy as np
 
 from ..scene import Scene
 from ..simulation import SimulationConfig
+from ..transport import estimator
 from .view_geometry import LOOKIN_COLOR, lookin_points
 from .view_render import SUPERSAMPLE, SceneImage, render_scene_image, require_display, show_drawables
 from .view_worker import ViewUnavailable, require_open3d
@@ -86,7 +87,7 @@ def legend_handles(shot: SceneImage) -> tuple[list, list[str]]:
             handles.append(Patch(facecolor=color, edgecolor="0.3", lw=0.6))
         elif kind == "point":
             handles.append(Line2D([], [], ls="none", marker="o", ms=4, color=color))
-        elif kind == "lookin":
+        elif kind == "ringed":          # lookins: points ringed in LOOKIN_COLOR
             handles.append(Line2D([], [], ls="none", marker="o", ms=6, mfc=color, mec=LOOKIN_COLOR, mew=1.5))
         else:
             handles.append(Line2D([], [], color=color, lw=2))
@@ -180,7 +181,8 @@ def scene_view_figure(scene: Scene, path: str | Path, config: SimulationConfig |
     """
     try:
         require_open3d()
-        lookins = lookin_points(scene, config) if config is not None and config.estimator == "lookin" else None
+        casts = config is not None and estimator(config.estimator).casts_lookins
+        lookins = lookin_points(scene, config) if casts else None
         render_scene(scene, path, lookins=lookins, **kwargs)
     except (ViewUnavailable, RuntimeError) as exc:
         if note is not None:

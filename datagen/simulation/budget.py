@@ -10,7 +10,8 @@ figures in GiB. ``simulate`` and ``simulate_to_tolerance`` call it before buildi
 (:func:`datagen.simulation.run.run_transport`); dataset builds add their shard buffers
 (:mod:`datagen.dataset.build`).
 
-The byte counts per element are upper estimates of the arrays the estimators hold at once (read off their
+The estimators' own terms come from their registry entries (:attr:`datagen.transport.EstimatorEntry.memory`, beside
+each estimator's code). The byte counts per element are upper estimates of the arrays they hold at once (read off the
 code, and measured for the secondary's pairs): a setting refused here would have failed with a MemoryError (or
 the kernel's out-of-memory killer) after minutes of work, while the repository's scenes and configs estimate
 at most a few hundred MiB (the demo room at its default 10×10×60×60, full secondary: 131 MiB).
@@ -20,37 +21,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
-
 from ..scene import Scene, SceneError
 from ..timing import EnvelopeAccumulator
-from ..transport import CACHE_RAYS
-from ..transport.quad_grading import GRADING_MIN_EDGE, graded_triangles
+from ..transport import estimator
+from ..transport.base import TARGET_BYTES
 from .config import SimulationConfig
 
 GIB = float(1 << 30)
-
-LOOKIN_BYTES = 400
-"""Bytes per lookin ray: direction, hit point, normal, pdf, distance, object id and the ray caster's buffers
-(about 20 float64 values with temporaries)."""
-
-CAMERA_RAY_BYTES = 1000
-"""Bytes per camera ray of one slice (observed point, normal, direction, distance, ids, FoV connection, laser
-light, secondary partners; about 100 float64 values with temporaries)."""
-
-SECONDARY_PAIR_BYTES = 8
-"""Bytes per (pixels per lookin)² of the full and optimized secondaries, which form every (lit point, FoV point)
-pair of a lookin at once: 2× the 3.9 bytes measured on the demo room (peak RSS above the same run without the
-secondary: +66 MB at 60×60 pixels, +790 MB at 120×120, 3×3 lookins)."""
-
-AREA_SAMPLE_BYTES = 500
-"""Bytes per hidden sample of the area sampler (point, normal, ids, both connections, weights)."""
-
-QUADRATURE_CELL_BYTES = 250
-"""Bytes per quadrature sub-triangle (lattice vertices, cell indices, area, centroid, normal, ids, times)."""
-
-TARGET_BYTES = 100
-"""Bytes per quadrature target (FoV cell or sensor point) and per capture grid point."""
 
 ACCUMULATOR_COPIES = 2
 """Fine-grid copies an accumulator holds at once (histogram, and the convolution's output)."""
@@ -110,33 +87,14 @@ def _capture_counts(scene: Scene) -> tuple[int, int, int, tuple[str, str]]:
     return 1, sensor, sensor, s_field
 
 
-def _hidden_triangles(scene: Scene) -> np.ndarray:
-    """(F, 3, 3) triangles the quadrature may subdivide: every face not on the relay wall."""
-    tris = [o.vertices[o.faces] for o in scene.objects if o.label != "relay_wall"]
-    return np.concatenate(tris) if tris else np.zeros((0, 3, 3))
-
-
-def _near_box(scene: Scene) -> np.ndarray:
-    """(P, 3) points whose axis-aligned box holds every laser point and FoV point of ``scene``'s capture, for the
-    quadrature's grading (which measures distances to that box): the laser spot, and each grid's and the FoV's centre
-    ± half its diagonal along every axis (their plane is not resolved here, so the box is the same or larger and the
-    grading estimate cuts as much as the run or more)."""
-    points = [np.asarray(scene.laser.spot, dtype=np.float64)]
-    rects = [scene.sensor.fov] if scene.sensor.fov is not None else []
-    if scene.capture is not None:
-        rects += [g for g in (scene.capture.laser_grid, scene.capture.sensor_grid) if g is not None]
-    for rect in rects:
-        centre, half = np.asarray(rect.center, dtype=np.float64), 0.5 * math.hypot(*rect.size)
-        points += [centre - half, centre + half]
-    return np.array(points)
-
-
 def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str, str, float]]:
     """The arrays a simulation of ``scene`` under ``config`` holds at its peak, estimated without allocating.
 
     Returns:
         (field, value, bytes) per term, largest first: field is the config or scene field that sets the term
-        (``time.n_bins``, ``lookins``, ``pixels``, ``sensor.fov.pixels``, ``quadrature_edge``, …).
+        (``time.n_bins``, ``lookins``, ``pixels``, ``sensor.fov.pixels``, ``quadrature_edge``, …). The shared
+        arrays are counted here, the estimator's own by its registry entry
+        (:attr:`datagen.transport.EstimatorEntry.memory`).
     """
     lasers, sensors, channels, grid_field = _capture_counts(scene)
     primary = len(scene.component_names()) if config.split_components else 1
@@ -149,34 +107,9 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
               8.0 * ACCUMULATOR_COPIES * n_components * channels * n_fine),
              (grid[0], f"{grid[1]} (results)", 8.0 * RESULT_COPIES * (n_components + 3) * channels * n_bins),
              (grid_field[0], grid_field[1], float(TARGET_BYTES) * (lasers + sensors))]
-    workers = max(1, config.workers)
-    if config.estimator == "lookin":
-        n_lookins = math.prod(config.lookins)
-        n_pixels = math.prod(config.pixels)
-        terms.append(("lookins", "x".join(map(str, config.lookins)), float(LOOKIN_BYTES) * n_lookins * lasers))
-        slice_rays = max(n_pixels, CACHE_RAYS)
-        terms.append(("pixels", "x".join(map(str, config.pixels)), float(CAMERA_RAY_BYTES) * slice_rays * workers))
-        if config.secondary in ("full", "optimized"):
-            terms.append(("pixels", f"{'x'.join(map(str, config.pixels))} (secondary {config.secondary}: pairs)",
-                          float(SECONDARY_PAIR_BYTES) * n_pixels ** 2 * workers))
-    if config.estimator == "area" or (config.estimator == "quadrature" and config.secondary != "none"):
-        terms.append(("area_samples", str(config.area_samples), float(AREA_SAMPLE_BYTES) * config.area_samples))
-    if config.estimator == "quadrature":
-        tri = _hidden_triangles(scene)   # k = ceil(longest edge / h) sub-triangles per side (sampling.subdivisions),
-        k_min = 1.0
-        if config.quadrature_grading is not None and len(tri):      # graded pieces, each split at least in 2 × 2
-            tri, _ = graded_triangles(tri, _near_box(scene), config.quadrature_grading,
-                                      GRADING_MIN_EDGE * config.quadrature_edge)
-            k_min = 2.0
-        longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max(axis=1, initial=0.0)  # in float64:
-        cells = float((np.maximum(k_min, np.ceil(longest / config.quadrature_edge)) ** 2).sum())   # no overflow
-        fov = scene.sensor.fov     # FoV cells per pixel side: the quadrature caps them (at 64); not here
-        side = max(fov.size) / min(fov.pixels) if fov is not None else 0.0
-        k = config.quadrature_fov or max(1, math.ceil(side / config.quadrature_edge))
-        terms.append(("quadrature_edge", f"{config.quadrature_edge:g} m ({cells:.3g} sub-triangles)",
-                      float(QUADRATURE_CELL_BYTES) * cells))
-        terms.append(("quadrature_edge", f"{config.quadrature_edge:g} m ({k}x{k} FoV cells per pixel)",
-                      float(TARGET_BYTES) * sensors * k * k))
+    memory = estimator(config.estimator).memory        # the estimator's own arrays (its registry entry)
+    if memory is not None:
+        terms += memory(scene, config, lasers, sensors)
     return sorted(terms, key=lambda t: -t[2])
 
 

@@ -18,9 +18,9 @@ import numpy as np
 
 from .. import spad
 from ..planner import Plan, plan_effects
-from ..scene import RayCaster, Scene, SceneError
+from ..scene import RayCaster, Scene, SceneError, resolve_capture
 from ..timing import EnvelopeAccumulator
-from ..transport import Estimator, Transport, estimator, run_replicas
+from ..transport import Estimator, estimator, run_replicas
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .replicas import ReplicaSums, relative_difference, replica_root, replica_rng
@@ -106,9 +106,10 @@ def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator
     """Plan the effects and build the configured estimator (scene → planner → transport), ready to run.
 
     Without ``config.split_components`` the estimator sees the scene with one primary component
-    (:meth:`~datagen.scene.Scene.with_summed_primary`). The lookin settings from ``config`` are resolved first
-    (they carry the physics switches and the capture); the effect planner's decisions are applied to them; then
-    the estimator registered under ``config.estimator`` is built from them (:func:`datagen.transport.estimator`).
+    (:meth:`~datagen.scene.Scene.with_summed_primary`). The flow is estimator-neutral up to the last step: the
+    capture is resolved (:func:`datagen.scene.resolve_capture`), the effect planner decides on it and applies its
+    decisions to the physics settings from ``config``, and the estimator registered under ``config.estimator``
+    is built from those (:func:`datagen.transport.estimator`).
 
     Raises:
         ResourceError: the estimated memory exceeds what is available (:mod:`datagen.simulation.budget`).
@@ -117,11 +118,10 @@ def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator
     if not config.split_components:
         scene = scene.with_summed_primary()
     caster = RayCaster(scene)
-    lookin = Transport(scene, config.transport_settings(), caster)
-    plan = plan_effects(scene, config, lookin.capture, caster)
-    lookin.configure(plan.apply(lookin.settings))
-    transport: Estimator = lookin if config.estimator == "lookin" else \
-        estimator(config.estimator).from_config(scene, config, lookin.settings, caster)
+    capture = resolve_capture(scene, caster)
+    plan = plan_effects(scene, config, capture, caster)
+    settings = plan.apply(config.transport_settings())
+    transport: Estimator = estimator(config.estimator).from_config(scene, config, settings, caster, capture)
     return transport, plan
 
 
@@ -375,9 +375,7 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
             "estimator": config.estimator,
             "secondary": settings.secondary,
             "top_k": config.top_k if settings.secondary == "optimized" else None,
-            "sensor_sampling": getattr(settings, "sensor_sampling", None) or (
-                "quadrature: sensor points / FoV cells" if config.estimator == "quadrature"
-                else "area next-event connections"),
+            "sensor_sampling": transport.sensor_sampling,
             "shadow_rays": {"spot": settings.shadow_spot, "sensor": settings.shadow_sensor},
             "non_lambertian_brdfs": sorted({o.material.kind for o in scene.objects} - {"lambertian"}),
             "atmospheric_attenuation": settings.attenuation > 0,

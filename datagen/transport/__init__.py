@@ -15,13 +15,13 @@ from .base import (Connections, Counters, Estimator, EstimatorEntry, Sink, estim
                    run_replicas)
 from .physics import PHYSICS_SWITCHES, LegPhysics, PhysicsSettings, fov_connection_weight, laser_irradiance
 from .area_kernels import abs_sin_azimuth, brdf_value, material_arrays
-from .lookin import CACHE_RAYS, SecondaryMode, Transport, TransportSettings, TransportStats
+from .lookin import SecondaryMode, Transport, TransportSettings, TransportStats
 from .area import AreaSampler, AreaSettings, AreaStats
 from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureSettings, QuadratureStats
 
 __all__ = ["abs_sin_azimuth", "brdf_value", "material_arrays", "Connections", "Counters", "Estimator",
            "EstimatorEntry", "Sink", "estimator", "estimator_names",
            "register", "run_replicas", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",
-           "laser_irradiance", "CACHE_RAYS", "SecondaryMode", "Transport", "TransportSettings", "TransportStats",
+           "laser_irradiance", "SecondaryMode", "Transport", "TransportSettings", "TransportStats",
            "AreaSampler", "AreaSettings", "AreaStats", "QUADRATURE_EDGE", "Quadrature", "QuadratureSettings",
            "QuadratureStats"]

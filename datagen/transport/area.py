@@ -57,7 +57,7 @@ import numpy as np
 from ..processes import ForkedCall
 from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
                         to_world, unit_square_points)
-from ..scene import RayCaster, Scene, SceneError, resolve_capture
+from ..scene import Capture, RayCaster, Scene, SceneError, resolve_capture
 from ..vectors import dot
 from .base import Connections, Counters, Sink, register
 from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
@@ -212,9 +212,19 @@ def _area_describe(config: dict) -> str:
     return f"{config['area_samples']} hidden samples per laser point"
 
 
+AREA_SAMPLE_BYTES = 500
+"""Bytes per hidden sample of the area sampler (point, normal, ids, both connections, weights)."""
+
+
+def area_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tuple[str, str, float]]:
+    """(field, value, bytes) of the area sampler's hidden samples (``config.area_samples``; also the quadrature's
+    Monte Carlo secondary) (:attr:`EstimatorEntry.memory <datagen.transport.EstimatorEntry>`)."""
+    return [("area_samples", str(config.area_samples), float(AREA_SAMPLE_BYTES) * config.area_samples)]
+
+
 @register("area", AreaSettings,
           "hidden-surface area sampling with next-event connections to the laser spot and the FoV",
-          replica=_area_replica, describe=_area_describe)
+          replica=_area_replica, describe=_area_describe, memory=area_memory)
 class AreaSampler(AreaSecondary):
     """Area-sampling estimator with next-event connections to the laser spot and the FoV.
 
@@ -238,8 +248,11 @@ class AreaSampler(AreaSecondary):
             :func:`datagen.scene.resolve_capture`; no triangle can take part in a path.
     """
 
+    sensor_sampling = "area next-event connections"
+    """How the FoV is reached (result attribute ``effects.sensor_sampling``)."""
+
     def __init__(self, scene: Scene, settings: AreaSettings | None = None, caster: RayCaster | None = None,
-                 secondary_only: bool = False):
+                 secondary_only: bool = False, capture: Capture | None = None):
         self.scene = scene
         self.settings = settings or AreaSettings()
         if secondary_only and self.settings.secondary != "full":
@@ -247,7 +260,7 @@ class AreaSampler(AreaSecondary):
                              f"deposit), got secondary {self.settings.secondary!r}")
         self.secondary_only = bool(secondary_only)
         self.caster = caster or RayCaster(scene)
-        self.capture = resolve_capture(scene, self.caster)
+        self.capture = capture if capture is not None else resolve_capture(scene, self.caster)
         self.physics = LegPhysics(scene, self.capture, self.caster, self.settings)
         self.component_names = scene.component_names() + ["secondary"] + (
             ["first_bounce"] if self.settings.first_bounce else [])
@@ -265,7 +278,8 @@ class AreaSampler(AreaSecondary):
         self.stats = AreaStats()
 
     @classmethod
-    def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster) -> "AreaSampler":
+    def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster,
+                    capture: Capture | None = None) -> "AreaSampler":
         """The registry's constructor: ``config.area_samples`` hidden samples per laser point with the physics
         of the planned lookin ``settings``. The planner's ``shadow_spot`` decision concerns the lookin
         sampler's secondary; the area sampler's hidden points always need their laser shadow ray (lookins are
@@ -273,7 +287,7 @@ class AreaSampler(AreaSecondary):
         return cls(scene, AreaSettings.from_transport(settings, samples=config.area_samples,
                                                       shadow_spot=config.effects.get("shadow_spot") is not False,
                                                       sensor_blockers=settings.sensor_blockers,
-                                                      workers=config.workers), caster)
+                                                      workers=config.workers), caster, capture=capture)
 
     def configure(self, settings: AreaSettings) -> None:
         """Use ``settings`` from now on (same physics object; e.g. the quadrature's shadow-ray decision)."""

@@ -17,6 +17,11 @@ from typing import Any, Protocol
 import numpy as np
 
 
+TARGET_BYTES = 100
+"""Bytes per capture grid point and per quadrature target (FoV cell or sensor point), for the memory estimates
+(:attr:`EstimatorEntry.memory`, :func:`datagen.simulation.simulation_memory`)."""
+
+
 class Sink(Protocol):
     """Where transport sends path impulses (e.g. :class:`datagen.timing.EnvelopeAccumulator`).
 
@@ -75,12 +80,14 @@ class Estimator(Protocol):
         settings: the estimator's settings (a :class:`~datagen.transport.physics.PhysicsSettings` subclass).
         component_names: names of the sink components: primary components, "secondary"[, "first_bounce"].
         stats: a dataclass of int counters (recorded in the result attributes).
+        sensor_sampling: how the estimator reaches the FoV, in words (result attribute ``effects.sensor_sampling``).
     """
 
     capture: Any
     settings: Any
     component_names: list[str]
     stats: Any
+    sensor_sampling: str
 
     def run(self, sink: Sink, rng: np.random.Generator, progress: Callable[[int], None] | None = None) -> None:
         """Send every impulse to ``sink``; ``progress`` gets the units of work done after each batch."""
@@ -113,10 +120,10 @@ class EstimatorEntry:
         cls: the estimator class, ``cls(scene, settings, caster)``.
         settings_class: its settings class; ``settings_class.from_transport(physics_settings, **fields)`` gives
             settings with the physics switches of any estimator's settings and the given sampling fields.
-        from_config: ``(scene, config, lookin_settings, caster) → Estimator``: builds it from a simulation
-            config (any object with the config's fields, e.g. :class:`datagen.simulation.SimulationConfig`)
-            and the lookin settings the effect planner has already applied its decisions to (they carry the
-            physics switches).
+        from_config: ``(scene, config, settings, caster, capture) → Estimator``: builds it from a simulation
+            config (any object with the config's fields, e.g. :class:`datagen.simulation.SimulationConfig`),
+            the settings the effect planner has already applied its decisions to (they carry the physics
+            switches), the scene's ray caster and its resolved :class:`~datagen.scene.Capture`.
         summary: one line for help texts.
         replica: ``(config, replicas) → config updates`` giving one of ``replicas`` independent runs whose mean
             spends the config's sampling (e.g. ``{"area_samples": M / R}``); None for a deterministic estimator,
@@ -128,6 +135,11 @@ class EstimatorEntry:
         describe: ``JSON config → str``, the sampling setting in words (e.g. "65536 hidden samples per laser
             point").
         order: convergence order of ``refine`` (2: the error falls as h²).
+        memory: ``(scene, config, lasers, sensors) → [(field, value, bytes), …]``, the estimator's own arrays at
+            their peak for a capture of ``lasers`` laser points and ``sensors`` sensor points, estimated without
+            allocating (:func:`datagen.simulation.simulation_memory` adds the shared ones); None: none worth
+            counting.
+        casts_lookins: the estimator samples the scene from the laser spot with lookins (pictures can show them).
     """
 
     name: str
@@ -139,6 +151,8 @@ class EstimatorEntry:
     refine: Callable[[Any], dict] | None = None
     describe: Callable[[dict], str] | None = None
     order: int = 2
+    memory: Callable[..., list[tuple[str, str, float]]] | None = None
+    casts_lookins: bool = False
 
 
 _REGISTRY: dict[str, EstimatorEntry] = {}
@@ -146,12 +160,14 @@ _REGISTRY: dict[str, EstimatorEntry] = {}
 
 def register(name: str, settings_class: type, summary: str, *, replica: Callable[[Any, int], dict] | None = None,
              refine: Callable[[Any], dict] | None = None, describe: Callable[[dict], str] | None = None,
-             order: int = 2) -> Callable:
+             order: int = 2, memory: Callable[..., list[tuple[str, str, float]]] | None = None,
+             casts_lookins: bool = False) -> Callable:
     """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
-    the classmethod ``from_config(scene, config, lookin_settings, caster)``. A Monte Carlo estimator gives
+    the classmethod ``from_config(scene, config, settings, caster, capture)``. A Monte Carlo estimator gives
     ``replica`` (how to split its sampling into independent replicas, whose spread is the error estimate of
     every result); a deterministic one gives ``refine`` and ``order``; one with both parts gives both (the
-    quadrature: a deterministic primary and a Monte Carlo secondary; :class:`EstimatorEntry`).
+    quadrature: a deterministic primary and a Monte Carlo secondary). ``memory`` and ``casts_lookins``: see
+    :class:`EstimatorEntry`.
 
     Raises:
         ValueError: neither ``replica`` nor ``refine`` (no result could say how accurate it is).
@@ -161,7 +177,7 @@ def register(name: str, settings_class: type, summary: str, *, replica: Callable
 
     def wrap(cls):
         _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary, replica, refine,
-                                         describe, order)
+                                         describe, order, memory, casts_lookins)
         return cls
     return wrap
 

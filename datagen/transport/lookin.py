@@ -24,6 +24,7 @@ batches of lookins with their own random streams, so results are bit-identical f
 """
 from __future__ import annotations
 
+import math
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Callable, Literal
@@ -32,7 +33,7 @@ import multiprocessing as mp
 import numpy as np
 
 from ..sampling import Lookins, ObservedPoints, observe, sample_lookins
-from ..scene import FOV_PLANE_TOL, RayCaster, Scene, resolve_capture
+from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene, resolve_capture
 from ..scene import MaterialTable
 from ..processes import set_parent_death_signal
 from ..units import SPEED_OF_LIGHT
@@ -133,9 +134,37 @@ def _lookin_describe(config: dict) -> str:
     return f"lookins {'x'.join(map(str, config['lookins']))}, pixels {'x'.join(map(str, config['pixels']))}"
 
 
+LOOKIN_BYTES = 400
+"""Bytes per lookin ray: direction, hit point, normal, pdf, distance, object id and the ray caster's buffers
+(about 20 float64 values with temporaries)."""
+
+CAMERA_RAY_BYTES = 1000
+"""Bytes per camera ray of one slice (observed point, normal, direction, distance, ids, FoV connection, laser
+light, secondary partners; about 100 float64 values with temporaries)."""
+
+SECONDARY_PAIR_BYTES = 8
+"""Bytes per (pixels per lookin)² of the full and optimized secondaries, which form every (lit point, FoV point)
+pair of a lookin at once: 2× the 3.9 bytes measured on the demo room (peak RSS above the same run without the
+secondary: +66 MB at 60×60 pixels, +790 MB at 120×120, 3×3 lookins)."""
+
+
+def _lookin_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tuple[str, str, float]]:
+    """(field, value, bytes) of the lookin grid of every laser point, the camera rays of one slice per worker
+    and the full / optimized secondary's pairs (:attr:`EstimatorEntry.memory <datagen.transport.EstimatorEntry>`)."""
+    workers = max(1, config.workers)
+    n_lookins, n_pixels = math.prod(config.lookins), math.prod(config.pixels)
+    pixels = "x".join(map(str, config.pixels))
+    terms = [("lookins", "x".join(map(str, config.lookins)), float(LOOKIN_BYTES) * n_lookins * lasers),
+             ("pixels", pixels, float(CAMERA_RAY_BYTES) * max(n_pixels, CACHE_RAYS) * workers)]
+    if config.secondary in ("full", "optimized"):
+        terms.append(("pixels", f"{pixels} (secondary {config.secondary}: pairs)",
+                      float(SECONDARY_PAIR_BYTES) * n_pixels ** 2 * workers))
+    return terms
+
+
 @register("lookin", TransportSettings,
           "the paper's sampler: lookins from the laser spot and their hemispherical cameras",
-          replica=_lookin_replica, describe=_lookin_describe)
+          replica=_lookin_replica, describe=_lookin_describe, memory=_lookin_memory, casts_lookins=True)
 class Transport(LookinSecondary):
     """Runs the lookin estimator over a scene and sends impulses to a sink (module doc).
 
@@ -152,11 +181,12 @@ class Transport(LookinSecondary):
         SceneError: the capture errors of :func:`datagen.scene.resolve_capture`.
     """
 
-    def __init__(self, scene: Scene, settings: TransportSettings, caster: RayCaster | None = None):
+    def __init__(self, scene: Scene, settings: TransportSettings, caster: RayCaster | None = None,
+                 capture: Capture | None = None):
         self.scene = scene
         self.settings = settings
         self.caster = caster or RayCaster(scene)
-        self.capture = resolve_capture(scene, self.caster)
+        self.capture = capture if capture is not None else resolve_capture(scene, self.caster)
         self.materials: MaterialTable = scene.materials
         self.object_component = scene.object_component()
         self.n_primary = len(scene.component_names())
@@ -165,9 +195,15 @@ class Transport(LookinSecondary):
         self.configure(settings)
 
     @classmethod
-    def from_config(cls, scene: Scene, config, settings: TransportSettings, caster: RayCaster) -> "Transport":
-        """The registry's constructor: the lookin settings already carry everything (``config`` unused)."""
-        return cls(scene, settings, caster)
+    def from_config(cls, scene: Scene, config, settings: TransportSettings, caster: RayCaster,
+                    capture: Capture | None = None) -> "Transport":
+        """The registry's constructor: the planned lookin settings already carry everything (``config`` unused)."""
+        return cls(scene, settings, caster, capture)
+
+    @property
+    def sensor_sampling(self) -> str:
+        """How the FoV is reached: "camera" (the paper's hemispherical cameras) or "connect" (next-event)."""
+        return self.settings.sensor_sampling
 
     def progress_total(self) -> tuple[int, str]:
         """Lookins cast over all laser points."""

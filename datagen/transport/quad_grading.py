@@ -1,4 +1,5 @@
-"""Graded hidden triangles for the quadrature: finer sub-triangles near the scanned points (docs/scans.md, Cost).
+"""Graded hidden triangles for the quadrature: finer sub-triangles near the scanned points (docs/scans.md, Cost),
+and the quadrature's memory estimate (:func:`quadrature_memory`, which counts them).
 
 The quadrature's error is largest where a hidden surface passes close to the laser points and targets (the floor
 under the lowest scan row of a confocal room: 1/r² of both legs changes fastest there), yet its lattice split
@@ -11,9 +12,14 @@ occluder lists stay per original triangle (the pieces carry its index).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["GRADING_MIN_EDGE", "graded_triangles"]
+from .area import area_memory
+from .base import TARGET_BYTES
+
+__all__ = ["GRADING_MIN_EDGE", "graded_triangles", "quadrature_memory"]
 
 GRADING_MIN_EDGE = 0.4
 """Grading stops at pieces of this fraction of the quadrature edge h (``min_edge`` = 0.4 h): the lattice split then
@@ -62,3 +68,50 @@ def graded_triangles(tri: np.ndarray, near: np.ndarray, ratio: float, min_edge: 
     pieces, src = np.concatenate(done), np.concatenate(origin_done)
     order = np.argsort(src, kind="stable")                # pieces of one triangle together, in triangle order
     return pieces[order], src[order]
+
+
+QUADRATURE_CELL_BYTES = 250
+"""Bytes per quadrature sub-triangle (lattice vertices, cell indices, area, centroid, normal, ids, times)."""
+
+def _hidden_triangles(scene) -> np.ndarray:
+    """(F, 3, 3) triangles the quadrature may subdivide: every face not on the relay wall."""
+    tris = [o.vertices[o.faces] for o in scene.objects if o.label != "relay_wall"]
+    return np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+
+
+def _near_box(scene) -> np.ndarray:
+    """(P, 3) points whose axis-aligned box holds every laser point and FoV point of ``scene``'s capture, for the
+    grading estimate (:func:`graded_triangles` measures distances to that box): the laser spot, and each grid's and
+    the FoV's centre ± half its diagonal along every axis (their plane is not resolved here, so the box is the same
+    or larger and the estimate cuts as much as the run or more)."""
+    points = [np.asarray(scene.laser.spot, dtype=np.float64)]
+    rects = [scene.sensor.fov] if scene.sensor.fov is not None else []
+    if scene.capture is not None:
+        rects += [g for g in (scene.capture.laser_grid, scene.capture.sensor_grid) if g is not None]
+    for rect in rects:
+        centre, half = np.asarray(rect.center, dtype=np.float64), 0.5 * math.hypot(*rect.size)
+        points += [centre - half, centre + half]
+    return np.array(points)
+
+
+def quadrature_memory(scene, config, lasers: int, sensors: int) -> list[tuple[str, str, float]]:
+    """(field, value, bytes) of the quadrature's sub-triangles (graded when ``config.quadrature_grading`` is set;
+    k = ceil(longest edge / h) per side) and FoV cells per sensor point, from the scene's triangles without
+    splitting them, and the area sampler's hidden samples of a planned Monte Carlo secondary
+    (:attr:`EstimatorEntry.memory <datagen.transport.EstimatorEntry>`)."""
+    terms = [] if config.secondary == "none" else area_memory(scene, config, lasers, sensors)
+    tri = _hidden_triangles(scene)
+    k_min = 1.0
+    if config.quadrature_grading is not None and len(tri):      # graded pieces, each split at least in 2 × 2
+        tri, _ = graded_triangles(tri, _near_box(scene), config.quadrature_grading,
+                                  GRADING_MIN_EDGE * config.quadrature_edge)
+        k_min = 2.0
+    longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max(axis=1, initial=0.0)  # in float64:
+    cells = float((np.maximum(k_min, np.ceil(longest / config.quadrature_edge)) ** 2).sum())   # no overflow
+    fov = scene.sensor.fov     # FoV cells per pixel side: the quadrature caps them (at 64); not here
+    side = max(fov.size) / min(fov.pixels) if fov is not None else 0.0
+    k = config.quadrature_fov or max(1, math.ceil(side / config.quadrature_edge))
+    return terms + [("quadrature_edge", f"{config.quadrature_edge:g} m ({cells:.3g} sub-triangles)",
+                     float(QUADRATURE_CELL_BYTES) * cells),
+                    ("quadrature_edge", f"{config.quadrature_edge:g} m ({k}x{k} FoV cells per pixel)",
+                     float(TARGET_BYTES) * sensors * k * k)]

@@ -74,14 +74,14 @@ from typing import Literal
 import numpy as np
 
 from ..sampling import subdivide_with_vertices
-from ..scene import RayCaster, Scene, SceneError
+from ..scene import Capture, RayCaster, Scene, SceneError
 from ..scene.materials import LAMBERTIAN, PHONG
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .area import AreaSampler, AreaSettings
 from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
-from .quad_grading import GRADING_MIN_EDGE, graded_triangles
+from .quad_grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
 from .quad_primary import leg_occluders, run_compiled
 from .quad_split import apply_split, choose_split, refined
 
@@ -222,13 +222,14 @@ def _quadrature_describe(config: dict) -> str:
 
 
 @register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning",
-          replica=_quadrature_replica, refine=_quadrature_refine, describe=_quadrature_describe, order=2)
+          replica=_quadrature_replica, refine=_quadrature_refine, describe=_quadrature_describe,
+          memory=quadrature_memory)
 class Quadrature:
     """Deterministic hidden-surface quadrature of the primary with exact time binning (module doc).
 
-    Same interface as :class:`datagen.transport.Transport`: ``Quadrature(scene, settings, caster).run(sink, rng,
-    progress)``. The sink needs :meth:`datagen.timing.EnvelopeAccumulator.add_tents`; a sink with only ``add``
-    receives one impulse per tent at its mean time (the midpoint rule in time as well).
+    The estimator interface (:class:`datagen.transport.Estimator`); the sink needs
+    :meth:`datagen.timing.EnvelopeAccumulator.add_tents` (a sink with only ``add`` receives one impulse per tent at
+    its mean time: the midpoint rule in time as well).
 
     Attributes:
         settings: the settings with ``shadow_spot`` / ``shadow_fov`` resolved to booleans.
@@ -250,12 +251,15 @@ class Quadrature:
             can take part in a path.
     """
 
-    def __init__(self, scene: Scene, settings: QuadratureSettings | None = None, caster: RayCaster | None = None):
+    sensor_sampling = "quadrature: sensor points / FoV cells"   # how the FoV is reached (Estimator protocol)
+
+    def __init__(self, scene: Scene, settings: QuadratureSettings | None = None, caster: RayCaster | None = None,
+                 capture: Capture | None = None):
         s = settings or QuadratureSettings()
         self.scene = scene
         self.caster = caster or RayCaster(scene)
         self.area = AreaSampler(scene, s.area_settings(), self.caster,       # per-leg physics, hidden faces and
-                                secondary_only=s.secondary == "full")         # the secondary
+                                secondary_only=s.secondary == "full", capture=capture)   # the secondary
         self.physics = self.area.physics
         self.capture = c = self.area.capture
         self.component_names = list(self.area.component_names)
@@ -332,7 +336,7 @@ class Quadrature:
             len(self.conn_laser)
 
     @classmethod
-    def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster) -> "Quadrature":
+    def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster, capture=None):
         """The registry's constructor: edge ``config.quadrature_edge``, FoV cells ``config.quadrature_fov``, a
         planned secondary from the area sampler with ``config.area_samples``, and the physics of the planned lookin
         ``settings``. Shadow rays on the laser and FoV legs follow the quadrature's own exact occluder test unless
@@ -341,7 +345,7 @@ class Quadrature:
         return cls(scene, QuadratureSettings.from_transport(
             settings, edge=config.quadrature_edge, fov_cells=config.quadrature_fov, grading=config.quadrature_grading,
             secondary_samples=config.area_samples,
-            shadow_spot=forced_spot if isinstance(forced_spot, bool) else None), caster)
+            shadow_spot=forced_spot if isinstance(forced_spot, bool) else None), caster, capture)
 
     def progress_total(self) -> tuple[int, str]:
         """(sub-triangle, connection) pairs of a run."""
