@@ -263,6 +263,16 @@ def test_export_tal_of_a_dataset_without_split_and_index(complete, tmp_path):
         "its samples")
 
 
+def test_export_tal_of_a_deleted_shard_of_a_complete_build_names_the_file(copy_of, tmp_path):
+    """A complete dataset whose envelope shard was deleted afterwards: export-tal reads through the loader, which
+    names the missing file (zarr's reader returned its fill value: an H of zeros) and writes nothing."""
+    shard_file(copy_of, "train", "envelope", 1, 2).unlink()
+    out = tmp_path / "h.hdf5"
+    cli(["export-tal", copy_of, "--split", "train", "--index", "1", "--out", out], 2,
+        f"{copy_of}/train/envelope/c/1/0: shard file missing")
+    assert not out.exists() and not list(tmp_path.glob("*.partial"))
+
+
 def test_export_tal_out_an_existing_folder_is_refused_before_any_work(complete, tmp_path, monkeypatch):
     """Before: '[Errno 21] Is a directory' after the work, and OUT.partial left behind."""
     import datagen.dataset.export as export

@@ -28,13 +28,16 @@ def sample_result(path: str | Path, split: str, index: int, field: str = "envelo
         (count_laser_leg, count_sensor_leg) and ``dataset`` (path, split, index, field).
     Raises:
         FileNotFoundError: no dataset at ``path``; SceneError: unknown split, index out of range, a field that
-        is not stored, or a regenerated room whose grids do not match the stored array (a changed code version).
+        is not stored, or a regenerated room whose grids do not match the stored array (a changed code version);
+        ValueError: what the loader refuses (:class:`datagen.dataset.NLOSDataset`: an incomplete build, a missing
+        or damaged shard, named).
     """
     from ..simulation import Result
     from .config import config_from_json
     from .sampler import sample_room
-    from .store import read_card, zarr_module
     from .config import sample_rngs
+    from .loader import NLOSDataset
+    from .store import read_card
 
     card = read_card(path)
     if split not in card.get("splits", {}):
@@ -45,11 +48,12 @@ def sample_result(path: str | Path, split: str, index: int, field: str = "envelo
     if field not in ("envelope", "counts") or field not in info["fields"]:
         raise SceneError(f"{path}: field {field!r} is not stored (stored: {sorted(info['fields'])}); "
                          "export envelope or counts")
-    zarr = zarr_module()
-    group = zarr.open_group(str(Path(path) / split), mode="r")
-    data = np.asarray(group[field][index], dtype=np.float64)
-    counts = np.asarray(group["counts"][index]) if "counts" in info["fields"] else np.zeros(data.shape, np.int64)
-    time_edges = np.asarray(group["time_edges"][...], dtype=np.float64)
+    stored = [field] + (["counts"] if field != "counts" and "counts" in info["fields"] else [])
+    reader = NLOSDataset(path, split, fields=stored)   # the loader's checks: complete build, shard index, chunks
+    item = reader.read(index)
+    data = np.asarray(item[field], dtype=np.float64)
+    counts = np.asarray(item["counts"]) if "counts" in info["fields"] else np.zeros(data.shape, np.int64)
+    time_edges = np.asarray(reader.time_edges, dtype=np.float64)
     config = config_from_json(card["config"])
     rngs = sample_rngs(config.seed, split, index)
     room = sample_room(config.room_distribution(split), {k: rngs[k] for k in ("geometry", "materials", "sensor")})
