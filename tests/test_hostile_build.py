@@ -276,6 +276,20 @@ def test_damaged_card_is_one_line_naming_it(copy_of):
     cli(["inspect", copy_of], 2, "zarr.json: the dataset card is not a JSON object")
 
 
+@pytest.mark.parametrize("key", ["config", "splits"])
+def test_card_without_its_config_or_splits_is_one_line_naming_it(copy_of, key):
+    """A card edited by hand without ``config`` (or ``splits``): every reader says so in one line (inspect and the
+    loader raised KeyError 'config')."""
+    meta = json.loads((copy_of / "zarr.json").read_text())
+    del meta["attributes"][key]
+    (copy_of / "zarr.json").write_text(json.dumps(meta))
+    needle = f"zarr.json: the dataset card has no {key!r} mapping"
+    for command in (["verify", copy_of], ["inspect", copy_of, "--no-3d"]):
+        cli(command, 2, needle)
+    with pytest.raises(ValueError, match=needle):
+        NLOSDataset(copy_of)
+
+
 def test_verify_and_loader_on_something_that_is_not_a_dataset(tmp_path):
     cli(["verify", tmp_path], 2, "no datagen dataset")
     with pytest.raises(FileNotFoundError, match="no datagen dataset"):

@@ -95,19 +95,20 @@ def _cut_splits(config, text: str, config_file) -> dict:
 def card_summary(card: dict) -> str:
     """Short text summary of a dataset card: status, versions, splits and their fields, the envelope errors
     against the tolerance (and the samples that missed it), timings."""
+    config, versions = card.get("config") or {}, card.get("versions") or {}   # a hand-edited card may lack them
     lines = [f"dataset {card.get('name')!r}: {card.get('status')} "
-             f"({card.get('shards_done')}/{card.get('shards_total')} shards), seed {card['config']['seed']}, "
-             f"shard size {card['config']['shard_size']}",
-             f"code {card.get('code_version')}; zarr {card['versions'].get('zarr')}, numpy "
-             f"{card['versions'].get('numpy')}, python {card['versions'].get('python')}"]
+             f"({card.get('shards_done')}/{card.get('shards_total')} shards), seed {config.get('seed')}, "
+             f"shard size {config.get('shard_size')}",
+             f"code {card.get('code_version')}; zarr {versions.get('zarr')}, numpy "
+             f"{versions.get('numpy')}, python {versions.get('python')}"]
     t = card.get("time_edges")
     if t:
         lines.append(f"time axis: {t['n_bins']} bins of {t['bin_width'] * 1e12:.1f} ps "
                      f"from {t['t_start'] * 1e9:.2f} ns")
     for split, info in card.get("splits", {}).items():
-        lines.append(f"split {split}: {info['count']} samples in {info['n_shards']} shards "
-                     f"(split_key {info['split_key']})")
-        for name, spec in info["fields"].items():
+        lines.append(f"split {split}: {info.get('count')} samples in {info.get('n_shards')} shards "
+                     f"(split_key {info.get('split_key')})")
+        for name, spec in (info.get("fields") or {}).items():
             lines.append(f"    {name:<18} {str(tuple(spec['shape'])):<16} {spec['dtype']}")
     acc = card.get("accuracy")
     if acc and acc["envelope_error"].get("n"):

@@ -320,11 +320,16 @@ def _stats(values: list[float]) -> dict:
             "p95": float(np.percentile(v, 95)), "min": float(v.min()), "max": float(v.max())}
 
 
+CARD_KEYS = ("config", "splits")
+"""Card entries every reader of a dataset needs (:func:`read_card` refuses a card without them)."""
+
+
 def read_card(path: str | Path) -> dict:
     """The dataset card (root attributes) of the dataset at ``path``.
 
     Raises:
-        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json`` (names it).
+        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json``, or a card without the
+        :data:`CARD_KEYS` mappings (names the file).
     """
     meta = Path(path) / "zarr.json"
     if not meta.is_file():
@@ -336,6 +341,10 @@ def read_card(path: str | Path) -> dict:
                          f"{' '.join(str(exc).split())[:120]}): damaged; rebuild the dataset") from None
     if attrs.get("format") != FORMAT:
         raise FileNotFoundError(f"{path} is a Zarr store but not a datagen dataset (no dataset card)")
+    missing = [k for k in CARD_KEYS if not isinstance(attrs.get(k), dict)]
+    if missing:   # every reader needs them: one line here, not a KeyError in each
+        raise ValueError(f"{meta}: the dataset card has no {' and no '.join(repr(k) for k in missing)} mapping: "
+                         "damaged (edited by hand?); rebuild the dataset, or restore the card")
     return attrs
 
 
