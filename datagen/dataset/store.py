@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 from filelock import FileLock, Timeout
 
+from ..errors import DatasetError
 from ..scene import SceneError
 from .assets import asset_changes
 from .config import DatasetConfig, Sample, location_free_json, split_key
@@ -311,16 +312,17 @@ def _stats(values: list[float]) -> dict:
             "p95": float(np.percentile(v, 95)), "min": float(v.min()), "max": float(v.max())}
 
 
-CARD_KEYS = ("config", "splits")
-"""Card entries every reader of a dataset needs (:func:`read_card` refuses a card without them)."""
+CARD_KEYS = ("config",)
+"""Card entries every reader of a dataset needs (:func:`read_card` refuses a card without them; ``splits`` is
+filled as the build goes)."""
 
 
 def read_card(path: str | Path) -> dict:
     """The dataset card (root attributes) of the dataset at ``path``.
 
     Raises:
-        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json``, or a card without the
-        :data:`CARD_KEYS` mappings (names the file).
+        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json``; DatasetError (a
+        ValueError): a card without the :data:`CARD_KEYS` mappings (names the file).
     """
     meta = Path(path) / "zarr.json"
     if not meta.is_file():
@@ -333,9 +335,9 @@ def read_card(path: str | Path) -> dict:
     if attrs.get("format") != FORMAT:
         raise FileNotFoundError(f"{path} is a Zarr store but not a datagen dataset (no dataset card)")
     missing = [k for k in CARD_KEYS if not isinstance(attrs.get(k), dict)]
-    if missing:   # every reader needs them: one line here, not a KeyError in each
-        raise ValueError(f"{meta}: the dataset card has no {' and no '.join(repr(k) for k in missing)} mapping: "
-                         "damaged (edited by hand?); rebuild the dataset, or restore the card")
+    if missing:   # every reader needs it (a build writes it first): one line here, not a KeyError in each
+        raise DatasetError(f"{meta}: the dataset card has no {' and no '.join(repr(k) for k in missing)} mapping: "
+                           "damaged (edited by hand?); rebuild the dataset, or restore the card")
     return attrs
 
 
