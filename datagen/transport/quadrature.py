@@ -75,7 +75,7 @@ import numpy as np
 
 from ..sampling import subdivide_with_vertices
 from ..scene import RayCaster, Scene, SceneError
-from ..scene.materials import LAMBERTIAN, PHONG
+from ..scene.brdf_kernel import LAMBERTIAN, PHONG, lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .area import AreaSampler, AreaSettings
@@ -537,7 +537,7 @@ class Quadrature:
         all_lasers = np.unique(self.conn_laser)
         if M * len(all_lasers) <= 4 * s.batch:                   # the laser legs of every laser point, once
             laser_cache = {"lasers": all_lasers, **self._laser_leg(all_lasers)}
-        f_lamb = self.materials.albedo[self.cell_object] / np.pi
+        f_lamb = on_arrays(lambertian_value)(self.materials.albedo[self.cell_object])
         comp_base = self.object_component[self.cell_object] * c.n_channels          # (M,)
         tri_v = self.cells                                                            # (M, 3)
         n_conn = len(self.conn_laser)
