@@ -1,21 +1,28 @@
 """The weight of each leg of a light path, written once (docs/physics.md §2).
 
 Every estimator of the transient path integral — the lookin sampler (:mod:`.lookin`, :mod:`.secondary`), the
-area sampler (:mod:`.area`), the quadrature (:mod:`.quadrature`) — and the effect planner's coarse quadrature
-and the figures weigh a path with the functions here; they differ only in how they *sample* its vertices.
-For a path emitter → laser spot x_l → hidden point x → relay-wall point y (in the sensor's FoV) → sensor x_s:
+area sampler (:mod:`.area` and its compiled passes :mod:`.area_kernels`), the quadrature (:mod:`.quadrature`,
+:mod:`.quad_kernel`) — and the effect planner's coarse quadrature and the figures weigh a path with the functions
+here; they differ only in how they *sample* its vertices. Each formula is a numba device function
+(``inline="always"``) that compiled kernels call and numpy code calls on arrays through
+:func:`datagen.scene.brdf_kernel.on_arrays` (the same float operations in the same order); the BRDFs are those of
+:mod:`datagen.scene.brdf_kernel`. For a path emitter → laser spot x_l → hidden point x → relay-wall point y (in the
+sensor's FoV) → sensor x_s:
 
-- laser spot, toward ω: f_l(ω_e, ω)·cosθ_l (:meth:`LegPhysics.spot_emission`); paper A1: Γ₁ B₁ (α₁ → 1/(N p)).
-- laser → hidden point: E = Φ f_l cosθ_l cosθ_x,in / r² · V (:func:`laser_irradiance`,
-  :meth:`LegPhysics.irradiance`); A1 in area measure.
+- laser spot, toward ω: f_l(ω_e, ω)·cosθ_l (:func:`emission_term`, :meth:`LegPhysics.spot_emission`); paper A1:
+  Γ₁ B₁ (α₁ → 1/(N p)).
+- laser → hidden point: E = Φ f_l cosθ_l cosθ_x,in / r² · V (:func:`irradiance_term`, :func:`laser_irradiance`,
+  :meth:`LegPhysics.irradiance`); A1 in area measure. Its geometric factor cosθ_l cosθ_x,in / r², and that of a
+  hidden → hidden leg: :func:`geometry_term`.
 - scattering at any vertex: f(ω_in, ω_out) (:meth:`LegPhysics.brdf`); the paper's Γ and B per surface.
-- hidden point → FoV point: cosθ_y,in dA_y / r² · collection(y) (:func:`fov_connection_weight`); A2 with α → the
-  pixel's Ω or dA_y.
-- FoV point → sensor: q f_y cosθ_y,out A_ap cosθ_ap / d² · V (:meth:`LegPhysics.sensor_collection`); A3 and the
-  aperture term π f²/f_no², q.
-- whole path: e^{−μ·(physical path)} (:meth:`LegPhysics.attenuation`); C_atm.
+- hidden point → FoV point: cosθ_y,in dA_y / r² · collection(y) (:func:`fov_term`, :func:`fov_connection_weight`);
+  A2 with α → the pixel's Ω or dA_y.
+- FoV point → sensor: q f_y cosθ_y,out A_ap cosθ_ap / d² · V (:func:`collection_term`,
+  :meth:`LegPhysics.sensor_collection`); A3 and the aperture term π f²/f_no², q.
+- whole path: e^{−μ·(physical path)} (:func:`attenuation_term`, :meth:`LegPhysics.attenuation`); C_atm.
 - time of flight: (switched legs + hidden legs) / c (:meth:`LegPhysics.laser_leg`, :meth:`LegPhysics.sensor_leg`).
-- direct spot → sensor (first bounce): Φ q f_l cosθ_l A_ap cosθ_ap / d² · V (:meth:`LegPhysics.first_bounce`).
+- direct spot → sensor (first bounce): Φ q f_l cosθ_l A_ap cosθ_ap / d² · V (:func:`direct_term`,
+  :meth:`LegPhysics.first_bounce`).
 
 A point reached by a ray of solid angle dω from a vertex has area element dA = r² dω / cosθ, so the 1/r² of a
 leg cancels when that leg is sampled by direction (lookins, camera pixels) and is genuine when it is sampled
@@ -116,12 +123,12 @@ def geometry_term(cos_a, cos_b, r):
 
 
 @njit(cache=True, inline="always")
-def fov_term(numerator, r, collection):
-    """Next-event connection to the FoV: ``numerator / r² · collection`` with numerator cosθ_y,in (times dA_y, or
+def fov_term(cos_y, r, collection):
+    """Next-event connection to the FoV: ``cos_y / r² · collection`` with ``cos_y`` cosθ_y,in (times dA_y, or
     times cosθ_x,out for the quadrature's symmetric form) and ``collection`` what a photon landing at y becomes
     at the sensor (:func:`collection_term`, times dA_y where the numerator lacks it); per unit radiant intensity
     of the hidden point toward y (paper A2)."""
-    return numerator / r ** 2 * collection
+    return cos_y / r ** 2 * collection
 
 
 @njit(cache=True, inline="always")
