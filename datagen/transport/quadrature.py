@@ -75,7 +75,8 @@ import numpy as np
 
 from ..sampling import subdivide_with_vertices
 from ..scene import RayCaster, Scene, SceneError
-from ..scene.brdf_kernel import LAMBERTIAN, PHONG, lambertian_value, on_arrays
+from ..scene.materials import LAMBERTIAN, PHONG
+from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .area import AreaSampler, AreaSettings
