@@ -76,12 +76,11 @@ import numpy as np
 from ..sampling import subdivide_with_vertices
 from ..scene import RayCaster, Scene, SceneError
 from ..scene.materials import LAMBERTIAN, PHONG
-from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .area import AreaSampler, AreaSettings
 from .base import Sink, register
-from .physics import PhysicsSettings, fov_connection_weight
+from .physics import PhysicsSettings, fov_connection_weight, lambertian_value, on_arrays
 from .quad_grading import GRADING_MIN_EDGE, graded_triangles
 from .quad_primary import leg_occluders, run_compiled
 from .quad_split import apply_split, choose_split, refined
