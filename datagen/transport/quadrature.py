@@ -80,7 +80,7 @@ from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .area import AreaSampler, AreaSettings
 from .base import Sink, register
-from .physics import PhysicsSettings, fov_connection_weight, lambertian_value, on_arrays
+from .physics import PhysicsSettings, fov_connection_weight
 from .quad_grading import GRADING_MIN_EDGE, graded_triangles
 from .quad_primary import leg_occluders, run_compiled
 from .quad_split import apply_split, choose_split, refined
@@ -537,7 +537,7 @@ class Quadrature:
         all_lasers = np.unique(self.conn_laser)
         if M * len(all_lasers) <= 4 * s.batch:                   # the laser legs of every laser point, once
             laser_cache = {"lasers": all_lasers, **self._laser_leg(all_lasers)}
-        f_lamb = on_arrays(lambertian_value)(self.materials.albedo[self.cell_object])
+        f_lamb = self.physics.lambert_f[self.cell_object]         # ρ/π (NaN: not Lambertian, then f comes from brdf)
         comp_base = self.object_component[self.cell_object] * c.n_channels          # (M,)
         tri_v = self.cells                                                            # (M, 3)
         n_conn = len(self.conn_laser)
