@@ -35,6 +35,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..scene import SceneError, format_validation_error, read_yaml
+from ..simulation.tolerance import MIN_TOLERANCE
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
 """Stream ids: the last entry of the spawn_key of each random stream of a sample (fixed forever)."""
@@ -147,7 +148,7 @@ class DatasetConfig(_Model):
     detector: str | dict | None = None
     labels: dict = Field(default_factory=dict)
     store: StoreSpec = StoreSpec()
-    tolerance: float = Field(0.01, gt=0, lt=1)
+    tolerance: float = Field(0.01, ge=MIN_TOLERANCE, lt=1)   # below: float64 round-off, not measurable
     time_cap: float = Field(2.0, gt=0, allow_inf_nan=False)
 
     @field_validator("tolerance", mode="before")
@@ -359,7 +360,7 @@ def _field_errors(exc: ValidationError, prefix: str, head: str) -> str:
 
 
 def _validate_parts(config: DatasetConfig, prefix: str) -> None:
-    from ..simulation import SimulationConfig
+    from ..simulation import SimulationConfig, detector_error
     try:
         spec = config.label_spec()
     except ValidationError as exc:
@@ -370,11 +371,12 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
         sim = SimulationConfig.model_validate(overrides)
     except ValidationError as exc:
         raise SceneError(_field_errors(exc, prefix, "simulation")) from None
+    sim = sim.model_copy(update={"detector": detector})
     try:
-        sim.model_copy(update={"detector": detector}).detector_config()
-    except ValidationError as exc:
+        sim.detector_config()
+    except ValidationError as exc:   # a field the detector took from simulation.time is blamed on it
         head = "detector" if config.detector is not None else "simulation.detector"
-        raise SceneError(_field_errors(exc, prefix, head)) from None
+        raise SceneError(detector_error(exc, sim, prefix.removesuffix(": "), head, "simulation.time")) from None
     try:
         _distribution(json.dumps(config.room, sort_keys=True), "{}")
     except (SceneError, ValueError) as exc:

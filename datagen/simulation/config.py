@@ -165,7 +165,7 @@ TIME_AXIS_FIELDS = ("t_start", "bin_width")
 """Detector fields that default to the simulation time axis's (``time.t_start``, ``time.bin_width``)."""
 
 
-def detector_error(exc: ValidationError, config: SimulationConfig, source: str, head: str = "detector",
+def detector_error(exc: ValidationError, config: SimulationConfig, source: str | None, head: str = "detector",
                    time_head: str = "time") -> str:
     """One line for a failed :meth:`SimulationConfig.detector_config`: a problem with a field the detector took
     from the time axis (:data:`TIME_AXIS_FIELDS` not in ``config.detector``) names ``time_head``.field (e.g.
@@ -177,9 +177,9 @@ def detector_error(exc: ValidationError, config: SimulationConfig, source: str, 
         if name in inherited:
             msg = " ".join(str(err["msg"]).split()).removeprefix("Value error, ")
             what = "bins start at" if name == "t_start" else "bin width is"
-            return (f"{source}: {time_head}.{name}: {msg} (got {short_repr(err.get('input'))}): the detector's TDC "
+            return (f"{source + ': ' if source else ''}{time_head}.{name}: {msg} (got {short_repr(err.get('input'))}): the detector's TDC "
                     f"{what} {time_head}.{name} (within the laser cycle) unless {head}.{name} is given")
-    return format_validation_error(exc, source, head=head)
+    return format_validation_error(exc, source or None, head=head)
 
 
 def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationConfig:
