@@ -23,7 +23,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from test_hostile import PATCH, cli, scene_file, set_path, simulate_args
+from test_hostile import PATCH, cli, scene_file, set_path, simulate_args, stored_result  # noqa: F401 (fixture)
 from test_hostile_build import build_args, tiny
 
 import datagen.simulation.tolerance as tolerance_module
@@ -97,12 +97,12 @@ def test_duplicate_keys_in_a_dataset_config_and_its_room_file(tmp_path):
         load_dataset_config(data, tmp_path)
 
 
-def test_duplicate_keys_in_a_detector_preset(tmp_path):
+def test_duplicate_keys_in_a_detector_preset(tmp_path, stored_result):
     det = tmp_path / "det.yaml"
     det.write_text(DETECTOR.read_text() + "pde: 0.9\n")
     n = len(det.read_text().splitlines())
     first = next(i for i, l in enumerate(DETECTOR.read_text().splitlines(), 1) if l.startswith("pde:"))
-    line = one_error_line(cli(["detect", tmp_path / "result.zarr", "--detector", det], 2))
+    line = one_error_line(cli(["detect", stored_result, "--detector", det], 2))
     assert line.startswith(f"error: {det}: duplicate key 'pde' on lines {first} and {n} ")
     with pytest.raises(ValueError, match=f"duplicate key 'pde' on lines {first} and {n}"):
         spad.DetectorConfig.from_yaml(det)
@@ -264,6 +264,48 @@ def test_a_room_distribution_pulse_energy_is_bounded_too(tmp_path):
         load_dataset_config(data, tmp_path)
 
 
+def test_a_time_window_past_one_second_is_refused_naming_the_time_axis(tmp_path):
+    path = scene_file(tmp_path, lambda d: set_path(d, "simulation.time.bin_width", 1e300))
+    line = one_error_line(cli(simulate_args(path, tmp_path / "out"), 2))
+    assert line == (f"error: {path} (simulation): time: the window t_start .. t_start + n_bins × bin_width = 0 .. "
+                    "1e+303 s must lie within ±1 s (no light path in a scene within ±1e+07 m lasts longer than 0.5 s)")
+    data = tiny().to_json()
+    data["simulation"]["time"]["bin_width"] = 1.7976931348623157e308      # the window's end overflowed to inf
+    with pytest.raises(SceneError, match=r"^simulation\.time: the window .* = 1\.5e-08 \.\. inf s must lie"):
+        load_dataset_config(data, tmp_path)
+
+
+def test_an_irf_too_wide_for_memory_is_blamed_on_the_irf_not_on_n_bins(tmp_path):
+    path = scene_file(tmp_path, lambda d: set_path(d, "simulation.irf.fwhm", "600s"))
+    line = one_error_line(cli(simulate_args(path, tmp_path / "out"), 2))
+    assert line.startswith(f"error: {path} (simulation): irf (sigma 255 s) over fine steps of 2e-11 s "
+                           "(time.bin_width / 1) adds 2.17e+14 guard nodes to the 1000 bins, needs about ")
+    assert line.endswith("GiB available: narrow the irf or widen time.bin_width")
+
+
+DATASET_REFUSALS = {   # field: (value, the message after "config.yaml: ")
+    "labels.voxels": (83315, "labels.voxels: 83315³ voxels need 5.386e+05 GiB per sample, more than 1 GiB"),
+    "labels.max_objects": (10**30, "labels.max_objects: Input should be less than or equal to 1024"),
+    "labels.depth_map": ([100000, 100000], "labels.depth_map: 100000x100000 pixels need 298 GiB per sample"),
+    "splits.val.count": (10**30, f"splits: val.count: {10**30} samples in shards of 1 are more than 1000000 shards"),
+    "time_cap": (1e308, "time_cap: Input should be less than or equal to 3600 (got 1e+308)"),
+    "tolerance": (1e-300, "tolerance: Input should be greater than or equal to 0.0000000001 (got 1e-300)"),
+}
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("field", sorted(DATASET_REFUSALS))
+def test_dataset_fields_that_failed_in_the_probe_or_never_ended_are_refused_up_front(tmp_path, field):
+    value, message = DATASET_REFUSALS[field]
+    data = tiny().to_json()
+    set_path(data, field, value)
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(data))
+    line = one_error_line(cli(build_args(path, tmp_path / "ds"), 2))
+    assert line.startswith(f"error: {path}: {message}"), line
+    assert not (tmp_path / "ds").exists()
+
+
 # ------------------------------------------------------------------------------------------ --seed, --size
 
 @pytest.mark.parametrize("args", [["simulate", "scene.yaml", "--out", "o"], ["detect", "r.zarr", "--detector", "d"],
@@ -368,7 +410,8 @@ def test_mutated_dataset_configs_load_and_build_or_are_refused_in_one_line(tmp_p
         assert again.to_json() == config.to_json()
         assert math.isfinite(config.tolerance) and math.isfinite(config.time_cap)
         if len(built) < CHEAP_BUILDS and cheap(config):
-            built.append(field)
+            built.append((field, value))
             check_build(path, folder / "ds", {s: spec.count for s, spec in config.splits.items()})
 
     check()
+    assert built, "no accepted mutation was cheap enough to build: the property never reached a real build"

@@ -23,7 +23,8 @@ from .tolerance import (MIN_TOLERANCE, TIME_CAP_S, ToleranceOutOfReach, check_to
 from .run import (Replicas, Result, Transported, library_versions, make_result, prepare_transport, run_transport,
                   simulate)
 
-__all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "TIME_AXIS_FIELDS", "detector_error", "SimulationConfig", "parse_grid", "resolve_config", "stream_rng",
+__all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "TIME_AXIS_FIELDS", "detector_error", "SimulationConfig",
+           "parse_grid", "resolve_config", "stream_rng",
            "PEAK_FLOOR", "ReplicaSums", "relative_standard_error", "replica_rng", "replica_root", "Replicas",
            "Result", "Transported", "library_versions", "make_result", "prepare_transport", "run_transport",
            "simulate", "simulate_to_tolerance", "TIME_CAP_S", "MIN_TOLERANCE", "ToleranceOutOfReach",
