@@ -129,6 +129,7 @@ def test_the_shipped_yaml_files_have_no_duplicate_keys():
 
 # ------------------------------------------------------------------------------------------ --tolerance
 
+@pytest.mark.timeout(60)
 @pytest.mark.parametrize("value", ["1e-300", "1e-12%", "1e-11"])
 def test_a_tolerance_below_float64_resolution_is_refused_before_any_work(tmp_path, value):
     out = cli(simulate_args(scene_file(tmp_path), tmp_path / "out", "--tolerance", value), 2)
@@ -136,6 +137,7 @@ def test_a_tolerance_below_float64_resolution_is_refused_before_any_work(tmp_pat
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.timeout(60)
 def test_the_library_refuses_the_same_floor(tmp_path):
     scene = load_scene(scene_file(tmp_path))
     with pytest.raises(SceneError, match=r"tolerance 1e-12 is below 1e-10"):
