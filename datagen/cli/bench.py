@@ -51,7 +51,7 @@ def bench():
               help="hidden samples per reference replica (default datagen.analysis.reference.REFERENCE_SAMPLES)")
 @click.option("--cache-dir", default=None, type=click.Path(path_type=Path),
               help="reference cache (default $DATAGEN_CACHE or ~/.cache/datagen, /references)")
-@click.option("--seed", default=0, show_default=True, type=int, help="seed of the estimator runs")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="seed of the estimator runs")
 @friendly_errors
 def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators, rel_tol, reference_budget,
              reference_samples, cache_dir, seed):

@@ -27,8 +27,8 @@ def main():
     """datagen: simulate NLOS SPAD lidar transients (Scholes & Leach 2024) and build datasets."""
 
 
-def _parse_fraction(text: str, option: str) -> float:
-    """'1%' → 0.01, '0.01' → 0.01; click.BadParameter naming the option otherwise."""
+def _parse_fraction(text: str, option: str, minimum: float = 0.0) -> float:
+    """'1%' → 0.01, '0.01' → 0.01, in [``minimum``, 1) and > 0; click.BadParameter naming the option otherwise."""
     t = str(text).strip()
     try:
         value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
@@ -36,6 +36,9 @@ def _parse_fraction(text: str, option: str) -> float:
         raise click.BadParameter(f"{option} must look like 1% or 0.01, got {text!r}") from None
     if not 0 < value < 1:
         raise click.BadParameter(f"{option} must be between 0 and 100 %, got {text!r}")
+    if value < minimum:
+        raise click.BadParameter(f"{option} {text} is below {minimum:g}: relative errors that small are float64 "
+                                 "round-off in the sums, not measurable")
     return value
 
 
@@ -73,7 +76,7 @@ def _parse_time_cap(text: str | None) -> float | None:
 @click.option("--samples", type=int, default=None, help="area estimator: hidden samples per laser point")
 @click.option("--workers", type=int, default=None, help="processes sharing the lookins (result unchanged)")
 @click.option("--top-k", type=int, default=None, help="secondary paths kept per lookin and FoV point (optimized)")
-@click.option("--seed", type=int, default=None, help="root seed of every random stream")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="root seed of every random stream (>= 0)")
 @click.option("--figures", is_flag=True,
               help="also write the paper's Figure 3 and 5 sampling views and a 3D picture of the scene")
 @click.option("--quiet", is_flag=True, help="no progress bar")
@@ -83,22 +86,32 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
              figures, quiet):
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from ..plot.envelope import plot_envelope
-    from ..scene import check_output_dir, load_scene
+    from ..scene import SceneError, check_output_dir, load_scene
     from ..simulation import resolve_config
     from ..simulation import simulate as run_simulation
     from ..io import RESULT_NAME, write_result
 
+    from ..simulation import MIN_TOLERANCE
+
+    tol = _parse_fraction(tolerance, "--tolerance", MIN_TOLERANCE) if tolerance is not None else None
     check_output_dir(out)
     scene = load_scene(scene_file)
-    tol = _parse_fraction(tolerance, "--tolerance") if tolerance is not None else None
     config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
                                     "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol,
                                     "estimator": estimator, "quadrature_edge": edge, "area_samples": samples})
     cap = _parse_time_cap(time_cap)
     if tol is not None:
-        from ..simulation import TIME_CAP_S, simulate_to_tolerance
+        from ..simulation import TIME_CAP_S, ToleranceOutOfReach, simulate_to_tolerance
         cap = TIME_CAP_S if cap is None else cap
-        result = simulate_to_tolerance(scene, config, tol, max_seconds=cap, progress=not quiet)
+        def named(detail: str) -> str:   # the options, not the library's arguments
+            return f"--tolerance {tolerance}: {detail.replace('the time cap of', '--time-cap')}"
+
+        try:
+            result = simulate_to_tolerance(
+                scene, config, tol, max_seconds=cap, progress=not quiet,
+                warn=lambda detail: click.echo(f"warning: {named(detail)}; running on to it", err=True))
+        except ToleranceOutOfReach as exc:
+            raise SceneError(f"{named(exc.detail)}: loosen --tolerance or raise --time-cap") from None
         t = result.attrs["tolerance"]
         missed = "" if t["met"] else f" — NOT met within --time-cap {cap:g} s (rounds run: {len(t['rounds'])})"
         shown = f"{tol:.2%}" if tol >= 1e-4 else f"{tol:.3g}"
@@ -127,7 +140,7 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
 @click.option("--detector", "detector_file", required=True, type=click.Path(path_type=Path),
               help="detector YAML, e.g. configs/detectors/cmos_spad_array.yaml")
 @click.option("--exposure", default=None, help="exposure per capture, e.g. 10ms (overrides the file)")
-@click.option("--seed", type=int, default=0, help="noise seed")
+@click.option("--seed", type=click.IntRange(min=0), default=0, help="noise seed")
 @friendly_errors
 def detect(result_path, detector_file, exposure, seed):
     """Re-draw SPAD histograms from a stored envelope (no transport): writes detections/<NAME>/counts.

@@ -85,7 +85,7 @@ def _h_summary(path: Path) -> str:
 @click.option("--samples", type=int, default=None,
               help="area estimator: hidden samples per laser point (default 65536; quadrature: for a planned "
                    "secondary)")
-@click.option("--seed", type=int, default=None, help="root seed of every random stream")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="root seed of every random stream")
 @click.option("--float32", "float32", is_flag=True, help="store H as float32 (as tal render does)")
 @click.option("--compression", type=click.IntRange(0, 9), default=0, help="gzip level for H (0: none)")
 @click.option("--quiet", is_flag=True, help="no progress bar")

@@ -97,8 +97,23 @@ def describe(scene, info: dict) -> str:
     return f"{scene.name}" + (" (tal render config)" if info.get("kind") == "tal" else "")
 
 
+MAX_SIDE = 8192
+"""Largest side of a ``view`` picture, pixels. It is rendered 2× larger (``datagen.plot.view_render.SUPERSAMPLE``)
+and 16384 is the largest image side Vulkan drivers commonly allow (``maxImageDimension2D``)."""
+
+MAX_PIXELS = 3840 * 2160
+"""Most pixels of a ``view`` picture (4K UHD). Rendered 2× larger, that is 25 Mpx; on the 2-core machine with
+llvmpipe's Vulkan a 4K picture rendered (or stalled, under load) while 5800×5800 (100 Mpx rendered) made open3d
+abort with "Unable to bind image" (out of image memory) and 100000×100000 was blamed on the Vulkan driver."""
+
+
 def parse_size(text: str) -> tuple[int, int]:
-    """'1400x860' → (1400, 860); ValueError naming --size otherwise (each side at least 64)."""
+    """'1400x860' → (1400, 860) pixels.
+
+    Raises:
+        ValueError: naming --size and the value: not WIDTHxHEIGHT, a side below 64 or above :data:`MAX_SIDE`, or
+            more than :data:`MAX_PIXELS` pixels in all.
+    """
     parts = str(text).lower().replace("×", "x").split("x")
     try:
         width, height = (int(p) for p in parts)
@@ -106,6 +121,10 @@ def parse_size(text: str) -> tuple[int, int]:
         raise ValueError(f"--size must look like 1400x860, got {text!r}") from None
     if min(width, height) < 64:
         raise ValueError(f"--size must be at least 64x64, got {text!r}")
+    if max(width, height) > MAX_SIDE or width * height > MAX_PIXELS:
+        raise ValueError(f"--size {text}: at most {MAX_SIDE} pixels a side and {MAX_PIXELS} pixels in all (3840x2160), "
+                         f"got {width}x{height} = {width * height}: the picture is rendered 2x larger and open3d's "
+                         "Vulkan renderer stalls or runs out of image memory beyond")
     return width, height
 
 
@@ -118,7 +137,7 @@ def parse_size(text: str) -> tuple[int, int]:
 @click.option("--lookins", default=None,
               help="overlay the lookins of a run: NxN (as `simulate --lookins NxN`) or 'auto' (the scene's or "
                    "the dataset's own lookin grid; a dataset sample's own lookins)")
-@click.option("--seed", type=int, default=None, help="root seed of the run whose lookins are drawn")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="root seed of the run whose lookins are drawn")
 @click.option("--size", default=None, help="PNG size in pixels, WIDTHxHEIGHT (default 1400x860)")
 @click.option("--flat", is_flag=True, help="flat class colours (no shading)")
 @friendly_errors

@@ -35,9 +35,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..scene import SceneError, format_validation_error, read_yaml
+from ..simulation.tolerance import MIN_TOLERANCE
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
 """Stream ids: the last entry of the spawn_key of each random stream of a sample (fixed forever)."""
+
+MAX_SHARDS = 10**6
+"""Most shards per split (shard labels have six digits; the card holds each shard's hash)."""
 
 RESAMPLE_NOISE = STREAMS["noise"]
 """Stream id of the loader's per-epoch noise, spawn_key (split_key, epoch, index, RESAMPLE_NOISE): a 4-entry
@@ -127,7 +131,7 @@ class DatasetConfig(_Model):
     """A dataset: see the module docstring. Load from YAML with :func:`load_dataset_config`.
 
     ``tolerance`` (e.g. "1%", default 1 %) is the per-sample target of the envelope's estimated relative L2 error
-    and ``time_cap`` (e.g. "2s") the most nominal compute a sample may spend reaching it
+    and ``time_cap`` (e.g. "2s", at most an hour) the most nominal compute a sample may spend reaching it
     (:func:`datagen.simulation.simulate_to_tolerance`; nominal seconds are counted work at fixed rates, so the
     adaptive choice is deterministic). Each sample stores its estimate as ``envelope_error``; the card lists the
     samples that missed the tolerance.
@@ -147,8 +151,8 @@ class DatasetConfig(_Model):
     detector: str | dict | None = None
     labels: dict = Field(default_factory=dict)
     store: StoreSpec = StoreSpec()
-    tolerance: float = Field(0.01, gt=0, lt=1)
-    time_cap: float = Field(2.0, gt=0, allow_inf_nan=False)
+    tolerance: float = Field(0.01, ge=MIN_TOLERANCE, lt=1)   # below: float64 round-off, not measurable
+    time_cap: float = Field(2.0, gt=0, le=3600.0, allow_inf_nan=False)   # an hour of nominal work per sample
 
     @field_validator("tolerance", mode="before")
     @classmethod
@@ -172,9 +176,14 @@ class DatasetConfig(_Model):
 
     @field_validator("splits")
     @classmethod
-    def _splits(cls, value: dict[str, SplitSpec]) -> dict[str, SplitSpec]:
+    def _splits(cls, value: dict[str, SplitSpec], info) -> dict[str, SplitSpec]:
         if not value:
             raise ValueError("give at least one split, e.g. {train: {count: 100}}")
+        size = info.data.get("shard_size")
+        for name, spec in value.items():    # the build plans, and the card lists, every shard
+            if isinstance(size, int) and -(-spec.count // size) > MAX_SHARDS:
+                raise ValueError(f"{name}.count: {spec.count} samples in shards of {size} are more than {MAX_SHARDS} "
+                                 "shards (the card lists each with its hash): lower the count or raise shard_size")
         if all(spec.count == 0 for spec in value.values()):
             raise ValueError(f"every split has count 0 ({', '.join(value)}): nothing to build")
         for name in value:
@@ -354,12 +363,12 @@ def _field_errors(exc: ValidationError, prefix: str, head: str) -> str:
         loc = ".".join([head] + [str(p) for p in err["loc"]])
         value = err.get("input")
         shown = "" if isinstance(value, dict) else f" (got {value!r})"
-        lines.append(f"{prefix}{loc}: {err['msg']}{shown}")
+        lines.append(f"{prefix}{loc}: {str(err['msg']).removeprefix('Value error, ')}{shown}")
     return "; ".join(lines)
 
 
 def _validate_parts(config: DatasetConfig, prefix: str) -> None:
-    from ..simulation import SimulationConfig
+    from ..simulation import SimulationConfig, detector_error
     try:
         spec = config.label_spec()
     except ValidationError as exc:
@@ -370,11 +379,12 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
         sim = SimulationConfig.model_validate(overrides)
     except ValidationError as exc:
         raise SceneError(_field_errors(exc, prefix, "simulation")) from None
+    sim = sim.model_copy(update={"detector": detector})
     try:
-        sim.model_copy(update={"detector": detector}).detector_config()
-    except ValidationError as exc:
+        sim.detector_config()
+    except ValidationError as exc:   # a field the detector took from simulation.time is blamed on it
         head = "detector" if config.detector is not None else "simulation.detector"
-        raise SceneError(_field_errors(exc, prefix, head)) from None
+        raise SceneError(detector_error(exc, sim, prefix.removesuffix(": "), head, "simulation.time")) from None
     try:
         _distribution(json.dumps(config.room, sort_keys=True), "{}")
     except (SceneError, ValueError) as exc:

@@ -27,6 +27,15 @@ from .rooms import OBJECT_CLASSES, LabelRegion
 from .sampler import SampledRoom
 from .wall_view import view_rectangle, wall_frame, wall_view_labels
 
+MAX_OBJECTS = 1024
+"""Most ``labels.max_objects``: the per-object arrays and the components (max_objects + 3 slots × channels × bins)
+of one sample are allocated before the build's memory check (the rooms hold a handful)."""
+
+MAX_LABEL_BYTES = 1 << 30
+"""Most bytes of one sample's occupancy grid (V³ uint8) and depth/normal maps (H·W·4 float64): 1 GiB, so a
+hostile ``voxels`` (at most 1024) or ``depth_map`` fails here, naming the field, rather than in a numpy
+allocation."""
+
 PAD_INT = -1
 """Padding of integer per-object arrays (class, BRDF kind) beyond ``object_count``; float arrays pad with 0."""
 
@@ -48,7 +57,7 @@ class LabelSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    max_objects: int = Field(8, ge=0)
+    max_objects: int = Field(8, ge=0, le=MAX_OBJECTS)
     depth_map: tuple[int, int] = (64, 64)
     voxels: int = Field(32, ge=1)
     occupancy_region: LabelRegion | None = None
@@ -57,7 +66,19 @@ class LabelSpec(BaseModel):
     @field_validator("depth_map")
     @classmethod
     def _pixels(cls, v: tuple[int, int]) -> tuple[int, int]:
-        return check_counts(v, "both pixel counts")
+        check_counts(v, "both pixel counts")
+        if 32 * v[0] * v[1] > MAX_LABEL_BYTES:     # depth + normals, float64
+            raise ValueError(f"{v[0]}x{v[1]} pixels need {32 * v[0] * v[1] / 2**30:.4g} GiB per sample, more than "
+                             f"{MAX_LABEL_BYTES / 2**30:g} GiB")
+        return v
+
+    @field_validator("voxels")
+    @classmethod
+    def _voxels(cls, v: int) -> int:
+        if v ** 3 > MAX_LABEL_BYTES:
+            raise ValueError(f"{v}³ voxels need {v ** 3 / 2**30:.4g} GiB per sample, more than "
+                             f"{MAX_LABEL_BYTES / 2**30:g} GiB")
+        return v
 
     @field_validator("wall_view")
     @classmethod

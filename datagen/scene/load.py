@@ -222,17 +222,49 @@ def read_yaml(path: Path, what: str) -> Any:
     return parse_yaml(text, str(path))
 
 
+class DuplicateKeyError(yaml.constructor.ConstructorError):
+    """A YAML mapping holds the same key twice (raised by :class:`UniqueKeyLoader`)."""
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a mapping that holds the same key twice at any depth (plain PyYAML keeps
+    the last one silently: a second top-level ``simulation:`` would replace the first). Keys merged in by
+    ``<<: *anchor`` may be overridden, as YAML's merge key intends; only keys written in the mapping itself
+    count."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.setdefault(key, key_node)
+                except TypeError:   # an unhashable key: the base class reports it
+                    continue
+                if first is not key_node:
+                    raise DuplicateKeyError(
+                        None, None, f"duplicate key {short_repr(key)} on lines {first.start_mark.line + 1} "
+                        f"and {key_node.start_mark.line + 1} (the second would silently replace the first)")
+        return super().construct_mapping(node, deep=deep)
+
+
 def parse_yaml(text: str, source: str) -> Any:
-    """Parse YAML ``text`` with the safe loader, then refuse documents that expand to more than
-    :data:`MAX_YAML_VALUES` values (aliases counted at every use, recursive aliases included).
+    """Parse YAML ``text`` with :class:`UniqueKeyLoader` (the safe loader, refusing duplicate keys), then refuse
+    documents that expand to more than :data:`MAX_YAML_VALUES` values (aliases counted at every use, recursive
+    aliases included).
 
     Raises:
-        SceneError: invalid YAML or too large an expansion; one short line naming ``source``.
+        SceneError: invalid YAML, a key repeated in one mapping ("<source>: duplicate key 'simulation' on lines
+            12 and 30 ...") or too large an expansion; one short line naming ``source``.
     """
     if len(text) > MAX_YAML_BYTES:
         raise SceneError(f"{source}: {len(text)} characters is too large (at most {MAX_YAML_BYTES})")
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=UniqueKeyLoader)   # noqa: S506 - a SafeLoader subclass
+    except DuplicateKeyError as exc:
+        raise SceneError(f"{source}: {exc.problem}") from None
     except yaml.YAMLError as exc:
         raise SceneError(f"{source}: not valid YAML: {' '.join(str(exc).split())[:300]}") from None
     except RecursionError:

@@ -38,6 +38,14 @@ MAX_APERTURE_RADIUS = 10.0
 WAVELENGTH_RANGE = (1e-9, 1e-3)
 """Accepted laser wavelengths, metres: 1 nm (soft X-ray) to 1 mm (far infrared)."""
 
+MAX_PHOTONS_PER_PULSE = 1e30
+"""Most photons per pulse a laser may emit (the largest laser pulses, ~2 MJ, hold ~4e24). Products of Φ with
+the transport's weights, the cycles of an exposure (≤ 2⁶²) and their squares stay finite in float64."""
+
+MAX_PULSE_ENERGY = 1e8
+"""Most energy per pulse, J (100 MJ, 50× the largest laser pulses): at the longest accepted wavelength (1 mm)
+it is 5e29 photons, within :data:`MAX_PHOTONS_PER_PULSE`; 1e308 J would overflow Φ = E·λ/(h·c) to inf."""
+
 RESERVED_NAMES = ("room", "secondary", "first_bounce", "total")
 """Object names that would collide with envelope components ('room' sums the walls, floor, ceiling and relay
 wall; 'secondary' and 'first_bounce' are the transport's extra components) or with the 'total' row of the
@@ -131,8 +139,9 @@ class SceneObject:
 class Laser(BaseModel):
     """Pulsed laser: emitter position, laser spot on the relay wall, photons per pulse.
 
-    Photons per pulse Φ come from ``photons_per_pulse`` directly or from ``pulse_energy`` (J, or "1nJ")
-    and ``wavelength`` (m, or "532nm") as E·λ/(h·c).
+    Photons per pulse Φ come from ``photons_per_pulse`` directly (at most :data:`MAX_PHOTONS_PER_PULSE`) or
+    from ``pulse_energy`` (J, or "1nJ"; at most :data:`MAX_PULSE_ENERGY`) and ``wavelength`` (m, or "532nm")
+    as E·λ/(h·c).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -147,6 +156,22 @@ class Laser(BaseModel):
     @classmethod
     def _energy(cls, v: Any) -> Any:
         return None if v is None else parse_energy(v)
+
+    @field_validator("pulse_energy")
+    @classmethod
+    def _energy_bound(cls, v: float | None) -> float | None:
+        if v is not None and v > MAX_PULSE_ENERGY:
+            raise ValueError(f"at most {MAX_PULSE_ENERGY:g} J per pulse (more would overflow the photons per "
+                             f"pulse E·λ/(h·c) and the counts)")
+        return v
+
+    @field_validator("photons_per_pulse")
+    @classmethod
+    def _photon_bound(cls, v: float | None) -> float | None:
+        if v is not None and v > MAX_PHOTONS_PER_PULSE:
+            raise ValueError(f"at most {MAX_PHOTONS_PER_PULSE:g} photons per pulse (more would overflow the "
+                             "envelope's products in float64)")
+        return v
 
     @field_validator("wavelength", mode="before")
     @classmethod

@@ -99,8 +99,13 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
     n_fine = config.time.n_bins * over + left + right
     n_bins = config.time.n_bins
     grid = grid_field if channels > n_bins else ("time.n_bins", f"{n_bins} bins × {channels} channel(s)")
-    terms = [(grid[0], f"{grid[1]} ({over} fine nodes per bin, {n_components} components)",
-              8.0 * ACCUMULATOR_COPIES * n_components * channels * n_fine),
+    fine = (grid[0], f"{grid[1]} ({over} fine nodes per bin, {n_components} components)")
+    if left + right > n_bins * over:   # the IRF's guard nodes dominate: its width over the fine step is the cause
+        tail = f", tail {config.irf.tail:.3g} s" if config.irf.tail else ""
+        step = config.time.bin_width / over
+        fine = ("irf", f"(sigma {config.irf.sigma:.3g} s{tail}) over fine steps of {step:.3g} s (time.bin_width / "
+                       f"{over}) adds {left + right:.3g} guard nodes to the {n_bins} bins,")
+    terms = [(*fine, 8.0 * ACCUMULATOR_COPIES * n_components * channels * n_fine),
              (grid[0], f"{grid[1]} (results)", 8.0 * RESULT_COPIES * (n_components + 3) * channels * n_bins),
              (grid_field[0], grid_field[1], float(TARGET_BYTES) * (lasers + sensors))]
     memory = estimator(config.estimator).memory        # the estimator's own arrays (its registry entry)
@@ -112,6 +117,9 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
 RAISE_TO_SHRINK = ("quadrature_edge",)
 """Fields whose memory falls as they grow (the hint says "raise", not "lower")."""
 
+HINTS = {"irf": "narrow the irf or widen time.bin_width"}
+"""Hints for terms that two fields set."""
+
 
 def check_memory(needed: float, field: str, value: str, where: str = "") -> None:
     """Refuse ``needed`` bytes beyond :func:`available_memory` (no check when it is unknown).
@@ -121,9 +129,9 @@ def check_memory(needed: float, field: str, value: str, where: str = "") -> None
     """
     available = available_memory()
     if available is not None and needed > available:
-        hint = "raise" if field in RAISE_TO_SHRINK else "lower"
+        hint = HINTS.get(field, f"{'raise' if field in RAISE_TO_SHRINK else 'lower'} {field}")
         raise ResourceError(f"{where}{field} {value} needs about {needed / GIB:.3g} GiB of memory, more than the "
-                            f"{available / GIB:.3g} GiB available: {hint} {field}")
+                            f"{available / GIB:.3g} GiB available: {hint}")
 
 
 def check_simulation_memory(scene: Scene, config: SimulationConfig) -> float:

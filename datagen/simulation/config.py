@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from .. import spad
 from ..planner import EFFECTS
-from ..scene import Scene, SceneError, format_validation_error
+from ..scene import MAX_EXTENT, Scene, SceneError, format_validation_error, short_repr
 from ..timing import Irf, TimeAxis
 from ..transport import QUADRATURE_EDGE, TransportSettings, estimator_names
 
@@ -26,6 +26,11 @@ def stream_rng(seed: int, stream: int) -> np.random.Generator:
     """Generator of random stream ``stream`` under root ``seed``: SeedSequence(seed, spawn_key=(stream,))."""
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(stream,)))
 
+
+MAX_TIME_WINDOW_S = 1.0
+"""The time axis lies within ±1 s: the longest light path of a scene within ±``MAX_EXTENT`` m (four legs along the
+box's diagonal, 4·2·√3·1e7 m) lasts 0.46 s, so later bins hold nothing, and t_start + n_bins × bin_width stays
+finite (a 1e308 s bin overflowed it to inf)."""
 
 _GRID = re.compile(r"^\s*(\d+)\s*[x×X]\s*(\d+)\s*$")
 
@@ -134,13 +139,23 @@ class SimulationConfig(BaseModel):
             raise ValueError(f"unknown estimator {value!r}; known: {list(estimator_names())}")
         return value
 
+    @field_validator("time")
+    @classmethod
+    def _window(cls, value: TimeAxis) -> TimeAxis:
+        if not -MAX_TIME_WINDOW_S <= value.t_start < value.t_stop <= MAX_TIME_WINDOW_S:
+            raise ValueError(f"the window t_start .. t_start + n_bins × bin_width = {value.t_start:.3g} .. "
+                             f"{value.t_stop:.3g} s must lie within ±{MAX_TIME_WINDOW_S:g} s (no light path in a "
+                             f"scene within ±{MAX_EXTENT:g} m lasts longer than 0.5 s)")
+        return value
+
     @field_validator("lookins", "pixels", "connect_samples", mode="before")
     @classmethod
     def _grid(cls, value: Any, info) -> tuple[int, int]:
         return parse_grid(value, info.field_name)
 
     def detector_config(self) -> "spad.DetectorConfig":
-        """The detector config with the TDC bin width taken from the time axis unless given."""
+        """The detector config with the TDC bin width and start taken from the time axis unless given
+        (:data:`TIME_AXIS_FIELDS`; an invalid one is the time axis's fault: :func:`detector_error`)."""
         data = {"bin_width": self.time.bin_width, "t_start": self.time.t_start, **self.detector}
         return spad.DetectorConfig.model_validate(data)
 
@@ -160,6 +175,28 @@ class SimulationConfig(BaseModel):
                                  conv_refine=self.conv_refine, batch=self.batch, workers=self.workers)
 
 
+TIME_AXIS_FIELDS = ("t_start", "bin_width")
+"""Detector fields that default to the simulation time axis's (``time.t_start``, ``time.bin_width``)."""
+
+
+def detector_error(exc: ValidationError, config: SimulationConfig, source: str | None, head: str = "detector",
+                   time_head: str = "time") -> str:
+    """One line for a failed :meth:`SimulationConfig.detector_config`: a problem with a field the detector took
+    from the time axis (:data:`TIME_AXIS_FIELDS` not in ``config.detector``) names ``time_head``.field (e.g.
+    ``time.t_start``, which the user wrote), not the detector's; others are :func:`format_validation_error`'s
+    lines under ``head``."""
+    inherited = set(TIME_AXIS_FIELDS) - set(config.detector)
+    for err in exc.errors():
+        name = err["loc"][0] if err["loc"] else None
+        if name in inherited:
+            msg = " ".join(str(err["msg"]).split()).removeprefix("Value error, ")
+            what = "bins start at" if name == "t_start" else "bin width is"
+            where = f"{source}: " if source else ""
+            return (f"{where}{time_head}.{name}: {msg} (got {short_repr(err.get('input'))}): the detector's TDC "
+                    f"{what} {time_head}.{name} (within the laser cycle) unless {head}.{name} is given")
+    return format_validation_error(exc, source or None, head=head)
+
+
 def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationConfig:
     """Merge the scene file's ``simulation`` block with ``overrides`` (e.g. CLI options) and validate.
 
@@ -175,5 +212,5 @@ def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationCon
     try:
         config.detector_config()
     except ValidationError as exc:
-        raise SceneError(format_validation_error(exc, where, head="detector")) from None
+        raise SceneError(detector_error(exc, config, where)) from None
     return config

@@ -18,12 +18,18 @@ level's error is estimated from the previous one as ‖P(h') − P(h)‖/((h/h')
 secondary.
 
 A wall-clock cap (``max_seconds``) is available for interactive use; it makes the result depend on the
-machine's speed, so dataset builds cap the replica count instead (``max_replicas``, deterministic).
+machine's speed, so dataset builds cap the replica count instead (``max_replicas``, deterministic). With such a
+cap the first round's estimate is projected to the tolerance (:func:`projected_seconds`: the same predictions
+the loop makes for its next round, :func:`replicas_needed` and :func:`edge_factor`, taken all the way to the
+tolerance). A projection beyond ``HOPELESS`` × the cap is refused (:class:`ToleranceOutOfReach`, naming the
+projection and the tolerance reachable within the cap); one beyond the cap runs on to it after a one-line
+warning. Tolerances below :data:`MIN_TOLERANCE` are refused before any work (docs/reliability.md).
 """
 from __future__ import annotations
 
 import math
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -53,17 +59,111 @@ each level shrinks the edge at least this much. Without its own estimate a level
 one, which needs the edge at least halved (a small step makes ‖P(h') − P(h)‖/((h/h')² − 1) a ratio of small,
 noisy differences)."""
 
+LEVEL_COST_POWER = 4
+"""A quadrature level's cost grows as h^-LEVEL_COST_POWER when the edge shrinks (h^-2 for point sensors to h^-4
+with an aperture): predictions use the steeper law."""
+
+MIN_TOLERANCE = 1e-10
+"""Smallest tolerance accepted: relative errors below it are float64 round-off in sums over many bins and
+samples (machine epsilon 2.2e-16 times the terms summed), not something an estimate can measure or meet."""
+
+HOPELESS = 10.0
+"""A first round whose projection (:func:`projected_seconds`) exceeds this multiple of ``max_seconds`` is refused
+(:class:`ToleranceOutOfReach`) rather than run to the cap: the projection from 8 replicas is uncertain by tens of
+percent, not by a factor 10."""
+
 STALLED = 0.9
 """A level whose estimate stayed above this fraction of the previous level's is followed by a halved edge: a small
 step can leave the split of the triangles that carry the error unchanged (every triangle is cut into an even number
 of parts per side, :func:`datagen.sampling.subdivide_with_vertices`)."""
 
 
+class ToleranceOutOfReach(SceneError):
+    """The first round's error estimate projects far more time than ``max_seconds`` to meet the tolerance.
+
+    Attributes:
+        tolerance: the target (relative L2). projected: the projected total wall time, s. max_seconds: the cap, s.
+        reachable: the tolerance the projection says the cap affords (time ∝ tolerance⁻², both laws).
+        detail: the message without the leading "tolerance X: " (a CLI names its own option instead).
+    """
+
+    def __init__(self, tolerance: float, detail: str, projected: float, max_seconds: float, reachable: float):
+        super().__init__(f"tolerance {tolerance:.3g}: {detail}")
+        self.tolerance, self.detail, self.projected = tolerance, detail, projected
+        self.max_seconds, self.reachable = max_seconds, reachable
+
+
+def check_tolerance(tolerance: float) -> float:
+    """``tolerance`` as a float if it is a number in [:data:`MIN_TOLERANCE`, 1).
+
+    Raises:
+        SceneError: not a number, not finite, or outside [MIN_TOLERANCE, 1) (the message gives the value).
+    """
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not 0 < tolerance < 1:
+        raise SceneError(f"tolerance must be in (0, 1), got {tolerance!r}")
+    if tolerance < MIN_TOLERANCE:
+        raise SceneError(f"tolerance {tolerance:.3g} is below {MIN_TOLERANCE:g}: relative errors that small are "
+                         "float64 round-off, not measurable")
+    return float(tolerance)
+
+
+def replicas_needed(count: int, estimate: float, tolerance: float) -> float:
+    """R·(ε̂/tol)²·``SAFETY``: the replicas in all that the R^(-1/2) law predicts meet ``tolerance``, from an
+    estimate ε̂ of ``count`` replicas (the loop grows toward it by at most ``MAX_GROWTH`` per round). inf, never
+    an OverflowError, for an enormous ratio."""
+    ratio = estimate / tolerance
+    return count * (ratio * ratio) * SAFETY
+
+
+def edge_factor(estimate: float, tolerance: float) -> float:
+    """sqrt(tol/ε̂)·``SAFETY_EDGE``: the factor on the quadrature edge that the h² law predicts meets
+    ``tolerance`` from a level's estimate ε̂ (> 0)."""
+    return math.sqrt(tolerance / estimate) * SAFETY_EDGE
+
+
+def projected_seconds(first_seconds: float, estimate: float, tolerance: float, count: int | None = None) -> float:
+    """Wall time, s, the first round projects for a run that meets ``tolerance``.
+
+    Args:
+        first_seconds: the first round's wall time, s (with its setup).
+        estimate: its error estimate ε̂ (relative L2), > ``tolerance``.
+        count: its replicas (Monte Carlo: the time per replica times :func:`replicas_needed`); None for the
+            quadrature (the level at ``edge_factor`` × h costs ``first_seconds`` / factor^LEVEL_COST_POWER).
+    Either law makes the time grow as tolerance⁻²; inf for an enormous ratio.
+    """
+    if count is not None:
+        return first_seconds / count * replicas_needed(count, estimate, tolerance)
+    try:
+        return first_seconds / edge_factor(estimate, tolerance) ** LEVEL_COST_POWER
+    except (OverflowError, ZeroDivisionError):
+        return math.inf
+
+
+def _check_projection(first_seconds: float, estimate: float, tolerance: float, count: int | None,
+                      max_seconds: float, what: str, warn: Callable[[str], None] | None,
+                      fixed_seconds: float = 0.0) -> None:
+    """Refuse (:class:`ToleranceOutOfReach`) a first round projecting beyond ``HOPELESS`` × ``max_seconds``;
+    ``warn`` one line when it projects beyond ``max_seconds``. ``fixed_seconds``: work done once (not scaled)."""
+    projected = fixed_seconds + projected_seconds(first_seconds, estimate, tolerance, count)
+    first_seconds += fixed_seconds
+    if not projected > max_seconds:
+        return
+    reachable = tolerance * math.sqrt(projected / max_seconds) if math.isfinite(projected) else math.inf
+    detail = (f"the first round ({what}, {first_seconds:.3g} s) estimates the error at {estimate:.3g}, which "
+              f"projects {projected:.3g} s to reach {tolerance:.3g}, beyond the time cap of {max_seconds:g} s "
+              f"(within it about {reachable:.3g} is reachable)")
+    if projected > HOPELESS * max_seconds:
+        raise ToleranceOutOfReach(tolerance, detail, projected, max_seconds, reachable)
+    if warn is not None:
+        warn(detail)
+
+
 def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: float,
                           max_replicas: int | None = None, max_cost: float | None = None,
                           max_seconds: float | None = None,
                           progress: bool = False, sampling_rng: np.random.Generator | None = None,
-                          noise_rng: np.random.Generator | None = None) -> Result:
+                          noise_rng: np.random.Generator | None = None,
+                          warn: Callable[[str], None] | None = None) -> Result:
     """Simulate with the least sampling whose error estimate meets ``tolerance`` (module docstring).
 
     Args:
@@ -74,24 +174,30 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         max_cost: most work in all, in the estimator's nominal seconds (``nominal_seconds()``: counted work
             times fixed rates, so the cap is deterministic; estimators without it are capped by ``max_replicas``
             only). The first round always runs.
-        max_seconds: stop once the next round is predicted to end after this much wall time (not deterministic).
+        max_seconds: stop once the next round is predicted to end after this much wall time (not deterministic);
+            a first round projecting more than ``HOPELESS`` × it to meet the tolerance is refused, one projecting
+            more than it is reported to ``warn`` (:func:`projected_seconds`).
         progress: print one line per round.
         sampling_rng, noise_rng: as for :func:`datagen.simulate`.
+        warn: called with one line (the first round, its estimate, the projection, the cap and the reachable
+            tolerance; the caller names its options) when the first round projects beyond ``max_seconds`` but
+            within ``HOPELESS`` × it; the run then goes on to the cap.
     Returns:
         :class:`~datagen.simulation.run.Result` with ``attrs["error"]`` (as every result) and
         ``attrs["tolerance"]``: target, estimate, met, and every round (replicas or edge, estimate, seconds).
         A result that could not meet the target within the caps says so (``met`` False), never silently.
     Raises:
-        SceneError: tolerance outside (0, 1), or an envelope with no energy in the window.
+        SceneError: tolerance outside [:data:`MIN_TOLERANCE`, 1) (before any work), or an envelope with no energy
+            in the window.
+        ToleranceOutOfReach: (a SceneError) the first round's projection exceeds ``HOPELESS`` × ``max_seconds``.
     """
-    if not (isinstance(tolerance, (int, float)) and 0 < tolerance < 1):
-        raise SceneError(f"tolerance must be in (0, 1), got {tolerance!r}")
+    tolerance = check_tolerance(tolerance)
     t0 = time.perf_counter()
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     cfg = config.model_copy(update={"tolerance": tolerance})
     runs = Replicas(scene, cfg, rng)
     if not runs.monte_carlo or runs.entry.replica is None:
-        return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0)
+        return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0, warn)
     cap = max(int(max_replicas), cfg.replicas) if max_replicas is not None else None
     rounds = []
     target = cfg.replicas
@@ -108,7 +214,10 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             break
         if not math.isfinite(estimate) and runs.sums.mean().max() <= 0:
             break
-        wanted = math.ceil(runs.count * min(MAX_GROWTH, (min(estimate / tolerance, MAX_GROWTH)) ** 2 * SAFETY))
+        if max_seconds is not None and len(rounds) == 1:   # the setup before the round is done once
+            _check_projection(seconds, estimate, tolerance, runs.count, max_seconds, f"{runs.count} replicas", warn,
+                              fixed_seconds=max(0.0, time.perf_counter() - t0 - seconds))
+        wanted = math.ceil(min(runs.count * MAX_GROWTH, replicas_needed(runs.count, estimate, tolerance)))
         target = max(runs.count + 1, wanted if cap is None else min(wanted, cap))
         nominal = getattr(runs.transport, "nominal_seconds", None)
         if max_cost is not None and nominal is not None:
@@ -140,7 +249,8 @@ def _check_energy(scene: Scene, tr) -> None:
 
 def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas, tolerance: float,
                          max_seconds: float | None, progress: bool, rng: np.random.Generator,
-                         noise_rng: np.random.Generator | None, t0: float) -> Result:
+                         noise_rng: np.random.Generator | None, t0: float,
+                         warn: Callable[[str], None] | None = None) -> Result:
     """The quadrature: the edge shrinks until the estimate of the latest level meets ``tolerance``."""
     entry = runs.entry
     h = float(config.quadrature_edge)
@@ -173,10 +283,13 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
             print(f"level {level}: quadrature edge {h:.4g} m: estimated error {estimate:.3%} ({seconds:.2f} s)")
         if estimate <= tolerance or level == MAX_ROUNDS + 1:
             break
+        if max_seconds is not None and level == 0:       # the setup before the level is done once
+            _check_projection(seconds, estimate, tolerance, None, max_seconds, f"quadrature edge {h:.4g} m", warn,
+                              fixed_seconds=max(0.0, time.perf_counter() - t0 - seconds))
         stalled = len(rounds) > 1 and estimate > STALLED * rounds[-2]["estimate"]
-        shrink = min(MAX_SHRINK if own and not stalled else 0.5, math.sqrt(tolerance / estimate) * SAFETY_EDGE)
+        shrink = min(MAX_SHRINK if own and not stalled else 0.5, edge_factor(estimate, tolerance))
         # cost ∝ h^-2 (point sensors) to h^-4 (aperture): predict with the steeper law
-        if max_seconds is not None and (time.perf_counter() - t0) + seconds / shrink ** 4 > max_seconds:
+        if max_seconds is not None and time.perf_counter() - t0 + seconds / shrink ** LEVEL_COST_POWER > max_seconds:
             break
         previous = (h, primary)
         h *= shrink
