@@ -37,6 +37,7 @@ import numpy as np
 import yaml
 
 from ..errors import DatasetError
+from ..scene import parse_yaml
 from ..units import SPEED_OF_LIGHT
 from .tal import TalCapture
 
@@ -383,7 +384,7 @@ def read_tal_hdf5(path: str | Path, skip_H: bool = False) -> dict:
                 value = np.squeeze(value)[()]
             if key == "scene_info":
                 text = value.decode() if isinstance(value, bytes) else value
-                out[key] = yaml.safe_load(text)
+                out[key] = parse_yaml(text, f"{path}: scene_info")   # the bounded, duplicate-refusing reader
             elif key == "t_accounts_first_and_last_bounces":
                 out[key] = bool(value)
             elif key in ("delta_t", "t_start"):
