@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import warnings
 import hashlib
 import json
 import time
@@ -127,7 +128,7 @@ class DatasetConfig(_Model):
     """A dataset: see the module docstring. Load from YAML with :func:`load_dataset_config`.
 
     ``tolerance`` (e.g. "1%", default 1 %) is the per-sample target of the envelope's estimated relative L2 error
-    and ``time_cap`` (e.g. "2s") the most nominal compute a sample may spend reaching it
+    and ``cost_cap`` (e.g. "2s"; old key ``time_cap``) the most nominal compute a sample may spend reaching it
     (:func:`datagen.simulation.simulate_to_tolerance`; nominal seconds are counted work at fixed rates, so the
     adaptive choice is deterministic). Each sample stores its estimate as ``envelope_error``; the card lists the
     samples that missed the tolerance.
@@ -148,7 +149,19 @@ class DatasetConfig(_Model):
     labels: dict = Field(default_factory=dict)
     store: StoreSpec = StoreSpec()
     tolerance: float = Field(0.01, gt=0, lt=1)
-    time_cap: float = Field(2.0, gt=0, allow_inf_nan=False)
+    cost_cap: float = Field(2.0, gt=0, allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _renamed(cls, data: Any) -> Any:
+        """Old keys (:data:`RENAMED_KEYS`) take their new names (:func:`load_dataset_config` notes it)."""
+        if isinstance(data, dict) and any(k in data for k in RENAMED_KEYS):
+            data = dict(data)
+            for old, new in RENAMED_KEYS.items():
+                if old in data:
+                    value = data.pop(old)
+                    data.setdefault(new, value)
+        return data
 
     @field_validator("tolerance", mode="before")
     @classmethod
@@ -161,7 +174,7 @@ class DatasetConfig(_Model):
                 raise ValueError(f"must look like 1% or 0.01, got {value!r}") from None
         return value
 
-    @field_validator("time_cap", mode="before")
+    @field_validator("cost_cap", mode="before")
     @classmethod
     def _duration(cls, value: Any) -> Any:
         """'2s', '500ms' → seconds (a bare number is seconds)."""
@@ -214,8 +227,12 @@ class DatasetConfig(_Model):
         """sha256 of the canonical JSON of :meth:`to_json` (a build resumes only into the same config), with the
         mesh asset entries, which loading resolves to absolute paths, reduced to their folder or file names: the
         same config has the same fingerprint in any checkout or copy (the card's ``assets`` records each
-        file's sha256: :func:`datagen.dataset.assets.asset_record`)."""
-        return hashlib.sha256(json.dumps(location_free_json(self.to_json()), sort_keys=True).encode()).hexdigest()
+        file's sha256: :func:`datagen.dataset.assets.asset_record`). Renamed keys are hashed under their old
+        names (:data:`RENAMED_KEYS`), so an unchanged YAML keeps the fingerprint of the cards built before."""
+        data = location_free_json(self.to_json())
+        for old, new in RENAMED_KEYS.items():
+            data[old] = data.pop(new)
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
     def simulation_overrides(self) -> dict:
         """``simulation`` with the resolved ``detector`` merged in (input of resolve_config), and
@@ -231,10 +248,12 @@ class DatasetConfig(_Model):
         """The split's resolved :class:`~datagen.simulation.run.SimulationConfig`: the room distribution's
         ``simulation`` block under :meth:`simulation_overrides`, as ``resolve_config`` merges them for every
         sampled scene (used for the card's per-split detector, which the loader's noise re-draw needs)."""
-        from ..simulation import SimulationConfig
+        from ..simulation import SimulationConfig, merge_overrides
         dist = self.room_distribution(split)
-        merged = {**dict(getattr(dist, "simulation", {}) or {}), **self.simulation_overrides()}
-        return SimulationConfig.model_validate({k: v for k, v in merged.items() if v is not None})
+        merged, _ = merge_overrides(dict(getattr(dist, "simulation", {}) or {}), self.simulation_overrides())
+        with warnings.catch_warnings():       # the room's old keys: noted when a scene of it is resolved
+            warnings.simplefilter("ignore", FutureWarning)
+            return SimulationConfig.model_validate(merged)
 
     def label_spec(self):
         from .labels import LabelSpec
@@ -245,6 +264,32 @@ class DatasetConfig(_Model):
         per process."""
         return _distribution(json.dumps(self.room, sort_keys=True), json.dumps(self.room_overrides, sort_keys=True),
                              json.dumps(self.splits[split].room_overrides, sort_keys=True))
+
+
+RENAMED_KEYS = {"time_cap": "cost_cap"}
+"""Dataset config keys renamed (old → new): ``time_cap`` was nominal seconds here and wall seconds on the command
+line (``simulate --time-cap``); the nominal cap is ``cost_cap``."""
+
+
+def canonical_json(data: dict) -> dict:
+    """A card's ``config`` or :meth:`DatasetConfig.to_json` in one form, to compare configs written before and
+    after issue 24: location-free (:func:`location_free_json`), renamed keys new, the ``simulation`` block as it
+    applies over the room's (:func:`datagen.simulation.merge_overrides`) and the rooms' blocks translated."""
+    from ..simulation import merge_overrides
+    data = location_free_json(data)
+    for old, new in RENAMED_KEYS.items():
+        if old in data:
+            data.setdefault(new, data.pop(old))
+    room = data.get("room") if isinstance(data.get("room"), dict) else {}
+    room_sim = room.get("simulation") if isinstance(room.get("simulation"), dict) else {}
+    if isinstance(data.get("simulation"), dict):
+        data["simulation"] = merge_overrides(room_sim, data["simulation"])[0]
+    blocks = [room, data.get("room_overrides")] + [s.get("room_overrides") for s in (data.get("splits") or {}).values()
+                                                  if isinstance(s, dict)]
+    for block in blocks:
+        if isinstance(block, dict) and isinstance(block.get("simulation"), dict):
+            block["simulation"] = merge_overrides(block["simulation"], {})[0]
+    return json.loads(json.dumps(data, default=_json_default))
 
 
 def location_free_json(data: dict) -> dict:
@@ -314,6 +359,7 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
     else:
         data, base = copy.deepcopy(source), Path(base_dir) if base_dir is not None else None
     prefix = f"{where}: " if where else ""
+    _note_old_keys(data, where or "dataset config")
     try:
         config = DatasetConfig.model_validate(data)
     except ValidationError as exc:
@@ -333,6 +379,21 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
         config = config.model_copy(update=updates)
     _validate_parts(config, prefix)
     return config
+
+
+def _note_old_keys(data: Any, where: str) -> None:
+    """One :class:`~datagen.simulation.LegacyKeysWarning` listing the old keys of a dataset config (its
+    ``simulation`` block's and :data:`RENAMED_KEYS`), if any."""
+    from ..simulation import LegacyKeysWarning, legacy_note, translate_legacy
+    if not isinstance(data, dict):
+        return
+    moves = [f"{old} -> {new}" for old, new in RENAMED_KEYS.items() if old in data]
+    sim = data.get("simulation")
+    if isinstance(sim, dict):
+        kind = sim.get("estimator") if isinstance(sim.get("estimator"), str) else None
+        moves += [m for m in translate_legacy(sim, kind or "lookin")[1] if kind or "dropped" not in m]
+    if moves:
+        warnings.warn(legacy_note(moves, where), LegacyKeysWarning, stacklevel=3)
 
 
 def _room_with_assets(room: dict, base: Path | None, where: str) -> dict:
@@ -367,7 +428,9 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
     overrides = config.simulation_overrides()
     detector = overrides.pop("detector", {})
     try:
-        sim = SimulationConfig.model_validate(overrides)
+        with warnings.catch_warnings():          # noted once by load_dataset_config
+            warnings.simplefilter("ignore", FutureWarning)
+            sim = SimulationConfig.model_validate(overrides)
     except ValidationError as exc:
         raise SceneError(_field_errors(exc, prefix, "simulation")) from None
     try:
@@ -466,7 +529,7 @@ def sample_setup(config: DatasetConfig | str | Path, split: str, index: int):
         (:class:`~datagen.scene.Scene`, :class:`~datagen.simulation.SimulationConfig`): the room the sample was
         drawn from and its resolved simulation settings (the dataset's ``simulation`` block over the room's).
         The sample itself is ``simulate_to_tolerance(scene, sim_config, config.tolerance, max_cost=
-        config.time_cap, sampling_rng=..., noise_rng=...)`` with the sample's streams (:func:`sample_rngs`).
+        config.cost_cap, sampling_rng=..., noise_rng=...)`` with the sample's streams (:func:`sample_rngs`).
     Raises:
         SceneError: an unknown split, an index out of range, an invalid config file.
     """
@@ -481,7 +544,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
 
     A pure function of (config, split, index): every random stream comes from :func:`sample_rngs`, and the
     adaptive sampling (replicas added until the error estimate meets ``config.tolerance``, within
-    ``config.time_cap`` nominal seconds) depends on nothing else.
+    ``config.cost_cap`` nominal seconds) depends on nothing else.
 
     Raises:
         SceneError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
@@ -495,7 +558,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     t0 = time.perf_counter()
     room, sim_config, rngs = _setup(config, split, index)
     t1 = time.perf_counter()
-    result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.time_cap,
+    result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
     t2 = time.perf_counter()
     spec = config.label_spec()
@@ -519,7 +582,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         empty = dataclasses.replace(room.scene, objects=[o for o in room.scene.objects if o.name not in hidden])
         again = sample_rngs(config.seed, split, index)
         arrays["reference"] = np.asarray(simulate_to_tolerance(  # sampled as the sample itself is
-            empty, sim_config, config.tolerance, max_cost=config.time_cap, sampling_rng=again["sampling"],
+            empty, sim_config, config.tolerance, max_cost=config.cost_cap, sampling_rng=again["sampling"],
             noise_rng=again["noise"]).envelope, dtype=config.store.envelope_dtype)
     for name, value in labels.items():
         arrays[name] = np.asarray(value)

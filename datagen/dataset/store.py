@@ -41,7 +41,7 @@ import numpy as np
 
 from ..scene import SceneError
 from .assets import asset_changes
-from .config import DatasetConfig, Sample, location_free_json, split_key
+from .config import DatasetConfig, Sample, canonical_json, location_free_json, split_key
 
 FORMAT = "datagen-dataset"
 FORMAT_VERSION = 1
@@ -373,7 +373,7 @@ def finish_card(root: Path, card: dict, config: DatasetConfig) -> dict:
     card["shards"] = shards
     card["timing"] = {"per_sample_s": _stats(totals),
                       "per_stage_mean_s": {k: float(np.mean(v)) for k, v in stages.items()}}
-    card["accuracy"] = {"tolerance": config.tolerance, "time_cap_s": config.time_cap,
+    card["accuracy"] = {"tolerance": config.tolerance, "time_cap_s": config.cost_cap,
                         "envelope_error": _stats(errors), "n_missed": len(missed),
                         "missed": missed[:MISSED_LISTED]}
     card["status"] = "complete" if done == len(tasks) else "incomplete"
@@ -411,6 +411,8 @@ def check_same_config(root: Path, card: dict, config: DatasetConfig) -> None:
     """
     if card.get("config_sha256") == config.fingerprint():
         return
+    if canonical_json(card.get("config") or {}) == canonical_json(config.to_json()):
+        return          # the same config, one of them written with the keys before issue 24 (e.g. time_cap)
     stored, current = location_free_json(card.get("config") or {}), location_free_json(config.to_json())
     diff = _config_diff(stored, current) or ["config_sha256"]
     first = diff[0]

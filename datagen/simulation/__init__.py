@@ -15,13 +15,15 @@
   the refusal (:class:`ResourceError`) when it exceeds the memory available.
 """
 from .budget import ResourceError, available_memory, check_memory, check_simulation_memory, simulation_memory
-from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, parse_grid, resolve_config, stream_rng
+from .config import (STREAM_NOISE, STREAM_SAMPLING, LegacyKeysWarning, SimulationConfig, legacy_note, merge_overrides,
+                     parse_grid, resolve_config, stream_rng, translate_legacy)
 from .replicas import PEAK_FLOOR, ReplicaSums, relative_standard_error, replica_rng, replica_root
 from .tolerance import TIME_CAP_S, simulate_to_tolerance
 from .run import (Replicas, Result, Transported, library_versions, make_result, prepare_transport, run_transport,
                   simulate)
 
-__all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "SimulationConfig", "parse_grid", "resolve_config", "stream_rng",
+__all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "LegacyKeysWarning", "SimulationConfig", "legacy_note", "merge_overrides",
+           "parse_grid", "resolve_config", "stream_rng", "translate_legacy",
            "PEAK_FLOOR", "ReplicaSums", "relative_standard_error", "replica_rng", "replica_root", "Replicas",
            "Result", "Transported", "library_versions", "make_result", "prepare_transport", "run_transport",
            "simulate", "simulate_to_tolerance", "TIME_CAP_S",
