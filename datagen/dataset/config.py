@@ -36,6 +36,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..scene import SceneError, format_validation_error, read_yaml
+from .legacy import RENAMED_KEYS, note_old_keys
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
 """Stream ids: the last entry of the spawn_key of each random stream of a sample (fixed forever)."""
@@ -155,12 +156,8 @@ class DatasetConfig(_Model):
     @classmethod
     def _renamed(cls, data: Any) -> Any:
         """Old keys (:data:`RENAMED_KEYS`) take their new names (:func:`load_dataset_config` notes it)."""
-        if isinstance(data, dict) and any(k in data for k in RENAMED_KEYS):
-            data = dict(data)
-            for old, new in RENAMED_KEYS.items():
-                if old in data:
-                    value = data.pop(old)
-                    data.setdefault(new, value)
+        if isinstance(data, dict) and any(k in data for k in RENAMED_KEYS):     # the new key wins when both are
+            data = {RENAMED_KEYS.get(k, k): v for k, v in data.items() if RENAMED_KEYS.get(k) not in data}
         return data
 
     @field_validator("tolerance", mode="before")
@@ -266,32 +263,6 @@ class DatasetConfig(_Model):
                              json.dumps(self.splits[split].room_overrides, sort_keys=True))
 
 
-RENAMED_KEYS = {"time_cap": "cost_cap"}
-"""Dataset config keys renamed (old → new): ``time_cap`` was nominal seconds here and wall seconds on the command
-line (``simulate --time-cap``); the nominal cap is ``cost_cap``."""
-
-
-def canonical_json(data: dict) -> dict:
-    """A card's ``config`` or :meth:`DatasetConfig.to_json` in one form, to compare configs written before and
-    after issue 24: location-free (:func:`location_free_json`), renamed keys new, the ``simulation`` block as it
-    applies over the room's (:func:`datagen.simulation.merge_overrides`) and the rooms' blocks translated."""
-    from ..simulation import merge_overrides
-    data = location_free_json(data)
-    for old, new in RENAMED_KEYS.items():
-        if old in data:
-            data.setdefault(new, data.pop(old))
-    room = data.get("room") if isinstance(data.get("room"), dict) else {}
-    room_sim = room.get("simulation") if isinstance(room.get("simulation"), dict) else {}
-    if isinstance(data.get("simulation"), dict):
-        data["simulation"] = merge_overrides(room_sim, data["simulation"])[0]
-    blocks = [room, data.get("room_overrides")] + [s.get("room_overrides") for s in (data.get("splits") or {}).values()
-                                                  if isinstance(s, dict)]
-    for block in blocks:
-        if isinstance(block, dict) and isinstance(block.get("simulation"), dict):
-            block["simulation"] = merge_overrides(block["simulation"], {})[0]
-    return json.loads(json.dumps(data, default=_json_default))
-
-
 def location_free_json(data: dict) -> dict:
     """:meth:`DatasetConfig.to_json` output (or a card's ``config``) with the mesh asset entries reduced to their
     folder or file names, as :meth:`DatasetConfig.fingerprint` hashes it (a copy; the input is unchanged)."""
@@ -359,7 +330,7 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
     else:
         data, base = copy.deepcopy(source), Path(base_dir) if base_dir is not None else None
     prefix = f"{where}: " if where else ""
-    _note_old_keys(data, where or "dataset config")
+    note_old_keys(data, where or "dataset config")
     try:
         config = DatasetConfig.model_validate(data)
     except ValidationError as exc:
@@ -379,21 +350,6 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
         config = config.model_copy(update=updates)
     _validate_parts(config, prefix)
     return config
-
-
-def _note_old_keys(data: Any, where: str) -> None:
-    """One :class:`~datagen.simulation.LegacyKeysWarning` listing the old keys of a dataset config (its
-    ``simulation`` block's and :data:`RENAMED_KEYS`), if any."""
-    from ..simulation import LegacyKeysWarning, legacy_note, translate_legacy
-    if not isinstance(data, dict):
-        return
-    moves = [f"{old} -> {new}" for old, new in RENAMED_KEYS.items() if old in data]
-    sim = data.get("simulation")
-    if isinstance(sim, dict):
-        kind = sim.get("estimator") if isinstance(sim.get("estimator"), str) else None
-        moves += [m for m in translate_legacy(sim, kind or "lookin")[1] if kind or "dropped" not in m]
-    if moves:
-        warnings.warn(legacy_note(moves, where), LegacyKeysWarning, stacklevel=3)
 
 
 def _room_with_assets(room: dict, base: Path | None, where: str) -> dict:

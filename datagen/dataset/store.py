@@ -41,7 +41,8 @@ import numpy as np
 
 from ..scene import SceneError
 from .assets import asset_changes
-from .config import DatasetConfig, Sample, canonical_json, location_free_json, split_key
+from .config import DatasetConfig, Sample, location_free_json, split_key
+from .legacy import canonical_json
 
 FORMAT = "datagen-dataset"
 FORMAT_VERSION = 1
@@ -411,9 +412,9 @@ def check_same_config(root: Path, card: dict, config: DatasetConfig) -> None:
     """
     if card.get("config_sha256") == config.fingerprint():
         return
-    if canonical_json(card.get("config") or {}) == canonical_json(config.to_json()):
-        return          # the same config, one of them written with the keys before issue 24 (e.g. time_cap)
     stored, current = location_free_json(card.get("config") or {}), location_free_json(config.to_json())
+    if canonical_json(stored) == canonical_json(current):
+        return          # the same config, one of them written with the keys before issue 24 (e.g. time_cap)
     diff = _config_diff(stored, current) or ["config_sha256"]
     first = diff[0]
     more = f", … ({len(diff)} fields)" if len(diff) > 5 else ""
