@@ -85,6 +85,9 @@ def translate_legacy(data: dict, default_kind: str = "lookin") -> tuple[dict, li
             field = table[key].get(kind)
             if field is None:
                 moves.append(f"{key} dropped (not used by the {kind} estimator)")
+            elif field in block and block[field] != value:
+                raise ValueError(f"{key} {value!r} and estimator.{field} {block[field]!r} are both given: keep "
+                                 f"estimator.{field}")
             else:
                 block.setdefault(field, value)
                 moves.append(f"{key} -> estimator.{field}")
