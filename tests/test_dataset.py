@@ -164,7 +164,7 @@ def test_detector_preset_path_loads_with_the_dataset_time_axis():
     ({"shard_size": 0}, "shard_size"),
     ({"tolerance": "150%"}, "tolerance"),
     ({"tolerance": "one percent%"}, "tolerance: .*must look like 1% or 0.01"),
-    ({"time_cap": "-2s"}, "cost_cap"),
+    ({"time_cap": "-2s"}, "time_cap and cost_cap are both given"),
     ({"cost_cap": "-2s"}, "cost_cap"),
     ({"simulation": {"estimator": "quadrature", "quadrature_grading": -0.5}}, "simulation.estimator.grading"),
     ({"simulation": {"estimator": {"kind": "quadrature", "grading": -0.5}}}, "simulation.estimator.grading"),

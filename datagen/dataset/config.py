@@ -156,9 +156,10 @@ class DatasetConfig(_Model):
     @classmethod
     def _renamed(cls, data: Any) -> Any:
         """Old keys (:data:`RENAMED_KEYS`) take their new names (:func:`load_dataset_config` notes it)."""
-        if isinstance(data, dict) and any(k in data for k in RENAMED_KEYS):     # the new key wins when both are
-            data = {RENAMED_KEYS.get(k, k): v for k, v in data.items() if RENAMED_KEYS.get(k) not in data}
-        return data
+        both = [k for k, v in RENAMED_KEYS.items() if isinstance(data, dict) and k in data and v in data]
+        if both:
+            raise ValueError(f"{both[0]} and {RENAMED_KEYS[both[0]]} are both given: keep {RENAMED_KEYS[both[0]]}")
+        return {RENAMED_KEYS.get(k, k): v for k, v in data.items()} if isinstance(data, dict) else data
 
     @field_validator("tolerance", mode="before")
     @classmethod

@@ -240,7 +240,10 @@ def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationCon
         SceneError: an invalid value, naming the scene file, the field and the value.
     """
     where = f"{scene.source} (simulation)" if scene.source else "simulation"
-    data, moves = merge_overrides(scene.defaults, overrides or {})
+    try:
+        data, moves = merge_overrides(scene.defaults, overrides or {})
+    except ValueError as exc:
+        raise SceneError(f"{where}: {exc}") from None
     if moves:
         warnings.warn(legacy_note(moves, where), LegacyKeysWarning, stacklevel=2)
     try:
