@@ -73,9 +73,13 @@ def friendly_errors(func):
 def _note_printer(shown):
     """A ``warnings.showwarning`` printing a :class:`~datagen.simulation.LegacyKeysWarning` (old configuration
     keys translated) as one ``note: …`` line on stderr, and anything else as ``shown`` does."""
+    seen: set[str] = set()
+
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, LegacyKeysWarning):
-            click.echo(f"note: {error_line(message)}", err=True)
+            if str(message) not in seen:            # once per command, wherever it was raised
+                seen.add(str(message))
+                click.echo(f"note: {error_line(message)}", err=True)
         else:
             shown(message, category, filename, lineno, file, line)
     return show
