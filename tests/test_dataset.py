@@ -168,7 +168,8 @@ def test_detector_preset_path_loads_with_the_dataset_time_axis():
     ({"cost_cap": "-2s"}, "cost_cap"),
     ({"simulation": {"estimator": "quadrature", "quadrature_grading": -0.5}}, "simulation.estimator.grading"),
     ({"simulation": {"estimator": {"kind": "quadrature", "grading": -0.5}}}, "simulation.estimator.grading"),
-    ({"simulation": {"estimator": {"kind": "quadratur"}}}, "unknown estimator kind 'quadratur'; known: lookin, area, quadrature"),
+    ({"simulation": {"estimator": {"kind": "quadratur"}}},
+     "unknown estimator kind 'quadratur'; known: lookin, area, quadrature"),
     ({"store": {"components": True}, "simulation": {"split_components": False}},
      "store.components: true needs the per-object components"),
 ])

@@ -181,10 +181,10 @@ class EstimatorEntry:
             point").
         order: convergence order of ``refine`` (2: the error falls as h²).
         memory: ``(scene, config, lasers, sensors) → [(field, value, bytes), …]`` (the options are
-            ``config.estimator``; the shared fields such as ``workers`` and ``secondary`` are the config's), the estimator's own arrays at
-            their peak for a capture of ``lasers`` laser points and ``sensors`` sensor points, estimated without
-            allocating (:func:`datagen.simulation.simulation_memory` adds the shared ones); None: none worth
-            counting.
+            ``config.estimator``; shared fields such as ``workers`` and ``secondary`` the config's), the
+            estimator's own arrays at their peak for a capture of ``lasers`` laser points and ``sensors`` sensor
+            points, estimated without allocating (:func:`datagen.simulation.simulation_memory` adds the shared
+            ones); None: none worth counting.
         casts_lookins: the estimator samples the scene from the laser spot with lookins (pictures can show them).
     """
 
@@ -196,7 +196,7 @@ class EstimatorEntry:
     options: type = EstimatorOptions
     replica: Callable[[Any, int], dict] | None = None
     refine: Callable[[Any], dict] | None = None
-    describe: Callable[[dict], str] | None = None
+    describe: Callable[[Any], str] | None = None
     order: int = 2
     memory: Callable[..., list[tuple[str, str, float]]] | None = None
     casts_lookins: bool = False
@@ -205,8 +205,9 @@ class EstimatorEntry:
 _REGISTRY: dict[str, EstimatorEntry] = {}
 
 
-def register(name: str, settings_class: type, summary: str, *, options: type, replica: Callable[[Any, int], dict] | None = None,
-             refine: Callable[[Any], dict] | None = None, describe: Callable[[dict], str] | None = None,
+def register(name: str, settings_class: type, summary: str, *, options: type,
+             replica: Callable[[Any, int], dict] | None = None,
+             refine: Callable[[Any], dict] | None = None, describe: Callable[[Any], str] | None = None,
              order: int = 2, memory: Callable[..., list[tuple[str, str, float]]] | None = None,
              casts_lookins: bool = False) -> Callable:
     """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
