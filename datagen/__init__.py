@@ -14,11 +14,13 @@ Public entry points::
     reference = datagen.converged_reference(scene, config, rel_tol=3e-3)
     noise = datagen.SPADNoise(ds.detector, exposure=("1ms", "10ms"))          # batched SPAD noise in torch
 """
-from .scene import Scene, SceneError, load_scene
+from .errors import ConfigError, DatagenError, DatasetError, ResourceError, SceneError
+from .scene import Scene, load_scene
 from .simulation import Result, SimulationConfig, resolve_config, simulate, simulate_to_tolerance
 
-__all__ = ["Scene", "SceneError", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
-           "simulate_to_tolerance", "NLOSDataset", "SPADNoise", "sample_setup", "converged_reference"]
+__all__ = ["Scene", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
+           "simulate_to_tolerance", "NLOSDataset", "SPADNoise", "sample_setup", "converged_reference",
+           "DatagenError", "SceneError", "ConfigError", "DatasetError", "ResourceError"]
 
 
 def __getattr__(name: str):

@@ -11,6 +11,7 @@ from conftest import patch_scene
 from test_area import two_patch_closed_form, two_patch_scene
 from test_reference import AXIS, IRF, patch_envelope, rel_l2
 
+from datagen.errors import ConfigError
 from datagen.analysis import (
     ESTIMATORS,
     LADDERS,
@@ -25,7 +26,6 @@ from datagen.cli.main import main
 from datagen.timing import EnvelopeAccumulator
 from datagen.scene import RayCaster
 from datagen.analysis import converged_reference, peak_time
-from datagen.scene import SceneError
 from datagen.transport import Transport, TransportSettings
 
 EDGES = np.arange(201) * 10e-12
@@ -63,13 +63,13 @@ def test_peak_time_is_sub_bin():
 
 def test_error_measure_rejects_bad_input():
     ref = bump(1e-9)
-    with pytest.raises(SceneError, match="shape"):
+    with pytest.raises(ConfigError, match="shape"):
         envelope_error(ref[:-1], ref, EDGES)
-    with pytest.raises(SceneError, match="zero everywhere"):
+    with pytest.raises(ConfigError, match="zero everywhere"):
         envelope_error(ref, np.zeros_like(ref), EDGES)
-    with pytest.raises(SceneError, match="time_edges"):
+    with pytest.raises(ConfigError, match="time_edges"):
         envelope_error(ref, ref)
-    with pytest.raises(SceneError, match="finite"):
+    with pytest.raises(ConfigError, match="finite"):
         envelope_error(np.full_like(ref, np.nan), ref, EDGES)
 
 
@@ -146,7 +146,7 @@ def test_run_accuracy_on_a_small_scene():
         settings = [r.setting for r in rows if r.estimator == name]
         assert settings == [LADDERS[name].describe(s) for s in LADDERS[name].ladder[:len(settings)]]
         assert len(settings) < len(LADDERS[name].ladder)
-    with pytest.raises(SceneError, match="unknown estimator"):
+    with pytest.raises(ConfigError, match="unknown estimator"):
         run_accuracy(scene, ref, cfg, budget=1, estimators=("magic",))
 
 

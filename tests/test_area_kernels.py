@@ -167,8 +167,8 @@ def test_partner_and_pair_kernels_equal_the_numpy_formulas(demo, mu):
     weight, phys, time = rng.random(nc), rng.uniform(1, 3, nc), rng.uniform(0, 1e-8, nc)
     channel = rng.integers(0, 5, nc)
     legs = (mu, 0.7, 0.0)
-    t, wt, comp = secondary_pairs(inv, side, p, irr, on_pos, wpx, r_lp, rp, normal, direction, weight, phys, time,
-                                  channel, xs.object_id[inv], mat, legs, 9)
+    t, wt, comp = secondary_pairs(inv, side, p, (irr, on_pos, wpx, r_lp, rp),
+                                  (normal, direction, weight, phys, time, channel), xs.object_id[inv], mat, legs, 9)
     part = (inv[:, None] * p + np.arange(p)).ravel()
     ci = np.repeat(np.arange(nc), p)
     use = (irr[part] > 0) & (on_pos[part] == side[ci])

@@ -264,7 +264,7 @@ def test_sample_with_another_shape_stops_its_shard_naming_it(tmp_path, monkeypat
         return sample
 
     monkeypatch.setattr(build_module, "make_sample", wider)
-    with pytest.raises(BuildError, match=r"train/000000: SceneError: sample \(train, 2\): envelope has shape "
+    with pytest.raises(BuildError, match=r"train/000000: DatasetError: sample \(train, 2\): envelope has shape "
                                          r"\(300,\), the dataset's is \(256,\)"):
         build_dataset(tiny_config(shard_size=4, train=4, val=1, test_phong=1), tmp_path / "ds", workers=0,
                       retries=0, progress=False)

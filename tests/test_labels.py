@@ -7,11 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from datagen.errors import ConfigError
 from datagen.scene import Material
 from datagen.dataset import LabelSpec, camera_directions, label_shapes, occupancy_grid, scene_labels
 from datagen.dataset import SampledRoom, load_room_distribution, sample_room
 from datagen.dataset.sampler import STREAMS
-from datagen.scene import FieldOfView, Laser, Scene, SceneError, Sensor, box, l_room, quad
+from datagen.scene import FieldOfView, Laser, Scene, Sensor, box, l_room, quad
 
 DEFAULT = Path(__file__).resolve().parents[1] / "configs" / "rooms" / "default.yaml"
 
@@ -133,7 +134,7 @@ def test_padded_object_arrays():
     np.testing.assert_allclose(labels["object_center"][:3], [o["center"] for o in objects], rtol=1e-6)
     np.testing.assert_allclose(labels["object_size"][:3], [o["size"] for o in objects], rtol=1e-6)
     assert not labels["object_center"][3:].any() and not labels["object_size"][3:].any()
-    with pytest.raises(SceneError, match=r"labels\.max_objects: the room has 3 hidden objects, more than "
+    with pytest.raises(ConfigError, match=r"labels\.max_objects: the room has 3 hidden objects, more than "
                                          r"max_objects = 2"):
         scene_labels(box_room(objects), LabelSpec(max_objects=2))
 

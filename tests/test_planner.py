@@ -478,5 +478,5 @@ def test_coarse_kernel_sums_equal_a_numpy_sum_with_the_material_table():
     np.testing.assert_array_equal(cand[1], b)
     assert secondary > 0
     table = outgoing_sums(obj, n_geo, s_xy, w_xy, geo, mat)
-    assert secondary_energy(*cand, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat, table) == \
+    assert secondary_energy(cand, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat, table) == \
         pytest.approx(secondary, rel=1e-12)

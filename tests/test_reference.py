@@ -7,10 +7,11 @@ import pytest
 from conftest import patch_scene
 from test_transport import patch_closed_form
 
+from datagen.errors import ConfigError
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
 from datagen.scene import RayCaster
 from datagen.analysis import converged_reference, peak_time
-from datagen.scene import FieldOfView, Scene, SceneError, Sensor
+from datagen.scene import FieldOfView, Scene, Sensor
 from datagen.simulation import SimulationConfig
 from datagen.units import SPEED_OF_LIGHT
 
@@ -140,7 +141,7 @@ def test_sensor_array_reference_has_pixel_shape():
 
 
 def test_bad_tolerances_are_clear_errors():
-    with pytest.raises(SceneError, match="rel_tol"):
+    with pytest.raises(ConfigError, match="rel_tol"):
         converged_reference(patch_scene(), config(), rel_tol=0.0)
-    with pytest.raises(SceneError, match="min_replicas"):
+    with pytest.raises(ConfigError, match="min_replicas"):
         converged_reference(patch_scene(), config(), min_replicas=1)

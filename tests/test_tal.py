@@ -22,6 +22,7 @@ import yaml
 from click.testing import CliRunner
 
 from datagen.cli.main import main
+from datagen.errors import DatasetError
 from datagen.scene import SceneError
 from datagen.simulation import resolve_config, simulate
 from datagen.io import write_result
@@ -435,7 +436,7 @@ def test_export_of_a_default_result_moves_t_start_by_the_laser_leg(tmp_path):
     scene, tal = scene_from_tal_yaml(hidden_square(tmp_path, "confocal"))
     scene.defaults["count_sensor_leg"] = True
     result = simulate(scene, resolve_config(scene, {"lookins": "4x4"}))
-    with pytest.raises(SceneError, match="count_laser_leg == count_sensor_leg"):
+    with pytest.raises(DatasetError, match="count_laser_leg == count_sensor_leg"):
         tal_arrays(result)
 
 

@@ -33,7 +33,8 @@ from typing import Any, get_args
 
 import numpy as np
 
-from ..scene import RayCaster, Scene, SceneError
+from ..errors import ConfigError
+from ..scene import RayCaster, Scene
 from ..timing import EnvelopeAccumulator
 from ..transport import SecondaryMode
 from ..transport import estimator as transport_estimator
@@ -87,21 +88,21 @@ def envelope_error(estimate: Any, reference: Any, time_edges: np.ndarray | None 
         {"rel_l2": relative L2 over bins above 1 % of the reference peak, "total": relative error of the sum,
         "peak_time": absolute peak-time error in seconds}.
     Raises:
-        SceneError: shapes differ, the reference is zero everywhere or not finite, or no time edges are known.
+        ConfigError: shapes differ, the reference is zero everywhere or not finite, or no time edges are known.
     """
     e, e_edges = _envelope_and_edges(estimate)
     r, r_edges = _envelope_and_edges(reference)
     edges = time_edges if time_edges is not None else (r_edges if r_edges is not None else e_edges)
     if e.shape != r.shape:
-        raise SceneError(f"envelope_error: estimate shape {e.shape} differs from reference shape {r.shape}")
+        raise ConfigError(f"envelope_error: estimate shape {e.shape} differs from reference shape {r.shape}")
     if not np.isfinite(r).all() or not np.isfinite(e).all():
-        raise SceneError("envelope_error: estimate and reference must be finite")
+        raise ConfigError("envelope_error: estimate and reference must be finite")
     if edges is None or len(edges) != r.shape[-1] + 1:
-        raise SceneError(f"envelope_error: need time_edges of length n_bins+1 = {r.shape[-1] + 1}, got "
+        raise ConfigError(f"envelope_error: need time_edges of length n_bins+1 = {r.shape[-1] + 1}, got "
                          f"{None if edges is None else len(edges)}")
     peak = r.max()
     if peak <= 0:
-        raise SceneError("envelope_error: the reference envelope is zero everywhere (nothing reaches the sensor)")
+        raise ConfigError("envelope_error: the reference envelope is zero everywhere (nothing reaches the sensor)")
     edges = np.asarray(edges, dtype=np.float64)
     return {"rel_l2": relative_l2(e, r),
             "total": float(abs(e.sum() - r.sum()) / r.sum()),
@@ -243,7 +244,7 @@ def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float 
     Returns:
         Rows in run order, Pareto front marked.
     Raises:
-        SceneError: unknown estimator name or budget ≤ 0.
+        ConfigError: unknown estimator name or budget ≤ 0.
     """
     from ..simulation import resolve_config
 
@@ -251,9 +252,9 @@ def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float 
     names = tuple(estimators or ESTIMATORS)
     unknown = [n for n in names if n not in ESTIMATORS]
     if unknown:
-        raise SceneError(f"unknown estimator(s) {unknown}; known: {list(ESTIMATORS)}")
+        raise ConfigError(f"unknown estimator(s) {unknown}; known: {list(ESTIMATORS)}")
     if not budget > 0:
-        raise SceneError(f"budget must be > 0 seconds, got {budget!r}")
+        raise ConfigError(f"budget must be > 0 seconds, got {budget!r}")
     end = time.perf_counter() + budget
     caster = caster or RayCaster(scene)
     rows: list[AccuracyRow] = []

@@ -35,7 +35,8 @@ from ..simulation import PEAK_FLOOR, relative_standard_error
 from ..transport import AreaSampler, AreaSettings
 from ..timing import EnvelopeAccumulator
 from ..scene import RayCaster
-from ..scene import Scene, SceneError
+from ..errors import ConfigError
+from ..scene import Scene
 
 __all__ = [
     "PEAK_FLOOR",
@@ -196,14 +197,14 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
     Returns:
         :class:`Reference`.
     Raises:
-        SceneError: invalid scene, config or tolerances (rel_tol ≤ 0, min_replicas < 2).
+        ConfigError: invalid scene, config or tolerances (rel_tol ≤ 0, min_replicas < 2).
     """
     from ..simulation import resolve_config
 
     if not (np.isfinite(rel_tol) and rel_tol > 0):
-        raise SceneError(f"converged_reference: rel_tol must be > 0, got {rel_tol!r}")
+        raise ConfigError(f"converged_reference: rel_tol must be > 0, got {rel_tol!r}")
     if min_replicas < 2 or max_replicas < min_replicas:
-        raise SceneError(f"converged_reference: need 2 <= min_replicas <= max_replicas, got {min_replicas!r}, "
+        raise ConfigError(f"converged_reference: need 2 <= min_replicas <= max_replicas, got {min_replicas!r}, "
                          f"{max_replicas!r}")
     config = config or resolve_config(scene)
     settings = AreaSettings.from_transport(config.transport_settings(), samples=samples,

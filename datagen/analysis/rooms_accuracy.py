@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import Scene, SceneError
+from ..errors import ConfigError
+from ..scene import Scene
 from .accuracy import LADDERS, AccuracyRow, loglog_axes, run_accuracy, save_loglog
 from .reference import REFERENCE_SAMPLES, Reference, converged_reference
 
@@ -68,14 +69,14 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
     Returns:
         (rows of every room, in run order; the references used).
     Raises:
-        SceneError: no rooms, budget ≤ 0, reference_share outside (0, 1], unknown estimators.
+        ConfigError: no rooms, budget ≤ 0, reference_share outside (0, 1], unknown estimators.
     """
     if not rooms:
-        raise SceneError("no rooms to benchmark (give --samples >= 1)")
+        raise ConfigError("no rooms to benchmark (give --samples >= 1)")
     if not budget > 0:
-        raise SceneError(f"budget must be > 0 seconds, got {budget!r}")
+        raise ConfigError(f"budget must be > 0 seconds, got {budget!r}")
     if not 0 < reference_share <= 1:
-        raise SceneError(f"reference_share must be in (0, 1], got {reference_share!r}")
+        raise ConfigError(f"reference_share must be in (0, 1], got {reference_share!r}")
     end = time.perf_counter() + budget
     rows: list[RoomRow] = []
     references: list[Reference] = []

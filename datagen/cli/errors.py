@@ -4,7 +4,7 @@ The command modules (:mod:`datagen.cli.main`, :mod:`datagen.cli.tal`, :mod:`data
 :mod:`datagen.cli.dataset`) decorate their commands with :func:`friendly_errors`; this module imports no other
 command module, so the command modules never import each other.
 
-What becomes one line (never a traceback): invalid scenes and configs (:class:`~datagen.scene.SceneError`, any
+What becomes one line (never a traceback): invalid scenes, configs and data (:class:`~datagen.errors.DatagenError`, any
 ``ValueError`` or ``TypeError`` the library raises for bad input), resource refusals, missing or clobbered
 files, and every operating-system error of reading or writing (``OSError``: disk full, permission denied, a
 path under a file, …), plus ``MemoryError`` as a last resort. The line is cut to :data:`MAX_LINE` characters;
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import click
 
-from ..scene import SceneError
+from ..errors import DatagenError
 from ..simulation.config import LegacyKeysWarning
 
 MAX_LINE = 2000
@@ -29,7 +29,7 @@ MAX_LINE = 2000
 DEBUG_ENV = "DATAGEN_DEBUG"
 """Set (to anything) to get the traceback instead of the one-line error (for developers)."""
 
-INPUT_ERRORS = (SceneError, ValueError, TypeError, OSError)
+INPUT_ERRORS = (DatagenError, ValueError, TypeError, OSError)
 """Exceptions a command reports as ``error: …`` with exit code 2 (OSError covers FileNotFoundError,
 FileExistsError, PermissionError, NotADirectoryError and a full disk)."""
 

@@ -35,7 +35,7 @@ import numpy as np
 from .assets import asset_record, config_asset_entries
 from .config import (STREAMS, DatasetConfig, Sample, component_slots, config_from_json, load_dataset_config,
                      make_sample)
-from ..scene import SceneError
+from ..errors import DatasetError
 from .dask_engine import FATAL_ERRNOS, connect_dask, fatal_error, run_dask
 from .integrity import remove_shard_files, repair_store
 from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, BuildLock, ShardTask, check_dataset_dir,
@@ -96,20 +96,20 @@ def _config_of(config_json: dict) -> DatasetConfig:
 
 def _check_and_stack(samples: list[Sample], arrays: dict, task: ShardTask) -> dict[str, np.ndarray]:
     """Stack each field over the shard's samples after checking field set, shapes, dtypes and component names
-    against the dataset's arrays (SceneError naming the sample and the field)."""
+    against the dataset's arrays (DatasetError naming the sample and the field)."""
     for k, s in enumerate(samples):
         where = f"sample ({task.split}, {task.start + k})"
         if set(s.arrays) != set(arrays):
-            raise SceneError(f"{where} has fields {sorted(s.arrays)}, the dataset stores {sorted(arrays)}")
+            raise DatasetError(f"{where} has fields {sorted(s.arrays)}, the dataset stores {sorted(arrays)}")
         for name, arr in arrays.items():
             value = s.arrays[name]
             if value.shape != arr.shape[1:]:
-                raise SceneError(f"{where}: {name} has shape {value.shape}, the dataset's is {arr.shape[1:]} "
+                raise DatasetError(f"{where}: {name} has shape {value.shape}, the dataset's is {arr.shape[1:]} "
                                  "(every sample must have the same shape)")
             if name != "params" and value.dtype != arr.dtype:
-                raise SceneError(f"{where}: {name} has dtype {value.dtype}, the dataset's is {arr.dtype}")
+                raise DatasetError(f"{where}: {name} has dtype {value.dtype}, the dataset's is {arr.dtype}")
         if "components" in arrays and s.component_names != list(arrays["components"].attrs["component_names"]):
-            raise SceneError(f"{where}: components {s.component_names} differ from the dataset's "
+            raise DatasetError(f"{where}: components {s.component_names} differ from the dataset's "
                              f"{list(arrays['components'].attrs['component_names'])}")
     return {name: np.stack([s.arrays[name] for s in samples]) for name in arrays}
 
@@ -122,7 +122,7 @@ def write_shard(root: str, config_json: dict, task: ShardTask) -> dict:
     Returns:
         the marker dict (also written to ``_done/<split>/<shard>.json``).
     Raises:
-        SceneError: a sample failed, or its field set / shapes / dtypes differ from the dataset's (the
+        DatasetError: a sample failed, or its field set / shapes / dtypes differ from the dataset's (the
             message names the sample and the field).
         StoreWriteError: the disk is full, over quota or read-only (names the shard and the dataset).
     """
@@ -402,7 +402,7 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
     Returns:
         :class:`BuildReport`.
     Raises:
-        ValueError: an invalid option (naming it), or every split has count 0; SceneError: invalid config or
+        ValueError: an invalid option (naming it), or every split has count 0; DatasetError: invalid config or
             probe sample, a mesh asset over :data:`~datagen.dataset.assets.MAX_ASSET_TRIANGLES` triangles, or
             ``--resume`` with a different config or other mesh assets than the stored ones; ResourceError: the
             shards need more memory than available; SchedulerError: the scheduler cannot be reached.

@@ -11,6 +11,7 @@ import os
 import traceback
 from typing import Callable, Iterator
 
+from ..errors import ConfigError
 from .store import ShardTask
 
 SCHEDULER_TIMEOUT_S = 10
@@ -21,7 +22,7 @@ FATAL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS})
 keeping its finished shards for ``--resume``."""
 
 
-class SchedulerError(ValueError):
+class SchedulerError(ConfigError):
     """The Dask scheduler cannot be reached (or its address is not one); nothing was written."""
 
 

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import RayCaster, SceneError, resolve_capture
+from ..errors import DatasetError
+from ..scene import RayCaster, resolve_capture
 
 
 def sample_result(path: str | Path, split: str, index: int, field: str = "envelope"):
@@ -27,7 +28,7 @@ def sample_result(path: str | Path, split: str, index: int, field: str = "envelo
         attrs with ``capture`` (type, convention, emitter_position, sensor_position), ``config``
         (count_laser_leg, count_sensor_leg) and ``dataset`` (path, split, index, field).
     Raises:
-        FileNotFoundError: no dataset at ``path``; SceneError: unknown split, index out of range, a field that
+        FileNotFoundError: no dataset at ``path``; DatasetError: unknown split, index out of range, a field that
         is not stored, or a regenerated room whose grids do not match the stored array (a changed code version);
         ValueError: what the loader refuses (:class:`datagen.dataset.NLOSDataset`: an incomplete build, a missing
         or damaged shard, named).
@@ -41,12 +42,12 @@ def sample_result(path: str | Path, split: str, index: int, field: str = "envelo
 
     card = read_card(path)
     if split not in card.get("splits", {}):
-        raise SceneError(f"{path}: split {split!r} not in the dataset (splits: {sorted(card.get('splits', {}))})")
+        raise DatasetError(f"{path}: split {split!r} not in the dataset (splits: {sorted(card.get('splits', {}))})")
     info = card["splits"][split]
     if not 0 <= index < info["count"]:
-        raise SceneError(f"{path}: index {index} is outside split {split!r} (count {info['count']})")
+        raise DatasetError(f"{path}: index {index} is outside split {split!r} (count {info['count']})")
     if field not in ("envelope", "counts") or field not in info["fields"]:
-        raise SceneError(f"{path}: field {field!r} is not stored (stored: {sorted(info['fields'])}); "
+        raise DatasetError(f"{path}: field {field!r} is not stored (stored: {sorted(info['fields'])}); "
                          "export envelope or counts")
     stored = [field] + (["counts"] if field != "counts" and "counts" in info["fields"] else [])
     reader = NLOSDataset(path, split, fields=stored)   # the loader's checks: complete build, shard index, chunks
@@ -59,7 +60,7 @@ def sample_result(path: str | Path, split: str, index: int, field: str = "envelo
     room = sample_room(config.room_distribution(split), {k: rngs[k] for k in ("geometry", "materials", "sensor")})
     capture = resolve_capture(room.scene, RayCaster(room.scene))
     if capture.channel_shape() != data.shape[:-1]:
-        raise SceneError(f"{path}: sample ({split}, {index}): the regenerated capture has channels "
+        raise DatasetError(f"{path}: sample ({split}, {index}): the regenerated capture has channels "
                          f"{capture.channel_shape()}, the stored {field} {data.shape[:-1]} (built by another code "
                          "version?)")
     sim = config.simulation_config(split)

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import DatasetError
 from .assets import asset_changes, config_asset_entries, current_asset_record
 from .config import DatasetConfig, component_slots, config_from_json
 from .labels import label_shapes
@@ -43,12 +44,12 @@ INDEX_ENTRY_BYTES = 16
 """Bytes per inner chunk in a shard index: (offset, nbytes) as little-endian uint64."""
 
 
-class DatasetCorruptError(ValueError):
+class DatasetCorruptError(DatasetError):
     """A dataset's files disagree with its card (a damaged or missing shard, edited metadata); the message
     names the file and the remedy (:data:`REMEDY`)."""
 
 
-class DatasetIncompleteError(ValueError):
+class DatasetIncompleteError(DatasetError):
     """A dataset whose build has not finished (interrupted, failed shards, or still running); the message
     names the dataset, the shards not built and the remedy (:func:`require_complete`)."""
 

@@ -20,7 +20,8 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ..sampling import square_to_hemisphere, subdivide_with_vertices
-from ..scene import BRDF_KINDS, RayCaster, SceneError, check_counts
+from ..errors import ConfigError
+from ..scene import BRDF_KINDS, RayCaster, check_counts
 from .obb import points_in_box, yaw_matrix
 from .rooms import OBJECT_CLASSES, LabelRegion
 from .sampler import SampledRoom
@@ -181,12 +182,12 @@ def scene_labels(room: SampledRoom, spec: LabelSpec) -> dict[str, np.ndarray]:
         occupancy: uint8 (V, V, V) (:func:`occupancy_grid`), axes (x, y, z);
         occupancy_origin: float32 (3,) m, min corner; occupancy_pitch: float32 () m.
     Raises:
-        SceneError: more hidden objects than ``spec.max_objects``, or no occupancy region.
+        ConfigError: more hidden objects than ``spec.max_objects``, or no occupancy region.
     """
     objects = room.objects
     k = spec.max_objects
     if len(objects) > k:
-        raise SceneError(f"labels.max_objects: the room has {len(objects)} hidden objects, more than "
+        raise ConfigError(f"labels.max_objects: the room has {len(objects)} hidden objects, more than "
                          f"max_objects = {k}; raise it to at least the distribution's maximum object count")
     out = {"object_count": np.array(len(objects), dtype=np.int32),
            "object_class": np.full(k, PAD_INT, dtype=np.int32),
@@ -220,7 +221,7 @@ def scene_labels(room: SampledRoom, spec: LabelSpec) -> dict[str, np.ndarray]:
         origin = np.asarray(room.params["label_region"]["origin"], float)
         size = np.asarray(room.params["label_region"]["size"], float)
     else:
-        raise SceneError("labels.occupancy_region: not given and the room's params hold no label_region")
+        raise ConfigError("labels.occupancy_region: not given and the room's params hold no label_region")
     pitch = float(np.max(size)) / spec.voxels
     meshes = {o.name: (o.vertices, o.faces) for o in room.scene.objects if o.label == "mesh"}
     out["occupancy"] = occupancy_grid(objects, origin, pitch, spec.voxels, meshes)

@@ -39,7 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import MAX_EXTENT, SceneError
+from ..errors import DatasetError
+from ..scene import MAX_EXTENT
 
 DEFAULT_DEPTH_FIELD = "wall_depth"
 OCCUPANCY_THRESHOLD = 0.5
@@ -56,7 +57,7 @@ def _load_predictions(pred: Path) -> dict[str, np.ndarray]:
     """The arrays of the predictions file, each checked for its dtype and for having a sample axis.
 
     Raises:
-        FileNotFoundError: no file; SceneError: not an .npz archive, an unknown key, neither depth nor
+        FileNotFoundError: no file; DatasetError: not an .npz archive, an unknown key, neither depth nor
         occupancy, a dtype that is not a number (or an integer for ``index``), or a 0-d array.
     """
     if not pred.is_file():
@@ -65,17 +66,17 @@ def _load_predictions(pred: Path) -> dict[str, np.ndarray]:
         with np.load(pred, allow_pickle=False) as f:
             data = {k: np.asarray(f[k]) for k in f.files}
     except (ValueError, OSError, EOFError) as exc:
-        raise SceneError(f"{pred}: not a NumPy .npz archive ({' '.join(str(exc).split())})") from None
+        raise DatasetError(f"{pred}: not a NumPy .npz archive ({' '.join(str(exc).split())})") from None
     unknown = sorted(set(data) - {"depth", "occupancy", "index"})
     if unknown:
-        raise SceneError(f"{pred}: unknown key {unknown[0]!r} (expected depth, occupancy, index)")
+        raise DatasetError(f"{pred}: unknown key {unknown[0]!r} (expected depth, occupancy, index)")
     if "depth" not in data and "occupancy" not in data:
-        raise SceneError(f"{pred}: holds neither depth nor occupancy")
+        raise DatasetError(f"{pred}: holds neither depth nor occupancy")
     for key, value in data.items():
         if value.dtype.kind not in KINDS[key]:
-            raise SceneError(f"{pred}: {key} has dtype {value.dtype}; expected {LAYOUTS[key]}")
+            raise DatasetError(f"{pred}: {key} has dtype {value.dtype}; expected {LAYOUTS[key]}")
         if value.ndim == 0:
-            raise SceneError(f"{pred}: {key} has shape () (a single value); expected {LAYOUTS[key]}")
+            raise DatasetError(f"{pred}: {key} has shape () (a single value); expected {LAYOUTS[key]}")
     return data
 
 
@@ -83,19 +84,19 @@ def _check_index(pred: Path, index: np.ndarray, n: int, split: str, count: int) 
     """``index``: (n,) integers inside the split, each at most once.
 
     Raises:
-        SceneError: naming the file, the key ``index`` and the bad value (shape, out of range, repeated).
+        DatasetError: naming the file, the key ``index`` and the bad value (shape, out of range, repeated).
     """
     if index.shape != (n,):
-        raise SceneError(f"{pred}: index has shape {index.shape}; expected ({n},) integers, one per sample")
+        raise DatasetError(f"{pred}: index has shape {index.shape}; expected ({n},) integers, one per sample")
     if index.min() < 0 or index.max() >= count:
         bad = int(index.min()) if index.min() < 0 else int(index.max())
-        raise SceneError(f"{pred}: index {bad} is outside split {split!r} (count {count})")
+        raise DatasetError(f"{pred}: index {bad} is outside split {split!r} (count {count})")
     values, counts = np.unique(index, return_counts=True)
     if np.any(counts > 1):
         value = int(values[np.argmax(counts > 1)])
         where = np.flatnonzero(index == value)
         shown = ", ".join(str(int(k)) for k in where[:5]) + (", …" if len(where) > 5 else "")
-        raise SceneError(f"{pred}: index repeats {value} ({len(where)} times, at positions {shown}): each sample "
+        raise DatasetError(f"{pred}: index repeats {value} ({len(where)} times, at positions {shown}): each sample "
                          "is scored at most once")
 
 
@@ -122,7 +123,7 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
         (metres; NaN where a metric does not apply: no object pixels, or nothing occupied in either grid).
     Raises:
         FileNotFoundError: no predictions file or dataset; DatasetIncompleteError (a ValueError): the build is
-        not complete (names the missing shards); DatasetCorruptError: damaged dataset files; SceneError: a
+        not complete (names the missing shards); DatasetCorruptError: damaged dataset files; DatasetError: a
         bad archive, key, dtype or shape (0-d, no samples, not the labels'), an index out of range or
         repeated, a depth that is not finite or beyond ±MAX_EXTENT m on the hidden-object mask, an occupancy
         value that is not finite, a threshold that is not finite, or a label field the dataset does not store
@@ -134,14 +135,14 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
     try:
         threshold = float(threshold)
     except (TypeError, ValueError):
-        raise SceneError(f"occupancy threshold (--threshold) must be a finite number, got {threshold!r}") from None
+        raise DatasetError(f"occupancy threshold (--threshold) must be a finite number, got {threshold!r}") from None
     if not math.isfinite(threshold):
-        raise SceneError(f"occupancy threshold (--threshold) must be a finite number, got {threshold!r}")
+        raise DatasetError(f"occupancy threshold (--threshold) must be a finite number, got {threshold!r}")
     pred = Path(pred)
     data = _load_predictions(pred)
     card = require_complete(dataset)
     if split not in card.get("splits", {}):
-        raise SceneError(f"{dataset}: split {split!r} not in the dataset (splits: {sorted(card.get('splits', {}))})")
+        raise DatasetError(f"{dataset}: split {split!r} not in the dataset (splits: {sorted(card.get('splits', {}))})")
     info = card["splits"][split]
     depth = data.get("depth")
     if depth is not None and depth.ndim == 4 and depth.shape[1] == 1:
@@ -149,27 +150,27 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
     fields = []
     if depth is not None:
         if depth_field not in info["fields"]:
-            raise SceneError(f"{dataset}: split {split!r} stores no {depth_field} label (stored: "
+            raise DatasetError(f"{dataset}: split {split!r} stores no {depth_field} label (stored: "
                              f"{sorted(info['fields'])}); choose --depth-field")
         fields.append(depth_field)
     if "occupancy" in data:
         if "occupancy" not in info["fields"]:
-            raise SceneError(f"{dataset}: split {split!r} stores no occupancy label")
+            raise DatasetError(f"{dataset}: split {split!r} stores no occupancy label")
         fields.append("occupancy")
     first = "depth" if depth is not None else "occupancy"
     n = int(data[first].shape[0])
     if n == 0:
-        raise SceneError(f"{pred}: {first} holds no samples (shape {data[first].shape}); expected {LAYOUTS[first]} "
+        raise DatasetError(f"{pred}: {first} holds no samples (shape {data[first].shape}); expected {LAYOUTS[first]} "
                          "with N >= 1")
     if depth is not None:
         label_shape = tuple(info["fields"][depth_field]["shape"])
         if depth.shape != (n,) + label_shape:
-            raise SceneError(f"{pred}: depth has shape {data['depth'].shape}, the labels' {depth_field} is "
+            raise DatasetError(f"{pred}: depth has shape {data['depth'].shape}, the labels' {depth_field} is "
                              f"{(n,) + label_shape} (N, H, W)")
     if "occupancy" in data:
         label_shape = tuple(info["fields"]["occupancy"]["shape"])
         if data["occupancy"].shape != (n,) + label_shape:
-            raise SceneError(f"{pred}: occupancy has shape {data['occupancy'].shape}, the labels' is "
+            raise DatasetError(f"{pred}: occupancy has shape {data['occupancy'].shape}, the labels' is "
                              f"{(n,) + label_shape} (N, V, V, V)"
                              + (f" with N = {n} as in depth" if depth is not None else ""))
     index = data.get("index", np.arange(n))
@@ -177,7 +178,7 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
     occupancy = data.get("occupancy")
     if occupancy is not None and occupancy.dtype.kind == "f" and not np.isfinite(occupancy).all():
         k, (value, pos) = _first_bad_sample(occupancy)
-        raise SceneError(f"{pred}: occupancy of sample {int(index[k])} (position {k} of the file) is {value} at "
+        raise DatasetError(f"{pred}: occupancy of sample {int(index[k])} (position {k} of the file) is {value} at "
                          f"voxel {pos}: give finite values (a voxel is occupied where above the threshold)")
     labels = NLOSDataset(dataset, split=split, fields=fields)   # checks the metadata; reads check the shards
     rows = [{"index": int(i)} for i in index]
@@ -191,7 +192,7 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
             bad = mask & ~(np.abs(d_hat) <= MAX_EXTENT)          # NaN, ±inf or beyond any scene
             if bad.any():
                 value, pos = _first_bad(d_hat, bad)
-                raise SceneError(f"{pred}: depth of sample {int(i)} (position {k} of the file) is {value} at "
+                raise DatasetError(f"{pred}: depth of sample {int(i)} (position {k} of the file) is {value} at "
                                  f"pixel {pos}, on the hidden-object mask: give finite depths within "
                                  f"±{MAX_EXTENT:g} m")
             err = (d_hat - d)[mask]

@@ -25,8 +25,6 @@ assets of a resume (:func:`check_same_config`, :func:`check_same_assets`). What 
 from __future__ import annotations
 
 import contextlib
-import errno
-import fcntl
 import hashlib
 import json
 import os
@@ -38,7 +36,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+from filelock import FileLock, Timeout
 
+from ..errors import DatasetError
 from ..scene import SceneError
 from .assets import asset_changes
 from .config import DatasetConfig, Sample, location_free_json, split_key
@@ -163,10 +163,13 @@ def check_dataset_dir(root: Path, resume: bool) -> None:
 
 
 class BuildLock:
-    """Exclusive ``flock`` on ``<root>/_build.lock`` holding the owner's host, pid and start time.
+    """Exclusive lock on ``<root>/_build.lock`` (the ``filelock`` package: an ``flock`` on Linux) holding the owner's
+    host, pid and start time.
 
     The kernel releases the lock when the owner dies (even by SIGKILL), so there are no stale locks on local
-    filesystems; the recorded pid only makes the refusal message useful.
+    filesystems; the recorded pid only makes the refusal message useful. The owner removes the file before it
+    unlocks (``filelock`` itself is told to keep it), and ``filelock`` retries a lock taken on a removed file, so
+    two builds never hold it at once.
 
     Raises (``acquire``):
         BuildLockedError: another process holds it; the message names its host, pid and start time.
@@ -174,33 +177,24 @@ class BuildLock:
 
     def __init__(self, root: str | Path):
         self.path = Path(root) / LOCK_NAME
-        self._fd: int | None = None
+        self._lock = FileLock(self.path, timeout=0, thread_local=False, preserve_lock_file=True,
+                              on_acquired=self._record_owner)
 
     def acquire(self) -> "BuildLock":
-        for _ in range(10):
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError as exc:
-                os.close(fd)
-                if exc.errno not in (errno.EAGAIN, errno.EACCES):
-                    raise
-                raise BuildLockedError(f"{self.path.parent} is being built by another process "
-                                       f"({self._holder()}); wait for it to finish, or stop it first") from None
-            # the file may have been unlinked by a releasing owner between our open and flock: retry then
-            try:
-                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
-            except FileNotFoundError:
-                same = False
-            if same:
-                os.ftruncate(fd, 0)
-                info = {"host": socket.gethostname(), "pid": os.getpid(),
-                        "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-                os.write(fd, json.dumps(info).encode())
-                self._fd = fd
-                return self
-            os.close(fd)
-        raise BuildLockedError(f"could not lock {self.path}: the lock file keeps changing")  # pragma: no cover
+        try:
+            self._lock.acquire()
+        except Timeout:
+            raise BuildLockedError(f"{self.path.parent} is being built by another process ({self._holder()}); "
+                                   "wait for it to finish, or stop it first") from None
+        return self
+
+    @staticmethod
+    def _record_owner(fd: int) -> None:
+        """Write host, pid and start time into the lock file just locked (``fd``)."""
+        info = {"host": socket.gethostname(), "pid": os.getpid(),
+                "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps(info).encode(), 0)
 
     def _holder(self) -> str:
         try:
@@ -210,12 +204,10 @@ class BuildLock:
             return "holder unknown"
 
     def release(self) -> None:
-        if self._fd is not None:
+        if self._lock.is_locked:
             with contextlib.suppress(FileNotFoundError):
-                os.unlink(self.path)
-            fcntl.flock(self._fd, fcntl.LOCK_UN)
-            os.close(self._fd)
-            self._fd = None
+                os.unlink(self.path)                # while still held (see the class doc)
+            self._lock.release(force=True)
 
     def __enter__(self) -> "BuildLock":
         return self.acquire()
@@ -321,16 +313,17 @@ def _stats(values: list[float]) -> dict:
             "p95": float(np.percentile(v, 95)), "min": float(v.min()), "max": float(v.max())}
 
 
-CARD_KEYS = ("config", "splits")
-"""Card entries every reader of a dataset needs (:func:`read_card` refuses a card without them)."""
+CARD_KEYS = ("config",)
+"""Card entries every reader of a dataset needs (:func:`read_card` refuses a card without them; ``splits`` is
+filled as the build goes)."""
 
 
 def read_card(path: str | Path) -> dict:
     """The dataset card (root attributes) of the dataset at ``path``.
 
     Raises:
-        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json``, or a card without the
-        :data:`CARD_KEYS` mappings (names the file).
+        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json``; DatasetError (a
+        ValueError): a card without the :data:`CARD_KEYS` mappings (names the file).
     """
     meta = Path(path) / "zarr.json"
     if not meta.is_file():
@@ -343,9 +336,9 @@ def read_card(path: str | Path) -> dict:
     if attrs.get("format") != FORMAT:
         raise FileNotFoundError(f"{path} is a Zarr store but not a datagen dataset (no dataset card)")
     missing = [k for k in CARD_KEYS if not isinstance(attrs.get(k), dict)]
-    if missing:   # every reader needs them: one line here, not a KeyError in each
-        raise ValueError(f"{meta}: the dataset card has no {' and no '.join(repr(k) for k in missing)} mapping: "
-                         "damaged (edited by hand?); rebuild the dataset, or restore the card")
+    if missing:   # every reader needs it (a build writes it first): one line here, not a KeyError in each
+        raise DatasetError(f"{meta}: the dataset card has no {' and no '.join(repr(k) for k in missing)} mapping: "
+                           "damaged (edited by hand?); rebuild the dataset, or restore the card")
     return attrs
 
 

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..scene import SceneError
+from ..errors import DatasetError
 from ..units import SPEED_OF_LIGHT
 from .tal import TalCapture
 
@@ -94,7 +94,7 @@ def _grid_index(src: np.ndarray, dst: np.ndarray, what: str) -> np.ndarray:
     """For each point of ``dst`` (..., 3), the index into ``src`` (N, 3) of the same point.
 
     Raises:
-        SceneError: a point of ``dst`` has no counterpart in ``src`` (the grids differ).
+        DatasetError: a point of ``dst`` has no counterpart in ``src`` (the grids differ).
     """
     from scipy.spatial import cKDTree
 
@@ -104,7 +104,7 @@ def _grid_index(src: np.ndarray, dst: np.ndarray, what: str) -> np.ndarray:
     dist, idx = cKDTree(src).query(flat)
     if dist.max() > GRID_MATCH_TOL * scale:
         k = int(np.argmax(dist))
-        raise SceneError(f"{what}: tal grid point {flat[k].tolist()} is not a point of the simulated grid "
+        raise DatasetError(f"{what}: tal grid point {flat[k].tolist()} is not a point of the simulated grid "
                          f"(nearest {src[idx[k]].tolist()})")
     return idx.reshape(np.shape(dst)[:-1])
 
@@ -118,18 +118,18 @@ def _result_capture(result) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
     sensor = getattr(result, "sensor_points", None)
     laser = getattr(result, "laser_points", None)
     if sensor is None or laser is None:
-        raise SceneError("result has no laser_points/sensor_points (written by a datagen without capture "
+        raise DatasetError("result has no laser_points/sensor_points (written by a datagen without capture "
                          "grids); re-simulate it to export to tal")
     sensor = np.asarray(sensor, dtype=np.float64)
     laser = np.asarray(laser, dtype=np.float64)
     if ctype == "exhaustive":
         if env.ndim != 5:
-            raise SceneError(f"exhaustive result: envelope must be (Ly, Lx, Sy, Sx, T), got {env.shape}")
+            raise DatasetError(f"exhaustive result: envelope must be (Ly, Lx, Sy, Sx, T), got {env.shape}")
         return ctype, env, laser.reshape(env.shape[:2] + (3,)), sensor.reshape(env.shape[2:4] + (3,))
     if env.ndim == 1:
         env = env.reshape(1, 1, -1)
     if env.ndim != 3:
-        raise SceneError(f"{ctype} result: envelope must be (Sy, Sx, T), got {env.shape}")
+        raise DatasetError(f"{ctype} result: envelope must be (Sy, Sx, T), got {env.shape}")
     sensor = sensor.reshape(env.shape[:2] + (3,))
     if ctype == "confocal":
         return ctype, env[None, None], laser.reshape(env.shape[:2] + (3,)), sensor
@@ -154,7 +154,7 @@ def tal_arrays(result, tal: TalCapture | None = None, laser_xyz=None, sensor_xyz
     Returns:
         dict field → value; H float64 (T, Sx, Sy) or (T, Lx, Ly, Sx, Sy).
     Raises:
-        SceneError: the result's time legs cannot be expressed with tal's single flag
+        DatasetError: the result's time legs cannot be expressed with tal's single flag
             (count_laser_leg != count_sensor_leg with several laser points), or grids do not match ``tal``.
     """
     ctype, env, laser, sensor = _result_capture(result)
@@ -164,7 +164,7 @@ def tal_arrays(result, tal: TalCapture | None = None, laser_xyz=None, sensor_xyz
     edges = np.asarray(result.time_edges, dtype=np.float64)
     widths = np.diff(edges)
     if not np.allclose(widths, widths[0], rtol=1e-9, atol=0):
-        raise SceneError("tal needs uniform time bins; the result's time_edges are not uniform")
+        raise DatasetError("tal needs uniform time bins; the result's time_edges are not uniform")
     normal = np.asarray(getattr(result, "wall_normal", None) if getattr(result, "wall_normal", None) is not None
                         else (tal.normal if tal is not None else [np.nan] * 3), dtype=np.float64)
     if laser_xyz is None:
@@ -180,7 +180,7 @@ def tal_arrays(result, tal: TalCapture | None = None, laser_xyz=None, sensor_xyz
     if laser_leg != sensor_leg:
         # one laser point: the emitter→spot leg is one constant, so moving t_start makes the flags agree exactly
         if laser.shape[0] * laser.shape[1] != 1 or laser_xyz is None:
-            raise SceneError(f"tal's t_accounts_first_and_last_bounces needs count_laser_leg == count_sensor_leg "
+            raise DatasetError(f"tal's t_accounts_first_and_last_bounces needs count_laser_leg == count_sensor_leg "
                              f"(got {laser_leg} / {sensor_leg}); re-simulate with both true or both false")
         leg = float(np.linalg.norm(np.asarray(laser_xyz, dtype=np.float64) - laser.reshape(3)))
         t_start += leg if sensor_leg else -leg
@@ -204,7 +204,7 @@ def tal_arrays(result, tal: TalCapture | None = None, laser_xyz=None, sensor_xyz
             laser_grid = sensor_grid
     if tal is not None:
         if tal.scan_type != ctype:
-            raise SceneError(f"result capture type {ctype!r} differs from the tal config's {tal.scan_type!r}")
+            raise DatasetError(f"result capture type {ctype!r} differs from the tal config's {tal.scan_type!r}")
         si = _grid_index(sensor_grid.reshape(-1, 3), tal.sensor_grid_xyz, "sensor grid").ravel()
         s_shape = tal.sensor_grid_xyz.shape[:2]
         if ctype == "exhaustive":
@@ -298,7 +298,7 @@ def write_tal_hdf5(result, path: str | Path, tal: TalCapture | None = None, *, c
         dtype: "float64" (exact round trip) or "float32" (what ``tal render`` writes; half the size).
         kwargs: ``laser_xyz``, ``sensor_xyz``, ``scene_info`` (see :func:`tal_arrays`).
     Raises:
-        SceneError: see :func:`tal_arrays`; ValueError: bad compression level or dtype; IsADirectoryError:
+        DatasetError: see :func:`tal_arrays`; ValueError: bad compression level or dtype; IsADirectoryError:
         ``path`` is a directory; OSError: the write failed (e.g. a full disk).
     """
     import h5py
@@ -353,7 +353,7 @@ def read_tal_hdf5(path: str | Path, skip_H: bool = False) -> dict:
     :class:`VolumeFormat`, ``scene_info`` YAML → dict.
 
     Raises:
-        FileNotFoundError: no file; SceneError: a key tal does not know (tal rejects such files too).
+        FileNotFoundError: no file; DatasetError: a key tal does not know (tal rejects such files too).
     """
     import h5py
 
@@ -364,13 +364,13 @@ def read_tal_hdf5(path: str | Path, skip_H: bool = False) -> dict:
     with h5py.File(path, "r") as f:
         for key in f.keys():
             if key not in TAL_FIELDS:
-                raise SceneError(f"{path}: unknown tal capture field {key!r}")
+                raise DatasetError(f"{path}: unknown tal capture field {key!r}")
             raw = f[key]
             if skip_H and key == "H":
                 out[key] = None
                 continue
             if isinstance(raw, h5py.Group):
-                raise SceneError(f"{path}: field {key!r} is a group; tal stores datasets")
+                raise DatasetError(f"{path}: field {key!r} is a group; tal stores datasets")
             value = raw[()]
             empty = isinstance(value, h5py.Empty) or raw.shape is None
             if key in _ENUM_FIELDS:

@@ -171,6 +171,6 @@ def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov, m
     vis = caster.visible(x[xa], n_lit[xa], x[xb], side_b[:, None] * n_geo[xb])
     if not vis.any():
         return primary, 0.0
-    secondary = secondary_energy(xa[vis], xb[vis], w[vis], r[vis], cos_a[vis], cos_b[vis], side_b[vis], irradiance,
+    secondary = secondary_energy((xa[vis], xb[vis], w[vis], r[vis], cos_a[vis], cos_b[vis], side_b[vis]), irradiance,
                                  area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat, table)
     return float(primary), float(secondary)

@@ -2,7 +2,7 @@
 
 The sums over (hidden element, FoV cell) and (lit element, partner element, FoV cell) of docs/physics.md §2 at the
 planner's coarse resolution, one loop per pair instead of numpy arrays of every pair; the BRDF is the transport's
-scalar form (:func:`datagen.transport.brdf_value`, equal to
+scalar form (:func:`datagen.scene.brdf_kernel.brdf_value`, equal to
 :meth:`~datagen.scene.materials.MaterialTable.evaluate` to 1e-12, ``tests/test_area_kernels.py``). Shadow rays
 stay with Embree between the passes: :func:`secondary_candidates` lists the pairs that face each other,
 :func:`secondary_energy` sums the visible ones.
@@ -14,8 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..scene.materials import SIN_THETA
-from ..transport import abs_sin_azimuth, brdf_value
+from ..scene.brdf_kernel import SIN_THETA, abs_sin_azimuth, brdf_value, sin_theta_scale
 
 __all__ = ["outgoing_sums", "primary_energy", "secondary_candidates", "secondary_energy"]
 
@@ -102,7 +101,7 @@ def outgoing_sums(obj, n_geo, s_xy, w_xy, geo, mat):
             if not math.isnan(const_f[o]):
                 scale = const_f[o]
             elif kind[o] == SIN_THETA:
-                scale = 0.5 * albedo[o]
+                scale = sin_theta_scale(albedo[o])
             else:
                 out[b, j] = np.nan
                 continue
@@ -120,12 +119,13 @@ def outgoing_sums(obj, n_geo, s_xy, w_xy, geo, mat):
 
 
 @njit(cache=True)
-def secondary_energy(xa, xb, w, r, cos_a, cos_b, side_b, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_xy,
-                     geo, mat, table):
+def secondary_energy(pairs, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_xy, geo, mat, table):
     """Σ over visible pairs (a, b) of E_l(a) dA_a f_a(→spot, →b) cos_a cos_b / r² dA_b Σ_y f_b(→a, →y) geo(b, y),
-    the cells y on b's side facing a (arguments as :func:`secondary_candidates` returns them, restricted to the
-    visible pairs, and as :func:`primary_energy`); ``table`` (M, 2): the y-sums of factoring BRDFs,
-    :func:`outgoing_sums` (the same for every laser point). Returns float, photons per pulse."""
+    the cells y on b's side facing a (``pairs`` = (xa, xb, w, r, cos_a, cos_b, side_b) as
+    :func:`secondary_candidates` returns them, restricted to the visible pairs; the rest as :func:`primary_energy`);
+    ``table`` (M, 2): the y-sums of factoring BRDFs, :func:`outgoing_sums` (the same for every laser point).
+    Returns float, photons per pulse."""
+    xa, xb, w, r, cos_a, cos_b, side_b = pairs
     kind, _, _, _, axis, const_f = mat
     total = 0.0
     for p in range(xa.shape[0]):

@@ -26,12 +26,11 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-BRDF_KINDS = ("lambertian", "sin_theta", "phong")
-LAMBERTIAN, SIN_THETA, PHONG = range(3)
+from .brdf_kernel import (BRDF_KINDS, LAMBERTIAN, PHONG, SIN_THETA, TANGENT_EPS, lambertian_value, on_arrays,
+                          phong_diffuse_scale, phong_gloss, phong_value, sin_theta_scale, sin_theta_value)
 
-TANGENT_EPS = 1e-12
-"""Below this squared tangential length a direction is along the normal and its azimuth is undefined;
-the sin θ lobe is then 0 there (a set of measure zero)."""
+__all__ = ["BRDF_KINDS", "LAMBERTIAN", "PHONG", "SIN_THETA", "TANGENT_EPS", "Material", "MaterialTable",
+           "tangent_frame"]
 
 
 class Material(BaseModel):
@@ -99,14 +98,14 @@ class MaterialTable:
         f = np.zeros(object_ids.shape, dtype=np.float64)
         kind = self.kind[object_ids]
         rho = self.albedo[object_ids]
-        f = np.where(kind == LAMBERTIAN, rho / np.pi, f)
+        f = np.where(kind == LAMBERTIAN, on_arrays(lambertian_value)(rho), f)
         sel = kind == SIN_THETA
         if np.any(sel):
             axis = self.axis[object_ids[sel]]
             n = normals[sel]
             s_in = _abs_sin_azimuth(n, axis, w_in[sel])
             s_out = _abs_sin_azimuth(n, axis, w_out[sel])
-            f[sel] = 0.5 * rho[sel] * s_in * s_out
+            f[sel] = on_arrays(sin_theta_value)(rho[sel], s_in, s_out)
         sel = kind == PHONG
         if np.any(sel):
             ids = object_ids[sel]
@@ -114,8 +113,7 @@ class MaterialTable:
             n, wi, wo = normals[sel], w_in[sel], w_out[sel]
             mirror = 2.0 * cos_in[sel][:, None] * n - wi
             cos_alpha = np.clip(np.einsum("ij,ij->i", mirror, wo), 0.0, 1.0)
-            lobe = (expo + 2.0) / (2.0 * np.pi) * cos_alpha ** expo
-            f[sel] = rho[sel] * ((1.0 - ks) / np.pi + ks * lobe)
+            f[sel] = on_arrays(phong_value)(rho[sel], ks, expo, cos_alpha ** expo)
         return np.where((cos_in > 0) & (cos_out > 0), f, 0.0)
 
 
@@ -130,8 +128,9 @@ class MaterialTable:
         """
         ids = np.asarray(object_ids)
         kind, rho = self.kind[ids], self.albedo[ids]
-        return np.where(kind == SIN_THETA, 0.5 * rho,
-                        np.where(kind == PHONG, (1.0 - self.specular[ids]) * rho / np.pi, rho / np.pi))
+        return np.where(kind == SIN_THETA, on_arrays(sin_theta_scale)(rho),
+                        np.where(kind == PHONG, on_arrays(phong_diffuse_scale)(rho, self.specular[ids]),
+                                 on_arrays(lambertian_value)(rho)))
 
     def separable_factor(self, object_ids: np.ndarray, normals: np.ndarray, w: np.ndarray) -> np.ndarray:
         """g(ω) of :meth:`separable_scale`'s split, (...,) for (..., 3) directions away from the surface."""
@@ -169,7 +168,7 @@ class MaterialTable:
             mirror = 2.0 * cos_in[sel][..., None] * normals[sel] - w_in[sel]
             cos_alpha = np.clip(np.einsum("...k,...k->...", mirror, w_out[sel]), 0.0, 1.0)
             expo = self.exponent[ids]
-            out[sel] = self.albedo[ids] * self.specular[ids] * (expo + 2.0) / (2.0 * np.pi) * cos_alpha ** expo
+            out[sel] = self.albedo[ids] * on_arrays(phong_gloss)(self.specular[ids], expo, cos_alpha ** expo)
         return out
 
 

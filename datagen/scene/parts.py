@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from .materials import Material
+from ..errors import SceneError
 from ..units import parse_energy, parse_length, photons_per_pulse
 
 ROOM_LABELS = ("wall", "floor", "ceiling", "relay_wall")
@@ -43,10 +44,6 @@ wall; 'secondary' and 'first_bounce' are the transport's extra components) or wi
 simulate summary: an object of that name would merge into, or hide, another component."""
 
 _NAME = re.compile(r"^\w[\w.+-]{0,63}$")
-
-
-class SceneError(ValueError):
-    """A scene is invalid; the message names the file (when there is one), the field and the value."""
 
 
 def check_finite(v: Vec3) -> Vec3:

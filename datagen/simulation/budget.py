@@ -21,7 +21,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..scene import Scene, SceneError
+from ..errors import ResourceError
+from ..scene import Scene
 from ..timing import EnvelopeAccumulator
 from ..transport import estimator
 from ..transport.base import TARGET_BYTES
@@ -34,11 +35,6 @@ ACCUMULATOR_COPIES = 2
 
 RESULT_COPIES = 2
 """Copies of the (components + envelope + counts + rates) × channels × bins result arrays alive at once."""
-
-
-class ResourceError(SceneError):
-    """A simulation or build needs more memory than the machine has; the message names the field, its value,
-    the estimate and the available memory in GiB."""
 
 
 def available_memory() -> int | None:

@@ -6,8 +6,8 @@ batches (Embree); between them it used to run dozens of numpy passes over (hidde
 number pre-drawn by the caller, so the random streams are those of the numpy code. The formulas are those of
 :mod:`datagen.transport.physics` and :class:`datagen.scene.materials.MaterialTable` (docs/physics.md §2):
 
-- :func:`brdf_value`: f(ω_in, ω_out) of one point, :meth:`MaterialTable.evaluate`'s Lambertian, sin θ and
-  Phong kinds (0 where a direction lies below the surface);
+- :func:`~datagen.scene.brdf_kernel.brdf_value` (re-exported here): f(ω_in, ω_out) of one point, every BRDF kind
+  from the formula functions of :mod:`datagen.scene.brdf_kernel` (0 where a direction lies below the surface);
 - :func:`fov_targets`: the stratified FoV points of :meth:`AreaSampler._connect` and their geometry;
 - :func:`partner_geometry` / :func:`partner_irradiance`: the x' → x geometry of the secondary's partners and
   the MIS irradiance term E(x') f_x' G / Σ_t P_t p_t(x');
@@ -25,9 +25,10 @@ import math
 import numpy as np
 from numba import njit
 
-from ..scene.brdf_kernel import phong_value
-from ..scene.materials import LAMBERTIAN, PHONG, SIN_THETA, TANGENT_EPS
+from ..scene.brdf_kernel import abs_sin_azimuth, brdf_value
 from ..units import SPEED_OF_LIGHT
+from .physics import (attenuation_term, collection_term, emission_term, fov_term, geometry_term,
+                      irradiance_term)
 
 __all__ = ["abs_sin_azimuth", "brdf_value", "fov_targets", "material_arrays", "partner_geometry", "partner_irradiance",
            "secondary_pairs"]
@@ -50,60 +51,6 @@ def _toward(p0, p1, p2, q0, q1, q2):
     r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
     s = max(r, 1e-300)
     return r, d0 / s, d1 / s, d2 / s
-
-
-@njit(cache=True, inline="always")
-def abs_sin_azimuth(n0, n1, n2, a0, a1, a2, w0, w1, w2):
-    """|sin| of w's azimuth about n from the axis a (materials' ``_abs_sin_azimuth``, Duff et al. fallback): the
-    angular factor of the sin θ BRDF, f = ½ρ·abs_sin_azimuth(ω_in)·abs_sin_azimuth(ω_out) (:func:`brdf_value`)."""
-    an = a0 * n0 + a1 * n1 + a2 * n2
-    t0, t1, t2 = a0 - an * n0, a1 - an * n1, a2 - an * n2
-    t_len2 = t0 * t0 + t1 * t1 + t2 * t2
-    if t_len2 > TANGENT_EPS:
-        s = math.sqrt(max(t_len2, TANGENT_EPS))
-        t0, t1, t2 = t0 / s, t1 / s, t2 / s
-    else:                                            # tangent_frame: Duff et al., JCGT 6(1), 2017
-        sign = 1.0 if n2 >= 0.0 else -1.0
-        a = -1.0 / (sign + n2)
-        b = n0 * n1 * a
-        t0, t1, t2 = 1.0 + sign * n0 ** 2 * a, sign * b, -sign * n0
-    b0, b1, b2 = n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0
-    wn = w0 * n0 + w1 * n1 + w2 * n2
-    u0, u1, u2 = w0 - wn * n0, w1 - wn * n1, w2 - wn * n2
-    tan_len2 = u0 * u0 + u1 * u1 + u2 * u2
-    if not tan_len2 > TANGENT_EPS:
-        return 0.0
-    sin_az = abs(u0 * b0 + u1 * b1 + u2 * b2) / math.sqrt(max(tan_len2, TANGENT_EPS))
-    return min(sin_az, 1.0)
-
-
-@njit(cache=True, inline="always")
-def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
-    """f(ω_in, ω_out) in 1/sr at a point of object ``obj`` with unit normal n (lit side) for unit directions
-    ω_in = (i0, i1, i2), ω_out = (o0, o1, o2) away from the surface; ``mat`` from :func:`material_arrays`.
-
-    The constant f of ``mat`` when it is not NaN (Lambertian without angle work,
-    :meth:`~datagen.transport.physics.LegPhysics.brdf`), else :meth:`MaterialTable.evaluate`: 0 unless both
-    cosines are > 0; Lambertian ρ/π; sin θ ½ρ|sin φ_in||sin φ_out|; Phong ρ((1−k_s)/π + k_s (e+2)/(2π) cos^e α).
-    """
-    kind, albedo, specular, exponent, axis, const_f = mat
-    f = const_f[obj]
-    if not math.isnan(f):
-        return f
-    cos_in = n0 * i0 + n1 * i1 + n2 * i2
-    cos_out = n0 * o0 + n1 * o1 + n2 * o2
-    if not (cos_in > 0.0 and cos_out > 0.0):
-        return 0.0
-    k, rho = kind[obj], albedo[obj]
-    if k == SIN_THETA:
-        a0, a1, a2 = axis[obj, 0], axis[obj, 1], axis[obj, 2]
-        return 0.5 * rho * abs_sin_azimuth(n0, n1, n2, a0, a1, a2, i0, i1, i2) * \
-            abs_sin_azimuth(n0, n1, n2, a0, a1, a2, o0, o1, o2)
-    if k == PHONG:
-        return phong_value(rho, specular[obj], exponent[obj], cos_in, n0, n1, n2, i0, i1, i2, o0, o1, o2)
-    if k == LAMBERTIAN:
-        return rho / np.pi
-    return 0.0
 
 
 @njit(cache=True)
@@ -212,7 +159,7 @@ def partner_irradiance(keep, e_p, geo_p, cos_p, cos_x, rp, n_sides, p_tot, hidde
     for i in range(m):
         if not keep[i]:
             continue
-        g = cos_p[i] * cos_x[i] / rp[i] ** 2
+        g = geometry_term(cos_p[i], cos_x[i], rp[i])
         p_spot = geo_p[i] / np.pi
         p_dir = g / (np.pi * n_sides[i // p_tot])
         f = brdf_value(mat, obj[i], n_px[i, 0], n_px[i, 1], n_px[i, 2], w_sp[i, 0], w_sp[i, 1], w_sp[i, 2],
@@ -222,24 +169,26 @@ def partner_irradiance(keep, e_p, geo_p, cos_p, cos_x, rp, n_sides, p_tot, hidde
 
 
 @njit(cache=True)
-def secondary_pairs(inv, side, p_tot, irr, on_pos, wpx, r_lp, rp, normal, direction, weight, phys, time, channel,
-                    obj_x, mat, legs, comp0):
+def secondary_pairs(inv, side, p_tot, partners, conns, obj_x, mat, legs, comp0):
     """Every (FoV connection, partner of its hidden point) pair whose partner irradiance is > 0 and whose light
     leaves x on the side it arrived from: arrival times (s), weights (photons) and component ids.
 
     Args:
         inv: (c,) owner row of each connection; side: (c,) bool, the connection leaves x's +normal side;
-            p_tot: partners per owner (partner j of owner o is row o·P + j of irr, on_pos, wpx, r_lp, rp).
-        irr: (m,) :func:`partner_irradiance`; on_pos: (m,) bool; wpx: (m, 3) unit x' → x; r_lp, rp: (m,)
-            metres x_l → x' and x' → x.
-        normal, direction, weight, phys, time, channel: the connections (:class:`~.base.Connections` fields and
-            the side's normal at x), obj_x (c,) the object of each connection's x; mat: :func:`material_arrays`.
+            p_tot: partners per owner (partner j of owner o is row o·P + j of the ``partners`` arrays).
+        partners: (irr, on_pos, wpx, r_lp, rp): irr (m,) :func:`partner_irradiance`; on_pos (m,) bool; wpx (m, 3)
+            unit x' → x; r_lp, rp (m,) metres x_l → x' and x' → x.
+        conns: (normal, direction, weight, phys, time, channel), the connections (:class:`~.base.Connections`
+            fields and the side's normal at x); obj_x (c,) the object of each connection's x; mat:
+            :func:`material_arrays`.
         legs: (μ 1/m, emitter leg m, laser leg counted in the time m); comp0: first secondary component id.
     Returns:
         (t (k,), w (k,), comp (k,) int64), connection-major, partners in row order. Weight =
         max(n·ω, 0)·weight · irr · f_x(ω_in = x → x', ω_out) · e^{−μ(emitter leg + r_lp + rp + phys)} (no factor
         when μ = 0); time = (laser leg + r_lp + rp)/c + time.
     """
+    irr, on_pos, wpx, r_lp, rp = partners
+    normal, direction, weight, phys, time, channel = conns
     mu, emitter_leg, laser_leg = legs
     const_f = mat[5]
     nc = inv.shape[0]
@@ -261,7 +210,7 @@ def secondary_pairs(inv, side, p_tot, irr, on_pos, wpx, r_lp, rp, normal, direct
                 f = brdf_value(mat, obj_x[c], n0, n1, n2, -wpx[j, 0], -wpx[j, 1], -wpx[j, 2], o0, o1, o2)
             w = per_conn * irr[j] * f
             if mu > 0.0:
-                w = w * math.exp(-mu * (emitter_leg + r_lp[j] + rp[j] + phys[c]))
+                w = w * attenuation_term(mu, emitter_leg + r_lp[j] + rp[j] + phys[c])
             t_out[k] = (laser_leg + r_lp[j] + rp[j]) / SPEED_OF_LIGHT + time[c]
             w_out[k] = w
             c_out[k] = comp0 + channel[c]
@@ -301,9 +250,8 @@ def _spot_terms(idx, r, w, cos_in, cos_l, photons, mat, obj, spot_n, w_e):
         o0, o1, o2 = -w[i, 0], -w[i, 1], -w[i, 2]
         cos = max(spot_n[0] * o0 + spot_n[1] * o1 + spot_n[2] * o2, 0.0)
         f = brdf_value(mat, obj, spot_n[0], spot_n[1], spot_n[2], w_e[0], w_e[1], w_e[2], o0, o1, o2)
-        r2 = r[i] ** 2
-        geo[i] = cos_l[i] * cos_in[i] / r2
-        e[i] = photons * (f * cos) * cos_in[i] / r2
+        geo[i] = geometry_term(cos_l[i], cos_in[i], r[i])
+        e[i] = irradiance_term(photons, emission_term(f, cos), cos_in[i], r[i])
     return e, geo
 
 
@@ -348,7 +296,7 @@ def _sensor_terms(points, normals, obj, w_in, sensor, ap_n, scale, mat):
         cos_out = max(n0 * s0 + n1 * s1 + n2 * s2, 0.0)
         cos_ap = max(-(s0 * ap_n[a, 0] + s1 * ap_n[a, 1] + s2 * ap_n[a, 2]), 0.0)
         pde, area = scale
-        out[i] = pde * f * cos_out * area * cos_ap / dd ** 2
+        out[i] = collection_term(pde, f, cos_out, area, cos_ap, dd)
         d[i] = dd
         w_s[i, 0], w_s[i, 1], w_s[i, 2] = s0, s1, s2
     return out, d, w_s
@@ -397,7 +345,7 @@ def primary_impulses(b, primary, e_x, obj, w_spot, r_lx, normal, direction, weig
         f = brdf_value(mat, obj[x], n0, n1, n2, w_spot[x, 0], w_spot[x, 1], w_spot[x, 2], o0, o1, o2)
         w = e_x[x] * f * max(n0 * o0 + n1 * o1 + n2 * o2, 0.0) * weight[c]
         if mu > 0.0:
-            w = w * math.exp(-mu * (emitter_leg + r_lx[x] + phys[c]))
+            w = w * attenuation_term(mu, emitter_leg + r_lx[x] + phys[c])
         t_out[k] = laser_t + r_lx[x] / SPEED_OF_LIGHT + time[c]
         w_out[k] = w
         c_out[k] = component[obj[x]] * n_channels + channel[c]
@@ -447,7 +395,7 @@ def connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys, consts):
         p_d = (n_x[k, 0] * w[i, 0] + n_x[k, 1] * w[i, 1] + n_x[k, 2] * w[i, 2]) * cos_y[i] / (np.pi * r2)
         density = rho_x[k] * (rho_a + n_dir * p_d) + fov_density * p_d
         inverse = 1.0 / density if density > 0.0 else 0.0
-        weight[i] = inverse * (cos_y[i] / r2 * collect[i])
+        weight[i] = inverse * fov_term(cos_y[i], r[i], collect[i])
         time[i] = (r[i] + d_ys[i] if count_sensor else r[i]) / SPEED_OF_LIGHT
         phys[i] = r[i] + d_ys[i]
     return weight, time, phys

@@ -97,10 +97,9 @@ class AreaSecondary:
                                  self.is_hidden[xp.face] / self.hidden_area, (pl, pd, pa), xp.object_id, n_px, w_sp,
                                  wpx, mat)
         legs = (float(s.attenuation), float(c.emitter_legs[laser]), float(self.physics.laser_leg(laser)))
-        t, weight, comp = secondary_pairs(inv, side, p_tot, irr, on_pos, wpx, r_lp, rp, conn["normal"],
-                                          conn["direction"], conn["weight"], conn["phys"], conn["time"],
-                                          conn["channel"], xs.object_id[conn["b"]], mat, legs,
-                                          self.n_primary * c.n_channels)
+        conns = (conn["normal"], conn["direction"], conn["weight"], conn["phys"], conn["time"], conn["channel"])
+        t, weight, comp = secondary_pairs(inv, side, p_tot, (irr, on_pos, wpx, r_lp, rp), conns,
+                                          xs.object_id[conn["b"]], mat, legs, self.n_primary * c.n_channels)
         if len(t) == 0:
             return
         self.stats.secondary_pairs += len(t)

@@ -1,21 +1,28 @@
 """The weight of each leg of a light path, written once (docs/physics.md §2).
 
 Every estimator of the transient path integral — the lookin sampler (:mod:`.lookin`, :mod:`.secondary`), the
-area sampler (:mod:`.area`), the quadrature (:mod:`.quadrature`) — and the effect planner's coarse quadrature
-and the figures weigh a path with the functions here; they differ only in how they *sample* its vertices.
-For a path emitter → laser spot x_l → hidden point x → relay-wall point y (in the sensor's FoV) → sensor x_s:
+area sampler (:mod:`.area` and its compiled passes :mod:`.area_kernels`), the quadrature (:mod:`.quadrature`,
+:mod:`.quad_kernel`) — and the effect planner's coarse quadrature and the figures weigh a path with the functions
+here; they differ only in how they *sample* its vertices. Each formula is a numba device function
+(``inline="always"``) that compiled kernels call and numpy code calls on arrays through
+:func:`datagen.scene.brdf_kernel.on_arrays` (the same float operations in the same order); the BRDFs are those of
+:mod:`datagen.scene.brdf_kernel`. For a path emitter → laser spot x_l → hidden point x → relay-wall point y (in the
+sensor's FoV) → sensor x_s:
 
-- laser spot, toward ω: f_l(ω_e, ω)·cosθ_l (:meth:`LegPhysics.spot_emission`); paper A1: Γ₁ B₁ (α₁ → 1/(N p)).
-- laser → hidden point: E = Φ f_l cosθ_l cosθ_x,in / r² · V (:func:`laser_irradiance`,
-  :meth:`LegPhysics.irradiance`); A1 in area measure.
+- laser spot, toward ω: f_l(ω_e, ω)·cosθ_l (:func:`emission_term`, :meth:`LegPhysics.spot_emission`); paper A1:
+  Γ₁ B₁ (α₁ → 1/(N p)).
+- laser → hidden point: E = Φ f_l cosθ_l cosθ_x,in / r² · V (:func:`irradiance_term`, :func:`laser_irradiance`,
+  :meth:`LegPhysics.irradiance`); A1 in area measure. Its geometric factor cosθ_l cosθ_x,in / r², and that of a
+  hidden → hidden leg: :func:`geometry_term`.
 - scattering at any vertex: f(ω_in, ω_out) (:meth:`LegPhysics.brdf`); the paper's Γ and B per surface.
-- hidden point → FoV point: cosθ_y,in dA_y / r² · collection(y) (:func:`fov_connection_weight`); A2 with α → the
-  pixel's Ω or dA_y.
-- FoV point → sensor: q f_y cosθ_y,out A_ap cosθ_ap / d² · V (:meth:`LegPhysics.sensor_collection`); A3 and the
-  aperture term π f²/f_no², q.
-- whole path: e^{−μ·(physical path)} (:meth:`LegPhysics.attenuation`); C_atm.
+- hidden point → FoV point: cosθ_y,in dA_y / r² · collection(y) (:func:`fov_term`, :func:`fov_connection_weight`);
+  A2 with α → the pixel's Ω or dA_y.
+- FoV point → sensor: q f_y cosθ_y,out A_ap cosθ_ap / d² · V (:func:`collection_term`,
+  :meth:`LegPhysics.sensor_collection`); A3 and the aperture term π f²/f_no², q.
+- whole path: e^{−μ·(physical path)} (:func:`attenuation_term`, :meth:`LegPhysics.attenuation`); C_atm.
 - time of flight: (switched legs + hidden legs) / c (:meth:`LegPhysics.laser_leg`, :meth:`LegPhysics.sensor_leg`).
-- direct spot → sensor (first bounce): Φ q f_l cosθ_l A_ap cosθ_ap / d² · V (:meth:`LegPhysics.first_bounce`).
+- direct spot → sensor (first bounce): Φ q f_l cosθ_l A_ap cosθ_ap / d² · V (:func:`direct_term`,
+  :meth:`LegPhysics.first_bounce`).
 
 A point reached by a ray of solid angle dω from a vertex has area element dA = r² dω / cosθ, so the 1/r² of a
 leg cancels when that leg is sampled by direction (lookins, camera pixels) and is genuine when it is sampled
@@ -31,9 +38,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene, SceneError
 from ..scene import SIN_THETA
+from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..sampling import stratified_grid
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot, unit
@@ -89,18 +98,69 @@ class PhysicsSettings:
             raise SceneError(f"{where}: pde must be in [0, 1], got {self.pde!r}")
 
 
-def laser_irradiance(photons: float, emission: np.ndarray, cos_in: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Laser irradiance at hidden points, photons per m²: E = Φ · f_l cosθ_l · cosθ_x,in / r² (visibility is the
-    caller's). ``emission`` is :meth:`LegPhysics.spot_emission` toward the points; (n,) arrays."""
+# -- the leg formulas: scalar numba device functions, called by every compiled kernel (transport's area and
+# quadrature kernels, the planner's coarse kernel) and, through on_arrays, by the numpy code below -------------
+
+@njit(cache=True, inline="always")
+def emission_term(f, cos):
+    """Radiant intensity of the laser spot per photon of the pulse toward ω: f_l(ω_e, ω)·cosθ_l (1/sr), paper A1
+    without its 1/R²; ``cos`` = max(n_l·ω, 0)."""
+    return f * cos
+
+
+@njit(cache=True, inline="always")
+def irradiance_term(photons, emission, cos_in, r):
+    """Laser irradiance at a hidden point, photons per m²: E = Φ · f_l cosθ_l · cosθ_x,in / r² (visibility is
+    the caller's); ``emission`` = :func:`emission_term` toward the point, r the spot → point distance."""
     return photons * emission * cos_in / r ** 2
 
 
-def fov_connection_weight(numerator: np.ndarray, r: np.ndarray, collection: np.ndarray) -> np.ndarray:
-    """Next-event connection to the FoV: ``numerator / r² · collection`` with numerator cosθ_y,in (times dA_y, or
+@njit(cache=True, inline="always")
+def geometry_term(cos_a, cos_b, r):
+    """The geometric factor of a leg sampled by area: cosθ_a cosθ_b / r² (1/m²; e.g. laser point → hidden point,
+    whose cosine-direction density from the spot is geo/π, or hidden point → hidden point)."""
+    return cos_a * cos_b / r ** 2
+
+
+@njit(cache=True, inline="always")
+def fov_term(cos_y, r, collection):
+    """Next-event connection to the FoV: ``cos_y / r² · collection`` with ``cos_y`` cosθ_y,in (times dA_y, or
     times cosθ_x,out for the quadrature's symmetric form) and ``collection`` what a photon landing at y becomes
-    at the sensor (:meth:`LegPhysics.sensor_collection`, times dA_y where the numerator lacks it). (n,) arrays;
-    per unit radiant intensity of the hidden point toward y."""
-    return numerator / r ** 2 * collection
+    at the sensor (:func:`collection_term`, times dA_y where the numerator lacks it); per unit radiant intensity
+    of the hidden point toward y (paper A2)."""
+    return cos_y / r ** 2 * collection
+
+
+@njit(cache=True, inline="always")
+def collection_term(pde, f, cos_out, aperture_area, cos_ap, d):
+    """Sensor collection of a photon landing at a FoV point y (aperture convention): q f_y(ω_in, ω_s) cosθ_y,out
+    A_ap cosθ_ap / d² (paper A3 and the aperture term; visibility is the caller's), d = |x_s − y|."""
+    return pde * f * cos_out * aperture_area * cos_ap / d ** 2
+
+
+@njit(cache=True, inline="always")
+def direct_term(photons, pde, emission, aperture_area, cos_ap, d):
+    """The direct laser point → sensor return (first bounce), photons per pulse: Φ q f_l cosθ_l A_ap cosθ_ap / d²
+    (visibility and attenuation are the caller's); ``emission`` = :func:`emission_term` toward the sensor."""
+    return photons * pde * emission * aperture_area * cos_ap / d ** 2
+
+
+@njit(cache=True, inline="always")
+def attenuation_term(mu, path):
+    """e^{−μ·path} for a physical path length in metres, μ in 1/m (the paper's C_atm)."""
+    return np.exp(-mu * path)
+
+
+def laser_irradiance(photons: float, emission: np.ndarray, cos_in: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:func:`irradiance_term` on numpy arrays: E = Φ · f_l cosθ_l · cosθ_x,in / r², photons per m². ``emission``
+    is :meth:`LegPhysics.spot_emission` toward the points; (n,) arrays."""
+    return on_arrays(irradiance_term)(photons, emission, cos_in, r)
+
+
+def fov_connection_weight(numerator: np.ndarray, r: np.ndarray, collection: np.ndarray) -> np.ndarray:
+    """:func:`fov_term` on numpy arrays: ``numerator / r² · collection``, (n,) arrays; per unit radiant intensity
+    of the hidden point toward y."""
+    return on_arrays(fov_term)(numerator, r, collection)
 
 
 class LegPhysics:
@@ -126,7 +186,8 @@ class LegPhysics:
         self.stats = stats if stats is not None else ShadowRayCount()
         self.tol = FOV_PLANE_TOL * caster.offset
         # f = ρ/π per object for Lambertian materials, NaN for the others (evaluated in full by brdf)
-        self.lambert_f = np.where(self.materials.lambertian, self.materials.albedo / np.pi, np.nan)
+        self.lambert_f = np.where(self.materials.lambertian, on_arrays(lambertian_value)(self.materials.albedo),
+                                  np.nan)
         self.angular_g = self.materials.kind == SIN_THETA        # g(ω) ≠ 1 in the separable split
         self.wall_object = self._find_wall_object()
         self.fov_objects = self._find_fov_objects()
@@ -153,10 +214,10 @@ class LegPhysics:
         cos = np.maximum(dot(n, directions), 0.0)
         obj = c.spot_objects[laser]
         if self.materials.lambertian[obj] and not self.settings.brdf_angles:
-            return self.materials.albedo[obj] / np.pi * cos
+            return on_arrays(emission_term)(on_arrays(lambertian_value)(self.materials.albedo[obj]), cos)
         f = self.materials.evaluate(np.full(directions.shape[:-1], obj), n,
                                     np.broadcast_to(w_e, directions.shape), directions)
-        return f * cos
+        return on_arrays(emission_term)(f, cos)
 
     def irradiance(self, points: np.ndarray, face_normals: np.ndarray, laser: int
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -183,7 +244,7 @@ class LegPhysics:
             idx = idx[self.caster.visible(points[idx], n_lit, spot, spot_n)]
         geo = np.zeros(len(points))
         e = np.zeros(len(points))
-        geo[idx] = cos_l[idx] * cos_in[idx] / r[idx] ** 2
+        geo[idx] = on_arrays(geometry_term)(cos_l[idx], cos_in[idx], r[idx])
         e[idx] = laser_irradiance(c.photons, self.spot_emission(-w[idx], laser), cos_in[idx], r[idx])
         return e, r, w, geo
 
@@ -235,7 +296,7 @@ class LegPhysics:
     def attenuation(self, path: np.ndarray) -> np.ndarray | float:
         """e^{−μ·path} for physical path lengths (metres), or 1.0 when μ = 0 (the paper's C_atm)."""
         mu = self.settings.attenuation
-        return np.exp(-mu * path) if mu > 0 else 1.0
+        return on_arrays(attenuation_term)(mu, path) if mu > 0 else 1.0
 
     # -- sensor side -------------------------------------------------------------------------------------
 
@@ -258,7 +319,7 @@ class LegPhysics:
             return f, d
         cos_out = np.maximum(dot(normals, w_s), 0.0)
         cos_ap = np.maximum(-dot(w_s, c.aperture_normals(points)), 0.0)
-        out = self.settings.pde * f * cos_out * c.aperture_area * cos_ap / d ** 2
+        out = on_arrays(collection_term)(self.settings.pde, f, cos_out, c.aperture_area, cos_ap, d)
         if self.settings.shadow_sensor:
             self.sensor_shadows(out, points, normals, w_s, d)
         return out, d
@@ -343,7 +404,7 @@ class LegPhysics:
         emit = self.spot_emission(w_s[None], laser)
         cos_ap = max(-float(dot(w_s, c.aperture_normals(spot))), 0.0)
         vis = self.caster.visible(spot[None], c.spot_normals[laser][None], c.sensor, None)
-        weight = c.photons * self.settings.pde * emit * c.aperture_area * cos_ap / d ** 2 * vis
+        weight = on_arrays(direct_term)(c.photons, self.settings.pde, emit, c.aperture_area, cos_ap, d) * vis
         weight = weight * self.attenuation(np.array([c.emitter_legs[laser] + d]))
         t = (self.laser_leg(laser) + self.sensor_leg(d)) / SPEED_OF_LIGHT
         return weight, c.emitter_legs[laser] + d, t

@@ -36,9 +36,9 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from ..scene.brdf_kernel import phong_value
-from ..scene.materials import PHONG
+from ..scene.brdf_kernel import PHONG, phong_cos_alpha, phong_power, phong_value
 from ..timing.tent_kernel import deposit_tent, sort3
+from .physics import attenuation_term, emission_term
 
 if numba.config.THREADING_LAYER == "default":
     # the parallel kernels' threads: GNU OpenMP before TBB (numba tries TBB first; the TBB beside Embree here is
@@ -113,11 +113,11 @@ def _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, idx, pl
 
 
 @njit(cache=True, inline="always")
-def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targets, fov_n, collect, tol, f_lamb, kind,
-          rho, ks, expo):
-    """(E, f · G, r_l, r_y) of one pair (E · f · G = 0: no contribution), f the hidden BRDF (module doc); ``same``:
-    the target is the laser point (confocal), whose leg is then the laser leg. One exit and scalar indexing only:
-    early returns holding array views cost ~100 ns per call in numba."""
+def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targets, fov_n, collect, tol, cell_brdf):
+    """(E, f · G, r_l, r_y) of one pair (E · f · G = 0: no contribution), f the hidden BRDF (module doc; row m of
+    ``cell_brdf``: :data:`CELL_BRDF`); ``same``: the target is the laser point (confocal), whose leg is then the
+    laser leg. One exit and scalar indexing only: early returns holding array views cost ~100 ns per call in
+    numba."""
     n0, n1, n2 = normal[m, 0], normal[m, 1], normal[m, 2]
     w0, w1, w2 = spots[l, 0] - centroid[m, 0], spots[l, 1] - centroid[m, 1], spots[l, 2] - centroid[m, 2]
     r_l = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
@@ -130,7 +130,7 @@ def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targe
     fg = 0.0
     r_y = r_l
     if cos_l > 0.0 and cos_in > 0.0 and r_l > tol:
-        e = photons * (spot_f[l] * cos_l) * cos_in * (inv_l * inv_l)
+        e = photons * emission_term(spot_f[l], cos_l) * cos_in * (inv_l * inv_l)
         if same:
             d0, d1, d2, inv_y, nw = w0, w1, w2, inv_l, nfw
         else:
@@ -142,56 +142,63 @@ def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targe
         cos_y = -(d0 * fov_n[0] + d1 * fov_n[1] + d2 * fov_n[2])
         if abs(nw) > 0.0 and cos_y > 0.0 and r_y > tol and (nw > 0.0) == (nfw > 0.0):
             g = abs(nw) * cos_y * (inv_y * inv_y) * collect[t]
-            f = f_lamb[m]
-            if kind[m] == PHONG:        # Phong with the lit-side normal (datagen.scene.brdf_kernel)
+            f = cell_brdf[m, 0]
+            if cell_brdf[m, 1] == PHONG:        # Phong with the lit-side normal (datagen.scene.brdf_kernel)
                 sgn = 1.0 if nfw > 0.0 else -1.0
-                f = phong_value(rho[m], ks[m], expo[m], cos_in, sgn * n0, sgn * n1, sgn * n2, w0, w1, w2,
-                                d0, d1, d2)
+                expo = cell_brdf[m, 4]
+                f = phong_value(cell_brdf[m, 2], cell_brdf[m, 3], expo,
+                                phong_power(phong_cos_alpha(cos_in, sgn * n0, sgn * n1, sgn * n2, w0, w1, w2,
+                                                            d0, d1, d2), expo))
             fg = f * g
     return e, fg, r_l, r_y
 
 
 @njit(cache=True, inline="always")
-def _tent(paths, row, v0, v1, v2, centre, offset, speed, t_start, step, shift, n_fine, min_nodes, hist, curv, total,
-          beyond, w, comp):
-    """The tent of triangle (v0, v1, v2) (vertex path lengths ``paths[row]``): the shift to the triangle rule's
-    mean, deposit."""
+def _tent_nodes(paths, row, v0, v1, v2, centre, offset, speed, t_start, step, shift):
+    """The sorted fine-grid nodes (c0 ≤ c1 ≤ c2) of the tent of triangle (v0, v1, v2) (vertex path lengths
+    ``paths[row]``), shifted to the triangle rule's mean (module doc of :mod:`.quadrature`)."""
     p0, p1, p2 = paths[row, v0], paths[row, v1], paths[row, v2]
     shift_path = 0.75 * (centre - (p0 + p1 + p2) / 3.0) + offset
     c0 = ((p0 + shift_path) / speed - t_start) / step + shift
     c1 = ((p1 + shift_path) / speed - t_start) / step + shift
     c2 = ((p2 + shift_path) / speed - t_start) / step + shift
-    c0, c1, c2 = sort3(c0, c1, c2)
-    deposit_tent(c0, c1, c2, w, comp, n_fine, min_nodes, hist, curv, total, beyond)
+    return sort3(c0, c1, c2)
 
 
+CELL_BRDF = ("f_lamb", "kind", "rho", "ks", "expo")
+"""Columns of the kernel's per-sub-triangle BRDF array (M, 5) float64: constant f = ρ/π (Lambertian), the kind
+code (:data:`datagen.scene.brdf_kernel.PHONG` …), albedo, specular fraction and exponent of its object."""
+WORK = ("paths", "ray_cell", "ray_count", "visible", "group_ptr", "group_conn")
 GEO = ("vertices", "cells", "area", "comp_base", "coarse_of", "coarse_cells")
-POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol", "f_lamb",
-        "kind", "rho", "ks", "expo")
+POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol",
+        "cell_brdf")
 CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
 OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "face_ray")
-"""The kernel's inputs by group (:func:`datagen.transport.quad_primary.run_compiled` builds them): passed as
-separate arguments, since arrays taken out of a tuple inside numba's inner loop cost an atomic reference count
-each (measured ~100 ns per pair)."""
+"""The kernel's inputs by group (tuples; :func:`datagen.transport.quad_primary.run_compiled` builds them). The
+kernel unpacks every group once before its loops: arrays taken out of a tuple inside numba's inner loop cost an
+atomic reference count each (measured ~100 ns per pair)."""
 
 
 @njit(cache=True, parallel=True)
-def _pairs(listed, b0, b1, paths, ray_cell, ray_count, visible, group_ptr, group_conn,
-           vertices, cells, area, comp_base, coarse_of, coarse_cells,
-           centroid, normal, cell_face, closed, spot_n, spot_f, photons, fov_n, collect, tol, f_lamb, kind, rho, ks,
-           expo,
-           conn_laser, conn_target, conn_channel, conn_same,
-           spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride,
-           t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond,
-           has_coarse, ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond,
-           shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray):
-    """Both passes (module doc) over the connections [b0, b1), in groups of one channel each (connections
-    ``group_conn[group_ptr[g]:group_ptr[g + 1]]``, ascending), the groups in parallel: a channel's rows of the grids
-    are written by its group only, in the same order for any number of threads. ``listed`` False: every pair,
-    listing those that need a shadow ray (connection b's in ``ray_cell[(b − b0)·M:]``, ``ray_count[b − b0]`` of
-    them); True: the listed pairs whose ray found the laser point ``visible`` (same slots)."""
+def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse, occ):
+    """Both passes (module doc) over the connections ``block`` = [b0, b1), in groups of one channel each
+    (connections ``group_conn[group_ptr[g]:group_ptr[g + 1]]``, ascending), the groups in parallel: a channel's rows
+    of the grids are written by its group only, in the same order for any number of threads. ``listed`` False:
+    every pair, listing those that need a shadow ray (connection b's in ``ray_cell[(b − b0)·M:]``,
+    ``ray_count[b − b0]`` of them); True: the listed pairs whose ray found the laser point ``visible`` (same
+    slots). The groups of arguments: :data:`WORK`, :data:`GEO`, :data:`POSE`, :data:`CONN`, :data:`LEGS`,
+    :data:`GRID` (``grid``, and ``coarse`` for the rule at 2h when ``has_coarse``), :data:`OCC`."""
+    b0, b1 = block
+    paths, ray_cell, ray_count, visible, group_ptr, group_conn = work
+    vertices, cells, area, comp_base, coarse_of, coarse_cells = geo
+    centroid, normal, cell_face, closed, spot_n, spot_f, photons, fov_n, collect, tol, cell_brdf = pose
+    conn_laser, conn_target, conn_channel, conn_same = conn
+    spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride = legs
+    t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond = grid
+    ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond = coarse
+    shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
     M = centroid.shape[0]
     n_groups = len(group_ptr) - 1
     group_tents = np.zeros(n_groups, dtype=np.int64)
@@ -216,7 +223,7 @@ def _pairs(listed, b0, b1, paths, ray_cell, ray_count, visible, group_ptr, group
                                              + normal[m, 2] * (spots[l, 2] - centroid[m, 2])) < 0.0:
                     continue                    # the inner side of a closed surface (quad_primary.closed_outward)
                 e, g, r_l, r_y = _legs(m, l, t, conn_same[b], centroid, normal, spots, spot_n, spot_f, photons,
-                                       targets, fov_n, collect, tol, f_lamb, kind, rho, ks, expo)
+                                       targets, fov_n, collect, tol, cell_brdf)
                 if not (e > 0.0 and g > 0.0):
                     continue
                 if shadow and not listed:
@@ -231,19 +238,20 @@ def _pairs(listed, b0, b1, paths, ray_cell, ray_count, visible, group_ptr, group
                         continue
                 weight = area[m] * e * g
                 if mu > 0.0:
-                    weight = weight * math.exp(-mu * (emitter_leg[l] + r_l + r_y + d_y[t]))
+                    weight = weight * attenuation_term(mu, emitter_leg[l] + r_l + r_y + d_y[t])
                 if not weight > 0.0:
                     continue
                 offset = 0.0 + laser_off[l] + sensor_off[t]
                 centre = r_l + r_y
-                _tent(paths, row, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed, t_start, step, shift,
-                      n_fine, min_nodes, hist, curv, total, beyond, weight, comp_base[m] + ch)
+                c0, c1, c2 = _tent_nodes(paths, row, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed,
+                                         t_start, step, shift)
+                deposit_tent(c0, c1, c2, weight, comp_base[m] + ch, n_fine, min_nodes, hist, curv, total, beyond)
                 tents += 1
                 k = coarse_of[m]
                 if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
-                    _tent(paths, row, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2], centre, offset,
-                          speed, ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond,
-                          4.0 * weight, ch)
+                    c0, c1, c2 = _tent_nodes(paths, row, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2],
+                                             centre, offset, speed, ct_start, cstep, cshift)
+                    deposit_tent(c0, c1, c2, 4.0 * weight, ch, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond)
             if not listed:
                 ray_count[row] = n_rays
         group_tents[grp] = tents
@@ -265,12 +273,6 @@ def vertex_paths(vertices, spots, targets, conn_laser, conn_target, conn_same, s
                 out[b - start, v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
 
 
-def _flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ) -> tuple:
-    """The arguments of :func:`_pairs` after (listed, b0, b1, paths, ray_cell, ray_count, visible, group_ptr,
-    group_conn)."""
-    return (*geo, *pose[:10], *pose[10], *conn, *legs, *grid, bool(has_coarse), *coarse, *occ)
-
-
 def channel_groups(conn_channel: np.ndarray, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
     """The connections [start, stop) in groups of one channel each: (group_ptr (G + 1,), group_conn (stop − start,))
     int64, each group's connections ascending (a stable sort by channel)."""
@@ -286,19 +288,19 @@ def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, oc
     """Deposit every contributing pair of the connections ``block`` (start, stop) that needs no shadow ray and
     list the others: connection b's cells in ``ray_cell[(b − start)·M:]`` (capacity cells × connections),
     ``ray_count[b − start]`` of them. ``paths``: the block's :func:`vertex_paths`; ``groups``:
-    :func:`channel_groups`; the groups of arguments: :data:`GEO`, :data:`POSE` (the BRDF arrays as one tuple),
-    :data:`CONN`, :data:`LEGS`, :data:`GRID` (``grid``, ``coarse``), :data:`OCC`. Returns the tents deposited."""
+    :func:`channel_groups`; the groups of arguments: :data:`GEO`, :data:`POSE`, :data:`CONN`, :data:`LEGS`,
+    :data:`GRID` (``grid``, ``coarse``), :data:`OCC`. Returns the tents deposited."""
     none = np.zeros(1, dtype=np.uint8)
-    return _pairs(False, int(block[0]), int(block[1]), paths, ray_cell, ray_count, none, *groups,
-                  *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))
+    return _pairs(False, (int(block[0]), int(block[1])), (paths, ray_cell, ray_count, none, *groups), geo, pose,
+                  conn, legs, grid, bool(has_coarse), coarse, occ)
 
 
 def deposit_pairs(block, paths, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid, coarse,
                   has_coarse, occ) -> int:
     """Deposit the listed pairs (of the connections ``block``, slots as :func:`candidates` left them) whose shadow
     ray found the laser point visible (``visible`` uint8 per slot). Returns the tents deposited."""
-    return _pairs(True, int(block[0]), int(block[1]), paths, ray_cell, ray_count, visible, *groups,
-                  *_flat(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ))
+    return _pairs(True, (int(block[0]), int(block[1])), (paths, ray_cell, ray_count, visible, *groups), geo, pose,
+                  conn, legs, grid, bool(has_coarse), coarse, occ)
 
 
 @njit(cache=True, parallel=True)

@@ -17,6 +17,7 @@ import numba
 import numpy as np
 
 from ..scene import RayCaster, hull_planes, may_meet, outward_planes
+from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
 from .quad_kernel import (candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes,
                           vertex_paths)
@@ -197,8 +198,9 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
     rays = legs_.stats.shadow_rays
     collect, d_y = legs_.sensor_collection(y, n_y, np.full(len(y), legs_.wall_object), n_y)
     q.stats.shadow_rays += legs_.stats.shadow_rays - rays
-    f_lamb = q.materials.albedo[q.cell_object] / np.pi
-    spot_f = q.materials.albedo[c.spot_objects] / np.pi
+    lambert = on_arrays(lambertian_value)
+    f_lamb = lambert(q.materials.albedo[q.cell_object])
+    spot_f = lambert(q.materials.albedo[c.spot_objects])
     comp_base = (q.object_component[q.cell_object] * c.n_channels).astype(np.int64)
     laser_off = np.broadcast_to(np.asarray(legs_.laser_leg(np.arange(c.n_lasers)), dtype=np.float64),
                                 (c.n_lasers,)).copy()
@@ -206,8 +208,9 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
     i64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)
     mat = q.materials
-    brdf = (f64(f_lamb), i64(mat.kind[q.cell_object]), f64(mat.albedo[q.cell_object]),
-            f64(mat.specular[q.cell_object]), f64(mat.exponent[q.cell_object]))
+    cell_brdf = np.ascontiguousarray(np.stack([f_lamb, mat.kind[q.cell_object], mat.albedo[q.cell_object],   # CELL_BRDF
+                                               mat.specular[q.cell_object], mat.exponent[q.cell_object]], axis=1),
+                                     dtype=np.float64)
     geo = (f64(q.vertices), i64(q.cells), f64(q.cell_area), comp_base, i64(q.coarse_of),
            i64(q.coarse_cells.reshape(-1, 3)))
     face_object = q.caster.face_object[q.area.hidden_faces]
@@ -215,7 +218,7 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
     front = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, face_object)]    # per hidden face
     closed = front[q.cell_hidden].astype(np.uint8)
     pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), closed, f64(c.spot_normals), f64(spot_f),
-            float(c.photons), f64(c.fov_normal), f64(collect * q.target_area), float(q.area.tol), brdf)
+            float(c.photons), f64(c.fov_normal), f64(collect * q.target_area), float(q.area.tol), cell_brdf)
     same = (c.spots[q.conn_laser] == y[q.conn_target]).all(axis=1)         # the target is the laser point
     conn = (i64(q.conn_laser), i64(q.conn_target), i64(q.conn_channel), same.astype(np.uint8))
     legs = (f64(c.spots), f64(y), f64(c.emitter_legs), f64(laser_off), f64(d_y), f64(sensor_off),

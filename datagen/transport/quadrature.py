@@ -523,7 +523,7 @@ class Quadrature:
         all_lasers = np.unique(self.conn_laser)
         if M * len(all_lasers) <= 4 * s.batch:                   # the laser legs of every laser point, once
             laser_cache = {"lasers": all_lasers, **self._laser_leg(all_lasers)}
-        f_lamb = self.materials.albedo[self.cell_object] / np.pi
+        f_lamb = self.physics.lambert_f[self.cell_object]         # ρ/π (NaN: not Lambertian, then f comes from brdf)
         comp_base = self.object_component[self.cell_object] * c.n_channels          # (M,)
         tri_v = self.cells                                                            # (M, 3)
         n_conn = len(self.conn_laser)
