@@ -157,3 +157,14 @@ def test_an_unchanged_dataset_yaml_keeps_its_fingerprint():
     data = location_free_json(config.to_json())
     data["time_cap"] = data.pop("cost_cap")
     assert config.fingerprint() == hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+
+
+def test_a_flat_key_of_the_command_line_estimator_applies_beside_a_new_form_block(tmp_path):
+    """benchmarks/compare_outputs.py's demo_area job: the demo room (a lookin block) with a flat area_samples and
+    --estimator area: the area sampler takes the scene's samples, as the old flat merge did (one note)."""
+    data = yaml.safe_load(DEMO.read_text())
+    data["simulation"]["area_samples"] = 16384
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.warns(LegacyKeysWarning, match="area_samples -> estimator.samples"):
+        assert resolve_config(load_scene(path), {"estimator": "area"}).estimator == AreaOptions(samples=16384)

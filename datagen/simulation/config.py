@@ -221,11 +221,16 @@ def merge_overrides(defaults: dict, overrides: dict) -> tuple[dict, list[str]]:
     mapping takes the estimator ``overrides`` name, and its flat keys apply to that estimator."""
     given = {k: v for k, v in overrides.items() if v is not None}
     base = dict(defaults)
-    if "estimator" in given and not isinstance(base.get("estimator"), (dict, EstimatorOptions)):
-        base["estimator"] = _kind_of(given["estimator"], "lookin")
-    base, moves = translate_legacy(base)
-    given, _ = translate_legacy(given, _kind_of(base.get("estimator"), "lookin"))
-    return merge_simulation(base, given), moves
+    kind = _kind_of(base.get("estimator"), "lookin")
+    final = _kind_of(given.get("estimator"), kind)
+    moves = []
+    if final != kind:       # the flat keys of defaults apply to the estimator overrides choose
+        flat = {k: base.pop(k) for k in list(base) if k in legacy_keys()}
+        flat, moves = translate_legacy({**flat, "estimator": final})
+        given = merge_simulation(flat, translate_legacy(given, final)[0])
+    base, more = translate_legacy(base)
+    given, _ = translate_legacy(given, kind)
+    return merge_simulation(base, given), moves + more
 
 
 def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationConfig:
