@@ -116,7 +116,7 @@ def scan_error(name: str, index: int) -> tuple[float, float]:
     rngs = sample_rngs(config.seed, "train", index)
     result = simulate_to_tolerance(scene, sim, config.tolerance, max_cost=config.time_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
-    h = float(result.attrs["config"]["quadrature_edge"])
+    h = float(result.attrs["config"]["estimator"]["edge"])
     fov = int(result.attrs["quadrature"]["fov_cells_per_pixel_side"])
     grading = sim.quadrature_grading            # a graded config's reference: every piece 4× smaller too
     ref = datagen.simulate(scene, sim.model_copy(update={

@@ -7,6 +7,7 @@ converts them once, at the boundary.
 from __future__ import annotations
 
 import re
+from typing import Any
 
 SPEED_OF_LIGHT = 299_792_458.0
 """c in m/s (exact, SI definition)."""
@@ -60,3 +61,24 @@ def photons_per_pulse(pulse_energy: float, wavelength: float) -> float:
     if pulse_energy < 0 or wavelength <= 0:
         raise ValueError(f"pulse_energy must be >= 0 and wavelength > 0, got {pulse_energy!r}, {wavelength!r}")
     return pulse_energy * wavelength / (PLANCK * SPEED_OF_LIGHT)
+
+
+_GRID = re.compile(r"^\s*(\d+)\s*[x×X]\s*(\d+)\s*$")
+
+
+def parse_grid(value: Any, field_name: str) -> tuple[int, int]:
+    """Read a grid size from ``"10x10"``, ``10`` (→ 10×10) or ``[10, 10]``; both counts ≥ 1."""
+    if isinstance(value, str):
+        m = _GRID.match(value)
+        if not m:
+            raise ValueError(f"{field_name} must look like '10x10', got {value!r}")
+        grid = (int(m.group(1)), int(m.group(2)))
+    elif isinstance(value, int) and not isinstance(value, bool):
+        grid = (value, value)
+    elif isinstance(value, (list, tuple)) and len(value) == 2:
+        grid = (int(value[0]), int(value[1]))
+    else:
+        raise ValueError(f"{field_name} must look like '10x10', got {value!r}")
+    if min(grid) < 1:
+        raise ValueError(f"{field_name} counts must be >= 1, got {value!r}")
+    return grid

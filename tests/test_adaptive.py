@@ -71,7 +71,7 @@ def test_quadrature_edge_is_refined_until_the_tolerance_holds(reference, tol):
     assert info["met"] and info["estimate"] <= tol
     edges = [r["quadrature_edge"] for r in info["rounds"]]
     assert edges == sorted(edges, reverse=True)
-    assert result.attrs["config"]["quadrature_edge"] == edges[-1]
+    assert result.attrs["config"]["estimator"]["edge"] == edges[-1]
     assert describe_setting(result.attrs["config"]) == f"quadrature edge {edges[-1]:.4g} m"
     actual = relative_l2(result.envelope, ref)
     assert actual <= tol and actual <= 2.0 * info["estimate"] + 2e-4   # the reference's own error ~1e-4

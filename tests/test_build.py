@@ -101,7 +101,7 @@ def test_card_records_the_tolerance_the_error_distribution_and_the_misses(refere
     assert acc["envelope_error"]["median"] == pytest.approx(np.median(stored.astype(np.float64)), rel=1e-6)
     assert 0 < stored.max() <= 0.05
     strict = tiny_config(shard_size=4, train=3, val=1, test_phong=0).model_copy(
-        update={"tolerance": 0.001, "time_cap": 0.2})
+        update={"tolerance": 0.001, "cost_cap": 0.2})
     out = tmp_path / "strict"
     build_dataset(strict, out, workers=0, progress=False)
     card = read_card(out)

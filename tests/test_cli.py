@@ -33,7 +33,7 @@ def test_simulate_writes_zarr_png_and_summary(tmp_path):
     assert result.counts.dtype == np.int64 and result.counts.shape == (5000,)
     assert set(result.components) == {"room", "box", "pillar", "secondary"}
     np.testing.assert_allclose(sum(result.components.values()), result.envelope, rtol=1e-12, atol=1e-300)
-    assert result.attrs["config"]["lookins"] == [4, 4] and result.attrs["config"]["seed"] == 3
+    assert result.attrs["config"]["estimator"]["lookins"] == [4, 4] and result.attrs["config"]["seed"] == 3
     assert result.attrs["effects"]["secondary"] == "optimized"
     assert result.attrs["effects"]["non_lambertian_brdfs"] == ["sin_theta"]
     assert result.attrs["versions"]["zarr"].startswith("3.")

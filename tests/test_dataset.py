@@ -157,15 +157,19 @@ def test_detector_preset_path_loads_with_the_dataset_time_axis():
     ({"room": "missing_rooms.yaml"}, "room: file not found: 'missing_rooms.yaml'"),
     ({"labels": {"max_objects": -1}}, "labels.max_objects"),
     ({"labels": {"voxel": 8}}, "labels.voxel"),
-    ({"simulation": {"lookins": "four"}}, "simulation.lookins"),
+    ({"simulation": {"lookins": "four"}}, "simulation.estimator.lookins"),
     ({"simulation": {"seed": 3}}, "simulation: .*remove simulation.seed"),
     ({"detector": {"pde": 2.0, "repetition_rate": 1e7, "exposure": "1ms"}}, "detector.pde"),
     ({"store": {"envelope_dtype": "float16"}}, "store.envelope_dtype"),
     ({"shard_size": 0}, "shard_size"),
     ({"tolerance": "150%"}, "tolerance"),
     ({"tolerance": "one percent%"}, "tolerance: .*must look like 1% or 0.01"),
-    ({"time_cap": "-2s"}, "time_cap"),
-    ({"simulation": {"quadrature_grading": -0.5}}, "simulation.quadrature_grading"),
+    ({"time_cap": "-2s"}, "time_cap and cost_cap are both given"),
+    ({"cost_cap": "-2s"}, "cost_cap"),
+    ({"simulation": {"estimator": "quadrature", "quadrature_grading": -0.5}}, "simulation.estimator.grading"),
+    ({"simulation": {"estimator": {"kind": "quadrature", "grading": -0.5}}}, "simulation.estimator.grading"),
+    ({"simulation": {"estimator": {"kind": "quadratur"}}},
+     "unknown estimator kind 'quadratur'; known: lookin, area, quadrature"),
     ({"store": {"components": True}, "simulation": {"split_components": False}},
      "store.components: true needs the per-object components"),
 ])
@@ -193,7 +197,7 @@ def test_each_sample_meets_the_tolerance_and_stores_its_error_estimate(smoke):
     more only when the estimate asks for it (train[4] of the smoke config: 5 replicas); the parameters record
     the accuracy the sample reached."""
     import json
-    assert smoke.tolerance == 0.05 and smoke.time_cap == 0.5
+    assert smoke.tolerance == 0.05 and smoke.cost_cap == 0.5
     replicas = []
     for i in (3, 4):
         s = make_sample(smoke, "train", i)
@@ -214,9 +218,9 @@ def test_sample_setup_regenerates_the_sample(smoke):
     from datagen.simulation import simulate_to_tolerance
 
     scene, config = datagen.sample_setup(SMOKE, "val", 1)
-    assert config.estimator == "area" and config.time.n_bins == 256
+    assert config.estimator.kind == "area" and config.time.n_bins == 256
     rngs = sample_rngs(smoke.seed, "val", 1)
-    again = simulate_to_tolerance(scene, config, smoke.tolerance, max_cost=smoke.time_cap,
+    again = simulate_to_tolerance(scene, config, smoke.tolerance, max_cost=smoke.cost_cap,
                                   sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
     stored = make_sample(smoke, "val", 1).arrays
     assert np.array_equal(np.asarray(again.envelope, dtype=np.float32), stored["envelope"])

@@ -68,7 +68,7 @@ def test_baseline_configs_draw_from_the_shipped_distribution(small, shipped):
     assert a.room == b.room
     assert a.room_overrides == {"capture": {"scan": {"points": [16, 16]}}}
     assert a.detector == b.detector
-    assert a.simulation["estimator"] == b.simulation["estimator"] == "quadrature"
+    assert a.simulation["estimator"]["kind"] == b.simulation["estimator"]["kind"] == "quadrature"
     assert a.labels["max_objects"] == b.labels["max_objects"]
     ta, tb = a.simulation["time"], b.simulation["time"]
     assert parse_duration(ta["t_start"]) == parse_duration(tb["t_start"]) == 0.0

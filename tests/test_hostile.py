@@ -280,7 +280,7 @@ def test_huge_confocal_scan_is_refused(tmp_path):
 
 def test_tiny_quadrature_edge_is_refused(tmp_path):
     cli(simulate_args(scene_file(tmp_path), tmp_path / "out", "--estimator", "quadrature", "--edge", "1e-9"), 2,
-        "quadrature_edge 1e-09 m", "raise quadrature_edge")
+        "estimator.edge 1e-09 m", "raise estimator.edge")
 
 
 def test_a_billion_time_bins_are_refused(tmp_path):

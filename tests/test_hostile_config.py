@@ -290,7 +290,7 @@ DATASET_REFUSALS = {   # field: (value, the message after "config.yaml: ")
     "labels.max_objects": (10**30, "labels.max_objects: Input should be less than or equal to 1024"),
     "labels.depth_map": ([100000, 100000], "labels.depth_map: 100000x100000 pixels need 298 GiB per sample"),
     "splits.val.count": (10**30, f"splits: val.count: {10**30} samples in shards of 1 are more than 1000000 shards"),
-    "time_cap": (1e308, "time_cap: Input should be less than or equal to 3600 (got 1e+308)"),
+    "cost_cap": (1e308, "cost_cap: Input should be less than or equal to 3600 (got 1e+308)"),
     "tolerance": (1e-300, "tolerance: Input should be greater than or equal to 0.0000000001 (got 1e-300)"),
 }
 
@@ -337,9 +337,9 @@ def test_view_size_bounds():
 
 # ------------------------------------------------------------------------------------------ property test
 
-FIELDS = ["splits.train.count", "splits.val.count", "shard_size", "seed", "tolerance", "time_cap",
+FIELDS = ["splits.train.count", "splits.val.count", "shard_size", "seed", "tolerance", "cost_cap",
           "simulation.time.t_start", "simulation.time.bin_width", "simulation.time.n_bins", "simulation.irf.fwhm",
-          "simulation.replicas", "simulation.area_samples", "detector.pde", "detector.dcr", "detector.ambient_rate",
+          "simulation.replicas", "simulation.estimator.samples", "detector.pde", "detector.dcr", "detector.ambient_rate",
           "detector.repetition_rate", "detector.exposure", "detector.model", "labels.max_objects",
           "labels.depth_map", "labels.voxels", "store.envelope", "store.counts", "store.components",
           "store.envelope_dtype"]
@@ -360,7 +360,7 @@ def cheap(config) -> bool:
     """A build of ``config`` is a few small samples: few samples, a small time axis and sampling."""
     sim = config.simulation
     n_bins = sim.get("time", {}).get("n_bins", 0)
-    return (sum(s.count for s in config.splits.values()) <= 4 and config.time_cap <= 0.5
+    return (sum(s.count for s in config.splits.values()) <= 4 and config.cost_cap <= 0.5
             and config.tolerance >= 0.05 and isinstance(n_bins, int) and n_bins <= 4096
             and sim.get("replicas", 4) <= 16 and sim.get("area_samples", 2048) <= 4096)
 
@@ -410,7 +410,7 @@ def test_mutated_dataset_configs_load_and_build_or_are_refused_in_one_line(tmp_p
         # accepted: the config is self-consistent and round-trips
         again = load_dataset_config(config.to_json(), folder)
         assert again.to_json() == config.to_json()
-        assert math.isfinite(config.tolerance) and math.isfinite(config.time_cap)
+        assert math.isfinite(config.tolerance) and math.isfinite(config.cost_cap)
         if len(built) < CHEAP_BUILDS and cheap(config):
             built.append((field, value))
             check_build(path, folder / "ds", {s: spec.count for s, spec in config.splits.items()})

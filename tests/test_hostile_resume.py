@@ -198,12 +198,13 @@ def test_triangle_counts_are_read_from_the_headers(tmp_path):
 def test_resume_with_another_estimator_is_refused_before_the_probe(built, monkeypatch):
     config, out, folder = built
     (config.parent / "other").mkdir()
-    other = asset_config(config.parent / "other", folder, edit=lambda d: d["simulation"].update(estimator="area"))
+    other = asset_config(config.parent / "other", folder, edit=lambda d: d["simulation"].update(estimator={"kind": "area"}))
     monkeypatch.setattr(build_module, "_probe", lambda c: pytest.fail("probe computed before the config check"))
     before = snapshot(out)
     cli(build_args(other, out, "--resume"), 2, f"{out} was built from a different config (differs in: "
-        "simulation.estimator): simulation.estimator is \"quadrature\" in the dataset's card, \"area\" in this "
-        "config; resume with the same config or build into another --out")
+        "simulation.estimator.edge, simulation.estimator.fov_cells, simulation.estimator.kind): "
+        "simulation.estimator.edge is 0.12 in the dataset's card, (absent) in this config; resume with the same "
+        "config or build into another --out")
     assert snapshot(out) == before
 
 
@@ -211,8 +212,8 @@ def test_resume_names_the_first_of_several_differences(built, no_probe):
     config, out, folder = built
     (config.parent / "other").mkdir()
     other = asset_config(config.parent / "other", folder,
-                         edit=lambda d: (d.update(seed=7), d["simulation"].pop("quadrature_fov")))
-    cli(build_args(other, out, "--resume"), 2, "differs in: seed, simulation.quadrature_fov)",
+                         edit=lambda d: (d.update(seed=7), d["simulation"]["estimator"].pop("fov_cells")))
+    cli(build_args(other, out, "--resume"), 2, "differs in: seed, simulation.estimator.fov_cells)",
         "seed is 20250302 in the dataset's card, 7 in this config")
 
 

@@ -45,10 +45,10 @@ def test_graded_quadrature_of_a_confocal_room_is_closer_to_the_fine_reference():
     config = load_dataset_config("configs/datasets/confocal_smoke.yaml")
     scene = draw_room(config, "train", 0)[0].scene
     sim = resolve_config(scene, {**config.simulation_overrides(), "quadrature_fov": 1})
-    run = lambda **kw: simulate(scene, sim.model_copy(update=kw))
-    ref = run(quadrature_edge=0.1, quadrature_grading=None).envelope
-    plain = run(quadrature_edge=0.4, quadrature_grading=None)
-    graded = run(quadrature_edge=0.4, quadrature_grading=0.5)
+    run = lambda **kw: simulate(scene, sim.with_estimator(**kw))
+    ref = run(edge=0.1, grading=None).envelope
+    plain = run(edge=0.4, grading=None)
+    graded = run(edge=0.4, grading=0.5)
     err = lambda r: float(np.linalg.norm(r.envelope - ref) / np.linalg.norm(ref))
     assert err(graded) < 0.2 * err(plain)
     assert err(graded) <= 2.0 * graded.attrs["error"]["rel_l2"] and graded.attrs["error"]["rel_l2"] <= 3.0 * err(graded)
@@ -93,12 +93,12 @@ def test_the_memory_estimate_counts_the_graded_sub_triangles():
     config = load_dataset_config("configs/datasets/confocal_smoke.yaml")
     scene = draw_room(config, "train", 0)[0].scene
     sim = resolve_config(scene, config.simulation_overrides())
-    assert sim.quadrature_grading is not None
+    assert sim.estimator.grading is not None
 
     def estimated(cfg):
         (value,) = [v for _, v, _ in simulation_memory(scene, cfg) if "sub-triangles" in v]
         return float(value.split("(")[1].split()[0])
 
-    real = Quadrature(scene, QuadratureSettings(edge=sim.quadrature_edge, grading=sim.quadrature_grading)).n_cells
+    real = Quadrature(scene, QuadratureSettings(edge=sim.estimator.edge, grading=sim.estimator.grading)).n_cells
     assert real <= estimated(sim) <= 4 * real
-    assert estimated(sim.model_copy(update={"quadrature_grading": None})) < real / 2
+    assert estimated(sim.with_estimator(grading=None)) < real / 2

@@ -195,7 +195,7 @@ def test_threads_give_bit_identical_envelopes(monkeypatch, fov_cells):
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one core: nothing runs in parallel")
     scene = _torus_scene(6)
-    sim = _torus_config(scene, 0.05).model_copy(update={"quadrature_fov": fov_cells})
+    sim = _torus_config(scene, 0.05).with_estimator(fov_cells=fov_cells)
     serial, q = _run(scene, sim, monkeypatch, segment_tests=False)             # 1.4 M pairs: no threads
     default = numba.get_num_threads()
     numba.set_num_threads(1)

@@ -396,8 +396,8 @@ def test_bad_settings_name_the_field():
         with pytest.raises(SceneError, match=field):
             QuadratureSettings(**kw)
     scene = small_scene()
-    for value, field in ((-0.01, "quadrature_edge"), (0, "quadrature_fov")):
-        with pytest.raises(SceneError, match=field):
+    for value, field, new in ((-0.01, "quadrature_edge", "estimator.edge"), (0, "quadrature_fov", "estimator.fov_cells")):
+        with pytest.raises(SceneError, match=new):
             resolve_config(scene, {"estimator": "quadrature", field: value})
     with pytest.raises(SceneError, match="secondary_only"):
         AreaSampler(scene, AreaSettings(secondary="none"), secondary_only=True)

@@ -72,13 +72,14 @@ def test_the_scan_finds_a_name_branch(tmp_path):
 @pytest.mark.parametrize("name", ["lookin", "area", "quadrature"])
 def test_memory_terms_come_from_the_entry(name):
     """simulation_memory = the shared terms + exactly the terms the estimator's entry gives (nothing by name)."""
-    config = SimulationConfig(estimator=name, lookins=(8, 8), pixels=(12, 12), area_samples=4096,
-                              quadrature_edge=0.1, secondary="full", workers=2)
+    options = {"lookin": {"lookins": (8, 8), "pixels": (12, 12)}, "area": {"samples": 4096},
+               "quadrature": {"edge": 0.1, "secondary_samples": 4096}}[name]
+    config = SimulationConfig(estimator={"kind": name, **options}, secondary="full", workers=2)
     scene, entry = patch_scene(), estimator(name)
     own = entry.memory(scene, config, 1, 1)
     terms = simulation_memory(scene, config)
     assert all(t in terms for t in own) and len(terms) == 3 + len(own)
     fields = {t[0] for t in own}
-    assert fields == {"lookin": {"lookins", "pixels"}, "area": {"area_samples"},
-                      "quadrature": {"area_samples", "quadrature_edge"}}[name]
+    assert fields == {"lookin": {"estimator.lookins", "estimator.pixels"}, "area": {"estimator.samples"},
+                      "quadrature": {"estimator.secondary_samples", "estimator.edge"}}[name]
     assert entry.casts_lookins == (name == "lookin")

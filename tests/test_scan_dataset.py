@@ -146,7 +146,7 @@ def test_scan_samples_meet_the_tolerance_against_a_converged_reference(wall_smok
         assert estimate == pytest.approx(accuracy["envelope_error"], rel=1e-6) and accuracy["met"]
         edge = float(re.search(r"quadrature edge ([0-9.]+) m", accuracy["replica_setting"]).group(1))
         scene, sim = datagen.sample_setup(config, "test", index)
-        ref = datagen.simulate(scene, sim.model_copy(update={"quadrature_edge": edge / 3})).envelope
+        ref = datagen.simulate(scene, sim.with_estimator(edge=edge / 3)).envelope
         assert ref.shape == item["envelope"].shape == (16, 16, 128)
         true = relative_difference(item["envelope"].astype(np.float64), ref, ref)
         assert true <= config.tolerance, (index, true)

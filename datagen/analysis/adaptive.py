@@ -7,16 +7,19 @@ from __future__ import annotations
 import numpy as np
 
 from ..simulation import TIME_CAP_S, ReplicaSums, simulate_to_tolerance
-from ..transport import estimator
+from ..simulation import translate_legacy
+from ..transport import estimator, estimator_options
 
 __all__ = ["TIME_CAP_S", "describe_setting", "replica_error", "simulate_to_tolerance"]
 
 
 def describe_setting(config: dict) -> str:
-    """The sampling setting of the JSON config of a result (``result.attrs["config"]``) in words, from the
-    estimator's registry entry, e.g. "65536 hidden samples per laser point"."""
-    entry = estimator(config["estimator"])
-    return entry.describe(config) if entry.describe is not None else config["estimator"]
+    """The sampling setting of the JSON config of a result (``result.attrs["config"]``, also one written in the old
+    flat form) in words, from the estimator's registry entry, e.g. "65536 hidden samples per laser point"."""
+    block = translate_legacy(config)[0].get("estimator", "lookin")       # results written before issue 24: flat
+    options = estimator_options(block)
+    entry = estimator(options.kind)
+    return entry.describe(options) if entry.describe is not None else options.kind
 
 
 def replica_error(parts: list[np.ndarray]) -> float:

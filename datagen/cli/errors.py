@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 from functools import wraps
 from pathlib import Path
 
 import click
 
 from ..errors import DatagenError
+from ..simulation.config import LegacyKeysWarning
 
 MAX_LINE = 2000
 """Characters of an error line printed (a hostile input cannot flood the terminal)."""
@@ -55,13 +57,32 @@ def friendly_errors(func):
     @wraps(func)
     def wrapper(*args, **kwargs):
         try:
-            return func(*args, **kwargs)
+            with warnings.catch_warnings():
+                warnings.simplefilter("default", LegacyKeysWarning)      # each distinct note once
+                shown = warnings.showwarning
+                warnings.showwarning = _note_printer(shown)
+                return func(*args, **kwargs)
         except (*INPUT_ERRORS, MemoryError) as exc:
             if os.environ.get(DEBUG_ENV):
                 raise
             fail(exc)
 
     return wrapper
+
+
+def _note_printer(shown):
+    """A ``warnings.showwarning`` printing a :class:`~datagen.simulation.LegacyKeysWarning` (old configuration
+    keys translated) as one ``note: …`` line on stderr, and anything else as ``shown`` does."""
+    seen: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, LegacyKeysWarning):
+            if str(message) not in seen:            # once per command, wherever it was raised
+                seen.add(str(message))
+                click.echo(f"note: {error_line(message)}", err=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
+    return show
 
 
 def check_output_file(path: Path, option: str) -> None:

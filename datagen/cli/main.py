@@ -97,7 +97,7 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
     check_output_dir(out)
     scene = load_scene(scene_file)
     config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
-                                    "top_k": top_k, "seed": seed, "workers": workers, "tolerance": tol,
+                                    "top_k": top_k, "seed": seed, "workers": workers, "effect_threshold": tol,
                                     "estimator": estimator, "quadrature_edge": edge, "area_samples": samples})
     cap = _parse_time_cap(time_cap)
     if tol is not None:

@@ -79,8 +79,8 @@ def lookins_for(scene, info: dict, grid: str | None, seed: int | None = None) ->
     if seed is not None:
         overrides["seed"] = seed
     sim = resolve_config(scene, overrides)
-    if not estimator(sim.estimator).casts_lookins:
-        raise ValueError(f"--lookins: this scene simulates with the {sim.estimator!r} estimator, which casts "
+    if not estimator(sim.estimator.kind).casts_lookins:
+        raise ValueError(f"--lookins: this scene simulates with the {sim.estimator.kind!r} estimator, which casts "
                          "no lookins: give --lookins NxN")
     return lookin_points(scene, sim, rng)
 

@@ -11,8 +11,7 @@ docs/physics.md §7).
 Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.dataset.config`: :class:`DatasetConfig`, the seed streams (:data:`STREAMS`,
-  :func:`split_key`, :func:`resample_rng`), :func:`draw_room`, :func:`make_sample` and :func:`sample_setup` (a
-  sample's scene and simulation config, to regenerate it at any accuracy);
+  :func:`split_key`, :func:`resample_rng`), :func:`draw_room` and :func:`make_sample`;
 - :mod:`~datagen.dataset.ranges`: uniform ranges and counts of the distributions (:class:`Range`,
   :class:`CountRange`);
 - :mod:`~datagen.dataset.rooms`: the room distribution schema (:class:`RoomDistribution`,
@@ -31,7 +30,8 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.workers`: worker processes that die with the build (no orphans after a SIGKILL);
 - :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
 - :mod:`~datagen.dataset.sample_scene`: :func:`scene_of_sample`, a built sample's room drawn again from the
-  card (``datagen view``, ``datagen inspect``);
+  card (``datagen view``, ``datagen inspect``), and :func:`sample_setup` (a sample's scene and simulation config,
+  to regenerate it at any accuracy);
 - :mod:`~datagen.dataset.loader`: :class:`NLOSDataset`, :class:`BatchNoise` and :func:`plot_sample` (import
   torch and matplotlib on first use: ``import datagen.dataset`` stays light);
 - :mod:`~datagen.dataset.shard_reader`: the loader's per-sample reads of shard files (one ``pread`` each);
@@ -46,14 +46,14 @@ from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildR
                     write_shard)
 from .config import (COMPONENT_ROOM, OTHER_COMPONENTS, RESAMPLE_NOISE, STREAMS, DatasetConfig, Sample, SplitSpec,
                      StoreSpec, component_slots, config_from_json, draw_room, load_dataset_config, make_sample,
-                     resample_rng, sample_rngs, sample_seed_sequence, sample_setup, split_key)
+                     resample_rng, sample_rngs, sample_seed_sequence, split_key)
 from .labels import PAD_INT, LabelSpec, camera_directions, camera_frame, label_shapes, occupancy_grid, scene_labels
 from .obb import (box_hits_pyramid, box_hits_segment, boxes_overlap, convex_overlap, obb_vertices, points_in_box,
                   yaw_matrix)
 from .rooms import (MATERIAL_CLASSES, OBJECT_CLASSES, PACKING_LIMIT, UNIFORMS_PER_MATERIAL, CountRange, LabelRegion,
                     MaterialDist, Range, RoomDistribution, check_feasible, load_room_distribution)
 from .sampler import SampledRoom, sample_room
-from .sample_scene import scene_of_sample
+from .sample_scene import sample_setup, scene_of_sample
 from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, UNITS, BuildLock, BuildLockedError, ShardTask,
                     code_version, file_sha256, marker_path, plan_shards, read_card, read_marker, shard_file, shard_key)
 from .integrity import (DatasetCorruptError, card_problems, check_split, expected_metadata, metadata_problems,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import warnings
 import hashlib
 import json
 import time
@@ -36,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from ..scene import SceneError, format_validation_error, read_yaml
 from ..simulation.tolerance import MIN_TOLERANCE
+from .legacy import RENAMED_KEYS, note_old_keys
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
 """Stream ids: the last entry of the spawn_key of each random stream of a sample (fixed forever)."""
@@ -131,9 +133,9 @@ class DatasetConfig(_Model):
     """A dataset: see the module docstring. Load from YAML with :func:`load_dataset_config`.
 
     ``tolerance`` (e.g. "1%", default 1 %) is the per-sample target of the envelope's estimated relative L2 error
-    and ``time_cap`` (e.g. "2s", at most an hour) the most nominal compute a sample may spend reaching it
-    (:func:`datagen.simulation.simulate_to_tolerance`; nominal seconds are counted work at fixed rates, so the
-    adaptive choice is deterministic). Each sample stores its estimate as ``envelope_error``; the card lists the
+    and ``cost_cap`` (e.g. "2s", at most an hour; old key ``time_cap``) the most nominal compute a sample may spend
+    reaching it (:func:`datagen.simulation.simulate_to_tolerance`; nominal seconds are counted work at fixed rates,
+    so the adaptive choice is deterministic). Each sample stores its estimate as ``envelope_error``; the card lists the
     samples that missed the tolerance.
 
     ``room`` and a string ``detector`` may be file paths in YAML; :func:`load_dataset_config` replaces them by
@@ -152,7 +154,16 @@ class DatasetConfig(_Model):
     labels: dict = Field(default_factory=dict)
     store: StoreSpec = StoreSpec()
     tolerance: float = Field(0.01, ge=MIN_TOLERANCE, lt=1)   # below: float64 round-off, not measurable
-    time_cap: float = Field(2.0, gt=0, le=3600.0, allow_inf_nan=False)   # an hour of nominal work per sample
+    cost_cap: float = Field(2.0, gt=0, le=3600.0, allow_inf_nan=False)   # an hour of nominal work per sample
+
+    @model_validator(mode="before")
+    @classmethod
+    def _renamed(cls, data: Any) -> Any:
+        """Old keys (:data:`RENAMED_KEYS`) take their new names (:func:`load_dataset_config` notes it)."""
+        both = [k for k, v in RENAMED_KEYS.items() if isinstance(data, dict) and k in data and v in data]
+        if both:
+            raise ValueError(f"{both[0]} and {RENAMED_KEYS[both[0]]} are both given: keep {RENAMED_KEYS[both[0]]}")
+        return {RENAMED_KEYS.get(k, k): v for k, v in data.items()} if isinstance(data, dict) else data
 
     @field_validator("tolerance", mode="before")
     @classmethod
@@ -165,7 +176,7 @@ class DatasetConfig(_Model):
                 raise ValueError(f"must look like 1% or 0.01, got {value!r}") from None
         return value
 
-    @field_validator("time_cap", mode="before")
+    @field_validator("cost_cap", mode="before")
     @classmethod
     def _duration(cls, value: Any) -> Any:
         """'2s', '500ms' → seconds (a bare number is seconds)."""
@@ -223,8 +234,12 @@ class DatasetConfig(_Model):
         """sha256 of the canonical JSON of :meth:`to_json` (a build resumes only into the same config), with the
         mesh asset entries, which loading resolves to absolute paths, reduced to their folder or file names: the
         same config has the same fingerprint in any checkout or copy (the card's ``assets`` records each
-        file's sha256: :func:`datagen.dataset.assets.asset_record`)."""
-        return hashlib.sha256(json.dumps(location_free_json(self.to_json()), sort_keys=True).encode()).hexdigest()
+        file's sha256: :func:`datagen.dataset.assets.asset_record`). Renamed keys are hashed under their old
+        names (:data:`RENAMED_KEYS`), so an unchanged YAML keeps the fingerprint of the cards built before."""
+        data = location_free_json(self.to_json())
+        for old, new in RENAMED_KEYS.items():
+            data[old] = data.pop(new)
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
     def simulation_overrides(self) -> dict:
         """``simulation`` with the resolved ``detector`` merged in (input of resolve_config), and
@@ -240,10 +255,12 @@ class DatasetConfig(_Model):
         """The split's resolved :class:`~datagen.simulation.run.SimulationConfig`: the room distribution's
         ``simulation`` block under :meth:`simulation_overrides`, as ``resolve_config`` merges them for every
         sampled scene (used for the card's per-split detector, which the loader's noise re-draw needs)."""
-        from ..simulation import SimulationConfig
+        from ..simulation import SimulationConfig, merge_overrides
         dist = self.room_distribution(split)
-        merged = {**dict(getattr(dist, "simulation", {}) or {}), **self.simulation_overrides()}
-        return SimulationConfig.model_validate({k: v for k, v in merged.items() if v is not None})
+        merged, _ = merge_overrides(dict(getattr(dist, "simulation", {}) or {}), self.simulation_overrides())
+        with warnings.catch_warnings():       # the room's old keys: noted when a scene of it is resolved
+            warnings.simplefilter("ignore", FutureWarning)
+            return SimulationConfig.model_validate(merged)
 
     def label_spec(self):
         from .labels import LabelSpec
@@ -323,6 +340,7 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
     else:
         data, base = copy.deepcopy(source), Path(base_dir) if base_dir is not None else None
     prefix = f"{where}: " if where else ""
+    note_old_keys(data, where or "dataset config")
     try:
         config = DatasetConfig.model_validate(data)
     except ValidationError as exc:
@@ -376,7 +394,9 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
     overrides = config.simulation_overrides()
     detector = overrides.pop("detector", {})
     try:
-        sim = SimulationConfig.model_validate(overrides)
+        with warnings.catch_warnings():          # noted once by load_dataset_config
+            warnings.simplefilter("ignore", FutureWarning)
+            sim = SimulationConfig.model_validate(overrides)
     except ValidationError as exc:
         raise SceneError(_field_errors(exc, prefix, "simulation")) from None
     sim = sim.model_copy(update={"detector": detector})
@@ -466,32 +486,12 @@ def _setup(config: DatasetConfig, split: str, index: int):
     return room, resolve_config(room.scene, config.simulation_overrides()), rngs
 
 
-def sample_setup(config: DatasetConfig | str | Path, split: str, index: int):
-    """The scene and simulation config of sample ``index`` of ``split``: regenerate it at any accuracy, e.g.
-    ``datagen.converged_reference(*datagen.sample_setup("configs/datasets/default.yaml", "val", 3))``.
-
-    Args:
-        config: a resolved :class:`DatasetConfig` or a dataset YAML path.
-    Returns:
-        (:class:`~datagen.scene.Scene`, :class:`~datagen.simulation.SimulationConfig`): the room the sample was
-        drawn from and its resolved simulation settings (the dataset's ``simulation`` block over the room's).
-        The sample itself is ``simulate_to_tolerance(scene, sim_config, config.tolerance, max_cost=
-        config.time_cap, sampling_rng=..., noise_rng=...)`` with the sample's streams (:func:`sample_rngs`).
-    Raises:
-        SceneError: an unknown split, an index out of range, an invalid config file.
-    """
-    if not isinstance(config, DatasetConfig):
-        config = load_dataset_config(config)
-    room, sim_config, _ = _setup(config, split, index)
-    return room.scene, sim_config
-
-
 def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     """Compute sample ``index`` of ``split``: room → envelope to the config's tolerance and SPAD counts → labels.
 
     A pure function of (config, split, index): every random stream comes from :func:`sample_rngs`, and the
     adaptive sampling (replicas added until the error estimate meets ``config.tolerance``, within
-    ``config.time_cap`` nominal seconds) depends on nothing else.
+    ``config.cost_cap`` nominal seconds) depends on nothing else.
 
     Raises:
         SceneError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
@@ -505,7 +505,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     t0 = time.perf_counter()
     room, sim_config, rngs = _setup(config, split, index)
     t1 = time.perf_counter()
-    result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.time_cap,
+    result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
     t2 = time.perf_counter()
     spec = config.label_spec()
@@ -529,7 +529,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         empty = dataclasses.replace(room.scene, objects=[o for o in room.scene.objects if o.name not in hidden])
         again = sample_rngs(config.seed, split, index)
         arrays["reference"] = np.asarray(simulate_to_tolerance(  # sampled as the sample itself is
-            empty, sim_config, config.tolerance, max_cost=config.time_cap, sampling_rng=again["sampling"],
+            empty, sim_config, config.tolerance, max_cost=config.cost_cap, sampling_rng=again["sampling"],
             noise_rng=again["noise"]).envelope, dtype=config.store.envelope_dtype)
     for name, value in labels.items():
         arrays[name] = np.asarray(value)

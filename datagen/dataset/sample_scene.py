@@ -1,4 +1,5 @@
-"""The scene of one sample of a built dataset, drawn again from its card (``datagen view``, ``datagen inspect``).
+"""The scene of one sample of a built dataset, drawn again from its card (``datagen view``, ``datagen inspect``),
+or of a dataset config (:func:`sample_setup`: any sample at any accuracy).
 
 A dataset stores a sample's parameters, not its meshes. The room of sample (split, i) is a function of the
 config in the dataset card and the sample's seeds only (:func:`datagen.dataset.config.draw_room`), so it is
@@ -10,7 +11,7 @@ import json
 from pathlib import Path
 
 from ..scene import SceneError
-from .config import config_from_json, draw_room
+from .config import DatasetConfig, config_from_json, draw_room, load_dataset_config
 from .sampler import SampledRoom
 from .store import read_card
 
@@ -55,3 +56,25 @@ def _stored_room_params(root: Path, card: dict, split: str, index: int) -> dict 
 
     data = NLOSDataset(root, split=split, fields=["params"]).params(index)
     return data.get("room") if isinstance(data, dict) else None
+
+
+def sample_setup(config: DatasetConfig | str | Path, split: str, index: int):
+    """The scene and simulation config of sample ``index`` of ``split``: regenerate it at any accuracy, e.g.
+    ``datagen.converged_reference(*datagen.sample_setup("configs/datasets/default.yaml", "val", 3))``.
+
+    Args:
+        config: a resolved :class:`DatasetConfig` or a dataset YAML path.
+    Returns:
+        (:class:`~datagen.scene.Scene`, :class:`~datagen.simulation.SimulationConfig`): the room the sample was
+        drawn from and its resolved simulation settings (the dataset's ``simulation`` block over the room's).
+        The sample itself is ``simulate_to_tolerance(scene, sim_config, config.tolerance, max_cost=
+        config.cost_cap, sampling_rng=..., noise_rng=...)`` with the sample's streams (:func:`datagen.dataset.sample_rngs`).
+    Raises:
+        SceneError: an unknown split, an index out of range, an invalid config file.
+    """
+    from ..simulation import resolve_config
+
+    if not isinstance(config, DatasetConfig):
+        config = load_dataset_config(config)
+    room, _ = draw_room(config, split, index)              # as make_sample draws it
+    return room.scene, resolve_config(room.scene, config.simulation_overrides())

@@ -42,6 +42,7 @@ from ..errors import DatasetError
 from ..scene import SceneError
 from .assets import asset_changes
 from .config import DatasetConfig, Sample, location_free_json, split_key
+from .legacy import canonical_json
 
 FORMAT = "datagen-dataset"
 FORMAT_VERSION = 1
@@ -366,7 +367,7 @@ def finish_card(root: Path, card: dict, config: DatasetConfig) -> dict:
     card["shards"] = shards
     card["timing"] = {"per_sample_s": _stats(totals),
                       "per_stage_mean_s": {k: float(np.mean(v)) for k, v in stages.items()}}
-    card["accuracy"] = {"tolerance": config.tolerance, "time_cap_s": config.time_cap,
+    card["accuracy"] = {"tolerance": config.tolerance, "time_cap_s": config.cost_cap,
                         "envelope_error": _stats(errors), "n_missed": len(missed),
                         "missed": missed[:MISSED_LISTED]}
     card["status"] = "complete" if done == len(tasks) else "incomplete"
@@ -405,6 +406,8 @@ def check_same_config(root: Path, card: dict, config: DatasetConfig) -> None:
     if card.get("config_sha256") == config.fingerprint():
         return
     stored, current = location_free_json(card.get("config") or {}), location_free_json(config.to_json())
+    if canonical_json(stored) == canonical_json(current):
+        return          # the same config, one of them written with the keys before issue 24 (e.g. time_cap)
     diff = _config_diff(stored, current) or ["config_sha256"]
     first = diff[0]
     more = f", … ({len(diff)} fields)" if len(diff) > 5 else ""

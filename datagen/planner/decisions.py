@@ -5,7 +5,7 @@
 those ``numbers``). ``Plan.apply`` turns it into :class:`~datagen.transport.TransportSettings` switches,
 ``Plan.detector`` into the detector model, and ``Plan.to_attrs`` into the JSON stored in the result's
 attributes (``attrs["plan"]``). An effect is skipped only when simulating it cannot change the envelope by
-more than ``config.tolerance`` (relative), or when it is exactly zero. Every effect can be forced with
+more than ``config.effect_threshold`` (relative), or when it is exactly zero. Every effect can be forced with
 ``config.effects[name] = True | False``; forced values always win. The rules (docs/planner.md derives them):
 
 - ``shadow_sensor``: FoV point → sensor shadow rays. Off when no triangle except the FoV's own surface can
@@ -50,7 +50,7 @@ EFFECTS = ("shadow_spot", "shadow_sensor", "secondary", "brdf_angles", "attenuat
 """Keys of ``SimulationConfig.effects``; each maps to True, False or "auto"."""
 
 DEFAULT_TOLERANCE = 0.01
-"""Relative change of the envelope below which an effect may be skipped (``SimulationConfig.tolerance``)."""
+"""Relative change of the envelope below which an effect may be skipped (``SimulationConfig.effect_threshold``)."""
 
 SECONDARY_SAFETY = 4.0
 """Factor on the coarse secondary/primary energy estimate before comparing with the tolerance. The coarse
@@ -190,7 +190,7 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
             effect the configuration cannot simulate (secondary forced on with ``secondary: none``, pile-up
             forced on with a Poisson detector).
     """
-    tol = float(getattr(config, "tolerance", DEFAULT_TOLERANCE))
+    tol = float(getattr(config, "effect_threshold", DEFAULT_TOLERANCE))
     if not (math.isfinite(tol) and 0.0 <= tol < 1.0):
         raise SceneError(f"tolerance must be in [0, 1) (a relative error of the envelope), got {tol!r}")
     forced = _forced_effects(getattr(config, "effects", None) or {})

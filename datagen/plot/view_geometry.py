@@ -283,7 +283,7 @@ def lookin_points(scene: Scene, config: SimulationConfig, rng: np.random.Generat
     rng = rng if rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     root_seed = replica_root(rng)                                     # as simulation.run.Replicas
     entry = estimator("lookin")
-    one = config.model_copy(update=entry.replica(config, config.replicas)) if entry.replica else config
+    one = config.with_estimator(**entry.replica(config.estimator, config.replicas)) if entry.replica else config
     transport = Transport(scene, one.transport_settings())
     s = transport.settings
     out = []

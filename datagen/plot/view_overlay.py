@@ -181,7 +181,7 @@ def scene_view_figure(scene: Scene, path: str | Path, config: SimulationConfig |
     """
     try:
         require_open3d()
-        casts = config is not None and estimator(config.estimator).casts_lookins
+        casts = config is not None and estimator(config.estimator.kind).casts_lookins
         lookins = lookin_points(scene, config) if casts else None
         render_scene(scene, path, lookins=lookins, **kwargs)
     except (ViewUnavailable, RuntimeError) as exc:

@@ -15,16 +15,18 @@
   the refusal (:class:`ResourceError`) when it exceeds the memory available.
 """
 from .budget import ResourceError, available_memory, check_memory, check_simulation_memory, simulation_memory
-from .config import (STREAM_NOISE, STREAM_SAMPLING, TIME_AXIS_FIELDS, SimulationConfig, detector_error, parse_grid,
-                     resolve_config, stream_rng)
+from .config import (STREAM_NOISE, STREAM_SAMPLING, TIME_AXIS_FIELDS, LegacyKeysWarning, SimulationConfig,
+                     detector_error, legacy_note, merge_overrides, parse_grid, resolve_config, stream_rng,
+                     translate_legacy)
 from .replicas import PEAK_FLOOR, ReplicaSums, relative_standard_error, replica_rng, replica_root
 from .tolerance import (MIN_TOLERANCE, TIME_CAP_S, ToleranceOutOfReach, check_tolerance, projected_seconds,
                         simulate_to_tolerance)
 from .run import (Replicas, Result, Transported, library_versions, make_result, prepare_transport, run_transport,
                   simulate)
 
-__all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "TIME_AXIS_FIELDS", "detector_error", "SimulationConfig",
-           "parse_grid", "resolve_config", "stream_rng",
+__all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "TIME_AXIS_FIELDS", "detector_error", "LegacyKeysWarning",
+           "SimulationConfig", "legacy_note", "merge_overrides", "parse_grid", "resolve_config", "stream_rng",
+           "translate_legacy",
            "PEAK_FLOOR", "ReplicaSums", "relative_standard_error", "replica_rng", "replica_root", "Replicas",
            "Result", "Transported", "library_versions", "make_result", "prepare_transport", "run_transport",
            "simulate", "simulate_to_tolerance", "TIME_CAP_S", "MIN_TOLERANCE", "ToleranceOutOfReach",

@@ -88,7 +88,7 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
 
     Returns:
         (field, value, bytes) per term, largest first: field is the config or scene field that sets the term
-        (``time.n_bins``, ``lookins``, ``pixels``, ``sensor.fov.pixels``, ``quadrature_edge``, …). The shared
+        (``time.n_bins``, ``estimator.lookins``, ``sensor.fov.pixels``, ``estimator.edge``, …). The shared
         arrays are counted here, the estimator's own by its registry entry
         (:attr:`datagen.transport.EstimatorEntry.memory`).
     """
@@ -108,13 +108,13 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
     terms = [(*fine, 8.0 * ACCUMULATOR_COPIES * n_components * channels * n_fine),
              (grid[0], f"{grid[1]} (results)", 8.0 * RESULT_COPIES * (n_components + 3) * channels * n_bins),
              (grid_field[0], grid_field[1], float(TARGET_BYTES) * (lasers + sensors))]
-    memory = estimator(config.estimator).memory        # the estimator's own arrays (its registry entry)
+    memory = estimator(config.estimator.kind).memory        # the estimator's own arrays (its registry entry)
     if memory is not None:
         terms += memory(scene, config, lasers, sensors)
     return sorted(terms, key=lambda t: -t[2])
 
 
-RAISE_TO_SHRINK = ("quadrature_edge",)
+RAISE_TO_SHRINK = ("estimator.edge",)
 """Fields whose memory falls as they grow (the hint says "raise", not "lower")."""
 
 HINTS = {"irf": "narrow the irf or widen time.bin_width"}

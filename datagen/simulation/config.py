@@ -7,17 +7,18 @@ detector noise, so re-drawing noise never changes the envelope.
 """
 from __future__ import annotations
 
-import re
+import warnings
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, SerializeAsAny, ValidationError, field_validator, model_validator
 
 from .. import spad
 from ..planner import EFFECTS
 from ..scene import MAX_EXTENT, Scene, SceneError, format_validation_error, short_repr
 from ..timing import Irf, TimeAxis
-from ..transport import QUADRATURE_EDGE, TransportSettings, estimator_names
+from ..transport import EstimatorOptions, TransportSettings, estimator, estimator_names, estimator_options
+from ..units import parse_grid  # noqa: F401  (re-exported: datagen.simulation.parse_grid)
 
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
 """spawn_key entries of the random streams (docs/physics.md §7)."""
@@ -32,54 +33,101 @@ MAX_TIME_WINDOW_S = 1.0
 box's diagonal, 4·2·√3·1e7 m) lasts 0.46 s, so later bins hold nothing, and t_start + n_bins × bin_width stays
 finite (a 1e308 s bin overflowed it to inf)."""
 
-_GRID = re.compile(r"^\s*(\d+)\s*[x×X]\s*(\d+)\s*$")
+
+class LegacyKeysWarning(FutureWarning):
+    """Old simulation keys were translated to the new form (:func:`translate_legacy`); the CLI prints it as one
+    ``note: …`` line."""
 
 
-def parse_grid(value: Any, field_name: str) -> tuple[int, int]:
-    """Read a grid size from ``"10x10"``, ``10`` (→ 10×10) or ``[10, 10]``; both counts ≥ 1."""
+RENAMED = {"tolerance": "effect_threshold"}
+"""Shared simulation keys renamed (old → new): ``tolerance`` was both the planner's threshold and the adaptive
+target; in a simulation config it is the planner's :attr:`SimulationConfig.effect_threshold`."""
+
+
+def legacy_keys() -> dict[str, dict[str, str]]:
+    """Flat keys of the estimators' old settings: old key → {estimator kind: its field}."""
+    out: dict[str, dict[str, str]] = {}
+    for name in estimator_names():
+        for old, new in estimator(name).options.LEGACY.items():
+            out.setdefault(old, {})[name] = new
+    return out
+
+
+def _kind_of(value: Any, default: str | None) -> str | None:
     if isinstance(value, str):
-        m = _GRID.match(value)
-        if not m:
-            raise ValueError(f"{field_name} must look like '10x10', got {value!r}")
-        grid = (int(m.group(1)), int(m.group(2)))
-    elif isinstance(value, int) and not isinstance(value, bool):
-        grid = (value, value)
-    elif isinstance(value, (list, tuple)) and len(value) == 2:
-        grid = (int(value[0]), int(value[1]))
-    else:
-        raise ValueError(f"{field_name} must look like '10x10', got {value!r}")
-    if min(grid) < 1:
-        raise ValueError(f"{field_name} counts must be >= 1, got {value!r}")
-    return grid
+        return value
+    if isinstance(value, EstimatorOptions):
+        return value.kind
+    if isinstance(value, dict):
+        return value.get("kind", default)
+    return default
+
+
+def translate_legacy(data: dict, default_kind: str = "lookin") -> tuple[dict, list[str]]:
+    """``data`` (a simulation mapping) in the new form, and the old → new moves made (empty: nothing old).
+
+    Flat estimator keys (``lookins``, ``area_samples``, ``quadrature_edge``, …: each estimator's
+    :attr:`~datagen.transport.EstimatorOptions.LEGACY`) move into the ``estimator`` block of the chosen kind
+    (``estimator`` as a name or a mapping; ``default_kind`` when absent), where the block's own values win; keys of
+    another estimator are dropped (a scene's lookin settings under ``--estimator area``). Renamed shared keys
+    (:data:`RENAMED`) take their new name.
+    """
+    table = legacy_keys()
+    old = [k for k in data if k in table or k in RENAMED]
+    if not old:
+        return data, []
+    data, moves = dict(data), []
+    for key in [k for k in old if k in RENAMED]:
+        value = data.pop(key)
+        data.setdefault(RENAMED[key], value)
+        moves.append(f"{key} -> {RENAMED[key]}")
+    flat = {k: data.pop(k) for k in old if k in table}
+    if flat:
+        est = data.get("estimator")
+        kind = _kind_of(est, default_kind)
+        block = (est.model_dump() if isinstance(est, EstimatorOptions) else dict(est) if isinstance(est, dict)
+                 else {})
+        for key, value in flat.items():
+            field = table[key].get(kind)
+            if field is None:
+                moves.append(f"{key} dropped (not used by the {kind} estimator)")
+            elif field in block and block[field] != value:
+                raise ValueError(f"{key} {value!r} and estimator.{field} {block[field]!r} are both given: keep "
+                                 f"estimator.{field}")
+            else:
+                block.setdefault(field, value)
+                moves.append(f"{key} -> estimator.{field}")
+        data["estimator"] = {**block, "kind": kind}
+    return data, moves
+
+
+def legacy_note(moves: list[str], where: str = "simulation") -> str:
+    """The one-line deprecation note of :func:`translate_legacy`'s moves."""
+    return (f"{where}: old keys translated ({', '.join(moves)}); write the estimator's settings under "
+            "estimator: {kind: ..., ...} (docs/accuracy.md)")
 
 
 class SimulationConfig(BaseModel):
-    """Everything ``simulate`` needs besides the scene. Durations accept strings such as "600ps".
+    """Everything ``simulate`` needs besides the scene: the shared physics and the estimator's own settings.
+    Durations accept strings such as "600ps".
 
     Attributes:
-        lookins, pixels: lookin grid √N×√N and camera l×p ("10x10", "60x60" are the paper's).
-        lookin_pdf: hemisphere sampling at the spot ("cosine" or "uniform").
-        jitter: stratified jitter of lookin rays and camera pixels (False: the paper's regular grids).
-        secondary: "none", "optimized" (paper §4, strongest ``top_k`` per lookin and FoV point), "full"
-            (every pair, O(Ñ²) per lookin) or "exact" (the same sum factorised, O(Ñ) per lookin, docs/physics.md §3).
-        estimator: "lookin" (the paper's sampler: lookins and hemispherical cameras), "area" (hidden-surface
-            area sampling with next-event connections to the spot and the FoV, datagen.transport.area; ``area_samples``
-            hidden points; its secondary is "full" whenever ``secondary`` is not "none") or "quadrature" (the
-            deterministic hidden-surface quadrature of datagen.transport.quadrature: sub-triangles of edge
-            ``quadrature_edge`` metres with exact time binning; aperture captures integrate each pixel region
-            with ``quadrature_fov`` × ``quadrature_fov`` FoV cells (None: cells no larger than the edge); a
-            planned secondary comes from the area sampler with ``area_samples`` hidden samples per laser point);
-            ``quadrature_grading`` r (None: off) first cuts hidden triangles into 4 while longer than r × their
-            distance to the scanned points, so sub-triangles near the scan are finer (datagen.transport.quad_grading).
-        sensor_sampling: "camera" (the paper: FoV points from the lookin cameras) or "connect" (next-event
-            connections to ``connect_samples`` stratified points per sensor pixel; forced for point radiance).
-        conv_refine: the exact secondary's profile grid is this many times finer than the envelope's grid.
-        workers: processes sharing the lookins (1 = in process; the result does not depend on it).
-        replicas: R, independent replicas a Monte Carlo estimator's sampling is split into (``area_samples`` /
-            R hidden samples, or lookin grids of side / √R, each); their mean is the envelope and their spread
-            its error estimate (``attrs["error"]``, :mod:`datagen.simulation.replicas`). ``simulate_to_tolerance``
-            starts from them and adds replicas of the same size.
-        tolerance: relative accuracy the effect planner works to (effects below it are skipped).
+        estimator: the estimator and its settings, a mapping with ``kind`` ("lookin", "area", "quadrature" or any
+            registered estimator) validated by that estimator's model (:class:`datagen.transport.LookinOptions`,
+            :class:`~datagen.transport.AreaOptions`, :class:`~datagen.transport.QuadratureOptions`); a bare
+            name means its defaults. Old flat keys (``lookins``, ``area_samples``, ``quadrature_edge``, …) are
+            translated with one :class:`LegacyKeysWarning` (:func:`translate_legacy`).
+        secondary: "none", "optimized" (the lookin estimator's strongest ``top_k`` per lookin and FoV point),
+            "full" (every pair) or "exact" (the same sum factorised, O(Ñ) per lookin, docs/physics.md §3); the
+            area sampler and the quadrature compute it in full whenever it is not "none".
+        workers: processes sharing the work (1 = in process; the result does not depend on it).
+        replicas: R, independent replicas a Monte Carlo estimator's sampling is split into (the registry's
+            ``replica`` hook, e.g. ``samples`` / R hidden samples, or lookin grids of side / √R, each); their mean
+            is the envelope and their spread its error estimate (``attrs["error"]``,
+            :mod:`datagen.simulation.replicas`). ``simulate_to_tolerance`` starts from them and adds replicas of
+            the same size.
+        effect_threshold: relative change of the envelope below which the effect planner skips an effect (old key
+            ``tolerance``; ``simulate_to_tolerance`` sets it to its target).
         effects: per effect "auto" (the planner decides) or true/false (forced); see datagen.planner.
         seed: root of every random stream.
         time: output time axis (t_start, bin_width, n_bins); irf: Gaussian IRF (fwhm or sigma).
@@ -87,7 +135,6 @@ class SimulationConfig(BaseModel):
         count_laser_leg / count_sensor_leg: whether the emitter→spot / FoV→sensor legs count in the time of
             flight (docs/physics.md §1; default False / True as in the paper's code).
         detector: SPAD parameters (datagen.spad.DetectorConfig); its pde scales the envelope.
-        batch: lookins per batch (memory bound).
         split_components: one envelope per primary component (the room, each hidden object: ``Result.components``);
             False: the primary summed into one component, "primary" (:meth:`datagen.scene.Scene.with_summed_primary`;
             "secondary" and "first_bounce" stay apart), which spares a fine histogram and an IRF convolution per
@@ -96,23 +143,11 @@ class SimulationConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    lookins: tuple[int, int] = (10, 10)
-    pixels: tuple[int, int] = (60, 60)
-    lookin_pdf: Literal["cosine", "uniform"] = "cosine"
-    jitter: bool = True
+    estimator: SerializeAsAny[EstimatorOptions] = Field(default_factory=lambda: estimator_options("lookin"))
     secondary: Literal["none", "optimized", "full", "exact"] = "full"
-    top_k: int = Field(1, ge=1)
-    estimator: str = "lookin"
-    area_samples: int = Field(65536, ge=16)
-    quadrature_edge: float = Field(QUADRATURE_EDGE, gt=0.0, allow_inf_nan=False)
-    quadrature_fov: int | None = Field(None, ge=1)
-    quadrature_grading: float | None = Field(None, gt=0, allow_inf_nan=False)
-    sensor_sampling: Literal["camera", "connect"] = "camera"
-    connect_samples: tuple[int, int] = (4, 4)
-    conv_refine: int = Field(1, ge=1, le=64)
     workers: int = Field(1, ge=1)
     replicas: int = Field(8, ge=2, le=4096)
-    tolerance: float = Field(0.01, gt=0, lt=1)
+    effect_threshold: float = Field(0.01, gt=0, lt=1)
     effects: dict[str, bool | Literal["auto"]] = Field(default_factory=dict)
     seed: int = Field(0, ge=0)
     time: TimeAxis = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=5000)
@@ -121,8 +156,21 @@ class SimulationConfig(BaseModel):
     count_laser_leg: bool = False
     count_sensor_leg: bool = True
     detector: dict = Field(default_factory=dict)
-    batch: int = Field(32, ge=1)
     split_components: bool = True
+
+    @model_validator(mode="before")
+    @classmethod
+    def _legacy(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            data, moves = translate_legacy(data)
+            if moves:
+                warnings.warn(legacy_note(moves), LegacyKeysWarning, stacklevel=2)
+        return data
+
+    @field_validator("estimator", mode="before")
+    @classmethod
+    def _estimator(cls, value: Any) -> EstimatorOptions:
+        return estimator_options(value)
 
     @field_validator("effects")
     @classmethod
@@ -130,13 +178,6 @@ class SimulationConfig(BaseModel):
         unknown = sorted(set(value) - set(EFFECTS))
         if unknown:
             raise ValueError(f"unknown effect(s) {unknown}; known: {list(EFFECTS)}")
-        return value
-
-    @field_validator("estimator")
-    @classmethod
-    def _estimator(cls, value: str) -> str:
-        if value not in estimator_names():
-            raise ValueError(f"unknown estimator {value!r}; known: {list(estimator_names())}")
         return value
 
     @field_validator("time")
@@ -148,10 +189,9 @@ class SimulationConfig(BaseModel):
                              f"scene within ±{MAX_EXTENT:g} m lasts longer than 0.5 s)")
         return value
 
-    @field_validator("lookins", "pixels", "connect_samples", mode="before")
-    @classmethod
-    def _grid(cls, value: Any, info) -> tuple[int, int]:
-        return parse_grid(value, info.field_name)
+    def with_estimator(self, **updates: Any) -> "SimulationConfig":
+        """A copy whose estimator settings have ``updates`` (e.g. a replica's ``samples``)."""
+        return self.model_copy(update={"estimator": self.estimator.model_copy(update=updates)})
 
     def detector_config(self) -> "spad.DetectorConfig":
         """The detector config with the TDC bin width and start taken from the time axis unless given
@@ -160,19 +200,53 @@ class SimulationConfig(BaseModel):
         return spad.DetectorConfig.model_validate(data)
 
     def transport_settings(self) -> TransportSettings:
+        """The lookin settings the planner decides on (every estimator's physics switches come from them); their
+        sampling fields are the estimator's (:meth:`~datagen.transport.EstimatorOptions.transport_fields`) or the
+        lookin defaults."""
         forced = {k: v for k, v in self.effects.items() if isinstance(v, bool)}
         secondary = self.secondary if forced.get("secondary", True) else "none"
         attenuation = self.attenuation if forced.get("attenuation", True) else 0.0
-        return TransportSettings(lookins=self.lookins, pixels=self.pixels, lookin_pdf=self.lookin_pdf,
-                                 jitter=self.jitter, secondary=secondary, top_k=self.top_k,
-                                 sensor_sampling=self.sensor_sampling, connect_samples=self.connect_samples,
+        return TransportSettings(**self.estimator.transport_fields(), secondary=secondary,
                                  attenuation=attenuation, pde=self.detector_config().pde,
                                  count_laser_leg=self.count_laser_leg, count_sensor_leg=self.count_sensor_leg,
                                  shadow_spot=forced.get("shadow_spot", True),
                                  shadow_sensor=forced.get("shadow_sensor", True),
                                  first_bounce=forced.get("first_bounce", False),
-                                 brdf_angles=forced.get("brdf_angles", False),
-                                 conv_refine=self.conv_refine, batch=self.batch, workers=self.workers)
+                                 brdf_angles=forced.get("brdf_angles", False), workers=self.workers)
+
+
+def merge_simulation(base: dict, overrides: dict) -> dict:
+    """``overrides`` over ``base`` (both simulation mappings in the new form, :func:`translate_legacy`): the
+    estimator block is merged key by key when ``overrides`` keeps its kind (or gives none), and replaced when it
+    names another estimator (whose defaults then apply)."""
+    out = {**base, **overrides}
+    if "estimator" in base and "estimator" in overrides:
+        old, new = base["estimator"], overrides["estimator"]
+        old = old.model_dump() if isinstance(old, EstimatorOptions) else {"kind": old} if isinstance(old, str) else old
+        new = new.model_dump() if isinstance(new, EstimatorOptions) else {"kind": new} if isinstance(new, str) else new
+        if isinstance(old, dict) and isinstance(new, dict) and new.get("kind", old.get("kind")) == old.get("kind"):
+            out["estimator"] = {**old, **new}
+    return out
+
+
+def merge_overrides(defaults: dict, overrides: dict) -> tuple[dict, list[str]]:
+    """``overrides`` (None values left out) over ``defaults`` (a scene's or room's ``simulation`` block), both
+    possibly in the old flat form, merged in the new form (:func:`merge_simulation`), and the old → new moves
+    made in ``defaults`` (the old keys of ``overrides``, the command-line flags' names, are the documented way
+    to override one knob and make none). As the old flat merge did, a ``defaults`` block without an estimator
+    mapping takes the estimator ``overrides`` name, and its flat keys apply to that estimator."""
+    given = {k: v for k, v in overrides.items() if v is not None}
+    base = dict(defaults)
+    kind = _kind_of(base.get("estimator"), "lookin")
+    final = _kind_of(given.get("estimator"), kind)
+    moves = []
+    if final != kind:       # the flat keys of defaults apply to the estimator overrides choose
+        flat = {k: base.pop(k) for k in list(base) if k in legacy_keys()}
+        flat, moves = translate_legacy({**flat, "estimator": final})
+        given = merge_simulation(flat, translate_legacy(given, final)[0])
+    base, more = translate_legacy(base)
+    given, _ = translate_legacy(given, kind)
+    return merge_simulation(base, given), moves + more
 
 
 TIME_AXIS_FIELDS = ("t_start", "bin_width")
@@ -198,13 +272,23 @@ def detector_error(exc: ValidationError, config: SimulationConfig, source: str |
 
 
 def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationConfig:
-    """Merge the scene file's ``simulation`` block with ``overrides`` (e.g. CLI options) and validate.
+    """Merge the scene file's ``simulation`` block with ``overrides`` (e.g. CLI options; None values are left out)
+    and validate (:func:`merge_simulation`).
+
+    ``overrides`` may use the flat keys the command-line flags set (``lookins``, ``area_samples``,
+    ``quadrature_edge``, …): they are translated silently for the estimator ``overrides`` or the scene chooses. Old
+    keys in the scene's block are translated with one :class:`LegacyKeysWarning` naming the scene file.
 
     Raises:
         SceneError: an invalid value, naming the scene file, the field and the value.
     """
-    data = {**scene.defaults, **{k: v for k, v in (overrides or {}).items() if v is not None}}
     where = f"{scene.source} (simulation)" if scene.source else "simulation"
+    try:
+        data, moves = merge_overrides(scene.defaults, overrides or {})
+    except ValueError as exc:
+        raise SceneError(f"{where}: {exc}") from None
+    if moves:
+        warnings.warn(legacy_note(moves, where), LegacyKeysWarning, stacklevel=2)
     try:
         config = SimulationConfig.model_validate(data)
     except ValidationError as exc:

@@ -121,7 +121,7 @@ def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator
     capture = resolve_capture(scene, caster)
     plan = plan_effects(scene, config, capture, caster)
     settings = plan.apply(config.transport_settings())
-    transport: Estimator = estimator(config.estimator).from_config(scene, config, settings, caster, capture)
+    transport: Estimator = estimator(config.estimator.kind).from_config(scene, config, settings, caster, capture)
     return transport, plan
 
 
@@ -163,7 +163,7 @@ class Replicas:
     """The configured estimator built once and run replica by replica (docs/accuracy.md; :mod:`.replicas`).
 
     A Monte Carlo estimator (one whose registry entry gives ``replica``) runs at the *replica setting*, the
-    config's sampling split R = ``config.replicas`` ways (e.g. ``area_samples`` / R hidden samples); replica r
+    config's sampling split R = ``config.replicas`` ways (e.g. ``samples`` / R hidden samples); replica r
     draws from :func:`~datagen.simulation.replicas.replica_rng` (root, r), so the result of R replicas does not
     depend on how they were run (in one call or in rounds, on any number of workers). A deterministic estimator
     (the quadrature without a Monte Carlo secondary) runs once.
@@ -179,10 +179,10 @@ class Replicas:
     def __init__(self, scene: Scene, config: SimulationConfig, rng: np.random.Generator):
         t0 = time.perf_counter()
         self.scene, self.config = scene, config
-        self.entry = estimator(config.estimator)
+        self.entry = estimator(config.estimator.kind)
         check_simulation_memory(scene, config)   # the grids as the user gave them (a replica's are smaller)
-        update = self.entry.replica(config, config.replicas) if self.entry.replica is not None else {}
-        self.replica_config = config.model_copy(update=update)
+        update = self.entry.replica(config.estimator, config.replicas) if self.entry.replica is not None else {}
+        self.replica_config = config.with_estimator(**update)
         self.transport, self.plan = prepare_transport(scene, self.replica_config)
         self.monte_carlo = self.entry.replica is not None and getattr(self.transport, "monte_carlo", True)
         self.names = self.transport.component_names
@@ -262,8 +262,8 @@ class Replicas:
             coarse_p = coarse_acc.binned_total(self.n_channels)[channels]
         else:
             no_secondary = {"secondary": "none", "effects": {**self.replica_config.effects, "secondary": False}}
-            coarse_cfg = self.replica_config.model_copy(update={**self.entry.refine(self.replica_config),
-                                                                **no_secondary})
+            coarse_cfg = self.replica_config.with_estimator(**self.entry.refine(self.replica_config.estimator))
+            coarse_cfg = coarse_cfg.model_copy(update=no_secondary)
             coarse = run_transport(self.scene, coarse_cfg, rng)
             coarse_p = coarse.binned[[i for i, n in enumerate(coarse.names)
                                       if n not in ("secondary", "first_bounce")]].sum(axis=0)
@@ -278,8 +278,8 @@ class Replicas:
         mc = self.error()
         refined = self.refinement_error(tr, rng)
         total = float(np.hypot(mc, refined or 0.0))
-        describe = self.entry.describe or (lambda cfg: cfg["estimator"])
-        setting = describe(self.replica_config.model_dump(mode="json"))
+        describe = self.entry.describe or (lambda opts: opts.kind)
+        setting = describe(self.replica_config.estimator)
         parts = []
         if self.monte_carlo:
             parts.append(f"standard error of the mean of {self.count} independent replicas ({setting} each)")
@@ -372,9 +372,9 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
         "warnings": warnings,
         "effects": {
             "primary": True,
-            "estimator": config.estimator,
+            "estimator": config.estimator.kind,
             "secondary": settings.secondary,
-            "top_k": config.top_k if settings.secondary == "optimized" else None,
+            "top_k": getattr(settings, "top_k", None) if settings.secondary == "optimized" else None,
             "sensor_sampling": transport.sensor_sampling,
             "shadow_rays": {"spot": settings.shadow_spot, "sensor": settings.shadow_sensor},
             "non_lambertian_brdfs": sorted({o.material.kind for o in scene.objects} - {"lambertian"}),

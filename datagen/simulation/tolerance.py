@@ -168,7 +168,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
 
     Args:
         scene, config: as for :func:`datagen.simulate` (``config.replicas`` replicas of the config's sampling
-            are the first round; the quadrature starts from ``config.quadrature_edge``).
+            are the first round; the quadrature starts from ``config.estimator.edge``).
         tolerance: target relative L2 error of the envelope (bins above 1 % of its peak), in (0, 1).
         max_replicas: most replicas in all (Monte Carlo estimators; deterministic cap).
         max_cost: most work in all, in the estimator's nominal seconds (``nominal_seconds()``: counted work
@@ -194,7 +194,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     tolerance = check_tolerance(tolerance)
     t0 = time.perf_counter()
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
-    cfg = config.model_copy(update={"tolerance": tolerance})
+    cfg = config.model_copy(update={"effect_threshold": tolerance})
     runs = Replicas(scene, cfg, rng)
     if not runs.monte_carlo or runs.entry.replica is None:
         return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0, warn)
@@ -208,7 +208,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         seconds = time.perf_counter() - t_round
         rounds.append({"replicas": runs.count, "estimate": estimate, "seconds": seconds})
         if progress:
-            print(f"{runs.count} replicas ({runs.entry.describe(runs.replica_config.model_dump(mode='json'))} each): "
+            print(f"{runs.count} replicas ({runs.entry.describe(runs.replica_config.estimator)} each): "
                   f"estimated error {estimate:.3%} ({seconds:.2f} s)")
         if estimate <= tolerance or (cap is not None and runs.count >= cap):
             break
@@ -253,12 +253,12 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
                          warn: Callable[[str], None] | None = None) -> Result:
     """The quadrature: the edge shrinks until the estimate of the latest level meets ``tolerance``."""
     entry = runs.entry
-    h = float(config.quadrature_edge)
+    h = float(config.estimator.edge)
     rounds, previous = [], None
     for level in range(MAX_ROUNDS + 2):
         t_level = time.perf_counter()
         if level:
-            runs = Replicas(scene, config.model_copy(update={"quadrature_edge": h}), rng)
+            runs = Replicas(scene, config.with_estimator(edge=h), rng)
         runs.run(config.replicas)
         tr = runs.transported()
         _check_energy(scene, tr)
@@ -273,7 +273,7 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
             estimate = float(np.hypot(runs.error(), refined))
             error = {"rel_l2": estimate, "monte_carlo": runs.error(),
                      "refinement": refined, "replicas": runs.count,
-                     "replica_setting": entry.describe(runs.replica_config.model_dump(mode="json")),
+                     "replica_setting": entry.describe(runs.replica_config.estimator),
                      "method": f"edge refinement ‖P(h') − P(h)‖/((h'/h)^{entry.order} − 1) of the primary between "
                                f"the last two levels, with the replica spread of the Monte Carlo secondary; "
                                f"relative L2 over bins above 1 % of the peak"}
@@ -295,7 +295,7 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
         h *= shrink
     info = {"target": tolerance, "estimate": estimate, "met": bool(estimate <= tolerance),
             "method": error["method"], "rounds": rounds}
-    cfg = config.model_copy(update={"quadrature_edge": h})
+    cfg = config.with_estimator(edge=h)
     return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
 
 

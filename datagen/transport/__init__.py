@@ -11,16 +11,17 @@ to a :class:`Sink`, usually the timing stage's :class:`~datagen.timing.EnvelopeA
   its secondaries in :mod:`.secondary`; :mod:`.area` (hidden-surface area sampling, ``"area"``);
   :mod:`.quadrature` (deterministic hidden-surface quadrature, ``"quadrature"``).
 """
-from .base import (Connections, Counters, Estimator, EstimatorEntry, Sink, estimator, estimator_names, register,
-                   run_replicas)
+from .base import (Connections, Counters, Estimator, EstimatorEntry, EstimatorOptions, Sink, estimator,
+                   estimator_names, estimator_options, register, run_replicas)
 from .physics import PHYSICS_SWITCHES, LegPhysics, PhysicsSettings, fov_connection_weight, laser_irradiance
 from .area_kernels import abs_sin_azimuth, brdf_value, material_arrays
-from .lookin import SecondaryMode, Transport, TransportSettings, TransportStats
-from .area import AreaSampler, AreaSettings, AreaStats
-from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureSettings, QuadratureStats
+from .lookin import LookinOptions, SecondaryMode, Transport, TransportSettings, TransportStats
+from .area import AreaOptions, AreaSampler, AreaSettings, AreaStats
+from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureOptions, QuadratureSettings, QuadratureStats
 
 __all__ = ["abs_sin_azimuth", "brdf_value", "material_arrays", "Connections", "Counters", "Estimator",
-           "EstimatorEntry", "Sink", "estimator", "estimator_names",
+           "EstimatorEntry", "EstimatorOptions", "Sink", "estimator", "estimator_names", "estimator_options",
+           "LookinOptions", "AreaOptions", "QuadratureOptions",
            "register", "run_replicas", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",
            "laser_irradiance", "SecondaryMode", "Transport", "TransportSettings", "TransportStats",
            "AreaSampler", "AreaSettings", "AreaStats", "QUADRATURE_EDGE", "Quadrature", "QuadratureSettings",

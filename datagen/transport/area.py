@@ -50,16 +50,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
+from pydantic import Field
 
 from ..processes import ForkedCall
 from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
                         to_world, unit_square_points)
 from ..scene import Capture, RayCaster, Scene, SceneError, resolve_capture
 from ..vectors import dot
-from .base import Connections, Counters, Sink, register
+from .base import Connections, Counters, EstimatorOptions, Sink, register
 from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
                            spot_irradiance)
 from .area_secondary import AreaSecondary
@@ -202,14 +203,21 @@ def _forked_replicas(sampler: "AreaSampler", sinks: list[Sink], rngs: list[np.ra
     return out
 
 
-def _area_replica(config, replicas: int) -> dict:
-    """One of ``replicas`` independent runs: ``config.area_samples`` / R hidden samples per laser point (rounded
-    up; at least ``MIN_REPLICA_SAMPLES``)."""
-    return {"area_samples": max(MIN_REPLICA_SAMPLES, -(-int(config.area_samples) // int(replicas)))}
+class AreaOptions(EstimatorOptions):
+    """The area sampler's settings (``estimator: {kind: area, samples: M}``): M hidden samples per laser point."""
 
+    kind: Literal["area"] = "area"
+    samples: int = Field(65536, ge=16)
 
-def _area_describe(config: dict) -> str:
-    return f"{config['area_samples']} hidden samples per laser point"
+    LEGACY: ClassVar[dict[str, str]] = {"area_samples": "samples"}
+
+    def replica(self, replicas: int) -> dict:
+        """One of ``replicas`` independent runs: ``samples`` / R per laser point (rounded up; at least
+        ``MIN_REPLICA_SAMPLES``)."""
+        return {"samples": max(MIN_REPLICA_SAMPLES, -(-int(self.samples) // int(replicas)))}
+
+    def describe(self) -> str:
+        return f"{self.samples} hidden samples per laser point"
 
 
 AREA_SAMPLE_BYTES = 500
@@ -217,14 +225,20 @@ AREA_SAMPLE_BYTES = 500
 
 
 def area_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tuple[str, str, float]]:
-    """(field, value, bytes) of the area sampler's hidden samples (``config.area_samples``; also the quadrature's
-    Monte Carlo secondary) (:attr:`EstimatorEntry.memory <datagen.transport.EstimatorEntry>`)."""
-    return [("area_samples", str(config.area_samples), float(AREA_SAMPLE_BYTES) * config.area_samples)]
+    """(field, value, bytes) of the area sampler's hidden samples (``config.estimator.samples``; the quadrature's
+    Monte Carlo secondary passes its ``secondary_samples``) (:attr:`EstimatorEntry.memory
+    <datagen.transport.EstimatorEntry>`)."""
+    return samples_memory(config.estimator.samples, "estimator.samples")
+
+
+def samples_memory(samples: int, field: str) -> list[tuple[str, str, float]]:
+    """(field, value, bytes) of ``samples`` hidden samples of the area sampler."""
+    return [(field, str(samples), float(AREA_SAMPLE_BYTES) * samples)]
 
 
 @register("area", AreaSettings,
           "hidden-surface area sampling with next-event connections to the laser spot and the FoV",
-          replica=_area_replica, describe=_area_describe, memory=area_memory)
+          options=AreaOptions, replica=AreaOptions.replica, describe=AreaOptions.describe, memory=area_memory)
 class AreaSampler(AreaSecondary):
     """Area-sampling estimator with next-event connections to the laser spot and the FoV.
 
@@ -280,11 +294,11 @@ class AreaSampler(AreaSecondary):
     @classmethod
     def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster,
                     capture: Capture | None = None) -> "AreaSampler":
-        """The registry's constructor: ``config.area_samples`` hidden samples per laser point with the physics
+        """The registry's constructor: ``config.estimator.samples`` hidden samples per laser point with the physics
         of the planned lookin ``settings``. The planner's ``shadow_spot`` decision concerns the lookin
         sampler's secondary; the area sampler's hidden points always need their laser shadow ray (lookins are
         visible from the spot by construction), unless the user forces it off."""
-        return cls(scene, AreaSettings.from_transport(settings, samples=config.area_samples,
+        return cls(scene, AreaSettings.from_transport(settings, samples=config.estimator.samples,
                                                       shadow_spot=config.effects.get("shadow_spot") is not False,
                                                       sensor_blockers=settings.sensor_blockers,
                                                       workers=config.workers), caster, capture=capture)

@@ -12,14 +12,57 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict
 
 
 TARGET_BYTES = 100
 """Bytes per capture grid point and per quadrature target (FoV cell or sensor point), for the memory estimates
 (:attr:`EstimatorEntry.memory`, :func:`datagen.simulation.simulation_memory`)."""
+
+
+class EstimatorOptions(BaseModel):
+    """Base of an estimator's settings model, the ``estimator:`` block of a simulation config (``kind`` picks the
+    registered estimator: :func:`estimator_options`). Each estimator module subclasses it with
+    ``kind: Literal["<name>"]`` and its knobs, and registers it (``register(..., options=...)``).
+
+    Attributes:
+        LEGACY: the flat simulation keys this estimator read before its knobs moved here (old key → field), e.g.
+            ``{"area_samples": "samples"}``; :func:`datagen.simulation.translate_legacy` moves them.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    kind: str
+    LEGACY: ClassVar[dict[str, str]] = {}
+
+    def transport_fields(self) -> dict:
+        """Sampling fields of the lookin :class:`~datagen.transport.TransportSettings` these options set (the
+        planner and the sampling figures build those settings for every estimator); none by default."""
+        return {}
+
+
+def estimator_options(value: Any) -> EstimatorOptions:
+    """The options model of ``value``: an :class:`EstimatorOptions`, a name (``"area"``: the defaults) or a
+    mapping with ``kind`` (validated by the registered estimator's model).
+
+    Raises:
+        ValueError: no ``kind`` or an unknown one (the message lists the known ones).
+    """
+    if isinstance(value, EstimatorOptions):
+        return value
+    if isinstance(value, str):
+        value = {"kind": value}
+    if not isinstance(value, dict):
+        raise ValueError(f"give an estimator name or a mapping with kind (one of {', '.join(_REGISTRY)}), "
+                         f"got {type(value).__name__}")
+    kind = value.get("kind")
+    if kind not in _REGISTRY:
+        what = "give kind" if kind is None else f"unknown estimator kind {kind!r}"
+        raise ValueError(f"{what}; known: {', '.join(_REGISTRY)}")
+    return _REGISTRY[kind].options.model_validate(value)
 
 
 class Sink(Protocol):
@@ -125,20 +168,23 @@ class EstimatorEntry:
             the settings the effect planner has already applied its decisions to (they carry the physics
             switches), the scene's ray caster and its resolved :class:`~datagen.scene.Capture`.
         summary: one line for help texts.
-        replica: ``(config, replicas) → config updates`` giving one of ``replicas`` independent runs whose mean
-            spends the config's sampling (e.g. ``{"area_samples": M / R}``); None for a deterministic estimator,
+        options: its settings model (an :class:`EstimatorOptions` subclass with ``kind: Literal[name]``), the
+            ``estimator:`` block of a simulation config; the hooks below take an instance of it.
+        replica: ``(options, replicas) → options updates`` giving one of ``replicas`` independent runs whose mean
+            spends the options' sampling (e.g. ``{"samples": M / R}``); None for a deterministic estimator,
             whose error comes from ``refine`` instead. An estimator object whose ``monte_carlo`` attribute is
             False (e.g. the quadrature without its Monte Carlo secondary) runs once.
-        refine: ``config → config updates`` of the coarser setting (e.g. twice the quadrature edge) whose
+        refine: ``options → options updates`` of the coarser setting (e.g. twice the quadrature edge) whose
             difference estimates a deterministic estimator's error, with its ``order`` (error ∝ h^order);
             None for Monte Carlo estimators.
-        describe: ``JSON config → str``, the sampling setting in words (e.g. "65536 hidden samples per laser
+        describe: ``options → str``, the sampling setting in words (e.g. "65536 hidden samples per laser
             point").
         order: convergence order of ``refine`` (2: the error falls as h²).
-        memory: ``(scene, config, lasers, sensors) → [(field, value, bytes), …]``, the estimator's own arrays at
-            their peak for a capture of ``lasers`` laser points and ``sensors`` sensor points, estimated without
-            allocating (:func:`datagen.simulation.simulation_memory` adds the shared ones); None: none worth
-            counting.
+        memory: ``(scene, config, lasers, sensors) → [(field, value, bytes), …]`` (the options are
+            ``config.estimator``; shared fields such as ``workers`` and ``secondary`` the config's), the
+            estimator's own arrays at their peak for a capture of ``lasers`` laser points and ``sensors`` sensor
+            points, estimated without allocating (:func:`datagen.simulation.simulation_memory` adds the shared
+            ones); None: none worth counting.
         casts_lookins: the estimator samples the scene from the laser spot with lookins (pictures can show them).
     """
 
@@ -147,9 +193,10 @@ class EstimatorEntry:
     settings_class: type
     from_config: Callable[..., Estimator]
     summary: str
+    options: type = EstimatorOptions
     replica: Callable[[Any, int], dict] | None = None
     refine: Callable[[Any], dict] | None = None
-    describe: Callable[[dict], str] | None = None
+    describe: Callable[[Any], str] | None = None
     order: int = 2
     memory: Callable[..., list[tuple[str, str, float]]] | None = None
     casts_lookins: bool = False
@@ -158,12 +205,14 @@ class EstimatorEntry:
 _REGISTRY: dict[str, EstimatorEntry] = {}
 
 
-def register(name: str, settings_class: type, summary: str, *, replica: Callable[[Any, int], dict] | None = None,
-             refine: Callable[[Any], dict] | None = None, describe: Callable[[dict], str] | None = None,
+def register(name: str, settings_class: type, summary: str, *, options: type,
+             replica: Callable[[Any, int], dict] | None = None,
+             refine: Callable[[Any], dict] | None = None, describe: Callable[[Any], str] | None = None,
              order: int = 2, memory: Callable[..., list[tuple[str, str, float]]] | None = None,
              casts_lookins: bool = False) -> Callable:
     """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
-    the classmethod ``from_config(scene, config, settings, caster, capture)``. A Monte Carlo estimator gives
+    the classmethod ``from_config(scene, config, settings, caster, capture)`` (``config.estimator`` is an
+    instance of ``options``, the estimator's settings model: :class:`EstimatorOptions`). A Monte Carlo estimator gives
     ``replica`` (how to split its sampling into independent replicas, whose spread is the error estimate of
     every result); a deterministic one gives ``refine`` and ``order``; one with both parts gives both (the
     quadrature: a deterministic primary and a Monte Carlo secondary). ``memory`` and ``casts_lookins``: see
@@ -174,10 +223,12 @@ def register(name: str, settings_class: type, summary: str, *, replica: Callable
     """
     if replica is None and refine is None:
         raise ValueError(f"estimator {name!r}: give replica (Monte Carlo), refine (deterministic) or both")
+    if options.model_fields["kind"].default != name:
+        raise ValueError(f"estimator {name!r}: its options model needs kind: Literal[{name!r}] = {name!r}")
 
     def wrap(cls):
-        _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary, replica, refine,
-                                         describe, order, memory, casts_lookins)
+        _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary, options, replica,
+                                         refine, describe, order, memory, casts_lookins)
         return cls
     return wrap
 

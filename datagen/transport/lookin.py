@@ -27,18 +27,19 @@ from __future__ import annotations
 import math
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
-from typing import Callable, Literal
+from typing import Any, Callable, ClassVar, Literal
 
 import multiprocessing as mp
 import numpy as np
+from pydantic import Field, field_validator
 
 from ..sampling import Lookins, ObservedPoints, observe, sample_lookins
 from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene, resolve_capture
 from ..scene import MaterialTable
 from ..processes import set_parent_death_signal
-from ..units import SPEED_OF_LIGHT
+from ..units import SPEED_OF_LIGHT, parse_grid
 from ..vectors import dot
-from .base import Connections, Counters, Sink, register, sink_far_time
+from .base import Connections, Counters, EstimatorOptions, Sink, register, sink_far_time
 from .physics import LegPhysics, PhysicsSettings
 from .secondary import ConvGrid, LookinSecondary
 
@@ -123,15 +124,50 @@ def _worker_batch(args):
     return _WORKER["transport"]._run_batch(*args)
 
 
-def _lookin_replica(config, replicas: int) -> dict:
-    """One of ``replicas`` independent runs: each side of the lookin grid divided by √R (rounded, at least 1),
-    the camera unchanged."""
-    side = np.sqrt(replicas)
-    return {"lookins": tuple(max(1, int(round(n / side))) for n in config.lookins)}
+class LookinOptions(EstimatorOptions):
+    """The lookin estimator's settings (``estimator: {kind: lookin, ...}`` in a simulation config).
 
+    Attributes:
+        lookins, pixels: lookin grid √N×√N and camera l×p ("10x10", "60x60" are the paper's).
+        lookin_pdf: hemisphere sampling at the spot ("cosine" or "uniform").
+        jitter: stratified jitter of lookin rays and camera pixels (False: the paper's regular grids).
+        top_k: secondary "optimized" (paper §4): the strongest ``top_k`` per lookin and FoV point.
+        sensor_sampling: "camera" (the paper: FoV points from the lookin cameras) or "connect" (next-event
+            connections to ``connect_samples`` stratified points per sensor pixel; forced for point radiance).
+        conv_refine: the exact secondary's profile grid is this many times finer than the envelope's grid.
+        batch: lookins per batch (memory bound).
+    """
 
-def _lookin_describe(config: dict) -> str:
-    return f"lookins {'x'.join(map(str, config['lookins']))}, pixels {'x'.join(map(str, config['pixels']))}"
+    kind: Literal["lookin"] = "lookin"
+    lookins: tuple[int, int] = (10, 10)
+    pixels: tuple[int, int] = (60, 60)
+    lookin_pdf: Literal["cosine", "uniform"] = "cosine"
+    jitter: bool = True
+    top_k: int = Field(1, ge=1)
+    sensor_sampling: Literal["camera", "connect"] = "camera"
+    connect_samples: tuple[int, int] = (4, 4)
+    conv_refine: int = Field(1, ge=1, le=64)
+    batch: int = Field(32, ge=1)
+
+    LEGACY: ClassVar[dict[str, str]] = {k: k for k in ("lookins", "pixels", "lookin_pdf", "jitter", "top_k",
+                                                       "sensor_sampling", "connect_samples", "conv_refine", "batch")}
+
+    @field_validator("lookins", "pixels", "connect_samples", mode="before")
+    @classmethod
+    def _grid(cls, value: Any, info) -> tuple[int, int]:
+        return parse_grid(value, info.field_name)
+
+    def transport_fields(self) -> dict:
+        return self.model_dump(exclude={"kind"})
+
+    def replica(self, replicas: int) -> dict:
+        """One of ``replicas`` independent runs: each side of the lookin grid divided by √R (rounded, at least
+        1), the camera unchanged."""
+        side = np.sqrt(replicas)
+        return {"lookins": tuple(max(1, int(round(n / side))) for n in self.lookins)}
+
+    def describe(self) -> str:
+        return f"lookins {'x'.join(map(str, self.lookins))}, pixels {'x'.join(map(str, self.pixels))}"
 
 
 LOOKIN_BYTES = 400
@@ -151,20 +187,21 @@ secondary: +66 MB at 60×60 pixels, +790 MB at 120×120, 3×3 lookins)."""
 def _lookin_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tuple[str, str, float]]:
     """(field, value, bytes) of the lookin grid of every laser point, the camera rays of one slice per worker
     and the full / optimized secondary's pairs (:attr:`EstimatorEntry.memory <datagen.transport.EstimatorEntry>`)."""
-    workers = max(1, config.workers)
-    n_lookins, n_pixels = math.prod(config.lookins), math.prod(config.pixels)
-    pixels = "x".join(map(str, config.pixels))
-    terms = [("lookins", "x".join(map(str, config.lookins)), float(LOOKIN_BYTES) * n_lookins * lasers),
-             ("pixels", pixels, float(CAMERA_RAY_BYTES) * max(n_pixels, CACHE_RAYS) * workers)]
+    workers, opts = max(1, config.workers), config.estimator
+    n_lookins, n_pixels = math.prod(opts.lookins), math.prod(opts.pixels)
+    pixels = "x".join(map(str, opts.pixels))
+    terms = [("estimator.lookins", "x".join(map(str, opts.lookins)), float(LOOKIN_BYTES) * n_lookins * lasers),
+             ("estimator.pixels", pixels, float(CAMERA_RAY_BYTES) * max(n_pixels, CACHE_RAYS) * workers)]
     if config.secondary in ("full", "optimized"):
-        terms.append(("pixels", f"{pixels} (secondary {config.secondary}: pairs)",
+        terms.append(("estimator.pixels", f"{pixels} (secondary {config.secondary}: pairs)",
                       float(SECONDARY_PAIR_BYTES) * n_pixels ** 2 * workers))
     return terms
 
 
 @register("lookin", TransportSettings,
           "the paper's sampler: lookins from the laser spot and their hemispherical cameras",
-          replica=_lookin_replica, describe=_lookin_describe, memory=_lookin_memory, casts_lookins=True)
+          options=LookinOptions, replica=LookinOptions.replica, describe=LookinOptions.describe,
+          memory=_lookin_memory, casts_lookins=True)
 class Transport(LookinSecondary):
     """Runs the lookin estimator over a scene and sends impulses to a sink (module doc).
 

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from .area import area_memory
+from .area import samples_memory
 from .base import TARGET_BYTES
 
 __all__ = ["GRADING_MIN_EDGE", "graded_triangles", "quadrature_memory"]
@@ -95,23 +95,23 @@ def _near_box(scene) -> np.ndarray:
 
 
 def quadrature_memory(scene, config, lasers: int, sensors: int) -> list[tuple[str, str, float]]:
-    """(field, value, bytes) of the quadrature's sub-triangles (graded when ``config.quadrature_grading`` is set;
+    """(field, value, bytes) of the quadrature's sub-triangles (graded when ``config.estimator.grading`` is set;
     k = ceil(longest edge / h) per side) and FoV cells per sensor point, from the scene's triangles without
     splitting them, and the area sampler's hidden samples of a planned Monte Carlo secondary
     (:attr:`EstimatorEntry.memory <datagen.transport.EstimatorEntry>`)."""
-    terms = [] if config.secondary == "none" else area_memory(scene, config, lasers, sensors)
+    opts = config.estimator
+    terms = [] if config.secondary == "none" else samples_memory(opts.secondary_samples, "estimator.secondary_samples")
     tri = _hidden_triangles(scene)
     k_min = 1.0
-    if config.quadrature_grading is not None and len(tri):      # graded pieces, each split at least in 2 × 2
-        tri, _ = graded_triangles(tri, _near_box(scene), config.quadrature_grading,
-                                  GRADING_MIN_EDGE * config.quadrature_edge)
+    if opts.grading is not None and len(tri):      # graded pieces, each split at least in 2 × 2
+        tri, _ = graded_triangles(tri, _near_box(scene), opts.grading, GRADING_MIN_EDGE * opts.edge)
         k_min = 2.0
     longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1).max(axis=1, initial=0.0)  # in float64:
-    cells = float((np.maximum(k_min, np.ceil(longest / config.quadrature_edge)) ** 2).sum())   # no overflow
+    cells = float((np.maximum(k_min, np.ceil(longest / opts.edge)) ** 2).sum())   # no overflow
     fov = scene.sensor.fov     # FoV cells per pixel side: the quadrature caps them (at 64); not here
     side = max(fov.size) / min(fov.pixels) if fov is not None else 0.0
-    k = config.quadrature_fov or max(1, math.ceil(side / config.quadrature_edge))
-    return terms + [("quadrature_edge", f"{config.quadrature_edge:g} m ({cells:.3g} sub-triangles)",
+    k = opts.fov_cells or max(1, math.ceil(side / opts.edge))
+    return terms + [("estimator.edge", f"{opts.edge:g} m ({cells:.3g} sub-triangles)",
                      float(QUADRATURE_CELL_BYTES) * cells),
-                    ("quadrature_edge", f"{config.quadrature_edge:g} m ({k}x{k} FoV cells per pixel)",
+                    ("estimator.edge", f"{opts.edge:g} m ({k}x{k} FoV cells per pixel)",
                      float(TARGET_BYTES) * sensors * k * k)]

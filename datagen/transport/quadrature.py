@@ -82,15 +82,12 @@ from .area import AreaSampler, AreaSettings
 from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
 from .quad_grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
+from .quad_options import QUADRATURE_EDGE, QuadratureOptions
 from .quad_primary import leg_occluders, run_compiled
 from .quad_split import apply_split, choose_split, refined
 
-__all__ = ["QUADRATURE_EDGE", "Quadrature", "QuadratureSettings", "QuadratureStats", "subdivide_with_vertices"]
-
-QUADRATURE_EDGE = 0.02
-"""Default sub-triangle edge h (m). On the hidden-square tal captures (0.4 m square 1 m from the wall, 3 mm bins)
-it gives 0.13 % (single spot) and 0.22 % (32×32 confocal) relative L2 against the exact answer (docs/tal.md), well
-inside their 1 % target."""
+__all__ = ["QUADRATURE_EDGE", "Quadrature", "QuadratureOptions", "QuadratureSettings", "QuadratureStats",
+           "subdivide_with_vertices"]
 
 MAX_PAIR_ROWS = 1 << 21
 """Default cap on (sub-triangle, connection) rows handled together (each row holds ~20 float64 temporaries)."""
@@ -206,24 +203,9 @@ def _leg_may_be_blocked(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray
     return None if found is None else bool(found[1].any())
 
 
-def _quadrature_replica(config, replicas: int) -> dict:
-    """One of ``replicas`` runs of the Monte Carlo secondary: ``config.area_samples`` / R hidden samples (the
-    primary is deterministic and shared, :meth:`Quadrature.run_replicas`)."""
-    return {"area_samples": max(16, -(-int(config.area_samples) // int(replicas)))}
-
-
-def _quadrature_refine(config) -> dict:
-    """The coarser setting of the error estimate: twice the edge (FoV cells follow it unless fixed)."""
-    return {"quadrature_edge": 2.0 * float(config.quadrature_edge)}
-
-
-def _quadrature_describe(config: dict) -> str:
-    return f"quadrature edge {config['quadrature_edge']:.4g} m"
-
-
 @register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning",
-          replica=_quadrature_replica, refine=_quadrature_refine, describe=_quadrature_describe,
-          memory=quadrature_memory)
+          options=QuadratureOptions, replica=QuadratureOptions.replica, refine=QuadratureOptions.refine,
+          describe=QuadratureOptions.describe, memory=quadrature_memory)
 class Quadrature:
     """Deterministic hidden-surface quadrature of the primary with exact time binning (module doc).
 
@@ -337,14 +319,14 @@ class Quadrature:
 
     @classmethod
     def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster, capture=None):
-        """The registry's constructor: edge ``config.quadrature_edge``, FoV cells ``config.quadrature_fov``, a
-        planned secondary from the area sampler with ``config.area_samples``, and the physics of the planned lookin
+        """The registry's constructor: the edge, FoV cells, grading and secondary samples of ``config.estimator``
+        (:class:`~datagen.transport.quad_options.QuadratureOptions`), and the physics of the planned lookin
         ``settings``. Shadow rays on the laser and FoV legs follow the quadrature's own exact occluder test unless
         the user forces ``shadow_spot`` (the planner's decision concerns the lookin sampler's secondary)."""
-        forced_spot = config.effects.get("shadow_spot")
+        forced_spot, opts = config.effects.get("shadow_spot"), config.estimator
         return cls(scene, QuadratureSettings.from_transport(
-            settings, edge=config.quadrature_edge, fov_cells=config.quadrature_fov, grading=config.quadrature_grading,
-            secondary_samples=config.area_samples,
+            settings, edge=opts.edge, fov_cells=opts.fov_cells, grading=opts.grading,
+            secondary_samples=opts.secondary_samples,
             shadow_spot=forced_spot if isinstance(forced_spot, bool) else None), caster, capture)
 
     def progress_total(self) -> tuple[int, str]:
