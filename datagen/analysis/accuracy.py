@@ -38,6 +38,7 @@ from ..scene import RayCaster, Scene
 from ..timing import EnvelopeAccumulator
 from ..transport import SecondaryMode
 from ..transport import estimator as transport_estimator
+from ..transport import estimator_names as transport_estimator_names
 from .reference import PEAK_FLOOR, Reference, peak_time
 
 __all__ = [
@@ -179,6 +180,22 @@ ESTIMATORS = tuple(name for name in LADDERS if name != "exact" or "exact" in get
 """The estimators available in this build (``exact`` only when transport has it)."""
 
 
+def ladders() -> dict[str, Estimator]:
+    """:data:`LADDERS` and the ladder of every registered estimator that gives one
+    (:class:`datagen.transport.AccuracyLadder`; an estimator registered after import, e.g. a plugin, included)."""
+    out = dict(LADDERS)
+    for name in transport_estimator_names():
+        lad = transport_estimator(name).ladder
+        if lad is not None and name not in out:
+            out[name] = Estimator(name, lad.label, name, lad.steps, lad.cost, lad.setting)
+    return out
+
+
+def available_estimators() -> tuple[str, ...]:
+    """Names ``run_accuracy`` takes: :data:`ESTIMATORS` and the registered estimators' own ladders."""
+    return ESTIMATORS + tuple(n for n in ladders() if n not in LADDERS)
+
+
 @dataclass
 class AccuracyRow:
     """One run of the benchmark: estimator, setting, wall time (s), errors (see :func:`envelope_error`)."""
@@ -239,7 +256,7 @@ def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float 
         reference: from :func:`datagen.analysis.reference.converged_reference` for the same scene and config.
         config: the simulation config (default: the scene's); its sampling fields are overridden per step.
         budget: wall seconds for every estimator's ladder together (the reference not included).
-        estimators: names from :data:`ESTIMATORS` (default all).
+        estimators: names from :func:`available_estimators` (default :data:`ESTIMATORS`).
         echo: called with one line per finished run.
     Returns:
         Rows in run order, Pareto front marked.
@@ -249,17 +266,18 @@ def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float 
     from ..simulation import resolve_config
 
     config = config or resolve_config(scene)
+    known, table = available_estimators(), ladders()
     names = tuple(estimators or ESTIMATORS)
-    unknown = [n for n in names if n not in ESTIMATORS]
+    unknown = [n for n in names if n not in known]
     if unknown:
-        raise ConfigError(f"unknown estimator(s) {unknown}; known: {list(ESTIMATORS)}")
+        raise ConfigError(f"unknown estimator(s) {unknown}; known: {list(known)}")
     if not budget > 0:
         raise ConfigError(f"budget must be > 0 seconds, got {budget!r}")
     end = time.perf_counter() + budget
     caster = caster or RayCaster(scene)
     rows: list[AccuracyRow] = []
     for k, name in enumerate(names):
-        est = LADDERS[name]
+        est = table[name]
         share = (end - time.perf_counter()) / (len(names) - k)
         spent, times, costs = 0.0, [], []
         for step in est.ladder:
@@ -310,8 +328,9 @@ def plot_accuracy(rows: list[AccuracyRow], path: str | Path, reference: Referenc
     fig, ax = loglog_axes()
     for name in dict.fromkeys(r.estimator for r in rows):
         sel = [r for r in rows if r.estimator == name]
+        table = ladders()
         ax.plot([r.seconds for r in sel], [max(r.rel_l2, 1e-12) for r in sel], "o-", ms=4,
-                label=LADDERS[name].label if name in LADDERS else name)
+                label=table[name].label if name in table else name)
     front = sorted((r for r in rows if r.pareto), key=lambda r: r.seconds)
     if front:
         ax.step([r.seconds for r in front], [r.rel_l2 for r in front], where="post", color="k", lw=1.2, ls="--",

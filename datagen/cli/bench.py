@@ -61,15 +61,17 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
     import time
 
     t_start = time.perf_counter()
-    from ..analysis.accuracy import ESTIMATORS, format_table, plot_accuracy, run_accuracy, write_csv
+    from ..analysis.accuracy import (ESTIMATORS, available_estimators, format_table, plot_accuracy, run_accuracy,
+                                     write_csv)
     from ..analysis.reference import REFERENCE_SAMPLES, converged_reference
 
     budget_s = _duration(budget, "--budget")
     ref_budget_s = _duration(reference_budget, "--reference-budget")
     names = tuple(n.strip() for n in estimators.split(",") if n.strip()) if estimators else ESTIMATORS
-    unknown = [n for n in names if n not in ESTIMATORS]
+    known = available_estimators()
+    unknown = [n for n in names if n not in known]
     if unknown:
-        raise ValueError(f"--estimators: unknown estimator(s) {unknown}; known: {', '.join(ESTIMATORS)}")
+        raise ValueError(f"--estimators: unknown estimator(s) {unknown}; known: {', '.join(known)}")
     if (scene_file is None) == (dataset_file is None):
         raise ValueError("give a SCENE_FILE or --dataset CONFIG (one of them)")
     cache = cache_dir or default_cache_dir()

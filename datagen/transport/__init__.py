@@ -11,15 +11,15 @@ to a :class:`Sink`, usually the timing stage's :class:`~datagen.timing.EnvelopeA
   its secondaries in :mod:`.secondary`; :mod:`.area` (hidden-surface area sampling, ``"area"``);
   :mod:`.quadrature` (deterministic hidden-surface quadrature, ``"quadrature"``).
 """
-from .base import (Connections, Counters, Estimator, EstimatorEntry, EstimatorOptions, Sink, estimator,
-                   estimator_names, estimator_options, register, run_replicas)
+from .base import (AccuracyLadder, Connections, Counters, Estimator, EstimatorEntry, EstimatorOptions, Sink,
+                   estimator, estimator_names, estimator_options, register, run_replicas)
 from .physics import PHYSICS_SWITCHES, LegPhysics, PhysicsSettings, fov_connection_weight, laser_irradiance
 from .area_kernels import abs_sin_azimuth, brdf_value, material_arrays
 from .lookin import LookinOptions, SecondaryMode, Transport, TransportSettings, TransportStats
 from .area import AreaOptions, AreaSampler, AreaSettings, AreaStats
 from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureOptions, QuadratureSettings, QuadratureStats
 
-__all__ = ["abs_sin_azimuth", "brdf_value", "material_arrays", "Connections", "Counters", "Estimator",
+__all__ = ["abs_sin_azimuth", "brdf_value", "material_arrays", "AccuracyLadder", "Connections", "Counters", "Estimator",
            "EstimatorEntry", "EstimatorOptions", "Sink", "estimator", "estimator_names", "estimator_options",
            "LookinOptions", "AreaOptions", "QuadratureOptions",
            "register", "run_replicas", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",

@@ -186,6 +186,8 @@ class EstimatorEntry:
             points, estimated without allocating (:func:`datagen.simulation.simulation_memory` adds the shared
             ones); None: none worth counting.
         casts_lookins: the estimator samples the scene from the laser spot with lookins (pictures can show them).
+        ladder: the settings the accuracy benchmark steps through (``datagen bench accuracy``,
+            :func:`datagen.analysis.run_accuracy`), or None: the benchmark's own ladders only.
     """
 
     name: str
@@ -200,6 +202,23 @@ class EstimatorEntry:
     order: int = 2
     memory: Callable[..., list[tuple[str, str, float]]] | None = None
     casts_lookins: bool = False
+    ladder: "AccuracyLadder | None" = None
+
+
+@dataclass(frozen=True)
+class AccuracyLadder:
+    """Settings an estimator is benchmarked at, cheapest first (``register(..., ladder=...)``).
+
+    Attributes:
+        label: legend text; steps: per step, fields of the estimator's ``settings_class`` to set (e.g.
+        ``{"samples": 512}``); cost: a step's nominal cost (relative; predicts the next step's time from the
+        measured ones); setting: a step in a few characters (the table's "setting" column).
+    """
+
+    label: str
+    steps: tuple[dict, ...]
+    cost: Callable[[dict], float]
+    setting: Callable[[dict], str]
 
 
 _REGISTRY: dict[str, EstimatorEntry] = {}
@@ -209,14 +228,14 @@ def register(name: str, settings_class: type, summary: str, *, options: type,
              replica: Callable[[Any, int], dict] | None = None,
              refine: Callable[[Any], dict] | None = None, describe: Callable[[Any], str] | None = None,
              order: int = 2, memory: Callable[..., list[tuple[str, str, float]]] | None = None,
-             casts_lookins: bool = False) -> Callable:
+             casts_lookins: bool = False, ladder: AccuracyLadder | None = None) -> Callable:
     """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
     the classmethod ``from_config(scene, config, settings, caster, capture)`` (``config.estimator`` is an
     instance of ``options``, the estimator's settings model: :class:`EstimatorOptions`). A Monte Carlo estimator gives
     ``replica`` (how to split its sampling into independent replicas, whose spread is the error estimate of
     every result); a deterministic one gives ``refine`` and ``order``; one with both parts gives both (the
-    quadrature: a deterministic primary and a Monte Carlo secondary). ``memory`` and ``casts_lookins``: see
-    :class:`EstimatorEntry`.
+    quadrature: a deterministic primary and a Monte Carlo secondary). ``memory``, ``casts_lookins`` and ``ladder``:
+    see :class:`EstimatorEntry`.
 
     Raises:
         ValueError: neither ``replica`` nor ``refine`` (no result could say how accurate it is).
@@ -228,9 +247,19 @@ def register(name: str, settings_class: type, summary: str, *, options: type,
 
     def wrap(cls):
         _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary, options, replica,
-                                         refine, describe, order, memory, casts_lookins)
+                                         refine, describe, order, memory, casts_lookins, ladder)
         return cls
     return wrap
+
+
+def unregister(name: str) -> None:
+    """Remove the estimator registered as ``name`` (a plugin's tests register a toy and remove it afterwards).
+
+    Raises:
+        KeyError: no estimator has that name.
+    """
+    estimator(name)
+    del _REGISTRY[name]
 
 
 def estimator(name: str) -> EstimatorEntry:
