@@ -126,21 +126,21 @@ def test_a_stalled_render_is_killed_and_retried(o3d, monkeypatch):
 
 def test_lookin_points_are_the_runs_lookins(monkeypatch):
     from datagen.simulation import resolve_config, simulate
-    from datagen.transport import Transport
+    from datagen.transport import LookinSampler
 
     scene = load_scene(DEMO)
     config = resolve_config(scene, {"lookins": "6x6", "pixels": "8x8", "secondary": "none", "seed": 5})
     cast = []
-    original = Transport.lookins
+    original = LookinSampler.lookins
 
     def recording(self, rng, laser=0):
         look = original(self, rng, laser)
         cast.append(look.points[look.hit])
         return look
 
-    monkeypatch.setattr(Transport, "lookins", recording)
+    monkeypatch.setattr(LookinSampler, "lookins", recording)
     simulate(scene, config)
-    monkeypatch.setattr(Transport, "lookins", original)
+    monkeypatch.setattr(LookinSampler, "lookins", original)
     points = plot.lookin_points(scene, config)
     assert len(cast) == config.replicas and len(points) >= 16      # 8 replicas of a 2x2 grid, most hit
     np.testing.assert_array_equal(points, np.concatenate(cast))

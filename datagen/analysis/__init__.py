@@ -10,13 +10,13 @@
   without the transport code.
 - :mod:`.adaptive`: simulate to a tolerance (:func:`simulate_to_tolerance`, ``simulate --tolerance``).
 """
-from .accuracy import (ESTIMATORS, LADDERS, AccuracyRow, Estimator, envelope_error, format_table, pareto_front,
+from .accuracy import (ESTIMATORS, LADDERS, AccuracyRow, Ladder, envelope_error, format_table, pareto_front,
                        plot_accuracy, relative_l2, run_accuracy, run_estimator, write_csv)
 from .adaptive import TIME_CAP_S, describe_setting, replica_error, simulate_to_tolerance
 from .oracle import primary_area_quadrature
 from .reference import PEAK_FLOOR, REFERENCE_SAMPLES, REFERENCE_SEED, Reference, converged_reference, peak_time
 
-__all__ = ["ESTIMATORS", "LADDERS", "AccuracyRow", "Estimator", "envelope_error", "format_table", "pareto_front",
+__all__ = ["ESTIMATORS", "LADDERS", "AccuracyRow", "Ladder", "envelope_error", "format_table", "pareto_front",
            "plot_accuracy", "relative_l2", "run_accuracy", "run_estimator", "write_csv", "describe_setting", "replica_error",
            "simulate_to_tolerance", "primary_area_quadrature", "PEAK_FLOOR", "REFERENCE_SAMPLES",
            "REFERENCE_SEED", "Reference", "converged_reference", "peak_time", "TIME_CAP_S"]

@@ -45,7 +45,7 @@ __all__ = [
     "ESTIMATORS",
     "LADDERS",
     "AccuracyRow",
-    "Estimator",
+    "Ladder",
     "envelope_error",
     "format_table",
     "pareto_front",
@@ -111,7 +111,7 @@ def envelope_error(estimate: Any, reference: Any, time_edges: np.ndarray | None 
 
 
 @dataclass(frozen=True)
-class Estimator:
+class Ladder:
     """One estimator of the benchmark and its ladder of settings.
 
     Attributes:
@@ -156,19 +156,19 @@ def _ray_cost(step: dict) -> float:
     return step["lookins"][0] ** 2 * step["pixels"][0] * step["pixels"][1]
 
 
-LADDERS: dict[str, Estimator] = {
-    "lookin": Estimator("lookin", "lookin, full secondary", "lookin", _lookin_ladder("full"), _pair_cost,
+LADDERS: dict[str, Ladder] = {
+    "lookin": Ladder("lookin", "lookin, full secondary", "lookin", _lookin_ladder("full"), _pair_cost,
                         _lookin_setting),
-    "top1": Estimator("top1", "lookin, optimized top-1", "lookin", _lookin_ladder("optimized", 1), _pair_cost,
+    "top1": Ladder("top1", "lookin, optimized top-1", "lookin", _lookin_ladder("optimized", 1), _pair_cost,
                       _lookin_setting),
-    "top8": Estimator("top8", "lookin, optimized top-8", "lookin", _lookin_ladder("optimized", 8), _pair_cost,
+    "top8": Ladder("top8", "lookin, optimized top-8", "lookin", _lookin_ladder("optimized", 8), _pair_cost,
                       _lookin_setting),
-    "exact": Estimator("exact", "lookin, exact secondary", "lookin", _lookin_ladder("exact"), _ray_cost,
+    "exact": Ladder("exact", "lookin, exact secondary", "lookin", _lookin_ladder("exact"), _ray_cost,
                        _lookin_setting),
-    "area": Estimator("area", "area sampler", "area",
+    "area": Ladder("area", "area sampler", "area",
                       tuple({"samples": 1 << k} for k in range(9, 24)), lambda s: float(s["samples"]),
                       lambda s: f"M={s['samples']}"),
-    "quadrature": Estimator("quadrature", "hidden-surface quadrature", "quadrature",
+    "quadrature": Ladder("quadrature", "hidden-surface quadrature", "quadrature",
                             tuple({"edge": 1.6 / 2 ** i, "secondary_samples": 1 << min(13 + 2 * i, 20)}
                                   for i in range(9)),
                             lambda s: s["edge"] ** -4 + s["secondary_samples"] / 16.0,
@@ -180,14 +180,14 @@ ESTIMATORS = tuple(name for name in LADDERS if name != "exact" or "exact" in get
 """The estimators available in this build (``exact`` only when transport has it)."""
 
 
-def ladders() -> dict[str, Estimator]:
+def ladders() -> dict[str, Ladder]:
     """:data:`LADDERS` and the ladder of every registered estimator that gives one
     (:class:`datagen.transport.AccuracyLadder`; an estimator registered after import, e.g. a plugin, included)."""
     out = dict(LADDERS)
     for name in transport_estimator_names():
         lad = transport_estimator(name).ladder
         if lad is not None and name not in out:
-            out[name] = Estimator(name, lad.label, name, lad.steps, lad.cost, lad.setting)
+            out[name] = Ladder(name, lad.label, name, lad.steps, lad.cost, lad.setting)
     return out
 
 
@@ -210,7 +210,7 @@ class AccuracyRow:
     pareto: bool = False
 
 
-def run_estimator(scene: Scene, config, estimator: Estimator, step: dict, caster: RayCaster,
+def run_estimator(scene: Scene, config, estimator: Ladder, step: dict, caster: RayCaster,
                   seed: int = 0) -> tuple[np.ndarray, float]:
     """Run one ladder step; returns the envelope (channel_shape + (n_bins,)) and its wall time (s: transport
     and binning, not the shared BVH)."""

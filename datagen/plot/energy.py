@@ -19,7 +19,7 @@ import numpy as np
 from ..sampling import Lookins, observe
 from ..scene import FOV_PLANE_TOL, Scene
 from ..simulation import STREAM_SAMPLING, SimulationConfig, stream_rng
-from ..transport import Transport, laser_irradiance
+from ..transport import LookinSampler, laser_irradiance
 from ..vectors import dot, unit
 
 LOOKIN_PIXELS = (120, 120)
@@ -90,7 +90,7 @@ class LookinEnergy:
     n_pixels: tuple[int, int]
 
 
-def laser_energy(scene: Scene, config: SimulationConfig, transport: Transport | None = None,
+def laser_energy(scene: Scene, config: SimulationConfig, transport: LookinSampler | None = None,
                  rng: np.random.Generator | None = None) -> LaserEnergy:
     """Sample lookins and observed points as the simulation does and weigh each point by the laser (Fig. 3).
 
@@ -99,7 +99,7 @@ def laser_energy(scene: Scene, config: SimulationConfig, transport: Transport | 
         transport: reuse a transport built on ``scene`` (default: a new one).
         rng: sampling generator (default ``stream_rng(config.seed, STREAM_SAMPLING)``).
     """
-    t = transport or Transport(scene, config.transport_settings())
+    t = transport or LookinSampler(scene, config.transport_settings())
     rng = rng if rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     s, c = t.settings, t.capture
     jitter_rng = rng if s.jitter else None
@@ -130,7 +130,7 @@ def laser_energy(scene: Scene, config: SimulationConfig, transport: Transport | 
                        irradiance, c.photons, look)
 
 
-def lookin_energy(transport: Transport, position: np.ndarray, normal: np.ndarray, object_id: int,
+def lookin_energy(transport: LookinSampler, position: np.ndarray, normal: np.ndarray, object_id: int,
                   pixels: tuple[int, int] = LOOKIN_PIXELS) -> LookinEnergy:
     """Render one lookin's hemispherical camera at pixel centres and weigh its observed points (Fig. 5).
 
@@ -165,7 +165,7 @@ def lookin_energy(transport: Transport, position: np.ndarray, normal: np.ndarray
                         tuple(pixels))
 
 
-def pick_lookin(transport: Transport, look: Lookins, labels: tuple[str, ...]
+def pick_lookin(transport: LookinSampler, look: Lookins, labels: tuple[str, ...]
                 ) -> tuple[np.ndarray, np.ndarray, int] | None:
     """The lookin nearest the laser spot on an object with one of ``labels``.
 

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree  # noqa: E402
 
 from ..scene import FOV_PLANE_TOL, ROOM_LABELS, Scene  # noqa: E402
 from ..simulation import STREAM_SAMPLING, SimulationConfig, stream_rng  # noqa: E402
-from ..transport import Transport  # noqa: E402
+from ..transport import LookinSampler  # noqa: E402
 from ..vectors import dot, unit  # noqa: E402
 from .energy import LaserEnergy, LookinEnergy, laser_energy, lookin_energy, pick_lookin  # noqa: E402
 
@@ -295,7 +295,7 @@ def _paint_camera(ax, view: View, scene: Scene, le: LookinEnergy, values: np.nda
     return plt.cm.ScalarMappable(norm=norm, cmap=cmap)
 
 
-def plot_laser_energy(scene: Scene, data: LaserEnergy, transport: Transport, path: Path,
+def plot_laser_energy(scene: Scene, data: LaserEnergy, transport: LookinSampler, path: Path,
                       rng: np.random.Generator) -> Path:
     """Figure 3: three factors of the laser energy at the observed points, in a plan and an elevation."""
     n = len(data.points)
@@ -346,7 +346,7 @@ def _auto_view(normal: np.ndarray, capture) -> View:
     return VIEWS[int(np.argmax(scores))]
 
 
-def _fov_closeup(ax, le: LookinEnergy, transport: Transport) -> plt.cm.ScalarMappable:
+def _fov_closeup(ax, le: LookinEnergy, transport: LookinSampler) -> plt.cm.ScalarMappable:
     """Relay wall around the FoV seen from the sensor side; FoV points coloured by their final weight."""
     c = transport.capture
     names = "xyz"
@@ -387,7 +387,7 @@ def _fov_closeup(ax, le: LookinEnergy, transport: Transport) -> plt.cm.ScalarMap
     return plt.cm.ScalarMappable(norm=norm, cmap=CMAP)
 
 
-def plot_lookins(scene: Scene, lookins: list[tuple[str, LookinEnergy]], transport: Transport, path: Path) -> Path:
+def plot_lookins(scene: Scene, lookins: list[tuple[str, LookinEnergy]], transport: LookinSampler, path: Path) -> Path:
     """Figure 5: for each lookin its BRDF lobe, the lobe over r², and the FoV close-up with final weights."""
     c = transport.capture
     edges = _feature_edges(scene)
@@ -461,7 +461,7 @@ def write_sampling_figures(scene: Scene, config: SimulationConfig, out_dir: Path
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    t = Transport(scene, config.transport_settings())
+    t = LookinSampler(scene, config.transport_settings())
     rng = stream_rng(config.seed, STREAM_SAMPLING)
     data = laser_energy(scene, config, t, rng)
     paths = [plot_laser_energy(scene, data, t, out_dir / "fig3_laser_energy.png", rng)]

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..scene import ROOM_LABELS, RayCaster, Scene, box_mesh, resolve_capture
 from ..simulation import STREAM_SAMPLING, SimulationConfig, replica_rng, replica_root, stream_rng
-from ..transport import Transport, estimator
+from ..transport import LookinSampler, estimator
 from .view_camera import ViewCamera, auto_camera, frame, safe_unit, scene_size
 
 CLASS_COLORS: dict[str, tuple[float, float, float]] = {
@@ -268,7 +268,7 @@ def on_faces(o3d, points: np.ndarray, meshes: list, tol: float) -> np.ndarray:
 def lookin_points(scene: Scene, config: SimulationConfig, rng: np.random.Generator | None = None) -> np.ndarray:
     """Hit points of the lookins a simulation of ``scene`` with ``config`` casts (the lookin estimator).
 
-    Follows :class:`datagen.simulation.Replicas` and :meth:`datagen.transport.Transport.run_replicas`: the
+    Follows :class:`datagen.simulation.Replicas` and :meth:`datagen.transport.LookinSampler.run_replicas`: the
     config's first round of ``replicas`` runs on the replica grid, each with one root ``SeedSequence``, then per
     laser point one child stream for its lookins (jittered grids) and one per batch of hit lookins
     (tests/test_view.py checks the points equal those of a run).
@@ -284,10 +284,10 @@ def lookin_points(scene: Scene, config: SimulationConfig, rng: np.random.Generat
     root_seed = replica_root(rng)                                     # as simulation.run.Replicas
     entry = estimator("lookin")
     one = config.with_estimator(**entry.replica(config.estimator, config.replicas)) if entry.replica else config
-    transport = Transport(scene, one.transport_settings())
+    transport = LookinSampler(scene, one.transport_settings())
     s = transport.settings
     out = []
-    for replica in range(config.replicas):                            # as Transport.run_replicas
+    for replica in range(config.replicas):                            # as LookinSampler.run_replicas
         root = np.random.SeedSequence(int(replica_rng(root_seed, replica).integers(0, 2 ** 63)))
         for laser in range(transport.capture.n_lasers):
             look = transport.lookins(np.random.default_rng(root.spawn(1)[0]) if s.jitter else None, laser)

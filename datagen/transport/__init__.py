@@ -15,7 +15,7 @@ from .base import (AccuracyLadder, Connections, Counters, Estimator, EstimatorEn
                    estimator, estimator_names, estimator_options, register, run_replicas)
 from .physics import PHYSICS_SWITCHES, LegPhysics, PhysicsSettings, fov_connection_weight, laser_irradiance
 from .area_kernels import abs_sin_azimuth, brdf_value, material_arrays
-from .lookin import LookinOptions, SecondaryMode, Transport, TransportSettings, TransportStats
+from .lookin import LookinOptions, LookinSampler, SecondaryMode, Transport, TransportSettings, TransportStats
 from .area import AreaOptions, AreaSampler, AreaSettings, AreaStats
 from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureOptions, QuadratureSettings, QuadratureStats
 
@@ -23,6 +23,6 @@ __all__ = ["abs_sin_azimuth", "brdf_value", "material_arrays", "AccuracyLadder",
            "EstimatorEntry", "EstimatorOptions", "Sink", "estimator", "estimator_names", "estimator_options",
            "LookinOptions", "AreaOptions", "QuadratureOptions",
            "register", "run_replicas", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",
-           "laser_irradiance", "SecondaryMode", "Transport", "TransportSettings", "TransportStats",
+           "laser_irradiance", "SecondaryMode", "LookinSampler", "TransportSettings", "TransportStats",
            "AreaSampler", "AreaSettings", "AreaStats", "QUADRATURE_EDGE", "Quadrature", "QuadratureSettings",
            "QuadratureStats"]

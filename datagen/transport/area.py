@@ -41,7 +41,7 @@ the middle vertex x here ranges over every surface, laser-shadowed ones included
 demo room 6.9 % of the secondary (2.2 % of the total) passes through laser-shadowed middle vertices
 (docs/accuracy.md).
 
-Sink component ids follow :class:`datagen.transport.Transport`: ``component * n_channels + channel`` with the
+Sink component ids follow :class:`datagen.transport.LookinSampler`: ``component * n_channels + channel`` with the
 component of the object x lies on for primary paths, ``len(scene.component_names())`` for secondary and one
 more for the direct first bounce when ``first_bounce`` is on (:attr:`AreaSampler.component_names`). Every
 laser point of the capture is sampled (confocal and exhaustive scans included).
@@ -242,7 +242,7 @@ def samples_memory(samples: int, field: str) -> list[tuple[str, str, float]]:
 class AreaSampler(AreaSecondary):
     """Area-sampling estimator with next-event connections to the laser spot and the FoV.
 
-    Same interface as :class:`datagen.transport.Transport`: ``AreaSampler(scene, settings, caster).run(sink,
+    Same interface as :class:`datagen.transport.LookinSampler`: ``AreaSampler(scene, settings, caster).run(sink,
     rng, progress)`` sends path impulses (times s, weights photons, component ids) to ``sink``.
 
     ``secondary_only=True`` deposits only the secondary (no primary and no first-bounce impulses; the samples,

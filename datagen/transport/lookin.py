@@ -64,7 +64,7 @@ class TransportSettings(PhysicsSettings):
             sensor pixel region, or to each sensor point for point radiance).
         connect_samples: (n_u, n_v) stratified points per pixel region for ``connect``.
         dark_middle: add the secondary paths whose middle vertex the laser does not light (next-event
-            connections from the lookins' observed points in laser shadow; :meth:`Transport.secondary_dark`)
+            connections from the lookins' observed points in laser shadow; :meth:`LookinSampler.secondary_dark`)
             to the full and exact secondaries. Off reproduces the paper's estimator, which misses them; the
             optimized (top-K) secondary, an approximation by design, never adds them.
         conv_refine: the exact secondary bins its time profiles this many times finer than the envelope's
@@ -115,7 +115,7 @@ a 2 MiB L2 cache (measured on the demo room at 45×45×60×60: 12 % less CPU tha
 _WORKER: dict = {}
 
 
-def _worker_init(transport: "Transport") -> None:
+def _worker_init(transport: "LookinSampler") -> None:
     set_parent_death_signal()     # a fork worker dies with the process that forked it (no orphans after kill -9)
     _WORKER["transport"] = transport  # queries the BVH committed before the fork (RayCaster.commit)
 
@@ -202,7 +202,7 @@ def _lookin_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tupl
           "the paper's sampler: lookins from the laser spot and their hemispherical cameras",
           options=LookinOptions, replica=LookinOptions.replica, describe=LookinOptions.describe,
           memory=_lookin_memory, casts_lookins=True)
-class Transport(LookinSecondary):
+class LookinSampler(LookinSecondary):
     """Runs the lookin estimator over a scene and sends impulses to a sink (module doc).
 
     Component ids sent to the sink: ``component * n_channels + channel`` where component indexes
@@ -233,7 +233,7 @@ class Transport(LookinSecondary):
 
     @classmethod
     def from_config(cls, scene: Scene, config, settings: TransportSettings, caster: RayCaster,
-                    capture: Capture | None = None) -> "Transport":
+                    capture: Capture | None = None) -> "LookinSampler":
         """The registry's constructor: the planned lookin settings already carry everything (``config`` unused)."""
         return cls(scene, settings, caster, capture)
 
@@ -404,3 +404,7 @@ class Transport(LookinSecondary):
         time = (r + self.physics.sensor_leg(d_ys)) / SPEED_OF_LIGHT
         # per unit radiant intensity toward ω_k the pixel carries Ω photons to y (the caller applies f·cos)
         return Connections(flat // obs.hit.shape[1], direction, obs.solid_angle * collect, time, r + d_ys, ch)
+
+
+Transport = LookinSampler
+"""The lookin estimator's old name (kept for code written against it; not in ``__all__``)."""

@@ -63,7 +63,7 @@ secondary with ``secondary_samples`` hidden samples per laser point (random: the
 drawn from the ``rng`` given to :meth:`Quadrature.run`). The direct first bounce is
 :meth:`~datagen.transport.physics.LegPhysics.first_bounce`.
 
-Sink component ids follow :class:`datagen.transport.Transport`: ``component * n_channels + channel``.
+Sink component ids follow :class:`datagen.transport.LookinSampler`: ``component * n_channels + channel``.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The lookin estimator's secondary: paths laser spot → y' → lookin x_j → FoV point → sensor (docs/physics.md §3).
 
-:class:`LookinSecondary` is a mixin of :class:`datagen.transport.lookin.Transport` (the paper's lookin sampler):
+:class:`LookinSecondary` is a mixin of :class:`datagen.transport.lookin.LookinSampler` (the paper's lookin sampler):
 
 - ``full``: every (k', k) pair of observed points of a lookin, O(Ñ²) per lookin (the paper's full scheme,
   Eq. 8); ``optimized``: the ``top_k`` strongest k' per (lookin, FoV point) (the paper's optimized scheme,
@@ -128,7 +128,7 @@ def cic_rows(x: np.ndarray, w: np.ndarray, row: np.ndarray, n_rows: int) -> tupl
 
 
 class LookinSecondary:
-    """Secondary paths of the lookin estimator (module doc); mixed into :class:`~datagen.transport.lookin.Transport`,
+    """Secondary paths of the lookin estimator (module doc); mixed into :class:`~datagen.transport.lookin.LookinSampler`,
     whose ``capture``, ``settings``, ``stats``, ``physics``, ``caster``, ``materials`` and ``n_primary`` it uses."""
 
     def conv_grid(self, sink: Sink) -> ConvGrid:
