@@ -38,6 +38,7 @@ from datagen.scene import SceneError, load_scene, parse_yaml
 from datagen.scene.parts import MAX_PHOTONS_PER_PULSE, MAX_PULSE_ENERGY
 from datagen.simulation import MIN_TOLERANCE, ToleranceOutOfReach, projected_seconds, resolve_config
 from datagen.simulation.tolerance import HOPELESS, SAFETY, SAFETY_EDGE, simulate_to_tolerance
+from datagen.units import parse_duration
 
 ROOT = Path(__file__).resolve().parents[1]
 TAL = ROOT / "benchmarks" / "tal" / "hidden_square.yaml"
@@ -417,3 +418,25 @@ def test_mutated_dataset_configs_load_and_build_or_are_refused_in_one_line(tmp_p
 
     check()
     assert built, "no accepted mutation was cheap enough to build: the property never reached a real build"
+
+
+# ------------------------------------------------------------------------------------------ a valid config that failed
+
+
+@pytest.mark.timeout(300)
+def test_the_lookin_smoke_config_with_its_15ns_gate_builds(tmp_path):
+    """The smoke config with the lookin estimator (the previous probe's config) died in its probe sample with
+    "RuntimeError: component 0: envelope value -2.27e-19 below -1e-12 * max": the FFT round-off of the light before
+    the 15 ns gate, measured against the window's own peak (timing/accumulator.py now scales it by the fine
+    histogram; tests/test_irf.py::test_gated_window_round_off_is_not_an_error). Two samples build and verify."""
+    config = tiny(train=2, val=1)
+    sim = {**config.simulation, "estimator": {"kind": "lookin", "lookins": "4x4", "pixels": "16x16"}, "replicas": 8}
+    assert parse_duration(sim["time"]["t_start"]) == pytest.approx(15e-9)
+    config = config.model_copy(update={"simulation": sim, "splits": {"train": config.splits["train"]}})
+    path = tmp_path / "lookin.yaml"
+    path.write_text(yaml.safe_dump(config.to_json()))
+    out = tmp_path / "ds"
+    cli(build_args(path, out), 0)
+    assert verify_dataset(out) == []
+    envelope = np.stack([NLOSDataset(out, split="train").read(i)["envelope"] for i in range(2)])
+    assert np.isfinite(envelope).all() and envelope.min() >= 0 and envelope.max() > 0
