@@ -478,7 +478,7 @@ def draw_room(config: DatasetConfig, split: str, index: int):
     return room, rngs
 
 
-def _setup(config: DatasetConfig, split: str, index: int):
+def setup_sample(config: DatasetConfig, split: str, index: int):
     """(sampled room, its resolved simulation config, the sample's generators) of sample ``index`` of ``split``."""
     from ..simulation import resolve_config
 
@@ -503,7 +503,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
 
     where = f"sample ({split}, {index})"
     t0 = time.perf_counter()
-    room, sim_config, rngs = _setup(config, split, index)
+    room, sim_config, rngs = setup_sample(config, split, index)
     t1 = time.perf_counter()
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])

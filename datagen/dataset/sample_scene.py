@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 
 from ..scene import SceneError
-from .config import DatasetConfig, config_from_json, draw_room, load_dataset_config
+from .config import DatasetConfig, config_from_json, draw_room, load_dataset_config, setup_sample
 from .sampler import SampledRoom
 from .store import read_card
 
@@ -72,9 +72,7 @@ def sample_setup(config: DatasetConfig | str | Path, split: str, index: int):
     Raises:
         SceneError: an unknown split, an index out of range, an invalid config file.
     """
-    from ..simulation import resolve_config
-
     if not isinstance(config, DatasetConfig):
         config = load_dataset_config(config)
-    room, _ = draw_room(config, split, index)              # as make_sample draws it
-    return room.scene, resolve_config(room.scene, config.simulation_overrides())
+    room, sim_config, _ = setup_sample(config, split, index)   # as make_sample sets it up
+    return room.scene, sim_config

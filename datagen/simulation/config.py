@@ -241,7 +241,8 @@ def merge_overrides(defaults: dict, overrides: dict) -> tuple[dict, list[str]]:
     final = _kind_of(given.get("estimator"), kind)
     moves = []
     if final != kind:       # the flat keys of defaults apply to the estimator overrides choose
-        flat = {k: base.pop(k) for k in list(base) if k in legacy_keys()}
+        table = legacy_keys()
+        flat = {k: base.pop(k) for k in list(base) if k in table}
         flat, moves = translate_legacy({**flat, "estimator": final})
         given = merge_simulation(flat, translate_legacy(given, final)[0])
     base, more = translate_legacy(base)
