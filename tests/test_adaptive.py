@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 from conftest import patch_scene
 
-from datagen.analysis import describe_setting, primary_area_quadrature, relative_l2, replica_error
-from datagen.scene import SceneError
+from datagen.analysis import relative_l2
+from datagen.analysis.adaptive import describe_setting, replica_error
+from datagen.analysis.oracle import primary_area_quadrature
+from datagen.errors import SceneError
 from datagen.simulation import SimulationConfig, simulate_to_tolerance
 from datagen.timing import Irf, TimeAxis
 

@@ -10,12 +10,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from datagen.dataset import LabelSpec, SampledRoom, load_room_distribution, occupancy_grid, sample_room, scene_labels
+from datagen.dataset import LabelSpec, load_room_distribution, sample_room, scene_labels
+from datagen.dataset.labels import occupancy_grid
+from datagen.dataset.sampler import SampledRoom
 from datagen.dataset.assets import asset_files, load_asset, place_asset
 from datagen.dataset.obb import box_hits_pyramid, yaw_matrix
 from datagen.dataset.sampler import STREAMS
-from datagen.scene import (CaptureSpec, Laser, Material, RayCaster, Scene, SceneError, Sensor, quad,
-                           resolve_capture)
+from datagen.scene import CaptureSpec, Laser, Material, RayCaster, Scene, Sensor, quad, resolve_capture
+from datagen.errors import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 ASSETS = ROOT / "assets" / "meshes"

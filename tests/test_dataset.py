@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from datagen.dataset import (STREAMS, config_from_json, load_dataset_config, make_sample, resample_rng,
-                             sample_rngs, split_key)
-from datagen.scene import SceneError
+from datagen.dataset import load_dataset_config, make_sample
+from datagen.dataset.config import STREAMS, config_from_json, resample_rng, sample_rngs, split_key
+from datagen.errors import SceneError
 
 SMOKE = Path("configs/datasets/smoke.yaml")
 

@@ -22,7 +22,7 @@ from test_hostile import cli   # the in-process runner: exit code, needles, no t
 import datagen.dataset.build as build_module
 from datagen.dataset import NLOSDataset, build_dataset, load_dataset_config, read_card, verify_dataset
 from datagen.dataset.assets import MAX_ASSET_TRIANGLES, load_asset, mesh_triangles
-from datagen.scene import SceneError
+from datagen.errors import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 WALL_SMOKE = ROOT / "configs" / "datasets" / "wall_smoke.yaml"

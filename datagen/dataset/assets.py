@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import SceneError
+from ..errors import SceneError
 from .obb import yaw_matrix
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")

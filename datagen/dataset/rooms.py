@@ -23,7 +23,11 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from ..scene import BRDF_KINDS, Laser, Material, SceneError, check_counts, format_validation_error, read_yaml
+from ..scene import Laser, Material
+from ..errors import SceneError
+from ..scene.brdf_kernel import BRDF_KINDS
+from ..scene.load import format_validation_error, read_yaml
+from ..scene.parts import check_counts
 from ..units import parse_energy, parse_length
 from .assets import asset_files, resolve_assets
 from .ranges import CountRange, Fraction, Model, NonNegative, Positive, Range, Signed, Unit

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..scene import RayCaster, SceneError
+from ..scene import RayCaster
+from ..errors import SceneError
 
 WALL_VIEW_FIELDS = ("wall_depth", "wall_normal", "wall_albedo", "wall_mask")
 """Names of the arrays :func:`wall_view_labels` returns."""

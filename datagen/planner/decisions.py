@@ -39,9 +39,11 @@ from typing import Any
 import numpy as np
 
 from .. import spad
-from ..scene import FOV_EDGE_REL, FOV_PLANE_TOL, Capture, RayCaster, Scene, SceneError
-from ..scene import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
-from ..timing import TAIL_MARGIN_TAUS
+from ..scene import RayCaster, Scene
+from ..errors import SceneError
+from ..scene.capture import Capture, FOV_EDGE_REL, FOV_PLANE_TOL
+from ..scene.separation import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
+from ..timing.irf import TAIL_MARGIN_TAUS
 from ..transport import PhysicsSettings, TransportSettings
 from .coarse import CoarseEnergies, coarse_energies
 from .geometry import PlanGeometry

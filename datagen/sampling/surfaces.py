@@ -14,7 +14,8 @@ from typing import Literal
 import numpy as np
 from scipy.stats import qmc
 
-from ..scene import RayCaster, SceneError
+from ..scene import RayCaster
+from ..errors import SceneError
 from .directions import stratified_grid
 
 AreaSampling = Literal["stratified", "sobol", "random"]

@@ -18,9 +18,11 @@ import numpy as np
 
 from .. import spad
 from ..planner import Plan, plan_effects
-from ..scene import RayCaster, Scene, SceneError, resolve_capture
+from ..scene import RayCaster, Scene, resolve_capture
+from ..errors import SceneError
 from ..timing import EnvelopeAccumulator
-from ..transport import Estimator, estimator, run_replicas
+from ..transport import estimator
+from ..transport.base import Estimator, run_replicas
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .replicas import ReplicaSums, relative_difference, replica_root, replica_rng

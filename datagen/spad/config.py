@@ -10,7 +10,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from ..timing import FWHM_PER_SIGMA
+from ..timing.irf import FWHM_PER_SIGMA
 from ..units import parse_duration
 
 __all__ = [
@@ -275,7 +275,7 @@ class DetectorConfig(BaseModel):
             ValueError: the file cannot be read or parsed, or a field is unknown or invalid; the message
                 names the file, the field and the offending value.
         """
-        from ..scene import read_yaml   # bounded in size and alias expansion; SceneError is a ValueError
+        from ..scene.load import read_yaml  # bounded in size and alias expansion; SceneError is a ValueError
 
         path = Path(path)
         try:
@@ -289,7 +289,7 @@ class DetectorConfig(BaseModel):
         try:
             return cls(**data)
         except ValidationError as exc:
-            from ..scene import short_repr
+            from ..scene.load import short_repr
             problems = []
             for err in exc.errors():
                 field = ".".join(str(p) for p in err["loc"]) or "(config)"

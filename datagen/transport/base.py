@@ -30,7 +30,7 @@ class EstimatorOptions(BaseModel):
 
     Attributes:
         LEGACY: the flat simulation keys this estimator read before its knobs moved here (old key → field), e.g.
-            ``{"area_samples": "samples"}``; :func:`datagen.simulation.translate_legacy` moves them.
+            ``{"area_samples": "samples"}``; :func:`datagen.simulation.config.translate_legacy` moves them.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -119,7 +119,7 @@ class Estimator(Protocol):
     """The interface every estimator offers (lookin, area, quadrature; docs/physics.md §3).
 
     Attributes:
-        capture: the resolved :class:`~datagen.scene.Capture`.
+        capture: the resolved :class:`~datagen.scene.capture.Capture`.
         settings: the estimator's settings (a :class:`~datagen.transport.physics.PhysicsSettings` subclass).
         component_names: names of the sink components: primary components, "secondary"[, "first_bounce"].
         stats: a dataclass of int counters (recorded in the result attributes).
@@ -166,7 +166,7 @@ class EstimatorEntry:
         from_config: ``(scene, config, settings, caster, capture) → Estimator``: builds it from a simulation
             config (any object with the config's fields, e.g. :class:`datagen.simulation.SimulationConfig`),
             the settings the effect planner has already applied its decisions to (they carry the physics
-            switches), the scene's ray caster and its resolved :class:`~datagen.scene.Capture`.
+            switches), the scene's ray caster and its resolved :class:`~datagen.scene.capture.Capture`.
         summary: one line for help texts.
         options: its settings model (an :class:`EstimatorOptions` subclass with ``kind: Literal[name]``), the
             ``estimator:`` block of a simulation config; the hooks below take an instance of it.

@@ -40,10 +40,12 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene, SceneError
-from ..scene import SIN_THETA
+from ..scene import RayCaster, Scene
+from ..errors import SceneError
+from ..scene.capture import Capture, FOV_PLANE_TOL
+from ..scene.brdf_kernel import SIN_THETA
 from ..scene.brdf_kernel import lambertian_value, on_arrays
-from ..sampling import stratified_grid
+from ..sampling.directions import stratified_grid
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot, unit
 from .base import Connections, Sink
@@ -90,7 +92,7 @@ class PhysicsSettings:
         return {name: getattr(self, name) for name in PHYSICS_SWITCHES}
 
     def check_physics(self, where: str) -> None:
-        """Raise :class:`~datagen.scene.SceneError` ``"{where}: attenuation must be …"`` for μ not finite or < 0
+        """Raise :class:`~datagen.errors.SceneError` ``"{where}: attenuation must be …"`` for μ not finite or < 0
         and q outside [0, 1]."""
         if not np.isfinite(self.attenuation) or self.attenuation < 0:
             raise SceneError(f"{where}: attenuation must be finite and >= 0, got {self.attenuation!r}")
@@ -306,7 +308,7 @@ class LegPhysics:
 
         Aperture convention: the detected fraction q·f_y(ω_in, ω_s)·cosθ_y,out·A_ap·cosθ_ap/d²·V(y, x_s)
         (paper A3 and the aperture term, docs/physics.md §2); the aperture normal is
-        :meth:`~datagen.scene.Capture.aperture_normals` (a confocal scan's follows the laser). Point radiance:
+        :meth:`~datagen.scene.capture.Capture.aperture_normals` (a confocal scan's follows the laser). Point radiance:
         f_y(ω_in, ω_s), the radiance toward the sensor per unit irradiance. ω_in is ``sign_in · w_in`` (see
         :meth:`brdf`).
         """

@@ -73,8 +73,10 @@ from typing import Literal
 
 import numpy as np
 
-from ..sampling import subdivide_with_vertices
-from ..scene import Capture, RayCaster, Scene, SceneError
+from ..sampling.surfaces import subdivide_with_vertices
+from ..scene import RayCaster, Scene
+from ..errors import SceneError
+from ..scene.capture import Capture
 from ..scene.materials import LAMBERTIAN, PHONG
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot

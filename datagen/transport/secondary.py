@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from ..sampling import ObservedPoints
-from ..scene import SceneError
+from ..sampling.lookins import ObservedPoints
+from ..errors import SceneError
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Sink
