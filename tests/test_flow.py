@@ -6,6 +6,8 @@ detector stage's, made from the envelope without the planner.
 """
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 import pytest
 
@@ -15,8 +17,9 @@ from datagen.planner import EFFECTS, Decision, Plan
 from datagen.simulation import prepare_transport
 from datagen.simulation.run import Replicas, detector_model, make_result
 from datagen.spad.pileup import pile_up_from_envelope
-from datagen.transport import LookinSampler, TransportSettings, estimator
-from datagen.transport.base import PLANNED_SWITCHES, register
+from datagen.transport import (AreaSampler, AreaSettings, EstimatorOptions, LookinSampler, TransportSettings, estimator,
+                               estimator_names)
+from datagen.transport.base import PLANNED_SWITCHES, register, unregister
 
 SETTINGS = {"lookins": "4x4", "pixels": "12x12", "secondary": "full", "tolerance": 0.01,
             "time": {"t_start": 0.0, "bin_width": 40e-12, "n_bins": 600}, "irf": {"fwhm": "100ps"},
@@ -77,10 +80,24 @@ def test_each_estimator_follows_the_planned_switches_its_entry_declares():
     assert forced.settings.shadow_spot is False
 
 
-def test_register_refuses_a_switch_the_planner_does_not_decide():
+def test_a_subclass_keeps_its_base_estimators_rule_and_register_refuses_an_unplanned_switch():
+    """The entry takes ``follows_plan`` from the class unless ``register`` gives it: an estimator built on the
+    area sampler keeps the area sampler's own laser-leg rule (tests/test_toy_estimator.py relies on it)."""
+    class Sub(AreaSampler):
+        pass
+
+    class Options(EstimatorOptions):
+        kind: Literal["sub"] = "sub"
+
+    try:
+        register("sub", AreaSettings, "x", options=Options, replica=lambda o, r: {})(Sub)
+        assert estimator("sub").follows_plan == estimator("area").follows_plan
+    finally:
+        unregister("sub")
     with pytest.raises(ValueError, match=r"follows_plan \['pile_up'\] are not planned switches"):
-        register("bad", TransportSettings, "x", options=type(estimator("area").options()),
-                 replica=lambda o, r: {}, follows_plan=("attenuation", "pile_up"))
+        register("sub", AreaSettings, "x", options=Options, replica=lambda o, r: {},
+                 follows_plan=("attenuation", "pile_up"))(Sub)
+    assert "sub" not in estimator_names()
 
 
 def test_the_pile_up_decision_is_the_detector_stages_and_needs_no_planner():

@@ -245,8 +245,7 @@ def samples_memory(samples: int, field: str) -> list[tuple[str, str, float]]:
 
 @register("area", AreaSettings,
           "hidden-surface area sampling with next-event connections to the laser spot and the FoV",
-          options=AreaOptions, replica=AreaOptions.replica, describe=AreaOptions.describe, memory=area_memory,
-          follows_plan=AREA_FOLLOWS_PLAN)
+          options=AreaOptions, replica=AreaOptions.replica, describe=AreaOptions.describe, memory=area_memory)
 class AreaSampler(AreaSecondary):
     """Area-sampling estimator with next-event connections to the laser spot and the FoV.
 
@@ -272,6 +271,9 @@ class AreaSampler(AreaSecondary):
 
     sensor_sampling = "area next-event connections"
     """How the FoV is reached (result attribute ``effects.sensor_sampling``)."""
+
+    follows_plan = AREA_FOLLOWS_PLAN
+    """The planned switches its registry entry follows (:attr:`datagen.transport.EstimatorEntry.follows_plan`)."""
 
     def __init__(self, scene: Scene, settings: AreaSettings | None = None, caster: RayCaster | None = None,
                  secondary_only: bool = False, capture: Capture | None = None):

@@ -201,7 +201,8 @@ class EstimatorEntry:
         follows_plan: the planned physics switches (:data:`PLANNED_SWITCHES`) the estimator takes from the
             effect planner; for any other its ``from_config`` applies its own rule (the physics it gets holds the
             user's forced value or the default there), e.g. the area sampler's primary always needs the laser
-            leg's shadow rays, which the planner's ``shadow_spot`` (a decision about the secondary) leaves out.
+            leg's shadow rays, which the planner's ``shadow_spot`` (a decision about the secondary) leaves out
+            (``AreaSampler.follows_plan``, a class attribute :func:`register` takes).
     """
 
     name: str
@@ -244,31 +245,32 @@ def register(name: str, settings_class: type, summary: str, *, options: type,
              refine: Callable[[Any], dict] | None = None, describe: Callable[[Any], str] | None = None,
              order: int = 2, memory: Callable[..., list[tuple[str, str, float]]] | None = None,
              casts_lookins: bool = False, ladder: AccuracyLadder | None = None,
-             follows_plan: tuple[str, ...] = PLANNED_SWITCHES) -> Callable:
+             follows_plan: tuple[str, ...] | None = None) -> Callable:
     """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
     the classmethod ``from_config(scene, config, physics, caster, capture, secondary)`` (``config.estimator`` is an
     instance of ``options``, the estimator's settings model: :class:`EstimatorOptions`). A Monte Carlo estimator gives
     ``replica`` (how to split its sampling into independent replicas, whose spread is the error estimate of
     every result); a deterministic one gives ``refine`` and ``order``; one with both parts gives both (the
     quadrature: a deterministic primary and a Monte Carlo secondary). ``memory``, ``casts_lookins``, ``ladder``
-    and ``follows_plan``: see :class:`EstimatorEntry`.
+    and ``follows_plan``: see :class:`EstimatorEntry`; ``follows_plan`` None takes the class attribute
+    ``follows_plan`` (so a subclass keeps its base estimator's rule), or all of :data:`PLANNED_SWITCHES`.
 
     Raises:
         ValueError: neither ``replica`` nor ``refine`` (no result could say how accurate it is); a name in
             ``follows_plan`` that is not a planned switch.
     """
-    if set(follows_plan) - set(PLANNED_SWITCHES):
-        raise ValueError(f"estimator {name!r}: follows_plan {sorted(set(follows_plan) - set(PLANNED_SWITCHES))} "
-                         f"are not planned switches {list(PLANNED_SWITCHES)}")
     if replica is None and refine is None:
         raise ValueError(f"estimator {name!r}: give replica (Monte Carlo), refine (deterministic) or both")
     if options.model_fields["kind"].default != name:
         raise ValueError(f"estimator {name!r}: its options model needs kind: Literal[{name!r}] = {name!r}")
 
     def wrap(cls):
+        follows = tuple(follows_plan if follows_plan is not None else getattr(cls, "follows_plan", PLANNED_SWITCHES))
+        if set(follows) - set(PLANNED_SWITCHES):
+            raise ValueError(f"estimator {name!r}: follows_plan {sorted(set(follows) - set(PLANNED_SWITCHES))} "
+                             f"are not planned switches {list(PLANNED_SWITCHES)}")
         _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary, options, replica,
-                                         refine, describe, order, memory, casts_lookins, ladder,
-                                         tuple(follows_plan))
+                                         refine, describe, order, memory, casts_lookins, ladder, follows)
         return cls
     return wrap
 

@@ -210,7 +210,7 @@ def _leg_may_be_blocked(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray
 
 @register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning",
           options=QuadratureOptions, replica=QuadratureOptions.replica, refine=QuadratureOptions.refine,
-          describe=QuadratureOptions.describe, memory=quadrature_memory, follows_plan=AREA_FOLLOWS_PLAN)
+          describe=QuadratureOptions.describe, memory=quadrature_memory)
 class Quadrature:
     """Deterministic hidden-surface quadrature of the primary with exact time binning (module doc).
 
@@ -239,6 +239,7 @@ class Quadrature:
     """
 
     sensor_sampling = "quadrature: sensor points / FoV cells"   # how the FoV is reached (Estimator protocol)
+    follows_plan = AREA_FOLLOWS_PLAN          # not the planner's shadow_spot: its own occluder test (from_config)
 
     def __init__(self, scene: Scene, settings: QuadratureSettings | None = None, caster: RayCaster | None = None,
                  capture: Capture | None = None):
