@@ -38,8 +38,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
 from collections.abc import Iterable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -498,7 +498,7 @@ def _decide_pile_up(detector: spad.DetectorConfig, config, coarse: "CoarseEnergi
     signal = coarse.signal_with_secondary if secondary_on else coarse.signal
     fb = first_bounce.numbers.get("detected_photons_per_pulse", 0.0) if first_bounce is not None else 0.0
     return _pile_up(detector, PILE_UP_SAFETY * signal + fb + background, float(widths.sum()), tol,
-                                f"estimate: {_fmt(PILE_UP_SAFETY)} × coarse signal {_fmt(signal)} + first bounce "
-                                f"{_fmt(fb)} + background {_fmt(background)}")
+                    f"estimate: {_fmt(PILE_UP_SAFETY)} × coarse signal {_fmt(signal)} + first bounce {_fmt(fb)} "
+                    f"+ background {_fmt(background)}")
 
 
