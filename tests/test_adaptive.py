@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from conftest import patch_scene
 
+from datagen.errors import ConfigError
 from datagen.analysis import relative_l2
 from datagen.analysis.adaptive import describe_setting, replica_error
 from datagen.analysis.oracle import primary_area_quadrature
-from datagen.errors import SceneError
 from datagen.simulation import SimulationConfig, simulate_to_tolerance
 from datagen.timing import Irf, TimeAxis
 
@@ -55,7 +55,7 @@ def test_replica_error_matches_the_spread_of_known_noise():
 
 def test_bad_tolerance_is_refused(reference):
     scene, _ = reference
-    with pytest.raises(SceneError, match="tolerance"):
+    with pytest.raises(ConfigError, match="tolerance"):
         simulate_to_tolerance(scene, SimulationConfig(time=AXIS, irf=IRF, detector=DETECTOR), 1.5)
 
 

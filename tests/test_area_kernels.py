@@ -1,6 +1,6 @@
 """The area sampler's compiled kernels (datagen/transport/area_kernels.py) against the numpy formulas they compile:
-:class:`~datagen.scene.materials.MaterialTable`, :class:`~datagen.transport.physics.LegPhysics` and the pair weights written
-here with physics.py's functions (the oracle). Same inputs → equal to 1e-12 relative."""
+:class:`~datagen.scene.materials.MaterialTable`, :class:`~datagen.transport.physics.LegPhysics` and the pair weights
+written here with physics.py's functions (the oracle). Same inputs → equal to 1e-12 relative."""
 from __future__ import annotations
 
 import numpy as np

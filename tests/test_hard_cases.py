@@ -29,6 +29,7 @@ from datagen import spad
 from datagen.spad.synchronous import MAX_EXPECTED_COUNTS, POISSON_NORMAL_ABOVE
 from datagen.scene import Material
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
+from datagen.errors import ConfigError
 from datagen.scene.raycast import RAY_OFFSET_REL
 from datagen.analysis.oracle import primary_area_quadrature
 from datagen.scene.coincident import COPLANAR_TOL_REL
@@ -822,12 +823,17 @@ INVALID_FIXED = {
 }
 
 
+INVALID_CONFIG = {"NaN bin width", "NaN IRF width"}
+"""The cases of :data:`INVALID` in the scene's ``simulation`` block: a ConfigError (datagen/errors.py)."""
+
+
 @pytest.mark.parametrize("case", sorted(INVALID))
 def test_truly_invalid_inputs_raise_a_clear_scene_error(case):
     mutate, pattern = INVALID[case]
-    with pytest.raises(SceneError, match=pattern):
+    with pytest.raises(ConfigError if case in INVALID_CONFIG else SceneError, match=pattern) as info:
         scene = scene_from_dict(_mutated(mutate), source="hard.yaml")
         run(scene, lookins="8x8", pixels="8x8")
+    assert type(info.value) is (ConfigError if case in INVALID_CONFIG else SceneError), type(info.value)
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")

@@ -145,13 +145,13 @@ def sample_pictures(path: Path, split: str, count: int, note) -> list | None:
     from ..dataset import scene_of_sample
     from ..plot import ViewUnavailable, render_scene
     from ..plot.view_worker import require_open3d
-    from ..errors import SceneError
+    from ..errors import DatagenError
 
     try:
         require_open3d()
         return [render_scene(scene_of_sample(path, split, i)[0].scene, None, width=780, height=500,
                              title=f"{split}[{i}]") for i in range(count)]
-    except (ViewUnavailable, RuntimeError, SceneError) as exc:
+    except (ViewUnavailable, RuntimeError, DatagenError) as exc:
         note(f"note: no 3D sample pictures: {' '.join(str(exc).split())}")
         return None
 

@@ -66,6 +66,6 @@ from .rates import gate_fraction, rates_from_envelope, rebin_envelope
 
 __all__ = [
     "DetectorConfig", "rates_from_envelope", "expected_histogram", "sample_histogram", "coates", "rebin_envelope",
-    "gate_fraction", "instrument_response", "apply_jitter_before", "apply_jitter_after", "counter_rate", "counter_variance",
-    "sample_counter",
+    "gate_fraction", "instrument_response", "apply_jitter_before", "apply_jitter_after", "counter_rate",
+    "counter_variance", "sample_counter",
 ]
