@@ -22,7 +22,7 @@ from datagen.simulation import LegacyKeysWarning, SimulationConfig, resolve_conf
 from datagen.transport import estimator_names
 from datagen.transport.area import AreaOptions
 from datagen.transport.lookin import LookinOptions
-from datagen.transport.quad_options import QuadratureOptions
+from datagen.transport.quadrature_options import QuadratureOptions
 
 DEMO = Path("scene_library/demo_room.yaml")
 SMOKE = Path("configs/datasets/smoke.yaml")

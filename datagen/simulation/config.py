@@ -118,7 +118,7 @@ class SimulationConfig(BaseModel):
         estimator: the estimator and its settings, a mapping with ``kind`` ("lookin", "area", "quadrature" or any
             registered estimator) validated by that estimator's model
             (:class:`datagen.transport.lookin.LookinOptions`, :class:`~datagen.transport.area.AreaOptions`,
-            :class:`~datagen.transport.quad_options.QuadratureOptions`); a bare name means its defaults. Old flat keys (``lookins``, ``area_samples``, ``quadrature_edge``, …) are
+            :class:`~datagen.transport.quadrature_options.QuadratureOptions`); a bare name means its defaults. Old flat keys (``lookins``, ``area_samples``, ``quadrature_edge``, …) are
             translated with one :class:`LegacyKeysWarning` (:func:`translate_legacy`).
         secondary: "none", "optimized" (the lookin estimator's strongest ``top_k`` per lookin and FoV point),
             "full" (every pair) or "exact" (the same sum factorised, O(Ñ) per lookin, docs/physics.md §3); the
