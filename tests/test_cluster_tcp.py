@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -160,6 +161,21 @@ def test_worker_sigkilled_mid_build_still_completes_bit_identically(clusters, co
     assert f"dask scheduler {cluster.address}: 2 worker(s) connected" in output
     assert f"{N_SHARDS} shards built (10 samples" in output and "0 already done" in output
     assert_same_as(out, reference)
+
+
+def test_every_worker_gone_mid_build_is_one_line_after_the_worker_timeout(clusters, config_path, tmp_path):
+    cluster, out = clusters(1), tmp_path / "ds"
+    build = Build(config_path, out, cluster.address, "--worker-timeout", "2")
+    assert wait_for_first_marker(out, build) < N_SHARDS
+    cluster.kill_worker(0)
+    code, output = build.finish()
+    assert code == 2, output
+    [line] = error_lines(output)
+    left = re.fullmatch(f"error: --scheduler {re.escape(cluster.address)}: no Dask worker connected for 2 s "
+                        r"\(--worker-timeout\) with (\d) shard\(s\) left; the finished shards are kept: start "
+                        r"workers, then run again with --resume", line)
+    assert left and N_SHARDS - len(markers(out)) <= int(left[1]) <= N_SHARDS, line
+    assert read_card(out)["status"] == "incomplete" and 0 < len(markers(out)) < N_SHARDS
 
 
 def test_scheduler_killed_then_resume_on_a_new_one_loses_and_repeats_nothing(clusters, config_path, reference,
