@@ -145,7 +145,9 @@ def run_dask(write_shard: Callable, root: str, cfg: dict, tasks: list[ShardTask]
     one up to ``retries`` times (from here, not by Dask, so that a full disk is not retried); yield
     (task, marker, None) or (task, None, reason) as they finish, the reason's first line being the exception's
     ``Type: message`` (:func:`one_line`; ``KilledWorker: …`` for a shard whose workers kept dying), the
-    traceback after it.
+    traceback after it. Waiting never blocks unwatched: every :data:`WATCH_S` seconds without news (no shard
+    finished, or a finished shard's marker not fetched yet because its worker died and Dask recomputes it) the
+    worker count is checked against ``conn.worker_timeout``.
 
     Raises:
         OSError: a write error no retry fixes (:func:`fatal_error`), at once.
@@ -167,20 +169,35 @@ def run_dask(write_shard: Callable, root: str, cfg: dict, tasks: list[ShardTask]
     for task in tasks:
         submit(task)
     alone_since = None   # when the build was first seen without any worker
+
+    def watch(left: int) -> None:   # nothing came for WATCH_S seconds: give up if no worker for too long
+        nonlocal alone_since
+        alone_since = None if conn.n_workers() else (alone_since or time.monotonic())
+        if alone_since is not None and time.monotonic() - alone_since > conn.worker_timeout:
+            raise SchedulerError(f"--scheduler {conn.scheduler}: no Dask worker connected for "
+                                 f"{conn.worker_timeout:g} s (--worker-timeout) with {left} shard(s) left; the "
+                                 "finished shards are kept: start workers, then run again with --resume")
+
+    def result(fut):   # the marker; a worker that died before it was fetched has it recomputed: keep watching
+        while True:
+            try:
+                return fut.result(timeout=WATCH_S)
+            except TimeoutError:
+                if fut.status == "error":   # the task's own TimeoutError
+                    raise
+                watch(len(futures) + 1)
+
     while futures:
         try:
             fut = finished.get(timeout=WATCH_S)
         except queue.Empty:
-            alone_since = None if conn.n_workers() else (alone_since or time.monotonic())
-            if alone_since is not None and time.monotonic() - alone_since > conn.worker_timeout:
-                raise SchedulerError(f"--scheduler {conn.scheduler}: no Dask worker connected for "
-                                     f"{conn.worker_timeout:g} s (--worker-timeout) with {len(futures)} shard(s) "
-                                     "left; the finished shards are kept: start workers, then run again with "
-                                     "--resume") from None
+            watch(len(futures))
             continue
         task = futures.pop(fut)
         try:
-            marker = fut.result()
+            marker = result(fut)
+        except SchedulerError:
+            raise
         except Exception as exc:  # noqa: BLE001 - any failure of a shard is reported, not fatal
             if fatal_error(exc):
                 raise exc from None
