@@ -163,6 +163,16 @@ def test_worker_sigkilled_mid_build_still_completes_bit_identically(clusters, co
     assert_same_as(out, reference)
 
 
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf"])
+def test_worker_timeout_not_a_positive_number_is_refused_before_anything(config_path, tmp_path, value):
+    out = tmp_path / "ds"
+    res = CliRunner().invoke(main, ["build", str(config_path), "--out", str(out), "--scheduler",
+                                    "tcp://127.0.0.1:1", "--worker-timeout", value, "--quiet"])
+    assert res.exit_code == 2 and res.output.strip() == (f"error: --worker-timeout must be a number of seconds > 0, "
+                                                         f"got {float(value)!r}")
+    assert not out.exists()
+
+
 def test_every_worker_gone_mid_build_is_one_line_after_the_worker_timeout(clusters, config_path, tmp_path):
     cluster, out = clusters(1), tmp_path / "ds"
     build = Build(config_path, out, cluster.address, "--worker-timeout", "2")
