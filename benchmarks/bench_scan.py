@@ -91,7 +91,8 @@ def dataset_build(name: str, count: int, workers: int = 2) -> tuple[float, float
     (samples 0, 1, … can be cheaper than the split's average)."""
     import tempfile
 
-    from datagen.dataset import SplitSpec, build_dataset
+    from datagen.dataset import build_dataset
+    from datagen.dataset.config import SplitSpec
 
     config = load_dataset_config(ROOT / f"configs/datasets/{name}.yaml")
     config = config.model_copy(update={"splits": {"train": SplitSpec(count=count)},
@@ -108,7 +109,8 @@ def scan_error(name: str, index: int) -> tuple[float, float]:
     and of the config's grading ratio (error ∝ h², so 16× closer to the integral) with the same FoV cells per pixel (one for the confocal scans:
     each target is its laser point), and that edge. The whole scan: the error sits in the scan rows nearest the
     floor (on train 30, three quarters of its square in the lowest row), which an 8 × 8 sub-scan of the centre misses."""
-    from datagen.dataset import sample_rngs, sample_setup
+    from datagen.dataset import sample_setup
+    from datagen.dataset.config import sample_rngs
     from datagen.simulation import simulate_to_tolerance
 
     config = load_dataset_config(ROOT / f"configs/datasets/{name}.yaml")

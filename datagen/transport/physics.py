@@ -41,10 +41,11 @@ import numpy as np
 from numba import njit
 
 from ..errors import ConfigError
-from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene
-from ..scene import SIN_THETA
+from ..scene import RayCaster, Scene
+from ..scene.capture import Capture, FOV_PLANE_TOL
+from ..scene.brdf_kernel import SIN_THETA
 from ..scene.brdf_kernel import lambertian_value, on_arrays
-from ..sampling import stratified_grid
+from ..sampling.directions import stratified_grid
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot, unit
 from .base import Connections, Sink
@@ -307,7 +308,7 @@ class LegPhysics:
 
         Aperture convention: the detected fraction q·f_y(ω_in, ω_s)·cosθ_y,out·A_ap·cosθ_ap/d²·V(y, x_s)
         (paper A3 and the aperture term, docs/physics.md §2); the aperture normal is
-        :meth:`~datagen.scene.Capture.aperture_normals` (a confocal scan's follows the laser). Point radiance:
+        :meth:`~datagen.scene.capture.Capture.aperture_normals` (a confocal scan's follows the laser). Point radiance:
         f_y(ω_in, ω_s), the radiance toward the sensor per unit irradiance. ω_in is ``sign_in · w_in`` (see
         :meth:`brdf`).
         """

@@ -16,7 +16,8 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from ..scene import RayCaster, hull_planes, may_meet, outward_planes
+from ..scene import RayCaster
+from ..scene.separation import hull_planes, may_meet, outward_planes
 from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
 from .quad_kernel import (candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes,

@@ -77,8 +77,9 @@ from typing import Literal
 import numpy as np
 
 from ..errors import ConfigError
-from ..sampling import subdivide_with_vertices
-from ..scene import Capture, RayCaster, Scene
+from ..sampling.surfaces import subdivide_with_vertices
+from ..scene import RayCaster, Scene
+from ..scene.capture import Capture
 from ..scene.materials import LAMBERTIAN, PHONG
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
