@@ -25,8 +25,9 @@ from click.testing import CliRunner
 from test_hostile_build import arrays   # every array's bytes (strings: their texts)
 
 from datagen.cli.main import main
-from datagen.dataset import (DONE_DIR, SplitSpec, build_dataset, load_dataset_config, read_card, shard_file,
-                             verify_dataset)
+from datagen.dataset import build_dataset, load_dataset_config, read_card, verify_dataset
+from datagen.dataset.config import SplitSpec
+from datagen.dataset.store import DONE_DIR, shard_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "datasets" / "smoke.yaml"
