@@ -36,7 +36,11 @@ def _dataset_errors(func):
 @click.option("--workers", type=int, default=None,
               help="worker processes (default: CPU count; 0: in this process) or LocalCluster workers")
 @click.option("--scheduler", default=None,
-              help="'local' (Dask LocalCluster) or a Dask scheduler address such as tcp://HOST:8786")
+              help="'local' (Dask LocalCluster) or a Dask scheduler address such as tcp://HOST:8786 (its workers "
+                   "must see --out at the same path: a shared file system)")
+@click.option("--worker-timeout", type=float, default=60.0, show_default=True, metavar="SECONDS",
+              help="with a scheduler address: give up when no Dask worker is connected for this long (at the "
+                   "start, or when every worker is gone mid-build)")
 @click.option("--resume", is_flag=True, help="continue an interrupted build: skip shards already done")
 @click.option("--retries", type=int, default=2, show_default=True, help="extra attempts of a failed shard")
 @click.option("--tasks-per-worker", type=int, default=4, show_default=True,
@@ -47,7 +51,8 @@ def _dataset_errors(func):
                    "the full build: a smaller build is a prefix of it; the other splits are left out, a split at 0 "
                    "is kept empty, at least one count must be > 0)")
 @_dataset_errors
-def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worker, quiet, split_counts):
+def build(config_file, out, workers, scheduler, worker_timeout, resume, retries, tasks_per_worker, quiet,
+          split_counts):
     """Build the dataset of CONFIG_FILE (configs/datasets/*.yaml) into OUT, shard by shard."""
     from ..dataset import build_dataset, load_dataset_config
 
@@ -55,7 +60,7 @@ def build(config_file, out, workers, scheduler, resume, retries, tasks_per_worke
     if split_counts is not None:
         config = config.model_copy(update={"splits": _cut_splits(config, split_counts, config_file)})
     report = build_dataset(config, out, workers=workers, scheduler=scheduler, resume=resume, retries=retries,
-                           max_tasks_per_child=tasks_per_worker, progress=not quiet)
+                           max_tasks_per_child=tasks_per_worker, progress=not quiet, worker_timeout=worker_timeout)
     for line in report.repairs:
         click.echo(f"repaired: {line}", err=True)
     timing = report.card.get("timing", {}).get("per_sample_s", {})

@@ -36,7 +36,7 @@ from .assets import asset_record, config_asset_entries
 from .config import (STREAMS, DatasetConfig, Sample, component_slots, config_from_json, load_dataset_config,
                      make_sample)
 from ..errors import DatasetError
-from .dask_engine import FATAL_ERRNOS, connect_dask, fatal_error, run_dask
+from .dask_engine import FATAL_ERRNOS, WORKER_TIMEOUT_S, check_worker_timeout, connect_dask, fatal_error, run_dask
 from .integrity import remove_shard_files, repair_store
 from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, BuildLock, ShardTask, check_dataset_dir,
                     check_same_assets, check_same_config, code_version, consolidate, create_arrays, file_sha256,
@@ -374,7 +374,8 @@ class BuildReport:
 def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: int | None = None,
                   scheduler: str | None = None, resume: bool = False, retries: int = DEFAULT_RETRIES,
                   max_tasks_per_child: int = DEFAULT_TASKS_PER_CHILD, progress: bool = True,
-                  on_shard: Callable[[dict], None] | None = None) -> BuildReport:
+                  on_shard: Callable[[dict], None] | None = None, worker_timeout: float = WORKER_TIMEOUT_S
+                  ) -> BuildReport:
     """Build (or resume) the dataset of ``config`` into ``out``.
 
     Everything is checked before anything is written: the options, the config, ``out`` (not a file, not under
@@ -393,19 +394,23 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
         workers: local worker processes (default: CPU count; 0: compute in this process) or Dask LocalCluster
             workers.
         scheduler: None (local processes), "local" (Dask LocalCluster) or a Dask scheduler address
-            ("tcp://host:8786"; the workers must see ``out`` at the same path).
+            ("tcp://host:8786"; the workers must see ``out`` at the same path: docs/datasets.md, "Running on a
+            cluster").
         resume: continue a build whose store exists: intact shards with a done marker are skipped.
         retries: extra attempts of a failed shard (>= 0).
         max_tasks_per_child: shards per local worker process before it is replaced (>= 1).
         progress: tqdm bar in samples (rate and ETA).
         on_shard: called with each finished shard's marker (in this process).
+        worker_timeout: seconds (> 0) a scheduler address may have no worker, at the start (the count is
+            printed on stderr) or mid-build, before the build gives up.
     Returns:
         :class:`BuildReport`.
     Raises:
         ValueError: an invalid option (naming it), or every split has count 0; DatasetError: invalid config or
             probe sample, a mesh asset over :data:`~datagen.dataset.assets.MAX_ASSET_TRIANGLES` triangles, or
             ``--resume`` with a different config or other mesh assets than the stored ones; ResourceError: the
-            shards need more memory than available; SchedulerError: the scheduler cannot be reached.
+            shards need more memory than available; SchedulerError: the scheduler cannot be reached, has
+            no worker for ``worker_timeout`` s or is lost mid-build.
         FileExistsError / PermissionError: ``out`` is a file, under one, not writable, holds a dataset (and
             ``resume`` is False) or other files.
         BuildLockedError: another build is writing ``out``.
@@ -413,6 +418,7 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
         BuildError: shards still failing after retries (finished shards are kept; resume later).
     """
     check_build_options(workers, scheduler, retries, max_tasks_per_child)
+    check_worker_timeout(worker_timeout)
     if not isinstance(config, DatasetConfig):
         config = load_dataset_config(config)
     _first_split(config)
@@ -428,15 +434,13 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
     probe = _probe(config)
     processes = 1 if workers == 0 or scheduler else (workers or os.cpu_count() or 1)
     check_shard_memory(config, probe, processes)
-    client, cluster = connect_dask(scheduler, workers) if scheduler else (None, None)
+    dask = connect_dask(scheduler, workers, worker_timeout) if scheduler else None
     try:
-        return _build(config, root, probe, (assets, entries), client, workers, scheduler, resume, retries,
+        return _build(config, root, probe, (assets, entries), dask, workers, scheduler, resume, retries,
                       max_tasks_per_child, progress, on_shard)
     finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        if dask is not None:
+            dask.close()   # the client, and the LocalCluster it started
 
 
 def _open_store(root: Path, config: DatasetConfig, probe: Sample, pinned: tuple[list[dict], list[tuple[str, ...]]],
@@ -486,7 +490,7 @@ def _open_store(root: Path, config: DatasetConfig, probe: Sample, pinned: tuple[
 
 
 def _build(config: DatasetConfig, root: Path, probe: Sample, pinned: tuple[list[dict], list[tuple[str, ...]]],
-           client, workers: int | None, scheduler: str | None, resume: bool, retries: int, max_tasks_per_child: int,
+           dask, workers: int | None, scheduler: str | None, resume: bool, retries: int, max_tasks_per_child: int,
            progress: bool, on_shard: Callable[[dict], None] | None) -> BuildReport:
     cfg_json = config.to_json()
     t_start = time.perf_counter()
@@ -497,7 +501,7 @@ def _build(config: DatasetConfig, root: Path, probe: Sample, pinned: tuple[list[
         with BuildLock(root):
             card, repairs = _open_store(root, config, probe, pinned, resume)
             repairs += repair_store(root, card, config)
-            report = _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_tasks_per_child,
+            report = _run(config, root, card, cfg_json, dask, workers, scheduler, retries, max_tasks_per_child,
                           progress, on_shard, engine, t_start)
             report.repairs = repairs
             return report
@@ -507,7 +511,7 @@ def _build(config: DatasetConfig, root: Path, probe: Sample, pinned: tuple[list[
         raise
 
 
-def _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_tasks_per_child, progress,
+def _run(config, root, card, cfg_json, dask, workers, scheduler, retries, max_tasks_per_child, progress,
          on_shard, engine, t_start) -> BuildReport:
     tasks = plan_shards(config)
     todo = [t for t in tasks if read_marker(root, t.split, t.shard) is None]
@@ -532,7 +536,7 @@ def _run(config, root, card, cfg_json, client, workers, scheduler, retries, max_
     if not todo:
         events: Iterator[Event] = iter(())
     elif scheduler:   # the bar moves shard by shard
-        events = run_dask(write_shard, str(root), cfg_json, todo, client, retries)
+        events = run_dask(write_shard, str(root), cfg_json, todo, dask, retries)
         on_sample = None
     elif workers == 0:
         events = _run_in_process(str(root), cfg_json, todo, retries, on_sample)
