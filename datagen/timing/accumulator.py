@@ -423,9 +423,14 @@ class EnvelopeAccumulator:
     def _fold(self) -> np.ndarray:
         """The fine histogram with the pending curvature deposits summed in (twice along the nodes)."""
         if self._curvature is not None:
-            np.cumsum(self._curvature, axis=1, out=self._curvature)
-            np.cumsum(self._curvature, axis=1, out=self._curvature)
-            self._hist += self._curvature
+            # only the columns from the first to the last pending second difference: beyond the last one the double
+            # sum of complete tents' second differences is zero (round-off aside), before the first it is zero
+            lo, hi = _active_columns(self._curvature)
+            if hi > lo:
+                part = self._curvature[:, lo:hi]
+                np.cumsum(part, axis=1, out=part)
+                np.cumsum(part, axis=1, out=part)
+                self._hist[:, lo:hi] += part
             self._curvature = None
             self._clamp_rtol = CURVATURE_CLAMP_RTOL
         return self._hist
@@ -544,14 +549,22 @@ class EnvelopeAccumulator:
         batches of ``_CONVOLVE_ROWS``, one FFT convolution per batch)."""
         out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
         rows = np.flatnonzero(hist.any(axis=1))
+        span = self._kernel.size - 1
         for start in range(0, len(rows), _CONVOLVE_ROWS):
             ks = rows[start:start + _CONVOLVE_ROWS]
+            # only the bins the batch's non-zero nodes reach: bin b sums nodes [b·os, (b + 1)·os + span)
+            rows_ = hist[ks]
+            lo, hi = _active_columns(rows_)
+            b0 = max(0, lo - span) // self.oversample
+            b1 = min(self.axis.n_bins, -(-hi // self.oversample))
+            part = rows_[:, b0 * self.oversample:b1 * self.oversample + span]
             if self._kernel.size <= _DIRECT_KERNEL_MAX:
-                conv = np.stack([np.convolve(hist[k], self._kernel, mode="valid") for k in ks])
+                conv = np.stack([np.convolve(row, self._kernel, mode="valid") for row in part])
             else:
-                conv = oaconvolve(hist[ks], self._kernel[None], mode="valid", axes=1)
-            block = conv.reshape(len(ks), self.axis.n_bins, self.oversample).sum(axis=2)
-            scale = np.maximum(np.abs(block).max(axis=1), np.abs(hist[ks]).max(axis=1))
+                conv = oaconvolve(part, self._kernel[None], mode="valid", axes=1)
+            block = np.zeros((len(ks), self.axis.n_bins))
+            block[:, b0:b1] = conv.reshape(len(ks), b1 - b0, self.oversample).sum(axis=2)
+            scale = np.maximum(np.abs(block).max(axis=1), np.abs(part).max(axis=1))
             low = block.min(axis=1) < -self._clamp_rtol * scale
             if low.any():
                 i = int(np.flatnonzero(low)[0])
@@ -579,3 +592,9 @@ class EnvelopeAccumulator:
         hi = (self.n_cells + self.n_left - 0.5 - g) * self.fine_step
         frac = self.irf.cdf(lo) + self.irf.sf(hi)
         return result + _rows_dot(self._hist, frac)
+
+
+def _active_columns(a: np.ndarray) -> tuple[int, int]:
+    """[lo, hi): the columns of a 2-D array from its first to its last with a non-zero entry ((0, 0) if none)."""
+    cols = np.flatnonzero(a.any(axis=0))
+    return (int(cols[0]), int(cols[-1]) + 1) if len(cols) else (0, 0)
