@@ -22,7 +22,8 @@ from datagen.scene import RayCaster
 from datagen.scene import (CaptureSpec, FieldOfView, Laser, Scene, SceneError, SceneObject, Sensor, WallGrid,
                            box, box_mesh, quad)
 from datagen.scene import resolve_capture
-from datagen.transport import TransportSettings
+from datagen.spad.pileup import counting_detector, pile_up_from_envelope
+from datagen.transport import PhysicsSettings
 from datagen.units import SPEED_OF_LIGHT
 
 TOL = 0.01
@@ -334,11 +335,12 @@ def test_pile_up_off_at_low_flux_and_its_poisson_counts_match_pile_up_within_tol
     assert result.attrs["effects"]["detector_model"] == "poisson"
     detector = config(scene).detector_config()
     assert detector.model == "pile_up"
-    poisson = plan.detector(detector)              # the model the plan picks when pile-up is off
+    poisson = counting_detector(detector, False)   # the model the detector stage picks when pile-up is off
     assert poisson.model == "poisson" and poisson.cycles == detector.cycles
+    assert counting_detector(detector, True) is detector
     for lam, skipped in ((0.5 * TOL, True), (0.5, False)):
         envelope = result.envelope * (lam / result.envelope.sum())
-        refined = plan.refine_pile_up(envelope, detector)["pile_up"]
+        refined = pile_up_from_envelope(envelope, detector, TOL)      # the detector stage, no planner
         assert refined.numbers["lambda_per_cycle"] == pytest.approx(lam, rel=1e-12)
         assert refined.on is not skipped
         rates = spad.rates_from_envelope(envelope, detector)
@@ -346,6 +348,22 @@ def test_pile_up_off_at_low_flux_and_its_poisson_counts_match_pile_up_within_tol
         assert (measured < TOL) if skipped else (measured > TOL)
         if skipped:
             assert measured <= refined.numbers["max_bin_distortion"]
+
+
+def test_the_results_pile_up_decision_is_the_detector_stages_from_its_envelope():
+    """attrs["plan"]["pile_up"] holds the decision made from the envelope after transport (exact Λ), not the
+    planner's coarse preview; a forced value stands as the plan recorded it."""
+    scene = patch_scene()
+    result = run(scene)
+    decision = pile_up_from_envelope(result.envelope, config(scene).detector_config(), TOL)
+    assert result.attrs["plan"]["pile_up"] == {"on": False, "forced": False, "reason": decision.reason,
+                                               "numbers": decision.numbers}
+    assert "(from the envelope)" in decision.reason
+    assert plan_for(scene)["pile_up"].numbers["lambda_per_cycle"] != decision.numbers["lambda_per_cycle"]
+    forced = run(scene, effects={"pile_up": True})
+    assert forced.attrs["plan"]["pile_up"]["forced"] and forced.attrs["plan"]["pile_up"]["on"]
+    assert forced.attrs["plan"]["pile_up"]["reason"].startswith("forced on by the user (the planner would say off")
+    assert forced.attrs["effects"]["detector_model"] == "pile_up"
 
 
 def test_pile_up_on_when_the_flux_is_high():
@@ -394,15 +412,24 @@ def test_the_planner_decides_exactly_the_effects_the_config_accepts():
     assert importlib.import_module("datagen.simulation.config").EFFECTS == EFFECTS
 
 
-def test_apply_sets_the_transport_switches():
+def test_apply_sets_the_planned_physics_switches_estimator_neutrally():
     off = Plan({name: Decision(False, "test") for name in EFFECTS})
-    on = Plan({name: Decision(True, "test") for name in EFFECTS})
-    settings = TransportSettings(secondary="exact", attenuation=0.3)
-    a, b = off.apply(settings), on.apply(settings)
-    assert (a.secondary, a.attenuation, a.shadow_spot, a.shadow_sensor, a.first_bounce, a.brdf_angles) == \
-        ("none", 0.0, False, False, False, False)
-    assert (b.secondary, b.attenuation, b.shadow_spot, b.shadow_sensor, b.first_bounce, b.brdf_angles) == \
-        ("exact", 0.3, True, True, True, True)
+    on = Plan({name: Decision(True, "test", blockers=(3,) if name.startswith("shadow") else None)
+               for name in EFFECTS})
+    physics = PhysicsSettings(attenuation=0.3)
+    a, b = off.apply(physics), on.apply(physics)
+    assert type(a) is PhysicsSettings and type(b) is PhysicsSettings       # no estimator's settings
+    assert (a.attenuation, a.shadow_spot, a.shadow_sensor, a.first_bounce, a.brdf_angles) == (0.0, False, False,
+                                                                                               False, False)
+    assert (b.attenuation, b.shadow_spot, b.shadow_sensor, b.first_bounce, b.brdf_angles) == (0.3, True, True,
+                                                                                               True, True)
+    assert (b.spot_blockers, b.sensor_blockers) == ((3,), (3,))
+    assert (off.secondary_mode("exact"), on.secondary_mode("exact")) == ("none", "exact")
+    # a switch the estimator does not follow keeps the value the physics has (the user's, or the default)
+    c = off.apply(physics, ("shadow_sensor", "first_bounce", "brdf_angles", "attenuation"))
+    assert (c.shadow_spot, c.spot_blockers, c.shadow_sensor) == (True, None, False)
+    with pytest.raises(ValueError, match="secondary"):
+        off.apply(physics, ("secondary",))
 
 
 def test_a_confocal_scan_is_planned_over_its_whole_laser_grid():

@@ -2,7 +2,9 @@
 
 In: the scene, its capture, the ray caster and the simulation config (tolerance, forced effects, time axis,
 detector). Out: a :class:`Plan` of one :class:`Decision` per effect of :data:`EFFECTS` (on/off, the reason with
-its numbers, forced or not), which ``Plan.apply`` turns into the estimators' physics switches.
+its numbers, forced or not), which ``Plan.apply`` sets on an estimator-neutral
+:class:`~datagen.transport.PhysicsSettings` (the chosen estimator builds its own settings from it). The pile-up
+rule is the detector's (:mod:`datagen.spad.pileup`); the planner previews it before transport.
 
 - :mod:`.decisions`: the rules and :func:`plan_effects`.
 - :mod:`.geometry`: :class:`PlanGeometry`, triangles and the capture frame, and which side of each closed

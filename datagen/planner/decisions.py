@@ -2,20 +2,24 @@
 
 ``plan_effects(scene, config, capture, caster)`` returns a :class:`Plan`: one :class:`Decision` per effect
 (``on``, a human-readable ``reason`` quoting the numbers behind it, ``forced`` when the user set it, and
-those ``numbers``). ``Plan.apply`` turns it into :class:`~datagen.transport.TransportSettings` switches,
-``Plan.detector`` into the detector model, and ``Plan.to_attrs`` into the JSON stored in the result's
-attributes (``attrs["plan"]``). An effect is skipped only when simulating it cannot change the envelope by
-more than ``config.effect_threshold`` (relative), or when it is exactly zero. Every effect can be forced with
+those ``numbers``). The plan is estimator-neutral: ``Plan.apply`` sets its decisions on a
+:class:`~datagen.transport.PhysicsSettings` (the switches the chosen estimator follows, its registry entry's
+``follows_plan``), ``Plan.secondary_mode`` gives the secondary mode to run, and ``Plan.to_attrs`` the JSON
+stored in the result's attributes (``attrs["plan"]``); the estimator builds its own settings from those. An
+effect is skipped only when simulating it cannot change the envelope by more than ``config.effect_threshold``
+(relative), or when it is exactly zero. Every effect can be forced with
 ``config.effects[name] = True | False``; forced values always win. The rules (docs/planner.md derives them):
 
 - ``shadow_sensor``: FoV point → sensor shadow rays. Off when no triangle except the FoV's own surface can
   meet the pyramid spanned by the sensor and the FoV rectangle (separating-plane test: the pyramid's five
   face planes and the triangle's own plane). Exact: such rays can never be blocked.
-- ``shadow_spot``: observed point → laser spot shadow rays (which points the laser lights, for the
-  secondary). Off when the secondary is off, or when no triangle can meet any tetrahedron spanned by the
-  spot (the hull of the laser grid's corners for a scan) and a hidden triangle lit on a side the laser can
-  reach (same separating-plane test, all pairs; closed meshes are seen from outside only): every segment
-  spot → observable lit point is then free. Exact.
+- ``shadow_spot``: laser spot → hidden point shadow rays on the laser leg of paths with two hidden vertices
+  (which points the laser lights, for the secondary; an estimator whose primary hidden points need them too,
+  the area sampler and the quadrature, does not follow this decision and has its own rule: docs/planner.md).
+  Off when the secondary is off, or when no triangle can meet any tetrahedron spanned by the spot (the hull
+  of the laser grid's corners for a scan) and a hidden triangle lit on a side the laser can reach (same
+  separating-plane test, all pairs; closed meshes are seen from outside only): every segment spot →
+  observable lit point is then free. Exact.
 - ``secondary``: off when no two hidden triangles can exchange light on the way spot → x → x' → FoV
   (exact zero), or when a coarse area quadrature of secondary / primary energy times
   ``SECONDARY_SAFETY`` is below the tolerance (an *estimate* with a safety factor, not a bound).
@@ -26,13 +30,15 @@ more than ``config.effect_threshold`` (relative), or when it is exactly zero. Ev
   arrives inside the time window, and the detector gate leaves a bin of its IRF support open. Exact.
 - ``pile_up``: off (Poisson counts) when the dead-time bound 1 − e^{−M} < tolerance, M the expected
   avalanches in the longest window that can disable the detector (Λ per cycle for pile-up and multi-stop).
-  Before transport Λ is estimated (coarse quadrature × ``PILE_UP_SAFETY``); :meth:`Plan.refine_pile_up`
-  replaces it by the exact Λ of the envelope.
+  The rule is the detector's (:func:`datagen.spad.pileup.pile_up_decision`); here Λ is only estimated (coarse
+  quadrature × ``PILE_UP_SAFETY``), a preview: after transport the detector stage decides from the exact Λ of the
+  envelope (:func:`datagen.spad.pileup.pile_up_from_envelope`) unless the user forced the effect.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -42,7 +48,9 @@ from .. import spad
 from ..scene import FOV_EDGE_REL, FOV_PLANE_TOL, Capture, RayCaster, Scene, SceneError
 from ..scene import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
 from ..timing import TAIL_MARGIN_TAUS
-from ..transport import PhysicsSettings, TransportSettings
+from ..spad.pileup import pile_up_decision
+from ..transport import PhysicsSettings
+from ..transport.base import PLANNED_SWITCHES
 from .coarse import CoarseEnergies, coarse_energies
 from .geometry import PlanGeometry
 
@@ -111,45 +119,36 @@ class Plan:
         return {name: {"on": bool(d.on), "forced": bool(d.forced), "reason": d.reason,
                        "numbers": _jsonable(d.numbers)} for name, d in self.decisions.items()}
 
-    def apply(self, settings: TransportSettings) -> TransportSettings:
-        """Transport settings with this plan's switches (``dataclasses.replace``).
+    def apply(self, physics: PhysicsSettings, switches: Iterable[str] = PLANNED_SWITCHES) -> PhysicsSettings:
+        """``physics`` with this plan's decisions on ``switches`` (``dataclasses.replace``; same class).
 
-        ``secondary`` becomes "none" and ``attenuation`` 0.0 when their effect is off; otherwise the configured
-        estimator and μ are kept. Shadow, first-bounce and BRDF switches are set from the decisions.
+        Estimator-neutral: ``physics`` is any :class:`~datagen.transport.PhysicsSettings` (usually
+        :meth:`datagen.simulation.SimulationConfig.physics_settings`), and ``switches`` the planned physics
+        switches the chosen estimator follows (its registry entry's ``follows_plan``; default all of
+        :data:`~datagen.transport.base.PLANNED_SWITCHES`). A listed switch takes its decision (``attenuation``
+        keeps μ when on and becomes 0.0 when off; the shadow switches bring their blocker lists); any other keeps
+        the value ``physics`` has (the user's forced value or the default), for the estimator's own rule.
+
+        Raises:
+            ValueError: a name in ``switches`` that is not a planned switch.
         """
-        return dataclasses.replace(
-            settings,
-            shadow_spot=self.on("shadow_spot"), shadow_sensor=self.on("shadow_sensor"),
-            first_bounce=self.on("first_bounce"), brdf_angles=self.on("brdf_angles"),
-            secondary=settings.secondary if self.on("secondary") else "none",
-            attenuation=settings.attenuation if self.on("attenuation") else 0.0,
-            spot_blockers=self.decisions["shadow_spot"].blockers,
-            sensor_blockers=self.decisions["shadow_sensor"].blockers)
+        names = tuple(switches)
+        unknown = sorted(set(names) - set(PLANNED_SWITCHES))
+        if unknown:
+            raise ValueError(f"not planned physics switches: {unknown}; planned: {list(PLANNED_SWITCHES)}")
+        updates: dict[str, Any] = {name: self.on(name) for name in names if name != "attenuation"}
+        if "attenuation" in names:
+            updates["attenuation"] = physics.attenuation if self.on("attenuation") else 0.0
+        if "shadow_spot" in names:
+            updates["spot_blockers"] = self.decisions["shadow_spot"].blockers
+        if "shadow_sensor" in names:
+            updates["sensor_blockers"] = self.decisions["shadow_sensor"].blockers
+        return dataclasses.replace(physics, **updates)
 
-    def detector(self, detector: spad.DetectorConfig) -> spad.DetectorConfig:
-        """The detector model to use: ``detector`` itself, or its Poisson version when pile-up is off."""
-        if self.on("pile_up") or detector.model == "poisson":
-            return detector
-        data = detector.model_dump()
-        data.update(model="poisson", dead_time_kind=None, paralyzable=False)
-        return spad.DetectorConfig.model_validate(data)
-
-    def refine_pile_up(self, envelope: np.ndarray, detector: spad.DetectorConfig) -> "Plan":
-        """Re-decide an automatic ``pile_up`` from the envelope itself (exact Λ instead of the estimate).
-
-        Args:
-            envelope: (..., n_bins) expected detected photons per pulse per bin (pixels on leading axes).
-            detector: the configured detector.
-        Returns:
-            A new plan (this one unchanged when ``pile_up`` was forced).
-        """
-        if self.decisions["pile_up"].forced:
-            return self
-        rates = spad.rates_from_envelope(envelope, detector)
-        lam = float(np.max(rates.reshape(-1, rates.shape[-1]).sum(axis=-1))) if rates.size else 0.0
-        window = float(np.sum(detector.widths(rates.shape[-1])))
-        decision = _pile_up_from_lambda(detector, lam, window, self.tolerance, "from the envelope")
-        return dataclasses.replace(self, decisions={**self.decisions, "pile_up": decision})
+    def secondary_mode(self, mode: str) -> str:
+        """The secondary estimator mode to run: ``mode`` (the configured one, e.g. "full") when the secondary
+        is on, "none" when the plan (or the user) turned it off."""
+        return mode if self.on("secondary") else "none"
 
 
 def _jsonable(value: Any) -> Any:
@@ -480,34 +479,10 @@ def _decide_secondary(mode: str, g: PlanGeometry, coarse: "CoarseEnergies | None
     return Decision(True, f"{what} ≥ tolerance {_fmt(tol)}", False, numbers)
 
 
-def _pile_up_from_lambda(detector: spad.DetectorConfig, lam: float, window: float, tol: float,
-                         source: str) -> Decision:
-    """Pile-up decision from Λ, the expected avalanches per cycle in the histogram window of ``window`` s.
-
-    The detector is dead at time t only after an avalanche in the preceding dead window, which for a
-    Poisson arrival process has probability 1 − e^{−M}, M the expected avalanches there: every bin's
-    expected count differs from the Poisson one by a relative amount ≤ 1 − e^{−M}. M = Λ for pile_up and
-    multi_stop (re-armed every cycle); for free_running the dead time spans ≤ ceil(τ/T) + 1 periods.
-    """
-    numbers: dict[str, Any] = {"model": detector.model, "lambda_per_cycle": lam}
-    if detector.model == "poisson":
-        return Decision(False, "detector model is 'poisson' (configured)", False, numbers)
-    if detector.afterpulse_probability > 0 or detector.crosstalk_probability > 0:
-        return Decision(True, f"detector models afterpulsing ({_fmt(detector.afterpulse_probability)}) or "
-                        f"crosstalk ({_fmt(detector.crosstalk_probability)}), which Poisson counts cannot",
-                        False, numbers)
-    m = lam
-    if detector.model == "free_running":
-        per_period = lam + detector.background_rate * max(detector.period - window, 0.0)
-        m = per_period * (math.ceil(detector.dead_time / detector.period) + 1)
-    distortion = -math.expm1(-m)
-    total = 1.0 + math.expm1(-lam) / lam if lam > 0 else 0.0            # 1 − (1 − e^{−Λ})/Λ
-    numbers.update(dead_window_avalanches=m, max_bin_distortion=distortion, total_distortion=total)
-    what = (f"Λ = {_fmt(lam)} avalanches/cycle ({source}), dead-time bound 1 − e^(−{_fmt(m)}) = "
-            f"{_fmt(distortion)} (total {_fmt(total)})")
-    if distortion < tol:
-        return Decision(False, f"{what} < tolerance {_fmt(tol)}: Poisson counts", False, numbers)
-    return Decision(True, f"{what} ≥ tolerance {_fmt(tol)}: {detector.model} model", False, numbers)
+def _pile_up(detector: spad.DetectorConfig, lam: float, window: float, tol: float, source: str) -> Decision:
+    """The detector stage's rule (:func:`datagen.spad.pileup.pile_up_decision`) on a Λ known before transport."""
+    d = pile_up_decision(detector, lam, window, tol, source)
+    return Decision(d.on, d.reason, False, d.numbers)
 
 
 def _decide_pile_up(detector: spad.DetectorConfig, config, coarse: "CoarseEnergies | None",
@@ -517,11 +492,11 @@ def _decide_pile_up(detector: spad.DetectorConfig, config, coarse: "CoarseEnergi
     gate = spad.gate_fraction(detector.bin_edges(n), detector.gate)
     background = detector.background_rate * float(np.sum(widths * gate))
     if coarse is None:
-        return _pile_up_from_lambda(detector, math.inf, float(widths.sum()), tol, "no flux estimate was made")
+        return _pile_up(detector, math.inf, float(widths.sum()), tol, "no flux estimate was made")
     signal = coarse.signal_with_secondary if secondary_on else coarse.signal
     fb = first_bounce.numbers.get("detected_photons_per_pulse", 0.0) if first_bounce is not None else 0.0
-    return _pile_up_from_lambda(detector, PILE_UP_SAFETY * signal + fb + background, float(widths.sum()), tol,
-                                f"estimate: {_fmt(PILE_UP_SAFETY)} × coarse signal {_fmt(signal)} + first bounce "
-                                f"{_fmt(fb)} + background {_fmt(background)}")
+    return _pile_up(detector, PILE_UP_SAFETY * signal + fb + background, float(widths.sum()), tol,
+                    f"estimate: {_fmt(PILE_UP_SAFETY)} × coarse signal {_fmt(signal)} + first bounce {_fmt(fb)} "
+                    f"+ background {_fmt(background)}")
 
 

@@ -17,7 +17,8 @@ from .. import spad
 from ..planner import EFFECTS
 from ..scene import MAX_EXTENT, Scene, SceneError, format_validation_error, short_repr
 from ..timing import Irf, TimeAxis
-from ..transport import EstimatorOptions, TransportSettings, estimator, estimator_names, estimator_options
+from ..transport import (EstimatorOptions, PhysicsSettings, TransportSettings, estimator, estimator_names,
+                         estimator_options)
 from ..units import parse_grid  # noqa: F401  (re-exported: datagen.simulation.parse_grid)
 
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
@@ -199,20 +200,32 @@ class SimulationConfig(BaseModel):
         data = {"bin_width": self.time.bin_width, "t_start": self.time.t_start, **self.detector}
         return spad.DetectorConfig.model_validate(data)
 
+    def physics_settings(self) -> PhysicsSettings:
+        """The estimator-neutral physics the effect planner decides on (:meth:`datagen.planner.Plan.apply`): μ
+        (0 when ``effects.attenuation`` is forced off), the detector's PDE, the leg switches, and the shadow-ray,
+        first-bounce and BRDF switches at the value ``effects`` forces or their default (shadow rays on, first
+        bounce and full BRDF angles off). No estimator's sampling fields: each estimator builds its own settings
+        from these (its registry entry's ``from_config``)."""
+        forced = {k: v for k, v in self.effects.items() if isinstance(v, bool)}
+        attenuation = self.attenuation if forced.get("attenuation", True) else 0.0
+        return PhysicsSettings(attenuation=attenuation, pde=self.detector_config().pde,
+                               count_laser_leg=self.count_laser_leg, count_sensor_leg=self.count_sensor_leg,
+                               shadow_spot=forced.get("shadow_spot", True),
+                               shadow_sensor=forced.get("shadow_sensor", True),
+                               first_bounce=forced.get("first_bounce", False),
+                               brdf_angles=forced.get("brdf_angles", False))
+
     def transport_settings(self) -> TransportSettings:
-        """The lookin settings the planner decides on (every estimator's physics switches come from them); their
-        sampling fields are the estimator's (:meth:`~datagen.transport.EstimatorOptions.transport_fields`) or the
-        lookin defaults."""
+        """Lookin settings from this config, unplanned, for the sampling figures and the analyses that run an
+        estimator directly (:func:`datagen.analysis.accuracy.run_estimator`, the converged reference): the
+        physics of :meth:`physics_settings`, the secondary mode (``secondary``, "none" when ``effects.secondary``
+        is forced off), the estimator's sampling fields
+        (:meth:`~datagen.transport.EstimatorOptions.transport_fields`) or the lookin defaults, and ``workers``.
+        ``simulate`` does not use them."""
         forced = {k: v for k, v in self.effects.items() if isinstance(v, bool)}
         secondary = self.secondary if forced.get("secondary", True) else "none"
-        attenuation = self.attenuation if forced.get("attenuation", True) else 0.0
-        return TransportSettings(**self.estimator.transport_fields(), secondary=secondary,
-                                 attenuation=attenuation, pde=self.detector_config().pde,
-                                 count_laser_leg=self.count_laser_leg, count_sensor_leg=self.count_sensor_leg,
-                                 shadow_spot=forced.get("shadow_spot", True),
-                                 shadow_sensor=forced.get("shadow_sensor", True),
-                                 first_bounce=forced.get("first_bounce", False),
-                                 brdf_angles=forced.get("brdf_angles", False), workers=self.workers)
+        return TransportSettings(**self.physics_settings().switches(), **self.estimator.transport_fields(),
+                                 secondary=secondary, workers=self.workers)
 
 
 def merge_simulation(base: dict, overrides: dict) -> dict:

@@ -17,6 +17,7 @@ from importlib import metadata
 import numpy as np
 
 from .. import spad
+from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..planner import Plan, plan_effects
 from ..scene import RayCaster, Scene, SceneError, resolve_capture
 from ..timing import EnvelopeAccumulator
@@ -106,13 +107,21 @@ def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator
     """Plan the effects and build the configured estimator (scene → planner → transport), ready to run.
 
     Without ``config.split_components`` the estimator sees the scene with one primary component
-    (:meth:`~datagen.scene.Scene.with_summed_primary`). The flow is estimator-neutral up to the last step: the
-    capture is resolved (:func:`datagen.scene.resolve_capture`), the effect planner decides on it and applies its
-    decisions to the physics settings from ``config``, and the estimator registered under ``config.estimator``
-    is built from those (:func:`datagen.transport.estimator`).
+    (:meth:`~datagen.scene.Scene.with_summed_primary`). The flow reads in one direction and is estimator-neutral
+    up to the last step: the capture is resolved (:func:`datagen.scene.resolve_capture`); the effect planner
+    decides on it (:func:`datagen.planner.plan_effects`) and sets its decisions on the physics of ``config``
+    (:meth:`SimulationConfig.physics_settings`, :meth:`~datagen.planner.Plan.apply`: the switches the estimator's
+    registry entry follows, ``follows_plan``); the estimator registered under ``config.estimator`` builds its
+    own settings from that physics and the secondary mode the plan keeps (its entry's ``from_config``). No
+    estimator object or settings exist before that step; the pile-up decision is the detector stage's
+    (:func:`make_result`).
 
+    Returns:
+        (the estimator, the :class:`~datagen.planner.Plan`).
     Raises:
         ResourceError: the estimated memory exceeds what is available (:mod:`datagen.simulation.budget`).
+        SceneError: the capture or planner errors (:func:`datagen.scene.resolve_capture`,
+            :func:`datagen.planner.plan_effects`) and the estimator's settings errors.
     """
     check_simulation_memory(scene, config)     # refuse what cannot fit before allocating anything
     if not config.split_components:
@@ -120,8 +129,10 @@ def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator
     caster = RayCaster(scene)
     capture = resolve_capture(scene, caster)
     plan = plan_effects(scene, config, capture, caster)
-    settings = plan.apply(config.transport_settings())
-    transport: Estimator = estimator(config.estimator.kind).from_config(scene, config, settings, caster, capture)
+    entry = estimator(config.estimator.kind)
+    physics = plan.apply(config.physics_settings(), entry.follows_plan)
+    transport: Estimator = entry.from_config(scene, config, physics, caster, capture,
+                                             plan.secondary_mode(config.secondary))
     return transport, plan
 
 
@@ -325,17 +336,48 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     return make_result(scene, config, tr, noise_rng, t0, {"error": runs.error_attrs(tr, rng)})
 
 
+def detector_model(envelope: np.ndarray, config: SimulationConfig, plan_attrs: dict
+                   ) -> tuple[spad.DetectorConfig, dict]:
+    """The detector stage's pile-up decision: the detector model to draw the counts with, and the result's
+    ``attrs["plan"]`` with its ``pile_up`` entry from that decision.
+
+    Unless ``config.effects.pile_up`` is forced, pile-up is decided from the envelope itself (exact Λ:
+    :func:`datagen.spad.pileup.pile_up_from_envelope`, tolerance ``config.effect_threshold``), replacing the
+    planner's preview; a forced value stands as the plan recorded it. The effect planner is not consulted.
+
+    Args:
+        envelope: (..., n_bins) float64 expected detected photons per pulse per bin.
+        config: the simulation config (detector, effects, tolerance).
+        plan_attrs: the plan's record (:meth:`datagen.planner.Plan.to_attrs`), effect → {on, forced, reason,
+            numbers}.
+    Returns:
+        (:class:`~datagen.spad.DetectorConfig`: the configured one, or its Poisson version when pile-up is off;
+        the plan record with ``pile_up`` as decided here).
+    Raises:
+        ValueError: an envelope the detector refuses (:func:`datagen.spad.rates_from_envelope`).
+    """
+    detector = config.detector_config()
+    forced = config.effects.get("pile_up")
+    if isinstance(forced, bool):
+        on = forced
+    else:
+        d = pile_up_from_envelope(envelope, detector, config.effect_threshold)
+        on = d.on
+        plan_attrs = {**plan_attrs, "pile_up": {"on": bool(d.on), "forced": False, "reason": d.reason,
+                                                "numbers": dict(d.numbers)}}
+    return counting_detector(detector, on), plan_attrs
+
+
 def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
                 noise_rng: np.random.Generator | None, t0: float, extra_attrs: dict | None = None) -> Result:
-    """Detector draw and metadata around binned transport output (the last steps of :func:`simulate`)."""
+    """Detector draw and metadata around binned transport output (the last steps of :func:`simulate`): the
+    detector model from the envelope (:func:`detector_model`), the counts, the attributes."""
     transport, names = tr.transport, tr.names
     capture = transport.capture
     shape = capture.channel_shape() + (config.time.n_bins,)
     components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
     envelope = tr.binned.sum(axis=0).reshape(shape)
-    detector = config.detector_config()
-    plan = tr.plan.refine_pile_up(envelope, detector)
-    detector = plan.detector(detector)
+    detector, plan_attrs = detector_model(envelope, config, tr.plan.to_attrs())
     warnings = list(scene.notes)                 # what loading changed (e.g. duplicate faces removed)
     if not envelope.any():
         warnings.append("no light path reaches the FoV: the envelope is zero (no path from the laser spot "
@@ -368,7 +410,7 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
                   "counts": "detections over the exposure (int64)"},
         "time_zero": "laser pulse at the laser spot" if not config.count_laser_leg else "laser pulse leaves emitter",
         "photons_per_pulse": capture.photons,
-        "plan": plan.to_attrs(),
+        "plan": plan_attrs,
         "warnings": warnings,
         "effects": {
             "primary": True,

@@ -60,7 +60,7 @@ from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to
                         to_world, unit_square_points)
 from ..scene import Capture, RayCaster, Scene, SceneError, resolve_capture
 from ..vectors import dot
-from .base import Connections, Counters, EstimatorOptions, Sink, register
+from .base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
 from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
                            spot_irradiance)
 from .area_secondary import AreaSecondary
@@ -173,9 +173,12 @@ class AreaSettings(PhysicsSettings):
 
     @classmethod
     def from_transport(cls, settings: PhysicsSettings, **kwargs) -> AreaSettings:
-        """Area settings with the physics switches of ``settings`` (any estimator's; the secondary is "full"
-        unless ``settings.secondary`` is "none"); ``kwargs`` set the sampling fields."""
-        base = {**settings.switches(), "secondary": "none" if settings.secondary == "none" else "full"}
+        """Area settings with the physics switches of ``settings`` (any estimator's, or plain
+        :class:`~datagen.transport.physics.PhysicsSettings`; the secondary is "full" when ``settings`` has a
+        secondary mode other than "none", else "none"); ``kwargs`` set the sampling fields and may set
+        ``secondary``."""
+        base = {**settings.switches(), "secondary": "none" if getattr(settings, "secondary", "none") == "none"
+                else "full"}
         return cls(**{**base, **kwargs})
 
 
@@ -219,6 +222,10 @@ class AreaOptions(EstimatorOptions):
     def describe(self) -> str:
         return f"{self.samples} hidden samples per laser point"
 
+
+AREA_FOLLOWS_PLAN = tuple(s for s in PLANNED_SWITCHES if s != "shadow_spot")
+"""The planned switches the area sampler (and the quadrature, which samples the same way) follows: all but
+``shadow_spot``, which the planner decides for the laser leg of secondary paths only."""
 
 AREA_SAMPLE_BYTES = 500
 """Bytes per hidden sample of the area sampler (point, normal, ids, both connections, weights)."""
@@ -265,6 +272,9 @@ class AreaSampler(AreaSecondary):
     sensor_sampling = "area next-event connections"
     """How the FoV is reached (result attribute ``effects.sensor_sampling``)."""
 
+    follows_plan = AREA_FOLLOWS_PLAN
+    """The planned switches its registry entry follows (:attr:`datagen.transport.EstimatorEntry.follows_plan`)."""
+
     def __init__(self, scene: Scene, settings: AreaSettings | None = None, caster: RayCaster | None = None,
                  secondary_only: bool = False, capture: Capture | None = None):
         self.scene = scene
@@ -292,15 +302,16 @@ class AreaSampler(AreaSecondary):
         self.stats = AreaStats()
 
     @classmethod
-    def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster,
-                    capture: Capture | None = None) -> "AreaSampler":
-        """The registry's constructor: ``config.estimator.samples`` hidden samples per laser point with the physics
-        of the planned lookin ``settings``. The planner's ``shadow_spot`` decision concerns the lookin
-        sampler's secondary; the area sampler's hidden points always need their laser shadow ray (lookins are
-        visible from the spot by construction), unless the user forces it off."""
-        return cls(scene, AreaSettings.from_transport(settings, samples=config.estimator.samples,
-                                                      shadow_spot=config.effects.get("shadow_spot") is not False,
-                                                      sensor_blockers=settings.sensor_blockers,
+    def from_config(cls, scene: Scene, config, physics: PhysicsSettings, caster: RayCaster,
+                    capture: Capture | None, secondary: str) -> "AreaSampler":
+        """The registry's constructor (:attr:`datagen.transport.EstimatorEntry.from_config`):
+        ``config.estimator.samples`` hidden samples per laser point with the planned ``physics`` and its sensor
+        blockers, the secondary "full" unless ``secondary`` is "none", and ``config.workers``. Its entry does not
+        follow the planner's ``shadow_spot`` (``follows_plan``): area-sampled hidden points need the laser leg's
+        shadow ray for the primary too, so ``physics.shadow_spot`` is the user's forced value or on."""
+        return cls(scene, AreaSettings.from_transport(physics, samples=config.estimator.samples,
+                                                      secondary="none" if secondary == "none" else "full",
+                                                      sensor_blockers=physics.sensor_blockers,
                                                       workers=config.workers), caster, capture=capture)
 
     def configure(self, settings: AreaSettings) -> None:

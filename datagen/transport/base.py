@@ -18,6 +18,12 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 
+PLANNED_SWITCHES = ("shadow_spot", "shadow_sensor", "first_bounce", "brdf_angles", "attenuation")
+"""The physics switches (fields of :class:`~datagen.transport.physics.PhysicsSettings`) the effect planner decides
+(:meth:`datagen.planner.Plan.apply`); an estimator follows all of them unless its entry's ``follows_plan`` says
+otherwise. The planner's other decisions: ``secondary`` (the mode passed to ``from_config``) and ``pile_up`` (the
+detector's)."""
+
 TARGET_BYTES = 100
 """Bytes per capture grid point and per quadrature target (FoV cell or sensor point), for the memory estimates
 (:attr:`EstimatorEntry.memory`, :func:`datagen.simulation.simulation_memory`)."""
@@ -39,8 +45,9 @@ class EstimatorOptions(BaseModel):
     LEGACY: ClassVar[dict[str, str]] = {}
 
     def transport_fields(self) -> dict:
-        """Sampling fields of the lookin :class:`~datagen.transport.TransportSettings` these options set (the
-        planner and the sampling figures build those settings for every estimator); none by default."""
+        """Sampling fields of the lookin :class:`~datagen.transport.TransportSettings` these options set (for the
+        sampling figures and analyses that build lookin settings from any config:
+        :meth:`datagen.simulation.SimulationConfig.transport_settings`); none by default."""
         return {}
 
 
@@ -163,10 +170,13 @@ class EstimatorEntry:
         cls: the estimator class, ``cls(scene, settings, caster)``.
         settings_class: its settings class; ``settings_class.from_transport(physics_settings, **fields)`` gives
             settings with the physics switches of any estimator's settings and the given sampling fields.
-        from_config: ``(scene, config, settings, caster, capture) → Estimator``: builds it from a simulation
-            config (any object with the config's fields, e.g. :class:`datagen.simulation.SimulationConfig`),
-            the settings the effect planner has already applied its decisions to (they carry the physics
-            switches), the scene's ray caster and its resolved :class:`~datagen.scene.Capture`.
+        from_config: ``(scene, config, physics, caster, capture, secondary) → Estimator``: builds it from a
+            simulation config (any object with the config's fields, e.g. :class:`datagen.simulation.SimulationConfig`;
+            the estimator's knobs are ``config.estimator``), the planned physics (a
+            :class:`~datagen.transport.physics.PhysicsSettings` the effect planner has set the ``follows_plan``
+            switches of, estimator-neutral), the scene's ray caster, its resolved :class:`~datagen.scene.Capture`
+            and the secondary mode the plan keeps (``config.secondary`` or "none"). The estimator builds its own
+            settings from those (``settings_class.from_transport(physics, …)``).
         summary: one line for help texts.
         options: its settings model (an :class:`EstimatorOptions` subclass with ``kind: Literal[name]``), the
             ``estimator:`` block of a simulation config; the hooks below take an instance of it.
@@ -188,6 +198,11 @@ class EstimatorEntry:
         casts_lookins: the estimator samples the scene from the laser spot with lookins (pictures can show them).
         ladder: the settings the accuracy benchmark steps through (``datagen bench accuracy``,
             :func:`datagen.analysis.run_accuracy`), or None: the benchmark's own ladders only.
+        follows_plan: the planned physics switches (:data:`PLANNED_SWITCHES`) the estimator takes from the
+            effect planner; for any other its ``from_config`` applies its own rule (the physics it gets holds the
+            user's forced value or the default there), e.g. the area sampler's primary always needs the laser
+            leg's shadow rays, which the planner's ``shadow_spot`` (a decision about the secondary) leaves out
+            (``AreaSampler.follows_plan``, a class attribute :func:`register` takes).
     """
 
     name: str
@@ -203,6 +218,7 @@ class EstimatorEntry:
     memory: Callable[..., list[tuple[str, str, float]]] | None = None
     casts_lookins: bool = False
     ladder: "AccuracyLadder | None" = None
+    follows_plan: tuple[str, ...] = PLANNED_SWITCHES
 
 
 @dataclass(frozen=True)
@@ -228,17 +244,20 @@ def register(name: str, settings_class: type, summary: str, *, options: type,
              replica: Callable[[Any, int], dict] | None = None,
              refine: Callable[[Any], dict] | None = None, describe: Callable[[Any], str] | None = None,
              order: int = 2, memory: Callable[..., list[tuple[str, str, float]]] | None = None,
-             casts_lookins: bool = False, ladder: AccuracyLadder | None = None) -> Callable:
+             casts_lookins: bool = False, ladder: AccuracyLadder | None = None,
+             follows_plan: tuple[str, ...] | None = None) -> Callable:
     """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
-    the classmethod ``from_config(scene, config, settings, caster, capture)`` (``config.estimator`` is an
+    the classmethod ``from_config(scene, config, physics, caster, capture, secondary)`` (``config.estimator`` is an
     instance of ``options``, the estimator's settings model: :class:`EstimatorOptions`). A Monte Carlo estimator gives
     ``replica`` (how to split its sampling into independent replicas, whose spread is the error estimate of
     every result); a deterministic one gives ``refine`` and ``order``; one with both parts gives both (the
-    quadrature: a deterministic primary and a Monte Carlo secondary). ``memory``, ``casts_lookins`` and ``ladder``:
-    see :class:`EstimatorEntry`.
+    quadrature: a deterministic primary and a Monte Carlo secondary). ``memory``, ``casts_lookins``, ``ladder``
+    and ``follows_plan``: see :class:`EstimatorEntry`; ``follows_plan`` None takes the class attribute
+    ``follows_plan`` (so a subclass keeps its base estimator's rule), or all of :data:`PLANNED_SWITCHES`.
 
     Raises:
-        ValueError: neither ``replica`` nor ``refine`` (no result could say how accurate it is).
+        ValueError: neither ``replica`` nor ``refine`` (no result could say how accurate it is); a name in
+            ``follows_plan`` that is not a planned switch.
     """
     if replica is None and refine is None:
         raise ValueError(f"estimator {name!r}: give replica (Monte Carlo), refine (deterministic) or both")
@@ -246,8 +265,12 @@ def register(name: str, settings_class: type, summary: str, *, options: type,
         raise ValueError(f"estimator {name!r}: its options model needs kind: Literal[{name!r}] = {name!r}")
 
     def wrap(cls):
+        follows = tuple(follows_plan if follows_plan is not None else getattr(cls, "follows_plan", PLANNED_SWITCHES))
+        if set(follows) - set(PLANNED_SWITCHES):
+            raise ValueError(f"estimator {name!r}: follows_plan {sorted(set(follows) - set(PLANNED_SWITCHES))} "
+                             f"are not planned switches {list(PLANNED_SWITCHES)}")
         _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary, options, replica,
-                                         refine, describe, order, memory, casts_lookins, ladder)
+                                         refine, describe, order, memory, casts_lookins, ladder, follows)
         return cls
     return wrap
 

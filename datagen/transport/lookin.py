@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any, Callable, ClassVar, Literal
 
 import multiprocessing as mp
@@ -232,9 +232,16 @@ class LookinSampler(LookinSecondary):
         self.configure(settings)
 
     @classmethod
-    def from_config(cls, scene: Scene, config, settings: TransportSettings, caster: RayCaster,
-                    capture: Capture | None = None) -> "LookinSampler":
-        """The registry's constructor: the planned lookin settings already carry everything (``config`` unused)."""
+    def from_config(cls, scene: Scene, config, physics: PhysicsSettings, caster: RayCaster,
+                    capture: Capture | None, secondary: SecondaryMode) -> "LookinSampler":
+        """The registry's constructor (:attr:`datagen.transport.EstimatorEntry.from_config`): lookin settings with
+        every field of the planned ``physics`` (all planned switches and both blocker lists), the sampling of
+        ``config.estimator`` (:class:`LookinOptions`), the ``secondary`` mode the plan keeps and
+        ``config.workers``. The lookins are visible from the spot by construction, so its spot shadow rays are
+        the secondary's alone, as the planner's ``shadow_spot`` decision assumes: it follows every decision."""
+        planned = {f.name: getattr(physics, f.name) for f in fields(PhysicsSettings)}
+        settings = TransportSettings(**planned, **config.estimator.transport_fields(), secondary=secondary,
+                                     workers=config.workers)
         return cls(scene, settings, caster, capture)
 
     @property

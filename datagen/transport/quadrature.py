@@ -43,9 +43,12 @@ an occluder can cross that leg. For each leg an exact conservative test is run f
 convex hull of a hidden triangle and the leg's other end (the laser points' hull or the FoV rectangle), by
 separating planes (the planner's test, :func:`datagen.scene.separation.may_meet`). A hidden square in front of a flat
 relay wall needs no shadow ray; the demo room does. Forcing ``shadow_spot`` / ``shadow_fov`` on or off overrides
-the test. Confocal captures whose targets are the laser points themselves (point radiance, or one FoV cell per
-pixel) cast no ray on the hidden → FoV leg unless ``shadow_fov`` is forced: it is the laser leg's segment, whose
-visibility the irradiance already holds. The FoV → sensor leg follows ``shadow_sensor`` (the planner's decision, as for every estimator).
+the test. The effect planner's ``shadow_spot`` (a decision about the laser leg of secondary paths) is not one the
+quadrature follows (its registry entry's ``follows_plan``); a value the user forces in ``effects`` is. Confocal
+captures whose targets are the laser points themselves (point radiance, or one FoV cell per pixel) cast no ray on
+the hidden → FoV leg unless ``shadow_fov`` is forced: it is the laser leg's segment, whose visibility the
+irradiance already holds. The FoV → sensor leg follows ``shadow_sensor`` (the planner's decision, as for every
+estimator).
 
 **Scans.** Confocal and exhaustive captures reuse one subdivision for every laser point: the laser leg is
 evaluated per (cell, laser point), the target leg per (cell, target), and path lengths at vertices per (vertex,
@@ -78,7 +81,7 @@ from ..scene import Capture, RayCaster, Scene, SceneError
 from ..scene.materials import LAMBERTIAN, PHONG
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
-from .area import AreaSampler, AreaSettings
+from .area import AREA_FOLLOWS_PLAN, AreaSampler, AreaSettings
 from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
 from .quad_grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
@@ -155,10 +158,12 @@ class QuadratureSettings(PhysicsSettings):
 
     @classmethod
     def from_transport(cls, settings: PhysicsSettings, **kwargs) -> QuadratureSettings:
-        """Quadrature settings with the physics switches of ``settings`` (any estimator's) except
-        ``shadow_spot`` (the quadrature's own occluder test decides it unless ``kwargs`` force it), the
-        secondary "full" unless ``settings.secondary`` is "none"; ``kwargs`` set the rest."""
-        base = {**settings.switches(), "secondary": "none" if settings.secondary == "none" else "full"}
+        """Quadrature settings with the physics switches of ``settings`` (any estimator's, or plain
+        :class:`~datagen.transport.physics.PhysicsSettings`) except ``shadow_spot`` (a quadrature setting of its
+        own: None lets its occluder test decide, unless ``kwargs`` force it), the secondary "full" when
+        ``settings`` has a secondary mode other than "none", else "none"; ``kwargs`` set the rest."""
+        base = {**settings.switches(), "secondary": "none" if getattr(settings, "secondary", "none") == "none"
+                else "full"}
         del base["shadow_spot"]
         return cls(**{**base, **kwargs})
 
@@ -234,6 +239,7 @@ class Quadrature:
     """
 
     sensor_sampling = "quadrature: sensor points / FoV cells"   # how the FoV is reached (Estimator protocol)
+    follows_plan = AREA_FOLLOWS_PLAN          # not the planner's shadow_spot: its own occluder test (from_config)
 
     def __init__(self, scene: Scene, settings: QuadratureSettings | None = None, caster: RayCaster | None = None,
                  capture: Capture | None = None):
@@ -318,15 +324,18 @@ class Quadrature:
             len(self.conn_laser)
 
     @classmethod
-    def from_config(cls, scene: Scene, config, settings: PhysicsSettings, caster: RayCaster, capture=None):
-        """The registry's constructor: the edge, FoV cells, grading and secondary samples of ``config.estimator``
-        (:class:`~datagen.transport.quad_options.QuadratureOptions`), and the physics of the planned lookin
-        ``settings``. Shadow rays on the laser and FoV legs follow the quadrature's own exact occluder test unless
-        the user forces ``shadow_spot`` (the planner's decision concerns the lookin sampler's secondary)."""
+    def from_config(cls, scene: Scene, config, physics: PhysicsSettings, caster: RayCaster,
+                    capture: Capture | None, secondary: str) -> "Quadrature":
+        """The registry's constructor (:attr:`datagen.transport.EstimatorEntry.from_config`): the edge, FoV cells,
+        grading and secondary samples of ``config.estimator``
+        (:class:`~datagen.transport.quad_options.QuadratureOptions`), the planned ``physics`` and the area
+        sampler's secondary unless ``secondary`` is "none". Its entry does not follow the planner's ``shadow_spot``
+        (``follows_plan``): shadow rays on the laser and FoV legs follow the quadrature's own exact occluder test
+        (module doc), unless the user forces ``shadow_spot`` in ``config.effects``."""
         forced_spot, opts = config.effects.get("shadow_spot"), config.estimator
         return cls(scene, QuadratureSettings.from_transport(
-            settings, edge=opts.edge, fov_cells=opts.fov_cells, grading=opts.grading,
-            secondary_samples=opts.secondary_samples,
+            physics, edge=opts.edge, fov_cells=opts.fov_cells, grading=opts.grading,
+            secondary="none" if secondary == "none" else "full", secondary_samples=opts.secondary_samples,
             shadow_spot=forced_spot if isinstance(forced_spot, bool) else None), caster, capture)
 
     def progress_total(self) -> tuple[int, str]:
