@@ -56,7 +56,7 @@ from scipy.signal import oaconvolve
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
 from .curvature import deposit_curvature
-from .fold_kernel import bin_rows, fold_rows
+from .fold_kernel import bin_rows, bin_weights, fold_rows
 from .splat_kernel import splat_nodes
 from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
@@ -187,6 +187,7 @@ class EnvelopeAccumulator:
         else:
             # Fine-cell-integrated IRF: p[n + n_right] = P((n - 1/2) delta <= X < (n + 1/2) delta).
             self._kernel = irf.interval_mass((offsets - 0.5) * self.fine_step, (offsets + 0.5) * self.fine_step)
+        self._bin_table = bin_weights(self._kernel, self.oversample)
         self._hist = np.zeros((self.n_components, self.n_fine), dtype=np.float64)
         self._total = np.zeros(self.n_components, dtype=np.float64)
         self._beyond = np.zeros(self.n_components, dtype=np.float64)
@@ -551,7 +552,7 @@ class EnvelopeAccumulator:
             ks = rows[start:start + _CONVOLVE_ROWS]
             block = np.empty((len(ks), self.axis.n_bins))
             if self._kernel.size <= _DIRECT_KERNEL_MAX:       # compiled, over each row's non-zero nodes only
-                bin_rows(hist, ks.astype(np.int64), self._kernel, self.oversample, block)
+                bin_rows(hist, ks.astype(np.int64), self._bin_table, block)
                 part = hist[ks]
             else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
                 rows_ = hist[ks]
