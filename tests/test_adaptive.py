@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import patch_scene
 
+from datagen.errors import ConfigError
 from datagen.analysis import describe_setting, primary_area_quadrature, relative_l2, replica_error
-from datagen.scene import SceneError
 from datagen.simulation import SimulationConfig, simulate_to_tolerance
 from datagen.timing import Irf, TimeAxis
 
@@ -53,7 +53,7 @@ def test_replica_error_matches_the_spread_of_known_noise():
 
 def test_bad_tolerance_is_refused(reference):
     scene, _ = reference
-    with pytest.raises(SceneError, match="tolerance"):
+    with pytest.raises(ConfigError, match="tolerance"):
         simulate_to_tolerance(scene, SimulationConfig(time=AXIS, irf=IRF, detector=DETECTOR), 1.5)
 
 

@@ -6,12 +6,13 @@ import pytest
 from conftest import patch_scene
 from test_transport import patch_closed_form
 
+from datagen.errors import ConfigError
 from datagen.sampling import sample_surfaces, subdivide_triangles
 from datagen.transport import AreaSampler, AreaSettings
 from datagen.scene import Material, MaterialTable
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
 from datagen.scene import RayCaster
-from datagen.scene import FieldOfView, Laser, Scene, SceneError, Sensor, quad
+from datagen.scene import FieldOfView, Laser, Scene, Sensor, quad
 from datagen.units import SPEED_OF_LIGHT
 
 AXIS = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000)
@@ -246,17 +247,17 @@ def test_error_falls_at_the_expected_rate(method, slope_range):
 
 
 def test_settings_errors_name_the_field():
-    with pytest.raises(SceneError, match="samples"):
+    with pytest.raises(ConfigError, match="samples"):
         AreaSettings(samples=0)
-    with pytest.raises(SceneError, match="fov_fraction"):
+    with pytest.raises(ConfigError, match="fov_fraction"):
         AreaSettings(spot_fraction=0.5, fov_fraction=0.5)
-    with pytest.raises(SceneError, match="spot_fraction"):
+    with pytest.raises(ConfigError, match="spot_fraction"):
         AreaSettings(spot_fraction=1.0)
-    with pytest.raises(SceneError, match="sampling"):
+    with pytest.raises(ConfigError, match="sampling"):
         AreaSettings(sampling="halton")
-    with pytest.raises(SceneError, match="partners"):
+    with pytest.raises(ConfigError, match="partners"):
         AreaSettings(spot_partners=0, direction_partners=0, area_partners=0)
-    with pytest.raises(SceneError, match="fov_samples"):
+    with pytest.raises(ConfigError, match="fov_samples"):
         AreaSettings(fov_samples=(0, 4))
 
 

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 import trimesh
 
+from datagen.errors import ConfigError
 from datagen.dataset import LabelSpec, SampledRoom, load_room_distribution, occupancy_grid, sample_room, scene_labels
 from datagen.dataset.assets import asset_files, load_asset, place_asset
 from datagen.dataset.obb import box_hits_pyramid, yaw_matrix
 from datagen.dataset.sampler import STREAMS
-from datagen.scene import (CaptureSpec, Laser, Material, RayCaster, Scene, SceneError, Sensor, quad,
+from datagen.scene import (CaptureSpec, Laser, Material, RayCaster, Scene, Sensor, quad,
                            resolve_capture)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -116,18 +117,18 @@ def test_scan_beams_and_view_are_unobstructed(wall_rooms):
 def test_mesh_read_error_names_the_file(tmp_path, wall_dist):
     bad = tmp_path / "broken.obj"
     bad.write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\n")
-    with pytest.raises(SceneError, match="broken.obj"):
+    with pytest.raises(ConfigError, match="broken.obj"):
         load_asset(str(bad))
     empty = tmp_path / "empty"
     empty.mkdir()
-    with pytest.raises(SceneError, match=r"objects\.mesh\.assets.*no mesh file"):
+    with pytest.raises(ConfigError, match=r"objects\.mesh\.assets.*no mesh file"):
         wall_dist.with_overrides({"objects": {"mesh": {"assets": [str(empty)]}}})
-    with pytest.raises(SceneError, match=r"objects\.mesh\.assets: asset folder or file not found: 'nowhere'"):
+    with pytest.raises(ConfigError, match=r"objects\.mesh\.assets: asset folder or file not found: 'nowhere'"):
         wall_dist.with_overrides({"objects": {"mesh": {"assets": ["nowhere"]}}})
 
 
 def test_wall_family_refuses_room_placement(wall_dist):
-    with pytest.raises(SceneError, match=r"objects\.mesh\.placement\.room\.weight.*no L-bend room"):
+    with pytest.raises(ConfigError, match=r"objects\.mesh\.placement\.room\.weight.*no L-bend room"):
         wall_dist.with_overrides({"objects": {"mesh": {"placement": {"room": {"weight": 1.0}}}}})
 
 

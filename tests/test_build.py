@@ -17,11 +17,11 @@ import yaml
 import zarr
 from click.testing import CliRunner
 
+from datagen.errors import DatasetError
 from datagen.dataset import (DONE_DIR, LOCK_NAME, BuildError, BuildLock, BuildLockedError, build_dataset,
                            read_card, shard_file, verify_dataset)
 from datagen.cli.main import main
 from datagen.dataset import SplitSpec, load_dataset_config
-from datagen.scene import SceneError
 
 SMOKE = Path("configs/datasets/smoke.yaml")
 ROOT = Path(__file__).resolve().parents[1]
@@ -177,7 +177,7 @@ def test_sigkill_midway_then_resume_equals_uninterrupted(reference, tmp_path):
     assert verify_dataset(out) == []
     # resuming with another config is refused, naming what differs
     other = load_dataset_config(config_path).model_copy(update={"seed": 1})
-    with pytest.raises(SceneError, match="different config .*seed"):
+    with pytest.raises(DatasetError, match="different config .*seed"):
         build_dataset(other, out, resume=True, progress=False)
 
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
+from datagen.errors import ConfigError
 from datagen.dataset import (STREAMS, config_from_json, load_dataset_config, make_sample, resample_rng,
                              sample_rngs, split_key)
-from datagen.scene import SceneError
 
 SMOKE = Path("configs/datasets/smoke.yaml")
 
@@ -176,7 +176,7 @@ def test_detector_preset_path_loads_with_the_dataset_time_axis():
 def test_bad_config_names_the_field(change, expected):
     data = smoke_data()
     data.update(copy.deepcopy(change))
-    with pytest.raises(SceneError, match=expected):
+    with pytest.raises(ConfigError, match=expected):
         load_dataset_config(data, base_dir=SMOKE.parent)
 
 
@@ -186,9 +186,9 @@ def test_bad_config_file_names_the_file(tmp_path):
     data["splits"]["val"]["count"] = "many"
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(data))
-    with pytest.raises(SceneError, match=f"{path}: splits.val.count"):
+    with pytest.raises(ConfigError, match=f"{path}: splits.val.count"):
         load_dataset_config(path)
-    with pytest.raises(SceneError, match="dataset config not found"):
+    with pytest.raises(ConfigError, match="dataset config not found"):
         load_dataset_config(tmp_path / "nope.yaml")
 
 
@@ -226,12 +226,12 @@ def test_sample_setup_regenerates_the_sample(smoke):
     assert np.array_equal(np.asarray(again.envelope, dtype=np.float32), stored["envelope"])
     assert np.float32(again.attrs["tolerance"]["estimate"]) == stored["envelope_error"]
     assert callable(datagen.converged_reference)
-    with pytest.raises(SceneError, match="index 8 is outside split 'val'"):
+    with pytest.raises(ConfigError, match="index 8 is outside split 'val'"):
         datagen.sample_setup(smoke, "val", 8)
 
 
 def test_make_sample_rejects_unknown_split_and_index(smoke):
-    with pytest.raises(SceneError, match="split 'tain'"):
+    with pytest.raises(ConfigError, match="split 'tain'"):
         make_sample(smoke, "tain", 0)
-    with pytest.raises(SceneError, match="index 8 is outside split 'val'"):
+    with pytest.raises(ConfigError, match="index 8 is outside split 'val'"):
         make_sample(smoke, "val", 8)

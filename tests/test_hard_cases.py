@@ -28,6 +28,7 @@ from scipy.special import ndtr
 from datagen import spad
 from datagen.scene import Material
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
+from datagen.errors import ConfigError
 from datagen.scene import RAY_OFFSET_REL
 from datagen.analysis import primary_area_quadrature
 from datagen.scene import COPLANAR_TOL_REL
@@ -832,12 +833,17 @@ INVALID_FIXED = {
 }
 
 
+INVALID_CONFIG = {"NaN bin width", "NaN IRF width"}
+"""The cases of :data:`INVALID` in the scene's ``simulation`` block: a ConfigError (datagen/errors.py)."""
+
+
 @pytest.mark.parametrize("case", sorted(INVALID))
 def test_truly_invalid_inputs_raise_a_clear_scene_error(case):
     mutate, pattern = INVALID[case]
-    with pytest.raises(SceneError, match=pattern):
+    with pytest.raises(ConfigError if case in INVALID_CONFIG else SceneError, match=pattern) as info:
         scene = scene_from_dict(_mutated(mutate), source="hard.yaml")
         run(scene, lookins="8x8", pixels="8x8")
+    assert type(info.value) is (ConfigError if case in INVALID_CONFIG else SceneError), type(info.value)
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")

@@ -27,6 +27,7 @@ from test_hostile import PATCH, cli, scene_file, set_path, simulate_args, stored
 from test_hostile_build import build_args, tiny
 
 import datagen.simulation.tolerance as tolerance_module
+from datagen.errors import ConfigError
 from datagen import spad
 from datagen.cli.errors import INPUT_ERRORS, error_line
 from datagen.cli.main import main
@@ -89,12 +90,12 @@ def test_duplicate_keys_in_a_dataset_config_and_its_room_file(tmp_path):
     assert not (tmp_path / "ds").exists()
     room = tmp_path / "room.yaml"
     room.write_text(ROOM.read_text() + "relay_x: 5.0\n")
-    with pytest.raises(SceneError, match=rf"{room}: duplicate key 'relay_x' on lines \d+ and "
+    with pytest.raises(ConfigError, match=rf"{room}: duplicate key 'relay_x' on lines \d+ and "
                                          rf"{len(room.read_text().splitlines())} "):
         load_room_distribution(room)
     data = tiny().to_json()
     data["room"] = str(room)
-    with pytest.raises(SceneError, match=rf"{room}: duplicate key 'relay_x'"):
+    with pytest.raises(ConfigError, match=rf"{room}: duplicate key 'relay_x'"):
         load_dataset_config(data, tmp_path)
 
 
@@ -141,7 +142,7 @@ def test_a_tolerance_below_float64_resolution_is_refused_before_any_work(tmp_pat
 @pytest.mark.timeout(60)
 def test_the_library_refuses_the_same_floor(tmp_path):
     scene = load_scene(scene_file(tmp_path))
-    with pytest.raises(SceneError, match=r"tolerance 1e-12 is below 1e-10"):
+    with pytest.raises(ConfigError, match=r"tolerance 1e-12 is below 1e-10"):
         simulate_to_tolerance(scene, resolve_config(scene), 1e-12)
     assert MIN_TOLERANCE == 1e-10
 
@@ -210,7 +211,7 @@ def test_the_library_raises_tolerance_out_of_reach_with_the_numbers(monkeypatch,
     with pytest.raises(ToleranceOutOfReach) as info:
         simulate_to_tolerance(scene, resolve_config(scene), 1e-4, max_seconds=100.0)
     exc = info.value
-    assert isinstance(exc, SceneError) and exc.max_seconds == 100.0 and exc.projected > HOPELESS * 100
+    assert isinstance(exc, ConfigError) and exc.max_seconds == 100.0 and exc.projected > HOPELESS * 100
     assert exc.reachable == pytest.approx(1e-4 * math.sqrt(exc.projected / 100))
     assert str(exc).startswith("tolerance 0.0001: the first round (8 replicas, 3 s) estimates the error at 0.638")
 
@@ -234,7 +235,7 @@ def test_a_negative_detector_t_start_is_still_the_detectors(tmp_path):
 def test_a_dataset_time_axis_start_is_blamed_on_it(tmp_path):
     data = tiny().to_json()
     data["simulation"]["time"]["t_start"] = "-3ns"
-    with pytest.raises(SceneError, match=r"^simulation\.time\.t_start: Input should be greater than or equal to 0"):
+    with pytest.raises(ConfigError, match=r"^simulation\.time\.t_start: Input should be greater than or equal to 0"):
         load_dataset_config(data, tmp_path)
 
 
@@ -263,7 +264,7 @@ def test_the_largest_pulse_energy_is_finite_at_every_wavelength():
 def test_a_room_distribution_pulse_energy_is_bounded_too(tmp_path):
     data = tiny().to_json()
     data["room"]["capture"]["pulse_energy"] = 1e308
-    with pytest.raises(SceneError, match=r"room: room distribution: capture\.pulse_energy: at most 1e\+08 J"):
+    with pytest.raises(ConfigError, match=r"room: room distribution: capture\.pulse_energy: at most 1e\+08 J"):
         load_dataset_config(data, tmp_path)
 
 
@@ -274,7 +275,7 @@ def test_a_time_window_past_one_second_is_refused_naming_the_time_axis(tmp_path)
                     "1e+303 s must lie within ±1 s (no light path in a scene within ±1e+07 m lasts longer than 0.5 s)")
     data = tiny().to_json()
     data["simulation"]["time"]["bin_width"] = 1.7976931348623157e308      # the window's end overflowed to inf
-    with pytest.raises(SceneError, match=r"^simulation\.time: the window .* = 1\.5e-08 \.\. inf s must lie"):
+    with pytest.raises(ConfigError, match=r"^simulation\.time: the window .* = 1\.5e-08 \.\. inf s must lie"):
         load_dataset_config(data, tmp_path)
 
 

@@ -20,9 +20,9 @@ import pytest
 from test_hostile import cli   # the in-process runner: exit code, needles, no traceback, one error line
 
 import datagen.dataset.build as build_module
+from datagen.errors import ConfigError
 from datagen.dataset import NLOSDataset, build_dataset, load_dataset_config, read_card, verify_dataset
 from datagen.dataset.assets import MAX_ASSET_TRIANGLES, load_asset, mesh_triangles
-from datagen.scene import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 WALL_SMOKE = ROOT / "configs" / "datasets" / "wall_smoke.yaml"
@@ -171,7 +171,7 @@ def test_a_two_million_triangle_mesh_is_refused_up_front(tmp_path, no_probe):
         f"mesh asset {big}: 2000000 triangles, more than the {MAX_ASSET_TRIANGLES} a hidden mesh may have",
         "MAX_ASSET_TRIANGLES", "decimate it")
     assert not out.exists()
-    with pytest.raises(SceneError, match="2000000 triangles"):   # and anything else that loads it
+    with pytest.raises(ConfigError, match="2000000 triangles"):   # and anything else that loads it
         load_asset(str(big))
 
 

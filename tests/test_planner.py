@@ -15,11 +15,12 @@ import pytest
 from conftest import patch_scene
 
 import datagen
+from datagen.errors import ConfigError
 from datagen import spad
 from datagen.scene import Material
 from datagen.planner import EFFECTS, SECONDARY_SAFETY, Decision, Plan, reachable_side, plan_effects
 from datagen.scene import RayCaster
-from datagen.scene import (CaptureSpec, FieldOfView, Laser, Scene, SceneError, SceneObject, Sensor, WallGrid,
+from datagen.scene import (CaptureSpec, FieldOfView, Laser, Scene, SceneObject, Sensor, WallGrid,
                            box, box_mesh, quad)
 from datagen.scene import resolve_capture
 from datagen.spad.pileup import counting_detector, pile_up_from_envelope
@@ -394,17 +395,17 @@ def test_forced_values_win_and_are_recorded_in_the_result():
 
 def test_bad_effect_settings_raise_clear_errors():
     scene = patch_scene()
-    with pytest.raises(SceneError, match="unknown effect"):
+    with pytest.raises(ConfigError, match="unknown effect"):
         config(scene, effects={"shadows": False})
     caster = RayCaster(scene)
     capture = resolve_capture(scene, caster)
-    with pytest.raises(SceneError, match="secondary is 'none'"):
+    with pytest.raises(ConfigError, match="secondary is 'none'"):
         plan_effects(scene, config(scene, secondary="none", effects={"secondary": True}), capture, caster)
-    with pytest.raises(SceneError, match="poisson"):
+    with pytest.raises(ConfigError, match="poisson"):
         plan_effects(scene, config(scene, detector={**BASE["detector"], "model": "poisson"},
                                    effects={"pile_up": True}), capture, caster)
     bad = config(scene).model_copy(update={"effects": {"first_bounce": "yes"}})
-    with pytest.raises(SceneError, match="effects.first_bounce"):
+    with pytest.raises(ConfigError, match="effects.first_bounce"):
         plan_effects(scene, bad, capture, caster)
 
 

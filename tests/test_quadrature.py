@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from test_tal import hidden_square, laser_scale, opl_edges, quadrature, rel_l2, run
 
+from datagen.errors import ConfigError
 from datagen.analysis import relative_l2
 from datagen.sampling import subdivide_triangles
 from datagen.transport import AreaSampler, AreaSettings
@@ -20,7 +21,7 @@ from datagen.timing.curvature import deposit_curvature
 from datagen.sampling import subdivide_with_vertices
 from datagen.transport import Quadrature, QuadratureSettings
 from datagen.analysis import primary_area_quadrature
-from datagen.scene import CaptureSpec, FieldOfView, Laser, Scene, SceneError, Sensor, WallGrid, box, quad
+from datagen.scene import CaptureSpec, FieldOfView, Laser, Scene, Sensor, WallGrid, box, quad
 from datagen.simulation import SimulationConfig, resolve_config, simulate
 from datagen.io import tal_arrays
 
@@ -393,13 +394,13 @@ def test_bad_settings_name_the_field():
     for kw, field in (({"edge": 0.0}, "edge"), ({"edge": float("nan")}, "edge"), ({"fov_cells": 0}, "fov_cells"),
                       ({"secondary": "exact"}, "secondary"), ({"batch": 0}, "batch"),
                       ({"shadow_spot": "yes"}, "shadow_spot"), ({"split": "odd"}, "split")):
-        with pytest.raises(SceneError, match=field):
+        with pytest.raises(ConfigError, match=field):
             QuadratureSettings(**kw)
     scene = small_scene()
     for value, field, new in ((-0.01, "quadrature_edge", "estimator.edge"), (0, "quadrature_fov", "estimator.fov_cells")):
-        with pytest.raises(SceneError, match=new):
+        with pytest.raises(ConfigError, match=new):
             resolve_config(scene, {"estimator": "quadrature", field: value})
-    with pytest.raises(SceneError, match="secondary_only"):
+    with pytest.raises(ConfigError, match="secondary_only"):
         AreaSampler(scene, AreaSettings(secondary="none"), secondary_only=True)
 
 

@@ -10,11 +10,11 @@ import pytest
 import yaml
 
 import datagen
+from datagen.errors import ConfigError
 from datagen.scene import RayCaster
 from datagen.dataset import (RoomDistribution, box_hits_pyramid, box_hits_segment, boxes_overlap,
                              load_room_distribution, sample_room)
 from datagen.dataset.sampler import STREAMS
-from datagen.scene import SceneError
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "rooms"
 SMOKE, DEFAULT = CONFIGS / "smoke.yaml", CONFIGS / "default.yaml"
@@ -274,7 +274,7 @@ BAD = [
 
 @pytest.mark.parametrize("override, field, detail", BAD, ids=[b[1] for b in BAD])
 def test_bad_config_names_the_field(default_dist, override, field, detail):
-    with pytest.raises(SceneError) as err:
+    with pytest.raises(ConfigError) as err:
         default_dist.with_overrides(override)
     msg = str(err.value)
     assert f"{field}:" in msg and detail in msg, msg
@@ -285,9 +285,9 @@ def test_bad_file_names_the_file(tmp_path):
     data["ceiling"] = {"min": 3.0, "max": 2.0}
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(data))
-    with pytest.raises(SceneError, match=r"bad\.yaml: ceiling: .*min \(3\.0\) must be <= max \(2\.0\)"):
+    with pytest.raises(ConfigError, match=r"bad\.yaml: ceiling: .*min \(3\.0\) must be <= max \(2\.0\)"):
         load_room_distribution(path)
-    with pytest.raises(SceneError, match="not found"):
+    with pytest.raises(ConfigError, match="not found"):
         load_room_distribution(tmp_path / "missing.yaml")
 
 
@@ -299,7 +299,7 @@ def test_rejection_is_bounded_and_names_the_constraint(smoke_dist):
         "objects": {"max_tries": 30, "max_layouts": 2, "pillar": {"count": 0},
                     "box": {"count": 1, "placement": {"room": {"weight": 0.0}, "corridor_end": {"weight": 1.0}}}},
     })
-    with pytest.raises(SceneError, match=r"objects: could not place 0 pillars and 1 boxes.*fov_view \d+"):
+    with pytest.raises(ConfigError, match=r"objects: could not place 0 pillars and 1 boxes.*fov_view \d+"):
         sample_room(impossible, rngs_for(0, 0))
 
 
@@ -309,9 +309,9 @@ def test_overrides_and_loading(smoke_dist, tmp_path):
     assert more.ceiling.min == more.ceiling.max == 2.85
     assert smoke_dist.objects.box.count.max == 1                       # the original is untouched
     assert more.objects.pillar == smoke_dist.objects.pillar
-    with pytest.raises(SceneError, match=r"objects\.box\.colour: Extra inputs"):
+    with pytest.raises(ConfigError, match=r"objects\.box\.colour: Extra inputs"):
         smoke_dist.with_overrides({"objects": {"box": {"colour": "red"}}})
     as_dict = load_room_distribution(yaml.safe_load(SMOKE.read_text()))
     assert as_dict.model_dump() == smoke_dist.model_dump()
-    with pytest.raises(SceneError, match="sample_room: rngs lacks streams"):
+    with pytest.raises(ConfigError, match="sample_room: rngs lacks streams"):
         sample_room(smoke_dist, {"geometry": np.random.default_rng(0)})

@@ -11,12 +11,13 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
+from datagen.errors import ConfigError, DatasetError
 from datagen.cli.main import main
 from datagen.dataset import load_dataset_config
 from datagen.dataset.config import location_free_json
 from datagen.dataset.legacy import canonical_json
 from datagen.dataset.store import check_same_config
-from datagen.scene import SceneError, load_scene
+from datagen.scene import load_scene
 from datagen.simulation import LegacyKeysWarning, SimulationConfig, resolve_config
 from datagen.transport import AreaOptions, LookinOptions, QuadratureOptions, estimator_names
 
@@ -85,7 +86,7 @@ def test_bad_estimator_settings_get_one_line(tmp_path, data, expected):
     scene["simulation"].update(data)
     path = tmp_path / "scene.yaml"
     path.write_text(yaml.safe_dump(scene))
-    with pytest.raises((SceneError, ValueError)) as info:
+    with pytest.raises(ConfigError) as info:
         resolve_config(load_scene(path))
     assert expected in str(info.value) and "\n" not in str(info.value)
 
@@ -144,7 +145,7 @@ def test_old_dataset_keys_load_with_one_note_and_resume_into_the_new_form():
     assert canonical_json(location_free_json(card["config"])) == canonical_json(location_free_json(after.to_json()))
     check_same_config(Path("old"), card, after)                          # accepted: the same dataset
     changed = after.model_copy(update={"cost_cap": 1.0})
-    with pytest.raises(SceneError, match="cost_cap"):
+    with pytest.raises(DatasetError, match="cost_cap"):
         check_same_config(Path("old"), card, changed)
 
 

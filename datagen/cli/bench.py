@@ -146,15 +146,14 @@ def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_
 
 
 def _duration(value: str, name: str) -> float:
+    """``value`` ("60s", "5min", "2h", a number of seconds) in seconds > 0 (:func:`datagen.units.parse_duration`)."""
+    from ..errors import ConfigError
     from ..units import parse_duration
 
-    text = str(value).strip()
-    if text.endswith("min"):
-        seconds = float(text[:-3]) * 60.0
-    elif text.endswith("h"):
-        seconds = float(text[:-1]) * 3600.0
-    else:
-        seconds = parse_duration(text)
+    try:
+        seconds = parse_duration(str(value).strip())
+    except ValueError as exc:
+        raise ConfigError(f"{name}: {exc}") from None
     if not seconds > 0:
-        raise ValueError(f"{name} must be a positive duration such as 60s or 5min, got {value!r}")
+        raise ConfigError(f"{name} must be a positive duration such as 60s or 5min, got {value!r}")
     return seconds

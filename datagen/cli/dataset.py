@@ -143,13 +143,13 @@ def sample_pictures(path: Path, split: str, count: int, note) -> list | None:
     sample's room cannot be drawn again; the caller then draws its figure without them."""
     from ..dataset import scene_of_sample
     from ..plot import ViewUnavailable, render_scene, require_open3d
-    from ..scene import SceneError
+    from ..errors import DatagenError
 
     try:
         require_open3d()
         return [render_scene(scene_of_sample(path, split, i)[0].scene, None, width=780, height=500,
                              title=f"{split}[{i}]") for i in range(count)]
-    except (ViewUnavailable, RuntimeError, SceneError) as exc:
+    except (ViewUnavailable, RuntimeError, DatagenError) as exc:
         note(f"note: no 3D sample pictures: {' '.join(str(exc).split())}")
         return None
 

@@ -29,9 +29,9 @@ def main():
 
 def _parse_fraction(text: str, option: str, minimum: float = 0.0) -> float:
     """'1%' → 0.01, '0.01' → 0.01, in [``minimum``, 1) and > 0; click.BadParameter naming the option otherwise."""
-    t = str(text).strip()
+    from ..units import parse_fraction
     try:
-        value = float(t[:-1]) / 100 if t.endswith("%") else float(t)
+        value = parse_fraction(str(text))
     except ValueError:
         raise click.BadParameter(f"{option} must look like 1% or 0.01, got {text!r}") from None
     if not 0 < value < 1:
@@ -86,7 +86,8 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
              figures, quiet):
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from ..plot.envelope import plot_envelope
-    from ..scene import SceneError, check_output_dir, load_scene
+    from ..errors import ConfigError
+    from ..scene import check_output_dir, load_scene
     from ..simulation import resolve_config
     from ..simulation import simulate as run_simulation
     from ..io import RESULT_NAME, write_result
@@ -111,7 +112,7 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
                 scene, config, tol, max_seconds=cap, progress=not quiet,
                 warn=lambda detail: click.echo(f"warning: {named(detail)}; running on to it", err=True))
         except ToleranceOutOfReach as exc:
-            raise SceneError(f"{named(exc.detail)}: loosen --tolerance or raise --time-cap") from None
+            raise ConfigError(f"{named(exc.detail)}: loosen --tolerance or raise --time-cap") from None
         t = result.attrs["tolerance"]
         missed = "" if t["met"] else f" — NOT met within --time-cap {cap:g} s (rounds run: {len(t['rounds'])})"
         shown = f"{tol:.2%}" if tol >= 1e-4 else f"{tol:.3g}"
@@ -150,7 +151,8 @@ def detect(result_path, detector_file, exposure, seed):
     `datagen simulate`; a dataset folder is refused with one line saying what to use instead.
     """
     from .. import spad
-    from ..scene import SceneError, format_validation_error, read_yaml
+    from ..errors import ConfigError
+    from ..scene import format_validation_error, read_yaml
     from ..simulation import STREAM_NOISE, stream_rng
     from ..io import write_detection
     from ..units import parse_duration
@@ -160,11 +162,11 @@ def detect(result_path, detector_file, exposure, seed):
                                "result; for a dataset draw SPAD noise with other detector settings in the loader: "
                                "NLOSDataset(PATH, noise='resample', detector_ranges={...}) (docs/datasets.md, "
                                "Loading)")
-    data = read_yaml(Path(detector_file), "detector file")   # bounded; names the file on any error
+    data = read_yaml(Path(detector_file), "detector file", ConfigError)   # bounded; names the file on any error
     if isinstance(data, dict) and set(data) == {"detector"}:
         data = data["detector"]
     if not isinstance(data, dict):
-        raise SceneError(f"{detector_file}: expected a mapping of detector fields, got {type(data).__name__}")
+        raise ConfigError(f"{detector_file}: expected a mapping of detector fields, got {type(data).__name__}")
     data = {"t_start": float(result.time_edges[0]), **data}
     data.setdefault("bin_width", float(result.time_edges[1] - result.time_edges[0]))
     if exposure is not None:
@@ -173,7 +175,7 @@ def detect(result_path, detector_file, exposure, seed):
     try:
         config = spad.DetectorConfig.model_validate(data)
     except ValidationError as exc:
-        raise SceneError(format_validation_error(exc, str(detector_file))) from None
+        raise ConfigError(format_validation_error(exc, str(detector_file))) from None
     # the detector's TDC bins: the envelope (bins hold integrals) is re-binned onto them over the same window
     n_bins = int(round((result.time_edges[-1] - config.t_start) / config.bin_width))
     envelope = spad.rebin_envelope(result.envelope, result.time_edges, config.bin_edges(n_bins))

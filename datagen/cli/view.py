@@ -26,11 +26,13 @@ def load_view_input(path: str | Path, split: str | None = None, index: int = 0):
         "dataset") and, for a dataset, ``room`` (:class:`~datagen.dataset.SampledRoom`), ``split``,
         ``index``, ``card``.
     Raises:
-        SceneError / FileNotFoundError / ValueError: unreadable or invalid input (one line);
+        SceneError / ConfigError / DatasetError / FileNotFoundError / ValueError: unreadable or invalid input
+            (one line);
         DatasetIncompleteError (a ValueError): a dataset whose build is not complete (names the shards not
         built and ``--resume``).
     """
-    from ..scene import SceneError, load_scene, read_yaml
+    from ..errors import ConfigError
+    from ..scene import load_scene, read_yaml
 
     path = Path(path)
     if path.is_dir():
@@ -40,7 +42,7 @@ def load_view_input(path: str | Path, split: str | None = None, index: int = 0):
         room, split, card = scene_of_sample(path, split, index)
         return room.scene, {"kind": "dataset", "room": room, "split": split, "index": index, "card": card}
     if split is not None:
-        raise SceneError(f"--split and --index pick a sample of a dataset directory; {path} is a file")
+        raise ConfigError(f"--split and --index pick a sample of a dataset directory; {path} is a file")
     data = read_yaml(path, "scene file")
     if isinstance(data, dict) and "objects" not in data and {"geometry", "scan_type"} & set(data):
         from ..io import scene_from_tal_yaml

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import SceneError
+from ..errors import ConfigError
 from .obb import yaw_matrix
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
@@ -70,7 +70,7 @@ def resolve_assets(entries: list[str], base: Path | None, where: str) -> list[st
     then to the working directory.
 
     Raises:
-        SceneError: an entry exists in neither place (``where``: the field, e.g. "rooms.yaml: objects.mesh.assets").
+        ConfigError: an entry exists in neither place (``where``: the field, e.g. "rooms.yaml: objects.mesh.assets").
     """
     out = []
     for entry in entries:
@@ -79,7 +79,7 @@ def resolve_assets(entries: list[str], base: Path | None, where: str) -> list[st
         found = next((p for p in candidates if p.exists()), None)
         if found is None:
             looked = ", ".join(str(p) for p in dict.fromkeys(candidates))
-            raise SceneError(f"{where}: asset folder or file not found: {entry!r} (looked at {looked})")
+            raise ConfigError(f"{where}: asset folder or file not found: {entry!r} (looked at {looked})")
         out.append(str(found.resolve()))
     return out
 
@@ -90,7 +90,7 @@ def asset_files(entries: tuple[str, ...]) -> tuple[str, ...]:
     :data:`MESH_SUFFIXES`, sorted by path; a file gives itself. Order: entries in order.
 
     Raises:
-        SceneError: an entry is missing, or the entries hold no mesh file.
+        ConfigError: an entry is missing, or the entries hold no mesh file.
     """
     files: list[str] = []
     for entry in entries:
@@ -100,9 +100,9 @@ def asset_files(entries: tuple[str, ...]) -> tuple[str, ...]:
         elif path.is_file():
             files.append(str(path))
         else:
-            raise SceneError(f"objects.mesh.assets: {entry} does not exist")
+            raise ConfigError(f"objects.mesh.assets: {entry} does not exist")
     if not files:
-        raise SceneError(f"objects.mesh.assets: no mesh file ({', '.join(MESH_SUFFIXES)}) in {list(entries)}")
+        raise ConfigError(f"objects.mesh.assets: no mesh file ({', '.join(MESH_SUFFIXES)}) in {list(entries)}")
     return tuple(files)
 
 
@@ -219,11 +219,11 @@ def check_asset_size(path: str | Path) -> int | None:
     geometry is loaded). Returns its triangle count (None: not countable without loading).
 
     Raises:
-        SceneError: naming the file, its triangle count and the limit.
+        ConfigError: naming the file, its triangle count and the limit.
     """
     n = mesh_triangles(path)
     if n is not None and n > MAX_ASSET_TRIANGLES:
-        raise SceneError(f"mesh asset {path}: {n} triangles, more than the {MAX_ASSET_TRIANGLES} a hidden mesh may "
+        raise ConfigError(f"mesh asset {path}: {n} triangles, more than the {MAX_ASSET_TRIANGLES} a hidden mesh may "
                          f"have (datagen.dataset.assets.MAX_ASSET_TRIANGLES: a sample's time grows with them); "
                          f"decimate it, e.g. with Open3D's simplify_quadric_decimation")
     return n
@@ -237,7 +237,7 @@ def asset_record(entry_groups: list[tuple[str, ...]], refuse_large: bool = True)
     with ``refuse_large`` every file's size is checked (:func:`check_asset_size`) before any is hashed.
 
     Raises:
-        SceneError: an entry is missing or holds no mesh; a file has more than :data:`MAX_ASSET_TRIANGLES`
+        ConfigError: an entry is missing or holds no mesh; a file has more than :data:`MAX_ASSET_TRIANGLES`
             triangles (naming it, its count and the limit).
     """
     refresh_assets()
@@ -283,7 +283,7 @@ def load_asset(path: str) -> Asset:
     """Read a mesh file with trimesh into its normalised frame (cached per process).
 
     Raises:
-        SceneError: the file cannot be read, holds no triangles, has zero extent, or has more than
+        ConfigError: the file cannot be read, holds no triangles, has zero extent, or has more than
             :data:`MAX_ASSET_TRIANGLES` triangles (read from its header first: nothing is loaded then); the message
             names it.
     """
@@ -293,17 +293,17 @@ def load_asset(path: str) -> Asset:
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for bad files  # noqa: BLE001
-        raise SceneError(f"mesh asset {path}: cannot read it: {' '.join(str(exc).split())}") from None
+        raise ConfigError(f"mesh asset {path}: cannot read it: {' '.join(str(exc).split())}") from None
     vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
     faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
     if len(faces) == 0 or len(vertices) == 0:
-        raise SceneError(f"mesh asset {path}: holds no triangles")
+        raise ConfigError(f"mesh asset {path}: holds no triangles")
     if not np.isfinite(vertices).all():
-        raise SceneError(f"mesh asset {path}: has non-finite vertex coordinates")
+        raise ConfigError(f"mesh asset {path}: has non-finite vertex coordinates")
     lo, hi = vertices.min(0), vertices.max(0)
     extent = float(np.max(hi - lo))
     if extent <= 0:
-        raise SceneError(f"mesh asset {path}: all vertices coincide (zero extent)")
+        raise ConfigError(f"mesh asset {path}: all vertices coincide (zero extent)")
     m = np.eye(4)
     m[:3, :3] /= extent
     m[:3, 3] = -0.5 * (lo + hi) / extent
@@ -346,7 +346,7 @@ def config_asset_entries(config) -> list[tuple[str, ...]]:
     distinct list, in split order: the input of :func:`asset_record`.
 
     Raises:
-        SceneError: a split's room distribution cannot be loaded (e.g. an asset folder is gone; names it).
+        ConfigError: a split's room distribution cannot be loaded (e.g. an asset folder is gone; names it).
     """
     groups: list[tuple[str, ...]] = []
     for split in config.splits:

@@ -35,8 +35,10 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from ..scene import SceneError, format_validation_error, read_yaml
+from ..errors import ConfigError, DatagenError
+from ..scene import format_validation_error, read_yaml
 from ..simulation.tolerance import MIN_TOLERANCE
+from ..units import parse_duration, parse_fraction
 from .legacy import RENAMED_KEYS, note_old_keys
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
@@ -169,21 +171,13 @@ class DatasetConfig(_Model):
     @classmethod
     def _fraction(cls, value: Any) -> Any:
         """'1%' → 0.01 (a bare number is a fraction)."""
-        if isinstance(value, str) and value.strip().endswith("%"):
-            try:
-                return float(value.strip()[:-1]) / 100.0
-            except ValueError:
-                raise ValueError(f"must look like 1% or 0.01, got {value!r}") from None
-        return value
+        return parse_fraction(value) if isinstance(value, str) and value.strip().endswith("%") else value
 
     @field_validator("cost_cap", mode="before")
     @classmethod
     def _duration(cls, value: Any) -> Any:
         """'2s', '500ms' → seconds (a bare number is seconds)."""
-        if isinstance(value, str):
-            from ..units import parse_duration
-            return parse_duration(value)
-        return value
+        return parse_duration(value) if isinstance(value, str) else value
 
     @field_validator("splits")
     @classmethod
@@ -300,16 +294,16 @@ def _find_file(value: str, base: Path | None, field_name: str) -> Path:
         if path.is_file():
             return path
     looked = ", ".join(str(p) for p in dict.fromkeys(candidates))
-    raise SceneError(f"{field_name}: file not found: {value!r} (looked at {looked})")
+    raise ConfigError(f"{field_name}: file not found: {value!r} (looked at {looked})")
 
 
 def _read_yaml(path: Path, field_name: str) -> dict:
     try:
-        data = read_yaml(path, "YAML file")   # bounded in size and alias expansion
-    except SceneError as exc:
-        raise SceneError(f"{field_name}: {exc}") from None
+        data = read_yaml(path, "YAML file", ConfigError)   # bounded in size and alias expansion
+    except DatagenError as exc:
+        raise ConfigError(f"{field_name}: {exc}") from None
     if not isinstance(data, dict):
-        raise SceneError(f"{field_name}: {path} must hold a mapping, got {type(data).__name__}")
+        raise ConfigError(f"{field_name}: {path} must hold a mapping, got {type(data).__name__}")
     return data
 
 
@@ -327,14 +321,14 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
     Returns:
         :class:`DatasetConfig` with ``room`` and ``detector`` as mappings.
     Raises:
-        SceneError: unreadable file or an invalid value; the message names the file, the dotted field
+        ConfigError: unreadable file or an invalid value; the message names the file, the dotted field
             (e.g. ``splits.val.room_overrides.materials.box.albedo``) and the value.
     """
     where = None
     if isinstance(source, (str, Path)):
         path = Path(source)
         if not path.is_file():
-            raise SceneError(f"dataset config not found: {path}")
+            raise ConfigError(f"dataset config not found: {path}")
         data = _read_yaml(path, "dataset config")
         base, where = path.parent, str(path)
     else:
@@ -344,7 +338,7 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
     try:
         config = DatasetConfig.model_validate(data)
     except ValidationError as exc:
-        raise SceneError(format_validation_error(exc, where)) from None
+        raise ConfigError(format_validation_error(exc, where)) from None
     updates: dict[str, Any] = {}
     if isinstance(config.room, str):
         room_file = _find_file(config.room, base, f"{prefix}room")
@@ -390,7 +384,7 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
     try:
         spec = config.label_spec()
     except ValidationError as exc:
-        raise SceneError(_field_errors(exc, prefix, "labels")) from None
+        raise ConfigError(_field_errors(exc, prefix, "labels")) from None
     overrides = config.simulation_overrides()
     detector = overrides.pop("detector", {})
     try:
@@ -398,29 +392,29 @@ def _validate_parts(config: DatasetConfig, prefix: str) -> None:
             warnings.simplefilter("ignore", FutureWarning)
             sim = SimulationConfig.model_validate(overrides)
     except ValidationError as exc:
-        raise SceneError(_field_errors(exc, prefix, "simulation")) from None
+        raise ConfigError(_field_errors(exc, prefix, "simulation")) from None
     sim = sim.model_copy(update={"detector": detector})
     try:
         sim.detector_config()
     except ValidationError as exc:   # a field the detector took from simulation.time is blamed on it
         head = "detector" if config.detector is not None else "simulation.detector"
-        raise SceneError(detector_error(exc, sim, prefix.removesuffix(": "), head, "simulation.time")) from None
+        raise ConfigError(detector_error(exc, sim, prefix.removesuffix(": "), head, "simulation.time")) from None
     try:
         _distribution(json.dumps(config.room, sort_keys=True), "{}")
-    except (SceneError, ValueError) as exc:
-        raise SceneError(f"{prefix}room: {' '.join(str(exc).split())}") from None
+    except ValueError as exc:   # a DatagenError too
+        raise ConfigError(f"{prefix}room: {' '.join(str(exc).split())}") from None
     try:
         _distribution(json.dumps(config.room, sort_keys=True), json.dumps(config.room_overrides, sort_keys=True))
-    except (SceneError, ValueError) as exc:
-        raise SceneError(f"{prefix}room_overrides: {' '.join(str(exc).split())}") from None
+    except ValueError as exc:   # a DatagenError too
+        raise ConfigError(f"{prefix}room_overrides: {' '.join(str(exc).split())}") from None
     for name in config.splits:
         try:
             dist = config.room_distribution(name)
-        except (SceneError, ValueError) as exc:
-            raise SceneError(f"{prefix}splits.{name}.room_overrides: {' '.join(str(exc).split())}") from None
+        except ValueError as exc:   # a DatagenError too
+            raise ConfigError(f"{prefix}splits.{name}.room_overrides: {' '.join(str(exc).split())}") from None
         most = dist.objects.box.count.max + dist.objects.pillar.count.max
         if config.splits[name].count and most > spec.max_objects:
-            raise SceneError(f"{prefix}labels.max_objects: {spec.max_objects} is fewer than the {most} hidden objects "
+            raise ConfigError(f"{prefix}labels.max_objects: {spec.max_objects} is fewer than the {most} hidden objects "
                              f"split {name!r} may hold (objects.box.count.max + objects.pillar.count.max): raise it "
                              f"to at least {most}")
 
@@ -465,14 +459,14 @@ def draw_room(config: DatasetConfig, split: str, index: int):
         (room, rngs): the :class:`~datagen.dataset.sampler.SampledRoom` and the sample's streams (name →
         Generator; ``sampling`` and ``noise`` not yet used).
     Raises:
-        SceneError: the split is unknown, the index is out of range, or the room cannot be sampled.
+        ConfigError: the split is unknown, the index is out of range, or the room cannot be sampled.
     """
     from .sampler import sample_room
 
     if split not in config.splits:
-        raise SceneError(f"split {split!r} is not in the config (splits: {sorted(config.splits)})")
+        raise ConfigError(f"split {split!r} is not in the config (splits: {sorted(config.splits)})")
     if not 0 <= index < config.splits[split].count:
-        raise SceneError(f"index {index} is outside split {split!r} (count {config.splits[split].count})")
+        raise ConfigError(f"index {index} is outside split {split!r} (count {config.splits[split].count})")
     rngs = sample_rngs(config.seed, split, index)
     room = sample_room(config.room_distribution(split), {k: rngs[k] for k in ("geometry", "materials", "sensor")})
     return room, rngs
@@ -494,7 +488,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     ``config.cost_cap`` nominal seconds) depends on nothing else.
 
     Raises:
-        SceneError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
+        ConfigError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
             more hidden objects than ``labels.max_objects``; the message names the sample.
     """
     from .layout import axis_names
@@ -510,7 +504,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     t2 = time.perf_counter()
     spec = config.label_spec()
     if len(room.objects) > spec.max_objects:
-        raise SceneError(f"{where}: {len(room.objects)} hidden objects > labels.max_objects={spec.max_objects}")
+        raise ConfigError(f"{where}: {len(room.objects)} hidden objects > labels.max_objects={spec.max_objects}")
     labels = scene_labels(room, spec) if config.store.labels else {}
     t3 = time.perf_counter()
 
@@ -573,10 +567,10 @@ def _component_slots(result, room, max_objects: int, dtype: str, where: str) -> 
     scene_hidden = [o.name for o in room.scene.objects if o.name in names and o.name != COMPONENT_ROOM]
     order = [obj.get("name", scene_hidden[k] if k < len(scene_hidden) else None) for k, obj in enumerate(room.objects)]
     if sorted(map(str, order)) != sorted(scene_hidden):
-        raise SceneError(f"{where}: cannot match hidden objects {order} to envelope components {scene_hidden}")
+        raise ConfigError(f"{where}: cannot match hidden objects {order} to envelope components {scene_hidden}")
     unknown = [n for n in names if n != COMPONENT_ROOM and n not in scene_hidden and n not in OTHER_COMPONENTS]
     if unknown:
-        raise SceneError(f"{where}: components {unknown} have no slot in the dataset (known: room, the hidden "
+        raise ConfigError(f"{where}: components {unknown} have no slot in the dataset (known: room, the hidden "
                          f"objects, {list(OTHER_COMPONENTS)})")
     slots = component_slots(max_objects)
     env = result.envelope

@@ -268,7 +268,7 @@ def verify_dataset(path: str | Path, notes: list[str] | None = None) -> list[str
         one line per problem (empty: the dataset is intact), each naming the file, or the split, shard and
         array.
     Raises:
-        FileNotFoundError: no datagen dataset at ``path``. SceneError: the card's room distribution cannot be
+        FileNotFoundError: no datagen dataset at ``path``. ConfigError: the card's room distribution cannot be
             loaded (e.g. its asset folder is gone; names it).
     """
     root = Path(path)

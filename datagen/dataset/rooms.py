@@ -23,7 +23,8 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from ..scene import BRDF_KINDS, Laser, Material, SceneError, check_counts, format_validation_error, read_yaml
+from ..errors import ConfigError
+from ..scene import BRDF_KINDS, Laser, Material, check_counts, format_validation_error, read_yaml
 from ..units import parse_energy, parse_length
 from .assets import asset_files, resolve_assets
 from .ranges import CountRange, Fraction, Model, NonNegative, Positive, Range, Signed, Unit
@@ -342,10 +343,10 @@ class RoomDistribution(Model):
         weigh 0): ``{"materials": {"box": {"kinds": {"phong": 1.0}}}}`` makes every box Phong.
 
         Raises:
-            SceneError: unknown field or invalid value, naming the dotted field (source "overrides").
+            ConfigError: unknown field or invalid value, naming the dotted field (source "overrides").
         """
         if not isinstance(overrides, dict):
-            raise SceneError(f"overrides: expected a mapping, got {type(overrides).__name__}")
+            raise ConfigError(f"overrides: expected a mapping, got {type(overrides).__name__}")
         data = _deep_merge(self.model_dump(mode="json"), overrides)
         where = f"{self.source} + overrides" if self.source else "overrides"
         return load_room_distribution(data, _source=where)
@@ -386,7 +387,7 @@ def resolve_room_assets(data: dict, base: Path | None, where: str) -> dict:
     against ``base``, the room file's folder, then the working directory); other content unchanged.
 
     Raises:
-        SceneError: an asset folder or file that exists nowhere (naming it and ``where``).
+        ConfigError: an asset folder or file that exists nowhere (naming it and ``where``).
     """
     mesh = ((data.get("objects") or {}) if isinstance(data, dict) else {}).get("mesh")
     if not isinstance(mesh, dict) or not isinstance(mesh.get("assets"), (list, str)):
@@ -407,7 +408,7 @@ def load_room_distribution(source: str | Path | dict, _source: str | None = None
     dict), then the working directory, and stored as absolute paths.
 
     Raises:
-        SceneError: missing file, bad YAML, or an invalid/infeasible value; the message names the file,
+        ConfigError: missing file, bad YAML, or an invalid/infeasible value; the message names the file,
             the dotted field and the value (e.g. ``configs/rooms/x.yaml: corridor.width: min (3.0) must be
             <= max (2.0)``).
     """
@@ -416,22 +417,22 @@ def load_room_distribution(source: str | Path | dict, _source: str | None = None
         base = Path(base_dir) if base_dir is not None else None
     else:
         path = Path(source)
-        data = read_yaml(path, "room distribution file")
+        data = read_yaml(path, "room distribution file", ConfigError)
         where, base = str(path), path.parent
         if not isinstance(data, dict):
-            raise SceneError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")
+            raise ConfigError(f"{where}: expected a mapping at the top level, got {type(data).__name__}")
     data = resolve_room_assets({k: v for k, v in data.items() if k != "source"}, base, where)
     try:
         dist = RoomDistribution.model_validate(data)
     except ValidationError as exc:
-        raise SceneError(format_validation_error(exc, where)) from None
+        raise ConfigError(format_validation_error(exc, where)) from None
     dist = dist.model_copy(update={"source": where})
     check_feasible(dist)
     return dist
 
 
 def _fail(dist: RoomDistribution, field: str, message: str) -> None:
-    raise SceneError(f"{dist.source or 'room distribution'}: {field}: {message}")
+    raise ConfigError(f"{dist.source or 'room distribution'}: {field}: {message}")
 
 
 def _min_footprint(sx: float, sy: float, yaw: Range) -> tuple[float, float]:
@@ -454,7 +455,7 @@ def check_feasible(dist: RoomDistribution) -> None:
     asset entries hold at least one mesh file.
 
     Raises:
-        SceneError: naming the field, the value and the limit it breaks.
+        ConfigError: naming the field, the value and the limit it breaks.
     """
     c, r, cap, obj = dist.corridor, dist.room, dist.capture, dist.objects
     m, gap = cap.edge_margin, obj.min_gap
@@ -484,7 +485,7 @@ def check_feasible(dist: RoomDistribution) -> None:
     if obj.mesh.count.max > 0:
         try:
             asset_files(tuple(obj.mesh.assets))
-        except SceneError as exc:
+        except ConfigError as exc:
             _fail(dist, "objects.mesh.assets", str(exc).removeprefix("objects.mesh.assets: "))
     region_area, need = {}, {}
     for cls_name in ("pillar", "box", "mesh"):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..scene import SceneError
+from ..errors import DatasetError
 from .config import DatasetConfig, config_from_json, draw_room, load_dataset_config, setup_sample
 from .sampler import SampledRoom
 from .store import read_card
@@ -28,20 +28,21 @@ def scene_of_sample(dataset_dir: str | Path, split: str | None = None, index: in
         ``objects``), the split used and the dataset card.
     Raises:
         FileNotFoundError: no datagen dataset at ``dataset_dir``.
-        SceneError: unknown split, index out of range, or a room that differs from the stored sample's
-            parameters (a dataset built by another version of the room sampler).
+        ConfigError: unknown split or index out of range. DatasetError: a dataset with no samples, or a room
+            that differs from the stored sample's parameters (a dataset built by another version of the room
+            sampler).
     """
     card = read_card(dataset_dir)
     if split is None:
         split = next((s for s, info in card.get("splits", {}).items() if info.get("count", 0) > 0), None)
         if split is None:
-            raise SceneError(f"{dataset_dir}: the dataset has no samples")
+            raise DatasetError(f"{dataset_dir}: the dataset has no samples")
     room, _ = draw_room(config_from_json(card["config"]), split, index)
     stored = _stored_room_params(Path(dataset_dir), card, split, index)
     if stored is not None:
         mine = json.loads(json.dumps(room.params, default=lambda v: v.tolist()))
         if stored.get("room") != mine.get("room") or stored.get("objects") != mine.get("objects"):
-            raise SceneError(f"{dataset_dir}: sample ({split}, {index}) drawn again from the card differs from "
+            raise DatasetError(f"{dataset_dir}: sample ({split}, {index}) drawn again from the card differs from "
                              "its stored parameters (built by another version of datagen's room sampler?)")
     return room, split, card
 
@@ -70,7 +71,7 @@ def sample_setup(config: DatasetConfig | str | Path, split: str, index: int):
         The sample itself is ``simulate_to_tolerance(scene, sim_config, config.tolerance, max_cost=
         config.cost_cap, sampling_rng=..., noise_rng=...)`` with the sample's streams (:func:`datagen.dataset.sample_rngs`).
     Raises:
-        SceneError: an unknown split, an index out of range, an invalid config file.
+        ConfigError: an unknown split, an index out of range, an invalid config file.
     """
     if not isinstance(config, DatasetConfig):
         config = load_dataset_config(config)

@@ -25,7 +25,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ..scene import (ROOM_LABELS, FieldOfView, Laser, Scene, SceneError, SceneObject, Sensor, box, l_room, pillar,
+from ..errors import ConfigError
+from ..scene import (ROOM_LABELS, FieldOfView, Laser, Scene, SceneObject, Sensor, box, l_room, pillar,
                      quad)
 from .assets import asset_box, asset_files, asset_name, load_asset, place_asset
 from .obb import box_hits_pyramid, box_hits_segment, boxes_overlap
@@ -117,13 +118,13 @@ def _sample_point(rng: np.random.Generator, p: PointDist, length: float, w: floa
 
 
 def _check_aperture(dist: RoomDistribution, sensor, center, corners, field: str) -> None:
-    """SceneError when a corner of the imaged rectangle lies behind the sensor's aperture plane (a staring
+    """ConfigError when a corner of the imaged rectangle lies behind the sensor's aperture plane (a staring
     aperture faces the rectangle's centre, docs/physics.md §2: cos θ_ap ≤ 0 there, so part of it would be black).
     Exhaustive scans only: a confocal scan's aperture follows the laser (docs/scans.md)."""
     s, c = np.asarray(sensor, float), np.asarray(center, float)
     behind = [q for q in corners if float(np.dot(np.asarray(q) - s, c - s)) <= 0]
     if behind:
-        raise SceneError(f"{dist.source or 'room distribution'}: {field}: the sensor at "
+        raise ConfigError(f"{dist.source or 'room distribution'}: {field}: the sensor at "
                          f"{np.round(s, 3).tolist()} sees the rectangle corner {np.round(behind[0], 3).tolist()} "
                          "behind its aperture plane (the aperture faces the rectangle's centre); move "
                          "capture.sensor (or the emitter it follows) farther from the wall or nearer the "
@@ -223,7 +224,7 @@ def _sample_layout(dist: RoomDistribution, layout: _Layout, room: dict,
             return placed, tries
     detail = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
     meshes = f", {n_meshes} meshes" if n_meshes else ""
-    raise SceneError(f"{dist.source or 'room distribution'}: objects: could not place {n_pillars} pillars{meshes} and "
+    raise ConfigError(f"{dist.source or 'room distribution'}: objects: could not place {n_pillars} pillars{meshes} and "
                      f"{n_boxes} boxes in a {room['room_depth']:.3g} × {room['room_length']:.3g} m room after "
                      f"{obj.max_layouts} layouts × {obj.max_tries} tries per object; rejections by constraint: "
                      f"{detail}. Lower objects.*.count.max or sizes, or raise objects.max_tries")
@@ -239,13 +240,13 @@ def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator])
     Returns:
         :class:`SampledRoom`.
     Raises:
-        SceneError: a missing stream, or no valid object layout within the bounded rejection sampling (the
+        ConfigError: a missing stream, or no valid object layout within the bounded rejection sampling (the
             message counts rejections per constraint: region_too_small, ceiling, overlap, laser_beam,
             fov_view).
     """
     missing = [k for k in STREAMS if k not in rngs]
     if missing:
-        raise SceneError(f"sample_room: rngs lacks streams {missing} (needs {list(STREAMS)})")
+        raise ConfigError(f"sample_room: rngs lacks streams {missing} (needs {list(STREAMS)})")
     g, ms, ss = rngs["geometry"], rngs["materials"], rngs["sensor"]
     length = _uniform(g, dist.corridor.length)
     width = _uniform(g, dist.corridor.width)

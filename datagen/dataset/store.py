@@ -39,7 +39,6 @@ import numpy as np
 from filelock import FileLock, Timeout
 
 from ..errors import DatasetError
-from ..scene import SceneError
 from .assets import asset_changes
 from .config import DatasetConfig, Sample, location_free_json, split_key
 from .legacy import canonical_json
@@ -322,8 +321,8 @@ def read_card(path: str | Path) -> dict:
     """The dataset card (root attributes) of the dataset at ``path``.
 
     Raises:
-        FileNotFoundError: no datagen dataset there. ValueError: a damaged ``zarr.json``; DatasetError (a
-        ValueError): a card without the :data:`CARD_KEYS` mappings (names the file).
+        FileNotFoundError: no datagen dataset there. DatasetError (a ValueError): a damaged ``zarr.json``, or a
+        card without the :data:`CARD_KEYS` mappings (names the file).
     """
     meta = Path(path) / "zarr.json"
     if not meta.is_file():
@@ -331,7 +330,7 @@ def read_card(path: str | Path) -> dict:
     try:
         attrs = json.loads(meta.read_bytes()).get("attributes", {})
     except (ValueError, AttributeError) as exc:
-        raise ValueError(f"{meta}: the dataset card is not a JSON object ({type(exc).__name__}: "
+        raise DatasetError(f"{meta}: the dataset card is not a JSON object ({type(exc).__name__}: "
                          f"{' '.join(str(exc).split())[:120]}): damaged; rebuild the dataset") from None
     if attrs.get("format") != FORMAT:
         raise FileNotFoundError(f"{path} is a Zarr store but not a datagen dataset (no dataset card)")
@@ -400,7 +399,7 @@ def check_same_config(root: Path, card: dict, config: DatasetConfig) -> None:
     the stored one (compared location-free: :func:`datagen.dataset.config.location_free_json`).
 
     Raises:
-        SceneError: one line naming the differing fields (dotted paths), the first one's value in the card and
+        DatasetError: one line naming the differing fields (dotted paths), the first one's value in the card and
             in ``config``, and what to do.
     """
     if card.get("config_sha256") == config.fingerprint():
@@ -411,7 +410,7 @@ def check_same_config(root: Path, card: dict, config: DatasetConfig) -> None:
     diff = _config_diff(stored, current) or ["config_sha256"]
     first = diff[0]
     more = f", … ({len(diff)} fields)" if len(diff) > 5 else ""
-    raise SceneError(f"{root} was built from a different config (differs in: {', '.join(diff[:5])}{more}): "
+    raise DatasetError(f"{root} was built from a different config (differs in: {', '.join(diff[:5])}{more}): "
                      f"{first} is {_short(_at(stored, first))} in the dataset's card, {_short(_at(current, first))} "
                      "in this config; resume with the same config or build into another --out")
 
@@ -422,13 +421,13 @@ def check_same_assets(root: Path, card: dict, assets: list[dict], asset_entries:
     card written before assets were pinned pins none: nothing to compare (the build pins the current ones).
 
     Raises:
-        SceneError: one line naming the asset folder and the first file added, removed or changed, the number
+        DatasetError: one line naming the asset folder and the first file added, removed or changed, the number
             of other changes, and what to do.
     """
     recorded = card.get("assets")
     changes = asset_changes(recorded, assets, asset_entries) if recorded is not None else []
     if changes:
         more = f" (+{len(changes) - 1} more changes)" if len(changes) > 1 else ""
-        raise SceneError(f"{root}: the mesh assets differ from those the dataset was built from: {changes[0]}{more}; "
+        raise DatasetError(f"{root}: the mesh assets differ from those the dataset was built from: {changes[0]}{more}; "
                          "a resume would draw its samples from another asset list: restore the assets the card "
                          "lists (its 'assets': name and sha256 of each file) or build into a new --out")

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..scene import RayCaster, SceneError
+from ..errors import ConfigError
+from ..scene import RayCaster
 
 WALL_VIEW_FIELDS = ("wall_depth", "wall_normal", "wall_albedo", "wall_mask")
 """Names of the arrays :func:`wall_view_labels` returns."""
@@ -28,13 +29,13 @@ def view_rectangle(params: dict) -> tuple[np.ndarray, tuple[float, float], tuple
     scan's laser grid, else the FoV (a room's ``params``, :class:`datagen.dataset.sampler.SampledRoom`).
 
     Raises:
-        SceneError: the params hold neither a scan nor a FoV.
+        ConfigError: the params hold neither a scan nor a FoV.
     """
     sensor = params["sensor"]
     scan = sensor.get("scan")
     grid = scan["laser_grid"] if scan is not None else sensor.get("fov")
     if grid is None:
-        raise SceneError("labels: the sample has neither a scan nor a FoV to view from")
+        raise ConfigError("labels: the sample has neither a scan nor a FoV to view from")
     points = tuple(grid.get("points") or grid.get("pixels"))
     return np.asarray(grid["center"], dtype=np.float64), tuple(grid["size"]), points
 

@@ -44,8 +44,9 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import ConfigError
 from .. import spad
-from ..scene import FOV_EDGE_REL, FOV_PLANE_TOL, Capture, RayCaster, Scene, SceneError
+from ..scene import FOV_EDGE_REL, FOV_PLANE_TOL, Capture, RayCaster, Scene
 from ..scene import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
 from ..timing import TAIL_MARGIN_TAUS
 from ..spad.pileup import pile_up_decision
@@ -185,20 +186,20 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
     Returns:
         :class:`Plan` with a decision for every effect of :data:`EFFECTS`.
     Raises:
-        SceneError: an unknown key or value in ``config.effects``, a tolerance outside [0, 1), or a forced
+        ConfigError: an unknown key or value in ``config.effects``, a tolerance outside [0, 1), or a forced
             effect the configuration cannot simulate (secondary forced on with ``secondary: none``, pile-up
             forced on with a Poisson detector).
     """
     tol = float(getattr(config, "effect_threshold", DEFAULT_TOLERANCE))
     if not (math.isfinite(tol) and 0.0 <= tol < 1.0):
-        raise SceneError(f"tolerance must be in [0, 1) (a relative error of the envelope), got {tol!r}")
+        raise ConfigError(f"tolerance must be in [0, 1) (a relative error of the envelope), got {tol!r}")
     forced = _forced_effects(getattr(config, "effects", None) or {})
     detector = config.detector_config()
     if forced.get("secondary") is True and config.secondary == "none":
-        raise SceneError("effects.secondary is forced on but secondary is 'none': choose an estimator "
+        raise ConfigError("effects.secondary is forced on but secondary is 'none': choose an estimator "
                          "(optimized, full or exact)")
     if forced.get("pile_up") is True and detector.model == "poisson":
-        raise SceneError("effects.pile_up is forced on but detector.model is 'poisson': choose pile_up, "
+        raise ConfigError("effects.pile_up is forced on but detector.model is 'poisson': choose pile_up, "
                          "multi_stop or free_running")
     physics = PhysicsSettings(pde=detector.pde, count_laser_leg=config.count_laser_leg,
                               count_sensor_leg=config.count_sensor_leg)
@@ -225,13 +226,13 @@ def _forced_effects(effects: dict) -> dict[str, bool | None]:
     out: dict[str, bool | None] = {}
     for key, value in dict(effects).items():
         if key not in EFFECTS:
-            raise SceneError(f"effects: unknown effect {key!r}; known effects are {list(EFFECTS)}")
+            raise ConfigError(f"effects: unknown effect {key!r}; known effects are {list(EFFECTS)}")
         if value is None or (isinstance(value, str) and value == "auto"):
             out[key] = None
         elif isinstance(value, (bool, np.bool_)):
             out[key] = bool(value)
         else:
-            raise SceneError(f"effects.{key} must be true, false or 'auto', got {value!r}")
+            raise ConfigError(f"effects.{key} must be true, false or 'auto', got {value!r}")
     return out
 
 

@@ -14,7 +14,8 @@ from typing import Literal
 import numpy as np
 from scipy.stats import qmc
 
-from ..scene import RayCaster, SceneError
+from ..errors import ConfigError
+from ..scene import RayCaster
 from .directions import stratified_grid
 
 AreaSampling = Literal["stratified", "sobol", "random"]
@@ -80,10 +81,10 @@ def subdivide_triangles(tri: np.ndarray, h: float, rng: np.random.Generator | No
     Returns:
         points (M, 3), areas (M,) m², parent face index (M,) int64.
     Raises:
-        SceneError: h not finite or ≤ 0.
+        ConfigError: h not finite or ≤ 0.
     """
     if not np.isfinite(h) or h <= 0:
-        raise SceneError(f"subdivide_triangles: h must be finite and > 0, got {h!r}")
+        raise ConfigError(f"subdivide_triangles: h must be finite and > 0, got {h!r}")
     ks = subdivisions(tri, h)
     pts, areas, parents = [], [], []
     for k in np.unique(ks):
@@ -157,7 +158,7 @@ def sample_surfaces(caster: RayCaster, faces: np.ndarray, samples: int, method: 
         The samples, and the sample density per face (n_faces_total,) in 1/m² (0 off ``faces``): k_f²/A_f for
         "stratified", M/A for the others. The samples' areas are its inverse.
     Raises:
-        SceneError: unknown method.
+        ConfigError: unknown method.
     """
     tri = caster.vertices[caster.faces[faces]]
     density = np.zeros(len(caster.faces))
@@ -184,7 +185,7 @@ def sample_surfaces(caster: RayCaster, faces: np.ndarray, samples: int, method: 
         density[faces] = len(pts) / total
         area = np.full(len(pts), total / len(pts))
     else:
-        raise SceneError(f"area sampler: sampling must be 'stratified', 'sobol' or 'random', got {method!r}")
+        raise ConfigError(f"area sampler: sampling must be 'stratified', 'sobol' or 'random', got {method!r}")
     return SurfaceSamples(pts, caster.face_normals[face], face, caster.face_object[face], area, pad), density
 
 
@@ -201,7 +202,7 @@ def subdivide_with_vertices(tri: np.ndarray, h: float, even: bool = False
         vertices (V, 3) float64, the lattice points (shared by neighbouring sub-triangles of one face);
         cells (M, 3) int64 indices into ``vertices``; areas (M,) m²; parent face index (M,) int64.
     Raises:
-        SceneError: h not finite or ≤ 0.
+        ConfigError: h not finite or ≤ 0.
     """
     out = _lattice_split(tri, h, even)
     return out[0], out[1], out[2], out[3]
@@ -222,7 +223,7 @@ def coarse_cells(tri: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
 
 def _lattice_split(tri: np.ndarray, h: float, even: bool):
     if not np.isfinite(h) or h <= 0:
-        raise SceneError(f"subdivide_with_vertices: h must be finite and > 0, got {h!r}")
+        raise ConfigError(f"subdivide_with_vertices: h must be finite and > 0, got {h!r}")
     ks = subdivisions(tri, h)
     if even:
         ks = ks + ks % 2

@@ -18,6 +18,7 @@ from typing import Annotated, Any, Literal, Union
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from ..errors import DatagenError
 from .builders import box, import_mesh, l_room, pillar, quad
 from .materials import Material
 from .model import Scene
@@ -201,25 +202,26 @@ MAX_YAML_VALUES = 1_000_000
 every use: bounds the memory and time an alias bomb ("billion laughs") can take; real inputs hold hundreds."""
 
 
-def read_yaml(path: Path, what: str) -> Any:
+def read_yaml(path: Path, what: str, error: type[DatagenError] = SceneError) -> Any:
     """Parsed content of the YAML file ``path`` (a ``what``: "scene file", "tal config", ...), bounded in size
-    (:data:`MAX_YAML_BYTES`) and in alias expansion (:data:`MAX_YAML_VALUES`).
+    (:data:`MAX_YAML_BYTES`) and in alias expansion (:data:`MAX_YAML_VALUES`). ``error`` is the class raised: a
+    scene's :class:`SceneError`, a config reader's :class:`~datagen.errors.ConfigError` (docs/reliability.md).
 
     Raises:
-        SceneError: the file does not exist ("<what> not found: <path>"), is too large, is not UTF-8 text, is
-            not valid YAML or expands beyond the bound (each names the file, in one short line).
+        ``error`` (SceneError by default): the file does not exist ("<what> not found: <path>"), is too large,
+            is not UTF-8 text, is not valid YAML or expands beyond the bound (each names the file, in one line).
     """
     path = Path(path)
     if not path.is_file():
-        raise SceneError(f"{what} not found: {path}")
+        raise error(f"{what} not found: {path}")
     size = path.stat().st_size
     if size > MAX_YAML_BYTES:
-        raise SceneError(f"{path}: {size} bytes is too large for a {what} (at most {MAX_YAML_BYTES} bytes)")
+        raise error(f"{path}: {size} bytes is too large for a {what} (at most {MAX_YAML_BYTES} bytes)")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
-        raise SceneError(f"{path}: not a UTF-8 text file (byte {exc.start}): is it really a {what}?") from None
-    return parse_yaml(text, str(path))
+        raise error(f"{path}: not a UTF-8 text file (byte {exc.start}): is it really a {what}?") from None
+    return parse_yaml(text, str(path), error)
 
 
 class DuplicateKeyError(yaml.constructor.ConstructorError):
@@ -250,32 +252,32 @@ class UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def parse_yaml(text: str, source: str) -> Any:
+def parse_yaml(text: str, source: str, error: type[DatagenError] = SceneError) -> Any:
     """Parse YAML ``text`` with :class:`UniqueKeyLoader` (the safe loader, refusing duplicate keys), then refuse
     documents that expand to more than :data:`MAX_YAML_VALUES` values (aliases counted at every use, recursive
-    aliases included).
+    aliases included). ``error`` is the class raised (as in :func:`read_yaml`).
 
     Raises:
-        SceneError: invalid YAML, a key repeated in one mapping ("<source>: duplicate key 'simulation' on lines
-            12 and 30 ...") or too large an expansion; one short line naming ``source``.
+        ``error`` (SceneError by default): invalid YAML, a key repeated in one mapping ("<source>: duplicate
+            key 'simulation' on lines 12 and 30 ...") or too large an expansion; one short line naming ``source``.
     """
     if len(text) > MAX_YAML_BYTES:
-        raise SceneError(f"{source}: {len(text)} characters is too large (at most {MAX_YAML_BYTES})")
+        raise error(f"{source}: {len(text)} characters is too large (at most {MAX_YAML_BYTES})")
     try:
         data = yaml.load(text, Loader=UniqueKeyLoader)   # noqa: S506 - a SafeLoader subclass
     except DuplicateKeyError as exc:
-        raise SceneError(f"{source}: {exc.problem}") from None
+        raise error(f"{source}: {exc.problem}") from None
     except yaml.YAMLError as exc:
-        raise SceneError(f"{source}: not valid YAML: {' '.join(str(exc).split())[:300]}") from None
+        raise error(f"{source}: not valid YAML: {' '.join(str(exc).split())[:300]}") from None
     except RecursionError:
-        raise SceneError(f"{source}: YAML nested too deeply") from None
+        raise error(f"{source}: YAML nested too deeply") from None
     count, stack = 0, [data]
     while stack:
         value = stack.pop()
         count += 1
         if count > MAX_YAML_VALUES:
-            raise SceneError(f"{source}: the YAML expands to more than {MAX_YAML_VALUES} values (its aliases "
-                             "repeat their anchors' content): not a datagen input")
+            raise error(f"{source}: the YAML expands to more than {MAX_YAML_VALUES} values (its aliases "
+                        "repeat their anchors' content): not a datagen input")
         if isinstance(value, dict):
             stack.extend(value.keys())
             stack.extend(value.values())

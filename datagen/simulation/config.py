@@ -13,9 +13,10 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, SerializeAsAny, ValidationError, field_validator, model_validator
 
+from ..errors import ConfigError
 from .. import spad
 from ..planner import EFFECTS
-from ..scene import MAX_EXTENT, Scene, SceneError, format_validation_error, short_repr
+from ..scene import MAX_EXTENT, Scene, format_validation_error, short_repr
 from ..timing import Irf, TimeAxis
 from ..transport import (EstimatorOptions, PhysicsSettings, TransportSettings, estimator, estimator_names,
                          estimator_options)
@@ -294,21 +295,21 @@ def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationCon
     keys in the scene's block are translated with one :class:`LegacyKeysWarning` naming the scene file.
 
     Raises:
-        SceneError: an invalid value, naming the scene file, the field and the value.
+        ConfigError: an invalid value, naming the scene file, the field and the value.
     """
     where = f"{scene.source} (simulation)" if scene.source else "simulation"
     try:
         data, moves = merge_overrides(scene.defaults, overrides or {})
     except ValueError as exc:
-        raise SceneError(f"{where}: {exc}") from None
+        raise ConfigError(f"{where}: {exc}") from None
     if moves:
         warnings.warn(legacy_note(moves, where), LegacyKeysWarning, stacklevel=2)
     try:
         config = SimulationConfig.model_validate(data)
     except ValidationError as exc:
-        raise SceneError(format_validation_error(exc, where)) from None
+        raise ConfigError(format_validation_error(exc, where)) from None
     try:
         config.detector_config()
     except ValidationError as exc:
-        raise SceneError(detector_error(exc, config, where)) from None
+        raise ConfigError(detector_error(exc, config, where)) from None
     return config

@@ -16,10 +16,11 @@ from importlib import metadata
 
 import numpy as np
 
+from ..errors import ConfigError
 from .. import spad
 from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..planner import Plan, plan_effects
-from ..scene import RayCaster, Scene, SceneError, resolve_capture
+from ..scene import RayCaster, Scene, resolve_capture
 from ..timing import EnvelopeAccumulator
 from ..transport import Estimator, estimator, run_replicas
 from .budget import check_simulation_memory
@@ -325,7 +326,8 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     Returns:
         :class:`Result`.
     Raises:
-        SceneError: invalid scene/config (laser spot off every surface, FoV sees no surface, …).
+        SceneError: invalid scene (laser spot off every surface, FoV sees no surface, …); ConfigError: invalid
+            config (a detector setting the noise model cannot draw, …).
     """
     config = config or resolve_config(scene)
     t0 = time.perf_counter()
@@ -387,7 +389,7 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
     try:
         counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
     except ValueError as exc:   # e.g. an exposure too long to event-simulate: name the file and the field
-        raise SceneError(f"{scene.source + ' (simulation): ' if scene.source else ''}detector: "
+        raise ConfigError(f"{scene.source + ' (simulation): ' if scene.source else ''}detector: "
                          f"{' '.join(str(exc).split())}") from None
     t_detect = time.perf_counter() - t3
     st = transport.stats

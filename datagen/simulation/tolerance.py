@@ -33,7 +33,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..scene import Scene, SceneError
+from ..errors import ConfigError
+from ..scene import Scene
 from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
 from .replicas import relative_difference
 from .run import Replicas, Result, make_result
@@ -78,7 +79,7 @@ step can leave the split of the triangles that carry the error unchanged (every 
 of parts per side, :func:`datagen.sampling.subdivide_with_vertices`)."""
 
 
-class ToleranceOutOfReach(SceneError):
+class ToleranceOutOfReach(ConfigError):
     """The first round's error estimate projects far more time than ``max_seconds`` to meet the tolerance.
 
     Attributes:
@@ -97,12 +98,12 @@ def check_tolerance(tolerance: float) -> float:
     """``tolerance`` as a float if it is a number in [:data:`MIN_TOLERANCE`, 1).
 
     Raises:
-        SceneError: not a number, not finite, or outside [MIN_TOLERANCE, 1) (the message gives the value).
+        ConfigError: not a number, not finite, or outside [MIN_TOLERANCE, 1) (the message gives the value).
     """
     if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not 0 < tolerance < 1:
-        raise SceneError(f"tolerance must be in (0, 1), got {tolerance!r}")
+        raise ConfigError(f"tolerance must be in (0, 1), got {tolerance!r}")
     if tolerance < MIN_TOLERANCE:
-        raise SceneError(f"tolerance {tolerance:.3g} is below {MIN_TOLERANCE:g}: relative errors that small are "
+        raise ConfigError(f"tolerance {tolerance:.3g} is below {MIN_TOLERANCE:g}: relative errors that small are "
                          "float64 round-off, not measurable")
     return float(tolerance)
 
@@ -187,9 +188,9 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         ``attrs["tolerance"]``: target, estimate, met, and every round (replicas or edge, estimate, seconds).
         A result that could not meet the target within the caps says so (``met`` False), never silently.
     Raises:
-        SceneError: tolerance outside [:data:`MIN_TOLERANCE`, 1) (before any work), or an envelope with no energy
+        ConfigError: tolerance outside [:data:`MIN_TOLERANCE`, 1) (before any work), or an envelope with no energy
             in the window.
-        ToleranceOutOfReach: (a SceneError) the first round's projection exceeds ``HOPELESS`` × ``max_seconds``.
+        ToleranceOutOfReach: (a ConfigError) the first round's projection exceeds ``HOPELESS`` × ``max_seconds``.
     """
     tolerance = check_tolerance(tolerance)
     t0 = time.perf_counter()
@@ -243,7 +244,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
 
 def _check_energy(scene: Scene, tr) -> None:
     if tr.binned.max() <= 0:
-        raise SceneError(f"{scene.source or scene.name}: the envelope is zero in the time window; no error "
+        raise ConfigError(f"{scene.source or scene.name}: the envelope is zero in the time window; no error "
                          f"estimate is possible (check the time axis and the FoV)")
 
 

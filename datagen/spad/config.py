@@ -10,8 +10,9 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from ..errors import ConfigError
 from ..timing import FWHM_PER_SIGMA
-from ..units import parse_duration
+from ..units import parse_duration, parse_rate
 
 __all__ = [
     "FWHM_PER_SIGMA",
@@ -21,8 +22,6 @@ __all__ = [
     "MAX_CYCLES",
 ]
 
-
-_RATE_UNITS = {"hz": 1.0, "khz": 1e3, "mhz": 1e6, "ghz": 1e9, "cps": 1.0, "kcps": 1e3, "mcps": 1e6}
 
 ModelName = Literal["poisson", "pile_up", "multi_stop", "free_running"]
 
@@ -39,26 +38,6 @@ _KIND_OF_MODEL: dict[str, str] = {
 MAX_CYCLES = 1 << 62
 """Most laser cycles one exposure may hold (4.6e18): counts are int64 (9.2e18) and no bin can count more
 detections than there are cycles in the synchronous models."""
-
-
-def _parse_rate(value: Any) -> float:
-    """Hz from a number or a string such as ``"20MHz"``, ``"100cps"``."""
-    if isinstance(value, bool):
-        raise ValueError(f"expected a rate in Hz, got {value!r}")
-    if isinstance(value, (int, float)):
-        return float(value)
-    text = str(value).strip()
-    number = text.rstrip("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ").strip()
-    unit = text[len(number):].strip().lower() if number else ""
-    try:
-        magnitude = float(number)
-    except ValueError:
-        raise ValueError(f"cannot read {value!r} as a rate; write e.g. '20MHz' or a number in Hz") from None
-    if unit == "":
-        return magnitude
-    if unit not in _RATE_UNITS:
-        raise ValueError(f"unknown rate unit {unit!r} in {value!r}; known: Hz, kHz, MHz, GHz, cps, kcps, Mcps")
-    return magnitude * _RATE_UNITS[unit]
 
 
 def _duration(value: Any) -> Any:
@@ -152,7 +131,7 @@ class DetectorConfig(BaseModel):
     @field_validator("dcr", "ambient_rate", "repetition_rate", mode="before")
     @classmethod
     def _parse_rates(cls, value: Any) -> Any:
-        return _parse_rate(value)
+        return parse_rate(value)
 
     @field_validator("n_cycles", mode="before")
     @classmethod
@@ -272,20 +251,20 @@ class DetectorConfig(BaseModel):
         The file holds a mapping of the fields above (optionally under a top-level ``detector:`` key).
 
         Raises:
-            ValueError: the file cannot be read or parsed, or a field is unknown or invalid; the message
-                names the file, the field and the offending value.
+            ConfigError (a ValueError): the file cannot be read or parsed, or a field is unknown or invalid; the
+                message names the file, the field and the offending value.
         """
-        from ..scene import read_yaml   # bounded in size and alias expansion; SceneError is a ValueError
+        from ..scene import read_yaml   # bounded in size and alias expansion
 
         path = Path(path)
         try:
-            data = read_yaml(path, "detector config")
+            data = read_yaml(path, "detector config", ConfigError)
         except OSError as exc:
-            raise ValueError(f"{path}: cannot read detector config: {exc}") from None
+            raise ConfigError(f"{path}: cannot read detector config: {exc}") from None
         if isinstance(data, dict) and set(data) == {"detector"}:
             data = data["detector"]
         if not isinstance(data, dict):
-            raise ValueError(f"{path}: expected a mapping of detector fields, got {type(data).__name__}")
+            raise ConfigError(f"{path}: expected a mapping of detector fields, got {type(data).__name__}")
         try:
             return cls(**data)
         except ValidationError as exc:
@@ -294,4 +273,4 @@ class DetectorConfig(BaseModel):
             for err in exc.errors():
                 field = ".".join(str(p) for p in err["loc"]) or "(config)"
                 problems.append(f"field {field!r}: {err['msg']} (value: {short_repr(err.get('input'))})")
-            raise ValueError(f"{path}: invalid detector config: " + "; ".join(problems)) from None
+            raise ConfigError(f"{path}: invalid detector config: " + "; ".join(problems)) from None

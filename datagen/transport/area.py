@@ -55,6 +55,7 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
+from ..errors import ConfigError
 from ..processes import ForkedCall
 from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
                         to_world, unit_square_points)
@@ -106,7 +107,7 @@ class AreaSettings(PhysicsSettings):
         workers: processes sharing the replicas of :meth:`AreaSampler.run_replicas` (results do not depend on it).
 
     Raises:
-        SceneError: a field out of range (the message names the field and the value).
+        ConfigError: a field out of range (the message names the field and the value).
     """
 
     samples: int = 1 << 16
@@ -124,7 +125,7 @@ class AreaSettings(PhysicsSettings):
 
     def __post_init__(self):
         def bad(name, value, why):
-            raise SceneError(f"area sampler: {name} {why}, got {value!r}")
+            raise ConfigError(f"area sampler: {name} {why}, got {value!r}")
 
         def count(name, low):
             v = getattr(self, name)
@@ -265,8 +266,8 @@ class AreaSampler(AreaSecondary):
         leg (its ``stats.shadow_rays`` counts the shadow rays).
 
     Raises:
-        SceneError: invalid settings (``secondary_only`` with secondary "none"); the capture errors of
-            :func:`datagen.scene.resolve_capture`; no triangle can take part in a path.
+        ConfigError: invalid settings (``secondary_only`` with secondary "none"). SceneError: the capture errors
+            of :func:`datagen.scene.resolve_capture`; no triangle can take part in a path.
     """
 
     sensor_sampling = "area next-event connections"
@@ -280,7 +281,7 @@ class AreaSampler(AreaSecondary):
         self.scene = scene
         self.settings = settings or AreaSettings()
         if secondary_only and self.settings.secondary != "full":
-            raise SceneError(f"area sampler: secondary_only needs secondary 'full' (there is nothing else to "
+            raise ConfigError(f"area sampler: secondary_only needs secondary 'full' (there is nothing else to "
                              f"deposit), got secondary {self.settings.secondary!r}")
         self.secondary_only = bool(secondary_only)
         self.caster = caster or RayCaster(scene)

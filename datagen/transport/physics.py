@@ -40,7 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene, SceneError
+from ..errors import ConfigError
+from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene
 from ..scene import SIN_THETA
 from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..sampling import stratified_grid
@@ -90,12 +91,12 @@ class PhysicsSettings:
         return {name: getattr(self, name) for name in PHYSICS_SWITCHES}
 
     def check_physics(self, where: str) -> None:
-        """Raise :class:`~datagen.scene.SceneError` ``"{where}: attenuation must be …"`` for μ not finite or < 0
+        """Raise :class:`~datagen.errors.ConfigError` ``"{where}: attenuation must be …"`` for μ not finite or < 0
         and q outside [0, 1]."""
         if not np.isfinite(self.attenuation) or self.attenuation < 0:
-            raise SceneError(f"{where}: attenuation must be finite and >= 0, got {self.attenuation!r}")
+            raise ConfigError(f"{where}: attenuation must be finite and >= 0, got {self.attenuation!r}")
         if not np.isfinite(self.pde) or not 0 <= self.pde <= 1:
-            raise SceneError(f"{where}: pde must be in [0, 1], got {self.pde!r}")
+            raise ConfigError(f"{where}: pde must be in [0, 1], got {self.pde!r}")
 
 
 # -- the leg formulas: scalar numba device functions, called by every compiled kernel (transport's area and

@@ -76,8 +76,9 @@ from typing import Literal
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..sampling import subdivide_with_vertices
-from ..scene import Capture, RayCaster, Scene, SceneError
+from ..scene import Capture, RayCaster, Scene
 from ..scene.materials import LAMBERTIAN, PHONG
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
@@ -116,7 +117,7 @@ class QuadratureSettings(PhysicsSettings):
         split: "even", "plain" or "auto" (:mod:`.quad_split`: the sub-triangles and the error estimate's rule).
 
     Raises:
-        SceneError: a field out of range (the message names the field and the value).
+        ConfigError: a field out of range (the message names the field and the value).
     """
 
     edge: float = QUADRATURE_EDGE
@@ -131,7 +132,7 @@ class QuadratureSettings(PhysicsSettings):
 
     def __post_init__(self):
         def bad(name, value, why):
-            raise SceneError(f"quadrature: {name} {why}, got {value!r}")
+            raise ConfigError(f"quadrature: {name} {why}, got {value!r}")
 
         def integer(name, value, low):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
@@ -234,8 +235,8 @@ class Quadrature:
         laser points ``refine_lasers`` (a sub-scan), (4/3)·‖P(h) − P(h/2)‖ being the estimate.
 
     Raises:
-        SceneError: invalid settings; the capture errors of :func:`datagen.scene.resolve_capture`; no face
-            can take part in a path.
+        ConfigError: invalid settings. SceneError: the capture errors of :func:`datagen.scene.resolve_capture`;
+            no face can take part in a path.
     """
 
     sensor_sampling = "quadrature: sensor points / FoV cells"   # how the FoV is reached (Estimator protocol)

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
+from ..errors import ConfigError
 from ..sampling import ObservedPoints
-from ..scene import SceneError
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Sink
@@ -136,7 +136,7 @@ class LookinSecondary:
         σ/4 for an IRF narrower than four fine steps, up to ``CONV_REFINE_MAX``).
 
         Raises:
-            SceneError: the sink has no fine grid (an :class:`~datagen.timing.EnvelopeAccumulator` is needed).
+            ConfigError: the sink has no fine grid (an :class:`~datagen.timing.EnvelopeAccumulator` is needed).
         """
         k = max(1, int(self.settings.conv_refine))
         irf = getattr(sink, "irf", None)
@@ -148,7 +148,7 @@ class LookinSecondary:
             t0 = float(sink.fine_times[0])
             n = (sink.n_fine - 1) * k + 1
         else:
-            raise SceneError("secondary 'exact' needs an EnvelopeAccumulator sink")
+            raise ConfigError("secondary 'exact' needs an EnvelopeAccumulator sink")
         return ConvGrid(t0, step, n, self.capture.n_channels)
 
     def spot_light(self, obs: ObservedPoints, laser: int) -> "LitPoints":
