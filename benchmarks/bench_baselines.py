@@ -43,7 +43,8 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from datagen.dataset import SplitSpec, build_dataset, load_dataset_config, read_card  # noqa: E402
+from datagen.dataset import build_dataset, load_dataset_config, read_card  # noqa: E402
+from datagen.dataset.config import SplitSpec  # noqa: E402
 from datagen.dataset.score import score_predictions  # noqa: E402
 from examples import backprojection_baseline, train_depth_image  # noqa: E402
 from examples.train_single_pixel import train  # noqa: E402

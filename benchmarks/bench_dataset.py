@@ -39,7 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))          # this checkout's datagen, not whichever one is installed
 
 from datagen.dataset import build_dataset  # noqa: E402
-from datagen.dataset import SplitSpec, load_dataset_config  # noqa: E402
+from datagen.dataset import load_dataset_config  # noqa: E402
+from datagen.dataset.config import SplitSpec  # noqa: E402
 
 CONFIGS = {"default": ROOT / "configs/datasets/default.yaml", "smoke": ROOT / "configs/datasets/smoke.yaml"}
 

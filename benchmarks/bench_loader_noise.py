@@ -34,7 +34,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import datagen  # noqa: E402
-from datagen.dataset import BatchNoise, SplitSpec, build_dataset, load_dataset_config  # noqa: E402
+from datagen.dataset import BatchNoise, build_dataset, load_dataset_config  # noqa: E402
+from datagen.dataset.config import SplitSpec  # noqa: E402
 from examples.train_single_pixel import Net  # noqa: E402
 
 

@@ -23,7 +23,7 @@ on numba's threads: every core unless NUMBA_NUM_THREADS says otherwise):
    1 m in front of a 2 m relay wall; tal's bunny example is 128 × 128 × 750 and takes 2–4 min with mitransient):
    wall and CPU seconds (every thread of the process) at 32 × 32, 64 × 64 and 128 × 128 points (``--quick``: 16 × 16,
    32 × 32), one FoV cell per pixel, h = 3 cm by default (every triangle of the torus is then one sub-triangle:
-   the plain split of datagen/transport/quad_split.py), the stored error estimate, and the error of the largest
+   the plain split of datagen/transport/quadrature_split.py), the stored error estimate, and the error of the largest
    capture measured on an 8 × 8 block of its points (in front of the torus's hole) against the same points scanned
    at h / 4 (the quadrature's error falls as h², so that reference is 16× closer to the integral).
 """
@@ -91,7 +91,8 @@ def dataset_build(name: str, count: int, workers: int = 2) -> tuple[float, float
     (samples 0, 1, … can be cheaper than the split's average)."""
     import tempfile
 
-    from datagen.dataset import SplitSpec, build_dataset
+    from datagen.dataset import build_dataset
+    from datagen.dataset.config import SplitSpec
 
     config = load_dataset_config(ROOT / f"configs/datasets/{name}.yaml")
     config = config.model_copy(update={"splits": {"train": SplitSpec(count=count)},
@@ -108,7 +109,8 @@ def scan_error(name: str, index: int) -> tuple[float, float]:
     and of the config's grading ratio (error ∝ h², so 16× closer to the integral) with the same FoV cells per pixel (one for the confocal scans:
     each target is its laser point), and that edge. The whole scan: the error sits in the scan rows nearest the
     floor (on train 30, three quarters of its square in the lowest row), which an 8 × 8 sub-scan of the centre misses."""
-    from datagen.dataset import sample_rngs, sample_setup
+    from datagen.dataset import sample_setup
+    from datagen.dataset.config import sample_rngs
     from datagen.simulation import simulate_to_tolerance
 
     config = load_dataset_config(ROOT / f"configs/datasets/{name}.yaml")

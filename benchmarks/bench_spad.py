@@ -20,9 +20,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))          # this checkout's datagen, not whichever one is installed
 
-from datagen import spad  # noqa: E402
-from datagen.spad import (DetectorConfig, detection_pmf, expected_histogram,  # noqa: E402
-                          rates_from_envelope, sample_histogram)
+from datagen.spad import DetectorConfig, expected_histogram, rates_from_envelope, sample_histogram  # noqa: E402
+from datagen.spad.synchronous import detection_pmf, first_photon_sequential, first_photon_tree  # noqa: E402
 
 REPEATS = 3
 PIXELS = (64, 64)
@@ -60,9 +59,9 @@ def main():
     rows.append((label, "sample_histogram (default: threaded sequential binomials)", t,
                  f"{counts.sum() / t:.3g} counts/s"))
     r2 = rates.reshape(-1, BINS)
-    t, _ = best_of(lambda: spad.first_photon_sequential(np.random.default_rng(1), r2, CYCLES))
+    t, _ = best_of(lambda: first_photon_sequential(np.random.default_rng(1), r2, CYCLES))
     rows.append((label, "sequential binomials, 1 thread", t, ""))
-    t, _ = best_of(lambda: spad.first_photon_tree(np.random.default_rng(1), r2, CYCLES))
+    t, _ = best_of(lambda: first_photon_tree(np.random.default_rng(1), r2, CYCLES))
     rows.append((label, "binary-tree binomials, 1 thread", t, ""))
     pmf = detection_pmf(r2)
     t, _ = best_of(lambda: np.random.default_rng(1).multinomial(CYCLES, pmf))

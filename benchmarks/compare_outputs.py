@@ -260,6 +260,9 @@ def spad_job(out_npz: Path, out_json: Path, tree: Path) -> None:
     sys.stderr.write(f"datagen_file={f}\n")
     DetectorConfig = spad.DetectorConfig
 
+    def api(name):      # a datagen.spad function, from the package or (names it does not export) a submodule
+        return _find_spad_function(spad, [name])[1]
+
     def put(name, func):
         t0 = time.perf_counter()
         try:
@@ -293,7 +296,7 @@ def spad_job(out_npz: Path, out_json: Path, tree: Path) -> None:
             continue
         used[key] = qualname
         put(f"bench/pileup_{key}", lambda func=func: func(np.random.default_rng(1), r2, cycles))
-    pmf = put("bench/pileup_detection_pmf", lambda: spad.detection_pmf(r2))
+    pmf = put("bench/pileup_detection_pmf", lambda: api("detection_pmf")(r2))
     put("bench/pileup_numpy_multinomial", lambda: np.random.default_rng(1).multinomial(cycles, pmf))
     put("bench/pileup_expected_histogram", lambda: spad.expected_histogram(rates, cfg))
     fr = DetectorConfig(repetition_rate="20MHz", n_cycles=20_000, bin_width="50ps", pde=0.3,
@@ -377,9 +380,9 @@ def spad_job(out_npz: Path, out_json: Path, tree: Path) -> None:
     put("helpers/gate_fraction", lambda: spad.gate_fraction(edges, (3.3e-9, 21.7e-9)))
     put("helpers/rebin_envelope", lambda: spad.rebin_envelope(menv, np.linspace(0, 512 * 50e-12, 513),
                                                               np.linspace(0, 512 * 50e-12, 97)))
-    put("helpers/gaussian_kernel", lambda: spad.gaussian_kernel(51e-12, 16e-12))
-    put("helpers/exponential_kernel", lambda: spad.exponential_kernel(100e-12, 16e-12, 0.2))
-    put("helpers/free_running_rate", lambda: spad.free_running_rate(
+    put("helpers/gaussian_kernel", lambda: api("gaussian_kernel")(51e-12, 16e-12))
+    put("helpers/exponential_kernel", lambda: api("exponential_kernel")(100e-12, 16e-12, 0.2))
+    put("helpers/free_running_rate", lambda: api("free_running_rate")(
         arrays["models/free_running/rates"], DetectorConfig(**base, model="free_running", dead_time="20ns")))
     rate_grid = np.logspace(2, 8, 25)
     put("helpers/counter_rate", lambda: spad.counter_rate(rate_grid, 50e-9))

@@ -69,3 +69,8 @@ def __getattr__(name: str):
         from .analysis import converged_reference
         return converged_reference
     raise AttributeError(f"module 'datagen' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names with the lazy ones (``help(datagen)`` and completion list them)."""
+    return sorted(set(globals()) | set(__all__))

@@ -12,20 +12,14 @@ from test_area import two_patch_closed_form, two_patch_scene
 from test_reference import AXIS, IRF, patch_envelope, rel_l2
 
 from datagen.errors import ConfigError
-from datagen.analysis import (
-    ESTIMATORS,
-    LADDERS,
-    AccuracyRow,
-    envelope_error,
-    format_table,
-    pareto_front,
-    run_accuracy,
-)
+from datagen.analysis import envelope_error, run_accuracy
+from datagen.analysis.accuracy import AccuracyRow, ESTIMATORS, LADDERS, format_table, pareto_front
 from datagen.scene import Material
 from datagen.cli.main import main
 from datagen.timing import EnvelopeAccumulator
 from datagen.scene import RayCaster
-from datagen.analysis import converged_reference, peak_time
+from datagen.analysis import converged_reference
+from datagen.analysis.reference import peak_time
 from datagen.transport import LookinSampler, TransportSettings
 
 EDGES = np.arange(201) * 10e-12

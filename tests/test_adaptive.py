@@ -7,7 +7,9 @@ import pytest
 from conftest import patch_scene
 
 from datagen.errors import ConfigError
-from datagen.analysis import describe_setting, primary_area_quadrature, relative_l2, replica_error
+from datagen.analysis import relative_l2
+from datagen.analysis.adaptive import describe_setting, replica_error
+from datagen.analysis.oracle import primary_area_quadrature
 from datagen.simulation import SimulationConfig, simulate_to_tolerance
 from datagen.timing import Irf, TimeAxis
 

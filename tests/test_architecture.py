@@ -1,4 +1,5 @@
-"""The package's shape: no import cycle, no module using another module's private name, layers in order.
+"""The package's shape: no import cycle, no module using another module's private name, layers in order, a small
+public surface.
 
 The layer contract itself is checked by import-linter (``lint-imports``, configured in pyproject.toml and run by
 scripts/test.sh); these tests check what it does not: cycles *inside* a layer (function-level imports
@@ -7,6 +8,8 @@ included) and private names used across modules.
 from __future__ import annotations
 
 import ast
+import importlib
+import types
 from pathlib import Path
 
 import pytest
@@ -163,3 +166,40 @@ MODULE_LINES_MAX = 600
 def test_modules_stay_small():
     long = {name: n for name, path in _modules().items() if (n := len(path.read_text().splitlines())) > MODULE_LINES_MAX}
     assert long == {}
+
+
+PUBLIC_NAMES_MAX = 120
+"""Most names ``datagen/__init__.py`` and the subpackages' ``__all__`` lists may export together: a public surface a
+user can hold in their head (docs/architecture.md). Internals are imported from their module."""
+
+
+def _public_surface() -> dict[str, list[str]]:
+    """``__all__`` of ``datagen`` and of each subpackage (every folder of ``datagen/`` with an ``__init__.py``)."""
+    names = ["datagen"] + [f"datagen.{p.parent.name}" for p in sorted(PACKAGE.glob("*/__init__.py"))]
+    return {name: list(getattr(importlib.import_module(name), "__all__", ["<no __all__>"])) for name in names}
+
+
+def unresolved(module: types.ModuleType) -> list[str]:
+    """Names of ``module.__all__`` that are listed twice or that ``getattr`` does not find (lazy names included)."""
+    names = list(module.__all__)
+    twice = sorted({n for n in names if names.count(n) > 1})
+    return twice + [n for n in names if not hasattr(module, n)]
+
+
+def test_the_public_surface_stays_small():
+    surface = _public_surface()
+    assert len(surface) == 13 and all("<no __all__>" not in names for names in surface.values())
+    sizes = {name: len(names) for name, names in surface.items()}
+    assert sum(sizes.values()) <= PUBLIC_NAMES_MAX, sizes
+
+
+def test_every_exported_name_resolves():
+    bad = {name: u for name in _public_surface() if (u := unresolved(importlib.import_module(name)))}
+    assert bad == {}
+
+
+def test_the_export_check_sees_a_missing_name():
+    module = types.ModuleType("fake")
+    module.__all__ = ["here", "gone", "here"]
+    module.here = 1
+    assert unresolved(module) == ["here", "gone"]

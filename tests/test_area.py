@@ -7,9 +7,11 @@ from conftest import patch_scene
 from test_transport import patch_closed_form
 
 from datagen.errors import ConfigError
-from datagen.sampling import sample_surfaces, subdivide_triangles
+from datagen.sampling import sample_surfaces
+from datagen.sampling.surfaces import subdivide_triangles
 from datagen.transport import AreaSampler, AreaSettings
-from datagen.scene import Material, MaterialTable
+from datagen.scene import Material
+from datagen.scene.materials import MaterialTable
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
 from datagen.scene import RayCaster
 from datagen.scene import FieldOfView, Laser, Scene, Sensor, quad
@@ -301,7 +303,7 @@ def test_scans_match_the_lookin_estimator_per_channel(convention):
 def test_simulate_selects_the_area_estimator_by_name():
     """``estimator: area`` through simulate(): same integral as the primary quadrature (patch scene)."""
     from datagen.timing import Irf, TimeAxis
-    from datagen.analysis import primary_area_quadrature
+    from datagen.analysis.oracle import primary_area_quadrature
     from datagen.simulation import SimulationConfig, simulate
     from conftest import patch_scene
     scene = patch_scene(with_occluder=True)

@@ -1,6 +1,6 @@
 """The area sampler's compiled kernels (datagen/transport/area_kernels.py) against the numpy formulas they compile:
-:class:`~datagen.scene.MaterialTable`, :class:`~datagen.transport.physics.LegPhysics` and the pair weights written
-here with physics.py's functions (the oracle). Same inputs → equal to 1e-12 relative."""
+:class:`~datagen.scene.materials.MaterialTable`, :class:`~datagen.transport.physics.LegPhysics` and the pair weights
+written here with physics.py's functions (the oracle). Same inputs → equal to 1e-12 relative."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +8,8 @@ import pytest
 
 import datagen
 from datagen.sampling import sample_surfaces
-from datagen.scene import Material, MaterialTable, Scene, SceneObject
+from datagen.scene import Material, Scene, SceneObject
+from datagen.scene.materials import MaterialTable
 from datagen.transport import AreaSampler, AreaSettings
 from datagen.transport.area_kernels import (brdf_value, connection_weights, fov_targets, material_arrays,
                                             partner_geometry, partner_irradiance, partner_rays, primary_impulses,

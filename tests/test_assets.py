@@ -11,7 +11,9 @@ import pytest
 import trimesh
 
 from datagen.errors import ConfigError
-from datagen.dataset import LabelSpec, SampledRoom, load_room_distribution, occupancy_grid, sample_room, scene_labels
+from datagen.dataset import LabelSpec, load_room_distribution, sample_room, scene_labels
+from datagen.dataset.labels import occupancy_grid
+from datagen.dataset.sampler import SampledRoom
 from datagen.dataset.assets import asset_files, load_asset, place_asset
 from datagen.dataset.obb import box_hits_pyramid, yaw_matrix
 from datagen.dataset.sampler import STREAMS

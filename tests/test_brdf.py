@@ -4,8 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datagen.scene import Material, MaterialTable
-from datagen.sampling import square_to_hemisphere, stratified_grid
+from datagen.scene import Material
+from datagen.scene.materials import MaterialTable
+from datagen.sampling import square_to_hemisphere
+from datagen.sampling.directions import stratified_grid
 
 MATERIALS = [Material(kind="lambertian", albedo=0.7), Material(kind="sin_theta", albedo=0.9),
              Material(kind="phong", albedo=1.0, specular=0.6, exponent=20.0),

@@ -18,10 +18,11 @@ import zarr
 from click.testing import CliRunner
 
 from datagen.errors import DatasetError
-from datagen.dataset import (DONE_DIR, LOCK_NAME, BuildError, BuildLock, BuildLockedError, build_dataset,
-                           read_card, shard_file, verify_dataset)
+from datagen.dataset import BuildError, build_dataset, read_card, verify_dataset
+from datagen.dataset.store import BuildLock, BuildLockedError, DONE_DIR, LOCK_NAME, shard_file
 from datagen.cli.main import main
-from datagen.dataset import SplitSpec, load_dataset_config
+from datagen.dataset import load_dataset_config
+from datagen.dataset.config import SplitSpec
 
 SMOKE = Path("configs/datasets/smoke.yaml")
 ROOT = Path(__file__).resolve().parents[1]

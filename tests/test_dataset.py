@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from datagen.errors import ConfigError
-from datagen.dataset import (STREAMS, config_from_json, load_dataset_config, make_sample, resample_rng,
-                             sample_rngs, split_key)
+from datagen.dataset import load_dataset_config, make_sample
+from datagen.dataset.config import STREAMS, config_from_json, resample_rng, sample_rngs, split_key
 
 SMOKE = Path("configs/datasets/smoke.yaml")
 

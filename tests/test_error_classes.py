@@ -22,7 +22,8 @@ from datagen.dataset import load_dataset_config, read_card
 from datagen.dataset.rooms import load_room_distribution
 from datagen.errors import ConfigError, DatagenError, DatasetError, ResourceError, SceneError
 from datagen.scene import load_scene
-from datagen.simulation import ToleranceOutOfReach, check_memory, resolve_config
+from datagen.simulation import ToleranceOutOfReach, resolve_config
+from datagen.simulation.budget import check_memory
 from datagen.simulation.tolerance import check_tolerance
 from datagen.spad import DetectorConfig
 from datagen.units import parse_duration, parse_fraction, parse_rate

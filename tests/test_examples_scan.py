@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from datagen.dataset import NLOSDataset, SplitSpec, build_dataset, load_dataset_config
+from datagen.dataset import NLOSDataset, build_dataset, load_dataset_config
+from datagen.dataset.config import SplitSpec
 from datagen.dataset.score import score_predictions
 from datagen.units import parse_duration
 from examples import backprojection_baseline, train_depth_image

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from datagen import load_scene, resolve_config
-from datagen.plot import laser_energy, write_sampling_figures
+from datagen.plot import write_sampling_figures
+from datagen.plot.energy import laser_energy
 
 DEMO = Path(__file__).resolve().parents[1] / "scene_library" / "demo_room.yaml"
 SMALL = {"lookins": "6x6", "pixels": "24x24"}

@@ -14,7 +14,7 @@ import pytest
 from conftest import patch_scene
 import datagen
 from datagen.planner import EFFECTS, Decision, Plan
-from datagen.simulation import prepare_transport
+from datagen.simulation.run import prepare_transport
 from datagen.simulation.run import Replicas, detector_model, make_result
 from datagen.spad.pileup import pile_up_from_envelope
 from datagen.transport import (AreaSampler, AreaSettings, EstimatorOptions, LookinSampler, TransportSettings, estimator,

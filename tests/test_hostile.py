@@ -18,8 +18,11 @@ from click.testing import CliRunner
 from pydantic import ValidationError
 
 from datagen import spad
+from datagen.spad.synchronous import detection_pmf
 from datagen.cli.main import main
-from datagen.scene import MAX_YAML_VALUES, SceneError, load_scene, parse_yaml
+from datagen.scene import load_scene
+from datagen.errors import SceneError
+from datagen.scene.load import MAX_YAML_VALUES, parse_yaml
 
 PATCH = {   # the conftest patch scene as a file: relay wall x = 2 facing -x, a 0.4 m patch 1 m from it
     "name": "patch",
@@ -365,9 +368,9 @@ FREE_RUNNING = dict(model="free_running", repetition_rate=1e7, bin_width=1e-9, d
 
 
 def test_detection_pmf_of_huge_rates_is_finite_and_sums_to_one():
-    pmf = spad.detection_pmf([1e308, 1e308])
+    pmf = detection_pmf([1e308, 1e308])
     np.testing.assert_array_equal(pmf, [1.0, 0.0, 0.0])
-    batch = spad.detection_pmf([[1e308, 1e308, 3.0], [1.0, 1.0, 1.0]])
+    batch = detection_pmf([[1e308, 1e308, 3.0], [1.0, 1.0, 1.0]])
     assert np.all(np.isfinite(batch)) and np.allclose(batch.sum(axis=1), 1.0, rtol=0, atol=1e-13)
     # the second row is unaffected by the first's overflow: e^{-C_i}(1 - e^{-r_i}) with C = 0, 1, 2
     np.testing.assert_allclose(batch[1, :3], np.exp(-np.arange(3.0)) * -np.expm1(-1.0), rtol=1e-15)

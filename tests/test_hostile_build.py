@@ -25,8 +25,10 @@ import zarr
 
 from test_hostile import alias_bomb, cli   # the same in-process runner and checks
 
-from datagen.dataset import (DONE_DIR, DatasetCorruptError, NLOSDataset, SplitSpec, build_dataset,
-                             load_dataset_config, read_card, shard_file, verify_dataset)
+from datagen.dataset import (DatasetCorruptError, NLOSDataset, build_dataset, load_dataset_config, read_card,
+                             verify_dataset)
+from datagen.dataset.config import SplitSpec
+from datagen.dataset.store import DONE_DIR, shard_file
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs" / "datasets" / "smoke.yaml"

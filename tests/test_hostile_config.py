@@ -35,9 +35,12 @@ from datagen.cli.view import MAX_PIXELS, MAX_SIDE, parse_size
 from datagen.dataset import NLOSDataset, load_dataset_config, read_card, verify_dataset
 from datagen.dataset.rooms import load_room_distribution
 from datagen.io import scene_from_tal_yaml
-from datagen.scene import SceneError, load_scene, parse_yaml
+from datagen.scene import load_scene
+from datagen.errors import SceneError
+from datagen.scene.load import parse_yaml
 from datagen.scene.parts import MAX_PHOTONS_PER_PULSE, MAX_PULSE_ENERGY
-from datagen.simulation import MIN_TOLERANCE, ToleranceOutOfReach, projected_seconds, resolve_config
+from datagen.simulation import ToleranceOutOfReach, resolve_config
+from datagen.simulation.tolerance import MIN_TOLERANCE, projected_seconds
 from datagen.simulation.tolerance import HOPELESS, SAFETY, SAFETY_EDGE, simulate_to_tolerance
 from datagen.units import parse_duration
 

@@ -18,8 +18,9 @@ from torch.utils.data import DataLoader
 
 import datagen
 from datagen import spad
-from datagen.dataset import (DONE_DIR, DatasetCorruptError, NLOSDataset, SplitSpec, build_dataset, config_from_json,
-                             load_dataset_config, shard_file, verify_dataset)
+from datagen.dataset import DatasetCorruptError, NLOSDataset, build_dataset, load_dataset_config, verify_dataset
+from datagen.dataset.config import SplitSpec, config_from_json
+from datagen.dataset.store import DONE_DIR, shard_file
 from datagen.dataset import shard_reader
 from datagen.spad.torch_noise import exact_count_limit
 

@@ -24,7 +24,9 @@ from test_hostile import cli   # the in-process runner: exit code, needles, no t
 from test_hostile_build import tiny
 
 from datagen.cli import main
-from datagen.dataset import NLOSDataset, build_dataset, config_from_json, marker_path, read_card, shard_file
+from datagen.dataset import NLOSDataset, build_dataset, read_card
+from datagen.dataset.config import config_from_json
+from datagen.dataset.store import marker_path, shard_file
 from datagen.dataset.integrity import (DatasetIncompleteError, card_fields, number_ranges, remove_shard_files,
                                        require_complete, verify_dataset)
 from datagen.dataset.store import finish_card, plan_shards, zarr_module

@@ -14,15 +14,9 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import ndtr
 
-from datagen.timing import (
-    MAX_FINE_NODES,
-    EnvelopeAccumulator,
-    Irf,
-    TimeAxis,
-    bin_impulses,
-    fwhm_to_sigma,
-    sigma_to_fwhm,
-)
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
+from datagen.timing.accumulator import MAX_FINE_NODES
+from datagen.timing.irf import fwhm_to_sigma, sigma_to_fwhm
 from datagen.units import SPEED_OF_LIGHT
 
 PS = 1e-12

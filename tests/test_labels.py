@@ -9,8 +9,10 @@ import pytest
 
 from datagen.errors import ConfigError
 from datagen.scene import Material
-from datagen.dataset import LabelSpec, camera_directions, label_shapes, occupancy_grid, scene_labels
-from datagen.dataset import SampledRoom, load_room_distribution, sample_room
+from datagen.dataset import LabelSpec, scene_labels
+from datagen.dataset.labels import camera_directions, label_shapes, occupancy_grid
+from datagen.dataset import load_room_distribution, sample_room
+from datagen.dataset.sampler import SampledRoom
 from datagen.dataset.sampler import STREAMS
 from datagen.scene import FieldOfView, Laser, Scene, Sensor, box, l_room, quad
 

@@ -15,7 +15,8 @@ from torch.utils.data import DataLoader
 import datagen
 from datagen import spad
 from datagen.dataset import build_dataset
-from datagen.dataset import SplitSpec, load_dataset_config
+from datagen.dataset import load_dataset_config
+from datagen.dataset.config import SplitSpec
 from datagen.dataset import NLOSDataset
 from datagen.dataset.loader import DETECTOR_FIELDS, SCALE_FIELDS
 

@@ -12,8 +12,8 @@ import zarr
 
 import datagen
 from datagen import spad
-from datagen.dataset import (SplitSpec, build_dataset, load_dataset_config, sample_rngs, sample_room,
-                             scene_labels)
+from datagen.dataset import build_dataset, load_dataset_config, sample_room, scene_labels
+from datagen.dataset.config import SplitSpec, sample_rngs
 from datagen.planner import EFFECTS
 from datagen.scene import Laser
 

@@ -18,10 +18,12 @@ import datagen
 from datagen.errors import ConfigError
 from datagen import spad
 from datagen.scene import Material
-from datagen.planner import EFFECTS, SECONDARY_SAFETY, Decision, Plan, reachable_side, plan_effects
+from datagen.planner import EFFECTS, Decision, Plan, plan_effects
+from datagen.planner.decisions import SECONDARY_SAFETY
+from datagen.planner.geometry import reachable_side
 from datagen.scene import RayCaster
-from datagen.scene import (CaptureSpec, FieldOfView, Laser, Scene, SceneObject, Sensor, WallGrid,
-                           box, box_mesh, quad)
+from datagen.scene import CaptureSpec, FieldOfView, Laser, Scene, SceneObject, Sensor, WallGrid, box, quad
+from datagen.scene.builders import box_mesh
 from datagen.scene import resolve_capture
 from datagen.spad.pileup import counting_detector, pile_up_from_envelope
 from datagen.transport import PhysicsSettings

@@ -13,14 +13,15 @@ from test_tal import hidden_square, laser_scale, opl_edges, quadrature, rel_l2, 
 
 from datagen.errors import ConfigError
 from datagen.analysis import relative_l2
-from datagen.sampling import subdivide_triangles
+from datagen.sampling.surfaces import subdivide_triangles
 from datagen.transport import AreaSampler, AreaSettings
 from datagen.scene import Material
-from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses, tent_curvature
+from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis, bin_impulses
+from datagen.timing.tents import tent_curvature
 from datagen.timing.curvature import deposit_curvature
-from datagen.sampling import subdivide_with_vertices
+from datagen.sampling.surfaces import subdivide_with_vertices
 from datagen.transport import Quadrature, QuadratureSettings
-from datagen.analysis import primary_area_quadrature
+from datagen.analysis.oracle import primary_area_quadrature
 from datagen.scene import CaptureSpec, FieldOfView, Laser, Scene, Sensor, WallGrid, box, quad
 from datagen.simulation import SimulationConfig, resolve_config, simulate
 from datagen.io import tal_arrays
@@ -408,7 +409,7 @@ def test_accuracy_ladder_halves_the_edge():
     """``datagen bench accuracy``'s quadrature ladder: h halves at every step and the error against a fine
     quadrature (h = 2 cm, itself 2.3e-4 from the reference) falls by ≥ 3× per step (measured 0.082, 0.010,
     0.0017 at h = 20, 10, 5 cm on the small scene: the first step is pre-asymptotic, 2 sub-triangles per side)."""
-    from datagen.analysis import LADDERS, run_estimator
+    from datagen.analysis.accuracy import LADDERS, run_estimator
     from datagen.scene import RayCaster
 
     est = LADDERS["quadrature"]

@@ -10,7 +10,8 @@ from test_transport import patch_closed_form
 from datagen.errors import ConfigError
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
 from datagen.scene import RayCaster
-from datagen.analysis import converged_reference, peak_time
+from datagen.analysis import converged_reference
+from datagen.analysis.reference import peak_time
 from datagen.scene import FieldOfView, Scene, Sensor
 from datagen.simulation import SimulationConfig
 from datagen.units import SPEED_OF_LIGHT

@@ -12,8 +12,9 @@ import yaml
 import datagen
 from datagen.errors import ConfigError
 from datagen.scene import RayCaster
-from datagen.dataset import (RoomDistribution, box_hits_pyramid, box_hits_segment, boxes_overlap,
-                             load_room_distribution, sample_room)
+from datagen.dataset import load_room_distribution, sample_room
+from datagen.dataset.obb import box_hits_pyramid, box_hits_segment, boxes_overlap
+from datagen.dataset.rooms import RoomDistribution
 from datagen.dataset.sampler import STREAMS
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "rooms"

@@ -4,7 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datagen.sampling import camera_solid_angle, square_to_hemisphere, stratified_grid
+from datagen.sampling import square_to_hemisphere
+from datagen.sampling.directions import stratified_grid
+from datagen.sampling.lookins import camera_solid_angle
 
 
 def pixel_solid_angle(i, j, l, p, sub=40):

@@ -19,7 +19,10 @@ from datagen.dataset.legacy import canonical_json
 from datagen.dataset.store import check_same_config
 from datagen.scene import load_scene
 from datagen.simulation import LegacyKeysWarning, SimulationConfig, resolve_config
-from datagen.transport import AreaOptions, LookinOptions, QuadratureOptions, estimator_names
+from datagen.transport import estimator_names
+from datagen.transport.area import AreaOptions
+from datagen.transport.lookin import LookinOptions
+from datagen.transport.quadrature_options import QuadratureOptions
 
 DEMO = Path("scene_library/demo_room.yaml")
 SMOKE = Path("configs/datasets/smoke.yaml")

@@ -13,25 +13,13 @@ import numpy as np
 import pytest
 from scipy import special, stats
 
-from datagen import spad
-from datagen.spad import (
-    DetectorConfig,
-    apply_jitter_after,
-    apply_jitter_before,
-    coates,
-    counter_rate,
-    counter_variance,
-    detection_pmf,
-    expected_histogram,
-    free_running_rate,
-    gate_fraction,
-    gaussian_kernel,
-    instrument_response,
-    rates_from_envelope,
-    rebin_envelope,
-    sample_counter,
-    sample_histogram,
-)
+from datagen.spad import (DetectorConfig, apply_jitter_after, apply_jitter_before, coates, counter_rate,
+                          counter_variance, expected_histogram, gate_fraction, instrument_response,
+                          rates_from_envelope, rebin_envelope, sample_counter, sample_histogram)
+from datagen.spad import free_running, synchronous
+from datagen.spad.effects import gaussian_kernel
+from datagen.spad.free_running import event_simulation, event_simulation_batched, free_running_rate
+from datagen.spad.synchronous import detection_pmf
 
 P_MIN = 1e-3   # minimum p-value accepted by goodness-of-fit tests
 Z_MAX = 4.0    # maximum |z| accepted by mean tests
@@ -217,7 +205,7 @@ def test_brute_force_per_cycle_matches_sampler_chi2():
 @pytest.mark.parametrize("tree", [False, True])
 def test_sampler_moments_match_multinomial(tree, monkeypatch):
     if tree:
-        monkeypatch.setattr(spad, "SEQUENTIAL_MAX_BINS", 0)
+        monkeypatch.setattr(synchronous, "SEQUENTIAL_MAX_BINS", 0)
     reps, n = 20_000, 500
     r = np.array([0.3, 0.05, 0.8, 0.0, 0.2, 1.5, 0.1])
     p = detection_pmf(r)[:-1]
@@ -437,7 +425,7 @@ def test_free_running_arpack_fallback_gives_the_same_stationary_distribution(mon
     c = free_cfg(dead_time=73.4e-9)
     r = peaked_rates()
     reference = expected_histogram(r, c)
-    monkeypatch.setattr(spad, "MARKOV_MAX_ITER", 3)  # force the ARPACK path
+    monkeypatch.setattr(free_running, "MARKOV_MAX_ITER", 3)  # force the ARPACK path
     np.testing.assert_allclose(expected_histogram(r, c), reference, rtol=1e-10)
 
 
@@ -459,8 +447,8 @@ def test_round_based_and_batched_event_simulators_agree():
     c = free_cfg(n_cycles=50_000)
     r = peaked_rates()
     expected = expected_histogram(r, c)
-    a = spad.event_simulation(np.broadcast_to(r, (4, 50)).copy(), c, np.random.default_rng(1)).sum(axis=0)
-    b = spad.event_simulation_batched(np.broadcast_to(r, (4, 50)).copy(), c, np.random.default_rng(2)).sum(0)
+    a = event_simulation(np.broadcast_to(r, (4, 50)).copy(), c, np.random.default_rng(1)).sum(axis=0)
+    b = event_simulation_batched(np.broadcast_to(r, (4, 50)).copy(), c, np.random.default_rng(2)).sum(0)
     assert chi2_gof_p(a, 4 * expected) > P_MIN and chi2_gof_p(b, 4 * expected) > P_MIN
 
 

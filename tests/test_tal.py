@@ -23,11 +23,12 @@ from click.testing import CliRunner
 
 from datagen.cli.main import main
 from datagen.errors import DatasetError
-from datagen.scene import SceneError
+from datagen.errors import SceneError
 from datagen.simulation import resolve_config, simulate
 from datagen.io import write_result
-from datagen.io import (GridFormat, HFormat, VolumeFormat, load_tal_config, read_tal_hdf5,
-                         scene_from_tal_yaml, tal_arrays, tal_transform, write_tal_hdf5)
+from datagen.io import read_tal_hdf5, scene_from_tal_yaml, tal_arrays, write_tal_hdf5
+from datagen.io.tal import load_tal_config, tal_transform
+from datagen.io.tal_hdf5 import GridFormat, HFormat, VolumeFormat
 
 C = 299_792_458.0
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "tal" / "hidden_square.yaml"

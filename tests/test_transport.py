@@ -6,7 +6,7 @@ import pytest
 from conftest import patch_scene
 
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
-from datagen.analysis import primary_area_quadrature
+from datagen.analysis.oracle import primary_area_quadrature
 from datagen.transport import LookinSampler, TransportSettings
 
 AXIS = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000)

@@ -18,7 +18,11 @@ from click.testing import CliRunner
 
 from datagen import plot
 from datagen.cli import main
-from datagen.plot import view_render
+from datagen.plot import view_geometry, view_render
+from datagen.plot.view_geometry import CLASS_COLORS, build_drawables, lookin_points
+from datagen.plot.view_overlay import LEGEND_WIDTH
+from datagen.plot.view_render import SceneImage
+from datagen.plot.view_worker import require_open3d
 from datagen.scene import FieldOfView, Laser, Material, Scene, Sensor, box, load_scene, quad
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -35,7 +39,7 @@ BOX_CENTER = (1.1, 1.1, 1.1)
 @pytest.fixture(scope="module")
 def o3d():
     try:
-        return plot.require_open3d()
+        return require_open3d()
     except plot.ViewUnavailable as exc:
         if os.environ.get("CI"):
             raise
@@ -56,7 +60,7 @@ def small_scene() -> Scene:
                         fov=FieldOfView(center=(2.0, 0.0, -0.6), size=(0.8, 0.8))))
 
 
-def pixel(shot: plot.SceneImage, point) -> np.ndarray:
+def pixel(shot: SceneImage, point) -> np.ndarray:
     """RGB (0-255 int) of ``shot`` at the projection of ``point`` through the renderer's own camera."""
     col, row = shot.project(np.asarray(point, dtype=np.float64))
     h, w = shot.image.shape[:2]
@@ -65,7 +69,7 @@ def pixel(shot: plot.SceneImage, point) -> np.ndarray:
 
 
 def rgb255(label: str) -> np.ndarray:
-    return np.round(np.array(plot.CLASS_COLORS[label]) * 255)
+    return np.round(np.array(CLASS_COLORS[label]) * 255)
 
 
 def test_flat_render_is_not_blank_and_objects_sit_at_their_projections(o3d):
@@ -89,14 +93,14 @@ def test_flat_render_is_not_blank_and_objects_sit_at_their_projections(o3d):
 
 def test_shaded_render_keeps_each_class_hue(o3d):
     shot = plot.render_scene_image(small_scene(), 320, 240, supersample=2)
-    ratio = (pixel(shot, BOX_CENTER) / 255.0) / np.array(plot.CLASS_COLORS["box"])
+    ratio = (pixel(shot, BOX_CENTER) / 255.0) / np.array(CLASS_COLORS["box"])
     # a shaded face is AMBIENT … 1 times its colour, the same factor on every channel (±8-bit rounding)
-    assert plot.view_geometry.AMBIENT - 0.02 <= ratio.min() and ratio.max() <= 1.02
+    assert view_geometry.AMBIENT - 0.02 <= ratio.min() and ratio.max() <= 1.02
     assert ratio.max() - ratio.min() < 0.03
 
 
 def test_walls_and_ceiling_in_front_are_cut_away(o3d):
-    d = plot.build_drawables(o3d, load_scene(DEMO))
+    d = build_drawables(o3d, load_scene(DEMO))
     assert "ceiling" in d.cut and "walls" in d.cut                  # the camera looks in from above, outside
     drawn = {name for name, _, _ in d.meshes}
     assert {"relay_wall", "floor", "box", "pillar"} <= drawn and "ceiling" not in drawn
@@ -110,7 +114,7 @@ def test_render_scene_writes_a_png_with_legend(o3d, tmp_path):
     image = plot.render_scene(small_scene(), tmp_path / "pic.png", width=640, height=360)
     assert image.shape == (360, 640, 3)
     np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "pic.png").convert("RGB")), image)
-    legend = image[:, int(640 * (1 - plot.LEGEND_WIDTH)) + 10:]
+    legend = image[:, int(640 * (1 - LEGEND_WIDTH)) + 10:]
     assert (legend < 128).any()                                     # legend text is drawn
 
 
@@ -141,14 +145,15 @@ def test_lookin_points_are_the_runs_lookins(monkeypatch):
     monkeypatch.setattr(LookinSampler, "lookins", recording)
     simulate(scene, config)
     monkeypatch.setattr(LookinSampler, "lookins", original)
-    points = plot.lookin_points(scene, config)
+    points = lookin_points(scene, config)
     assert len(cast) == config.replicas and len(points) >= 16      # 8 replicas of a 2x2 grid, most hit
     np.testing.assert_array_equal(points, np.concatenate(cast))
 
 
 @pytest.fixture(scope="module")
 def smoke_dataset(tmp_path_factory):
-    from datagen.dataset import SplitSpec, build_dataset, load_dataset_config
+    from datagen.dataset import build_dataset, load_dataset_config
+    from datagen.dataset.config import SplitSpec
 
     config = load_dataset_config(SMOKE)
     config = config.model_copy(update={"splits": {"train": SplitSpec(count=3), "val": SplitSpec(count=1)},
@@ -159,7 +164,8 @@ def smoke_dataset(tmp_path_factory):
 
 
 def test_scene_of_sample_draws_the_stored_sample_again(smoke_dataset):
-    from datagen.dataset import NLOSDataset, draw_room, scene_of_sample
+    from datagen.dataset import NLOSDataset, scene_of_sample
+    from datagen.dataset.config import draw_room
 
     path, config = smoke_dataset
     room, split, card = scene_of_sample(path, "train", 2)

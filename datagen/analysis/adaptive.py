@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..simulation import TIME_CAP_S, ReplicaSums, simulate_to_tolerance
-from ..simulation import translate_legacy
-from ..transport import estimator, estimator_options
+from ..simulation import simulate_to_tolerance
+from ..simulation.replicas import ReplicaSums
+from ..simulation.tolerance import TIME_CAP_S
+from ..simulation.config import translate_legacy
+from ..transport import estimator
+from ..transport.base import estimator_options
 
 __all__ = ["TIME_CAP_S", "describe_setting", "replica_error", "simulate_to_tolerance"]
 

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sampling import subdivide_triangles
-from ..scene import FOV_PLANE_TOL, RayCaster, Scene, resolve_capture
+from ..sampling.surfaces import subdivide_triangles
+from ..scene import RayCaster, Scene, resolve_capture
+from ..scene.capture import FOV_PLANE_TOL
 from ..timing import EnvelopeAccumulator, Irf, TimeAxis
 from ..units import SPEED_OF_LIGHT
 

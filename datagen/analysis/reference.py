@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..simulation import PEAK_FLOOR, relative_standard_error
+from ..simulation.replicas import PEAK_FLOOR, relative_standard_error
 from ..transport import AreaSampler, AreaSettings
 from ..timing import EnvelopeAccumulator
 from ..scene import RayCaster

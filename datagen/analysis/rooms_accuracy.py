@@ -62,7 +62,7 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
     Args:
         rooms: (name, scene, :class:`~datagen.simulation.SimulationConfig`) per room.
         budget: wall seconds for everything (references included), > 0.
-        estimators: names of :data:`datagen.analysis.LADDERS` (default all).
+        estimators: names of :data:`datagen.analysis.accuracy.LADDERS` (default all).
         rel_tol: target of each reference's error estimate; cache_dir: the references' cache.
         reference_share: most of a room's share of the budget its reference may take, in (0, 1].
         echo: called with a line per reference and per finished step.

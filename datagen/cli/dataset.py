@@ -17,7 +17,8 @@ def _dataset_errors(func):
 
     @wraps(func)
     def wrapper(*args, **kwargs):
-        from ..dataset import BuildError, BuildLockedError
+        from ..dataset import BuildError
+        from ..dataset.store import BuildLockedError
         try:
             return friendly_errors(func)(*args, **kwargs)
         except BuildError as exc:
@@ -142,7 +143,8 @@ def sample_pictures(path: Path, split: str, count: int, note) -> list | None:
     Returns None after one ``note`` line when open3d or a Vulkan driver is missing, the renderer fails or a
     sample's room cannot be drawn again; the caller then draws its figure without them."""
     from ..dataset import scene_of_sample
-    from ..plot import ViewUnavailable, render_scene, require_open3d
+    from ..plot import ViewUnavailable, render_scene
+    from ..plot.view_worker import require_open3d
     from ..errors import DatagenError
 
     try:

@@ -87,12 +87,14 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from ..plot.envelope import plot_envelope
     from ..errors import ConfigError
-    from ..scene import check_output_dir, load_scene
+    from ..scene import load_scene
+    from ..scene.load import check_output_dir
     from ..simulation import resolve_config
     from ..simulation import simulate as run_simulation
-    from ..io import RESULT_NAME, write_result
+    from ..io import write_result
+    from ..io.store import RESULT_NAME
 
-    from ..simulation import MIN_TOLERANCE
+    from ..simulation.tolerance import MIN_TOLERANCE
 
     tol = _parse_fraction(tolerance, "--tolerance", MIN_TOLERANCE) if tolerance is not None else None
     check_output_dir(out)
@@ -102,7 +104,8 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
                                     "estimator": estimator, "quadrature_edge": edge, "area_samples": samples})
     cap = _parse_time_cap(time_cap)
     if tol is not None:
-        from ..simulation import TIME_CAP_S, ToleranceOutOfReach, simulate_to_tolerance
+        from ..simulation import ToleranceOutOfReach, simulate_to_tolerance
+        from ..simulation.tolerance import TIME_CAP_S
         cap = TIME_CAP_S if cap is None else cap
         def named(detail: str) -> str:   # the options, not the library's arguments
             return f"--tolerance {tolerance}: {detail.replace('the time cap of', '--time-cap')}"
@@ -126,7 +129,8 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
     plot_envelope(result, out / "envelope.png")
     written = [out / RESULT_NAME, out / "envelope.png"]
     if figures:
-        from ..plot import scene_view_figure, write_sampling_figures
+        from ..plot import write_sampling_figures
+        from ..plot.view_overlay import scene_view_figure
         written += write_sampling_figures(scene, config, out)
         # the 3D picture with the run's lookins; without open3d, one note line and no picture
         written += scene_view_figure(scene, out / "scene_view.png", config, note=click.echo)
@@ -152,8 +156,8 @@ def detect(result_path, detector_file, exposure, seed):
     """
     from .. import spad
     from ..errors import ConfigError
-    from ..scene import format_validation_error, read_yaml
-    from ..simulation import STREAM_NOISE, stream_rng
+    from ..scene.load import format_validation_error, read_yaml
+    from ..simulation.config import STREAM_NOISE, stream_rng
     from ..io import write_detection
     from ..units import parse_duration
 

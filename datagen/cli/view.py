@@ -23,7 +23,7 @@ def load_view_input(path: str | Path, split: str | None = None, index: int = 0):
 
     Returns:
         (scene, info): the :class:`~datagen.scene.Scene` and a dict with ``kind`` ("scene" | "tal" |
-        "dataset") and, for a dataset, ``room`` (:class:`~datagen.dataset.SampledRoom`), ``split``,
+        "dataset") and, for a dataset, ``room`` (:class:`~datagen.dataset.sampler.SampledRoom`), ``split``,
         ``index``, ``card``.
     Raises:
         SceneError / ConfigError / DatasetError / FileNotFoundError / ValueError: unreadable or invalid input
@@ -32,7 +32,8 @@ def load_view_input(path: str | Path, split: str | None = None, index: int = 0):
         built and ``--resume``).
     """
     from ..errors import ConfigError
-    from ..scene import load_scene, read_yaml
+    from ..scene import load_scene
+    from ..scene.load import read_yaml
 
     path = Path(path)
     if path.is_dir():
@@ -59,20 +60,20 @@ def lookins_for(scene, info: dict, grid: str | None, seed: int | None = None) ->
     so the points are the lookins the sample's simulation cast.
 
     Returns:
-        (N, 3) float64 m (:func:`datagen.plot.lookin_points`) or None.
+        (N, 3) float64 m (:func:`datagen.plot.view_geometry.lookin_points`) or None.
     Raises:
         ValueError: a bad grid, or a scene whose estimator casts no lookins (area, quadrature) with "auto".
     """
     if grid is None:
         return None
-    from ..plot import lookin_points
+    from ..plot.view_geometry import lookin_points
     from ..simulation import resolve_config
     from ..transport import estimator
 
     overrides: dict[str, Any] = {}
     rng = None
     if info.get("kind") == "dataset":
-        from ..dataset import config_from_json, sample_rngs
+        from ..dataset.config import config_from_json, sample_rngs
         config = config_from_json(info["card"]["config"])
         overrides = config.simulation_overrides()
         rng = sample_rngs(config.seed, info["split"], info["index"])["sampling"]
@@ -150,7 +151,8 @@ def view(path, out, show, split, index, lookins, seed, size, flat):
     the emitter, laser beam and spot(s), the sensor, its FoV or scan grid and optionally the lookins of a
     run are drawn; the PNG has a legend, a scale bar and the world axes.
     """
-    from ..plot import DEFAULT_SIZE, ViewUnavailable, render_scene
+    from ..plot import ViewUnavailable, render_scene
+    from ..plot.view_overlay import DEFAULT_SIZE
 
     if out is None and not show:
         raise ValueError("give --out FILE.png and/or --show")

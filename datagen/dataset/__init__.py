@@ -8,6 +8,13 @@ shard by shard (:func:`build_dataset`) with its card (:func:`read_card`) and int
 (:func:`verify_dataset`); and :class:`NLOSDataset`, a torch ``Dataset`` of dicts of tensors (docs/datasets.md;
 docs/physics.md §7).
 
+Exported here, what users call: the config (:class:`DatasetConfig`, :func:`load_dataset_config`), one sample
+(:func:`make_sample`, :func:`sample_setup`, :func:`scene_of_sample`), builds and their checks
+(:func:`build_dataset`, :class:`BuildError`, :func:`verify_dataset`, :func:`read_card`,
+:class:`DatasetCorruptError`), room distributions and labels (:func:`load_room_distribution`,
+:func:`sample_room`, :class:`LabelSpec`, :func:`scene_labels`) and the loader (:class:`NLOSDataset`,
+:class:`BatchNoise`, :func:`plot_sample`). Everything else is imported from its module.
+
 Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.dataset.config`: :class:`DatasetConfig`, the seed streams (:data:`STREAMS`,
@@ -20,7 +27,7 @@ Modules (they import each other directly, never through this package):
   exhaustive laser grids over a rectangle of the relay wall);
 - :mod:`~datagen.dataset.assets`: mesh assets as hidden objects (asset folders, reading, placing);
 - :mod:`~datagen.dataset.sampler`: :func:`sample_room` → :class:`SampledRoom` (its generator keys are
-  ``datagen.dataset.sampler.STREAMS``, not re-exported here: :data:`STREAMS` is the config's stream ids);
+  ``datagen.dataset.sampler.STREAMS``; the config's stream ids are ``datagen.dataset.config.STREAMS``);
 - :mod:`~datagen.dataset.obb`: exact oriented-box geometry (overlaps, beam and view tests, points inside);
 - :mod:`~datagen.dataset.labels`: ground-truth labels (:class:`LabelSpec`, :func:`scene_labels`);
 - :mod:`~datagen.dataset.wall_view`: the networks' orthographic depth / normal / albedo / mask images seen from
@@ -42,46 +49,22 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.score`: scoring reconstructions against a split's labels (``datagen score``);
 - :mod:`~datagen.dataset.figures`: pictures of scanned samples (``datagen inspect``).
 """
-from .build import (DEFAULT_RETRIES, DEFAULT_TASKS_PER_CHILD, BuildError, BuildReport, build_dataset,
-                    write_shard)
-from .config import (COMPONENT_ROOM, OTHER_COMPONENTS, RESAMPLE_NOISE, STREAMS, DatasetConfig, Sample, SplitSpec,
-                     StoreSpec, component_slots, config_from_json, draw_room, load_dataset_config, make_sample,
-                     resample_rng, sample_rngs, sample_seed_sequence, split_key)
-from .labels import PAD_INT, LabelSpec, camera_directions, camera_frame, label_shapes, occupancy_grid, scene_labels
-from .obb import (box_hits_pyramid, box_hits_segment, boxes_overlap, convex_overlap, obb_vertices, points_in_box,
-                  yaw_matrix)
-from .rooms import (MATERIAL_CLASSES, OBJECT_CLASSES, PACKING_LIMIT, UNIFORMS_PER_MATERIAL, CountRange, LabelRegion,
-                    MaterialDist, Range, RoomDistribution, check_feasible, load_room_distribution)
-from .sampler import SampledRoom, sample_room
+from .build import BuildError, build_dataset
+from .config import DatasetConfig, load_dataset_config, make_sample
+from .integrity import DatasetCorruptError, verify_dataset
+from .labels import LabelSpec, scene_labels
+from .rooms import load_room_distribution
 from .sample_scene import sample_setup, scene_of_sample
-from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, UNITS, BuildLock, BuildLockedError, ShardTask,
-                    code_version, file_sha256, marker_path, plan_shards, read_card, read_marker, shard_file, shard_key)
-from .integrity import (DatasetCorruptError, card_problems, check_split, expected_metadata, metadata_problems,
-                        repair_store, verify_dataset)
+from .sampler import sample_room
+from .store import read_card
 
 __all__ = [
-    # config and samples
-    "STREAMS", "RESAMPLE_NOISE", "COMPONENT_ROOM", "OTHER_COMPONENTS", "component_slots", "split_key", "sample_seed_sequence",
-    "sample_rngs", "resample_rng", "SplitSpec", "StoreSpec", "DatasetConfig", "load_dataset_config",
-    "config_from_json", "Sample", "draw_room", "make_sample", "sample_setup", "scene_of_sample",
-    # room distributions and sampling
-    "OBJECT_CLASSES", "MATERIAL_CLASSES", "UNIFORMS_PER_MATERIAL", "PACKING_LIMIT", "Range", "CountRange",
-    "MaterialDist", "LabelRegion", "RoomDistribution", "load_room_distribution", "check_feasible", "SampledRoom",
-    "sample_room",
-    # oriented boxes
-    "yaw_matrix", "obb_vertices", "convex_overlap", "boxes_overlap", "box_hits_segment", "box_hits_pyramid",
-    "points_in_box",
-    # labels
-    "PAD_INT", "LabelSpec", "label_shapes", "camera_frame", "camera_directions", "occupancy_grid", "scene_labels",
-    # store
-    "FORMAT", "FORMAT_VERSION", "LOCK_NAME", "DONE_DIR", "UNITS", "BuildLockedError", "BuildLock", "ShardTask",
-    "plan_shards", "shard_key", "shard_file", "file_sha256", "marker_path", "read_marker", "read_card",
-    "code_version",
-    # integrity
-    "DatasetCorruptError", "expected_metadata", "metadata_problems", "card_problems", "check_split", "repair_store",
-    "verify_dataset",
-    # build
-    "DEFAULT_RETRIES", "DEFAULT_TASKS_PER_CHILD", "BuildError", "BuildReport", "build_dataset", "write_shard",
+    # config and one sample
+    "DatasetConfig", "load_dataset_config", "make_sample", "sample_setup", "scene_of_sample",
+    # builds and their checks
+    "build_dataset", "BuildError", "verify_dataset", "read_card", "DatasetCorruptError",
+    # room distributions and labels
+    "load_room_distribution", "sample_room", "LabelSpec", "scene_labels",
     # loader (lazy)
     "NLOSDataset", "BatchNoise", "plot_sample",
 ]
@@ -94,3 +77,8 @@ def __getattr__(name: str):
         from . import loader
         return getattr(loader, name)
     raise AttributeError(f"module 'datagen.dataset' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names with the lazy ones (``help(datagen.dataset)`` and completion list them)."""
+    return sorted(set(globals()) | set(__all__))

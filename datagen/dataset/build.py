@@ -283,7 +283,7 @@ def _initialize(root: Path, config: DatasetConfig, probe: Sample, assets: list[d
     """Write the card (with the pinned mesh ``assets``, :func:`datagen.dataset.assets.asset_record`) and create
     every array, with the shapes of ``probe`` (sample 0 of the first non-empty split, computed before anything
     was written)."""
-    from ..simulation import library_versions
+    from ..simulation.run import library_versions
 
     card = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": config.name, "status": "incomplete",
             "config": config.to_json(), "config_sha256": config.fingerprint(), "assets": assets,
@@ -341,7 +341,7 @@ def check_shard_memory(config: DatasetConfig, probe: Sample, processes: int) -> 
     Raises:
         ResourceError: naming shard_size, its value and both figures in GiB.
     """
-    from ..simulation import check_memory
+    from ..simulation.budget import check_memory
     per_sample = sum(len(str(a[()])) if a.dtype == object else a.nbytes for a in probe.arrays.values())
     check_memory(SHARD_BUFFER_COPIES * config.shard_size * per_sample * max(1, processes), "shard_size",
                  f"{config.shard_size} ({per_sample / 2**20:.3g} MiB per sample, {max(1, processes)} process(es))",

@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..errors import ConfigError, DatagenError
-from ..scene import format_validation_error, read_yaml
+from ..scene.load import format_validation_error, read_yaml
 from ..simulation.tolerance import MIN_TOLERANCE
 from ..units import parse_duration, parse_fraction
 from .legacy import RENAMED_KEYS, note_old_keys
@@ -249,7 +249,8 @@ class DatasetConfig(_Model):
         """The split's resolved :class:`~datagen.simulation.run.SimulationConfig`: the room distribution's
         ``simulation`` block under :meth:`simulation_overrides`, as ``resolve_config`` merges them for every
         sampled scene (used for the card's per-split detector, which the loader's noise re-draw needs)."""
-        from ..simulation import SimulationConfig, merge_overrides
+        from ..simulation import SimulationConfig
+        from ..simulation.config import merge_overrides
         dist = self.room_distribution(split)
         merged, _ = merge_overrides(dict(getattr(dist, "simulation", {}) or {}), self.simulation_overrides())
         with warnings.catch_warnings():       # the room's old keys: noted when a scene of it is resolved
@@ -380,7 +381,8 @@ def _field_errors(exc: ValidationError, prefix: str, head: str) -> str:
 
 
 def _validate_parts(config: DatasetConfig, prefix: str) -> None:
-    from ..simulation import SimulationConfig, detector_error
+    from ..simulation import SimulationConfig
+    from ..simulation.config import detector_error
     try:
         spec = config.label_spec()
     except ValidationError as exc:

@@ -19,9 +19,12 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from ..sampling import square_to_hemisphere, subdivide_with_vertices
+from ..sampling import square_to_hemisphere
+from ..sampling.surfaces import subdivide_with_vertices
 from ..errors import ConfigError
-from ..scene import BRDF_KINDS, RayCaster, check_counts
+from ..scene import RayCaster
+from ..scene.brdf_kernel import BRDF_KINDS
+from ..scene.parts import check_counts
 from .obb import points_in_box, yaw_matrix
 from .rooms import OBJECT_CLASSES, LabelRegion
 from .sampler import SampledRoom

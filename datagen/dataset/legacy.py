@@ -16,8 +16,8 @@ def canonical_json(data: dict) -> dict:
     """A card's ``config`` or :meth:`DatasetConfig.to_json`, location-free
     (:func:`datagen.dataset.config.location_free_json`), in one form, to compare configs written before and after
     issue 24: renamed keys new, the ``simulation`` block as it applies over the room's
-    (:func:`datagen.simulation.merge_overrides`) and the rooms' blocks translated."""
-    from ..simulation import merge_overrides
+    (:func:`datagen.simulation.config.merge_overrides`) and the rooms' blocks translated."""
+    from ..simulation.config import merge_overrides
     data = copy.deepcopy(data)
     for old, new in RENAMED_KEYS.items():
         if old in data:
@@ -37,7 +37,8 @@ def canonical_json(data: dict) -> dict:
 def note_old_keys(data: Any, where: str) -> None:
     """One :class:`~datagen.simulation.LegacyKeysWarning` listing the old keys of a dataset config (its
     ``simulation`` block's and :data:`RENAMED_KEYS`), if any."""
-    from ..simulation import LegacyKeysWarning, legacy_note, translate_legacy
+    from ..simulation import LegacyKeysWarning
+    from ..simulation.config import legacy_note, translate_legacy
     if not isinstance(data, dict):
         return
     moves = [f"{old} -> {new}" for old, new in RENAMED_KEYS.items() if old in data]

@@ -29,7 +29,7 @@ room generator's order, pillars first then boxes, padding last (class −1, 0.0 
 Noise. ``noise="frozen"`` returns the stored SPAD counts (evaluation sets). ``noise="resample"`` re-draws
 them from the stored envelope with the split's detector (:func:`datagen.spad.rates_from_envelope`,
 :func:`datagen.spad.sample_histogram`) and the generator ``SeedSequence(seed, spawn_key=(split_key, epoch,
-index, 4))`` (:func:`datagen.dataset.resample_rng`): fresh every epoch (``set_epoch``), identical for the
+index, 4))`` (:func:`datagen.dataset.config.resample_rng`): fresh every epoch (``set_epoch``), identical for the
 same epoch and index in any worker. The stored envelope is float32 by default, so the re-drawn rates carry
 its rounding (relative 6e-8).
 

@@ -18,7 +18,7 @@ _EPS = 1e-12
 
 
 def yaw_matrix(yaw_deg: float) -> np.ndarray:
-    """(3, 3) rotation about +z by ``yaw_deg`` degrees (same as :func:`datagen.scene.box_mesh`)."""
+    """(3, 3) rotation about +z by ``yaw_deg`` degrees (same as :func:`datagen.scene.builders.box_mesh`)."""
     a = math.radians(yaw_deg)
     return np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
 

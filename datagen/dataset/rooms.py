@@ -24,7 +24,10 @@ import numpy as np
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from ..errors import ConfigError
-from ..scene import BRDF_KINDS, Laser, Material, check_counts, format_validation_error, read_yaml
+from ..scene import Laser, Material
+from ..scene.brdf_kernel import BRDF_KINDS
+from ..scene.load import format_validation_error, read_yaml
+from ..scene.parts import check_counts
 from ..units import parse_energy, parse_length
 from .assets import asset_files, resolve_assets
 from .ranges import CountRange, Fraction, Model, NonNegative, Positive, Range, Signed, Unit

@@ -69,7 +69,8 @@ def sample_setup(config: DatasetConfig | str | Path, split: str, index: int):
         (:class:`~datagen.scene.Scene`, :class:`~datagen.simulation.SimulationConfig`): the room the sample was
         drawn from and its resolved simulation settings (the dataset's ``simulation`` block over the room's).
         The sample itself is ``simulate_to_tolerance(scene, sim_config, config.tolerance, max_cost=
-        config.cost_cap, sampling_rng=..., noise_rng=...)`` with the sample's streams (:func:`datagen.dataset.sample_rngs`).
+        config.cost_cap, sampling_rng=..., noise_rng=...)`` with the sample's streams
+        (:func:`datagen.dataset.config.sample_rngs`).
     Raises:
         ConfigError: an unknown split, an index out of range, an invalid config file.
     """

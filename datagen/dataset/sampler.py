@@ -26,8 +26,8 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import ConfigError
-from ..scene import (ROOM_LABELS, FieldOfView, Laser, Scene, SceneObject, Sensor, box, l_room, pillar,
-                     quad)
+from ..scene import FieldOfView, Laser, Scene, SceneObject, Sensor, box, l_room, pillar, quad
+from ..scene.parts import ROOM_LABELS
 from .assets import asset_box, asset_files, asset_name, load_asset, place_asset
 from .obb import box_hits_pyramid, box_hits_segment, boxes_overlap
 from .rooms import (OBJECT_CLASSES, UNIFORMS_PER_MATERIAL, MeshObjectDist, ObjectDist, PointDist, Range,

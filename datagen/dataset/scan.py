@@ -28,7 +28,8 @@ from typing import Literal
 import numpy as np
 from pydantic import field_validator, model_validator
 
-from ..scene import CaptureSpec, check_counts
+from ..scene import CaptureSpec
+from ..scene.parts import check_counts
 from .ranges import Model, Positive, Range, Signed, Unit
 
 

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DatasetError
-from ..scene import MAX_EXTENT
+from ..scene.parts import MAX_EXTENT
 
 DEFAULT_DEPTH_FIELD = "wall_depth"
 OCCUPANCY_THRESHOLD = 0.5

@@ -142,7 +142,7 @@ def check_dataset_dir(root: Path, resume: bool) -> None:
     Raises:
         FileExistsError / PermissionError: naming the path and what to do instead.
     """
-    from ..scene import check_output_dir
+    from ..scene.load import check_output_dir
     check_output_dir(root, "--out")
     if not root.exists():
         return
@@ -292,7 +292,7 @@ def split_entries(config: DatasetConfig, fields: dict[str, tuple[tuple[int, ...]
 
 def code_version() -> str:
     """``git describe --always --dirty --tags`` of the datagen checkout, else the package version."""
-    from ..simulation import library_versions
+    from ..simulation.run import library_versions
     here = Path(__file__).resolve().parent
     try:
         out = subprocess.run(["git", "describe", "--always", "--dirty", "--tags"], cwd=here, capture_output=True,

@@ -8,23 +8,24 @@ with the :class:`TalCapture` saying how ``tal render`` would lay its result out 
 and tal's HDF5 capture files (:func:`write_tal_hdf5`, :func:`read_tal_hdf5`; H (T, Sx, Sy) or
 (T, Lx, Ly, Sx, Sy) from :func:`tal_arrays`).
 
+Exported here, what users call: :func:`write_result`, :func:`read_result`, :func:`write_detection`,
+:func:`scene_from_tal_yaml`, :func:`tal_arrays`, :func:`write_tal_hdf5`, :func:`read_tal_hdf5`. Everything else
+(:class:`~datagen.io.tal.TalCapture`, tal's enums ``HFormat`` / ``GridFormat`` / ``VolumeFormat`` in
+:mod:`~datagen.io.tal_hdf5`, ...) is imported from its module.
+
 Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.io.store`: the Zarr result store (docs/physics.md §7);
 - :mod:`~datagen.io.tal`: tal render YAML → scene and :class:`TalCapture` (frames, units, radiometry);
 - :mod:`~datagen.io.tal_hdf5`: tal's HDF5 capture layout, a result as tal's fields, HDF5 read/write.
 """
-from .store import CAPTURE_ARRAYS, RESULT_NAME, read_result, write_detection, write_result
-from .tal import (TAL_DEFAULTS, TAL_KEYS, TalCapture, load_tal_config, scene_from_tal_config, scene_from_tal_yaml,
-                  tal_transform)
-from .tal_hdf5 import TAL_FIELDS, GridFormat, HFormat, VolumeFormat, read_tal_hdf5, tal_arrays, write_tal_hdf5
+from .store import read_result, write_detection, write_result
+from .tal import scene_from_tal_yaml
+from .tal_hdf5 import read_tal_hdf5, tal_arrays, write_tal_hdf5
 
 __all__ = [
     # result store
-    "RESULT_NAME", "CAPTURE_ARRAYS", "write_result", "read_result", "write_detection",
-    # tal render YAML
-    "TAL_DEFAULTS", "TAL_KEYS", "TalCapture", "load_tal_config", "scene_from_tal_config", "scene_from_tal_yaml",
-    "tal_transform",
-    # tal HDF5 captures
-    "HFormat", "GridFormat", "VolumeFormat", "TAL_FIELDS", "tal_arrays", "write_tal_hdf5", "read_tal_hdf5",
+    "write_result", "read_result", "write_detection",
+    # tal render YAML and HDF5 captures
+    "scene_from_tal_yaml", "tal_arrays", "write_tal_hdf5", "read_tal_hdf5",
 ]

@@ -32,8 +32,9 @@ import numpy as np
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, ValidationError,
                       ValidationInfo, field_validator, model_validator)
 
-from ..scene import (Material, Scene, SceneError, SceneObject, format_validation_error, read_yaml, scene_from_dict,
-                     short_repr)
+from ..scene import Material, Scene, SceneObject, scene_from_dict
+from ..errors import SceneError
+from ..scene.load import format_validation_error, read_yaml, short_repr
 from ..units import SPEED_OF_LIGHT
 
 __all__ = [

@@ -37,7 +37,7 @@ import numpy as np
 import yaml
 
 from ..errors import DatasetError
-from ..scene import parse_yaml
+from ..scene.load import parse_yaml
 from ..units import SPEED_OF_LIGHT
 from .tal import TalCapture
 

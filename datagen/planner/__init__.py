@@ -6,17 +6,15 @@ its numbers, forced or not), which ``Plan.apply`` sets on an estimator-neutral
 :class:`~datagen.transport.PhysicsSettings` (the chosen estimator builds its own settings from it). The pile-up
 rule is the detector's (:mod:`datagen.spad.pileup`); the planner previews it before transport.
 
+Exported here: :func:`plan_effects`, :class:`Plan`, :class:`Decision`, :data:`EFFECTS`; the rest is imported
+from its module.
+
 - :mod:`.decisions`: the rules and :func:`plan_effects`.
 - :mod:`.geometry`: :class:`PlanGeometry`, triangles and the capture frame, and which side of each closed
   mesh the laser light can reach (:func:`reachable_side`).
 - :mod:`.coarse`: the coarse area quadrature of the primary and secondary energy behind the secondary and
   pile-up decisions.
 """
-from .coarse import CoarseEnergies, coarse_energies
-from .decisions import (DEFAULT_TOLERANCE, EFFECTS, PAIR_TEST_MAX_TRIANGLES, PILE_UP_SAFETY, SECONDARY_SAFETY,
-                        Decision, Plan, plan_effects)
-from .geometry import PlanGeometry, reachable_side
+from .decisions import EFFECTS, Decision, Plan, plan_effects
 
-__all__ = ["CoarseEnergies", "coarse_energies", "DEFAULT_TOLERANCE", "EFFECTS", "PAIR_TEST_MAX_TRIANGLES",
-           "PILE_UP_SAFETY", "SECONDARY_SAFETY", "Decision", "Plan", "plan_effects", "PlanGeometry",
-           "reachable_side"]
+__all__ = ["EFFECTS", "Decision", "Plan", "plan_effects"]

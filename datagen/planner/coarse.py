@@ -11,8 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..sampling import subdivide_triangles, subdivisions
-from ..transport import fov_connection_weight, laser_irradiance, material_arrays
+from ..sampling.surfaces import subdivide_triangles, subdivisions
+from ..transport.area_kernels import material_arrays
+from ..transport.physics import fov_connection_weight, laser_irradiance
 from .coarse_kernel import outgoing_sums, primary_energy, secondary_candidates, secondary_energy
 from .geometry import PlanGeometry
 

@@ -46,9 +46,10 @@ import numpy as np
 
 from ..errors import ConfigError
 from .. import spad
-from ..scene import FOV_EDGE_REL, FOV_PLANE_TOL, Capture, RayCaster, Scene
-from ..scene import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
-from ..timing import TAIL_MARGIN_TAUS
+from ..scene import RayCaster, Scene
+from ..scene.capture import Capture, FOV_EDGE_REL, FOV_PLANE_TOL
+from ..scene.separation import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
+from ..timing.irf import TAIL_MARGIN_TAUS
 from ..spad.pileup import pile_up_decision
 from ..transport import PhysicsSettings
 from ..transport.base import PLANNED_SWITCHES

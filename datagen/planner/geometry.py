@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..scene import Capture, RayCaster, Scene
+from ..scene import RayCaster, Scene
+from ..scene.capture import Capture
 from ..transport import LegPhysics, PhysicsSettings
 
 class PlanGeometry:

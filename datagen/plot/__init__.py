@@ -12,19 +12,14 @@
   imported only inside the functions that render; without it they raise :class:`ViewUnavailable` (one line).
 
 matplotlib is imported with the Agg backend; nothing here changes a result.
+
+Exported here, what users call: :func:`plot_envelope`, :func:`write_sampling_figures`, :func:`render_scene`,
+:func:`render_scene_image` and :class:`ViewUnavailable`; the rest is imported from its module.
 """
 from .envelope import plot_envelope
-from .energy import LaserEnergy, LookinEnergy, laser_energy, lookin_energy, pick_lookin
 from .figures import write_sampling_figures
-from .view_camera import ViewCamera, auto_camera
-from .view_geometry import CLASS_COLORS, Drawables, build_drawables, lookin_points
-from .view_overlay import DEFAULT_SIZE, LEGEND_WIDTH, compose, render_scene, scene_view_figure
-from .view_render import SceneImage, render_scene_image
-from .view_worker import ViewUnavailable, require_open3d
+from .view_overlay import render_scene
+from .view_render import render_scene_image
+from .view_worker import ViewUnavailable
 
-__all__ = ["plot_envelope", "LaserEnergy", "LookinEnergy", "laser_energy", "lookin_energy", "pick_lookin",
-           "write_sampling_figures",
-           # 3D pictures (open3d)
-           "ViewCamera", "auto_camera", "CLASS_COLORS", "Drawables", "build_drawables", "lookin_points",
-           "DEFAULT_SIZE", "LEGEND_WIDTH", "compose", "render_scene", "scene_view_figure", "SceneImage",
-           "render_scene_image", "ViewUnavailable", "require_open3d"]
+__all__ = ["plot_envelope", "write_sampling_figures", "render_scene", "render_scene_image", "ViewUnavailable"]

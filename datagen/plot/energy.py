@@ -2,7 +2,7 @@
 
 - :func:`laser_energy` (Figure 3): the laser energy reaching every observed point of every lookin: the spreading
   loss 1/R², the laser-spot emission f_l cosθ_l toward each point and the laser irradiance
-  Φ f_l cosθ_l cosθ_x V / R² (:func:`datagen.transport.laser_irradiance`), zero in the laser's shadow.
+  Φ f_l cosθ_l cosθ_x V / R² (:func:`datagen.transport.physics.laser_irradiance`), zero in the laser's shadow.
 - :func:`lookin_energy` (Figure 5): one lookin's camera: its BRDF lobe f·cosθ over its observed points, the same
   over r², and each FoV point's primary weight f cosθ Ω × the detected fraction
   (:meth:`datagen.transport.LegPhysics.sensor_collection`).
@@ -16,10 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..sampling import Lookins, observe
-from ..scene import FOV_PLANE_TOL, Scene
-from ..simulation import STREAM_SAMPLING, SimulationConfig, stream_rng
-from ..transport import LookinSampler, laser_irradiance
+from ..sampling import observe
+from ..sampling.lookins import Lookins
+from ..scene import Scene
+from ..scene.capture import FOV_PLANE_TOL
+from ..simulation import SimulationConfig
+from ..simulation.config import STREAM_SAMPLING, stream_rng
+from ..transport import LookinSampler
+from ..transport.physics import laser_irradiance
 from ..vectors import dot, unit
 
 LOOKIN_PIXELS = (120, 120)

@@ -31,8 +31,11 @@ from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.colors import LogNorm, Normalize, to_rgba  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
-from ..scene import FOV_PLANE_TOL, ROOM_LABELS, Scene  # noqa: E402
-from ..simulation import STREAM_SAMPLING, SimulationConfig, stream_rng  # noqa: E402
+from ..scene import Scene  # noqa: E402
+from ..scene.capture import FOV_PLANE_TOL  # noqa: E402
+from ..scene.parts import ROOM_LABELS  # noqa: E402
+from ..simulation import SimulationConfig  # noqa: E402
+from ..simulation.config import STREAM_SAMPLING, stream_rng  # noqa: E402
 from ..transport import LookinSampler  # noqa: E402
 from ..vectors import dot, unit  # noqa: E402
 from .energy import LaserEnergy, LookinEnergy, laser_energy, lookin_energy, pick_lookin  # noqa: E402

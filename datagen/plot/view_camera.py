@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene import Capture, Scene
+from ..scene import Scene
+from ..scene.capture import Capture
 
 ELEVATION_DEG = 48.0
 """Camera elevation above the horizontal: steep enough to look into a room with its ceiling cut away,

@@ -21,8 +21,12 @@ from typing import Iterable
 
 import numpy as np
 
-from ..scene import ROOM_LABELS, RayCaster, Scene, box_mesh, resolve_capture
-from ..simulation import STREAM_SAMPLING, SimulationConfig, replica_rng, replica_root, stream_rng
+from ..scene import RayCaster, Scene, resolve_capture
+from ..scene.builders import box_mesh
+from ..scene.parts import ROOM_LABELS
+from ..simulation import SimulationConfig
+from ..simulation.config import STREAM_SAMPLING, stream_rng
+from ..simulation.replicas import replica_rng, replica_root
 from ..transport import LookinSampler, estimator
 from .view_camera import ViewCamera, auto_camera, frame, safe_unit, scene_size
 
@@ -268,7 +272,7 @@ def on_faces(o3d, points: np.ndarray, meshes: list, tol: float) -> np.ndarray:
 def lookin_points(scene: Scene, config: SimulationConfig, rng: np.random.Generator | None = None) -> np.ndarray:
     """Hit points of the lookins a simulation of ``scene`` with ``config`` casts (the lookin estimator).
 
-    Follows :class:`datagen.simulation.Replicas` and :meth:`datagen.transport.LookinSampler.run_replicas`: the
+    Follows :class:`datagen.simulation.run.Replicas` and :meth:`datagen.transport.LookinSampler.run_replicas`: the
     config's first round of ``replicas`` runs on the replica grid, each with one root ``SeedSequence``, then per
     laser point one child stream for its lookins (jittered grids) and one per batch of hit lookins
     (tests/test_view.py checks the points equal those of a run).

@@ -6,13 +6,12 @@
   :class:`ObservedPoints`, arrays (B, l·p, 3) / (B, l·p); every pixel 2π/(l·p) sr).
 - :mod:`.surfaces`: points on triangles, one implementation for every estimator: :func:`subdivide_triangles`,
   :func:`subdivide_with_vertices`, :func:`sample_surfaces` → :class:`SurfaceSamples` (points (M, 3), areas (M,)).
-"""
-from .directions import HemispherePdf, concentric_disk, square_to_hemisphere, stratified_grid, to_world
-from .lookins import Lookins, ObservedPoints, camera_solid_angle, observe, sample_lookins
-from .surfaces import (AreaSampling, SurfaceSamples, padding, sample_surfaces, stratified_edge, subdivide_triangles,
-                       subdivide_with_vertices, subdivisions, unit_square_points, unit_triangle, coarse_cells)
 
-__all__ = ["HemispherePdf", "concentric_disk", "square_to_hemisphere", "stratified_grid", "to_world", "Lookins",
-           "ObservedPoints", "camera_solid_angle", "observe", "sample_lookins", "AreaSampling", "SurfaceSamples",
-           "padding", "coarse_cells", "sample_surfaces", "stratified_edge", "subdivide_triangles", "subdivide_with_vertices",
-           "subdivisions", "unit_square_points", "unit_triangle"]
+Exported here: :func:`square_to_hemisphere`, :func:`sample_lookins`, :func:`observe` and
+:func:`sample_surfaces`; the estimators import the rest from its module.
+"""
+from .directions import square_to_hemisphere
+from .lookins import observe, sample_lookins
+from .surfaces import sample_surfaces
+
+__all__ = ["square_to_hemisphere", "sample_lookins", "observe", "sample_surfaces"]

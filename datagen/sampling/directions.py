@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..scene import tangent_frame
+from ..scene.materials import tangent_frame
 
 HemispherePdf = Literal["cosine", "uniform"]
 

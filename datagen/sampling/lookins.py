@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene import tangent_frame
+from ..scene.materials import tangent_frame
 from ..scene import RayCaster
 from .directions import HemispherePdf, square_to_hemisphere, stratified_grid, to_world
 

@@ -10,11 +10,17 @@ the resolved :class:`Capture` (laser points (L, 3), sensor grid frame, aperture;
 Every invalid input raises :class:`SceneError` naming the file, the field and the value. World frame
 right-handed, z up, metres (docs/physics.md §1).
 
+Exported here, what users call: :class:`Scene` and its parts (:class:`SceneObject`, :class:`Material`,
+:class:`Laser`, :class:`Sensor`, :class:`FieldOfView`, :class:`CaptureSpec`, :class:`WallGrid`), scene files
+(:func:`load_scene`, :func:`scene_from_dict`), the builders, :class:`RayCaster` and :func:`resolve_capture`.
+Every other name (input bounds, YAML helpers, BRDF tables, separating planes, ...) is imported from its module;
+:class:`~datagen.errors.SceneError` from :mod:`datagen.errors` (or ``datagen.SceneError``).
+
 Modules (they import each other directly, never through this package):
 
-- :mod:`~datagen.scene.parts`: :class:`SceneError`, :class:`SceneObject`, :class:`Laser`,
-  :class:`FieldOfView`, :class:`Sensor`, :class:`WallGrid`, :class:`CaptureSpec`, ``ROOM_LABELS``, and the
-  input bounds (``MAX_EXTENT``, ``RESERVED_NAMES``, :func:`check_object_name`, ...);
+- :mod:`~datagen.scene.parts`: :class:`SceneObject`, :class:`Laser`, :class:`FieldOfView`, :class:`Sensor`,
+  :class:`WallGrid`, :class:`CaptureSpec`, ``ROOM_LABELS``, and the input bounds (``MAX_EXTENT``,
+  ``RESERVED_NAMES``, :func:`check_object_name`, ...);
 - :mod:`~datagen.scene.model`: the :class:`Scene` dataclass (checks and coincident faces on construction);
 - :mod:`~datagen.scene.coincident`: coplanar overlapping faces rejected or de-duplicated;
 - :mod:`~datagen.scene.builders`: meshes and objects built in Python;
@@ -25,40 +31,19 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.scene.separation`: separating-plane tests between triangles and convex hulls (planner,
   quadrature).
 """
-from .builders import box, box_mesh, import_mesh, l_room, pillar, quad, quad_mesh
-from .separation import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
-from .capture import FOV_EDGE_REL, FOV_PLANE_TOL, Capture, resolve_capture
-from .coincident import (COPLANAR_TOL_REL, Coincidence, duplicate_faces, find_coincident_faces,
-                         resolve_coincident_faces)
-from .load import (MAX_YAML_BYTES, MAX_YAML_VALUES, ObjectSpec, SceneFile, check_output_dir, format_validation_error,
-                   load_scene, parse_yaml, read_yaml, scene_from_dict, short_repr)
-from .materials import BRDF_KINDS, LAMBERTIAN, PHONG, SIN_THETA, Material, MaterialTable, tangent_frame
+from .builders import box, import_mesh, l_room, pillar, quad
+from .capture import resolve_capture
+from .load import load_scene, scene_from_dict
+from .materials import Material
 from .model import Scene
-from .parts import (MAX_APERTURE_RADIUS, MAX_EXTENT, RESERVED_NAMES, ROOM_LABELS, WAVELENGTH_RANGE, CaptureSpec,
-                    FieldOfView, Laser, SceneError, SceneObject, Sensor, Vec3, WallGrid, check_counts, check_finite,
-                    check_object_name, check_sizes)
-from .raycast import RAY_OFFSET_REL, Hits, RayCaster
+from .parts import CaptureSpec, FieldOfView, Laser, SceneObject, Sensor, WallGrid
+from .raycast import RayCaster
 
 __all__ = [
-    # parts
-    "ROOM_LABELS", "Vec3", "SceneError", "check_finite", "check_counts", "SceneObject", "Laser", "FieldOfView",
-    "Sensor", "WallGrid", "CaptureSpec", "MAX_EXTENT", "MAX_APERTURE_RADIUS", "WAVELENGTH_RANGE", "RESERVED_NAMES",
-    "check_object_name", "check_sizes",
-    # model
-    "Scene",
-    # coincident faces
-    "COPLANAR_TOL_REL", "Coincidence", "find_coincident_faces", "resolve_coincident_faces", "duplicate_faces",
-    # builders
-    "quad_mesh", "box_mesh", "l_room", "pillar", "box", "quad", "import_mesh",
-    # scene files
-    "SceneFile", "ObjectSpec", "format_validation_error", "scene_from_dict", "load_scene", "read_yaml", "parse_yaml",
-    "short_repr", "check_output_dir", "MAX_YAML_BYTES", "MAX_YAML_VALUES",
-    # materials
-    "BRDF_KINDS", "LAMBERTIAN", "SIN_THETA", "PHONG", "Material", "MaterialTable", "tangent_frame",
-    # ray casting
-    "RAY_OFFSET_REL", "Hits", "RayCaster",
-    # capture geometry
-    "FOV_EDGE_REL", "FOV_PLANE_TOL", "Capture", "resolve_capture",
-    # separating planes (planner, quadrature)
-    "CHUNK_ELEMENTS", "hull_planes", "may_meet", "outward_planes",
+    # the scene and its parts
+    "Scene", "SceneObject", "Material", "Laser", "Sensor", "FieldOfView", "CaptureSpec", "WallGrid",
+    # scene files and builders
+    "load_scene", "scene_from_dict", "l_room", "pillar", "box", "quad", "import_mesh",
+    # rays and the capture
+    "RayCaster", "resolve_capture",
 ]

@@ -1,5 +1,10 @@
 """Simulation: the main job, scene → sampling → transport → timing → detector (the layer above the planner).
 
+Exported here, what users call: :class:`SimulationConfig`, :func:`resolve_config`, :func:`simulate` →
+:class:`Result`, :func:`simulate_to_tolerance` (and its :class:`ToleranceOutOfReach`), :func:`simulation_memory`
+and :class:`LegacyKeysWarning`; the rest (random streams, replicas, ``run_transport``, limits) is imported from
+its module.
+
 - :mod:`.config`: :class:`SimulationConfig` (sampling, estimator, time axis, IRF, detector, effects; pydantic),
   :func:`resolve_config` (a scene file's ``simulation`` block merged with overrides) and the random streams
   (:func:`stream_rng`, ``STREAM_SAMPLING`` / ``STREAM_NOISE``).
@@ -14,21 +19,10 @@
 - :mod:`.budget`: the memory a simulation needs, estimated before allocating (:func:`simulation_memory`), and
   the refusal (:class:`ResourceError`) when it exceeds the memory available.
 """
-from .budget import ResourceError, available_memory, check_memory, check_simulation_memory, simulation_memory
-from .config import (STREAM_NOISE, STREAM_SAMPLING, TIME_AXIS_FIELDS, LegacyKeysWarning, SimulationConfig,
-                     detector_error, legacy_note, merge_overrides, parse_grid, resolve_config, stream_rng,
-                     translate_legacy)
-from .replicas import PEAK_FLOOR, ReplicaSums, relative_standard_error, replica_rng, replica_root
-from .tolerance import (MIN_TOLERANCE, TIME_CAP_S, ToleranceOutOfReach, check_tolerance, projected_seconds,
-                        simulate_to_tolerance)
-from .run import (Replicas, Result, Transported, library_versions, make_result, prepare_transport, run_transport,
-                  simulate)
+from .budget import simulation_memory
+from .config import LegacyKeysWarning, SimulationConfig, resolve_config
+from .run import Result, simulate
+from .tolerance import ToleranceOutOfReach, simulate_to_tolerance
 
-__all__ = ["STREAM_NOISE", "STREAM_SAMPLING", "TIME_AXIS_FIELDS", "detector_error", "LegacyKeysWarning",
-           "SimulationConfig", "legacy_note", "merge_overrides", "parse_grid", "resolve_config", "stream_rng",
-           "translate_legacy",
-           "PEAK_FLOOR", "ReplicaSums", "relative_standard_error", "replica_rng", "replica_root", "Replicas",
-           "Result", "Transported", "library_versions", "make_result", "prepare_transport", "run_transport",
-           "simulate", "simulate_to_tolerance", "TIME_CAP_S", "MIN_TOLERANCE", "ToleranceOutOfReach",
-           "check_tolerance", "projected_seconds",
-           "ResourceError", "available_memory", "check_memory", "check_simulation_memory", "simulation_memory"]
+__all__ = ["SimulationConfig", "resolve_config", "simulate", "Result", "simulate_to_tolerance", "ToleranceOutOfReach",
+           "simulation_memory", "LegacyKeysWarning"]

@@ -10,7 +10,7 @@ figures in GiB. ``simulate`` and ``simulate_to_tolerance`` call it before buildi
 (:func:`datagen.simulation.run.run_transport`); dataset builds add their shard buffers
 (:mod:`datagen.dataset.build`).
 
-The estimators' own terms come from their registry entries (:attr:`datagen.transport.EstimatorEntry.memory`, beside
+The estimators' own terms come from their registry entries (:attr:`datagen.transport.base.EstimatorEntry.memory`, beside
 each estimator's code). The byte counts per element are upper estimates of the arrays they hold at once (read off the
 code, and measured for the secondary's pairs): a setting refused here would have failed with a MemoryError (or
 the kernel's out-of-memory killer) after minutes of work, while the repository's scenes and configs estimate
@@ -90,7 +90,7 @@ def simulation_memory(scene: Scene, config: SimulationConfig) -> list[tuple[str,
         (field, value, bytes) per term, largest first: field is the config or scene field that sets the term
         (``time.n_bins``, ``estimator.lookins``, ``sensor.fov.pixels``, ``estimator.edge``, …). The shared
         arrays are counted here, the estimator's own by its registry entry
-        (:attr:`datagen.transport.EstimatorEntry.memory`).
+        (:attr:`datagen.transport.base.EstimatorEntry.memory`).
     """
     lasers, sensors, channels, grid_field = _capture_counts(scene)
     primary = len(scene.component_names()) if config.split_components else 1

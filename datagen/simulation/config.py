@@ -16,11 +16,12 @@ from pydantic import BaseModel, ConfigDict, Field, SerializeAsAny, ValidationErr
 from ..errors import ConfigError
 from .. import spad
 from ..planner import EFFECTS
-from ..scene import MAX_EXTENT, Scene, format_validation_error, short_repr
+from ..scene import Scene
+from ..scene.load import format_validation_error, short_repr
+from ..scene.parts import MAX_EXTENT
 from ..timing import Irf, TimeAxis
-from ..transport import (EstimatorOptions, PhysicsSettings, TransportSettings, estimator, estimator_names,
-                         estimator_options)
-from ..units import parse_grid  # noqa: F401  (re-exported: datagen.simulation.parse_grid)
+from ..transport import EstimatorOptions, PhysicsSettings, TransportSettings, estimator, estimator_names
+from ..transport.base import estimator_options
 
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
 """spawn_key entries of the random streams (docs/physics.md §7)."""
@@ -115,9 +116,9 @@ class SimulationConfig(BaseModel):
 
     Attributes:
         estimator: the estimator and its settings, a mapping with ``kind`` ("lookin", "area", "quadrature" or any
-            registered estimator) validated by that estimator's model (:class:`datagen.transport.LookinOptions`,
-            :class:`~datagen.transport.AreaOptions`, :class:`~datagen.transport.QuadratureOptions`); a bare
-            name means its defaults. Old flat keys (``lookins``, ``area_samples``, ``quadrature_edge``, …) are
+            registered estimator) validated by that estimator's model
+            (:class:`datagen.transport.lookin.LookinOptions`, :class:`~datagen.transport.area.AreaOptions`,
+            :class:`~datagen.transport.quadrature_options.QuadratureOptions`); a bare name means its defaults. Old flat keys (``lookins``, ``area_samples``, ``quadrature_edge``, …) are
             translated with one :class:`LegacyKeysWarning` (:func:`translate_legacy`).
         secondary: "none", "optimized" (the lookin estimator's strongest ``top_k`` per lookin and FoV point),
             "full" (every pair) or "exact" (the same sum factorised, O(Ñ) per lookin, docs/physics.md §3); the

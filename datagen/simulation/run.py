@@ -23,7 +23,8 @@ from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..planner import Plan, plan_effects
 from ..scene import Capture, RayCaster, Scene, resolve_capture
 from ..timing import EnvelopeAccumulator
-from ..transport import Estimator, estimator, run_replicas
+from ..transport import estimator
+from ..transport.base import Estimator, run_replicas
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .replicas import ReplicaSums, relative_difference, replica_root, replica_rng

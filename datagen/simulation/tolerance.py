@@ -76,7 +76,7 @@ percent, not by a factor 10."""
 STALLED = 0.9
 """A level whose estimate stayed above this fraction of the previous level's is followed by a halved edge: a small
 step can leave the split of the triangles that carry the error unchanged (every triangle is cut into an even number
-of parts per side, :func:`datagen.sampling.subdivide_with_vertices`)."""
+of parts per side, :func:`datagen.sampling.surfaces.subdivide_with_vertices`)."""
 
 
 class ToleranceOutOfReach(ConfigError):

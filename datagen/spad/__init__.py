@@ -36,7 +36,14 @@ diffusion tail act *before* pile-up (they change which photon comes first); the 
 avalanche/electronic/TDC jitter acts *after* pile-up (it moves the recorded time stamp of the photon that
 already won).  At low flux the two orders agree; at high flux they do not (see :func:`apply_jitter_before`).
 
-Modules (each imports only the ones above it; import the functions from ``datagen.spad``):
+Exported here, what users call (docs/detector.md): :class:`DetectorConfig`, :func:`rates_from_envelope`,
+the histograms (:func:`expected_histogram`, :func:`sample_histogram`), :func:`coates`, :func:`rebin_envelope`,
+:func:`gate_fraction`, :func:`instrument_response`, the jitter orders (:func:`apply_jitter_before`,
+:func:`apply_jitter_after`) and the counting-mode detectors (:func:`counter_rate`, :func:`counter_variance`,
+:func:`sample_counter`). The per-model functions and the tuning constants (chunk sizes, Markov-chain limits, ...)
+are imported from their modules.
+
+Modules (each imports only the ones above it):
 
 * :mod:`~datagen.spad.config`: :class:`DetectorConfig` and its YAML presets.
 * :mod:`~datagen.spad.arrays`: input checks and numerical helpers for ``(..., bins)`` arrays.
@@ -50,59 +57,15 @@ Modules (each imports only the ones above it; import the functions from ``datage
 """
 from __future__ import annotations
 
-from .arrays import MAX_SIMULATED_EVENTS
-from .config import FWHM_PER_SIGMA, MAX_CYCLES, DeadTimeKind, DetectorConfig, ModelName
+from .config import DetectorConfig
 from .counters import counter_rate, counter_variance, sample_counter
 from .correction import coates
-from .effects import (
-    DIRECT_CONVOLUTION_TAPS,
-    EXP_TAIL_LENGTHS,
-    GAUSS_TAIL_SIGMAS,
-    MAX_KERNEL_TAPS,
-    apply_jitter_after,
-    apply_jitter_before,
-    exponential_kernel,
-    gaussian_kernel,
-    instrument_response,
-)
-from .free_running import (
-    EVENT_FLUSH,
-    EVENT_SEGMENT_ARRIVALS,
-    EXP_BLOCK_LIMIT,
-    MARKOV_CELL_HAZARD,
-    MARKOV_CHUNK_ELEMENTS,
-    MARKOV_MAX_ITER,
-    MARKOV_MAX_STATES,
-    MARKOV_TOL,
-    TICKS_PER_PERIOD,
-    event_simulation,
-    event_simulation_batched,
-    free_running_rate,
-)
+from .effects import apply_jitter_after, apply_jitter_before, instrument_response
 from .histogram import expected_histogram, sample_histogram
-from .rates import NEGATIVE_ENVELOPE_RTOL, gate_fraction, rates_from_envelope, rebin_envelope
-from .synchronous import (
-    MAX_EXPECTED_COUNTS,
-    POISSON_NORMAL_ABOVE,
-    SAMPLER_PIXEL_CHUNK,
-    SEQUENTIAL_MAX_BINS,
-    SEQUENTIAL_MIN_PIXELS,
-    detection_pmf,
-    first_photon_sequential,
-    first_photon_tree,
-)
+from .rates import gate_fraction, rates_from_envelope, rebin_envelope
 
 __all__ = [
-    # functions and the configuration
-    "DetectorConfig", "rates_from_envelope", "detection_pmf", "expected_histogram", "sample_histogram", "coates",
-    "gate_fraction", "rebin_envelope", "gaussian_kernel", "exponential_kernel", "apply_jitter_before",
-    "apply_jitter_after", "instrument_response", "counter_rate", "counter_variance", "sample_counter",
-    "free_running_rate", "first_photon_sequential", "first_photon_tree", "event_simulation",
-    "event_simulation_batched",
-    # named constants and types (documented in their modules)
-    "FWHM_PER_SIGMA", "ModelName", "DeadTimeKind", "NEGATIVE_ENVELOPE_RTOL", "GAUSS_TAIL_SIGMAS", "EXP_TAIL_LENGTHS",
-    "MAX_KERNEL_TAPS", "DIRECT_CONVOLUTION_TAPS", "SAMPLER_PIXEL_CHUNK", "SEQUENTIAL_MAX_BINS",
-    "SEQUENTIAL_MIN_PIXELS", "POISSON_NORMAL_ABOVE", "MAX_EXPECTED_COUNTS", "EXP_BLOCK_LIMIT", "MARKOV_MAX_STATES",
-    "MARKOV_CELL_HAZARD", "MARKOV_TOL", "MARKOV_MAX_ITER", "MARKOV_CHUNK_ELEMENTS", "EVENT_FLUSH", "TICKS_PER_PERIOD",
-    "EVENT_SEGMENT_ARRIVALS", "MAX_SIMULATED_EVENTS", "MAX_CYCLES",
+    "DetectorConfig", "rates_from_envelope", "expected_histogram", "sample_histogram", "coates", "rebin_envelope",
+    "gate_fraction", "instrument_response", "apply_jitter_before", "apply_jitter_after", "counter_rate",
+    "counter_variance", "sample_counter",
 ]

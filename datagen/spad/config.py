@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..errors import ConfigError
-from ..timing import FWHM_PER_SIGMA
+from ..timing.irf import FWHM_PER_SIGMA
 from ..units import parse_duration, parse_rate
 
 __all__ = [
@@ -254,7 +254,7 @@ class DetectorConfig(BaseModel):
             ConfigError (a ValueError): the file cannot be read or parsed, or a field is unknown or invalid; the
                 message names the file, the field and the offending value.
         """
-        from ..scene import read_yaml   # bounded in size and alias expansion
+        from ..scene.load import read_yaml  # bounded in size and alias expansion
 
         path = Path(path)
         try:
@@ -268,7 +268,7 @@ class DetectorConfig(BaseModel):
         try:
             return cls(**data)
         except ValidationError as exc:
-            from ..scene import short_repr
+            from ..scene.load import short_repr
             problems = []
             for err in exc.errors():
                 field = ".".join(str(p) for p in err["loc"]) or "(config)"

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from scipy import special
 
-from ..timing import ex_gaussian_cdf
+from ..timing.irf import ex_gaussian_cdf
 from .arrays import as_rates, check_event_count, row_search
 from .config import DetectorConfig
 

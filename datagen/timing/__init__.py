@@ -7,6 +7,9 @@ float64 photons per pulse per bin on a :class:`TimeAxis`, each bin the exact int
 convolved with the :class:`Irf` (docs/physics.md §5): :meth:`EnvelopeAccumulator.binned`, plus the weight
 that fell outside the window (:meth:`EnvelopeAccumulator.outside`).
 
+Exported here: :class:`TimeAxis`, :class:`Irf`, :class:`EnvelopeAccumulator` and :func:`bin_impulses`; the rest
+(FWHM conversions, tent closed forms, tuning constants) is imported from its module.
+
 Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.timing.irf`: :class:`TimeAxis`, :class:`Irf` (Gaussian / ex-Gaussian, CDF and bin
@@ -18,18 +21,8 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.timing.tents`: closed forms of tent densities, their convolution with the IRF and their
   O(1)-per-tent second differences (:func:`tent_curvature`).
 """
-from .accumulator import CURVATURE_MIN_NODES, MAX_FINE_NODES, NEGATIVE_CLAMP_RTOL, STEPS_PER_SIGMA, EnvelopeAccumulator, bin_impulses
-from .irf import (FWHM_PER_SIGMA, MARGIN_SIGMAS, TAIL_MARGIN_TAUS, Irf, TimeAxis, ex_gaussian_cdf, fwhm_to_sigma,
-                  sigma_to_fwhm)
-from .tents import (TENT_GAP_SMALL_SIGMAS, TENT_SMALL_SIGMAS, tent_cdf, tent_cdf2, tent_curvature,
-                    tent_irf_cdf)
+from .accumulator import EnvelopeAccumulator
+from .impulses import bin_impulses
+from .irf import Irf, TimeAxis
 
-__all__ = [
-    # time axis and IRF
-    "FWHM_PER_SIGMA", "ex_gaussian_cdf", "MARGIN_SIGMAS", "TAIL_MARGIN_TAUS", "TimeAxis", "Irf", "fwhm_to_sigma", "sigma_to_fwhm",
-    # binning
-    "STEPS_PER_SIGMA", "MAX_FINE_NODES", "CURVATURE_MIN_NODES", "NEGATIVE_CLAMP_RTOL", "EnvelopeAccumulator", "bin_impulses",
-    # tents
-    "TENT_SMALL_SIGMAS", "TENT_GAP_SMALL_SIGMAS", "tent_cdf", "tent_cdf2", "tent_curvature",
-    "tent_irf_cdf",
-]
+__all__ = ["TimeAxis", "Irf", "EnvelopeAccumulator", "bin_impulses"]

@@ -1,8 +1,14 @@
 """Transport: estimators of the transient path integral, from the scene to path impulses (docs/physics.md §2–3).
 
-In: a :class:`~datagen.scene.Scene`, its :class:`~datagen.scene.Capture` and a ray caster. Out: impulses
+In: a :class:`~datagen.scene.Scene`, its :class:`~datagen.scene.capture.Capture` and a ray caster. Out: impulses
 (times in s, weights in detected photons per pulse, component ids ``component * n_channels + channel``) sent
 to a :class:`Sink`, usually the timing stage's :class:`~datagen.timing.EnvelopeAccumulator`.
+
+Exported here, what users call: the registry (:func:`register`, :func:`estimator`, :func:`estimator_names`,
+:class:`EstimatorOptions`, :class:`AccuracyLadder`), the physics an estimator builds on (:class:`PhysicsSettings`,
+:class:`LegPhysics`) and the three estimators with their settings (:class:`LookinSampler` /
+:class:`TransportSettings`, :class:`AreaSampler` / :class:`AreaSettings`, :class:`Quadrature` /
+:class:`QuadratureSettings`). Options blocks, stats, kernels and constants are imported from their modules.
 
 - :mod:`.physics`: the weight of each leg, written once (:class:`LegPhysics`), and :class:`PhysicsSettings`,
   the physics switches every estimator's settings derive from.
@@ -11,18 +17,13 @@ to a :class:`Sink`, usually the timing stage's :class:`~datagen.timing.EnvelopeA
   its secondaries in :mod:`.secondary`; :mod:`.area` (hidden-surface area sampling, ``"area"``);
   :mod:`.quadrature` (deterministic hidden-surface quadrature, ``"quadrature"``).
 """
-from .base import (AccuracyLadder, Connections, Counters, Estimator, EstimatorEntry, EstimatorOptions, Sink,
-                   estimator, estimator_names, estimator_options, register, run_replicas)
-from .physics import PHYSICS_SWITCHES, LegPhysics, PhysicsSettings, fov_connection_weight, laser_irradiance
-from .area_kernels import abs_sin_azimuth, brdf_value, material_arrays
-from .lookin import LookinOptions, LookinSampler, SecondaryMode, Transport, TransportSettings, TransportStats
-from .area import AreaOptions, AreaSampler, AreaSettings, AreaStats
-from .quadrature import QUADRATURE_EDGE, Quadrature, QuadratureOptions, QuadratureSettings, QuadratureStats
+from .base import AccuracyLadder, EstimatorOptions, estimator, estimator_names, register
+from .physics import LegPhysics, PhysicsSettings
+# importing the estimator modules registers them
+from .lookin import LookinSampler, Transport, TransportSettings  # noqa: F401  (Transport: the old name, not in __all__)
+from .area import AreaSampler, AreaSettings
+from .quadrature import Quadrature, QuadratureSettings
 
-__all__ = ["abs_sin_azimuth", "brdf_value", "material_arrays", "AccuracyLadder", "Connections", "Counters", "Estimator",
-           "EstimatorEntry", "EstimatorOptions", "Sink", "estimator", "estimator_names", "estimator_options",
-           "LookinOptions", "AreaOptions", "QuadratureOptions",
-           "register", "run_replicas", "PHYSICS_SWITCHES", "LegPhysics", "PhysicsSettings", "fov_connection_weight",
-           "laser_irradiance", "SecondaryMode", "LookinSampler", "TransportSettings", "TransportStats",
-           "AreaSampler", "AreaSettings", "AreaStats", "QUADRATURE_EDGE", "Quadrature", "QuadratureSettings",
-           "QuadratureStats"]
+__all__ = ["register", "estimator", "estimator_names", "EstimatorOptions", "AccuracyLadder", "PhysicsSettings",
+           "LegPhysics", "LookinSampler", "TransportSettings", "AreaSampler", "AreaSettings", "Quadrature",
+           "QuadratureSettings"]

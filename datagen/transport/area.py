@@ -57,9 +57,12 @@ from pydantic import Field
 
 from ..errors import ConfigError
 from ..processes import ForkedCall
-from ..sampling import (AreaSampling, SurfaceSamples, sample_surfaces, square_to_hemisphere, stratified_grid,
-                        to_world, unit_square_points)
-from ..scene import Capture, RayCaster, Scene, SceneError, resolve_capture
+from ..sampling import sample_surfaces, square_to_hemisphere
+from ..sampling.directions import stratified_grid, to_world
+from ..sampling.surfaces import AreaSampling, SurfaceSamples, unit_square_points
+from ..scene import RayCaster, Scene, resolve_capture
+from ..errors import SceneError
+from ..scene.capture import Capture
 from ..vectors import dot
 from .base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
 from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,

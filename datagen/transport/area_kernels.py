@@ -63,7 +63,7 @@ def fov_targets(x, n_x, ix, iy, corner, jitter, cells, fov):
             its pixel (in pixel units); jitter: (B, S, 2) or (B, 1, 2) shift in [0, 1)² of each cell (or of
             all cells of a row); cells: (mu, mv) cells per pixel.
         fov: (center (3,), u (3,), v (3,), normal (3,), size (2,), pixels (2,)) of the sensor grid
-            (:meth:`datagen.scene.Capture.fov_points`).
+            (:meth:`datagen.scene.capture.Capture.fov_points`).
     Returns:
         (bi (n,) int64, si (n,) int64, y (n, 3), w (n, 3) unit x → y, r (n,) |y − x|, cos_y (n,)) for the
         pairs with n_x·w > 0 and cosθ_y = −w·n_fov > 0, row-major in (b, s) as ``np.nonzero``.

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sampling import SurfaceSamples, sample_surfaces, square_to_hemisphere, to_world
+from ..sampling import sample_surfaces, square_to_hemisphere
+from ..sampling.directions import to_world
+from ..sampling.surfaces import SurfaceSamples
 from ..vectors import dot
 from .area_kernels import (material_arrays, partner_geometry, partner_irradiance, partner_rays, secondary_pairs,
                            spot_irradiance)

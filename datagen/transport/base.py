@@ -36,7 +36,7 @@ class EstimatorOptions(BaseModel):
 
     Attributes:
         LEGACY: the flat simulation keys this estimator read before its knobs moved here (old key → field), e.g.
-            ``{"area_samples": "samples"}``; :func:`datagen.simulation.translate_legacy` moves them.
+            ``{"area_samples": "samples"}``; :func:`datagen.simulation.config.translate_legacy` moves them.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -126,7 +126,7 @@ class Estimator(Protocol):
     """The interface every estimator offers (lookin, area, quadrature; docs/physics.md §3).
 
     Attributes:
-        capture: the resolved :class:`~datagen.scene.Capture`.
+        capture: the resolved :class:`~datagen.scene.capture.Capture`.
         settings: the estimator's settings (a :class:`~datagen.transport.physics.PhysicsSettings` subclass).
         component_names: names of the sink components: primary components, "secondary"[, "first_bounce"].
         stats: a dataclass of int counters (recorded in the result attributes).
@@ -174,8 +174,8 @@ class EstimatorEntry:
             simulation config (any object with the config's fields, e.g. :class:`datagen.simulation.SimulationConfig`;
             the estimator's knobs are ``config.estimator``), the planned physics (a
             :class:`~datagen.transport.physics.PhysicsSettings` the effect planner has set the ``follows_plan``
-            switches of, estimator-neutral), the scene's ray caster, its resolved :class:`~datagen.scene.Capture`
-            and the secondary mode the plan keeps (``config.secondary`` or "none"). The estimator builds its own
+            switches of, estimator-neutral), the scene's ray caster, its resolved
+            :class:`~datagen.scene.capture.Capture` and the secondary mode the plan keeps (``config.secondary`` or "none"). The estimator builds its own
             settings from those (``settings_class.from_transport(physics, …)``).
         summary: one line for help texts.
         options: its settings model (an :class:`EstimatorOptions` subclass with ``kind: Literal[name]``), the

@@ -33,9 +33,11 @@ import multiprocessing as mp
 import numpy as np
 from pydantic import Field, field_validator
 
-from ..sampling import Lookins, ObservedPoints, observe, sample_lookins
-from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene, resolve_capture
-from ..scene import MaterialTable
+from ..sampling import observe, sample_lookins
+from ..sampling.lookins import Lookins, ObservedPoints
+from ..scene import RayCaster, Scene, resolve_capture
+from ..scene.capture import Capture, FOV_PLANE_TOL
+from ..scene.materials import MaterialTable
 from ..processes import set_parent_death_signal
 from ..units import SPEED_OF_LIGHT, parse_grid
 from ..vectors import dot
@@ -90,7 +92,7 @@ class TransportSettings(PhysicsSettings):
     @classmethod
     def from_transport(cls, settings: PhysicsSettings, **kwargs) -> "TransportSettings":
         """``settings`` (lookin settings) with the fields ``kwargs`` replaced; the same call as the other
-        estimators' settings classes (:attr:`datagen.transport.EstimatorEntry.settings_class`)."""
+        estimators' settings classes (:attr:`datagen.transport.base.EstimatorEntry.settings_class`)."""
         return replace(settings, **kwargs)
 
 
@@ -186,7 +188,8 @@ secondary: +66 MB at 60×60 pixels, +790 MB at 120×120, 3×3 lookins)."""
 
 def _lookin_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tuple[str, str, float]]:
     """(field, value, bytes) of the lookin grid of every laser point, the camera rays of one slice per worker
-    and the full / optimized secondary's pairs (:attr:`EstimatorEntry.memory <datagen.transport.EstimatorEntry>`)."""
+    and the full / optimized secondary's pairs
+    (:attr:`EstimatorEntry.memory <datagen.transport.base.EstimatorEntry>`)."""
     workers, opts = max(1, config.workers), config.estimator
     n_lookins, n_pixels = math.prod(opts.lookins), math.prod(opts.pixels)
     pixels = "x".join(map(str, opts.pixels))
@@ -234,7 +237,7 @@ class LookinSampler(LookinSecondary):
     @classmethod
     def from_config(cls, scene: Scene, config, physics: PhysicsSettings, caster: RayCaster,
                     capture: Capture | None, secondary: SecondaryMode) -> "LookinSampler":
-        """The registry's constructor (:attr:`datagen.transport.EstimatorEntry.from_config`): lookin settings with
+        """The registry's constructor (:attr:`datagen.transport.base.EstimatorEntry.from_config`): lookin settings with
         every field of the planned ``physics`` (all planned switches and both blocker lists), the sampling of
         ``config.estimator`` (:class:`LookinOptions`), the ``secondary`` mode the plan keeps and
         ``config.workers``. The lookins are visible from the spot by construction, so its spot shadow rays are
@@ -283,7 +286,7 @@ class LookinSampler(LookinSecondary):
 
     def run_replicas(self, sinks: list[Sink], rngs: list[np.random.Generator],
                      progress: Callable[[int], None] | None = None) -> None:
-        """Independent runs into ``sinks``, one per generator of ``rngs`` (:func:`datagen.transport.run_replicas`),
+        """Independent runs into ``sinks``, one per generator of ``rngs`` (:func:`datagen.transport.base.run_replicas`),
         each as :meth:`run` does it; the batches of every replica share one pool of ``workers`` processes."""
         s, c = self.settings, self.capture
         convs = [self.conv_grid(sink) if s.secondary == "exact" else None for sink in sinks]

@@ -2,7 +2,7 @@
 
 Every estimator of the transient path integral — the lookin sampler (:mod:`.lookin`, :mod:`.secondary`), the
 area sampler (:mod:`.area` and its compiled passes :mod:`.area_kernels`), the quadrature (:mod:`.quadrature`,
-:mod:`.quad_kernel`) — and the effect planner's coarse quadrature and the figures weigh a path with the functions
+:mod:`.quadrature_kernel`) — and the effect planner's coarse quadrature and the figures weigh a path with the functions
 here; they differ only in how they *sample* its vertices. Each formula is a numba device function
 (``inline="always"``) that compiled kernels call and numpy code calls on arrays through
 :func:`datagen.scene.brdf_kernel.on_arrays` (the same float operations in the same order); the BRDFs are those of
@@ -41,10 +41,11 @@ import numpy as np
 from numba import njit
 
 from ..errors import ConfigError
-from ..scene import FOV_PLANE_TOL, Capture, RayCaster, Scene
-from ..scene import SIN_THETA
+from ..scene import RayCaster, Scene
+from ..scene.capture import Capture, FOV_PLANE_TOL
+from ..scene.brdf_kernel import SIN_THETA
 from ..scene.brdf_kernel import lambertian_value, on_arrays
-from ..sampling import stratified_grid
+from ..sampling.directions import stratified_grid
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot, unit
 from .base import Connections, Sink
@@ -308,7 +309,7 @@ class LegPhysics:
 
         Aperture convention: the detected fraction q·f_y(ω_in, ω_s)·cosθ_y,out·A_ap·cosθ_ap/d²·V(y, x_s)
         (paper A3 and the aperture term, docs/physics.md §2); the aperture normal is
-        :meth:`~datagen.scene.Capture.aperture_normals` (a confocal scan's follows the laser). Point radiance:
+        :meth:`~datagen.scene.capture.Capture.aperture_normals` (a confocal scan's follows the laser). Point radiance:
         f_y(ω_in, ω_s), the radiance toward the sensor per unit irradiance. ω_in is ``sign_in · w_in`` (see
         :meth:`brdf`).
         """

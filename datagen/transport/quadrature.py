@@ -14,7 +14,7 @@ functions; only the way x is visited differs from the samplers.
 
 **The rule.** Every hidden face (:meth:`AreaSampler._hidden_faces`: the faces that can carry a primary path) is
 split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.sampling.subdivide_triangles`;
-k even or not, with the error estimate that goes with each: :mod:`.quad_split`).
+k even or not, with the error estimate that goes with each: :mod:`.quadrature_split`).
 For each (sub-triangle T, laser point, target) the weight is evaluated at the centroid and multiplied by the area
 of T (the midpoint rule), and the path length at the three *vertices* of T and at its centroid. On T the path
 length is replaced by its linear interpolant, under which the area measure of T pushes forward to a tent density
@@ -57,7 +57,7 @@ scans) the vertex distances are shared. Pairs are processed in blocks of at most
 rows, so memory stays bounded. The common case (Lambertian or Phong hidden surfaces, a fine-grid accumulator) runs
 compiled, one pass per (sub-triangle, connection) pair with exact segment tests instead of most shadow rays (for
 a big mesh too: per-face occluder candidates from a compiled hull test), channels in parallel on numba's threads for
-long runs, bit-identical for any thread count (:mod:`.quad_primary`, :mod:`.quad_kernel`); the numpy blocks are its
+long runs, bit-identical for any thread count (:mod:`.quadrature_primary`, :mod:`.quadrature_kernel`); the numpy blocks are its
 reference.
 
 **Secondary and first bounce.** When the plan asks for the secondary (paths with two hidden vertices), the
@@ -77,18 +77,19 @@ from typing import Literal
 import numpy as np
 
 from ..errors import ConfigError
-from ..sampling import subdivide_with_vertices
-from ..scene import Capture, RayCaster, Scene
+from ..sampling.surfaces import subdivide_with_vertices
+from ..scene import RayCaster, Scene
+from ..scene.capture import Capture
 from ..scene.materials import LAMBERTIAN, PHONG
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .area import AREA_FOLLOWS_PLAN, AreaSampler, AreaSettings
 from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
-from .quad_grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
-from .quad_options import QUADRATURE_EDGE, QuadratureOptions
-from .quad_primary import leg_occluders, run_compiled
-from .quad_split import apply_split, choose_split, refined
+from .quadrature_grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
+from .quadrature_options import QUADRATURE_EDGE, QuadratureOptions
+from .quadrature_primary import leg_occluders, run_compiled
+from .quadrature_split import apply_split, choose_split, refined
 
 __all__ = ["QUADRATURE_EDGE", "Quadrature", "QuadratureOptions", "QuadratureSettings", "QuadratureStats",
            "subdivide_with_vertices"]
@@ -108,13 +109,13 @@ class QuadratureSettings(PhysicsSettings):
             ``MAX_FOV_CELLS``).
         grading: None, or r: hidden triangles are first cut into 4 while longer than r × their distance to the
             laser points and FoV (down to 0.4 h), so sub-triangles near the scan are finer
-            (:func:`datagen.transport.quad_grading.graded_triangles`).
+            (:func:`datagen.transport.quadrature_grading.graded_triangles`).
         secondary: "none" or "full" (the area sampler's unbiased secondary); secondary_samples: its hidden
             samples per laser point.
         shadow_spot, shadow_fov: shadow rays on the laser → hidden and hidden → FoV legs: None decides by the
             exact occluder test (module doc), True / False forces them.
         batch: (sub-triangle, connection) rows per block.
-        split: "even", "plain" or "auto" (:mod:`.quad_split`: the sub-triangles and the error estimate's rule).
+        split: "even", "plain" or "auto" (:mod:`.quadrature_split`: the sub-triangles and the error estimate's rule).
 
     Raises:
         ConfigError: a field out of range (the message names the field and the value).
@@ -229,7 +230,7 @@ class Quadrature:
         stats: :class:`QuadratureStats`.
         coarse: after a run on a point-sensor capture (or FoV cells that stay the same at 2h), the rule the error
         estimate compares with (summed over components, channel rows; only the channels ``coarse_channels``), as
-        :mod:`.quad_split` says: with the even split (``refine_lasers`` None, ``coarse_ratio`` 2) the primary at twice
+        :mod:`.quadrature_split` says: with the even split (``refine_lasers`` None, ``coarse_ratio`` 2) the primary at twice
         the edge from the same evaluations (4 fine sub-triangles make a coarse one whose centroid is the middle
         one's, :func:`datagen.sampling.coarse_cells`; every ``coarse_stride``-th channel: at most about
         ``COARSE_CHANNELS`` compiled, ``COARSE_CHANNELS_NUMPY`` in numpy), ‖P(h) − P(2h)‖/3 over those channels
@@ -291,11 +292,11 @@ class Quadrature:
         # -- hidden sub-triangles ------------------------------------------------------------------------------
         tri = self.caster.vertices[self.caster.faces[faces]]
         piece_of = np.arange(len(tri))
-        if s.grading is not None:                                       # finer near the scan (quad_grading)
+        if s.grading is not None:                                       # finer near the scan (quadrature_grading)
             tri, piece_of = graded_triangles(tri, np.concatenate([c.spots, fov_hull]), s.grading,
                                              GRADING_MIN_EDGE * s.edge)
         self.split_faces = (tri, piece_of)                              # what the estimate's rule at h/2 splits
-        self.refine_lasers = choose_split(tri, s.edge, c, s.split)        # None: the even split (.quad_split)
+        self.refine_lasers = choose_split(tri, s.edge, c, s.split)        # None: the even split (.quadrature_split)
         apply_split(self, tri, s.edge, even=self.refine_lasers is None, piece_of=piece_of)
         self.coarse_ratio = 2.0 if self.refine_lasers is None else 0.5
         self.coarse: Sink | None = None
@@ -334,7 +335,7 @@ class Quadrature:
                     capture: Capture | None, secondary: str) -> "Quadrature":
         """The registry's constructor (:attr:`datagen.transport.EstimatorEntry.from_config`): the edge, FoV cells,
         grading and secondary samples of ``config.estimator``
-        (:class:`~datagen.transport.quad_options.QuadratureOptions`), the planned ``physics`` and the area
+        (:class:`~datagen.transport.quadrature_options.QuadratureOptions`), the planned ``physics`` and the area
         sampler's secondary unless ``secondary`` is "none". Its entry does not follow the planner's ``shadow_spot``
         (``follows_plan``): shadow rays on the laser and FoV legs follow the quadrature's own exact occluder test
         (module doc), unless the user forces ``shadow_spot`` in ``config.effects``."""
@@ -496,7 +497,7 @@ class Quadrature:
                           None if sink.direct else sink.oversample)
 
     def _primary(self, sink: Sink, progress: Callable[[int], None] | None) -> None:
-        """The primary tents (and the first bounce) into ``sink``: compiled (:mod:`.quad_primary`) when
+        """The primary tents (and the first bounce) into ``sink``: compiled (:mod:`.quadrature_primary`) when
         :attr:`use_compiled` and the case is one it covers (:meth:`compiled_case`), else in numpy."""
         grid = getattr(sink, "tent_grid", None)
         compiled = self.use_compiled and self.compiled_case() and grid is not None and grid() is not None
@@ -509,7 +510,7 @@ class Quadrature:
         else:
             self._primary_numpy(sink, coarse, progress)
         if self.refine_lasers is not None and self.coarse is not None:     # the plain split's estimate: h/2
-            sub = refined(self, QuadratureStats())                            # on a sub-scan (.quad_split)
+            sub = refined(self, QuadratureStats())                            # on a sub-scan (.quadrature_split)
             self.coarse_channels = np.unique(sub.conn_channel)
             if compiled:
                 run_compiled(sub, self.coarse.tent_grid(), None, None)

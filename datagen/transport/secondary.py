@@ -21,7 +21,7 @@ import numpy as np
 import scipy.fft
 
 from ..errors import ConfigError
-from ..sampling import ObservedPoints
+from ..sampling.lookins import ObservedPoints
 from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .base import Connections, Sink

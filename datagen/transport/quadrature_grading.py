@@ -98,7 +98,7 @@ def quadrature_memory(scene, config, lasers: int, sensors: int) -> list[tuple[st
     """(field, value, bytes) of the quadrature's sub-triangles (graded when ``config.estimator.grading`` is set;
     k = ceil(longest edge / h) per side) and FoV cells per sensor point, from the scene's triangles without
     splitting them, and the area sampler's hidden samples of a planned Monte Carlo secondary
-    (:attr:`EstimatorEntry.memory <datagen.transport.EstimatorEntry>`)."""
+    (:attr:`EstimatorEntry.memory <datagen.transport.base.EstimatorEntry>`)."""
     opts = config.estimator
     terms = [] if config.secondary == "none" else samples_memory(opts.secondary_samples, "estimator.secondary_samples")
     tri = _hidden_triangles(scene)

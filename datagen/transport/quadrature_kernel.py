@@ -23,8 +23,8 @@ edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited afte
 Embree's float32 rays leak through shared edges now and then (measured: a segment 0.5–2 mm inside a box's face
 4.7 m from its start, reported unblocked); the exact test does not, so the compiled envelope differs from the
 numpy path's by such pairs (2e-8 relative on a confocal room scan). Where ``face_ray`` (per hidden face) each lit
-pair gets its ray; with every face so, the two paths agree to round-off (``tests/test_quad_kernel.py``: 1e-9). The
-inner side of a closed outward surface (``closed``, :func:`datagen.transport.quad_primary.closed_outward`) is never
+pair gets its ray; with every face so, the two paths agree to round-off (``tests/test_quadrature_kernel.py``: 1e-9). The
+inner side of a closed outward surface (``closed``, :func:`datagen.transport.quadrature_primary.closed_outward`) is never
 lit: no test, no ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of
 a coarse torus's envelope).
 """
@@ -176,7 +176,7 @@ CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
 OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "face_ray")
-"""The kernel's inputs by group (tuples; :func:`datagen.transport.quad_primary.run_compiled` builds them). The
+"""The kernel's inputs by group (tuples; :func:`datagen.transport.quadrature_primary.run_compiled` builds them). The
 kernel unpacks every group once before its loops: arrays taken out of a tuple inside numba's inner loop cost an
 atomic reference count each (measured ~100 ns per pair)."""
 
@@ -221,7 +221,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                 if shadow and closed[m] and (normal[m, 0] * (spots[l, 0] - centroid[m, 0])
                                              + normal[m, 1] * (spots[l, 1] - centroid[m, 1])
                                              + normal[m, 2] * (spots[l, 2] - centroid[m, 2])) < 0.0:
-                    continue                    # the inner side of a closed surface (quad_primary.closed_outward)
+                    continue                    # the inner side of a closed surface (quadrature_primary.closed_outward)
                 e, g, r_l, r_y = _legs(m, l, t, conn_same[b], centroid, normal, spots, spot_n, spot_f, photons,
                                        targets, fov_n, collect, tol, cell_brdf)
                 if not (e > 0.0 and g > 0.0):

@@ -1,4 +1,4 @@
-"""The quadrature's primary through the compiled kernel (:mod:`.quad_kernel`), and its shadow-ray culling.
+"""The quadrature's primary through the compiled kernel (:mod:`.quadrature_kernel`), and its shadow-ray culling.
 
 :func:`run_compiled` runs :meth:`datagen.transport.quadrature.Quadrature._primary` for the cases the kernel covers
 (:meth:`~datagen.transport.quadrature.Quadrature.compiled_case`): per block of connections, one compiled pass
@@ -6,7 +6,7 @@ over the (sub-triangle, connection) pairs deposits every contributing pair whose
 Embree shadow rays decide the listed others, and a second compiled pass deposits the visible ones. Which
 triangles can block a face's laser legs comes from the separating-plane test per hidden face
 (:func:`leg_occluders`): the kernel tests those exactly and asks for a ray only when a pair's segment passes within
-a margin of one of their edges (:mod:`.quad_kernel` on how this differs from Embree's float32 rays;
+a margin of one of their edges (:mod:`.quadrature_kernel` on how this differs from Embree's float32 rays;
 ``Quadrature.segment_tests`` = False: a ray for every lit pair, the numpy path's visibility).
 """
 from __future__ import annotations
@@ -16,10 +16,11 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from ..scene import RayCaster, hull_planes, may_meet, outward_planes
+from ..scene import RayCaster
+from ..scene.separation import hull_planes, may_meet, outward_planes
 from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
-from .quad_kernel import (candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes,
+from .quadrature_kernel import (candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes,
                           vertex_paths)
 
 __all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "leg_occluders", "run_compiled"]
@@ -85,12 +86,12 @@ def _leg_hulls(t: np.ndarray, apexes: np.ndarray) -> tuple:
 
 
 def _occluder_lists(q, front: np.ndarray) -> tuple:
-    """The kernel's :data:`~datagen.transport.quad_kernel.OCC` group for quadrature ``q``: per hidden face the
+    """The kernel's :data:`~datagen.transport.quadrature_kernel.OCC` group for quadrature ``q``: per hidden face the
     triangles that may block its laser legs, in runs of one object each (CSR ``run_ptr`` over runs; run r holds
     ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``), their planes and edge planes, the
     margin, and per hidden face whether every lit pair casts a ray instead. The triangles come from
     :func:`leg_occluders`, or, when that has too many pairs to test (a big mesh), from the compiled
-    :func:`~datagen.transport.quad_kernel.face_candidates`, which also separates by a face's own plane where only
+    :func:`~datagen.transport.quadrature_kernel.face_candidates`, which also separates by a face's own plane where only
     its front is lit (``front`` (F,) bool per hidden face: :func:`closed_outward`); a face with more than
     ``MAX_CANDIDATES`` of them casts rays."""
     caster, faces = q.caster, q.area.hidden_faces
@@ -131,7 +132,7 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
 def _face_candidates(q, front: np.ndarray) -> tuple:
     """(occluders (k,) face ids, face_of (n,), occ_of (n,) pairs of hidden face and index into occluders,
     face-major, and (F,) bool: hidden faces with more than ``MAX_CANDIDATES``) by
-    :func:`~datagen.transport.quad_kernel.face_candidates` against the hull of each face and the laser points."""
+    :func:`~datagen.transport.quadrature_kernel.face_candidates` against the hull of each face and the laser points."""
     caster, faces = q.caster, q.area.hidden_faces
     occluders = np.flatnonzero(caster.face_area > 0)
     tri = caster.vertices[caster.faces[occluders]]
@@ -182,7 +183,7 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
     from :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` (module doc). Photons per pulse; updates ``q.stats``
     (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block. Runs over at least
     ``PARALLEL_MIN_PAIRS`` (sub-triangle, target) pairs use numba's threads (so does the rule at h/2 of a plain
-    split's estimate, :func:`datagen.transport.quad_split.refined`, with the same targets and 4× the sub-triangles),
+    split's estimate, :func:`datagen.transport.quadrature_split.refined`, with the same targets and 4× the sub-triangles),
     shorter ones one thread; the result is the same bit for bit."""
     threads = numba.get_num_threads()
     numba.set_num_threads(threads if q.n_cells * len(q.targets) >= PARALLEL_MIN_PAIRS else 1)
@@ -226,7 +227,7 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
     legs = (f64(c.spots), f64(y), f64(c.emitter_legs), f64(laser_off), f64(d_y), f64(sensor_off),
             float(q.settings.attenuation), float(SPEED_OF_LIGHT), int(q.coarse_stride))
     cached = getattr(q, "occluder_cache", None)         # the same faces and laser points: kept for the estimate's
-    if cached is None or cached[0] != q.segment_tests:     # sub-scan (quad_split.refined) and later runs
+    if cached is None or cached[0] != q.segment_tests:     # sub-scan (quadrature_split.refined) and later runs
         q.occluder_cache = cached = (q.segment_tests, _occluder_lists(q, front))
     occ = cached[1]
     grid = tuple(grid)

@@ -1,4 +1,4 @@
-"""The compiled quadrature primary (datagen.transport.quad_kernel / quad_primary, datagen.timing.tent_kernel)
+"""The compiled quadrature primary (datagen.transport.quadrature_kernel / quadrature_primary, datagen.timing.tent_kernel)
 against the numpy path it replaces (datagen.transport.quadrature, EnvelopeAccumulator.add_tents)."""
 from __future__ import annotations
 
@@ -122,7 +122,7 @@ def test_closed_outward_surfaces():
     """A closed outward torus is recognised; with a face missing, reversed, or a laser point inside its box it is
     not."""
     from datagen.scene import RayCaster
-    from datagen.transport.quad_primary import closed_outward
+    from datagen.transport.quadrature_primary import closed_outward
 
     outside, inside = np.array([[0.0, 0.0, 1.05]]), np.array([[-1.0, 0.1, 1.05]])
     for faces, spots, want in ((None, outside, True), (lambda f: f[1:], outside, False),
@@ -164,16 +164,16 @@ def _torus_config(scene, edge, **extra):
 
 def test_big_mesh_occluder_candidates_replace_most_rays(monkeypatch):
     """A mesh too big for the numpy occluder test (forced here: PAIR_TEST_MAX_PAIRS = 0) gets its per-face
-    candidates from the compiled hull test with the face's own plane (quad_kernel.face_candidates): the envelope
+    candidates from the compiled hull test with the face's own plane (quadrature_kernel.face_candidates): the envelope
     equals the numpy path's (a ray for every lit pair) to 1e-5 (Embree's float32 leaks, as above) and the
     exact-test path of the numpy occluder lists to 1e-9, with under 5 % of the numpy path's rays (measured 0)."""
-    from datagen.transport import quad_primary
+    from datagen.transport import quadrature_primary
 
     scene = _torus_scene(6)
     sim = _torus_config(scene, 0.05)
     ref, q_ref = _run(scene, sim, monkeypatch, use_compiled=False)
     listed, _ = _run(scene, sim, monkeypatch)
-    monkeypatch.setattr(quad_primary, "PAIR_TEST_MAX_PAIRS", 0)
+    monkeypatch.setattr(quadrature_primary, "PAIR_TEST_MAX_PAIRS", 0)
     big, q_big = _run(scene, sim, monkeypatch)
     norm = np.linalg.norm(ref.envelope)
     assert norm > 0 and np.linalg.norm(big.envelope - ref.envelope) <= 1e-5 * norm
@@ -190,7 +190,7 @@ def test_threads_give_bit_identical_envelopes(monkeypatch, fov_cells):
     every lit pair."""
     import numba
 
-    from datagen.transport import quad_primary
+    from datagen.transport import quadrature_primary
 
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one core: nothing runs in parallel")
@@ -200,21 +200,21 @@ def test_threads_give_bit_identical_envelopes(monkeypatch, fov_cells):
     default = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        monkeypatch.setattr(quad_primary, "PARALLEL_MIN_PAIRS", 0)
+        monkeypatch.setattr(quadrature_primary, "PARALLEL_MIN_PAIRS", 0)
         one, _ = _run(scene, sim, monkeypatch, segment_tests=False)
     finally:
         numba.set_num_threads(default)
-    monkeypatch.setattr(quad_primary, "PARALLEL_MIN_PAIRS", 0)
+    monkeypatch.setattr(quadrature_primary, "PARALLEL_MIN_PAIRS", 0)
     many, _ = _run(scene, sim, monkeypatch, segment_tests=False)
     ref, _ = _run(scene, sim, monkeypatch, use_compiled=False)
-    assert len(q.conn_laser) == fov_cells ** 2 * 36 and q.n_cells * len(q.targets) < quad_primary.PARALLEL_MIN_PAIRS
+    assert len(q.conn_laser) == fov_cells ** 2 * 36 and q.n_cells * len(q.targets) < quadrature_primary.PARALLEL_MIN_PAIRS
     assert np.array_equal(serial.envelope, one.envelope) and np.array_equal(one.envelope, many.envelope)
     assert np.linalg.norm(many.envelope - ref.envelope) <= 1e-9 * np.linalg.norm(ref.envelope) > 0
 
 
 def test_plain_split_and_its_sub_scan_estimate_against_a_converged_reference(monkeypatch):
     """A 64 × 64 scan of a 1 280-triangle torus at h = 8 cm (longer than every edge, ≤ 7.3 cm): the even split
-    would hold 4× the sub-triangles, so the mesh's own triangles are used (quad_split's plain split) and the error
+    would hold 4× the sub-triangles, so the mesh's own triangles are used (quadrature_split's plain split) and the error
     estimate is (4/3)‖P(h) − P(h/2)‖ on every 8th laser point per axis. Against the same 8 × 8 block of laser
     points scanned at h/4 (16× closer to the integral) the measured error lies below the estimate and within 3× of
     it (measured 0.34 % against an estimate of 0.53 %)."""

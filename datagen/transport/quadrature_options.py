@@ -22,7 +22,7 @@ class QuadratureOptions(EstimatorOptions):
         fov_cells: aperture captures integrate each pixel region with ``fov_cells`` × ``fov_cells`` FoV cells
             (None: cells no larger than the edge).
         grading: r (None: off): hidden triangles are first cut into 4 while longer than r × their distance to the
-            scanned points, so sub-triangles near the scan are finer (:mod:`datagen.transport.quad_grading`).
+            scanned points, so sub-triangles near the scan are finer (:mod:`datagen.transport.quadrature_grading`).
         secondary_samples: hidden samples per laser point of the area sampler that computes a planned secondary.
     """
 

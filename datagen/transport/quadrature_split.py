@@ -1,12 +1,12 @@
 """The hidden-surface quadrature's split of the hidden faces, and the rule its error estimate compares with.
 
 :class:`datagen.transport.quadrature.Quadrature` splits every hidden face into k² congruent sub-triangles of edge
-≤ h (:func:`datagen.sampling.subdivide_with_vertices`) in one of two ways, each with its own error estimate (the
-quadrature's error falls as h², docs/physics.md §2 and the module doc of :mod:`.quadrature`):
+≤ h (:func:`datagen.sampling.surfaces.subdivide_with_vertices`) in one of two ways, each with its own error
+estimate (the quadrature's error falls as h², docs/physics.md §2 and the module doc of :mod:`.quadrature`):
 
 - **even** (k rounded up to an even number): every 2 × 2 group of sub-triangles is a sub-triangle of the split at
-  2h (:func:`datagen.sampling.coarse_cells`), so the same evaluations give the rule at 2h as well, and the estimate
-  is ‖P(h) − P(2h)‖ / (2² − 1) (``coarse_ratio`` 2). Free, but where a face is already shorter than h (a fine mesh:
+  2h (:func:`datagen.sampling.surfaces.coarse_cells`), so the same evaluations give the rule at 2h as well, and the
+  estimate is ‖P(h) − P(2h)‖ / (2² − 1) (``coarse_ratio`` 2). Free, but where a face is already shorter than h (a fine mesh:
   k = 1) it costs 4× the pairs of the plain split.
 - **plain** (k = ceil(longest edge / h); a mesh whose triangles are shorter than h is used as it is): the estimate
   is ‖P(h) − P(h/2)‖ / |(1/2)² − 1| = (4/3)·‖P(h) − P(h/2)‖, P(h/2) the even split at h/2 (every sub-triangle of
@@ -23,7 +23,7 @@ import copy
 
 import numpy as np
 
-from ..sampling import coarse_cells, subdivide_with_vertices, subdivisions
+from ..sampling.surfaces import coarse_cells, subdivide_with_vertices, subdivisions
 
 __all__ = ["EVEN_EXTRA", "MIN_REFINE_LASERS", "REFINE_STRIDE", "apply_split", "choose_split", "refine_lasers",
            "refined"]
@@ -68,7 +68,7 @@ def choose_split(tri: np.ndarray, edge: float, capture, split: str = "auto") -> 
 def apply_split(q, tri: np.ndarray, edge: float, even: bool, piece_of: np.ndarray | None = None) -> None:
     """Set the sub-triangles of quadrature ``q`` from the hidden faces ``tri`` (F, 3, 3) (``q.area.hidden_faces``,
     or pieces of them: ``piece_of`` (F,) the hidden face of each piece, from the grading of
-    :func:`datagen.transport.quad_grading.graded_triangles`) split at ``edge``: ``vertices`` (V, 3), ``cells``
+    :func:`datagen.transport.quadrature_grading.graded_triangles`) split at ``edge``: ``vertices`` (V, 3), ``cells``
     (M, 3), ``cell_area`` (M,) m², ``cell_hidden`` (M,) index into the hidden faces, ``cell_face``,
     ``centroids``, ``cell_normal``, ``cell_object``, ``n_cells``, and the coarse rule's ``coarse_cells`` (Mc, 3) /
     ``coarse_of`` (M,) (−1: not the middle of a coarse cell; all −1 when not ``even``)."""
