@@ -21,7 +21,8 @@ from ..errors import ConfigError
 from .. import spad
 from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..planner import Plan, plan_effects
-from ..scene import Capture, RayCaster, Scene, resolve_capture
+from ..scene import RayCaster, Scene, resolve_capture
+from ..scene.capture import Capture
 from ..timing import EnvelopeAccumulator
 from ..transport import estimator
 from ..transport.base import Estimator, run_replicas
