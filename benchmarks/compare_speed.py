@@ -24,6 +24,10 @@ Benchmark modes (fast; about 100 s per tree and repeat on 2 cores, so --repeat 3
     spad       ``bench_spad.py`` (no options; ~40 s);
     dataset    ``bench_dataset.py --samples 16 --workers 2 --skip-big`` (build of 16 default-config samples
                and the loader measurements; ~12 s).
+    scan       ``bench_scan.py --skip 1 --samples 3 --no-reference --build 0``: ``make_sample`` of
+               ``confocal.yaml`` and ``wall.yaml`` (wall and CPU seconds per sample, mean of 3 after a warm-up) and the
+               10 000-triangle torus's confocal captures at 32×32, 64×64 and 128×128 × 512 (wall and CPU seconds;
+               numba's threads); a few minutes per tree and repeat. Not part of the default set (``--only scan``).
 """
 from __future__ import annotations
 
@@ -42,6 +46,7 @@ BENCHES = {
     "demo_room": ["benchmarks/bench_demo_room.py", "--quick", "--repeat", "1"],
     "spad": ["benchmarks/bench_spad.py"],
     "dataset": ["benchmarks/bench_dataset.py", "--samples", "16", "--workers", "2", "--skip-big"],
+    "scan": ["benchmarks/bench_scan.py", "--skip", "1", "--samples", "3", "--no-reference", "--build", "0"],
 }
 
 
@@ -85,7 +90,18 @@ def parse_dataset(text: str) -> dict:
     return rows
 
 
-PARSERS = {"demo_room": parse_demo_room, "spad": parse_spad, "dataset": parse_dataset}
+def parse_scan(text: str) -> dict:
+    rows = {}
+    for m in re.finditer(r"^(confocal|wall)\s+([\d.]+) s per sample \(max [\d.]+; CPU ([\d.]+) s\)", text, re.M):
+        rows[f"{m[1]}.yaml make_sample: wall s per sample"] = (float(m[2]), "s")
+        rows[f"{m[1]}.yaml make_sample: CPU s per sample"] = (float(m[3]), "s")
+    for m in re.finditer(r"^\s*(\d+)×(\d+)\s+([\d.]+)\s+([\d.]+)\s+\d+\s+\d+\s+[\d.]+%", text, re.M):
+        rows[f"torus {m[1]}×{m[2]} × 512: wall s"] = (float(m[3]), "s")
+        rows[f"torus {m[1]}×{m[2]} × 512: CPU s"] = (float(m[4]), "s")
+    return rows
+
+
+PARSERS = {"demo_room": parse_demo_room, "spad": parse_spad, "dataset": parse_dataset, "scan": parse_scan}
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -174,7 +190,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="also write every run's numbers here")
     parser.add_argument("--logs", type=Path, default=None, help="directory for each run's stdout/stderr")
     args = parser.parse_args(argv)
-    benches = [b.strip() for b in args.only.split(",")] if args.only else list(BENCHES)
+    benches = [b.strip() for b in args.only.split(",")] if args.only else [b for b in BENCHES if b != "scan"]
     unknown = [b for b in benches if b not in BENCHES]
     if unknown:
         sys.exit(f"unknown benchmark(s) {unknown}; known: {list(BENCHES)}")

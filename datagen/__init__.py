@@ -14,9 +14,38 @@ Public entry points::
     reference = datagen.converged_reference(scene, config, rel_tol=3e-3)
     noise = datagen.SPADNoise(ds.detector, exposure=("1ms", "10ms"))          # batched SPAD noise in torch
 """
-from .errors import ConfigError, DatagenError, DatasetError, ResourceError, SceneError
-from .scene import Scene, load_scene
-from .simulation import Result, SimulationConfig, resolve_config, simulate, simulate_to_tolerance
+import hashlib
+import os
+from pathlib import Path
+
+
+def kernel_cache_dir(package: Path | None = None) -> Path:
+    """The folder of numba's compiled-kernel cache for this source tree: ``__pycache__/numba-<key>`` beside the
+    package (``~/.cache/datagen/numba-<key>`` when the package folder is read-only), the key a SHA-1 of every module
+    of the package that uses numba. numba's own cache checks only the modification time of the file that holds a
+    kernel, not of the inlined device functions it calls from other modules (``transport/physics.py``,
+    ``scene/brdf_kernel.py``, ``timing/curvature.py``: docs/architecture.md, "Each formula once"), so after an edit
+    there a cached kernel would run the old formula; a new key compiles everything afresh (about a minute) instead.
+    Set ``NUMBA_CACHE_DIR`` to choose the folder yourself (the key is then not applied)."""
+    root = Path(__file__).resolve().parent if package is None else Path(package)
+    digest = hashlib.sha1()
+    for path in sorted(root.rglob("*.py")):
+        text = path.read_bytes()
+        if b"numba" in text:
+            digest.update(str(path.relative_to(root)).encode() + b"\0" + text)
+    key = "numba-" + digest.hexdigest()[:16]
+    local = root / "__pycache__"
+    return local / key if os.access(root, os.W_OK) else Path.home() / ".cache" / "datagen" / key
+
+
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    import numba
+
+    numba.config.CACHE_DIR = str(kernel_cache_dir())     # before any kernel module is imported
+
+from .errors import ConfigError, DatagenError, DatasetError, ResourceError, SceneError  # noqa: E402
+from .scene import Scene, load_scene  # noqa: E402
+from .simulation import Result, SimulationConfig, resolve_config, simulate, simulate_to_tolerance  # noqa: E402
 
 __all__ = ["Scene", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
            "simulate_to_tolerance", "NLOSDataset", "SPADNoise", "sample_setup", "converged_reference",

@@ -59,10 +59,6 @@ ALLOWED = {
     ("planner/decisions.py", "_decide_brdf_angles"): "the planner's message text quotes f = ρ/π of a material",
     ("io/tal.py", "scene_from_tal_config"): "tal's laser normalisation π·E·cosθ_e/d², a file-format convention, not a leg",
     ("plot/energy.py", "lookin_energy"): "the figure's f·cos/r² of the paper's illustration (docs/physics.md §2)",
-    ("transport/quadrature_kernel.py", "_legs"): "inverse square as inv·inv (one division per pair): same factors as "
-                                           "irradiance_term and fov_term, another float order (bit-identical outputs)",
-    ("planner/coarse_kernel.py", "secondary_energy"): "the secondary's transfer E dA f cos cos / r² dA in one "
-                                                      "product (its float order predates geometry_term)",
 }
 """Functions that write a shape of another formula, with the reason (see the module doc)."""
 

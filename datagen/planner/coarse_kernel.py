@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from ..scene.brdf_kernel import SIN_THETA, abs_sin_azimuth, brdf_value, sin_theta_scale
+from ..transport.physics import geometry_term
 
 __all__ = ["outgoing_sums", "primary_energy", "secondary_candidates", "secondary_energy"]
 
@@ -132,7 +133,7 @@ def secondary_energy(pairs, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_x
         a, b = xa[p], xb[p]
         f_a = brdf_value(mat, obj[a], n_lit[a, 0], n_lit[a, 1], n_lit[a, 2], -w_lx[a, 0], -w_lx[a, 1], -w_lx[a, 2],
                          w[p, 0], w[p, 1], w[p, 2])
-        transfer = irradiance[a] * area[a] * f_a * cos_a[p] * cos_b[p] / r[p] ** 2 * area[b]
+        transfer = irradiance[a] * area[a] * f_a * geometry_term(cos_a[p], cos_b[p], r[p]) * area[b]
         if transfer == 0.0:
             continue
         sb = side_b[p]

@@ -313,9 +313,7 @@ def _decide_first_bounce(config, detector: spad.DetectorConfig, g: PlanGeometry)
         return Decision(False, f"{len(idx)} laser point(s) lie in the FoV but none faces and sees the sensor",
                         False, numbers)
     idx = idx[seen]
-    returns = [g.physics.first_bounce_weight(int(i)) for i in idx]          # (photons, path, time) each
-    photons = np.array([float(w[0]) for w, _, _ in returns])
-    t = np.array([float(time) for _, _, time in returns])
+    photons, _, t = g.physics.first_bounce_weight(idx)
     before, after = config.irf.support
     lo, hi = t - before, t + after
     axis = config.time

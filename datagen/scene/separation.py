@@ -8,7 +8,10 @@ planner uses it to prove that shadow rays cannot be blocked (docs/planner.md); t
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 CHUNK_ELEMENTS = 1 << 22
 """Floats per temporary in the vectorised pair tests (32 MiB)."""
@@ -29,26 +32,82 @@ def outward_planes(faces: np.ndarray, opposite: np.ndarray) -> tuple[np.ndarray,
     return n, np.einsum("...k,...k->...", n, faces[..., 0, :]), valid
 
 
-def hull_planes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Outward face planes of the convex hulls of point sets (m, V, 3) → normals (m, P, 3), offsets (m, P),
-    validity (m, P), by Qhull; a flat or degenerate set gets no valid plane (it is then never separated)."""
-    from scipy.spatial import ConvexHull, QhullError
+HULL_EPS = 1e-12
+"""Points within this fraction of a point set's extent of a plane count as on it (:func:`hull_planes`)."""
 
-    planes = []
-    for pts in points:
-        try:
-            eq = ConvexHull(pts).equations                             # n·x + d ≤ 0 inside, n unit
-            planes.append((eq[:, :3], -eq[:, 3]))
-        except (QhullError, ValueError):
-            planes.append((np.zeros((1, 3)), np.zeros(1)))
-    p = max(len(n) for n, _ in planes)
-    normals = np.zeros((len(points), p, 3))
-    offsets = np.zeros((len(points), p))
-    valid = np.zeros((len(points), p), dtype=bool)
-    for i, (n, o) in enumerate(planes):
-        normals[i, :len(n)], offsets[i, :len(n)] = n, o
-        valid[i, :len(n)] = np.linalg.norm(n, axis=1) > 0
-    return normals, offsets, valid
+
+def hull_planes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Outward face planes of the convex hulls of point sets (m, V, 3) → normals (m, P, 3) (unit), offsets (m, P)
+    (n·x = offset on the plane, n·x ≤ offset inside), validity (m, P); a flat or degenerate set gets no valid plane
+    (it is then never separated). Every plane through three of the points with all points on one side (within
+    ``HULL_EPS`` of the set's extent) is a face plane; coplanar triples give one plane (compiled:
+    :func:`_supporting_planes`; the hulls here have a few points: a triangle and the corners of a scan)."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    m, v = points.shape[:2]
+    cap = max(1, v * (v - 1) * (v - 2) // 6)
+    normals, offsets, count = _supporting_planes(points, HULL_EPS, cap)
+    p = max(1, int(count.max()) if m else 1)
+    valid = np.arange(p)[None, :] < count[:, None]
+    return normals[:, :p].copy(), offsets[:, :p].copy(), valid
+
+
+@njit(cache=True)
+def _supporting_planes(points, eps, cap):
+    """Per point set of ``points`` (m, V, 3): the planes through three of its points with every point on one side
+    (within ``eps`` × the set's extent), oriented outward and without repeats: normals (m, cap, 3), offsets
+    (m, cap), count (m,) int64 (0 for a flat set)."""
+    m, v = points.shape[0], points.shape[1]
+    normals = np.zeros((m, cap, 3))
+    offsets = np.zeros((m, cap))
+    count = np.zeros(m, dtype=np.int64)
+    for s in range(m):
+        extent = 0.0
+        for a in range(v):
+            for d in range(3):
+                extent = max(extent, abs(points[s, a, d] - points[s, 0, d]))
+        tol = eps * max(extent, 1e-300)
+        c = 0
+        flat = True
+        for i in range(v):
+            for j in range(i + 1, v):
+                for k in range(j + 1, v):
+                    a0 = points[s, j, 0] - points[s, i, 0]
+                    a1 = points[s, j, 1] - points[s, i, 1]
+                    a2 = points[s, j, 2] - points[s, i, 2]
+                    b0 = points[s, k, 0] - points[s, i, 0]
+                    b1 = points[s, k, 1] - points[s, i, 1]
+                    b2 = points[s, k, 2] - points[s, i, 2]
+                    n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+                    length = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+                    if not length > tol * extent:
+                        continue                                 # collinear triple
+                    n0, n1, n2 = n0 / length, n1 / length, n2 / length
+                    o = n0 * points[s, i, 0] + n1 * points[s, i, 1] + n2 * points[s, i, 2]
+                    above = False
+                    below = False
+                    for q in range(v):
+                        d = n0 * points[s, q, 0] + n1 * points[s, q, 1] + n2 * points[s, q, 2] - o
+                        above = above or d > tol
+                        below = below or d < -tol
+                    if above and below:
+                        continue                                 # cuts the set: not a face plane
+                    if not (above or below):
+                        continue                                 # every point on it so far
+                    flat = False
+                    if above:                                    # the points lie on its positive side: flip
+                        n0, n1, n2, o = -n0, -n1, -n2, -o
+                    seen = False
+                    for e in range(c):
+                        if (abs(normals[s, e, 0] - n0) <= 1e-9 and abs(normals[s, e, 1] - n1) <= 1e-9
+                                and abs(normals[s, e, 2] - n2) <= 1e-9 and abs(offsets[s, e] - o) <= tol):
+                            seen = True
+                            break
+                    if not seen and c < cap:
+                        normals[s, c, 0], normals[s, c, 1], normals[s, c, 2] = n0, n1, n2
+                        offsets[s, c] = o
+                        c += 1
+        count[s] = 0 if flat else c
+    return normals, offsets, count
 
 
 def may_meet(tri: np.ndarray, tri_n: np.ndarray, tri_o: np.ndarray, tri_valid: np.ndarray,

@@ -12,6 +12,7 @@ import functools
 import platform
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 from importlib import metadata
 
 import numpy as np
@@ -21,6 +22,7 @@ from .. import spad
 from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..planner import Plan, plan_effects
 from ..scene import RayCaster, Scene, resolve_capture
+from ..scene.capture import Capture
 from ..timing import EnvelopeAccumulator
 from ..transport import estimator
 from ..transport.base import Estimator, run_replicas
@@ -105,7 +107,19 @@ class Transported:
     seconds: dict
 
 
-def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator, Plan]:
+class Planned(NamedTuple):
+    """What :func:`prepare_transport` builds before the estimator, estimator-neutral: the scene the estimator sees,
+    its ray caster, the resolved capture and the effect plan. A run that changes only the estimator's settings (the
+    quadrature's levels of :func:`datagen.simulation.tolerance.simulate_to_tolerance`) passes it on."""
+
+    scene: Scene
+    caster: RayCaster
+    capture: Capture
+    plan: Plan
+
+
+def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned | None = None
+                      ) -> tuple[Estimator, Plan]:
     """Plan the effects and build the configured estimator (scene → planner → transport), ready to run.
 
     Without ``config.split_components`` the estimator sees the scene with one primary component
@@ -126,16 +140,23 @@ def prepare_transport(scene: Scene, config: SimulationConfig) -> tuple[Estimator
             :func:`datagen.planner.plan_effects`) and the estimator's settings errors.
     """
     check_simulation_memory(scene, config)     # refuse what cannot fit before allocating anything
-    if not config.split_components:
-        scene = scene.with_summed_primary()
-    caster = RayCaster(scene)
-    capture = resolve_capture(scene, caster)
-    plan = plan_effects(scene, config, capture, caster)
+    scene, caster, capture, plan = planned if planned is not None else plan_transport(scene, config)
     entry = estimator(config.estimator.kind)
     physics = plan.apply(config.physics_settings(), entry.follows_plan)
     transport: Estimator = entry.from_config(scene, config, physics, caster, capture,
                                              plan.secondary_mode(config.secondary))
     return transport, plan
+
+
+def plan_transport(scene: Scene, config: SimulationConfig) -> Planned:
+    """The estimator-neutral first steps of :func:`prepare_transport`: the scene with one primary component unless
+    ``config.split_components``, its ray caster, the resolved capture and the effect plan. Raises as
+    :func:`prepare_transport`."""
+    if not config.split_components:
+        scene = scene.with_summed_primary()
+    caster = RayCaster(scene)
+    capture = resolve_capture(scene, caster)
+    return Planned(scene, caster, capture, plan_effects(scene, config, capture, caster))
 
 
 def run_transport(scene: Scene, config: SimulationConfig, rng: np.random.Generator,
@@ -183,20 +204,24 @@ class Replicas:
 
     Args:
         scene, config: as for :func:`simulate`. rng: the sampling stream (the replicas' root is drawn from it).
+        planned: the :class:`Planned` steps of an earlier run of the same scene and config but the estimator's
+            settings (None: plan here).
     Attributes:
         entry: the estimator's :class:`~datagen.transport.EstimatorEntry`; replica_config: the config of one
         replica; transport: the estimator; sums: :class:`~datagen.simulation.replicas.ReplicaSums`;
         monte_carlo: whether the run has noise (replicas); seconds: setup / transport / binning wall times.
     """
 
-    def __init__(self, scene: Scene, config: SimulationConfig, rng: np.random.Generator):
+    def __init__(self, scene: Scene, config: SimulationConfig, rng: np.random.Generator,
+                 planned: Planned | None = None):
         t0 = time.perf_counter()
         self.scene, self.config = scene, config
         self.entry = estimator(config.estimator.kind)
         check_simulation_memory(scene, config)   # the grids as the user gave them (a replica's are smaller)
         update = self.entry.replica(config.estimator, config.replicas) if self.entry.replica is not None else {}
         self.replica_config = config.with_estimator(**update)
-        self.transport, self.plan = prepare_transport(scene, self.replica_config)
+        self.planned = planned if planned is not None else plan_transport(scene, self.replica_config)
+        self.transport, self.plan = prepare_transport(scene, self.replica_config, self.planned)
         self.monte_carlo = self.entry.replica is not None and getattr(self.transport, "monte_carlo", True)
         self.names = self.transport.component_names
         self.n_channels = self.transport.capture.n_channels

@@ -259,7 +259,7 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
     for level in range(MAX_ROUNDS + 2):
         t_level = time.perf_counter()
         if level:
-            runs = Replicas(scene, config.with_estimator(edge=h), rng)
+            runs = Replicas(scene, config.with_estimator(edge=h), rng, planned=runs.planned)   # same plan
         runs.run(config.replicas)
         tr = runs.transported()
         _check_energy(scene, tr)

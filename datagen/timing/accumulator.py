@@ -56,6 +56,7 @@ from scipy.signal import oaconvolve
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
 from .curvature import deposit_curvature
+from .fold_kernel import bin_rows, bin_weights, fold_rows
 from .splat_kernel import splat_nodes
 from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
@@ -93,8 +94,9 @@ CURVATURE_CLAMP_RTOL = 1e-9
 _CHUNK = 1 << 18
 """Impulses processed per internal chunk in EnvelopeAccumulator.add (bounds temporaries to a few MiB)."""
 
-_DIRECT_KERNEL_MAX = 32
-"""Kernels up to this length are convolved directly (exact, no FFT noise); longer ones by overlap-add FFT."""
+_DIRECT_KERNEL_MAX = 256
+"""Kernels up to this length are convolved directly over each row's non-zero nodes (compiled,
+:func:`datagen.timing.fold_kernel.bin_rows`; exact, no FFT noise); longer ones by overlap-add FFT."""
 
 @njit(cache=True)
 def _rows_dot(a, v):
@@ -185,6 +187,7 @@ class EnvelopeAccumulator:
         else:
             # Fine-cell-integrated IRF: p[n + n_right] = P((n - 1/2) delta <= X < (n + 1/2) delta).
             self._kernel = irf.interval_mass((offsets - 0.5) * self.fine_step, (offsets + 0.5) * self.fine_step)
+        self._bin_table = bin_weights(self._kernel, self.oversample)
         self._hist = np.zeros((self.n_components, self.n_fine), dtype=np.float64)
         self._total = np.zeros(self.n_components, dtype=np.float64)
         self._beyond = np.zeros(self.n_components, dtype=np.float64)
@@ -408,7 +411,7 @@ class EnvelopeAccumulator:
         if self.direct or self.irf.is_delta:
             return None
         if self._curvature is None:
-            self._curvature = np.zeros_like(self._hist)
+            self._curvature = np.zeros(self._hist.shape)     # calloc: pages untouched until written
         self._binned = None
         return TentGrid(float(self.axis.t_start), float(self.fine_step), self.n_left - 0.5, int(self.n_fine),
                         float(self.curvature_min_nodes), self._hist.reshape(-1), self._curvature.reshape(-1),
@@ -416,16 +419,16 @@ class EnvelopeAccumulator:
 
     def _add_curvature(self, coord: np.ndarray, w: np.ndarray, c: int | np.ndarray) -> None:
         if self._curvature is None:
-            self._curvature = np.zeros_like(self._hist)
+            self._curvature = np.zeros(self._hist.shape)     # calloc: pages untouched until written
         comp = np.full(len(w), c, dtype=np.int64) if isinstance(c, int) else c
         deposit_curvature(coord, w, comp, self.n_fine, self._curvature.reshape(-1))
 
     def _fold(self) -> np.ndarray:
         """The fine histogram with the pending curvature deposits summed in (twice along the nodes)."""
         if self._curvature is not None:
-            np.cumsum(self._curvature, axis=1, out=self._curvature)
-            np.cumsum(self._curvature, axis=1, out=self._curvature)
-            self._hist += self._curvature
+            # only the columns from the first to the last pending second difference: beyond the last one the double
+            # sum of complete tents' second differences is zero (round-off aside), before the first it is zero
+            fold_rows(self._hist, self._curvature)
             self._curvature = None
             self._clamp_rtol = CURVATURE_CLAMP_RTOL
         return self._hist
@@ -544,14 +547,23 @@ class EnvelopeAccumulator:
         batches of ``_CONVOLVE_ROWS``, one FFT convolution per batch)."""
         out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
         rows = np.flatnonzero(hist.any(axis=1))
+        span = self._kernel.size - 1
         for start in range(0, len(rows), _CONVOLVE_ROWS):
             ks = rows[start:start + _CONVOLVE_ROWS]
-            if self._kernel.size <= _DIRECT_KERNEL_MAX:
-                conv = np.stack([np.convolve(hist[k], self._kernel, mode="valid") for k in ks])
-            else:
-                conv = oaconvolve(hist[ks], self._kernel[None], mode="valid", axes=1)
-            block = conv.reshape(len(ks), self.axis.n_bins, self.oversample).sum(axis=2)
-            scale = np.maximum(np.abs(block).max(axis=1), np.abs(hist[ks]).max(axis=1))
+            block = np.empty((len(ks), self.axis.n_bins))
+            if self._kernel.size <= _DIRECT_KERNEL_MAX:       # compiled, over each row's non-zero nodes only
+                bin_rows(hist, ks.astype(np.int64), self._bin_table, block)
+                part = hist[ks]
+            else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
+                rows_ = hist[ks]
+                lo, hi = _active_columns(rows_)
+                b0 = max(0, lo - span) // self.oversample
+                b1 = min(self.axis.n_bins, -(-hi // self.oversample))
+                part = rows_[:, b0 * self.oversample:b1 * self.oversample + span]
+                conv = oaconvolve(part, self._kernel[None], mode="valid", axes=1)
+                block[:] = 0.0
+                block[:, b0:b1] = conv.reshape(len(ks), b1 - b0, self.oversample).sum(axis=2)
+            scale = np.maximum(np.abs(block).max(axis=1), np.abs(part).max(axis=1))
             low = block.min(axis=1) < -self._clamp_rtol * scale
             if low.any():
                 i = int(np.flatnonzero(low)[0])
@@ -579,3 +591,9 @@ class EnvelopeAccumulator:
         hi = (self.n_cells + self.n_left - 0.5 - g) * self.fine_step
         frac = self.irf.cdf(lo) + self.irf.sf(hi)
         return result + _rows_dot(self._hist, frac)
+
+
+def _active_columns(a: np.ndarray) -> tuple[int, int]:
+    """[lo, hi): the columns of a 2-D array from its first to its last with a non-zero entry ((0, 0) if none)."""
+    cols = np.flatnonzero(a.any(axis=0))
+    return (int(cols[0]), int(cols[-1]) + 1) if len(cols) else (0, 0)

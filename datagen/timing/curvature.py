@@ -44,11 +44,35 @@ def b3_slope(ua: float, ub: float) -> float:
 
 
 @njit(cache=True, inline="always")
+def _kink(x: float, q: float, start: int, flat: np.ndarray) -> None:
+    """Add q × B3(node − x) to the four nodes around x (floor(x) − 1 … floor(x) + 2), the cubic B-spline's four
+    weights at the fraction t = x − floor(x) in closed form (as :func:`b3` at those nodes)."""
+    fx = np.floor(x)
+    t = x - fx
+    s = 1.0 - t
+    base = start + int(fx) - 1
+    flat[base] += q * (s * s * s / 6.0)
+    flat[base + 1] += q * (2.0 / 3.0 - t * t + 0.5 * t * t * t)
+    flat[base + 2] += q * (2.0 / 3.0 - s * s + 0.5 * s * s * s)
+    flat[base + 3] += q * (t * t * t / 6.0)
+
+
+@njit(cache=True, inline="always")
 def add_tent_curvature(c0: float, c1: float, c2: float, w: float, start: int, flat: np.ndarray) -> None:
     """Add ``w`` × the sixteen second differences of the unit tent with sorted node coordinates c0 <= c1 <= c2 to
     ``flat[start + node]`` (``start``: the component's row offset + 1, the second difference at g being stored at
-    g + 1)."""
+    g + 1). When both sides span a node or more, the two sides' terms at c1 are added as one (:func:`_kink`: twelve
+    values, the same sum)."""
     scale = 2.0 / (c2 - c0) * w
+    g0 = c1 - c0
+    g1 = c2 - c1
+    if g0 >= 1.0 and g1 >= 1.0:     # three kinks, the middle one shared by both sides: 12 values
+        q0 = scale / g0
+        q1 = -scale / g1
+        _kink(c0, q0, start, flat)
+        _kink(c1, q1 - q0, start, flat)
+        _kink(c2, -q1, start, flat)
+        return
     for side in range(2):
         a = c0 if side == 0 else c1
         b = c1 if side == 0 else c2

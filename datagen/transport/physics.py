@@ -203,8 +203,9 @@ class LegPhysics:
 
     # -- laser side --------------------------------------------------------------------------------------
 
-    def spot_emission(self, directions: np.ndarray, laser: int = 0) -> np.ndarray:
-        """f_l(ω_e, ω)·cosθ_l at laser point ``laser`` for outgoing unit directions ω (..., 3) → (...,).
+    def spot_emission(self, directions: np.ndarray, laser: int | np.ndarray = 0) -> np.ndarray:
+        """f_l(ω_e, ω)·cosθ_l at laser point ``laser`` for outgoing unit directions ω (..., 3) → (...,); ``laser``
+        an int, or an int array of the directions' leading shape (one laser point per direction).
 
         The beam arrives from the emitter, ω_e = unit(emitter − spot); radiant intensity per photon of the
         pulse is f_l·cosθ_l (docs/physics.md §2; the paper's A1 without its 1/R²).
@@ -215,9 +216,9 @@ class LegPhysics:
         n = np.broadcast_to(normal, directions.shape)
         cos = np.maximum(dot(n, directions), 0.0)
         obj = c.spot_objects[laser]
-        if self.materials.lambertian[obj] and not self.settings.brdf_angles:
+        if np.all(self.materials.lambertian[obj]) and not self.settings.brdf_angles:
             return on_arrays(emission_term)(on_arrays(lambertian_value)(self.materials.albedo[obj]), cos)
-        f = self.materials.evaluate(np.full(directions.shape[:-1], obj), n,
+        f = self.materials.evaluate(np.broadcast_to(obj, directions.shape[:-1]), n,
                                     np.broadcast_to(w_e, directions.shape), directions)
         return on_arrays(emission_term)(f, cos)
 
@@ -395,21 +396,27 @@ class LegPhysics:
         time = (rr + self.sensor_leg(d_ys)) / SPEED_OF_LIGHT
         return Connections(bi, wk, weight, time, rr + d_ys, ch[0, si])
 
-    def first_bounce_weight(self, laser: int) -> tuple[float, float, float]:
-        """Direct laser point → sensor return of laser point ``laser`` (aperture convention), ignoring whether
+    def first_bounce_weight(self, laser: int | np.ndarray) -> tuple:
+        """Direct laser point → sensor return of laser point(s) ``laser`` (aperture convention), ignoring whether
         the point is imaged: (detected photons per pulse, physical path emitter → spot → sensor in metres,
-        arrival time in seconds with the leg switches). Weight Φ q f_l cosθ_l A_ap cosθ_ap / d² · V · C_atm."""
+        arrival time in seconds with the leg switches), floats for an int ``laser``, (n,) float64 arrays for an
+        (n,) int array. Weight Φ q f_l cosθ_l A_ap cosθ_ap / d² · V · C_atm (docs/physics.md §2)."""
         c = self.capture
-        spot = c.spots[laser]
-        w_s = unit(c.sensor - spot)
-        d = float(np.linalg.norm(c.sensor - spot))
-        emit = self.spot_emission(w_s[None], laser)
-        cos_ap = max(-float(dot(w_s, c.aperture_normals(spot))), 0.0)
-        vis = self.caster.visible(spot[None], c.spot_normals[laser][None], c.sensor, None)
+        lasers = np.atleast_1d(np.asarray(laser, dtype=np.int64))
+        spot = c.spots[lasers]
+        to_sensor = c.sensor - spot
+        d = np.sqrt(np.einsum("ij,ij->i", to_sensor, to_sensor))
+        w_s = to_sensor / d[:, None]
+        emit = self.spot_emission(w_s, lasers)
+        cos_ap = np.maximum(-dot(w_s, c.aperture_normals(spot)), 0.0)
+        vis = self.caster.visible(spot, c.spot_normals[lasers], c.sensor, None)
         weight = on_arrays(direct_term)(c.photons, self.settings.pde, emit, c.aperture_area, cos_ap, d) * vis
-        weight = weight * self.attenuation(np.array([c.emitter_legs[laser] + d]))
-        t = (self.laser_leg(laser) + self.sensor_leg(d)) / SPEED_OF_LIGHT
-        return weight, c.emitter_legs[laser] + d, t
+        weight = weight * self.attenuation(c.emitter_legs[lasers] + d)
+        t = (self.laser_leg(lasers) + self.sensor_leg(d)) / SPEED_OF_LIGHT
+        path = c.emitter_legs[lasers] + d
+        if np.ndim(laser) == 0:
+            return float(weight[0]), float(path[0]), float(np.broadcast_to(t, d.shape)[0])
+        return weight, path, np.broadcast_to(t, d.shape).astype(np.float64)
 
     def first_bounce(self, sink: Sink, component: int) -> None:
         """Send the direct return of each laser point lying strictly inside a sensor pixel region (aperture
@@ -425,7 +432,7 @@ class LegPhysics:
             if ch[0] < 0:
                 continue
             weight, _, t = self.first_bounce_weight(laser)
-            sink.add(np.array([t]), weight, np.array([comp + ch[0]]))
+            sink.add(np.array([t]), np.array([weight]), np.array([comp + ch[0]]))
 
     # -- shadow-ray culling ------------------------------------------------------------------------------
 

@@ -201,13 +201,15 @@ class QuadratureStats:
     shadow_rays: int = 0
 
 
-def _leg_may_be_blocked(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray, tol: float) -> bool | None:
-    """Whether some triangle may meet a segment from a point of a triangle in ``faces`` to a point of the convex
-    hull of ``apexes`` (A, 3) (:func:`leg_occluders`). None: too many pairs to test."""
+def _leg_may_be_blocked(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray, tol: float,
+                        first_only: bool = True) -> tuple[bool | None, tuple | None]:
+    """(whether some triangle may meet a segment from a point of a triangle in ``faces`` to a point of the convex
+    hull of ``apexes`` (A, 3), None: too many pairs to test; the :func:`leg_occluders` result, complete unless
+    ``first_only``)."""
     if len(faces) == 0:
-        return False
-    found = leg_occluders(caster, faces, apexes, tol, first_only=True)
-    return None if found is None else bool(found[1].any())
+        return False, None
+    found = leg_occluders(caster, faces, apexes, tol, first_only=first_only)
+    return (None, None) if found is None else (bool(found[1].any()), found)
 
 
 @register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning",
@@ -276,7 +278,10 @@ class Quadrature:
                 decided[name] = forced
                 self.visibility[name] = f"forced {'on' if forced else 'off'}"
                 continue
-            blocked = _leg_may_be_blocked(self.caster, faces, apexes, tol)
+            # the laser legs' occluders are complete: the compiled primary's lists start from them
+            blocked, found = _leg_may_be_blocked(self.caster, faces, apexes, tol, first_only=name != "shadow_spot")
+            if name == "shadow_spot" and tol == self.area.tol:
+                self.spot_occluders = found
             decided[name] = blocked is not False
             self.visibility[name] = ("too many triangle pairs to test: shadow rays kept" if blocked is None else
                                      f"a triangle may cross a {what} segment: shadow rays" if blocked else

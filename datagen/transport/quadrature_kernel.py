@@ -38,7 +38,7 @@ from numba import njit, prange
 
 from ..scene.brdf_kernel import PHONG, phong_cos_alpha, phong_power, phong_value
 from ..timing.tent_kernel import deposit_tent, sort3
-from .physics import attenuation_term, emission_term
+from .physics import attenuation_term, emission_term, fov_term, irradiance_term
 
 if numba.config.THREADING_LAYER == "default":
     # the parallel kernels' threads: GNU OpenMP before TBB (numba tries TBB first; the TBB beside Embree here is
@@ -130,7 +130,7 @@ def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targe
     fg = 0.0
     r_y = r_l
     if cos_l > 0.0 and cos_in > 0.0 and r_l > tol:
-        e = photons * emission_term(spot_f[l], cos_l) * cos_in * (inv_l * inv_l)
+        e = irradiance_term(photons, emission_term(spot_f[l], cos_l), cos_in, r_l)
         if same:
             d0, d1, d2, inv_y, nw = w0, w1, w2, inv_l, nfw
         else:
@@ -141,7 +141,7 @@ def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targe
             nw = n0 * d0 + n1 * d1 + n2 * d2
         cos_y = -(d0 * fov_n[0] + d1 * fov_n[1] + d2 * fov_n[2])
         if abs(nw) > 0.0 and cos_y > 0.0 and r_y > tol and (nw > 0.0) == (nfw > 0.0):
-            g = abs(nw) * cos_y * (inv_y * inv_y) * collect[t]
+            g = fov_term(abs(nw) * cos_y, r_y, collect[t])
             f = cell_brdf[m, 0]
             if cell_brdf[m, 1] == PHONG:        # Phong with the lit-side normal (datagen.scene.brdf_kernel)
                 sgn = 1.0 if nfw > 0.0 else -1.0

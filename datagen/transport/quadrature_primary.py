@@ -96,7 +96,9 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
     ``MAX_CANDIDATES`` of them casts rays."""
     caster, faces = q.caster, q.area.hidden_faces
     shadow = bool(q.settings.shadow_spot)
-    found = leg_occluders(caster, faces, q.laser_hull, q.area.tol) if shadow else None
+    found = getattr(q, "spot_occluders", None) if shadow else None   # the same test, done when q was built
+    if shadow and found is None:
+        found = leg_occluders(caster, faces, q.laser_hull, q.area.tol)
     face_ray = np.full(len(faces), shadow and not q.segment_tests, dtype=np.uint8)
     if found is not None:
         occluders, meet = found

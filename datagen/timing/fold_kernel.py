@@ -1,0 +1,84 @@
+"""Compiled fold and binning of an accumulator's fine histogram, row by row over the nodes that hold weight (numba).
+
+A fine-histogram row of a scanned capture holds weight on a few hundred of its thousands of nodes (one laser point's
+returns); :class:`datagen.timing.EnvelopeAccumulator` folds its pending second differences (:func:`fold_rows`) and
+convolves it with the fine-cell-integrated IRF and sums ``oversample`` nodes per output bin (:func:`bin_rows`, each
+non-zero node times a precomputed row of :func:`bin_weights`) only over each row's non-zero nodes. The fold runs in
+the order of ``numpy.cumsum``; the binning is the valid convolution regrouped by node; nothing is approximated
+(docs/physics.md §5).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["bin_rows", "bin_weights", "fold_rows"]
+
+
+@njit(cache=True, inline="always")
+def _span(a, r) -> tuple:
+    """[lo, hi): row r of ``a`` from its first to its last non-zero entry ((0, 0) if none)."""
+    n = a.shape[1]
+    lo = 0
+    while lo < n and a[r, lo] == 0.0:
+        lo += 1
+    hi = n
+    while hi > lo and a[r, hi - 1] == 0.0:
+        hi -= 1
+    return lo, hi
+
+
+@njit(cache=True)
+def fold_rows(hist: np.ndarray, curvature: np.ndarray) -> None:
+    """hist[r] += the running sum of the running sum of curvature[r], for every row r of the (R, N) float64 arrays,
+    from the row's first to its last non-zero second difference (beyond it the double sum of complete tents' second
+    differences is zero, round-off aside). In place; ``curvature`` is left as it is."""
+    for r in range(hist.shape[0]):
+        lo, hi = _span(curvature, r)
+        first = 0.0
+        second = 0.0
+        for j in range(lo, hi):
+            first += curvature[r, j]
+            second += first
+            hist[r, j] += second
+
+
+def bin_weights(kernel: np.ndarray, oversample: int) -> np.ndarray:
+    """(oversample, Q) float64 table of what a fine node adds to the output bins: node j = oversample·m + p adds
+    hist[j] · table[p, q] to bin m − q, the sum of the kernel taps k[K − 1 − t] over the t in [0, K) whose fine cell
+    j − t lies in that bin (the valid-mode convolution of :func:`bin_rows` regrouped by node; Q =
+    ceil((K − 1)/oversample) + 1)."""
+    k_len = len(kernel)
+    q_len = -(-(k_len - 1) // oversample) + 1
+    table = np.zeros((oversample, q_len))
+    for p in range(oversample):
+        for t in range(k_len):
+            table[p, -((p - t) // oversample)] += kernel[k_len - 1 - t]
+    return table
+
+
+@njit(cache=True)
+def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray) -> None:
+    """out[i, b] = Σ over the ``oversample`` fine cells c of bin b of (hist[rows[i]] ⋆ kernel)[c], the valid-mode
+    convolution ``numpy.convolve(hist[row], kernel, "valid")`` (length n_bins · oversample), as each non-zero node's
+    weight times its row of :func:`bin_weights` (``table``, (oversample, Q)): (K / oversample + 1) products per
+    non-zero node. hist (R, N) float64, rows (k,) int64, out (k, n_bins) float64 (written)."""
+    oversample, q_len = table.shape
+    n_bins = out.shape[1]
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        for b in range(n_bins):
+            out[i, b] = 0.0
+        lo, hi = _span(hist, r)
+        for j in range(lo, hi):
+            v = hist[r, j]
+            if v == 0.0:
+                continue
+            m = j // oversample
+            p = j - m * oversample
+            for q in range(q_len):
+                b = m - q
+                if b < 0:
+                    break
+                if b < n_bins:
+                    out[i, b] += v * table[p, q]
