@@ -106,7 +106,9 @@ class StoreSpec(_Model):
 
     Fields:
         envelope: store the envelope (expected detected photons per pulse per bin) as ``envelope_dtype``.
-        counts: store the SPAD histogram (int64).
+        counts: store the SPAD histogram as ``counts_dtype``.
+        counts_dtype: "int64" (default), "uint32" or "uint16": stored dtype of ``counts`` (the loader returns int64);
+            a sample with a count above its maximum stops with a one-line error (:func:`store.stored_counts`).
         components: store per-component envelopes as ``components`` (sample, C, *envelope shape) with C =
             room, object_0 … object_{max_objects-1} (zero for absent objects), then :data:`OTHER_COMPONENTS`.
         labels: store the ground-truth labels of :func:`datagen.dataset.labels.scene_labels`.
@@ -115,9 +117,10 @@ class StoreSpec(_Model):
             and store its envelope as ``reference`` (as ``envelope_dtype``): the empty-room return that NLOS
             set-ups subtract to isolate the hidden objects (docs/datasets.md, "What each config teaches").
             Doubles the transport cost.
-        compression: codec of every inner chunk: "lz4" (Blosc-LZ4 with byte shuffle: decodes a sample in a
-            few µs, the default), "zstd" (smaller, ~20 µs per chunk to decode) or "none".
-        compression_level: its level (lz4 1 … 9, zstd 1 … 22).
+        compression: codec of every inner chunk: "lz4" (Blosc-LZ4, the default), "blosc-zstd" (Blosc with zstd
+            inside), "zstd" (plain) or "none"; docs/scans.md ("Storage") compares them on the scan configs.
+        compression_level: its level (Blosc 1 … 9, zstd 1 … 22).
+        shuffle: the Blosc codecs' filter: "byte" (default) or "bit" (bitshuffle); plain zstd and "none" ignore it.
     """
 
     envelope: bool = True
@@ -127,8 +130,14 @@ class StoreSpec(_Model):
     labels: bool = True
     params: bool = True
     reference: bool = False
-    compression: Literal["lz4", "zstd", "none"] = "lz4"
+    compression: Literal["lz4", "blosc-zstd", "zstd", "none"] = "lz4"
     compression_level: int = Field(5, ge=1, le=22)
+    shuffle: Literal["byte", "bit"] = "byte"
+    counts_dtype: Literal["int64", "uint32", "uint16"] = "int64"
+
+
+STORE_DEFAULTS_UNHASHED = {"shuffle": "byte", "counts_dtype": "int64"}
+"""Store keys :meth:`DatasetConfig.to_json` leaves out at these defaults: older configs keep their fingerprint."""
 
 
 class DatasetConfig(_Model):
@@ -222,6 +231,9 @@ class DatasetConfig(_Model):
         data = self.model_dump(mode="json")
         if not data["room_overrides"]:
             del data["room_overrides"]
+        for key, default in STORE_DEFAULTS_UNHASHED.items():
+            if data["store"].get(key) == default:
+                del data["store"][key]
         return data
 
     def fingerprint(self) -> str:
@@ -516,7 +528,8 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         arrays["envelope"] = np.asarray(result.envelope, dtype=config.store.envelope_dtype)
     arrays["envelope_error"] = np.asarray(result.attrs["tolerance"]["estimate"], dtype=np.float32)
     if config.store.counts:
-        arrays["counts"] = np.asarray(result.counts, dtype=np.int64)
+        from .store import stored_counts
+        arrays["counts"] = stored_counts(result.counts, config.store.counts_dtype, where)
     if config.store.components:
         component_names, arrays["components"] = _component_slots(result, room, spec.max_objects,
                                                                  config.store.envelope_dtype, where)

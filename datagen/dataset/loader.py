@@ -88,7 +88,8 @@ class NLOSDataset(torch.utils.data.Dataset):
         transform: called on the dict of tensors before it is returned: ``transform(item)``, or with the
             keywords it declares among ``index`` (int) and ``params`` (the parsed params dict, needs
             ``store.params``), e.g. ``def transform(item, index, params)``.
-        counts_dtype: dtype of ``counts`` (e.g. ``torch.float32``); default the stored int64. It must hold every
+        counts_dtype: dtype of ``counts`` (e.g. ``torch.float32``); default int64 (whatever ``store.counts_dtype``
+            stored: int64, uint32 or uint16, converted straight to ``counts_dtype`` when given). It must hold every
             count exactly (:func:`datagen.spad.torch_noise.check_counts_dtype`): an integer or floating torch dtype
             whose exact range (``iinfo.max``; 2**24 float32, 2**11 float16, 2**8 bfloat16) reaches the laser
             cycles of the split's exposure (of the longest one in ``detector_ranges``), the most a pile-up bin
@@ -278,12 +279,15 @@ class NLOSDataset(torch.utils.data.Dataset):
         out = self._read(sample_index(index))
         return {name: out[name] for name in self.fields}
 
-    def _read(self, index: int) -> dict[str, np.ndarray]:
-        """Every array read for sample ``index`` (the fields, and what they were derived from)."""
+    def _read(self, index: int, widen: bool = True) -> dict[str, np.ndarray]:
+        """Every array read for sample ``index`` (the fields, and what they were derived from); stored counts
+        narrower than int64 widened to it if ``widen``."""
         if not -self.count <= index < self.count:
             raise IndexError(f"index {index} out of range for split {self.split!r} of {self.count} samples")
         index = index % self.count
         out = {name: reader.read(index) for name, reader in self._readers.items()}
+        if widen and "counts" in out and out["counts"].dtype != np.int64:   # store.counts_dtype uint16 / uint32
+            out["counts"] = out["counts"].astype(np.int64)
         det, drawn = None, None
         if self.noise == "resample":
             det, drawn, rng = self.draw_detector(index)
@@ -305,14 +309,14 @@ class NLOSDataset(torch.utils.data.Dataset):
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         index = sample_index(index)
-        out = self._read(index)
+        out = self._read(index, widen=self.counts_dtype is None and self.layout != "network")  # network: float32
         arrays = {name: out[name] for name in self.fields}
         if self.layout == "network":
             from .layout import to_network
             arrays = to_network(arrays)
         item = {name: (str(a[()]) if a.dtype == object else torch.from_numpy(a)) for name, a in arrays.items()}
         if self.counts_dtype is not None and "counts" in item:
-            most = int(item["counts"].max()) if item["counts"].numel() else 0
+            most = int(arrays["counts"].max()) if arrays["counts"].size else 0     # numpy: torch has no uint16 max
             if most > self._counts_limit:
                 raise ValueError(f"NLOSDataset: counts_dtype={self.counts_dtype} holds counts up to "
                                  f"{self._counts_limit} exactly, but sample {index % self.count} of {self.split!r} "

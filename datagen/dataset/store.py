@@ -219,6 +219,25 @@ class BuildLock:
 # Store creation
 
 
+def stored_counts(counts: np.ndarray, dtype: str, where: str) -> np.ndarray:
+    """SPAD ``counts`` (*S, T) integers ≥ 0 as the store's ``counts_dtype`` ("int64", "uint32", "uint16").
+
+    A pile-up detector counts at most one detection per laser cycle, so uint16 holds its counts whenever the
+    exposure has ≤ 65 535 cycles and uint32 any exposure; a Poisson detector has no such bound.
+
+    Raises:
+        DatasetError: a count above the dtype's maximum (names ``where``, the largest count and the dtype).
+    """
+    out_dtype = np.dtype(dtype)
+    counts = np.asarray(counts)
+    if out_dtype != np.int64 and counts.size:
+        most = int(counts.max())
+        if most > np.iinfo(out_dtype).max:
+            raise DatasetError(f"{where}: counts reach {most} in a bin, more than store.counts_dtype {dtype} holds "
+                               f"({np.iinfo(out_dtype).max}); set store.counts_dtype to uint32 or int64")
+    return np.asarray(counts, dtype=out_dtype)
+
+
 def zarr_module():
     """The ``zarr`` module, imported on first use rather than when this module is imported."""
     import zarr
@@ -240,6 +259,17 @@ def probe_fields(probe: Sample) -> dict[str, tuple[tuple[int, ...], str]]:
             for name, value in probe.arrays.items()}
 
 
+def numeric_codecs(compression: str, level: int, shuffle: str = "byte") -> list | None:
+    """Zarr v3 compressors of every numeric inner chunk for ``store.compression`` ("lz4", "blosc-zstd", "zstd",
+    "none"), ``store.compression_level`` (Blosc levels capped at 9) and ``store.shuffle`` ("byte" or "bit", Blosc
+    only). The loader's fast path (:mod:`datagen.dataset.shard_reader`) decodes each of them."""
+    from zarr.codecs import BloscCodec, ZstdCodec
+    blosc_shuffle = {"byte": "shuffle", "bit": "bitshuffle"}[shuffle]
+    if compression in ("lz4", "blosc-zstd"):
+        return [BloscCodec(cname=compression.removeprefix("blosc-"), clevel=min(level, 9), shuffle=blosc_shuffle)]
+    return {"zstd": [ZstdCodec(level=level)], "none": None}[compression]
+
+
 def create_arrays(root, config: DatasetConfig, fields: dict[str, tuple[tuple[int, ...], str]],
                   time_edges: np.ndarray, component_names: list[str],
                   axes: dict[str, list[str]] | None = None) -> dict:
@@ -248,11 +278,9 @@ def create_arrays(root, config: DatasetConfig, fields: dict[str, tuple[tuple[int
     directory or an open zarr group (the expected metadata of :mod:`datagen.dataset.integrity` is built in
     memory with the same calls). Returns the card's ``splits`` entry."""
     zarr = zarr_module()
-    from zarr.codecs import BloscCodec, ZstdCodec
+    from zarr.codecs import ZstdCodec
 
-    level = config.store.compression_level
-    numeric = {"lz4": [BloscCodec(cname="lz4", clevel=min(level, 9), shuffle="shuffle")],
-               "zstd": [ZstdCodec(level=level)], "none": None}[config.store.compression]
+    numeric = numeric_codecs(config.store.compression, config.store.compression_level, config.store.shuffle)
     group = zarr.open_group(str(root), mode="a", zarr_format=3) if isinstance(root, (str, Path)) else root
     for split, spec in config.splits.items():
         g = group.create_group(split, overwrite=True, attributes={"count": spec.count, "split_key": split_key(split),
