@@ -116,7 +116,7 @@ def scan_error(name: str, index: int) -> tuple[float, float]:
     config = load_dataset_config(ROOT / f"configs/datasets/{name}.yaml")
     scene, sim = sample_setup(config, "train", index)
     rngs = sample_rngs(config.seed, "train", index)
-    result = simulate_to_tolerance(scene, sim, config.tolerance, max_cost=config.time_cap,
+    result = simulate_to_tolerance(scene, sim, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
     h = float(result.attrs["config"]["estimator"]["edge"])
     fov = int(result.attrs["quadrature"]["fov_cells_per_pixel_side"])

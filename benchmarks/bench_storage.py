@@ -1,6 +1,7 @@
 """Bytes per sample of the scan configs under each codec the store supports (issue 30). Plain script::
 
-    python benchmarks/bench_storage.py --config wall --samples 2            # samples made here (make_sample)
+    python benchmarks/bench_storage.py --config wall --samples 2            # samples made here (make_sample; their
+                                                                            # CPU seconds are printed too)
     python benchmarks/bench_storage.py --dataset data/wall128 --samples 4   # samples of a built dataset
 
 For each sample (train 0, 1, …) it encodes, with numcodecs (the codecs zarr's ``BloscCodec`` / ``ZstdCodec`` wrap,
@@ -49,10 +50,15 @@ def samples_of(args) -> list[dict[str, np.ndarray]]:
         ds = NLOSDataset(args.dataset, split=args.split, fields=fields)
         return [ds.read(i) for i in range(min(args.samples, len(ds)))]
     config = load_dataset_config(ROOT / f"configs/datasets/{args.config}.yaml")
-    out = []
+    make_sample(config, [s for s in config.splits if s != args.split][-1], 0)   # warm-up: numba cache load
+    out, cpu = [], []
     for i in range(args.samples):
+        t = time.process_time()
         arrays = make_sample(config, args.split, i).arrays
+        cpu.append(time.process_time() - t)
         out.append({k: v for k, v in arrays.items() if k != "params"})
+    print(f"make_sample CPU s (this process, every thread) of {args.split} 0–{args.samples - 1}: "
+          + ", ".join(f"{c:.2f}" for c in cpu) + f"; mean {np.mean(cpu):.2f}")
     return out
 
 

@@ -3,6 +3,7 @@ CPU-sized; writes its validation predictions in the layout of ``datagen score``.
 
     python -m examples.train_depth_image data/wall_baseline          # → data/wall_baseline_net_val.npz
     datagen score data/wall_baseline_net_val.npz --dataset data/wall_baseline --split val
+    python -m examples.train_depth_image data/wall128 --pool 4       # 128×128 scans pooled to 32×32 inputs
 
 Reads the ``train`` and ``val`` splits with ``NLOSDataset(..., layout="network")`` (envelope and counts as
 (1, T, H, W), ``wall_depth`` as (1, H, W)) into memory. Training inputs are fresh SPAD counts every step, drawn in
@@ -11,7 +12,15 @@ stored (frozen) counts. Input log(1 + counts), standardised.
 
 Network (:class:`DepthNet`, ≈ 24 k parameters): the same temporal encoder at every scan point ((k, 1, 1) 3-D
 convolutions over time), then 2-D convolutions over the scan grid to one depth per pixel; ≈ 1 s of CPU per
-epoch of 200 samples of 16 × 16 × 256 on 2 threads. Loss: mean squared depth error over the pixels where the
+epoch of 200 samples of 16 × 16 × 256 on 2 threads.
+
+Network-resolution scans (``configs/datasets/wall128.yaml``, ``confocal64.yaml``): ``--pool K`` sums the scan over
+K × K blocks of scan points on loading (a 128 × 128 × 512 scan is 32 MiB; its full-resolution forward pass and
+SPAD draw cost ≈ 1 s per sample on this CPU), the network runs on the (H/K, W/K) grid and its depth image is
+upsampled bilinearly to the label's (H, W) grid, where the loss and ``datagen score`` compare it. The fresh counts
+of the pooled scan are drawn by a SPADNoise whose DCR and ambient rate are K² the split's (the summed background):
+exact for the Poisson detector (a sum of independent Poisson counts), for the pile-up detector exact only at low
+flux (these scans detect ≪ 1 photon per cycle and bin); the validation input is the stored counts, summed. Loss: mean squared depth error over the pixels where the
 label sees the hidden object (``wall_depth > 0``), the pixels ``datagen score`` scores. The trivial baseline is
 the training set's mean depth over those pixels, the same for every pixel and sample.
 """
@@ -28,14 +37,28 @@ import datagen
 from datagen.dataset.score import score_predictions
 
 
-def load_split(path, split: str) -> dict[str, torch.Tensor]:
-    """{"envelope", "counts": (N, 1, T, H, W) float32, "depth": (N, H, W) float32 m} of one split, in memory."""
+def pool_scan(scan: torch.Tensor, pool: int) -> torch.Tensor:
+    """(1, T, H, W) → (1, T, H/pool, W/pool): sums over pool × pool blocks of scan points (counts stay counts)."""
+    if pool == 1:
+        return scan
+    _, t, h, w = scan.shape
+    if h % pool or w % pool:
+        raise ValueError(f"--pool {pool} does not divide the {h} × {w} scan")
+    return scan.reshape(1, t, h // pool, pool, w // pool, pool).sum((3, 5))
+
+
+def load_split(path, split: str, pool: int = 1) -> dict[str, torch.Tensor]:
+    """{"envelope", "counts": (N, 1, T, H/pool, W/pool) float32 (summed over pool × pool scan points), "depth":
+    (N, H, W) float32 m (the label's grid)} of one split, in memory."""
     ds = datagen.NLOSDataset(path, split=split, fields=("envelope", "counts", "wall_depth"), layout="network",
                              counts_dtype=torch.float32)
-    items = [ds[i] for i in range(len(ds))]
-    return {"envelope": torch.stack([it["envelope"] for it in items]),
-            "counts": torch.stack([it["counts"] for it in items]),
-            "depth": torch.stack([it["wall_depth"][0] for it in items])}
+    out = {"envelope": [], "counts": [], "depth": []}
+    for i in range(len(ds)):
+        item = ds[i]
+        out["envelope"].append(pool_scan(item["envelope"], pool))
+        out["counts"].append(pool_scan(item["counts"], pool))
+        out["depth"].append(item["wall_depth"][0])
+    return {k: torch.stack(v) for k, v in out.items()}
 
 
 class DepthNet(torch.nn.Module):
@@ -58,9 +81,13 @@ class DepthNet(torch.nn.Module):
             torch.nn.Conv2d(32, 32, 3, padding=1), relu(),
             torch.nn.Conv2d(32, 1, 1))
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, size: tuple[int, int] | None = None) -> torch.Tensor:
+        """(B, 1, T, h, w) → (B, h, w), or (B, *size) upsampled bilinearly to a label grid ``size``."""
         b, _, _, h, w = x.shape
-        return self.spatial(self.temporal(x).reshape(b, -1, h, w))[:, 0]
+        out = self.spatial(self.temporal(x).reshape(b, -1, h, w))
+        if size is not None and tuple(size) != (h, w):
+            out = torch.nn.functional.interpolate(out, size=tuple(size), mode="bilinear", align_corners=False)
+        return out[:, 0]
 
 
 def draw_counts(noise: datagen.SPADNoise, envelope: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
@@ -69,13 +96,21 @@ def draw_counts(noise: datagen.SPADNoise, envelope: torch.Tensor, gen: torch.Gen
 
 
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
-          val_split: str = "val", log=print) -> dict[str, np.ndarray]:
-    """Train on ``train_split``, predict ``val_split``. Returns {"depth": (N, H, W) float32 m, "index": (N,),
-    "trivial": (N, H, W) the training mean depth over the object pixels}."""
+          val_split: str = "val", pool: int = 1, log=print) -> dict[str, np.ndarray]:
+    """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
+    doc). Returns {"depth": (N, H, W) float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the
+    training mean depth over the object pixels}."""
     torch.manual_seed(seed)
     t0 = time.perf_counter()
-    tr, va = load_split(path, train_split), load_split(path, val_split)
-    noise = datagen.NLOSDataset(path, split=train_split, fields=("envelope",)).spad_noise()
+    tr, va = load_split(path, train_split, pool), load_split(path, val_split, pool)
+    ds = datagen.NLOSDataset(path, split=train_split, fields=("envelope",))
+    det = ds.detector_config()
+    noise = ds.spad_noise() if pool == 1 else ds.spad_noise(dcr=det.dcr * pool ** 2,        # summed background
+                                                            ambient_rate=det.ambient_rate * pool ** 2)
+    size = tuple(tr["depth"].shape[1:])
+    if log:
+        log(f"  loaded {len(tr['depth'])} + {len(va['depth'])} samples, input {tuple(tr['envelope'].shape[1:])}, "
+            f"labels {size} ({time.perf_counter() - t0:.0f} s)")
     gen = torch.Generator().manual_seed(seed)
     mask_tr = tr["depth"] > 0
     d_mean, d_std = tr["depth"][mask_tr].mean(), tr["depth"][mask_tr].std()
@@ -93,7 +128,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
             rows = order[start:start + batch]
             x = (torch.log1p(draw_counts(noise, tr["envelope"][rows], gen)) - x_mean) / x_std
             mask = mask_tr[rows]
-            err = net(x) - (tr["depth"][rows] - d_mean) / d_std
+            err = net(x, size) - (tr["depth"][rows] - d_mean) / d_std
             loss = (err[mask] ** 2).mean() if mask.any() else (err * 0).sum()
             opt.zero_grad()
             loss.backward()
@@ -104,7 +139,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     net.eval()
     with torch.no_grad():
         x = (torch.log1p(va["counts"]) - x_mean) / x_std
-        depth = torch.cat([net(x[s:s + 64]) for s in range(0, len(x), 64)]) * d_std + d_mean
+        depth = torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)]) * d_std + d_mean
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
             "trivial": np.full(tuple(va["depth"].shape), float(d_mean), dtype=np.float32)}
@@ -119,11 +154,13 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     parser.add_argument("--train", default="train")
     parser.add_argument("--val", default="val")
+    parser.add_argument("--pool", type=int, default=1, help="sum the scan over POOL × POOL scan points (module doc)")
     parser.add_argument("--out", default=None, help="predictions .npz (default: DATA_net_<val>.npz); the "
                                                     "trivial baseline goes to the same name with _trivial")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val)
+    pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
+                 pool=args.pool)
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
     trivial = out.with_name(out.stem + "_trivial.npz")

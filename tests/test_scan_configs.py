@@ -101,3 +101,22 @@ def test_full_configs_load_at_the_network_resolution(name, points, bin_ps):
     time = config.simulation_config("train").time
     assert time.n_bins == 512 and round(time.bin_width * 1e12) == bin_ps
     assert config.store.compression == "blosc-zstd" and config.store.counts_dtype == "uint16"
+
+
+def test_depth_network_pools_a_network_resolution_scan(smoke, tmp_path):
+    """examples/train_depth_image.py --pool 2 sums 2 × 2 scan points on loading and predicts on the label's grid."""
+    path, shuffle, shape = smoke
+    if shuffle != "byte" or shape[2] != 32:
+        pytest.skip("once, on wall128_smoke")
+    from examples import train_depth_image
+    scan = torch.arange(2 * 4 * 4, dtype=torch.float32).reshape(1, 2, 4, 4)
+    pooled = train_depth_image.pool_scan(scan, 2)
+    assert pooled.shape == (1, 2, 2, 2) and pooled[0, 0, 0, 0].item() == 0 + 1 + 4 + 5
+    torch.set_num_threads(1)
+    out = tmp_path / "net.npz"
+    train_depth_image.main([str(path), "--val", "test", "--epochs", "1", "--batch", "2", "--threads", "1",
+                            "--pool", "2", "--out", str(out)])
+    with np.load(out) as f:
+        assert f["depth"].shape == (2, 32, 32) and np.isfinite(f["depth"]).all()
+    with pytest.raises(ValueError, match=r"--pool 3 does not divide the 32 × 32 scan"):
+        train_depth_image.load_split(path, "test", 3)
