@@ -16,8 +16,8 @@ collection then does not depend on the incoming direction):
   accumulator's fine grid by :func:`datagen.timing.tent_kernel.deposit_tent`.
 
 Visibility of the laser leg (``shadow``): only the triangles that may cross a segment from T's face to the laser
-points (the separating-plane test per face), narrowed per face and laser point by :func:`_face_list`, are tested,
-exactly in float64 (:func:`_blocked_listed`): a segment that misses them all by more than ``margin`` is visible, one that
+points (the separating-plane test per face), grouped in runs of one object with a bounding sphere, are tested,
+exactly in float64 (:func:`_blocked`): a segment that misses them all by more than ``margin`` is visible, one that
 crosses a triangle more than ``margin`` inside its edges is blocked, and only the rest (within ``margin`` of an
 edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited after it (:func:`deposit_pairs`).
 Embree's float32 rays leak through shared edges now and then (measured: a segment 0.5–2 mm inside a box's face
@@ -45,8 +45,7 @@ if numba.config.THREADING_LAYER == "default":
     # older than numba needs, so that try ends in a NumbaWarning on every first parallel run)
     numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
-__all__ = ["FILTER_SLACK", "candidates", "channel_groups", "deposit_pairs", "face_candidates", "occluder_planes",
-           "reach_spheres", "vertex_paths"]
+__all__ = ["candidates", "channel_groups", "deposit_pairs", "face_candidates", "occluder_planes", "vertex_paths"]
 
 
 def occluder_planes(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,26 +65,6 @@ def occluder_planes(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return plane, edges
 
 
-def reach_spheres(tri: np.ndarray, edges: np.ndarray, grow: float) -> np.ndarray:
-    """(k, 4) spheres (centre, radius; metres) holding each triangle of ``tri`` (k, 3, 3) grown by ``grow`` beyond
-    each of its edges in its plane (``edges``: the in-plane inward edge planes of :func:`occluder_planes`): the
-    points whose edge distances are all ≥ −grow. Vertex i moves by −grow (m_a + m_b) / (1 + m_a·m_b) (m_a, m_b the
-    unit inward normals of its two edges); a vertex sharper than 1e-6 in that sense, or a degenerate triangle, gets
-    an infinite radius (never dropped)."""
-    m = edges[..., :3]                                                     # (k, 3, 3): edge j's inward normal
-    grown = np.empty_like(tri)
-    sharp = np.zeros(len(tri), dtype=bool)
-    for i in range(3):
-        a, b = m[:, i], m[:, (i + 2) % 3]                                  # edges i (v_i → v_i+1) and i − 1 meet at v_i
-        c = 1.0 + np.einsum("ij,ij->i", a, b)
-        sharp |= c < 1e-6
-        grown[:, i] = tri[:, i] - grow * (a + b) / np.where(c < 1e-6, 1.0, c)[:, None]
-    centre = grown.mean(axis=1)
-    radius = np.sqrt(((grown - centre[:, None]) ** 2).sum(axis=2).max(axis=1))
-    radius = np.where(sharp | ~(np.abs(m).sum(axis=(1, 2)) > 0), np.inf, radius)
-    return np.concatenate([centre, radius[:, None]], axis=1)
-
-
 @njit(cache=True, inline="always")
 def _dist(a, i, b, j) -> float:
     """|a[i] − b[j]| for rows of two (n, 3) arrays (scalar indexing: no array views in the inner loops)."""
@@ -93,72 +72,43 @@ def _dist(a, i, b, j) -> float:
     return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
-FILTER_SLACK = 1e-9
-"""Metres to spare (far above the per-pair test's round-off, ~1e-15 m) when :func:`_face_list` drops a candidate."""
-
-
 @njit(cache=True, inline="always")
-def _face_list(face_sphere, f, spots, l, run_ptr, run_lo, run_hi, idx, plane, reach, margin, out) -> int:
-    """The candidate triangles of hidden face f (its runs) that may block or pass within ``margin`` of a segment
-    from a point of the face to laser point l, written to ``out``; returns how many. A candidate is dropped when the
-    laser point lies within ``margin`` of its plane, or the face's sphere (``face_sphere[f]``: centre, radius)
-    lies on the laser point's side of that plane or within ``margin`` of it (no segment crosses it by more than
-    ``margin``), or every segment misses its ``reach`` sphere (the triangle grown by ``margin`` beyond each edge,
-    :func:`reach_spheres`): a segment from the face lies within the face's radius of the segment from the face's
-    centre, so one farther than both radii from the sphere's centre misses it. The per-pair test
-    (:func:`_blocked_listed`) gives 0 for a dropped one at every point of the face, so the list changes no result."""
-    c0, c1, c2, rf = face_sphere[f, 0], face_sphere[f, 1], face_sphere[f, 2], face_sphere[f, 3]
-    s0, s1, s2 = spots[l, 0], spots[l, 1], spots[l, 2]
-    e0, e1, e2 = s0 - c0, s1 - c1, s2 - c2
-    length2 = max(e0 * e0 + e1 * e1 + e2 * e2, 1e-300)
-    n_out = 0
-    for r in range(run_ptr[f], run_ptr[f + 1]):
-        for i in range(run_lo[r], run_hi[r]):
-            k = idx[i]
-            n0, n1, n2, o = plane[k, 0], plane[k, 1], plane[k, 2], plane[k, 3]
-            d1 = n0 * s0 + n1 * s1 + n2 * s2 - o
-            if abs(d1) <= margin:
-                continue
-            d0 = n0 * c0 + n1 * c1 + n2 * c2 - o
-            if (d1 > 0.0 and d0 - rf >= -margin + FILTER_SLACK) or (d1 < 0.0 and d0 + rf <= margin - FILTER_SLACK):
-                continue
-            q0, q1, q2 = reach[k, 0] - c0, reach[k, 1] - c1, reach[k, 2] - c2
-            u = min(max((q0 * e0 + q1 * e1 + q2 * e2) / length2, 0.0), 1.0)
-            q0, q1, q2 = q0 - u * e0, q1 - u * e1, q2 - u * e2
-            far = reach[k, 3] + rf + FILTER_SLACK
-            if q0 * q0 + q1 * q1 + q2 * q2 > far * far:
-                continue
-            out[n_out] = k
-            n_out += 1
-    return n_out
-
-
-@njit(cache=True, inline="always")
-def _blocked_listed(centroid, m, spots, l, listed, n_listed, plane, edges, margin) -> int:
-    """:func:`_blocked` over the candidates ``listed[:n_listed]`` of :func:`_face_list` (the same per-triangle
-    test; 0 no, 1 blocked, 2 within ``margin``: a shadow ray decides)."""
+def _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, idx, plane, edges, margin) -> int:
+    """Whether a candidate triangle of hidden face f (its runs, each inside a bounding sphere) blocks the segment
+    centroid[m] → spots[l]: 0 no (every one is missed by more than ``margin``, or an end lies on its plane: its own
+    surface, which the ray's pushed-off end clears), 1 yes (one is crossed with both ends more than ``margin`` off
+    its plane and the crossing more than ``margin`` inside its edges: Embree's ray meets it too), 2 within
+    ``margin`` (a shadow ray decides)."""
     x0, x1, x2 = centroid[m, 0], centroid[m, 1], centroid[m, 2]
     s0, s1, s2 = spots[l, 0], spots[l, 1], spots[l, 2]
     e0, e1, e2 = s0 - x0, s1 - x1, s2 - x2
+    length2 = e0 * e0 + e1 * e1 + e2 * e2
     out = 0
-    for i in range(n_listed):
-        k = listed[i]
-        n0, n1, n2, o = plane[k, 0], plane[k, 1], plane[k, 2], plane[k, 3]
-        d0 = n0 * x0 + n1 * x1 + n2 * x2 - o
-        d1 = n0 * s0 + n1 * s1 + n2 * s2 - o
-        if abs(d0) <= margin or abs(d1) <= margin or (d0 > 0.0) == (d1 > 0.0):
-            continue
-        t = d0 / (d0 - d1)
-        p0 = x0 + t * e0
-        p1 = x1 + t * e1
-        p2 = x2 + t * e2
-        inner = np.inf
-        for j in range(3):
-            inner = min(inner, edges[k, j, 0] * p0 + edges[k, j, 1] * p1 + edges[k, j, 2] * p2 - edges[k, j, 3])
-        if inner > margin:
-            return 1
-        if inner >= -margin:
-            out = 2
+    for r in range(run_ptr[f], run_ptr[f + 1]):
+        c0, c1, c2 = spheres[r, 0] - x0, spheres[r, 1] - x1, spheres[r, 2] - x2
+        u = min(max((c0 * e0 + c1 * e1 + c2 * e2) / length2, 0.0), 1.0)
+        q0, q1, q2 = c0 - u * e0, c1 - u * e1, c2 - u * e2
+        reach = spheres[r, 3] + margin
+        if q0 * q0 + q1 * q1 + q2 * q2 > reach * reach:
+            continue                                 # the segment misses the run's bounding sphere
+        for i in range(run_lo[r], run_hi[r]):
+            k = idx[i]
+            n0, n1, n2, o = plane[k, 0], plane[k, 1], plane[k, 2], plane[k, 3]
+            d0 = n0 * x0 + n1 * x1 + n2 * x2 - o
+            d1 = n0 * s0 + n1 * s1 + n2 * s2 - o
+            if abs(d0) <= margin or abs(d1) <= margin or (d0 > 0.0) == (d1 > 0.0):
+                continue
+            t = d0 / (d0 - d1)
+            p0 = x0 + t * e0
+            p1 = x1 + t * e1
+            p2 = x2 + t * e2
+            inner = np.inf
+            for j in range(3):
+                inner = min(inner, edges[k, j, 0] * p0 + edges[k, j, 1] * p1 + edges[k, j, 2] * p2 - edges[k, j, 3])
+            if inner > margin:
+                return 1
+            if inner >= -margin:
+                out = 2
     return out
 
 
@@ -225,8 +175,7 @@ POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photon
 CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
-OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "occ_idx", "plane", "edges", "margin", "face_ray", "face_sphere",
-       "reach", "max_listed")
+OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "face_ray")
 """The kernel's inputs by group (tuples; :func:`datagen.transport.quadrature_primary.run_compiled` builds them). The
 kernel unpacks every group once before its loops: arrays taken out of a tuple inside numba's inner loop cost an
 atomic reference count each (measured ~100 ns per pair)."""
@@ -249,13 +198,12 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride = legs
     t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond = grid
     ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond = coarse
-    shadow, run_ptr, run_lo, run_hi, occ_idx, plane, edges, margin, face_ray, face_sphere, reach, max_listed = occ
+    shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
     M = centroid.shape[0]
     n_groups = len(group_ptr) - 1
     group_tents = np.zeros(n_groups, dtype=np.int64)
     for grp in prange(n_groups):
         tents = 0
-        listed_k = np.empty(max(1, max_listed), dtype=np.int64)      # the (face, laser point) candidates
         for gi in range(group_ptr[grp], group_ptr[grp + 1]):
             b = group_conn[gi]
             row = b - b0
@@ -263,8 +211,6 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
             n_items = ray_count[row] if listed else M
             n_rays = 0
             l, t, ch = conn_laser[b], conn_target[b], conn_channel[b]
-            listed_face = -1
-            n_listed = 0
             for i in range(n_items):
                 if listed:
                     if not visible[slot + i]:
@@ -282,14 +228,8 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     continue
                 if shadow and not listed:
                     f = cell_face[m]
-                    if face_ray[f]:
-                        blocked = 2
-                    else:
-                        if f != listed_face:                # the face's candidates for this laser point, once
-                            n_listed = _face_list(face_sphere, f, spots, l, run_ptr, run_lo, run_hi, occ_idx, plane,
-                                                  reach, margin, listed_k)
-                            listed_face = f
-                        blocked = _blocked_listed(centroid, m, spots, l, listed_k, n_listed, plane, edges, margin)
+                    blocked = 2 if face_ray[f] else _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi,
+                                                             spheres, occ_idx, plane, edges, margin)
                     if blocked == 1:
                         continue
                     if blocked == 2:

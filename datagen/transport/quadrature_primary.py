@@ -20,8 +20,8 @@ from ..scene import RayCaster
 from ..scene.separation import hull_planes, may_meet, outward_planes
 from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
-from .quadrature_kernel import (FILTER_SLACK, candidates, channel_groups, deposit_pairs, face_candidates,
-                                occluder_planes, reach_spheres, vertex_paths)
+from .quadrature_kernel import (candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes,
+                          vertex_paths)
 
 __all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "leg_occluders", "run_compiled"]
 
@@ -88,10 +88,8 @@ def _leg_hulls(t: np.ndarray, apexes: np.ndarray) -> tuple:
 def _occluder_lists(q, front: np.ndarray) -> tuple:
     """The kernel's :data:`~datagen.transport.quadrature_kernel.OCC` group for quadrature ``q``: per hidden face the
     triangles that may block its laser legs, in runs of one object each (CSR ``run_ptr`` over runs; run r holds
-    ``idx[run_lo[r]:run_hi[r]]``), their planes and edge planes, the margin, per hidden face whether every lit pair
-    casts a ray instead, the hidden faces' bounding spheres, the candidates' reach spheres
-    (:func:`~datagen.transport.quadrature_kernel.reach_spheres`) and the most candidates of one face (the kernel
-    narrows each face's list per laser point with them). The triangles come from
+    ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``), their planes and edge planes, the
+    margin, and per hidden face whether every lit pair casts a ray instead. The triangles come from
     :func:`leg_occluders`, or, when that has too many pairs to test (a big mesh), from the compiled
     :func:`~datagen.transport.quadrature_kernel.face_candidates`, which also separates by a face's own plane where only
     its front is lit (``front`` (F,) bool per hidden face: :func:`closed_outward`); a face with more than
@@ -120,17 +118,15 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
     run_hi = np.append(run_lo[1:], len(face_of))
     run_ptr = np.searchsorted(face_of[run_lo], np.arange(len(faces) + 1)).astype(np.int64)
     tri = caster.vertices[caster.faces[occluders]]
+    spheres = np.zeros((len(run_lo), 4))
+    for r, (lo, hi) in enumerate(zip(run_lo, run_hi)):
+        pts = tri[occ_of[lo:hi]].reshape(-1, 3)
+        centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+        spheres[r] = [*centre, np.sqrt(((pts - centre) ** 2).sum(axis=1).max())]
     plane, edges = occluder_planes(tri) if len(tri) else (np.zeros((1, 4)), np.zeros((1, 3, 4)))
     margin = MARGIN_OFFSETS * caster.offset
-    face_tri = caster.vertices[caster.faces[faces]]
-    face_centre = face_tri.mean(axis=1)
-    face_sphere = np.concatenate([face_centre, np.sqrt(((face_tri - face_centre[:, None]) ** 2).sum(axis=2)
-                                                       .max(axis=1))[:, None]], axis=1)
-    reach = reach_spheres(tri, edges, margin + FILTER_SLACK) if len(tri) else np.zeros((1, 4))
-    per_face = np.bincount(face_of, minlength=len(faces)) if len(face_of) else np.zeros(1, dtype=np.int64)
-    return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), occ_of.astype(np.int64),
-            plane, edges, float(margin), face_ray, np.ascontiguousarray(face_sphere), np.ascontiguousarray(reach),
-            int(per_face.max(initial=0)))
+    return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), spheres, occ_of.astype(np.int64),
+            plane, edges, float(margin), face_ray)
 
 
 def _face_candidates(q, front: np.ndarray) -> tuple:
