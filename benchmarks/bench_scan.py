@@ -120,10 +120,9 @@ def scan_error(name: str, index: int) -> tuple[float, float]:
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
     h = float(result.attrs["config"]["estimator"]["edge"])
     fov = int(result.attrs["quadrature"]["fov_cells_per_pixel_side"])
-    grading = sim.quadrature_grading            # a graded config's reference: every piece 4× smaller too
-    ref = datagen.simulate(scene, sim.model_copy(update={
-        "quadrature_edge": h / 4, "quadrature_fov": fov,
-        "quadrature_grading": None if grading is None else grading / 4})).envelope
+    grading = sim.estimator.grading             # a graded config's reference: every piece 4× smaller too
+    ref = datagen.simulate(scene, sim.model_copy(update={"estimator": sim.estimator.model_copy(update={
+        "edge": h / 4, "fov_cells": fov, "grading": None if grading is None else grading / 4})})).envelope
     return float(np.linalg.norm(result.envelope - ref) / np.linalg.norm(ref)), h
 
 

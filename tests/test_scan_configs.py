@@ -12,7 +12,8 @@ from click.testing import CliRunner
 
 from datagen.cli import main
 from datagen.dataset import NLOSDataset, build_dataset, load_dataset_config, read_card
-from datagen.dataset.store import numeric_codecs, stored_counts
+from datagen.dataset.dtypes import stored_counts
+from datagen.dataset.store import numeric_codecs
 from datagen.errors import DatasetError
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "datasets"

@@ -39,6 +39,7 @@ from ..errors import ConfigError, DatagenError
 from ..scene.load import format_validation_error, read_yaml
 from ..simulation.tolerance import MIN_TOLERANCE
 from ..units import parse_duration, parse_fraction
+from .dtypes import stored_counts
 from .legacy import RENAMED_KEYS, note_old_keys
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
@@ -108,7 +109,7 @@ class StoreSpec(_Model):
         envelope: store the envelope (expected detected photons per pulse per bin) as ``envelope_dtype``.
         counts: store the SPAD histogram as ``counts_dtype``.
         counts_dtype: "int64" (default), "uint32" or "uint16": stored dtype of ``counts`` (the loader returns int64);
-            a sample with a count above its maximum stops with a one-line error (:func:`store.stored_counts`).
+            a sample with a count above its maximum stops with a one-line error (:func:`dtypes.stored_counts`).
         components: store per-component envelopes as ``components`` (sample, C, *envelope shape) with C =
             room, object_0 … object_{max_objects-1} (zero for absent objects), then :data:`OTHER_COMPONENTS`.
         labels: store the ground-truth labels of :func:`datagen.dataset.labels.scene_labels`.
@@ -528,7 +529,6 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         arrays["envelope"] = np.asarray(result.envelope, dtype=config.store.envelope_dtype)
     arrays["envelope_error"] = np.asarray(result.attrs["tolerance"]["estimate"], dtype=np.float32)
     if config.store.counts:
-        from .store import stored_counts
         arrays["counts"] = stored_counts(result.counts, config.store.counts_dtype, where)
     if config.store.components:
         component_names, arrays["components"] = _component_slots(result, room, spec.max_objects,
