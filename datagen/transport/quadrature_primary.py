@@ -165,13 +165,13 @@ def closed_outward(caster: RayCaster, objects: np.ndarray, spots: np.ndarray) ->
         inside = ((spots >= box.min(axis=0) - caster.offset) & (spots <= box.max(axis=0) + caster.offset)).all(axis=1)
         if inside.any():
             continue
-        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        directed = np.unique(edges, axis=0)
-        if len(directed) != len(edges):
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]).astype(np.int64)
+        n = np.int64(len(caster.vertices))
+        keys = np.sort(edges[:, 0] * n + edges[:, 1])                 # directed edge a → b as one integer
+        if (keys[1:] == keys[:-1]).any():                             # a directed edge twice
             continue
-        both = np.concatenate([directed, edges[:, ::-1]])
-        if len(np.unique(both, axis=0)) != len(directed):       # every reverse present: a closed, oriented surface
-            continue
+        if not np.array_equal(keys, np.sort(edges[:, 1] * n + edges[:, 0])):   # every reverse present: a closed,
+            continue                                                             # oriented surface
         tri = caster.vertices[f]
         out[i] = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() > 0
     return out
@@ -218,7 +218,9 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
            i64(q.coarse_cells.reshape(-1, 3)))
     face_object = q.caster.face_object[q.area.hidden_faces]
     objects = np.unique(face_object)
-    front = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, face_object)]    # per hidden face
+    front = getattr(q, "front_cache", None)             # per hidden face; the same for the estimate's sub-scan
+    if front is None:
+        q.front_cache = front = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, face_object)]
     closed = front[q.cell_hidden].astype(np.uint8)
     pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), closed, f64(c.spot_normals), f64(spot_f),
             float(c.photons), f64(c.fov_normal), f64(collect * q.target_area), float(q.area.tol), cell_brdf)
