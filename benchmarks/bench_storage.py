@@ -74,7 +74,9 @@ def timed_ms(fn, reps: int) -> float:
 def measure(samples: list[dict], level: int, reps: int) -> list[dict]:
     rows = []
     for name, codec in codecs(level).items():
-        enc = (lambda a: codec.encode(np.ascontiguousarray(a))) if codec else (lambda a: np.ascontiguousarray(a).tobytes())
+        def enc(a, codec=codec):
+            a = np.ascontiguousarray(a)
+            return codec.encode(a) if codec is not None else a.tobytes()
         sizes = {"envelope": [], "counts int64": [], "counts uint32": [], "counts uint16": [], "labels": []}
         t_enc, t_dec = [], []
         for s in samples:

@@ -20,9 +20,12 @@ SPAD draw cost ≈ 1 s per sample on this CPU), the network runs on the (H/K, W/
 upsampled bilinearly to the label's (H, W) grid, where the loss and ``datagen score`` compare it. The fresh counts
 of the pooled scan are drawn by a SPADNoise whose DCR and ambient rate are K² the split's (the summed background):
 exact for the Poisson detector (a sum of independent Poisson counts), for the pile-up detector exact only at low
-flux (these scans detect ≪ 1 photon per cycle and bin); the validation input is the stored counts, summed. Loss: mean squared depth error over the pixels where the
-label sees the hidden object (``wall_depth > 0``), the pixels ``datagen score`` scores. The trivial baseline is
-the training set's mean depth over those pixels, the same for every pixel and sample.
+flux (these scans detect ≪ 1 photon per cycle and bin); the validation input is the stored counts, summed.
+Results on small builds of both configs: docs/datasets.md ("Network resolution").
+
+Loss: mean squared depth error over the pixels where the label sees the hidden object (``wall_depth > 0``), the
+pixels ``datagen score`` scores. The trivial baseline is the training set's mean depth over those pixels, the same
+for every pixel and sample.
 """
 from __future__ import annotations
 

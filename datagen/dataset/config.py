@@ -119,7 +119,7 @@ class StoreSpec(_Model):
             set-ups subtract to isolate the hidden objects (docs/datasets.md, "What each config teaches").
             Doubles the transport cost.
         compression: codec of every inner chunk: "lz4" (Blosc-LZ4, the default), "blosc-zstd" (Blosc with zstd
-            inside), "zstd" (plain) or "none"; docs/scans.md ("Storage") compares them on the scan configs.
+            inside), "zstd" (plain) or "none"; compared in docs/scans.md ("Storage and loading").
         compression_level: its level (Blosc 1 … 9, zstd 1 … 22).
         shuffle: the Blosc codecs' filter: "byte" (default) or "bit" (bitshuffle); plain zstd and "none" ignore it.
     """

@@ -24,23 +24,3 @@ def stored_counts(counts: np.ndarray, dtype: str, where: str) -> np.ndarray:
                                f"({np.iinfo(out_dtype).max}); set store.counts_dtype to uint32 or int64")
     return np.asarray(counts, dtype=out_dtype)
 
-
-def zarr_module():
-    """The ``zarr`` module, imported on first use rather than when this module is imported."""
-    import zarr
-    return zarr
-
-
-def consolidate(root: Path) -> None:
-    """Consolidate the store's metadata (once, at the end). ``_done/`` and the lock file are not Zarr nodes."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
-        warnings.filterwarnings("ignore", message="Object at .* is not recognized", category=UserWarning)
-        zarr_module().consolidate_metadata(str(root))
-
-
-def probe_fields(probe: Sample) -> dict[str, tuple[tuple[int, ...], str]]:
-    """Per-sample shape and dtype of every field of ``probe`` as the card records them: dtype ``"str"`` for
-    ``params``, else the numpy dtype string (``"<f4"``)."""
-    return {name: (tuple(value.shape), "str" if name == "params" else value.dtype.str)
-            for name, value in probe.arrays.items()}
