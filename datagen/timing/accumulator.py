@@ -187,7 +187,9 @@ class EnvelopeAccumulator:
         else:
             # Fine-cell-integrated IRF: p[n + n_right] = P((n - 1/2) delta <= X < (n + 1/2) delta).
             self._kernel = irf.interval_mass((offsets - 0.5) * self.fine_step, (offsets + 0.5) * self.fine_step)
-        self._bin_table = bin_weights(self._kernel, self.oversample)
+        # the binning weights of the compiled direct convolution (long kernels take the FFT instead)
+        self._bin_table = (bin_weights(self._kernel, self.oversample) if self._kernel.size <= _DIRECT_KERNEL_MAX
+                           else None)
         self._hist = np.zeros((self.n_components, self.n_fine), dtype=np.float64)
         self._total = np.zeros(self.n_components, dtype=np.float64)
         self._beyond = np.zeros(self.n_components, dtype=np.float64)
@@ -426,9 +428,7 @@ class EnvelopeAccumulator:
     def _fold(self) -> np.ndarray:
         """The fine histogram with the pending curvature deposits summed in (twice along the nodes)."""
         if self._curvature is not None:
-            # only the columns from the first to the last pending second difference: beyond the last one the double
-            # sum of complete tents' second differences is zero (round-off aside), before the first it is zero
-            fold_rows(self._hist, self._curvature)
+            fold_rows(self._hist, self._curvature)      # each row over its pending second differences only
             self._curvature = None
             self._clamp_rtol = CURVATURE_CLAMP_RTOL
         return self._hist
@@ -544,17 +544,18 @@ class EnvelopeAccumulator:
 
     def _convolve_rows(self, hist: np.ndarray) -> np.ndarray:
         """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes (the non-zero rows in
-        batches of ``_CONVOLVE_ROWS``, one FFT convolution per batch)."""
+        batches of ``_CONVOLVE_ROWS``: the compiled direct convolution over each row's non-zero nodes, or one FFT
+        convolution per batch for a kernel longer than ``_DIRECT_KERNEL_MAX`` taps)."""
         out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
         rows = np.flatnonzero(hist.any(axis=1))
-        span = self._kernel.size - 1
         for start in range(0, len(rows), _CONVOLVE_ROWS):
             ks = rows[start:start + _CONVOLVE_ROWS]
             block = np.empty((len(ks), self.axis.n_bins))
-            if self._kernel.size <= _DIRECT_KERNEL_MAX:       # compiled, over each row's non-zero nodes only
+            if self._bin_table is not None:                  # compiled, over each row's non-zero nodes only
                 bin_rows(hist, ks.astype(np.int64), self._bin_table, block)
                 part = hist[ks]
             else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
+                span = self._kernel.size - 1
                 rows_ = hist[ks]
                 lo, hi = _active_columns(rows_)
                 b0 = max(0, lo - span) // self.oversample

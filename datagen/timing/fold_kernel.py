@@ -51,9 +51,8 @@ def bin_weights(kernel: np.ndarray, oversample: int) -> np.ndarray:
     k_len = len(kernel)
     q_len = -(-(k_len - 1) // oversample) + 1
     table = np.zeros((oversample, q_len))
-    for p in range(oversample):
-        for t in range(k_len):
-            table[p, -((p - t) // oversample)] += kernel[k_len - 1 - t]
+    p, t = np.meshgrid(np.arange(oversample), np.arange(k_len), indexing="ij")
+    np.add.at(table, (p, -((p - t) // oversample)), np.broadcast_to(kernel[::-1], p.shape))   # in (p, t) order
     return table
 
 

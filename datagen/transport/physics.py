@@ -410,13 +410,13 @@ class LegPhysics:
         emit = self.spot_emission(w_s, lasers)
         cos_ap = np.maximum(-dot(w_s, c.aperture_normals(spot)), 0.0)
         vis = self.caster.visible(spot, c.spot_normals[lasers], c.sensor, None)
-        weight = on_arrays(direct_term)(c.photons, self.settings.pde, emit, c.aperture_area, cos_ap, d) * vis
-        weight = weight * self.attenuation(c.emitter_legs[lasers] + d)
-        t = (self.laser_leg(lasers) + self.sensor_leg(d)) / SPEED_OF_LIGHT
         path = c.emitter_legs[lasers] + d
+        weight = on_arrays(direct_term)(c.photons, self.settings.pde, emit, c.aperture_area, cos_ap, d) * vis
+        weight = weight * self.attenuation(path)
+        t = np.broadcast_to((self.laser_leg(lasers) + self.sensor_leg(d)) / SPEED_OF_LIGHT, d.shape)
         if np.ndim(laser) == 0:
-            return float(weight[0]), float(path[0]), float(np.broadcast_to(t, d.shape)[0])
-        return weight, path, np.broadcast_to(t, d.shape).astype(np.float64)
+            return float(weight[0]), float(path[0]), float(t[0])
+        return weight, path, t.astype(np.float64)
 
     def first_bounce(self, sink: Sink, component: int) -> None:
         """Send the direct return of each laser point lying strictly inside a sensor pixel region (aperture

@@ -270,6 +270,7 @@ class Quadrature:
         hw, hh = 0.5 * c.fov_size[0], 0.5 * c.fov_size[1]
         fov_hull = np.array([c.fov_center + a * hw * c.fov_u + b * hh * c.fov_v for a in (-1, 1) for b in (-1, 1)])
         self.visibility = {}
+        self.spot_occluders = None              # the laser legs' complete occluder test, for the compiled primary
         decided = {}
         for name, apexes, what in (("shadow_spot", laser_hull, "laser point → hidden surface"),
                                    ("shadow_fov", fov_hull, "hidden surface → FoV")):
@@ -278,9 +279,8 @@ class Quadrature:
                 decided[name] = forced
                 self.visibility[name] = f"forced {'on' if forced else 'off'}"
                 continue
-            # the laser legs' occluders are complete: the compiled primary's lists start from them
             blocked, found = _leg_may_be_blocked(self.caster, faces, apexes, tol, first_only=name != "shadow_spot")
-            if name == "shadow_spot" and tol == self.area.tol:
+            if name == "shadow_spot":
                 self.spot_occluders = found
             decided[name] = blocked is not False
             self.visibility[name] = ("too many triangle pairs to test: shadow rays kept" if blocked is None else

@@ -96,7 +96,7 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
     ``MAX_CANDIDATES`` of them casts rays."""
     caster, faces = q.caster, q.area.hidden_faces
     shadow = bool(q.settings.shadow_spot)
-    found = getattr(q, "spot_occluders", None) if shadow else None   # the same test, done when q was built
+    found = q.spot_occluders if shadow else None        # the same test, done when q was built (or None)
     if shadow and found is None:
         found = leg_occluders(caster, faces, q.laser_hull, q.area.tol)
     face_ray = np.full(len(faces), shadow and not q.segment_tests, dtype=np.uint8)
@@ -216,10 +216,10 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
                                      dtype=np.float64)
     geo = (f64(q.vertices), i64(q.cells), f64(q.cell_area), comp_base, i64(q.coarse_of),
            i64(q.coarse_cells.reshape(-1, 3)))
-    face_object = q.caster.face_object[q.area.hidden_faces]
-    objects = np.unique(face_object)
     front = getattr(q, "front_cache", None)             # per hidden face; the same for the estimate's sub-scan
     if front is None:
+        face_object = q.caster.face_object[q.area.hidden_faces]
+        objects = np.unique(face_object)
         q.front_cache = front = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, face_object)]
     closed = front[q.cell_hidden].astype(np.uint8)
     pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), closed, f64(c.spot_normals), f64(spot_f),
