@@ -140,7 +140,7 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     the laser points (of the connections) whose leg a candidate occluder may block
     (:func:`~datagen.transport.quadrature_shadow.shadow_flags`), or (False, …) when the laser points are not on one
     plane, nothing is tested, or the map would exceed ``FLAG_MAX_BYTES``."""
-    shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
+    shadow, occ_idx = occ[0], occ[5]
     none = (False, np.zeros((1, 1), dtype=np.uint8), np.zeros(1, dtype=np.int64))
     lasers = np.unique(q.conn_laser)
     if not (SHADOW_MAP and shadow and len(occ_idx)) or q.n_cells * len(lasers) > FLAG_MAX_BYTES:
@@ -160,9 +160,8 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     radius = float(np.sqrt(((spots - centre) ** 2).sum(axis=1).max()))
     flags = np.zeros((q.n_cells, len(lasers)), dtype=np.uint8)
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
-    shadow_flags(f64(q.centroids), f64(q.cell_normal), closed, q.cell_hidden.astype(np.int64), face_ray,
-                 run_ptr, run_lo, run_hi, occ_idx, plane, edges, margin, grown, np.append(n, o), axes, uv, centre,
-                 radius, buckets, bucket_ptr, bucket_col, flags)
+    shadow_flags((f64(q.centroids), f64(q.cell_normal), closed, q.cell_hidden.astype(np.int64)), occ, grown,
+                 (np.append(n, o), axes, uv, centre, radius, buckets, bucket_ptr, bucket_col), flags)
     laser_col = np.full(c.n_lasers, -1, dtype=np.int64)
     laser_col[lasers] = np.arange(len(lasers))
     return True, flags, laser_col
