@@ -60,7 +60,8 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         :class:`~datagen.simulation.run.Result` with ``envelope`` and ``counts`` shaped (Z_y, Z_x, T) (expected
         detected photons per pulse per bin, int64 detections), ``components`` likewise, ``laser_points`` the
         flood nodes (n_y, n_x, 3), ``sensor_points`` the zone centres (Z_y, Z_x, 3) and ``attrs["multizone"]``
-        (the spec, the node weights (n_y, n_x), and the error estimate of the per-node transport).
+        (the spec, the node weights (n_y, n_x)); ``attrs["error"]`` is the error estimate of the per-node
+        transport (:func:`datagen.simulate`'s, on the nodes' envelopes; the patch quadrature's is not included).
     Raises:
         SceneError: the capture cannot be resolved, or no node receives light; ConfigError: as
             :func:`datagen.simulate`.
@@ -94,8 +95,8 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         "config": config.model_dump(mode="json"), "detector": detector.model_dump(mode="json"),
         "n_cycles": int(detector.cycles), "component_names": list(tr.names), "plan": plan_attrs,
         "multizone": {"spec": spec.model_dump(mode="json"), "weights": weights.reshape(ny, nx).tolist(),
-                      "nodes": [nx, ny], "zones": [zx, zy],
-                      "transport_error": runs.error_attrs(tr, rng)},
+                      "nodes": [nx, ny], "zones": [zx, zy]},
+        "error": runs.error_attrs(tr, rng),
         "units": {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin, per zone",
                   "counts": "detections over the exposure per zone (int64)"},
         "photons_per_pulse": capture.photons,
