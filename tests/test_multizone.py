@@ -165,3 +165,40 @@ def test_multizone_dataset_smoke_builds(tmp_path):
     # the composition is a convex combination of the nodes' envelopes
     per_node = np.asarray(env, dtype=np.float64).reshape(16, 4, 4, 128).sum(axis=(1, 2, 3))
     assert per_node.min() <= zones.sum() <= per_node.max()
+
+
+def test_cli_simulate_points_to_multizone_and_multizone_checks_nodes(tmp_path):
+    from click.testing import CliRunner
+    from datagen.cli import main
+
+    runner = CliRunner()
+    res = runner.invoke(main, ["simulate", str(SCENE), "--out", str(tmp_path / "a")])
+    assert res.exit_code == 2
+    assert res.output.strip().endswith("this is a multi-zone scene (it has a multizone block): simulate it with "
+                                       "`datagen multizone SCENE.yaml --out DIR` (docs/multizone.md)")
+    res = runner.invoke(main, ["multizone", str(SCENE), "--out", str(tmp_path / "b"), "--nodes", "4x99"])
+    assert res.exit_code == 2
+    assert "error: --nodes: multizone.flood.nodes: at most 64 nodes per side, got [4, 99]" in res.output
+    assert not (tmp_path / "b").exists()
+
+
+def test_cli_multizone_writes_the_zone_result(tmp_path):
+    from click.testing import CliRunner
+    from datagen.cli import main
+    from datagen.io import read_result
+
+    res = CliRunner().invoke(main, ["multizone", str(SCENE), "--out", str(tmp_path), "--nodes", "2x2",
+                                    "--edge", "0.3"])
+    assert res.exit_code == 0, res.output
+    assert res.output.startswith("4×4 zones, flood of 2×2 nodes over 1.4×1.4 m (uniform_intensity)")
+    result = read_result(tmp_path / "result.zarr")
+    assert result.envelope.shape == result.counts.shape == (4, 4, 128)
+    assert result.attrs["multizone"]["weights"][0][0] == pytest.approx(0.25, rel=0.05)
+
+
+def test_a_flood_off_the_wall_names_the_multizone_field():
+    data = yaml.safe_load(SCENE.read_text())
+    data["multizone"]["flood"]["center"] = [2.0, 5.0, 1.0]
+    scene, spec = multizone_from_dict(data, "x.yaml")
+    with pytest.raises(SceneError, match=r"^x\.yaml: multizone\.flood node 0 .* is off every surface"):
+        simulate_multizone(scene, spec)

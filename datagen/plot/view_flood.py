@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import RayCaster, Scene, resolve_capture
-from ..scene.flood import MultizoneSpec, flood_corners, flood_weights
+from ..errors import SceneError
+from ..scene.flood import MultizoneSpec, flood_corners, flood_field_names, flood_weights
 from .view_geometry import Drawables
 
 FLOOD_COLOR = (0.93, 0.33, 0.05)
@@ -25,7 +26,10 @@ def flood_drawables(scene: Scene, spec: MultizoneSpec) -> Drawables:
     Raises:
         SceneError: the capture cannot be resolved.
     """
-    cap = resolve_capture(scene, RayCaster(scene))
+    try:
+        cap = resolve_capture(scene, RayCaster(scene))
+    except SceneError as exc:       # a capture error names the multizone block's fields
+        raise SceneError(flood_field_names(str(exc))) from None
     d = Drawables()
     patch = flood_corners(cap, spec)
     d.lines.append(("lit patch", np.stack([patch, np.roll(patch, -1, axis=0)], axis=1), FLOOD_COLOR, 4.0))

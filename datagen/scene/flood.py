@@ -142,6 +142,13 @@ def flood_capture(spec: MultizoneSpec) -> CaptureSpec:
                        sensor_grid={"center": z.center, "size": z.size, "points": z.zones})
 
 
+def flood_field_names(message: str) -> str:
+    """A capture error's message in the multi-zone block's words: ``capture.laser_grid point i`` → ``multizone.flood
+    node i``, ``capture.sensor_grid`` → ``multizone.zones`` (the fields the user wrote)."""
+    return (message.replace("capture.laser_grid point", "multizone.flood node")
+            .replace("capture.sensor_grid", "multizone.zones"))
+
+
 def with_flood(scene: Scene, spec: MultizoneSpec) -> Scene:
     """``scene`` with the capture of ``spec`` (:func:`flood_capture`); the laser spot moves to the flood's
     centre (the scene's other checks are those of :class:`~datagen.scene.model.Scene`)."""

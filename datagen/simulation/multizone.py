@@ -19,9 +19,9 @@ import time
 import numpy as np
 
 from .. import spad
-from ..errors import ConfigError
+from ..errors import ConfigError, SceneError
 from ..scene import Scene
-from ..scene.flood import MultizoneSpec, flood_capture, flood_weights, with_flood
+from ..scene.flood import MultizoneSpec, flood_capture, flood_field_names, flood_weights, with_flood
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .run import Replicas, Result, detector_model, library_versions
 
@@ -71,7 +71,10 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         scene = with_flood(scene, spec)
     config = config or resolve_config(scene)
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
-    runs = Replicas(scene, config, rng)
+    try:
+        runs = Replicas(scene, config, rng)
+    except SceneError as exc:       # a capture error names the multizone block's fields
+        raise SceneError(flood_field_names(str(exc))) from None
     runs.run(config.replicas)
     tr = runs.transported()
     capture = tr.transport.capture
