@@ -29,7 +29,6 @@ def multizone(scene_file, out, nodes, edge, seed):
     from ..scene.load import check_output_dir
     from ..simulation import resolve_config
     from ..simulation.multizone import simulate_multizone
-    from .main import summary
 
     check_output_dir(out)
     scene, spec = load_multizone_scene(scene_file)
@@ -59,5 +58,13 @@ def multizone(scene_file, out, nodes, edge, seed):
     nx, ny = spec.flood.nodes
     click.echo(f"{zx}×{zy} zones, flood of {nx}×{ny} nodes over {spec.flood.size[0]:g}×{spec.flood.size[1]:g} m "
                f"({spec.flood.profile.kind})")
-    click.echo(summary(result).replace("estimated error of the envelope", "transport error"))
+    total = result.area()
+    for name in ["total"] + list(result.components):
+        area = total if name == "total" else result.area(name)
+        peak = f"{result.peak_time(None if name == 'total' else name) * 1e9:.2f} ns" if area > 0 else "-"
+        click.echo(f"{name:<12} peak {peak:>10}  {area:.4e} detected photons per pulse")
+    err = result.attrs["error"]
+    click.echo(f"transport error of the nodes' envelopes: {err['rel_l2']:.2%} relative L2 ({err['replica_setting']})")
+    click.echo(f"SPAD counts: {int(result.counts.sum())} detections over {result.attrs['n_cycles']} laser cycles "
+               f"({result.attrs['detector']['model']} model)")
     click.echo(f"wrote {out / RESULT_NAME}, {out / 'envelope.png'}")
