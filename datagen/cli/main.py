@@ -18,6 +18,7 @@ from .bench import bench
 from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
 from .tal import export_tal, read_result_input, tal_render
+from .multizone import multizone
 from .view import view
 
 
@@ -219,6 +220,7 @@ main.add_command(verify)
 main.add_command(score)          # scoring reconstructions (issue 13)
 main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
 main.add_command(view)           # 3D pictures with open3d (issue 15)
+main.add_command(multizone)      # flood-illuminated multi-zone captures (issue 25)
 
 
 if __name__ == "__main__":
