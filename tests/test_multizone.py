@@ -149,51 +149,133 @@ def test_example_scene_loads_with_the_preset_numbers():
     assert preset["bin_width"] == "260ps" and config.detector["pde"] == preset["pde"]
 
 
-def test_multizone_dataset_smoke_builds(tmp_path):
+def grid_nodes(grid: dict, relay_x: float) -> np.ndarray:
+    """(ny·nx, 3) cell centres of a stored wall grid on the relay wall x = relay_x (u = +y, v = +z)."""
+    (nx, ny), (w, h), c = grid["points"], grid["size"], grid["center"]
+    a = ((np.arange(nx) + 0.5) / nx - 0.5) * w
+    b = ((np.arange(ny) + 0.5) / ny - 0.5) * h
+    u, v = np.meshgrid(c[1] + a, c[2] + b)
+    return np.stack([np.full(u.shape, relay_x), u, v], axis=-1).reshape(-1, 3)
+
+
+def test_multizone_dataset_stores_the_zones_histograms(tmp_path):
     from datagen.dataset import NLOSDataset, build_dataset, load_dataset_config
+    from datagen.dataset.config import SplitSpec
+    from datagen.dataset.store import read_card
 
+    config = load_dataset_config(ROOT / "configs" / "datasets" / "multizone_smoke.yaml")
+    config = config.model_copy(update={"splits": {"train": SplitSpec(count=1), "val": SplitSpec(count=2)},
+                                       "store": config.store.model_copy(update={"node_envelope": True})})
     out = tmp_path / "mz"
-    build_dataset(load_dataset_config(ROOT / "configs" / "datasets" / "multizone_smoke.yaml"), out, workers=0,
-                  progress=False)
+    build_dataset(config, out, workers=0, progress=False)
+    fields = read_card(out)["splits"]["val"]["fields"]
+    assert fields["envelope"] == {"shape": [4, 4, 128], "dtype": "<f4", "axes": ["zone_y", "zone_x", "time"]}
+    assert fields["counts"] == {"shape": [4, 4, 128], "dtype": "<i8", "axes": ["zone_y", "zone_x", "time"]}
+    assert fields["node_envelope"]["axes"] == ["node_y", "node_x", "zone_y", "zone_x", "time"]
     ds = NLOSDataset(out, split="val")
-    assert len(ds) == 4
-    env = ds.read(0)["envelope"]
-    assert env.shape == (4, 4, 4, 4, 128)
-    from examples.multizone_baseline import zone_envelope
-    zones, params = zone_envelope(ds, 0, FloodProfile())
-    assert zones.shape == (4, 4, 128) and zones.sum() > 0
-    # the composition is a convex combination of the nodes' envelopes
-    per_node = np.asarray(env, dtype=np.float64).reshape(16, 4, 4, 128).sum(axis=(1, 2, 3))
-    assert per_node.min() <= zones.sum() <= per_node.max()
+    for i in range(len(ds)):
+        item, params = ds[i], ds.params(i)
+        env = item["envelope"].numpy().astype(np.float64)
+        nodes = item["node_envelope"].numpy().astype(np.float64)
+        assert nodes.shape == (4, 4, 4, 4, 128)
+        room = params["room"]
+        spots = grid_nodes(room["sensor"]["scan"]["laser_grid"], room["room"]["relay_x"])
+        w = node_weights(spots, np.broadcast_to([-1.0, 0.0, 0.0], spots.shape), room["laser"]["emitter"],
+                         FloodProfile(kind="uniform_intensity"))
+        assert w.max() / w.min() > 1.1                      # 16 nodes, uneven: the cos θ / r² profile
+        # the stored zones are the flood-weighted sum of the stored nodes (float32 storage)
+        np.testing.assert_allclose(env, compose_zones(nodes.reshape(16, 16, 128), w).reshape(4, 4, 128),
+                                   rtol=1e-5, atol=1e-7 * env.max())
+        # the counts are one exposure per zone: their total is the expected one within 5 sigma
+        cycles, counts = float(item["cycles"]), item["counts"].numpy()
+        expected = env.sum() * cycles + float(item["background"]) * env.size
+        assert counts.dtype == np.int64 and abs(counts.sum() - expected) < 5 * np.sqrt(expected) + 0.05 * expected
+    net = NLOSDataset(out, split="val", layout="network", fields=("envelope", "counts"))[0]
+    assert tuple(net["envelope"].shape) == tuple(net["counts"].shape) == (1, 128, 4, 4)
 
 
-def test_cli_simulate_points_to_multizone_and_multizone_checks_nodes(tmp_path):
-    from click.testing import CliRunner
-    from datagen.cli import main
+def test_node_envelope_needs_a_flood():
+    from datagen.dataset import load_dataset_config
+    from datagen.dataset.config import make_sample
+    from datagen.errors import ConfigError
 
-    runner = CliRunner()
-    res = runner.invoke(main, ["simulate", str(SCENE), "--out", str(tmp_path / "a")])
-    assert res.exit_code == 2
-    assert res.output.strip().endswith("this is a multi-zone scene (it has a multizone block): simulate it with "
-                                       "`datagen multizone SCENE.yaml --out DIR` (docs/multizone.md)")
-    res = runner.invoke(main, ["multizone", str(SCENE), "--out", str(tmp_path / "b"), "--nodes", "4x99"])
-    assert res.exit_code == 2
-    assert "error: --nodes: multizone.flood.nodes: at most 64 nodes per side, got [4, 99]" in res.output
-    assert not (tmp_path / "b").exists()
+    config = load_dataset_config(ROOT / "configs" / "datasets" / "multizone_smoke.yaml")
+    config = config.model_copy(update={"room": {**config.room, "capture": {**config.room["capture"],
+                                                                         "scan": {**config.room["capture"]["scan"],
+                                                                                  "flood": None}}},
+                                       "store": config.store.model_copy(update={"node_envelope": True})})
+    with pytest.raises(ConfigError, match=r"^store\.node_envelope: true needs a multi-zone capture "
+                                          r"\(room capture\.scan\.flood\); remove it$"):
+        make_sample(config, "train", 0)
 
 
-def test_cli_multizone_writes_the_zone_result(tmp_path):
+def test_a_flood_scan_must_be_exhaustive():
+    from datagen.dataset.scan import ScanDist
+
+    with pytest.raises(ValueError, match="flood: a flood's zones are an exhaustive scan's sensor grid with the "
+                                         "aperture convention, got type 'confocal', convention 'aperture'"):
+        ScanDist(type="confocal", flood={})
+
+
+def test_load_scene_points_a_multizone_file_to_simulate():
+    from datagen.scene import load_scene
+
+    with pytest.raises(SceneError) as info:
+        load_scene(SCENE)
+    assert str(info.value) == (f"{SCENE}: this is a multi-zone scene (it has a multizone block): simulate it with "
+                               "`datagen simulate SCENE.yaml --out DIR`, or load it with "
+                               "datagen.scene.flood.load_multizone_scene (docs/multizone.md)")
+
+
+def small_scene_file(tmp_path: Path) -> Path:
+    """scene_library/multizone_room.yaml with a 2 × 2 node flood (a fast CLI run)."""
+    data = yaml.safe_load(SCENE.read_text())
+    data["multizone"]["flood"]["nodes"] = [2, 2]
+    path = tmp_path / "mz2.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_cli_simulate_runs_a_multizone_scene_as_multizone_does(tmp_path):
     from click.testing import CliRunner
     from datagen.cli import main
     from datagen.io import read_result
 
-    res = CliRunner().invoke(main, ["multizone", str(SCENE), "--out", str(tmp_path), "--nodes", "2x2",
-                                    "--edge", "0.3"])
-    assert res.exit_code == 0, res.output
-    assert res.output.startswith("4×4 zones, flood of 2×2 nodes over 1.4×1.4 m (uniform_intensity)")
-    result = read_result(tmp_path / "result.zarr")
-    assert result.envelope.shape == result.counts.shape == (4, 4, 128)
-    assert result.attrs["multizone"]["weights"][0][0] == pytest.approx(0.25, rel=0.05)
+    scene = small_scene_file(tmp_path)
+    runner = CliRunner()
+    a = runner.invoke(main, ["simulate", str(scene), "--out", str(tmp_path / "a"), "--edge", "0.3", "--seed", "3"])
+    assert a.exit_code == 0, a.output
+    lines = a.output.splitlines()
+    assert lines[0] == "4×4 zones, flood of 2×2 nodes over 1.4×1.4 m (uniform_intensity)"
+    assert [line.split()[0] for line in lines[1:5]] == ["total", "room", "box", "secondary"]
+    assert lines[-1] == (f"wrote {tmp_path / 'a' / 'result.zarr'}, {tmp_path / 'a' / 'envelope.png'}, "
+                         f"{tmp_path / 'a' / 'zones.png'}")
+    assert (tmp_path / "a" / "zones.png").stat().st_size > 10_000
+    b = runner.invoke(main, ["multizone", str(SCENE), "--out", str(tmp_path / "b"), "--nodes", "2x2",
+                             "--edge", "0.3", "--seed", "3"])
+    assert b.exit_code == 0, b.output
+    assert a.output.replace("/a/", "/b/") == b.output
+    ra, rb = read_result(tmp_path / "a" / "result.zarr"), read_result(tmp_path / "b" / "result.zarr")
+    assert ra.envelope.shape == ra.counts.shape == (4, 4, 128)
+    np.testing.assert_array_equal(ra.envelope, rb.envelope)
+    np.testing.assert_array_equal(ra.counts, rb.counts)
+    assert ra.attrs["multizone"]["weights"][0][0] == pytest.approx(0.25, rel=0.05)
+
+
+def test_cli_simulate_refuses_options_a_multizone_run_does_not_take(tmp_path):
+    from click.testing import CliRunner
+    from datagen.cli import main
+
+    runner = CliRunner()
+    for extra in (["--tolerance", "1%"], ["--figures"]):
+        res = runner.invoke(main, ["simulate", str(SCENE), "--out", str(tmp_path / "a")] + extra)
+        assert res.exit_code == 2
+        assert (f"Invalid value for {extra[0]}: does not apply to a multi-zone scene (a flood's zones are simulated "
+                "in one run: docs/multizone.md)") in res.output
+    res = runner.invoke(main, ["multizone", str(SCENE), "--out", str(tmp_path / "b"), "--nodes", "4x99"])
+    assert res.exit_code == 2
+    assert "error: --nodes: multizone.flood.nodes: at most 64 nodes per side, got [4, 99]" in res.output
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
 def test_a_flood_off_the_wall_names_the_multizone_field():

@@ -18,7 +18,7 @@ from .bench import bench
 from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
 from .tal import export_tal, read_result_input, tal_render
-from .multizone import multizone
+from .multizone import is_multizone_file, multizone, run_multizone
 from .view import view
 
 
@@ -97,12 +97,15 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
 
     from ..simulation.tolerance import MIN_TOLERANCE
 
+    overrides = {"lookins": lookins, "pixels": pixels, "secondary": secondary, "top_k": top_k, "seed": seed,
+                 "workers": workers, "estimator": estimator, "quadrature_edge": edge, "area_samples": samples}
+    if is_multizone_file(scene_file):   # a flood and zones: the multi-zone capture (datagen/cli/multizone.py)
+        return run_multizone(scene_file, out, overrides, refused={"--tolerance": tolerance, "--time-cap": time_cap,
+                                                                  "--figures": figures})
     tol = _parse_fraction(tolerance, "--tolerance", MIN_TOLERANCE) if tolerance is not None else None
     check_output_dir(out)
     scene = load_scene(scene_file)
-    config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
-                                    "top_k": top_k, "seed": seed, "workers": workers, "effect_threshold": tol,
-                                    "estimator": estimator, "quadrature_edge": edge, "area_samples": samples})
+    config = resolve_config(scene, {**overrides, "effect_threshold": tol})
     cap = _parse_time_cap(time_cap)
     if tol is not None:
         from ..simulation import ToleranceOutOfReach, simulate_to_tolerance

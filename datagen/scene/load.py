@@ -172,7 +172,8 @@ def scene_from_dict(data: dict, source: str | None = None, base: Path | None = N
                          "render it with `datagen tal-render CONFIG.yaml --out FILE.hdf5`")
     if "multizone" in data:
         raise SceneError(f"{source or 'scene'}: this is a multi-zone scene (it has a multizone block): simulate it "
-                         "with `datagen multizone SCENE.yaml --out DIR` (docs/multizone.md)")
+                         "with `datagen simulate SCENE.yaml --out DIR`, or load it with "
+                         "datagen.scene.flood.load_multizone_scene (docs/multizone.md)")
     try:
         spec = SceneFile.model_validate(data)
     except ValidationError as exc:

@@ -10,7 +10,9 @@ envelope of zone z lit by the full pulse at node l. The transport is linear in t
 envelope up to the midpoint quadrature of the lit patch (docs/multizone.md shows its convergence); the zone's
 integral over its patch of the wall is the aperture convention's pixel region, exact as for any sensor grid. The
 detector then draws one histogram per zone from E_z (pile-up decided on E_z, as :func:`datagen.simulate` does).
-:func:`compose_zones` is the composition alone, for envelopes already computed (a dataset's exhaustive scans).
+:func:`compose_zones` is the composition alone, for envelopes already computed; :func:`zone_result` turns the
+:class:`~datagen.simulation.run.Result` of a flood's exhaustive capture (a dataset sample's, whose laser grid is the
+flood's nodes) into the zones' result, composed by it and counted as here.
 """
 from __future__ import annotations
 
@@ -21,9 +23,15 @@ import numpy as np
 from .. import spad
 from ..errors import ConfigError, SceneError
 from ..scene import Scene
-from ..scene.flood import MultizoneSpec, flood_capture, flood_field_names, flood_weights, with_flood
+from ..scene.flood import (FloodProfile, MultizoneSpec, flood_capture, flood_field_names, flood_weights,
+                           node_weights, with_flood)
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .run import Replicas, Result, detector_model, library_versions
+
+
+ZONE_UNITS = {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin, per zone",
+              "counts": "detections over the exposure per zone (int64)"}
+"""``attrs["units"]`` of a multi-zone result."""
 
 
 def compose_zones(binned: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -85,13 +93,9 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
     zones = compose_zones(per_node, weights).reshape(len(tr.names), zy, zx, n_bins)
     components = {name: zones[i] for i, name in enumerate(tr.names)}
     envelope = zones.sum(axis=0)
-    detector, plan_attrs = detector_model(envelope, config, tr.plan.to_attrs())
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
-    try:
-        counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
-    except ValueError as exc:
-        raise ConfigError(f"{scene.source + ' (simulation): ' if scene.source else ''}detector: "
-                          f"{' '.join(str(exc).split())}") from None
+    counts, detector, plan_attrs = _zone_counts(envelope, config, tr.plan.to_attrs(), noise_rng,
+                                                f"{scene.source + ' (simulation): ' if scene.source else ''}")
     nx, ny = capture.laser_shape
     attrs = {
         "scene": scene.name, "scene_file": scene.source,
@@ -100,8 +104,7 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         "multizone": {"spec": spec.model_dump(mode="json"), "weights": weights.reshape(ny, nx).tolist(),
                       "nodes": [nx, ny], "zones": [zx, zy]},
         "error": runs.error_attrs(tr, rng),
-        "units": {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin, per zone",
-                  "counts": "detections over the exposure per zone (int64)"},
+        "units": ZONE_UNITS,
         "photons_per_pulse": capture.photons,
         "warnings": list(scene.notes) + ([] if envelope.any() else ["no light path reaches the zones: the "
                                                                     "envelope is zero"]),
@@ -111,3 +114,63 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
     return Result(config.time.edges, envelope, components, counts, attrs,
                   laser_points=capture.spots.reshape(ny, nx, 3), sensor_points=capture.sensor_points(),
                   wall_normal=capture.fov_normal.copy())
+
+
+def _zone_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: dict, noise_rng: np.random.Generator,
+                 where: str) -> tuple[np.ndarray, spad.DetectorConfig, dict]:
+    """One histogram per zone from the zones' envelope (pile-up decided on it: ``detector_model``): (counts int64,
+    the detector drawn with, the plan record with its ``pile_up`` entry). ConfigError (prefixed ``where``) on a
+    detector the envelope does not suit."""
+    detector, plan_attrs = detector_model(envelope, config, plan_attrs)
+    try:
+        counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
+    except ValueError as exc:
+        raise ConfigError(f"{where}detector: {' '.join(str(exc).split())}") from None
+    return counts, detector, plan_attrs
+
+
+def zone_result(result: Result, emitter, profile: FloodProfile, config: SimulationConfig,
+                noise_rng: np.random.Generator, where: str = "") -> Result:
+    """The zones' result of a flood's exhaustive capture: its laser grid the flood's nodes (midpoints of equal
+    cells of the lit patch), its sensor grid the zones.
+
+    The envelope and every component are :func:`compose_zones` of the per-node ones with
+    :func:`datagen.scene.flood.node_weights` of the laser points (the relay wall planar: every node has
+    ``result.wall_normal``); the counts are drawn per zone from the composed envelope with ``config``'s detector
+    (pile-up decided on it) and ``noise_rng``, as :func:`simulate_multizone` draws them.
+
+    Args:
+        result: an exhaustive capture's :class:`~datagen.simulation.run.Result`: ``envelope`` (L_y, L_x, Z_y, Z_x,
+            T) float64, ``laser_points`` (L_y, L_x, 3) m, ``wall_normal`` (3,).
+        emitter: (3,) the flood's emitter position (m); profile: its :class:`~datagen.scene.flood.FloodProfile`.
+        config: the simulation config the result was computed with (its detector draws the counts).
+        noise_rng: generator of the zones' counts. where: prefix of error messages (e.g. the sample).
+    Returns:
+        :class:`~datagen.simulation.run.Result` with ``envelope``, ``components`` (Z_y, Z_x, T) float64 expected
+        detected photons per pulse per bin and ``counts`` (Z_y, Z_x, T) int64; ``attrs`` those of ``result``
+        (its ``error`` and ``tolerance`` are the per-node envelope's) with ``plan["pile_up"]``, ``detector`` and
+        ``n_cycles`` of the zones' draw and ``multizone`` {profile, weights (L_y, L_x), nodes, zones}.
+    Raises:
+        ValueError: ``result`` is not an exhaustive capture with laser points. SceneError: no node receives
+            light. ConfigError: the detector refuses the envelope.
+    """
+    env = np.asarray(result.envelope)
+    if env.ndim != 5 or result.laser_points is None or result.wall_normal is None:
+        raise ValueError(f"{where}a flood needs an exhaustive capture's result (envelope (L_y, L_x, Z_y, Z_x, T) "
+                         f"and its laser points), got an envelope shaped {env.shape}")
+    ly, lx, zy, zx, n_t = env.shape
+    weights = node_weights(result.laser_points.reshape(-1, 3), np.broadcast_to(result.wall_normal, (ly * lx, 3)),
+                           emitter, profile)
+
+    def zones(a: np.ndarray) -> np.ndarray:
+        return compose_zones(np.asarray(a).reshape(ly * lx, zy * zx, n_t), weights).reshape(zy, zx, n_t)
+
+    envelope = zones(env)
+    components = {name: zones(c) for name, c in result.components.items()}
+    counts, detector, plan = _zone_counts(envelope, config, result.attrs.get("plan", {}), noise_rng, where)
+    attrs = {**result.attrs, "plan": plan, "detector": detector.model_dump(mode="json"),
+             "n_cycles": int(detector.cycles), "units": ZONE_UNITS,
+             "multizone": {"profile": profile.model_dump(mode="json"), "weights": weights.reshape(ly, lx).tolist(),
+                           "nodes": [lx, ly], "zones": [zx, zy]}}
+    return Result(result.time_edges, envelope, components, counts, attrs, laser_points=result.laser_points,
+                  sensor_points=result.sensor_points, wall_normal=result.wall_normal)
