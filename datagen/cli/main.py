@@ -19,6 +19,7 @@ from .capture import compare_capture, export, fit_detector_cmd, import_capture
 from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
 from .tal import export_tal, read_result_input, tal_render
+from .multizone import multizone
 from .view import view
 
 
@@ -220,6 +221,7 @@ main.add_command(verify)
 main.add_command(score)          # scoring reconstructions (issue 13)
 main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
 main.add_command(view)           # 3D pictures with open3d (issue 15)
+main.add_command(multizone)      # flood-illuminated multi-zone captures (issue 25)
 main.add_command(import_capture)  # real-lab capture files, detector fitting, sim-to-real (issue 26)
 main.add_command(export)
 main.add_command(fit_detector_cmd)
