@@ -103,3 +103,23 @@ def test_cli_fit_detector_writes_a_detector_yaml(tmp_path):
     res = CliRunner().invoke(main, ["fit-detector", str(tmp_path / "h.csv"), "--repetition-rate", "20MHz",
                                     "--n-cycles", "100000", "--fix", "dead_time=4ns"])
     assert res.exit_code == 2 and "error: fixed: unknown parameter 'dead_time' for model 'pile_up'" in res.output
+
+
+def test_cli_export_writes_each_format_and_refuses_what_a_format_cannot_hold(tmp_path):
+    from datagen.io.lab_formats import read_lab_capture
+
+    *_, legs = scene(tmp_path)                       # tmp_path/sim: a confocal 4 × 4 store counting the sensor leg
+    runner = CliRunner()
+    for fmt, name in (("lct-mat", "s.mat"), ("fk-mat", "f.mat")):
+        res = runner.invoke(main, ["export", str(tmp_path / "sim"), "--format", fmt, "--out", str(tmp_path / name)])
+        assert res.exit_code == 0, res.output
+    lct = read_lab_capture(tmp_path / "s.mat")
+    assert lct.format == "lct-mat" and lct.data().shape == (4, 4, 600)
+    assert float(np.squeeze(lct.raw["width"])) == pytest.approx(0.3)          # pitch·(N−1)/2 = the grid's half width
+    np.testing.assert_allclose(lct.time_offsets(), legs - 9e-9, rtol=0, atol=1e-18)   # sensor leg − t_start (< 0)
+    res = runner.invoke(main, ["export", str(tmp_path / "sim"), "--format", "tal", "--out", str(tmp_path / "t.h5")])
+    assert res.exit_code == 2 and "t_accounts_first_and_last_bounces needs count_laser_leg == count_sensor_leg" \
+        in res.output                                  # tal's own rule (datagen.io.tal_hdf5), one line
+    res = runner.invoke(main, ["export", str(tmp_path / "sim"), "--format", "znlos", "--out", str(tmp_path / "z.h5")])
+    assert res.exit_code == 2
+    assert "error: ZNLOS time axes count both wall legs; the result counts laser leg False, sensor leg True" in res.output
