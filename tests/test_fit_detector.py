@@ -35,8 +35,6 @@ SHORT = {
     # measured on seeds 0–9 (the fit's 95 % intervals are the inverse Fisher information; see the notes of issue 26)
     "pile_up high flux": "jitter_sigma inside its interval in 8 of 10 seeds (30 other seeds: reported σ 6.07e-13 s "
                          "against a spread of 5.60e-13 s, i.e. the intervals are right and seeds 0–9 are unlucky)",
-    "free_running": "dead_time inside its interval in 6 of 10 seeds, background_rate in 8: the Poisson "
-                    "quasi-likelihood and local minima in the dead time make these intervals too narrow",
 }
 
 

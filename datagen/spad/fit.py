@@ -44,11 +44,15 @@ __all__ = [
     "fit_parameter_names",
 ]
 
-IDENTIFIABLE_SPAN = 100.0
+IDENTIFIABLE_SPAN = 10.0
 """A parameter whose 95 % interval spans more than this factor (upper/lower) is reported as not identifiable."""
 
 MAX_DEAD_TIME_PERIODS = 4.0
 """Dead times searched up to this many laser periods (longer ones make the free-running chain mix slowly)."""
+
+DEAD_TIME_SCAN = 24
+"""Dead times (log grid, two bins to MAX_DEAD_TIME_PERIODS periods) scanned after a free-running fit to escape a
+local minimum."""
 
 FIT_MODELS = ("pile_up", "poisson", "free_running")
 IRF_SHAPES = ("gauss", "exgauss")
@@ -276,9 +280,24 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
 
     x0 = np.array([start[k] / bin_width if k == "position" else _to_fit(k, start[k]) for k in free])
     steps = [1e-2 if k == "position" else 1e-3 for k in free]          # position in bins, others log / logit
-    res = optimize.minimize(nll, x0, method="Nelder-Mead",
-                            options={"maxfev": 600 * len(free), "xatol": 1e-4, "fatol": 1e-3, "adaptive": True})
-    best, hess, converged = _newton(nll, res.x, steps)
+    def local_fit(x_start: np.ndarray):
+        res = optimize.minimize(nll, x_start, method="Nelder-Mead",
+                                options={"maxfev": 600 * len(free), "xatol": 1e-4, "fatol": 1e-3, "adaptive": True})
+        return _newton(nll, res.x, steps)
+
+    best, hess, converged = local_fit(x0)
+    if "dead_time" in free:
+        # the likelihood has local minima in the dead time (a short one explains part of the dip after the return):
+        # scan it with the other parameters held and refit from the best dead time at least a factor 2 away
+        i = free.index("dead_time")
+        grid = np.log(np.geomspace(2 * bin_width, MAX_DEAD_TIME_PERIODS / repetition_rate, DEAD_TIME_SCAN))
+        trial = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid])
+        far = np.abs(grid - best[i]) > math.log(2.0)          # dead times at least a factor 2 away
+        if far.any():
+            j = int(np.flatnonzero(far)[np.argmin(trial[far])])
+            other = local_fit(np.concatenate([best[:i], [grid[j]], best[i + 1:]]))
+            if nll(other[0]) < nll(best):
+                best, hess, converged = other
     values = params_of(best)
     cov, singular = _inverse(hess)
     errors, intervals, identifiable, messages = {}, {}, {}, []
