@@ -15,6 +15,7 @@ from pydantic import ValidationError
 
 from ..transport import estimator_names
 from .bench import bench
+from .capture import compare_capture, export, fit_detector_cmd, import_capture
 from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
 from .tal import export_tal, read_result_input, tal_render
@@ -224,6 +225,10 @@ main.add_command(score)          # scoring reconstructions (issue 13)
 main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
 main.add_command(view)           # 3D pictures with open3d (issue 15)
 main.add_command(multizone)      # flood-illuminated multi-zone captures (issue 25)
+main.add_command(import_capture)  # real-lab capture files, detector fitting, sim-to-real (issue 26)
+main.add_command(export)
+main.add_command(fit_detector_cmd)
+main.add_command(compare_capture)
 
 
 if __name__ == "__main__":
