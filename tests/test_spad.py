@@ -18,7 +18,8 @@ from datagen.spad import (DetectorConfig, apply_jitter_after, apply_jitter_befor
                           rates_from_envelope, rebin_envelope, sample_counter, sample_histogram)
 from datagen.spad import free_running, synchronous
 from datagen.spad.effects import gaussian_kernel
-from datagen.spad.free_running import event_simulation, event_simulation_batched, free_running_rate
+from datagen.spad.free_running import event_simulation, free_running_rate
+from datagen.spad.free_running_batched import event_simulation_batched
 from datagen.spad.synchronous import detection_pmf
 
 P_MIN = 1e-3   # minimum p-value accepted by goodness-of-fit tests
@@ -463,6 +464,35 @@ def test_afterpulsing_raises_low_flux_counts_by_one_over_one_minus_p():
     # counts are a branching process: Var = mean·(1+p)/(1-p)^2 per primary ⇒ relative se below 0.5 %
     se = math.sqrt(without * (1 + p_ap)) / (1 - p_ap) / without
     assert abs(ratio - 1.0 / (1.0 - p_ap)) < Z_MAX * se
+
+
+@pytest.mark.parametrize("p_ap, tau_ap", [(0.3, 2e-9), (0.2, 20e-9), (0.5, 0.0)])
+def test_free_running_expected_histogram_with_afterpulsing_matches_event_simulation(p_ap, tau_ap):
+    """The Markov chain with afterpulsing (pending afterpulse cancelled by the next detection) against the event
+    simulation: 32 pixels × 25 000 cycles of a return that blinds the SPAD (τ = 4 ns, period 10 ns), χ² p > P_MIN
+    and total within 4σ (Poisson σ inflated ×2 for afterpulse clusters); the no-afterpulse expectation fails the
+    same χ² (the test has power)."""
+    c = DetectorConfig(model="free_running", repetition_rate=1e8, n_cycles=25_000, bin_width=50e-12, dcr=2e6,
+                       dead_time=4e-9, afterpulse_probability=p_ap, afterpulse_time_constant=tau_ap)
+    envelope = np.zeros(200)
+    envelope[60:63] = [0.05, 0.2, 0.05]
+    r = rates_from_envelope(envelope, c)
+    expected = 32 * expected_histogram(r, c)
+    sim = sample_histogram(np.broadcast_to(r, (32, r.size)), c, np.random.default_rng(31)).sum(axis=0)
+    assert chi2_gof_p(sim, expected) > P_MIN
+    assert abs(sim.sum() - expected.sum()) < Z_MAX * 2 * math.sqrt(expected.sum())
+    without = 32 * expected_histogram(r, c.model_copy(update={"afterpulse_probability": 0.0}))
+    assert chi2_gof_p(sim, without) < 1e-12
+
+
+def test_free_running_afterpulsing_chain_at_p_zero_is_the_chain_without_it():
+    c = DetectorConfig(model="free_running", repetition_rate=1e8, n_cycles=1000, bin_width=50e-12, dcr=2e6,
+                       dead_time=4e-9, afterpulse_time_constant=3e-9)
+    r = rates_from_envelope(np.r_[np.zeros(60), [0.05, 0.2, 0.05], np.zeros(137)], c)
+    base = expected_histogram(r, c)
+    tiny = expected_histogram(r, c.model_copy(update={"afterpulse_probability": 1e-15}))
+    np.testing.assert_allclose(tiny, base, rtol=1e-12, atol=0)
+    assert np.abs(tiny - base).max() > 0  # the afterpulsing code path was taken
 
 
 def test_crosstalk_raises_low_flux_array_counts_by_one_over_one_minus_p():

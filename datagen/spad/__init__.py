@@ -50,7 +50,9 @@ Modules (each imports only the ones above it):
 * :mod:`~datagen.spad.effects`: jitter and diffusion-tail kernels, instrument response, crosstalk.
 * :mod:`~datagen.spad.rates`: envelope → rates (background, gate, DNL widths), rebinning.
 * :mod:`~datagen.spad.synchronous`: ``poisson``, ``pile_up``, ``multi_stop`` pmfs, expectations and samplers.
-* :mod:`~datagen.spad.free_running`: free-running dead time (Markov chain, closed form, event simulation).
+* :mod:`~datagen.spad.free_running`: free-running dead time (Markov chain with afterpulsing, closed form, event
+  simulation).
+* :mod:`~datagen.spad.free_running_batched`: the batched free-running simulator (no afterpulsing).
 * :mod:`~datagen.spad.correction`: Coates pile-up correction.
 * :mod:`~datagen.spad.counters`: counting-mode detectors (no TDC).
 * :mod:`~datagen.spad.histogram`: :func:`expected_histogram` and :func:`sample_histogram` for every model.

@@ -2,8 +2,8 @@
 
 Expected histogram: stationary distribution of the Markov chain on the detection phase (Rapp, Ma, Dawson &
 Goyal, "Dead time compensation for high-flux ranging", IEEE Trans. Signal Process. 67(13), 2019), or the closed
-form of a paralyzable dead time.  Samples: exact continuous-time event simulation (with afterpulsing), or the
-batched simulator of the same process without afterpulsing.
+form of a paralyzable dead time.  Samples: exact continuous-time event simulation (with afterpulsing); the batched
+simulator of the same process without afterpulsing is in datagen/spad/free_running_batched.py.
 """
 from __future__ import annotations
 
@@ -27,9 +27,7 @@ __all__ = [
     "free_running_expected",
     "free_running_rate",
     "event_simulation",
-    "TICKS_PER_PERIOD",
-    "EVENT_SEGMENT_ARRIVALS",
-    "event_simulation_batched",
+    "period_cells",
 ]
 
 
@@ -52,8 +50,8 @@ EVENT_FLUSH = 4_000_000
 """Detections buffered by the event simulator before they are binned."""
 
 
-def _period_cells(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cover the whole laser period with cells: the histogram bins plus background cells before/after the
+def period_cells(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cover the whole laser period with cells (shared by the chain and both event simulators): the histogram bins plus background cells before/after the
     window (avalanche rate ``background_rate`` × gate).  Returns (edges (cells+1,) in s within the period,
     q (pixels, cells) expected avalanches per cycle, cell_bin (cells,) histogram bin or -1)."""
     bins = r2.shape[1]
@@ -126,8 +124,8 @@ class _Chain:
     F(b, j') = e^{−(C_{j'} − C_b)} (1 − e^{−q_{j'}}) / (1 − e^{−Λ}) from b = a_j + 1 (whole empty periods
     summed geometrically).  Applying the transition costs O(cells) per pixel (decayed prefix sums)."""
 
-    def __init__(self, q: np.ndarray, edges: np.ndarray, dead_time: float):
-        self.q, self.edges, self.dead_time = q, edges, dead_time
+    def __init__(self, q: np.ndarray, edges: np.ndarray, dead_time: float, p_ap: float = 0.0, tau_ap: float = 0.0):
+        self.q, self.edges, self.dead_time, self.p_ap, self.tau_ap = q, edges, dead_time, p_ap, tau_ap
         self.T = edges[-1]
         self.M = q.shape[1]
         centre = 0.5 * (edges[:-1] + edges[1:])
@@ -144,9 +142,54 @@ class _Chain:
         qa = q[:, a]
         self.stay = -np.expm1(-phi[None, :] * qa)   # detect inside the partial cell a_j
         self.go = np.exp(-phi[None, :] * qa)        # survive it
+        if p_ap > 0:
+            self._afterpulse_terms(phi, qa)
+
+    def _afterpulse_terms(self, phi: np.ndarray, qa: np.ndarray) -> None:
+        """Afterpulsing (pending afterpulse at live + Exp(τ_ap), cancelled by the next detection): the survival
+        from the live point splits into the no-afterpulse branch (weight 1 − P_ap, decay C) and the pending one
+        (weight P_ap, decay C + t/τ_ap), so K = (1−P)e^{−ΔC}q + P e^{−ΔC−Δt/τ_ap}(q + 1/τ_ap), cell-exact."""
+        p, tau = self.p_ap, self.tau_ap
+        if tau <= 0:  # the afterpulse fires at the live point itself
+            self.stay_all = p + (1 - p) * self.stay
+            self.stay_ap_only = np.full_like(self.stay, p)
+            return
+        k = np.diff(self.edges) / tau                   # afterpulse hazard per cell (pending branch)
+        ka = phi * k[self.a]
+        qk = self.q + k[None, :]
+        self.frac_ap = np.divide(k[None, :], qk, out=np.zeros_like(qk), where=qk > 0)
+        self.p_cell_ap = -np.expm1(-qk)
+        self.c2_ap = self.c2 + np.concatenate([[0.0], np.cumsum(np.concatenate([k, k])[:-1])])[None, :]
+        self.oms_ap = -np.expm1(-(self.lam + self.T / tau))
+        stay_ap = -np.expm1(-(phi[None, :] * qa + ka[None, :]))
+        self.go_ap = np.exp(-(phi[None, :] * qa + ka[None, :]))
+        self.stay_all = (1 - p) * self.stay + p * stay_ap
+        self.stay_ap_only = p * stay_ap * self.frac_ap[:, self.a]
+
+    def _wrapped(self, v: np.ndarray, dest: np.ndarray, c2: np.ndarray, oms: np.ndarray) -> np.ndarray:
+        """Survival mass at the start of each cell (first period + all later ones, geometric) of the mass v
+        entering the full cells dest, decaying along the two-period cumulative c2."""
+        M = self.M
+        v2 = np.zeros((v.shape[0], 2 * M))
+        v2[:, :M] = _scatter_columns(v, dest, M)
+        u = _decayed_cumsum(v2, c2)
+        return u[:, :M] + np.divide(u[:, M:], oms[:, None], out=np.zeros_like(u[:, M:]), where=oms[:, None] > 0)
+
+    def step_afterpulse(self, pi: np.ndarray, ap_only: bool = False) -> np.ndarray:
+        """One transition with afterpulsing (all detections, or only the afterpulses when ``ap_only``)."""
+        p, M = self.p_ap, self.M
+        y = _scatter_columns(pi * (self.stay_ap_only if ap_only else self.stay_all), self.a, M)
+        if not ap_only:
+            y += self.p * self._wrapped(pi * self.go * (1 - p), self.b, self.c2, self.one_minus_survival)
+        if self.tau_ap > 0:
+            ap = self.p_cell_ap * self._wrapped(pi * self.go_ap * p, self.b, self.c2_ap, self.oms_ap)
+            y += ap * self.frac_ap if ap_only else ap
+        return y
 
     def step(self, pi: np.ndarray) -> np.ndarray:
         """One transition of a batch of row distributions pi (pixels, cells)."""
+        if self.p_ap > 0:
+            return self.step_afterpulse(pi)
         M = self.M
         y = _scatter_columns(pi * self.stay, self.a, M)
         v2 = np.zeros((pi.shape[0], 2 * M))
@@ -192,11 +235,11 @@ def _stationary(chain: _Chain) -> np.ndarray:
             return pi
         if not keep.all():
             todo = todo[keep]
-            sub = _Chain(q[todo], chain.edges, chain.dead_time)
+            sub = _Chain(q[todo], chain.edges, chain.dead_time, chain.p_ap, chain.tau_ap)
     from scipy.sparse.linalg import LinearOperator, eigs
 
     for k in todo:  # only for slowly mixing, nearly periodic chains
-        one = _Chain(q[k:k + 1], chain.edges, chain.dead_time)
+        one = _Chain(q[k:k + 1], chain.edges, chain.dead_time, chain.p_ap, chain.tau_ap)
         op = LinearOperator((chain.M, chain.M), matvec=lambda x, c=one: c.step(np.real(x).reshape(1, -1))[0],
                             dtype=np.float64)
         _, vec = eigs(op, k=1, which="LR", v0=pi[k], tol=1e-14, maxiter=100_000)
@@ -223,13 +266,19 @@ def _auto_oversample(q: np.ndarray, edges: np.ndarray, dead_time: float) -> int:
 
 
 def _free_running_nonparalyzable(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
-    edges, q, cell_bin = _period_cells(r2, config)
+    edges, q, cell_bin = period_cells(r2, config)
     factor = config.markov_oversample or _auto_oversample(q, edges, config.dead_time)
+    if config.afterpulse_probability > 0 and config.afterpulse_time_constant > 0 and not config.markov_oversample:
+        need_ap = math.ceil(float(np.diff(edges).max()) / (MARKOV_CELL_HAZARD * config.afterpulse_time_constant))
+        factor = int(min(max(1, MARKOV_MAX_STATES // q.shape[1]), max(factor, need_ap)))
     fine_edges, fine_q, parent = _refine_cells(edges, q, factor)
-    chain = _Chain(fine_q, fine_edges, config.dead_time)
+    p_ap = config.afterpulse_probability
+    chain = _Chain(fine_q, fine_edges, config.dead_time, p_ap, config.afterpulse_time_constant)
     pi = _stationary(chain)
     wpi = chain.window_mass(pi) if config.dead_time > 0 else np.zeros_like(pi)
-    rho = chain.lam / (1.0 + np.sum(fine_q * wpi, axis=1))  # detections per cycle (dead-fraction identity)
+    # detections per cycle (dead-fraction identity: photon detections = Λ − ρ·Σ q·Wπ = ρ·(1 − afterpulse fraction))
+    live_photons = 1.0 if p_ap == 0 else 1.0 - chain.step_afterpulse(pi, ap_only=True).sum(axis=1)
+    rho = chain.lam / (live_photons + np.sum(fine_q * wpi, axis=1))
     per_cell = rho[:, None] * pi
     fine_bin = cell_bin[parent]
     hist = np.zeros_like(r2)
@@ -241,7 +290,7 @@ def _free_running_nonparalyzable(r2: np.ndarray, config: DetectorConfig) -> tupl
 def _free_running_paralyzable(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
     """Closed form: an avalanche at t is counted iff no avalanche in (t − τ, t), so the stationary detection
     density is λ(t)·exp(−∫_{t−τ}^{t} λ); integrated exactly over sub-intervals on which both ends are linear."""
-    edges, q, cell_bin = _period_cells(r2, config)
+    edges, q, cell_bin = period_cells(r2, config)
     T, tau = config.period, config.dead_time
     cum = np.zeros((q.shape[0], q.shape[1] + 1))
     np.cumsum(q, axis=1, out=cum[:, 1:])
@@ -298,9 +347,15 @@ def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.nd
         ``config.cycles`` for the exposure), and float64 (pixels,) detections per cycle at all phases.
     Raises:
         ValueError: the histogram window exceeds the laser period.
+        NotImplementedError: afterpulsing with a gate (afterpulses outside the gate are lost, which this chain
+            does not model).
     """
+    if config.afterpulse_probability > 0 and config.gate is not None:
+        raise NotImplementedError(f"afterpulse_probability={config.afterpulse_probability!r} with gate="
+                                  f"{list(config.gate)!r}: the expected histogram models afterpulsing without a "
+                                  "gate only; average sample_histogram draws")
     solver = _free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable
-    cells = _period_cells(r2[:1], config)[1].shape[1]
+    cells = period_cells(r2[:1], config)[1].shape[1]
     per_pixel = cells * (2 if config.paralyzable else 2 * (config.markov_oversample or 8))
     chunk = max(1, MARKOV_CHUNK_ELEMENTS // per_pixel)
     hist = np.zeros_like(r2)
@@ -356,7 +411,7 @@ def event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Gene
             MAX_SIMULATED_EVENTS in all, or than MAX_SIMULATED_EVENTS / 100 in one pixel (one Python step each;
             :func:`datagen.spad.arrays.check_event_count`).
     """
-    edges, q, cell_bin = _period_cells(r2, config)
+    edges, q, cell_bin = period_cells(r2, config)
     n_pix, n_cells = q.shape
     bins = r2.shape[1]
     T, tau, n = config.period, config.dead_time, config.cycles
@@ -458,122 +513,6 @@ def event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Gene
                 buffers, buffered = [], 0
     if buffers:
         hist += np.bincount(np.concatenate(buffers), minlength=n_pix * bins)
-    return hist.reshape(n_pix, bins)
-
-
-TICKS_PER_PERIOD = 1 << 24
-"""Time resolution of the batched free-running simulator: the period is split into 2**24 integer ticks
-(3 fs at 20 MHz), so that sorting and dead-time comparisons are exact integer operations."""
-
-EVENT_SEGMENT_ARRIVALS = 4_000_000
-"""Expected avalanches (all pixels) generated per segment of the batched free-running simulator."""
-
-
-def _dead_time_path(key: np.ndarray, pix: np.ndarray, dead: int, start: np.ndarray) -> np.ndarray:
-    """Indices of the avalanches recorded by a non-paralyzable detector.
-
-    ``key`` (A,) int64 sorted times (pixel-offset ticks), ``pix`` (A,) pixel of each, ``start`` (pixels,) index
-    of each pixel's first recorded avalanche (A: none).  next[k] = first avalanche of the same pixel at or after
-    key[k] + dead; the recorded ones are the path start → next → next …, enumerated for all pixels at once by
-    pointer doubling (level m adds the nodes 2^m steps further), O(A log L)."""
-    size = key.size
-    nxt = np.searchsorted(key, key + dead, side="left")
-    bad = nxt >= size
-    nxt[bad] = size
-    ok = ~bad
-    ok[ok] = pix[nxt[ok]] == pix[ok]
-    nxt[~ok] = size
-    jump = np.append(nxt, size)
-    nodes = start[start < size]
-    while True:
-        add = jump[nodes]
-        add = add[add < size]
-        if add.size == 0:
-            return nodes
-        nodes = np.concatenate([nodes, add])
-        jump = jump[jump]
-
-
-def event_simulation_batched(r2: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
-    """Exact free-running simulation without afterpulsing, in segments of whole cycles, vectorised over all
-    avalanches.  Avalanche counts per (pixel, cell, segment) are Poisson(S·q); positions are uniform within the
-    cell (constant intensity there) and the cycle uniform within the segment; times are integer ticks
-    (TICKS_PER_PERIOD per period).  Non-paralyzable dead time: :func:`_dead_time_path`; paralyzable: an avalanche
-    is recorded iff the previous avalanche of that pixel is ≥ τ earlier.  State (live-from / last avalanche)
-    carries across segments, so the result is the same process as :func:`event_simulation`.
-
-    Args:
-        r2: float64 (pixels, bins) expected avalanches per laser cycle in each histogram bin (window
-            ``config.bin_edges(bins)``, s; outside it the rate is ``background_rate`` × gate), ≥ 0 (not checked).
-        config: detector description (period, cycles, dead_time in s, paralyzable, gate); afterpulsing is
-            ignored (use :func:`event_simulation`).
-        rng: numpy Generator (advanced by the call).
-    Returns:
-        int64 (pixels, bins) recorded detections per bin over ``config.cycles`` laser periods.
-    Raises:
-        ValueError: the histogram window exceeds the laser period; more expected avalanches than
-            MAX_SIMULATED_EVENTS (:func:`datagen.spad.arrays.check_event_count`).
-    """
-    edges, q, cell_bin = _period_cells(r2, config)
-    n_pix, n_cells = q.shape
-    bins = r2.shape[1]
-    n, T = config.cycles, config.period
-    check_event_count(float(q.sum()) * n, "free_running event simulation")
-    dead = int(round(config.dead_time / T * TICKS_PER_PERIOD))
-    total_rate = float(q.sum())
-    hist = np.zeros(n_pix * bins, dtype=np.int64)
-    if total_rate == 0.0 or n_pix == 0:
-        return hist.reshape(n_pix, bins)
-    max_cycles_by_overflow = (np.iinfo(np.int64).max // 4) // (max(n_pix, 1) * TICKS_PER_PERIOD) - 2
-    seg = int(max(1, min(n, EVENT_SEGMENT_ARRIVALS / total_rate, max_cycles_by_overflow)))
-    cell_lo = np.floor(edges[:-1] / T * TICKS_PER_PERIOD).astype(np.int64)
-    cell_span = np.maximum(np.floor(edges[1:] / T * TICKS_PER_PERIOD).astype(np.int64) - cell_lo, 1)
-    never = np.iinfo(np.int64).min // 4
-    carry = np.full(n_pix, never, dtype=np.int64)  # live-from (non-paralyzable) or last avalanche, in ticks
-    paralyzable = config.paralyzable
-    pix_ids = np.arange(n_pix, dtype=np.int64)
-    done = 0
-    while done < n:
-        s = min(seg, n - done)
-        span = s * TICKS_PER_PERIOD
-        big = span + TICKS_PER_PERIOD
-        counts = rng.poisson(s * q).ravel()
-        flat = np.repeat(np.arange(counts.size, dtype=np.int64), counts)
-        pix, cell = np.divmod(flat, n_cells)
-        local = (rng.integers(0, s, flat.size, dtype=np.int64) * TICKS_PER_PERIOD + cell_lo[cell]
-                 + (rng.random(flat.size) * cell_span[cell]).astype(np.int64))
-        key = pix * big + local
-        order = np.argsort(key, kind="stable")
-        key, pix, cell, local = key[order], pix[order], cell[order], local[order]
-        if paralyzable:
-            prev = np.empty_like(local)
-            prev[1:] = local[:-1]
-            first = np.ones(key.size, dtype=bool)
-            first[1:] = pix[1:] != pix[:-1]
-            prev[first] = carry[pix[first]]
-            recorded = np.flatnonzero((local - prev) >= dead)
-            if key.size:
-                last = np.ones(key.size, dtype=bool)
-                last[:-1] = pix[1:] != pix[:-1]
-                carry[pix[last]] = local[last]
-        else:
-            start = np.searchsorted(key, pix_ids * big + np.maximum(carry, 0), side="left")
-            valid = start < key.size
-            valid[valid] = pix[start[valid]] == pix_ids[valid]
-            start[~valid] = key.size
-            recorded = _dead_time_path(key, pix, dead, start)
-            if recorded.size:
-                rec_pix = pix[recorded]
-                last_local = np.full(n_pix, never, dtype=np.int64)
-                np.maximum.at(last_local, rec_pix, local[recorded])
-                has = last_local > never
-                carry[has] = last_local[has] + dead
-        carry = np.where(carry > never, carry - span, never)
-        carry = np.maximum(carry, never)
-        hb = cell_bin[cell[recorded]]
-        inside = hb >= 0
-        hist += np.bincount(pix[recorded][inside] * bins + hb[inside], minlength=n_pix * bins)
-        done += s
     return hist.reshape(n_pix, bins)
 
 

@@ -9,7 +9,8 @@ import numpy as np
 from .arrays import as_rates
 from .config import DetectorConfig
 from .effects import convolve_last, gaussian_kernel, jitter_counts, sample_pile_up_crosstalk
-from .free_running import event_simulation, event_simulation_batched, free_running_expected
+from .free_running import event_simulation, free_running_expected
+from .free_running_batched import event_simulation_batched
 from .synchronous import (
     detection_pmf,
     multi_stop_dead_bins,
@@ -38,7 +39,8 @@ def expected_histogram(rates: Any, config: DetectorConfig) -> np.ndarray:
       ``d = round(dead_time/bin_width)`` bins blocked after each detection, re-armed every cycle.
     * ``free_running``: ``n·ρ·π`` with π the stationary detection-phase distribution of the Markov chain
       (Rapp, Ma, Dawson, Goyal, IEEE TSP 2019; discretised on ``markov_oversample`` cells per bin) and ρ the
-      detections per cycle; paralyzable dead time uses the exact closed form λ(t)e^{−∫_{t−τ}^{t}λ}.
+      detections per cycle; paralyzable dead time uses the exact closed form λ(t)e^{−∫_{t−τ}^{t}λ}. Afterpulsing
+      (non-paralyzable, no gate) is in the same chain: the pending afterpulse is cancelled by the next detection.
       Stationary: the start-up transient (≤ one dead time) is ignored.
 
     Args:
@@ -48,12 +50,12 @@ def expected_histogram(rates: Any, config: DetectorConfig) -> np.ndarray:
         float64 (..., bins) expected counts.
     Raises:
         ValueError: invalid rates, DNL length mismatch, window longer than the period (free_running).
-        NotImplementedError: crosstalk or afterpulsing (no closed form; average :func:`sample_histogram`).
+        NotImplementedError: crosstalk, or afterpulsing with a gate (average :func:`sample_histogram`).
     """
     r = as_rates(rates)
     _check_window(r, config)
-    if config.crosstalk_probability > 0 or config.afterpulse_probability > 0:
-        raise NotImplementedError("crosstalk and afterpulsing have no closed-form expected histogram here; "
+    if config.crosstalk_probability > 0:
+        raise NotImplementedError("crosstalk has no closed-form expected histogram here; "
                                   "average sample_histogram draws (event simulation)")
     n = config.cycles
     shape = r.shape
