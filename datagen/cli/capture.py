@@ -100,7 +100,7 @@ def import_capture(capture_file, out, width, bin_resolution, tofgrid):
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output file")
 @click.option("--split", default=None, help="RESULT_PATH is a dataset: the split of the sample to export")
 @click.option("--index", type=int, default=None, help="RESULT_PATH is a dataset: the index of the sample")
-@click.option("--counts", "use_counts", is_flag=True, help="dataset sample: export the SPAD counts, not the envelope")
+@click.option("--counts", "use_counts", is_flag=True, help="export the SPAD counts, not the envelope")
 @click.option("--mat-version", "mat_version", type=click.Choice(["5", "7.3"]), default="5",
               help=".mat formats: MAT v5 (scipy) or v7.3 (HDF5; arrays over 2 GiB)")
 @friendly_errors
@@ -123,10 +123,11 @@ def export(result_path, fmt, out, split, index, use_counts, mat_version):
             raise ValueError("a dataset sample needs both --split and --index")
         require_complete(result_path)
         result = sample_result(result_path, split, index, "counts" if use_counts else "envelope")
-    elif use_counts:
-        raise ValueError("--counts applies to a dataset sample (give --split and --index)")
     else:
         result = read_result_input(result_path, "export", "give --split and --index to export one of its samples")
+        if use_counts:              # the drawn SPAD histogram in the envelope's place, as a lab file holds it
+            import dataclasses
+            result = dataclasses.replace(result, envelope=np.asarray(result.counts, dtype=np.float64), components={})
     out.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "tal":
         write_tal_hdf5(result, out)
