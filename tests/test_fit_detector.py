@@ -13,8 +13,10 @@ DT, BINS = 50e-12, 200
 TRUE = {"position": 3.03e-9, "jitter_sigma": 80e-12, "diffusion_tail": 150e-12}
 
 
-def draw(model: str, signal: float, background: float, n: int, rep: float, seed: int, dead_time: float = 0.0):
-    extra = {"dead_time": dead_time} if model == "free_running" else {}
+def draw(model: str, signal: float, background: float, n: int, rep: float, seed: int, dead_time: float = 0.0,
+         afterpulse: tuple[float, float] = (0.0, 0.0)):
+    extra = {"dead_time": dead_time, "afterpulse_probability": afterpulse[0],
+             "afterpulse_time_constant": afterpulse[1]} if model == "free_running" else {}
     cfg = DetectorConfig(model=model, repetition_rate=rep, n_cycles=n, bin_width=DT, dcr=background,
                          jitter_sigma=TRUE["jitter_sigma"], diffusion_tail=TRUE["diffusion_tail"], **extra)
     env = return_envelope(BINS, DT, TRUE["position"], signal, 0.5 * DT)
@@ -28,6 +30,9 @@ REGIMES = {
     "pile_up high flux": dict(model="pile_up", signal=1.0, background=2e5, n=100_000, rep=20e6),
     # free-running with a 4 ns dead time over a 10 ns period: the return blinds the SPAD, a dip follows it
     "free_running": dict(model="free_running", signal=0.3, background=2e6, n=100_000, rep=100e6, dead_time=4e-9),
+    # the same with afterpulsing (P = 0.1, τ_ap = 2 ns known): an echo of the return one dead time later
+    "free_running afterpulsing": dict(model="free_running", signal=0.3, background=2e6, n=100_000, rep=100e6,
+                                      dead_time=4e-9, afterpulse=(0.1, 2e-9)),
 }
 
 
@@ -35,28 +40,34 @@ SHORT = {
     # measured on seeds 0–9 (the fit's 95 % intervals are the inverse Fisher information; see the notes of issue 26)
     "pile_up high flux": "jitter_sigma inside its interval in 8 of 10 seeds (30 other seeds: reported σ 6.07e-13 s "
                          "against a spread of 5.60e-13 s, i.e. the intervals are right and seeds 0–9 are unlucky)",
+    "free_running afterpulsing": "afterpulse_probability and background_rate inside in 6 of 10 seeds: the Poisson "
+                                 "quasi-likelihood ignores the afterpulse clusters (reported σ of P 0.0035, spread "
+                                 "0.0053), and 2 seeds miss signal, background and dead time together",
 }
 
 
-@pytest.mark.parametrize("regime", [pytest.param(r, marks=pytest.mark.xfail(reason=SHORT[r], strict=False))
+@pytest.mark.parametrize("regime", [pytest.param(r, marks=[pytest.mark.xfail(reason=SHORT[r], strict=False)]
+                                                 + ([pytest.mark.slow] if "afterpulsing" in r else []))
                                     if r in SHORT else r for r in REGIMES])
 def test_fit_recovers_every_parameter_within_its_95_percent_interval(regime):
     """Every detector parameter (and the return's signal) inside its reported 95 % interval in at least 9 of 10
     seeds (with exact 95 % intervals a parameter has a 91 % chance of that). The return's position is a nuisance
     parameter, not the detector's, and is only required in 8. The free-running fit starts from a datasheet dead
-    time 25 % off."""
+    time 25 % off; with afterpulsing it also fits the afterpulse probability (τ_ap known)."""
     spec = dict(REGIMES[regime])
     truth = {**TRUE, "signal": spec["signal"], "background_rate": spec["background"]}
-    initial = None
+    initial, tau_ap = None, None
     if spec["model"] == "free_running":
         truth["dead_time"] = spec["dead_time"]
         initial = {"dead_time": 5e-9}
+    if "afterpulse" in spec:
+        truth["afterpulse_probability"], tau_ap = spec["afterpulse"]
     inside = {k: 0 for k in truth}
     for seed in range(10):
         h = draw(spec["model"], spec["signal"], spec["background"], spec["n"], spec["rep"], seed,
-                 spec.get("dead_time", 0.0))
+                 spec.get("dead_time", 0.0), spec.get("afterpulse", (0.0, 0.0)))
         fit = fit_detector(h, bin_width=DT, repetition_rate=spec["rep"], n_cycles=spec["n"], model=spec["model"],
-                           irf="exgauss", initial=initial)
+                           irf="exgauss", initial=initial, afterpulse_time_constant=tau_ap)
         assert fit.messages == [] and fit.settings["converged"], (seed, fit.summary(), fit.messages)
         for k in truth:
             lo, hi = fit.intervals[k]
@@ -94,5 +105,7 @@ def test_bad_input_is_a_one_line_error():
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, model="gated")
     with pytest.raises(ConfigError, match=r"fixed: unknown parameter 'dead_time' for model 'pile_up'"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, fixed={"dead_time": 1e-9})
+    with pytest.raises(ConfigError, match=r"afterpulse_time_constant=2e-09: needs model 'free_running' \(got 'pile_up'\)"):
+        fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, afterpulse_time_constant=2e-9)
     with pytest.raises(ConfigError, match=r"longer than the laser period"):
         fit_detector(np.ones(4000), bin_width=DT, repetition_rate=20e6, n_cycles=10)

@@ -58,8 +58,9 @@ FIT_MODELS = ("pile_up", "poisson", "free_running")
 IRF_SHAPES = ("gauss", "exgauss")
 
 _LOG = ("signal", "jitter_sigma", "diffusion_tail", "background_rate", "dead_time")
+_LOGIT = ("diffusion_fraction", "afterpulse_probability")
 _UNITS = {"signal": "photons/cycle", "position": "s", "jitter_sigma": "s", "diffusion_tail": "s",
-          "diffusion_fraction": "", "background_rate": "Hz", "dead_time": "s"}
+          "diffusion_fraction": "", "background_rate": "Hz", "dead_time": "s", "afterpulse_probability": ""}
 
 
 def return_envelope(n_bins: int, bin_width: float, position: float, signal: float,
@@ -81,8 +82,9 @@ def return_envelope(n_bins: int, bin_width: float, position: float, signal: floa
     return signal * np.diff(special.ndtr((edges - position) / pulse_sigma))
 
 
-def fit_parameter_names(model: str, irf: str, fit_fraction: bool) -> list[str]:
-    """Free parameters of a fit, in order (before ``fixed`` removes some)."""
+def fit_parameter_names(model: str, irf: str, fit_fraction: bool, afterpulsing: bool = False) -> list[str]:
+    """Free parameters of a fit, in order (before ``fixed`` removes some); ``afterpulsing`` adds
+    ``afterpulse_probability`` to a free-running fit."""
     names = ["signal", "position", "jitter_sigma"]
     if irf == "exgauss":
         names.append("diffusion_tail")
@@ -91,6 +93,8 @@ def fit_parameter_names(model: str, irf: str, fit_fraction: bool) -> list[str]:
     names.append("background_rate")
     if model == "free_running":
         names.append("dead_time")
+        if afterpulsing:
+            names.append("afterpulse_probability")
     return names
 
 
@@ -164,6 +168,9 @@ class DetectorFit:
         ]
         if c.model == "free_running":
             rows.append(f"dead_time: {c.dead_time!r}")
+            if "afterpulse_probability" in self.values:
+                rows.append(f"afterpulse_probability: {c.afterpulse_probability!r}")
+                rows.append(f"afterpulse_time_constant: {c.afterpulse_time_constant!r}")
         rows.append("# fit (value, 1 sigma, 95 % interval):")
         for name, value in self.values.items():
             if name in self.fixed:
@@ -186,7 +193,7 @@ class DetectorFit:
 def _to_fit(name: str, value: float) -> float:
     if name in _LOG:
         return math.log(value)
-    if name == "diffusion_fraction":
+    if name in _LOGIT:
         return math.log(value / (1.0 - value))
     return value
 
@@ -194,7 +201,7 @@ def _to_fit(name: str, value: float) -> float:
 def _from_fit(name: str, x: np.ndarray | float):
     if name in _LOG:
         return np.exp(x)
-    if name == "diffusion_fraction":
+    if name in _LOGIT:
         return special.expit(x)
     return x
 
@@ -202,7 +209,8 @@ def _from_fit(name: str, x: np.ndarray | float):
 def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_cycles: int,
                  model: str = "pile_up", irf: str = "exgauss", t_start: float = 0.0,
                  pulse_sigma: float | None = None, fixed: dict[str, float] | None = None,
-                 fit_fraction: bool = False, initial: dict[str, float] | None = None) -> DetectorFit:
+                 fit_fraction: bool = False, initial: dict[str, float] | None = None,
+                 afterpulse_time_constant: float | None = None) -> DetectorFit:
     """Maximum-likelihood fit of datagen's detector model to the histogram of a known return.
 
     Args:
@@ -217,6 +225,9 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             when not fitted), e.g. ``{"dead_time": 77e-9}``.
         fit_fraction: also fit ``diffusion_fraction`` (ex-Gaussian IRF with a Gaussian core share).
         initial: starting values (default: moments of the histogram).
+        afterpulse_time_constant: s, the detector's afterpulse time constant τ_ap (known, held); when given, a
+            ``free_running`` fit also fits ``afterpulse_probability`` (logit scale; afterpulses at
+            ``t + dead_time + Exp(τ_ap)``, the expectation of datagen/spad/free_running.py).
     Returns:
         :class:`DetectorFit`.
     Raises:
@@ -243,7 +254,10 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         raise ConfigError(f"the histogram window ({n_bins} bins of {bin_width:.4g} s from {t_start:.4g} s) is longer "
                           f"than the laser period {1 / repetition_rate:.4g} s")
     pulse = 0.5 * bin_width if pulse_sigma is None else float(pulse_sigma)
-    names_all = fit_parameter_names(model, irf, fit_fraction)
+    if afterpulse_time_constant is not None and (model != "free_running" or not afterpulse_time_constant >= 0):
+        raise ConfigError(f"afterpulse_time_constant={afterpulse_time_constant!r}: needs model 'free_running' "
+                          f"(got {model!r}) and a value >= 0 s")
+    names_all = fit_parameter_names(model, irf, fit_fraction, afterpulse_time_constant is not None)
     fixed = dict(fixed or {})
     for k in fixed:
         if k not in names_all and k != "diffusion_fraction":
@@ -256,6 +270,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
     start.update(initial or {})
     base = {"model": model, "repetition_rate": repetition_rate, "n_cycles": int(n_cycles), "bin_width": bin_width,
             "t_start": t_start}
+    if afterpulse_time_constant is not None:
+        base["afterpulse_time_constant"] = float(afterpulse_time_constant)
 
     def params_of(x: np.ndarray) -> dict[str, float]:
         p = dict(fixed)
@@ -309,17 +325,17 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         lo, hi = (float(_from_fit(name, best[i] - 1.96 * sd)) * scale,
                   float(_from_fit(name, best[i] + 1.96 * sd)) * scale) if ok \
             else (-math.inf if name not in _LOG else 0.0, math.inf)
-        if name == "diffusion_fraction" and not ok:
+        if name in _LOGIT and not ok:
             lo, hi = 0.0, 1.0
         deriv = bin_width if name == "position" else 1.0
         if name in _LOG:
             deriv = values[name]
-        elif name == "diffusion_fraction":
+        elif name in _LOGIT:
             deriv = values[name] * (1 - values[name])
         errors[name] = abs(deriv) * sd if ok else math.inf
         intervals[name] = (lo, hi)
         span = hi / lo if (name in _LOG and lo > 0) else math.inf if name in _LOG else 1.0
-        good = ok and span <= IDENTIFIABLE_SPAN and not (name == "diffusion_fraction" and (hi - lo) > 0.9)
+        good = ok and span <= IDENTIFIABLE_SPAN and not (name in _LOGIT and (hi - lo) > 0.9)
         identifiable[name] = bool(good)
         if not good:
             messages.append(f"{name} is not identifiable from this histogram (95 % interval {lo:.3g} .. {hi:.3g} "
@@ -330,7 +346,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                                                                if k in names_all or irf == "exgauss"},
                        identifiable, messages, deviance, pearson, dof, p_value, mu, _config(base, values, irf),
                        {"bin_width": bin_width, "repetition_rate": repetition_rate, "n_cycles": int(n_cycles),
-                        "t_start": t_start, "pulse_sigma": pulse, "converged": converged})
+                        "t_start": t_start, "pulse_sigma": pulse, "converged": converged,
+                        "afterpulse_time_constant": afterpulse_time_constant})
 
 
 def _config(base: dict, p: dict, irf: str) -> DetectorConfig:
@@ -340,6 +357,8 @@ def _config(base: dict, p: dict, irf: str) -> DetectorConfig:
         extra["diffusion_fraction"] = p.get("diffusion_fraction", 1.0)
     if base["model"] == "free_running":
         extra["dead_time"] = p["dead_time"]
+        if "afterpulse_time_constant" in base:
+            extra["afterpulse_probability"] = p["afterpulse_probability"]
     return DetectorConfig(**base, **extra)
 
 
@@ -378,7 +397,7 @@ def _initial_guess(h: np.ndarray, dt: float, n: int, model: str, pulse: float) -
     frac = min(total / n, 0.95)
     signal = -math.log1p(-frac) if model == "pile_up" else total / n
     return {"signal": max(signal, 1e-9), "position": (peak + 0.5) * dt, "jitter_sigma": sigma,
-            "diffusion_tail": max(sigma, dt), "diffusion_fraction": 0.5,
+            "diffusion_tail": max(sigma, dt), "diffusion_fraction": 0.5, "afterpulse_probability": 0.05,
             "background_rate": max(bg_per_bin, 0.5) / (n * dt),
             "dead_time": _dead_time_guess(h, peak, fwhm_bins) * dt}
 
