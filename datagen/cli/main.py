@@ -17,6 +17,7 @@ from ..transport import estimator_names
 from .bench import bench
 from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
+from .suite import suite
 from .tal import export_tal, read_result_input, tal_render
 from .view import view
 
@@ -219,6 +220,7 @@ main.add_command(verify)
 main.add_command(score)          # scoring reconstructions (issue 13)
 main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
 main.add_command(view)           # 3D pictures with open3d (issue 15)
+main.add_command(suite)          # benchmark suites (issue 27)
 
 
 if __name__ == "__main__":
