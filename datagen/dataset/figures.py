@@ -2,7 +2,9 @@
 
 :func:`plot_scan_sample` draws, for one sample of a confocal scan (or a sensor grid): the peak-time image (the time
 of each scan point's maximum, ns: the hidden surface's distance pattern), a few time slices of the envelope at the
-strongest times, the wall-view depth label (m) and the summed envelope over time. Every image has row 0 at the
+strongest times, the wall-view depth label (m; a sample without objects in view, all 0, is a blank panel with a
+−0.1…0.1 m colour bar) and the envelope summed over the scan points (expected detected photons per laser pulse and
+bin, log scale). Every image has row 0 at the
 bottom of the wall (``origin="lower"``; docs/datasets.md "Scanned captures"), so label and scan pixels align.
 """
 from __future__ import annotations
@@ -11,6 +13,10 @@ import numpy as np
 
 TIME_SLICES = 3
 """Time slices drawn: the bins where the scan's summed envelope is largest, spread apart."""
+
+EMPTY_DEPTH_RANGE = 0.1
+"""Half-range (m) of the colour bar of an empty ``wall_depth`` label (no object seen from the wall): a blank panel
+with a −0.1…0.1 m bar instead of an all-NaN image whose bar matplotlib cannot scale."""
 
 
 def scan_image_shape(envelope: np.ndarray) -> tuple[int, int] | None:
@@ -24,8 +30,13 @@ def scan_image_shape(envelope: np.ndarray) -> tuple[int, int] | None:
 
 
 def plot_scan_sample(sample: dict, time_edges: np.ndarray, title: str | None = None, fig=None):
-    """Figure of a scanned sample (dict of numpy arrays or tensors with ``envelope`` (H, W, T) and optionally
-    ``wall_depth`` (H, W)); returns the matplotlib Figure (Agg-safe)."""
+    """Figure of a scanned sample; returns the matplotlib Figure (Agg-safe).
+
+    ``sample``: dict of numpy arrays or torch tensors with ``envelope`` (H, W, T) float (expected detected photons
+    per pulse and bin; (H, W, 1, 1, T) is accepted too) and optionally ``wall_depth`` (H, W) float32 in metres (0
+    where no object is seen). ``time_edges``: (T+1,) seconds. ``fig``: a Figure or SubFigure to draw into. Panels:
+    peak time (ns), the strongest time slices, ``wall_depth`` (m), the envelope summed over the scan points
+    (y axis: photons / pulse / bin, log scale)."""
     from matplotlib.figure import Figure
 
     env = np.asarray(sample["envelope"].numpy() if hasattr(sample["envelope"], "numpy") else sample["envelope"],
@@ -58,7 +69,9 @@ def plot_scan_sample(sample: dict, time_edges: np.ndarray, title: str | None = N
     if depth is not None:
         d = np.asarray(depth.numpy() if hasattr(depth, "numpy") else depth, dtype=np.float64).reshape(h, w) \
             if np.size(depth) == h * w else np.asarray(depth, dtype=np.float64)
-        im = axes[k].imshow(np.where(d > 0, d, np.nan), origin="lower", cmap="viridis")
+        seen = d > 0
+        limits = {} if seen.any() else {"vmin": -EMPTY_DEPTH_RANGE, "vmax": EMPTY_DEPTH_RANGE}
+        im = axes[k].imshow(np.where(seen, d, np.nan), origin="lower", cmap="viridis", **limits)
         fig.colorbar(im, ax=axes[k], label="m")
         axes[k].set_title("label: wall_depth")
         k += 1
@@ -67,6 +80,7 @@ def plot_scan_sample(sample: dict, time_edges: np.ndarray, title: str | None = N
         ax.set_yticks([])
     axes[k].semilogy(t_ns, np.where(total > 0, total, np.nan), lw=1)
     axes[k].set_xlabel("time (ns)")
+    axes[k].set_ylabel("photons / pulse / bin")
     axes[k].set_title("envelope, scan sum")
     if title:
         fig.suptitle(title)

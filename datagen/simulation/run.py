@@ -275,7 +275,7 @@ class Replicas:
         """The mean of the replicas run so far, binned."""
         t0 = time.perf_counter()
         r = max(self.count, 1)
-        binned = self.total.binned().reshape(len(self.names), self.n_channels, -1) / r
+        binned = self.total.binned(copy=False).reshape(len(self.names), self.n_channels, -1) / r
         outside = self.total.outside().reshape(len(self.names), self.n_channels) / r
         self.seconds["binning"] += time.perf_counter() - t0
         return Transported(self.names, binned, outside, self.transport, self.plan, dict(self.seconds))
@@ -297,7 +297,7 @@ class Replicas:
         if coarse_acc is not None:                 # holds the coarse primary only, per channel (some channels)
             ratio = getattr(self.transport, "coarse_ratio", 2.0)
             channels = getattr(self.transport, "coarse_channels", slice(None))
-            coarse_p = coarse_acc.binned_total(self.n_channels)[channels]
+            coarse_p = coarse_acc.binned_total(self.n_channels, channels)
         else:
             no_secondary = {"secondary": "none", "effects": {**self.replica_config.effects, "secondary": False}}
             coarse_cfg = self.replica_config.with_estimator(**self.entry.refine(self.replica_config.estimator))

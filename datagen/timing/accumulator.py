@@ -50,13 +50,12 @@ import math
 from typing import Any
 
 import numpy as np
-from numba import njit
 from scipy.signal import oaconvolve
 
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
 from .curvature import deposit_curvature
-from .fold_kernel import bin_rows, bin_weights, fold_rows
+from .fold_kernel import bin_rows, bin_weights, fold_rows, rows_dot
 from .splat_kernel import splat_nodes
 from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
@@ -97,19 +96,6 @@ _CHUNK = 1 << 18
 _DIRECT_KERNEL_MAX = 256
 """Kernels up to this length are convolved directly over each row's non-zero nodes (compiled,
 :func:`datagen.timing.fold_kernel.bin_rows`; exact, no FFT noise); longer ones by overlap-add FFT."""
-
-@njit(cache=True)
-def _rows_dot(a, v):
-    """a @ v for a (rows, n) float64 and v (n,), in one thread: a BLAS gemv here starts OpenBLAS's threads,
-    whose spinning afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
-    out = np.zeros(a.shape[0])
-    for i in range(a.shape[0]):
-        s = 0.0
-        for j in range(a.shape[1]):
-            s += a[i, j] * v[j]
-        out[i] = s
-    return out
-
 
 _CONVOLVE_ROWS = 256
 """Fine-histogram rows convolved with the IRF in one batched FFT call (:meth:`EnvelopeAccumulator.binned`)."""
@@ -517,7 +503,7 @@ class EnvelopeAccumulator:
         """
         return self._fold().copy()
 
-    def binned(self) -> np.ndarray:
+    def binned(self, copy: bool = True) -> np.ndarray:
         """Binned envelopes, shape (n_components, n_bins), float64 photons per pulse per bin.
 
         Each bin holds the integral over its edges of sum_i w_i h(t - tau_i) (docs/physics.md §5), exact for
@@ -525,7 +511,7 @@ class EnvelopeAccumulator:
         The convolution runs by overlap-add FFT (direct for kernels <= _DIRECT_KERNEL_MAX taps), whose
         round-off is ~1e-16 of the component's maximum: bins far below that in a tail are not accurate.
         Negative round-off no larger than NEGATIVE_CLAMP_RTOL * max (CURVATURE_CLAMP_RTOL after wide tents) is
-        set to 0.
+        set to 0. ``copy`` False: the accumulator's own array (read only: it is kept for later calls).
 
         Raises:
             RuntimeError: a value more negative than the clamp threshold (cannot happen for weights >= 0;
@@ -533,14 +519,15 @@ class EnvelopeAccumulator:
         """
         if self._binned is None:
             self._binned = self._convolve_rows(self._fold())
-        return self._binned.copy()
+        return self._binned.copy() if copy else self._binned
 
-    def binned_total(self, n_channels: int = 1) -> np.ndarray:
+    def binned_total(self, n_channels: int = 1, channels: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(n_channels, n_bins) ``binned()`` summed over components (ids ``component * n_channels + channel``),
-        one convolution per channel. Raises ValueError if ``n_channels`` does not divide ``n_components``."""
+        one convolution per channel, rows ``channels`` (index or slice) only. Raises ValueError if ``n_channels``
+        does not divide ``n_components``."""
         if n_channels < 1 or self.n_components % n_channels:
             raise ValueError(f"n_channels {n_channels} does not divide the {self.n_components} components")
-        return self._convolve_rows(self._fold().reshape(-1, n_channels, self._hist.shape[-1]).sum(axis=0))
+        return self._convolve_rows(self._fold().reshape(-1, n_channels, self._hist.shape[-1])[:, channels].sum(0))
 
     def _convolve_rows(self, hist: np.ndarray) -> np.ndarray:
         """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes (the non-zero rows in
@@ -552,8 +539,8 @@ class EnvelopeAccumulator:
             ks = rows[start:start + _CONVOLVE_ROWS]
             block = np.empty((len(ks), self.axis.n_bins))
             if self._bin_table is not None:                  # compiled, over each row's non-zero nodes only
-                bin_rows(hist, ks.astype(np.int64), self._bin_table, block)
-                part = hist[ks]
+                peak = np.empty(len(ks))
+                bin_rows(hist, ks.astype(np.int64), self._bin_table, block, peak)
             else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
                 span = self._kernel.size - 1
                 rows_ = hist[ks]
@@ -564,7 +551,8 @@ class EnvelopeAccumulator:
                 conv = oaconvolve(part, self._kernel[None], mode="valid", axes=1)
                 block[:] = 0.0
                 block[:, b0:b1] = conv.reshape(len(ks), b1 - b0, self.oversample).sum(axis=2)
-            scale = np.maximum(np.abs(block).max(axis=1), np.abs(part).max(axis=1))
+                peak = np.abs(part).max(axis=1)
+            scale = np.maximum(np.abs(block).max(axis=1), peak)
             low = block.min(axis=1) < -self._clamp_rtol * scale
             if low.any():
                 i = int(np.flatnonzero(low)[0])
@@ -591,7 +579,7 @@ class EnvelopeAccumulator:
         lo = (self.n_left - 0.5 - g) * self.fine_step
         hi = (self.n_cells + self.n_left - 0.5 - g) * self.fine_step
         frac = self.irf.cdf(lo) + self.irf.sf(hi)
-        return result + _rows_dot(self._hist, frac)
+        return result + rows_dot(self._hist, frac)
 
 
 def _active_columns(a: np.ndarray) -> tuple[int, int]:

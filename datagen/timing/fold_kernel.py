@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["bin_rows", "bin_weights", "fold_rows"]
+__all__ = ["bin_rows", "bin_weights", "fold_rows", "rows_dot"]
 
 
 @njit(cache=True, inline="always")
@@ -57,11 +57,12 @@ def bin_weights(kernel: np.ndarray, oversample: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray) -> None:
+def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray, row_max: np.ndarray) -> None:
     """out[i, b] = Σ over the ``oversample`` fine cells c of bin b of (hist[rows[i]] ⋆ kernel)[c], the valid-mode
     convolution ``numpy.convolve(hist[row], kernel, "valid")`` (length n_bins · oversample), as each non-zero node's
     weight times its row of :func:`bin_weights` (``table``, (oversample, Q)): (K / oversample + 1) products per
-    non-zero node. hist (R, N) float64, rows (k,) int64, out (k, n_bins) float64 (written)."""
+    non-zero node; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
+    row_max (k,) float64 (written)."""
     oversample, q_len = table.shape
     n_bins = out.shape[1]
     for i in range(rows.shape[0]):
@@ -69,10 +70,12 @@ def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndar
         for b in range(n_bins):
             out[i, b] = 0.0
         lo, hi = _span(hist, r)
+        peak = 0.0
         for j in range(lo, hi):
             v = hist[r, j]
             if v == 0.0:
                 continue
+            peak = max(peak, abs(v))
             m = j // oversample
             p = j - m * oversample
             for q in range(q_len):
@@ -81,3 +84,17 @@ def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndar
                     break
                 if b < n_bins:
                     out[i, b] += v * table[p, q]
+        row_max[i] = peak
+
+
+@njit(cache=True)
+def rows_dot(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """a @ v (rows,) float64 for a (rows, n) float64 and v (n,), in one thread: a BLAS gemv here starts OpenBLAS's
+    threads, whose spinning afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
+    out = np.zeros(a.shape[0])
+    for i in range(a.shape[0]):
+        s = 0.0
+        for j in range(a.shape[1]):
+            s += a[i, j] * v[j]
+        out[i] = s
+    return out

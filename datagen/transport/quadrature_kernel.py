@@ -176,20 +176,23 @@ CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
 OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "face_ray")
+SHADE = ("use_flags", "flags", "laser_col")
 """The kernel's inputs by group (tuples; :func:`datagen.transport.quadrature_primary.run_compiled` builds them). The
 kernel unpacks every group once before its loops: arrays taken out of a tuple inside numba's inner loop cost an
 atomic reference count each (measured ~100 ns per pair)."""
 
 
 @njit(cache=True, parallel=True)
-def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse, occ):
+def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse, occ, shade):
     """Both passes (module doc) over the connections ``block`` = [b0, b1), in groups of one channel each
     (connections ``group_conn[group_ptr[g]:group_ptr[g + 1]]``, ascending), the groups in parallel: a channel's rows
     of the grids are written by its group only, in the same order for any number of threads. ``listed`` False:
     every pair, listing those that need a shadow ray (connection b's in ``ray_cell[(b − b0)·M:]``,
     ``ray_count[b − b0]`` of them); True: the listed pairs whose ray found the laser point ``visible`` (same
     slots). The groups of arguments: :data:`WORK`, :data:`GEO`, :data:`POSE`, :data:`CONN`, :data:`LEGS`,
-    :data:`GRID` (``grid``, and ``coarse`` for the rule at 2h when ``has_coarse``), :data:`OCC`."""
+    :data:`GRID` (``grid``, and ``coarse`` for the rule at 2h when ``has_coarse``), :data:`OCC`, :data:`SHADE`
+    (where ``use_flags``, a pair (m, l) with ``flags[m, laser_col[l]]`` 0 is not blocked without the exact test:
+    :func:`datagen.transport.quadrature_shadow.shadow_flags`)."""
     b0, b1 = block
     paths, ray_cell, ray_count, visible, group_ptr, group_conn = work
     vertices, cells, area, comp_base, coarse_of, coarse_cells = geo
@@ -199,6 +202,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond = grid
     ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond = coarse
     shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
+    use_flags, flags, laser_col = shade
     M = centroid.shape[0]
     n_groups = len(group_ptr) - 1
     group_tents = np.zeros(n_groups, dtype=np.int64)
@@ -228,8 +232,13 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     continue
                 if shadow and not listed:
                     f = cell_face[m]
-                    blocked = 2 if face_ray[f] else _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi,
-                                                             spheres, occ_idx, plane, edges, margin)
+                    if face_ray[f]:
+                        blocked = 2
+                    elif use_flags and flags[m, laser_col[l]] == 0:
+                        blocked = 0                     # no candidate's shadow reaches this laser point
+                    else:
+                        blocked = _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, occ_idx,
+                                           plane, edges, margin)
                     if blocked == 1:
                         continue
                     if blocked == 2:
@@ -283,24 +292,24 @@ def channel_groups(conn_channel: np.ndarray, start: int, stop: int) -> tuple[np.
     return (np.append(np.flatnonzero(new), len(order)).astype(np.int64), (order + start).astype(np.int64))
 
 
-def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count, groups
-               ) -> int:
+def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count, groups,
+               shade) -> int:
     """Deposit every contributing pair of the connections ``block`` (start, stop) that needs no shadow ray and
     list the others: connection b's cells in ``ray_cell[(b − start)·M:]`` (capacity cells × connections),
     ``ray_count[b − start]`` of them. ``paths``: the block's :func:`vertex_paths`; ``groups``:
     :func:`channel_groups`; the groups of arguments: :data:`GEO`, :data:`POSE`, :data:`CONN`, :data:`LEGS`,
-    :data:`GRID` (``grid``, ``coarse``), :data:`OCC`. Returns the tents deposited."""
+    :data:`GRID` (``grid``, ``coarse``), :data:`OCC`, :data:`SHADE`. Returns the tents deposited."""
     none = np.zeros(1, dtype=np.uint8)
     return _pairs(False, (int(block[0]), int(block[1])), (paths, ray_cell, ray_count, none, *groups), geo, pose,
-                  conn, legs, grid, bool(has_coarse), coarse, occ)
+                  conn, legs, grid, bool(has_coarse), coarse, occ, shade)
 
 
 def deposit_pairs(block, paths, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid, coarse,
-                  has_coarse, occ) -> int:
+                  has_coarse, occ, shade) -> int:
     """Deposit the listed pairs (of the connections ``block``, slots as :func:`candidates` left them) whose shadow
     ray found the laser point visible (``visible`` uint8 per slot). Returns the tents deposited."""
     return _pairs(True, (int(block[0]), int(block[1])), (paths, ray_cell, ray_count, visible, *groups), geo, pose,
-                  conn, legs, grid, bool(has_coarse), coarse, occ)
+                  conn, legs, grid, bool(has_coarse), coarse, occ, shade)
 
 
 @njit(cache=True, parallel=True)

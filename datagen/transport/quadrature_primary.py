@@ -22,8 +22,9 @@ from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
 from .quadrature_kernel import (candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes,
                           vertex_paths)
+from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
 
-__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "leg_occluders", "run_compiled"]
+__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "leg_occluders", "run_compiled"]
 
 PAIR_TEST_MAX_PAIRS = 1 << 22
 """The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
@@ -44,6 +45,10 @@ server, which runs none."""
 
 PAIR_BLOCK = 1 << 22
 """(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
+
+SHADOW_MAP = True
+"""Mark per sub-triangle the laser points a candidate occluder may shadow before the pair loop
+(:mod:`.quadrature_shadow`); False runs the exact segment test for every lit pair (the same envelope, slower)."""
 
 MARGIN_OFFSETS = 8.0
 """The kernel's segment test counts a triangle as possibly blocking within this many ray offsets
@@ -125,8 +130,42 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
         spheres[r] = [*centre, np.sqrt(((pts - centre) ** 2).sum(axis=1).max())]
     plane, edges = occluder_planes(tri) if len(tri) else (np.zeros((1, 4)), np.zeros((1, 3, 4)))
     margin = MARGIN_OFFSETS * caster.offset
+    grown = grown_triangles(tri, 2.0 * margin) if len(tri) else np.zeros((1, 3, 3))
     return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), spheres, occ_of.astype(np.int64),
-            plane, edges, float(margin), face_ray)
+            plane, edges, float(margin), face_ray), grown
+
+
+def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
+    """The kernel's :data:`~datagen.transport.quadrature_kernel.SHADE` group for quadrature ``q``: per sub-triangle
+    the laser points (of the connections) whose leg a candidate occluder may block
+    (:func:`~datagen.transport.quadrature_shadow.shadow_flags`), or (False, …) when the laser points are not on one
+    plane, nothing is tested, or the map would exceed ``FLAG_MAX_BYTES``."""
+    shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
+    none = (False, np.zeros((1, 1), dtype=np.uint8), np.zeros(1, dtype=np.int64))
+    lasers = np.unique(q.conn_laser)
+    if not (SHADOW_MAP and shadow and len(occ_idx)) or q.n_cells * len(lasers) > FLAG_MAX_BYTES:
+        return none
+    c = q.capture
+    spots = c.spots[lasers]
+    found = spot_plane(spots, c.spot_normals[lasers])
+    if found is None:
+        return none
+    n, o = found
+    u = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    u /= np.linalg.norm(u)
+    axes = np.stack([spots.mean(axis=0), u, np.cross(n, u)])
+    uv = (spots - axes[0]) @ axes[1:].T
+    buckets, bucket_ptr, bucket_col = spot_buckets(uv)
+    centre = spots.mean(axis=0)
+    radius = float(np.sqrt(((spots - centre) ** 2).sum(axis=1).max()))
+    flags = np.zeros((q.n_cells, len(lasers)), dtype=np.uint8)
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+    shadow_flags(f64(q.centroids), f64(q.cell_normal), closed, q.cell_hidden.astype(np.int64), face_ray,
+                 run_ptr, run_lo, run_hi, occ_idx, plane, edges, margin, grown, np.append(n, o), axes, uv, centre,
+                 radius, buckets, bucket_ptr, bucket_col, flags)
+    laser_col = np.full(c.n_lasers, -1, dtype=np.int64)
+    laser_col[lasers] = np.arange(len(lasers))
+    return True, flags, laser_col
 
 
 def _face_candidates(q, front: np.ndarray) -> tuple:
@@ -230,8 +269,9 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
             float(q.settings.attenuation), float(SPEED_OF_LIGHT), int(q.coarse_stride))
     cached = getattr(q, "occluder_cache", None)         # the same faces and laser points: kept for the estimate's
     if cached is None or cached[0] != q.segment_tests:     # sub-scan (quadrature_split.refined) and later runs
-        q.occluder_cache = cached = (q.segment_tests, _occluder_lists(q, front))
+        q.occluder_cache = cached = (q.segment_tests, *_occluder_lists(q, front))
     occ = cached[1]
+    shade = _shadow_map(q, occ, cached[2], closed)
     grid = tuple(grid)
     has_coarse = coarse is not None
     coarse = tuple(coarse) if has_coarse else grid
@@ -245,7 +285,7 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
         groups = channel_groups(q.conn_channel, *block)
         vertex_paths(geo[0], legs[0], legs[1], conn[0], conn[1], conn[3], block[0], block[1], paths)
         tents = candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count,
-                           groups)
+                           groups, shade)
         counts = ray_count[:block[1] - block[0]]
         n_rays = int(counts.sum())
         if n_rays:
@@ -257,7 +297,7 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
             visible = np.zeros(len(ray_cell), dtype=np.uint8)
             visible[slot] = q.caster.visible(x, lit, c.spots[li], c.spot_normals[li])
             tents += deposit_pairs(block, paths, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid,
-                                   coarse, has_coarse, occ)
+                                   coarse, has_coarse, occ, shade)
             q.stats.shadow_rays += n_rays
         q.stats.tents += tents
         q.stats.pair_rows += M * (block[1] - block[0])
