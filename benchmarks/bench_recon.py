@@ -58,6 +58,12 @@ Z_RANGE = {"wall-meshes-v1": (0.3, 1.8), "single-pixel-v1": (0.3, 1.8), "confoca
 FIGURE_SAMPLES = 3
 
 
+def pf_wavelength(pitch: float, bin_width: float) -> float:
+    """The phasor filter's central wavelength (m): benchmarks/tal/recon_side.py's (4 grid spacings, at least 4 bins
+    of path length), so datagen's RSD and tal's fbp / pf_dev filter alike."""
+    return max(4 * pitch, 4 * SPEED_OF_LIGHT * bin_width)
+
+
 def depth_planes(suite: str, bin_width: float) -> np.ndarray:
     lo, hi = Z_RANGE[suite]
     dz = BINS_PER_PLANE * SPEED_OF_LIGHT * bin_width / 2
@@ -165,7 +171,7 @@ def run_variant(name: str, path: Path, variant: str, field: str, mean: float, ve
                     zs = (np.arange(scan.shape[-1]) + 0.5) * SPEED_OF_LIGHT * dt / 2
                     d, _ = depth_from_volume(lct_volume(scan, dt, pitch * scan.shape[1] / 2), zs)
                 else:
-                    d, _ = depth_from_volume(phasor_rsd(scan, dt, pitch, planes, 4 * pitch,
+                    d, _ = depth_from_volume(phasor_rsd(scan, dt, pitch, planes, pf_wavelength(pitch, dt),
                                                        t_start=float(edges[0])), planes)
                 seconds.append(time.perf_counter() - t0)
                 depths.append(d)
@@ -181,7 +187,7 @@ def run_variant(name: str, path: Path, variant: str, field: str, mean: float, ve
             vox = lp[:, :, None, :] + planes[None, None, :, None] * res.wall_normal
             leg = np.linalg.norm(vox - s, axis=-1)
             t0 = time.perf_counter()
-            vol = phasor_rsd(res.envelope.reshape(*lp.shape[:2], -1), dt, pitch, planes, 4 * pitch,
+            vol = phasor_rsd(res.envelope.reshape(*lp.shape[:2], -1), dt, pitch, planes, pf_wavelength(pitch, dt),
                              t_start=float(edges[0]), sensor_leg=leg)
             seconds.append(time.perf_counter() - t0)
             depths.append(depth_from_volume(vol, planes)[0])
@@ -280,13 +286,19 @@ def main() -> None:
                              "depth_samples": s["depth_samples"], "seconds": float(np.mean(info["seconds"]))})
             if variant == "clean" and not a.no_docs:
                 figure(name, path, files, ROOT / "docs" / f"benchmark_{name}.png")
+            dt = float(read_card(path)["time_edges"]["bin_width"])
+            plane = float(np.diff(depth_planes(name, dt))[0])
             ours = OUT / "recon" / name / variant / "rsd_datagen.npz"
-            if ours.exists() and "rsd" in files:
-                dt = float(read_card(path)["time_edges"]["bin_width"])
-                voxel = float(np.diff(depth_planes(name, dt))[0])
-                frac = agreement(ours, files["rsd"], path, suite.spec.test_split, voxel)
-                checks[f"{name} {variant}: datagen.analysis.phasor against tal.reconstruct.pf_dev"] = (
-                    f"depth within one voxel ({voxel * 100:.1f} cm) on {frac:.1%} of the object pixels")
+            pairs = [(ours, "rsd", "datagen.analysis.phasor", "tal.reconstruct.pf_dev", plane)] if ours.exists() else \
+                [(files.get("rsd"), "fbp", "datagen.analysis.phasor", "tal.reconstruct.fbp (the same phasor filter, "
+                  "backprojected)", plane),
+                 (files.get("lct"), "fk", "datagen.analysis.lct", "tal.reconstruct.fk (tal has no LCT)",
+                  SPEED_OF_LIGHT * dt / 2)]
+            for mine, other, what, against, voxel in pairs:
+                if mine is not None and other in files:
+                    frac = agreement(mine, files[other], path, suite.spec.test_split, voxel)
+                    checks[f"{name} {variant}: {what} against {against}"] = (
+                        f"depth within one voxel ({voxel * 100:.1f} cm) on {frac:.1%} of the object pixels")
         print(f"{name}: done ({time.perf_counter() - t_all:.0f} s so far)", flush=True)
     (OUT / "recon").mkdir(parents=True, exist_ok=True)
     (OUT / "recon" / "results.json").write_text(json.dumps({"rows": rows, "checks": checks, "suites": build_info},

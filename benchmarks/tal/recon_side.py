@@ -9,7 +9,8 @@ Z0 + k·DZ along the wall normal, and keeps the depth of each pixel's strongest 
 (N, Sx, Sy) metres, ``peak_<method>`` (N, Sx, Sy) the strongest |voxel| and ``seconds_<method>`` (N,) the solve time.
 
 Methods (y-tal 0.20's ``tal.reconstruct``):
-  fbp  tal.reconstruct.fbp (backprojection of the phasor-filtered H, filter wavelength 4 grid spacings)
+  fbp  tal.reconstruct.fbp (backprojection of the phasor-filtered H, filter wavelength pf_wavelength: 4 grid spacings, at
+       least 4 bins of path length)
   pf   tal.reconstruct.pf_dev (phasor-field RSD, Liu et al. 2019; same filter, camera at t = 0), non-confocal
        captures only: pf_dev refuses confocal captures and tal.reconstruct.pf stops with an AttributeError in its
        propagator (y-tal 0.20), so confocal captures get datagen's own (datagen.analysis.phasor)
@@ -28,6 +29,12 @@ import json
 import time
 
 import numpy as np
+
+
+def pf_wavelength(spacing: float, delta_l: float) -> float:
+    """Central wavelength (m) of the phasor filter: 4 grid spacings, and at least 4 bins of path length (tal's
+    filter needs λ > (1 + 1/√2)·2·Δl to stay below the Nyquist frequency)."""
+    return max(4 * spacing, 4 * delta_l)
 
 
 def wall_frame(grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -71,7 +78,7 @@ def solve_one(path: str, methods: list[str], depths: np.ndarray) -> dict:
             peak = rec.max(axis=0)
         else:
             kw = dict(volume_xyz=vol, volume_format=VolumeFormat.X_Y_Z_3, progress=False)
-            wl = 4 * spacing
+            wl = pf_wavelength(spacing, float(d.delta_t))
             if m == "fbp":
                 rec = tal.reconstruct.fbp.solve(d, wl_mean=wl, wl_sigma=wl / np.sqrt(2),
                                                 camera_system=CameraSystem.DIRECT_LIGHT, **kw)
