@@ -56,6 +56,9 @@ BINS_PER_PLANE = 3
 Z_RANGE = {"wall-meshes-v1": (0.3, 1.8), "single-pixel-v1": (0.3, 1.8), "confocal-rooms-v1": (0.2, 3.5)}
 """Depths (m from the wall) the fbp / RSD volumes span: the suites' hidden objects."""
 FIGURE_SAMPLES = 3
+PF_DEV_CHECK = False
+"""--pf-dev-check: also run tal's pf_dev on test sample 0 of each single-sensor suite (≈ 9 min per scan on this
+machine) and compare datagen's RSD with it."""
 
 
 def pf_wavelength(pitch: float, bin_width: float) -> float:
@@ -134,7 +137,7 @@ def run_variant(name: str, path: Path, variant: str, field: str, mean: float, ve
         save("trivial", np.full((n, *shape), mean), [0.0] * n, {"training_mean_m": mean})
     files["trivial"] = folder / "trivial.npz"
     # tal's methods, one subprocess for the variant
-    tal_methods = ["fbp", "fk"] if confocal else ["fbp", "pf"]
+    tal_methods = ["fbp", "fk"] if confocal else ["fbp"]
     todo = [m for m in tal_methods if not (folder / f"{'rsd' if m == 'pf' else m}.npz").exists()]
     if todo:
         hdf5 = []
@@ -178,7 +181,7 @@ def run_variant(name: str, path: Path, variant: str, field: str, mean: float, ve
             save(m, depths, seconds, {"implementation": IMPL[m] if m == "lct" else "datagen.analysis.phasor",
                                       "half_width_m": half})
             print(f"{name}/{variant}: {m} {np.mean(seconds):.2f} s per sample", flush=True)
-    elif not (folder / "rsd_datagen.npz").exists():   # ours on the single-sensor scans: checked against pf_dev
+    elif not (folder / "rsd.npz").exists():   # ours on the single-sensor scans too (tal's pf_dev: ~9 min per scan)
         depths, seconds = [], []
         for res in results:
             lp = res.laser_points
@@ -191,8 +194,13 @@ def run_variant(name: str, path: Path, variant: str, field: str, mean: float, ve
                              t_start=float(edges[0]), sensor_leg=leg)
             seconds.append(time.perf_counter() - t0)
             depths.append(depth_from_volume(vol, planes)[0])
-        np.savez(folder / "rsd_datagen.npz", depth=np.asarray(depths, np.float32), index=np.arange(n),
-                 seconds=np.asarray(seconds))
+        save("rsd", depths, seconds, {"implementation": "datagen.analysis.phasor"})
+    if not confocal:
+        files["rsd"] = folder / "rsd.npz"
+        if PF_DEV_CHECK and variant == "clean" and not (folder / "pf_dev_0.npz").exists():
+            t0 = time.perf_counter()
+            tal_side([folder / "hdf5" / "0.hdf5"], ["pf"], planes, folder / "pf_dev_0.npz", venv)
+            print(f"{name}/{variant}: tal pf_dev on test 0 in {time.perf_counter() - t0:.0f} s", flush=True)
     return files
 
 
@@ -263,7 +271,11 @@ def main() -> None:
     p.add_argument("--suites", default=None, help="comma-separated (default: every suite)")
     p.add_argument("--venv", type=Path, default=Path(os.environ.get("TAL_BENCH_VENV", "/opt/venvs/tal-bench")))
     p.add_argument("--no-docs", action="store_true", help="do not write docs/benchmark.md and its figures")
+    p.add_argument("--pf-dev-check", action="store_true",
+                   help="run tal's pf_dev on test 0 of the single-sensor suites (slow) to check datagen's RSD")
     a = p.parse_args()
+    global PF_DEV_CHECK
+    PF_DEV_CHECK = a.pf_dev_check
     t_all = time.perf_counter()
     names = a.suites.split(",") if a.suites else suite_names()
     rows, checks, build_info = [], {}, {}
@@ -288,12 +300,21 @@ def main() -> None:
                 figure(name, path, files, ROOT / "docs" / f"benchmark_{name}.png")
             dt = float(read_card(path)["time_edges"]["bin_width"])
             plane = float(np.diff(depth_planes(name, dt))[0])
-            ours = OUT / "recon" / name / variant / "rsd_datagen.npz"
-            pairs = [(ours, "rsd", "datagen.analysis.phasor", "tal.reconstruct.pf_dev", plane)] if ours.exists() else \
-                [(files.get("rsd"), "fbp", "datagen.analysis.phasor", "tal.reconstruct.fbp (the same phasor filter, "
-                  "backprojected)", plane),
-                 (files.get("lct"), "fk", "datagen.analysis.lct", "tal.reconstruct.fk (tal has no LCT)",
-                  SPEED_OF_LIGHT * dt / 2)]
+            pf_dev = OUT / "recon" / name / variant / "pf_dev_0.npz"
+            if pf_dev.exists() and "rsd" in files:
+                theirs = OUT / "recon" / name / variant / "pf_dev_0_depth.npz"
+                np.savez(theirs, depth=np.swapaxes(np.load(pf_dev)["depth_pf"], 1, 2))
+                mine = OUT / "recon" / name / variant / "rsd_0_depth.npz"
+                np.savez(mine, depth=np.load(files["rsd"])["depth"][:1])
+                files["pf_dev_0"], files["rsd_0"] = theirs, mine
+            if "fk" in files:      # confocal: our RSD against tal's fbp (same filter), our LCT against tal's fk
+                pairs = [(files.get("rsd"), "fbp", "datagen.analysis.phasor",
+                          "tal.reconstruct.fbp (the same phasor filter, backprojected)", plane),
+                         (files.get("lct"), "fk", "datagen.analysis.lct", "tal.reconstruct.fk (tal has no LCT)",
+                          SPEED_OF_LIGHT * dt / 2)]
+            else:                  # single sensor: our RSD against tal's pf_dev on test 0
+                pairs = [(files.get("rsd_0"), "pf_dev_0", "datagen.analysis.phasor (test 0)",
+                          "tal.reconstruct.pf_dev (test 0)", plane)]
             for mine, other, what, against, voxel in pairs:
                 if mine is not None and other in files:
                     frac = agreement(mine, files[other], path, suite.spec.test_split, voxel)

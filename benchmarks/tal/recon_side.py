@@ -87,7 +87,8 @@ def solve_one(path: str, methods: list[str], depths: np.ndarray) -> dict:
             elif m == "pf":
                 if confocal:
                     continue
-                rec = tal.reconstruct.pf_dev.solve(d, wl_mean=wl, wl_sigma=wl / np.sqrt(2),
+                # nt given explicitly: pf_dev 0.20 sizes its padded axis from the nt argument (None by default)
+                rec = tal.reconstruct.pf_dev.solve(d, wl_mean=wl, wl_sigma=wl / np.sqrt(2), nt=d.H.shape[0],
                                                    camera_system=CameraSystem.DIRECT_LIGHT, **kw)
             else:
                 raise SystemExit(f"unknown method {m!r}")
