@@ -13,7 +13,7 @@
      rsd      phasor-field RSD: datagen.analysis.phasor on confocal scans (tal's fails there),
               tal.reconstruct.pf_dev on the single-sensor scans                  [tal venv for the latter]
    Each method's depth is that of the strongest voxel of each pixel's column (the volume's argmax along the wall
-   normal). Solve times per sample are recorded (tal's: the solve alone, not its import).
+   normal) within the suite's depth range (Z_RANGE). Solve times per sample are recorded (tal's: the solve alone, not its import).
 3. Scores each predictions file with :func:`datagen.dataset.suite_score.score_suite`, checks datagen's RSD against
    tal's pf_dev on the same single-sensor captures (depth within one voxel on the object pixels), and writes the
    leaderboard into docs/benchmark.md (between its RESULTS markers) and one figure per suite,
@@ -172,7 +172,9 @@ def run_variant(name: str, path: Path, variant: str, field: str, mean: float, ve
                 t0 = time.perf_counter()
                 if m == "lct":
                     zs = (np.arange(scan.shape[-1]) + 0.5) * SPEED_OF_LIGHT * dt / 2
-                    d, _ = depth_from_volume(lct_volume(scan, dt, pitch * scan.shape[1] / 2), zs)
+                    inside = (zs >= planes[0]) & (zs <= planes[-1])     # the depth range of every method
+                    vol = lct_volume(scan, dt, pitch * scan.shape[1] / 2)
+                    d, _ = depth_from_volume(vol[..., inside], zs[inside])
                 else:
                     d, _ = depth_from_volume(phasor_rsd(scan, dt, pitch, planes, pf_wavelength(pitch, dt),
                                                        t_start=float(edges[0])), planes)

@@ -17,7 +17,8 @@ Methods (y-tal 0.20's ``tal.reconstruct``):
   fk   tal.reconstruct.fk (f-k migration, Lindell et al. 2019; confocal only). tal's fk takes the half-width of
        the scan from sensor_grid_xyz[-1, -1, 0], i.e. it assumes the wall in the plane z = 0 centred on the origin;
        a datagen capture's wall is x = relay_x, so the grid is first expressed in the wall's own frame (u, v, 0)
-       (nothing else changes). Its volume's depth k is k·delta_t/2 (t_start 0).
+       (nothing else changes). Its volume's depth k is (k + ½)·delta_t/2 (t_start 0); the depth map keeps the
+       strongest voxel between the first and the last of the --depths, like the other methods.
 A confocal capture first gets tal.reconstruct.compensate_laser_cos_dsqr (for datagen's aperture convention with a
 co-located sensor it undoes the wall → sensor leg's cos/d², docs/scans.md "Checks"); a single-sensor exhaustive
 capture needs none (its sensor leg is one constant factor).
@@ -73,9 +74,11 @@ def solve_one(path: str, methods: list[str], depths: np.ndarray) -> dict:
                 rec = np.abs(tal.reconstruct.fk.solve(d))                    # (T, Sx, Sy)
             finally:
                 d.sensor_grid_xyz, d.laser_grid_xyz = saved
-            k = np.argmax(rec, axis=0)
-            depth = (k + 0.5) * float(d.delta_t) / 2 + float(d.t_start) / 2
-            peak = rec.max(axis=0)
+            z = (np.arange(len(rec)) + 0.5) * float(d.delta_t) / 2 + float(d.t_start) / 2
+            inside = (z >= depths[0]) & (z <= depths[-1])      # the same depth range as the other methods
+            k = np.argmax(rec[inside], axis=0)
+            depth = z[inside][k]
+            peak = rec[inside].max(axis=0)
         else:
             kw = dict(volume_xyz=vol, volume_format=VolumeFormat.X_Y_Z_3, progress=False)
             wl = pf_wavelength(spacing, float(d.delta_t))
