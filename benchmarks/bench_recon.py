@@ -19,8 +19,8 @@
    leaderboard into docs/benchmark.md (between its RESULTS markers) and one figure per suite,
    docs/benchmark_<suite>.png (labels beside each method's depth map, clean variant, three test samples).
 
-Everything is cached under benchmarks/out/recon/ (exported captures, each method's predictions): a second run only
-scores and writes. Delete a method's .npz to recompute it.
+Everything is cached under benchmarks/out/recon/ (or --cache: exported captures, each method's predictions): a
+second run only scores and writes. Delete a method's .npz to recompute it.
 """
 from __future__ import annotations
 
@@ -48,6 +48,8 @@ from datagen.io import write_tal_hdf5  # noqa: E402
 from datagen.units import SPEED_OF_LIGHT  # noqa: E402
 
 OUT = HERE / "out"
+RECON = OUT / "recon"
+"""The cache of exported captures and predictions (--cache)."""
 METHODS = ["trivial", "fbp", "lct", "fk", "rsd"]
 IMPL = {"trivial": "training mean", "fbp": "tal.reconstruct.fbp", "lct": "datagen.analysis.lct",
         "fk": "tal.reconstruct.fk", "rsd": "datagen.analysis.phasor (confocal) / tal.reconstruct.pf_dev (single sensor)"}
@@ -116,7 +118,7 @@ def run_variant(name: str, path: Path, variant: str, field: str, mean: float, ve
     suite = load_suite(name)
     split = suite.spec.test_split
     n = suite.config.splits[split].count
-    folder = OUT / "recon" / name / variant
+    folder = RECON / name / variant
     folder.mkdir(parents=True, exist_ok=True)
     ds = NLOSDataset(path, split=split, fields=["wall_depth"])
     shape = ds.read(0)["wall_depth"].shape
@@ -269,15 +271,16 @@ def write_docs(rows: list[dict], checks: dict, build_info: dict) -> None:
 
 
 def main() -> None:
+    global PF_DEV_CHECK, RECON
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--suites", default=None, help="comma-separated (default: every suite)")
     p.add_argument("--venv", type=Path, default=Path(os.environ.get("TAL_BENCH_VENV", "/opt/venvs/tal-bench")))
     p.add_argument("--no-docs", action="store_true", help="do not write docs/benchmark.md and its figures")
+    p.add_argument("--cache", type=Path, default=RECON, help="cache folder of captures and predictions")
     p.add_argument("--pf-dev-check", action="store_true",
                    help="run tal's pf_dev on test 0 of the single-sensor suites (slow) to check datagen's RSD")
     a = p.parse_args()
-    global PF_DEV_CHECK
-    PF_DEV_CHECK = a.pf_dev_check
+    PF_DEV_CHECK, RECON = a.pf_dev_check, a.cache
     t_all = time.perf_counter()
     names = a.suites.split(",") if a.suites else suite_names()
     rows, checks, build_info = [], {}, {}
@@ -302,11 +305,11 @@ def main() -> None:
                 figure(name, path, files, ROOT / "docs" / f"benchmark_{name}.png")
             dt = float(read_card(path)["time_edges"]["bin_width"])
             plane = float(np.diff(depth_planes(name, dt))[0])
-            pf_dev = OUT / "recon" / name / variant / "pf_dev_0.npz"
+            pf_dev = RECON / name / variant / "pf_dev_0.npz"
             if pf_dev.exists() and "rsd" in files:
-                theirs = OUT / "recon" / name / variant / "pf_dev_0_depth.npz"
+                theirs = RECON / name / variant / "pf_dev_0_depth.npz"
                 np.savez(theirs, depth=np.swapaxes(np.load(pf_dev)["depth_pf"], 1, 2))
-                mine = OUT / "recon" / name / variant / "rsd_0_depth.npz"
+                mine = RECON / name / variant / "rsd_0_depth.npz"
                 np.savez(mine, depth=np.load(files["rsd"])["depth"][:1])
                 files["pf_dev_0"], files["rsd_0"] = theirs, mine
             if "fk" in files:      # confocal: our RSD against tal's fbp (same filter), our LCT against tal's fk
@@ -323,8 +326,8 @@ def main() -> None:
                     checks[f"{name} {variant}: {what} against {against}"] = (
                         f"depth within one voxel ({voxel * 100:.1f} cm) on {frac:.1%} of the object pixels")
         print(f"{name}: done ({time.perf_counter() - t_all:.0f} s so far)", flush=True)
-    (OUT / "recon").mkdir(parents=True, exist_ok=True)
-    (OUT / "recon" / "results.json").write_text(json.dumps({"rows": rows, "checks": checks, "suites": build_info},
+    RECON.mkdir(parents=True, exist_ok=True)
+    (RECON / "results.json").write_text(json.dumps({"rows": rows, "checks": checks, "suites": build_info},
                                                            indent=1))
     for r in rows:
         print(f"{r['suite']:<18} {r['variant']:<10} {r['method']:<8} MAE {r['mae']:.4f} RMSE {r['rmse']:.4f} "

@@ -112,3 +112,18 @@ def test_score_cli(builds, tmp_path):
     assert result.exit_code == 2 and "normal has shape (2, 1, 32, 3)" in result.output
     result = CliRunner().invoke(main, ["suite", "score", "single-pixel-v1", str(pred), "--dataset", str(root / "a")])
     assert result.exit_code == 2 and "is a build of suite wall-meshes-v1, not single-pixel-v1" in result.output
+
+
+def test_verify_names_a_hash_that_differs_from_the_suite_file(builds, monkeypatch):
+    import datagen.dataset.suite as suite_module
+
+    root, (_, ha), _ = builds
+    recorded = load_suite("wall-meshes-v1").spec.content_sha256
+    assert recorded is not None and recorded != ha          # a 2-sample prefix is not the whole suite
+    real = suite_module.suite_of_dataset
+    monkeypatch.setattr(suite_module, "suite_of_dataset", lambda path: (real(path)[0], True))   # as if complete
+    problems, digest = verify_suite(root / "a")
+    assert digest == ha
+    assert problems == [f"content hash {ha} differs from suite wall-meshes-v1's {recorded} "
+                        f"({SUITES_DIR / 'wall-meshes-v1.yaml'}): the stored values differ (another datagen version "
+                        "or platform?)"]
