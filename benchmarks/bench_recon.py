@@ -17,7 +17,8 @@
 3. Scores each predictions file with :func:`datagen.dataset.suite_score.score_suite`, checks datagen's RSD against
    tal's pf_dev on the same single-sensor captures (depth within one voxel on the object pixels), and writes the
    leaderboard into docs/benchmark.md (between its RESULTS markers) and one figure per suite,
-   docs/benchmark_<suite>.png (labels beside each method's depth map, clean variant, three test samples).
+   docs/benchmark_<suite>.png (labels beside each method's depth map, clean variant, the first three test samples
+   with object pixels).
 
 Everything is cached under benchmarks/out/recon/ (or --cache: exported captures, each method's predictions): a
 second run only scores and writes. Delete a method's .npz to recompute it.
@@ -227,19 +228,20 @@ def figure(name: str, path: Path, files: dict, out_png: Path) -> None:
     preds = {m: np.load(files[m])["depth"] for m in methods}
     fig = Figure(figsize=(2.3 * (len(methods) + 1), 2.3 * FIGURE_SAMPLES + 0.4), layout="constrained")
     axes = fig.subplots(FIGURE_SAMPLES, len(methods) + 1, squeeze=False)
-    for r in range(FIGURE_SAMPLES):
-        label = ds.read(r)["wall_depth"]
+    shown = [i for i in range(len(ds)) if (ds.read(i)["wall_depth"] > 0).any()][:FIGURE_SAMPLES]
+    for r, i in enumerate(shown):
+        label = ds.read(i)["wall_depth"]
         mask = label > 0
         lo, hi = (label[mask].min(), label[mask].max()) if mask.any() else (0.0, 1.0)
         lo, hi = lo - 0.1, hi + 0.1
         panels = [("label", np.where(mask, label, np.nan))] + [
-            (m, np.where(mask, preds[m][r], np.nan)) for m in methods]
+            (m, np.where(mask, preds[m][i], np.nan)) for m in methods]
         for c, (title, img) in enumerate(panels):
             ax = axes[r, c]
             im = ax.imshow(img, origin="lower", vmin=lo, vmax=hi, cmap="viridis")
             ax.set_xticks([])
             ax.set_yticks([])
-            ax.set_title(f"{title} (test {r})" if c == 0 else title, fontsize=8)
+            ax.set_title(f"{title} (test {i})" if c == 0 else title, fontsize=8)
         fig.colorbar(im, ax=axes[r, -1], shrink=0.8, label="depth (m)")
     fig.suptitle(f"{name}, clean variant: depth on the object pixels (label left)", fontsize=9)
     fig.savefig(out_png, dpi=80)
