@@ -59,10 +59,11 @@ def test_every_pair_a_grown_occluder_may_block_is_marked(seed):
     buckets, ptr, col = spot_buckets(uv)
     flags = np.zeros((60, len(spots)), dtype=np.uint8)
     one = np.zeros(1, dtype=np.int64)
-    shadow_flags(x, normal, closed, np.zeros(60, dtype=np.int64), np.zeros(1, dtype=np.uint8),
-                 np.array([0, 1]), one, np.array([30]), np.arange(30), plane, edges, MARGIN, grown,
-                 np.append(n, o), axes, uv, spots.mean(axis=0),
-                 float(np.linalg.norm(spots - spots.mean(0), axis=1).max()), buckets, ptr, col, flags)
+    occ = (True, np.array([0, 1]), one, np.array([30]), np.zeros((1, 4)), np.arange(30), plane, edges, MARGIN,
+           np.zeros(1, dtype=np.uint8))
+    shadow_flags((x, normal, closed, np.zeros(60, dtype=np.int64)), occ, grown,
+                 (np.append(n, o), axes, uv, spots.mean(axis=0),
+                  float(np.linalg.norm(spots - spots.mean(0), axis=1).max()), buckets, ptr, col), flags)
     hits = _segment_hits(x, spots, tri, MARGIN)
     front = ((spots[None] - x[:, None]) * normal[:, None]).sum(-1) > 0
     needed = hits & (front | ~closed.astype(bool)[:, None])

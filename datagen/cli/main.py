@@ -15,10 +15,12 @@ from pydantic import ValidationError
 
 from ..transport import estimator_names
 from .bench import bench
+from .capture import compare_capture, export, fit_detector_cmd, import_capture
 from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
 from .suite import suite
 from .tal import export_tal, read_result_input, tal_render
+from .multizone import is_multizone_file, multizone, run_multizone
 from .view import view
 
 
@@ -97,12 +99,15 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
 
     from ..simulation.tolerance import MIN_TOLERANCE
 
+    overrides = {"lookins": lookins, "pixels": pixels, "secondary": secondary, "top_k": top_k, "seed": seed,
+                 "workers": workers, "estimator": estimator, "quadrature_edge": edge, "area_samples": samples}
+    if is_multizone_file(scene_file):   # a flood and zones: the multi-zone capture (datagen/cli/multizone.py)
+        return run_multizone(scene_file, out, overrides, refused={"--tolerance": tolerance, "--time-cap": time_cap,
+                                                                  "--figures": figures})
     tol = _parse_fraction(tolerance, "--tolerance", MIN_TOLERANCE) if tolerance is not None else None
     check_output_dir(out)
     scene = load_scene(scene_file)
-    config = resolve_config(scene, {"lookins": lookins, "pixels": pixels, "secondary": secondary,
-                                    "top_k": top_k, "seed": seed, "workers": workers, "effect_threshold": tol,
-                                    "estimator": estimator, "quadrature_edge": edge, "area_samples": samples})
+    config = resolve_config(scene, {**overrides, "effect_threshold": tol})
     cap = _parse_time_cap(time_cap)
     if tol is not None:
         from ..simulation import ToleranceOutOfReach, simulate_to_tolerance
@@ -220,6 +225,11 @@ main.add_command(verify)
 main.add_command(score)          # scoring reconstructions (issue 13)
 main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
 main.add_command(view)           # 3D pictures with open3d (issue 15)
+main.add_command(multizone)      # flood-illuminated multi-zone captures (issue 25)
+main.add_command(import_capture)  # real-lab capture files, detector fitting, sim-to-real (issue 26)
+main.add_command(export)
+main.add_command(fit_detector_cmd)
+main.add_command(compare_capture)
 main.add_command(suite)          # benchmark suites (issue 27)
 
 

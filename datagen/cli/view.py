@@ -45,6 +45,10 @@ def load_view_input(path: str | Path, split: str | None = None, index: int = 0):
     if split is not None:
         raise ConfigError(f"--split and --index pick a sample of a dataset directory; {path} is a file")
     data = read_yaml(path, "scene file")
+    if isinstance(data, dict) and "multizone" in data:       # a flood-illuminated multi-zone scene
+        from ..scene.flood import multizone_from_dict
+        scene, spec = multizone_from_dict(data, str(path), path.parent)
+        return scene, {"kind": "multizone", "multizone": spec}
     if isinstance(data, dict) and "objects" not in data and {"geometry", "scan_type"} & set(data):
         from ..io import scene_from_tal_yaml
         scene, _ = scene_from_tal_yaml(path)
@@ -162,9 +166,13 @@ def view(path, out, show, split, index, lookins, seed, size, flat):
     t0 = time.perf_counter()
     scene, info = load_view_input(path, split, 0 if index is None else index)
     points = lookins_for(scene, info, lookins, seed)
+    extra = None
+    if info["kind"] == "multizone":
+        from ..plot.view_flood import flood_drawables
+        extra = flood_drawables(scene, info["multizone"])
     try:
         render_scene(scene, out, width=width, height=height, lookins=points, show=show,
-                     title=describe(scene, info), shading="flat" if flat else "shaded")
+                     title=describe(scene, info), shading="flat" if flat else "shaded", extra=extra)
     except ViewUnavailable as exc:           # open3d, Vulkan or a display missing: bad environment, exit 2
         click.echo(f"error: {' '.join(str(exc).split())}", err=True)
         sys.exit(2)

@@ -39,6 +39,7 @@ from ..errors import ConfigError, DatagenError
 from ..scene.load import format_validation_error, read_yaml
 from ..simulation.tolerance import MIN_TOLERANCE
 from ..units import parse_duration, parse_fraction
+from .components import COMPONENT_ROOM, OTHER_COMPONENTS, component_arrays, component_slots  # noqa: F401
 from .dtypes import stored_counts
 from .legacy import RENAMED_KEYS, note_old_keys
 
@@ -51,15 +52,6 @@ MAX_SHARDS = 10**6
 RESAMPLE_NOISE = STREAMS["noise"]
 """Stream id of the loader's per-epoch noise, spawn_key (split_key, epoch, index, RESAMPLE_NOISE): a 4-entry
 key, so it never coincides with a build stream (3-entry keys)."""
-
-COMPONENT_ROOM = "room"
-OTHER_COMPONENTS = ("secondary", "first_bounce")
-"""Envelope components that are not the room or a hidden object; each has a fixed slot in ``components``."""
-
-
-def component_slots(max_objects: int) -> list[str]:
-    """Names of the ``components`` slots: room, object_0 … object_{max_objects-1}, then :data:`OTHER_COMPONENTS`."""
-    return [COMPONENT_ROOM] + [f"object_{k}" for k in range(max_objects)] + list(OTHER_COMPONENTS)
 
 PRESET_TIME_FIELDS = ("bin_width", "t_start")
 """Fields of a detector preset file that the dataset's ``simulation.time`` axis replaces."""
@@ -122,6 +114,8 @@ class StoreSpec(_Model):
             inside), "zstd" (plain) or "none"; compared in docs/scans.md ("Storage and loading").
         compression_level: its level (Blosc 1 … 9, zstd 1 … 22).
         shuffle: the Blosc codecs' filter: "byte" (default) or "bit" (bitshuffle); plain zstd and "none" ignore it.
+        node_envelope: a multi-zone capture (room ``capture.scan.flood``) also stores the per-node envelope
+            (:mod:`datagen.dataset.zones`).
     """
 
     envelope: bool = True
@@ -135,9 +129,10 @@ class StoreSpec(_Model):
     compression_level: int = Field(5, ge=1, le=22)
     shuffle: Literal["byte", "bit"] = "byte"
     counts_dtype: Literal["int64", "uint32", "uint16"] = "int64"
+    node_envelope: bool = False
 
 
-STORE_DEFAULTS_UNHASHED = {"shuffle": "byte", "counts_dtype": "int64"}
+STORE_DEFAULTS_UNHASHED = {"shuffle": "byte", "counts_dtype": "int64", "node_envelope": False}
 """Store keys :meth:`DatasetConfig.to_json` leaves out at these defaults: older configs keep their fingerprint."""
 
 
@@ -508,6 +503,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     """
     from .layout import axis_names
     from .labels import scene_labels
+    from .zones import zone_capture
     from ..simulation import simulate_to_tolerance
 
     where = f"sample ({split}, {index})"
@@ -516,6 +512,8 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     t1 = time.perf_counter()
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
+    result, nodes = zone_capture(config, split, room, sim_config, result,   # a flood: the zones' result
+                                 sample_rngs(config.seed, split, index)["noise"], where)
     t2 = time.perf_counter()
     spec = config.label_spec()
     if len(room.objects) > spec.max_objects:
@@ -527,19 +525,21 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     component_names: list[str] = []
     if config.store.envelope:
         arrays["envelope"] = np.asarray(result.envelope, dtype=config.store.envelope_dtype)
+    if config.store.node_envelope:
+        arrays["node_envelope"] = np.asarray(nodes, dtype=config.store.envelope_dtype)
     arrays["envelope_error"] = np.asarray(result.attrs["tolerance"]["estimate"], dtype=np.float32)
     if config.store.counts:
         arrays["counts"] = stored_counts(result.counts, config.store.counts_dtype, where)
     if config.store.components:
-        component_names, arrays["components"] = _component_slots(result, room, spec.max_objects,
+        component_names, arrays["components"] = component_arrays(result, room, spec.max_objects,
                                                                  config.store.envelope_dtype, where)
     if config.store.reference:          # the empty room: same walls, capture and sampling stream, no hidden objects
         hidden = {o["name"] for o in room.objects}
         empty = dataclasses.replace(room.scene, objects=[o for o in room.scene.objects if o.name not in hidden])
         again = sample_rngs(config.seed, split, index)
-        arrays["reference"] = np.asarray(simulate_to_tolerance(  # sampled as the sample itself is
+        arrays["reference"] = np.asarray(zone_capture(config, split, room, sim_config, simulate_to_tolerance(
             empty, sim_config, config.tolerance, max_cost=config.cost_cap, sampling_rng=again["sampling"],
-            noise_rng=again["noise"]).envelope, dtype=config.store.envelope_dtype)
+            noise_rng=again["noise"]), again["noise"], where)[0].envelope, dtype=config.store.envelope_dtype)
     for name, value in labels.items():
         arrays[name] = np.asarray(value)
     arrays["photons_per_pulse"] = np.asarray(result.attrs["photons_per_pulse"], dtype=np.float64)  # envelope scale Φ
@@ -552,6 +552,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
     kind = None if room.scene.capture is None and room.scene.sensor.fov.pixels == (1, 1) else (
         room.scene.capture.type if room.scene.capture is not None else "single")
+    kind = "multizone" if nodes is not None else kind
     axes = {name: names for name, value in arrays.items()
             if (names := axis_names(name, np.ndim(value), kind)) is not None}
     return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names, axes)
@@ -569,31 +570,3 @@ def _json_default(value):
     if hasattr(value, "tolist"):
         return value.tolist()
     raise TypeError(f"not JSON-able: {type(value).__name__}")
-
-
-def _component_slots(result, room, max_objects: int, dtype: str, where: str) -> tuple[list[str], np.ndarray]:
-    """(C, *S, T) envelopes and their names: room, hidden object k (in ``room.objects`` order; zero when
-    absent), then :data:`OTHER_COMPONENTS` (zero when the simulation did not produce it, e.g. an effect the
-    planner switched off for this sample).
-
-    Object k is matched to its scene component by ``room.objects[k]["name"]`` when present, else by the
-    order of the hidden objects in the scene (the generator builds them in ``objects`` order)."""
-    names = list(result.components)
-    scene_hidden = [o.name for o in room.scene.objects if o.name in names and o.name != COMPONENT_ROOM]
-    order = [obj.get("name", scene_hidden[k] if k < len(scene_hidden) else None) for k, obj in enumerate(room.objects)]
-    if sorted(map(str, order)) != sorted(scene_hidden):
-        raise ConfigError(f"{where}: cannot match hidden objects {order} to envelope components {scene_hidden}")
-    unknown = [n for n in names if n != COMPONENT_ROOM and n not in scene_hidden and n not in OTHER_COMPONENTS]
-    if unknown:
-        raise ConfigError(f"{where}: components {unknown} have no slot in the dataset (known: room, the hidden "
-                         f"objects, {list(OTHER_COMPONENTS)})")
-    slots = component_slots(max_objects)
-    env = result.envelope
-    out = np.zeros((len(slots),) + env.shape, dtype=dtype)
-    out[0] = result.components[COMPONENT_ROOM]
-    for k, name in enumerate(order):
-        out[1 + k] = result.components[name]
-    for j, name in enumerate(OTHER_COMPONENTS):
-        if name in result.components:
-            out[1 + max_objects + j] = result.components[name]
-    return slots, out

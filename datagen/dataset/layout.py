@@ -4,9 +4,9 @@ LFE, NLOST, LEAP and Mu et al. feed a scan as a (1, T, H, W) float tensor (chann
 columns) and their labels as (1, H, W) images. :func:`network_shapes` checks a split's stored fields and gives
 their network shapes; :func:`to_network` moves the axes of one sample (numpy, before the tensors are made):
 
-- ``envelope``, ``counts``: stored (H, W, T) for confocal scans and sensor grids → (1, T, H, W) float32; an
-  exhaustive scan with one sensor point, (Ly, Lx, 1, 1, T) → (1, T, Ly, Lx). Other shapes (the paper's single
-  pixel (T,), exhaustive scans with a sensor grid) have no such layout and are refused.
+- ``envelope``, ``counts``: stored (H, W, T) for confocal scans, sensor grids and a flood's zones (Z_y, Z_x, T)
+  → (1, T, H, W) float32; an exhaustive scan with one sensor point, (Ly, Lx, 1, 1, T) → (1, T, Ly, Lx). Other
+  shapes (the paper's single pixel (T,), exhaustive scans with a sensor grid) have no such layout and are refused.
 - ``components`` (C, H, W, T) → (C, T, H, W) float32.
 - ``wall_depth``, ``wall_albedo`` (H, W) → (1, H, W); ``wall_normal`` (H, W, 3) → (3, H, W); ``wall_mask``
   (K, H, W) unchanged.
@@ -24,11 +24,13 @@ SCAN_FIELDS = ("envelope", "counts")
 
 def axis_names(name: str, ndim: int, capture_kind: str | None) -> list[str] | None:
     """Axis names of stored field ``name`` (per sample, ``ndim`` axes) for a capture of ``capture_kind``
-    (``"confocal"``, ``"exhaustive"``, ``"single"`` with a sensor grid; None: the paper's single pixel, whose
-    (T,) arrays need no names). ``*_y`` axes grow up the relay wall (v), ``*_x`` along its horizontal tangent
+    (``"confocal"``, ``"exhaustive"``, ``"single"`` with a sensor grid, ``"multizone"`` a flood's zones; None: the
+    paper's single pixel, whose (T,) arrays need no names). ``*_y`` axes grow up the relay wall (v), ``*_x`` along its horizontal tangent
     u = n × z; None for fields without names."""
     lead = {"confocal": ["scan_y", "scan_x"], "exhaustive": ["laser_y", "laser_x", "sensor_y", "sensor_x"],
-            "single": ["pixel_y", "pixel_x"]}.get(capture_kind or "", [])
+            "single": ["pixel_y", "pixel_x"], "multizone": ["zone_y", "zone_x"]}.get(capture_kind or "", [])
+    if name == "node_envelope":         # a multi-zone capture's per-node envelope (datagen/dataset/zones.py)
+        return ["node_y", "node_x", "zone_y", "zone_x", "time"] if ndim == 5 else None
     if name in ("envelope", "counts"):
         return lead + ["time"] if lead and ndim == len(lead) + 1 else None
     if name == "components":

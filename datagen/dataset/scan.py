@@ -10,6 +10,9 @@ scan from it with the sensor stream and :func:`scan_capture` turns it into the s
   sensor images the same point (with the aperture convention: the grid cell around it). Envelope (ny, nx, T).
 - ``exhaustive``: every laser point × every point of a sensor grid (``sensor``: its own rectangle and points;
   1 × 1 is a single sensor point, a small pixel region). Envelope (ly, lx, ny, nx, T).
+- ``exhaustive`` with ``flood`` (:class:`FloodScan`): a flood-illuminated multi-zone sensor (docs/multizone.md):
+  the laser grid is the flood's quadrature nodes, the sensor grid the zones, and a sample stores the zones'
+  envelope and counts (Z_y, Z_x, T) (:mod:`datagen.dataset.zones`).
 
 Axis order on the wall: u = n × z (the wall's horizontal tangent, +y for the relay wall x = relay_x facing −x)
 and v = u × n (up, +z); grid point (iy, ix) is center + ((ix + ½)/nx − ½)·w·u + ((iy + ½)/ny − ½)·h·v, so
@@ -29,6 +32,7 @@ import numpy as np
 from pydantic import field_validator, model_validator
 
 from ..scene import CaptureSpec
+from ..scene.flood import FloodProfile
 from ..scene.parts import check_counts
 from .ranges import Model, Positive, Range, Signed, Unit
 
@@ -49,14 +53,23 @@ class GridDist(Model):
         return check_counts(v, "point counts")
 
 
+class FloodScan(Model):
+    """``capture.scan.flood``: the exhaustive scan's laser grid is a flood's quadrature nodes, lit with the
+    emitter's ``profile`` (:class:`~datagen.scene.flood.FloodProfile`); a sample stores the zones' histograms."""
+
+    profile: FloodProfile = FloodProfile()
+
+
 class ScanDist(GridDist):
     """``capture.scan``: the laser grid (``type`` confocal or exhaustive), its rectangle and points, the
     sensor grid of exhaustive scans (``sensor``; 1 × 1 points: a single sensor point) and the ``convention``
-    (``aperture``: expected detected photons per pulse; ``point_radiance``: tal / mitransient's radiance)."""
+    (``aperture``: expected detected photons per pulse; ``point_radiance``: tal / mitransient's radiance);
+    ``flood`` (exhaustive, aperture): the laser grid is a flood's nodes and the sensor grid its zones."""
 
     type: Literal["confocal", "exhaustive"] = "confocal"
     sensor: GridDist | None = None
     convention: Literal["aperture", "point_radiance"] = "aperture"
+    flood: FloodScan | None = None
 
     @model_validator(mode="after")
     def _sensor(self) -> "ScanDist":
@@ -64,6 +77,9 @@ class ScanDist(GridDist):
             raise ValueError("a confocal scan images its own laser points; drop sensor (or use type exhaustive)")
         if self.type == "exhaustive" and self.sensor is None:
             raise ValueError("an exhaustive scan needs a sensor grid (points [1, 1] for a single sensor point)")
+        if self.flood is not None and (self.type != "exhaustive" or self.convention != "aperture"):
+            raise ValueError(f"flood: a flood's zones are an exhaustive scan's sensor grid with the aperture "
+                             f"convention, got type {self.type!r}, convention {self.convention!r}")
         return self
 
     @property

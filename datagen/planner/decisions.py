@@ -290,7 +290,7 @@ def _decide_first_bounce(config, detector: spad.DetectorConfig, g: PlanGeometry)
     off_plane = np.abs(rel @ c.fov_normal)
     margin = c.fov_margin(c.spots)                                          # > 0: inside
     pix = c.fov_pixel(c.spots, tol)
-    channel = np.array([c.channel(i, pix[i:i + 1])[0] for i in range(c.n_lasers)])
+    channel = c.channel(np.arange(c.n_lasers), pix)                       # laser point i's own pixel
     edge = FOV_EDGE_REL * max(c.fov_size)                                   # boundary points count as outside
     inside = (off_plane <= tol) & (margin > edge) & (channel >= 0)
     numbers: dict[str, Any] = {"lasers": int(c.n_lasers), "lasers_inside_fov": int(inside.sum()),

@@ -389,7 +389,7 @@ def _laser_and_sensor(d: Drawables, scene: Scene, cap, bias: np.ndarray) -> list
 
 def build_drawables(o3d, scene: Scene, *, lookins: np.ndarray | None = None, shading: str = "shaded",
                     edges: bool = True, camera: ViewCamera | None = None, aspect: float = 1.5,
-                    cut_away: bool = True) -> Drawables:
+                    cut_away: bool = True, extra: Drawables | None = None) -> Drawables:
     """Assemble the coloured geometry, lines, points and legend of ``scene`` for a camera.
 
     Args:
@@ -400,6 +400,8 @@ def build_drawables(o3d, scene: Scene, *, lookins: np.ndarray | None = None, sha
         camera: a camera (default :func:`~datagen.plot.view_camera.auto_camera`); framed here to everything
             drawn at ``aspect`` = width / height.
         cut_away: cut away the walls and ceiling that hide the scene (:func:`cut_away_groups`).
+        extra: more lines and legend entries to draw on surfaces (a multi-zone scene's lit patch and zones,
+            :func:`datagen.plot.view_flood.flood_drawables`), or None.
     Raises:
         SceneError: the capture cannot be resolved (a laser spot off every surface, a FoV the sensor cannot see).
         ValueError: unknown shading.
@@ -413,6 +415,9 @@ def build_drawables(o3d, scene: Scene, *, lookins: np.ndarray | None = None, sha
     d = Drawables()
     frame_pts, cut = _objects(d, o3d, scene, cam, shading, edges, cut_away, bias)
     frame_pts += _laser_and_sensor(d, scene, cap, bias)
+    if extra is not None:
+        d.lines += [(name, seg + 1.5 * bias, color, width) for name, seg, color, width in extra.lines]
+        d.legend += extra.legend
     if lookins is not None and len(lookins):
         pts = np.asarray(lookins, dtype=np.float64).reshape(-1, 3)
         on_cut = on_faces(o3d, pts, [(scene.objects[i].vertices, scene.objects[i].faces[m]) for i, m in cut.items()],

@@ -16,7 +16,7 @@ import numpy as np
 from ..scene import Scene
 from ..simulation import SimulationConfig
 from ..transport import estimator
-from .view_geometry import LOOKIN_COLOR, lookin_points
+from .view_geometry import LOOKIN_COLOR, Drawables, lookin_points
 from .view_render import SUPERSAMPLE, SceneImage, render_scene_image, require_display, show_drawables
 from .view_worker import ViewUnavailable, require_open3d
 
@@ -136,7 +136,8 @@ def _fit(image: np.ndarray, width: int, height: int) -> np.ndarray:
 
 def render_scene(scene: Scene, path: str | Path | None = None, *, width: int = DEFAULT_SIZE[0],
                  height: int = DEFAULT_SIZE[1], lookins: np.ndarray | None = None, show: bool = False,
-                 title: str | None = None, shading: str = "shaded", supersample: int = SUPERSAMPLE) -> np.ndarray:
+                 title: str | None = None, shading: str = "shaded", supersample: int = SUPERSAMPLE,
+                 extra: Drawables | None = None) -> np.ndarray:
     """Render ``scene`` with its legend, scale bar and axes; write a PNG and/or open an interactive window.
 
     Args:
@@ -146,6 +147,8 @@ def render_scene(scene: Scene, path: str | Path | None = None, *, width: int = D
         show: also open open3d's interactive window on the same geometry (needs a display).
         title: text above the legend (default: the scene's name).
         shading, supersample: see :func:`~datagen.plot.view_render.render_scene_image`.
+        extra: more lines and legend entries, e.g. a multi-zone scene's lit patch and zones
+            (:func:`datagen.plot.view_flood.flood_drawables`).
     Returns:
         (height, width, 3) uint8 RGB image (what the PNG holds).
     Raises:
@@ -156,7 +159,8 @@ def render_scene(scene: Scene, path: str | Path | None = None, *, width: int = D
     if show:
         require_display()
     render_w = int(round(width * (1 - LEGEND_WIDTH)))
-    shot = render_scene_image(scene, render_w, height, lookins=lookins, shading=shading, supersample=supersample)
+    shot = render_scene_image(scene, render_w, height, lookins=lookins, shading=shading, supersample=supersample,
+                              extra=extra)
     image = _fit(compose(shot, title if title is not None else scene.name), width, height)
     if path is not None:
         from PIL import Image

@@ -226,7 +226,8 @@ def discs(points: list, camera: ViewCamera, mpp: float, sides: int = 8) -> list:
 
 def render_scene_image(scene: Scene, width: int = 960, height: int = 640, *, lookins: np.ndarray | None = None,
                        shading: str = "shaded", edges: bool = True, supersample: int = SUPERSAMPLE,
-                       camera: ViewCamera | None = None, cut_away: bool = True) -> SceneImage:
+                       camera: ViewCamera | None = None, cut_away: bool = True,
+                       extra: Drawables | None = None) -> SceneImage:
     """Render ``scene`` offscreen with open3d: the 3D picture only (no legend; see
     :func:`datagen.plot.view_overlay.render_scene`).
 
@@ -238,6 +239,7 @@ def render_scene_image(scene: Scene, width: int = 960, height: int = 640, *, loo
         supersample: render this many times larger and average down (1: no anti-aliasing, exact colours).
         camera: camera (default :func:`~datagen.plot.view_camera.auto_camera`), framed to the scene.
         cut_away: cut away walls and ceiling in front of the scene.
+        extra: more lines and legend entries (:func:`~datagen.plot.view_geometry.build_drawables`).
     Returns:
         :class:`SceneImage`.
     Raises:
@@ -251,7 +253,7 @@ def render_scene_image(scene: Scene, width: int = 960, height: int = 640, *, loo
                          f"supersample {supersample}")
     o3d = require_open3d()
     d = build_drawables(o3d, scene, lookins=lookins, shading=shading, edges=edges, camera=camera,
-                        aspect=width / height, cut_away=cut_away)
+                        aspect=width / height, cut_away=cut_away, extra=extra)
     cam = d.camera
     mpp = cam.metres_per_pixel(width)
     job = {"meshes": d.meshes + ribbons(d.lines, cam, mpp) + discs(d.points, cam, mpp),

@@ -97,8 +97,9 @@ class Capture:
         """Output channels: S (single, confocal) or L·S (exhaustive)."""
         return self.n_lasers * self.n_pixels if self.kind == "exhaustive" else self.n_pixels
 
-    def channel(self, laser: int, pixel: np.ndarray) -> np.ndarray:
-        """Output channel of sensor pixel(s) ``pixel`` lit from laser point ``laser`` (−1: not recorded)."""
+    def channel(self, laser: int | np.ndarray, pixel: np.ndarray) -> np.ndarray:
+        """Output channel (int64, pixel's shape) of sensor pixel(s) ``pixel`` lit from laser point(s) ``laser`` (an
+        index, or one per pixel; −1: not recorded)."""
         pixel = np.asarray(pixel)
         if self.kind == "exhaustive":
             return np.where(pixel >= 0, laser * self.n_pixels + pixel, -1)

@@ -170,6 +170,10 @@ def scene_from_dict(data: dict, source: str | None = None, base: Path | None = N
         raise SceneError(f"{source or 'scene'}: this is a tal render config (it has "
                          f"{', '.join(sorted({'geometry', 'scan_type'} & set(data)))}), not a datagen scene: "
                          "render it with `datagen tal-render CONFIG.yaml --out FILE.hdf5`")
+    if "multizone" in data:
+        raise SceneError(f"{source or 'scene'}: this is a multi-zone scene (it has a multizone block): simulate it "
+                         "with `datagen simulate SCENE.yaml --out DIR`, or load it with "
+                         "datagen.scene.flood.load_multizone_scene (docs/multizone.md)")
     try:
         spec = SceneFile.model_validate(data)
     except ValidationError as exc:

@@ -306,8 +306,8 @@ class Replicas:
             coarse_p = coarse.binned[[i for i, n in enumerate(coarse.names)
                                       if n not in ("secondary", "first_bounce")]].sum(axis=0)
         self.seconds["refinement"] = time.perf_counter() - t0
-        fine_p = tr.binned[keep].sum(axis=0)[channels]
-        scale = tr.binned.sum(axis=0)[channels]
+        fine_p = tr.binned[keep][:, channels].sum(axis=0)         # the compared channels only (same sums)
+        scale = tr.binned[:, channels].sum(axis=0)
         return relative_difference(fine_p, coarse_p, scale) / abs(ratio ** self.entry.order - 1.0)
 
     def error_attrs(self, tr: Transported, rng: np.random.Generator) -> dict:

@@ -89,12 +89,14 @@ def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndar
 
 @njit(cache=True)
 def rows_dot(a: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """a @ v (rows,) float64 for a (rows, n) float64 and v (n,), in one thread: a BLAS gemv here starts OpenBLAS's
-    threads, whose spinning afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
+    """a @ v (rows,) float64 for a (rows, n) float64 and v (n,) ≥ 0, in one thread, each row from its first to its
+    last non-zero entry (the terms outside add +0.0): a BLAS gemv here starts OpenBLAS's threads, whose spinning
+    afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
     out = np.zeros(a.shape[0])
     for i in range(a.shape[0]):
+        lo, hi = _span(a, i)
         s = 0.0
-        for j in range(a.shape[1]):
+        for j in range(lo, hi):
             s += a[i, j] * v[j]
         out[i] = s
     return out

@@ -45,7 +45,7 @@ if numba.config.THREADING_LAYER == "default":
     # older than numba needs, so that try ends in a NumbaWarning on every first parallel run)
     numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
-__all__ = ["candidates", "channel_groups", "deposit_pairs", "face_candidates", "occluder_planes", "vertex_paths"]
+__all__ = ["candidates", "channel_groups", "deposit_pairs", "face_candidates", "occluder_planes"]
 
 
 def occluder_planes(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -154,10 +154,10 @@ def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targe
 
 
 @njit(cache=True, inline="always")
-def _tent_nodes(paths, row, v0, v1, v2, centre, offset, speed, t_start, step, shift):
+def _tent_nodes(paths, v0, v1, v2, centre, offset, speed, t_start, step, shift):
     """The sorted fine-grid nodes (c0 ≤ c1 ≤ c2) of the tent of triangle (v0, v1, v2) (vertex path lengths
-    ``paths[row]``), shifted to the triangle rule's mean (module doc of :mod:`.quadrature`)."""
-    p0, p1, p2 = paths[row, v0], paths[row, v1], paths[row, v2]
+    ``paths``, one connection's), shifted to the triangle rule's mean (module doc of :mod:`.quadrature`)."""
+    p0, p1, p2 = paths[v0], paths[v1], paths[v2]
     shift_path = 0.75 * (centre - (p0 + p1 + p2) / 3.0) + offset
     c0 = ((p0 + shift_path) / speed - t_start) / step + shift
     c1 = ((p1 + shift_path) / speed - t_start) / step + shift
@@ -168,7 +168,7 @@ def _tent_nodes(paths, row, v0, v1, v2, centre, offset, speed, t_start, step, sh
 CELL_BRDF = ("f_lamb", "kind", "rho", "ks", "expo")
 """Columns of the kernel's per-sub-triangle BRDF array (M, 5) float64: constant f = ρ/π (Lambertian), the kind
 code (:data:`datagen.scene.brdf_kernel.PHONG` …), albedo, specular fraction and exponent of its object."""
-WORK = ("paths", "ray_cell", "ray_count", "visible", "group_ptr", "group_conn")
+WORK = ("ray_cell", "ray_count", "visible", "group_ptr", "group_conn")
 GEO = ("vertices", "cells", "area", "comp_base", "coarse_of", "coarse_cells")
 POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol",
         "cell_brdf")
@@ -194,7 +194,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     (where ``use_flags``, a pair (m, l) with ``flags[m, laser_col[l]]`` 0 is not blocked without the exact test:
     :func:`datagen.transport.quadrature_shadow.shadow_flags`)."""
     b0, b1 = block
-    paths, ray_cell, ray_count, visible, group_ptr, group_conn = work
+    ray_cell, ray_count, visible, group_ptr, group_conn = work
     vertices, cells, area, comp_base, coarse_of, coarse_cells = geo
     centroid, normal, cell_face, closed, spot_n, spot_f, photons, fov_n, collect, tol, cell_brdf = pose
     conn_laser, conn_target, conn_channel, conn_same = conn
@@ -208,13 +208,17 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     group_tents = np.zeros(n_groups, dtype=np.int64)
     for grp in prange(n_groups):
         tents = 0
+        paths = np.empty(vertices.shape[0])
         for gi in range(group_ptr[grp], group_ptr[grp + 1]):
             b = group_conn[gi]
             row = b - b0
             slot = row * M
             n_items = ray_count[row] if listed else M
+            if listed and n_items == 0:
+                continue                        # no listed pair: its row of vertex paths is not needed
             n_rays = 0
             l, t, ch = conn_laser[b], conn_target[b], conn_channel[b]
+            _vertex_paths(vertices, spots, targets, l, t, conn_same[b], paths)
             for i in range(n_items):
                 if listed:
                     if not visible[slot + i]:
@@ -252,13 +256,13 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     continue
                 offset = 0.0 + laser_off[l] + sensor_off[t]
                 centre = r_l + r_y
-                c0, c1, c2 = _tent_nodes(paths, row, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed,
+                c0, c1, c2 = _tent_nodes(paths, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed,
                                          t_start, step, shift)
                 deposit_tent(c0, c1, c2, weight, comp_base[m] + ch, n_fine, min_nodes, hist, curv, total, beyond)
                 tents += 1
                 k = coarse_of[m]
                 if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
-                    c0, c1, c2 = _tent_nodes(paths, row, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2],
+                    c0, c1, c2 = _tent_nodes(paths, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2],
                                              centre, offset, speed, ct_start, cstep, cshift)
                     deposit_tent(c0, c1, c2, 4.0 * weight, ch, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond)
             if not listed:
@@ -267,19 +271,16 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     return group_tents.sum()
 
 
-@njit(cache=True, parallel=True)
-def vertex_paths(vertices, spots, targets, conn_laser, conn_target, conn_same, start, stop, out):
-    """out[b − start, v] = |v − x_l| + |v − y| (metres) for the connections b of [start, stop) and every vertex v
-    (the numpy path's vertex distances, :meth:`datagen.transport.quadrature.Quadrature._primary`; 2·|v − x_l| where
-    ``conn_same[b]``: the target is the laser point)."""
-    for b in prange(start, stop):
-        l, t = conn_laser[b], conn_target[b]
-        if conn_same[b]:
-            for v in range(vertices.shape[0]):
-                out[b - start, v] = 2.0 * _dist(vertices, v, spots, l)
-        else:
-            for v in range(vertices.shape[0]):
-                out[b - start, v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
+@njit(cache=True, inline="always")
+def _vertex_paths(vertices, spots, targets, l, t, same, out) -> None:
+    """out[v] = |v − x_l| + |v − y_t| (metres) for every vertex v of connection (laser l, target t); 2·|v − x_l|
+    where ``same`` (the target is the laser point). One connection's row, computed where its pairs use it."""
+    if same:
+        for v in range(vertices.shape[0]):
+            out[v] = 2.0 * _dist(vertices, v, spots, l)
+    else:
+        for v in range(vertices.shape[0]):
+            out[v] = _dist(vertices, v, spots, l) + _dist(vertices, v, targets, t)
 
 
 def channel_groups(conn_channel: np.ndarray, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
@@ -292,23 +293,23 @@ def channel_groups(conn_channel: np.ndarray, start: int, stop: int) -> tuple[np.
     return (np.append(np.flatnonzero(new), len(order)).astype(np.int64), (order + start).astype(np.int64))
 
 
-def candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count, groups,
+def candidates(block, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count, groups,
                shade) -> int:
     """Deposit every contributing pair of the connections ``block`` (start, stop) that needs no shadow ray and
     list the others: connection b's cells in ``ray_cell[(b − start)·M:]`` (capacity cells × connections),
-    ``ray_count[b − start]`` of them. ``paths``: the block's :func:`vertex_paths`; ``groups``:
-    :func:`channel_groups`; the groups of arguments: :data:`GEO`, :data:`POSE`, :data:`CONN`, :data:`LEGS`,
-    :data:`GRID` (``grid``, ``coarse``), :data:`OCC`, :data:`SHADE`. Returns the tents deposited."""
+    ``ray_count[b − start]`` of them. ``groups``: :func:`channel_groups`; the groups of arguments: :data:`GEO`,
+    :data:`POSE`, :data:`CONN`, :data:`LEGS`, :data:`GRID` (``grid``, ``coarse``), :data:`OCC`, :data:`SHADE`.
+    Returns the tents deposited."""
     none = np.zeros(1, dtype=np.uint8)
-    return _pairs(False, (int(block[0]), int(block[1])), (paths, ray_cell, ray_count, none, *groups), geo, pose,
+    return _pairs(False, (int(block[0]), int(block[1])), (ray_cell, ray_count, none, *groups), geo, pose,
                   conn, legs, grid, bool(has_coarse), coarse, occ, shade)
 
 
-def deposit_pairs(block, paths, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid, coarse,
+def deposit_pairs(block, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid, coarse,
                   has_coarse, occ, shade) -> int:
     """Deposit the listed pairs (of the connections ``block``, slots as :func:`candidates` left them) whose shadow
     ray found the laser point visible (``visible`` uint8 per slot). Returns the tents deposited."""
-    return _pairs(True, (int(block[0]), int(block[1])), (paths, ray_cell, ray_count, visible, *groups), geo, pose,
+    return _pairs(True, (int(block[0]), int(block[1])), (ray_cell, ray_count, visible, *groups), geo, pose,
                   conn, legs, grid, bool(has_coarse), coarse, occ, shade)
 
 

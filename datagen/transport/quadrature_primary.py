@@ -20,8 +20,7 @@ from ..scene import RayCaster
 from ..scene.separation import hull_planes, may_meet, outward_planes
 from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..units import SPEED_OF_LIGHT
-from .quadrature_kernel import (candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes,
-                          vertex_paths)
+from .quadrature_kernel import candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes
 from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
 
 __all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "leg_occluders", "run_compiled"]
@@ -140,7 +139,7 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     the laser points (of the connections) whose leg a candidate occluder may block
     (:func:`~datagen.transport.quadrature_shadow.shadow_flags`), or (False, …) when the laser points are not on one
     plane, nothing is tested, or the map would exceed ``FLAG_MAX_BYTES``."""
-    shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
+    shadow, occ_idx = occ[0], occ[5]
     none = (False, np.zeros((1, 1), dtype=np.uint8), np.zeros(1, dtype=np.int64))
     lasers = np.unique(q.conn_laser)
     if not (SHADOW_MAP and shadow and len(occ_idx)) or q.n_cells * len(lasers) > FLAG_MAX_BYTES:
@@ -160,9 +159,8 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     radius = float(np.sqrt(((spots - centre) ** 2).sum(axis=1).max()))
     flags = np.zeros((q.n_cells, len(lasers)), dtype=np.uint8)
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
-    shadow_flags(f64(q.centroids), f64(q.cell_normal), closed, q.cell_hidden.astype(np.int64), face_ray,
-                 run_ptr, run_lo, run_hi, occ_idx, plane, edges, margin, grown, np.append(n, o), axes, uv, centre,
-                 radius, buckets, bucket_ptr, bucket_col, flags)
+    shadow_flags((f64(q.centroids), f64(q.cell_normal), closed, q.cell_hidden.astype(np.int64)), occ, grown,
+                 (np.append(n, o), axes, uv, centre, radius, buckets, bucket_ptr, bucket_col), flags)
     laser_col = np.full(c.n_lasers, -1, dtype=np.int64)
     laser_col[lasers] = np.arange(len(lasers))
     return True, flags, laser_col
@@ -279,13 +277,11 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
     per_block = max(1, PAIR_BLOCK // max(M, 1))
     ray_cell = np.empty(max(1, M * min(per_block, n_conn)), dtype=np.int64)      # M slots per connection
     ray_count = np.zeros(min(per_block, n_conn), dtype=np.int64)
-    paths = np.empty((min(per_block, n_conn), len(q.vertices)))
     for start in range(0, n_conn, per_block):
         block = (start, min(n_conn, start + per_block))
         groups = channel_groups(q.conn_channel, *block)
-        vertex_paths(geo[0], legs[0], legs[1], conn[0], conn[1], conn[3], block[0], block[1], paths)
-        tents = candidates(block, paths, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count,
-                           groups, shade)
+        tents = candidates(block, geo, pose, conn, legs, grid, coarse, has_coarse, occ, ray_cell, ray_count, groups,
+                           shade)
         counts = ray_count[:block[1] - block[0]]
         n_rays = int(counts.sum())
         if n_rays:
@@ -296,8 +292,8 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
             lit = np.where((np.einsum("ij,ij->i", n, c.spots[li] - x) < 0)[:, None], -n, n)
             visible = np.zeros(len(ray_cell), dtype=np.uint8)
             visible[slot] = q.caster.visible(x, lit, c.spots[li], c.spot_normals[li])
-            tents += deposit_pairs(block, paths, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid,
-                                   coarse, has_coarse, occ, shade)
+            tents += deposit_pairs(block, ray_cell, ray_count, visible, groups, geo, pose, conn, legs, grid, coarse,
+                                   has_coarse, occ, shade)
             q.stats.shadow_rays += n_rays
         q.stats.tents += tents
         q.stats.pair_rows += M * (block[1] - block[0])

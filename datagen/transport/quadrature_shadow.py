@@ -99,18 +99,25 @@ def _bucket(position, count) -> int:
 
 
 @njit(cache=True, parallel=True)
-def shadow_flags(centroid, normal, closed, cell_face, face_ray, run_ptr, run_lo, run_hi, idx, plane, edges, margin,
-                 grown, surface, axes, spot_uv, centre, radius, buckets, bucket_ptr, bucket_col, out):
-    """out[m, c] = 1 where occluder candidates of sub-triangle m's hidden face (``cell_face[m]``; the runs
-    ``run_ptr``/``run_lo``/``run_hi`` over ``idx`` of the kernel's OCC group, their ``plane`` (k, 4), ``edges``
-    (k, 3, 4), ``margin`` δ, and ``grown`` (k, 3, 3): :func:`grown_triangles` by 2δ) may block the segment from
+def shadow_flags(cells, occ, grown, laser_plane, out):
+    """out[m, c] = 1 where occluder candidates of sub-triangle m's hidden face may block the segment from
     ``centroid[m]`` to laser point c (module doc), else left 0; where ``closed[m]`` (the pair loop skips laser
     points behind sub-triangle m's plane, ``normal[m]``) only the part in front of that plane counts, and the
-    marks behind it are not needed (some are left 0). ``surface`` (4,): unit normal and offset of the
-    laser points' plane P; ``axes`` (3, 3): an origin on P and two orthonormal in-plane axes; ``spot_uv`` (n, 2)
-    the laser points' coordinates on them (m); ``centre`` (3,), ``radius``: a ball holding every laser point;
-    ``buckets`` (6,): u0, v0, bucket width and height, columns, rows of a uniform grid of buckets over the points,
-    ``bucket_ptr`` / ``bucket_col`` the points of each bucket (CSR). out (M, n) uint8, zeroed by the caller."""
+    marks behind it are not needed (some are left 0). The groups of arguments:
+
+    - ``cells`` (centroid (M, 3), normal (M, 3), closed (M,) uint8, cell_face (M,) int64 hidden face of each);
+    - ``occ``: the kernel's :data:`datagen.transport.quadrature_kernel.OCC` group (per hidden face the runs
+      ``run_ptr`` / ``run_lo`` / ``run_hi`` over ``idx`` of candidate triangles, their ``plane`` (k, 4), ``edges``
+      (k, 3, 4), ``margin`` δ, ``face_ray``), and ``grown`` (k, 3, 3): :func:`grown_triangles` by 2δ;
+    - ``laser_plane`` (surface (4,): unit normal and offset of the laser points' plane P; axes (3, 3): an origin
+      on P and two orthonormal in-plane axes; spot_uv (n, 2): the laser points' coordinates on them, m; centre
+      (3,), radius: a ball holding every laser point; buckets (6,): u0, v0, bucket width and height, columns, rows
+      of a uniform grid of buckets over the points; bucket_ptr / bucket_col: the points of each bucket, CSR).
+
+    out (M, n) uint8, zeroed by the caller."""
+    centroid, normal, closed, cell_face = cells
+    shadow, run_ptr, run_lo, run_hi, spheres, idx, plane, edges, margin, face_ray = occ
+    surface, axes, spot_uv, centre, radius, buckets, bucket_ptr, bucket_col = laser_plane
     M = centroid.shape[0]
     n_spots = out.shape[1]
     u0, v0, bw, bh = buckets[0], buckets[1], buckets[2], buckets[3]

@@ -1,0 +1,251 @@
+"""Command line for real-lab captures (docs/capture_io.md): ``datagen import-capture``, ``datagen export``,
+``datagen fit-detector`` and ``datagen compare-capture``.
+
+The commands only parse and call the library (:mod:`datagen.io.lab_formats`, :mod:`datagen.spad.fit`,
+:mod:`datagen.analysis.compare_capture`, :mod:`datagen.plot.capture`); :mod:`datagen.cli.main` registers them.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+from .errors import friendly_errors
+
+EXPORT_FORMATS = ("lct-mat", "fk-mat", "znlos", "tal")
+
+
+def _is_store(path: Path) -> bool:
+    return (path / "zarr.json").exists() or (path / "result.zarr" / "zarr.json").exists()
+
+
+def load_capture(path: Path, width=None, bin_resolution=None):
+    """(Result, per-point time offsets (s) or None, description) of a lab file, an imported capture store or a
+    datagen result store (offsets: the counted wall legs of a confocal scan)."""
+    from ..io.lab_formats import read_capture_store, read_lab_capture
+    from ..units import SPEED_OF_LIGHT
+
+    path = Path(path)
+    if path.is_dir():
+        if not _is_store(path):
+            raise FileNotFoundError(f"{path}: neither a capture file nor a datagen result store")
+        result, offsets = read_capture_store(path)
+        cap = result.attrs.get("capture") or {}
+        conf = result.attrs.get("config") or {}
+        if offsets is None and "lab_capture" not in result.attrs and cap.get("type") == "confocal":
+            pts = np.asarray(result.laser_points, float).reshape(result.envelope.shape[:-1] + (3,))
+            legs = np.zeros(pts.shape[:-1])
+            if conf.get("count_laser_leg"):
+                legs += np.linalg.norm(pts - np.asarray(cap["emitter_position"], float), axis=-1)
+            if conf.get("count_sensor_leg", True):
+                legs += np.linalg.norm(pts - np.asarray(cap["sensor_position"], float), axis=-1)
+            offsets = legs / SPEED_OF_LIGHT
+        return result, offsets, f"datagen store {path}"
+    cap = read_lab_capture(path, width=width, bin_resolution=bin_resolution)
+    return cap.to_result(), cap.time_offsets(), f"{cap.format} file {path}"
+
+
+def _kv(items, option: str) -> dict[str, float]:
+    from ..units import parse_duration, parse_rate
+
+    out = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep:
+            raise click.BadParameter(f"expected NAME=VALUE, got {item!r}", param_hint=option)
+        try:
+            value = parse_rate(text) if name.strip() == "background_rate" else parse_duration(text) \
+                if name.strip() in ("position", "jitter_sigma", "diffusion_tail", "dead_time") else float(text)
+        except ValueError as exc:
+            raise click.BadParameter(f"{name}: {exc}", param_hint=option) from None
+        out[name.strip()] = float(value)
+    return out
+
+
+@click.command("import-capture")
+@click.argument("capture_file", type=click.Path(path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory (result store)")
+@click.option("--width", type=float, default=None, help=".mat without 'width': half width of the scanned wall, m")
+@click.option("--bin-resolution", "bin_resolution", default=None,
+              help=".mat without 'bin_resolution': the bin width, e.g. 32ps")
+@click.option("--tofgrid", "tofgrid", type=click.Path(path_type=Path), default=None,
+              help="a separate .mat holding 'tofgrid' (ps), as the f-k release ships tof.mat")
+@friendly_errors
+def import_capture(capture_file, out, width, bin_resolution, tofgrid):
+    """Read an LCT / f-k .mat (v5 or v7.3) or ZNLOS HDF5 capture into a datagen result store OUT/result.zarr.
+
+    The file's fields are read as its public reader does (docs/capture_io.md: time zero, confocal or not, axis
+    order, units); per-point time offsets (tofgrid, or ZNLOS's wall legs) are stored as time_offsets.
+    """
+    from ..io.lab_formats import read_lab_capture, write_capture_store
+    from ..units import parse_duration
+
+    bres = None if bin_resolution is None else parse_duration(bin_resolution)
+    cap = read_lab_capture(capture_file, width=width, bin_resolution=bres, tofgrid_path=tofgrid)
+    store = write_capture_store(cap, Path(out) / "result.zarr")
+    d = cap.data()
+    edges = cap.time_edges()
+    click.echo(f"{cap.format} (MAT v{cap.mat_version}) " if cap.mat_version else f"{cap.format} ", nl=False)
+    click.echo(f"{cap.capture_type} capture {tuple(d.shape[:-1])} x {d.shape[-1]} bins of "
+               f"{(edges[1] - edges[0]) * 1e12:.4g} ps from {edges[0] * 1e9:.4g} ns, dtype {d.dtype}, "
+               f"sum {float(np.sum(d, dtype=np.float64)):.6g}; per-point time offsets "
+               f"{'stored' if cap.time_offsets() is not None else 'none'}")
+    click.echo(f"wrote {store}")
+
+
+@click.command("export")
+@click.argument("result_path", type=click.Path(path_type=Path))
+@click.option("--format", "fmt", required=True, type=click.Choice(EXPORT_FORMATS), help="file layout to write")
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output file")
+@click.option("--split", default=None, help="RESULT_PATH is a dataset: the split of the sample to export")
+@click.option("--index", type=int, default=None, help="RESULT_PATH is a dataset: the index of the sample")
+@click.option("--counts", "use_counts", is_flag=True, help="dataset sample: export the SPAD counts, not the envelope")
+@click.option("--mat-version", "mat_version", type=click.Choice(["5", "7.3"]), default="5",
+              help=".mat formats: MAT v5 (scipy) or v7.3 (HDF5; arrays over 2 GiB)")
+@friendly_errors
+def export(result_path, fmt, out, split, index, use_counts, mat_version):
+    """Write a datagen result, or one dataset sample, as an LCT / f-k .mat, a ZNLOS HDF5 or a tal HDF5 capture.
+
+    LCT / f-k: confocal N x N scans; the counted wall legs and t_start go into tofgrid (ps). ZNLOS: the time
+    axis must count both wall legs (ZNLOS's convention). Conventions: docs/capture_io.md.
+    """
+    from ..dataset.integrity import require_complete
+    from ..io import write_tal_hdf5
+    from ..io.lab_formats import capture_from_result, write_lab_capture
+    from .tal import check_out_file, read_result_input
+
+    check_out_file(out)
+    if split is not None or index is not None:
+        from ..dataset.export import sample_result
+
+        if split is None or index is None:
+            raise ValueError("a dataset sample needs both --split and --index")
+        require_complete(result_path)
+        result = sample_result(result_path, split, index, "counts" if use_counts else "envelope")
+    elif use_counts:
+        raise ValueError("--counts applies to a dataset sample (give --split and --index)")
+    else:
+        result = read_result_input(result_path, "export", "give --split and --index to export one of its samples")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if fmt == "tal":
+        write_tal_hdf5(result, out)
+    else:
+        cap = capture_from_result(result, fmt, source=str(result_path))
+        write_lab_capture(cap, out, mat_version=mat_version if fmt != "znlos" else None)
+    click.echo(f"wrote {out} ({fmt}, {tuple(np.shape(result.envelope))})")
+
+
+def _histogram(path: Path, pixel: str | None):
+    """(counts (bins,), bin width s or None, t_start s or None) from .npy / .csv / .txt, a lab file or a store."""
+    suffix = path.suffix.lower()
+    if suffix in (".npy", ".csv", ".txt"):
+        if not path.is_file():
+            raise FileNotFoundError(f"no histogram file at {path}")
+        arr = np.load(path, allow_pickle=False) if suffix == ".npy" else np.loadtxt(path, delimiter="," if
+                                                                                      suffix == ".csv" else None, ndmin=1)
+        arr = np.asarray(arr)
+        if arr.ndim == 2 and arr.shape[1] == 2:          # (time s, counts) columns
+            t = arr[:, 0]
+            return arr[:, 1], float(t[1] - t[0]), float(t[0])
+        if arr.ndim != 1:
+            raise ValueError(f"{path}: expected one column of counts (or time, counts), got shape {arr.shape}")
+        return arr, None, None
+    result, _, _ = load_capture(path)
+    data = np.asarray(result.counts if result.counts.any() else result.envelope)
+    edges = np.asarray(result.time_edges)
+    if pixel is not None:
+        idx = tuple(int(v) for v in pixel.split(","))
+        if len(idx) != data.ndim - 1:
+            raise ValueError(f"--pixel {pixel}: the capture has {data.ndim - 1} scan axes {data.shape[:-1]}")
+        h = data[idx]
+    else:
+        h = data.reshape(-1, data.shape[-1]).sum(0)
+    return h, float(edges[1] - edges[0]), float(edges[0])
+
+
+@click.command("fit-detector")
+@click.argument("hist", type=click.Path(path_type=Path))
+@click.option("--repetition-rate", "repetition_rate", required=True, help="laser repetition rate, e.g. 20MHz")
+@click.option("--n-cycles", "n_cycles", required=True, type=click.IntRange(min=1), help="laser cycles of the exposure")
+@click.option("--bin-width", "bin_width", default=None, help="bin width, e.g. 16ps (default: the file's)")
+@click.option("--t-start", "t_start", default=None, help="first bin edge within the period (default: the file's or 0)")
+@click.option("--model", type=click.Choice(["pile_up", "poisson", "free_running"]), default="pile_up",
+              help="synchronous first photon (pile_up), poisson, or free_running (dead time)")
+@click.option("--irf", type=click.Choice(["gauss", "exgauss"]), default="exgauss",
+              help="Gaussian jitter, or jitter + exponential diffusion tail")
+@click.option("--fit-fraction", is_flag=True, help="also fit the diffusion tail's share (default 1)")
+@click.option("--pulse-sigma", "pulse_sigma", default=None, help="known laser pulse std (default half a bin)")
+@click.option("--fix", "fix", multiple=True, help="hold a parameter, NAME=VALUE (e.g. dead_time=77ns)")
+@click.option("--initial", "initial", multiple=True, help="start a parameter at NAME=VALUE (e.g. dead_time=50ns)")
+@click.option("--pixel", default=None, help="a scan capture: the scan point 'i,j' (default: all summed)")
+@click.option("--out", "out", type=click.Path(path_type=Path), default=None, help="detector YAML to write")
+@friendly_errors
+def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, t_start, model, irf, fit_fraction, pulse_sigma,
+                     fix, initial, pixel, out):
+    """Fit datagen's detector model to the histogram HIST of a known return (maximum likelihood).
+
+    HIST: .npy / .csv / .txt (counts, or time s and counts), a lab capture file or a datagen store. Prints each
+    parameter with its 1-sigma error and 95 % interval, the goodness of fit, one line per parameter the data do
+    not determine, and writes --out (a configs/detectors YAML, checked by loading it).
+    """
+    from ..spad.fit import fit_detector
+    from ..units import parse_duration, parse_rate
+    from .errors import check_output_file
+
+    if out is not None:
+        check_output_file(out, "--out")
+    h, dt_file, t0_file = _histogram(Path(hist), pixel)
+    dt = parse_duration(bin_width) if bin_width is not None else dt_file
+    if dt is None:
+        raise click.BadParameter("the histogram file has no time axis: give --bin-width", param_hint="--bin-width")
+    t0 = parse_duration(t_start) if t_start is not None else (t0_file or 0.0)
+    fit = fit_detector(h, bin_width=dt, repetition_rate=parse_rate(repetition_rate), n_cycles=n_cycles, model=model,
+                       irf=irf, t_start=max(t0, 0.0),
+                       pulse_sigma=None if pulse_sigma is None else parse_duration(pulse_sigma),
+                       fixed=_kv(fix, "--fix"), fit_fraction=fit_fraction, initial=_kv(initial, "--initial") or None)
+    click.echo(fit.summary())
+    for line in fit.messages:
+        click.echo(f"note: {line}")
+    if out is not None:
+        fit.write_yaml(out)
+        click.echo(f"wrote {out}")
+
+
+@click.command("compare-capture")
+@click.argument("real", type=click.Path(path_type=Path))
+@click.argument("sim", type=click.Path(path_type=Path))
+@click.option("--png", "png", type=click.Path(path_type=Path), default=None, help="side-by-side figure to write")
+@click.option("--width", type=float, default=None, help="REAL .mat without 'width' (m)")
+@click.option("--bin-resolution", "bin_resolution", default=None, help="REAL .mat without 'bin_resolution'")
+@friendly_errors
+def compare_capture(real, sim, png, width, bin_resolution):
+    """Sim-to-real distance of REAL (a lab file or store) and SIM (a datagen result store or a lab file).
+
+    Both are put on the hidden time axis (per-point offsets removed) at REAL's bin width and normalised; prints
+    the relative L2, the per-bin chi2, the peak-time and width (FWHM) differences; --png draws them side by side.
+    """
+    from ..analysis.compare_capture import compare_captures
+    from ..units import parse_duration
+    from .errors import check_output_file
+
+    if png is not None:
+        check_output_file(png, "--png")
+    bres = None if bin_resolution is None else parse_duration(bin_resolution)
+    r, r_off, r_desc = load_capture(real, width, bres)
+    s, s_off, s_desc = load_capture(sim)
+    m = compare_captures(r.counts if r.counts.any() else r.envelope, r.time_edges, r_off, s.envelope, s.time_edges,
+                         s_off)
+    click.echo(f"real: {r_desc}; sim: {s_desc}; {m['bins']} common bins")
+    click.echo(f"relative L2 (normalised, scan-summed) {m['rel_l2']:.4f}"
+               + ("" if m["rel_l2_points"] is None else f"; per scan point (mean) {m['rel_l2_points']:.4f}"))
+    click.echo(f"chi2 per bin {m['chi2_per_bin']:.4g} (real counts {m['counts_real']:.6g})")
+    click.echo(f"peak time: real {m['peak_time_real'] * 1e9:.4f} ns, sim {m['peak_time_sim'] * 1e9:.4f} ns, "
+               f"diff {m['peak_time_diff'] * 1e12:+.1f} ps")
+    click.echo(f"FWHM: real {m['fwhm_real'] * 1e12:.1f} ps, sim {m['fwhm_sim'] * 1e12:.1f} ps, "
+               f"diff {m['width_diff'] * 1e12:+.1f} ps")
+    if png is not None:
+        from ..plot.capture import plot_capture_comparison
+
+        plot_capture_comparison(m, png, real_label=Path(real).name, sim_label=Path(sim).name)
+        click.echo(f"wrote {png}")
