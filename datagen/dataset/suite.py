@@ -206,13 +206,17 @@ def suite_of_dataset(path: str | Path) -> tuple[Suite, bool]:
     Returns:
         (suite, full): ``full`` is False for a prefix build (fewer splits or samples than the suite).
     Raises:
-        DatasetError: the card's config is not the suite's (other than split counts), or a split holds more
-            samples than the suite's; ConfigError: no suite of the card's name.
+        FileNotFoundError: no dataset at ``path``; DatasetError: the card's name is not a suite's, or its config
+            is not the suite's (other than split counts).
     """
     from .store import read_card
 
     card = read_card(path)
-    suite = load_suite(str(card.get("name")))
+    name = str(card.get("name"))
+    if name not in suite_names():
+        raise DatasetError(f"{path}: dataset {name!r} is not a build of a benchmark suite (suites: "
+                           f"{', '.join(suite_names())}; build one with `datagen suite build NAME`)")
+    suite = load_suite(name)
     built = config_from_json(card["config"])
     counts = {s: spec.count for s, spec in built.splits.items()}
     if cut_splits(suite.config, counts).fingerprint() != built.fingerprint():
