@@ -29,3 +29,20 @@ def patch_scene(patch_size: float = 0.4, albedo: float = 0.8, with_occluder: boo
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+def parse_python(path) -> "ast.Module":
+    """``ast.parse`` of a source file, retried on CPython 3.11's spurious "AST constructor recursion depth
+    mismatch" SystemError (python/cpython#106905: the AST state is shared, so another thread building an AST at
+    the same moment, e.g. a Dask client's thread left by an earlier test in the worker, can trip it)."""
+    import ast
+    from pathlib import Path
+
+    source = Path(path).read_text(encoding="utf-8")
+    for attempt in range(5):
+        try:
+            return ast.parse(source, str(path))
+        except SystemError:
+            if attempt == 4:
+                raise
+    raise AssertionError("unreachable")

@@ -13,6 +13,7 @@ import types
 from pathlib import Path
 
 import pytest
+from conftest import parse_python
 
 PACKAGE = Path(__file__).resolve().parents[1] / "datagen"
 
@@ -43,7 +44,7 @@ def _import_graph() -> dict[str, set[str]]:
     modules = _modules()
     graph: dict[str, set[str]] = {name: set() for name in modules}
     for name, path in modules.items():
-        tree = ast.parse(path.read_text(), str(path))
+        tree = parse_python(path)
         is_package = path.name == "__init__.py"
         for node in ast.walk(tree):
             targets = []
@@ -126,7 +127,7 @@ def _defined_names(tree: ast.AST) -> set[str]:
 def private_uses(path: Path) -> list[str]:
     """``file:line name`` for every private name (``_x``, not dunder) of another module used in ``path``: imported
     (``from m import _x``) or reached as an attribute (``m._x``, ``obj._x``) when ``path`` does not define it."""
-    tree = ast.parse(path.read_text(), str(path))
+    tree = parse_python(path)
     own = _defined_names(tree)
     out = []
     for node in ast.walk(tree):

@@ -29,6 +29,7 @@ import ast
 from pathlib import Path
 
 import datagen
+from conftest import parse_python
 
 ROOT = Path(datagen.__file__).parent
 ORACLE = "analysis/oracle.py"
@@ -157,7 +158,7 @@ def _modules():
     for path in sorted(ROOT.rglob("*.py")):
         rel = path.relative_to(ROOT).as_posix()
         if rel != ORACLE:
-            yield rel, ast.parse(path.read_text(encoding="utf-8"))
+            yield rel, parse_python(path)
 
 
 def formula_sites() -> dict[str, set[tuple[str, str]]]:

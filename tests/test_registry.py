@@ -18,6 +18,7 @@ import datagen
 from conftest import patch_scene
 from datagen.simulation import SimulationConfig, simulation_memory
 from datagen.transport import estimator, estimator_names
+from conftest import parse_python
 
 PACKAGE = Path(datagen.__file__).parent
 
@@ -38,7 +39,7 @@ def name_branches(root: Path, names: set[str]) -> list[str]:
         rel = path.relative_to(root)
         if rel.parts[0] == "transport":
             continue
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        for node in ast.walk(parse_python(path)):
             if isinstance(node, ast.Compare) and any(_name_literal(n, names)
                                                      for n in (node.left, *node.comparators)):
                 found.append(f"{rel}:{node.lineno}: {ast.unparse(node)}")

@@ -13,7 +13,8 @@ VENV="${TAL_BENCH_VENV:-/opt/venvs/tal-bench}"
 PYTHON="${PYTHON:-python3}"
 
 # versions the benchmark was run with (docs/tal.md)
-PINS=("y-tal==0.20.0" "mitransient==1.3.1" "mitsuba==3.9.1" "drjit==1.5.0")
+PINS=("y-tal==0.20.0" "mitransient==1.3.1" "mitsuba==3.9.1" "drjit==1.5.0"
+      "pyfftw==0.15.1")   # pyfftw: tal.reconstruct.pf imports it (y-tal does not declare it; bench_recon.py)
 
 find_llvm() {
     for p in /usr/lib/llvm-19/lib/libLLVM.so.1 /usr/lib/llvm-19/lib/libLLVM.so \

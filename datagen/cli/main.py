@@ -18,6 +18,7 @@ from .bench import bench
 from .capture import compare_capture, export, fit_detector_cmd, import_capture
 from .dataset import build, inspect, score, verify
 from .errors import friendly_errors
+from .suite import suite
 from .tal import export_tal, read_result_input, tal_render
 from .multizone import is_multizone_file, multizone, run_multizone
 from .view import view
@@ -229,6 +230,7 @@ main.add_command(import_capture)  # real-lab capture files, detector fitting, si
 main.add_command(export)
 main.add_command(fit_detector_cmd)
 main.add_command(compare_capture)
+main.add_command(suite)          # benchmark suites (issue 27)
 
 
 if __name__ == "__main__":

@@ -53,8 +53,9 @@ KINDS = {"depth": "iuf", "occupancy": "biuf", "index": "iu"}
 """numpy dtype kinds each key accepts."""
 
 
-def _load_predictions(pred: Path) -> dict[str, np.ndarray]:
-    """The arrays of the predictions file, each checked for its dtype and for having a sample axis.
+def _load_predictions(pred: Path, extra_keys: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The arrays of the predictions file, each checked for its dtype and for having a sample axis
+    (``extra_keys``: further keys allowed, returned unchecked, for a caller that scores them).
 
     Raises:
         FileNotFoundError: no file; DatasetError: not an .npz archive, an unknown key, neither depth nor
@@ -67,12 +68,15 @@ def _load_predictions(pred: Path) -> dict[str, np.ndarray]:
             data = {k: np.asarray(f[k]) for k in f.files}
     except (ValueError, OSError, EOFError) as exc:
         raise DatasetError(f"{pred}: not a NumPy .npz archive ({' '.join(str(exc).split())})") from None
-    unknown = sorted(set(data) - {"depth", "occupancy", "index"})
+    unknown = sorted(set(data) - {"depth", "occupancy", "index", *extra_keys})
     if unknown:
-        raise DatasetError(f"{pred}: unknown key {unknown[0]!r} (expected depth, occupancy, index)")
+        raise DatasetError(f"{pred}: unknown key {unknown[0]!r} (expected "
+                           f"{', '.join(['depth', 'occupancy', 'index', *extra_keys])})")
     if "depth" not in data and "occupancy" not in data:
         raise DatasetError(f"{pred}: holds neither depth nor occupancy")
     for key, value in data.items():
+        if key in extra_keys:
+            continue
         if value.dtype.kind not in KINDS[key]:
             raise DatasetError(f"{pred}: {key} has dtype {value.dtype}; expected {LAYOUTS[key]}")
         if value.ndim == 0:
@@ -107,7 +111,7 @@ def _first_bad(values: np.ndarray, bad: np.ndarray) -> tuple[float, tuple[int, .
 
 
 def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_field: str = DEFAULT_DEPTH_FIELD,
-                      threshold: float = OCCUPANCY_THRESHOLD) -> dict:
+                      threshold: float = OCCUPANCY_THRESHOLD, extra_keys: tuple[str, ...] = ()) -> dict:
     """Score the predictions file ``pred`` (layout in the module doc) against ``split`` of ``dataset``.
 
     The labels are read through :class:`datagen.dataset.NLOSDataset`, so the dataset is checked as every
@@ -118,6 +122,7 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
         pred: ``.npz`` with ``depth`` (N, H, W) or (N, 1, H, W) m and/or ``occupancy`` (N, V, V, V), optional
             ``index`` (N,) integers (default 0 … N − 1), N ≥ 1.
         threshold: a voxel of ``occupancy`` is occupied where its value exceeds this (finite).
+        extra_keys: further keys the file may hold, left to the caller (``datagen suite score``: ``normal``).
     Returns:
         {"summary": {...}, "rows": [{index, depth_mae, depth_rmse, depth_pixels, occupancy_iou}, ...]}
         (metres; NaN where a metric does not apply: no object pixels, or nothing occupied in either grid).
@@ -139,7 +144,7 @@ def score_predictions(pred: str | Path, dataset: str | Path, split: str, depth_f
     if not math.isfinite(threshold):
         raise DatasetError(f"occupancy threshold (--threshold) must be a finite number, got {threshold!r}")
     pred = Path(pred)
-    data = _load_predictions(pred)
+    data = _load_predictions(pred, tuple(extra_keys))
     card = require_complete(dataset)
     if split not in card.get("splits", {}):
         raise DatasetError(f"{dataset}: split {split!r} not in the dataset (splits: {sorted(card.get('splits', {}))})")

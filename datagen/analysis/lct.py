@@ -1,0 +1,91 @@
+"""Light-cone transform (O'Toole, Lindell & Wetzstein 2018) of confocal scans: the benchmark's LCT baseline.
+
+y-tal 0.20 (the reconstructions docs/benchmark.md runs through tal's venv) has no LCT, so this is datagen's own,
+following the paper's procedure: scale the transients by (t/T)⁴ (diffuse hidden surfaces), resample time to
+v = t² (the light cone becomes a shift-invariant 3-D convolution), Wiener-deconvolve with the light-cone kernel in
+a zero-padded 3-D FFT, resample back. The scan must be square (N × N points over a square of side ``2·half_width``)
+with a power-of-two number of time bins starting at t = 0, time counting both wall ↔ hidden legs
+(t = 2·|x − p|/c: the confocal configs' ``count_sensor_leg: false``, docs/scans.md).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..units import SPEED_OF_LIGHT
+
+
+def light_cone_psf(n: int, m: int, slope: float) -> np.ndarray:
+    """(2m, 2n, 2n) light-cone kernel, normalised, centred at (0, 0, 0) of the padded lateral grid.
+
+    Args:
+        n: scan points per side; m: time bins; slope: half_width / range (range = m · c · Δt).
+    """
+    x = np.linspace(-1, 1, 2 * n)
+    z = np.linspace(0, 2, 2 * m)
+    gz, gy, gx = np.meshgrid(z, x, x, indexing="ij")
+    psf = np.abs((4 * slope) ** 2 * (gx ** 2 + gy ** 2) - gz)
+    psf = (psf == psf.min(axis=0, keepdims=True)).astype(np.float64)
+    psf /= psf[:, n, n].sum()
+    psf /= np.linalg.norm(psf)
+    return np.roll(psf, (n, n), axis=(1, 2))
+
+
+def resampling_operator(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(m, m) matrices taking the time axis t to v = t² and back (m a power of two).
+
+    Raises:
+        ValueError: m is not a power of two.
+    """
+    from scipy import sparse
+
+    if m < 2 or m & (m - 1):
+        raise ValueError(f"LCT needs a power-of-two number of time bins, got {m}")
+    x = np.arange(1, m * m + 1)
+    mtx = sparse.csr_matrix((1.0 / np.sqrt(x), (x - 1, np.ceil(np.sqrt(x)).astype(np.int64) - 1)), shape=(m * m, m))
+    mtxi = mtx.T.tocsr()
+    for _ in range(int(round(np.log2(m)))):
+        mtx = 0.5 * (mtx[0::2, :] + mtx[1::2, :])
+        mtxi = 0.5 * (mtxi[:, 0::2] + mtxi[:, 1::2])
+    return np.asarray(mtx.todense()), np.asarray(mtxi.todense())
+
+
+def lct_volume(scan: np.ndarray, bin_width: float, half_width: float, snr: float = 0.8) -> np.ndarray:
+    """LCT reconstruction of a confocal scan.
+
+    Args:
+        scan: (N, N, M) transients (any units) of an N × N confocal grid (rows, columns), M a power of two, time
+            from t = 0 in bins of ``bin_width`` seconds; half_width: half the scanned square's side (m);
+            snr: the Wiener filter's signal-to-noise ratio (the paper's 0.8).
+    Returns:
+        (N, N, M) float64 albedo volume ≥ 0; index k along the last axis is depth (k + ½)·c·Δt/2 from the wall.
+    Raises:
+        ValueError: a scan that is not N × N × M with M a power of two, or non-positive bin_width / half_width.
+    """
+    scan = np.asarray(scan, dtype=np.float64)
+    if scan.ndim != 3 or scan.shape[0] != scan.shape[1]:
+        raise ValueError(f"LCT needs an (N, N, M) confocal scan, got shape {scan.shape}")
+    if not (bin_width > 0 and half_width > 0):
+        raise ValueError(f"LCT needs bin_width > 0 and half_width > 0, got {bin_width}, {half_width}")
+    n, m = scan.shape[0], scan.shape[2]
+    mtx, mtxi = resampling_operator(m)
+    data = np.moveaxis(scan, 2, 0) * np.linspace(0, 1, m)[:, None, None] ** 4      # (M, N, N)
+    rng = m * SPEED_OF_LIGHT * bin_width
+    fpsf = np.fft.fftn(light_cone_psf(n, m, half_width / rng))
+    invpsf = np.conj(fpsf) / (np.abs(fpsf) ** 2 + 1.0 / snr)
+    padded = np.zeros((2 * m, 2 * n, 2 * n))
+    padded[:m, :n, :n] = (mtx @ data.reshape(m, -1)).reshape(m, n, n)
+    vol = np.fft.ifftn(np.fft.fftn(padded) * invpsf)[:m, :n, :n]
+    vol = (mtxi @ vol.reshape(m, -1)).reshape(m, n, n)
+    return np.moveaxis(np.maximum(vol.real, 0.0), 0, 2)
+
+
+def depth_from_volume(volume: np.ndarray, depths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel depth of the strongest voxel of an (H, W, Z) volume.
+
+    Args:
+        volume: (H, W, Z) reconstruction (its magnitude is used); depths: (Z,) metres of its last axis.
+    Returns:
+        ((H, W) depth in metres, (H, W) the strongest |value|).
+    """
+    mag = np.abs(np.asarray(volume))
+    return np.asarray(depths)[np.argmax(mag, axis=-1)], mag.max(axis=-1)

@@ -1,0 +1,129 @@
+"""Benchmark suites (issue 27): frozen definitions, content hash independent of the worker count, leaderboard score."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from datagen.cli.main import main
+from datagen.dataset import NLOSDataset
+from datagen.dataset.suite import SUITES_DIR, build_suite, content_hash, load_suite, suite_names, verify_suite
+from datagen.dataset.suite_score import delta_accuracy, normal_angle_error, score_suite
+
+SMOKE = {"test": 2}
+"""A prefix of wall-meshes-v1: 2 test samples of 32 × 32 × 256."""
+
+
+@pytest.fixture(scope="module")
+def builds(tmp_path_factory):
+    """Two builds of the same smoke-sized prefix of wall-meshes-v1: in process, and on 2 worker processes."""
+    root = tmp_path_factory.mktemp("suites")
+    a, ha = build_suite("wall-meshes-v1", root / "a", workers=0, splits=SMOKE, progress=False)
+    b, hb = build_suite("wall-meshes-v1", root / "b", workers=2, splits=SMOKE, progress=False)
+    return root, (a, ha), (b, hb)
+
+
+def test_shipped_suites_load():
+    assert suite_names() == ["confocal-rooms-v1", "single-pixel-v1", "wall-meshes-v1"]
+    for name in suite_names():
+        s = load_suite(name)
+        assert set(s.spec.variants) == {"clean", "low-photon"}
+        assert s.spec.variants["clean"].input == "envelope" and s.spec.variants["low-photon"].input == "counts"
+        assert s.config.name == name and s.spec.test_split in s.config.splits
+
+
+def test_same_hash_for_different_worker_counts(builds):
+    root, (a, ha), (b, hb) = builds
+    assert a.engine == "in-process" and b.engine == "processes"
+    assert ha == hb and len(ha) == 64
+    assert content_hash(root / "a") == ha
+    problems, digest = verify_suite(root / "b", notes := [])
+    assert problems == [] and digest == hb
+    assert any("prefix build" in n for n in notes)
+
+
+def test_hash_sees_one_changed_value(builds, tmp_path):
+    import shutil
+
+    import zarr
+    root, (_, ha), _ = builds
+    copy = tmp_path / "c"
+    shutil.copytree(root / "a", copy)
+    arr = zarr.open_group(str(copy / "test"), mode="r+")["wall_depth"]
+    value = arr[1, 0, 0]
+    arr[1, 0, 0] = value + np.float32(1e-3)
+    assert content_hash(copy) != ha
+    arr[1, 0, 0] = value
+    assert content_hash(copy) == ha
+
+
+def test_unknown_suite_and_bad_file(tmp_path):
+    result = CliRunner().invoke(main, ["suite", "build", "no-such-suite-v1"])
+    assert result.exit_code == 2
+    assert "no benchmark suite 'no-such-suite-v1'" in result.output and "wall-meshes-v1" in result.output
+    data = yaml.safe_load((SUITES_DIR / "wall-meshes-v1.yaml").read_text())
+    data["suite"]["variants"]["clean"]["input"] = "reference"
+    data["dataset"]["room"] = str(SUITES_DIR.parent / "rooms" / "wall.yaml")
+    bad = tmp_path / "wall-meshes-v1.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    result = CliRunner().invoke(main, ["suite", "build", str(bad), "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "variants.clean.input" in result.output and "'reference'" in result.output
+
+
+def test_metrics():
+    label = np.array([[1.0, 2.0], [0.0, 4.0]])
+    pred = np.array([[1.2, 1.25], [9.0, -1.0]])
+    mask = label > 0
+    # ratios 1.2, 1.6, inf (a negative depth) on the 3 object pixels
+    assert delta_accuracy(pred, label, mask, 1.25) == pytest.approx(1 / 3)
+    assert delta_accuracy(pred, label, mask, 1.25 ** 3) == pytest.approx(2 / 3)
+    assert math.isnan(delta_accuracy(pred, label, np.zeros_like(mask), 1.25))
+    n_label = np.zeros((2, 2, 3))
+    n_label[..., 0] = -1.0
+    n_pred = n_label.copy()
+    n_pred[0, 1] = [0.0, 2.0, 0.0]          # 90°
+    n_pred[1, 1] = [1.0, 0.0, 0.0]          # 180°
+    np.testing.assert_allclose(normal_angle_error(n_pred, n_label, mask), [0.0, 90.0, 180.0], atol=1e-9)
+
+
+def test_score_cli(builds, tmp_path):
+    root, _, _ = builds
+    ds = NLOSDataset(root / "a", split="test", fields=["wall_depth", "wall_normal"])
+    labels = np.stack([ds.read(i)["wall_depth"] for i in range(2)])
+    normals = np.stack([ds.read(i)["wall_normal"] for i in range(2)])
+    pred = tmp_path / "pred.npz"
+    np.savez(pred, depth=labels * 1.1, normal=normals)
+    result = CliRunner().invoke(main, ["suite", "score", "wall-meshes-v1", str(pred), "--dataset", str(root / "a"),
+                                       "--variant", "low-photon"])
+    assert result.exit_code == 0, result.output
+    s = score_suite(pred, root / "a", "wall-meshes-v1", "low-photon")["summary"]
+    mask = labels > 0
+    expected = np.mean([np.abs(0.1 * labels[k][mask[k]]).mean() for k in range(2) if mask[k].any()])
+    assert s["mean_depth_mae"] == pytest.approx(expected, rel=1e-6)
+    assert s["mean_delta_1.25"] == 1.0 and s["mean_normal_angle_mean_deg"] == pytest.approx(0.0, abs=1e-3)
+    assert s["suite"] == "wall-meshes-v1" and s["variant"] == "low-photon" and s["full_suite"] is False
+    assert (tmp_path / "pred_scores.json").exists() and "delta_1.25" in (tmp_path / "pred_scores.csv").read_text()
+    # a bad normal array and another suite's name: one line each
+    np.savez(pred, depth=labels, normal=normals[:, :1])
+    result = CliRunner().invoke(main, ["suite", "score", "wall-meshes-v1", str(pred), "--dataset", str(root / "a")])
+    assert result.exit_code == 2 and "normal has shape (2, 1, 32, 3)" in result.output
+    result = CliRunner().invoke(main, ["suite", "score", "single-pixel-v1", str(pred), "--dataset", str(root / "a")])
+    assert result.exit_code == 2 and "is a build of suite wall-meshes-v1, not single-pixel-v1" in result.output
+
+
+def test_verify_names_a_hash_that_differs_from_the_suite_file(builds, monkeypatch):
+    import datagen.dataset.suite as suite_module
+
+    root, (_, ha), _ = builds
+    recorded = load_suite("wall-meshes-v1").spec.content_sha256
+    assert recorded is not None and recorded != ha          # a 2-sample prefix is not the whole suite
+    real = suite_module.suite_of_dataset
+    monkeypatch.setattr(suite_module, "suite_of_dataset", lambda path: (real(path)[0], True))   # as if complete
+    problems, digest = verify_suite(root / "a")
+    assert digest == ha
+    assert problems == [f"content hash {ha} differs from suite wall-meshes-v1's {recorded} "
+                        f"({SUITES_DIR / 'wall-meshes-v1.yaml'}): the stored values differ (another datagen version "
+                        "or platform?)"]
