@@ -15,7 +15,9 @@ Likelihood. ``pile_up``: exact — the histogram of n cycles is multinomial over
 the window" (jitter after pile-up moves each recorded photon independently, so it stays multinomial).
 ``poisson``: independent Poisson bins (exact). ``free_running``: independent Poisson bins with the model's
 stationary expected histogram (a quasi-likelihood: dead time makes the bins slightly sub-Poissonian, so its
-intervals are conservative). Parameters are fitted on log scales (logit for the tail fraction) with
+intervals are conservative; afterpulsing correlates bins one dead time apart, and then they are too narrow,
+≈ ×1.5 for the afterpulse probability in docs/capture_io.md's case). Parameters are fitted on log scales (logit
+for the tail fraction and the afterpulse probability) with
 ``scipy.optimize``; uncertainties are the inverse observed Fisher information (the Hessian of −log L at the
 optimum) in those coordinates, mapped back, so 95 % intervals are asymmetric in SI units. Goodness of fit: the
 Poisson deviance and Pearson χ² against bins − parameters degrees of freedom.
