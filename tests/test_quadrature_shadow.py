@@ -57,7 +57,7 @@ def test_every_pair_a_grown_occluder_may_block_is_marked(seed):
     axes = np.stack([spots.mean(axis=0), [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     uv = (spots - axes[0]) @ axes[1:].T
     buckets, ptr, col = spot_buckets(uv)
-    flags = np.zeros((60, len(spots)), dtype=np.uint8)
+    flags = np.zeros((len(spots), 60), dtype=np.uint8)
     one = np.zeros(1, dtype=np.int64)
     occ = (True, np.array([0, 1]), one, np.array([30]), np.zeros((1, 4)), np.arange(30), plane, edges, MARGIN,
            np.zeros(1, dtype=np.uint8))
@@ -65,6 +65,7 @@ def test_every_pair_a_grown_occluder_may_block_is_marked(seed):
                  (np.append(n, o), axes, uv, spots.mean(axis=0),
                   float(np.linalg.norm(spots - spots.mean(0), axis=1).max()), buckets, ptr, col), flags)
     hits = _segment_hits(x, spots, tri, MARGIN)
+    flags = flags.T                                                # (centroid, laser point) as hits
     front = ((spots[None] - x[:, None]) * normal[:, None]).sum(-1) > 0
     needed = hits & (front | ~closed.astype(bool)[:, None])
     assert needed.sum() > 200                                     # the scene does block legs

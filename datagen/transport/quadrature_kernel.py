@@ -191,7 +191,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     ``ray_count[b − b0]`` of them); True: the listed pairs whose ray found the laser point ``visible`` (same
     slots). The groups of arguments: :data:`WORK`, :data:`GEO`, :data:`POSE`, :data:`CONN`, :data:`LEGS`,
     :data:`GRID` (``grid``, and ``coarse`` for the rule at 2h when ``has_coarse``), :data:`OCC`, :data:`SHADE`
-    (where ``use_flags``, a pair (m, l) with ``flags[m, laser_col[l]]`` 0 is not blocked without the exact test:
+    (where ``use_flags``, a pair (m, l) with ``flags[laser_col[l], m]`` 0 is not blocked without the exact test:
     :func:`datagen.transport.quadrature_shadow.shadow_flags`)."""
     b0, b1 = block
     ray_cell, ray_count, visible, group_ptr, group_conn = work
@@ -238,7 +238,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     f = cell_face[m]
                     if face_ray[f]:
                         blocked = 2
-                    elif use_flags and flags[m, laser_col[l]] == 0:
+                    elif use_flags and flags[laser_col[l], m] == 0:
                         blocked = 0                     # no candidate's shadow reaches this laser point
                     else:
                         blocked = _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, occ_idx,

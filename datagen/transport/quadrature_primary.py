@@ -157,7 +157,7 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     buckets, bucket_ptr, bucket_col = spot_buckets(uv)
     centre = spots.mean(axis=0)
     radius = float(np.sqrt(((spots - centre) ** 2).sum(axis=1).max()))
-    flags = np.zeros((q.n_cells, len(lasers)), dtype=np.uint8)
+    flags = np.zeros((len(lasers), q.n_cells), dtype=np.uint8)       # laser point-major (the pair loop's order)
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
     shadow_flags((f64(q.centroids), f64(q.cell_normal), closed, q.cell_hidden.astype(np.int64)), occ, grown,
                  (np.append(n, o), axes, uv, centre, radius, buckets, bucket_ptr, bucket_col), flags)

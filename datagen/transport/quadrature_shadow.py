@@ -32,7 +32,7 @@ from numba import njit, prange
 __all__ = ["FLAG_MAX_BYTES", "grown_triangles", "shadow_flags", "spot_buckets", "spot_plane"]
 
 FLAG_MAX_BYTES = 1 << 28
-"""The map holds one byte per (sub-triangle, laser point used); a larger one is not built (the exact test runs for
+"""The map holds one byte per (laser point used, sub-triangle); a larger one is not built (the exact test runs for
 every pair)."""
 
 PLANE_TOL = 1e-9
@@ -100,7 +100,7 @@ def _bucket(position, count) -> int:
 
 @njit(cache=True, parallel=True)
 def shadow_flags(cells, occ, grown, laser_plane, out):
-    """out[m, c] = 1 where occluder candidates of sub-triangle m's hidden face may block the segment from
+    """out[c, m] = 1 where occluder candidates of sub-triangle m's hidden face may block the segment from
     ``centroid[m]`` to laser point c (module doc), else left 0; where ``closed[m]`` (the pair loop skips laser
     points behind sub-triangle m's plane, ``normal[m]``) only the part in front of that plane counts, and the
     marks behind it are not needed (some are left 0). The groups of arguments:
@@ -114,12 +114,12 @@ def shadow_flags(cells, occ, grown, laser_plane, out):
       (3,), radius: a ball holding every laser point; buckets (6,): u0, v0, bucket width and height, columns, rows
       of a uniform grid of buckets over the points; bucket_ptr / bucket_col: the points of each bucket, CSR).
 
-    out (M, n) uint8, zeroed by the caller."""
+    out (n, M) uint8 (laser point-major: the pair loop reads one laser point's row), zeroed by the caller."""
     centroid, normal, closed, cell_face = cells
     shadow, run_ptr, run_lo, run_hi, spheres, idx, plane, edges, margin, face_ray = occ
     surface, axes, spot_uv, centre, radius, buckets, bucket_ptr, bucket_col = laser_plane
     M = centroid.shape[0]
-    n_spots = out.shape[1]
+    n_spots = out.shape[0]
     u0, v0, bw, bh = buckets[0], buckets[1], buckets[2], buckets[3]
     nbu, nbv = int(buckets[4]), int(buckets[5])
     for m in prange(M):
@@ -216,7 +216,7 @@ def shadow_flags(cells, occ, grown, laser_plane, out):
                         b = bv * nbu + bu
                         for e in range(bucket_ptr[b], bucket_ptr[b + 1]):
                             col = bucket_col[e]
-                            if out[m, col]:
+                            if out[col, m]:
                                 continue
                             u, v = spot_uv[col, 0], spot_uv[col, 1]
                             if (u < lo_u - INSIDE_TOL or u > hi_u + INSIDE_TOL or v < lo_v - INSIDE_TOL
@@ -232,12 +232,12 @@ def shadow_flags(cells, occ, grown, laser_plane, out):
                                         inside = False
                                         break
                             if inside:
-                                out[m, col] = 1
+                                out[col, m] = 1
             if everything:
                 break
         if everything:
             for col in range(n_spots):
-                out[m, col] = 1
+                out[col, m] = 1
 
 
 def spot_buckets(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
