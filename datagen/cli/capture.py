@@ -180,10 +180,12 @@ def _histogram(path: Path, pixel: str | None):
 @click.option("--fix", "fix", multiple=True, help="hold a parameter, NAME=VALUE (e.g. dead_time=77ns)")
 @click.option("--initial", "initial", multiple=True, help="start a parameter at NAME=VALUE (e.g. dead_time=50ns)")
 @click.option("--pixel", default=None, help="a scan capture: the scan point 'i,j' (default: all summed)")
+@click.option("--afterpulse-time-constant", "afterpulse_tau", default=None,
+              help="free_running: also fit the afterpulse probability, with this time constant (e.g. 2ns)")
 @click.option("--out", "out", type=click.Path(path_type=Path), default=None, help="detector YAML to write")
 @friendly_errors
 def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, t_start, model, irf, fit_fraction, pulse_sigma,
-                     fix, initial, pixel, out):
+                     fix, initial, pixel, afterpulse_tau, out):
     """Fit datagen's detector model to the histogram HIST of a known return (maximum likelihood).
 
     HIST: .npy / .csv / .txt (counts, or time s and counts), a lab capture file or a datagen store. Prints each
@@ -204,7 +206,8 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, t_start, model,
     fit = fit_detector(h, bin_width=dt, repetition_rate=parse_rate(repetition_rate), n_cycles=n_cycles, model=model,
                        irf=irf, t_start=max(t0, 0.0),
                        pulse_sigma=None if pulse_sigma is None else parse_duration(pulse_sigma),
-                       fixed=_kv(fix, "--fix"), fit_fraction=fit_fraction, initial=_kv(initial, "--initial") or None)
+                       fixed=_kv(fix, "--fix"), fit_fraction=fit_fraction, initial=_kv(initial, "--initial") or None,
+                       afterpulse_time_constant=None if afterpulse_tau is None else parse_duration(afterpulse_tau))
     click.echo(fit.summary())
     for line in fit.messages:
         click.echo(f"note: {line}")
