@@ -71,7 +71,7 @@ def _cdf2(y: float, t0: float, t1: float, t2: float) -> float:
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def deposit_tent(c0: float, c1: float, c2: float, w: float, comp: int, n_fine: int, min_nodes: float,
                  hist: np.ndarray, curvature: np.ndarray, total: np.ndarray, beyond: np.ndarray) -> None:
     """Deposit the tent of weight ``w`` (photons per pulse) with sorted node coordinates c0 <= c1 <= c2 into
