@@ -232,13 +232,16 @@ def _first_bad_sample(values: np.ndarray) -> tuple[int, tuple[float, tuple[int, 
     return i, _first_bad(values[i], bad[i])
 
 
-def write_scores(scores: dict, out: str | Path, stem: str = "scores") -> tuple[Path, Path]:
-    """Write ``<stem>.csv`` (one row per sample) and ``<stem>.json`` (summary + rows) into folder ``out``
-    (``datagen score`` names them after the predictions file: ``pred_scores.csv`` for ``pred.npz``)."""
+def write_scores(scores: dict, out: str | Path, stem: str = "scores",
+                 columns: list[str] | None = None) -> tuple[Path, Path]:
+    """Write ``<stem>.csv`` (one row per sample) and ``<stem>.json`` (summary + rows; NaN as null) into folder
+    ``out`` (``datagen score`` names them after the predictions file: ``pred_scores.csv`` for ``pred.npz``).
+    ``columns``: the CSV's columns (default: index and the metrics of :func:`score_predictions` the rows hold)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    columns = ["index"] + [c for c in ("depth_mae", "depth_rmse", "depth_pixels", "occupancy_iou")
-                           if any(c in r for r in scores["rows"])]
+    if columns is None:
+        columns = ["index"] + [c for c in ("depth_mae", "depth_rmse", "depth_pixels", "occupancy_iou")
+                               if any(c in r for r in scores["rows"])]
     csv_path, json_path = out / f"{stem}.csv", out / f"{stem}.json"
     with csv_path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=columns)

@@ -18,15 +18,13 @@ mean and median angle in degrees between predicted and labelled normals).
 """
 from __future__ import annotations
 
-import csv
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import DatasetError
-from .score import score_predictions
+from .score import score_predictions, write_scores
 
 DELTAS = (1.25, 1.25 ** 2, 1.25 ** 3)
 """Thresholds of the depth accuracy within δ (Eigen et al. 2014, the monocular-depth convention)."""
@@ -149,21 +147,5 @@ def score_suite(pred: str | Path, dataset: str | Path, name: str | None = None, 
 
 def write_suite_scores(scores: dict, out: str | Path, stem: str) -> tuple[Path, Path]:
     """Write ``<stem>.csv`` (one row per sample, every metric) and ``<stem>.json`` (summary and rows; NaN as null)
-    into folder ``out``."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    columns = list(dict.fromkeys(k for r in scores["rows"] for k in r))
-    csv_path, json_path = out / f"{stem}.csv", out / f"{stem}.json"
-    with csv_path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=columns)
-        writer.writeheader()
-        for row in scores["rows"]:
-            writer.writerow({c: row.get(c, "") for c in columns})
-
-    def plain(v):
-        return None if isinstance(v, float) and math.isnan(v) else v
-
-    json_path.write_text(json.dumps({"summary": {k: plain(v) for k, v in scores["summary"].items()},
-                                     "rows": [{k: plain(v) for k, v in r.items()} for r in scores["rows"]]},
-                                    indent=1) + "\n")
-    return csv_path, json_path
+    into folder ``out`` (:func:`datagen.dataset.score.write_scores` with every column the rows hold)."""
+    return write_scores(scores, out, stem, columns=list(dict.fromkeys(k for r in scores["rows"] for k in r)))
