@@ -155,7 +155,7 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     axes = np.stack([spots.mean(axis=0), u, np.cross(n, u)])
     uv = (spots - axes[0]) @ axes[1:].T
     buckets, bucket_ptr, bucket_col = spot_buckets(uv)
-    centre = spots.mean(axis=0)
+    centre = axes[0]                                      # the laser points' mean
     radius = float(np.sqrt(((spots - centre) ** 2).sum(axis=1).max()))
     flags = np.zeros((len(lasers), q.n_cells), dtype=np.uint8)       # laser point-major (the pair loop's order)
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
