@@ -182,10 +182,12 @@ def _histogram(path: Path, pixel: str | None):
 @click.option("--pixel", default=None, help="a scan capture: the scan point 'i,j' (default: all summed)")
 @click.option("--afterpulse-time-constant", "afterpulse_tau", default=None,
               help="free_running: also fit the afterpulse probability, with this time constant (e.g. 2ns)")
+@click.option("--dead-time-bounds", "dead_time_bounds", default=None,
+              help="free_running: search the dead time only in LOW,HIGH (e.g. 2ns,10ns; a datasheet range)")
 @click.option("--out", "out", type=click.Path(path_type=Path), default=None, help="detector YAML to write")
 @friendly_errors
 def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, t_start, model, irf, fit_fraction, pulse_sigma,
-                     fix, initial, pixel, afterpulse_tau, out):
+                     fix, initial, pixel, afterpulse_tau, dead_time_bounds, out):
     """Fit datagen's detector model to the histogram HIST of a known return (maximum likelihood).
 
     HIST: .npy / .csv / .txt (counts, or time s and counts), a lab capture file or a datagen store. Prints each
@@ -203,11 +205,18 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, t_start, model,
     if dt is None:
         raise click.BadParameter("the histogram file has no time axis: give --bin-width", param_hint="--bin-width")
     t0 = parse_duration(t_start) if t_start is not None else (t0_file or 0.0)
+    bounds = None
+    if dead_time_bounds is not None:
+        parts = dead_time_bounds.split(",")
+        if len(parts) != 2:
+            raise click.BadParameter(f"expected LOW,HIGH, got {dead_time_bounds!r}", param_hint="--dead-time-bounds")
+        bounds = tuple(parse_duration(p.strip()) for p in parts)
     fit = fit_detector(h, bin_width=dt, repetition_rate=parse_rate(repetition_rate), n_cycles=n_cycles, model=model,
                        irf=irf, t_start=max(t0, 0.0),
                        pulse_sigma=None if pulse_sigma is None else parse_duration(pulse_sigma),
                        fixed=_kv(fix, "--fix"), fit_fraction=fit_fraction, initial=_kv(initial, "--initial") or None,
-                       afterpulse_time_constant=None if afterpulse_tau is None else parse_duration(afterpulse_tau))
+                       afterpulse_time_constant=None if afterpulse_tau is None else parse_duration(afterpulse_tau),
+                       dead_time_bounds=bounds)
     click.echo(fit.summary())
     for line in fit.messages:
         click.echo(f"note: {line}")

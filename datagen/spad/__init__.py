@@ -56,6 +56,8 @@ Modules (each imports only the ones above it):
 * :mod:`~datagen.spad.correction`: Coates pile-up correction.
 * :mod:`~datagen.spad.counters`: counting-mode detectors (no TDC).
 * :mod:`~datagen.spad.histogram`: :func:`expected_histogram` and :func:`sample_histogram` for every model.
+* :mod:`~datagen.spad.fit_numerics`: Newton polishing, inverse information and sandwich covariance of the fit.
+* :mod:`~datagen.spad.fit`: detector parameters fitted to a measured histogram (docs/capture_io.md).
 """
 from __future__ import annotations
 

@@ -14,13 +14,20 @@ The model is the one :func:`datagen.spad.sample_histogram` draws from, evaluated
 Likelihood. ``pile_up``: exact — the histogram of n cycles is multinomial over the bins plus "no detection in
 the window" (jitter after pile-up moves each recorded photon independently, so it stays multinomial).
 ``poisson``: independent Poisson bins (exact). ``free_running``: independent Poisson bins with the model's
-stationary expected histogram (a quasi-likelihood: dead time makes the bins slightly sub-Poissonian, so its
-intervals are conservative; afterpulsing correlates bins one dead time apart, and then they are too narrow,
-≈ ×1.5 for the afterpulse probability in docs/capture_io.md's case). Parameters are fitted on log scales (logit
-for the tail fraction and the afterpulse probability) with
-``scipy.optimize``; uncertainties are the inverse observed Fisher information (the Hessian of −log L at the
-optimum) in those coordinates, mapped back, so 95 % intervals are asymmetric in SI units. Goodness of fit: the
-Poisson deviance and Pearson χ² against bins − parameters degrees of freedom.
+stationary expected histogram (a quasi-likelihood: dead time and afterpulses correlate the bins). Parameters are
+fitted on log scales (logit for the tail fraction and the afterpulse probability) with ``scipy.optimize``;
+uncertainties are the inverse observed Fisher information (the Hessian of −log L at the optimum) in those
+coordinates, mapped back, so 95 % intervals are asymmetric in SI units. A free-running fit with afterpulsing
+reports the sandwich covariance H⁻¹VH⁻¹ instead (``covariance="sandwich"``, available to any free-running fit):
+V, the variance of the quasi-likelihood's score, from histograms simulated from the fitted parameters (see
+:func:`fit_detector`). Goodness of fit: the Poisson deviance and Pearson χ² against bins − parameters degrees of
+freedom.
+
+Dead time modulo the period: the detection-phase chain of a free-running detector depends on the dead time only
+modulo the laser period T (the next detection after a live point is the same in phase whether τ or τ + T), so τ
+and τ + T differ only through the detections per cycle, which the signal and background nearly compensate. The
+fit refits from τ ± T, keeps the better optimum and, when the two are within DEAD_TIME_ALIAS_MARGIN in −log L,
+says in one line that the dead time is not identifiable modulo the period (bound it: ``dead_time_bounds``).
 
 A parameter is *not identifiable* when the data do not constrain it: its 95 % interval spans more than a factor
 :data:`IDENTIFIABLE_SPAN` or the Hessian is singular along it. The fit says so in one line per parameter
@@ -38,7 +45,8 @@ from scipy import optimize, special, stats
 
 from ..errors import ConfigError
 from .config import DetectorConfig
-from .histogram import expected_histogram
+from .fit_numerics import inverse_covariance, newton, sandwich_covariance
+from .histogram import expected_histogram, sample_histogram
 from .rates import rates_from_envelope
 
 __all__ = [
@@ -56,8 +64,22 @@ DEAD_TIME_SCAN = 24
 """Dead times (log grid, two bins to MAX_DEAD_TIME_PERIODS periods) scanned after a free-running fit to escape a
 local minimum."""
 
+DEAD_TIME_ALIAS_MARGIN = 3.0
+"""Two free-running optima whose dead times differ by a whole laser period (τ and τ ± T explain nearly the same
+phase histogram, the signal and background compensating) whose −log L differ by less than this (a likelihood ratio
+below e³ ≈ 20) make the dead time not identifiable modulo the period: the fit says so in one line."""
+
+SANDWICH_REPLICATES = 1000
+"""Simulated histograms (independent pixels of one event simulation) whose quasi-score variance gives the
+sandwich covariance of a free-running fit."""
+
+SANDWICH_CYCLES = 2000
+"""Laser cycles of each simulated histogram (fewer when the data have fewer); the score variance is scaled to the
+data's cycle count (it grows linearly in cycles)."""
+
 FIT_MODELS = ("pile_up", "poisson", "free_running")
 IRF_SHAPES = ("gauss", "exgauss")
+COVARIANCES = ("fisher", "sandwich")
 
 _LOG = ("signal", "jitter_sigma", "diffusion_tail", "background_rate", "dead_time")
 _LOGIT = ("diffusion_fraction", "afterpulse_probability")
@@ -148,6 +170,10 @@ class DetectorFit:
                          f"[95 %: {lo:.6g}, {hi:.6g}]{flag}")
         lines.append(f"  goodness of fit: deviance {self.deviance:.1f}, Pearson chi2 {self.pearson_chi2:.1f} on "
                      f"{self.dof} dof (p = {self.p_value:.3g})")
+        if self.settings.get("covariance") == "sandwich":
+            lines.append(f"  intervals: sandwich (quasi-likelihood score variance from "
+                         f"{self.settings['sandwich_replicates']} histograms of {self.settings['sandwich_cycles']} "
+                         f"cycles simulated from the fit, seed {self.settings['seed']})")
         return "\n".join(lines)
 
     def detector_yaml(self) -> str:
@@ -173,7 +199,8 @@ class DetectorFit:
             if "afterpulse_probability" in self.values:
                 rows.append(f"afterpulse_probability: {c.afterpulse_probability!r}")
                 rows.append(f"afterpulse_time_constant: {c.afterpulse_time_constant!r}")
-        rows.append("# fit (value, 1 sigma, 95 % interval):")
+        rows.append("# fit (value, 1 sigma, 95 % interval" + (", sandwich covariance):"
+                                                             if self.settings.get("covariance") == "sandwich" else "):"))
         for name, value in self.values.items():
             if name in self.fixed:
                 rows.append(f"#   {name}: {value!r} (fixed)")
@@ -212,7 +239,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                  model: str = "pile_up", irf: str = "exgauss", t_start: float = 0.0,
                  pulse_sigma: float | None = None, fixed: dict[str, float] | None = None,
                  fit_fraction: bool = False, initial: dict[str, float] | None = None,
-                 afterpulse_time_constant: float | None = None) -> DetectorFit:
+                 afterpulse_time_constant: float | None = None, covariance: str | None = None,
+                 seed: int = 0, dead_time_bounds: tuple[float, float] | None = None) -> DetectorFit:
     """Maximum-likelihood fit of datagen's detector model to the histogram of a known return.
 
     Args:
@@ -230,11 +258,26 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         afterpulse_time_constant: s, the detector's afterpulse time constant τ_ap (known, held); when given, a
             ``free_running`` fit also fits ``afterpulse_probability`` (logit scale; afterpulses at
             ``t + dead_time + Exp(τ_ap)``, the expectation of datagen/spad/free_running.py).
+        covariance: how the uncertainties are computed: "fisher" (inverse observed information of the
+            likelihood; exact for ``pile_up`` and ``poisson``) or "sandwich" (``free_running`` only: H⁻¹VH⁻¹, H
+            the Hessian of the Poisson quasi-likelihood, V the variance of its score estimated from
+            SANDWICH_REPLICATES histograms of SANDWICH_CYCLES cycles simulated from the fitted parameters by
+            :func:`datagen.spad.sample_histogram`, scaled to ``n_cycles``). Default: "sandwich" for a free-running
+            fit with afterpulsing (the afterpulse clusters make the Fisher intervals too narrow), else "fisher".
+        dead_time_bounds: (low, high) s, what the detector's datasheet allows for its dead time
+            (``free_running`` only): the fit searches only there (default: two bins to MAX_DEAD_TIME_PERIODS
+            periods). A free-running histogram fixes the dead time only weakly modulo the laser period (τ and τ ± T
+            give the same detection-phase chain, see DEAD_TIME_ALIAS_MARGIN); bounds narrower than a period
+            exclude the aliases.
+        seed: the sandwich's simulation stream, ``numpy.random.default_rng(seed)`` (int ≥ 0; results are
+            deterministic in it).
     Returns:
-        :class:`DetectorFit`.
+        :class:`DetectorFit` (``settings["covariance"]`` names the method used; a sandwich fit also records
+        ``sandwich_replicates``, ``sandwich_cycles`` and ``seed``).
     Raises:
-        ConfigError: bad arguments (unknown model, IRF or parameter, a histogram that is empty, negative,
-            non-integer or has no counts); the message names the argument and the value.
+        ConfigError: bad arguments (unknown model, IRF, covariance or parameter, a sandwich for a model whose
+            likelihood is exact, a histogram that is empty, negative, non-integer or has no counts); the message
+            names the argument and the value.
     """
     h = np.asarray(histogram)
     if h.ndim != 1 or h.size < 8:
@@ -259,6 +302,23 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
     if afterpulse_time_constant is not None and (model != "free_running" or not afterpulse_time_constant >= 0):
         raise ConfigError(f"afterpulse_time_constant={afterpulse_time_constant!r}: needs model 'free_running' "
                           f"(got {model!r}) and a value >= 0 s")
+    if covariance is None:
+        covariance = "sandwich" if afterpulse_time_constant is not None else "fisher"
+    if covariance not in COVARIANCES or (covariance == "sandwich" and model != "free_running"):
+        raise ConfigError(f"covariance={covariance!r}: must be one of {', '.join(COVARIANCES)}, and 'sandwich' needs "
+                          f"model 'free_running' (got {model!r}; the other models' likelihoods are exact)")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"seed must be an integer >= 0, got {seed!r}")
+    if dead_time_bounds is not None:
+        try:
+            lo_dt, hi_dt = (float(v) for v in dead_time_bounds)
+        except (TypeError, ValueError):
+            lo_dt = hi_dt = math.nan
+        if model != "free_running" or not 0 < lo_dt < hi_dt <= MAX_DEAD_TIME_PERIODS / repetition_rate:
+            raise ConfigError(f"dead_time_bounds={dead_time_bounds!r}: needs model 'free_running' (got {model!r}) and "
+                              f"0 < low < high <= {MAX_DEAD_TIME_PERIODS:g} periods (s)")
+    else:
+        lo_dt, hi_dt = 2 * bin_width, MAX_DEAD_TIME_PERIODS / repetition_rate
     names_all = fit_parameter_names(model, irf, fit_fraction, afterpulse_time_constant is not None)
     fixed = dict(fixed or {})
     for k in fixed:
@@ -270,6 +330,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
     free = [k for k in names_all if k not in fixed]
     start = _initial_guess(h, bin_width, n_cycles, model, pulse)
     start.update(initial or {})
+    if dead_time_bounds is not None:
+        start["dead_time"] = min(max(start["dead_time"], lo_dt * 1.01), hi_dt * 0.99)
     base = {"model": model, "repetition_rate": repetition_rate, "n_cycles": int(n_cycles), "bin_width": bin_width,
             "t_start": t_start}
     if afterpulse_time_constant is not None:
@@ -288,7 +350,7 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
 
     def nll(x: np.ndarray) -> float:
         p = params_of(x)
-        if p.get("dead_time", 0.0) > MAX_DEAD_TIME_PERIODS / repetition_rate:
+        if p.get("dead_time", 0.0) > hi_dt or (dead_time_bounds is not None and p["dead_time"] < lo_dt):
             return 1e300
         try:
             mu = expected(p)
@@ -301,14 +363,15 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
     def local_fit(x_start: np.ndarray):
         res = optimize.minimize(nll, x_start, method="Nelder-Mead",
                                 options={"maxfev": 600 * len(free), "xatol": 1e-4, "fatol": 1e-3, "adaptive": True})
-        return _newton(nll, res.x, steps)
+        return newton(nll, res.x, steps)
 
     best, hess, converged = local_fit(x0)
+    alias = None                          # (the runner-up's dead time, its −log L above the best)
     if "dead_time" in free:
         # the likelihood has local minima in the dead time (a short one explains part of the dip after the return):
         # scan it with the other parameters held and refit from the best dead time at least a factor 2 away
         i = free.index("dead_time")
-        grid = np.log(np.geomspace(2 * bin_width, MAX_DEAD_TIME_PERIODS / repetition_rate, DEAD_TIME_SCAN))
+        grid = np.log(np.geomspace(lo_dt, hi_dt, DEAD_TIME_SCAN))
         trial = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid])
         far = np.abs(grid - best[i]) > math.log(2.0)          # dead times at least a factor 2 away
         if far.any():
@@ -316,8 +379,26 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             other = local_fit(np.concatenate([best[:i], [grid[j]], best[i + 1:]]))
             if nll(other[0]) < nll(best):
                 best, hess, converged = other
+        # τ and τ ± one period explain nearly the same phase histogram: refit from each, keep the best, and remember
+        # the runner-up (its −log L above the best) for the identifiability line
+        period = 1.0 / repetition_rate
+        for shift in (-period, period):
+            tau = float(np.exp(best[i])) + shift
+            if lo_dt <= tau <= hi_dt:
+                other = local_fit(np.concatenate([best[:i], [math.log(tau)], best[i + 1:]]))
+                if abs(float(np.exp(other[0][i]) - np.exp(best[i]))) < 0.5 * period:
+                    continue                                       # fell back to the same optimum
+                if nll(other[0]) < nll(best):
+                    other, (best, hess, converged) = (best, hess, converged), other
+                gap = nll(other[0]) - nll(best)
+                if alias is None or gap < alias[1]:
+                    alias = (float(np.exp(other[0][i])), gap)
     values = params_of(best)
-    cov, singular = _inverse(hess)
+    cov, singular = inverse_covariance(hess)
+    if covariance == "sandwich":
+        m = min(int(n_cycles), SANDWICH_CYCLES)
+        cov = sandwich_covariance(cov, best, steps, lambda x: expected(params_of(x)),
+                                  _simulate_replicates(base, values, irf, n_bins, pulse, m, seed), int(n_cycles), m)
     errors, intervals, identifiable, messages = {}, {}, {}, []
     for i, name in enumerate(free):
         var = cov[i, i]
@@ -342,6 +423,12 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         if not good:
             messages.append(f"{name} is not identifiable from this histogram (95 % interval {lo:.3g} .. {hi:.3g} "
                             f"{_UNITS[name]}): fix it to a known value (fixed={{'{name}': ...}} / --fix {name}=...)")
+    if alias is not None and identifiable["dead_time"] and alias[1] < DEAD_TIME_ALIAS_MARGIN:
+        identifiable["dead_time"] = False
+        messages.append(f"dead_time is not identifiable modulo the laser period from this histogram: "
+                        f"{values['dead_time']:.4g} s and {alias[0]:.4g} s fit within a likelihood ratio of "
+                        f"{math.exp(alias[1]):.3g} (threshold {math.exp(DEAD_TIME_ALIAS_MARGIN):.3g}): fix it to a "
+                        f"known value or bound it (dead_time_bounds=(low, high) / --dead-time-bounds LOW,HIGH)")
     mu = expected(values)
     deviance, pearson, dof, p_value = _goodness(h, mu, len(free))
     return DetectorFit(model, irf, values, errors, intervals, {k: v for k, v in fixed.items()
@@ -349,7 +436,12 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                        identifiable, messages, deviance, pearson, dof, p_value, mu, _config(base, values, irf),
                        {"bin_width": bin_width, "repetition_rate": repetition_rate, "n_cycles": int(n_cycles),
                         "t_start": t_start, "pulse_sigma": pulse, "converged": converged,
-                        "afterpulse_time_constant": afterpulse_time_constant})
+                        "afterpulse_time_constant": afterpulse_time_constant, "covariance": covariance,
+                        **({"dead_time_alias": {"dead_time": alias[0], "delta_log_likelihood": alias[1]}}
+                           if alias is not None else {}),
+                        **({"sandwich_replicates": SANDWICH_REPLICATES,
+                            "sandwich_cycles": min(int(n_cycles), SANDWICH_CYCLES), "seed": int(seed)}
+                           if covariance == "sandwich" else {})})
 
 
 def _config(base: dict, p: dict, irf: str) -> DetectorConfig:
@@ -362,6 +454,16 @@ def _config(base: dict, p: dict, irf: str) -> DetectorConfig:
         if "afterpulse_time_constant" in base:
             extra["afterpulse_probability"] = p["afterpulse_probability"]
     return DetectorConfig(**base, **extra)
+
+
+def _simulate_replicates(base: dict, values: dict, irf: str, n_bins: int, pulse: float, cycles: int,
+                         seed: int) -> np.ndarray:
+    """SANDWICH_REPLICATES histograms of ``cycles`` cycles drawn from the fitted model (one event simulation, a
+    pixel per replicate, ``numpy.random.default_rng(seed)``): int64 (replicates, bins)."""
+    cfg = _config({**base, "n_cycles": cycles}, values, irf)
+    env = return_envelope(n_bins, base["bin_width"], values["position"], values["signal"], pulse)
+    rates = rates_from_envelope(env, cfg)
+    return sample_histogram(np.tile(rates, (SANDWICH_REPLICATES, 1)), cfg, np.random.default_rng(seed))
 
 
 def _negative_log_likelihood(h: np.ndarray, mu: np.ndarray, n: int, model: str) -> float:
@@ -416,74 +518,3 @@ def _dead_time_guess(h: np.ndarray, peak: int, width: float) -> float:
     k = np.arange(first + w, h.size - w + 1)
     rise = (c[k + w] - c[k]) / w - (c[k] - c[k - w]) / w
     return float(k[int(np.argmax(rise))] - peak)
-
-
-NEWTON_STEPS = 20
-"""Newton iterations (numerical gradient and Hessian) polishing the Nelder–Mead optimum."""
-
-NEWTON_DECREMENT = 1e-4
-"""Converged when the Newton decrement gᵀH⁻¹g/2 (the −log L still to gain) is below this: a parameter change of
-√(2·1e-4) ≈ 0.014 standard deviations at most."""
-
-
-def _newton(f, x: np.ndarray, steps: list[float]) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Newton's method with step halving from ``x``: (optimum, Hessian there, converged); see NEWTON_DECREMENT."""
-    fx = f(x)
-    for _ in range(NEWTON_STEPS):
-        g = _gradient(f, x, steps)
-        hess = _hessian(f, x, steps, fx)
-        w, v = np.linalg.eigh(0.5 * (hess + hess.T))
-        w = np.maximum(w, 1e-8 * max(float(np.abs(w).max()), 1e-300))   # keep the step a descent direction
-        dx = -(v @ ((v.T @ g) / w))
-        decrement = float(-(g @ dx)) / 2
-        if decrement < NEWTON_DECREMENT:
-            return x, hess, True
-        t = 1.0
-        while t > 1e-4:
-            fn = f(x + t * dx)
-            if fn < fx:
-                x, fx = x + t * dx, fn
-                break
-            t *= 0.5
-        else:                      # no decrease along the Newton step: the noise floor of −log L
-            return x, hess, decrement < 100 * NEWTON_DECREMENT
-    return x, _hessian(f, x, steps, fx), False
-
-
-def _gradient(f, x: np.ndarray, steps: list[float]) -> np.ndarray:
-    g = np.zeros(x.size)
-    for i, h in enumerate(steps):
-        e = np.zeros(x.size)
-        e[i] = h
-        g[i] = (f(x + e) - f(x - e)) / (2 * h)
-    return g
-
-
-def _hessian(f, x: np.ndarray, steps: list[float], f0: float | None = None) -> np.ndarray:
-    """Central-difference Hessian; step 1e-3 in log/logit coordinates, ~1e-3 of the scale for positions."""
-    k = x.size
-    hs = np.asarray(steps, dtype=np.float64)
-    f0 = f(x) if f0 is None else f0
-    out = np.zeros((k, k))
-    for i in range(k):
-        ei = np.zeros(k)
-        ei[i] = hs[i]
-        out[i, i] = (f(x + ei) - 2 * f0 + f(x - ei)) / hs[i] ** 2
-        for j in range(i + 1, k):
-            ej = np.zeros(k)
-            ej[j] = hs[j]
-            v = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (4 * hs[i] * hs[j])
-            out[i, j] = out[j, i] = v
-    return out
-
-
-def _inverse(hess: np.ndarray) -> tuple[np.ndarray, set[int]]:
-    """Covariance = H⁻¹ on the well-determined subspace; indices whose variance is unbounded (H singular or not
-    positive along them) are returned as singular."""
-    w, v = np.linalg.eigh(0.5 * (hess + hess.T))
-    scale = max(float(np.abs(w).max()), 1e-300)
-    good = w > 1e-10 * scale
-    inv_w = np.where(good, 1.0 / np.where(good, w, 1.0), 0.0)
-    cov = (v * inv_w) @ v.T
-    singular = {i for i in range(hess.shape[0]) if np.any((~good) & (np.abs(v[i]) > 0.1))}
-    return cov, singular
