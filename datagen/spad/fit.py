@@ -381,8 +381,11 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                 best, hess, converged = other
         # τ and τ ± one period explain nearly the same phase histogram: refit from each, keep the best, and remember
         # the runner-up (its −log L above the best) for the identifiability line
+        # (only when the dead time is identifiable locally: otherwise the line below says so already)
         period = 1.0 / repetition_rate
-        for shift in (-period, period):
+        var = inverse_covariance(hess)[0][i, i]
+        local = bool(np.isfinite(var) and 0 < var and math.exp(2 * 1.96 * math.sqrt(var)) <= IDENTIFIABLE_SPAN)
+        for shift in (-period, period) if local else ():
             tau = float(np.exp(best[i])) + shift
             if lo_dt <= tau <= hi_dt:
                 other = local_fit(np.concatenate([best[:i], [math.log(tau)], best[i + 1:]]))
