@@ -131,6 +131,9 @@ def test_bad_input_is_a_one_line_error():
     with pytest.raises(ConfigError, match=r"dead_time_bounds=\(2e-09, 8e-09\): needs model 'free_running' \(got "
                                           r"'pile_up'\)"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, dead_time_bounds=(2e-9, 8e-9))
+    with pytest.raises(ConfigError, match=r"fixed dead_time=1e-08 s is outside dead_time_bounds=\(2e-09, 8e-09\)"):
+        fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, model="free_running",
+                     dead_time_bounds=(2e-9, 8e-9), fixed={"dead_time": 1e-8})
     with pytest.raises(ConfigError, match=r"longer than the laser period"):
         fit_detector(np.ones(4000), bin_width=DT, repetition_rate=20e6, n_cycles=10)
 

@@ -263,12 +263,13 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             the Hessian of the Poisson quasi-likelihood, V the variance of its score estimated from
             SANDWICH_REPLICATES histograms of SANDWICH_CYCLES cycles simulated from the fitted parameters by
             :func:`datagen.spad.sample_histogram`, scaled to ``n_cycles``). Default: "sandwich" for a free-running
-            fit with afterpulsing (the afterpulse clusters make the Fisher intervals too narrow), else "fisher".
+            fit with afterpulsing (correlated bins: the Poisson form's information is not the estimator's
+            variance; the two compared in docs/capture_io.md), else "fisher".
         dead_time_bounds: (low, high) s, what the detector's datasheet allows for its dead time
             (``free_running`` only): the fit searches only there (default: two bins to MAX_DEAD_TIME_PERIODS
-            periods). A free-running histogram fixes the dead time only weakly modulo the laser period (τ and τ ± T
-            give the same detection-phase chain, see DEAD_TIME_ALIAS_MARGIN); bounds narrower than a period
-            exclude the aliases.
+            periods). A free-running histogram determines the dead time modulo the laser period, its whole number
+            of periods only weakly (τ and τ ± T give the same detection-phase chain, see DEAD_TIME_ALIAS_MARGIN);
+            bounds narrower than a period exclude the aliases.
         seed: the sandwich's simulation stream, ``numpy.random.default_rng(seed)`` (int ≥ 0; results are
             deterministic in it).
     Returns:
@@ -325,6 +326,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         if k not in names_all and k != "diffusion_fraction":
             raise ConfigError(f"fixed: unknown parameter {k!r} for model {model!r}, IRF {irf!r} (parameters: "
                               f"{', '.join(names_all)})")
+    if dead_time_bounds is not None and "dead_time" in fixed and not lo_dt <= fixed["dead_time"] <= hi_dt:
+        raise ConfigError(f"fixed dead_time={fixed['dead_time']!r} s is outside dead_time_bounds={dead_time_bounds!r}")
     if irf == "exgauss" and not fit_fraction:
         fixed.setdefault("diffusion_fraction", 1.0)
     free = [k for k in names_all if k not in fixed]
