@@ -10,7 +10,7 @@ the order of ``numpy.cumsum``; the binning is the valid convolution regrouped by
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 __all__ = ["bin_rows", "bin_weights", "fold_rows", "rows_dot"]
 
@@ -28,12 +28,13 @@ def _span(a, r) -> tuple:
     return lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def fold_rows(hist: np.ndarray, curvature: np.ndarray) -> None:
     """hist[r] += the running sum of the running sum of curvature[r], for every row r of the (R, N) float64 arrays,
     from the row's first to its last non-zero second difference (beyond it the double sum of complete tents' second
-    differences is zero, round-off aside). In place; ``curvature`` is left as it is."""
-    for r in range(hist.shape[0]):
+    differences is zero, round-off aside). In place; ``curvature`` is left as it is. The rows run on numba's
+    threads, each row in one thread in node order: the same result for any number of threads."""
+    for r in prange(hist.shape[0]):
         lo, hi = _span(curvature, r)
         first = 0.0
         second = 0.0
@@ -56,16 +57,17 @@ def bin_weights(kernel: np.ndarray, oversample: int) -> np.ndarray:
     return table
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray, row_max: np.ndarray) -> None:
     """out[i, b] = Σ over the ``oversample`` fine cells c of bin b of (hist[rows[i]] ⋆ kernel)[c], the valid-mode
     convolution ``numpy.convolve(hist[row], kernel, "valid")`` (length n_bins · oversample), as each non-zero node's
     weight times its row of :func:`bin_weights` (``table``, (oversample, Q)): (K / oversample + 1) products per
     non-zero node; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
-    row_max (k,) float64 (written)."""
+    row_max (k,) float64 (written). The rows run on numba's threads, each in one thread: the same result for any
+    number of threads."""
     oversample, q_len = table.shape
     n_bins = out.shape[1]
-    for i in range(rows.shape[0]):
+    for i in prange(rows.shape[0]):
         r = rows[i]
         for b in range(n_bins):
             out[i, b] = 0.0
