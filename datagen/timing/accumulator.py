@@ -55,7 +55,7 @@ from scipy.signal import oaconvolve
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
 from .curvature import deposit_curvature
-from .fold_kernel import bin_rows, bin_weights, fold_rows, rows_dot
+from .fold_kernel import bin_rows, bin_weights, fold_rows, nonzero_rows, rows_dot
 from .splat_kernel import splat_nodes
 from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
@@ -534,7 +534,7 @@ class EnvelopeAccumulator:
         batches of ``_CONVOLVE_ROWS``: the compiled direct convolution over each row's non-zero nodes, or one FFT
         convolution per batch for a kernel longer than ``_DIRECT_KERNEL_MAX`` taps)."""
         out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
-        rows = np.flatnonzero(hist.any(axis=1))
+        rows = nonzero_rows(np.ascontiguousarray(hist, dtype=np.float64))
         for start in range(0, len(rows), _CONVOLVE_ROWS):
             ks = rows[start:start + _CONVOLVE_ROWS]
             block = np.empty((len(ks), self.axis.n_bins))
