@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from .. import threads  # noqa: F401  (numba's threading layer, before any parallel kernel)
+
 __all__ = ["bin_rows", "bin_weights", "fold_rows", "nonzero_rows", "rows_dot"]
 
 
