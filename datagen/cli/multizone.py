@@ -12,6 +12,7 @@ from pathlib import Path
 
 import click
 
+from ..errors import ConfigError
 from .errors import friendly_errors
 
 
@@ -38,7 +39,7 @@ def run_multizone(scene_file: Path, out: Path, overrides: dict, nodes: str | Non
         refused: option name → value of ``datagen simulate`` options a multi-zone run does not take (any value
             other than None / False is refused).
     Raises:
-        click.BadParameter: a refused option given, a malformed ``nodes``; SceneError, ConfigError: as
+        ConfigError: a refused option given; click.BadParameter: a malformed ``nodes``; SceneError, ConfigError: as
             :func:`datagen.simulation.multizone.simulate_multizone`.
     """
     from ..io import write_result
@@ -52,8 +53,8 @@ def run_multizone(scene_file: Path, out: Path, overrides: dict, nodes: str | Non
 
     for option, value in (refused or {}).items():
         if value not in (None, False):
-            raise click.BadParameter("does not apply to a multi-zone scene (a flood's zones are simulated in one "
-                                     "run: docs/multizone.md)", param_hint=option)
+            raise ConfigError(f"{option} does not apply to the multi-zone scene {scene_file} (a flood's zones are "
+                              "simulated in one run: docs/multizone.md)")
     check_output_dir(out)
     scene, spec = load_multizone_scene(scene_file)
     if nodes is not None:

@@ -259,7 +259,7 @@ def sample_poisson(lam: np.ndarray, rng: np.random.Generator) -> np.ndarray:
             f"laser's photons_per_pulse (or pulse_energy), the PDE, the aperture, n_cycles or the exposure")
     big = lam > POISSON_NORMAL_ABOVE
     if not big.any():
-        return rng.poisson(lam).astype(np.int64)
+        return rng.poisson(lam).astype(np.int64, copy=False)
     counts = rng.poisson(np.where(big, 0.0, lam)).astype(np.int64)
     lam_big = lam[big]
     counts[big] = np.maximum(np.rint(lam_big + np.sqrt(lam_big) * rng.standard_normal(lam_big.size)),

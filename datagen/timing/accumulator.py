@@ -54,8 +54,9 @@ from scipy.signal import oaconvolve
 
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
+from ..threads import threads_for
 from .curvature import deposit_curvature
-from .fold_kernel import bin_rows, bin_weights, fold_rows, rows_dot
+from .fold_kernel import bin_rows, bin_weights, fold_rows, nonzero_rows, rows_dot
 from .splat_kernel import splat_nodes
 from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
@@ -65,6 +66,7 @@ __all__ = [
     "MAX_FINE_NODES",
     "NEGATIVE_CLAMP_RTOL",
     "CURVATURE_MIN_NODES",
+    "PARALLEL_MIN_NODES",
     "EnvelopeAccumulator",
     "bin_impulses",
 ]
@@ -96,6 +98,10 @@ _CHUNK = 1 << 18
 _DIRECT_KERNEL_MAX = 256
 """Kernels up to this length are convolved directly over each row's non-zero nodes (compiled,
 :func:`datagen.timing.fold_kernel.bin_rows`; exact, no FFT noise); longer ones by overlap-add FFT."""
+
+PARALLEL_MIN_NODES = 1 << 25
+"""Fine grids of at least this many nodes (all components; 256 MiB of float64: the 128 × 128 scans) fold, bin and
+sum their rows on numba's threads (:func:`datagen.threads.threads_for`), smaller ones on one: the same result."""
 
 _CONVOLVE_ROWS = 256
 """Fine-histogram rows convolved with the IRF in one batched FFT call (:meth:`EnvelopeAccumulator.binned`)."""
@@ -414,7 +420,8 @@ class EnvelopeAccumulator:
     def _fold(self) -> np.ndarray:
         """The fine histogram with the pending curvature deposits summed in (twice along the nodes)."""
         if self._curvature is not None:
-            fold_rows(self._hist, self._curvature)      # each row over its pending second differences only
+            with threads_for(self._hist.size, PARALLEL_MIN_NODES):
+                fold_rows(self._hist, self._curvature)  # each row over its pending second differences only
             self._curvature = None
             self._clamp_rtol = CURVATURE_CLAMP_RTOL
         return self._hist
@@ -534,13 +541,15 @@ class EnvelopeAccumulator:
         batches of ``_CONVOLVE_ROWS``: the compiled direct convolution over each row's non-zero nodes, or one FFT
         convolution per batch for a kernel longer than ``_DIRECT_KERNEL_MAX`` taps)."""
         out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
-        rows = np.flatnonzero(hist.any(axis=1))
+        with threads_for(hist.size, PARALLEL_MIN_NODES):
+            rows = nonzero_rows(np.ascontiguousarray(hist, dtype=np.float64))
         for start in range(0, len(rows), _CONVOLVE_ROWS):
             ks = rows[start:start + _CONVOLVE_ROWS]
             block = np.empty((len(ks), self.axis.n_bins))
             if self._bin_table is not None:                  # compiled, over each row's non-zero nodes only
                 peak = np.empty(len(ks))
-                bin_rows(hist, ks.astype(np.int64), self._bin_table, block, peak)
+                with threads_for(hist.size, PARALLEL_MIN_NODES):
+                    bin_rows(hist, ks.astype(np.int64), self._bin_table, block, peak)
             else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
                 span = self._kernel.size - 1
                 rows_ = hist[ks]
@@ -579,7 +588,8 @@ class EnvelopeAccumulator:
         lo = (self.n_left - 0.5 - g) * self.fine_step
         hi = (self.n_cells + self.n_left - 0.5 - g) * self.fine_step
         frac = self.irf.cdf(lo) + self.irf.sf(hi)
-        return result + rows_dot(self._hist, frac)
+        with threads_for(self._hist.size, PARALLEL_MIN_NODES):
+            return result + rows_dot(self._hist, frac)
 
 
 def _active_columns(a: np.ndarray) -> tuple[int, int]:

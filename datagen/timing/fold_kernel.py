@@ -10,9 +10,11 @@ the order of ``numpy.cumsum``; the binning is the valid convolution regrouped by
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-__all__ = ["bin_rows", "bin_weights", "fold_rows", "rows_dot"]
+from .. import threads  # noqa: F401  (numba's threading layer, before any parallel kernel)
+
+__all__ = ["bin_rows", "bin_weights", "fold_rows", "nonzero_rows", "rows_dot"]
 
 
 @njit(cache=True, inline="always")
@@ -28,12 +30,13 @@ def _span(a, r) -> tuple:
     return lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def fold_rows(hist: np.ndarray, curvature: np.ndarray) -> None:
     """hist[r] += the running sum of the running sum of curvature[r], for every row r of the (R, N) float64 arrays,
     from the row's first to its last non-zero second difference (beyond it the double sum of complete tents' second
-    differences is zero, round-off aside). In place; ``curvature`` is left as it is."""
-    for r in range(hist.shape[0]):
+    differences is zero, round-off aside). In place; ``curvature`` is left as it is. The rows run on numba's
+    threads, each row in one thread in node order: the same result for any number of threads."""
+    for r in prange(hist.shape[0]):
         lo, hi = _span(curvature, r)
         first = 0.0
         second = 0.0
@@ -56,16 +59,17 @@ def bin_weights(kernel: np.ndarray, oversample: int) -> np.ndarray:
     return table
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray, row_max: np.ndarray) -> None:
     """out[i, b] = Σ over the ``oversample`` fine cells c of bin b of (hist[rows[i]] ⋆ kernel)[c], the valid-mode
     convolution ``numpy.convolve(hist[row], kernel, "valid")`` (length n_bins · oversample), as each non-zero node's
     weight times its row of :func:`bin_weights` (``table``, (oversample, Q)): (K / oversample + 1) products per
     non-zero node; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
-    row_max (k,) float64 (written)."""
+    row_max (k,) float64 (written). The rows run on numba's threads, each in one thread: the same result for any
+    number of threads."""
     oversample, q_len = table.shape
     n_bins = out.shape[1]
-    for i in range(rows.shape[0]):
+    for i in prange(rows.shape[0]):
         r = rows[i]
         for b in range(n_bins):
             out[i, b] = 0.0
@@ -87,13 +91,29 @@ def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndar
         row_max[i] = peak
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
+def nonzero_rows(a: np.ndarray) -> np.ndarray:
+    """The indices (k,) int64, ascending, of the rows of a (rows, n) float64 array that hold a non-zero entry
+    (``numpy.flatnonzero(a.any(axis=1))``, each row read up to its first non-zero entry, the rows on numba's
+    threads)."""
+    hit = np.zeros(a.shape[0], dtype=np.bool_)
+    n = a.shape[1]
+    for i in prange(a.shape[0]):
+        j = 0
+        while j < n and a[i, j] == 0.0:
+            j += 1
+        hit[i] = j < n
+    return np.flatnonzero(hit)
+
+
+@njit(cache=True, parallel=True)
 def rows_dot(a: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """a @ v (rows,) float64 for a (rows, n) float64 and v (n,) ≥ 0, in one thread, each row from its first to its
-    last non-zero entry (the terms outside add +0.0): a BLAS gemv here starts OpenBLAS's threads, whose spinning
-    afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
+    """a @ v (rows,) float64 for a (rows, n) float64 and v (n,) ≥ 0, each row in one of numba's threads from its
+    first to its last non-zero entry (the terms outside add +0.0; the same result for any number of threads): a BLAS
+    gemv here starts OpenBLAS's threads, whose spinning afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms
+    product."""
     out = np.zeros(a.shape[0])
-    for i in range(a.shape[0]):
+    for i in prange(a.shape[0]):
         lo, hi = _span(a, i)
         s = 0.0
         for j in range(lo, hi):

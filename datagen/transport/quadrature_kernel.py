@@ -36,14 +36,10 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from .. import threads  # noqa: F401  (numba's threading layer, before any parallel kernel)
 from ..scene.brdf_kernel import PHONG, phong_cos_alpha, phong_power, phong_value
 from ..timing.tent_kernel import deposit_tent, sort3
 from .physics import attenuation_term, emission_term, fov_term, irradiance_term
-
-if numba.config.THREADING_LAYER == "default":
-    # the parallel kernels' threads: GNU OpenMP before TBB (numba tries TBB first; the TBB beside Embree here is
-    # older than numba needs, so that try ends in a NumbaWarning on every first parallel run)
-    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
 __all__ = ["candidates", "channel_groups", "deposit_pairs", "face_candidates", "occluder_planes"]
 

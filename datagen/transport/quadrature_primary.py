@@ -13,12 +13,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import numba
 import numpy as np
 
 from ..scene import RayCaster
 from ..scene.separation import hull_planes, may_meet, outward_planes
 from ..scene.brdf_kernel import lambertian_value, on_arrays
+from ..threads import threads_for
 from ..units import SPEED_OF_LIGHT
 from .quadrature_kernel import candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes
 from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
@@ -222,12 +222,8 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
     ``PARALLEL_MIN_PAIRS`` (sub-triangle, target) pairs use numba's threads (so does the rule at h/2 of a plain
     split's estimate, :func:`datagen.transport.quadrature_split.refined`, with the same targets and 4× the sub-triangles),
     shorter ones one thread; the result is the same bit for bit."""
-    threads = numba.get_num_threads()
-    numba.set_num_threads(threads if q.n_cells * len(q.targets) >= PARALLEL_MIN_PAIRS else 1)
-    try:
+    with threads_for(q.n_cells * len(q.targets), PARALLEL_MIN_PAIRS):
         _run_compiled(q, grid, coarse, progress)
-    finally:
-        numba.set_num_threads(threads)
 
 
 def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:

@@ -1,0 +1,78 @@
+"""The accumulator's compiled row kernels (datagen/timing/fold_kernel.py) against numpy, and the same bits on one
+thread and on two (their rows run on numba's threads for large grids: datagen.threads.threads_for)."""
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from datagen.timing.fold_kernel import bin_rows, bin_weights, fold_rows, nonzero_rows, rows_dot
+
+ROWS, NODES, OVERSAMPLE = 300, 640, 5
+
+
+def sparse_rows(seed: int) -> np.ndarray:
+    """(ROWS, NODES) float64: a third of the rows empty, the others non-zero on a random span of ≤ 120 nodes."""
+    rng = np.random.default_rng(seed)
+    a = np.zeros((ROWS, NODES))
+    for r in rng.choice(ROWS, 2 * ROWS // 3, replace=False):
+        lo = int(rng.integers(0, NODES - 120))
+        n = int(rng.integers(1, 120))
+        a[r, lo:lo + n] = rng.random(n)
+    return a
+
+
+def on_threads(n: int, fn, *args):
+    threads = numba.get_num_threads()
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    try:
+        return fn(*args)
+    finally:
+        numba.set_num_threads(threads)
+
+
+def test_nonzero_rows_and_rows_dot_match_numpy():
+    a = sparse_rows(1)
+    v = np.random.default_rng(2).random(NODES)
+    for n in (1, 2):
+        assert np.array_equal(on_threads(n, nonzero_rows, a), np.flatnonzero(a.any(axis=1)))
+        assert on_threads(n, rows_dot, a, v) == pytest.approx(a @ v, rel=1e-12, abs=0.0)
+    assert np.array_equal(on_threads(1, rows_dot, a, v), on_threads(2, rows_dot, a, v))
+    assert len(nonzero_rows(np.zeros((4, 7)))) == 0
+
+
+def test_fold_rows_is_the_double_running_sum():
+    """Curvature rows that are second differences of a compact profile fold back to that profile (the double
+    running sum, numpy.cumsum twice, vanishes beyond each row's span), on one thread and on two alike."""
+    profile = sparse_rows(3)
+    padded = np.pad(profile, ((0, 0), (2, 2)))
+    curvature = np.diff(padded, n=2, axis=1)[:, :NODES]          # second differences, stored at the node they end on
+    base = np.random.default_rng(4).random((ROWS, NODES))
+    out = {}
+    for n in (1, 2):
+        hist = base.copy()
+        on_threads(n, fold_rows, hist, curvature)
+        out[n] = hist
+    assert np.array_equal(out[1], out[2])
+    expected = base + np.cumsum(np.cumsum(curvature, axis=1), axis=1)
+    assert np.abs(out[1] - expected).max() < 1e-12
+    assert np.abs(out[1] - base - profile).max() < 1e-12
+
+
+def test_bin_rows_is_the_valid_convolution_summed_per_bin():
+    hist = sparse_rows(5)
+    kernel = np.exp(-0.5 * ((np.arange(23) - 11) / 3.0) ** 2)
+    kernel /= kernel.sum()
+    table = bin_weights(kernel, OVERSAMPLE)
+    n_bins = (NODES - len(kernel) + 1) // OVERSAMPLE
+    rows = np.flatnonzero(hist.any(axis=1)).astype(np.int64)
+    got = {}
+    for n in (1, 2):
+        out, peak = np.empty((len(rows), n_bins)), np.empty(len(rows))
+        on_threads(n, bin_rows, hist, rows, table, out, peak)
+        got[n] = (out, peak)
+    assert np.array_equal(got[1][0], got[2][0]) and np.array_equal(got[1][1], got[2][1])
+    valid = np.array([np.convolve(hist[r], kernel, "valid")[:n_bins * OVERSAMPLE] for r in rows])
+    expected = valid.reshape(len(rows), n_bins, OVERSAMPLE).sum(axis=2)
+    assert np.abs(got[1][0] - expected).max() < 1e-12
+    assert np.array_equal(got[1][1], np.abs(hist[rows]).max(axis=1))
