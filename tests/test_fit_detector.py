@@ -43,15 +43,15 @@ REGIMES = {
 
 
 SHORT = {
-    # measured on seeds 0–9 (the fit's 95 % intervals are the inverse Fisher information; see the notes of issue 26)
+    # measured on seeds 0–9 (95 % intervals: inverse Fisher information; sandwich with afterpulsing; issue 26)
     "pile_up high flux": "jitter_sigma and position inside their interval in 8 of 10 seeds; on 300 seeds (0–299) "
                          "the coverage is 96.3 % (jitter), 96.3 % (position), 95.0 % (tail), 95.7 % (signal), "
                          "95.3 % (background): the intervals are calibrated and P(≥ 9 of 10) is 0.91 per parameter",
     "free_running afterpulsing": "afterpulse_probability inside its interval in 7 of 10 seeds, background_rate in 8 "
                                  "(each fit equals the linearised estimate within 0.15 sigma: the draws, z = 2.4, "
-                                 "-2.3, -2.3 for P); on 60 seeds (0-59) with the sandwich intervals the coverage is "
-                                 "95.0 % (position), 93.3 % (jitter), 98.3 % (tail), 96.7 % (signal), 90.0 % "
-                                 "(background), 96.7 % (dead time), 93.3 % (P), z sd 0.87-1.08",
+                                 "-2.3, -2.3 for P); on 100 seeds (0-99) with the sandwich intervals the coverage "
+                                 "is 97 % (position), 96 % (jitter), 99 % (tail), 98 % (signal), 92 % (background), "
+                                 "97 % (dead time), 92 % (P), z sd 0.85-1.08 (docs/capture_io.md)",
 }
 
 
