@@ -421,3 +421,25 @@ def test_accuracy_ladder_halves_the_edge():
     fine, _ = run_estimator(scene, cfg, est, {"edge": 0.02, "secondary_samples": 16}, caster)
     errors = [relative_l2(run_estimator(scene, cfg, est, step, caster)[0], fine) for step in est.ladder[3:6]]
     assert errors[0] / errors[1] > 3 and errors[1] / errors[2] > 3, errors
+
+
+def test_distinct_rows_is_numpy_unique_and_a_split_shares_its_mesh_vertices():
+    from datagen.transport.quadrature_split import distinct_rows
+
+    rng = np.random.default_rng(7)
+    base = rng.random((500, 3))
+    base[::7, 1], base[::11, 1] = 0.0, -0.0                  # signed zeros are one coordinate
+    points = base[rng.integers(0, 500, 2000)]
+    distinct, index = distinct_rows(points)
+    unique, inverse = np.unique(points, axis=0, return_inverse=True)
+    assert np.array_equal(distinct, unique) and np.array_equal(index, inverse.reshape(-1))
+    assert np.array_equal(distinct[index], points)
+    # two triangles sharing an edge, split one cell per face: 4 distinct corners, not 6
+    from datagen.sampling.surfaces import subdivide_with_vertices
+
+    tri = np.array([[[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]],
+                    [[1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]])
+    vertices, cells, _, _ = subdivide_with_vertices(tri, 2.0)
+    distinct, index = distinct_rows(vertices)
+    assert len(vertices) == 6 and len(distinct) == 4
+    assert np.array_equal(distinct[index[cells]], vertices[cells])
