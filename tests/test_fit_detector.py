@@ -86,6 +86,14 @@ def test_fit_recovers_every_parameter_within_its_95_percent_interval(regime):
     assert all(v >= 9 for v in inside.values()), inside
 
 
+def test_joint_z_is_bonferroni():
+    from datagen.spad.fit import joint_z
+
+    assert joint_z(1) == pytest.approx(1.959964, abs=1e-6)
+    assert joint_z(5) == pytest.approx(2.575829, abs=1e-6)           # each at 99 %
+    assert joint_z(7) == pytest.approx(2.690110, abs=1e-6)
+
+
 def test_fitted_detector_yaml_loads_and_reproduces_the_fit(tmp_path):
     h = draw("pile_up", 1.0, 2e5, 100_000, 20e6, 0)
     fit = fit_detector(h, bin_width=DT, repetition_rate=20e6, n_cycles=100_000)
@@ -94,6 +102,15 @@ def test_fitted_detector_yaml_loads_and_reproduces_the_fit(tmp_path):
     assert cfg.model == "pile_up" and cfg.cycles == 100_000 and cfg.diffusion_fraction == 1.0
     assert cfg.jitter == pytest.approx(80e-12, rel=0.05) and cfg.dcr == pytest.approx(2e5, rel=0.3)
     assert 0.5 < fit.p_value and fit.dof == BINS - 5
+    # simultaneous intervals: the same centre, the Bonferroni quantile of the 5 fitted parameters instead of 1.96
+    from datagen.spad.fit import joint_z
+
+    for name, (lo, hi) in fit.intervals.items():
+        jlo, jhi = fit.joint_intervals[name]
+        assert jlo < lo < fit.values[name] < hi < jhi
+        if name in ("jitter_sigma", "signal"):                        # log scale: log(hi/lo) ∝ the quantile (1.96)
+            assert np.log(jhi / jlo) / np.log(hi / lo) == pytest.approx(joint_z(5) / 1.96, rel=1e-9)
+    assert "all jointly:" in fit.summary() and "simultaneous 95 % interval" in fit.detector_yaml()
 
 
 def test_a_parameter_the_data_cannot_fix_is_named_in_one_line():

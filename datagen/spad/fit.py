@@ -29,6 +29,9 @@ and τ + T differ only through the detections per cycle, which the signal and ba
 fit refits from τ ± T, keeps the better optimum and, when the two are within DEAD_TIME_ALIAS_MARGIN in −log L,
 says in one line that the dead time is not identifiable modulo the period (bound it: ``dead_time_bounds``).
 
+Simultaneous intervals (:attr:`DetectorFit.joint_intervals`): all k fitted parameters inside theirs at once with
+probability ≥ 95 % (Bonferroni, :func:`joint_z`); docs/capture_io.md gives their measured coverage.
+
 A parameter is *not identifiable* when the data do not constrain it: its 95 % interval spans more than a factor
 :data:`IDENTIFIABLE_SPAN` or the Hessian is singular along it. The fit says so in one line per parameter
 (:attr:`DetectorFit.messages`); fix it (``fixed={...}``) to the value you know.
@@ -51,7 +54,7 @@ from .rates import rates_from_envelope
 
 __all__ = [
     "IDENTIFIABLE_SPAN", "FIT_MODELS", "IRF_SHAPES", "DetectorFit", "return_envelope", "fit_detector",
-    "fit_parameter_names",
+    "fit_parameter_names", "joint_z",
 ]
 
 IDENTIFIABLE_SPAN = 10.0
@@ -130,7 +133,11 @@ class DetectorFit:
         model, irf: the histogram model and IRF shape fitted.
         values: parameter → maximum-likelihood value (SI: s, Hz; ``signal`` photons per cycle).
         errors: parameter → 1σ uncertainty (delta method from the inverse Fisher information); fixed ones absent.
-        intervals: parameter → (low, high) 95 % interval (symmetric in the fit coordinates: log or logit).
+        intervals: parameter → (low, high) 95 % interval of that parameter alone (symmetric in the fit
+            coordinates: log or logit).
+        joint_intervals: parameter → (low, high) simultaneous 95 % intervals: all fitted parameters inside theirs
+            at once with probability ≥ 95 % (Bonferroni over the k fitted parameters, :func:`joint_z`): the ones to
+            read when the question is whether every parameter is right.
         fixed: parameters held at a given value.
         identifiable: parameter → False when the data do not constrain it (see :attr:`messages`).
         messages: one line per parameter that is not identifiable.
@@ -145,6 +152,7 @@ class DetectorFit:
     values: dict[str, float]
     errors: dict[str, float]
     intervals: dict[str, tuple[float, float]]
+    joint_intervals: dict[str, tuple[float, float]]
     fixed: dict[str, float]
     identifiable: dict[str, bool]
     messages: list[str]
@@ -157,7 +165,8 @@ class DetectorFit:
     settings: dict = field(default_factory=dict)
 
     def summary(self) -> str:
-        """Human-readable table: value ± 1σ [95 % interval] per parameter, then the goodness of fit."""
+        """Human-readable table: value ± 1σ [95 % interval; simultaneous 95 % interval] per parameter, then the
+        goodness of fit."""
         lines = [f"model {self.model}, IRF {self.irf}"]
         for name, value in self.values.items():
             unit = _UNITS.get(name, "")
@@ -165,9 +174,10 @@ class DetectorFit:
                 lines.append(f"  {name:<20s} {value:.6g} {unit} (fixed)")
                 continue
             lo, hi = self.intervals[name]
+            jlo, jhi = self.joint_intervals[name]
             flag = "" if self.identifiable[name] else "  NOT IDENTIFIABLE"
             lines.append(f"  {name:<20s} {value:.6g} ± {self.errors[name]:.3g} {unit} "
-                         f"[95 %: {lo:.6g}, {hi:.6g}]{flag}")
+                         f"[95 %: {lo:.6g}, {hi:.6g}; all jointly: {jlo:.6g}, {jhi:.6g}]{flag}")
         lines.append(f"  goodness of fit: deviance {self.deviance:.1f}, Pearson chi2 {self.pearson_chi2:.1f} on "
                      f"{self.dof} dof (p = {self.p_value:.3g})")
         if self.settings.get("covariance") == "sandwich":
@@ -199,14 +209,16 @@ class DetectorFit:
             if "afterpulse_probability" in self.values:
                 rows.append(f"afterpulse_probability: {c.afterpulse_probability!r}")
                 rows.append(f"afterpulse_time_constant: {c.afterpulse_time_constant!r}")
-        rows.append("# fit (value, 1 sigma, 95 % interval" + (", sandwich covariance):"
-                                                             if self.settings.get("covariance") == "sandwich" else "):"))
+        rows.append("# fit (value, 1 sigma, 95 % interval, simultaneous 95 % interval of all parameters"
+                    + (", sandwich covariance):" if self.settings.get("covariance") == "sandwich" else "):"))
         for name, value in self.values.items():
             if name in self.fixed:
                 rows.append(f"#   {name}: {value!r} (fixed)")
             else:
                 lo, hi = self.intervals[name]
-                rows.append(f"#   {name}: {value!r} +- {self.errors[name]:.3g} [{lo:.6g}, {hi:.6g}]"
+                jlo, jhi = self.joint_intervals[name]
+                rows.append(f"#   {name}: {value!r} +- {self.errors[name]:.3g} [{lo:.6g}, {hi:.6g}] "
+                            f"[{jlo:.6g}, {jhi:.6g}]"
                             + ("" if self.identifiable[name] else " not identifiable"))
         rows.append(f"#   deviance {self.deviance:.2f} on {self.dof} dof, p = {self.p_value:.3g}")
         return "\n".join(rows) + "\n"
@@ -225,6 +237,21 @@ def _to_fit(name: str, value: float) -> float:
     if name in _LOGIT:
         return math.log(value / (1.0 - value))
     return value
+
+
+def joint_z(k: int, level: float = 0.95) -> float:
+    """The normal quantile of ``k`` simultaneous intervals at joint coverage ≥ ``level`` (Bonferroni: each
+    two-sided at 1 − (1 − level)/k; 1.96 for k = 1, 2.58 for 5, 2.69 for 7)."""
+    return float(stats.norm.ppf(1.0 - (1.0 - level) / (2.0 * max(int(k), 1))))
+
+
+def _interval(name: str, centre: float, half: float, ok: bool, bin_width: float) -> tuple[float, float]:
+    """(low, high) in SI units of fit coordinate ``centre`` ± ``half`` (log / logit / position in bins); the whole
+    range when ``ok`` is False (no finite variance)."""
+    if not ok:
+        return (0.0, 1.0) if name in _LOGIT else (-math.inf if name not in _LOG else 0.0, math.inf)
+    scale = bin_width if name == "position" else 1.0
+    return float(_from_fit(name, centre - half)) * scale, float(_from_fit(name, centre + half)) * scale
 
 
 def _from_fit(name: str, x: np.ndarray | float):
@@ -405,17 +432,14 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         m = min(int(n_cycles), SANDWICH_CYCLES)
         cov = sandwich_covariance(cov, best, steps, lambda x: expected(params_of(x)),
                                   _simulate_replicates(base, values, irf, n_bins, pulse, m, seed), int(n_cycles), m)
-    errors, intervals, identifiable, messages = {}, {}, {}, []
+    errors, intervals, joint, identifiable, messages = {}, {}, {}, {}, []
+    z_joint = joint_z(len(free))
     for i, name in enumerate(free):
         var = cov[i, i]
         ok = np.isfinite(var) and var > 0 and i not in singular
         sd = math.sqrt(var) if ok else math.inf
-        scale = bin_width if name == "position" else 1.0
-        lo, hi = (float(_from_fit(name, best[i] - 1.96 * sd)) * scale,
-                  float(_from_fit(name, best[i] + 1.96 * sd)) * scale) if ok \
-            else (-math.inf if name not in _LOG else 0.0, math.inf)
-        if name in _LOGIT and not ok:
-            lo, hi = 0.0, 1.0
+        lo, hi = _interval(name, best[i], 1.96 * sd, ok, bin_width)
+        joint[name] = _interval(name, best[i], z_joint * sd, ok, bin_width)
         deriv = bin_width if name == "position" else 1.0
         if name in _LOG:
             deriv = values[name]
@@ -437,7 +461,7 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                         f"known value or bound it (dead_time_bounds=(low, high) / --dead-time-bounds LOW,HIGH)")
     mu = expected(values)
     deviance, pearson, dof, p_value = _goodness(h, mu, len(free))
-    return DetectorFit(model, irf, values, errors, intervals, {k: v for k, v in fixed.items()
+    return DetectorFit(model, irf, values, errors, intervals, joint, {k: v for k, v in fixed.items()
                                                                if k in names_all or irf == "exgauss"},
                        identifiable, messages, deviance, pearson, dof, p_value, mu, _config(base, values, irf),
                        {"bin_width": bin_width, "repetition_rate": repetition_rate, "n_cycles": int(n_cycles),
