@@ -1,5 +1,6 @@
-"""The accumulator's compiled row kernels (datagen/timing/fold_kernel.py) against numpy, and the same bits on one
-thread and on two (their rows run on numba's threads for large grids: datagen.threads.threads_for)."""
+"""The accumulator's compiled row kernels (datagen/timing/fold_kernel.py) against numpy, the same bits on one
+thread and on two (their rows run on numba's threads for large grids), and datagen.threads' thread rule and
+OpenMP wait policy."""
 from __future__ import annotations
 
 import numba
@@ -76,3 +77,28 @@ def test_bin_rows_is_the_valid_convolution_summed_per_bin():
     expected = valid.reshape(len(rows), n_bins, OVERSAMPLE).sum(axis=2)
     assert np.abs(got[1][0] - expected).max() < 1e-12
     assert np.array_equal(got[1][1], np.abs(hist[rows]).max(axis=1))
+
+
+def test_threads_for_runs_short_work_on_one_thread_and_restores_the_count():
+    from datagen.threads import threads_for
+
+    before = numba.get_num_threads()
+    with threads_for(10, 100):
+        assert numba.get_num_threads() == 1
+    with threads_for(100, 100):
+        assert numba.get_num_threads() == before
+    assert numba.get_num_threads() == before
+
+
+def test_idle_openmp_threads_sleep_unless_the_user_says_otherwise():
+    import os
+    import subprocess
+    import sys
+
+    code = "import datagen.threads, os; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "PASSIVE"
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "ACTIVE"
