@@ -52,9 +52,9 @@ from typing import Any
 import numpy as np
 from scipy.signal import oaconvolve
 
+from ..threads import threads_for
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
-from ..threads import threads_for
 from .curvature import deposit_curvature
 from .fold_kernel import bin_rows, bin_weights, fold_rows, nonzero_rows, rows_dot
 from .splat_kernel import splat_nodes
@@ -541,33 +541,32 @@ class EnvelopeAccumulator:
         batches of ``_CONVOLVE_ROWS``: the compiled direct convolution over each row's non-zero nodes, or one FFT
         convolution per batch for a kernel longer than ``_DIRECT_KERNEL_MAX`` taps)."""
         out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
-        with threads_for(hist.size, PARALLEL_MIN_NODES):
+        with threads_for(hist.size, PARALLEL_MIN_NODES):   # the compiled row kernels' threads
             rows = nonzero_rows(np.ascontiguousarray(hist, dtype=np.float64))
-        for start in range(0, len(rows), _CONVOLVE_ROWS):
-            ks = rows[start:start + _CONVOLVE_ROWS]
-            block = np.empty((len(ks), self.axis.n_bins))
-            if self._bin_table is not None:                  # compiled, over each row's non-zero nodes only
-                peak = np.empty(len(ks))
-                with threads_for(hist.size, PARALLEL_MIN_NODES):
+            for start in range(0, len(rows), _CONVOLVE_ROWS):
+                ks = rows[start:start + _CONVOLVE_ROWS]
+                block = np.empty((len(ks), self.axis.n_bins))
+                if self._bin_table is not None:                  # compiled, over each row's non-zero nodes only
+                    peak = np.empty(len(ks))
                     bin_rows(hist, ks.astype(np.int64), self._bin_table, block, peak)
-            else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
-                span = self._kernel.size - 1
-                rows_ = hist[ks]
-                lo, hi = _active_columns(rows_)
-                b0 = max(0, lo - span) // self.oversample
-                b1 = min(self.axis.n_bins, -(-hi // self.oversample))
-                part = rows_[:, b0 * self.oversample:b1 * self.oversample + span]
-                conv = oaconvolve(part, self._kernel[None], mode="valid", axes=1)
-                block[:] = 0.0
-                block[:, b0:b1] = conv.reshape(len(ks), b1 - b0, self.oversample).sum(axis=2)
-                peak = np.abs(part).max(axis=1)
-            scale = np.maximum(np.abs(block).max(axis=1), peak)
-            low = block.min(axis=1) < -self._clamp_rtol * scale
-            if low.any():
-                i = int(np.flatnonzero(low)[0])
-                raise RuntimeError(f"component {int(ks[i])}: envelope value {block[i].min()!r} below "
-                                   f"-{self._clamp_rtol} * max(|fine histogram|, |envelope|) ({scale[i]!r})")
-            out[ks] = np.maximum(block, 0.0)
+                else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
+                    span = self._kernel.size - 1
+                    rows_ = hist[ks]
+                    lo, hi = _active_columns(rows_)
+                    b0 = max(0, lo - span) // self.oversample
+                    b1 = min(self.axis.n_bins, -(-hi // self.oversample))
+                    part = rows_[:, b0 * self.oversample:b1 * self.oversample + span]
+                    conv = oaconvolve(part, self._kernel[None], mode="valid", axes=1)
+                    block[:] = 0.0
+                    block[:, b0:b1] = conv.reshape(len(ks), b1 - b0, self.oversample).sum(axis=2)
+                    peak = np.abs(part).max(axis=1)
+                scale = np.maximum(np.abs(block).max(axis=1), peak)
+                low = block.min(axis=1) < -self._clamp_rtol * scale
+                if low.any():
+                    i = int(np.flatnonzero(low)[0])
+                    raise RuntimeError(f"component {int(ks[i])}: envelope value {block[i].min()!r} below "
+                                       f"-{self._clamp_rtol} * max(|fine histogram|, |envelope|) ({scale[i]!r})")
+                out[ks] = np.maximum(block, 0.0)
         return out
 
     def outside(self) -> np.ndarray:
