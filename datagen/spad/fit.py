@@ -254,6 +254,13 @@ def _interval(name: str, centre: float, half: float, ok: bool, bin_width: float)
     return float(_from_fit(name, centre - half)) * scale, float(_from_fit(name, centre + half)) * scale
 
 
+def _constrained(name: str, lo: float, hi: float, ok: bool) -> bool:
+    """Whether the 95 % interval (lo, hi) of parameter ``name`` pins it (module doc): a finite variance (``ok``),
+    a span of at most IDENTIFIABLE_SPAN (log parameters) and less than 0.9 of [0, 1] (logit ones)."""
+    span = hi / lo if (name in _LOG and lo > 0) else math.inf if name in _LOG else 1.0
+    return bool(ok and span <= IDENTIFIABLE_SPAN and not (name in _LOGIT and (hi - lo) > 0.9))
+
+
 def _from_fit(name: str, x: np.ndarray | float):
     if name in _LOG:
         return np.exp(x)
@@ -414,7 +421,9 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         # (only when the dead time is identifiable locally: otherwise the line below says so already)
         period = 1.0 / repetition_rate
         var = inverse_covariance(hess)[0][i, i]
-        local = bool(np.isfinite(var) and 0 < var and math.exp(2 * 1.96 * math.sqrt(var)) <= IDENTIFIABLE_SPAN)
+        finite = bool(np.isfinite(var) and var > 0)
+        lo, hi = _interval("dead_time", best[i], 1.96 * math.sqrt(var) if finite else 0.0, finite, bin_width)
+        local = _constrained("dead_time", lo, hi, finite)
         for shift in (-period, period) if local else ():
             tau = float(np.exp(best[i])) + shift
             if lo_dt <= tau <= hi_dt:
@@ -447,9 +456,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             deriv = values[name] * (1 - values[name])
         errors[name] = abs(deriv) * sd if ok else math.inf
         intervals[name] = (lo, hi)
-        span = hi / lo if (name in _LOG and lo > 0) else math.inf if name in _LOG else 1.0
-        good = ok and span <= IDENTIFIABLE_SPAN and not (name in _LOGIT and (hi - lo) > 0.9)
-        identifiable[name] = bool(good)
+        good = _constrained(name, lo, hi, ok)
+        identifiable[name] = good
         if not good:
             messages.append(f"{name} is not identifiable from this histogram (95 % interval {lo:.3g} .. {hi:.3g} "
                             f"{_UNITS[name]}): fix it to a known value (fixed={{'{name}': ...}} / --fix {name}=...)")
