@@ -1,5 +1,7 @@
-"""Shared fixtures: small analytic scenes."""
+"""Shared fixtures: small analytic scenes, and the box-before-the-wall scan room."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +26,23 @@ def patch_scene(patch_size: float = 0.4, albedo: float = 0.8, with_occluder: boo
     return Scene(objects, Laser(emitter=(0.0, 0.0, -0.5), spot=(2.0, 0.0, 0.0)),
                  Sensor(position=(0.0, 0.0, -0.5), aperture_radius=0.02,
                         fov=FieldOfView(center=(2.0, 0.0, -0.6), size=(0.8, 0.8))))
+
+
+def box_before_wall(points: int):
+    """A room of configs/rooms/wall.yaml's distribution with ``points`` × ``points`` confocal scan points and the
+    shipped box primitive (0.4–0.6 m, upright, facing the wall) as its hidden mesh, drawn with seed 13
+    (the :func:`datagen.dataset.sample_room` result)."""
+    from datagen.dataset import load_room_distribution, sample_room
+    from datagen.dataset.sampler import STREAMS
+
+    root = Path(__file__).resolve().parents[1]
+    box_mesh = str(root / "assets" / "meshes" / "primitives" / "box.ply")
+    dist = load_room_distribution(root / "configs" / "rooms" / "wall.yaml").with_overrides({
+        "capture": {"scan": {"points": [points, points]}},
+        "objects": {"mesh": {"assets": [box_mesh], "yaw_deg": 0.0, "tilt_deg": 0.0, "size": {"min": 0.4, "max": 0.6}}}})
+    rngs = {name: np.random.default_rng(np.random.SeedSequence(13, spawn_key=(0, 0, k)))
+            for k, name in enumerate(STREAMS)}
+    return sample_room(dist, rngs)
 
 
 @pytest.fixture

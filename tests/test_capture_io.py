@@ -11,6 +11,7 @@ import pytest
 from scipy.io import loadmat, savemat
 
 import datagen
+from conftest import box_before_wall
 from datagen.analysis.backprojection import locate_confocal
 from datagen.errors import DatasetError
 from datagen.io.lab_formats import (capture_from_result, detect_format, read_capture_store, read_lab_capture,
@@ -146,16 +147,7 @@ def test_bad_files_are_one_line_errors(tmp_path):
 
 @pytest.fixture(scope="module")
 def confocal_result():
-    from datagen.dataset import load_room_distribution, sample_room
-    from datagen.dataset.sampler import STREAMS
-
-    wall = Path(__file__).resolve().parents[1] / "configs" / "rooms" / "wall.yaml"
-    box = str(Path(__file__).resolve().parents[1] / "assets" / "meshes" / "primitives" / "box.ply")
-    dist = load_room_distribution(wall).with_overrides({"capture": {"scan": {"points": [16, 16]}}, "objects": {
-        "mesh": {"assets": [box], "yaw_deg": 0.0, "tilt_deg": 0.0, "size": {"min": 0.4, "max": 0.6}}}})
-    rngs = {name: np.random.default_rng(np.random.SeedSequence(13, spawn_key=(0, 0, k)))
-            for k, name in enumerate(STREAMS)}
-    room = sample_room(dist, rngs)
+    room = box_before_wall(16)
     over = {"estimator": "quadrature", "quadrature_edge": 0.08, "secondary": "none", "count_sensor_leg": True,
             "time": {"t_start": 0.0, "bin_width": 32e-12, "n_bins": 640}, "irf": {"fwhm": 70e-12},
             "effects": {"first_bounce": False, "secondary": False}}

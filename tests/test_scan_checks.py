@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import datagen
+from conftest import box_before_wall
 from datagen.analysis.backprojection import locate_confocal, wall_leg_weights
 from datagen.dataset import LabelSpec, load_room_distribution, sample_room, scene_labels
 from datagen.dataset.sampler import STREAMS
@@ -85,12 +86,7 @@ def test_backprojection_puts_the_hidden_mesh_at_its_labelled_position():
     finds it within 3 cm of the centroid of its labelled visible surface (wall point + n · wall_depth over its
     mask). Upright letters land within 1.2–3.9 cm (6 draws, docs/datasets.md): their brightest strokes pull the
     half-maximum centroid."""
-    box = str(Path(__file__).resolve().parents[1] / "assets" / "meshes" / "primitives" / "box.ply")
-    dist = load_room_distribution(WALL).with_overrides({"capture": {"scan": {"points": [32, 32]}}, "objects": {
-        "mesh": {"assets": [box], "yaw_deg": 0.0, "tilt_deg": 0.0, "size": {"min": 0.4, "max": 0.6}}}})
-    rngs = {name: np.random.default_rng(np.random.SeedSequence(13, spawn_key=(0, 0, k)))
-            for k, name in enumerate(STREAMS)}
-    room = sample_room(dist, rngs)
+    room = box_before_wall(32)
     over = {"estimator": "quadrature", "quadrature_edge": 0.06, "secondary": "none", "count_sensor_leg": False,
             "time": {"t_start": 0.0, "bin_width": 32e-12, "n_bins": 512}, "irf": {"fwhm": 70e-12},
             "effects": {"first_bounce": False, "secondary": False}}
