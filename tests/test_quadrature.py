@@ -200,6 +200,38 @@ def test_compiled_curvature_deposit_equals_tent_curvature():
     assert np.abs(got - ref).max() < 1e-12 * np.abs(ref).max()
 
 
+def test_narrow_tent_sides_by_their_two_ends_equal_the_divided_difference(monkeypatch):
+    """A side from NARROW_SIDE (1e-3 node) to a node wide takes the B3 values at its two ends over the side; the
+    same second differences as the divided difference without cancellation (NARROW_SIDE raised to a node) to
+    1e-12 of their largest value, for sides from 1e-3 to 1 node on either side of the tent, in numpy and
+    compiled; a side below NARROW_SIDE keeps the divided difference."""
+    import datagen.timing.tents as tents
+
+    rng = np.random.default_rng(11)
+    gap = np.geomspace(tents.NARROW_SIDE, 1.0, 400)
+    c0 = rng.uniform(5.0, 6.0, len(gap))
+    span = rng.uniform(4.0, 40.0, len(gap))
+    c = np.stack([c0, c0 + gap, c0 + span], axis=1)
+    c[1::2, 1] = c[1::2, 2] - gap[1::2]                                # the narrow side on the falling end
+    c = np.concatenate([c, [[5.2, 5.2 + 0.5 * tents.NARROW_SIDE, 9.0]]])  # below NARROW_SIDE
+
+    def summed(values_of):
+        node, value = values_of(c)
+        out = np.zeros((len(c), 64))
+        np.add.at(out, (np.repeat(np.arange(len(c)), node.shape[1]), node.ravel()), value.ravel())
+        return out
+
+    two_ends = summed(tents.tent_curvature)
+    compiled = np.zeros(len(c) * 64)
+    deposit_curvature(c, np.ones(len(c)), np.arange(len(c)), 64, compiled)
+    monkeypatch.setattr(tents, "NARROW_SIDE", 1.0)
+    divided = summed(tents.tent_curvature)
+    scale = np.abs(divided).max(axis=1, keepdims=True)
+    assert (np.abs(two_ends - divided) / scale).max() < 1e-12
+    assert (np.abs(compiled.reshape(len(c), 64) - divided) / scale).max() < 1e-12
+    assert np.abs(two_ends[-1] - divided[-1]).max() == 0.0           # the divided difference itself
+
+
 def test_confocal_scan_shares_the_laser_legs_visibility():
     """A confocal room scan (one FoV cell per pixel: each target is its laser point) casts no hidden → FoV rays:
     the laser leg's visibility is the same segment's. Same envelope as with those rays forced, about half the rays."""

@@ -2,7 +2,8 @@
 
 :func:`deposit_curvature` adds, for every tent, the sixteen values of :func:`datagen.timing.tents.tent_curvature`
 (the same formulas: cubic B-spline weights B3 at the four nodes around each end of a side, scaled by
-±(2/L)/gap, or the side's divided difference of B3 without cancellation when the side is narrower than a node)
+±(2/L)/gap, or the side's divided difference of B3 without cancellation when the side is narrower than
+:data:`datagen.timing.tents.NARROW_SIDE` nodes)
 times the tent's weight into a flat (components · nodes) array, in one compiled pass with no temporaries.
 ``tests/test_quadrature.py`` compares it with :func:`~datagen.timing.tents.tent_curvature` to 1e-12.
 """
@@ -10,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from .tents import NARROW_SIDE
 
 __all__ = ["add_tent_curvature", "b3", "b3_slope", "deposit_curvature"]
 
@@ -61,12 +64,12 @@ def _kink(x: float, q: float, start: int, flat: np.ndarray) -> None:
 def add_tent_curvature(c0: float, c1: float, c2: float, w: float, start: int, flat: np.ndarray) -> None:
     """Add ``w`` × the sixteen second differences of the unit tent with sorted node coordinates c0 <= c1 <= c2 to
     ``flat[start + node]`` (``start``: the component's row offset + 1, the second difference at g being stored at
-    g + 1). When both sides span a node or more, the two sides' terms at c1 are added as one (:func:`_kink`: twelve
-    values, the same sum)."""
+    g + 1). When both sides span NARROW_SIDE or more, the two sides' terms at c1 are added as one (:func:`_kink`:
+    twelve values, the same sum)."""
     scale = 2.0 / (c2 - c0) * w
     g0 = c1 - c0
     g1 = c2 - c1
-    if g0 >= 1.0 and g1 >= 1.0:     # three kinks, the middle one shared by both sides: 12 values
+    if g0 >= NARROW_SIDE and g1 >= NARROW_SIDE:     # three kinks, the middle one shared by both sides: 12 values
         q0 = scale / g0
         q1 = -scale / g1
         _kink(c0, q0, start, flat)
@@ -79,7 +82,7 @@ def add_tent_curvature(c0: float, c1: float, c2: float, w: float, start: int, fl
         factor = scale if side == 0 else -scale
         gap = b - a
         fa = np.floor(a)
-        if gap < 1.0:                              # one group of 8 nodes around a: exact divided difference
+        if gap < NARROW_SIDE:                      # one group of 8 nodes around a: exact divided difference
             for j in range(8):
                 node = fa - 1.0 + j
                 flat[start + int(node)] += factor * b3_slope(node - a, node - b)

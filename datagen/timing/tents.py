@@ -19,8 +19,15 @@ from scipy.stats import exponnorm
 
 from .irf import Irf
 
-__all__ = ["TENT_SMALL_SIGMAS", "TENT_GAP_SMALL_SIGMAS", "tent_cdf", "tent_cdf2",
+__all__ = ["NARROW_SIDE", "TENT_SMALL_SIGMAS", "TENT_GAP_SMALL_SIGMAS", "tent_cdf", "tent_cdf2",
            "tent_curvature", "tent_irf_cdf"]
+
+NARROW_SIDE = 1e-3
+"""Fine-grid mode (:func:`tent_curvature`): a tent side narrower than this many fine nodes takes the divided
+difference of B3 without cancellation; a wider one the B3 values at its two ends, divided by the side. Their
+difference cancels: the result carries ~1e-16 / side of the tent's scale (≤ 1e-13 here; measured against the
+divided difference in ``tests/test_quadrature.py``), and one side in ~10⁴ of a fine-grid tent of tens of nodes
+is narrower (the per-node divided difference costs several times the two ends)."""
 
 TENT_SMALL_SIGMAS = 1e-4
 """Direct mode: a tent narrower than this many IRF sigmas is deposited as an impulse at its mean (the error,
@@ -147,8 +154,9 @@ def tent_curvature(coord: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     weight). Its second difference is D(g+1) - 2 D(g) + D(g-1) = (tent'' * B3)(g), with B3 = hat * hat the
     cubic B-spline and tent'' = (2/L) [(δ(c0) - δ(c1)) / g0 - (δ(c1) - δ(c2)) / g1] (g0 = c1 - c0, g1 = c2 - c1),
     i.e. (2/L) times the divided differences (B3(g - c0) - B3(g - c1)) / g0 - (B3(g - c1) - B3(g - c2)) / g1.
-    A side of at least one node gives B3 values at four nodes around each end; a narrower one its divided
-    difference at five nodes, evaluated without cancellation (the side's limit as g → 0 is B3'). Summing the
+    A side of at least :data:`NARROW_SIDE` nodes gives B3 values at four nodes around each end (their
+    difference cancels to ~1e-16 / side of the scale); a narrower one its divided difference at five nodes,
+    evaluated without cancellation (the side's limit as g → 0 is B3'). Summing the
     returned values twice along the nodes (``np.cumsum`` twice from node 0) gives D exactly: B3 reproduces
     constants and lines, so D returns to zero after c2 + 1; float round-off leaves ~1e-16 · (nodes summed) of
     the weight.
@@ -165,7 +173,7 @@ def tent_curvature(coord: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     nodes, values = [], []
     for a, b, sign in ((c0, c1, 1.0), (c1, c2, -1.0)):
         factor = (sign * scale)[:, None]
-        narrow = (b - a < 1.0)[:, None]
+        narrow = (b - a < NARROW_SIDE)[:, None]
         with np.errstate(divide="ignore", invalid="ignore"):
             quotient = factor / np.where(narrow, 1.0, (b - a)[:, None])
         first = np.floor(a)[:, None] + np.arange(-1.0, 3.0)                # (n, 4) nodes around a
