@@ -150,15 +150,23 @@ def _legs(m, l, t, same, centroid, normal, spots, spot_n, spot_f, photons, targe
 
 
 @njit(cache=True, inline="always")
-def _tent_nodes(paths, v0, v1, v2, centre, offset, speed, t_start, step, shift):
+def _tent_nodes(paths, v0, v1, v2, centre, offset, per_metre, origin):
     """The sorted fine-grid nodes (c0 ≤ c1 ≤ c2) of the tent of triangle (v0, v1, v2) (vertex path lengths
-    ``paths``, one connection's), shifted to the triangle rule's mean (module doc of :mod:`.quadrature`)."""
+    ``paths``, one connection's), shifted to the triangle rule's mean (module doc of :mod:`.quadrature`): node
+    (path / speed − t_start) / step + shift as path · ``per_metre`` + ``origin`` (:func:`_node_map`)."""
     p0, p1, p2 = paths[v0], paths[v1], paths[v2]
     shift_path = 0.75 * (centre - (p0 + p1 + p2) / 3.0) + offset
-    c0 = ((p0 + shift_path) / speed - t_start) / step + shift
-    c1 = ((p1 + shift_path) / speed - t_start) / step + shift
-    c2 = ((p2 + shift_path) / speed - t_start) / step + shift
+    c0 = (p0 + shift_path) * per_metre + origin
+    c1 = (p1 + shift_path) * per_metre + origin
+    c2 = (p2 + shift_path) * per_metre + origin
     return sort3(c0, c1, c2)
+
+
+@njit(cache=True, inline="always")
+def _node_map(speed, t_start, step, shift):
+    """(fine nodes per metre of path, node of path 0) of a grid: node = (path / speed − t_start) / step + shift
+    with one multiplication per vertex instead of two divisions."""
+    return 1.0 / (speed * step), shift - t_start / step
 
 
 CELL_BRDF = ("f_lamb", "kind", "rho", "ks", "expo")
@@ -200,6 +208,8 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
     use_flags, flags, laser_col = shade
     M = centroid.shape[0]
+    per_metre, origin = _node_map(speed, t_start, step, shift)
+    cper_metre, corigin = _node_map(speed, ct_start, cstep, cshift)
     n_groups = len(group_ptr) - 1
     group_tents = np.zeros(n_groups, dtype=np.int64)
     for grp in prange(n_groups):
@@ -252,14 +262,14 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     continue
                 offset = 0.0 + laser_off[l] + sensor_off[t]
                 centre = r_l + r_y
-                c0, c1, c2 = _tent_nodes(paths, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, speed,
-                                         t_start, step, shift)
+                c0, c1, c2 = _tent_nodes(paths, cells[m, 0], cells[m, 1], cells[m, 2], centre, offset, per_metre,
+                                         origin)
                 deposit_tent(c0, c1, c2, weight, comp_base[m] + ch, n_fine, min_nodes, hist, curv, total, beyond)
                 tents += 1
                 k = coarse_of[m]
                 if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
                     c0, c1, c2 = _tent_nodes(paths, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2],
-                                             centre, offset, speed, ct_start, cstep, cshift)
+                                             centre, offset, cper_metre, corigin)
                     deposit_tent(c0, c1, c2, 4.0 * weight, ch, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond)
             if not listed:
                 ray_count[row] = n_rays
