@@ -364,8 +364,8 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     return make_result(scene, config, tr, noise_rng, t0, {"error": runs.error_attrs(tr, rng)})
 
 
-def detector_model(envelope: np.ndarray, config: SimulationConfig, plan_attrs: dict
-                   ) -> tuple[spad.DetectorConfig, dict]:
+def detector_model(envelope: np.ndarray, config: SimulationConfig, plan_attrs: dict,
+                   rates: np.ndarray | None = None) -> tuple[spad.DetectorConfig, dict]:
     """The detector stage's pile-up decision: the detector model to draw the counts with, and the result's
     ``attrs["plan"]`` with its ``pile_up`` entry from that decision.
 
@@ -378,6 +378,8 @@ def detector_model(envelope: np.ndarray, config: SimulationConfig, plan_attrs: d
         config: the simulation config (detector, effects, tolerance).
         plan_attrs: the plan's record (:meth:`datagen.planner.Plan.to_attrs`), effect → {on, forced, reason,
             numbers}.
+        rates: the envelope's avalanche rates under the configured detector when the caller has them
+            (:func:`datagen.spad.rates_from_envelope`; the Poisson version of a detector has the same).
     Returns:
         (:class:`~datagen.spad.DetectorConfig`: the configured one, or its Poisson version when pile-up is off;
         the plan record with ``pile_up`` as decided here).
@@ -389,7 +391,7 @@ def detector_model(envelope: np.ndarray, config: SimulationConfig, plan_attrs: d
     if isinstance(forced, bool):
         on = forced
     else:
-        d = pile_up_from_envelope(envelope, detector, config.effect_threshold)
+        d = pile_up_from_envelope(envelope, detector, config.effect_threshold, rates)
         on = d.on
         plan_attrs = {**plan_attrs, "pile_up": {"on": bool(d.on), "forced": False, "reason": d.reason,
                                                 "numbers": dict(d.numbers)}}
@@ -405,15 +407,16 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
     shape = capture.channel_shape() + (config.time.n_bins,)
     components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
     envelope = tr.binned.sum(axis=0).reshape(shape)
-    detector, plan_attrs = detector_model(envelope, config, tr.plan.to_attrs())
     warnings = list(scene.notes)                 # what loading changed (e.g. duplicate faces removed)
     if not envelope.any():
         warnings.append("no light path reaches the FoV: the envelope is zero (no path from the laser spot "
                         "reaches the sensor grid within the time window; counts hold background only)")
     t3 = time.perf_counter()
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
-    try:
-        counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
+    try:        # one rates array for the pile-up decision and the draw (the counting detector's are the same)
+        rates = spad.rates_from_envelope(envelope, config.detector_config())
+        detector, plan_attrs = detector_model(envelope, config, tr.plan.to_attrs(), rates)
+        counts = spad.sample_histogram(rates, detector, noise_rng)
     except ValueError as exc:   # e.g. an exposure too long to event-simulate: name the file and the field
         raise ConfigError(f"{scene.source + ' (simulation): ' if scene.source else ''}detector: "
                          f"{' '.join(str(exc).split())}") from None

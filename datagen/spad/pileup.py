@@ -80,20 +80,22 @@ def pile_up_decision(detector: DetectorConfig, lam: float, window: float, tolera
     return PileUpDecision(True, f"{what} ≥ tolerance {_fmt(tolerance)}: {detector.model} model", numbers)
 
 
-def pile_up_from_envelope(envelope: np.ndarray, detector: DetectorConfig, tolerance: float) -> PileUpDecision:
+def pile_up_from_envelope(envelope: np.ndarray, detector: DetectorConfig, tolerance: float,
+                          rates: np.ndarray | None = None) -> PileUpDecision:
     """The pile-up decision from the envelope itself: Λ is the largest over pixels of the summed rates
     (:func:`~datagen.spad.rates.rates_from_envelope`: signal × PDE, background, gate, DNL widths).
 
     Args:
         envelope: (..., n_bins) float64 expected detected photons per pulse per bin (pixels on leading axes).
         detector: the configured detector; tolerance: as :func:`pile_up_decision`.
+        rates: ``rates_from_envelope(envelope, detector)`` when the caller has them already (same shape).
     Returns:
         :class:`PileUpDecision` (reason "… (from the envelope) …").
     Raises:
         ValueError: an envelope :func:`~datagen.spad.rates.rates_from_envelope` refuses (non-finite, clearly
             negative, no bins).
     """
-    rates = rates_from_envelope(envelope, detector)
+    rates = rates_from_envelope(envelope, detector) if rates is None else rates
     lam = float(np.max(rates.reshape(-1, rates.shape[-1]).sum(axis=-1))) if rates.size else 0.0
     window = float(np.sum(detector.widths(rates.shape[-1])))
     return pile_up_decision(detector, lam, window, tolerance, "from the envelope")
