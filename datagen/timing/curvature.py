@@ -66,16 +66,17 @@ def add_tent_curvature(c0: float, c1: float, c2: float, w: float, start: int, fl
     ``flat[start + node]`` (``start``: the component's row offset + 1, the second difference at g being stored at
     g + 1). When both sides span NARROW_SIDE or more, the two sides' terms at c1 are added as one (:func:`_kink`:
     twelve values, the same sum)."""
-    scale = 2.0 / (c2 - c0) * w
     g0 = c1 - c0
     g1 = c2 - c1
     if g0 >= NARROW_SIDE and g1 >= NARROW_SIDE:     # three kinks, the middle one shared by both sides: 12 values
-        q0 = scale / g0
-        q1 = -scale / g1
+        r = 2.0 * w / ((c2 - c0) * g0 * g1)         # one division: q0 = (2/L)·w/g0, q1 = −(2/L)·w/g1
+        q0 = r * g1
+        q1 = -r * g0
         _kink(c0, q0, start, flat)
         _kink(c1, q1 - q0, start, flat)
         _kink(c2, -q1, start, flat)
         return
+    scale = 2.0 / (c2 - c0) * w
     for side in range(2):
         a = c0 if side == 0 else c1
         b = c1 if side == 0 else c2
