@@ -27,14 +27,14 @@ def _clamp_envelope(envelope: Any) -> np.ndarray:
     e = np.array(envelope, dtype=np.float64)  # copy: we clamp in place
     if e.ndim == 0 or e.shape[-1] == 0:
         raise ValueError(f"envelope must have shape (..., bins) with bins >= 1, got shape {e.shape}")
-    if not np.all(np.isfinite(e)):
+    low = np.min(e, axis=-1, keepdims=True)             # per pixel; NaN and ±inf reach both ends
+    scale = np.maximum(np.max(e, axis=-1, keepdims=True), -low)
+    if not np.all(np.isfinite(scale)):
         bad = np.argwhere(~np.isfinite(e))[0]
         raise ValueError(f"envelope contains a non-finite value {e[tuple(bad)]!r} at index "
                          f"{tuple(int(b) for b in bad)}")
-    scale = np.max(np.abs(e), axis=-1, keepdims=True)
-    too_negative = e < -NEGATIVE_ENVELOPE_RTOL * scale
-    if np.any(too_negative):
-        bad = np.argwhere(too_negative)[0]
+    if np.any(low < -NEGATIVE_ENVELOPE_RTOL * scale):   # two reductions, no full-size temporaries
+        bad = np.argwhere(e < -NEGATIVE_ENVELOPE_RTOL * scale)[0]
         raise ValueError(f"envelope has a clearly negative value {e[tuple(bad)]!r} at index "
                          f"{tuple(int(b) for b in bad)} (more than {NEGATIVE_ENVELOPE_RTOL:g} of that pixel's "
                          "maximum; only FFT round-off is clamped)")
