@@ -275,8 +275,10 @@ class Replicas:
         """The mean of the replicas run so far, binned."""
         t0 = time.perf_counter()
         r = max(self.count, 1)
-        binned = self.total.binned(copy=False).reshape(len(self.names), self.n_channels, -1) / r
-        outside = self.total.outside().reshape(len(self.names), self.n_channels) / r
+        binned = self.total.binned(copy=False).reshape(len(self.names), self.n_channels, -1)
+        outside = self.total.outside().reshape(len(self.names), self.n_channels)
+        if r > 1:                                  # one replica (every deterministic run): no full-size copy
+            binned, outside = binned / r, outside / r
         self.seconds["binning"] += time.perf_counter() - t0
         return Transported(self.names, binned, outside, self.transport, self.plan, dict(self.seconds))
 
