@@ -127,3 +127,27 @@ def test_verify_names_a_hash_that_differs_from_the_suite_file(builds, monkeypatc
     assert problems == [f"content hash {ha} differs from suite wall-meshes-v1's {recorded} "
                         f"({SUITES_DIR / 'wall-meshes-v1.yaml'}): the stored values differ (another datagen version "
                         "or platform?)"]
+
+
+def test_verify_accepts_an_earlier_datagens_build_with_a_note(builds, monkeypatch):
+    """A hash listed under earlier_sha256 (a build by earlier datagen code, round-off apart) verifies, with a note
+    naming today's reference hash; one in neither list is a problem."""
+    import datagen.dataset.suite as suite_module
+
+    root, (_, ha), _ = builds
+    real = suite_module.suite_of_dataset
+    suite = real(root / "a")[0]
+    listed = suite.spec.model_copy(update={"earlier_sha256": [ha]})
+    monkeypatch.setattr(suite_module, "suite_of_dataset",
+                        lambda path: (suite_module.Suite(listed, suite.config, suite.path), True))
+    notes: list[str] = []
+    problems, digest = verify_suite(root / "a", notes)
+    assert problems == [] and digest == ha
+    assert notes == [f"content hash {ha} matches an earlier datagen's build of suite wall-meshes-v1, which differs "
+                     f"from today's reference {suite.spec.content_sha256} in float round-off only "
+                     "(docs/benchmark.md)"]
+    unlisted = suite.spec.model_copy(update={"earlier_sha256": []})
+    monkeypatch.setattr(suite_module, "suite_of_dataset",
+                        lambda path: (suite_module.Suite(unlisted, suite.config, suite.path), True))
+    problems, _ = verify_suite(root / "a", [])
+    assert len(problems) == 1 and problems[0].startswith(f"content hash {ha} differs from suite wall-meshes-v1's")

@@ -40,18 +40,16 @@ def list_suites():
 @friendly_errors
 def build(name, out, workers, resume, quiet):
     """Build suite NAME (configs/suites/NAME.yaml, or a suite YAML path) and print its content hash."""
-    from ..dataset.suite import build_suite, load_suite
+    from ..dataset.suite import build_suite, hash_verdict, load_suite
 
     suite_def = load_suite(name)
     out = out or DEFAULT_ROOT / suite_def.name
     report, digest = build_suite(name, out, workers=workers, resume=resume, progress=not quiet)
-    expected = suite_def.spec.content_sha256
-    verdict = ("matches the suite's" if digest == expected else
-               "no hash recorded in the suite file" if expected is None else f"DIFFERS from the suite's {expected}")
+    accepted, verdict = hash_verdict(suite_def, digest)
     click.echo(f"{out}: suite {suite_def.name}, {report.samples_built} samples built in {report.seconds:.1f} s, "
                f"{report.shards_skipped} shards already done")
-    click.echo(f"content sha256 {digest} ({verdict})")
-    if expected is not None and digest != expected:
+    click.echo(f"content sha256 {digest} ({verdict if accepted else verdict.replace('differs', 'DIFFERS', 1)})")
+    if not accepted:
         sys.exit(1)
 
 

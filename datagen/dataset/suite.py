@@ -6,8 +6,9 @@ A suite is a YAML file in ``configs/suites/`` (``NAME.yaml``) with two blocks:
     ``name`` (the file's stem, e.g. ``wall-meshes-v1``), ``description``, ``train_split`` (where a trivial
     baseline takes its training mean), ``test_split`` (the split every method is scored on), ``variants`` (name →
     ``input``: the stored field a method reconstructs from, ``envelope`` for the clean variant, ``counts`` for the
-    low-photon one; both come from one build) and ``content_sha256`` (the content hash of the reference build,
-    null until it is recorded).
+    low-photon one; both come from one build), ``content_sha256`` (the content hash of the reference build,
+    null until it is recorded) and ``earlier_sha256`` (the hashes of reference builds by earlier datagen code of
+    the same definition, whose values differ from today's in float round-off only; :func:`hash_verdict`).
 ``dataset``
     an ordinary dataset config (:class:`datagen.dataset.DatasetConfig`: config, splits, seed, exposure, noise
     and detector); relative paths are relative to the suite file.
@@ -24,7 +25,7 @@ import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -58,6 +59,7 @@ class SuiteSpec(BaseModel):
     test_split: str
     variants: dict[str, VariantSpec] = Field(min_length=1)
     content_sha256: str | None = Field(None, pattern=r"^[0-9a-f]{64}$")
+    earlier_sha256: list[Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]] = []
 
 
 @dataclass
@@ -226,6 +228,22 @@ def suite_of_dataset(path: str | Path) -> tuple[Suite, bool]:
     return suite, full
 
 
+def hash_verdict(suite: Suite, digest: str) -> tuple[bool, str]:
+    """(accepted, what to print) for a full build's content hash against the suite file: the reference build's
+    ``content_sha256``, or one of ``earlier_sha256`` (a build by earlier datagen code: the same samples up to float
+    round-off, docs/benchmark.md), or neither (another platform or library version, or a broken build)."""
+    expected = suite.spec.content_sha256
+    if expected is None:
+        return True, "no hash recorded in the suite file"
+    if digest == expected:
+        return True, "matches the suite's"
+    if digest in suite.spec.earlier_sha256:
+        return True, (f"matches an earlier datagen's build of suite {suite.name}, which differs from today's "
+                      f"reference {expected} in float round-off only (docs/benchmark.md)")
+    return False, (f"differs from suite {suite.name}'s {expected} ({suite.path}): the stored values differ "
+                   "(another datagen version or platform?)")
+
+
 def verify_suite(path: str | Path, notes: list[str] | None = None) -> tuple[list[str], str]:
     """Check a built suite: every shard against the card (:func:`datagen.dataset.verify_dataset`), then the
     content hash against the suite file's ``content_sha256`` (a prefix build, or a suite without a recorded hash,
@@ -245,13 +263,16 @@ def verify_suite(path: str | Path, notes: list[str] | None = None) -> tuple[list
     if problems:
         return problems, ""
     digest = content_hash(path)
-    expected = suite.spec.content_sha256
     if not full:
         notes.append(f"a prefix build of suite {suite.name} (fewer samples than the suite): its content hash is not "
                      "the suite's")
-    elif expected is None:
+        return problems, digest
+    if suite.spec.content_sha256 is None:
         notes.append(f"suite {suite.name} records no content_sha256 yet ({suite.path})")
-    elif digest != expected:
-        problems.append(f"content hash {digest} differs from suite {suite.name}'s {expected} ({suite.path}): the "
-                        "stored values differ (another datagen version or platform?)")
+        return problems, digest
+    accepted, verdict = hash_verdict(suite, digest)
+    if not accepted:
+        problems.append(f"content hash {digest} {verdict}")
+    elif digest != suite.spec.content_sha256:
+        notes.append(f"content hash {digest} {verdict}")
     return problems, digest
