@@ -122,16 +122,23 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
     run_hi = np.append(run_lo[1:], len(face_of))
     run_ptr = np.searchsorted(face_of[run_lo], np.arange(len(faces) + 1)).astype(np.int64)
     tri = caster.vertices[caster.faces[occluders]]
-    spheres = np.zeros((len(run_lo), 4))
-    for r, (lo, hi) in enumerate(zip(run_lo, run_hi)):
-        pts = tri[occ_of[lo:hi]].reshape(-1, 3)
-        centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-        spheres[r] = [*centre, np.sqrt(((pts - centre) ** 2).sum(axis=1).max())]
+    spheres = _run_spheres(tri[occ_of].reshape(-1, 3), 3 * run_lo)
     plane, edges = occluder_planes(tri) if len(tri) else (np.zeros((1, 4)), np.zeros((1, 3, 4)))
     margin = MARGIN_OFFSETS * caster.offset
     grown = grown_triangles(tri, 2.0 * margin) if len(tri) else np.zeros((1, 3, 3))
     return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), spheres, occ_of.astype(np.int64),
             plane, edges, float(margin), face_ray), grown
+
+
+def _run_spheres(pts: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(R, 4) bounding spheres (centre, radius; metres) of the runs of points ``pts`` (n, 3) that begin at the
+    ascending ``starts`` (R,): centred on each run's bounding box, radius its farthest point."""
+    if len(starts) == 0:
+        return np.zeros((0, 4))
+    centre = 0.5 * (np.minimum.reduceat(pts, starts, axis=0) + np.maximum.reduceat(pts, starts, axis=0))
+    run = np.repeat(np.arange(len(starts)), np.diff(np.append(starts, len(pts))))
+    radius = np.sqrt(np.maximum.reduceat(((pts - centre[run]) ** 2).sum(axis=1), starts))
+    return np.concatenate([centre, radius[:, None]], axis=1)
 
 
 def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
