@@ -260,19 +260,19 @@ def test_forced_plain_split_compiled_equals_numpy():
     assert 0 < np.linalg.norm(cb[36] - b[36]) < 0.1 * np.linalg.norm(b[36])      # h/2 differs from h, a little
 
 
-def test_run_spheres_bound_each_run():
+def testrun_spheres_bound_each_run():
     """The occluder runs' bounding spheres: centred on each run's bounding box, radius its farthest point (a
     per-run loop as the reference), runs of one to eight triangles."""
-    from datagen.transport.quadrature_primary import _run_spheres
+    from datagen.transport.quadrature_primary import run_spheres
 
     rng = np.random.default_rng(0)
     tri = rng.normal(size=(500, 3, 3))
     lens = rng.integers(1, 9, 80)
     lo = np.append(0, np.cumsum(lens)[:-1])
     occ_of = rng.integers(0, 500, lens.sum())
-    got = _run_spheres(tri[occ_of].reshape(-1, 3), 3 * lo)
+    got = run_spheres(tri[occ_of].reshape(-1, 3), 3 * lo)
     for r, (a, n) in enumerate(zip(lo, lens)):
         pts = tri[occ_of[a:a + n]].reshape(-1, 3)
         centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
         assert np.array_equal(got[r], [*centre, np.sqrt(((pts - centre) ** 2).sum(axis=1).max())])
-    assert _run_spheres(np.zeros((0, 3)), np.zeros(0, dtype=np.int64)).shape == (0, 4)
+    assert run_spheres(np.zeros((0, 3)), np.zeros(0, dtype=np.int64)).shape == (0, 4)

@@ -23,7 +23,7 @@ from ..units import SPEED_OF_LIGHT
 from .quadrature_kernel import candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes
 from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
 
-__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "leg_occluders", "run_compiled"]
+__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "leg_occluders", "run_compiled", "run_spheres"]
 
 PAIR_TEST_MAX_PAIRS = 1 << 22
 """The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
@@ -122,7 +122,7 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
     run_hi = np.append(run_lo[1:], len(face_of))
     run_ptr = np.searchsorted(face_of[run_lo], np.arange(len(faces) + 1)).astype(np.int64)
     tri = caster.vertices[caster.faces[occluders]]
-    spheres = _run_spheres(tri[occ_of].reshape(-1, 3), 3 * run_lo)
+    spheres = run_spheres(tri[occ_of].reshape(-1, 3), 3 * run_lo)
     plane, edges = occluder_planes(tri) if len(tri) else (np.zeros((1, 4)), np.zeros((1, 3, 4)))
     margin = MARGIN_OFFSETS * caster.offset
     grown = grown_triangles(tri, 2.0 * margin) if len(tri) else np.zeros((1, 3, 3))
@@ -130,7 +130,7 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
             plane, edges, float(margin), face_ray), grown
 
 
-def _run_spheres(pts: np.ndarray, starts: np.ndarray) -> np.ndarray:
+def run_spheres(pts: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """(R, 4) bounding spheres (centre, radius; metres) of the runs of points ``pts`` (n, 3) that begin at the
     ascending ``starts`` (R,): centred on each run's bounding box, radius its farthest point."""
     if len(starts) == 0:
