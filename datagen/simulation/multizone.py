@@ -20,13 +20,12 @@ import time
 
 import numpy as np
 
-from .. import spad
-from ..errors import ConfigError, SceneError
+from ..errors import SceneError
 from ..scene import Scene
 from ..scene.flood import (FloodProfile, MultizoneSpec, flood_capture, flood_field_names, flood_weights,
                            node_weights, with_flood)
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
-from .run import Replicas, Result, detector_model, library_versions
+from .run import Replicas, Result, detector_counts, library_versions
 
 
 ZONE_UNITS = {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin, per zone",
@@ -94,8 +93,8 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
     components = {name: zones[i] for i, name in enumerate(tr.names)}
     envelope = zones.sum(axis=0)
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
-    counts, detector, plan_attrs = _zone_counts(envelope, config, tr.plan.to_attrs(), noise_rng,
-                                                f"{scene.source + ' (simulation): ' if scene.source else ''}")
+    counts, detector, plan_attrs = detector_counts(envelope, config, tr.plan.to_attrs(), noise_rng,
+                                                   f"{scene.source} (simulation): " if scene.source else "")
     nx, ny = capture.laser_shape
     attrs = {
         "scene": scene.name, "scene_file": scene.source,
@@ -114,19 +113,6 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
     return Result(config.time.edges, envelope, components, counts, attrs,
                   laser_points=capture.spots.reshape(ny, nx, 3), sensor_points=capture.sensor_points(),
                   wall_normal=capture.fov_normal.copy())
-
-
-def _zone_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: dict, noise_rng: np.random.Generator,
-                 where: str) -> tuple[np.ndarray, spad.DetectorConfig, dict]:
-    """One histogram per zone from the zones' envelope (pile-up decided on it: ``detector_model``): (counts int64,
-    the detector drawn with, the plan record with its ``pile_up`` entry). ConfigError (prefixed ``where``) on a
-    detector the envelope does not suit."""
-    detector, plan_attrs = detector_model(envelope, config, plan_attrs)
-    try:
-        counts = spad.sample_histogram(spad.rates_from_envelope(envelope, detector), detector, noise_rng)
-    except ValueError as exc:
-        raise ConfigError(f"{where}detector: {' '.join(str(exc).split())}") from None
-    return counts, detector, plan_attrs
 
 
 def zone_result(result: Result, emitter, profile: FloodProfile, config: SimulationConfig,
@@ -167,7 +153,7 @@ def zone_result(result: Result, emitter, profile: FloodProfile, config: Simulati
 
     envelope = zones(env)
     components = {name: zones(c) for name, c in result.components.items()}
-    counts, detector, plan = _zone_counts(envelope, config, result.attrs.get("plan", {}), noise_rng, where)
+    counts, detector, plan = detector_counts(envelope, config, result.attrs.get("plan", {}), noise_rng, where)
     attrs = {**result.attrs, "plan": plan, "detector": detector.model_dump(mode="json"),
              "n_cycles": int(detector.cycles), "units": ZONE_UNITS,
              "multizone": {"profile": profile.model_dump(mode="json"), "weights": weights.reshape(ly, lx).tolist(),

@@ -400,6 +400,26 @@ def detector_model(envelope: np.ndarray, config: SimulationConfig, plan_attrs: d
     return counting_detector(detector, on), plan_attrs
 
 
+def detector_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: dict,
+                    noise_rng: np.random.Generator, where: str = "") -> tuple[np.ndarray, spad.DetectorConfig, dict]:
+    """The detector stage on an envelope (..., n_bins) float64 of expected detected photons per pulse per bin: one
+    rates array (:func:`datagen.spad.rates_from_envelope`; the counting detector's are the configured one's) for
+    the pile-up decision (:func:`detector_model`) and the draw (:func:`datagen.spad.sample_histogram`). Returns
+    (counts (..., n_bins) int64, the detector drawn with, the plan record with its ``pile_up`` entry).
+
+    Raises:
+        ConfigError: an envelope or exposure the detector refuses (e.g. too long to event-simulate), one line
+            prefixed ``where`` (the scene file).
+    """
+    try:
+        rates = spad.rates_from_envelope(envelope, config.detector_config())
+        detector, plan_attrs = detector_model(envelope, config, plan_attrs, rates)
+        counts = spad.sample_histogram(rates, detector, noise_rng)
+    except ValueError as exc:
+        raise ConfigError(f"{where}detector: {' '.join(str(exc).split())}") from None
+    return counts, detector, plan_attrs
+
+
 def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
                 noise_rng: np.random.Generator | None, t0: float, extra_attrs: dict | None = None) -> Result:
     """Detector draw and metadata around binned transport output (the last steps of :func:`simulate`): the
@@ -415,13 +435,8 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
                         "reaches the sensor grid within the time window; counts hold background only)")
     t3 = time.perf_counter()
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
-    try:        # one rates array for the pile-up decision and the draw (the counting detector's are the same)
-        rates = spad.rates_from_envelope(envelope, config.detector_config())
-        detector, plan_attrs = detector_model(envelope, config, tr.plan.to_attrs(), rates)
-        counts = spad.sample_histogram(rates, detector, noise_rng)
-    except ValueError as exc:   # e.g. an exposure too long to event-simulate: name the file and the field
-        raise ConfigError(f"{scene.source + ' (simulation): ' if scene.source else ''}detector: "
-                         f"{' '.join(str(exc).split())}") from None
+    counts, detector, plan_attrs = detector_counts(envelope, config, tr.plan.to_attrs(), noise_rng,
+                                                   f"{scene.source} (simulation): " if scene.source else "")
     t_detect = time.perf_counter() - t3
     st = transport.stats
     settings = transport.settings
