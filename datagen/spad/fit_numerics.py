@@ -47,13 +47,14 @@ def newton(f, x: np.ndarray, steps: list[float]) -> tuple[np.ndarray, np.ndarray
 
 
 def gradient(f, x: np.ndarray, steps: list[float]) -> np.ndarray:
-    """Central-difference gradient of ``f`` at ``x`` (k,) with per-coordinate ``steps``: float64 (k,)."""
-    g = np.zeros(x.size)
+    """Central-difference derivatives of ``f`` at ``x`` (k,) with per-coordinate ``steps``: float64 (k,) for a
+    scalar ``f`` (its gradient), (n, k) for an ``f`` with (n,) values (its Jacobian)."""
+    columns = []
     for i, h in enumerate(steps):
         e = np.zeros(x.size)
         e[i] = h
-        g[i] = (f(x + e) - f(x - e)) / (2 * h)
-    return g
+        columns.append((f(x + e) - f(x - e)) / (2 * h))
+    return np.stack(columns, axis=-1).astype(np.float64, copy=False)
 
 
 def hessian(f, x: np.ndarray, steps: list[float], f0: float | None = None) -> np.ndarray:
@@ -106,11 +107,7 @@ def sandwich_covariance(h_inv: np.ndarray, x: np.ndarray, steps: list[float], me
         float64 (k, k) covariance of x̂ in the fit coordinates.
     """
     mu = np.maximum(mean(x), 1e-300)
-    jac = np.empty((mu.size, x.size))
-    for i, step in enumerate(steps):
-        e = np.zeros(x.size)
-        e[i] = step
-        jac[:, i] = (mean(x + e) - mean(x - e)) / (2 * step)
+    jac = gradient(mean, x, steps)                      # (bins, k)
     score = (replicates / mu) @ jac                     # (R, k); the constant Jᵀ1 drops out of the covariance
     v = np.atleast_2d(np.cov(score, rowvar=False)) * (n / m)
     return h_inv @ v @ h_inv
