@@ -1,4 +1,4 @@
-"""Shared fixtures: small analytic scenes, and the box-before-the-wall scan room."""
+"""Shared fixtures: small analytic scenes, and rooms drawn from configs/rooms/wall.yaml."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,6 +8,8 @@ import pytest
 
 from datagen.scene import Material
 from datagen.scene import FieldOfView, Laser, Scene, Sensor, box, quad
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def patch_scene(patch_size: float = 0.4, albedo: float = 0.8, with_occluder: bool = False) -> Scene:
@@ -28,21 +30,26 @@ def patch_scene(patch_size: float = 0.4, albedo: float = 0.8, with_occluder: boo
                         fov=FieldOfView(center=(2.0, 0.0, -0.6), size=(0.8, 0.8))))
 
 
-def box_before_wall(points: int):
-    """A room of configs/rooms/wall.yaml's distribution with ``points`` × ``points`` confocal scan points and the
-    shipped box primitive (0.4–0.6 m, upright, facing the wall) as its hidden mesh, drawn with seed 13
+def wall_room(seed: int, index: int, overrides: dict):
+    """A room of configs/rooms/wall.yaml's distribution with ``overrides``
+    (:meth:`datagen.dataset.RoomDistribution.with_overrides`), drawn as sample ``index`` of the streams of ``seed``
     (the :func:`datagen.dataset.sample_room` result)."""
     from datagen.dataset import load_room_distribution, sample_room
     from datagen.dataset.sampler import STREAMS
 
-    root = Path(__file__).resolve().parents[1]
-    box_mesh = str(root / "assets" / "meshes" / "primitives" / "box.ply")
-    dist = load_room_distribution(root / "configs" / "rooms" / "wall.yaml").with_overrides({
-        "capture": {"scan": {"points": [points, points]}},
-        "objects": {"mesh": {"assets": [box_mesh], "yaw_deg": 0.0, "tilt_deg": 0.0, "size": {"min": 0.4, "max": 0.6}}}})
-    rngs = {name: np.random.default_rng(np.random.SeedSequence(13, spawn_key=(0, 0, k)))
+    dist = load_room_distribution(ROOT / "configs" / "rooms" / "wall.yaml").with_overrides(overrides)
+    rngs = {name: np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0, index, k)))
             for k, name in enumerate(STREAMS)}
     return sample_room(dist, rngs)
+
+
+def box_before_wall(points: int):
+    """:func:`wall_room` with ``points`` × ``points`` confocal scan points and the shipped box primitive (0.4–0.6 m,
+    upright, facing the wall) as its hidden mesh, drawn with seed 13."""
+    box_mesh = str(ROOT / "assets" / "meshes" / "primitives" / "box.ply")
+    return wall_room(13, 0, {"capture": {"scan": {"points": [points, points]}},
+                             "objects": {"mesh": {"assets": [box_mesh], "yaw_deg": 0.0, "tilt_deg": 0.0,
+                                                  "size": {"min": 0.4, "max": 0.6}}}})
 
 
 @pytest.fixture

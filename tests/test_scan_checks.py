@@ -2,26 +2,14 @@
 simulations of each laser point, and a backprojection that must find the hidden mesh where its label says."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 import datagen
-from conftest import box_before_wall
+from conftest import box_before_wall, wall_room
 from datagen.analysis.backprojection import locate_confocal, wall_leg_weights
-from datagen.dataset import LabelSpec, load_room_distribution, sample_room, scene_labels
-from datagen.dataset.sampler import STREAMS
+from datagen.dataset import LabelSpec, scene_labels
 from datagen.scene import FieldOfView, RayCaster, Scene, Sensor, resolve_capture
-
-WALL = Path(__file__).resolve().parents[1] / "configs" / "rooms" / "wall.yaml"
-
-
-def wall_room(seed: int, index: int, scan: dict):
-    dist = load_room_distribution(WALL).with_overrides({"capture": {"scan": scan}})
-    rngs = {name: np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0, index, k)))
-            for k, name in enumerate(STREAMS)}
-    return sample_room(dist, rngs)
 
 
 def rel_l2(a: np.ndarray, b: np.ndarray) -> float:
@@ -35,7 +23,7 @@ def test_confocal_scan_matches_a_converged_reference():
     """The wall config's quadrature (h = 6 cm, wall.yaml) against the same capture at h = 1.5 cm with 3 × 3 FoV
     cells per pixel: the quadrature's error falls as h² (docs/physics.md §2), so the reference is 16× closer to the
     integral than the sample; the sample must be within 2 % relative L2 over the whole scan."""
-    room = wall_room(3, 0, SMALL_SCAN)
+    room = wall_room(3, 0, {"capture": {"scan": SMALL_SCAN}})
     base = {"estimator": "quadrature", "secondary": "none", "count_sensor_leg": False, "quadrature_fov": 3,
             "time": {"t_start": 0.0, "bin_width": 64e-12, "n_bins": 256}, "irf": {"fwhm": 70e-12},
             "effects": {"first_bounce": False, "secondary": False}}
@@ -54,7 +42,7 @@ def test_each_laser_point_equals_a_single_spot_simulation():
     pixel region: same sub-triangles, same weights, and the same aperture direction (a confocal detector follows
     the laser, Capture.aperture_normals; a single capture faces its FoV's centre p), so the envelopes are equal.
     The grid is 1.2 m wide, so a staring aperture would differ by up to cos θ_ap ≈ 0.9 at the corners."""
-    room = wall_room(3, 1, {"points": [6, 5], "width": 1.2, "height": 1.0})
+    room = wall_room(3, 1, {"capture": {"scan": {"points": [6, 5], "width": 1.2, "height": 1.0}}})
     over = {"estimator": "quadrature", "quadrature_edge": 0.08, "quadrature_fov": 1, "secondary": "none",
             "count_sensor_leg": False, "time": {"t_start": 0.0, "bin_width": 64e-12, "n_bins": 256},
             "irf": {"fwhm": 70e-12},
