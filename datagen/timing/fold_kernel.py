@@ -2,10 +2,10 @@
 
 A fine-histogram row of a scanned capture holds weight on a few hundred of its thousands of nodes (one laser point's
 returns); :class:`datagen.timing.EnvelopeAccumulator` folds its pending second differences (:func:`fold_rows`) and
-convolves it with the fine-cell-integrated IRF and sums ``oversample`` nodes per output bin (:func:`bin_rows`, each
-non-zero node times a precomputed row of :func:`bin_weights`) only over each row's non-zero nodes. The fold runs in
-the order of ``numpy.cumsum``; the binning is the valid convolution regrouped by node; nothing is approximated
-(docs/physics.md §5).
+convolves it with the fine-cell-integrated IRF and sums ``oversample`` nodes per output bin (:func:`bin_rows`: per bin
+the dot product of the nodes it reaches, within the row's non-zero span, with a precomputed row of weights from
+:func:`bin_weights`). The fold runs in the order of ``numpy.cumsum``; the binning is the valid convolution regrouped
+by output bin, each bin's terms in node order; nothing is approximated (docs/physics.md §5).
 """
 from __future__ import annotations
 
@@ -62,32 +62,31 @@ def bin_weights(kernel: np.ndarray, oversample: int) -> np.ndarray:
 @njit(cache=True, parallel=True)
 def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray, row_max: np.ndarray) -> None:
     """out[i, b] = Σ over the ``oversample`` fine cells c of bin b of (hist[rows[i]] ⋆ kernel)[c], the valid-mode
-    convolution ``numpy.convolve(hist[row], kernel, "valid")`` (length n_bins · oversample), as each non-zero node's
-    weight times its row of :func:`bin_weights` (``table``, (oversample, Q)): (K / oversample + 1) products per
-    non-zero node; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
+    convolution ``numpy.convolve(hist[row], kernel, "valid")`` (length n_bins · oversample), as the dot product of
+    the Q · oversample nodes from b · oversample on (clipped to the row's non-zero span) with the weights of
+    :func:`bin_weights` (``table``, (oversample, Q)) in node order: node j = oversample·m + p adds hist[j] ·
+    table[p, m − b]; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
     row_max (k,) float64 (written). The rows run on numba's threads, each in one thread: the same result for any
     number of threads."""
     oversample, q_len = table.shape
     n_bins = out.shape[1]
+    width = q_len * oversample
+    weights = np.empty(width)                      # weights[q · oversample + p] = table[p, q]: node order
+    for q in range(q_len):
+        for p in range(oversample):
+            weights[q * oversample + p] = table[p, q]
     for i in prange(rows.shape[0]):
         r = rows[i]
-        for b in range(n_bins):
-            out[i, b] = 0.0
         lo, hi = _span(hist, r)
         peak = 0.0
         for j in range(lo, hi):
-            v = hist[r, j]
-            if v == 0.0:
-                continue
-            peak = max(peak, abs(v))
-            m = j // oversample
-            p = j - m * oversample
-            for q in range(q_len):
-                b = m - q
-                if b < 0:
-                    break
-                if b < n_bins:
-                    out[i, b] += v * table[p, q]
+            peak = max(peak, abs(hist[r, j]))
+        for b in range(n_bins):
+            start = b * oversample
+            total = 0.0
+            for j in range(max(start, lo), min(start + width, hi)):
+                total += hist[r, j] * weights[j - start]
+            out[i, b] = total
         row_max[i] = peak
 
 
