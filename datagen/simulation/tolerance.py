@@ -15,7 +15,9 @@ level's error is its own estimate ‖P(h) − P(2h)‖/3 when the run makes its 
 costs 1.9× where h/2 costs 4×), or halves after a level whose estimate barely fell (``STALLED``). Otherwise a
 level's error is estimated from the previous one as ‖P(h') − P(h)‖/((h/h')² − 1) (the first level from a run at
 2h) and the edge at least halves. Either is added in quadrature to the replica spread of its Monte Carlo
-secondary.
+secondary. A graded quadrature with ``estimator.refine_grading`` scales its grading ratio with the edge at each
+level (:meth:`datagen.transport.quadrature_options.QuadratureOptions.at_edge`): its error sits near the scan,
+which the edge alone barely refines.
 
 A wall-clock cap (``max_seconds``) is available for interactive use; it makes the result depend on the
 machine's speed, so dataset builds cap the replica count instead (``max_replicas``, deterministic). With such a
@@ -255,11 +257,12 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
     """The quadrature: the edge shrinks until the estimate of the latest level meets ``tolerance``."""
     entry = runs.entry
     h = float(config.estimator.edge)
+    settings_at = getattr(config.estimator, "at_edge", lambda edge: {"edge": edge})   # a level's settings at edge h
     rounds, previous = [], None
     for level in range(MAX_ROUNDS + 2):
         t_level = time.perf_counter()
         if level:
-            runs = Replicas(scene, config.with_estimator(edge=h), rng, planned=runs.planned)   # same plan
+            runs = Replicas(scene, config.with_estimator(**settings_at(h)), rng, planned=runs.planned)   # same plan
         runs.run(config.replicas)
         tr = runs.transported()
         _check_energy(scene, tr)
@@ -296,7 +299,7 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
         h *= shrink
     info = {"target": tolerance, "estimate": estimate, "met": bool(estimate <= tolerance),
             "method": error["method"], "rounds": rounds}
-    cfg = config.with_estimator(edge=h)
+    cfg = config.with_estimator(**settings_at(h))
     return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
 
 
