@@ -77,6 +77,13 @@ def test_bin_rows_is_the_valid_convolution_summed_per_bin():
     expected = valid.reshape(len(rows), n_bins, OVERSAMPLE).sum(axis=2)
     assert np.abs(got[1][0] - expected).max() < 1e-12
     assert np.array_equal(got[1][1], np.abs(hist[rows]).max(axis=1))
+    weights = table.T.ravel()                        # node order: weights[q · oversample + p] = table[p, q]
+    for i in range(0, len(rows), 7):                 # each bin, bit for bit: its window's terms in node order
+        for b in range(n_bins):
+            start, total = b * OVERSAMPLE, 0.0
+            for j in range(start, min(start + len(weights), NODES)):
+                total += float(hist[rows[i], j]) * float(weights[j - start])
+            assert got[1][0][i, b] == total, (i, b)
 
 
 def test_threads_for_runs_short_work_on_one_thread_and_restores_the_count():
