@@ -112,13 +112,12 @@ def _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, idx, pl
 
 
 @njit(cache=True, inline="always")
-def _cell_legs(m, l, t, same, soa, closed, area, spots, spot_n, spot_f, photons, targets, fov_n, collect_t, tol,
-               shadow, out_w, out_rl, out_ry) -> None:
-    """The legs of pair (cell m, connection (l, t)) without the hidden BRDF: out_w[m] = A · E · G / f (module doc;
-    0: no contribution), out_rl[m] = r_l, out_ry[m] = r_y; ``same``: the target is the laser point (confocal),
-    whose leg is then the laser leg; ``soa``: the cells' centroid and normal coordinates (6, M), one contiguous row
-    each. No branch on the pair's values (the conditions are selects), so a loop of it over every cell runs in SIMD
-    lanes; the inner side of a closed surface (``closed[m]`` where ``shadow``) is never lit."""
+def _cell_legs(m, l, t, same, soa, spots, spot_n, spot_f, photons, targets, fov_n, collect_t, tol, out) -> None:
+    """The legs of pair (cell m, connection (l, t)) without the hidden BRDF: out[0, m] = A · E · G / f (module doc;
+    0: no contribution), out[1, m] = r_l, out[2, m] = r_y; ``same``: the target is the laser point (confocal),
+    whose leg is then the laser leg; ``soa``: per cell, one contiguous row each (:data:`SOA`). No branch on the
+    pair's values (the conditions are selects), so a loop of it over every cell runs in SIMD lanes; the inner side
+    of a closed surface is never lit."""
     w0, w1, w2 = spots[l, 0] - soa[0, m], spots[l, 1] - soa[1, m], spots[l, 2] - soa[2, m]
     r_l = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     inv_l = 1.0 / max(r_l, 1e-300)
@@ -136,10 +135,10 @@ def _cell_legs(m, l, t, same, soa, closed, area, spots, spot_n, spot_f, photons,
     e = irradiance_term(photons, emission_term(spot_f[l], cos_l), cos_in, r_l)
     g = fov_term(abs(nw) * cos_y, r_y, collect_t)
     lit = ((cos_l > 0.0) & (cos_in > 0.0) & (r_l > tol) & (abs(nw) > 0.0) & (cos_y > 0.0) & (r_y > tol)
-           & ((nw > 0.0) == (nfw > 0.0)) & ~(shadow & (closed[m] != 0) & (nfw < 0.0)))
-    out_w[m] = area[m] * e * g if lit else 0.0
-    out_rl[m] = r_l
-    out_ry[m] = r_y
+           & ((nw > 0.0) == (nfw > 0.0)) & ~((soa[7, m] > 0.0) & (nfw < 0.0)))
+    out[0, m] = soa[6, m] * e * g if lit else 0.0
+    out[1, m] = r_l
+    out[2, m] = r_y
 
 
 @njit(cache=True, inline="always")
@@ -182,9 +181,11 @@ def _tent_nodes(paths, v0, v1, v2, centre, offset, per_metre, origin):
 
 
 @njit(cache=True, inline="always")
-def _cell_nodes(m, cells, paths, rl, ry, offset, per_metre, origin, nodes) -> None:
-    """nodes[:, m] = the sorted fine-grid nodes of cell m's tent (:func:`_tent_nodes`, centre r_l + r_y)."""
-    c0, c1, c2 = _tent_nodes(paths, cells[m, 0], cells[m, 1], cells[m, 2], rl[m] + ry[m], offset, per_metre, origin)
+def _cell_nodes(m, cells, paths, legs, offset, per_metre, origin, nodes) -> None:
+    """nodes[:, m] = the sorted fine-grid nodes of cell m's tent (:func:`_tent_nodes`, centre r_l + r_y from
+    ``legs``: :func:`_cell_legs`)."""
+    c0, c1, c2 = _tent_nodes(paths, cells[m, 0], cells[m, 1], cells[m, 2], legs[1, m] + legs[2, m], offset, per_metre,
+                             origin)
     nodes[0, m] = c0
     nodes[1, m] = c1
     nodes[2, m] = c2
@@ -197,6 +198,9 @@ def _node_map(speed, t_start, step, shift):
     return 1.0 / (speed * step), shift - t_start / step
 
 
+SOA = ("x", "y", "z", "n_x", "n_y", "n_z", "area", "dark_inside")
+"""Rows of the pair kernel's per-cell array (8, M) float64: centroid, unit normal, area (m²), and 1.0 where the inner
+side of a closed outward surface is never lit (the laser leg is shadow-tested and the cell is ``closed``), else 0."""
 CELL_BRDF = ("f_lamb", "kind", "rho", "ks", "expo")
 """Columns of the kernel's per-sub-triangle BRDF array (M, 5) float64: constant f = ρ/π (Lambertian), the kind
 code (:data:`datagen.scene.brdf_kernel.PHONG` …), albedo, specular fraction and exponent of its object."""
@@ -238,15 +242,18 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     M = centroid.shape[0]
     per_metre, origin = _node_map(speed, t_start, step, shift)
     cper_metre, corigin = _node_map(speed, ct_start, cstep, cshift)
-    soa = np.ascontiguousarray(np.concatenate((centroid, normal), axis=1).T)
+    soa = np.empty((8, M))
+    soa[:3] = centroid.T
+    soa[3:6] = normal.T
+    soa[6] = area
+    for m in range(M):
+        soa[7, m] = 1.0 if shadow and closed[m] else 0.0
     n_groups = len(group_ptr) - 1
     group_tents = np.zeros(n_groups, dtype=np.int64)
     for grp in prange(n_groups):
         tents = 0
         paths = np.empty(vertices.shape[0])
-        base = np.empty(M)                      # per cell of one connection: A · E · G / f, r_l, r_y, sorted nodes
-        rl = np.empty(M)
-        ry = np.empty(M)
+        legs = np.empty((3, M))                 # per cell of one connection: A · E · G / f, r_l, r_y; sorted nodes
         nodes = np.empty((3, M))
         for gi in range(group_ptr[grp], group_ptr[grp + 1]):
             b = group_conn[gi]
@@ -264,20 +271,19 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                 for i in range(n_items):
                     if visible[slot + i]:
                         m = ray_cell[slot + i]
-                        _cell_legs(m, l, t, same, soa, closed, area, spots, spot_n, spot_f, photons, targets, fov_n,
-                                   collect[t], tol, shadow, base, rl, ry)
-                        _cell_nodes(m, cells, paths, rl, ry, offset, per_metre, origin, nodes)
+                        _cell_legs(m, l, t, same, soa, spots, spot_n, spot_f, photons, targets, fov_n, collect[t], tol,
+                                   legs)
+                        _cell_nodes(m, cells, paths, legs, offset, per_metre, origin, nodes)
             elif same:                          # every cell's, in SIMD lanes (a constant ``same`` per loop)
                 for m in range(M):
-                    _cell_legs(m, l, t, True, soa, closed, area, spots, spot_n, spot_f, photons, targets, fov_n,
-                               collect[t], tol, shadow, base, rl, ry)
+                    _cell_legs(m, l, t, True, soa, spots, spot_n, spot_f, photons, targets, fov_n, collect[t], tol, legs)
             else:
                 for m in range(M):
-                    _cell_legs(m, l, t, False, soa, closed, area, spots, spot_n, spot_f, photons, targets, fov_n,
-                               collect[t], tol, shadow, base, rl, ry)
+                    _cell_legs(m, l, t, False, soa, spots, spot_n, spot_f, photons, targets, fov_n, collect[t], tol,
+                               legs)
             if not listed:
                 for m in range(M):
-                    _cell_nodes(m, cells, paths, rl, ry, offset, per_metre, origin, nodes)
+                    _cell_nodes(m, cells, paths, legs, offset, per_metre, origin, nodes)
             for i in range(n_items):
                 if listed:
                     if not visible[slot + i]:
@@ -285,9 +291,9 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     m = ray_cell[slot + i]
                 else:
                     m = i
-                if not base[m] > 0.0:
+                if not legs[0, m] > 0.0:
                     continue
-                weight = base[m] * _cell_brdf(m, l, t, same, soa, spots, targets, cell_brdf)
+                weight = legs[0, m] * _cell_brdf(m, l, t, same, soa, spots, targets, cell_brdf)
                 if not weight > 0.0:
                     continue
                 if shadow and not listed:
@@ -306,7 +312,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                         n_rays += 1
                         continue
                 if mu > 0.0:
-                    weight = weight * attenuation_term(mu, emitter_leg[l] + rl[m] + ry[m] + d_y[t])
+                    weight = weight * attenuation_term(mu, emitter_leg[l] + legs[1, m] + legs[2, m] + d_y[t])
                     if not weight > 0.0:
                         continue
                 deposit_tent(nodes[0, m], nodes[1, m], nodes[2, m], weight, comp_base[m] + ch, n_fine, min_nodes,
@@ -315,7 +321,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                 k = coarse_of[m]
                 if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
                     c0, c1, c2 = _tent_nodes(paths, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2],
-                                             rl[m] + ry[m], offset, cper_metre, corigin)
+                                             legs[1, m] + legs[2, m], offset, cper_metre, corigin)
                     deposit_tent(c0, c1, c2, 4.0 * weight, ch, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond)
             if not listed:
                 ray_count[row] = n_rays
