@@ -276,7 +276,7 @@ def test_forced_plain_split_compiled_equals_numpy():
     assert 0 < np.linalg.norm(cb[36] - b[36]) < 0.1 * np.linalg.norm(b[36])      # h/2 differs from h, a little
 
 
-def testrun_spheres_bound_each_run():
+def test_run_spheres_bound_each_run():
     """The occluder runs' bounding spheres: centred on each run's bounding box, radius its farthest point (a
     per-run loop as the reference), runs of one to eight triangles."""
     from datagen.transport.quadrature_primary import run_spheres

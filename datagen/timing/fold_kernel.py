@@ -3,7 +3,7 @@
 A fine-histogram row of a scanned capture holds weight on a few hundred of its thousands of nodes (one laser point's
 returns); :class:`datagen.timing.EnvelopeAccumulator` folds its pending second differences (:func:`fold_rows`) and
 convolves it with the fine-cell-integrated IRF and sums ``oversample`` nodes per output bin (:func:`bin_rows`: per bin
-the dot product of the nodes it reaches, within the row's non-zero span, with a precomputed row of weights from
+the row's non-zero span reaches, the dot product of the nodes of its window with a precomputed row of weights from
 :func:`bin_weights`). The fold runs in the order of ``numpy.cumsum``; the binning is the valid convolution regrouped
 by output bin, each bin's terms in node order; nothing is approximated (docs/physics.md §5).
 """
@@ -63,8 +63,8 @@ def bin_weights(kernel: np.ndarray, oversample: int) -> np.ndarray:
 def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray, row_max: np.ndarray) -> None:
     """out[i, b] = Σ over the ``oversample`` fine cells c of bin b of (hist[rows[i]] ⋆ kernel)[c], the valid-mode
     convolution ``numpy.convolve(hist[row], kernel, "valid")`` (length n_bins · oversample), as the dot product of
-    the Q · oversample nodes from b · oversample on (bins out of reach of the row's non-zero span are 0) with the weights of
-    :func:`bin_weights` (``table``, (oversample, Q)) in node order: node j = oversample·m + p adds hist[j] ·
+    the Q · oversample nodes from b · oversample on (bins out of reach of the row's non-zero span are 0) with the
+    weights of :func:`bin_weights` (``table``, (oversample, Q)) in node order: node j = oversample·m + p adds hist[j] ·
     table[p, m − b]; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
     row_max (k,) float64 (written). The rows run on numba's threads, each in one thread: the same result for any
     number of threads."""

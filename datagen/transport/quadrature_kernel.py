@@ -181,11 +181,11 @@ def _tent_nodes(paths, v0, v1, v2, centre, offset, per_metre, origin):
 
 
 @njit(cache=True, inline="always")
-def _cell_nodes(m, cells, paths, legs, offset, per_metre, origin, nodes) -> None:
+def _cell_nodes(m, cells, paths, leg_rows, offset, per_metre, origin, nodes) -> None:
     """nodes[:, m] = the sorted fine-grid nodes of cell m's tent (:func:`_tent_nodes`, centre r_l + r_y from
-    ``legs``: :func:`_cell_legs`)."""
-    c0, c1, c2 = _tent_nodes(paths, cells[m, 0], cells[m, 1], cells[m, 2], legs[1, m] + legs[2, m], offset, per_metre,
-                             origin)
+    ``leg_rows``: :func:`_cell_legs`)."""
+    c0, c1, c2 = _tent_nodes(paths, cells[m, 0], cells[m, 1], cells[m, 2], leg_rows[1, m] + leg_rows[2, m], offset,
+                             per_metre, origin)
     nodes[0, m] = c0
     nodes[1, m] = c1
     nodes[2, m] = c2
@@ -253,7 +253,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     for grp in prange(n_groups):
         tents = 0
         paths = np.empty(vertices.shape[0])
-        legs = np.empty((3, M))                 # per cell of one connection: A · E · G / f, r_l, r_y; sorted nodes
+        leg_rows = np.empty((3, M))             # per cell of one connection: A · E · G / f, r_l, r_y (_cell_legs)
         nodes = np.empty((3, M))
         for gi in range(group_ptr[grp], group_ptr[grp + 1]):
             b = group_conn[gi]
@@ -272,18 +272,19 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     if visible[slot + i]:
                         m = ray_cell[slot + i]
                         _cell_legs(m, l, t, same, soa, spots, spot_n, spot_f, photons, targets, fov_n, collect[t], tol,
-                                   legs)
-                        _cell_nodes(m, cells, paths, legs, offset, per_metre, origin, nodes)
+                                   leg_rows)
+                        _cell_nodes(m, cells, paths, leg_rows, offset, per_metre, origin, nodes)
             elif same:                          # every cell's, in SIMD lanes (a constant ``same`` per loop)
                 for m in range(M):
-                    _cell_legs(m, l, t, True, soa, spots, spot_n, spot_f, photons, targets, fov_n, collect[t], tol, legs)
+                    _cell_legs(m, l, t, True, soa, spots, spot_n, spot_f, photons, targets, fov_n, collect[t], tol,
+                               leg_rows)
             else:
                 for m in range(M):
                     _cell_legs(m, l, t, False, soa, spots, spot_n, spot_f, photons, targets, fov_n, collect[t], tol,
-                               legs)
+                               leg_rows)
             if not listed:
                 for m in range(M):
-                    _cell_nodes(m, cells, paths, legs, offset, per_metre, origin, nodes)
+                    _cell_nodes(m, cells, paths, leg_rows, offset, per_metre, origin, nodes)
             for i in range(n_items):
                 if listed:
                     if not visible[slot + i]:
@@ -291,9 +292,9 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     m = ray_cell[slot + i]
                 else:
                     m = i
-                if not legs[0, m] > 0.0:
+                if not leg_rows[0, m] > 0.0:
                     continue
-                weight = legs[0, m] * _cell_brdf(m, l, t, same, soa, spots, targets, cell_brdf)
+                weight = leg_rows[0, m] * _cell_brdf(m, l, t, same, soa, spots, targets, cell_brdf)
                 if not weight > 0.0:
                     continue
                 if shadow and not listed:
@@ -312,7 +313,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                         n_rays += 1
                         continue
                 if mu > 0.0:
-                    weight = weight * attenuation_term(mu, emitter_leg[l] + legs[1, m] + legs[2, m] + d_y[t])
+                    weight = weight * attenuation_term(mu, emitter_leg[l] + leg_rows[1, m] + leg_rows[2, m] + d_y[t])
                     if not weight > 0.0:
                         continue
                 deposit_tent(nodes[0, m], nodes[1, m], nodes[2, m], weight, comp_base[m] + ch, n_fine, min_nodes,
@@ -321,7 +322,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                 k = coarse_of[m]
                 if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
                     c0, c1, c2 = _tent_nodes(paths, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2],
-                                             legs[1, m] + legs[2, m], offset, cper_metre, corigin)
+                                             leg_rows[1, m] + leg_rows[2, m], offset, cper_metre, corigin)
                     deposit_tent(c0, c1, c2, 4.0 * weight, ch, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond)
             if not listed:
                 ray_count[row] = n_rays
