@@ -1,5 +1,5 @@
 """fit-detector (datagen.spad.fit): maximum-likelihood detector parameters recovered from histograms drawn by
-datagen's own detector model (datagen.spad.sample_histogram) with known parameters, 10 seeds per regime."""
+datagen's own detector model (datagen.spad.sample_histogram) with known parameters, 25-200 seeds per regime."""
 from __future__ import annotations
 
 import numpy as np
@@ -18,13 +18,17 @@ TRUE = {"position": 3.03e-9, "jitter_sigma": 80e-12, "diffusion_tail": 150e-12}
 
 
 def draw(model: str, signal: float, background: float, n: int, rep: float, seed: int, dead_time: float = 0.0,
-         afterpulse: tuple[float, float] = (0.0, 0.0)):
+         afterpulse: tuple[float, float] = (0.0, 0.0), pixels: int = 1):
+    """Histograms of a return at TRUE["position"] drawn by datagen's detector model (sample_histogram) with
+    numpy.random.default_rng(seed): int64 (BINS,), or (pixels, BINS) independent ones from one call when pixels
+    > 1 (the free-running event simulation with afterpulsing steps all pixels at once: ~0.3 s per histogram
+    instead of 7.6 s one by one)."""
     extra = {"dead_time": dead_time, "afterpulse_probability": afterpulse[0],
              "afterpulse_time_constant": afterpulse[1]} if model == "free_running" else {}
     cfg = DetectorConfig(model=model, repetition_rate=rep, n_cycles=n, bin_width=DT, dcr=background,
                          jitter_sigma=TRUE["jitter_sigma"], diffusion_tail=TRUE["diffusion_tail"], **extra)
-    env = return_envelope(BINS, DT, TRUE["position"], signal, 0.5 * DT)
-    return sample_histogram(rates_from_envelope(env, cfg), cfg, np.random.default_rng(seed))
+    rates = rates_from_envelope(return_envelope(BINS, DT, TRUE["position"], signal, 0.5 * DT), cfg)
+    return sample_histogram(rates if pixels == 1 else np.tile(rates, (pixels, 1)), cfg, np.random.default_rng(seed))
 
 
 REGIMES = {
@@ -32,8 +36,11 @@ REGIMES = {
     "pile_up low flux": dict(model="pile_up", signal=0.02, background=2e5, n=1_000_000, rep=20e6),
     # pile-up: one photon per cycle on average, 63 % of the cycles detect it, the histogram is skewed early
     "pile_up high flux": dict(model="pile_up", signal=1.0, background=2e5, n=100_000, rep=20e6),
-    # free-running with a 4 ns dead time over a 10 ns period: the return blinds the SPAD, a dip follows it
-    "free_running": dict(model="free_running", signal=0.3, background=2e6, n=100_000, rep=100e6, dead_time=4e-9),
+    # free-running with a 4 ns dead time over a 10 ns period: the return blinds the SPAD, a dip follows it; the
+    # datasheet's dead-time range (2–10 ns) as below: unbounded, τ + one period fits some draws within a likelihood
+    # ratio of 20 and the fit says so (test_dead_time_one_period_off_is_named_in_one_line_...)
+    "free_running": dict(model="free_running", signal=0.3, background=2e6, n=100_000, rep=100e6, dead_time=4e-9,
+                         dead_time_bounds=(2e-9, 10e-9)),
     # the same with afterpulsing (P = 0.1, τ_ap = 2 ns known): an echo of the return one dead time later; the
     # datasheet's dead-time range (2–10 ns, below one period) excludes the alias τ + one period (14 ns), which fits
     # these histograms about as well (test_dead_time_one_period_off_is_named_in_one_line_...)
@@ -42,27 +49,37 @@ REGIMES = {
 }
 
 
-SHORT = {
-    # measured on seeds 0–9 (95 % intervals: inverse Fisher information; sandwich with afterpulsing; issue 26)
-    "pile_up high flux": "jitter_sigma and position inside their interval in 8 of 10 seeds; on 300 seeds (0–299) "
-                         "the coverage is 96.3 % (jitter), 96.3 % (position), 95.0 % (tail), 95.7 % (signal), "
-                         "95.3 % (background): the intervals are calibrated and P(≥ 9 of 10) is 0.91 per parameter",
-    "free_running afterpulsing": "afterpulse_probability inside its interval in 7 of 10 seeds, background_rate in 8 "
-                                 "(each fit equals the linearised estimate within 0.15 sigma: the draws, z = 2.4, "
-                                 "-2.3, -2.3 for P); on 100 seeds (0-99) with the sandwich intervals the coverage "
-                                 "is 97 % (position), 96 % (jitter), 99 % (tail), 98 % (signal), 92 % (background), "
-                                 "97 % (dead time), 92 % (P), z sd 0.85-1.08 (docs/capture_io.md)",
+# seeds per regime: enough to measure coverage to about ±2-4 % (a fit costs 0.25 s at low flux, 0.45 s in pile-up,
+# 4 s free-running and 12 s with afterpulsing, on the CI machine)
+SEEDS = {"pile_up low flux": 200, "pile_up high flux": 200, "free_running": 50, "free_running afterpulsing": 25}
+COVERAGE_RATE = 0.90          # "every parameter inside its 95 % interval in >= 9 of 10 seeds" (issue 26), as a rate
+COVERAGE_SIGNIFICANCE = 0.01  # the test fails when the hits are below the 1 % quantile of Binomial(seeds, 0.90)
+
+
+UNDER_COVERED = {
+    # measured on the 50 histograms of this test (issue 26): the dead time's likelihood has two dips in some draws
+    # (e.g. 2.1 and 4.0 ns within a likelihood ratio of 1.6) that the held-parameter profile does not see
+    "free_running": "dead_time's 95 % interval holds the true 4 ns in 86 % of 50 seeds, z sd 1.83 (Fisher "
+                    "intervals: 66 %, z sd 2.54); the other parameters 94-98 %, z sd 0.86-1.13",
 }
 
 
-@pytest.mark.parametrize("regime", [pytest.param(r, marks=[pytest.mark.xfail(reason=SHORT[r], strict=False)]
-                                                 + ([pytest.mark.slow] if "afterpulsing" in r else []))
-                                    if r in SHORT else r for r in REGIMES])
+@pytest.mark.slow
+@pytest.mark.parametrize("regime", [pytest.param(r, marks=pytest.mark.xfail(reason=UNDER_COVERED[r], strict=True))
+                                    if r in UNDER_COVERED else r for r in REGIMES])
 def test_fit_recovers_every_parameter_within_its_95_percent_interval(regime):
-    """Every detector parameter (and the return's signal) inside its reported 95 % interval in at least 9 of 10
-    seeds (with exact 95 % intervals a parameter has a 91 % chance of that). The return's position is a nuisance
-    parameter, not the detector's, and is only required in 8. The free-running fit starts from a datasheet dead
-    time 25 % off; with afterpulsing it also fits the afterpulse probability (τ_ap known)."""
+    """Issue 26's acceptance as a coverage rate: fitted to histograms drawn by datagen's own detector model with
+    known parameters, each parameter's 95 % interval (and the simultaneous intervals, all parameters at once) holds
+    the true value in at least 9 of 10 seeds. Ten seeds cannot show that: an exact 95 % interval has 9 or 10 hits
+    in 10 with probability 0.91 only, so over the 25-30 parameters of the four regimes some would miss by chance.
+    So each regime runs SEEDS histograms and fails when a parameter's hits (or the joint hits) fall below the 1 %
+    quantile of Binomial(seeds, 0.90), i.e. when the data say its coverage is below 90 %. The calibration is also
+    checked both ways: z = (estimate − truth) / σ has a standard deviation within 0.75-1.3 (too narrow or too wide
+    intervals fail) and a mean within ±3 / √seeds + 0.2. Every fit must converge and raise no identifiability line.
+    The free-running fit starts from a datasheet dead time 25 % off; with afterpulsing it also fits the afterpulse
+    probability (τ_ap known) with sandwich intervals (docs/capture_io.md)."""
+    from scipy.stats import binom
+
     spec = dict(REGIMES[regime])
     truth = {**TRUE, "signal": spec["signal"], "background_rate": spec["background"]}
     initial, tau_ap = None, None
@@ -71,19 +88,29 @@ def test_fit_recovers_every_parameter_within_its_95_percent_interval(regime):
         initial = {"dead_time": 5e-9}
     if "afterpulse" in spec:
         truth["afterpulse_probability"], tau_ap = spec["afterpulse"]
+    n_seeds = SEEDS[regime]
     inside = {k: 0 for k in truth}
-    for seed in range(10):
-        h = draw(spec["model"], spec["signal"], spec["background"], spec["n"], spec["rep"], seed,
-                 spec.get("dead_time", 0.0), spec.get("afterpulse", (0.0, 0.0)))
+    z = {k: [] for k in truth}
+    joint = 0
+    histograms = draw(spec["model"], spec["signal"], spec["background"], spec["n"], spec["rep"], 26,
+                      spec.get("dead_time", 0.0), spec.get("afterpulse", (0.0, 0.0)), pixels=n_seeds)
+    for i, h in enumerate(histograms):
         fit = fit_detector(h, bin_width=DT, repetition_rate=spec["rep"], n_cycles=spec["n"], model=spec["model"],
-                           irf="exgauss", initial=initial, afterpulse_time_constant=tau_ap, seed=1000 + seed,
+                           irf="exgauss", initial=initial, afterpulse_time_constant=tau_ap, seed=1000 + i,
                            dead_time_bounds=spec.get("dead_time_bounds"))
-        assert fit.messages == [] and fit.settings["converged"], (seed, fit.summary(), fit.messages)
+        assert fit.messages == [] and fit.settings["converged"], (i, fit.summary(), fit.messages)
         for k in truth:
             lo, hi = fit.intervals[k]
             inside[k] += lo <= truth[k] <= hi
-    assert inside.pop("position") >= 8
-    assert all(v >= 9 for v in inside.values()), inside
+            z[k].append((fit.values[k] - truth[k]) / fit.errors[k])
+        joint += all(fit.joint_intervals[k][0] <= truth[k] <= fit.joint_intervals[k][1] for k in truth)
+    need = int(binom.ppf(COVERAGE_SIGNIFICANCE, n_seeds, COVERAGE_RATE))
+    report = {k: (f"{inside[k] / n_seeds:.1%}", round(float(np.std(z[k])), 2), round(float(np.mean(z[k])), 2))
+              for k in truth}
+    report["joint"] = f"{joint / n_seeds:.1%}"
+    print(regime, n_seeds, "seeds, need", need, report)
+    assert all(v >= need for v in inside.values()) and joint >= need, (need, report)
+    assert all(0.75 < np.std(v) < 1.3 and abs(np.mean(v)) < 3 / np.sqrt(n_seeds) + 0.2 for v in z.values()), report
 
 
 def test_joint_z_is_bonferroni():

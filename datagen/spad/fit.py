@@ -63,9 +63,33 @@ IDENTIFIABLE_SPAN = 10.0
 MAX_DEAD_TIME_PERIODS = 4.0
 """Dead times searched up to this many laser periods (longer ones make the free-running chain mix slowly)."""
 
-DEAD_TIME_SCAN = 24
-"""Dead times (log grid, two bins to MAX_DEAD_TIME_PERIODS periods) scanned after a free-running fit to escape a
-local minimum."""
+DEAD_TIME_SCAN = 160
+"""Dead times (log grid, two bins to MAX_DEAD_TIME_PERIODS periods: 4 % apart, about 3 bins at 4 ns in 50 ps bins)
+scanned after a free-running fit with the other parameters held, to escape a local minimum (the likelihood in the
+dead time has bumps a few bins wide where the recovery edge after the return meets the counts' noise)."""
+
+DEAD_TIME_RESTARTS = 3
+"""Local refits from the lowest local minima of the dead-time scan (DEAD_TIME_SCAN) more than DEAD_TIME_BASIN from
+the optimum (the others held there, a minimum of the scan is not one of the likelihood: the background trades
+against the dead time)."""
+
+DEAD_TIME_BASIN = 0.1
+"""Log units (10 %): scan minima closer than this to the optimum are taken to be its own basin."""
+
+DEAD_TIME_PROFILE_SPAN = 1.2
+"""Half-width (log units: a factor 3.3 each way) of the dead-time profile scanned for its interval, wider than
+IDENTIFIABLE_SPAN in all, so a flat profile is reported as not identifiable."""
+
+DEAD_TIME_PROFILE_POINTS = 120
+"""Points of that scan on each side of the optimum (1 % apart: 40 ps at 4 ns)."""
+
+SIMPLEX_STEP = 0.1
+"""Nelder-Mead's starting simplex: each log / logit parameter 0.1 from the start (10 %). scipy's default (5 % of
+each coordinate) is a factor 2-3 in a log-scale time (log 5e-9 ≈ −19) and sent free-running fits to a dead time of
+half the true one (docs/capture_io.md)."""
+
+SIMPLEX_STEP_BINS = 0.5
+"""Nelder-Mead's starting simplex for the return's position: half a bin from the start."""
 
 DEAD_TIME_ALIAS_MARGIN = 3.0
 """Two free-running optima whose dead times differ by a whole laser period (τ and τ ± T explain nearly the same
@@ -254,6 +278,21 @@ def _interval(name: str, centre: float, half: float, ok: bool, bin_width: float)
     return float(_from_fit(name, centre - half)) * scale, float(_from_fit(name, centre + half)) * scale
 
 
+def _profile_interval(grid: np.ndarray, delta: np.ndarray, z: float) -> tuple[float, float]:
+    """(low, high) fit coordinates: the hull of the likelihood-ratio set {delta ≤ z²/2} on the evenly spaced
+    ``grid`` (``delta``: the scaled profile, −log L above its optimum, 0 at the middle; the set may have several
+    pieces where the profile has several dips), each end linear between the grid points around its crossing;
+    the grid's end where the profile stays below (the caller reports the span)."""
+    level = 0.5 * z * z
+    inside = np.flatnonzero(delta <= level)
+    lo_k, hi_k = int(inside[0]), int(inside[-1])
+    step = grid[1] - grid[0]
+    lo = grid[lo_k] if lo_k == 0 else grid[lo_k] - step * (level - delta[lo_k]) / (delta[lo_k - 1] - delta[lo_k])
+    hi = (grid[hi_k] if hi_k == grid.size - 1
+          else grid[hi_k] + step * (level - delta[hi_k]) / (delta[hi_k + 1] - delta[hi_k]))
+    return float(lo), float(hi)
+
+
 def _constrained(name: str, lo: float, hi: float, ok: bool) -> bool:
     """Whether the 95 % interval (lo, hi) of parameter ``name`` pins it (module doc): a finite variance (``ok``),
     a span of at most IDENTIFIABLE_SPAN (log parameters) and less than 0.9 of [0, 1] (logit ones)."""
@@ -397,9 +436,12 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
 
     x0 = np.array([start[k] / bin_width if k == "position" else _to_fit(k, start[k]) for k in free])
     steps = [1e-2 if k == "position" else 1e-3 for k in free]          # position in bins, others log / logit
+    simplex_steps = [SIMPLEX_STEP_BINS if k == "position" else SIMPLEX_STEP for k in free]
     def local_fit(x_start: np.ndarray):
+        simplex = x_start + np.vstack([np.zeros(len(free)), np.diag(simplex_steps)])
         res = optimize.minimize(nll, x_start, method="Nelder-Mead",
-                                options={"maxfev": 600 * len(free), "xatol": 1e-4, "fatol": 1e-3, "adaptive": True})
+                                options={"maxfev": 600 * len(free), "xatol": 1e-4, "fatol": 1e-3, "adaptive": True,
+                                         "initial_simplex": simplex})
         return newton(nll, res.x, steps)
 
     best, hess, converged = local_fit(x0)
@@ -410,9 +452,11 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         i = free.index("dead_time")
         grid = np.log(np.geomspace(lo_dt, hi_dt, DEAD_TIME_SCAN))
         trial = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid])
-        far = np.abs(grid - best[i]) > math.log(2.0)          # dead times at least a factor 2 away
-        if far.any():
-            j = int(np.flatnonzero(far)[np.argmin(trial[far])])
+        # refit from the DEAD_TIME_RESTARTS lowest local minima of the scan outside the optimum's own basin
+        padded = np.concatenate([[np.inf], trial, [np.inf]])
+        minima = np.flatnonzero((trial <= padded[:-2]) & (trial <= padded[2:]))
+        minima = minima[np.abs(grid[minima] - best[i]) > DEAD_TIME_BASIN]
+        for j in minima[np.argsort(trial[minima], kind="stable")][:DEAD_TIME_RESTARTS]:
             other = local_fit(np.concatenate([best[:i], [grid[j]], best[i + 1:]]))
             if nll(other[0]) < nll(best):
                 best, hess, converged = other
@@ -449,6 +493,23 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         sd = math.sqrt(var) if ok else math.inf
         lo, hi = _interval(name, best[i], 1.96 * sd, ok, bin_width)
         joint[name] = _interval(name, best[i], z_joint * sd, ok, bin_width)
+        if name == "dead_time" and ok and hess[i, i] > 0:
+            # the likelihood in the dead time is not quadratic (the recovery edge after the return is a step of a
+            # few counts per bin: bumps a few bins wide, and the local curvature overstates the precision), so its
+            # intervals come from the profile: −log L along the dead time, the others held at the optimum and the
+            # rise scaled by 1/(cov_ii·H_ii), the second-order effect of refitting them (the Schur complement; with
+            # the sandwich, its quasi-likelihood scale too); docs/capture_io.md gives the coverage
+            span, points = DEAD_TIME_PROFILE_SPAN, DEAD_TIME_PROFILE_POINTS
+            grid = best[i] + np.linspace(-span, span, 2 * points + 1)
+            held = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid]) - nll(best)
+            delta = held / (var * hess[i, i])
+            a, b = _profile_interval(grid, delta, 1.96)
+            lo, hi = math.exp(a), math.exp(b)
+            joint[name] = tuple(math.exp(v) for v in _profile_interval(grid, delta, z_joint))
+            sd = (b - a) / (2 * 1.96)
+            # a 95 % set that runs into the searched range's end is bounded by the search, not by the data
+            inside, blocked = delta <= 0.5 * 1.96 ** 2, held >= 1e299
+            ok = not (np.any(inside[:-1] & blocked[1:]) or np.any(inside[1:] & blocked[:-1]))
         deriv = bin_width if name == "position" else 1.0
         if name in _LOG:
             deriv = values[name]
