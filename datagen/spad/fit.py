@@ -496,17 +496,18 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         if name == "dead_time" and ok and hess[i, i] > 0:
             # the likelihood in the dead time is not quadratic (the recovery edge after the return is a step of a
             # few counts per bin: bumps a few bins wide, and the local curvature overstates the precision), so its
-            # intervals come from the profile: −log L along the dead time, the others held at the optimum and the
+            # intervals also come from the profile: −log L along the dead time, the others held at the optimum and the
             # rise scaled by 1/(cov_ii·H_ii), the second-order effect of refitting them (the Schur complement; with
             # the sandwich, its quasi-likelihood scale too); docs/capture_io.md gives the coverage
             span, points = DEAD_TIME_PROFILE_SPAN, DEAD_TIME_PROFILE_POINTS
             grid = best[i] + np.linspace(-span, span, 2 * points + 1)
             held = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid]) - nll(best)
             delta = held / (var * hess[i, i])
-            a, b = _profile_interval(grid, delta, 1.96)
-            lo, hi = math.exp(a), math.exp(b)
-            joint[name] = tuple(math.exp(v) for v in _profile_interval(grid, delta, z_joint))
-            sd = (b - a) / (2 * 1.96)
+            a, b = _profile_interval(grid, delta, 1.96)       # the wider of it and the quadratic interval
+            lo, hi = min(lo, math.exp(a)), max(hi, math.exp(b))
+            ja, jb = _profile_interval(grid, delta, z_joint)
+            joint[name] = (min(joint[name][0], math.exp(ja)), max(joint[name][1], math.exp(jb)))
+            sd = math.log(hi / lo) / (2 * 1.96)
             # a 95 % set that runs into the searched range's end is bounded by the search, not by the data
             inside, blocked = delta <= 0.5 * 1.96 ** 2, held >= 1e299
             ok = not (np.any(inside[:-1] & blocked[1:]) or np.any(inside[1:] & blocked[:-1]))
