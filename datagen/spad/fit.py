@@ -48,7 +48,7 @@ from scipy import optimize, special, stats
 
 from ..errors import ConfigError
 from .config import DetectorConfig
-from .fit_numerics import inverse_covariance, newton, sandwich_covariance
+from .fit_numerics import inverse_covariance, newton, profile_interval, sandwich_covariance
 from .histogram import expected_histogram, sample_histogram
 from .rates import rates_from_envelope
 
@@ -278,21 +278,6 @@ def _interval(name: str, centre: float, half: float, ok: bool, bin_width: float)
     return float(_from_fit(name, centre - half)) * scale, float(_from_fit(name, centre + half)) * scale
 
 
-def _profile_interval(grid: np.ndarray, delta: np.ndarray, z: float) -> tuple[float, float]:
-    """(low, high) fit coordinates: the hull of the likelihood-ratio set {delta ≤ z²/2} on the evenly spaced
-    ``grid`` (``delta``: the scaled profile, −log L above its optimum, 0 at the middle; the set may have several
-    pieces where the profile has several dips), each end linear between the grid points around its crossing;
-    the grid's end where the profile stays below (the caller reports the span)."""
-    level = 0.5 * z * z
-    inside = np.flatnonzero(delta <= level)
-    lo_k, hi_k = int(inside[0]), int(inside[-1])
-    step = grid[1] - grid[0]
-    lo = grid[lo_k] if lo_k == 0 else grid[lo_k] - step * (level - delta[lo_k]) / (delta[lo_k - 1] - delta[lo_k])
-    hi = (grid[hi_k] if hi_k == grid.size - 1
-          else grid[hi_k] + step * (level - delta[hi_k]) / (delta[hi_k + 1] - delta[hi_k]))
-    return float(lo), float(hi)
-
-
 def _constrained(name: str, lo: float, hi: float, ok: bool) -> bool:
     """Whether the 95 % interval (lo, hi) of parameter ``name`` pins it (module doc): a finite variance (``ok``),
     a span of at most IDENTIFIABLE_SPAN (log parameters) and less than 0.9 of [0, 1] (logit ones)."""
@@ -503,9 +488,9 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             grid = best[i] + np.linspace(-span, span, 2 * points + 1)
             held = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid]) - nll(best)
             delta = held / (var * hess[i, i])
-            a, b = _profile_interval(grid, delta, 1.96)       # the wider of it and the quadratic interval
+            a, b = profile_interval(grid, delta, 1.96)       # the wider of it and the quadratic interval
             lo, hi = min(lo, math.exp(a)), max(hi, math.exp(b))
-            ja, jb = _profile_interval(grid, delta, z_joint)
+            ja, jb = profile_interval(grid, delta, z_joint)
             joint[name] = (min(joint[name][0], math.exp(ja)), max(joint[name][1], math.exp(jb)))
             sd = math.log(hi / lo) / (2 * 1.96)
             # a 95 % set that runs into the searched range's end is bounded by the search, not by the data

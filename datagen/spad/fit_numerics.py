@@ -111,3 +111,18 @@ def sandwich_covariance(h_inv: np.ndarray, x: np.ndarray, steps: list[float], me
     score = (replicates / mu) @ jac                     # (R, k); the constant Jᵀ1 drops out of the covariance
     v = np.atleast_2d(np.cov(score, rowvar=False)) * (n / m)
     return h_inv @ v @ h_inv
+
+
+def profile_interval(grid: np.ndarray, delta: np.ndarray, z: float) -> tuple[float, float]:
+    """(low, high) fit coordinates: the hull of the likelihood-ratio set {delta ≤ z²/2} on the evenly spaced
+    ``grid`` (``delta``: the scaled profile, −log L above its optimum, 0 at the middle; the set may have several
+    pieces where the profile has several dips), each end linear between the grid points around its crossing;
+    the grid's end where the profile stays below (the caller reports the span)."""
+    level = 0.5 * z * z
+    inside = np.flatnonzero(delta <= level)
+    lo_k, hi_k = int(inside[0]), int(inside[-1])
+    step = grid[1] - grid[0]
+    lo = grid[lo_k] if lo_k == 0 else grid[lo_k] - step * (level - delta[lo_k]) / (delta[lo_k - 1] - delta[lo_k])
+    hi = (grid[hi_k] if hi_k == grid.size - 1
+          else grid[hi_k] + step * (level - delta[hi_k]) / (delta[hi_k + 1] - delta[hi_k]))
+    return float(lo), float(hi)
