@@ -73,8 +73,7 @@ DEAD_TIME_RESTARTS = 3
 the optimum (the others held there, a minimum of the scan is not one of the likelihood: the background trades
 against the dead time)."""
 
-DEAD_TIME_BASIN = 0.1
-"""Log units (10 %): scan minima closer than this to the optimum are taken to be its own basin."""
+DEAD_TIME_BASIN = 0.1  # log units: scan minima closer than this to the optimum are its own basin
 
 DEAD_TIME_PROFILE_SPAN = 1.2
 """Half-width (log units: a factor 3.3 each way) of the dead-time profile scanned for its interval, wider than
@@ -88,8 +87,7 @@ SIMPLEX_STEP = 0.1
 each coordinate) is a factor 2-3 in a log-scale time (log 5e-9 ≈ −19) and sent free-running fits to a dead time of
 half the true one (docs/capture_io.md)."""
 
-SIMPLEX_STEP_BINS = 0.5
-"""Nelder-Mead's starting simplex for the return's position: half a bin from the start."""
+SIMPLEX_STEP_BINS = 0.5  # the same for the return's position, in bins
 
 DEAD_TIME_ALIAS_MARGIN = 3.0
 """Two free-running optima whose dead times differ by a whole laser period (τ and τ ± T explain nearly the same
@@ -479,11 +477,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         lo, hi = _interval(name, best[i], 1.96 * sd, ok, bin_width)
         joint[name] = _interval(name, best[i], z_joint * sd, ok, bin_width)
         if name == "dead_time" and ok and hess[i, i] > 0:
-            # the likelihood in the dead time is not quadratic (the recovery edge after the return is a step of a
-            # few counts per bin: bumps a few bins wide, and the local curvature overstates the precision), so its
-            # intervals also come from the profile: −log L along the dead time, the others held at the optimum and the
-            # rise scaled by 1/(cov_ii·H_ii), the second-order effect of refitting them (the Schur complement; with
-            # the sandwich, its quasi-likelihood scale too); docs/capture_io.md gives the coverage
+            # not quadratic in τ (docs/capture_io.md): also the likelihood-ratio set, the others held, the rise
+            # scaled by 1/(cov_ii·H_ii) (their refit to second order, the Schur complement)
             span, points = DEAD_TIME_PROFILE_SPAN, DEAD_TIME_PROFILE_POINTS
             grid = best[i] + np.linspace(-span, span, 2 * points + 1)
             held = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid]) - nll(best)
