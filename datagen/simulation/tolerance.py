@@ -257,12 +257,12 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
     """The quadrature: the edge shrinks until the estimate of the latest level meets ``tolerance``."""
     entry = runs.entry
     h = float(config.estimator.edge)
-    settings_at = getattr(config.estimator, "at_edge", lambda edge: {"edge": edge})   # a level's settings at edge h
     rounds, previous = [], None
     for level in range(MAX_ROUNDS + 2):
         t_level = time.perf_counter()
         if level:
-            runs = Replicas(scene, config.with_estimator(**settings_at(h)), rng, planned=runs.planned)   # same plan
+            runs = Replicas(scene, config.with_estimator(**config.estimator.at_edge(h)), rng,
+                            planned=runs.planned)   # same plan
         runs.run(config.replicas)
         tr = runs.transported()
         _check_energy(scene, tr)
@@ -299,7 +299,7 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
         h *= shrink
     info = {"target": tolerance, "estimate": estimate, "met": bool(estimate <= tolerance),
             "method": error["method"], "rounds": rounds}
-    cfg = config.with_estimator(**settings_at(h))
+    cfg = config.with_estimator(**config.estimator.at_edge(h))
     return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
 
 

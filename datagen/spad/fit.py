@@ -48,7 +48,8 @@ from scipy import optimize, special, stats
 
 from ..errors import ConfigError
 from .config import DetectorConfig
-from .fit_numerics import inverse_covariance, newton, profile_interval, sandwich_covariance
+from .fit_numerics import (REJECTED, inverse_covariance, newton, profile_interval, sandwich_covariance,
+                           with_coordinate)
 from .histogram import expected_histogram, sample_histogram
 from .rates import rates_from_envelope
 
@@ -410,11 +411,11 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
     def nll(x: np.ndarray) -> float:
         p = params_of(x)
         if p.get("dead_time", 0.0) > hi_dt or (dead_time_bounds is not None and p["dead_time"] < lo_dt):
-            return 1e300
+            return REJECTED
         try:
             mu = expected(p)
         except (ValueError, FloatingPointError):
-            return 1e300
+            return REJECTED
         return _negative_log_likelihood(h, mu, n_cycles, model)
 
     x0 = np.array([start[k] / bin_width if k == "position" else _to_fit(k, start[k]) for k in free])
@@ -430,17 +431,16 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
     best, hess, converged = local_fit(x0)
     alias = None                          # (the runner-up's dead time, its −log L above the best)
     if "dead_time" in free:
-        # the likelihood has local minima in the dead time (a short one explains part of the dip after the return):
-        # scan it with the other parameters held and refit from the best dead time at least a factor 2 away
+        # the likelihood has local minima in the dead time: scan it with the other parameters held and refit from
+        # the DEAD_TIME_RESTARTS lowest local minima of the scan outside the optimum's own basin
         i = free.index("dead_time")
         grid = np.log(np.geomspace(lo_dt, hi_dt, DEAD_TIME_SCAN))
-        trial = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid])
-        # refit from the DEAD_TIME_RESTARTS lowest local minima of the scan outside the optimum's own basin
+        trial = np.array([nll(with_coordinate(best, i, g)) for g in grid])
         padded = np.concatenate([[np.inf], trial, [np.inf]])
         minima = np.flatnonzero((trial <= padded[:-2]) & (trial <= padded[2:]))
         minima = minima[np.abs(grid[minima] - best[i]) > DEAD_TIME_BASIN]
         for j in minima[np.argsort(trial[minima], kind="stable")][:DEAD_TIME_RESTARTS]:
-            other = local_fit(np.concatenate([best[:i], [grid[j]], best[i + 1:]]))
+            other = local_fit(with_coordinate(best, i, grid[j]))
             if nll(other[0]) < nll(best):
                 best, hess, converged = other
         # τ and τ ± one period explain nearly the same phase histogram: refit from each, keep the best, and remember
@@ -454,7 +454,7 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         for shift in (-period, period) if local else ():
             tau = float(np.exp(best[i])) + shift
             if lo_dt <= tau <= hi_dt:
-                other = local_fit(np.concatenate([best[:i], [math.log(tau)], best[i + 1:]]))
+                other = local_fit(with_coordinate(best, i, math.log(tau)))
                 if abs(float(np.exp(other[0][i]) - np.exp(best[i]))) < 0.5 * period:
                     continue                                       # fell back to the same optimum
                 if nll(other[0]) < nll(best):
@@ -481,15 +481,15 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             # scaled by 1/(cov_ii·H_ii) (their refit to second order, the Schur complement)
             span, points = DEAD_TIME_PROFILE_SPAN, DEAD_TIME_PROFILE_POINTS
             grid = best[i] + np.linspace(-span, span, 2 * points + 1)
-            held = np.array([nll(np.concatenate([best[:i], [g], best[i + 1:]])) for g in grid]) - nll(best)
-            delta = held / (var * hess[i, i])
+            raw = np.array([nll(with_coordinate(best, i, g)) for g in grid])
+            delta = (raw - nll(best)) / (var * hess[i, i])
             a, b = profile_interval(grid, delta, 1.96)       # the wider of it and the quadratic interval
             lo, hi = min(lo, math.exp(a)), max(hi, math.exp(b))
             ja, jb = profile_interval(grid, delta, z_joint)
             joint[name] = (min(joint[name][0], math.exp(ja)), max(joint[name][1], math.exp(jb)))
             sd = math.log(hi / lo) / (2 * 1.96)
             # a 95 % set that runs into the searched range's end is bounded by the search, not by the data
-            inside, blocked = delta <= 0.5 * 1.96 ** 2, held >= 1e299
+            inside, blocked = delta <= 0.5 * 1.96 ** 2, raw >= REJECTED
             ok = not (np.any(inside[:-1] & blocked[1:]) or np.any(inside[1:] & blocked[:-1]))
         deriv = bin_width if name == "position" else 1.0
         if name in _LOG:
@@ -552,7 +552,7 @@ def _negative_log_likelihood(h: np.ndarray, mu: np.ndarray, n: int, model: str) 
         p = mu / n
         rest = 1.0 - p.sum()
         if rest <= 0:
-            return 1e300
+            return REJECTED
         return float(-(h * np.log(p)).sum() - (n - h.sum()) * math.log(rest))
     return float((mu - h * np.log(mu)).sum())
 

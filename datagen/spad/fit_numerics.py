@@ -1,15 +1,18 @@
 """Numerical optimisation and covariances of datagen/spad/fit.py's detector fit: Newton polishing with
 central-difference derivatives, the inverse observed information and the sandwich covariance of a
-quasi-likelihood (its score's variance from simulated histograms)."""
+quasi-likelihood (its score's variance from simulated histograms), and the likelihood-ratio interval of a scan."""
 from __future__ import annotations
 
 from typing import Callable
 
 import numpy as np
 
-__all__ = ["NEWTON_STEPS", "NEWTON_DECREMENT", "newton", "gradient", "hessian", "inverse_covariance",
-           "sandwich_covariance"]
+__all__ = ["NEWTON_STEPS", "NEWTON_DECREMENT", "REJECTED", "newton", "gradient", "hessian", "inverse_covariance",
+           "sandwich_covariance", "profile_interval", "with_coordinate"]
 
+
+REJECTED = 1e300
+"""The −log L of a parameter point the fit rejects (outside the searched dead times, or a model that fails there)."""
 
 NEWTON_STEPS = 20
 """Newton iterations (numerical gradient and Hessian) polishing the Nelder–Mead optimum."""
@@ -126,3 +129,10 @@ def profile_interval(grid: np.ndarray, delta: np.ndarray, z: float) -> tuple[flo
     hi = (grid[hi_k] if hi_k == grid.size - 1
           else grid[hi_k] + step * (level - delta[hi_k]) / (delta[hi_k + 1] - delta[hi_k]))
     return float(lo), float(hi)
+
+
+def with_coordinate(x: np.ndarray, i: int, value: float) -> np.ndarray:
+    """A copy of the fit coordinates ``x`` (k,) float64 with coordinate ``i`` set to ``value``."""
+    y = np.array(x, dtype=np.float64)
+    y[i] = value
+    return y
