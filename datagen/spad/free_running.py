@@ -14,10 +14,10 @@ import numpy as np
 
 from .arrays import as_rates, check_event_count, row_search
 from .config import DetectorConfig
+from .markov_kernel import scatter_rows, wrapped_survival
 from .rates import gate_fraction
 
 __all__ = [
-    "EXP_BLOCK_LIMIT",
     "MARKOV_MAX_STATES",
     "MARKOV_CELL_HAZARD",
     "MARKOV_TOL",
@@ -30,9 +30,6 @@ __all__ = [
     "period_cells",
 ]
 
-
-EXP_BLOCK_LIMIT = 600.0
-"""Largest exponent used inside a block of :func:`_decayed_cumsum` (e^600 ≈ 1e260 < float64 max)."""
 
 MARKOV_MAX_STATES = 60_000
 """Cap on the number of phase cells of the free-running Markov chain (per pixel)."""
@@ -81,39 +78,6 @@ def period_cells(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np
     return edges, q, cell_bin
 
 
-def _decayed_cumsum(v: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """U[..., t] = Σ_{s ≤ t} v[..., s]·exp(−(c[..., t] − c[..., s])) for nondecreasing c, computed in blocks
-    so that no exponent exceeds EXP_BLOCK_LIMIT (no overflow for totals ~1e4)."""
-    out = np.empty_like(v)
-    increments = np.max(np.diff(c, axis=-1, prepend=c[..., :1]), axis=tuple(range(c.ndim - 1)))
-    span = np.cumsum(increments)
-    n = c.shape[-1]
-    start = 0
-    carry = np.zeros(v.shape[:-1])
-    c_prev = c[..., 0]
-    while start < n:
-        stop = int(np.searchsorted(span, span[start] + EXP_BLOCK_LIMIT, side="right"))
-        stop = min(max(stop, start + 1), n)
-        cb = c[..., start:stop] - c[..., start:start + 1]
-        part = np.cumsum(v[..., start:stop] * np.exp(cb), axis=-1)
-        decay0 = np.exp(-(c[..., start] - c_prev))
-        out[..., start:stop] = (part + (carry * decay0)[..., None]) * np.exp(-cb)
-        carry = out[..., stop - 1]
-        c_prev = c[..., stop - 1]
-        start = stop
-    return out
-
-
-def _scatter_columns(values: np.ndarray, dest: np.ndarray, n_cols: int) -> np.ndarray:
-    """out[:, c] = Σ_{j: dest[j] = c} values[:, j] (fast replacement for np.add.at over columns)."""
-    order = np.argsort(dest, kind="stable")
-    sorted_dest = dest[order]
-    starts = np.flatnonzero(np.r_[True, sorted_dest[1:] != sorted_dest[:-1]])
-    out = np.zeros((values.shape[0], n_cols))
-    out[:, sorted_dest[starts]] = np.add.reduceat(values[:, order], starts, axis=1)
-    return out
-
-
 class _Chain:
     """Discretised free-running chain on the detection phase for a batch of pixels (Rapp et al. 2019).
 
@@ -122,7 +86,8 @@ class _Chain:
     From there the next detection is the first avalanche of the periodic Poisson process: in cell a_j with
     probability 1 − e^{−φ_j q_a}, otherwise distributed by the full-period kernel
     F(b, j') = e^{−(C_{j'} − C_b)} (1 − e^{−q_{j'}}) / (1 − e^{−Λ}) from b = a_j + 1 (whole empty periods
-    summed geometrically).  Applying the transition costs O(cells) per pixel (decayed prefix sums)."""
+    summed geometrically).  Applying the transition costs O(cells) per pixel (decayed prefix sums,
+    datagen/spad/markov_kernel.py)."""
 
     def __init__(self, q: np.ndarray, edges: np.ndarray, dead_time: float, p_ap: float = 0.0, tau_ap: float = 0.0):
         self.q, self.edges, self.dead_time, self.p_ap, self.tau_ap = q, edges, dead_time, p_ap, tau_ap
@@ -134,9 +99,7 @@ class _Chain:
         phi = np.clip((edges[a + 1] - live) / (edges[a + 1] - edges[a]), 0.0, 1.0)
         self.a, self.b = a, (a + 1) % self.M
         self.p = -np.expm1(-q)
-        q2 = np.concatenate([q, q], axis=1)
-        self.c2 = np.zeros_like(q2)
-        np.cumsum(q2[:, :-1], axis=1, out=self.c2[:, 1:])
+        self.decay = np.exp(-q)
         self.lam = q.sum(axis=1)
         self.one_minus_survival = -np.expm1(-self.lam)
         qa = q[:, a]
@@ -159,30 +122,21 @@ class _Chain:
         qk = self.q + k[None, :]
         self.frac_ap = np.divide(k[None, :], qk, out=np.zeros_like(qk), where=qk > 0)
         self.p_cell_ap = -np.expm1(-qk)
-        self.c2_ap = self.c2 + np.concatenate([[0.0], np.cumsum(np.concatenate([k, k])[:-1])])[None, :]
+        self.decay_ap = np.exp(-qk)
         self.oms_ap = -np.expm1(-(self.lam + self.T / tau))
         stay_ap = -np.expm1(-(phi[None, :] * qa + ka[None, :]))
         self.go_ap = np.exp(-(phi[None, :] * qa + ka[None, :]))
         self.stay_all = (1 - p) * self.stay + p * stay_ap
         self.stay_ap_only = p * stay_ap * self.frac_ap[:, self.a]
 
-    def _wrapped(self, v: np.ndarray, dest: np.ndarray, c2: np.ndarray, oms: np.ndarray) -> np.ndarray:
-        """Survival mass at the start of each cell (first period + all later ones, geometric) of the mass v
-        entering the full cells dest, decaying along the two-period cumulative c2."""
-        M = self.M
-        v2 = np.zeros((v.shape[0], 2 * M))
-        v2[:, :M] = _scatter_columns(v, dest, M)
-        u = _decayed_cumsum(v2, c2)
-        return u[:, :M] + np.divide(u[:, M:], oms[:, None], out=np.zeros_like(u[:, M:]), where=oms[:, None] > 0)
-
     def step_afterpulse(self, pi: np.ndarray, ap_only: bool = False) -> np.ndarray:
         """One transition with afterpulsing (all detections, or only the afterpulses when ``ap_only``)."""
-        p, M = self.p_ap, self.M
-        y = _scatter_columns(pi * (self.stay_ap_only if ap_only else self.stay_all), self.a, M)
+        p = self.p_ap
+        y = scatter_rows(pi * (self.stay_ap_only if ap_only else self.stay_all), self.a)
         if not ap_only:
-            y += self.p * self._wrapped(pi * self.go * (1 - p), self.b, self.c2, self.one_minus_survival)
+            y += self.p * wrapped_survival(pi * self.go * (1 - p), self.b, self.decay, self.one_minus_survival)
         if self.tau_ap > 0:
-            ap = self.p_cell_ap * self._wrapped(pi * self.go_ap * p, self.b, self.c2_ap, self.oms_ap)
+            ap = self.p_cell_ap * wrapped_survival(pi * self.go_ap * p, self.b, self.decay_ap, self.oms_ap)
             y += ap * self.frac_ap if ap_only else ap
         return y
 
@@ -190,14 +144,8 @@ class _Chain:
         """One transition of a batch of row distributions pi (pixels, cells)."""
         if self.p_ap > 0:
             return self.step_afterpulse(pi)
-        M = self.M
-        y = _scatter_columns(pi * self.stay, self.a, M)
-        v2 = np.zeros((pi.shape[0], 2 * M))
-        v2[:, :M] = _scatter_columns(pi * self.go, self.b, M)
-        u = _decayed_cumsum(v2, self.c2)
-        oms = self.one_minus_survival[:, None]
-        wrap = np.divide(u[:, M:], oms, out=np.zeros_like(u[:, M:]), where=oms > 0)
-        y += self.p * (u[:, :M] + wrap)
+        y = scatter_rows(pi * self.stay, self.a)
+        y += self.p * wrapped_survival(pi * self.go, self.b, self.decay, self.one_minus_survival)
         return y
 
     def window_mass(self, pi: np.ndarray) -> np.ndarray:
