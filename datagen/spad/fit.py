@@ -48,8 +48,8 @@ from scipy import optimize, special, stats
 
 from ..errors import ConfigError
 from .config import DetectorConfig
-from .fit_numerics import (REJECTED, inverse_covariance, newton, profile_interval, sandwich_covariance,
-                           with_coordinate)
+from .fit_numerics import (REJECTED, inverse_covariance, newton, profile_interval, profile_walk,
+                           sandwich_covariance, with_coordinate)
 from .histogram import expected_histogram, sample_histogram
 from .rates import rates_from_envelope
 
@@ -80,8 +80,8 @@ DEAD_TIME_PROFILE_SPAN = 1.2
 """Half-width (log units: a factor 3.3 each way) of the dead-time profile scanned for its interval, wider than
 IDENTIFIABLE_SPAN in all, so a flat profile is reported as not identifiable."""
 
-DEAD_TIME_PROFILE_POINTS = 120
-"""Points of that scan on each side of the optimum (1 % apart: 40 ps at 4 ns)."""
+DEAD_TIME_PROFILE_STEP = (0.005, 0.04)
+"""Bounds on the profile's grid step (log units): half the quadratic σ of the dead time, within these."""
 
 SIMPLEX_STEP = 0.1
 """Nelder-Mead's starting simplex: each log / logit parameter 0.1 from the start (10 %). scipy's default (5 % of
@@ -477,20 +477,20 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         lo, hi = _interval(name, best[i], 1.96 * sd, ok, bin_width)
         joint[name] = _interval(name, best[i], z_joint * sd, ok, bin_width)
         if name == "dead_time" and ok and hess[i, i] > 0:
-            # not quadratic in τ (docs/capture_io.md): also the likelihood-ratio set, the others held, the rise
-            # scaled by 1/(cov_ii·H_ii) (their refit to second order, the Schur complement)
-            span, points = DEAD_TIME_PROFILE_SPAN, DEAD_TIME_PROFILE_POINTS
-            grid = best[i] + np.linspace(-span, span, 2 * points + 1)
-            raw = np.array([nll(with_coordinate(best, i, g)) for g in grid])
-            delta = (raw - nll(best)) / (var * hess[i, i])
+            # not quadratic in τ (docs/capture_io.md): also the profile likelihood-ratio set, the others refitted
+            limits, half = (math.log(lo_dt), math.log(hi_dt)), DEAD_TIME_PROFILE_SPAN
+            span = (max(limits[0], best[i] - half), min(limits[1], best[i] + half))
+            step = min(max(0.5 * sd, DEAD_TIME_PROFILE_STEP[0]), DEAD_TIME_PROFILE_STEP[1])
+            grid, delta, at_bound = profile_walk(nll, best, i, hess, steps, step, 0.5 * z_joint ** 2 + 2, span)
             a, b = profile_interval(grid, delta, 1.96)       # the wider of it and the quadratic interval
-            lo, hi = min(lo, math.exp(a)), max(hi, math.exp(b))
-            ja, jb = profile_interval(grid, delta, z_joint)
+            lo, hi, (ja, jb) = min(lo, math.exp(a)), max(hi, math.exp(b)), profile_interval(grid, delta, z_joint)
             joint[name] = (min(joint[name][0], math.exp(ja)), max(joint[name][1], math.exp(jb)))
             sd = math.log(hi / lo) / (2 * 1.96)
-            # a 95 % set that runs into the searched range's end is bounded by the search, not by the data
-            inside, blocked = delta <= 0.5 * 1.96 ** 2, raw >= REJECTED
-            ok = not (np.any(inside[:-1] & blocked[1:]) or np.any(inside[1:] & blocked[:-1]))
+            # a 95 % set that runs into the end of the walk is bounded by the search, not by the data (a datasheet's
+            # dead_time_bounds may bound one side: the interval stops there)
+            reach = [at_bound[0] and delta[0] <= 0.5 * 1.96 ** 2, at_bound[1] and delta[-1] <= 0.5 * 1.96 ** 2]
+            datasheet = [dead_time_bounds is not None and span[k] == limits[k] for k in (0, 1)]
+            ok = not all(reach) and not any(r and not d for r, d in zip(reach, datasheet))
         deriv = bin_width if name == "position" else 1.0
         if name in _LOG:
             deriv = values[name]

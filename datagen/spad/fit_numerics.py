@@ -8,7 +8,8 @@ from typing import Callable
 import numpy as np
 
 __all__ = ["NEWTON_STEPS", "NEWTON_DECREMENT", "REJECTED", "newton", "gradient", "hessian", "inverse_covariance",
-           "sandwich_covariance", "profile_interval", "with_coordinate"]
+           "sandwich_covariance", "profile_interval", "with_coordinate", "PROFILE_REFIT_STEPS", "PROFILE_STOP_POINTS",
+           "profile_walk"]
 
 
 REJECTED = 1e300
@@ -20,6 +21,15 @@ NEWTON_STEPS = 20
 NEWTON_DECREMENT = 1e-4
 """Converged when the Newton decrement gᵀH⁻¹g/2 (the −log L still to gain) is below this: a parameter change of
 √(2·1e-4) ≈ 0.014 standard deviations at most."""
+
+
+PROFILE_REFIT_STEPS = 6
+"""Newton steps (the optimum's Hessian held, the gradient recomputed) refitting the other parameters at each point of
+:func:`profile_walk`."""
+
+PROFILE_STOP_POINTS = 3
+""":func:`profile_walk` stops on a side after this many consecutive points above its stop level (the free-running
+dead time's profile has bumps of 1-2 in −log L a few bins wide, which one point above the level would stop at)."""
 
 
 def newton(f, x: np.ndarray, steps: list[float]) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -136,3 +146,77 @@ def with_coordinate(x: np.ndarray, i: int, value: float) -> np.ndarray:
     y = np.array(x, dtype=np.float64)
     y[i] = value
     return y
+
+
+def _refit(f, y: np.ndarray, fy: float, others: np.ndarray, h_inv: np.ndarray, steps: np.ndarray
+           ) -> tuple[np.ndarray, float]:
+    """Minimise f over the coordinates ``others`` from y: Newton steps with the fixed inverse Hessian ``h_inv``
+    (the optimum's), the gradient recomputed, step halving; at most PROFILE_REFIT_STEPS steps."""
+    def sub(z):
+        w = y.copy()
+        w[others] = z
+        return f(w)
+
+    for _ in range(PROFILE_REFIT_STEPS):
+        g = gradient(sub, y[others], list(steps))
+        dx = -(h_inv @ g)
+        if float(-(g @ dx)) / 2 < NEWTON_DECREMENT:
+            break
+        t = 1.0
+        while t > 1e-3:
+            trial = y.copy()
+            trial[others] += t * dx
+            ft = f(trial)
+            if ft < fy:
+                y, fy = trial, ft
+                break
+            t *= 0.5
+        else:
+            break
+    return y, fy
+
+
+def profile_walk(f, x: np.ndarray, i: int, hess: np.ndarray, steps: list[float], step: float, stop: float,
+                 bounds: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, tuple[bool, bool]]:
+    """Profile of f (−log L) along coordinate ``i``: the other coordinates refitted at each point.
+
+    From the optimum ``x`` (k,) the walk steps ``step`` at a time each way; each point starts from the previous
+    one moved along the ridge direction of the Hessian (−H_oo⁻¹H_oi per unit of coordinate i: the profile to
+    second order) and is refitted by :func:`_refit`. A side ends after PROFILE_STOP_POINTS consecutive points
+    more than ``stop`` above f(x), or at ``bounds`` (the coordinate's searched range).
+
+    Args:
+        f: float64 (k,) → float; x: float64 (k,) the optimum; hess: float64 (k, k) its Hessian; steps: (k,)
+            central-difference steps; step: > 0, grid spacing in coordinate i; stop: −log L rise that ends a side;
+            bounds: (low, high) of coordinate i.
+    Returns:
+        (grid, delta, (low_open, high_open)): float64 (n,) evenly spaced coordinate values including x[i], the
+        profile's rise above f(x) there (may dip below 0 where the walk finds a better point), and whether each
+        side ended at its bound without rising above ``stop``.
+    """
+    k = x.size
+    others = np.array([j for j in range(k) if j != i], dtype=np.int64)
+    w, v = np.linalg.eigh(0.5 * (hess + hess.T)[np.ix_(others, others)])
+    w = np.maximum(w, 1e-8 * max(float(np.abs(w).max()), 1e-300))
+    h_inv = (v / w) @ v.T
+    ridge = -(h_inv @ hess[others, i])
+    sub_steps = np.asarray(steps, dtype=np.float64)[others]
+    f0 = f(x)
+    points = {0: f0}
+    open_ends = []
+    for direction in (-1, 1):
+        y, above, n = x.copy(), 0, 0
+        while above < PROFILE_STOP_POINTS:
+            n += 1
+            t = x[i] + direction * n * step
+            if not bounds[0] <= t <= bounds[1]:
+                break
+            y = y.copy()
+            y[i] = t
+            y[others] += ridge * direction * step
+            y, points[direction * n] = _refit(f, y, f(y), others, h_inv, sub_steps)
+            above = above + 1 if points[direction * n] - f0 > stop else 0
+        open_ends.append(above < PROFILE_STOP_POINTS)
+    keys = sorted(points)
+    grid = x[i] + step * np.array(keys, dtype=np.float64)
+    return grid, np.array([points[j] for j in keys]) - f0, (open_ends[0], open_ends[1])
