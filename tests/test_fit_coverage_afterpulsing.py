@@ -1,5 +1,5 @@
 """The afterpulsing regime of fit-detector's coverage test (tests/test_fit_detector.py, check_coverage), in a file
-of its own: CI gives each file one worker (scripts/test.sh: --dist loadfile), so its five minutes run beside the
+of its own: CI gives each file one worker (scripts/test.sh: --dist loadfile), so its three minutes run beside the
 other regimes instead of after them."""
 from __future__ import annotations
 

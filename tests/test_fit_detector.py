@@ -58,7 +58,7 @@ COVERAGE_RATE = 0.90          # "every parameter inside its 95 % interval in >= 
 COVERAGE_SIGNIFICANCE = 0.01  # the test fails when the hits are below the 1 % quantile of Binomial(seeds, 0.90)
 
 
-# the afterpulsing regime (about 5 minutes) runs from tests/test_fit_coverage_afterpulsing.py: CI gives each file
+# the afterpulsing regime (about 3 minutes) runs from tests/test_fit_coverage_afterpulsing.py: CI gives each file
 # one worker (--dist loadfile), so it runs beside this file's regimes instead of after them
 SEPARATE = ("free_running afterpulsing",)
 

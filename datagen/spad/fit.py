@@ -77,7 +77,7 @@ against the dead time)."""
 DEAD_TIME_BASIN = 0.1  # log units: scan minima closer than this to the optimum are its own basin
 
 DEAD_TIME_PROFILE_SPAN = 1.2
-"""Half-width (log units: a factor 3.3 each way) of the dead-time profile scanned for its interval, wider than
+"""Half-width (log units: a factor 3.3 each way) of the dead-time profile walked for its interval, wider than
 IDENTIFIABLE_SPAN in all, so a flat profile is reported as not identifiable."""
 
 DEAD_TIME_PROFILE_STEP = (0.005, 0.04)
@@ -488,7 +488,7 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             sd = math.log(hi / lo) / (2 * 1.96)
             # a 95 % set that runs into the end of the walk is bounded by the search, not by the data (a datasheet's
             # dead_time_bounds may bound one side: the interval stops there)
-            reach = [at_bound[0] and delta[0] <= 0.5 * 1.96 ** 2, at_bound[1] and delta[-1] <= 0.5 * 1.96 ** 2]
+            reach = [end and rise <= 0.5 * 1.96 ** 2 for end, rise in zip(at_bound, (delta[0], delta[-1]))]
             datasheet = [dead_time_bounds is not None and span[k] == limits[k] for k in (0, 1)]
             ok = not all(reach) and not any(r and not d for r, d in zip(reach, datasheet))
         deriv = bin_width if name == "position" else 1.0

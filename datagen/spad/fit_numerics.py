@@ -41,22 +41,34 @@ def newton(f, x: np.ndarray, steps: list[float]) -> tuple[np.ndarray, np.ndarray
     for _ in range(NEWTON_STEPS):
         g = gradient(f, x, steps)
         hess = hessian(f, x, steps, fx)
-        w, v = np.linalg.eigh(0.5 * (hess + hess.T))
-        w = np.maximum(w, 1e-8 * max(float(np.abs(w).max()), 1e-300))   # keep the step a descent direction
+        w, v = _descent_eigh(hess)
         dx = -(v @ ((v.T @ g) / w))
         decrement = float(-(g @ dx)) / 2
         if decrement < NEWTON_DECREMENT:
             return x, hess, True
-        t = 1.0
-        while t > 1e-4:
-            fn = f(x + t * dx)
-            if fn < fx:
-                x, fx = x + t * dx, fn
-                break
-            t *= 0.5
-        else:                      # no decrease along the Newton step: the noise floor of −log L
+        x, fx, moved = _halving_step(f, x, fx, dx, 1e-4)
+        if not moved:              # no decrease along the Newton step: the noise floor of −log L
             return x, hess, decrement < 100 * NEWTON_DECREMENT
     return x, hessian(f, x, steps, fx), False
+
+
+def _descent_eigh(hess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (clipped to ≥ 1e-8 × the largest |eigenvalue|, so a step with them is a descent direction) and
+    eigenvectors of the symmetrised (k, k) Hessian: float64 (k,), (k, k)."""
+    w, v = np.linalg.eigh(0.5 * (hess + hess.T))
+    return np.maximum(w, 1e-8 * max(float(np.abs(w).max()), 1e-300)), v
+
+
+def _halving_step(f, x: np.ndarray, fx: float, dx: np.ndarray, floor: float) -> tuple[np.ndarray, float, bool]:
+    """The first of x + dx, x + dx/2, … (step factor above ``floor``) that lowers f below fx: (point, f there,
+    moved); (x, fx, False) when none does."""
+    t = 1.0
+    while t > floor:
+        fn = f(x + t * dx)
+        if fn < fx:
+            return x + t * dx, fn, True
+        t *= 0.5
+    return x, fx, False
 
 
 def gradient(f, x: np.ndarray, steps: list[float]) -> np.ndarray:
@@ -159,19 +171,12 @@ def _refit(f, y: np.ndarray, fy: float, others: np.ndarray, h_inv: np.ndarray, s
 
     for _ in range(PROFILE_REFIT_STEPS):
         g = gradient(sub, y[others], list(steps))
-        dx = -(h_inv @ g)
-        if float(-(g @ dx)) / 2 < NEWTON_DECREMENT:
+        dx = np.zeros(y.size)
+        dx[others] = -(h_inv @ g)
+        if float(g @ dx[others]) / -2 < NEWTON_DECREMENT:
             break
-        t = 1.0
-        while t > 1e-3:
-            trial = y.copy()
-            trial[others] += t * dx
-            ft = f(trial)
-            if ft < fy:
-                y, fy = trial, ft
-                break
-            t *= 0.5
-        else:
+        y, fy, moved = _halving_step(f, y, fy, dx, 1e-3)
+        if not moved:
             break
     return y, fy
 
@@ -196,8 +201,7 @@ def profile_walk(f, x: np.ndarray, i: int, hess: np.ndarray, steps: list[float],
     """
     k = x.size
     others = np.array([j for j in range(k) if j != i], dtype=np.int64)
-    w, v = np.linalg.eigh(0.5 * (hess + hess.T)[np.ix_(others, others)])
-    w = np.maximum(w, 1e-8 * max(float(np.abs(w).max()), 1e-300))
+    w, v = _descent_eigh(hess[np.ix_(others, others)])
     h_inv = (v / w) @ v.T
     ridge = -(h_inv @ hess[others, i])
     sub_steps = np.asarray(steps, dtype=np.float64)[others]
