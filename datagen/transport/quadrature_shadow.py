@@ -92,6 +92,32 @@ def _clip(px, py, pz, pa, n, out_x, out_y, out_z, out_a, bound, keep_below) -> i
     return c
 
 
+ROW_SLACK = 1e-6
+"""A bucket row's strip and the polygon's span on it are widened by this fraction of a bucket (and by
+``INSIDE_TOL``) before the span picks the row's buckets: the points' buckets come from a rounded division."""
+
+
+@njit(cache=True, inline="always")
+def _row_span(pu, pv, c, v_lo, v_hi, slack) -> tuple[float, float]:
+    """(lowest, highest) u of the convex polygon (pu, pv) of ``c`` vertices within the strip v_lo ≤ v ≤ v_hi, both
+    the strip and the span widened by ``slack`` + ``INSIDE_TOL``: every point within ``INSIDE_TOL`` of the polygon
+    whose v lies in the strip has u in that span ((inf, −inf): the polygon misses the strip)."""
+    a, b = v_lo - slack - 2.0 * INSIDE_TOL, v_hi + slack + 2.0 * INSIDE_TOL
+    lo, hi = np.inf, -np.inf
+    for j in range(c):
+        j1 = (j + 1) % c
+        va, vb, ua, ub = pv[j], pv[j1], pu[j], pu[j1]
+        if (va < a and vb < a) or (va > b and vb > b):
+            continue                                  # the edge misses the strip
+        if va == vb:
+            lo, hi = min(lo, ua, ub), max(hi, ua, ub)
+            continue
+        for v in (min(max(va, a), b), min(max(vb, a), b)):      # the edge's part inside the strip: its two ends
+            u = ua + (ub - ua) * ((v - va) / (vb - va))
+            lo, hi = min(lo, u), max(hi, u)
+    return lo - slack - INSIDE_TOL, hi + slack + INSIDE_TOL
+
+
 @njit(cache=True, inline="always")
 def _bucket(position, count) -> int:
     """The bucket (0 … count − 1) of a coordinate in bucket widths, clamped (before the cast: no overflow)."""
@@ -212,12 +238,18 @@ def shadow_flags(cells, occ, grown, laser_plane, out):
                 b_v0 = _bucket((lo_v - INSIDE_TOL - v0) / bh, nbv)
                 b_v1 = _bucket((hi_v + INSIDE_TOL - v0) / bh, nbv)
                 for bv in range(b_v0, b_v1 + 1):
-                    for bu in range(b_u0, b_u1 + 1):
+                    if flat:
+                        r_u0, r_u1 = b_u0, b_u1
+                    else:                    # the buckets of this row that the polygon (grown by the tolerance) meets
+                        lo_r, hi_r = _row_span(pu, pv, c, v0 + bv * bh, v0 + (bv + 1) * bh, ROW_SLACK * bh)
+                        if lo_r > hi_r:
+                            continue
+                        r_u0 = max(b_u0, _bucket((lo_r - ROW_SLACK * bw - u0) / bw, nbu))
+                        r_u1 = min(b_u1, _bucket((hi_r + ROW_SLACK * bw - u0) / bw, nbu))
+                    for bu in range(r_u0, r_u1 + 1):
                         b = bv * nbu + bu
                         for e in range(bucket_ptr[b], bucket_ptr[b + 1]):
-                            col = bucket_col[e]
-                            if out[col, m]:
-                                continue
+                            col = bucket_col[e]        # out[col, m] is read only to mark it (a strided byte)
                             u, v = spot_uv[col, 0], spot_uv[col, 1]
                             if (u < lo_u - INSIDE_TOL or u > hi_u + INSIDE_TOL or v < lo_v - INSIDE_TOL
                                     or v > hi_v + INSIDE_TOL):
