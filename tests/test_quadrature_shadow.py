@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from datagen.transport.quadrature_kernel import occluder_planes
-from datagen.transport.quadrature_shadow import grown_triangles, shadow_flags, spot_buckets, spot_plane
+from datagen.transport.quadrature_shadow import (INSIDE_TOL, _row_span, grown_triangles, shadow_flags, spot_buckets,
+                                                 spot_plane)
 
 MARGIN = 1e-3
 
@@ -73,6 +74,35 @@ def test_every_pair_a_grown_occluder_may_block_is_marked(seed):
     clear = ~hits & (front | ~closed.astype(bool)[:, None])
     marked_clear = (flags[clear] == 1).mean()
     assert marked_clear < 0.1, marked_clear                        # grown by 2 mm: a thin band only
+
+
+def test_row_span_holds_every_point_near_the_polygon_in_its_strip():
+    """Thin convex polygons (the slivers a triangle seen nearly edge-on projects to) and points within INSIDE_TOL of
+    them: each point's u lies in the span _row_span gives for any strip holding its v (the rows the map visits)."""
+    rng = np.random.default_rng(5)
+    misses = 0
+    for _ in range(300):
+        angle = np.sort(rng.uniform(0, 2 * np.pi, rng.integers(3, 7)))
+        radii = rng.uniform(0.1, 2.0) * np.array([1.0, rng.choice([1e-9, 1e-4, 0.3, 1.0])])
+        rot = rng.uniform(0, np.pi)
+        c, s_ = np.cos(rot), np.sin(rot)
+        xy = np.stack([radii[0] * np.cos(angle), radii[1] * np.sin(angle)], axis=1) @ np.array([[c, s_], [-s_, c]])
+        pu, pv = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+        k = len(pu)
+        # points on the edges (half of them at a vertex), pushed out by 0.999 INSIDE_TOL along the edge's normal
+        j = rng.integers(0, k, 200)
+        w = np.where(rng.uniform(size=200) < 0.5, 0.0, rng.uniform(0, 1, 200))
+        e = xy[(j + 1) % k] - xy[j]
+        out = np.stack([e[:, 1], -e[:, 0]], axis=1) / np.linalg.norm(e, axis=1)[:, None]
+        out *= np.sign(np.einsum("ij,ij->i", out, xy[j] - xy.mean(axis=0)))[:, None]     # away from the centre
+        q = xy[j] + w[:, None] * e + 0.999 * INSIDE_TOL * out
+        for u, v in q:
+            height = rng.uniform(1e-6, 0.5)
+            lo_v = v - rng.choice([0.0, height, rng.uniform(0, height)])     # a strip holding v (v on its edge)
+            lo, hi = _row_span(pu, pv, k, lo_v, lo_v + height, 0.0)
+            misses += not (lo <= u <= hi)
+        assert _row_span(pu, pv, k, pv.max() + 1.0, pv.max() + 2.0, 0.0)[0] == np.inf   # a strip it misses
+    assert misses == 0
 
 
 def test_grown_triangle_moves_every_edge_out_by_the_distance():
