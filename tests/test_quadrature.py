@@ -456,7 +456,7 @@ def test_accuracy_ladder_halves_the_edge():
 
 
 def test_distinct_rows_is_numpy_unique_and_a_split_shares_its_mesh_vertices():
-    from datagen.transport.quadrature_split import distinct_rows
+    from datagen.vectors import distinct_rows
 
     rng = np.random.default_rng(7)
     base = rng.random((500, 3))

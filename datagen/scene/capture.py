@@ -8,6 +8,7 @@ conventions are those of tal (docs/physics.md §8).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -233,17 +234,20 @@ def _opposite_sides(scene: Scene, emitter: np.ndarray, sensor: np.ndarray, spot:
 
 
 def _resolve_spots(caster: RayCaster, names: list[str], emitter: np.ndarray, spots: np.ndarray, where: str,
-                   fields: list[str]) -> list[tuple[np.ndarray, int, float]]:
-    """:func:`_resolve_spot` of every laser point, with one batch of beams (a scan's thousand points); a point
-    the batch finds wrong is resolved alone, which raises its own message."""
+                   field: Callable[[int], str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_resolve_spot` of every laser point as arrays (normals (L, 3), object ids (L,) int64, emitter legs
+    (L,) m), with one batch of beams (a scan's thousand points); when the batch finds a point wrong, each point is
+    resolved alone (``field(i)`` names point i), which raises that point's message."""
     legs = np.linalg.norm(spots - emitter, axis=1)
     if (legs > 0).all():
         hits = caster.intersect(np.broadcast_to(emitter, spots.shape), unit(spots - emitter))
         tol = FOV_PLANE_TOL * caster.offset
         good = hits.hit & (np.abs(hits.distance - legs) <= tol)
         if good.all():
-            return [(hits.normals[i], int(hits.object_id[i]), float(legs[i])) for i in range(len(spots))]
-    return [_resolve_spot(caster, names, emitter, p, where, f) for p, f in zip(spots, fields)]
+            return np.array(hits.normals), hits.object_id.astype(np.int64), legs
+    resolved = [_resolve_spot(caster, names, emitter, p, where, field(i)) for i, p in enumerate(spots)]
+    return (np.array([r[0] for r in resolved]), np.array([r[1] for r in resolved], dtype=np.int64),
+            np.array([r[2] for r in resolved]))
 
 
 def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
@@ -275,21 +279,20 @@ def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     u, v, normal = _wall_frame(caster, sensor, center)
     if cap is None or cap.type == "single":
         spots = np.asarray(scene.laser.spot, dtype=np.float64)[None]
-        laser_shape, fields = (1, 1), ["laser.spot"]
+        laser_shape, field = (1, 1), lambda i: "laser.spot"
     else:
         lg = cap.laser_grid
         lu, lv, _ = _wall_frame(caster, sensor, np.asarray(lg.center, float))
         spots = _grid_points(lg.center, lg.size, lg.points, lu, lv)
         laser_shape = tuple(lg.points)
-        fields = [f"capture.laser_grid point {i}" for i in range(len(spots))]
+        field = "capture.laser_grid point {}".format
     names = [o.name for o in scene.objects]
-    resolved = _resolve_spots(caster, names, emitter, spots, where, fields)
-    if float(np.dot(normal, resolved[0][0])) < 0:
-        raise SceneError(_opposite_sides(scene, emitter, sensor, spots[0], resolved[0][0], where, grid_field))
+    spot_normals, spot_objects, emitter_legs = _resolve_spots(caster, names, emitter, spots, where, field)
+    if float(np.dot(normal, spot_normals[0])) < 0:
+        raise SceneError(_opposite_sides(scene, emitter, sensor, spots[0], spot_normals[0], where, grid_field))
     photons = 1.0 if convention == "point_radiance" else scene.laser.photons
-    capture = Capture(kind, convention, spots, np.array([r[0] for r in resolved]),
-                      np.array([r[1] for r in resolved], dtype=np.int64), laser_shape, emitter,
-                      np.array([r[2] for r in resolved]), sensor, scene.sensor.aperture_area,
+    capture = Capture(kind, convention, spots, spot_normals, spot_objects, laser_shape, emitter, emitter_legs,
+                      sensor, scene.sensor.aperture_area,
                       unit(center - sensor), center, u, v, normal, size, pixels, photons,
                       legacy_single_pixel=(cap is None and pixels == (1, 1)))
     # Probe the sensor grid from the sensor: some of it must be a surface the sensor sees.

@@ -63,7 +63,7 @@ from ..sampling.surfaces import AreaSampling, SurfaceSamples, unit_square_points
 from ..scene import RayCaster, Scene, resolve_capture
 from ..errors import SceneError
 from ..scene.capture import Capture
-from ..vectors import dot
+from ..vectors import distinct_rows, dot
 from .base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
 from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
                            spot_irradiance)
@@ -343,8 +343,8 @@ class AreaSampler(AreaSecondary):
         0: the relay wall itself)."""
         c, cst = self.capture, self.caster
         tri = cst.vertices[cst.faces]                                          # (F, 3, 3)
-        planes = np.unique(np.round(np.concatenate([c.spot_normals, dot(c.spots, c.spot_normals)[:, None]], 1),
-                                    12), axis=0)                               # distinct laser-spot planes
+        planes, _ = distinct_rows(np.round(np.concatenate([c.spot_normals, dot(c.spots, c.spot_normals)[:, None]],
+                                                          1), 12))            # distinct laser-spot planes
         front_spot = np.zeros(len(tri), dtype=bool)
         for n_x, n_y, n_z, d in planes:
             front_spot |= (tri @ np.array([n_x, n_y, n_z]) - d > self.tol).any(axis=1)

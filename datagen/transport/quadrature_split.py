@@ -24,9 +24,10 @@ import copy
 import numpy as np
 
 from ..sampling.surfaces import coarse_cells, subdivide_with_vertices, subdivisions
+from ..vectors import distinct_rows
 
-__all__ = ["EVEN_EXTRA", "MIN_REFINE_LASERS", "REFINE_STRIDE", "apply_split", "choose_split", "distinct_rows",
-           "refine_lasers", "refined"]
+__all__ = ["EVEN_EXTRA", "MIN_REFINE_LASERS", "REFINE_STRIDE", "apply_split", "choose_split", "refine_lasers",
+           "refined"]
 
 REFINE_STRIDE = 8
 """The plain split's error estimate runs the rule at h/2 on every ``REFINE_STRIDE``-th laser point of each grid axis."""
@@ -89,19 +90,6 @@ def apply_split(q, tri: np.ndarray, edge: float, even: bool, piece_of: np.ndarra
     q.cell_normal = q.caster.face_normals[q.cell_face]
     q.cell_object = q.caster.face_object[q.cell_face]
     q.n_cells = len(q.cells)
-
-
-def distinct_rows(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(distinct (D, 3), index (V,) int64) of points (V, 3) float64: each row once, in lexicographic order, and
-    points = distinct[index] (rows compared with ==, so −0.0 and 0.0 are one; ``numpy.unique(axis=0)``'s result by a
-    lexsort, several times faster)."""
-    order = np.lexsort(points.T[::-1])
-    ranked = points[order]
-    new = np.ones(len(points), dtype=bool)
-    new[1:] = (ranked[1:] != ranked[:-1]).any(axis=1)
-    index = np.empty(len(points), dtype=np.int64)
-    index[order] = np.cumsum(new) - 1
-    return ranked[new], index
 
 
 def refined(q, stats):
