@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from datagen.transport.quadrature_kernel import occluder_planes
-from datagen.transport.quadrature_shadow import (INSIDE_TOL, _row_span, grown_triangles, shadow_flags, spot_buckets,
+from datagen.transport.quadrature_shadow import (INSIDE_TOL, grown_triangles, row_span, shadow_flags, spot_buckets,
                                                  spot_plane)
 
 MARGIN = 1e-3
@@ -78,7 +78,7 @@ def test_every_pair_a_grown_occluder_may_block_is_marked(seed):
 
 def test_row_span_holds_every_point_near_the_polygon_in_its_strip():
     """Thin convex polygons (the slivers a triangle seen nearly edge-on projects to) and points within INSIDE_TOL of
-    them: each point's u lies in the span _row_span gives for any strip holding its v (the rows the map visits)."""
+    them: each point's u lies in the span row_span gives for any strip holding its v (the rows the map visits)."""
     rng = np.random.default_rng(5)
     misses = 0
     for _ in range(300):
@@ -99,9 +99,9 @@ def test_row_span_holds_every_point_near_the_polygon_in_its_strip():
         for u, v in q:
             height = rng.uniform(1e-6, 0.5)
             lo_v = v - rng.choice([0.0, height, rng.uniform(0, height)])     # a strip holding v (v on its edge)
-            lo, hi = _row_span(pu, pv, k, lo_v, lo_v + height, 0.0)
+            lo, hi = row_span(pu, pv, k, lo_v, lo_v + height, 0.0)
             misses += not (lo <= u <= hi)
-        assert _row_span(pu, pv, k, pv.max() + 1.0, pv.max() + 2.0, 0.0)[0] == np.inf   # a strip it misses
+        assert row_span(pu, pv, k, pv.max() + 1.0, pv.max() + 2.0, 0.0)[0] == np.inf   # a strip it misses
     assert misses == 0
 
 

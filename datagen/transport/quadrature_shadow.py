@@ -29,7 +29,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["FLAG_MAX_BYTES", "grown_triangles", "shadow_flags", "spot_buckets", "spot_plane"]
+__all__ = ["FLAG_MAX_BYTES", "grown_triangles", "row_span", "shadow_flags", "spot_buckets", "spot_plane"]
 
 FLAG_MAX_BYTES = 1 << 28
 """The map holds one byte per (laser point used, sub-triangle); a larger one is not built (the exact test runs for
@@ -98,10 +98,11 @@ ROW_SLACK = 1e-6
 
 
 @njit(cache=True, inline="always")
-def _row_span(pu, pv, c, v_lo, v_hi, slack) -> tuple[float, float]:
-    """(lowest, highest) u of the convex polygon (pu, pv) of ``c`` vertices within the strip v_lo ≤ v ≤ v_hi, both
-    the strip and the span widened by ``slack`` + ``INSIDE_TOL``: every point within ``INSIDE_TOL`` of the polygon
-    whose v lies in the strip has u in that span ((inf, −inf): the polygon misses the strip)."""
+def row_span(pu, pv, c, v_lo, v_hi, slack) -> tuple[float, float]:
+    """(lowest, highest) u (m) of the convex polygon whose first ``c`` vertices are ``pu``, ``pv`` (float64 arrays,
+    metres on the laser plane's axes) within the strip v_lo ≤ v ≤ v_hi, the strip and the span both widened by
+    ``slack`` + ``INSIDE_TOL``: every point within ``INSIDE_TOL`` of the polygon whose v lies in the strip has u in
+    that span ((inf, −inf): the polygon misses the strip). Used by :func:`shadow_flags` per bucket row."""
     a, b = v_lo - slack - 2.0 * INSIDE_TOL, v_hi + slack + 2.0 * INSIDE_TOL
     lo, hi = np.inf, -np.inf
     for j in range(c):
@@ -241,7 +242,7 @@ def shadow_flags(cells, occ, grown, laser_plane, out):
                     if flat:
                         r_u0, r_u1 = b_u0, b_u1
                     else:                    # the buckets of this row that the polygon (grown by the tolerance) meets
-                        lo_r, hi_r = _row_span(pu, pv, c, v0 + bv * bh, v0 + (bv + 1) * bh, ROW_SLACK * bh)
+                        lo_r, hi_r = row_span(pu, pv, c, v0 + bv * bh, v0 + (bv + 1) * bh, ROW_SLACK * bh)
                         if lo_r > hi_r:
                             continue
                         r_u0 = max(b_u0, _bucket((lo_r - ROW_SLACK * bw - u0) / bw, nbu))
