@@ -93,16 +93,17 @@ def _clip(px, py, pz, pa, n, out_x, out_y, out_z, out_a, bound, keep_below) -> i
 
 
 ROW_SLACK = 1e-6
-"""A bucket row's strip and the polygon's span on it are widened by this fraction of a bucket (and by
-``INSIDE_TOL``) before the span picks the row's buckets: the points' buckets come from a rounded division."""
+"""A bucket row's strip is widened by this fraction of a bucket height, and the polygon's span on it by this fraction
+of a bucket width, before the span picks the row's buckets: the points' buckets come from a rounded division."""
 
 
 @njit(cache=True, inline="always")
 def row_span(pu, pv, c, v_lo, v_hi, slack) -> tuple[float, float]:
     """(lowest, highest) u (m) of the convex polygon whose first ``c`` vertices are ``pu``, ``pv`` (float64 arrays,
-    metres on the laser plane's axes) within the strip v_lo ≤ v ≤ v_hi, the strip and the span both widened by
-    ``slack`` + ``INSIDE_TOL``: every point within ``INSIDE_TOL`` of the polygon whose v lies in the strip has u in
-    that span ((inf, −inf): the polygon misses the strip). Used by :func:`shadow_flags` per bucket row."""
+    metres on the laser plane's axes) within the strip v_lo ≤ v ≤ v_hi widened by ``slack`` + 2 ``INSIDE_TOL``, the
+    span widened by ``INSIDE_TOL``: every point within ``INSIDE_TOL`` of the polygon whose v lies in the strip
+    (within ``slack``) has u in that span ((inf, −inf): the polygon misses the strip). Used by :func:`shadow_flags`
+    per bucket row."""
     a, b = v_lo - slack - 2.0 * INSIDE_TOL, v_hi + slack + 2.0 * INSIDE_TOL
     lo, hi = np.inf, -np.inf
     for j in range(c):
@@ -116,7 +117,7 @@ def row_span(pu, pv, c, v_lo, v_hi, slack) -> tuple[float, float]:
         for v in (min(max(va, a), b), min(max(vb, a), b)):      # the edge's part inside the strip: its two ends
             u = ua + (ub - ua) * ((v - va) / (vb - va))
             lo, hi = min(lo, u), max(hi, u)
-    return lo - slack - INSIDE_TOL, hi + slack + INSIDE_TOL
+    return lo - INSIDE_TOL, hi + INSIDE_TOL
 
 
 @njit(cache=True, inline="always")
@@ -250,7 +251,7 @@ def shadow_flags(cells, occ, grown, laser_plane, out):
                     for bu in range(r_u0, r_u1 + 1):
                         b = bv * nbu + bu
                         for e in range(bucket_ptr[b], bucket_ptr[b + 1]):
-                            col = bucket_col[e]        # out[col, m] is read only to mark it (a strided byte)
+                            col = bucket_col[e]        # out[col, m] is written, never read (a strided byte)
                             u, v = spot_uv[col, 0], spot_uv[col, 1]
                             if (u < lo_u - INSIDE_TOL or u > hi_u + INSIDE_TOL or v < lo_v - INSIDE_TOL
                                     or v > hi_v + INSIDE_TOL):
