@@ -3,6 +3,10 @@ binning, the shadow map): set up once, before the first parallel kernel runs.
 
 - Threading layer: GNU OpenMP before TBB (numba tries TBB first; the TBB beside Embree here is older than numba
   needs, so that try ends in a NumbaWarning on every first parallel run), unless ``NUMBA_THREADING_LAYER`` names one.
+- numpy's BLAS (OpenBLAS) on one thread inside the pipeline's entry points (:func:`one_blas_thread`): its calls
+  there are norms and small products, where its threads only spin (measured ≈ 0.1 CPU-s per
+  ``configs/datasets/wall.yaml`` sample on 2 cores), and a threaded dot product's partial sums make a stored error
+  estimate depend on the machine's core count in its last digit.
 - ``OMP_WAIT_POLICY=PASSIVE`` unless set: a thread with no work sleeps at once instead of spinning (GNU OpenMP's
   default spins for a while after every parallel region, CPU time that a dataset build's worker processes pay on
   every short kernel: measured ≈ 0.1 CPU-s per ``configs/datasets/wall.yaml`` sample). Results do not depend on it.
@@ -17,8 +21,9 @@ import os
 from collections.abc import Iterator
 
 import numba
+from threadpoolctl import ThreadpoolController
 
-__all__ = ["threads_for"]
+__all__ = ["one_blas_thread", "threads_for"]
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")      # read by libgomp when numba's OpenMP layer loads it
 if numba.config.THREADING_LAYER == "default":
@@ -37,3 +42,20 @@ def threads_for(work: float, minimum: float) -> Iterator[None]:
         yield
     finally:
         numba.set_num_threads(threads)
+
+
+_CONTROLLER: list[ThreadpoolController] = []       # made on first use (it inspects the loaded libraries once)
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """Run the block with the BLAS libraries numpy and scipy loaded (OpenBLAS here) on one thread, by threadpoolctl;
+    numba's threads are not touched. Restores the previous counts on exit. Used as a decorator on
+    :func:`datagen.simulate`, :func:`datagen.simulation.simulate_to_tolerance` and
+    :func:`datagen.dataset.make_sample`: results then do not depend on the machine's core count (a threaded dot
+    product sums in an order that does), and no BLAS thread spins beside a dataset build's workers. The limit is
+    per process: Python threads that simulate at the same time share it."""
+    if not _CONTROLLER:
+        _CONTROLLER.append(ThreadpoolController())
+    with _CONTROLLER[0].limit(limits=1, user_api="blas"):
+        yield

@@ -1,6 +1,6 @@
 """The accumulator's compiled row kernels (datagen/timing/fold_kernel.py) against numpy, the same bits on one
 thread and on two (their rows run on numba's threads for large grids), and datagen.threads' thread rule and
-OpenMP wait policy."""
+OpenMP wait policy, and numpy's BLAS on one thread in the pipeline."""
 from __future__ import annotations
 
 import numba
@@ -109,3 +109,30 @@ def test_idle_openmp_threads_sleep_unless_the_user_says_otherwise():
     out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
                          capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "ACTIVE"
+
+
+def test_the_pipeline_runs_numpys_blas_on_one_thread_and_restores_the_count(monkeypatch):
+    """make_sample (and the simulate_to_tolerance / simulate it calls) runs with numpy's BLAS on one thread
+    (datagen.threads.one_blas_thread), and gives the caller's thread count back."""
+    import threadpoolctl
+
+    import datagen.simulation.tolerance as tolerance
+    from datagen.dataset import load_dataset_config, make_sample
+    from datagen.threads import one_blas_thread
+    from conftest import ROOT
+
+    def blas_threads():
+        return [lib["num_threads"] for lib in threadpoolctl.threadpool_info() if lib["user_api"] == "blas"]
+
+    with threadpoolctl.threadpool_limits(2, user_api="blas"):
+        before = blas_threads()
+        if not before or max(before) < 2:
+            pytest.skip(f"numpy's BLAS runs {before} threads here: nothing to limit")
+        with one_blas_thread():
+            assert blas_threads() == [1] * len(before)
+        assert blas_threads() == before
+        seen, make_result = [], tolerance.make_result
+        monkeypatch.setattr(tolerance, "make_result", lambda *a, **k: (seen.append(blas_threads()), make_result(*a, **k))[1])
+        make_sample(load_dataset_config(ROOT / "configs" / "datasets" / "wall_smoke.yaml"), "train", 0)
+        assert seen and all(threads == [1] * len(before) for threads in seen)
+        assert blas_threads() == before

@@ -38,6 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from ..errors import ConfigError, DatagenError
 from ..scene.load import format_validation_error, read_yaml
 from ..simulation.tolerance import MIN_TOLERANCE
+from ..threads import one_blas_thread
 from ..units import parse_duration, parse_fraction
 from .components import COMPONENT_ROOM, OTHER_COMPONENTS, component_arrays, component_slots  # noqa: F401
 from .dtypes import stored_counts
@@ -490,6 +491,7 @@ def setup_sample(config: DatasetConfig, split: str, index: int):
     return room, resolve_config(room.scene, config.simulation_overrides()), rngs
 
 
+@one_blas_thread()
 def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     """Compute sample ``index`` of ``split``: room → envelope to the config's tolerance and SPAD counts → labels.
 

@@ -18,6 +18,7 @@ from importlib import metadata
 import numpy as np
 
 from ..errors import ConfigError
+from ..threads import one_blas_thread
 from .. import spad
 from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..planner import Plan, plan_effects
@@ -334,6 +335,7 @@ class Replicas:
                 "method": " and ".join(parts) + "; relative L2 over bins above 1 % of the peak"}
 
 
+@one_blas_thread()
 def simulate(scene: Scene, config: SimulationConfig | None = None, progress: bool = False,
              sampling_rng: np.random.Generator | None = None,
              noise_rng: np.random.Generator | None = None) -> Result:

@@ -36,6 +36,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ConfigError
+from ..threads import one_blas_thread
 from ..scene import Scene
 from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
 from .replicas import relative_difference
@@ -161,6 +162,7 @@ def _check_projection(first_seconds: float, estimate: float, tolerance: float, c
         warn(detail)
 
 
+@one_blas_thread()
 def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: float,
                           max_replicas: int | None = None, max_cost: float | None = None,
                           max_seconds: float | None = None,
