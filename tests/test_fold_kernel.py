@@ -42,6 +42,24 @@ def test_nonzero_rows_and_rows_dot_match_numpy():
     assert len(nonzero_rows(np.zeros((4, 7)))) == 0
 
 
+def test_rows_dot_over_the_non_zero_weights_is_the_in_order_sum():
+    """Window fractions non-zero only near both ends (the sparse path) and everywhere (the span path): each row's
+    result equals the plain sum over every node in node order, to the bit."""
+    a = sparse_rows(3)
+    a[5, :] = np.random.default_rng(4).random(NODES)           # a full row reaches both ends
+    a[7, 3] = -1e-300                                          # round-off below zero: ±0.0 products where v is 0
+    for v in (np.concatenate([np.linspace(1.0, 1e-9, 90), np.zeros(NODES - 150), np.linspace(1e-9, 1.0, 60)]),
+              np.random.default_rng(5).random(NODES)):
+        expect = np.zeros(ROWS)
+        for i in range(ROWS):
+            total = 0.0
+            for j in range(NODES):
+                total += float(a[i, j]) * float(v[j])
+            expect[i] = total
+        for n in (1, 2):
+            assert np.array_equal(on_threads(n, rows_dot, a, v), expect)
+
+
 def test_fold_rows_is_the_double_running_sum():
     """Curvature rows that are second differences of a compact profile fold back to that profile (the double
     running sum, numpy.cumsum twice, vanishes beyond each row's span), on one thread and on two alike."""
