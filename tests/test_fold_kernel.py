@@ -150,7 +150,12 @@ def test_the_pipeline_runs_numpys_blas_on_one_thread_and_restores_the_count(monk
             assert blas_threads() == [1] * len(before)
         assert blas_threads() == before
         seen, make_result = [], tolerance.make_result
-        monkeypatch.setattr(tolerance, "make_result", lambda *a, **k: (seen.append(blas_threads()), make_result(*a, **k))[1])
+
+        def recording(*args, **kwargs):                  # the BLAS threads while the result is made
+            seen.append(blas_threads())
+            return make_result(*args, **kwargs)
+
+        monkeypatch.setattr(tolerance, "make_result", recording)
         make_sample(load_dataset_config(ROOT / "configs" / "datasets" / "wall_smoke.yaml"), "train", 0)
         assert seen and all(threads == [1] * len(before) for threads in seen)
         assert blas_threads() == before
