@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from .obb import yaw_matrix
+from ..vectors import matmul
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 """File suffixes listed from an asset folder (lower case; trimesh reads each)."""
@@ -308,7 +309,7 @@ def load_asset(path: str) -> Asset:
     m[:3, :3] /= extent
     m[:3, 3] = -0.5 * (lo + hi) / extent
     watertight = bool(trimesh.Trimesh(vertices, faces, process=False).is_watertight)
-    return Asset(path, vertices @ m[:3, :3].T + m[:3, 3], faces, m, watertight)
+    return Asset(path, matmul(vertices, m[:3, :3].T) + m[:3, 3], faces, m, watertight)
 
 
 def tilt_matrix(tilt_deg: float, axis_deg: float) -> np.ndarray:
@@ -317,13 +318,13 @@ def tilt_matrix(tilt_deg: float, axis_deg: float) -> np.ndarray:
     a, t = math.radians(axis_deg), math.radians(tilt_deg)
     k = np.array([math.cos(a), math.sin(a), 0.0])
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(t) * kx + (1 - math.cos(t)) * kx @ kx
+    return np.eye(3) + math.sin(t) * kx + matmul((1 - math.cos(t)) * kx, kx)
 
 
 def asset_box(asset: Asset, size: float, tilt_deg: float, axis_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """Oriented-bounding-box size (3,) m and the centre offset c (3,) of the scaled, tilted asset in its yaw
     frame (module doc)."""
-    local = size * asset.vertices @ tilt_matrix(tilt_deg, axis_deg).T
+    local = matmul(size * asset.vertices, tilt_matrix(tilt_deg, axis_deg).T)
     lo, hi = local.min(0), local.max(0)
     return hi - lo, 0.5 * (lo + hi)
 
@@ -332,12 +333,12 @@ def place_asset(asset: Asset, size: float, tilt_deg: float, axis_deg: float, cen
                 ) -> tuple[np.ndarray, np.ndarray]:
     """World vertices (V, 3) float64 of the placed asset and its (4, 4) file → world transform (module doc)."""
     _, offset = asset_box(asset, size, tilt_deg, axis_deg)
-    linear = yaw_matrix(yaw_deg) @ (size * tilt_matrix(tilt_deg, axis_deg))
-    shift = np.asarray(center, float) - yaw_matrix(yaw_deg) @ offset
+    linear = matmul(yaw_matrix(yaw_deg), size * tilt_matrix(tilt_deg, axis_deg))
+    shift = np.asarray(center, float) - matmul(yaw_matrix(yaw_deg), offset)
     m = np.eye(4)
     m[:3, :3], m[:3, 3] = linear, shift
-    world = m @ asset.file_to_normalised
-    return asset.vertices @ linear.T + shift, world
+    world = matmul(m, asset.file_to_normalised)
+    return matmul(asset.vertices, linear.T) + shift, world
 
 
 def config_asset_entries(config) -> list[tuple[str, ...]]:

@@ -29,6 +29,7 @@ from .obb import points_in_box, yaw_matrix
 from .rooms import OBJECT_CLASSES, LabelRegion
 from .sampler import SampledRoom
 from .wall_view import view_rectangle, wall_frame, wall_view_labels
+from ..vectors import matmul
 
 MAX_OBJECTS = 1024
 """Most ``labels.max_objects``: the per-object arrays and the components (max_objects + 3 slots × channels × bins)
@@ -154,7 +155,7 @@ def occupancy_grid(objects: list[dict], origin: np.ndarray, pitch: float, voxels
     """
     grid = np.zeros((voxels,) * 3, dtype=np.uint8)
     for obj in objects:
-        half = np.abs(yaw_matrix(obj["yaw_deg"])) @ (np.asarray(obj["size"], float) / 2)   # AABB half extents
+        half = matmul(np.abs(yaw_matrix(obj["yaw_deg"])), np.asarray(obj["size"], float) / 2)   # AABB half extents
         c = np.asarray(obj["center"], float)
         lo = np.clip(np.floor((c - half - origin) / pitch - 0.5).astype(int), 0, voxels)
         hi = np.clip(np.ceil((c + half - origin) / pitch + 0.5).astype(int), 0, voxels)
@@ -233,7 +234,7 @@ def scene_labels(room: SampledRoom, spec: LabelSpec) -> dict[str, np.ndarray]:
     directions = camera_directions(spec.depth_map, u, v, n)
     # Each ray starts on its own line from the FoV centre, stepped off the relay wall to a height of
     # caster.offset (ε = offset / cos θ along the ray), so depth is the distance from the centre itself.
-    step = caster.offset / (directions @ n)
+    step = caster.offset / matmul(directions, n)
     hits = caster.intersect(center + step[..., None] * directions, directions)
     distance = np.linalg.norm(np.nan_to_num(hits.points) - center, axis=-1)
     out["depth"] = np.where(hits.hit, distance, 0.0).astype(np.float32)

@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from ..vectors import matmul
+
 _EPS = 1e-12
 """Axes shorter than this (cross products of parallel edges) carry no separation information."""
 
@@ -26,7 +28,7 @@ def yaw_matrix(yaw_deg: float) -> np.ndarray:
 def obb_vertices(center, size, yaw_deg: float) -> np.ndarray:
     """(8, 3) float64 corners of the box ``size`` centred at ``center`` rotated by ``yaw_deg`` about z."""
     corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
-    return corners * np.asarray(size, float) @ yaw_matrix(yaw_deg).T + np.asarray(center, float)
+    return matmul(corners * np.asarray(size, float), yaw_matrix(yaw_deg).T) + np.asarray(center, float)
 
 
 def convex_overlap(verts_a: np.ndarray, dirs_a: np.ndarray, normals_a: np.ndarray,
@@ -43,7 +45,7 @@ def convex_overlap(verts_a: np.ndarray, dirs_a: np.ndarray, normals_a: np.ndarra
     axes = np.concatenate([normals_a.reshape(-1, 3), normals_b.reshape(-1, 3), cross])
     norm = np.linalg.norm(axes, axis=1)
     axes = axes[norm > _EPS] / norm[norm > _EPS, None]
-    pa, pb = verts_a @ axes.T, verts_b @ axes.T
+    pa, pb = matmul(verts_a, axes.T), matmul(verts_b, axes.T)
     separated = (pa.max(0) < pb.min(0)) | (pb.max(0) < pa.min(0))
     return not bool(separated.any())
 
@@ -92,5 +94,5 @@ def box_hits_pyramid(obj: dict, apex: np.ndarray, base: np.ndarray, gap: float =
 
 def points_in_box(points: np.ndarray, obj: dict) -> np.ndarray:
     """(n,) bool: which of ``points`` (n, 3) lie inside (or on) the oriented box ``obj``."""
-    local = (np.asarray(points, float) - np.asarray(obj["center"], float)) @ yaw_matrix(obj["yaw_deg"])
+    local = matmul(np.asarray(points, float) - np.asarray(obj["center"], float), yaw_matrix(obj["yaw_deg"]))
     return np.all(np.abs(local) <= np.asarray(obj["size"], float) / 2, axis=-1)

@@ -32,6 +32,7 @@ from ..units import parse_energy, parse_length
 from .assets import asset_files, resolve_assets
 from .ranges import CountRange, Fraction, Model, NonNegative, Positive, Range, Signed, Unit
 from .scan import ScanDist, scan_fits
+from ..vectors import norm
 
 OBJECT_CLASSES = ("box", "pillar", "mesh")
 """Hidden-object classes; the index is the class code of the labels (0 box, 1 pillar, 2 mesh)."""
@@ -272,7 +273,7 @@ class MaterialDist(Model):
     @field_validator("axis")
     @classmethod
     def _axis(cls, v: tuple) -> tuple:
-        if not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+        if not np.all(np.isfinite(v)) or norm(v) == 0:
             raise ValueError(f"must be a finite non-zero vector, got {list(v)}")
         return v
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..scene import RayCaster
+from ..vectors import norm
 
 WALL_VIEW_FIELDS = ("wall_depth", "wall_normal", "wall_albedo", "wall_mask")
 """Names of the arrays :func:`wall_view_labels` returns."""
@@ -46,12 +47,12 @@ def wall_frame(caster: RayCaster, sensor: np.ndarray, center: np.ndarray) -> tup
     along sensor → centre), u = n × z (n × y for a horizontal wall), v = u × n — the frame of
     :func:`datagen.scene.resolve_capture`."""
     d = center - sensor
-    hit = caster.intersect(sensor[None], (d / np.linalg.norm(d))[None])
-    n = hit.normals[0] if hit.hit[0] else -d / np.linalg.norm(d)
+    hit = caster.intersect(sensor[None], (d / norm(d))[None])
+    n = hit.normals[0] if hit.hit[0] else -d / norm(d)
     u = np.cross(n, [0.0, 0.0, 1.0])
-    if np.linalg.norm(u) < 1e-9:
+    if norm(u) < 1e-9:
         u = np.cross(n, [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
+    u /= norm(u)
     return u, np.cross(u, n), n
 
 

@@ -16,6 +16,7 @@ from ..transport.area_kernels import material_arrays
 from ..transport.physics import fov_connection_weight, laser_irradiance
 from .coarse_kernel import outgoing_sums, primary_energy, secondary_candidates, secondary_energy
 from .geometry import PlanGeometry
+from ..vectors import matmul
 
 COARSE_ELEMENTS = 160
 """Target number of hidden-surface elements of the coarse quadrature (cost ∝ elements²: ~0.01 s for the
@@ -127,7 +128,7 @@ def coarse_energies(g: PlanGeometry) -> CoarseEnergies:
     w_xy = d_xy / np.maximum(r_xy, 1e-300)[..., None]
     s_xy = np.sign(np.einsum("mk,mjk->mj", n_geo, w_xy))                  # side of x that sees y
     cos_xo = np.abs(np.einsum("mk,mjk->mj", n_geo, w_xy))
-    cos_yi = -w_xy @ c.fov_normal
+    cos_yi = matmul(-w_xy, c.fov_normal)
     mi, ki = np.nonzero((cos_xo > 0) & (cos_yi > 0) & (r_xy > tol))
     geo = np.zeros(r_xy.shape)
     if len(mi):
@@ -158,7 +159,7 @@ def coarse_one_laser(g, laser, x, n_geo, area, obj, w_xy, s_xy, geo, sees_fov, m
     side = np.sign(np.einsum("ij,ij->i", n_geo, -d_lx))
     n_lit = side[:, None] * n_geo
     cos_in = np.einsum("ij,ij->i", n_lit, -w_lx)
-    ok = (w_lx @ spot_n > 0) & (cos_in > 0) & (r_lx > tol)
+    ok = (matmul(w_lx, spot_n) > 0) & (cos_in > 0) & (r_lx > tol)
     ok[ok] = caster.visible(x[ok], n_lit[ok], spot, spot_n)
     lit = np.flatnonzero(ok)
     if len(lit) == 0:

@@ -55,6 +55,7 @@ from ..transport import PhysicsSettings
 from ..transport.base import PLANNED_SWITCHES
 from .coarse import CoarseEnergies, coarse_energies
 from .geometry import PlanGeometry
+from ..vectors import matmul
 
 EFFECTS = ("shadow_spot", "shadow_sensor", "secondary", "brdf_angles", "attenuation", "first_bounce", "pile_up")
 """Keys of ``SimulationConfig.effects``; each maps to True, False or "auto"."""
@@ -286,8 +287,8 @@ def _decide_first_bounce(config, detector: spad.DetectorConfig, g: PlanGeometry)
     if c.convention != "aperture":
         return Decision(False, f"the {c.convention} convention has no direct aperture return")
     rel = c.spots - c.fov_center
-    a, b = rel @ c.fov_u, rel @ c.fov_v
-    off_plane = np.abs(rel @ c.fov_normal)
+    a, b = matmul(rel, c.fov_u), matmul(rel, c.fov_v)
+    off_plane = np.abs(matmul(rel, c.fov_normal))
     margin = c.fov_margin(c.spots)                                          # > 0: inside
     pix = c.fov_pixel(c.spots, tol)
     channel = c.channel(np.arange(c.n_lasers), pix)                       # laser point i's own pixel
@@ -375,7 +376,7 @@ def _decide_shadow_spot(g: PlanGeometry, secondary_on: bool) -> Decision:
     apexes = c.spots[g.corners]                                             # (A, 3) hull of every laser point
     # targets: hidden-side triangles with no laser corner in their plane (else light grazes them: 0), lit on
     # their reachable side
-    apex_dist = g.normal @ apexes.T - g.offset[:, None]                     # (F, A) signed
+    apex_dist = matmul(g.normal, apexes.T) - g.offset[:, None]                     # (F, A) signed
     # a shadow ray starts only where the laser lights the side the observer sees (the reachable side)
     facing = (g.side[:, None] == 0) | (g.side[:, None] * apex_dist > tol)
     targets = np.flatnonzero(g.front & g.valid & (np.abs(apex_dist) > tol).all(axis=1) & facing.all(axis=1))
@@ -433,8 +434,8 @@ def _secondary_pairs_possible(g: PlanGeometry) -> tuple[bool | None, int]:
         return False, 0
     if max(len(lit), len(recv)) > PAIR_TEST_MAX_TRIANGLES:
         return None, 0
-    spot_side = g.normal[lit] @ c.spots[g.corners].T - g.offset[lit, None]  # (n_lit, A)
-    corner_d = g.fov_corners @ g.normal[recv].T - g.offset[recv]            # (4, r) FoV corners vs x' plane
+    spot_side = matmul(g.normal[lit], c.spots[g.corners].T) - g.offset[lit, None]  # (n_lit, A)
+    corner_d = matmul(g.fov_corners, g.normal[recv].T) - g.offset[recv]            # (4, r) FoV corners vs x' plane
     fov_pos, fov_neg = (corner_d > tol).any(axis=0), (corner_d < -tol).any(axis=0)
     count = 0
     step = max(1, CHUNK_ELEMENTS // (9 * len(recv)))

@@ -8,6 +8,7 @@ import numpy as np
 from ..scene import RayCaster, Scene
 from ..scene.capture import Capture
 from ..transport import LegPhysics, PhysicsSettings
+from ..vectors import matmul, norm
 
 class PlanGeometry:
     """Triangles, their planes and the capture frame, in float64 metres.
@@ -39,7 +40,7 @@ class PlanGeometry:
         # signed distances of every vertex to each laser corner's wall plane (+ = hidden side) and the FoV's
         self.d_spot = np.einsum("fvk,lk->lfv", self.tri, c.spot_normals[self.corners]) \
             - np.einsum("lk,lk->l", c.spots[self.corners], c.spot_normals[self.corners])[:, None, None]
-        self.d_fov = (self.tri - c.fov_center) @ c.fov_normal          # (F, 3), + = sensor side
+        self.d_fov = matmul(self.tri - c.fov_center, c.fov_normal)          # (F, 3), + = sensor side
         self.front = np.any(self.d_spot > tol, axis=2).any(axis=0)      # (F,) reaches the hidden side
         in_wall = np.all(np.abs(self.d_spot) <= tol, axis=2).all(axis=0)
         in_fov_plane = np.all(np.abs(self.d_fov) <= tol, axis=1)
@@ -48,7 +49,7 @@ class PlanGeometry:
         self.hidden = self.valid & ~in_wall & ~in_fov_plane & (albedo > 0)
         self.side = reachable_side(scene, c.spots[self.corners])       # (F,) +1/−1/0
         bounds = np.stack([caster.vertices.min(axis=0), caster.vertices.max(axis=0)])
-        self.diagonal = float(np.linalg.norm(bounds[1] - bounds[0]))
+        self.diagonal = float(norm(bounds[1] - bounds[0]))
         self.max_sensor_leg = float(np.max(np.linalg.norm(self.fov_corners - c.sensor, axis=1)))
 
     def names(self, faces: np.ndarray) -> list[str]:

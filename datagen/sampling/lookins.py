@@ -20,6 +20,7 @@ import numpy as np
 from ..scene.materials import tangent_frame
 from ..scene import RayCaster
 from .directions import HemispherePdf, square_to_hemisphere, stratified_grid, to_world
+from ..vectors import matmul
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,7 @@ def observe(caster: RayCaster, points: np.ndarray, normals: np.ndarray, pixels: 
     local, _ = square_to_hemisphere(uv[..., 0], uv[..., 1], "uniform", np.float32)
     local = np.broadcast_to(local, (b,) + local.shape[1:])
     t, bt = tangent_frame(normals)
-    directions = local @ np.stack([t, bt, normals], axis=1)          # (B, P, 3): rows of the local frame
+    directions = matmul(local, np.stack([t, bt, normals], axis=1))          # (B, P, 3): rows of the local frame
     hits = caster.intersect((points + caster.offset * normals)[:, None, :], directions)   # origins broadcast
     # the ray starts ``offset`` off the lookin along its normal: distance from the lookin itself
     distance = hits.distance + caster.offset * local[..., 2]

@@ -13,6 +13,7 @@ import numpy as np
 
 from .materials import Material
 from .parts import ROOM_LABELS, SceneError, SceneObject, Vec3, check_sizes
+from ..vectors import matmul
 
 # ---------------------------------------------------------------------------------------------------------
 # Builders. Each returns (vertices, faces); normals are not needed (the ray caster orients them).
@@ -42,7 +43,7 @@ def _rotation_z(angle_deg: float) -> np.ndarray:
 def box_mesh(center: Vec3, size: Vec3, rotation_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Closed cuboid (12 triangles) of ``size`` (dx, dy, dz) m centred at ``center``, rotated about z."""
     corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
-    vertices = corners * np.asarray(size, dtype=np.float64) @ _rotation_z(rotation_deg).T + np.asarray(center)
+    vertices = matmul(corners * np.asarray(size, dtype=np.float64), _rotation_z(rotation_deg).T) + np.asarray(center)
     # vertex index = 4*ix + 2*iy + iz
     faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
                       [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], dtype=np.int64)
@@ -158,5 +159,5 @@ def import_mesh(name: str, path: str | Path, scale: float = 1.0, left_handed: bo
     if left_handed:
         vertices = vertices * np.array([1.0, -1.0, 1.0])
         faces = faces[:, ::-1]
-    vertices = vertices @ _rotation_z(rotation_deg).T + np.asarray(translate, dtype=np.float64)
+    vertices = matmul(vertices, _rotation_z(rotation_deg).T) + np.asarray(translate, dtype=np.float64)
     return SceneObject(name, label, material or Material(), vertices, faces)

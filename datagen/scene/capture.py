@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..vectors import dot, unit
+from ..vectors import dot, matmul, norm, unit
 from .model import Scene
 from .parts import SceneError
 from .raycast import RayCaster
@@ -135,8 +135,8 @@ class Capture:
         """In-plane distance (m) of points (..., 3) inside the sensor grid's rectangle edges: > 0 inside,
         < 0 outside (the off-plane distance is not included)."""
         rel = points - self.fov_center
-        return np.minimum(0.5 * self.fov_size[0] - np.abs(rel @ self.fov_u),
-                          0.5 * self.fov_size[1] - np.abs(rel @ self.fov_v))
+        return np.minimum(0.5 * self.fov_size[0] - np.abs(matmul(rel, self.fov_u)),
+                          0.5 * self.fov_size[1] - np.abs(matmul(rel, self.fov_v)))
 
     def spot_inside_fov(self, laser: int) -> bool:
         """Whether laser point ``laser`` lies strictly inside the sensor grid's rectangle (a point on its edge,
@@ -158,16 +158,16 @@ class Capture:
             return self.aperture_normal
         rel = np.asarray(points, dtype=np.float64) - self.fov_center
         nx, ny = self.fov_pixels
-        ix = np.clip(np.floor(((rel @ self.fov_u) / self.fov_size[0] + 0.5) * nx), 0, nx - 1)
-        iy = np.clip(np.floor(((rel @ self.fov_v) / self.fov_size[1] + 0.5) * ny), 0, ny - 1)
+        ix = np.clip(np.floor((matmul(rel, self.fov_u) / self.fov_size[0] + 0.5) * nx), 0, nx - 1)
+        iy = np.clip(np.floor((matmul(rel, self.fov_v) / self.fov_size[1] + 0.5) * ny), 0, ny - 1)
         return unit(self.fov_points(ix + 0.5, iy + 0.5) - self.sensor)
 
     def fov_pixel(self, points: np.ndarray, tol: float) -> np.ndarray:
         """Sensor pixel index (row-major over (v, u)) of each point, −1 outside the FoV. (..., 3) → (...,)."""
         rel = points - self.fov_center
-        a = (rel @ self.fov_u) / self.fov_size[0] + 0.5
-        b = (rel @ self.fov_v) / self.fov_size[1] + 0.5
-        inside = (np.abs(rel @ self.fov_normal) <= tol) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
+        a = (matmul(rel, self.fov_u)) / self.fov_size[0] + 0.5
+        b = (matmul(rel, self.fov_v)) / self.fov_size[1] + 0.5
+        inside = (np.abs(matmul(rel, self.fov_normal)) <= tol) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
         nx, ny = self.fov_pixels
         ix = np.clip((np.nan_to_num(a) * nx).astype(np.int64), 0, nx - 1)
         iy = np.clip((np.nan_to_num(b) * ny).astype(np.int64), 0, ny - 1)
@@ -186,7 +186,7 @@ def _wall_frame(caster: RayCaster, sensor: np.ndarray, center: np.ndarray) -> tu
     hit_c = caster.intersect(sensor[None], unit(center - sensor)[None])
     normal = hit_c.normals[0] if hit_c.hit[0] else unit(sensor - center)
     u = np.cross(normal, np.array([0.0, 0.0, 1.0]))
-    u = unit(np.cross(normal, np.array([0.0, 1.0, 0.0]))) if np.linalg.norm(u) < 1e-9 else unit(u)
+    u = unit(np.cross(normal, np.array([0.0, 1.0, 0.0]))) if norm(u) < 1e-9 else unit(u)
     return u, np.cross(u, normal), normal
 
 
@@ -201,7 +201,7 @@ def _grid_points(center, size, points, u, v) -> np.ndarray:
 def _resolve_spot(caster: RayCaster, names: list[str], emitter: np.ndarray, spot: np.ndarray, where: str,
                   field: str) -> tuple[np.ndarray, int, float]:
     """Normal, object id and emitter leg of a laser point; SceneError when it is off every surface."""
-    leg = float(np.linalg.norm(spot - emitter))
+    leg = float(norm(spot - emitter))
     if leg == 0:
         raise SceneError(f"{where}{field} equals laser.emitter {spot.tolist()}")
     hits = caster.intersect(emitter[None], unit(spot - emitter)[None])

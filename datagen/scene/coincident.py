@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from .parts import ROOM_LABELS, Laser, SceneError, SceneObject, Sensor
+from ..vectors import matmul
 
 COPLANAR_TOL_REL = 1e-5
 """Faces closer than this fraction of the scene size (the largest extent of :meth:`Scene.bounds`) count as
@@ -336,7 +337,7 @@ class _Reach:
                 open_ = comp < 0
                 side = np.zeros(len(rows))
                 for p in self.viewpoints:
-                    h = normal[rows] @ p - offset[rows]
+                    h = matmul(normal[rows], p) - offset[rows]
                     pick = (side == 0) & (np.abs(h) > self.tol)
                     side[pick] = np.sign(h[pick])
                 room = np.where(side > 0, FRONT, np.where(side < 0, BACK, FRONT | BACK))
@@ -374,7 +375,7 @@ def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: floa
     local = np.concatenate([np.arange(len(o.faces), dtype=np.int64) for o in objects])
     normal, _, width = _triangle_planes(tri)
     idx = np.flatnonzero(width > tol)
-    n = normal[idx] * np.where(normal[idx] @ CANONICAL_DIRECTION < 0, -1.0, 1.0)[:, None]
+    n = normal[idx] * np.where(matmul(normal[idx], CANONICAL_DIRECTION) < 0, -1.0, 1.0)[:, None]
     d = np.einsum("ij,ij->i", n, tri[idx, 0])
     group = _row_groups(np.floor(n / NORMAL_CELL).astype(np.int64))[2]
     order = np.lexsort((d, group))
@@ -424,7 +425,7 @@ def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: floa
     swap = obj[idx[a]] > obj[idx[b]]
     a, b = np.where(swap, b, a), np.where(swap, a, b)
     fa, fb = idx[a], idx[b]
-    offset = d[a] + n[a] @ origin                                    # world coordinates
+    offset = d[a] + matmul(n[a], origin)                                    # world coordinates
     viewpoints = [np.asarray(p, dtype=np.float64) for p in (viewpoints() if callable(viewpoints) else viewpoints)]
     reach = _Reach(objects, viewpoints, tol)
     sides = reach.sides(obj[fa], local[fa], n[a], offset) & reach.sides(obj[fb], local[fb], n[a], offset)

@@ -28,7 +28,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from ..errors import SceneError
-from ..vectors import unit
+from ..vectors import matmul, unit
 from .capture import Capture
 from .load import format_validation_error, read_yaml, scene_from_dict
 from .model import Scene
@@ -183,7 +183,7 @@ def node_weights(spots: np.ndarray, normals: np.ndarray, emitter: np.ndarray, pr
         raw = np.abs(np.einsum("ij,ij->i", w_in, normals)) / r ** 2
         if profile.kind == "gaussian":
             axis = unit(spots.mean(axis=0) - emitter)
-            alpha = np.arccos(np.clip(w_in @ axis, -1.0, 1.0))
+            alpha = np.arccos(np.clip(matmul(w_in, axis), -1.0, 1.0))
             raw = raw * np.exp(-0.5 * (alpha / np.radians(profile.sigma_deg)) ** 2)
     total = float(raw.sum())
     if not total > 0:

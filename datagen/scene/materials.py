@@ -28,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from .brdf_kernel import (BRDF_KINDS, LAMBERTIAN, PHONG, SIN_THETA, TANGENT_EPS, lambertian_value, on_arrays,
                           phong_diffuse_scale, phong_gloss, phong_value, sin_theta_scale, sin_theta_value)
+from ..vectors import norm
 
 __all__ = ["BRDF_KINDS", "LAMBERTIAN", "PHONG", "SIN_THETA", "TANGENT_EPS", "Material", "MaterialTable",
            "tangent_frame"]
@@ -52,7 +53,7 @@ class Material(BaseModel):
     @field_validator("axis")
     @classmethod
     def _axis_nonzero(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
-        if not np.all(np.isfinite(value)) or np.linalg.norm(value) == 0:
+        if not np.all(np.isfinite(value)) or norm(value) == 0:
             raise ValueError(f"axis must be a finite non-zero vector, got {value!r}")
         return value
 

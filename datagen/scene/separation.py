@@ -13,6 +13,8 @@ import math
 import numpy as np
 from numba import njit
 
+from ..vectors import matmul
+
 CHUNK_ELEMENTS = 1 << 22
 """Floats per temporary in the vectorised pair tests (32 MiB)."""
 
@@ -142,9 +144,9 @@ def may_meet(tri: np.ndarray, tri_n: np.ndarray, tri_o: np.ndarray, tri_valid: n
     for s in range(0, k, step):
         t = tri[s:s + step]
         a = len(t)
-        d_min = (t.reshape(a * 3, 3) @ planes).reshape(a, 3, m * p).min(axis=1)
+        d_min = (matmul(t.reshape(a * 3, 3), planes)).reshape(a, 3, m * p).min(axis=1)
         apart = ((d_min >= (hull_o.reshape(-1) - tol)[None]) & hull_valid.reshape(-1)[None]).reshape(a, m, p).any(-1)
-        e = (tri_n[s:s + step] @ hull_v.reshape(m * v, 3).T).reshape(a, m, v)
+        e = (matmul(tri_n[s:s + step], hull_v.reshape(m * v, 3).T)).reshape(a, m, v)
         lo, hi = e.min(axis=-1), e.max(axis=-1)
         o = tri_o[s:s + step, None]
         apart |= tri_valid[s:s + step, None] & ((lo >= o - tol) | (hi <= o + tol))

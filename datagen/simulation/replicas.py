@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..vectors import norm
+
 PEAK_FLOOR = 0.01
 """Bins where the envelope exceeds this fraction of its peak enter the relative L2 (issue 5)."""
 
@@ -43,7 +45,7 @@ def relative_standard_error(mean: np.ndarray, var_mean: np.ndarray) -> float:
     if peak <= 0:
         return 0.0
     mask = mean > PEAK_FLOOR * peak
-    return float(np.sqrt(np.maximum(var_mean[mask], 0.0).sum()) / np.linalg.norm(mean[mask]))
+    return float(np.sqrt(np.maximum(var_mean[mask], 0.0).sum()) / norm(mean[mask]))
 
 
 def relative_difference(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> float:
@@ -52,7 +54,7 @@ def relative_difference(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> floa
     if peak <= 0:
         return 0.0
     mask = scale > PEAK_FLOOR * peak
-    return float(np.linalg.norm((a - b)[mask]) / np.linalg.norm(scale[mask]))
+    return float(norm((a - b)[mask]) / norm(scale[mask]))
 
 
 @dataclass

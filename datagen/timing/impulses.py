@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .irf import Irf, TimeAxis
+from ..vectors import matmul
 
 __all__ = ["as_real_array", "bin_impulses", "check_finite", "check_weights", "times_weights"]
 
@@ -93,5 +94,5 @@ def bin_impulses(times: Any, weights: Any, axis: TimeAxis, irf: Irf) -> np.ndarr
         tb, wb = t[start : start + block], w[start : start + block]
         x = edges[None, :] - tb[:, None]
         mass = irf.interval_mass(x[:, :-1], x[:, 1:])
-        out += wb @ mass
+        out += matmul(wb, mass)
     return out

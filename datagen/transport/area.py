@@ -63,7 +63,7 @@ from ..sampling.surfaces import AreaSampling, SurfaceSamples, unit_square_points
 from ..scene import RayCaster, Scene, resolve_capture
 from ..errors import SceneError
 from ..scene.capture import Capture
-from ..vectors import distinct_rows, dot
+from ..vectors import distinct_rows, dot, matmul
 from .base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
 from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
                            spot_irradiance)
@@ -347,8 +347,8 @@ class AreaSampler(AreaSecondary):
                                                           1), 12))            # distinct laser-spot planes
         front_spot = np.zeros(len(tri), dtype=bool)
         for n_x, n_y, n_z, d in planes:
-            front_spot |= (tri @ np.array([n_x, n_y, n_z]) - d > self.tol).any(axis=1)
-        front_fov = ((tri - c.fov_center) @ c.fov_normal > self.tol).any(axis=1)
+            front_spot |= (matmul(tri, np.array([n_x, n_y, n_z])) - d > self.tol).any(axis=1)
+        front_fov = (matmul(tri - c.fov_center, c.fov_normal) > self.tol).any(axis=1)
         return np.flatnonzero((cst.face_area > 0) & (front_spot | front_fov))
 
     def _weight_constants(self) -> tuple[float, float, float, float]:
@@ -532,8 +532,8 @@ class AreaSampler(AreaSecondary):
         lit = np.ones(len(out.b), dtype=bool)
         if s.secondary == "full":
             # FoV behind the spot-facing side: only where the FoV rectangle reaches behind x's plane
-            corners = (c.fov_center + np.array([[a * c.fov_size[0] / 2, b * c.fov_size[1] / 2]
-                                                for a in (-1, 1) for b in (-1, 1)]) @ np.stack([c.fov_u, c.fov_v]))
+            half = np.array([[a * c.fov_size[0] / 2, b * c.fov_size[1] / 2] for a in (-1, 1) for b in (-1, 1)])
+            corners = c.fov_center + matmul(half, np.stack([c.fov_u, c.fov_v]))
             behind = np.flatnonzero((dot(corners[None] - xs.points[:, None], -n_front[:, None]) > 0).any(axis=1))
             back = self._connect(xs.points[behind], -n_front[behind], rho_x[behind], laser, rng,
                                  None if pad is None else pad[behind])

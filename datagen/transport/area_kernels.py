@@ -29,6 +29,7 @@ from ..scene.brdf_kernel import abs_sin_azimuth, brdf_value
 from ..units import SPEED_OF_LIGHT
 from .physics import (attenuation_term, collection_term, emission_term, fov_term, geometry_term,
                       irradiance_term)
+from ..vectors import norm
 
 __all__ = ["abs_sin_azimuth", "brdf_value", "fov_targets", "material_arrays", "partner_geometry", "partner_irradiance",
            "secondary_pairs"]
@@ -273,7 +274,7 @@ def spot_irradiance(physics, points: np.ndarray, face_normals: np.ndarray, laser
         physics.stats.shadow_rays += len(idx)
         idx = idx[physics.caster.visible(points[idx], n_lit[idx], spot, spot_n)]
     w_e = c.emitter - spot
-    w_e = w_e / np.linalg.norm(w_e)
+    w_e = w_e / norm(w_e)
     e, geo = _spot_terms(idx, r, w, cos_in, cos_l, float(c.photons), material_arrays(physics),
                          int(c.spot_objects[laser]), spot_n, w_e)
     return e, r, w, geo

@@ -47,7 +47,7 @@ from ..scene.brdf_kernel import SIN_THETA
 from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..sampling.directions import stratified_grid
 from ..units import SPEED_OF_LIGHT
-from ..vectors import dot, unit
+from ..vectors import dot, matmul, norm, unit
 from .base import Connections, Sink
 
 PHYSICS_SWITCHES = ("attenuation", "pde", "count_laser_leg", "count_sensor_leg", "shadow_spot", "shadow_sensor",
@@ -461,11 +461,11 @@ class LegPhysics:
         out = np.zeros(len(w), dtype=bool)
         for cx, cy, cz, radius in spheres:
             to_c = np.array([cx, cy, cz]) - origin
-            dist = float(np.linalg.norm(to_c))
+            dist = float(norm(to_c))
             if dist <= radius:                                      # the origin is inside the sphere
                 return np.ones(len(w), dtype=bool)
             cos_cone = np.sqrt(1.0 - (radius / dist) ** 2)
-            out |= (w @ (to_c / dist) >= cos_cone - 1e-12) & (r >= dist - radius)
+            out |= (matmul(w, to_c / dist) >= cos_cone - 1e-12) & (r >= dist - radius)
         return out
 
     # -- the relay wall ----------------------------------------------------------------------------------
@@ -473,7 +473,7 @@ class LegPhysics:
     def _find_fov_objects(self) -> np.ndarray:
         c, rc = self.capture, self.caster
         tri = rc.vertices[rc.faces]
-        in_plane = np.abs((tri - c.fov_center) @ c.fov_normal).max(axis=1) <= self.tol
+        in_plane = np.abs(matmul(tri - c.fov_center, c.fov_normal)).max(axis=1) <= self.tol
         return np.unique(rc.face_object[in_plane])
 
     def _find_wall_object(self) -> int:

@@ -22,6 +22,7 @@ from ..threads import threads_for
 from ..units import SPEED_OF_LIGHT
 from .quadrature_kernel import candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes
 from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
+from ..vectors import matmul, norm
 
 __all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "leg_occluders", "run_compiled", "run_spheres"]
 
@@ -158,9 +159,9 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
         return none
     n, o = found
     u = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
-    u /= np.linalg.norm(u)
+    u /= norm(u)
     axes = np.stack([spots.mean(axis=0), u, np.cross(n, u)])
-    uv = (spots - axes[0]) @ axes[1:].T
+    uv = matmul(spots - axes[0], axes[1:].T)
     buckets, bucket_ptr, bucket_col = spot_buckets(uv)
     centre = axes[0]                                      # the laser points' mean
     radius = float(np.sqrt(((spots - centre) ** 2).sum(axis=1).max()))

@@ -27,6 +27,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from ..vectors import matmul, norm
 from numba import njit, prange
 
 __all__ = ["FLAG_MAX_BYTES", "grown_triangles", "row_span", "shadow_flags", "spot_buckets", "spot_plane"]
@@ -47,12 +49,12 @@ def spot_plane(spots: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, floa
     their mean with their mean normal ``normals`` (L, 3)), or None when one lies farther than ``PLANE_TOL`` from
     it or the normals cancel."""
     n = normals.mean(axis=0)
-    norm = float(np.linalg.norm(n))
-    if not norm > 0:
+    length = norm(n)
+    if not length > 0:
         return None
-    n = n / norm
-    o = float(n @ spots.mean(axis=0))
-    return (n, o) if float(np.abs(spots @ n - o).max()) <= PLANE_TOL else None
+    n = n / length
+    o = float(matmul(n, spots.mean(axis=0)))
+    return (n, o) if float(np.abs(matmul(spots, n) - o).max()) <= PLANE_TOL else None
 
 
 def grown_triangles(tri: np.ndarray, grow: float) -> np.ndarray:

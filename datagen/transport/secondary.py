@@ -23,7 +23,7 @@ import scipy.fft
 from ..errors import ConfigError
 from ..sampling.lookins import ObservedPoints
 from ..units import SPEED_OF_LIGHT
-from ..vectors import dot
+from ..vectors import dot, matmul
 from .base import Connections, Sink
 from .physics import laser_irradiance
 
@@ -162,7 +162,7 @@ class LookinSecondary:
         w = y - spot
         r = np.sqrt(dot(w, w))
         w /= np.maximum(r, 1e-300)[:, None]
-        cos_l = w @ spot_n
+        cos_l = matmul(w, spot_n)
         cos_in = -dot(n_y, w)
         lit = (cos_l > 0) & (cos_in > 0)
         if s.shadow_spot and lit.any():
