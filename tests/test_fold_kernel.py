@@ -7,7 +7,7 @@ import numba
 import numpy as np
 import pytest
 
-from datagen.timing.fold_kernel import bin_rows, bin_weights, fold_rows, nonzero_rows, rows_dot
+from datagen.timing.fold_kernel import bin_rows, bin_weights, fold_rows, full_bounds, nonzero_rows, rows_dot
 
 ROWS, NODES, OVERSAMPLE = 300, 640, 5
 
@@ -23,6 +23,9 @@ def sparse_rows(seed: int) -> np.ndarray:
     return a
 
 
+FULL = full_bounds(ROWS, NODES)
+
+
 def on_threads(n: int, fn, *args):
     threads = numba.get_num_threads()
     numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
@@ -36,10 +39,10 @@ def test_nonzero_rows_and_rows_dot_match_numpy():
     a = sparse_rows(1)
     v = np.random.default_rng(2).random(NODES)
     for n in (1, 2):
-        assert np.array_equal(on_threads(n, nonzero_rows, a), np.flatnonzero(a.any(axis=1)))
-        assert on_threads(n, rows_dot, a, v) == pytest.approx(a @ v, rel=1e-12, abs=0.0)
-    assert np.array_equal(on_threads(1, rows_dot, a, v), on_threads(2, rows_dot, a, v))
-    assert len(nonzero_rows(np.zeros((4, 7)))) == 0
+        assert np.array_equal(on_threads(n, nonzero_rows, a, FULL), np.flatnonzero(a.any(axis=1)))
+        assert on_threads(n, rows_dot, a, v, FULL) == pytest.approx(a @ v, rel=1e-12, abs=0.0)
+    assert np.array_equal(on_threads(1, rows_dot, a, v, FULL), on_threads(2, rows_dot, a, v, FULL))
+    assert len(nonzero_rows(np.zeros((4, 7)), full_bounds(4, 7))) == 0
 
 
 def test_rows_dot_over_the_non_zero_weights_is_the_in_order_sum():
@@ -57,7 +60,7 @@ def test_rows_dot_over_the_non_zero_weights_is_the_in_order_sum():
                 total += float(a[i, j]) * float(v[j])
             expect[i] = total
         for n in (1, 2):
-            assert np.array_equal(on_threads(n, rows_dot, a, v), expect)
+            assert np.array_equal(on_threads(n, rows_dot, a, v, FULL), expect)
 
 
 def test_fold_rows_is_the_double_running_sum():
@@ -70,7 +73,7 @@ def test_fold_rows_is_the_double_running_sum():
     out = {}
     for n in (1, 2):
         hist = base.copy()
-        on_threads(n, fold_rows, hist, curvature)
+        on_threads(n, fold_rows, hist, curvature, FULL)
         out[n] = hist
     assert np.array_equal(out[1], out[2])
     expected = base + np.cumsum(np.cumsum(curvature, axis=1), axis=1)
@@ -88,7 +91,7 @@ def test_bin_rows_is_the_valid_convolution_summed_per_bin():
     got = {}
     for n in (1, 2):
         out, peak = np.empty((len(rows), n_bins)), np.empty(len(rows))
-        on_threads(n, bin_rows, hist, rows, table, out, peak)
+        on_threads(n, bin_rows, hist, rows, table, out, peak, FULL)
         got[n] = (out, peak)
     assert np.array_equal(got[1][0], got[2][0]) and np.array_equal(got[1][1], got[2][1])
     valid = np.array([np.convolve(hist[r], kernel, "valid")[:n_bins * OVERSAMPLE] for r in rows])
@@ -102,6 +105,43 @@ def test_bin_rows_is_the_valid_convolution_summed_per_bin():
             for j in range(start, min(start + len(weights), NODES)):
                 total += float(hist[rows[i], j]) * float(weights[j - start])
             assert got[1][0][i, b] == total, (i, b)
+
+
+def test_bounds_give_the_same_bits_and_nothing_outside_them_is_read():
+    """Per-row bounds (each row's non-zero span widened by a few nodes, empty rows [0, 0)) give every kernel the
+    results of whole rows, to the bit; NaN put outside the bounds (the binning: outside its windows' reach beyond
+    them) is never read (it would spread into every sum)."""
+    hist, curvature = sparse_rows(6), sparse_rows(7)
+    nz = (hist != 0) | (curvature != 0)
+    bound = np.zeros((ROWS, 2), dtype=np.int64)
+    for r in np.flatnonzero(nz.any(axis=1)):
+        cols = np.flatnonzero(nz[r])
+        bound[r] = max(cols[0] - 3, 0), min(cols[-1] + 4, NODES)
+    poisoned = [a.copy() for a in (hist, curvature)]
+    for a in poisoned:
+        for r in range(ROWS):
+            a[r, :bound[r, 0]] = np.nan
+            a[r, bound[r, 1]:] = np.nan
+    v = np.concatenate([np.linspace(1.0, 1e-9, 90), np.zeros(NODES - 150), np.linspace(1e-9, 1.0, 60)])
+    assert np.array_equal(nonzero_rows(poisoned[0], bound), nonzero_rows(hist, FULL))
+    assert np.array_equal(rows_dot(poisoned[0], v, bound), rows_dot(hist, v, FULL))
+    folded, expect = poisoned[0].copy(), hist.copy()
+    fold_rows(folded, poisoned[1], bound)
+    fold_rows(expect, curvature, FULL)
+    inside = np.isfinite(folded)
+    assert np.array_equal(folded[inside], expect[inside]) and (expect[~inside] == 0).all()
+    kernel = np.exp(-0.5 * ((np.arange(23) - 11) / 3.0) ** 2)
+    table = bin_weights(kernel / kernel.sum(), OVERSAMPLE)
+    n_bins = (NODES - len(kernel) + 1) // OVERSAMPLE
+    rows = np.flatnonzero(hist.any(axis=1)).astype(np.int64)
+    got = [(np.empty((len(rows), n_bins)), np.empty(len(rows))) for _ in range(2)]
+    windows = hist.copy()                            # the binning reads whole windows of the bins a span reaches
+    for r in range(ROWS):
+        windows[r, :max(bound[r, 0] - table.size, 0)] = np.nan
+        windows[r, bound[r, 1] + table.size:] = np.nan
+    bin_rows(windows, rows, table, *got[0], bound)
+    bin_rows(hist, rows, table, *got[1], FULL)
+    assert np.array_equal(got[0][0], got[1][0]) and np.array_equal(got[0][1], got[1][1])
 
 
 def test_threads_for_runs_short_work_on_one_thread_and_restores_the_count():

@@ -19,17 +19,18 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @njit
-def _deposit_all(coord, w, comp, n_fine, min_nodes, hist, curv, total, beyond):
+def _deposit_all(coord, w, comp, n_fine, min_nodes, hist, curv, total, beyond, bound):
     for i in range(len(w)):
         c0, c1, c2 = sort3(coord[i, 0], coord[i, 1], coord[i, 2])
-        deposit_tent(c0, c1, c2, w[i], comp[i], n_fine, min_nodes, hist, curv, total, beyond)
+        deposit_tent(c0, c1, c2, w[i], comp[i], n_fine, min_nodes, hist, curv, total, beyond, bound)
 
 
 @pytest.mark.parametrize("min_nodes", [4.0, np.inf])
 def test_compiled_tent_deposits_equal_add_tents(min_nodes):
     """Tents of every kind (sub-node sides, zero span, hundreds of nodes, cut by either end of the grid, wholly
     outside it) deposited one by one by deposit_tent give add_tents' fine histogram, total and outside weight
-    to 1e-12 (per-node form only with min_nodes = inf, curvature form for wide tents with 4)."""
+    to 1e-12 (per-node form only with min_nodes = inf, curvature form for wide tents with 4); every node they write
+    lies within the rows' bounds, which the fold and binning read only (the same bits as whole rows)."""
     axis, irf = TimeAxis(t_start=0.0, bin_width=100e-12, n_bins=64), Irf(fwhm=100e-12)
     ref = EnvelopeAccumulator(axis, irf, 3)
     new = ref.spawn()
@@ -45,7 +46,16 @@ def test_compiled_tent_deposits_equal_add_tents(min_nodes):
     ref.add_tents(times, w, comp)
     g = new.tent_grid()
     coord = (times - g.t_start) / g.fine_step + g.shift
-    _deposit_all(coord, w, comp.astype(np.int64), g.n_fine, g.min_nodes, g.hist, g.curvature, g.total, g.beyond)
+    _deposit_all(coord, w, comp.astype(np.int64), g.n_fine, g.min_nodes, g.hist, g.curvature, g.total, g.beyond,
+                 g.bound)
+    written = (g.hist != 0).reshape(3, -1) | (g.curvature != 0).reshape(3, -1)
+    nodes = np.arange(g.n_fine)
+    assert written.any(axis=1).all()
+    assert not (written & ((nodes < g.bound[:, :1]) | (nodes >= g.bound[:, 1:]))).any()
+    one = ref.spawn().tent_grid()                                     # one wide tent: a narrow bound, two empty rows
+    _deposit_all(np.array([[300.2, 310.7, 340.1]]), np.ones(1), np.ones(1, dtype=np.int64), one.n_fine, 4.0,
+                 one.hist, one.curvature, one.total, one.beyond, one.bound)
+    assert one.bound.tolist() == [[one.n_fine, 0], [299, 350], [one.n_fine, 0]]
     a, b = new.fine_histogram(), ref.fine_histogram()
     assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
     np.testing.assert_allclose(new.total_weight(), ref.total_weight(), rtol=1e-13)

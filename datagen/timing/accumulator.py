@@ -56,7 +56,7 @@ from ..threads import threads_for
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
 from .curvature import deposit_curvature
-from .fold_kernel import bin_rows, bin_weights, fold_rows, nonzero_rows, rows_dot
+from .fold_kernel import bin_rows, bin_weights, fold_rows, full_bounds, nonzero_rows, rows_dot
 from .splat_kernel import splat_nodes
 from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
@@ -183,6 +183,10 @@ class EnvelopeAccumulator:
         self._bin_table = (bin_weights(self._kernel, self.oversample) if self._kernel.size <= _DIRECT_KERNEL_MAX
                            else None)
         self._hist = np.zeros((self.n_components, self.n_fine), dtype=np.float64)
+        # per row the nodes [lo, hi) outside which it holds zeros (widened by the compiled deposits, the whole row
+        # after any other deposit): the fold, binning and sums read only inside it (datagen.timing.fold_kernel)
+        self._bound = np.zeros((self.n_components, 2), dtype=np.int64)
+        self._bound[:, 0] = self.n_fine                     # empty: [n_fine, 0)
         self._total = np.zeros(self.n_components, dtype=np.float64)
         self._beyond = np.zeros(self.n_components, dtype=np.float64)
         self._binned: np.ndarray | None = None
@@ -266,6 +270,7 @@ class EnvelopeAccumulator:
         if t.size == 0:
             return
         self._binned = None
+        self._unbound()
         flat = self._hist.reshape(-1)
         for start in range(0, t.size, _CHUNK):
             tb = np.asarray(t[start : start + _CHUNK], dtype=np.float64)
@@ -350,6 +355,7 @@ class EnvelopeAccumulator:
         if not keep.any():
             return
         self._binned = None
+        self._unbound()
         t = np.sort(t[keep], axis=1)
         w = np.asarray(w, dtype=np.float64)[keep]
         comp = comp if isinstance(comp, int) else comp[keep].astype(np.int64)
@@ -409,7 +415,12 @@ class EnvelopeAccumulator:
         self._binned = None
         return TentGrid(float(self.axis.t_start), float(self.fine_step), self.n_left - 0.5, int(self.n_fine),
                         float(self.curvature_min_nodes), self._hist.reshape(-1), self._curvature.reshape(-1),
-                        self._total, self._beyond)
+                        self._total, self._beyond, self._bound)
+
+    def _unbound(self) -> None:
+        """Every row read whole from now on (a deposit that does not widen :attr:`_bound`)."""
+        self._bound[:, 0] = 0
+        self._bound[:, 1] = self.n_fine
 
     def _add_curvature(self, coord: np.ndarray, w: np.ndarray, c: int | np.ndarray) -> None:
         if self._curvature is None:
@@ -421,7 +432,7 @@ class EnvelopeAccumulator:
         """The fine histogram with the pending curvature deposits summed in (twice along the nodes)."""
         if self._curvature is not None:
             with threads_for(self._hist.size, PARALLEL_MIN_NODES):
-                fold_rows(self._hist, self._curvature)  # each row over its pending second differences only
+                fold_rows(self._hist, self._curvature, self._bound)   # each row over its pending second differences
             self._curvature = None
             self._clamp_rtol = CURVATURE_CLAMP_RTOL
         return self._hist
@@ -494,6 +505,8 @@ class EnvelopeAccumulator:
         self._binned = None
         self._fold()
         self._hist += other._fold()
+        self._bound[:, 0] = np.minimum(self._bound[:, 0], other._bound[:, 0])
+        self._bound[:, 1] = np.maximum(self._bound[:, 1], other._bound[:, 1])
         self._clamp_rtol = max(self._clamp_rtol, other._clamp_rtol)
         self._total += other._total
         self._beyond += other._beyond
@@ -525,30 +538,47 @@ class EnvelopeAccumulator:
                 would indicate a bug).
         """
         if self._binned is None:
-            self._binned = self._convolve_rows(self._fold())
+            self._binned = self._convolve_rows(self._fold(), self._bound)
         return self._binned.copy() if copy else self._binned
 
     def binned_total(self, n_channels: int = 1, channels: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(n_channels, n_bins) ``binned()`` summed over components (ids ``component * n_channels + channel``),
-        one convolution per channel, rows ``channels`` (index or slice) only. Raises ValueError if ``n_channels``
-        does not divide ``n_components``."""
+        one convolution per channel, rows ``channels`` (index or slice) only. With one component per channel the
+        rows are binned where they are (no summed copy: a sum of one term is that term). Raises ValueError if
+        ``n_channels`` does not divide ``n_components``."""
         if n_channels < 1 or self.n_components % n_channels:
             raise ValueError(f"n_channels {n_channels} does not divide the {self.n_components} components")
-        return self._convolve_rows(self._fold().reshape(-1, n_channels, self._hist.shape[-1])[:, channels].sum(0))
+        hist = self._fold()
+        rows = np.arange(n_channels)[channels]
+        if self.n_components == n_channels and np.all(np.diff(rows) > 0):
+            return self._convolve_rows(hist, self._bound, rows)
+        summed = hist.reshape(-1, n_channels, self._hist.shape[-1])[:, channels].sum(0)
+        return self._convolve_rows(summed, full_bounds(len(summed), summed.shape[-1]))
 
-    def _convolve_rows(self, hist: np.ndarray) -> np.ndarray:
+    def _convolve_rows(self, hist: np.ndarray, bound: np.ndarray, select: np.ndarray | None = None) -> np.ndarray:
         """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes (the non-zero rows in
         batches of ``_CONVOLVE_ROWS``: the compiled direct convolution over each row's non-zero nodes, or one FFT
-        convolution per batch for a kernel longer than ``_DIRECT_KERNEL_MAX`` taps)."""
-        out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
+        convolution per batch for a kernel longer than ``_DIRECT_KERNEL_MAX`` taps), each read within its
+        ``bound`` ((rows, 2) int64: :mod:`datagen.timing.fold_kernel`). ``select``: ascending distinct row indices,
+        the output's rows (default: every row)."""
+        hist = np.ascontiguousarray(hist, dtype=np.float64)
+        if select is None:
+            out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
+            place = None
+        else:
+            out = np.zeros((len(select), self.axis.n_bins), dtype=np.float64)
+            place = np.full(len(hist), -1, dtype=np.int64)
+            place[select] = np.arange(len(select))
+            bound = bound.copy()
+            bound[place < 0] = 0                          # rows not selected: nothing to read
         with threads_for(hist.size, PARALLEL_MIN_NODES):   # the compiled row kernels' threads
-            rows = nonzero_rows(np.ascontiguousarray(hist, dtype=np.float64))
+            rows = nonzero_rows(hist, bound)
             for start in range(0, len(rows), _CONVOLVE_ROWS):
                 ks = rows[start:start + _CONVOLVE_ROWS]
                 block = np.empty((len(ks), self.axis.n_bins))
                 if self._bin_table is not None:                  # compiled, over each row's non-zero nodes only
                     peak = np.empty(len(ks))
-                    bin_rows(hist, ks.astype(np.int64), self._bin_table, block, peak)
+                    bin_rows(hist, ks.astype(np.int64), self._bin_table, block, peak, bound)
                 else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
                     span = self._kernel.size - 1
                     rows_ = hist[ks]
@@ -566,7 +596,7 @@ class EnvelopeAccumulator:
                     i = int(np.flatnonzero(low)[0])
                     raise RuntimeError(f"component {int(ks[i])}: envelope value {block[i].min()!r} below "
                                        f"-{self._clamp_rtol} * max(|fine histogram|, |envelope|) ({scale[i]!r})")
-                out[ks] = np.maximum(block, 0.0)
+                out[ks if place is None else place[ks]] = np.maximum(block, 0.0)
         return out
 
     def outside(self) -> np.ndarray:
@@ -588,7 +618,7 @@ class EnvelopeAccumulator:
         hi = (self.n_cells + self.n_left - 0.5 - g) * self.fine_step
         frac = self.irf.cdf(lo) + self.irf.sf(hi)
         with threads_for(self._hist.size, PARALLEL_MIN_NODES):
-            return result + rows_dot(self._hist, frac)
+            return result + rows_dot(self._hist, frac, self._bound)
 
 
 def _active_columns(a: np.ndarray) -> tuple[int, int]:

@@ -1,7 +1,11 @@
 """Compiled fold and binning of an accumulator's fine histogram, row by row over the nodes that hold weight (numba).
 
 A fine-histogram row of a scanned capture holds weight on a few hundred of its thousands of nodes (one laser point's
-returns); :class:`datagen.timing.EnvelopeAccumulator` folds its pending second differences (:func:`fold_rows`) and
+returns), and a sub-scan's grid holds weight in few of its rows. Each kernel takes per row a ``bound`` [lo, hi) of
+nodes (int64 (rows, 2)) outside which the row is known to hold zeros (:func:`full_bounds`: the whole row), and reads
+only inside it (:func:`bin_rows`: and the windows of the bins it reaches, Q · oversample nodes beyond): rows no
+deposit touched are never read, so their pages are never mapped.
+:class:`datagen.timing.EnvelopeAccumulator` folds its pending second differences (:func:`fold_rows`) and
 convolves it with the fine-cell-integrated IRF and sums ``oversample`` nodes per output bin (:func:`bin_rows`: per bin
 the row's non-zero span reaches, the dot product of the nodes of its window with a precomputed row of weights from
 :func:`bin_weights`). The fold runs in the order of ``numpy.cumsum``; the binning is the valid convolution regrouped
@@ -14,14 +18,22 @@ from numba import njit, prange
 
 from .. import threads  # noqa: F401  (numba's threading layer, before any parallel kernel)
 
-__all__ = ["bin_rows", "bin_weights", "fold_rows", "nonzero_rows", "rows_dot"]
+__all__ = ["bin_rows", "bin_weights", "fold_rows", "full_bounds", "nonzero_rows", "rows_dot"]
+
+
+def full_bounds(rows: int, nodes: int) -> np.ndarray:
+    """(rows, 2) int64 bounds [0, nodes) for every row: nothing known, every node read."""
+    out = np.zeros((rows, 2), dtype=np.int64)
+    out[:, 1] = nodes
+    return out
 
 
 @njit(cache=True, inline="always")
-def _span(a, r) -> tuple:
-    """[lo, hi): row r of ``a`` from its first to its last non-zero entry ((0, 0) if none)."""
-    n = a.shape[1]
-    lo = 0
+def _span(a, r, bound) -> tuple:
+    """[lo, hi): row r of ``a`` from its first to its last non-zero entry, read within ``bound[r]`` (the row holds
+    zeros outside it); lo == hi if none."""
+    n = min(bound[r, 1], a.shape[1])
+    lo = min(max(bound[r, 0], 0), n)
     while lo < n and a[r, lo] == 0.0:
         lo += 1
     hi = n
@@ -31,13 +43,14 @@ def _span(a, r) -> tuple:
 
 
 @njit(cache=True, parallel=True)
-def fold_rows(hist: np.ndarray, curvature: np.ndarray) -> None:
+def fold_rows(hist: np.ndarray, curvature: np.ndarray, bound: np.ndarray) -> None:
     """hist[r] += the running sum of the running sum of curvature[r], for every row r of the (R, N) float64 arrays,
     from the row's first to its last non-zero second difference (beyond it the double sum of complete tents' second
-    differences is zero, round-off aside). In place; ``curvature`` is left as it is. The rows run on numba's
+    differences is zero, round-off aside), read within ``bound`` ((R, 2) int64, module doc). In place; ``curvature`` is
+    left as it is. The rows run on numba's
     threads, each row in one thread in node order: the same result for any number of threads."""
     for r in prange(hist.shape[0]):
-        lo, hi = _span(curvature, r)
+        lo, hi = _span(curvature, r, bound)
         first = 0.0
         second = 0.0
         for j in range(lo, hi):
@@ -60,13 +73,14 @@ def bin_weights(kernel: np.ndarray, oversample: int) -> np.ndarray:
 
 
 @njit(cache=True, parallel=True)
-def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray, row_max: np.ndarray) -> None:
+def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndarray, row_max: np.ndarray,
+             bound: np.ndarray) -> None:
     """out[i, b] = Σ over the ``oversample`` fine cells c of bin b of (hist[rows[i]] ⋆ kernel)[c], the valid-mode
     convolution ``numpy.convolve(hist[row], kernel, "valid")`` (length n_bins · oversample), as the dot product of
     the Q · oversample nodes from b · oversample on (bins out of reach of the row's non-zero span are 0) with the
     weights of :func:`bin_weights` (``table``, (oversample, Q)) in node order: node j = oversample·m + p adds hist[j] ·
     table[p, m − b]; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
-    row_max (k,) float64 (written). The rows run on numba's threads, each in one thread: the same result for any
+    row_max (k,) float64 (written); ``bound`` (R, 2) int64 per row of hist (module doc). The rows run on numba's threads, each in one thread: the same result for any
     number of threads."""
     oversample, q_len = table.shape
     n_bins = out.shape[1]
@@ -78,7 +92,7 @@ def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndar
     n = hist.shape[1]
     for i in prange(rows.shape[0]):
         r = rows[i]
-        lo, hi = _span(hist, r)
+        lo, hi = _span(hist, r, bound)
         peak = 0.0
         for j in range(lo, hi):
             peak = max(peak, abs(hist[r, j]))
@@ -122,14 +136,14 @@ def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndar
 
 
 @njit(cache=True, parallel=True)
-def nonzero_rows(a: np.ndarray) -> np.ndarray:
+def nonzero_rows(a: np.ndarray, bound: np.ndarray) -> np.ndarray:
     """The indices (k,) int64, ascending, of the rows of a (rows, n) float64 array that hold a non-zero entry
-    (``numpy.flatnonzero(a.any(axis=1))``, each row read up to its first non-zero entry, the rows on numba's
-    threads)."""
+    (``numpy.flatnonzero(a.any(axis=1))``, each row read within ``bound`` ((rows, 2) int64, module doc) up to its
+    first non-zero entry, the rows on numba's threads)."""
     hit = np.zeros(a.shape[0], dtype=np.bool_)
-    n = a.shape[1]
     for i in prange(a.shape[0]):
-        j = 0
+        n = min(bound[i, 1], a.shape[1])
+        j = min(max(bound[i, 0], 0), n)
         while j < n and a[i, j] == 0.0:
             j += 1
         hit[i] = j < n
@@ -137,11 +151,11 @@ def nonzero_rows(a: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, parallel=True)
-def rows_dot(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+def rows_dot(a: np.ndarray, v: np.ndarray, bound: np.ndarray) -> np.ndarray:
     """a @ v (rows,) float64 for a (rows, n) float64 and v (n,) ≥ 0, each row in one of numba's threads: over the
     nodes where v is non-zero when they are fewer than half (an IRF's window fractions: zero inside the window beyond
-    its support), else from the row's first to its last non-zero entry. The terms left out add ±0.0, so the sums are
-    the same either way and for any number of threads. A BLAS gemv here starts OpenBLAS's threads, whose spinning
+    its support), else from the row's first to its last non-zero entry; within ``bound`` ((rows, 2) int64, module
+    doc) either way. The terms left out add ±0.0, so the sums are the same either way and for any number of threads. A BLAS gemv here starts OpenBLAS's threads, whose spinning
     afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
     nodes = np.nonzero(v)[0]
     sparse = 2 * nodes.shape[0] < v.shape[0]
@@ -150,9 +164,10 @@ def rows_dot(a: np.ndarray, v: np.ndarray) -> np.ndarray:
         s = 0.0
         if sparse:
             for k in range(nodes.shape[0]):
-                s += a[i, nodes[k]] * v[nodes[k]]
+                if bound[i, 0] <= nodes[k] < bound[i, 1]:
+                    s += a[i, nodes[k]] * v[nodes[k]]
         else:
-            lo, hi = _span(a, i)
+            lo, hi = _span(a, i, bound)
             for j in range(lo, hi):
                 s += a[i, j] * v[j]
         out[i] = s

@@ -44,6 +44,7 @@ class TentGrid(NamedTuple):
     curvature: np.ndarray
     total: np.ndarray
     beyond: np.ndarray
+    bound: np.ndarray
 
 
 @njit(cache=True, inline="always")
@@ -73,10 +74,12 @@ def _cdf2(y: float, t0: float, t1: float, t2: float) -> float:
 
 @njit(cache=True, inline="always")
 def deposit_tent(c0: float, c1: float, c2: float, w: float, comp: int, n_fine: int, min_nodes: float,
-                 hist: np.ndarray, curvature: np.ndarray, total: np.ndarray, beyond: np.ndarray) -> None:
+                 hist: np.ndarray, curvature: np.ndarray, total: np.ndarray, beyond: np.ndarray,
+                 bound: np.ndarray) -> None:
     """Deposit the tent of weight ``w`` (photons per pulse) with sorted node coordinates c0 <= c1 <= c2 into
-    component ``comp`` of the grid arrays (:class:`TentGrid`; module doc). w > 0 and finite coordinates are the
-    caller's."""
+    component ``comp`` of the grid arrays (:class:`TentGrid`; module doc), widening the row's ``bound`` to the
+    nodes [floor(c0) − 1, ceil(c2) + 9) it may write (the curvature deposits reach floor(c2) + 7 at most, the fold
+    writes the histogram where the curvature is non-zero). w > 0 and finite coordinates are the caller's."""
     total[comp] += w
     lo = np.floor(c0)
     hi = np.ceil(c2)
@@ -84,6 +87,12 @@ def deposit_tent(c0: float, c1: float, c2: float, w: float, comp: int, n_fine: i
         beyond[comp] += w
         return
     row = comp * n_fine
+    reach_lo = int(max(lo - 1.0, 0.0))
+    reach_hi = int(min(hi + 9.0, float(n_fine)))
+    if reach_lo < bound[comp, 0]:
+        bound[comp, 0] = reach_lo
+    if reach_hi > bound[comp, 1]:
+        bound[comp, 1] = reach_hi
     if c2 - c0 >= min_nodes and lo >= 1.0 and hi + 2.0 <= n_fine - 1:
         add_tent_curvature(c0, c1, c2, w, row + 1, curvature)
         return

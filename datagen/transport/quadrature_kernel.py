@@ -210,7 +210,7 @@ POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photon
         "cell_brdf")
 CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
-GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond")
+GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond", "bound")
 OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "face_ray")
 SHADE = ("use_flags", "flags", "laser_col")
 """The kernel's inputs by group (tuples; :func:`datagen.transport.quadrature_primary.run_compiled` builds them). The
@@ -235,8 +235,8 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     centroid, normal, cell_face, closed, spot_n, spot_f, photons, fov_n, collect, tol, cell_brdf = pose
     conn_laser, conn_target, conn_channel, conn_same = conn
     spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride = legs
-    t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond = grid
-    ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond = coarse
+    t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond, bound = grid
+    ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond, cbound = coarse
     shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
     use_flags, flags, laser_col = shade
     M = centroid.shape[0]
@@ -317,13 +317,14 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     if not weight > 0.0:
                         continue
                 deposit_tent(nodes[0, m], nodes[1, m], nodes[2, m], weight, comp_base[m] + ch, n_fine, min_nodes,
-                             hist, curv, total, beyond)
+                             hist, curv, total, beyond, bound)
                 tents += 1
                 k = coarse_of[m]
                 if has_coarse and k >= 0 and ch % stride == 0:      # the rule at 2h (error estimate)
                     c0, c1, c2 = _tent_nodes(paths, coarse_cells[k, 0], coarse_cells[k, 1], coarse_cells[k, 2],
                                              leg_rows[1, m] + leg_rows[2, m], offset, cper_metre, corigin)
-                    deposit_tent(c0, c1, c2, 4.0 * weight, ch, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond)
+                    deposit_tent(c0, c1, c2, 4.0 * weight, ch, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond,
+                                 cbound)
             if not listed:
                 ray_count[row] = n_rays
         group_tents[grp] = tents
