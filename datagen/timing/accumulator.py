@@ -50,13 +50,12 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy.signal import oaconvolve
 
 from ..threads import threads_for
 from .impulses import bin_impulses, check_finite, check_weights, times_weights
 from .irf import Irf, TimeAxis
 from .curvature import deposit_curvature
-from .fold_kernel import bin_rows, bin_weights, fold_rows, full_bounds, nonzero_rows, rows_dot
+from .fold_kernel import bin_weights, convolve_rows, fold_rows, full_bounds, rows_dot
 from .splat_kernel import splat_nodes
 from .tent_kernel import TentGrid
 from .tents import tent_cdf, tent_cdf2, tent_irf_cdf
@@ -102,9 +101,6 @@ _DIRECT_KERNEL_MAX = 256
 PARALLEL_MIN_NODES = 1 << 25
 """Fine grids of at least this many nodes (all components; 256 MiB of float64: the 128 × 128 scans) fold, bin and
 sum their rows on numba's threads (:func:`datagen.threads.threads_for`), smaller ones on one: the same result."""
-
-_CONVOLVE_ROWS = 256
-"""Fine-histogram rows convolved with the IRF in one batched FFT call (:meth:`EnvelopeAccumulator.binned`)."""
 
 _TENT_ROWS = 1 << 21
 """Evaluation rows (tents x nodes they cover) processed at once by EnvelopeAccumulator.add_tents."""
@@ -556,48 +552,13 @@ class EnvelopeAccumulator:
         return self._convolve_rows(summed, full_bounds(len(summed), summed.shape[-1]))
 
     def _convolve_rows(self, hist: np.ndarray, bound: np.ndarray, select: np.ndarray | None = None) -> np.ndarray:
-        """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes (the non-zero rows in
-        batches of ``_CONVOLVE_ROWS``: the compiled direct convolution over each row's non-zero nodes, or one FFT
-        convolution per batch for a kernel longer than ``_DIRECT_KERNEL_MAX`` taps), each read within its
-        ``bound`` ((rows, 2) int64: :mod:`datagen.timing.fold_kernel`). ``select``: ascending distinct row indices,
-        the output's rows (default: every row)."""
-        hist = np.ascontiguousarray(hist, dtype=np.float64)
-        if select is None:
-            out = np.zeros((len(hist), self.axis.n_bins), dtype=np.float64)
-            place = None
-        else:
-            out = np.zeros((len(select), self.axis.n_bins), dtype=np.float64)
-            place = np.full(len(hist), -1, dtype=np.int64)
-            place[select] = np.arange(len(select))
-            bound = bound.copy()
-            bound[place < 0] = 0                          # rows not selected: nothing to read
+        """Rows (rows, n_fine) of fine histograms binned as :meth:`binned` describes
+        (:func:`datagen.timing.fold_kernel.convolve_rows`: the compiled direct convolution for kernels up to
+        ``_DIRECT_KERNEL_MAX`` taps, else overlap-add FFT), each read within its ``bound``; ``select``: ascending
+        distinct row indices, the output's rows (default: every row)."""
         with threads_for(hist.size, PARALLEL_MIN_NODES):   # the compiled row kernels' threads
-            rows = nonzero_rows(hist, bound)
-            for start in range(0, len(rows), _CONVOLVE_ROWS):
-                ks = rows[start:start + _CONVOLVE_ROWS]
-                block = np.empty((len(ks), self.axis.n_bins))
-                if self._bin_table is not None:                  # compiled, over each row's non-zero nodes only
-                    peak = np.empty(len(ks))
-                    bin_rows(hist, ks.astype(np.int64), self._bin_table, block, peak, bound)
-                else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
-                    span = self._kernel.size - 1
-                    rows_ = hist[ks]
-                    lo, hi = _active_columns(rows_)
-                    b0 = max(0, lo - span) // self.oversample
-                    b1 = min(self.axis.n_bins, -(-hi // self.oversample))
-                    part = rows_[:, b0 * self.oversample:b1 * self.oversample + span]
-                    conv = oaconvolve(part, self._kernel[None], mode="valid", axes=1)
-                    block[:] = 0.0
-                    block[:, b0:b1] = conv.reshape(len(ks), b1 - b0, self.oversample).sum(axis=2)
-                    peak = np.abs(part).max(axis=1)
-                scale = np.maximum(np.abs(block).max(axis=1), peak)
-                low = block.min(axis=1) < -self._clamp_rtol * scale
-                if low.any():
-                    i = int(np.flatnonzero(low)[0])
-                    raise RuntimeError(f"component {int(ks[i])}: envelope value {block[i].min()!r} below "
-                                       f"-{self._clamp_rtol} * max(|fine histogram|, |envelope|) ({scale[i]!r})")
-                out[ks if place is None else place[ks]] = np.maximum(block, 0.0)
-        return out
+            return convolve_rows(hist, bound, self._kernel, self._bin_table, self.oversample, self.axis.n_bins,
+                                 self._clamp_rtol, select)
 
     def outside(self) -> np.ndarray:
         """Weight per component whose IRF-smeared mass falls outside the window, shape (n_components,).
@@ -620,8 +581,3 @@ class EnvelopeAccumulator:
         with threads_for(self._hist.size, PARALLEL_MIN_NODES):
             return result + rows_dot(self._hist, frac, self._bound)
 
-
-def _active_columns(a: np.ndarray) -> tuple[int, int]:
-    """[lo, hi): the columns of a 2-D array from its first to its last with a non-zero entry ((0, 0) if none)."""
-    cols = np.flatnonzero(a.any(axis=0))
-    return (int(cols[0]), int(cols[-1]) + 1) if len(cols) else (0, 0)

@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
+from scipy.signal import oaconvolve
 
 from .. import threads  # noqa: F401  (numba's threading layer, before any parallel kernel)
 
-__all__ = ["bin_rows", "bin_weights", "fold_rows", "full_bounds", "nonzero_rows", "rows_dot"]
+__all__ = ["bin_rows", "bin_weights", "convolve_rows", "fold_rows", "full_bounds", "nonzero_rows", "rows_dot"]
 
 
 def full_bounds(rows: int, nodes: int) -> np.ndarray:
@@ -80,7 +81,8 @@ def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndar
     the Q · oversample nodes from b · oversample on (bins out of reach of the row's non-zero span are 0) with the
     weights of :func:`bin_weights` (``table``, (oversample, Q)) in node order: node j = oversample·m + p adds hist[j] ·
     table[p, m − b]; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
-    row_max (k,) float64 (written); ``bound`` (R, 2) int64 per row of hist (module doc). The rows run on numba's threads, each in one thread: the same result for any
+    row_max (k,) float64 (written); ``bound`` (R, 2) int64 per row of hist (module doc). The rows run on numba's
+    threads, each in one thread: the same result for any
     number of threads."""
     oversample, q_len = table.shape
     n_bins = out.shape[1]
@@ -155,7 +157,8 @@ def rows_dot(a: np.ndarray, v: np.ndarray, bound: np.ndarray) -> np.ndarray:
     """a @ v (rows,) float64 for a (rows, n) float64 and v (n,) ≥ 0, each row in one of numba's threads: over the
     nodes where v is non-zero when they are fewer than half (an IRF's window fractions: zero inside the window beyond
     its support), else from the row's first to its last non-zero entry; within ``bound`` ((rows, 2) int64, module
-    doc) either way. The terms left out add ±0.0, so the sums are the same either way and for any number of threads. A BLAS gemv here starts OpenBLAS's threads, whose spinning
+    doc) either way. The terms left out add ±0.0, so the sums are the same either way and for any number of threads.
+    A BLAS gemv here starts OpenBLAS's threads, whose spinning
     afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
     nodes = np.nonzero(v)[0]
     sparse = 2 * nodes.shape[0] < v.shape[0]
@@ -171,4 +174,58 @@ def rows_dot(a: np.ndarray, v: np.ndarray, bound: np.ndarray) -> np.ndarray:
             for j in range(lo, hi):
                 s += a[i, j] * v[j]
         out[i] = s
+    return out
+
+
+CONVOLVE_ROWS = 256
+"""Fine-histogram rows binned in one batch (one FFT call for a long kernel) by :func:`convolve_rows`."""
+
+
+def convolve_rows(hist: np.ndarray, bound: np.ndarray, kernel: np.ndarray, table: np.ndarray | None, oversample: int,
+                  n_bins: int, clamp_rtol: float, select: np.ndarray | None = None) -> np.ndarray:
+    """(rows, n_bins) float64: rows of the (R, N) fine histogram ``hist`` convolved with the fine-cell-integrated IRF
+    ``kernel`` and summed ``oversample`` nodes per bin (:class:`datagen.timing.EnvelopeAccumulator`'s ``binned``,
+    docs/physics.md §5), the non-zero rows in batches of ``CONVOLVE_ROWS``: :func:`bin_rows` with ``table``
+    (:func:`bin_weights`), or for ``table`` None (a long kernel) one overlap-add FFT per batch over the bins its
+    non-zero nodes reach. Each row is read within its ``bound`` ((R, 2) int64, module doc); ``select``: ascending
+    distinct row indices, the output's rows (default: every row). Negatives within ``clamp_rtol`` of a row's
+    max(|fine histogram|, |envelope|) are round-off and set to 0.
+
+    Raises:
+        RuntimeError: a value more negative than that (cannot happen for weights >= 0; would indicate a bug).
+    """
+    hist = np.ascontiguousarray(hist, dtype=np.float64)
+    place = None
+    if select is not None:
+        place = np.full(len(hist), -1, dtype=np.int64)
+        place[select] = np.arange(len(select))
+        bound = bound.copy()
+        bound[place < 0] = 0                              # rows not selected: nothing to read
+    out = np.zeros((len(hist) if select is None else len(select), n_bins), dtype=np.float64)
+    rows = nonzero_rows(hist, bound)
+    for start in range(0, len(rows), CONVOLVE_ROWS):
+        ks = rows[start:start + CONVOLVE_ROWS]
+        block = np.empty((len(ks), n_bins))
+        if table is not None:                             # compiled, over each row's non-zero nodes only
+            peak = np.empty(len(ks))
+            bin_rows(hist, ks.astype(np.int64), table, block, peak, bound)
+        else:   # a long kernel by overlap-add FFT, over the bins the batch's non-zero nodes reach
+            span = kernel.size - 1
+            part = hist[ks]
+            cols = np.flatnonzero(part.any(axis=0))
+            lo, hi = (int(cols[0]), int(cols[-1]) + 1) if len(cols) else (0, 0)
+            b0 = max(0, lo - span) // oversample
+            b1 = min(n_bins, -(-hi // oversample))
+            part = part[:, b0 * oversample:b1 * oversample + span]
+            conv = oaconvolve(part, kernel[None], mode="valid", axes=1)
+            block[:] = 0.0
+            block[:, b0:b1] = conv.reshape(len(ks), b1 - b0, oversample).sum(axis=2)
+            peak = np.abs(part).max(axis=1)
+        scale = np.maximum(np.abs(block).max(axis=1), peak)
+        low = block.min(axis=1) < -clamp_rtol * scale
+        if low.any():
+            i = int(np.flatnonzero(low)[0])
+            raise RuntimeError(f"component {int(ks[i])}: envelope value {block[i].min()!r} below "
+                               f"-{clamp_rtol} * max(|fine histogram|, |envelope|) ({scale[i]!r})")
+        out[ks if place is None else place[ks]] = np.maximum(block, 0.0)
     return out
