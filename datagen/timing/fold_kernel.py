@@ -47,9 +47,9 @@ def _span(a, r, bound) -> tuple:
 def fold_rows(hist: np.ndarray, curvature: np.ndarray, bound: np.ndarray) -> None:
     """hist[r] += the running sum of the running sum of curvature[r], for every row r of the (R, N) float64 arrays,
     from the row's first to its last non-zero second difference (beyond it the double sum of complete tents' second
-    differences is zero, round-off aside), read within ``bound`` ((R, 2) int64, module doc). In place; ``curvature`` is
-    left as it is. The rows run on numba's
-    threads, each row in one thread in node order: the same result for any number of threads."""
+    differences is zero, round-off aside), read within ``bound`` ((R, 2) int64, module doc). In place; ``curvature``
+    is left as it is. The rows run on numba's threads, each row in one thread in node order: the same result for
+    any number of threads."""
     for r in prange(hist.shape[0]):
         lo, hi = _span(curvature, r, bound)
         first = 0.0
@@ -82,8 +82,7 @@ def bin_rows(hist: np.ndarray, rows: np.ndarray, table: np.ndarray, out: np.ndar
     weights of :func:`bin_weights` (``table``, (oversample, Q)) in node order: node j = oversample·m + p adds hist[j] ·
     table[p, m − b]; row_max[i] = max |hist[rows[i]]|. hist (R, N) float64, rows (k,) int64, out (k, n_bins) and
     row_max (k,) float64 (written); ``bound`` (R, 2) int64 per row of hist (module doc). The rows run on numba's
-    threads, each in one thread: the same result for any
-    number of threads."""
+    threads, each in one thread: the same result for any number of threads."""
     oversample, q_len = table.shape
     n_bins = out.shape[1]
     width = q_len * oversample
@@ -158,8 +157,8 @@ def rows_dot(a: np.ndarray, v: np.ndarray, bound: np.ndarray) -> np.ndarray:
     nodes where v is non-zero when they are fewer than half (an IRF's window fractions: zero inside the window beyond
     its support), else from the row's first to its last non-zero entry; within ``bound`` ((rows, 2) int64, module
     doc) either way. The terms left out add ±0.0, so the sums are the same either way and for any number of threads.
-    A BLAS gemv here starts OpenBLAS's threads, whose spinning
-    afterwards cost a tal capture 0.09 s of CPU for a 0.2 ms product."""
+    A BLAS gemv here starts OpenBLAS's threads, whose spinning afterwards cost a tal capture 0.09 s of CPU for a
+    0.2 ms product."""
     nodes = np.nonzero(v)[0]
     sparse = 2 * nodes.shape[0] < v.shape[0]
     out = np.zeros(a.shape[0])
