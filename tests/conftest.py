@@ -12,6 +12,17 @@ from datagen.scene import FieldOfView, Laser, Scene, Sensor, box, quad
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def pytest_sessionstart(session):
+    """Compile the numba kernels a dataset sample runs (the quadrature's pair kernel, the shadow map, the fold and
+    binning, the detector) before the first test, in each test process: on an empty numba cache (a fresh clone)
+    the pair kernel alone compiles for about 70 s, which would otherwise land in whichever test runs it first and
+    count against that test's hang guard (pytest-timeout). With a filled cache this takes about a second."""
+    from datagen.dataset import load_dataset_config, make_sample
+
+    for name in ("confocal_smoke", "wall_smoke"):
+        make_sample(load_dataset_config(ROOT / "configs" / "datasets" / f"{name}.yaml"), "train", 0)
+
+
 def patch_scene(patch_size: float = 0.4, albedo: float = 0.8, with_occluder: bool = False) -> Scene:
     """Relay wall x = 2 facing −x, laser spot (2, 0, 0); a square Lambertian patch of side ``patch_size``
     centred at (1, 0, 0.5) facing +x (toward the wall); sensor/emitter at (0, 0, −0.5);
