@@ -539,9 +539,9 @@ class EnvelopeAccumulator:
 
     def binned_total(self, n_channels: int = 1, channels: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(n_channels, n_bins) ``binned()`` summed over components (ids ``component * n_channels + channel``),
-        one convolution per channel, rows ``channels`` (index or slice) only. With one component per channel the
-        rows are binned where they are (no summed copy: a sum of one term is that term). Raises ValueError if
-        ``n_channels`` does not divide ``n_components``."""
+        one convolution per channel, rows ``channels`` (an index array or a slice) only. With one component per
+        channel the rows are binned where they are (no summed copy: a sum of one term is that term). Raises
+        ValueError if ``n_channels`` does not divide ``n_components``."""
         if n_channels < 1 or self.n_components % n_channels:
             raise ValueError(f"n_channels {n_channels} does not divide the {self.n_components} components")
         hist = self._fold()

@@ -186,9 +186,10 @@ def convolve_rows(hist: np.ndarray, bound: np.ndarray, kernel: np.ndarray, table
     ``kernel`` and summed ``oversample`` nodes per bin (:class:`datagen.timing.EnvelopeAccumulator`'s ``binned``,
     docs/physics.md §5), the non-zero rows in batches of ``CONVOLVE_ROWS``: :func:`bin_rows` with ``table``
     (:func:`bin_weights`), or for ``table`` None (a long kernel) one overlap-add FFT per batch over the bins its
-    non-zero nodes reach. Each row is read within its ``bound`` ((R, 2) int64, module doc); ``select``: ascending
-    distinct row indices, the output's rows (default: every row). Negatives within ``clamp_rtol`` of a row's
-    max(|fine histogram|, |envelope|) are round-off and set to 0.
+    non-zero nodes reach. Rows are found and binned within their ``bound`` ((R, 2) int64, module doc; the FFT path
+    reads its batch's non-zero rows whole); ``select``: ascending distinct row indices, the output's rows (default:
+    every row). Negatives within ``clamp_rtol`` of a row's max(|fine histogram|, |envelope|) are round-off and set
+    to 0.
 
     Raises:
         RuntimeError: a value more negative than that (cannot happen for weights >= 0; would indicate a bug).
