@@ -51,8 +51,8 @@ REGIMES = {
 }
 
 
-# seeds per regime: enough to measure coverage to about ±2-4 % (a fit costs 0.25 s at low flux, 0.45 s in pile-up,
-# 3 s free-running and 6 s with afterpulsing, on the CI machine)
+# seeds per regime: enough to measure coverage to about ±2-4 % (a fit costs 0.25 s at low flux, 0.45 s in pile-up;
+# a free-running seed, the fit and the refit with τ held, about 2 s, and 6 s with afterpulsing)
 SEEDS = {"pile_up low flux": 200, "pile_up high flux": 200, "free_running": 50, "free_running afterpulsing": 25}
 COVERAGE_RATE = 0.90          # "every parameter inside its 95 % interval in >= 9 of 10 seeds" (issue 26), as a rate
 COVERAGE_SIGNIFICANCE = 0.01  # the test fails when the hits are below the 1 % quantile of Binomial(seeds, 0.90)

@@ -422,6 +422,21 @@ def test_free_running_markov_chain_against_renewal_density_equation():
     assert free_running_rate(r, c) == pytest.approx(d.sum(), rel=1e-5)
 
 
+@pytest.mark.parametrize("afterpulse", [(0.0, 0.0), (0.1, 3e-9), (0.1, 0.0)])
+def test_free_running_pixels_of_a_batch_equal_each_pixel_alone(afterpulse):
+    """The chain runs pixel by pixel (power iteration, window mass, afterpulses): at a given oversampling a pixel's
+    expected histogram and detection rate have the same bits in any batch or chunk, bright, dark (no counts at
+    all) or mixed. (The automatic oversampling is one factor per batch, from its brightest cell.)"""
+    c = free_cfg(dcr=2e6, afterpulse_probability=afterpulse[0], afterpulse_time_constant=afterpulse[1],
+                 markov_oversample=8)
+    rows = np.stack([peaked_rates(), np.zeros(50), np.full(50, 0.05), 3.0 * peaked_rates()])
+    together = expected_histogram(rows, c)
+    assert together[0].sum() > 0 and np.all(np.isfinite(together))
+    for i, r in enumerate(rows):
+        assert np.array_equal(expected_histogram(r, c), together[i])
+        assert free_running_rate(r, c) == free_running_rate(rows, c)[i]
+
+
 def test_free_running_arpack_fallback_gives_the_same_stationary_distribution(monkeypatch):
     c = free_cfg(dead_time=73.4e-9)
     r = peaked_rates()
@@ -493,6 +508,28 @@ def test_free_running_afterpulsing_chain_at_p_zero_is_the_chain_without_it():
     tiny = expected_histogram(r, c.model_copy(update={"afterpulse_probability": 1e-15}))
     np.testing.assert_allclose(tiny, base, rtol=1e-12, atol=0)
     assert np.abs(tiny - base).max() > 0  # the afterpulsing code path was taken
+
+
+@pytest.mark.parametrize("taps", [1, 2, 17, 64, 65, 301])
+def test_timing_convolution_equals_a_direct_sum(taps):
+    """convolve_last (apply_jitter_before / _after): out[i] = Σ_k kernel[k]·x[i − (first + k)], truncated to the
+    window, against numpy.convolve of each row; kernels up to DIRECT_CONVOLUTION_TAPS are summed exactly (1e-15
+    relative), longer ones by FFT (round-off ≤ 1e-12 of the row's largest value), for offsets inside, across
+    and beyond the 40 bins."""
+    rng = np.random.default_rng(taps)
+    x = rng.random((3, 40)) * 10.0 ** rng.uniform(-3, 3, (3, 1))
+    kernel = rng.random(taps)
+    kernel /= kernel.sum()
+    for first in (0, -taps // 2, 5, -taps - 3, 38, 45):
+        full = np.array([np.convolve(row, kernel) for row in x])            # full[m] = Σ_k kernel[k] x[m − k]
+        m = np.arange(40) - first
+        ok = (m >= 0) & (m < full.shape[1])
+        expected = np.zeros_like(x)
+        expected[:, ok] = full[:, m[ok]]
+        got = apply_jitter_after(x, kernel, first)
+        np.testing.assert_allclose(got, expected, rtol=1e-15 if taps <= 64 else 0,
+                                   atol=1e-12 * x.max() if taps > 64 else 1e-300)
+        assert np.array_equal(apply_jitter_before(x, kernel, first), got)
 
 
 def test_crosstalk_raises_low_flux_array_counts_by_one_over_one_minus_p():

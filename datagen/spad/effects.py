@@ -14,6 +14,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numba import njit
 from scipy import special
 
 from ..timing.irf import ex_gaussian_cdf
@@ -113,6 +114,21 @@ def exponential_kernel(tau: float, bin_width: float, fraction: float = 1.0) -> t
     return k, 0
 
 
+@njit(cache=True)
+def _shift_and_add(x: np.ndarray, kernel: np.ndarray, first_offset: int) -> np.ndarray:
+    """:func:`convolve_last`'s exact path for rows ``x`` (rows, bins) float64: each tap in turn adds its weight
+    times the shifted row (one product and one sum per element and tap, in tap order)."""
+    n_rows, n = x.shape
+    out = np.zeros((n_rows, n))
+    for r in range(n_rows):
+        for k in range(kernel.shape[0]):
+            shift = first_offset + k
+            w = kernel[k]
+            for i in range(max(shift, 0), min(n, n + shift)):
+                out[r, i] += w * x[r, i - shift]
+    return out
+
+
 def convolve_last(x: np.ndarray, kernel: np.ndarray, first_offset: int) -> np.ndarray:
     """out[..., i] = Σ_k kernel[k]·x[..., i − (first_offset + k)], truncated to the input's bins.
 
@@ -130,16 +146,8 @@ def convolve_last(x: np.ndarray, kernel: np.ndarray, first_offset: int) -> np.nd
     if kernel.size == 1 and first_offset == 0:
         return x * kernel[0]
     if kernel.size <= DIRECT_CONVOLUTION_TAPS:
-        out = np.zeros_like(x)
-        for k, w in enumerate(kernel):
-            shift = first_offset + k
-            if shift >= n or -shift >= n:
-                continue
-            if shift >= 0:
-                out[..., shift:] += w * x[..., : n - shift]
-            else:
-                out[..., : n + shift] += w * x[..., -shift:]
-        return out
+        rows = np.ascontiguousarray(x, dtype=np.float64).reshape(-1, n)
+        return _shift_and_add(rows, np.asarray(kernel, dtype=np.float64), int(first_offset)).reshape(x.shape)
     from scipy.signal import oaconvolve
 
     kern = kernel.reshape((1,) * (x.ndim - 1) + (-1,))

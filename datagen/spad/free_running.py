@@ -14,7 +14,7 @@ import numpy as np
 
 from .arrays import as_rates, check_event_count, row_search
 from .config import DetectorConfig
-from .markov_kernel import scatter_rows, wrapped_survival
+from .markov_kernel import chain_factors, power_rows, transition_rows, window_mass_rows
 from .rates import gate_fraction
 
 __all__ = [
@@ -86,104 +86,44 @@ class _Chain:
     From there the next detection is the first avalanche of the periodic Poisson process: in cell a_j with
     probability 1 − e^{−φ_j q_a}, otherwise distributed by the full-period kernel
     F(b, j') = e^{−(C_{j'} − C_b)} (1 − e^{−q_{j'}}) / (1 − e^{−Λ}) from b = a_j + 1 (whole empty periods
-    summed geometrically).  Applying the transition costs O(cells) per pixel (decayed prefix sums,
-    datagen/spad/markov_kernel.py)."""
+    summed geometrically).  Afterpulsing (a pending afterpulse at live + Exp(τ_ap), cancelled by the next
+    detection) splits the survival from the live point into the branch without one (weight 1 − P_ap, decay C) and
+    the pending one (weight P_ap, decay C + t/τ_ap): K = (1−P)e^{−ΔC}q + P e^{−ΔC−Δt/τ_ap}(q + 1/τ_ap), cell-exact.
+    The factors, the transition (O(cells) per pixel: decayed prefix sums), the power iteration and the window mass
+    are compiled in datagen/spad/markov_kernel.py (:func:`~datagen.spad.markov_kernel.chain_factors`)."""
 
     def __init__(self, q: np.ndarray, edges: np.ndarray, dead_time: float, p_ap: float = 0.0, tau_ap: float = 0.0):
         self.q, self.edges, self.dead_time, self.p_ap, self.tau_ap = q, edges, dead_time, p_ap, tau_ap
-        self.T = edges[-1]
         self.M = q.shape[1]
-        centre = 0.5 * (edges[:-1] + edges[1:])
-        live = np.mod(centre + dead_time, self.T)
-        a = np.clip(np.searchsorted(edges, live, side="right") - 1, 0, self.M - 1)
-        phi = np.clip((edges[a + 1] - live) / (edges[a + 1] - edges[a]), 0.0, 1.0)
-        self.a, self.b = a, (a + 1) % self.M
-        self.p = -np.expm1(-q)
-        self.decay = np.exp(-q)
-        self.lam = q.sum(axis=1)
-        self.one_minus_survival = -np.expm1(-self.lam)
-        qa = q[:, a]
-        self.stay = -np.expm1(-phi[None, :] * qa)   # detect inside the partial cell a_j
-        self.go = np.exp(-phi[None, :] * qa)        # survive it
-        if p_ap > 0:
-            self._afterpulse_terms(phi, qa)
+        self.a, self.b, self.lam, self._all, self._ap_only = chain_factors(
+            np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(edges, dtype=np.float64),
+            float(dead_time), float(p_ap), float(tau_ap))
 
-    def _afterpulse_terms(self, phi: np.ndarray, qa: np.ndarray) -> None:
-        """Afterpulsing (pending afterpulse at live + Exp(τ_ap), cancelled by the next detection): the survival
-        from the live point splits into the no-afterpulse branch (weight 1 − P_ap, decay C) and the pending one
-        (weight P_ap, decay C + t/τ_ap), so K = (1−P)e^{−ΔC}q + P e^{−ΔC−Δt/τ_ap}(q + 1/τ_ap), cell-exact."""
-        p, tau = self.p_ap, self.tau_ap
-        if tau <= 0:  # the afterpulse fires at the live point itself
-            self.stay_all = p + (1 - p) * self.stay
-            self.stay_ap_only = np.full_like(self.stay, p)
-            return
-        k = np.diff(self.edges) / tau                   # afterpulse hazard per cell (pending branch)
-        ka = phi * k[self.a]
-        qk = self.q + k[None, :]
-        self.frac_ap = np.divide(k[None, :], qk, out=np.zeros_like(qk), where=qk > 0)
-        self.p_cell_ap = -np.expm1(-qk)
-        self.decay_ap = np.exp(-qk)
-        self.oms_ap = -np.expm1(-(self.lam + self.T / tau))
-        stay_ap = -np.expm1(-(phi[None, :] * qa + ka[None, :]))
-        self.go_ap = np.exp(-(phi[None, :] * qa + ka[None, :]))
-        self.stay_all = (1 - p) * self.stay + p * stay_ap
-        self.stay_ap_only = p * stay_ap * self.frac_ap[:, self.a]
+    def arguments(self, ap_only: bool = False) -> tuple:
+        """The compiled transition's arguments after the row distributions (markov_kernel.transition_rows):
+        all detections, or only the afterpulses when ``ap_only``."""
+        return (self.a, self.b, *(self._ap_only if ap_only else self._all))
 
-    def step_afterpulse(self, pi: np.ndarray, ap_only: bool = False) -> np.ndarray:
-        """One transition with afterpulsing (all detections, or only the afterpulses when ``ap_only``)."""
-        p = self.p_ap
-        y = scatter_rows(pi * (self.stay_ap_only if ap_only else self.stay_all), self.a)
-        if not ap_only:
-            y += self.p * wrapped_survival(pi * self.go * (1 - p), self.b, self.decay, self.one_minus_survival)
-        if self.tau_ap > 0:
-            ap = self.p_cell_ap * wrapped_survival(pi * self.go_ap * p, self.b, self.decay_ap, self.oms_ap)
-            y += ap * self.frac_ap if ap_only else ap
-        return y
-
-    def step(self, pi: np.ndarray) -> np.ndarray:
-        """One transition of a batch of row distributions pi (pixels, cells)."""
-        if self.p_ap > 0:
-            return self.step_afterpulse(pi)
-        y = scatter_rows(pi * self.stay, self.a)
-        y += self.p * wrapped_survival(pi * self.go, self.b, self.decay, self.one_minus_survival)
-        return y
+    def step(self, pi: np.ndarray, ap_only: bool = False) -> np.ndarray:
+        """One transition of a batch of row distributions pi (pixels, cells): all detections, or only the
+        afterpulses when ``ap_only``."""
+        return transition_rows(np.ascontiguousarray(pi, dtype=np.float64), *self.arguments(ap_only))
 
     def window_mass(self, pi: np.ndarray) -> np.ndarray:
         """(Wπ)_j: mass of detections in (centre_j − τ, centre_j], periodic, π uniform within cells."""
-        cum = np.zeros((pi.shape[0], self.M + 1))
-        np.cumsum(pi, axis=1, out=cum[:, 1:])
-        total = cum[:, -1:]
-        centre = 0.5 * (self.edges[:-1] + self.edges[1:])
-
-        def at(t):
-            k = np.floor(t / self.T)
-            u = t - k * self.T
-            idx = np.clip(np.searchsorted(self.edges, u, side="right") - 1, 0, self.M - 1)
-            frac = (u - self.edges[idx]) / (self.edges[idx + 1] - self.edges[idx])
-            return k[None, :] * total + cum[:, idx] + frac[None, :] * pi[:, idx]
-
-        return at(centre) - at(centre - self.dead_time)
+        return window_mass_rows(np.ascontiguousarray(pi), self.edges, float(self.dead_time))
 
 
 def _stationary(chain: _Chain) -> np.ndarray:
-    """Stationary detection-phase distribution (pixels, cells): vectorised power iteration started from the
-    low-flux guess π ∝ q, then ARPACK for any pixel whose chain mixes too slowly."""
+    """Stationary detection-phase distribution (pixels, cells): power iteration of each pixel started from the
+    low-flux guess π ∝ q (compiled: markov_kernel.power_rows), then ARPACK for any pixel whose chain mixes too
+    slowly."""
     q = chain.q
     pi = q / np.where(chain.lam[:, None] > 0, chain.lam[:, None], 1.0)
-    todo = np.arange(q.shape[0])
-    sub = chain
-    for _ in range(MARKOV_MAX_ITER):
-        nxt = sub.step(pi[todo])
-        s = nxt.sum(axis=1, keepdims=True)
-        nxt /= np.where(s > 0, s, 1.0)
-        diff = np.abs(nxt - pi[todo]).sum(axis=1)
-        pi[todo] = nxt
-        keep = diff >= MARKOV_TOL
-        if not keep.any():
-            return pi
-        if not keep.all():
-            todo = todo[keep]
-            sub = _Chain(q[todo], chain.edges, chain.dead_time, chain.p_ap, chain.tau_ap)
+    done = power_rows(pi, *chain.arguments(), MARKOV_TOL, MARKOV_MAX_ITER)
+    todo = np.flatnonzero(~done)
+    if todo.size == 0:
+        return pi
     from scipy.sparse.linalg import LinearOperator, eigs
 
     for k in todo:  # only for slowly mixing, nearly periodic chains
@@ -225,7 +165,7 @@ def _free_running_nonparalyzable(r2: np.ndarray, config: DetectorConfig) -> tupl
     pi = _stationary(chain)
     wpi = chain.window_mass(pi) if config.dead_time > 0 else np.zeros_like(pi)
     # detections per cycle (dead-fraction identity: photon detections = Λ − ρ·Σ q·Wπ = ρ·(1 − afterpulse fraction))
-    live_photons = 1.0 if p_ap == 0 else 1.0 - chain.step_afterpulse(pi, ap_only=True).sum(axis=1)
+    live_photons = 1.0 if p_ap == 0 else 1.0 - chain.step(pi, ap_only=True).sum(axis=1)
     rho = chain.lam / (live_photons + np.sum(fine_q * wpi, axis=1))
     per_cell = rho[:, None] * pi
     fine_bin = cell_bin[parent]
@@ -303,7 +243,8 @@ def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.nd
                                   f"{list(config.gate)!r}: the expected histogram models afterpulsing without a "
                                   "gate only; average sample_histogram draws")
     solver = _free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable
-    cells = period_cells(r2[:1], config)[1].shape[1]
+    cells = r2.shape[1] + math.ceil(config.period / config.bin_width) + 2   # ≥ period_cells' count; each pixel's
+    # result does not depend on its chunk
     per_pixel = cells * (2 if config.paralyzable else 2 * (config.markov_oversample or 8))
     chunk = max(1, MARKOV_CHUNK_ELEMENTS // per_pixel)
     hist = np.zeros_like(r2)
