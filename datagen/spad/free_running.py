@@ -243,10 +243,12 @@ def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.nd
                                   f"{list(config.gate)!r}: the expected histogram models afterpulsing without a "
                                   "gate only; average sample_histogram draws")
     solver = _free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable
-    cells = r2.shape[1] + math.ceil(config.period / config.bin_width) + 2   # ≥ period_cells' count; each pixel's
-    # result does not depend on its chunk
-    per_pixel = cells * (2 if config.paralyzable else 2 * (config.markov_oversample or 8))
-    chunk = max(1, MARKOV_CHUNK_ELEMENTS // per_pixel)
+    per_cell = 2 if config.paralyzable else 2 * (config.markov_oversample or 8)
+    cells_max = r2.shape[1] + math.ceil(config.period / config.bin_width) + 2     # >= period_cells' count
+    chunk = max(1, MARKOV_CHUNK_ELEMENTS // (per_cell * cells_max))
+    if r2.shape[0] > chunk:   # perhaps more than one chunk: chunks of the exact count (the automatic
+        # oversampling is one factor per chunk, so the chunks decide a pixel's discretisation)
+        chunk = max(1, MARKOV_CHUNK_ELEMENTS // (per_cell * period_cells(r2[:1], config)[1].shape[1]))
     hist = np.zeros_like(r2)
     rho = np.zeros(r2.shape[0])
     for start in range(0, r2.shape[0], chunk):
