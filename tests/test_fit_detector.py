@@ -189,7 +189,8 @@ def test_bad_input_is_a_one_line_error():
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, model="gated")
     with pytest.raises(ConfigError, match=r"fixed: unknown parameter 'dead_time' for model 'pile_up'"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, fixed={"dead_time": 1e-9})
-    with pytest.raises(ConfigError, match=r"afterpulse_time_constant=2e-09: needs model 'free_running' \(got 'pile_up'\)"):
+    with pytest.raises(ConfigError, match=r"afterpulse_time_constant=2e-09: needs model 'free_running' "
+                                          r"\(got 'pile_up'\)"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, afterpulse_time_constant=2e-9)
     with pytest.raises(ConfigError, match=r"covariance='sandwich': must be one of fisher, sandwich, and 'sandwich' "
                                           r"needs model 'free_running' \(got 'pile_up'"):

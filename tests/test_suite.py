@@ -151,3 +151,21 @@ def test_verify_accepts_an_earlier_datagens_build_with_a_note(builds, monkeypatc
                         lambda path: (suite_module.Suite(unlisted, suite.config, suite.path), True))
     problems, _ = verify_suite(root / "a", [])
     assert len(problems) == 1 and problems[0].startswith(f"content hash {ha} differs from suite wall-meshes-v1's")
+
+
+def test_hash_verdict_accepts_the_reference_an_earlier_hash_or_none_recorded_and_names_a_mismatch():
+    import dataclasses
+
+    from datagen.dataset.suite import hash_verdict
+
+    suite = load_suite(suite_names()[0])
+    reference = suite.spec.content_sha256
+    assert reference is not None
+    assert hash_verdict(suite, reference) == (True, "matches the suite's")
+    for earlier in suite.spec.earlier_sha256:
+        ok, text = hash_verdict(suite, earlier)
+        assert ok and "float round-off only" in text and reference in text
+    ok, text = hash_verdict(suite, "0" * 64)
+    assert not ok and text.startswith(f"differs from suite {suite.name}'s {reference}")
+    blank = dataclasses.replace(suite, spec=suite.spec.model_copy(update={"content_sha256": None}))
+    assert hash_verdict(blank, "0" * 64) == (True, f"suite {suite.name} records no content_sha256 yet ({suite.path})")
