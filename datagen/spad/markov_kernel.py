@@ -13,7 +13,8 @@ The transition of a row distribution π (cells,) is
 
 with S the scatter onto the live cells ``a`` (:func:`scatter_rows`) and W_k the wrapped survival from the cells
 ``b`` with decay D_k and 1 − e^{−Λ_k} (:func:`wrapped_survival`): one survival term without afterpulsing, two
-with (the pending afterpulse's own decay); the factors are :class:`datagen.spad.free_running._Chain`'s.
+with (the pending afterpulse's own decay). :func:`chain_factors` builds the factors from the cells' avalanches
+(the chain's model: :class:`datagen.spad.free_running._Chain`).
 """
 from __future__ import annotations
 
