@@ -76,6 +76,43 @@ def test_flood_agrees_with_a_converged_reference():
     assert np.linalg.norm(one.envelope - ref) / np.linalg.norm(ref) > 0.1
 
 
+def test_compiled_primary_with_fov_shadows_equals_the_numpy_path(monkeypatch):
+    """The flood's zones are FoV cells other than its laser points, so the hidden → FoV leg is shadow-tested
+    (shadow_fov: the corridor's walls hide parts of the room from the zones). The compiled primary reads that leg's
+    visibility from a map of one shadow ray per (FoV cell, sub-triangle), as the numpy path casts them: the two
+    agree to 1e-9 (relative L2), with a ray for every lit laser leg or with the exact segment tests, while the numpy
+    envelope without the FoV shadows differs by more than 1e-4."""
+    import dataclasses
+
+    from datagen.transport import quadrature
+
+    original = quadrature.Quadrature.__init__
+
+    def envelope(**attrs):
+        made = []
+
+        def init(self, *args, **kwargs):
+            original(self, *args, **kwargs)
+            for k, v in attrs.items():
+                setattr(self, k, v(self) if callable(v) else v)
+            made.append(self)
+
+        monkeypatch.setattr(quadrature.Quadrature, "__init__", init)
+        result = run(small_room(), 2, 0.1, 2)
+        monkeypatch.undo()
+        return result.envelope, made[0]
+
+    ref, q_ref = envelope(use_compiled=False)
+    rays, q_rays = envelope(segment_tests=False)
+    fast, q_fast = envelope()
+    unshadowed, _ = envelope(use_compiled=False, settings=lambda q: dataclasses.replace(q.settings, shadow_fov=False))
+    assert q_ref.settings.shadow_fov and q_fast.compiled_case() and q_fast.stats.shadow_rays > 0
+    norm = np.linalg.norm(ref)
+    assert norm > 0
+    assert np.linalg.norm(rays - ref) <= 1e-9 * norm and np.linalg.norm(fast - ref) <= 1e-9 * norm
+    assert np.linalg.norm(unshadowed - ref) > 1e-4 * norm
+
+
 def test_uniform_intensity_weights_are_the_patch_solid_angle():
     # emitter on the axis of a 2a × 2b patch at distance d: the share of the central a × b rectangle is the ratio
     # of the solid angles Ω(a, b) = 4·asin(ab / √((a² + d²)(b² + d²))) (half sides a/2, b/2 against a, b)

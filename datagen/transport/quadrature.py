@@ -399,10 +399,11 @@ class Quadrature:
         rv = np.linalg.norm(self.vertices[:, None, :] - spots[None], axis=-1)
         return {"e": e, "r": r, "side": side, "w": w_all, "rv": rv}
 
-    def _target_leg(self, targets: np.ndarray, vertex_distances: bool = True) -> dict:
-        """Per (cell, target): G = cosθ_x,out cosθ_y,in / r² · V(x, y) · collection(y) · dA_y (M, n), distance r
-        (M, n), the side of the cell facing y (M, n), unit direction x → y (M, n, 3) when BRDF angles matter,
-        vertex distances (V, n; None unless ``vertex_distances``) and the FoV → sensor distance (n,)."""
+    def target_leg(self, targets: np.ndarray, vertex_distances: bool = True) -> dict:
+        """Per (cell, target ``targets`` (n,) int, indices of :attr:`targets`): G = cosθ_x,out cosθ_y,in / r² · V(x, y)
+        · collection(y) · dA_y (M, n) (V: a shadow ray from the centroid where ``shadow_fov``), distance r (M, n), the
+        side of the cell facing y (M, n) int8, unit direction x → y (M, n, 3) when BRDF angles matter, vertex
+        distances (V, n; None unless ``vertex_distances``) and the FoV → sensor distance (n,); metres, float64."""
         c, s, legs = self.capture, self.settings, self.physics
         y = self.targets[targets]
         n_t = len(targets)
@@ -522,11 +523,11 @@ class Quadrature:
 
     def compiled_case(self) -> bool:
         """Whether the compiled primary covers these settings: Lambertian or Phong hidden surfaces, Lambertian laser
-        points and relay wall, no ``brdf_angles`` and no shadow rays on the hidden → FoV leg."""
+        points and relay wall, no ``brdf_angles``."""
         m = self.materials
         return bool(m.lambertian[self.capture.spot_objects].all() and not self._wall_angles
                     and np.isin(m.kind[self.cell_object], (LAMBERTIAN, PHONG)).all()
-                    and not self.settings.shadow_fov and not self.settings.brdf_angles)
+                    and not self.settings.brdf_angles)
 
     def _primary_numpy(self, sink: Sink, coarse: Sink | None, progress: Callable[[int], None] | None) -> None:
         """The primary tents into ``sink`` (and the rule at 2h into ``coarse``), in numpy blocks of (cell,
@@ -554,7 +555,7 @@ class Quadrature:
             else:
                 lg = self._laser_leg(u_l)
             shared = self.target_is_laser and np.array_equal(u_t, u_l)
-            tg = self._target_leg(u_t, vertex_distances=not shared)
+            tg = self.target_leg(u_t, vertex_distances=not shared)
             if shared:                                   # the target is the laser point: same vertex distances
                 tg["rv"] = lg["rv"]
             e = lg["e"][:, inv_l]                                          # (M, B)

@@ -30,7 +30,9 @@ numpy path's by such pairs (2e-8 relative on a confocal room scan). Where ``face
 pair gets its ray; with every face so, the two paths agree to round-off (``tests/test_quadrature_kernel.py``: 1e-9). The
 inner side of a closed outward surface (``closed``, :func:`datagen.transport.quadrature_primary.closed_outward`) is never
 lit: no test, no ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of
-a coarse torus's envelope).
+a coarse torus's envelope). Visibility of the hidden → FoV leg (``shadow_fov``: targets other than the laser
+points) comes from a map of one shadow ray per (target, sub-triangle) from its centroid, as the numpy path's
+(:meth:`datagen.transport.quadrature.Quadrature.fov_visible`).
 """
 from __future__ import annotations
 
@@ -212,7 +214,7 @@ CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond", "bound")
 OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "face_ray")
-SHADE = ("use_flags", "flags", "laser_col")
+SHADE = ("use_flags", "flags", "laser_col", "use_fov", "fov_visible")
 """The kernel's inputs by group (tuples; :func:`datagen.transport.quadrature_primary.run_compiled` builds them). The
 kernel unpacks every group once before its loops: arrays taken out of a tuple inside numba's inner loop cost an
 atomic reference count each (measured ~100 ns per pair)."""
@@ -228,7 +230,8 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     slots). The groups of arguments: :data:`WORK`, :data:`GEO`, :data:`POSE`, :data:`CONN`, :data:`LEGS`,
     :data:`GRID` (``grid``, and ``coarse`` for the rule at 2h when ``has_coarse``), :data:`OCC`, :data:`SHADE`
     (where ``use_flags``, a pair (m, l) with ``flags[laser_col[l], m]`` 0 is not blocked without the exact test:
-    :func:`datagen.transport.quadrature_shadow.shadow_flags`)."""
+    :func:`datagen.transport.quadrature_shadow.shadow_flags`; where ``use_fov``, a pair (m, target t) with
+    ``fov_visible[t, m]`` 0 has its FoV leg blocked)."""
     b0, b1 = block
     ray_cell, ray_count, visible, group_ptr, group_conn = work
     vertices, cells, area, comp_base, coarse_of, coarse_cells = geo
@@ -238,7 +241,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond, bound = grid
     ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond, cbound = coarse
     shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
-    use_flags, flags, laser_col = shade
+    use_flags, flags, laser_col, use_fov, fov_visible = shade
     M = centroid.shape[0]
     per_metre, origin = _node_map(speed, t_start, step, shift)
     cper_metre, corigin = _node_map(speed, ct_start, cstep, cshift)
@@ -292,7 +295,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     m = ray_cell[slot + i]
                 else:
                     m = i
-                if not leg_rows[0, m] > 0.0:
+                if not leg_rows[0, m] > 0.0 or (use_fov and fov_visible[t, m] == 0):
                     continue
                 weight = leg_rows[0, m] * _cell_brdf(m, l, t, same, soa, spots, targets, cell_brdf)
                 if not weight > 0.0:

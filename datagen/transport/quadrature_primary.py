@@ -24,7 +24,8 @@ from .quadrature_kernel import candidates, channel_groups, deposit_pairs, face_c
 from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
 from ..vectors import matmul, norm
 
-__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "leg_occluders", "run_compiled", "run_spheres"]
+__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "FOV_MAP_PAIRS", "leg_occluders", "run_compiled",
+           "run_spheres"]
 
 PAIR_TEST_MAX_PAIRS = 1 << 22
 """The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
@@ -49,6 +50,10 @@ PAIR_BLOCK = 1 << 22
 SHADOW_MAP = True
 """Mark per sub-triangle the laser points a candidate occluder may shadow before the pair loop
 (:mod:`.quadrature_shadow`); False runs the exact segment test for every lit pair (the same envelope, slower)."""
+
+FOV_MAP_PAIRS = 1 << 20
+"""(sub-triangle, target) pairs per block of the FoV leg's visibility map (the target leg's (pairs, 3) float64
+temporaries: ≈ 25 MB each)."""
 
 MARGIN_OFFSETS = 8.0
 """The kernel's segment test counts a triangle as possibly blocking within this many ray offsets
@@ -174,6 +179,22 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     return True, flags, laser_col
 
 
+def _fov_map(q) -> tuple[bool, np.ndarray]:
+    """The FoV leg's part of the kernel's :data:`~datagen.transport.quadrature_kernel.SHADE` group: (True,
+    ``fov_visible`` (targets, sub-triangles) uint8, 1 where the target's connection weight is positive with its
+    shadow ray from the centroid: :meth:`~datagen.transport.quadrature.Quadrature.target_leg`) where ``shadow_fov``,
+    else (False, a placeholder). Computed in blocks of at most FOV_MAP_PAIRS pairs."""
+    if not q.settings.shadow_fov:
+        return False, np.zeros((1, 1), dtype=np.uint8)
+    n_t, M = len(q.targets), q.n_cells
+    out = np.zeros((n_t, M), dtype=np.uint8)
+    step = max(1, FOV_MAP_PAIRS // max(M, 1))
+    for start in range(0, n_t, step):
+        t = np.arange(start, min(n_t, start + step))
+        out[t] = (q.target_leg(t, vertex_distances=False)["g"] > 0).T
+    return True, out
+
+
 def _face_candidates(q, front: np.ndarray) -> tuple:
     """(occluders (k,) face ids, face_of (n,), occ_of (n,) pairs of hidden face and index into occluders,
     face-major, and (F,) bool: hidden faces with more than ``MAX_CANDIDATES``) by
@@ -273,7 +294,7 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
     if cached is None or cached[0] != q.segment_tests:     # sub-scan (quadrature_split.refined) and later runs
         q.occluder_cache = cached = (q.segment_tests, *_occluder_lists(q, front))
     occ = cached[1]
-    shade = _shadow_map(q, occ, cached[2], closed)
+    shade = (*_shadow_map(q, occ, cached[2], closed), *_fov_map(q))
     grid = tuple(grid)
     has_coarse = coarse is not None
     coarse = tuple(coarse) if has_coarse else grid
