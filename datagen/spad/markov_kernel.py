@@ -11,10 +11,10 @@ The transition of a row distribution π (cells,) is
 
     y = S(π ⊙ s) + Σ_k P_k ⊙ W_k(π ⊙ g_k)
 
-with S the scatter onto the live cells ``a`` (:func:`scatter_rows`) and W_k the wrapped survival from the cells
-``b`` with decay D_k and 1 − e^{−Λ_k} (:func:`wrapped_survival`): one survival term without afterpulsing, two
-with (the pending afterpulse's own decay). :func:`chain_factors` builds the factors from the cells' avalanches
-(the chain's model: :class:`datagen.spad.free_running._Chain`).
+with S the scatter onto the live cells ``a`` (S(v)_c = Σ_{j: a_j = c} v_j) and W_k the wrapped survival of mass
+entering the cells ``b`` (:func:`_survive`, decay D_k across each cell, 1 − e^{−Λ_k} per period): one survival
+term without afterpulsing, two with (the pending afterpulse's own decay). :func:`chain_factors` builds the
+factors from the cells' avalanches (the chain's model: :class:`datagen.spad.free_running._Chain`).
 """
 from __future__ import annotations
 
@@ -23,31 +23,16 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["scatter_rows", "wrapped_survival", "chain_factors", "transition_rows", "power_rows", "window_mass_rows"]
-
-
-@njit(cache=True)
-def scatter_rows(values: np.ndarray, dest: np.ndarray) -> np.ndarray:
-    """out[p, c] = Σ_{j: dest[j] = c} values[p, j].
-
-    Args:
-        values: float64 (pixels, cells) mass per source cell.
-        dest: int64 (cells,) destination cell of each source cell, 0 ≤ dest < cells.
-    Returns:
-        float64 (pixels, cells).
-    """
-    n_pix, n_cells = values.shape
-    out = np.zeros((n_pix, n_cells))
-    for i in range(n_pix):
-        for j in range(n_cells):
-            out[i, dest[j]] += values[i, j]
-    return out
+__all__ = ["chain_factors", "transition_rows", "power_rows", "window_mass_rows"]
 
 
 @njit(cache=True)
 def _survive(surv: np.ndarray, decay: np.ndarray, oms: float) -> None:
-    """In place: the mass ``surv`` (cells,) entering each cell becomes the survival mass at the start of each cell,
-    first period plus the geometric sum of the later ones (:func:`wrapped_survival`)."""
+    """In place: the mass ``surv`` (cells,) entering each cell becomes the survival mass at the start of each cell
+    over all later periods. The mass decays by ``decay[c]`` = e^{−q_c} across each cell c;
+    U[t] = U[t − 1]·decay[t − 1] + entered[t] runs over two periods, and the second period's mass continues in every
+    later one with the survival e^{−Λ} per period, so it is summed geometrically (÷ ``oms`` = 1 − e^{−Λ}; nothing
+    where Λ = 0, no detection possible)."""
     n_cells = surv.shape[0]
     u = 0.0
     for t in range(n_cells):
@@ -58,30 +43,6 @@ def _survive(surv: np.ndarray, decay: np.ndarray, oms: float) -> None:
     for t in range(n_cells):
         u = u * decay[t - 1] if t > 0 else u * decay[n_cells - 1]
         surv[t] += u / oms
-
-
-@njit(cache=True)
-def wrapped_survival(values: np.ndarray, dest: np.ndarray, decay: np.ndarray, one_minus_survival: np.ndarray
-                     ) -> np.ndarray:
-    """Survival mass at the start of each cell of mass entering the cells ``dest``, over all later periods.
-
-    The mass of source cell j enters at the start of cell dest[j] and decays by decay[p, c] = e^{−q_c} across
-    each cell c. U[t] = U[t − 1]·decay[t − 1] + entered[t] runs over two periods; the second period's mass
-    continues in every later period with the survival factor e^{−Λ} per period, so it is summed geometrically
-    (÷ (1 − e^{−Λ}); zero where Λ = 0, no detection possible).
-
-    Args:
-        values: float64 (pixels, cells) entering mass per source cell.
-        dest: int64 (cells,) cell entered, 0 ≤ dest < cells.
-        decay: float64 (pixels, cells) survival factor across each cell, in (0, 1].
-        one_minus_survival: float64 (pixels,) 1 − e^{−Λ}, Λ the avalanches per period.
-    Returns:
-        float64 (pixels, cells): first-period survival plus the geometric sum of the later periods'.
-    """
-    out = scatter_rows(values, dest)
-    for i in range(values.shape[0]):
-        _survive(out[i], decay[i], one_minus_survival[i])
-    return out
 
 
 @njit(cache=True)
@@ -135,7 +96,7 @@ def chain_factors(q: np.ndarray, edges: np.ndarray, dead_time: float, p_ap: floa
         for j in range(n_cells):
             x = phi[j] * q[i, a[j]]
             stay[i, j] = -math.expm1(-x)
-            go[0, i, j] = math.exp(-x) * (1.0 - p_ap) if p_ap > 0.0 else math.exp(-x)
+            go[0, i, j] = math.exp(-x) * (1.0 - p_ap)
             if p_ap > 0.0 and not pending:
                 stay[i, j] = p_ap + (1.0 - p_ap) * stay[i, j]
         if pending:

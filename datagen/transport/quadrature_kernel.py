@@ -32,7 +32,7 @@ inner side of a closed outward surface (``closed``, :func:`datagen.transport.qua
 lit: no test, no ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of
 a coarse torus's envelope). Visibility of the hidden → FoV leg (``shadow_fov``: targets other than the laser
 points) comes from a map of one shadow ray per (target, sub-triangle) from its centroid, as the numpy path's
-(:meth:`datagen.transport.quadrature.Quadrature.fov_visible`).
+(:meth:`datagen.transport.quadrature.Quadrature.target_leg`).
 """
 from __future__ import annotations
 
