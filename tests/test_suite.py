@@ -162,6 +162,7 @@ def test_hash_verdict_accepts_the_reference_an_earlier_hash_or_none_recorded_and
     reference = suite.spec.content_sha256
     assert reference is not None
     assert hash_verdict(suite, reference) == (True, "matches the suite's")
+    assert suite.spec.earlier_sha256                    # the loop below checks at least one earlier hash
     for earlier in suite.spec.earlier_sha256:
         ok, text = hash_verdict(suite, earlier)
         assert ok and "float round-off only" in text and reference in text
