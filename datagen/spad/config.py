@@ -80,7 +80,8 @@ class DetectorConfig(BaseModel):
         diffusion_fraction: fraction of detections in the diffusion tail (default 1: the low-flux IRF is
             the ex-Gaussian ``exponnorm``; < 1 gives a Gaussian core plus a tail).
         model: ``"poisson" | "pile_up" | "multi_stop" | "free_running"`` (see :mod:`datagen.spad`).
-        markov_oversample: cells per TDC bin of the free-running Markov chain (default: automatic).
+        markov_oversample: cells per TDC bin of the free-running Markov chain (default: automatic, per pixel from
+            its brightest bin).
 
     Raises:
         pydantic.ValidationError (a ValueError): unknown field, bad value or inconsistent combination;

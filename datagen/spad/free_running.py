@@ -48,9 +48,10 @@ EVENT_FLUSH = 4_000_000
 
 
 def period_cells(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cover the whole laser period with cells (shared by the chain and both event simulators): the histogram bins plus background cells before/after the
-    window (avalanche rate ``background_rate`` × gate).  Returns (edges (cells+1,) in s within the period,
-    q (pixels, cells) expected avalanches per cycle, cell_bin (cells,) histogram bin or -1)."""
+    """Cover the whole laser period with cells (shared by the chain and both event simulators): the histogram bins
+    plus background cells before/after the window (avalanche rate ``background_rate`` × gate).  Returns (edges
+    (cells+1,) in s within the period, q (pixels, cells) expected avalanches per cycle, cell_bin (cells,) histogram
+    bin or -1)."""
     bins = r2.shape[1]
     T = config.period
     win = config.bin_edges(bins)
@@ -145,20 +146,44 @@ def _refine_cells(edges: np.ndarray, q: np.ndarray, factor: int) -> tuple[np.nda
     return fine, np.repeat(q / factor, factor, axis=1), np.repeat(np.arange(q.shape[1]), factor)
 
 
-def _auto_oversample(q: np.ndarray, edges: np.ndarray, dead_time: float) -> int:
-    n_cells = q.shape[1]
-    cap = max(1, MARKOV_MAX_STATES // n_cells)
-    need_hazard = math.ceil(float(q.max(initial=0.0)) / MARKOV_CELL_HAZARD) if q.size else 1
-    need_time = math.ceil(8.0 * float(np.diff(edges).max()) / dead_time) if dead_time > 0 else 1
-    return int(min(cap, max(4, need_hazard, need_time)))
+def _oversample(q: np.ndarray, edges: np.ndarray, config: DetectorConfig) -> np.ndarray:
+    """Markov cells per period cell, per pixel (pixels,) int64: ``config.markov_oversample`` when given, else each
+    pixel's own automatic factor (at least 4; its brightest cell below ``MARKOV_CELL_HAZARD`` avalanches per Markov
+    cell, the dead time at least 8 cells of the longest period cell and, with afterpulsing, the afterpulse time
+    constant at least 1 / ``MARKOV_CELL_HAZARD`` of them; rounded up to 2^k or 3·2^(k−1); at most
+    ``MARKOV_MAX_STATES`` cells in all), so that a pixel's discretisation does not depend on the pixels it is
+    computed with."""
+    if config.markov_oversample:
+        return np.full(q.shape[0], int(config.markov_oversample), dtype=np.int64)
+    widest = float(np.diff(edges).max())
+    need = 4
+    if config.dead_time > 0:
+        need = max(need, math.ceil(8.0 * widest / config.dead_time))
+    if config.afterpulse_probability > 0 and config.afterpulse_time_constant > 0:
+        need = max(need, math.ceil(widest / (MARKOV_CELL_HAZARD * config.afterpulse_time_constant)))
+    factor = np.maximum(np.ceil(q.max(axis=1, initial=0.0) / MARKOV_CELL_HAZARD), need)
+    # rounded up to 2^k or 3·2^(k−1) (4, 6, 8, 12, 16, …): a few chains per batch, however varied its pixels
+    k = np.floor(np.log2(factor))
+    factor = np.where(factor <= 2.0 ** k, 2.0 ** k, np.where(factor <= 1.5 * 2.0 ** k, 1.5 * 2.0 ** k, 2.0 ** (k + 1)))
+    return np.minimum(max(1, MARKOV_MAX_STATES // q.shape[1]), factor).astype(np.int64)
 
 
 def _free_running_nonparalyzable(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
     edges, q, cell_bin = period_cells(r2, config)
-    factor = config.markov_oversample or _auto_oversample(q, edges, config.dead_time)
-    if config.afterpulse_probability > 0 and config.afterpulse_time_constant > 0 and not config.markov_oversample:
-        need_ap = math.ceil(float(np.diff(edges).max()) / (MARKOV_CELL_HAZARD * config.afterpulse_time_constant))
-        factor = int(min(max(1, MARKOV_MAX_STATES // q.shape[1]), max(factor, need_ap)))
+    factors = _oversample(q, edges, config)
+    hist = np.zeros_like(r2)
+    rho = np.zeros(r2.shape[0])
+    for factor in np.unique(factors):                 # the pixels of one factor together (the chain is per pixel)
+        rows = np.flatnonzero(factors == factor)
+        hist[rows], rho[rows] = _chain_expected(q[rows], edges, cell_bin, int(factor), r2.shape[1], config)
+    return hist, rho
+
+
+def _chain_expected(q: np.ndarray, edges: np.ndarray, cell_bin: np.ndarray, factor: int, bins: int,
+                    config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(expected detections per cycle per bin (pixels, ``bins``), per cycle (pixels,)), float64, of the pixels
+    ``q`` (pixels, cells) on the period cells ``edges`` / ``cell_bin`` (:func:`period_cells`), each cell cut into
+    ``factor`` Markov cells: the non-paralyzable chain of :func:`free_running_rate`'s doc."""
     fine_edges, fine_q, parent = _refine_cells(edges, q, factor)
     p_ap = config.afterpulse_probability
     chain = _Chain(fine_q, fine_edges, config.dead_time, p_ap, config.afterpulse_time_constant)
@@ -169,7 +194,7 @@ def _free_running_nonparalyzable(r2: np.ndarray, config: DetectorConfig) -> tupl
     rho = chain.lam / (live_photons + np.sum(fine_q * wpi, axis=1))
     per_cell = rho[:, None] * pi
     fine_bin = cell_bin[parent]
-    hist = np.zeros_like(r2)
+    hist = np.zeros((q.shape[0], bins))
     inside = fine_bin >= 0
     np.add.at(hist, (slice(None), fine_bin[inside]), per_cell[:, inside])
     return hist, rho
@@ -246,8 +271,7 @@ def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.nd
     per_cell = 2 if config.paralyzable else 2 * (config.markov_oversample or 8)
     cells_max = r2.shape[1] + math.ceil(config.period / config.bin_width) + 2     # >= period_cells' count
     chunk = max(1, MARKOV_CHUNK_ELEMENTS // (per_cell * cells_max))
-    if r2.shape[0] > chunk:   # perhaps more than one chunk: chunks of the exact count (the automatic
-        # oversampling is one factor per chunk, so the chunks decide a pixel's discretisation)
+    if r2.shape[0] > chunk:   # perhaps more than one chunk: chunks of the exact count
         chunk = max(1, MARKOV_CHUNK_ELEMENTS // (per_cell * period_cells(r2[:1], config)[1].shape[1]))
     hist = np.zeros_like(r2)
     rho = np.zeros(r2.shape[0])
