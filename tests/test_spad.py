@@ -437,16 +437,15 @@ def test_free_running_pixels_of_a_batch_equal_each_pixel_alone(afterpulse):
         assert free_running_rate(r, c) == free_running_rate(rows, c)[i]
 
 
-
 @pytest.mark.parametrize("afterpulse, factor", [((0.0, 0.0), 4), ((0.1, 3e-9), 24)])
 def test_free_running_automatic_oversampling_is_per_pixel(afterpulse, factor):
     """With the automatic oversampling each pixel's chain is cut by its own brightest cell, so a faint pixel has
-    the same bits alone as next to one 25× brighter (whose 0.4 avalanches per cycle in a 1 ns cell need 21 Markov
-    cells per bin at ``MARKOV_CELL_HAZARD`` = 0.02, rounded up to 24), and its histogram equals the one with its own
+    the same bits alone as next to one 100× brighter (whose 1.6 avalanches per cycle in a 1 ns cell need 81 Markov
+    cells per bin at ``MARKOV_CELL_HAZARD`` = 0.02, rounded up to 96), and its histogram equals the one with its own
     factor forced: 4, the floor, or with afterpulsing 24 (the 3 ns afterpulse time constant ≥ 1 / 0.02 Markov
     cells: ceil(1 ns / (0.02 · 3 ns)) = 17, rounded up to 24)."""
     c = free_cfg(dcr=2e6, afterpulse_probability=afterpulse[0], afterpulse_time_constant=afterpulse[1])
-    faint, bright = 0.02 * peaked_rates(), 0.5 * peaked_rates()
+    faint, bright = 0.02 * peaked_rates(), 2.0 * peaked_rates()
     together = expected_histogram(np.stack([faint, bright]), c)
     alone = expected_histogram(faint, c)
     assert np.array_equal(alone, together[0]) and alone.sum() > 0
@@ -454,6 +453,7 @@ def test_free_running_automatic_oversampling_is_per_pixel(afterpulse, factor):
     assert np.array_equal(alone, expected_histogram(faint, c.model_copy(update={"markov_oversample": factor})))
     assert not np.array_equal(alone, expected_histogram(faint, c.model_copy(update={"markov_oversample": 32})))
     assert np.array_equal(expected_histogram(bright, c), together[1])
+
 
 def test_free_running_arpack_fallback_gives_the_same_stationary_distribution(monkeypatch):
     c = free_cfg(dead_time=73.4e-9)
