@@ -270,9 +270,7 @@ def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.nd
     solver = _free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable
     per_cell = 2 if config.paralyzable else 2 * (config.markov_oversample or 8)
     cells_max = r2.shape[1] + math.ceil(config.period / config.bin_width) + 2     # >= period_cells' count
-    chunk = max(1, MARKOV_CHUNK_ELEMENTS // (per_cell * cells_max))
-    if r2.shape[0] > chunk:   # perhaps more than one chunk: chunks of the exact count
-        chunk = max(1, MARKOV_CHUNK_ELEMENTS // (per_cell * period_cells(r2[:1], config)[1].shape[1]))
+    chunk = max(1, MARKOV_CHUNK_ELEMENTS // (per_cell * cells_max))     # memory only: each pixel's chain is its own
     hist = np.zeros_like(r2)
     rho = np.zeros(r2.shape[0])
     for start in range(0, r2.shape[0], chunk):
