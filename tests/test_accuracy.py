@@ -19,7 +19,7 @@ from datagen.cli.main import main
 from datagen.timing import EnvelopeAccumulator
 from datagen.scene import RayCaster
 from datagen.analysis import converged_reference
-from datagen.analysis.reference import peak_time
+from datagen.analysis.reference import REFERENCE_POINT_SECONDS, REFERENCE_SAMPLES, check_reference_size, peak_time
 from datagen.transport import LookinSampler, TransportSettings
 
 EDGES = np.arange(201) * 10e-12
@@ -205,6 +205,44 @@ def test_bench_accuracy_over_dataset_rooms_reports_median_and_p95(tmp_path):
     res = CliRunner().invoke(main, ["bench", "accuracy", "--dataset", "configs/datasets/smoke.yaml", "--samples",
                                     "99", "--out", str(out)])
     assert res.exit_code == 2 and "--samples must be in [1, 8]" in res.output
+
+
+def test_bench_accuracy_refuses_a_scan_whose_reference_outlasts_the_budget(tmp_path):
+    """A scanned capture's Monte Carlo reference runs the area sampler once per laser point and a replica cannot
+    stop half-way (16 × 16 points: ≈ 17 min per replica): the command refuses at once, in one line naming the file,
+    the laser points and what to change, for a scene and for a dataset config, and writes nothing. (Before, both
+    ran past a 60 s --budget for tens of minutes without a word; the tests' hang guard would stop that here.)"""
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["bench", "accuracy", "scene_library/confocal_scan.yaml", "--budget", "60s",
+                                    "--out", str(out)])
+    line = res.output.strip()
+    assert res.exit_code == 2 and "\n" not in line, res.output
+    assert "confocal_scan.yaml" in line and "256 laser points" in line
+    replica = 256 * REFERENCE_POINT_SECONDS                        # 1024 s at the default samples
+    assert f"--budget {int(np.ceil(2 * replica / 60))}min or more" in line
+    assert f"--reference-samples {int(REFERENCE_SAMPLES * 60 / replica)} or fewer" in line
+    assert "bench_scan.py" in line and not out.exists()
+    res = CliRunner().invoke(main, ["bench", "accuracy", "--dataset", "configs/datasets/wall_smoke.yaml",
+                                    "--samples", "2", "--out", str(out)])
+    assert res.exit_code == 2 and "wall_smoke.yaml (train[0])" in res.output and "256 laser points" in res.output
+    assert not out.exists()
+
+
+def test_check_reference_size_projects_laser_points_times_samples():
+    """The projection is laser points × REFERENCE_POINT_SECONDS × samples / REFERENCE_SAMPLES against the budget:
+    the same 256-point scan passes at 1/128 of the samples (8 s of a 60 s budget) and a single laser point passes
+    at the default samples (4 s) but not under a 3 s budget, whose message then has no scan advice."""
+    from datagen.scene import load_scene
+
+    scan = load_scene("scene_library/confocal_scan.yaml")
+    check_reference_size(scan, "scan", REFERENCE_SAMPLES // 128, 60.0)
+    with pytest.raises(ConfigError, match="256 laser points"):
+        check_reference_size(scan, "scan", REFERENCE_SAMPLES // 8, 60.0)        # 128 s
+    room = load_scene("scene_library/demo_room.yaml")
+    check_reference_size(room, "room", REFERENCE_SAMPLES, 60.0)
+    with pytest.raises(ConfigError) as info:
+        check_reference_size(room, "room", REFERENCE_SAMPLES, 3.0)
+    assert "its laser point takes ≈ 4s" in str(info.value) and "bench_scan" not in str(info.value)
 
 
 def test_bench_accuracy_cli_bad_input_is_one_line(tmp_path):

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import time
 from collections.abc import Callable
@@ -43,7 +44,9 @@ __all__ = [
     "REFERENCE_SAMPLER",
     "REFERENCE_SAMPLES",
     "REFERENCE_SEED",
+    "REFERENCE_POINT_SECONDS",
     "Reference",
+    "check_reference_size",
     "converged_reference",
 ]
 
@@ -61,6 +64,47 @@ share no importance-sampling choice with their reference beyond the per-leg phys
 
 REFERENCE_SAMPLES = 1 << 17
 """Hidden samples per replica (per laser point): ~4 s on the demo room on one core, relative L2 ≈ 0.8 %."""
+
+REFERENCE_POINT_SECONDS = 4.0
+"""Rough compute of one reference replica per laser point at :data:`REFERENCE_SAMPLES` hidden samples, seconds
+(2–5 s measured on the smoke, multizone and confocal rooms on the 2-core machine of docs/benchmarks.md). The area
+sampler runs once per laser point and a replica cannot stop half-way, so a scan's replica outlasts any budget:
+≈ 17 min for 16 × 16 points."""
+
+
+def check_reference_size(scene: Scene, where: str, samples: int, budget: float) -> None:
+    """Refuse a capture whose single reference replica is projected to outlast the whole ``budget``
+    (``datagen bench accuracy``): laser points × :data:`REFERENCE_POINT_SECONDS` × samples / REFERENCE_SAMPLES.
+
+    Args:
+        scene: the scene to benchmark. where: what to name in the message (a file, or a dataset config's room).
+        samples: hidden samples per replica and laser point. budget: the command's wall time, seconds.
+    Raises:
+        ConfigError: the projection exceeds ``budget``; the message names ``where``, the laser points, the
+            projection and what to change.
+    """
+    from ..scene import resolve_capture
+
+    n = resolve_capture(scene, RayCaster(scene)).n_lasers
+    replica = n * REFERENCE_POINT_SECONDS * samples / REFERENCE_SAMPLES
+    if replica > budget:
+        fits = int(REFERENCE_SAMPLES * budget / (n * REFERENCE_POINT_SECONDS))
+        points = "laser point" if n == 1 else f"{n} laser points (the area sampler runs once per laser point)"
+        scan = ("; for a scanned capture, measure the quadrature against a quarter of its edge instead "
+                "(python benchmarks/bench_scan.py, docs/scans.md)") if n > 1 else ""
+        raise ConfigError(
+            f"{where}: one reference replica of its {points} takes ≈ {_duration_text(replica)} and cannot stop "
+            f"half-way, more than --budget {_duration_text(budget)}: give --budget {_duration_text(2 * replica)} "
+            f"or more, or --reference-samples {fits} or fewer{scan}")
+
+
+def _duration_text(seconds: float) -> str:
+    """"8s", "17min", "2.5h": whole seconds below 2 min, whole minutes below 2 h, rounded up."""
+    if seconds < 120:
+        return f"{math.ceil(seconds)}s"
+    if seconds < 7200:
+        return f"{math.ceil(seconds / 60)}min"
+    return f"{math.ceil(seconds / 360) / 10:g}h"
 
 
 

@@ -63,7 +63,7 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
     t_start = time.perf_counter()
     from ..analysis.accuracy import (ESTIMATORS, available_estimators, format_table, plot_accuracy, run_accuracy,
                                      write_csv)
-    from ..analysis.reference import REFERENCE_SAMPLES, converged_reference
+    from ..analysis.reference import REFERENCE_SAMPLES, check_reference_size, converged_reference
 
     budget_s = _duration(budget, "--budget")
     ref_budget_s = _duration(reference_budget, "--reference-budget")
@@ -84,6 +84,7 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
     from ..simulation import resolve_config
 
     scene = load_scene(scene_file)
+    check_reference_size(scene, str(scene_file), samples, budget_s)
     config = resolve_config(scene)
     out = out or Path("out") / "bench_accuracy" / scene.name
     rel_tol = rel_tol or 1e-3
@@ -116,6 +117,7 @@ def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_
 
     from ..analysis.rooms_accuracy import (format_rooms_table, plot_rooms, run_rooms_accuracy, summarize,
                                            write_rooms_csv)
+    from ..analysis.reference import check_reference_size
     from ..dataset import load_dataset_config, sample_setup
 
     t0 = time.perf_counter()
@@ -127,6 +129,7 @@ def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_
     if not 1 <= n_samples <= count:
         raise ValueError(f"--samples must be in [1, {count}] (split {split!r} of {dataset_file}), got {n_samples}")
     rooms = [(f"{split}[{i}]", *sample_setup(config, split, i)) for i in range(n_samples)]
+    check_reference_size(rooms[0][1], f"{dataset_file} ({split}[0])", samples, budget_s)   # rooms scan alike
     budget_s -= REPORT_SECONDS
     out = out or Path("out") / "bench_accuracy" / f"dataset_{config.name}"
     share = min(0.5, reference_budget / max(budget_s, 1e-9))          # of each room's share of the budget
