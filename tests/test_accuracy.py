@@ -210,7 +210,8 @@ def test_bench_accuracy_over_dataset_rooms_reports_median_and_p95(tmp_path):
 def test_bench_accuracy_refuses_a_scan_whose_reference_outlasts_the_budget(tmp_path):
     """A scanned capture's Monte Carlo reference runs the area sampler once per laser point and a replica cannot
     stop half-way (16 × 16 points: ≈ 17 min per replica): the command refuses at once, in one line naming the file,
-    the laser points and what to change, for a scene and for a dataset config, and writes nothing. (Before, both
+    the laser points and what to change (--reference quadrature among it), for a scene and for a dataset config,
+    and writes nothing. (Before, both
     ran past a 60 s --budget for tens of minutes without a word; the tests' hang guard would stop that here.)"""
     out = tmp_path / "out"
     res = CliRunner().invoke(main, ["bench", "accuracy", "scene_library/confocal_scan.yaml", "--budget", "60s",
@@ -221,11 +222,53 @@ def test_bench_accuracy_refuses_a_scan_whose_reference_outlasts_the_budget(tmp_p
     replica = 256 * REFERENCE_POINT_SECONDS                        # 1024 s at the default samples
     assert f"--budget {int(np.ceil(2 * replica / 60))}min or more" in line
     assert f"--reference-samples {int(REFERENCE_SAMPLES * 60 / replica)} or fewer" in line
-    assert "bench_scan.py" in line and not out.exists()
+    assert "--reference quadrature" in line and not out.exists()
     res = CliRunner().invoke(main, ["bench", "accuracy", "--dataset", "configs/datasets/wall_smoke.yaml",
                                     "--samples", "2", "--out", str(out)])
     assert res.exit_code == 2 and "wall_smoke.yaml (train[0])" in res.output and "256 laser points" in res.output
     assert not out.exists()
+
+
+def test_bench_accuracy_of_a_scan_dataset_against_the_quadrature_reference(tmp_path):
+    """--reference quadrature: each room's quadrature ladder (4× the config's edge down to it, factors of √2, the
+    grading ratio scaled with the edge) against the quadrature at a quarter of the config's edge. confocal_smoke's
+    8 × 8 rooms: the error falls as h² (the 1 m → 0.5 m steps differ by 2–8×, 3.5× measured), the finest step is
+    the config's edge, and each reference states its own error far below that step's."""
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["bench", "accuracy", "--dataset", "configs/datasets/confocal_smoke.yaml",
+                                    "--samples", "2", "--reference", "quadrature", "--budget", "120s",
+                                    "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    with (out / "accuracy.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    summary = {r["setting"]: r for r in rows if r["kind"] == "summary"}
+    assert list(summary) == ["h=2 m", "h=1.41 m", "h=1 m", "h=0.707 m", "h=0.5 m"]      # edge 0.5 m × 4 … × 1
+    assert all(r["estimator"] == "quadrature" and r["rooms"] == "2" for r in summary.values())
+    err = {k: float(v["rel_l2"]) for k, v in summary.items()}
+    assert 2.0 < err["h=1 m"] / err["h=0.5 m"] < 8.0
+    for r in rows:
+        if r["kind"] == "room" and r["setting"] == "h=0.5 m":
+            assert float(r["reference_error"]) < float(r["rel_l2"]) / 4
+    assert "reference quadrature h = 0.125 m" in res.output
+
+
+def test_bench_accuracy_quadrature_reference_on_a_scene_and_its_bad_input(tmp_path):
+    """The scene form of --reference quadrature writes the ladder's CSV; other estimators, --reference-edge without
+    it, and a reference edge too coarse for any step are one-line errors."""
+    scene = tiny_scene_yaml(tmp_path / "tiny.yaml")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--reference", "quadrature",
+                                    "--reference-edge", "0.01", "--budget", "60s", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    with (out / "accuracy.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert rows and {r["estimator"] for r in rows} == {"quadrature"}
+    assert float(rows[-1]["rel_l2"]) < float(rows[0]["rel_l2"])
+    for args, words in ((["--reference", "quadrature", "--estimators", "area"], "quadrature's ladder only"),
+                        (["--reference-edge", "0.01"], "goes with --reference quadrature"),
+                        (["--reference", "quadrature", "--reference-edge", "9"], "would be coarser")):
+        res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), *args, "--out", str(out)])
+        assert res.exit_code == 2 and words in res.output and res.output.count("\n") == 1, res.output
 
 
 def test_check_reference_size_projects_laser_points_times_samples():
@@ -242,7 +285,7 @@ def test_check_reference_size_projects_laser_points_times_samples():
     check_reference_size(room, "room", REFERENCE_SAMPLES, 60.0)
     with pytest.raises(ConfigError) as info:
         check_reference_size(room, "room", REFERENCE_SAMPLES, 3.0)
-    assert "its laser point takes ≈ 4s" in str(info.value) and "bench_scan" not in str(info.value)
+    assert "its laser point takes ≈ 4s" in str(info.value) and "--reference quadrature" not in str(info.value)
 
 
 def test_bench_accuracy_cli_bad_input_is_one_line(tmp_path):

@@ -10,6 +10,9 @@ imported from its module.
   (:func:`run_accuracy`, ``datagen bench accuracy``).
 - :mod:`.reference`: the converged reference (:func:`converged_reference`: the area sampler averaged over
   replicas until its own error estimate meets ``rel_tol``; cached).
+- :mod:`.scan_accuracy`: a scan's benchmark, whose Monte Carlo reference would run once per laser point: the
+  quadrature's edge ladder against the quadrature at a quarter of the config's edge (``--reference quadrature``).
+- :mod:`.rooms_accuracy`: the benchmark over a dataset's rooms (``--dataset CONFIG``), median and p95 per setting.
 - :mod:`.oracle`: the brute-force area quadrature the tests use as an independent oracle; deliberately written
   without the transport code.
 - :mod:`.adaptive`: the analysis-layer names of simulating to a tolerance (the loop itself is

@@ -243,7 +243,8 @@ def pareto_front(rows: list[AccuracyRow]) -> list[AccuracyRow]:
 
 def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float = 60.0,
                  estimators: tuple[str, ...] | None = None, seed: int = 0,
-                 echo: Callable[[str], None] | None = None, caster: RayCaster | None = None) -> list[AccuracyRow]:
+                 echo: Callable[[str], None] | None = None, caster: RayCaster | None = None,
+                 ladder_table: dict[str, Ladder] | None = None) -> list[AccuracyRow]:
     """Run every estimator over its ladder within ``budget`` seconds of wall time for all of them together.
 
     Each estimator gets the time left divided by the estimators left (time one does not use passes to the next).
@@ -258,6 +259,8 @@ def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float 
         budget: wall seconds for every estimator's ladder together (the reference not included).
         estimators: names from :func:`available_estimators` (default :data:`ESTIMATORS`).
         echo: called with one line per finished run.
+        ladder_table: ladders by name that replace or add to :func:`ladders` (e.g. a scan's quadrature ladder,
+            :func:`datagen.analysis.scan_accuracy.scan_ladder`).
     Returns:
         Rows in run order, Pareto front marked.
     Raises:
@@ -266,7 +269,8 @@ def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float 
     from ..simulation import resolve_config
 
     config = config or resolve_config(scene)
-    known, table = available_estimators(), ladders()
+    table = {**ladders(), **(ladder_table or {})}
+    known = available_estimators() + tuple(n for n in table if n not in available_estimators())
     names = tuple(estimators or ESTIMATORS)
     unknown = [n for n in names if n not in known]
     if unknown:

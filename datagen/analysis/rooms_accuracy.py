@@ -21,9 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from ..scene import Scene
+from ..scene import RayCaster, Scene
 from .accuracy import LADDERS, AccuracyRow, loglog_axes, run_accuracy, save_loglog
 from .reference import REFERENCE_SAMPLES, Reference, converged_reference
+from .scan_accuracy import quadrature_reference, scan_ladder
 
 __all__ = ["RoomRow", "SettingSummary", "format_rooms_table", "plot_rooms", "run_rooms_accuracy", "summarize",
            "write_rooms_csv"]
@@ -56,7 +57,8 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
                        estimators: tuple[str, ...] | None = None, rel_tol: float = 3e-3,
                        cache_dir: str | Path | None = None, reference_share: float = 0.5,
                        reference_samples: int = REFERENCE_SAMPLES, seed: int = 0,
-                       echo: Callable[[str], None] | None = None) -> tuple[list[RoomRow], list[Reference]]:
+                       echo: Callable[[str], None] | None = None, reference: str = "area",
+                       reference_edge: float | None = None) -> tuple[list[RoomRow], list[Reference]]:
     """The accuracy ladders on every room within ``budget`` wall seconds in all (module docstring).
 
     Args:
@@ -66,6 +68,9 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
         rel_tol: target of each reference's error estimate; cache_dir: the references' cache.
         reference_share: most of a room's share of the budget its reference may take, in (0, 1].
         echo: called with a line per reference and per finished step.
+        reference: "area" (the Monte Carlo reference) or "quadrature" (a scan's: the quadrature ladder against the
+            quadrature at ``reference_edge``, default a quarter of the config's edge;
+            :mod:`datagen.analysis.scan_accuracy`; ``estimators`` is then ("quadrature",)).
     Returns:
         (rows of every room, in run order; the references used).
     Raises:
@@ -77,6 +82,8 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
         raise ConfigError(f"budget must be > 0 seconds, got {budget!r}")
     if not 0 < reference_share <= 1:
         raise ConfigError(f"reference_share must be in (0, 1], got {reference_share!r}")
+    if reference not in ("area", "quadrature"):
+        raise ConfigError(f"reference must be 'area' or 'quadrature', got {reference!r}")
     end = time.perf_counter() + budget
     rows: list[RoomRow] = []
     references: list[Reference] = []
@@ -87,19 +94,29 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
                 echo(f"{name}: skipped (budget spent)")
             continue
         t0 = time.perf_counter()
-        ref = converged_reference(scene, config, rel_tol=rel_tol, cache_dir=cache_dir, samples=reference_samples,
-                                  max_seconds=reference_share * share, min_replicas=2)
-        if echo is not None:
-            status = "converged" if ref.converged else f"NOT converged to {rel_tol:g}"
-            echo(f"{name}: reference {ref.replicas} replicas, error estimate {ref.error_estimate['rel_l2']:.2e} "
-                 f"({status})")
-        if ref.replicas < 2:
+        table = None
+        if reference == "quadrature":
+            caster = RayCaster(scene)
+            ladder, step = scan_ladder(scene, config, reference_edge, caster)
+            ref, table = quadrature_reference(scene, config, step, caster), {"quadrature": ladder}
+            if echo is not None:
+                echo(f"{name}: reference quadrature h = {step['edge']:.3g} m ({ref.seconds:.1f} s), error estimate "
+                     f"{ref.error_estimate['rel_l2']:.2e}")
+        else:
+            ref = converged_reference(scene, config, rel_tol=rel_tol, cache_dir=cache_dir,
+                                      samples=reference_samples, max_seconds=reference_share * share, min_replicas=2)
+            if echo is not None:
+                status = "converged" if ref.converged else f"NOT converged to {rel_tol:g}"
+                echo(f"{name}: reference {ref.replicas} replicas, error estimate {ref.error_estimate['rel_l2']:.2e} "
+                     f"({status})")
+        if table is None and ref.replicas < 2:        # a Monte Carlo reference without its own error
             continue
         references.append(ref)
         left = min(share - (time.perf_counter() - t0), end - time.perf_counter())
         if left <= 0:
             continue
-        for row in run_accuracy(scene, ref, config, budget=left, estimators=estimators, seed=seed, echo=echo):
+        for row in run_accuracy(scene, ref, config, budget=left, seed=seed, echo=echo, ladder_table=table,
+                                estimators=("quadrature",) if table else estimators):
             rows.append(RoomRow(name, ref.error_estimate["rel_l2"], row))
     return rows, references
 
@@ -116,10 +133,12 @@ def summarize(rows: list[RoomRow]) -> list[SettingSummary]:
         e = np.array([g.rel_l2 for g in group])
         out.append(SettingSummary(estimator, setting, len(group), float(np.median(t)), float(np.percentile(t, 95)),
                                   float(np.median(e)), float(np.percentile(e, 95)), float(e.max())))
+    seen = {key: i for i, key in enumerate(groups)}       # run order: a ladder's steps as they ran
+
     def step(s: SettingSummary) -> int:
         ladder = LADDERS.get(s.estimator)
         names = [ladder.describe(st) for st in ladder.ladder] if ladder is not None else []
-        return names.index(s.setting) if s.setting in names else len(names)
+        return names.index(s.setting) if s.setting in names else len(names) + seen[(s.estimator, s.setting)]
 
     return sorted(out, key=lambda s: (order.get(s.estimator, len(order)), step(s), s.seconds_median))
 

@@ -52,9 +52,15 @@ def bench():
 @click.option("--cache-dir", default=None, type=click.Path(path_type=Path),
               help="reference cache (default $DATAGEN_CACHE or ~/.cache/datagen, /references)")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="seed of the estimator runs")
+@click.option("--reference", "reference_kind", default="area", show_default=True,
+              type=click.Choice(["area", "quadrature"]),
+              help="area: the Monte Carlo reference, once per laser point; quadrature (scanned captures): the "
+                   "quadrature's edge ladder against the quadrature at --reference-edge")
+@click.option("--reference-edge", default=None, type=float,
+              help="with --reference quadrature: the reference's edge, m (default a quarter of the config's)")
 @friendly_errors
 def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators, rel_tol, reference_budget,
-             reference_samples, cache_dir, seed):
+             reference_samples, cache_dir, seed, reference_kind, reference_edge):
     """Error of L(t) against wall time for each estimator, on SCENE_FILE or on --samples rooms of a --dataset
     config: writes accuracy.csv and accuracy.png (log-log; the Pareto front for a scene, median and p95 over the
     rooms for a dataset) and prints the table. --budget bounds the whole command."""
@@ -74,20 +80,31 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
         raise ValueError(f"--estimators: unknown estimator(s) {unknown}; known: {', '.join(known)}")
     if (scene_file is None) == (dataset_file is None):
         raise ValueError("give a SCENE_FILE or --dataset CONFIG (one of them)")
+    if reference_kind == "quadrature":
+        if estimators and names != ("quadrature",):
+            raise ValueError(f"--reference quadrature runs the quadrature's ladder only (the other estimators run once "
+                             f"per laser point), got --estimators {estimators}")
+        names = ("quadrature",)
+    elif reference_edge is not None:
+        raise ValueError("--reference-edge goes with --reference quadrature")
     cache = cache_dir or default_cache_dir()
     samples = reference_samples or REFERENCE_SAMPLES
     if dataset_file is not None:
         _dataset_accuracy(dataset_file, n_samples, split, budget_s - (time.perf_counter() - t_start), out, names,
-                          rel_tol or 3e-3, cache, samples, seed, min(ref_budget_s, 0.5 * budget_s))
+                          rel_tol or 3e-3, cache, samples, seed, min(ref_budget_s, 0.5 * budget_s), reference_kind,
+                          reference_edge)
         return
     from ..scene import load_scene
     from ..simulation import resolve_config
 
     scene = load_scene(scene_file)
-    check_reference_size(scene, str(scene_file), samples, budget_s)
     config = resolve_config(scene)
     out = out or Path("out") / "bench_accuracy" / scene.name
     rel_tol = rel_tol or 1e-3
+    if reference_kind == "quadrature":
+        _scene_scan_accuracy(scene, config, reference_edge, budget_s - (time.perf_counter() - t_start), out, seed)
+        return
+    check_reference_size(scene, str(scene_file), samples, budget_s)
 
     def report(r, est):
         click.echo(f"reference replica {r}: error estimate rel L2 {est['rel_l2']:.2e}, total {est['total']:.2e}, "
@@ -111,8 +128,36 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
     click.echo(f"wrote {csv_path}, {png_path} ({time.perf_counter() - t_start:.1f} s of a {budget_s:g} s budget)")
 
 
+def _scene_scan_accuracy(scene, config, reference_edge, budget_s, out, seed):
+    """``--reference quadrature`` on one scene: the scan's quadrature ladder against the quadrature at the
+    reference edge (:mod:`datagen.analysis.scan_accuracy`)."""
+    import time
+
+    from ..analysis.accuracy import format_table, plot_accuracy, run_accuracy, write_csv
+    from ..analysis.scan_accuracy import quadrature_reference, scan_ladder
+    from ..scene import RayCaster
+
+    t_start = time.perf_counter()
+    caster = RayCaster(scene)
+    ladder, step = scan_ladder(scene, config, reference_edge, caster)
+    reference = quadrature_reference(scene, config, step, caster)
+    click.echo(f"reference: quadrature h = {step['edge']:.3g} m, {reference.seconds:.1f} s; its error estimate "
+               f"‖P(h) − P(2h)‖/3 = {reference.error_estimate['rel_l2']:.2e}")
+    left = budget_s - (time.perf_counter() - t_start) - REPORT_SECONDS
+    if left <= 0:
+        raise ValueError(f"--budget was spent on the reference ({reference.seconds:.0f} s); give more, or a coarser "
+                         f"--reference-edge")
+    rows = run_accuracy(scene, reference, config, budget=left, estimators=("quadrature",), seed=seed,
+                        echo=click.echo, caster=caster, ladder_table={"quadrature": ladder})
+    csv_path = write_csv(rows, out / "accuracy.csv")
+    png_path = plot_accuracy(rows, out / "accuracy.png", reference,
+                             title=f"{scene.name}: quadrature error of L(t) vs time")
+    click.echo(format_table(rows))
+    click.echo(f"wrote {csv_path}, {png_path}")
+
+
 def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_tol, cache, samples, seed,
-                      reference_budget):
+                      reference_budget, reference_kind="area", reference_edge=None):
     import time
 
     from ..analysis.rooms_accuracy import (format_rooms_table, plot_rooms, run_rooms_accuracy, summarize,
@@ -129,21 +174,24 @@ def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_
     if not 1 <= n_samples <= count:
         raise ValueError(f"--samples must be in [1, {count}] (split {split!r} of {dataset_file}), got {n_samples}")
     rooms = [(f"{split}[{i}]", *sample_setup(config, split, i)) for i in range(n_samples)]
-    check_reference_size(rooms[0][1], f"{dataset_file} ({split}[0])", samples, budget_s)   # rooms scan alike
+    if reference_kind == "area":
+        check_reference_size(rooms[0][1], f"{dataset_file} ({split}[0])", samples, budget_s)   # rooms scan alike
     budget_s -= REPORT_SECONDS
     out = out or Path("out") / "bench_accuracy" / f"dataset_{config.name}"
     share = min(0.5, reference_budget / max(budget_s, 1e-9))          # of each room's share of the budget
     rows, refs = run_rooms_accuracy(rooms, budget_s - (time.perf_counter() - t0), estimators=names, rel_tol=rel_tol,
                                     cache_dir=cache, reference_share=max(share, 1e-3), reference_samples=samples,
-                                    seed=seed, echo=click.echo)
+                                    seed=seed, echo=click.echo, reference=reference_kind,
+                                    reference_edge=reference_edge)
     summary = summarize(rows)
     csv_path = write_rooms_csv(rows, summary, out / "accuracy.csv")
     png_path = plot_rooms(summary, out / "accuracy.png",
                           title=f"{config.name}: error of L(t) vs time over {len(refs)} rooms of {split!r}")
     ref_err = [r.error_estimate["rel_l2"] for r in refs]
-    click.echo(f"references: {len(refs)} rooms, error estimate median {np.median(ref_err) if ref_err else float('nan'):.2e}, "
-               f"max {max(ref_err) if ref_err else float('nan'):.2e}; {sum(r.converged for r in refs)} converged to "
-               f"{rel_tol:g}")
+    converged = (f"; {sum(r.converged for r in refs)} converged to {rel_tol:g}" if reference_kind == "area" else
+                 " (the quadrature at the reference edge, ‖P(h) − P(2h)‖/3)")
+    median, largest = (float(np.median(ref_err)), max(ref_err)) if ref_err else (float("nan"), float("nan"))
+    click.echo(f"references: {len(refs)} rooms, error estimate median {median:.2e}, max {largest:.2e}{converged}")
     click.echo(format_rooms_table(summary))
     click.echo(f"wrote {csv_path}, {png_path}")
 
