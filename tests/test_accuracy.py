@@ -210,7 +210,7 @@ def test_bench_accuracy_over_dataset_rooms_reports_median_and_p95(tmp_path):
 def test_bench_accuracy_refuses_a_scan_whose_reference_outlasts_the_budget(tmp_path):
     """A scanned capture's Monte Carlo reference runs the area sampler once per laser point and a replica cannot
     stop half-way (16 × 16 points: ≈ 17 min per replica): the command refuses at once, in one line naming the file,
-    the laser points and what to change (--reference quadrature among it), for a scene and for a dataset config,
+    the laser points and what to change (--quadrature-reference among it), for a scene and for a dataset config,
     and writes nothing. (Before, both
     ran past a 60 s --budget for tens of minutes without a word; the tests' hang guard would stop that here.)"""
     out = tmp_path / "out"
@@ -222,7 +222,7 @@ def test_bench_accuracy_refuses_a_scan_whose_reference_outlasts_the_budget(tmp_p
     replica = 256 * REFERENCE_POINT_SECONDS                        # 1024 s at the default samples
     assert f"--budget {int(np.ceil(2 * replica / 60))}min or more" in line
     assert f"--reference-samples {int(REFERENCE_SAMPLES * 60 / replica)} or fewer" in line
-    assert "--reference quadrature" in line and not out.exists()
+    assert "--quadrature-reference" in line and not out.exists()
     res = CliRunner().invoke(main, ["bench", "accuracy", "--dataset", "configs/datasets/wall_smoke.yaml",
                                     "--samples", "2", "--out", str(out)])
     assert res.exit_code == 2 and "wall_smoke.yaml (train[0])" in res.output and "256 laser points" in res.output
@@ -230,13 +230,13 @@ def test_bench_accuracy_refuses_a_scan_whose_reference_outlasts_the_budget(tmp_p
 
 
 def test_bench_accuracy_of_a_scan_dataset_against_the_quadrature_reference(tmp_path):
-    """--reference quadrature: each room's quadrature ladder (4× the config's edge down to it, factors of √2, the
+    """--quadrature-reference: each room's quadrature ladder (4× the config's edge down to it, factors of √2, the
     grading ratio scaled with the edge) against the quadrature at a quarter of the config's edge. confocal_smoke's
     8 × 8 rooms: the error falls as h² (the 1 m → 0.5 m steps differ by 2–8×, 3.5× measured), the finest step is
     the config's edge, and each reference states its own error far below that step's."""
     out = tmp_path / "out"
     res = CliRunner().invoke(main, ["bench", "accuracy", "--dataset", "configs/datasets/confocal_smoke.yaml",
-                                    "--samples", "2", "--reference", "quadrature", "--budget", "120s",
+                                    "--samples", "2", "--quadrature-reference", "--budget", "120s",
                                     "--out", str(out)])
     assert res.exit_code == 0, res.output
     with (out / "accuracy.csv").open() as fh:
@@ -253,20 +253,20 @@ def test_bench_accuracy_of_a_scan_dataset_against_the_quadrature_reference(tmp_p
 
 
 def test_bench_accuracy_quadrature_reference_on_a_scene_and_its_bad_input(tmp_path):
-    """The scene form of --reference quadrature writes the ladder's CSV; other estimators, --reference-edge without
+    """The scene form of --quadrature-reference writes the ladder's CSV; other estimators, --reference-edge without
     it, and a reference edge too coarse for any step are one-line errors."""
     scene = tiny_scene_yaml(tmp_path / "tiny.yaml")
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--reference", "quadrature",
+    res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--quadrature-reference",
                                     "--reference-edge", "0.01", "--budget", "60s", "--out", str(out)])
     assert res.exit_code == 0, res.output
     with (out / "accuracy.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     assert rows and {r["estimator"] for r in rows} == {"quadrature"}
     assert float(rows[-1]["rel_l2"]) < float(rows[0]["rel_l2"])
-    for args, words in ((["--reference", "quadrature", "--estimators", "area"], "quadrature's ladder only"),
-                        (["--reference-edge", "0.01"], "goes with --reference quadrature"),
-                        (["--reference", "quadrature", "--reference-edge", "9"], "would be coarser")):
+    for args, words in ((["--quadrature-reference", "--estimators", "area"], "quadrature's ladder only"),
+                        (["--reference-edge", "0.01"], "goes with --quadrature-reference"),
+                        (["--quadrature-reference", "--reference-edge", "9"], "would be coarser")):
         res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), *args, "--out", str(out)])
         assert res.exit_code == 2 and words in res.output and res.output.count("\n") == 1, res.output
 
@@ -285,7 +285,7 @@ def test_check_reference_size_projects_laser_points_times_samples():
     check_reference_size(room, "room", REFERENCE_SAMPLES, 60.0)
     with pytest.raises(ConfigError) as info:
         check_reference_size(room, "room", REFERENCE_SAMPLES, 3.0)
-    assert "its laser point takes ≈ 4s" in str(info.value) and "--reference quadrature" not in str(info.value)
+    assert "its laser point takes ≈ 4s" in str(info.value) and "--quadrature-reference" not in str(info.value)
 
 
 def test_bench_accuracy_cli_bad_input_is_one_line(tmp_path):

@@ -11,7 +11,7 @@ imported from its module.
 - :mod:`.reference`: the converged reference (:func:`converged_reference`: the area sampler averaged over
   replicas until its own error estimate meets ``rel_tol``; cached).
 - :mod:`.scan_accuracy`: a scan's benchmark, whose Monte Carlo reference would run once per laser point: the
-  quadrature's edge ladder against the quadrature at a quarter of the config's edge (``--reference quadrature``).
+  quadrature's edge ladder against the quadrature at a quarter of the config's edge (``--quadrature-reference``).
 - :mod:`.rooms_accuracy`: the benchmark over a dataset's rooms (``--dataset CONFIG``), median and p95 per setting.
 - :mod:`.oracle`: the brute-force area quadrature the tests use as an independent oracle; deliberately written
   without the transport code.

@@ -81,8 +81,8 @@ def check_reference_size(scene: Scene, where: str, samples: int, budget: float) 
         samples: hidden samples per replica and laser point. budget: the command's wall time, seconds.
     Raises:
         ConfigError: the projection exceeds ``budget``; the message names ``where``, the laser points, the
-            projection and what to change (a larger budget, fewer samples, or for a scan ``--reference
-            quadrature``: :mod:`datagen.analysis.scan_accuracy`).
+            projection and what to change (a larger budget, fewer samples, or for a scan
+            ``--quadrature-reference``: :mod:`datagen.analysis.scan_accuracy`).
     """
     from ..scene import resolve_capture
 
@@ -91,7 +91,7 @@ def check_reference_size(scene: Scene, where: str, samples: int, budget: float) 
     if replica > budget:
         fits = int(REFERENCE_SAMPLES * budget / (n * REFERENCE_POINT_SECONDS))
         points = "laser point" if n == 1 else f"{n} laser points (the area sampler runs once per laser point)"
-        scan = ("; or, for a scanned capture, --reference quadrature (the quadrature against a quarter of its "
+        scan = ("; or, for a scanned capture, --quadrature-reference (the quadrature against a quarter of its "
                 "edge)") if n > 1 else ""
         raise ConfigError(
             f"{where}: one reference replica of its {points} takes ≈ {_duration_text(replica)} and cannot stop "

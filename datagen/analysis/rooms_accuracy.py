@@ -24,7 +24,7 @@ from ..errors import ConfigError
 from ..scene import RayCaster, Scene
 from .accuracy import LADDERS, AccuracyRow, loglog_axes, run_accuracy, save_loglog
 from .reference import REFERENCE_SAMPLES, Reference, converged_reference
-from .scan_accuracy import quadrature_reference, scan_ladder
+from .scan_accuracy import SCAN_LADDER, quadrature_reference, scan_ladder
 
 __all__ = ["RoomRow", "SettingSummary", "format_rooms_table", "plot_rooms", "run_rooms_accuracy", "summarize",
            "write_rooms_csv"]
@@ -57,7 +57,7 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
                        estimators: tuple[str, ...] | None = None, rel_tol: float = 3e-3,
                        cache_dir: str | Path | None = None, reference_share: float = 0.5,
                        reference_samples: int = REFERENCE_SAMPLES, seed: int = 0,
-                       echo: Callable[[str], None] | None = None, reference: str = "area",
+                       echo: Callable[[str], None] | None = None, scan_reference: bool = False,
                        reference_edge: float | None = None) -> tuple[list[RoomRow], list[Reference]]:
     """The accuracy ladders on every room within ``budget`` wall seconds in all (module docstring).
 
@@ -68,9 +68,9 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
         rel_tol: target of each reference's error estimate; cache_dir: the references' cache.
         reference_share: most of a room's share of the budget its reference may take, in (0, 1].
         echo: called with a line per reference and per finished step.
-        reference: "area" (the Monte Carlo reference) or "quadrature" (a scan's: the quadrature ladder against the
-            quadrature at ``reference_edge``, default a quarter of the config's edge;
-            :mod:`datagen.analysis.scan_accuracy`; ``estimators`` is then ("quadrature",)).
+        scan_reference: False, the Monte Carlo reference; True, a scan's: the quadrature's ladder against the
+            quadrature at ``reference_edge``, default a quarter of the config's edge
+            (:mod:`datagen.analysis.scan_accuracy`; ``estimators`` is then that ladder alone).
     Returns:
         (rows of every room, in run order; the references used).
     Raises:
@@ -82,8 +82,6 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
         raise ConfigError(f"budget must be > 0 seconds, got {budget!r}")
     if not 0 < reference_share <= 1:
         raise ConfigError(f"reference_share must be in (0, 1], got {reference_share!r}")
-    if reference not in ("area", "quadrature"):
-        raise ConfigError(f"reference must be 'area' or 'quadrature', got {reference!r}")
     end = time.perf_counter() + budget
     rows: list[RoomRow] = []
     references: list[Reference] = []
@@ -95,10 +93,10 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
             continue
         t0 = time.perf_counter()
         table = None
-        if reference == "quadrature":
+        if scan_reference:
             caster = RayCaster(scene)
             ladder, step = scan_ladder(scene, config, reference_edge, caster)
-            ref, table = quadrature_reference(scene, config, step, caster), {"quadrature": ladder}
+            ref, table = quadrature_reference(scene, config, step, caster), {SCAN_LADDER: ladder}
             if echo is not None:
                 echo(f"{name}: reference quadrature h = {step['edge']:.3g} m ({ref.seconds:.1f} s), error estimate "
                      f"{ref.error_estimate['rel_l2']:.2e}")
@@ -116,7 +114,7 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
         if left <= 0:
             continue
         for row in run_accuracy(scene, ref, config, budget=left, seed=seed, echo=echo, ladder_table=table,
-                                estimators=("quadrature",) if table else estimators):
+                                estimators=(SCAN_LADDER,) if table else estimators):
             rows.append(RoomRow(name, ref.error_estimate["rel_l2"], row))
     return rows, references
 

@@ -1,5 +1,5 @@
 """What accuracy costs on a scanned capture: the quadrature's edge ladder against the quadrature at a quarter of its
-finest edge (``datagen bench accuracy --reference quadrature``; docs/accuracy.md).
+finest edge (``datagen bench accuracy --quadrature-reference``; docs/accuracy.md).
 
 The Monte Carlo reference of :mod:`datagen.analysis.reference` runs the area sampler once per laser point, which a
 scan of hundreds of points cannot afford (:func:`datagen.analysis.reference.check_reference_size`). A scan's
@@ -27,7 +27,10 @@ from ..transport import estimator as transport_estimator
 from .accuracy import Ladder, relative_l2, run_estimator
 from .reference import Reference
 
-__all__ = ["LADDER_BOTTOM", "LADDER_TOP", "quadrature_reference", "scan_ladder"]
+__all__ = ["LADDER_BOTTOM", "LADDER_TOP", "SCAN_LADDER", "quadrature_reference", "scan_ladder"]
+
+SCAN_LADDER = "quadrature"
+"""The registered estimator the scan's ladder runs, and the ladder's name in the benchmark's tables."""
 
 LADDER_TOP = 4.0
 """The coarsest step's edge over the config's edge."""
@@ -37,12 +40,13 @@ LADDER_BOTTOM = 4.0
 
 
 def _base(config) -> tuple[float, float | None]:
-    """(edge m, grading ratio or None) of the config's quadrature, or the quadrature's defaults for another
-    estimator."""
+    """(edge m, grading ratio or None) of the config's estimator when it has an edge (the quadrature's options),
+    else the quadrature's defaults."""
     est = config.estimator
-    if getattr(est, "kind", None) == "quadrature":
-        return float(est.edge), (None if est.grading is None else float(est.grading))
-    settings = transport_estimator("quadrature").settings_class.from_transport(config.transport_settings())
+    if getattr(est, "edge", None) is not None:
+        grading = getattr(est, "grading", None)
+        return float(est.edge), (None if grading is None else float(grading))
+    settings = transport_estimator(SCAN_LADDER).settings_class.from_transport(config.transport_settings())
     return float(settings.edge), None
 
 
@@ -55,7 +59,7 @@ def _step(edge: float, base_edge: float, grading: float | None, fov_cells: int |
 
 def _fov_cells(scene: Scene, config, caster: RayCaster) -> int | None:
     """FoV cells per pixel side the quadrature takes at the config's edge (None: not an aperture capture)."""
-    entry = transport_estimator("quadrature")
+    entry = transport_estimator(SCAN_LADDER)
     edge, grading = _base(config)
     settings = entry.settings_class.from_transport(config.transport_settings(), edge=edge, grading=grading)
     return entry.cls(scene, settings, caster).fov_cells
@@ -69,7 +73,7 @@ def scan_ladder(scene: Scene, config, reference_edge: float | None = None,
         scene, config: the capture and its :class:`~datagen.simulation.SimulationConfig`.
         reference_edge: h_ref, metres (default a quarter of the config's edge).
     Returns:
-        (the :class:`~datagen.analysis.accuracy.Ladder` named "quadrature", coarsest step first; the reference's
+        (the :class:`~datagen.analysis.accuracy.Ladder` named :data:`SCAN_LADDER`, coarsest step first; the reference's
         step: quadrature settings at h_ref).
     Raises:
         ConfigError: ``reference_edge`` not > 0, or so coarse that no step lies at ``LADDER_BOTTOM`` × it or above
@@ -87,7 +91,7 @@ def scan_ladder(scene: Scene, config, reference_edge: float | None = None,
     cells = _fov_cells(scene, config, caster or RayCaster(scene))
     count = int(math.floor(2.0 * math.log2(top / bottom) + 1e-9)) + 1
     steps = tuple(_step(top / math.sqrt(2.0) ** i, edge, grading, cells) for i in range(count))
-    ladder = Ladder("quadrature", "hidden-surface quadrature", "quadrature", steps,
+    ladder = Ladder(SCAN_LADDER, "hidden-surface quadrature", SCAN_LADDER, steps,
                     lambda s: s["edge"] ** -2.0, lambda s: f"h={s['edge']:.3g} m")
     return ladder, _step(h_ref, edge, grading, cells)
 
@@ -102,7 +106,7 @@ def quadrature_reference(scene: Scene, config, step: dict, caster: RayCaster | N
         ``converged`` True; ``seconds`` both runs' wall time; ``settings`` the step, the estimate's method.
     """
     caster = caster or RayCaster(scene)
-    ladder = Ladder("quadrature", "", "quadrature", (step,), lambda s: 1.0, lambda s: "")
+    ladder = Ladder(SCAN_LADDER, "", SCAN_LADDER, (step,), lambda s: 1.0, lambda s: "")
     t0 = time.perf_counter()
     env, _ = run_estimator(scene, config, ladder, step, caster)
     coarse_step = {**step, "edge": 2.0 * step["edge"]}

@@ -52,15 +52,14 @@ def bench():
 @click.option("--cache-dir", default=None, type=click.Path(path_type=Path),
               help="reference cache (default $DATAGEN_CACHE or ~/.cache/datagen, /references)")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="seed of the estimator runs")
-@click.option("--reference", "reference_kind", default="area", show_default=True,
-              type=click.Choice(["area", "quadrature"]),
-              help="area: the Monte Carlo reference, once per laser point; quadrature (scanned captures): the "
-                   "quadrature's edge ladder against the quadrature at --reference-edge")
+@click.option("--quadrature-reference", "scan_reference", is_flag=True,
+              help="for scanned captures, whose Monte Carlo reference runs once per laser point: the quadrature's "
+                   "edge ladder against the quadrature at --reference-edge")
 @click.option("--reference-edge", default=None, type=float,
-              help="with --reference quadrature: the reference's edge, m (default a quarter of the config's)")
+              help="with --quadrature-reference: the reference's edge, m (default a quarter of the config's)")
 @friendly_errors
 def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators, rel_tol, reference_budget,
-             reference_samples, cache_dir, seed, reference_kind, reference_edge):
+             reference_samples, cache_dir, seed, scan_reference, reference_edge):
     """Error of L(t) against wall time for each estimator, on SCENE_FILE or on --samples rooms of a --dataset
     config: writes accuracy.csv and accuracy.png (log-log; the Pareto front for a scene, median and p95 over the
     rooms for a dataset) and prints the table. --budget bounds the whole command."""
@@ -70,6 +69,7 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
     from ..analysis.accuracy import (ESTIMATORS, available_estimators, format_table, plot_accuracy, run_accuracy,
                                      write_csv)
     from ..analysis.reference import REFERENCE_SAMPLES, check_reference_size, converged_reference
+    from ..analysis.scan_accuracy import SCAN_LADDER
 
     budget_s = _duration(budget, "--budget")
     ref_budget_s = _duration(reference_budget, "--reference-budget")
@@ -80,18 +80,18 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
         raise ValueError(f"--estimators: unknown estimator(s) {unknown}; known: {', '.join(known)}")
     if (scene_file is None) == (dataset_file is None):
         raise ValueError("give a SCENE_FILE or --dataset CONFIG (one of them)")
-    if reference_kind == "quadrature":
-        if estimators and names != ("quadrature",):
-            raise ValueError(f"--reference quadrature runs the quadrature's ladder only (the other estimators run once "
+    if scan_reference:
+        if estimators and names != (SCAN_LADDER,):
+            raise ValueError(f"--quadrature-reference runs the quadrature's ladder only (the other estimators run once "
                              f"per laser point), got --estimators {estimators}")
-        names = ("quadrature",)
+        names = (SCAN_LADDER,)
     elif reference_edge is not None:
-        raise ValueError("--reference-edge goes with --reference quadrature")
+        raise ValueError("--reference-edge goes with --quadrature-reference")
     cache = cache_dir or default_cache_dir()
     samples = reference_samples or REFERENCE_SAMPLES
     if dataset_file is not None:
         _dataset_accuracy(dataset_file, n_samples, split, budget_s - (time.perf_counter() - t_start), out, names,
-                          rel_tol or 3e-3, cache, samples, seed, min(ref_budget_s, 0.5 * budget_s), reference_kind,
+                          rel_tol or 3e-3, cache, samples, seed, min(ref_budget_s, 0.5 * budget_s), scan_reference,
                           reference_edge)
         return
     from ..scene import load_scene
@@ -101,7 +101,7 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
     config = resolve_config(scene)
     out = out or Path("out") / "bench_accuracy" / scene.name
     rel_tol = rel_tol or 1e-3
-    if reference_kind == "quadrature":
+    if scan_reference:
         _scene_scan_accuracy(scene, config, reference_edge, budget_s - (time.perf_counter() - t_start), out, seed)
         return
     check_reference_size(scene, str(scene_file), samples, budget_s)
@@ -129,7 +129,7 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
 
 
 def _scene_scan_accuracy(scene, config, reference_edge, budget_s, out, seed):
-    """``--reference quadrature`` on one scene: the scan's quadrature ladder against the quadrature at the
+    """``--quadrature-reference`` on one scene: the scan's quadrature ladder against the quadrature at the
     reference edge (:mod:`datagen.analysis.scan_accuracy`)."""
     import time
 
@@ -157,7 +157,7 @@ def _scene_scan_accuracy(scene, config, reference_edge, budget_s, out, seed):
 
 
 def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_tol, cache, samples, seed,
-                      reference_budget, reference_kind="area", reference_edge=None):
+                      reference_budget, scan_reference=False, reference_edge=None):
     import time
 
     from ..analysis.rooms_accuracy import (format_rooms_table, plot_rooms, run_rooms_accuracy, summarize,
@@ -174,21 +174,21 @@ def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_
     if not 1 <= n_samples <= count:
         raise ValueError(f"--samples must be in [1, {count}] (split {split!r} of {dataset_file}), got {n_samples}")
     rooms = [(f"{split}[{i}]", *sample_setup(config, split, i)) for i in range(n_samples)]
-    if reference_kind == "area":
+    if not scan_reference:
         check_reference_size(rooms[0][1], f"{dataset_file} ({split}[0])", samples, budget_s)   # rooms scan alike
     budget_s -= REPORT_SECONDS
     out = out or Path("out") / "bench_accuracy" / f"dataset_{config.name}"
     share = min(0.5, reference_budget / max(budget_s, 1e-9))          # of each room's share of the budget
     rows, refs = run_rooms_accuracy(rooms, budget_s - (time.perf_counter() - t0), estimators=names, rel_tol=rel_tol,
                                     cache_dir=cache, reference_share=max(share, 1e-3), reference_samples=samples,
-                                    seed=seed, echo=click.echo, reference=reference_kind,
+                                    seed=seed, echo=click.echo, scan_reference=scan_reference,
                                     reference_edge=reference_edge)
     summary = summarize(rows)
     csv_path = write_rooms_csv(rows, summary, out / "accuracy.csv")
     png_path = plot_rooms(summary, out / "accuracy.png",
                           title=f"{config.name}: error of L(t) vs time over {len(refs)} rooms of {split!r}")
     ref_err = [r.error_estimate["rel_l2"] for r in refs]
-    converged = (f"; {sum(r.converged for r in refs)} converged to {rel_tol:g}" if reference_kind == "area" else
+    converged = (f"; {sum(r.converged for r in refs)} converged to {rel_tol:g}" if not scan_reference else
                  " (the quadrature at the reference edge, ‖P(h) − P(2h)‖/3)")
     median, largest = (float(np.median(ref_err)), max(ref_err)) if ref_err else (float("nan"), float("nan"))
     click.echo(f"references: {len(refs)} rooms, error estimate median {median:.2e}, max {largest:.2e}{converged}")
