@@ -252,6 +252,27 @@ def test_bench_accuracy_of_a_scan_dataset_against_the_quadrature_reference(tmp_p
     assert "reference quadrature h = 0.125 m" in res.output
 
 
+def test_scan_ladder_ends_at_the_samples_own_transport():
+    """The scan ladder's finest step is the config's edge itself (even steps exact powers of 2) with its grading
+    ratio and FoV cells, so measured against the envelope ``datagen.simulate`` gives the dataset sample its error is
+    round-off (3e-15 measured; 0 on a wall.yaml room); the reference is a quarter of that edge with a quarter of the
+    grading ratio."""
+    import datagen
+    from datagen.analysis.scan_accuracy import SCAN_LADDER, scan_ladder
+    from datagen.dataset import load_dataset_config, sample_setup
+
+    scene, sim = sample_setup(load_dataset_config("configs/datasets/confocal_smoke.yaml"), "train", 1)
+    ladder, ref_step = scan_ladder(scene, sim)
+    assert [s["edge"] for s in ladder.ladder[::2]] == [2.0, 1.0, 0.5]               # edge 0.5 m: 4×, 2×, 1×
+    assert ladder.ladder[-1]["grading"] == sim.estimator.grading == 0.5
+    assert ref_step["edge"] == 0.125 and ref_step["grading"] == 0.125
+    sample = datagen.simulate(scene, sim)
+    rows = run_accuracy(scene, sample, sim, budget=60.0, estimators=(SCAN_LADDER,), ladder_table={SCAN_LADDER: ladder})
+    assert [r.setting for r in rows] == [ladder.describe(s) for s in ladder.ladder]
+    assert rows[-1].rel_l2 < 1e-12 and rows[-1].total < 1e-12
+    assert rows[0].rel_l2 > 0.01                                                     # 2 m: a few per cent
+
+
 def test_bench_accuracy_quadrature_reference_on_a_scene_and_its_bad_input(tmp_path):
     """The scene form of --quadrature-reference writes the ladder's CSV; other estimators, --reference-edge without
     it, and a reference edge too coarse for any step are one-line errors."""

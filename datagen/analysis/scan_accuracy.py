@@ -90,7 +90,7 @@ def scan_ladder(scene: Scene, config, reference_edge: float | None = None,
                           f"at most {top / LADDER_BOTTOM:g} m")
     cells = _fov_cells(scene, config, caster or RayCaster(scene))
     count = int(math.floor(2.0 * math.log2(top / bottom) + 1e-9)) + 1
-    steps = tuple(_step(top / math.sqrt(2.0) ** i, edge, grading, cells) for i in range(count))
+    steps = tuple(_step(top * 2.0 ** (-i / 2), edge, grading, cells) for i in range(count))   # even i: exact
     ladder = Ladder(SCAN_LADDER, "hidden-surface quadrature", SCAN_LADDER, steps,
                     lambda s: s["edge"] ** -2.0, lambda s: f"h={s['edge']:.3g} m")
     return ladder, _step(h_ref, edge, grading, cells)
