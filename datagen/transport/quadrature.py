@@ -88,6 +88,7 @@ from .base import Sink, register
 from .physics import PhysicsSettings, fov_connection_weight
 from .quadrature_grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
 from .quadrature_options import QUADRATURE_EDGE, QuadratureOptions
+from .quadrature_numpy import run_numpy
 from .quadrature_primary import leg_occluders, run_compiled
 from .quadrature_split import apply_split, choose_split, refined
 
@@ -379,7 +380,7 @@ class Quadrature:
 
     # -- legs ----------------------------------------------------------------------------------------------
 
-    def _laser_leg(self, lasers: np.ndarray) -> dict:
+    def laser_leg(self, lasers: np.ndarray) -> dict:
         """Per (cell, laser): irradiance E (M, n) photons/m², distance r (M, n), side of the cell lit (M, n)
         (+1 / −1 along the face normal; 0 unlit), unit direction to the spot (M, n, 3) when BRDF angles matter,
         and vertex distances (V, n)."""
@@ -387,7 +388,7 @@ class Quadrature:
         e = np.zeros((M, len(lasers)))
         r = np.zeros((M, len(lasers)))
         side = np.zeros((M, len(lasers)), dtype=np.int8)
-        w_all = np.zeros((M, len(lasers), 3)) if self._angles else None
+        w_all = np.zeros((M, len(lasers), 3)) if self.hidden_angles else None
         rays = self.physics.stats.shadow_rays
         for i, laser in enumerate(lasers):
             e[:, i], r[:, i], w, _ = self.physics.irradiance(self.centroids, self.cell_normal, int(laser))
@@ -436,10 +437,10 @@ class Quadrature:
             g[mi, ti] *= np.divide(f, f_ref[ti], out=np.zeros_like(f), where=f_ref[ti] > 0)
         self.stats.shadow_rays += legs.stats.shadow_rays - rays
         rv = np.linalg.norm(self.vertices[:, None, :] - y[None], axis=-1) if vertex_distances else None
-        return {"g": g, "r": r, "side": side, "w": w if self._angles else None, "rv": rv, "d": d_ys}
+        return {"g": g, "r": r, "side": side, "w": w if self.hidden_angles else None, "rv": rv, "d": d_ys}
 
     @property
-    def _angles(self) -> bool:
+    def hidden_angles(self) -> bool:
         """BRDF angle work at hidden points (a non-Lambertian hidden material or ``brdf_angles``)."""
         return bool(self.settings.brdf_angles or not self.materials.lambertian[self.cell_object].all())
 
@@ -509,14 +510,14 @@ class Quadrature:
         if compiled:
             run_compiled(self, sink.tent_grid(), None if coarse is None else coarse.tent_grid(), progress)
         else:
-            self._primary_numpy(sink, coarse, progress)
+            run_numpy(self, sink, coarse, progress)
         if self.refine_lasers is not None and self.coarse is not None:     # the plain split's estimate: h/2
             sub = refined(self, QuadratureStats())                            # on a sub-scan (.quadrature_split)
             self.coarse_channels = np.unique(sub.conn_channel)
             if compiled:
                 run_compiled(sub, self.coarse.tent_grid(), None, None)
             else:
-                sub._primary_numpy(self.coarse, None, None)
+                run_numpy(sub, self.coarse, None, None)
             self.refine_stats = sub.stats
         if self.settings.first_bounce:
             self.physics.first_bounce(sink, self.n_primary + 1)
@@ -528,72 +529,3 @@ class Quadrature:
         return bool(m.lambertian[self.capture.spot_objects].all() and not self._wall_angles
                     and np.isin(m.kind[self.cell_object], (LAMBERTIAN, PHONG)).all()
                     and not self.settings.brdf_angles)
-
-    def _primary_numpy(self, sink: Sink, coarse: Sink | None, progress: Callable[[int], None] | None) -> None:
-        """The primary tents into ``sink`` (and the rule at 2h into ``coarse``), in numpy blocks of (cell,
-        connection) rows."""
-        s, c = self.settings, self.capture
-        M = self.n_cells
-        per_block = max(1, s.batch // max(M, 1))
-        add_tents = getattr(sink, "add_tents", None)
-        laser_cache: dict = {}
-        all_lasers = np.unique(self.conn_laser)
-        if M * len(all_lasers) <= 4 * s.batch:                   # the laser legs of every laser point, once
-            laser_cache = {"lasers": all_lasers, **self._laser_leg(all_lasers)}
-        f_lamb = self.physics.lambert_f[self.cell_object]         # ρ/π (NaN: not Lambertian, then f comes from brdf)
-        comp_base = self.object_component[self.cell_object] * c.n_channels          # (M,)
-        tri_v = self.cells                                                            # (M, 3)
-        n_conn = len(self.conn_laser)
-        for start in range(0, n_conn, per_block):
-            sl = slice(start, start + per_block)
-            lasers, targets, channels = self.conn_laser[sl], self.conn_target[sl], self.conn_channel[sl]
-            u_l, inv_l = np.unique(lasers, return_inverse=True)
-            u_t, inv_t = np.unique(targets, return_inverse=True)
-            if laser_cache:
-                col = np.searchsorted(laser_cache["lasers"], u_l)
-                lg = {k: (v[:, col] if v is not None and k != "lasers" else v) for k, v in laser_cache.items()}
-            else:
-                lg = self._laser_leg(u_l)
-            shared = self.target_is_laser and np.array_equal(u_t, u_l)
-            tg = self.target_leg(u_t, vertex_distances=not shared)
-            if shared:                                   # the target is the laser point: same vertex distances
-                tg["rv"] = lg["rv"]
-            e = lg["e"][:, inv_l]                                          # (M, B)
-            g = tg["g"][:, inv_t]
-            ok = (e > 0) & (g > 0) & (lg["side"][:, inv_l] == tg["side"][:, inv_t])
-            mi, bi = np.nonzero(ok)
-            self.stats.pair_rows += M * len(lasers)
-            if len(mi):
-                f = f_lamb[mi]
-                if self._angles:
-                    side = lg["side"][mi, inv_l[bi]].astype(np.float64)
-                    f = self.physics.brdf(self.cell_object[mi], side[:, None] * self.cell_normal[mi],
-                                        lg["w"][mi, inv_l[bi]], tg["w"][mi, inv_t[bi]])
-                weight = self.cell_area[mi] * e[mi, bi] * f * g[mi, bi]
-                if s.attenuation > 0:
-                    weight = weight * self.physics.attenuation(c.emitter_legs[lasers[bi]] + lg["r"][mi, inv_l[bi]]
-                                                               + tg["r"][mi, inv_t[bi]] + tg["d"][inv_t[bi]])
-                offset = (np.zeros(len(mi)) + self.physics.laser_leg(lasers[bi])
-                          + self.physics.sensor_leg(tg["d"][inv_t[bi]]))
-                vert = tri_v[mi]                                           # (n, 3) vertex ids
-                path = lg["rv"][vert, inv_l[bi][:, None]] + tg["rv"][vert, inv_t[bi][:, None]]
-                # the path length is convex on T, so its linear interpolant (the tent) runs late: shift each tent
-                # so its mean is the rule (1/12)Σ τ(v_i) + (3/4) τ(centroid), exact for quadratics (module doc)
-                centre = lg["r"][mi, inv_l[bi]] + tg["r"][mi, inv_t[bi]]
-                path = path + (0.75 * (centre - path.mean(axis=1)) + offset)[:, None]
-                comp = comp_base[mi] + channels[bi]
-                times = path / SPEED_OF_LIGHT
-                if add_tents is not None:
-                    add_tents(times, weight, comp)
-                else:
-                    sink.add(times.mean(axis=1), weight, comp)
-                self.stats.tents += len(mi)
-                if coarse is not None:           # the rule at 2h from the same evaluations (error estimate)
-                    sel = np.flatnonzero((self.coarse_of[mi] >= 0) & (channels[bi] % self.coarse_stride == 0))
-                    cv = self.coarse_cells[self.coarse_of[mi[sel]]]
-                    lb, tb = inv_l[bi[sel]][:, None], inv_t[bi[sel]][:, None]
-                    cpath = lg["rv"][cv, lb] + tg["rv"][cv, tb]
-                    cpath = cpath + (0.75 * (centre[sel] - cpath.mean(axis=1)) + offset[sel])[:, None]
-                    coarse.add_tents(cpath / SPEED_OF_LIGHT, 4.0 * weight[sel], channels[bi[sel]])
-            if progress is not None:
-                progress(M * len(lasers))
