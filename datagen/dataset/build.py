@@ -33,15 +33,13 @@ from typing import Callable, Iterator
 import numpy as np
 
 from .assets import asset_record, config_asset_entries
-from .config import (STREAMS, DatasetConfig, Sample, component_slots, config_from_json, load_dataset_config,
-                     make_sample)
+from .config import DatasetConfig, Sample, config_from_json, load_dataset_config, make_sample
 from ..errors import DatasetError
 from .dask_engine import FATAL_ERRNOS, WORKER_TIMEOUT_S, check_worker_timeout, connect_dask, fatal_error, run_dask
 from .integrity import remove_shard_files, repair_store
-from .store import (DONE_DIR, FORMAT, FORMAT_VERSION, LOCK_NAME, BuildLock, ShardTask, check_dataset_dir,
-                    check_same_assets, check_same_config, code_version, consolidate, create_arrays, file_sha256,
-                    finish_card, marker_path, plan_shards, probe_fields, read_card, read_marker, shard_file,
-                    split_entries, write_json_atomic, zarr_module)
+from .store import (DONE_DIR, LOCK_NAME, BuildLock, ShardTask, card_layout, check_dataset_dir, check_same_assets,
+                    check_same_config, consolidate, file_sha256, finish_card, initialize_card, marker_path,
+                    plan_shards, read_card, read_marker, shard_file, write_json_atomic, zarr_module)
 from .workers import BUILD_PID_ENV, init_worker
 
 DEFAULT_RETRIES = 2
@@ -266,39 +264,7 @@ def _run_pool(root: str, cfg: dict, tasks: list[ShardTask], workers: int, retrie
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Card
-
-
-def _card_layout(config: DatasetConfig, probe: Sample) -> dict:
-    """The card entries the probe sample fixes: ``time_edges`` and ``splits`` (fields, counts, detectors)."""
-    splits = split_entries(config, probe_fields(probe), probe.axes)
-    for split in config.splits:
-        splits[split]["detector"] = config.simulation_config(split).detector_config().model_dump(mode="json")
-    return {"time_edges": {"t_start": float(probe.time_edges[0]), "n_bins": len(probe.time_edges) - 1,
-                           "bin_width": float(probe.time_edges[1] - probe.time_edges[0])},
-            "splits": splits}
-
-
-def _initialize(root: Path, config: DatasetConfig, probe: Sample, assets: list[dict]) -> dict:
-    """Write the card (with the pinned mesh ``assets``, :func:`datagen.dataset.assets.asset_record`) and create
-    every array, with the shapes of ``probe`` (sample 0 of the first non-empty split, computed before anything
-    was written)."""
-    from ..simulation.run import library_versions
-
-    card = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": config.name, "status": "incomplete",
-            "config": config.to_json(), "config_sha256": config.fingerprint(), "assets": assets,
-            "code_version": code_version(),
-            "versions": library_versions(), "streams": STREAMS,
-            "seed_rule": "SeedSequence(seed, spawn_key=(split_key, index, stream)), split_key = CRC-32 of the "
-                         "split name; loader noise: SeedSequence(seed, spawn_key=(split_key, epoch, index, 4))",
-            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), "runs": []}
-    group = zarr_module().open_group(str(root), mode="a", zarr_format=3)
-    group.update_attributes(card)
-    create_arrays(root, config, probe_fields(probe), probe.time_edges,
-                  component_slots(config.label_spec().max_objects), probe.axes)
-    card.update(_card_layout(config, probe))
-    group.update_attributes(card)
-    return card
+# Probe
 
 
 def _first_split(config: DatasetConfig) -> str:
@@ -461,7 +427,7 @@ def _open_store(root: Path, config: DatasetConfig, probe: Sample, pinned: tuple[
         try:
             if (root / DONE_DIR).exists():   # stale markers from an earlier, removed store must not count
                 shutil.rmtree(root / DONE_DIR)
-            return _initialize(root, config, probe, assets), []
+            return initialize_card(root, config, probe, assets), []
         except BaseException:
             for path in root.iterdir():      # a failed initialisation leaves nothing behind
                 if path.name != LOCK_NAME:
@@ -471,7 +437,7 @@ def _open_store(root: Path, config: DatasetConfig, probe: Sample, pinned: tuple[
     check_same_config(root, card, config)
     check_same_assets(root, card, assets, entries)
     if "splits" not in card or "time_edges" not in card:   # killed while creating the arrays
-        return _initialize(root, config, probe, assets), ["card: initialisation completed (it was interrupted)"]
+        return initialize_card(root, config, probe, assets), ["card: initialisation completed (it was interrupted)"]
     repairs = []
     if "assets" not in card:   # built before the card pinned its assets: pin the current ones from now on
         card["assets"] = assets
@@ -480,7 +446,7 @@ def _open_store(root: Path, config: DatasetConfig, probe: Sample, pinned: tuple[
             repairs.append(f"card: pinned the {len(assets)} mesh asset files found now (name, sha256); the card "
                            "had no asset list (built before datagen recorded it), so the shards built before "
                            "were not checked against it")
-    layout = _card_layout(config, probe)
+    layout = card_layout(config, probe)
     changed = [k for k, v in layout.items() if card.get(k) != v]
     if changed:   # edited or damaged card: the config and the probe are the truth
         card.update(layout)

@@ -17,8 +17,9 @@ Layout of a dataset at ``PATH`` (a Zarr v3 group):
     lock when its process dies, so a killed build never blocks ``--resume``.
 
 Shards are computed and written by :mod:`datagen.dataset.build` (one write per array, then the done marker);
-this module plans them (:func:`plan_shards`), creates the arrays (:func:`create_arrays`), names shard files and
-markers, fills the card from the markers (:func:`finish_card`) and compares a card with the config and the mesh
+this module plans them (:func:`plan_shards`), writes the card and creates the arrays (:func:`initialize_card`,
+:func:`create_arrays`), names shard files and markers, fills the card from the markers (:func:`finish_card`) and
+compares a card with the config and the mesh
 assets of a resume (:func:`check_same_config`, :func:`check_same_assets`). What the files must be, and the checks of
 ``datagen verify``, the repairs of ``--resume`` and the loader's checks, are :mod:`datagen.dataset.integrity`'s.
 """
@@ -40,7 +41,7 @@ from filelock import FileLock, Timeout
 
 from ..errors import DatasetError
 from .assets import asset_changes
-from .config import DatasetConfig, Sample, location_free_json, split_key
+from .config import STREAMS, DatasetConfig, Sample, component_slots, location_free_json, split_key
 from .legacy import canonical_json
 
 FORMAT = "datagen-dataset"
@@ -440,3 +441,35 @@ def check_same_assets(root: Path, card: dict, assets: list[dict], asset_entries:
         raise DatasetError(f"{root}: the mesh assets differ from those the dataset was built from: {changes[0]}{more}; "
                          "a resume would draw its samples from another asset list: restore the assets the card "
                          "lists (its 'assets': name and sha256 of each file) or build into a new --out")
+
+
+def card_layout(config: DatasetConfig, probe: Sample) -> dict:
+    """The card entries the probe sample fixes: ``time_edges`` and ``splits`` (fields, counts, detectors)."""
+    splits = split_entries(config, probe_fields(probe), probe.axes)
+    for split in config.splits:
+        splits[split]["detector"] = config.simulation_config(split).detector_config().model_dump(mode="json")
+    return {"time_edges": {"t_start": float(probe.time_edges[0]), "n_bins": len(probe.time_edges) - 1,
+                           "bin_width": float(probe.time_edges[1] - probe.time_edges[0])},
+            "splits": splits}
+
+
+def initialize_card(root: Path, config: DatasetConfig, probe: Sample, assets: list[dict]) -> dict:
+    """Write the card (with the pinned mesh ``assets``, :func:`datagen.dataset.assets.asset_record`) and create
+    every array, with the shapes of ``probe`` (sample 0 of the first non-empty split, computed before anything
+    was written)."""
+    from ..simulation.run import library_versions
+
+    card = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": config.name, "status": "incomplete",
+            "config": config.to_json(), "config_sha256": config.fingerprint(), "assets": assets,
+            "code_version": code_version(),
+            "versions": library_versions(), "streams": STREAMS,
+            "seed_rule": "SeedSequence(seed, spawn_key=(split_key, index, stream)), split_key = CRC-32 of the "
+                         "split name; loader noise: SeedSequence(seed, spawn_key=(split_key, epoch, index, 4))",
+            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), "runs": []}
+    group = zarr_module().open_group(str(root), mode="a", zarr_format=3)
+    group.update_attributes(card)
+    create_arrays(root, config, probe_fields(probe), probe.time_edges,
+                  component_slots(config.label_spec().max_objects), probe.axes)
+    card.update(card_layout(config, probe))
+    group.update_attributes(card)
+    return card
