@@ -19,9 +19,9 @@ Layout of a dataset at ``PATH`` (a Zarr v3 group):
 Shards are computed and written by :mod:`datagen.dataset.build` (one write per array, then the done marker);
 this module plans them (:func:`plan_shards`), writes the card and creates the arrays (:func:`initialize_card`,
 :func:`create_arrays`), names shard files and markers, fills the card from the markers (:func:`finish_card`) and
-compares a card with the config and the mesh
-assets of a resume (:func:`check_same_config`, :func:`check_same_assets`). What the files must be, and the checks of
-``datagen verify``, the repairs of ``--resume`` and the loader's checks, are :mod:`datagen.dataset.integrity`'s.
+compares a card with the config and the mesh assets of a resume (:func:`check_same_config`,
+:func:`check_same_assets`). What the files must be, and the checks of ``datagen verify``, the repairs of
+``--resume`` and the loader's checks, are :mod:`datagen.dataset.integrity`'s.
 """
 from __future__ import annotations
 
@@ -444,7 +444,12 @@ def check_same_assets(root: Path, card: dict, assets: list[dict], asset_entries:
 
 
 def card_layout(config: DatasetConfig, probe: Sample) -> dict:
-    """The card entries the probe sample fixes: ``time_edges`` and ``splits`` (fields, counts, detectors)."""
+    """The card entries the probe sample fixes.
+
+    Returns:
+        {"time_edges": {"t_start" s, "n_bins", "bin_width" s}, "splits": per split its count, split key, shard
+        count and fields (:func:`split_entries`) and its detector config as JSON}.
+    """
     splits = split_entries(config, probe_fields(probe), probe.axes)
     for split in config.splits:
         splits[split]["detector"] = config.simulation_config(split).detector_config().model_dump(mode="json")
@@ -456,7 +461,11 @@ def card_layout(config: DatasetConfig, probe: Sample) -> dict:
 def initialize_card(root: Path, config: DatasetConfig, probe: Sample, assets: list[dict]) -> dict:
     """Write the card (with the pinned mesh ``assets``, :func:`datagen.dataset.assets.asset_record`) and create
     every array, with the shapes of ``probe`` (sample 0 of the first non-empty split, computed before anything
-    was written)."""
+    was written), in the Zarr group at ``root``.
+
+    Returns:
+        The card as written (status "incomplete" until :func:`finish_card`), with :func:`card_layout`'s entries.
+    """
     from ..simulation.run import library_versions
 
     card = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": config.name, "status": "incomplete",
