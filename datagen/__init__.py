@@ -16,6 +16,7 @@ Public entry points::
 """
 import hashlib
 import os
+import shutil
 from pathlib import Path
 
 
@@ -38,10 +39,39 @@ def kernel_cache_dir(package: Path | None = None) -> Path:
     return local / key if os.access(root, os.W_OK) else Path.home() / ".cache" / "datagen" / key
 
 
+KEPT_KERNEL_CACHES = 3
+"""``numba-<key>`` folders kept in the cache's folder, the current one included: an edit of a numba module (or an
+upgrade) starts a new key, and the older keys' kernels (≈ 3 MB each) would otherwise stay for good."""
+
+
+def prune_kernel_caches(current: Path, keep: int = KEPT_KERNEL_CACHES) -> list[Path]:
+    """Delete the ``numba-<key>`` folders beside ``current`` (the kernels of other sources: earlier edits, other
+    versions) beyond the ``keep`` − 1 most recently written ones (by their newest file); ``current`` and every other
+    name are left alone. Failures (a folder another process deletes or writes meanwhile, permissions) are ignored:
+    a deleted cache only means a compile. Returns the folders deleted."""
+    def newest(folder: Path) -> float:
+        try:
+            return max((f.stat().st_mtime for f in folder.rglob("*") if f.is_file()), default=folder.stat().st_mtime)
+        except OSError:
+            return 0.0
+
+    try:
+        others = [p for p in current.parent.glob("numba-*") if p.is_dir() and p != current]
+    except OSError:
+        return []
+    old = sorted(others, key=newest, reverse=True)[max(0, keep - 1):]
+    for folder in old:
+        shutil.rmtree(folder, ignore_errors=True)
+    return old
+
+
 if not os.environ.get("NUMBA_CACHE_DIR"):
     import numba
 
-    numba.config.CACHE_DIR = str(kernel_cache_dir())     # before any kernel module is imported
+    _cache = kernel_cache_dir()
+    if not _cache.exists():                              # a new key: the first import after an edit or upgrade
+        prune_kernel_caches(_cache)
+    numba.config.CACHE_DIR = str(_cache)                 # before any kernel module is imported
 
 from .errors import ConfigError, DatagenError, DatasetError, ResourceError, SceneError  # noqa: E402
 from .scene import Scene, load_scene  # noqa: E402
