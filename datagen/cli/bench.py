@@ -62,7 +62,8 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
              reference_samples, cache_dir, seed, scan_reference, reference_edge):
     """Error of L(t) against wall time for each estimator, on SCENE_FILE or on --samples rooms of a --dataset
     config: writes accuracy.csv and accuracy.png (log-log; the Pareto front for a scene, median and p95 over the
-    rooms for a dataset) and prints the table. --budget bounds the whole command."""
+    rooms for a dataset) and prints the table. --budget bounds the whole command (with --quadrature-reference, the
+    ladders but not the references)."""
     import time
 
     t_start = time.perf_counter()
