@@ -270,7 +270,7 @@ def run_accuracy(scene: Scene, reference: Reference, config=None, budget: float 
 
     config = config or resolve_config(scene)
     table = {**ladders(), **(ladder_table or {})}
-    known = available_estimators() + tuple(n for n in table if n not in available_estimators())
+    known = tuple(dict.fromkeys(available_estimators() + tuple(table)))
     names = tuple(estimators or ESTIMATORS)
     unknown = [n for n in names if n not in known]
     if unknown:

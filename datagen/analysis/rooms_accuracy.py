@@ -24,7 +24,7 @@ from ..errors import ConfigError
 from ..scene import RayCaster, Scene
 from .accuracy import LADDERS, AccuracyRow, loglog_axes, run_accuracy, save_loglog
 from .reference import REFERENCE_SAMPLES, Reference, converged_reference
-from .scan_accuracy import SCAN_LADDER, quadrature_reference, scan_ladder
+from .scan_accuracy import SCAN_LADDER, scan_benchmark
 
 __all__ = ["RoomRow", "SettingSummary", "format_rooms_table", "plot_rooms", "run_rooms_accuracy", "summarize",
            "write_rooms_csv"]
@@ -92,14 +92,13 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
                 echo(f"{name}: skipped (budget spent)")
             continue
         t0 = time.perf_counter()
-        table = None
+        table, caster = None, None
         if scan_reference:
-            caster = RayCaster(scene)
-            ladder, step = scan_ladder(scene, config, reference_edge, caster)
-            ref, table = quadrature_reference(scene, config, step, caster), {SCAN_LADDER: ladder}
+            caster = RayCaster(scene)                   # one BVH for the reference and the ladder
+            ref, table = scan_benchmark(scene, config, reference_edge, caster)
             if echo is not None:
-                echo(f"{name}: reference quadrature h = {step['edge']:.3g} m ({ref.seconds:.1f} s), error estimate "
-                     f"{ref.error_estimate['rel_l2']:.2e}")
+                echo(f"{name}: reference quadrature h = {ref.settings['edge']:.3g} m ({ref.seconds:.1f} s), error "
+                     f"estimate {ref.error_estimate['rel_l2']:.2e}")
         else:
             ref = converged_reference(scene, config, rel_tol=rel_tol, cache_dir=cache_dir,
                                       samples=reference_samples, max_seconds=reference_share * share, min_replicas=2)
@@ -113,8 +112,8 @@ def run_rooms_accuracy(rooms: list[tuple[str, Scene, object]], budget: float,
         left = min(share - (time.perf_counter() - t0), end - time.perf_counter())
         if left <= 0:
             continue
-        for row in run_accuracy(scene, ref, config, budget=left, seed=seed, echo=echo, ladder_table=table,
-                                estimators=(SCAN_LADDER,) if table else estimators):
+        for row in run_accuracy(scene, ref, config, budget=left, seed=seed, echo=echo, caster=caster,
+                                ladder_table=table, estimators=(SCAN_LADDER,) if table else estimators):
             rows.append(RoomRow(name, ref.error_estimate["rel_l2"], row))
     return rows, references
 

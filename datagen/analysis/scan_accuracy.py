@@ -27,7 +27,7 @@ from ..transport import estimator as transport_estimator
 from .accuracy import Ladder, relative_l2, run_estimator
 from .reference import Reference
 
-__all__ = ["LADDER_BOTTOM", "LADDER_TOP", "SCAN_LADDER", "quadrature_reference", "scan_ladder"]
+__all__ = ["LADDER_BOTTOM", "LADDER_TOP", "SCAN_LADDER", "quadrature_reference", "scan_benchmark", "scan_ladder"]
 
 SCAN_LADDER = "quadrature"
 """The registered estimator the scan's ladder runs, and the ladder's name in the benchmark's tables."""
@@ -119,3 +119,12 @@ def quadrature_reference(scene: Scene, config, step: dict, caster: RayCaster | N
     return Reference(env, {}, np.asarray(config.time.edges), {"rel_l2": rel, "total": float("nan"),
                                                               "peak_time": float("nan")},
                      info, time.perf_counter() - t0, 1, True)
+
+
+def scan_benchmark(scene: Scene, config, reference_edge: float | None, caster: RayCaster) -> tuple[Reference, dict]:
+    """What ``--quadrature-reference`` runs a scan against: (its reference, :func:`quadrature_reference` at
+    :func:`scan_ladder`'s reference settings (edge in ``settings["edge"]``); the ladder table
+    {:data:`SCAN_LADDER`: the ladder} for :func:`datagen.analysis.accuracy.run_accuracy`). Raises as
+    :func:`scan_ladder`."""
+    ladder, step = scan_ladder(scene, config, reference_edge, caster)
+    return quadrature_reference(scene, config, step, caster), {SCAN_LADDER: ladder}

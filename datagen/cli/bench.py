@@ -135,21 +135,20 @@ def _scene_scan_accuracy(scene, config, reference_edge, budget_s, out, seed):
     import time
 
     from ..analysis.accuracy import format_table, plot_accuracy, run_accuracy, write_csv
-    from ..analysis.scan_accuracy import quadrature_reference, scan_ladder
+    from ..analysis.scan_accuracy import SCAN_LADDER, scan_benchmark
     from ..scene import RayCaster
 
     t_start = time.perf_counter()
     caster = RayCaster(scene)
-    ladder, step = scan_ladder(scene, config, reference_edge, caster)
-    reference = quadrature_reference(scene, config, step, caster)
-    click.echo(f"reference: quadrature h = {step['edge']:.3g} m, {reference.seconds:.1f} s; its error estimate "
-               f"‖P(h) − P(2h)‖/3 = {reference.error_estimate['rel_l2']:.2e}")
+    reference, table = scan_benchmark(scene, config, reference_edge, caster)
+    click.echo(f"reference: quadrature h = {reference.settings['edge']:.3g} m, {reference.seconds:.1f} s; its error "
+               f"estimate ‖P(h) − P(2h)‖/3 = {reference.error_estimate['rel_l2']:.2e}")
     left = budget_s - (time.perf_counter() - t_start) - REPORT_SECONDS
     if left <= 0:
         raise ValueError(f"--budget was spent on the reference ({reference.seconds:.0f} s); give more, or a coarser "
                          f"--reference-edge")
-    rows = run_accuracy(scene, reference, config, budget=left, estimators=("quadrature",), seed=seed,
-                        echo=click.echo, caster=caster, ladder_table={"quadrature": ladder})
+    rows = run_accuracy(scene, reference, config, budget=left, estimators=(SCAN_LADDER,), seed=seed,
+                        echo=click.echo, caster=caster, ladder_table=table)
     csv_path = write_csv(rows, out / "accuracy.csv")
     png_path = plot_accuracy(rows, out / "accuracy.png", reference,
                              title=f"{scene.name}: quadrature error of L(t) vs time")

@@ -81,7 +81,6 @@ from ..sampling.surfaces import subdivide_with_vertices
 from ..scene import RayCaster, Scene
 from ..scene.capture import Capture
 from ..scene.materials import LAMBERTIAN, PHONG
-from ..units import SPEED_OF_LIGHT
 from ..vectors import dot
 from .area import AREA_FOLLOWS_PLAN, AreaSampler, AreaSettings
 from .base import Sink, register
