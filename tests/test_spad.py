@@ -455,6 +455,29 @@ def test_free_running_automatic_oversampling_is_per_pixel(afterpulse, factor):
     assert np.array_equal(expected_histogram(bright, c), together[1])
 
 
+def test_free_running_chunks_stay_within_their_memory_budget():
+    """Pixels are chained in chunks sized by the batch's brightest pixel, whatever its automatic oversampling turns
+    out to be: 256 pixels at 0.5 avalanches per 100 ps cell (10 ns dead time, 20 ns period: 330 period cells)
+    each get the cap of ``MARKOV_MAX_STATES`` = 60 000 Markov cells, so a chunk holds 33 pixels and each of its
+    (pixels × Markov cells) float64 arrays ≤ ``MARKOV_CHUNK_ELEMENTS`` / 2 elements. numpy's allocations peak at
+    195 MB (tracemalloc: about a dozen such arrays at once); chunks sized for 8 Markov cells per period cell put
+    every pixel in one chunk and peaked at 1.18 GB."""
+    import tracemalloc
+    c = DetectorConfig(model="free_running", dead_time=10e-9, repetition_rate=50e6, bin_width=100e-12,
+                       n_cycles=1000)
+    r = np.full((256, 128), 1e-6)
+    r[:, 40:50] += 5.0
+    tracemalloc.start()
+    try:
+        hist, rho = free_running.free_running_expected(r, c)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    one_array = 8 * free_running.MARKOV_CHUNK_ELEMENTS                     # bytes of float64
+    assert peak < 8 * one_array, (peak, one_array)
+    assert np.array_equal(hist[0], hist[-1]) and rho[0] == rho[-1] > 0
+
+
 def test_free_running_arpack_fallback_gives_the_same_stationary_distribution(monkeypatch):
     c = free_cfg(dead_time=73.4e-9)
     r = peaked_rates()

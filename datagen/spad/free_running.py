@@ -245,7 +245,9 @@ def _free_running_paralyzable(r2: np.ndarray, config: DetectorConfig) -> tuple[n
 
 
 MARKOV_CHUNK_ELEMENTS = 4_000_000
-"""Pixels are processed in chunks so that one chunk's (pixels × cells) arrays stay below this size."""
+"""Pixels are chained in chunks sized by the batch's brightest pixel (the largest automatic oversampling), so that
+each (pixels × Markov cells) float64 array of a chunk holds at most half this many elements; the chain keeps about
+a dozen of them at once, so a chunk peaks near 200 MB."""
 
 
 def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -268,11 +270,16 @@ def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.nd
                                   f"{list(config.gate)!r}: the expected histogram models afterpulsing without a "
                                   "gate only; average sample_histogram draws")
     solver = _free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable
-    per_cell = 2 if config.paralyzable else 2 * (config.markov_oversample or 8)
-    cells_max = r2.shape[1] + math.ceil(config.period / config.bin_width) + 2     # >= period_cells' count
-    chunk = max(1, MARKOV_CHUNK_ELEMENTS // (per_cell * cells_max))     # memory only: each pixel's chain is its own
+    # the batch's brightest pixel has the largest automatic factor (its cells are the others' but for the window,
+    # which is its row of r2), so chunks sized by its chain hold every pixel's within the budget
     hist = np.zeros_like(r2)
     rho = np.zeros(r2.shape[0])
+    if r2.shape[0] == 0:
+        return hist, rho
+    brightest = int(np.argmax(r2.max(axis=1)))
+    edges, q, _ = period_cells(r2[brightest:brightest + 1], config)
+    states = q.shape[1] * (1 if config.paralyzable else int(_oversample(q, edges, config)[0]))
+    chunk = max(1, MARKOV_CHUNK_ELEMENTS // (2 * states))     # memory only: each pixel's chain is its own
     for start in range(0, r2.shape[0], chunk):
         hist[start:start + chunk], rho[start:start + chunk] = solver(r2[start:start + chunk], config)
     return hist, rho
