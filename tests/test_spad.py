@@ -457,11 +457,11 @@ def test_free_running_automatic_oversampling_is_per_pixel(afterpulse, factor):
 
 def test_free_running_chunks_stay_within_their_memory_budget():
     """Pixels are chained in chunks sized by the batch's brightest pixel, whatever its automatic oversampling turns
-    out to be: 256 pixels at 0.5 avalanches per 100 ps cell (10 ns dead time, 20 ns period: 330 period cells)
-    each get the cap of ``MARKOV_MAX_STATES`` = 60 000 Markov cells, so a chunk holds 33 pixels and each of its
-    (pixels × Markov cells) float64 arrays ≤ ``MARKOV_CHUNK_ELEMENTS`` / 2 elements. numpy's allocations peak at
-    195 MB (tracemalloc: about a dozen such arrays at once); chunks sized for 8 Markov cells per period cell put
-    every pixel in one chunk and peaked at 1.18 GB."""
+    out to be: 256 pixels at 5 avalanches per 100 ps cell (10 ns dead time, 20 ns period: 200 period cells)
+    each get 256 Markov cells per period cell (51 200 in all, under ``MARKOV_MAX_STATES`` = 60 000), so a chunk
+    holds 39 pixels and each of its (pixels × Markov cells) float64 arrays ≤ ``MARKOV_CHUNK_ELEMENTS`` / 2
+    elements. numpy's allocations peak at 195 MB (tracemalloc: about a dozen such arrays at once); chunks sized
+    for 8 Markov cells per period cell put every pixel in one chunk and peaked at 1.18 GB."""
     import tracemalloc
     c = DetectorConfig(model="free_running", dead_time=10e-9, repetition_rate=50e6, bin_width=100e-12,
                        n_cycles=1000)

@@ -270,12 +270,12 @@ def free_running_expected(r2: np.ndarray, config: DetectorConfig) -> tuple[np.nd
                                   f"{list(config.gate)!r}: the expected histogram models afterpulsing without a "
                                   "gate only; average sample_histogram draws")
     solver = _free_running_paralyzable if config.paralyzable else _free_running_nonparalyzable
-    # the batch's brightest pixel has the largest automatic factor (its cells are the others' but for the window,
-    # which is its row of r2), so chunks sized by its chain hold every pixel's within the budget
     hist = np.zeros_like(r2)
     rho = np.zeros(r2.shape[0])
     if r2.shape[0] == 0:
         return hist, rho
+    # the batch's brightest pixel has the largest automatic factor (its cells are the others' but for the window,
+    # which is its row of r2), so chunks sized by its chain hold every pixel's within the budget
     brightest = int(np.argmax(r2.max(axis=1)))
     edges, q, _ = period_cells(r2[brightest:brightest + 1], config)
     states = q.shape[1] * (1 if config.paralyzable else int(_oversample(q, edges, config)[0]))
