@@ -473,8 +473,8 @@ def test_free_running_chunks_stay_within_their_memory_budget():
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    one_array = 8 * free_running.MARKOV_CHUNK_ELEMENTS                     # bytes of float64
-    assert peak < 8 * one_array, (peak, one_array)
+    array_bytes = 8 * free_running.MARKOV_CHUNK_ELEMENTS // 2               # one chunk array at most (float64)
+    assert peak < 16 * array_bytes, (peak, array_bytes)                     # a dozen of them, with room
     assert np.array_equal(hist[0], hist[-1]) and rho[0] == rho[-1] > 0
 
 
