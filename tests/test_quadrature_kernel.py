@@ -158,6 +158,32 @@ def test_closed_outward_surfaces():
         assert closed_outward(caster, np.array([obj]), spots)[0] == want
 
 
+def test_never_lit_faces_are_left_out_without_changing_a_bit(monkeypatch):
+    """The faces of a closed outward torus whose front is turned away from every laser point (dark_faces, from the
+    laser points' hull) are exactly those a brute-force test over every laser point finds, and leaving their
+    sub-triangles out changes no bit of the envelope or the error estimate (the kernel never lights them)."""
+    from datagen.scene import RayCaster
+    from datagen.transport.quadrature_primary import dark_faces, front_only
+
+    scene = _torus_scene(6)
+    sim = _torus_config(scene, 0.05)
+    cut, q_cut = _run(scene, sim, monkeypatch)
+    monkeypatch.setattr(quadrature, "dark_faces", lambda caster, faces, *args: np.zeros(len(faces), dtype=bool))
+    whole, q_whole = _run(scene, sim, monkeypatch)
+    assert q_cut.settings.shadow_spot and q_cut.front.any()
+    assert 0.6 * q_whole.n_cells < q_cut.n_cells < 0.9 * q_whole.n_cells
+    assert np.array_equal(cut.envelope, whole.envelope) and cut.envelope.max() > 0
+    assert cut.attrs["error"]["rel_l2"] == whole.attrs["error"]["rel_l2"] > 0
+    caster = RayCaster(scene)
+    faces = q_cut.area.hidden_faces
+    spots, normals = q_cut.capture.spots, q_cut.capture.spot_normals
+    front = front_only(caster, faces, spots)
+    n, p0 = caster.face_normals[faces], caster.vertices[caster.faces[faces, 0]]
+    brute = front & ((spots @ n.T) - np.einsum("ij,ij->i", n, p0) < -q_cut.area.tol).all(axis=0)
+    assert brute.sum() > 0 and np.array_equal(dark_faces(caster, faces, front, spots, normals, q_cut.area.tol), brute)
+    assert not dark_faces(caster, faces, np.zeros(len(faces), dtype=bool), spots, normals, 0.0).any()
+
+
 def test_torus_self_shadowing_without_rays_on_inner_sides(monkeypatch):
     """A self-shadowing closed mesh: the compiled primary (no rays for the inner sides of the torus) equals the
     numpy path (a ray for every lit pair) to 1e-5 (measured 1e-6: inner-side points within a ray offset of a
@@ -240,7 +266,8 @@ def test_threads_give_bit_identical_envelopes(monkeypatch, fov_cells):
 
 def test_plain_split_and_its_sub_scan_estimate_against_a_converged_reference(monkeypatch):
     """A 64 × 64 scan of a 1 280-triangle torus at h = 8 cm (longer than every edge, ≤ 7.3 cm): the even split
-    would hold 4× the sub-triangles, so the mesh's own triangles are used (quadrature_split's plain split) and the error
+    would hold 4× the sub-triangles, so the mesh's own triangles are used (quadrature_split's plain split; not those
+    turned away from every laser point) and the error
     estimate is (4/3)‖P(h) − P(h/2)‖ on every 8th laser point per axis. Against the same 8 × 8 block of laser
     points scanned at h/4 (16× closer to the integral) the measured error lies below the estimate and within 3× of
     it (measured 0.34 % against an estimate of 0.53 %)."""
@@ -249,7 +276,9 @@ def test_plain_split_and_its_sub_scan_estimate_against_a_converged_reference(mon
     scene = _torus_scene(64)
     result, q = _run(scene, _torus_config(scene, 0.08), monkeypatch)
     assert q.refine_lasers is not None and len(q.refine_lasers) == 64 and q.coarse_ratio == 0.5
-    assert q.n_cells == len(scene.objects[1].faces) and len(q.coarse_channels) == 64
+    faces = len(scene.objects[1].faces)          # each sub-triangle one whole face; those turned away left out
+    assert q.n_cells == len(np.unique(q.cell_face)) and 0.6 * faces < q.n_cells < faces
+    assert len(q.coarse_channels) == 64
     assert "E(h/2)" in result.attrs["error"]["method"]
     spots = resolve_capture(scene, RayCaster(scene)).spots.reshape(64, 64, 3)
     block = _torus_scene(8)
@@ -264,7 +293,8 @@ def test_plain_split_and_its_sub_scan_estimate_against_a_converged_reference(mon
 def test_forced_plain_split_compiled_equals_numpy():
     """``split="plain"`` on an 8 × 8 scan (sub-scan: the one point (4, 4)): the compiled and numpy primaries agree
     to 1e-9 on the envelope and on the rule at h/2 of the estimate, which holds that point's channel only; the
-    plain split keeps the torus's 1 280 triangles, the rule at h/2 cuts each into 4."""
+    plain split keeps the torus's triangles (but those turned away from every laser point), the rule at h/2 cuts
+    each into 4."""
     from datagen.transport.quadrature import Quadrature, QuadratureSettings
 
     scene = _torus_scene(8)
@@ -277,7 +307,8 @@ def test_forced_plain_split_compiled_equals_numpy():
                                   len(q.component_names) * q.capture.n_channels)
         q.run(acc)
         out.append((acc.binned().reshape(-1, 64, 512).sum(axis=0), q.coarse.binned_total(64)))   # per channel
-        assert q.n_cells == 1280 and list(q.refine_lasers) == [4 * 8 + 4] and q.coarse_ratio == 0.5
+        assert q.n_cells == len(np.unique(q.cell_face)) < 1280            # whole faces, less those turned away
+        assert list(q.refine_lasers) == [4 * 8 + 4] and q.coarse_ratio == 0.5
     (a, ca), (b, cb) = out
     assert np.linalg.norm(a - b) <= 1e-9 * np.linalg.norm(b) and np.linalg.norm(b) > 0
     assert np.linalg.norm(ca - cb) <= 1e-9 * np.linalg.norm(cb)

@@ -14,7 +14,10 @@ functions; only the way x is visited differs from the samplers.
 
 **The rule.** Every hidden face (:meth:`AreaSampler._hidden_faces`: the faces that can carry a primary path) is
 split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.sampling.subdivide_triangles`;
-k even or not, with the error estimate that goes with each: :mod:`.quadrature_split`).
+k even or not, with the error estimate that goes with each: :mod:`.quadrature_split`). A face of a closed outward
+surface whose front is turned away from every laser point is left out when the laser leg is shadow-tested: only its
+inner side faces them, which is never lit (:func:`~datagen.transport.quadrature_primary.dark_faces`; a quarter to a
+third of a hidden mesh's faces; the split is chosen before, so nothing else changes).
 For each (sub-triangle T, laser point, target) the weight is evaluated at the centroid and multiplied by the area
 of T (the midpoint rule), and the path length at the three *vertices* of T and at its centroid. On T the path
 length is replaced by its linear interpolant, under which the area measure of T pushes forward to a tent density
@@ -88,7 +91,7 @@ from .physics import PhysicsSettings, fov_connection_weight
 from .quadrature_grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
 from .quadrature_options import QUADRATURE_EDGE, QuadratureOptions
 from .quadrature_numpy import run_numpy
-from .quadrature_primary import leg_occluders, run_compiled
+from .quadrature_primary import dark_faces, front_only, leg_occluders, run_compiled
 from .quadrature_split import apply_split, choose_split, refined
 
 __all__ = ["QUADRATURE_EDGE", "Quadrature", "QuadratureOptions", "QuadratureSettings", "QuadratureStats",
@@ -295,8 +298,13 @@ class Quadrature:
         if s.grading is not None:                                       # finer near the scan (quadrature_grading)
             tri, piece_of = graded_triangles(tri, np.concatenate([c.spots, fov_hull]), s.grading,
                                              GRADING_MIN_EDGE * s.edge)
-        self.split_faces = (tri, piece_of)                              # what the estimate's rule at h/2 splits
         self.refine_lasers = choose_split(tri, s.edge, c, s.split)        # None: the even split (.quadrature_split)
+        self.front = front_only(self.caster, faces, c.spots)            # per hidden face: only its front is lit
+        dark = (dark_faces(self.caster, faces, self.front, c.spots, c.spot_normals, tol) if self.settings.shadow_spot
+                else np.zeros(len(faces), dtype=bool))
+        keep = ~dark[piece_of] if not dark.all() else np.ones(len(tri), dtype=bool)   # never-lit faces left out
+        tri, piece_of = tri[keep], piece_of[keep]
+        self.split_faces = (tri, piece_of)                              # what the estimate's rule at h/2 splits
         apply_split(self, tri, s.edge, even=self.refine_lasers is None, piece_of=piece_of)
         self.coarse_ratio = 2.0 if self.refine_lasers is None else 0.5
         self.coarse: Sink | None = None

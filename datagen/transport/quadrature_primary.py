@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 from ..scene import RayCaster
 from ..scene.separation import hull_planes, may_meet, outward_planes
@@ -24,8 +25,8 @@ from .quadrature_kernel import candidates, channel_groups, deposit_pairs, face_c
 from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
 from ..vectors import matmul, norm
 
-__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "FOV_MAP_PAIRS", "leg_occluders", "run_compiled",
-           "run_spheres"]
+__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "FOV_MAP_PAIRS", "dark_faces", "front_only",
+           "leg_occluders", "run_compiled", "run_spheres"]
 
 PAIR_TEST_MAX_PAIRS = 1 << 22
 """The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
@@ -243,6 +244,48 @@ def closed_outward(caster: RayCaster, objects: np.ndarray, spots: np.ndarray) ->
     return out
 
 
+def front_only(caster: RayCaster, faces: np.ndarray, spots: np.ndarray) -> np.ndarray:
+    """(F,) bool per face of ``faces``: its object is a closed outward surface with every laser point (``spots``
+    (L, 3)) outside its box (:func:`closed_outward`), so only the side its normal points to can be lit."""
+    face_object = caster.face_object[faces]
+    objects = np.unique(face_object)
+    return closed_outward(caster, objects, spots)[np.searchsorted(objects, face_object)]
+
+
+def dark_faces(caster: RayCaster, faces: np.ndarray, front: np.ndarray, spots: np.ndarray, spot_normals: np.ndarray,
+               tol: float) -> np.ndarray:
+    """(F,) bool per face of ``faces``: lit on its front only (``front``, :func:`front_only`) and that front turned
+    away from every laser point (n·(s − p₀) < −``tol`` for every s of ``spots`` (L, 3), n the face's unit normal,
+    p₀ a vertex): the compiled primary never lights such a face (the kernel's ``dark_inside``), so its
+    sub-triangles can be left out. The maximum over the laser points is taken over the vertices of their convex
+    hull (within their plane, :func:`~datagen.transport.quadrature_shadow.spot_plane` with their normals
+    ``spot_normals`` (L, 3), when they lie on one)."""
+    if not front.any():
+        return np.zeros(len(faces), dtype=bool)
+    ext = spots[_extreme_points(spots, spot_normals)]
+    n = caster.face_normals[faces]
+    step = max(1, (1 << 22) // len(ext))                              # bounded memory for every laser point
+    top = np.concatenate([(ext @ n[i:i + step].T).max(axis=0) for i in range(0, len(n), step)])
+    reach = top - np.einsum("ij,ij->i", n, caster.vertices[caster.faces[faces, 0]])
+    return front & (reach < -tol)
+
+
+def _extreme_points(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Indices of points (n, 3) holding the maximum of every linear function over them: their convex hull's
+    vertices (in their plane, when within ``PLANE_TOL`` of one), or every point when Qhull cannot build it."""
+    if len(points) <= 8:
+        return np.arange(len(points))
+    found = spot_plane(points, normals)
+    try:
+        if found is not None:
+            n = found[0]
+            u = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+            return ConvexHull(matmul(points, np.stack([u, np.cross(n, u)]).T)).vertices
+        return ConvexHull(points).vertices
+    except (QhullError, ValueError):
+        return np.arange(len(points))
+
+
 def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> None:
     """The primary of :class:`~datagen.transport.quadrature.Quadrature` ``q`` into the fine grid ``grid`` (and the
     coarse rule of its error estimate into ``coarse``, or None), both :class:`datagen.timing.tent_kernel.TentGrid`
@@ -278,11 +321,7 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
                                      dtype=np.float64)
     geo = (f64(q.vertices), i64(q.cells), f64(q.cell_area), comp_base, i64(q.coarse_of),
            i64(q.coarse_cells.reshape(-1, 3)))
-    front = getattr(q, "front_cache", None)             # per hidden face; the same for the estimate's sub-scan
-    if front is None:
-        face_object = q.caster.face_object[q.area.hidden_faces]
-        objects = np.unique(face_object)
-        q.front_cache = front = closed_outward(q.caster, objects, c.spots)[np.searchsorted(objects, face_object)]
+    front = q.front                                     # per hidden face (front_only)
     closed = front[q.cell_hidden].astype(np.uint8)
     pose = (f64(q.centroids), f64(q.cell_normal), i64(q.cell_hidden), closed, f64(c.spot_normals), f64(spot_f),
             float(c.photons), f64(c.fov_normal), f64(collect * q.target_area), float(q.area.tol), cell_brdf)
