@@ -59,11 +59,12 @@ def test_graded_quadrature_of_a_confocal_room_is_closer_to_the_fine_reference():
 @pytest.mark.parametrize("split", ["even", "plain"])
 def test_graded_sub_triangles_map_to_their_hidden_faces_in_both_splits(split):
     """With grading, every sub-triangle (of the run and, for the plain split, of the estimate's rule at h/2) names the
-    hidden face it lies in: the sub-triangle areas summed per hidden face equal that face's area (1e-9), and the
-    normals and objects are that face's."""
+    hidden face it lies in: the sub-triangle areas summed per hidden face equal that face's area (1e-9; 0 for the
+    faces turned away from every laser point, left out), and the normals and objects are that face's."""
     from datagen.dataset import load_dataset_config
     from datagen.dataset.config import draw_room
     from datagen.transport import Quadrature, QuadratureSettings
+    from datagen.transport.quadrature_primary import dark_faces
     from datagen.transport.quadrature_split import refined
 
     config = load_dataset_config("configs/datasets/confocal_smoke.yaml")
@@ -73,10 +74,14 @@ def test_graded_sub_triangles_map_to_their_hidden_faces_in_both_splits(split):
     assert (q.refine_lasers is not None) == (split == "plain")
     faces = q.area.hidden_faces
     face_area = _area(q.caster.vertices[q.caster.faces[faces]])
+    c = q.capture                                   # faces turned away from every laser point have no sub-triangle
+    dark = dark_faces(q.caster, faces, q.front, c.spots, c.spot_normals, q.area.tol)
+    assert q.settings.shadow_spot and dark.any() and not dark.all()
     for run in runs:
         assert len(run.cell_hidden) > 2 * len(faces)                          # graded: finer than the faces
         per_face = np.bincount(run.cell_hidden, weights=run.cell_area, minlength=len(faces))
-        np.testing.assert_allclose(per_face, face_area, rtol=1e-9)
+        np.testing.assert_allclose(per_face[~dark], face_area[~dark], rtol=1e-9)
+        assert not per_face[dark].any()
         assert np.array_equal(run.cell_face, faces[run.cell_hidden])
         np.testing.assert_array_equal(run.cell_normal, q.caster.face_normals[faces[run.cell_hidden]])
 
