@@ -475,3 +475,23 @@ def test_distinct_rows_is_numpy_unique_and_a_split_shares_its_mesh_vertices():
     distinct, index = distinct_rows(vertices)
     assert len(vertices) == 6 and len(distinct) == 4
     assert np.array_equal(distinct[index[cells]], vertices[cells])
+
+
+def test_aperture_cells_per_pixel_side():
+    """FoV cells per pixel side: ceil(pixel side / edge) clamped to 1 … MAX_FOV_CELLS, a forced value as given, none
+    for a point-radiance capture; the quadrature takes the same number at the edge it runs."""
+    from dataclasses import replace
+
+    from datagen.dataset import load_dataset_config
+    from datagen.dataset.config import draw_room
+    from datagen.scene import RayCaster, resolve_capture
+    from datagen.transport import Quadrature, QuadratureSettings
+
+    scene = draw_room(load_dataset_config("configs/datasets/wall_smoke.yaml"), "train", 0)[0].scene
+    c = resolve_capture(scene, RayCaster(scene))
+    side = max(c.fov_size[0] / c.fov_pixels[0], c.fov_size[1] / c.fov_pixels[1])    # 2 m / 16 = 0.125 m
+    assert c.convention == "aperture" and side == pytest.approx(0.125)
+    cells = Quadrature.aperture_cells
+    assert [cells(c, e) for e in (1.0, 0.125, 0.1249, 0.06, 0.03, 1e-5)] == [1, 1, 2, 3, 5, 64]
+    assert cells(c, 0.06, 2) == 2 and cells(replace(c, convention="point_radiance"), 0.06) is None
+    assert Quadrature(scene, QuadratureSettings(edge=0.06, secondary="none")).fov_cells == 3

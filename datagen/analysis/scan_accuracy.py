@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError
-from ..scene import RayCaster, Scene
+from ..scene import RayCaster, Scene, resolve_capture
 from ..transport import estimator as transport_estimator
 from .accuracy import Ladder, relative_l2, run_estimator
 from .reference import Reference
@@ -59,10 +59,10 @@ def _step(edge: float, base_edge: float, grading: float | None, fov_cells: int |
 
 def _fov_cells(scene: Scene, config, caster: RayCaster) -> int | None:
     """FoV cells per pixel side the quadrature takes at the config's edge (None: not an aperture capture)."""
-    entry = transport_estimator(SCAN_LADDER)
-    edge, grading = _base(config)
-    settings = entry.settings_class.from_transport(config.transport_settings(), edge=edge, grading=grading)
-    return entry.cls(scene, settings, caster).fov_cells
+    edge, _ = _base(config)
+    settings = config.transport_settings()
+    return transport_estimator(SCAN_LADDER).cls.aperture_cells(resolve_capture(scene, caster), edge,
+                                                              getattr(settings, "fov_cells", None))
 
 
 def scan_ladder(scene: Scene, config, reference_edge: float | None = None,

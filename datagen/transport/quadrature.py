@@ -318,9 +318,8 @@ class Quadrature:
             self.fov_cells_fixed = True
         else:
             pw, ph = c.fov_size[0] / nx, c.fov_size[1] / ny
-            auto = lambda h: int(min(MAX_FOV_CELLS, max(1, np.ceil(max(pw, ph) / h - 1e-9))))
-            k = s.fov_cells or auto(s.edge)
-            self.fov_cells_fixed = bool(s.fov_cells or auto(2.0 * s.edge) == k)     # the same FoV cells at 2h
+            k = self.aperture_cells(c, s.edge, s.fov_cells)
+            self.fov_cells_fixed = bool(s.fov_cells or self.aperture_cells(c, 2.0 * s.edge) == k)  # the same at 2h
             g = (np.arange(k) + 0.5) / k
             gu, gv = np.meshgrid(g, g, indexing="xy")                          # (k, k): v rows, u columns
             iy, ix = np.divmod(np.arange(c.n_pixels), nx)
@@ -528,6 +527,18 @@ class Quadrature:
             self.refine_stats = sub.stats
         if self.settings.first_bounce:
             self.physics.first_bounce(sink, self.n_primary + 1)
+
+    @staticmethod
+    def aperture_cells(capture: Capture, edge: float, forced: int | None = None) -> int | None:
+        """FoV cells per pixel side of ``capture`` with hidden sub-triangles of edge ``edge`` (m): ``forced`` (the
+        settings' ``fov_cells``) if given, else ceil(pixel side / edge) clamped to 1 … ``MAX_FOV_CELLS`` (module doc,
+        Error order); None for a point-radiance capture, which connects to its sensor points."""
+        if capture.convention == "point_radiance":
+            return None
+        if forced:
+            return int(forced)
+        side = max(capture.fov_size[0] / capture.fov_pixels[0], capture.fov_size[1] / capture.fov_pixels[1])
+        return int(min(MAX_FOV_CELLS, max(1, np.ceil(side / edge - 1e-9))))
 
     def compiled_case(self) -> bool:
         """Whether the compiled primary covers these settings: Lambertian or Phong hidden surfaces, Lambertian laser
