@@ -231,6 +231,8 @@ class Quadrature:
         component_names: names of the sink components (primary components, "secondary"[, "first_bounce"]).
         n_cells: M, sub-triangles; targets: (T, 3) FoV targets; total_rows: (cell, connection) rows of a run.
         stats: :class:`QuadratureStats`.
+        front: (F_h,) bool per hidden face: only its front can be lit (a closed outward surface,
+        :func:`~datagen.transport.quadrature_primary.front_only`).
         coarse: after a run on a point-sensor capture (or FoV cells that stay the same at 2h), the rule the error
         estimate compares with (summed over components, channel rows; only the channels ``coarse_channels``), as
         :mod:`.quadrature_split` says: with the even split (``refine_lasers`` None, ``coarse_ratio`` 2) the primary at twice
@@ -302,7 +304,8 @@ class Quadrature:
         self.front = front_only(self.caster, faces, c.spots)            # per hidden face: only its front is lit
         dark = (dark_faces(self.caster, faces, self.front, c.spots, c.spot_normals, tol) if self.settings.shadow_spot
                 else np.zeros(len(faces), dtype=bool))
-        keep = ~dark[piece_of] if not dark.all() else np.ones(len(tri), dtype=bool)   # never-lit faces left out
+        # never-lit faces left out (all of them dark: kept, so that the run has cells; they add nothing)
+        keep = ~dark[piece_of] if not dark.all() else np.ones(len(tri), dtype=bool)
         tri, piece_of = tri[keep], piece_of[keep]
         self.split_faces = (tri, piece_of)                              # what the estimate's rule at h/2 splits
         apply_split(self, tri, s.edge, even=self.refine_lasers is None, piece_of=piece_of)

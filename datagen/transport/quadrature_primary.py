@@ -256,8 +256,8 @@ def dark_faces(caster: RayCaster, faces: np.ndarray, front: np.ndarray, spots: n
                tol: float) -> np.ndarray:
     """(F,) bool per face of ``faces``: lit on its front only (``front``, :func:`front_only`) and that front turned
     away from every laser point (n·(s − p₀) < −``tol`` for every s of ``spots`` (L, 3), n the face's unit normal,
-    p₀ a vertex): the compiled primary never lights such a face (the kernel's ``dark_inside``), so its
-    sub-triangles can be left out. The maximum over the laser points is taken over the vertices of their convex
+    p₀ a vertex): the compiled primary never lights such a face (the kernel's ``dark_inside``; the numpy path's
+    shadow rays find it blocked, Embree's float32 leaks aside), so its sub-triangles can be left out. The maximum over the laser points is taken over the vertices of their convex
     hull (within their plane, :func:`~datagen.transport.quadrature_shadow.spot_plane` with their normals
     ``spot_normals`` (L, 3), when they lie on one)."""
     if not front.any():
@@ -272,7 +272,8 @@ def dark_faces(caster: RayCaster, faces: np.ndarray, front: np.ndarray, spots: n
 
 def _extreme_points(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Indices of points (n, 3) holding the maximum of every linear function over them: their convex hull's
-    vertices (in their plane, when within ``PLANE_TOL`` of one), or every point when Qhull cannot build it."""
+    vertices (in their plane, when :func:`~datagen.transport.quadrature_shadow.spot_plane` finds one), or every point
+    when Qhull cannot build it."""
     if len(points) <= 8:
         return np.arange(len(points))
     found = spot_plane(points, normals)
