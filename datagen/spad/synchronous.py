@@ -9,6 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from .arrays import as_rates, exclusive_cumsum
 from .config import DetectorConfig
@@ -102,8 +103,8 @@ def detection_pmf(rates: Any) -> np.ndarray:
 
 def first_photon_sequential(gen: np.random.Generator, r: np.ndarray, n: int) -> np.ndarray:
     """Exact first-photon (pile-up) counts of ``n`` synchronous laser cycles by sequential conditional binomials
-    ``N_i ~ Bin(D_i, 1 − e^{−r_i})``, ``D_0 = n``, ``D_{i+1} = D_i − N_i`` (docs/physics.md §6); one vectorised
-    binomial call per bin over all pixels of the chunk.
+    ``N_i ~ Bin(D_i, 1 − e^{−r_i})``, ``D_0 = n``, ``D_{i+1} = D_i − N_i`` (docs/physics.md §6), bin by bin over all
+    pixels of the chunk (compiled; the same draws as one vectorised ``gen.binomial`` call per bin).
 
     Args:
         gen: numpy Generator (advanced by the call).
@@ -113,14 +114,25 @@ def first_photon_sequential(gen: np.random.Generator, r: np.ndarray, n: int) -> 
         int64 (pixels, bins) counts; each row sums to at most ``n``.  Same distribution as
         :func:`first_photon_tree` (but other draws for the same ``gen``).
     """
-    p = -np.expm1(-r)
-    out = np.zeros(r.shape, dtype=np.int64)
-    remaining = np.full(r.shape[0], n, dtype=np.int64)
-    for i in range(r.shape[1]):
-        ni = gen.binomial(remaining, p[:, i])
-        out[:, i] = ni
-        remaining -= ni
-        if not remaining.any():
+    return _sequential_binomials(gen, -np.expm1(-r), int(n))
+
+
+@njit(cache=True, nogil=True)
+def _sequential_binomials(gen, p, n):
+    """The draws of :func:`first_photon_sequential`, compiled: for each bin i in turn, ``gen.binomial(D_j, p[j, i])``
+    for pixels j = 0, 1, … (numba's binomial is numpy's algorithm: the same numbers, in the same order, as one
+    vectorised ``gen.binomial(D, p[:, i])`` call per bin, without a Python call per bin). p (pixels, bins) float64."""
+    n_pix, bins = p.shape
+    out = np.zeros((n_pix, bins), dtype=np.int64)
+    remaining = np.full(n_pix, n, dtype=np.int64)
+    for i in range(bins):
+        left = False
+        for j in range(n_pix):
+            k = gen.binomial(remaining[j], p[j, i])
+            out[j, i] = k
+            remaining[j] -= k
+            left = left or remaining[j] > 0
+        if not left:
             break
     return out
 
