@@ -58,11 +58,10 @@ def _step(edge: float, base_edge: float, grading: float | None, fov_cells: int |
 
 
 def _fov_cells(scene: Scene, config, caster: RayCaster) -> int | None:
-    """FoV cells per pixel side the quadrature takes at the config's edge (None: not an aperture capture)."""
+    """FoV cells per pixel side the quadrature takes by default at the config's edge (None: not an aperture
+    capture)."""
     edge, _ = _base(config)
-    settings = config.transport_settings()
-    return transport_estimator(SCAN_LADDER).cls.aperture_cells(resolve_capture(scene, caster), edge,
-                                                              getattr(settings, "fov_cells", None))
+    return transport_estimator(SCAN_LADDER).cls.aperture_cells(resolve_capture(scene, caster), edge)
 
 
 def scan_ladder(scene: Scene, config, reference_edge: float | None = None,

@@ -164,9 +164,7 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     if found is None:
         return none
     n, o = found
-    u = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
-    u /= norm(u)
-    axes = np.stack([spots.mean(axis=0), u, np.cross(n, u)])
+    axes = np.concatenate([spots.mean(axis=0)[None], _plane_axes(n)])
     uv = matmul(spots - axes[0], axes[1:].T)
     buckets, bucket_ptr, bucket_col = spot_buckets(uv)
     centre = axes[0]                                      # the laser points' mean
@@ -178,6 +176,13 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     laser_col = np.full(c.n_lasers, -1, dtype=np.int64)
     laser_col[lasers] = np.arange(len(lasers))
     return True, flags, laser_col
+
+
+def _plane_axes(n: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal axes in the plane of unit normal ``n`` (3,)."""
+    u = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    u /= norm(u)
+    return np.stack([u, np.cross(n, u)])
 
 
 def _fov_map(q) -> tuple[bool, np.ndarray]:
@@ -257,9 +262,10 @@ def dark_faces(caster: RayCaster, faces: np.ndarray, front: np.ndarray, spots: n
     """(F,) bool per face of ``faces``: lit on its front only (``front``, :func:`front_only`) and that front turned
     away from every laser point (n·(s − p₀) < −``tol`` for every s of ``spots`` (L, 3), n the face's unit normal,
     p₀ a vertex): the compiled primary never lights such a face (the kernel's ``dark_inside``; the numpy path's
-    shadow rays find it blocked, Embree's float32 leaks aside), so its sub-triangles can be left out. The maximum over the laser points is taken over the vertices of their convex
-    hull (within their plane, :func:`~datagen.transport.quadrature_shadow.spot_plane` with their normals
-    ``spot_normals`` (L, 3), when they lie on one)."""
+    shadow rays find it blocked, Embree's float32 leaks aside), so its sub-triangles can be left out. The maximum
+    over the laser points is taken over the vertices of their convex hull (within their plane,
+    :func:`~datagen.transport.quadrature_shadow.spot_plane` with their normals ``spot_normals`` (L, 3), when they
+    lie on one)."""
     if not front.any():
         return np.zeros(len(faces), dtype=bool)
     ext = spots[_extreme_points(spots, spot_normals)]
@@ -279,9 +285,7 @@ def _extreme_points(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     found = spot_plane(points, normals)
     try:
         if found is not None:
-            n = found[0]
-            u = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
-            return ConvexHull(matmul(points, np.stack([u, np.cross(n, u)]).T)).vertices
+            return ConvexHull(matmul(points, _plane_axes(found[0]).T)).vertices
         return ConvexHull(points).vertices
     except (QhullError, ValueError):
         return np.arange(len(points))
