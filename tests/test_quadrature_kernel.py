@@ -333,3 +333,56 @@ def test_run_spheres_bound_each_run():
         centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
         assert np.array_equal(got[r], [*centre, np.sqrt(((pts - centre) ** 2).sum(axis=1).max())])
     assert run_spheres(np.zeros((0, 3)), np.zeros(0, dtype=np.int64)).shape == (0, 4)
+
+
+def test_run_chunks_tile_each_run_and_hold_its_grown_triangles():
+    """run_chunks: each run's entries are only reordered within the run; its chunks tile it in order, at most
+    RUN_CHUNK each; each chunk's sphere holds every vertex of its triangles grown by 2δ (and a degenerate
+    triangle's own vertices), so the kernel's sphere test can skip only triangles that could not block."""
+    from datagen.transport.quadrature_primary import RUN_CHUNK, run_chunks
+    from datagen.transport.quadrature_shadow import grown_triangles
+
+    rng = np.random.default_rng(1)
+    tri = rng.normal(size=(300, 3, 3))
+    tri[7, 2] = tri[7, 0]                                              # a degenerate triangle: grown is NaN
+    grown = grown_triangles(tri, 2e-3)
+    lens = rng.integers(1, 40, 50)
+    lo = np.append(0, np.cumsum(lens)[:-1])
+    hi = lo + lens
+    occ_of = rng.integers(0, 300, lens.sum())
+    occ_of[0] = 7
+    order, run_chunk, chunk_ptr, spheres = run_chunks(tri, grown, occ_of, lo, hi)
+    assert len(run_chunk) == len(lo) + 1 and chunk_ptr[-1] == len(occ_of) and len(spheres) == len(chunk_ptr) - 1
+    for r in range(len(lo)):
+        assert sorted(order[lo[r]:hi[r]]) == sorted(occ_of[lo[r]:hi[r]])
+        starts = chunk_ptr[run_chunk[r]:run_chunk[r + 1] + 1]
+        assert starts[0] == lo[r] and starts[-1] == hi[r]
+        assert (np.diff(starts) >= 1).all() and (np.diff(starts) <= RUN_CHUNK).all()
+    for c in range(len(spheres)):
+        k = order[chunk_ptr[c]:chunk_ptr[c + 1]]
+        pts = np.where(np.isnan(grown[k]), tri[k], grown[k]).reshape(-1, 3)
+        assert (np.linalg.norm(pts - spheres[c, :3], axis=1) <= spheres[c, 3] * (1 + 1e-12)).all()
+    assert (lens > RUN_CHUNK).any() and np.isnan(grown[7]).all()
+    none = run_chunks(tri, grown, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
+                      np.zeros(0, dtype=np.int64))
+    assert none[1].tolist() == [0] and none[2].tolist() == [0] and none[3].shape == (0, 4)
+
+
+def test_chunked_segment_tests_change_no_bit(monkeypatch):
+    """The self-shadowing torus (faces with dozens of candidate occluders from their own object): the kernel's
+    segment tests with chunk spheres (RUN_CHUNK) give the same envelope, error estimate, tents and shadow rays, bit
+    for bit, as with one chunk per run (every candidate of a run whose sphere the segment meets is tested)."""
+    from datagen.transport import quadrature_primary
+    from datagen.transport.quadrature_kernel import OCC
+
+    scene = _torus_scene(6)
+    sim = _torus_config(scene, 0.05)
+    chunked, q_chunked = _run(scene, sim, monkeypatch)
+    monkeypatch.setattr(quadrature_primary, "RUN_CHUNK", 1 << 30)
+    whole, q_whole = _run(scene, sim, monkeypatch)
+    occ = dict(zip(OCC, q_chunked.occluder_cache[1]))
+    assert (np.diff(occ["run_chunk"]) > 1).any()                        # runs of several chunks were tested
+    assert (np.diff(dict(zip(OCC, q_whole.occluder_cache[1]))["run_chunk"]) == 1).all()
+    assert np.array_equal(chunked.envelope, whole.envelope) and chunked.envelope.max() > 0
+    assert chunked.attrs["error"]["rel_l2"] == whole.attrs["error"]["rel_l2"] > 0
+    assert (q_chunked.stats.tents, q_chunked.stats.shadow_rays) == (q_whole.stats.tents, q_whole.stats.shadow_rays)

@@ -60,8 +60,8 @@ def test_every_pair_a_grown_occluder_may_block_is_marked(seed):
     buckets, ptr, col = spot_buckets(uv)
     flags = np.zeros((len(spots), 60), dtype=np.uint8)
     one = np.zeros(1, dtype=np.int64)
-    occ = (True, np.array([0, 1]), one, np.array([30]), np.zeros((1, 4)), np.arange(30), plane, edges, MARGIN,
-           np.zeros(1, dtype=np.uint8))
+    occ = (True, np.array([0, 1]), one, np.array([30]), np.zeros((1, 4)), np.array([0, 1]), np.array([0, 30]),
+           np.zeros((1, 4)), np.arange(30), plane, edges, MARGIN, np.zeros(1, dtype=np.uint8))      # OCC: one run
     shadow_flags((x, normal, closed, np.zeros(60, dtype=np.int64)), occ, grown,
                  (np.append(n, o), axes, uv, spots.mean(axis=0),
                   float(np.linalg.norm(spots - spots.mean(0), axis=1).max()), buckets, ptr, col), flags)

@@ -20,7 +20,8 @@ computed in loops with no branch on a pair's values (:func:`_cell_legs`, :func:`
 per pair), then the contributing pairs are deposited one by one (the BRDF, visibility and tents).
 
 Visibility of the laser leg (``shadow``): only the triangles that may cross a segment from T's face to the laser
-points (the separating-plane test per face), grouped in runs of one object with a bounding sphere, are tested,
+points (the separating-plane test per face), grouped in runs of one object with a bounding sphere and in chunks
+of eight with spheres of their own (a face of a curved mesh has dozens to hundreds of candidates), are tested,
 exactly in float64 (:func:`_blocked`): a segment that misses them all by more than ``margin`` is visible, one that
 crosses a triangle more than ``margin`` inside its edges is blocked, and only the rest (within ``margin`` of an
 edge) is listed for an Embree shadow ray (:func:`candidates`) and deposited after it (:func:`deposit_pairs`).
@@ -74,42 +75,55 @@ def _dist(a, i, b, j) -> float:
 
 
 @njit(cache=True, inline="always")
-def _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, idx, plane, edges, margin) -> int:
-    """Whether a candidate triangle of hidden face f (its runs, each inside a bounding sphere) blocks the segment
-    centroid[m] → spots[l]: 0 no (every one is missed by more than ``margin``, or an end lies on its plane: its own
-    surface, which the ray's pushed-off end clears), 1 yes (one is crossed with both ends more than ``margin`` off
-    its plane and the crossing more than ``margin`` inside its edges: Embree's ray meets it too), 2 within
-    ``margin`` (a shadow ray decides)."""
+def _misses(spheres, r, x0, x1, x2, e0, e1, e2, length2, margin) -> bool:
+    """Whether the segment x → x + e (``length2`` = |e|²) passes farther than ``margin`` from sphere r of
+    ``spheres`` (R, 4): centre and radius, metres."""
+    c0, c1, c2 = spheres[r, 0] - x0, spheres[r, 1] - x1, spheres[r, 2] - x2
+    u = min(max((c0 * e0 + c1 * e1 + c2 * e2) / length2, 0.0), 1.0)
+    q0, q1, q2 = c0 - u * e0, c1 - u * e1, c2 - u * e2
+    reach = spheres[r, 3] + margin
+    return q0 * q0 + q1 * q1 + q2 * q2 > reach * reach
+
+
+@njit(cache=True, inline="always")
+def _blocked(centroid, m, spots, l, run_ptr, f, run_chunk, chunk_ptr, spheres, chunk_spheres, idx, plane, edges,
+             margin) -> int:
+    """Whether a candidate triangle of hidden face f (its runs, each inside a bounding sphere, in chunks of at most
+    ``RUN_CHUNK`` triangles inside spheres of their own: :func:`datagen.transport.quadrature_primary.run_chunks`)
+    blocks the segment centroid[m] → spots[l]: 0 no (every one is missed by more than ``margin``, or an end lies on
+    its plane: its own surface, which the ray's pushed-off end clears), 1 yes (one is crossed with both ends more
+    than ``margin`` off its plane and the crossing more than ``margin`` inside its edges: Embree's ray meets it too),
+    2 within ``margin`` (a shadow ray decides). The verdict does not depend on the order of the triangles."""
     x0, x1, x2 = centroid[m, 0], centroid[m, 1], centroid[m, 2]
     s0, s1, s2 = spots[l, 0], spots[l, 1], spots[l, 2]
     e0, e1, e2 = s0 - x0, s1 - x1, s2 - x2
     length2 = e0 * e0 + e1 * e1 + e2 * e2
     out = 0
     for r in range(run_ptr[f], run_ptr[f + 1]):
-        c0, c1, c2 = spheres[r, 0] - x0, spheres[r, 1] - x1, spheres[r, 2] - x2
-        u = min(max((c0 * e0 + c1 * e1 + c2 * e2) / length2, 0.0), 1.0)
-        q0, q1, q2 = c0 - u * e0, c1 - u * e1, c2 - u * e2
-        reach = spheres[r, 3] + margin
-        if q0 * q0 + q1 * q1 + q2 * q2 > reach * reach:
+        if _misses(spheres, r, x0, x1, x2, e0, e1, e2, length2, margin):
             continue                                 # the segment misses the run's bounding sphere
-        for i in range(run_lo[r], run_hi[r]):
-            k = idx[i]
-            n0, n1, n2, o = plane[k, 0], plane[k, 1], plane[k, 2], plane[k, 3]
-            d0 = n0 * x0 + n1 * x1 + n2 * x2 - o
-            d1 = n0 * s0 + n1 * s1 + n2 * s2 - o
-            if abs(d0) <= margin or abs(d1) <= margin or (d0 > 0.0) == (d1 > 0.0):
-                continue
-            t = d0 / (d0 - d1)
-            p0 = x0 + t * e0
-            p1 = x1 + t * e1
-            p2 = x2 + t * e2
-            inner = np.inf
-            for j in range(3):
-                inner = min(inner, edges[k, j, 0] * p0 + edges[k, j, 1] * p1 + edges[k, j, 2] * p2 - edges[k, j, 3])
-            if inner > margin:
-                return 1
-            if inner >= -margin:
-                out = 2
+        several = run_chunk[r + 1] - run_chunk[r] > 1
+        for c in range(run_chunk[r], run_chunk[r + 1]):
+            if several and _misses(chunk_spheres, c, x0, x1, x2, e0, e1, e2, length2, margin):
+                continue                             # … or the chunk's (its triangles grown by 2·margin)
+            for i in range(chunk_ptr[c], chunk_ptr[c + 1]):
+                k = idx[i]
+                n0, n1, n2, o = plane[k, 0], plane[k, 1], plane[k, 2], plane[k, 3]
+                d0 = n0 * x0 + n1 * x1 + n2 * x2 - o
+                d1 = n0 * s0 + n1 * s1 + n2 * s2 - o
+                if abs(d0) <= margin or abs(d1) <= margin or (d0 > 0.0) == (d1 > 0.0):
+                    continue
+                t = d0 / (d0 - d1)
+                p0 = x0 + t * e0
+                p1 = x1 + t * e1
+                p2 = x2 + t * e2
+                inner = np.inf
+                for j in range(3):
+                    inner = min(inner, edges[k, j, 0] * p0 + edges[k, j, 1] * p1 + edges[k, j, 2] * p2 - edges[k, j, 3])
+                if inner > margin:
+                    return 1
+                if inner >= -margin:
+                    out = 2
     return out
 
 
@@ -213,7 +227,8 @@ POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photon
 CONN = ("conn_laser", "conn_target", "conn_channel", "conn_same")
 LEGS = ("spots", "targets", "emitter_leg", "laser_off", "d_y", "sensor_off", "mu", "speed", "stride")
 GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "total", "beyond", "bound")
-OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "occ_idx", "plane", "edges", "margin", "face_ray")
+OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "run_chunk", "chunk_ptr", "chunk_spheres", "occ_idx",
+       "plane", "edges", "margin", "face_ray")
 SHADE = ("use_flags", "flags", "laser_col", "use_fov", "fov_visible")
 """The kernel's inputs by group (tuples; :func:`datagen.transport.quadrature_primary.run_compiled` builds them). The
 kernel unpacks every group once before its loops: arrays taken out of a tuple inside numba's inner loop cost an
@@ -240,7 +255,8 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     spots, targets, emitter_leg, laser_off, d_y, sensor_off, mu, speed, stride = legs
     t_start, step, shift, n_fine, min_nodes, hist, curv, total, beyond, bound = grid
     ct_start, cstep, cshift, cn_fine, cmin_nodes, chist, ccurv, ctotal, cbeyond, cbound = coarse
-    shadow, run_ptr, run_lo, run_hi, spheres, occ_idx, plane, edges, margin, face_ray = occ
+    shadow, run_ptr, run_lo, run_hi, spheres, run_chunk, chunk_ptr, chunk_spheres, occ_idx, plane, edges, margin, \
+        face_ray = occ
     use_flags, flags, laser_col, use_fov, fov_visible = shade
     M = centroid.shape[0]
     per_metre, origin = _node_map(speed, t_start, step, shift)
@@ -307,8 +323,8 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
                     elif use_flags and flags[laser_col[l], m] == 0:
                         blocked = 0                     # no candidate's shadow reaches this laser point
                     else:
-                        blocked = _blocked(centroid, m, spots, l, run_ptr, f, run_lo, run_hi, spheres, occ_idx,
-                                           plane, edges, margin)
+                        blocked = _blocked(centroid, m, spots, l, run_ptr, f, run_chunk, chunk_ptr, spheres,
+                                           chunk_spheres, occ_idx, plane, edges, margin)
                     if blocked == 1:
                         continue
                     if blocked == 2:

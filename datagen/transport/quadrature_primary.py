@@ -21,12 +21,12 @@ from ..scene.separation import hull_planes, may_meet, outward_planes
 from ..scene.brdf_kernel import lambertian_value, on_arrays
 from ..threads import threads_for
 from ..units import SPEED_OF_LIGHT
-from .quadrature_kernel import candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes
+from .quadrature_kernel import OCC, candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes
 from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
 from ..vectors import matmul, norm
 
 __all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "FOV_MAP_PAIRS", "dark_faces", "front_only",
-           "leg_occluders", "run_compiled", "run_spheres"]
+           "leg_occluders", "morton_codes", "run_chunks", "run_compiled", "run_spheres"]
 
 PAIR_TEST_MAX_PAIRS = 1 << 22
 """The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
@@ -44,6 +44,11 @@ more CPU time there (measured on confocal.yaml samples); longer runs (the 128 ×
 use all of numba's. Either way the kernels are numba's parallel ones: a process that ran one has GNU OpenMP
 started, and a child it forks must not run them (numba stops such a child); the build's workers come from a fork
 server, which runs none."""
+
+RUN_CHUNK = 8
+"""Candidate triangles per bounding sphere inside a run of the segment test (:func:`run_chunks`): a face of a
+curved mesh may have hundreds of candidates from its own object, and a segment from the face passes through that
+object's sphere."""
 
 PAIR_BLOCK = 1 << 22
 """(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
@@ -99,7 +104,8 @@ def _leg_hulls(t: np.ndarray, apexes: np.ndarray) -> tuple:
 def _occluder_lists(q, front: np.ndarray) -> tuple:
     """The kernel's :data:`~datagen.transport.quadrature_kernel.OCC` group for quadrature ``q``: per hidden face the
     triangles that may block its laser legs, in runs of one object each (CSR ``run_ptr`` over runs; run r holds
-    ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``), their planes and edge planes, the
+    ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``, in the chunks of :func:`run_chunks`),
+    their planes and edge planes, the
     margin, and per hidden face whether every lit pair casts a ray instead. The triangles come from
     :func:`leg_occluders`, or, when that has too many pairs to test (a big mesh), from the compiled
     :func:`~datagen.transport.quadrature_kernel.face_candidates`, which also separates by a face's own plane where only
@@ -133,8 +139,55 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
     plane, edges = occluder_planes(tri) if len(tri) else (np.zeros((1, 4)), np.zeros((1, 3, 4)))
     margin = MARGIN_OFFSETS * caster.offset
     grown = grown_triangles(tri, 2.0 * margin) if len(tri) else np.zeros((1, 3, 3))
-    return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), spheres, occ_of.astype(np.int64),
-            plane, edges, float(margin), face_ray), grown
+    occ_of, run_chunk, chunk_ptr, chunk_spheres = run_chunks(tri, grown, occ_of, run_lo, run_hi)
+    return (shadow, run_ptr, run_lo.astype(np.int64), run_hi.astype(np.int64), spheres, run_chunk, chunk_ptr,
+            chunk_spheres, occ_of.astype(np.int64), plane, edges, float(margin), face_ray), grown
+
+
+def run_chunks(tri: np.ndarray, grown: np.ndarray, occ_of: np.ndarray, run_lo: np.ndarray,
+               run_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The runs' triangles in chunks of at most ``RUN_CHUNK``, each inside a sphere that the kernel's segment test
+    checks before its triangles (:func:`datagen.transport.quadrature_kernel.candidates`).
+
+    Args:
+        tri: (k, 3, 3) the candidate triangles, metres; grown: (k, 3, 3) the same grown by 2δ (:func:`grown_triangles`:
+            NaN where degenerate); occ_of: (n,) int64 the runs' entries (indices into ``tri``); run_lo, run_hi: (R,)
+            run r holds entries [run_lo[r], run_hi[r]), contiguous and ascending.
+    Returns:
+        occ_of: (n,) the same entries, each run's in the Morton order of their centroids (a run's entries stay in
+        it: the segment test's verdict does not depend on their order); run_chunk: (R + 1,) int64, run r's chunks
+        [run_chunk[r], run_chunk[r + 1]); chunk_ptr: (C + 1,) int64, chunk c's entries [chunk_ptr[c],
+        chunk_ptr[c + 1]); chunk_spheres: (C, 4) centre and radius (m) holding the grown triangles of each chunk.
+        A triangle can only block a segment or send it to a shadow ray where the segment passes within δ of the
+        triangle grown by δ (its edge test), so a segment missing a chunk's sphere by more than δ needs none of its
+        triangles tested: the verdict is the same as without chunks.
+    """
+    n_runs = len(run_lo)
+    if n_runs == 0:
+        return occ_of, np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros((0, 4))
+    run = np.repeat(np.arange(n_runs), run_hi - run_lo)
+    occ_of = occ_of[np.lexsort((morton_codes(tri.mean(axis=1))[occ_of], run))]
+    per_run = -(-(run_hi - run_lo) // RUN_CHUNK)
+    run_chunk = np.append(0, np.cumsum(per_run)).astype(np.int64)
+    first = np.repeat(run_lo, per_run)
+    chunk_lo = first + RUN_CHUNK * (np.arange(run_chunk[-1]) - np.repeat(run_chunk[:-1], per_run))
+    chunk_ptr = np.append(chunk_lo, len(occ_of)).astype(np.int64)
+    bound = np.where(np.isnan(grown), tri, grown)            # a degenerate triangle is never crossed
+    return occ_of, run_chunk, chunk_ptr, run_spheres(bound[occ_of].reshape(-1, 3), 3 * chunk_lo)
+
+
+def morton_codes(points: np.ndarray, bits: int = 10) -> np.ndarray:
+    """(n,) int64 Morton (Z-order) codes of ``points`` (n, 3), each axis quantised to ``bits`` bits over their
+    bounding box: sorting by them keeps nearby points close."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    lo, span = points.min(axis=0), np.ptp(points, axis=0)
+    q = np.floor((points - lo) / np.where(span > 0, span, 1.0) * ((1 << bits) - 1)).astype(np.int64)
+    code = np.zeros(len(points), dtype=np.int64)
+    for b in range(bits):
+        for axis in range(3):
+            code |= ((q[:, axis] >> b) & 1) << (3 * b + axis)
+    return code
 
 
 def run_spheres(pts: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -153,7 +206,7 @@ def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
     the laser points (of the connections) whose leg a candidate occluder may block
     (:func:`~datagen.transport.quadrature_shadow.shadow_flags`), or (False, …) when the laser points are not on one
     plane, nothing is tested, or the map would exceed ``FLAG_MAX_BYTES``."""
-    shadow, occ_idx = occ[0], occ[5]
+    shadow, occ_idx = occ[0], occ[OCC.index("occ_idx")]
     none = (False, np.zeros((1, 1), dtype=np.uint8), np.zeros(1, dtype=np.int64))
     lasers = np.unique(q.conn_laser)
     if not (SHADOW_MAP and shadow and len(occ_idx)) or q.n_cells * len(lasers) > FLAG_MAX_BYTES:

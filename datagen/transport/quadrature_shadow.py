@@ -146,7 +146,8 @@ def shadow_flags(cells, occ, grown, laser_plane, out):
 
     out (n, M) uint8 (laser point-major: the pair loop reads one laser point's row), zeroed by the caller."""
     centroid, normal, closed, cell_face = cells
-    shadow, run_ptr, run_lo, run_hi, spheres, idx, plane, edges, margin, face_ray = occ
+    shadow, run_ptr, run_lo, run_hi, spheres, run_chunk, chunk_ptr, chunk_spheres, idx, plane, edges, margin, \
+        face_ray = occ
     surface, axes, spot_uv, centre, radius, buckets, bucket_ptr, bucket_col = laser_plane
     M = centroid.shape[0]
     n_spots = out.shape[0]
