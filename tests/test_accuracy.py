@@ -317,3 +317,23 @@ def test_bench_accuracy_cli_bad_input_is_one_line(tmp_path):
                                     str(tmp_path), "--rel-tol", "0.5", "--reference-samples", "256",
                                     "--cache-dir", str(tmp_path / "c")])
     assert res.exit_code == 2 and "unknown estimator" in res.output
+
+
+def test_scan_ladder_keeps_the_configs_fixed_fov_cells():
+    """A config that fixes its FoV cells (wall_smoke: one per 12.5 cm pixel, where its 12 cm edge alone would take
+    2 × 2) has them at every step of the ladder and in the reference, so the finest step is the sample's own
+    transport again (error round-off against ``datagen.simulate``'s envelope)."""
+    import datagen
+    from datagen.analysis.scan_accuracy import SCAN_LADDER, scan_ladder
+    from datagen.dataset import load_dataset_config, sample_setup
+    from datagen.transport import estimator as transport_estimator
+
+    scene, sim = sample_setup(load_dataset_config("configs/datasets/wall_smoke.yaml"), "train", 0)
+    assert sim.estimator.fov_cells == 1
+    capture = datagen.scene.resolve_capture(scene, datagen.scene.RayCaster(scene))
+    assert transport_estimator(SCAN_LADDER).cls.aperture_cells(capture, sim.estimator.edge) == 2    # the default
+    ladder, ref_step = scan_ladder(scene, sim)
+    assert {s["fov_cells"] for s in ladder.ladder} == {1} and ref_step["fov_cells"] == 1
+    rows = run_accuracy(scene, datagen.simulate(scene, sim), sim, budget=60.0, estimators=(SCAN_LADDER,),
+                        ladder_table={SCAN_LADDER: ladder})
+    assert rows[-1].rel_l2 < 1e-12 and rows[0].rel_l2 > 1e-3

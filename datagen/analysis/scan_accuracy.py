@@ -9,9 +9,9 @@ step at 4 h_ref or coarser carries at most ≈ 1/16 of its own error in the refe
 error as ‖P(h_ref) − P(2 h_ref)‖ / 3 (the h² law's estimate of P(h_ref)'s error), from one more run at 2 h_ref.
 
 Every step and the reference run the config's quadrature settings with the edge and a graded config's grading
-ratio scaled together (the whole split refines by one factor), and with the FoV cells per pixel side that the
-config's own edge gets, so all of them integrate the pixels alike (one cell per pixel in the scan configs: each
-target is its laser point). The steps go from ``LADDER_TOP`` × the config's edge down to ``LADDER_BOTTOM`` × h_ref
+ratio scaled together (the whole split refines by one factor), and with the FoV cells per pixel side of the
+config's own transport (its ``estimator.fov_cells``, else the count its edge gets), so all of them integrate the
+pixels alike (one cell per pixel in the scan configs: each target is its laser point). The steps go from ``LADDER_TOP`` × the config's edge down to ``LADDER_BOTTOM`` × h_ref
 in factors of √2.
 """
 from __future__ import annotations
@@ -58,10 +58,11 @@ def _step(edge: float, base_edge: float, grading: float | None, fov_cells: int |
 
 
 def _fov_cells(scene: Scene, config, caster: RayCaster) -> int | None:
-    """FoV cells per pixel side the quadrature takes by default at the config's edge (None: not an aperture
-    capture)."""
+    """FoV cells per pixel side of the config's own transport: its ``estimator.fov_cells`` when it fixes them,
+    else the count the quadrature takes at the config's edge (None: not an aperture capture)."""
     edge, _ = _base(config)
-    return transport_estimator(SCAN_LADDER).cls.aperture_cells(resolve_capture(scene, caster), edge)
+    return transport_estimator(SCAN_LADDER).cls.aperture_cells(resolve_capture(scene, caster), edge,
+                                                                getattr(config.estimator, "fov_cells", None))
 
 
 def scan_ladder(scene: Scene, config, reference_edge: float | None = None,
