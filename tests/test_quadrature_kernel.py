@@ -336,10 +336,11 @@ def test_run_spheres_bound_each_run():
 
 
 def test_run_chunks_tile_each_run_and_hold_its_grown_triangles():
-    """run_chunks: each run's entries are only reordered within the run; its chunks tile it in order, at most
-    RUN_CHUNK each; each chunk's sphere holds every vertex of its triangles grown by 2δ (and a degenerate
-    triangle's own vertices), so the kernel's sphere test can skip only triangles that could not block."""
-    from datagen.transport.quadrature_primary import RUN_CHUNK, run_chunks
+    """run_chunks: each run's entries are only reordered within the run (not at all in a run of at most
+    RUN_CHUNKED, which stays one chunk); its chunks tile it in order, at most RUN_CHUNK each; each chunk's sphere holds
+    every vertex of its triangles grown by 2δ (and a degenerate triangle's own vertices), so the kernel's sphere test
+    can skip only triangles that could not block."""
+    from datagen.transport.quadrature_primary import RUN_CHUNK, RUN_CHUNKED, run_chunks
     from datagen.transport.quadrature_shadow import grown_triangles
 
     rng = np.random.default_rng(1)
@@ -356,13 +357,16 @@ def test_run_chunks_tile_each_run_and_hold_its_grown_triangles():
     for r in range(len(lo)):
         assert sorted(order[lo[r]:hi[r]]) == sorted(occ_of[lo[r]:hi[r]])
         starts = chunk_ptr[run_chunk[r]:run_chunk[r + 1] + 1]
-        assert starts[0] == lo[r] and starts[-1] == hi[r]
-        assert (np.diff(starts) >= 1).all() and (np.diff(starts) <= RUN_CHUNK).all()
+        assert starts[0] == lo[r] and starts[-1] == hi[r] and (np.diff(starts) >= 1).all()
+        if lens[r] <= RUN_CHUNKED:
+            assert len(starts) == 2 and np.array_equal(order[lo[r]:hi[r]], occ_of[lo[r]:hi[r]])
+        else:
+            assert (np.diff(starts) <= RUN_CHUNK).all()
     for c in range(len(spheres)):
         k = order[chunk_ptr[c]:chunk_ptr[c + 1]]
         pts = np.where(np.isnan(grown[k]), tri[k], grown[k]).reshape(-1, 3)
         assert (np.linalg.norm(pts - spheres[c, :3], axis=1) <= spheres[c, 3] * (1 + 1e-12)).all()
-    assert (lens > RUN_CHUNK).any() and np.isnan(grown[7]).all()
+    assert (lens > RUN_CHUNKED).any() and (lens <= RUN_CHUNKED).any() and np.isnan(grown[7]).all()
     none = run_chunks(tri, grown, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
                       np.zeros(0, dtype=np.int64))
     assert none[1].tolist() == [0] and none[2].tolist() == [0] and none[3].shape == (0, 4)

@@ -50,6 +50,9 @@ RUN_CHUNK = 8
 curved mesh may have hundreds of candidates from its own object, and a segment from the face passes through that
 object's sphere."""
 
+RUN_CHUNKED = 16
+"""Runs of at most this many candidates (a box's twelve triangles) stay one chunk, in their order."""
+
 PAIR_BLOCK = 1 << 22
 """(sub-triangle, connection) pairs per compiled block: bounds the list of pairs waiting for shadow rays."""
 
@@ -147,15 +150,16 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
 def run_chunks(tri: np.ndarray, grown: np.ndarray, occ_of: np.ndarray, run_lo: np.ndarray,
                run_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The runs' triangles in chunks of at most ``RUN_CHUNK``, each inside a sphere that the kernel's segment test
-    checks before its triangles (:func:`datagen.transport.quadrature_kernel.candidates`).
+    checks before its triangles (:func:`datagen.transport.quadrature_kernel.candidates`); a run of at most
+    ``RUN_CHUNKED`` stays one chunk, in its order.
 
     Args:
         tri: (k, 3, 3) the candidate triangles, metres; grown: (k, 3, 3) the same grown by 2δ (:func:`grown_triangles`:
             NaN where degenerate); occ_of: (n,) int64 the runs' entries (indices into ``tri``); run_lo, run_hi: (R,)
             run r holds entries [run_lo[r], run_hi[r]), contiguous and ascending.
     Returns:
-        occ_of: (n,) the same entries, each run's in the Morton order of their centroids (a run's entries stay in
-        it: the segment test's verdict does not depend on their order); run_chunk: (R + 1,) int64, run r's chunks
+        occ_of: (n,) the same entries, each chunked run's in the Morton order of their centroids (a run's entries
+        stay in it: the segment test's verdict does not depend on their order); run_chunk: (R + 1,) int64, run r's chunks
         [run_chunk[r], run_chunk[r + 1]); chunk_ptr: (C + 1,) int64, chunk c's entries [chunk_ptr[c],
         chunk_ptr[c + 1]); chunk_spheres: (C, 4) centre and radius (m) holding the grown triangles of each chunk.
         A triangle can only block a segment or send it to a shadow ray where the segment passes within δ of the
@@ -165,9 +169,12 @@ def run_chunks(tri: np.ndarray, grown: np.ndarray, occ_of: np.ndarray, run_lo: n
     n_runs = len(run_lo)
     if n_runs == 0:
         return occ_of, np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros((0, 4))
-    run = np.repeat(np.arange(n_runs), run_hi - run_lo)
-    occ_of = occ_of[np.lexsort((morton_codes(tri.mean(axis=1))[occ_of], run))]
-    per_run = -(-(run_hi - run_lo) // RUN_CHUNK)
+    length = run_hi - run_lo
+    split = length > RUN_CHUNKED
+    run = np.repeat(np.arange(n_runs), length)
+    key = np.where(split[run], morton_codes(tri.mean(axis=1))[occ_of], np.arange(len(occ_of)))
+    occ_of = occ_of[np.lexsort((key, run))]
+    per_run = np.where(split, -(-length // RUN_CHUNK), 1)
     run_chunk = np.append(0, np.cumsum(per_run)).astype(np.int64)
     first = np.repeat(run_lo, per_run)
     chunk_lo = first + RUN_CHUNK * (np.arange(run_chunk[-1]) - np.repeat(run_chunk[:-1], per_run))
