@@ -11,8 +11,8 @@ error as ‖P(h_ref) − P(2 h_ref)‖ / 3 (the h² law's estimate of P(h_ref)'s
 Every step and the reference run the config's quadrature settings with the edge and a graded config's grading
 ratio scaled together (the whole split refines by one factor), and with the FoV cells per pixel side of the
 config's own transport (its ``estimator.fov_cells``, else the count its edge gets), so all of them integrate the
-pixels alike (one cell per pixel in the scan configs: each target is its laser point). The steps go from ``LADDER_TOP`` × the config's edge down to ``LADDER_BOTTOM`` × h_ref
-in factors of √2.
+pixels alike (one cell per pixel in the scan configs: each target is its laser point). The steps go from
+``LADDER_TOP`` × the config's edge down to ``LADDER_BOTTOM`` × h_ref in factors of √2.
 """
 from __future__ import annotations
 

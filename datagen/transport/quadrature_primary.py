@@ -25,8 +25,8 @@ from .quadrature_kernel import OCC, candidates, channel_groups, deposit_pairs, f
 from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
 from ..vectors import matmul, norm
 
-__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "SHADOW_MAP", "FOV_MAP_PAIRS", "dark_faces", "front_only",
-           "leg_occluders", "morton_codes", "run_chunks", "run_compiled", "run_spheres"]
+__all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "RUN_CHUNK", "RUN_CHUNKED", "SHADOW_MAP", "FOV_MAP_PAIRS", "dark_faces",
+           "front_only", "leg_occluders", "morton_codes", "run_chunks", "run_compiled", "run_spheres"]
 
 PAIR_TEST_MAX_PAIRS = 1 << 22
 """The occluder test costs hidden triangles × scene triangles; above this many pairs it is not attempted and the
@@ -108,11 +108,10 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
     """The kernel's :data:`~datagen.transport.quadrature_kernel.OCC` group for quadrature ``q``: per hidden face the
     triangles that may block its laser legs, in runs of one object each (CSR ``run_ptr`` over runs; run r holds
     ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``, in the chunks of :func:`run_chunks`),
-    their planes and edge planes, the
-    margin, and per hidden face whether every lit pair casts a ray instead. The triangles come from
-    :func:`leg_occluders`, or, when that has too many pairs to test (a big mesh), from the compiled
-    :func:`~datagen.transport.quadrature_kernel.face_candidates`, which also separates by a face's own plane where only
-    its front is lit (``front`` (F,) bool per hidden face: :func:`closed_outward`); a face with more than
+    their planes and edge planes, the margin, and per hidden face whether every lit pair casts a ray instead. The
+    triangles come from :func:`leg_occluders`, or, when that has too many pairs to test (a big mesh), from the
+    compiled :func:`~datagen.transport.quadrature_kernel.face_candidates`, which also separates by a face's own plane
+    where only its front is lit (``front`` (F,) bool per hidden face: :func:`closed_outward`); a face with more than
     ``MAX_CANDIDATES`` of them casts rays."""
     caster, faces = q.caster, q.area.hidden_faces
     shadow = bool(q.settings.shadow_spot)
@@ -159,8 +158,8 @@ def run_chunks(tri: np.ndarray, grown: np.ndarray, occ_of: np.ndarray, run_lo: n
             run r holds entries [run_lo[r], run_hi[r]), contiguous and ascending.
     Returns:
         occ_of: (n,) the same entries, each chunked run's in the Morton order of their centroids (a run's entries
-        stay in it: the segment test's verdict does not depend on their order); run_chunk: (R + 1,) int64, run r's chunks
-        [run_chunk[r], run_chunk[r + 1]); chunk_ptr: (C + 1,) int64, chunk c's entries [chunk_ptr[c],
+        stay in it: the segment test's verdict does not depend on their order); run_chunk: (R + 1,) int64, run r's
+        chunks [run_chunk[r], run_chunk[r + 1]); chunk_ptr: (C + 1,) int64, chunk c's entries [chunk_ptr[c],
         chunk_ptr[c + 1]); chunk_spheres: (C, 4) centre and radius (m) holding the grown triangles of each chunk.
         A triangle can only block a segment or send it to a shadow ray where the segment passes within δ of the
         triangle grown by δ (its edge test), so a segment missing a chunk's sphere by more than δ needs none of its
