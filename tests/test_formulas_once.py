@@ -40,7 +40,7 @@ FORMULAS = {
                              "phong_diffuse_scale", "phong_power", "phong_cos_alpha", "abs_sin_azimuth",
                              "brdf_value"),
     "transport/physics.py": ("emission_term", "irradiance_term", "geometry_term", "fov_term", "collection_term",
-                             "direct_term", "attenuation_term"),
+                             "direct_term", "launched_flux", "attenuation_term"),
 }
 """The formula functions: numba device functions (``inline="always"``), one per formula."""
 

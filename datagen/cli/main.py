@@ -66,6 +66,9 @@ def _parse_time_cap(text: str | None) -> float | None:
 @click.option("--pixels", default=None, help="hemispherical camera pixels per lookin, e.g. 60x60")
 @click.option("--secondary", type=click.Choice(["none", "optimized", "full", "exact"]), default=None,
               help="secondary (one more hidden bounce) estimator: exact = full at O(N) cost")
+@click.option("--orders", default=None, metavar="N|auto",
+              help="hidden vertices per path: 1 primary, 2 + secondary, N every order up to N, auto the planner "
+                   "decides (docs/physics.md §2, Orders)")
 @click.option("--estimator", type=click.Choice(list(estimator_names())), default=None,
               help="lookin (the paper's sampler), area (hidden-surface area sampling) or quadrature "
                    "(deterministic, exact time binning; best for small hidden objects and point sensors)")
@@ -84,8 +87,8 @@ def _parse_time_cap(text: str | None) -> float | None:
               help="also write the paper's Figure 3 and 5 sampling views and a 3D picture of the scene")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @friendly_errors
-def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, tolerance, time_cap, samples, workers,
-             top_k, seed,
+def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edge, tolerance, time_cap, samples,
+             workers, top_k, seed,
              figures, quiet):
     """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
     from ..plot.envelope import plot_envelope
@@ -100,7 +103,8 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
     from ..simulation.tolerance import MIN_TOLERANCE
 
     overrides = {"lookins": lookins, "pixels": pixels, "secondary": secondary, "top_k": top_k, "seed": seed,
-                 "workers": workers, "estimator": estimator, "quadrature_edge": edge, "area_samples": samples}
+                 "workers": workers, "estimator": estimator, "quadrature_edge": edge, "area_samples": samples,
+                 "orders": _parse_orders(orders)}
     if is_multizone_file(scene_file):   # a flood and zones: the multi-zone capture (datagen/cli/multizone.py)
         return run_multizone(scene_file, out, overrides, refused={"--tolerance": tolerance, "--time-cap": time_cap,
                                                                   "--figures": figures})
@@ -144,6 +148,19 @@ def simulate(scene_file, out, lookins, pixels, secondary, estimator, edge, toler
     for warning in result.attrs.get("warnings", []):   # e.g. duplicate faces removed, zero-area objects
         click.echo(f"warning: {warning}", err=True)
     click.echo("wrote " + ", ".join(str(p) for p in written))
+
+
+def _parse_orders(value: str | None) -> int | str | None:
+    """``--orders``: an integer >= 1 or "auto" (None: the scene's)."""
+    if value is None or value.strip().lower() == "auto":
+        return None if value is None else "auto"
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise click.BadParameter(f"give an integer >= 1 or auto, got {value!r}", param_hint="--orders")
+    return n
 
 
 @main.command()
@@ -210,6 +227,11 @@ def summary(result) -> str:
     if err is not None:
         lines.append(f"estimated error of the envelope: {err['rel_l2']:.2%} relative L2 ({err['replicas']} "
                      f"replica{'s' if err['replicas'] != 1 else ''} of {err['replica_setting']})")
+    orders = result.attrs.get("orders")
+    if orders is not None:
+        lines.append(f"orders simulated: {orders['simulated']} ({orders['setting']}); " + (
+            f"left out: {orders['residual_share']:.2%} of the in-window energy, counted in the error"
+            if orders["residual_share"] else "nothing left out in the window"))
     t = result.attrs["timings_s"]
     lines.append(f"SPAD counts: {int(result.counts.sum())} detections over {result.attrs['n_cycles']} laser cycles "
                  f"({result.attrs['detector']['model']} model)")

@@ -14,6 +14,7 @@ from its module.
   mesh the laser light can reach (:func:`reachable_side`).
 - :mod:`.coarse`: the coarse area quadrature of the primary and secondary energy behind the secondary and
   pile-up decisions.
+- :mod:`.orders`: how many orders of light a scene calls for (``orders: auto``: a pilot of the order ≥ 3 tracer).
 """
 from .decisions import EFFECTS, Decision, Plan, plan_effects
 

@@ -51,9 +51,10 @@ from ..scene.capture import Capture, FOV_EDGE_REL, FOV_PLANE_TOL
 from ..scene.separation import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
 from ..timing.irf import TAIL_MARGIN_TAUS
 from ..spad.pileup import pile_up_decision
-from ..transport import PhysicsSettings
+from ..transport import PhysicsSettings, estimator
 from ..transport.base import PLANNED_SWITCHES
 from .coarse import CoarseEnergies, coarse_energies
+from .orders import PILOT_PATHS, decide_orders, order_shares
 from .geometry import PlanGeometry
 from ..vectors import matmul
 
@@ -221,7 +222,28 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
     first_bounce_on = _resolve("first_bounce", auto["first_bounce"], forced).on
     auto["pile_up"] = _decide_pile_up(detector, config, coarse, secondary_on,
                                       auto["first_bounce"] if first_bounce_on else None, tol)
-    return Plan({name: _resolve(name, auto[name], forced) for name in EFFECTS}, tol)
+    plan = Plan({name: _resolve(name, auto[name], forced) for name in EFFECTS}, tol)
+    orders = config.orders_setting() if hasattr(config, "orders_setting") else 2
+    if orders == "auto" or orders >= 3:
+        plan.decisions["multibounce"] = plan_orders(scene, config, capture, caster, orders, tol)
+    return plan
+
+
+def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, orders: int | str, tol: float) -> Decision:
+    """The decision on light of order ≥ 3 (:mod:`.orders`): the pilot's shares (``auto`` only), the highest order
+    and the residual share left out, in its numbers."""
+    shares = None
+    if orders == "auto":
+        shares = order_shares(scene, capture, caster, config.physics_settings(),
+                              (config.time.t_start, config.time.t_stop), config.seed)
+    supported = estimator(config.estimator.kind).replica is not None
+    on, max_order, residual, reason = decide_orders(orders, shares, tol, supported)
+    numbers = {"orders": orders, "max_order": max_order, "residual": residual}
+    if shares is not None:
+        numbers["pilot_paths"] = PILOT_PATHS
+        numbers["pilot_shares"] = {f"order_{k + 1}" if k + 1 < len(shares) else f"order_{k + 1}_up": float(v)
+                                   for k, v in enumerate(shares)}
+    return Decision(on, reason, orders != "auto", numbers)
 
 
 def _forced_effects(effects: dict) -> dict[str, bool | None]:

@@ -110,6 +110,15 @@ def legacy_note(moves: list[str], where: str = "simulation") -> str:
             "estimator: {kind: ..., ...} (docs/accuracy.md)")
 
 
+PATHS_PER_SAMPLE = 4
+"""Default light paths of the order ≥ 3 tracer per hidden sample of the area sampler: a traced path costs about a
+quarter of a hidden sample (its secondary included), and the error of the sum is least for a given time when both
+take about the same time (docs/accuracy.md, "Light of every order")."""
+
+DEFAULT_PATHS = 262144
+"""Default light paths per laser point of the order ≥ 3 tracer beside estimators without a ``samples`` count."""
+
+
 class SimulationConfig(BaseModel):
     """Everything ``simulate`` needs besides the scene: the shared physics and the estimator's own settings.
     Durations accept strings such as "600ps".
@@ -123,6 +132,14 @@ class SimulationConfig(BaseModel):
         secondary: "none", "optimized" (the lookin estimator's strongest ``top_k`` per lookin and FoV point),
             "full" (every pair) or "exact" (the same sum factorised, O(Ñ) per lookin, docs/physics.md §3); the
             area sampler and the quadrature compute it in full whenever it is not "none".
+        orders: how many hidden vertices a path may have (docs/physics.md §2, "Orders"): 1 (primary only, the
+            same as ``secondary: none``), 2 (primary and secondary), N ≥ 3 (every order up to N: the component
+            ``multibounce`` holds orders 3..N) or "auto" (the effect planner's pilot decides whether orders ≥ 3 are
+            simulated, :mod:`datagen.planner.orders`). Unset: 1 when ``secondary`` is "none", else 2.
+        multibounce_paths: light paths per laser point of the order ≥ 3 tracer, split over the replicas as the
+            estimator's sampling is; unset: :data:`PATHS_PER_SAMPLE` × the estimator's ``samples`` (the area
+            sampler; :data:`DEFAULT_PATHS` for the others), the split that spends about as much time on the
+            tracer as on orders 1–2, which the error of their sum asks for (docs/accuracy.md).
         workers: processes sharing the work (1 = in process; the result does not depend on it).
         replicas: R, independent replicas a Monte Carlo estimator's sampling is split into (the registry's
             ``replica`` hook, e.g. ``samples`` / R hidden samples, or lookin grids of side / √R, each); their mean
@@ -148,6 +165,8 @@ class SimulationConfig(BaseModel):
 
     estimator: SerializeAsAny[EstimatorOptions] = Field(default_factory=lambda: estimator_options("lookin"))
     secondary: Literal["none", "optimized", "full", "exact"] = "full"
+    orders: int | Literal["auto"] | None = None
+    multibounce_paths: int | None = Field(None, ge=1)
     workers: int = Field(1, ge=1)
     replicas: int = Field(8, ge=2, le=4096)
     effect_threshold: float = Field(0.01, gt=0, lt=1)
@@ -174,6 +193,37 @@ class SimulationConfig(BaseModel):
     @classmethod
     def _estimator(cls, value: Any) -> EstimatorOptions:
         return estimator_options(value)
+
+    @field_validator("orders", mode="before")
+    @classmethod
+    def _orders(cls, value: Any) -> Any:
+        if value is None or value == "auto":
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"orders must be an integer >= 1 or 'auto', got {value!r}")
+        return int(value)
+
+    @model_validator(mode="after")
+    def _orders_and_secondary(self) -> "SimulationConfig":
+        if self.orders == 1:                   # primary only: no secondary, whatever its mode
+            self.secondary = "none"
+        elif self.orders is not None and self.secondary == "none":
+            raise ValueError(f"orders: {self.orders} asks for the secondary but secondary is 'none' (its old spelling "
+                             "of orders: 1): drop secondary: none, or write orders: 1")
+        return self
+
+    def tracer_paths(self) -> int:
+        """Light paths per laser point of the order ≥ 3 tracer: ``multibounce_paths``, or its default."""
+        if self.multibounce_paths is not None:
+            return int(self.multibounce_paths)
+        samples = getattr(self.estimator, "samples", None)
+        return int(PATHS_PER_SAMPLE * samples) if samples else DEFAULT_PATHS
+
+    def orders_setting(self) -> int | str:
+        """The orders asked for: ``orders``, or when unset 1 with ``secondary: none`` and 2 otherwise."""
+        if self.orders is not None:
+            return self.orders
+        return 1 if self.secondary == "none" else 2
 
     @field_validator("effects")
     @classmethod
@@ -299,8 +349,13 @@ def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationCon
         ConfigError: an invalid value, naming the scene file, the field and the value.
     """
     where = f"{scene.source} (simulation)" if scene.source else "simulation"
+    overrides = dict(overrides or {})
+    asked = overrides.get("orders")
+    if (asked is not None and asked != 1 and overrides.get("secondary") is None
+            and (scene.defaults or {}).get("secondary") == "none"):
+        overrides["secondary"] = "full"        # --orders beats the file's old spelling secondary: none (= orders 1)
     try:
-        data, moves = merge_overrides(scene.defaults, overrides or {})
+        data, moves = merge_overrides(scene.defaults, overrides)
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     if moves:

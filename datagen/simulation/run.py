@@ -27,6 +27,7 @@ from ..scene.capture import Capture
 from ..timing import EnvelopeAccumulator
 from ..transport import estimator
 from ..transport.base import Estimator, run_replicas
+from ..transport.multibounce import AllOrders, MultibounceSettings, MultibounceTracer
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .replicas import ReplicaSums, relative_difference, replica_root, replica_rng
@@ -146,6 +147,13 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
     physics = plan.apply(config.physics_settings(), entry.follows_plan)
     transport: Estimator = entry.from_config(scene, config, physics, caster, capture,
                                              plan.secondary_mode(config.secondary))
+    orders = plan.decisions.get("multibounce")
+    if orders is not None and orders.on:                 # orders ≥ 3: the tracer beside the estimator
+        tracer = MultibounceTracer(capture, caster, transport.physics,
+                                   MultibounceSettings(paths=config.tracer_paths(),
+                                                       max_order=int(orders.numbers["max_order"])),
+                                   len(transport.component_names), (config.time.t_start, config.time.t_stop))
+        transport = AllOrders(transport, tracer)
     return transport, plan
 
 
@@ -221,6 +229,9 @@ class Replicas:
         check_simulation_memory(scene, config)   # the grids as the user gave them (a replica's are smaller)
         update = self.entry.replica(config.estimator, config.replicas) if self.entry.replica is not None else {}
         self.replica_config = config.with_estimator(**update)
+        if self.entry.replica is not None:             # the order ≥ 3 tracer's paths split as the sampling is
+            paths = max(1, -(-config.tracer_paths() // config.replicas))
+            self.replica_config = self.replica_config.model_copy(update={"multibounce_paths": paths})
         self.planned = planned if planned is not None else plan_transport(scene, self.replica_config)
         self.transport, self.plan = prepare_transport(scene, self.replica_config, self.planned)
         self.monte_carlo = self.entry.replica is not None and getattr(self.transport, "monte_carlo", True)
@@ -318,7 +329,9 @@ class Replicas:
         peak), its parts and how it was made."""
         mc = self.error()
         refined = self.refinement_error(tr, rng)
-        total = float(np.hypot(mc, refined or 0.0))
+        orders = self.plan.decisions.get("multibounce")
+        omitted = float(orders.numbers.get("residual", 0.0)) if orders is not None else 0.0
+        total = float(np.sqrt(mc ** 2 + (refined or 0.0) ** 2 + omitted ** 2))
         describe = self.entry.describe or (lambda opts: opts.kind)
         setting = describe(self.replica_config.estimator)
         parts = []
@@ -330,8 +343,11 @@ class Replicas:
             parts.append(f"edge refinement ‖E(h) − E(h/2)‖/(1 − 2^−{self.entry.order}) on a sub-scan" if half else
                          f"edge refinement ‖E(h) − E(2h)‖/{2 ** self.entry.order - 1}")
             parts[-1] += f" of the primary ({setting})"
-        return {"rel_l2": total, "monte_carlo": mc, "refinement": refined, "replicas": self.count,
-                "replica_setting": setting,
+        if omitted:
+            parts.append(f"the share {omitted:.3g} of the in-window energy that the orders left out carry (the "
+                         "planner's pilot, docs/planner.md)")
+        return {"rel_l2": total, "monte_carlo": mc, "refinement": refined, "omitted_orders": omitted,
+                "replicas": self.count, "replica_setting": setting,
                 "method": " and ".join(parts) + "; relative L2 over bins above 1 % of the peak"}
 
 
@@ -422,6 +438,20 @@ def detector_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: 
     return counts, detector, plan_attrs
 
 
+def orders_attrs(tr: Transported) -> dict:
+    """``attrs["orders"]``: the orders asked for and simulated, the residual share left out, the pilot's shares and,
+    when the tracer ran, its per-order in-window energy (photons per pulse, mean over replicas)."""
+    d = tr.plan.decisions["multibounce"]
+    out = {"setting": d.numbers["orders"], "simulated": (f"1..{d.numbers['max_order'] or 'all'}" if d.on else "1..2"),
+           "residual_share": d.numbers["residual"], "reason": d.reason,
+           **({"pilot_shares": d.numbers["pilot_shares"]} if "pilot_shares" in d.numbers else {})}
+    tracer = getattr(tr.transport, "tracer", None)
+    if tracer is not None:
+        runs = max(1, tracer.stats.paths // max(1, tracer.settings.paths * tr.transport.capture.n_lasers))
+        out["energy_by_order"] = {f"order_{k + 3}": float(v) / runs for k, v in enumerate(tracer.order_energy[2:])}
+    return out
+
+
 def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
                 noise_rng: np.random.Generator | None, t0: float, extra_attrs: dict | None = None) -> Result:
     """Detector draw and metadata around binned transport output (the last steps of :func:`simulate`): the
@@ -476,6 +506,7 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
             "fov_to_sensor_leg_in_time": config.count_sensor_leg,
             "detector_model": detector.model,
         },
+        **({"orders": orders_attrs(tr)} if "multibounce" in tr.plan.decisions else {}),
         "energy_outside_window": {n: float(v) for n, v in zip(names, tr.outside.sum(1))},
         "stats": {k: int(v) for k, v in vars(st).items() if isinstance(v, (int, np.integer))},
         **({"quadrature": transport.attrs()} if hasattr(transport, "attrs") else {}),

@@ -148,6 +148,14 @@ def direct_term(photons, pde, emission, aperture_area, cos_ap, d):
 
 
 @njit(cache=True, inline="always")
+def launched_flux(photons, emission, pdf):
+    """Flux (photons) of a light path leaving the laser spot in a direction drawn with density ``pdf`` (1/sr):
+    Φ · f_l cosθ_l / pdf, ``emission`` = :func:`emission_term` toward it (paper A1 sampled by direction, where the
+    1/R² cancels: docs/physics.md §2); Φ f_l π for cosine-weighted directions."""
+    return photons * emission / pdf
+
+
+@njit(cache=True, inline="always")
 def attenuation_term(mu, path):
     """e^{−μ·path} for a physical path length in metres, μ in 1/m (the paper's C_atm)."""
     return np.exp(-mu * path)

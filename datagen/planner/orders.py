@@ -1,0 +1,87 @@
+"""How many orders of light a scene calls for: a pilot of the order ≥ 3 tracer (docs/physics.md §2, "Orders";
+docs/planner.md).
+
+``simulation.orders`` is an integer ≥ 1 (1: primary only, 2: primary and secondary, N ≥ 3: every order up to N) or
+``auto``. With ``auto`` the planner traces :data:`PILOT_PATHS` light paths from the laser spot (the centre laser
+point of a scan) with the tracer of :mod:`datagen.transport.multibounce` from order 1 up, and measures each order's
+share of the in-window energy. Orders ≥ 3 are simulated when their share exceeds :data:`RESIDUAL_FRACTION` of the
+tolerance; otherwise they are left out and their share is the *residual*, which the result's stated error includes
+(``attrs["error"]["omitted_orders"]``). The energy share bounds the relative L2 distance it makes: the omitted light
+is a smooth late tail, whose L2 norm is a smaller fraction of the envelope's than its energy is (docs/accuracy.md).
+The pilot draws from its own stream (:data:`PILOT_STREAM`), so it changes no other random number.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..scene import RayCaster, Scene
+from ..scene.capture import Capture
+from ..transport.multibounce import MultibounceSettings, MultibounceTracer
+from ..transport.physics import LegPhysics, PhysicsSettings
+
+PILOT_PATHS = 4096
+"""Light paths of the pilot (one laser point): the share of orders ≥ 3 to a few per cent of itself."""
+
+PILOT_STREAM = 5701
+"""Spawn key of the pilot's random stream under the config's seed."""
+
+RESIDUAL_FRACTION = 0.25
+"""Orders ≥ 3 are left out only when their share of the in-window energy is below this fraction of the tolerance."""
+
+
+class _Discard:
+    """A sink that keeps nothing (the pilot reads the tracer's own per-order tally)."""
+
+    def add(self, times, weights, component) -> None:
+        pass
+
+
+def order_shares(scene: Scene, capture: Capture, caster: RayCaster, physics: PhysicsSettings,
+                 window: tuple[float, float], seed: int, paths: int = PILOT_PATHS) -> np.ndarray:
+    """Each order's share of the in-window energy at the centre laser point, from ``paths`` traced light paths.
+
+    Returns:
+        (:data:`~datagen.transport.multibounce.tracer.ORDER_TALLY`,) float64 shares summing to 1 (index k−1 for order
+        k; the last entry holds every higher order); zeros when no light reaches the FoV inside the window.
+    """
+    legs = LegPhysics(scene, capture, caster, physics)
+    tracer = MultibounceTracer(capture, caster, legs, MultibounceSettings(paths=paths, min_order=1), 0, window)
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(PILOT_STREAM,)))
+    laser = capture.n_lasers // 2
+    tracer.run_laser(_Discard(), rng, laser)
+    total = tracer.order_energy.sum()
+    return tracer.order_energy / total if total > 0 else tracer.order_energy
+
+
+def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, supported: bool):
+    """(on, max_order, residual, reason) for light of order ≥ 3.
+
+    Args:
+        orders: the config's ``orders`` (an int ≥ 1 or "auto"); shares: :func:`order_shares` (None when not run);
+        tol: the tolerance; supported: whether the estimator can add the tracer (a Monte Carlo estimator).
+    Returns:
+        on: simulate orders ≥ 3; max_order: the highest order (0: every order); residual: the estimated share of the
+        in-window energy left out (0 when every order is simulated or nothing was estimated); reason: one sentence
+        with the numbers.
+    """
+    beyond = float(shares[2:].sum()) if shares is not None else None
+    if orders != "auto":
+        n = int(orders)
+        if n <= 2:
+            reason = f"orders: {n} (fixed by the config)"
+            return False, 0, 0.0, reason
+        if not supported:
+            return False, 0, beyond or 0.0, (f"orders: {n} asked, but the estimator has no Monte Carlo replicas to "
+                                              "carry the order ≥ 3 tracer; left out")
+        return True, n, 0.0, f"orders: {n} (fixed by the config)"
+    threshold = RESIDUAL_FRACTION * tol
+    if beyond <= threshold:
+        return False, 0, beyond, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, below "
+                                  f"{RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): left out, counted in the "
+                                  "stated error")
+    if not supported:
+        return False, 0, beyond, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, but the "
+                                  "estimator has no Monte Carlo replicas to carry the tracer: left out, counted in "
+                                  "the stated error")
+    return True, 0, 0.0, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, above "
+                          f"{RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): every order simulated")

@@ -1,0 +1,26 @@
+"""Light of every order: paths with three or more hidden vertices (the component ``multibounce``).
+
+**What it converges to.** The transient path integral of docs/physics.md §2 summed over every order k ≥ 3 (k the
+number of hidden vertices; a relay-wall vertex between hidden vertices counts), inside the time window: the light
+that orders 1 (primary, the field's 3-bounce) and 2 (secondary, 5-bounce) leave out. In closed, bright rooms it
+is a large, late, smooth tail (docs/physics.md §2, "Light of every order"). Unbiased: Russian roulette ends paths
+without bias, and a path stops exactly when it can no longer reach the window.
+
+**What it costs.** Per light path about (window length × c / mean free path) vertices, each one continuation ray,
+one next-event connection per sensor pixel region with its shadow ray, and the leg weights: linear in the paths
+and in the pixels, bounded even in a closed room of albedo 1 (every path ends at the window's end). Its error falls
+as paths^(-1/2) and is measured with the estimator's replicas.
+
+**When to pick it.** Not directly: ``simulation.orders`` (``auto``, or an integer) asks the effect planner
+(:mod:`datagen.planner.orders`), which runs a small pilot of this tracer and turns it on when the orders ≥ 3 carry
+more than a stated fraction of the tolerance; the simulation then wraps the chosen estimator in
+:class:`AllOrders`.
+
+- :mod:`.tracer`: :class:`MultibounceTracer` and its :class:`MultibounceSettings` (light paths from the laser
+  spot, next-event connections and direction hits on the FoV under the balance heuristic, Russian roulette).
+- :mod:`.orders`: :class:`AllOrders`, an estimator of orders 1–2 plus the tracer as one estimator.
+"""
+from .orders import COMPONENT, AllOrders
+from .tracer import MultibounceSettings, MultibounceStats, MultibounceTracer, tracer_rng
+
+__all__ = ["AllOrders", "MultibounceTracer", "MultibounceSettings"]

@@ -1,0 +1,76 @@
+"""Any estimator plus the light of order ≥ 3: :class:`AllOrders` runs an estimator's orders 1–2 and the
+:class:`~datagen.transport.multibounce.tracer.MultibounceTracer` into the same sink, as one estimator.
+
+The tracer draws from its own stream (:func:`~datagen.transport.multibounce.tracer.tracer_rng`), so the orders
+1–2 of a run with ``orders: 3`` or more are bit-identical to the same run with ``orders: 2``, and the components
+add one, ``multibounce``. A replica of the pair is a replica of each: the error estimate of every result (the
+spread of the replicas) counts the tracer's noise with the estimator's.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from types import SimpleNamespace
+
+import numpy as np
+
+from ..base import Estimator, Sink, run_replicas
+from .tracer import MultibounceTracer, tracer_rng
+
+COMPONENT = "multibounce"
+"""The component name of light with three or more hidden vertices (docs/physics.md §2, "Orders")."""
+
+
+class AllOrders:
+    """An estimator of orders 1–2 (``base``) and the order ≥ 3 tracer, behind the estimator interface
+    (:class:`datagen.transport.base.Estimator`): ``component_names`` are the base's plus ``"multibounce"``; every
+    other attribute is the base's (capture, settings, physics, …).
+
+    Args:
+        base: a built estimator (area, lookin); tracer: the :class:`MultibounceTracer` of the same capture,
+            caster and leg physics, whose ``component`` is ``len(base.component_names)``.
+    """
+
+    def __init__(self, base: Estimator, tracer: MultibounceTracer):
+        self.base, self.tracer = base, tracer
+        self.component_names = list(base.component_names) + [COMPONENT]
+
+    def __getattr__(self, name: str):
+        if name in ("base", "tracer"):        # not set yet (unpickling): no recursion
+            raise AttributeError(name)
+        return getattr(self.base, name)
+
+    @property
+    def stats(self):
+        """The base's counters and the tracer's, the latter prefixed ``multibounce_``."""
+        both = dict(vars(self.base.stats))
+        both.update({f"{COMPONENT}_{k}": v for k, v in vars(self.tracer.stats).items()})
+        return SimpleNamespace(**both)
+
+    def progress_total(self) -> tuple[int, str]:
+        total, unit = self.base.progress_total()
+        return total, unit
+
+    def run(self, sink: Sink, rng: np.random.Generator, progress: Callable[[int], None] | None = None) -> None:
+        """The base's run, then the tracer's from its own stream of ``rng``."""
+        own = tracer_rng(rng)
+        self.base.run(sink, rng, progress)
+        self.tracer.run(sink, own)
+
+    def run_replicas(self, sinks: list[Sink], rngs: list[np.random.Generator],
+                     progress: Callable[[int], None] | None = None) -> None:
+        """The base's replicas (its own worker pool, if any), then the tracer's into the same sinks, each from
+        its replica's own stream (taken before the base draws, so the worker count changes nothing)."""
+        own = [tracer_rng(rng) for rng in rngs]
+        run_replicas(self.base, sinks, rngs, progress)
+        for sink, rng in zip(sinks, own):
+            self.tracer.run(sink, rng)
+
+    def nominal_seconds(self) -> float:
+        """The base's nominal seconds plus the tracer's (``NOMINAL_VERTEX_SECONDS`` per vertex)."""
+        base = getattr(self.base, "nominal_seconds", None)
+        return (base() if base is not None else 0.0) + NOMINAL_VERTEX_SECONDS * self.tracer.stats.vertices
+
+
+NOMINAL_VERTEX_SECONDS = 1.6e-6
+"""Seconds of one core per traced vertex (a continuation ray, a next-event connection with its shadow ray and the
+weights), for the deterministic cost caps of dataset builds (:meth:`AllOrders.nominal_seconds`)."""
