@@ -33,7 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from ..simulation.replicas import PEAK_FLOOR, relative_standard_error
+from ..processes import ForkedCall
 from ..transport import AreaSampler, AreaSettings
+from ..transport.multibounce import AllOrders, MultibounceSettings, MultibounceTracer
 from ..timing import EnvelopeAccumulator
 from ..scene import RayCaster
 from ..errors import ConfigError
@@ -170,6 +172,10 @@ def reference_key(scene: Scene, config, settings: AreaSettings, seed: int = REFE
     data = {"version": REFERENCE_VERSION, "scene": _scene_fingerprint(scene),
             "time": config.time.model_dump(mode="json"), "irf": config.irf.model_dump(mode="json"),
             "settings": asdict(settings), "seed": seed}
+    orders = config.orders_setting() if hasattr(config, "orders_setting") else 2
+    if orders == "auto" or orders > 2:          # every order: another reference (orders 1–2 keys unchanged)
+        data["orders"] = {"orders": "all" if orders == "auto" else orders,
+                          "paths_per_sample": REFERENCE_PATHS_PER_SAMPLE}
     return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -207,6 +213,53 @@ def _save(path: Path, sums: _Sums, meta: dict) -> None:
     os.replace(tmp, path)
 
 
+REFERENCE_PATHS_PER_SAMPLE = 4
+"""Light paths of the order ≥ 3 tracer per hidden sample of a reference replica."""
+
+
+def all_orders(sampler: AreaSampler, config, samples: int):
+    """``sampler``, or the sampler with the order ≥ 3 tracer beside it (unsmoothed) when ``config.orders`` asks for
+    more than two orders ("auto": every order)."""
+    orders = config.orders_setting()
+    if orders != "auto" and orders <= 2:
+        return sampler
+    settings = MultibounceSettings(paths=REFERENCE_PATHS_PER_SAMPLE * samples,
+                                   max_order=0 if orders == "auto" else int(orders))
+    tracer = MultibounceTracer(sampler.capture, sampler.caster, sampler.physics, settings,
+                               len(sampler.component_names), (config.time.t_start, config.time.t_stop))
+    return AllOrders(sampler, tracer)
+
+
+def _replicas_child(estimator, sinks: list, rngs: list) -> list:
+    for sink, rng in zip(sinks, rngs):
+        estimator.run(sink, rng)
+    return sinks
+
+
+def replicas_in_processes(estimator, sinks: list, rngs: list, workers: int) -> None:
+    """Run ``estimator`` once per (sink, generator) pair, sink k in process k mod ``workers`` (this one and forked
+    children, :class:`~datagen.processes.ForkedCall`, which query the BVH built before the fork); each sink ends
+    filled exactly as by ``estimator.run(sink, rng)`` here."""
+    if workers <= 1 or len(sinks) <= 1:
+        for sink, rng in zip(sinks, rngs):
+            estimator.run(sink, rng)
+        return
+    estimator.caster.commit()
+    calls = {}
+    try:
+        for k in range(1, min(workers, len(sinks))):
+            share = list(range(k, len(sinks), workers))
+            calls[k] = (share, ForkedCall(_replicas_child, estimator, [sinks[r] for r in share], [rngs[r] for r in share]))
+        for r in range(0, len(sinks), workers):
+            estimator.run(sinks[r], rngs[r])
+        for share, call in calls.values():
+            for r, filled in zip(share, call.result()):
+                sinks[r].merge(filled)
+    finally:
+        for _, call in calls.values():
+            call.cancel()
+
+
 def _estimate(sums: _Sums, n_components: int, n_channels: int) -> tuple[np.ndarray, dict]:
     r = sums.replicas
     mean_comp = sums.comp / max(r, 1)
@@ -225,7 +278,8 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
                         samples: int = REFERENCE_SAMPLES, max_seconds: float | None = None,
                         min_replicas: int = 8, max_replicas: int = 100_000,
                         progress: Callable[[int, dict], None] | None = None,
-                        caster: RayCaster | None = None, seed: int = REFERENCE_SEED, **sampler) -> Reference:
+                        caster: RayCaster | None = None, seed: int = REFERENCE_SEED, workers: int | None = None,
+                        **sampler) -> Reference:
     """Converged reference envelope of ``scene`` under ``config`` (see the module docstring).
 
     Args:
@@ -239,6 +293,10 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
             says what it reached); min_replicas / max_replicas: bounds on R.
         progress: called after each replica with (R, error estimate).
         seed: root seed of the replicas (independent references need different seeds).
+        workers: processes running replicas at once (default: every core); the result does not depend on it.
+    With ``config.orders`` "auto" or ≥ 3 the reference holds every order (or every order up to N): the light tracer
+    of :mod:`datagen.transport.multibounce` beside the area sampler, :data:`REFERENCE_PATHS_PER_SAMPLE` paths per
+    hidden sample, every order deposited as impulses (no time smoothing: unbiased), component ``multibounce``.
     Returns:
         :class:`Reference`.
     Raises:
@@ -255,11 +313,12 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
     settings = AreaSettings.from_transport(config.transport_settings(), samples=samples,
                                            **{**REFERENCE_SAMPLER, **sampler})
     caster = caster or RayCaster(scene)
-    sampler_ = AreaSampler(scene, settings, caster)
+    sampler_ = all_orders(AreaSampler(scene, settings, caster), config, samples)
     names = sampler_.component_names
     cap = sampler_.capture
     n_comp, n_ch = len(names), cap.n_channels
     axis = config.time
+    workers = max(1, min(int(workers if workers is not None else (os.cpu_count() or 1)), max_replicas))
     key = reference_key(scene, config, settings, seed)
     path = Path(cache_dir) / f"reference_{key[:24]}.npz" if cache_dir is not None else None
     shape_comp, shape_env = (n_comp * n_ch, axis.n_bins), (n_ch, axis.n_bins)
@@ -273,16 +332,18 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
         if max_seconds is not None and time.perf_counter() - t_start >= max_seconds and sums.replicas >= 2:
             break
         t0 = time.perf_counter()
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(sums.replicas,)))
-        acc = EnvelopeAccumulator(axis, config.irf, n_comp * n_ch)
-        AreaSampler(scene, settings, caster).run(acc, rng)
-        binned = acc.binned()
-        env = binned.reshape(n_comp, n_ch, -1).sum(0)
-        sums.comp += binned
-        sums.env_sq += env ** 2
-        sums.totals.append(float(env.sum()))
-        sums.peaks.append(peak_time(env, axis.edges))
-        sums.seconds += time.perf_counter() - t0
+        batch = range(sums.replicas, min(sums.replicas + workers, max_replicas))   # one replica per core at once
+        rngs = [np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(r,))) for r in batch]
+        accs = [EnvelopeAccumulator(axis, config.irf, n_comp * n_ch) for _ in batch]
+        replicas_in_processes(sampler_, accs, rngs, workers)
+        for acc in accs:                                    # in replica order: the sums do not depend on workers
+            binned = acc.binned()
+            env = binned.reshape(n_comp, n_ch, -1).sum(0)
+            sums.comp += binned
+            sums.env_sq += env ** 2
+            sums.totals.append(float(env.sum()))
+            sums.peaks.append(peak_time(env, axis.edges))
+        sums.seconds += (time.perf_counter() - t0) * min(workers, len(accs))    # CPU-seconds: wall × processes
         if path is not None:
             _save(path, sums, meta)
         mean_comp, est = _estimate(sums, n_comp, n_ch)

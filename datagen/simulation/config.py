@@ -140,6 +140,9 @@ class SimulationConfig(BaseModel):
             estimator's sampling is; unset: :data:`PATHS_PER_SAMPLE` × the estimator's ``samples`` (the area
             sampler; :data:`DEFAULT_PATHS` for the others), the split that spends about as much time on the
             tracer as on orders 1–2, which the error of their sum asks for (docs/accuracy.md).
+        multibounce_smoothing: deposit the tracer's orders ≥ 3 smoothed in time, with the bias estimated and
+            counted in the stated error (docs/accuracy.md, "Light of every order"); False: every order as impulses
+            (unbiased: what a converged reference uses).
         workers: processes sharing the work (1 = in process; the result does not depend on it).
         replicas: R, independent replicas a Monte Carlo estimator's sampling is split into (the registry's
             ``replica`` hook, e.g. ``samples`` / R hidden samples, or lookin grids of side / √R, each); their mean
@@ -167,6 +170,7 @@ class SimulationConfig(BaseModel):
     secondary: Literal["none", "optimized", "full", "exact"] = "full"
     orders: int | Literal["auto"] | None = None
     multibounce_paths: int | None = Field(None, ge=1)
+    multibounce_smoothing: bool = True
     workers: int = Field(1, ge=1)
     replicas: int = Field(8, ge=2, le=4096)
     effect_threshold: float = Field(0.01, gt=0, lt=1)

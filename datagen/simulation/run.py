@@ -28,6 +28,7 @@ from ..timing import EnvelopeAccumulator
 from ..transport import estimator
 from ..transport.base import Estimator, run_replicas
 from ..transport.multibounce import AllOrders, MultibounceSettings, MultibounceTracer
+from ..transport.multibounce.tracer import default_smoothing
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .replicas import ReplicaSums, relative_difference, replica_root, replica_rng
@@ -149,9 +150,12 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
                                              plan.secondary_mode(config.secondary))
     orders = plan.decisions.get("multibounce")
     if orders is not None and orders.on:                 # orders ≥ 3: the tracer beside the estimator
+        smooth_order, smooth_width = default_smoothing(config.time.bin_width)
+        smooth_order = smooth_order if config.multibounce_smoothing else 0
         tracer = MultibounceTracer(capture, caster, transport.physics,
                                    MultibounceSettings(paths=config.tracer_paths(),
-                                                       max_order=int(orders.numbers["max_order"])),
+                                                       max_order=int(orders.numbers["max_order"]),
+                                                       smooth_order=smooth_order, smooth_width=smooth_width),
                                    len(transport.component_names), (config.time.t_start, config.time.t_stop))
         transport = AllOrders(transport, tracer)
     return transport, plan
@@ -324,6 +328,15 @@ class Replicas:
         scale = tr.binned[:, channels].sum(axis=0)
         return relative_difference(fine_p, coarse_p, scale) / abs(ratio ** self.entry.order - 1.0)
 
+    def smoothing_error(self, tr: Transported) -> float | None:
+        """The order ≥ 3 tracer's smoothing bias relative to the envelope (the error measure's bins), or None when
+        no orders were smoothed (:class:`~datagen.transport.multibounce.tracer.DeepSmoothing`)."""
+        tracer = getattr(self.transport, "tracer", None)
+        if tracer is None or tracer.smoothing is None:
+            return None
+        bias = tracer.smoothing.bias(self.config.time.edges, max(self.count, 1))
+        return relative_difference(bias, np.zeros_like(bias), tr.binned.sum(axis=0))
+
     def error_attrs(self, tr: Transported, rng: np.random.Generator) -> dict:
         """``attrs["error"]`` of the result: the estimate (relative L2 of the envelope over bins above 1 % of its
         peak), its parts and how it was made."""
@@ -331,7 +344,8 @@ class Replicas:
         refined = self.refinement_error(tr, rng)
         orders = self.plan.decisions.get("multibounce")
         omitted = float(orders.numbers.get("residual", 0.0)) if orders is not None else 0.0
-        total = float(np.sqrt(mc ** 2 + (refined or 0.0) ** 2 + omitted ** 2))
+        smoothing = self.smoothing_error(tr)
+        total = float(np.sqrt(mc ** 2 + (refined or 0.0) ** 2 + omitted ** 2 + (smoothing or 0.0) ** 2))
         describe = self.entry.describe or (lambda opts: opts.kind)
         setting = describe(self.replica_config.estimator)
         parts = []
@@ -343,10 +357,13 @@ class Replicas:
             parts.append(f"edge refinement ‖E(h) − E(h/2)‖/(1 − 2^−{self.entry.order}) on a sub-scan" if half else
                          f"edge refinement ‖E(h) − E(2h)‖/{2 ** self.entry.order - 1}")
             parts[-1] += f" of the primary ({setting})"
+        if smoothing is not None:
+            parts.append("the estimated bias of the deep orders' time smoothing ‖L(2Δ) − L(Δ)‖/3")
         if omitted:
             parts.append(f"the share {omitted:.3g} of the in-window energy that the orders left out carry (the "
                          "planner's pilot, docs/planner.md)")
         return {"rel_l2": total, "monte_carlo": mc, "refinement": refined, "omitted_orders": omitted,
+                "smoothing": smoothing,
                 "replicas": self.count, "replica_setting": setting,
                 "method": " and ".join(parts) + "; relative L2 over bins above 1 % of the peak"}
 

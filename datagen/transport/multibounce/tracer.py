@@ -55,6 +55,21 @@ MULTIBOUNCE_STREAM = 57
 """The spawn-key entry of the tracer's random stream, appended to the run's :class:`numpy.random.SeedSequence`
 (so that orders 1–2 draw exactly what they draw without it, whatever order the two run in)."""
 
+SMOOTH_ORDER = 3
+"""Orders from this one up are deposited smoothed in time (:class:`DeepSmoothing`) by default."""
+
+SMOOTH_WIDTH = 1e-9
+"""Δ, the node spacing of the smoothing, s, by default; no smoothing when the output bins are not at least
+:data:`SMOOTH_MIN_BINS` times finer (nothing to gain)."""
+
+SMOOTH_MIN_BINS = 4
+
+
+def default_smoothing(bin_width: float) -> tuple[int, float]:
+    """(smooth_order, smooth_width) of :class:`MultibounceSettings` for output bins of ``bin_width`` seconds."""
+    return (SMOOTH_ORDER, SMOOTH_WIDTH) if SMOOTH_MIN_BINS * bin_width <= SMOOTH_WIDTH else (0, SMOOTH_WIDTH)
+
+
 MAX_VERTICES = 10_000
 """Safety bound on the vertices of one path (a path in a closed albedo-1 room stops at the window's end first:
 at ~1 m mean free path a 1 µs window holds ~300 vertices)."""
@@ -70,6 +85,8 @@ class MultibounceSettings:
         max_order: the highest order deposited, or 0 for every order (paths then end by roulette, by leaving the
             scene or at the window's end).
         batch: paths traced together (memory: ~1 kB per path).
+        smooth_order: orders from this one up are deposited smoothed in time (0: none; see
+            :class:`DeepSmoothing`); smooth_width: Δ, its node spacing, seconds.
 
     Raises:
         ConfigError: a field out of range (the message names it and the value).
@@ -79,9 +96,14 @@ class MultibounceSettings:
     min_order: int = 3
     max_order: int = 0
     batch: int = 32768
+    smooth_order: int = 0
+    smooth_width: float = 1e-9
 
     def __post_init__(self):
-        for name, low in (("paths", 1), ("min_order", 1), ("max_order", 0), ("batch", 1)):
+        if not (isinstance(self.smooth_width, (int, float)) and np.isfinite(self.smooth_width)
+                and self.smooth_width > 0):
+            raise ConfigError(f"multibounce tracer: smooth_width must be > 0 seconds, got {self.smooth_width!r}")
+        for name, low in (("paths", 1), ("min_order", 1), ("max_order", 0), ("batch", 1), ("smooth_order", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise ConfigError(f"multibounce tracer: {name} must be an integer >= {low}, got {v!r}")
@@ -131,6 +153,8 @@ class MultibounceTracer:
         order_energy: (:data:`ORDER_TALLY`,) float64, the weight deposited inside the window by order (index k−1
             for order k; the last entry holds every higher order), summed over runs: photons per pulse over all
             runs (divide by the runs for their mean).
+        order_time: (:data:`ORDER_TALLY`,) float64, the same impulses' Σ weight × arrival time (photon-seconds):
+            ``order_time / order_energy`` is each order's mean arrival time in the window.
     """
 
     def __init__(self, capture: Capture, caster: RayCaster, physics: LegPhysics, settings: MultibounceSettings,
@@ -139,6 +163,12 @@ class MultibounceTracer:
         self.component = int(component)
         self.t_start, self.t_stop = float(window[0]), float(window[1])
         self.order_energy = np.zeros(ORDER_TALLY)
+        self.order_time = np.zeros(ORDER_TALLY)
+        self.smoothing = (DeepSmoothing(settings.smooth_width, self.t_start, self.t_stop, capture.n_channels)
+                          if settings.smooth_order else None)
+        # paths are followed past the window's end by the smoothing's reach, so that the kernel near the end
+        # receives the mass from beyond it that it spreads into the window
+        self.t_follow = self.t_stop + (self.smoothing.margin if self.smoothing is not None else 0.0)
         albedo = physics.materials.albedo
         self.survival = np.minimum(1.0, albedo)                   # q per object: Russian roulette
         self.stats = MultibounceStats()
@@ -152,6 +182,8 @@ class MultibounceTracer:
         ``sink``. ``rng`` is used as given (callers pass :func:`tracer_rng` of their stream)."""
         for laser in range(self.capture.n_lasers):
             self.run_laser(sink, rng, laser, progress)
+        if self.smoothing is not None:
+            self.smoothing.flush(sink, self.component)
 
     def run_laser(self, sink: Sink, rng: np.random.Generator, laser: int,
                   progress: Callable[[int], None] | None = None) -> None:
@@ -182,7 +214,7 @@ class MultibounceTracer:
         ray_origin, ray_dir, src_normal = origin, w, normal
         q_prev = np.ones(n)                                      # survival probability of the ray just cast
         order = 0
-        limit = SPEED_OF_LIGHT * self.t_stop                      # metres of counted path: the window's end
+        limit = SPEED_OF_LIGHT * self.t_follow                    # metres of counted path: the window's end
         while len(flux) and order < MAX_VERTICES:
             hits = cst.intersect(ray_origin, ray_dir)
             if order >= s.min_order:                            # the ray left a vertex of order ≥ min_order
@@ -271,5 +303,80 @@ class MultibounceTracer:
     def _deposit(self, sink: Sink, t: np.ndarray, weight: np.ndarray, channel: np.ndarray, order: int) -> None:
         """Send impulses of paths of order ``order`` to ``sink`` and tally their in-window weight."""
         inside = (t >= self.t_start) & (t < self.t_stop)
-        self.order_energy[min(order, ORDER_TALLY) - 1] += float(weight[inside].sum())
+        k = min(order, ORDER_TALLY) - 1
+        self.order_energy[k] += float(weight[inside].sum())
+        self.order_time[k] += float(np.dot(weight[inside], t[inside]))
+        if self.smoothing is not None and order >= self.settings.smooth_order:
+            near = self.smoothing.covers(t)
+            self.smoothing.add(t[near], weight[near], channel[near])
+            t, weight, channel = t[~near], weight[~near], channel[~near]
         sink.add(t, weight, self.component * self.capture.n_channels + channel)
+
+
+class DeepSmoothing:
+    """Orders that are smooth in time, deposited smoothed: a kernel estimate with its bias estimated and counted.
+
+    Impulses inside the window are linearly binned onto nodes Δ apart (t_start + jΔ: the mass splits between the
+    two nearest nodes, which keeps it and its mean time); :meth:`flush` deposits each node's mass as a tent of
+    half-width Δ centred on it (:meth:`~datagen.timing.EnvelopeAccumulator.add_tents`), i.e. the piecewise-linear
+    density through the node masses. The deep orders of a closed room are a long tail that changes over many
+    nanoseconds, so the smoothing removes the noise of single paths at a bias of order Δ² L''. The same impulses are
+    also binned at 2Δ: the bias of a kernel estimate grows as its width squared, so ‖L_2Δ − L_Δ‖ / 3 estimates the
+    bias of L_Δ (Richardson), and :meth:`bias` returns it for the result's stated error (noise in that difference
+    only makes the estimate larger).
+
+    The nodes reach :attr:`margin` (4Δ) beyond both ends of the window, and the tracer follows paths that far past
+    its end, so that the kernels near the ends receive from outside the mass they spread out of the window.
+
+    Args:
+        width: Δ, s; t_start, t_stop: the window, s; n_channels: output channels.
+    """
+
+    def __init__(self, width: float, t_start: float, t_stop: float, n_channels: int):
+        self.width, self.n_channels = float(width), int(n_channels)
+        self.margin = 4 * self.width                  # the 2Δ kernel's reach: the nodes cover the window and this
+        self.t_start = float(t_start) - self.margin   # node 0
+        self.t_end = float(t_stop) + self.margin
+        self.nodes = int(np.ceil((self.t_end - self.t_start) / self.width)) + 2
+        self.pending = np.zeros((self.n_channels, self.nodes))      # this run's node masses, photons
+        self.total = np.zeros((self.n_channels, self.nodes))        # every run's, for the bias
+        self.coarse = np.zeros((self.n_channels, self.nodes // 2 + 2))   # every run's at 2Δ
+
+    def covers(self, t: np.ndarray) -> np.ndarray:
+        """(n,) bool: the times t (n,) s that the nodes cover (the window widened by the margin on both sides)."""
+        return (t >= self.t_start) & (t < self.t_end)
+
+    def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray) -> None:
+        """Linearly bin impulses at times t (n,) s, weights (n,) photons, channels (n,) int."""
+        for out, width in ((self.pending, self.width), (self.coarse, 2 * self.width)):
+            f = (t - self.t_start) / width
+            j = np.minimum(f.astype(np.int64), out.shape[1] - 2)
+            frac = f - j
+            flat = out.reshape(-1)
+            base = channel * out.shape[1] + j
+            flat += np.bincount(base, weight * (1.0 - frac), minlength=flat.size)
+            flat += np.bincount(base + 1, weight * frac, minlength=flat.size)
+
+    def flush(self, sink: Sink, component: int) -> None:
+        """Deposit this run's node masses into ``sink`` as tents (component ``component * n_channels +
+        channel``) and start the next run."""
+        ch, j = np.nonzero(self.pending)
+        if len(ch):
+            t = self.t_start + j * self.width
+            sink.add_tents(np.stack([t - self.width, t, t + self.width], axis=1), self.pending[ch, j],
+                           component * self.n_channels + ch)
+        self.total += self.pending
+        self.pending[:] = 0.0
+
+    def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
+        """‖L_2Δ − L_Δ‖ / 3 per output bin: (n_channels, n_bins) photons per pulse, the estimated bias of the
+        smoothed orders' mean over ``runs`` runs on the bins ``edges`` (n_bins + 1,) s."""
+        centres = 0.5 * (edges[1:] + edges[:-1])
+        widths = np.diff(edges)
+        out = np.zeros((self.n_channels, len(centres)))
+        for c in range(self.n_channels):
+            fine = np.interp(centres, self.t_start + self.width * np.arange(self.nodes), self.total[c] / self.width)
+            cells = self.coarse.shape[1]
+            wide = np.interp(centres, self.t_start + 2 * self.width * np.arange(cells), self.coarse[c] / (2 * self.width))
+            out[c] = (wide - fine) * widths / 3.0
+        return out / max(runs, 1)
