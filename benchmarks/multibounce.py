@@ -3,7 +3,7 @@
 For each scene: ``simulate_to_tolerance`` with the area estimator at the tolerance, once with ``orders: 2`` (primary
 and secondary, the old model) and once with ``orders: auto`` (the planner's pilot adds every order ≥ 3 when the
 scene calls for it), CPU seconds of each measured in this one run; then a converged all-order reference (the same
-unbiased estimators, the deep orders unsmoothed (``multibounce_smoothing: false``), at a tolerance four times tighter, a different seed) and the actual relative L2 distance of each
+unbiased estimators, the deep orders unsmoothed (``multibounce: {smoothing: false}``), at a tolerance four times tighter, a different seed) and the actual relative L2 distance of each
 result to it on 1 ns bins (IRF applied), against the result's stated error.
 
     python benchmarks/multibounce.py [--tolerance 0.01] [--scenes a.yaml b.yaml ...] [--paths N]
@@ -40,12 +40,12 @@ def run(scene_file: str, tolerance: float, paths: int, seed: int = 0):
     out = {}
     for orders in (2, "auto"):
         cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 65536}, "orders": orders,
-                                             "multibounce_paths": paths, "seed": seed})
+                                             "multibounce": {"paths": paths}, "seed": seed})
         t = time.process_time()
         r = simulate_to_tolerance(scene, cfg, tolerance)
         out[orders] = (r, time.process_time() - t)
     cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 65536}, "orders": "auto",
-                                         "multibounce_paths": paths, "multibounce_smoothing": False,
+                                         "multibounce": {"paths": paths, "smoothing": False},
                                          "seed": seed + 1000})
     t = time.process_time()
     ref = simulate_to_tolerance(scene, cfg, tolerance / 4, max_replicas=4096)
@@ -64,10 +64,10 @@ def run(scene_file: str, tolerance: float, paths: int, seed: int = 0):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tolerance", type=float, default=0.01)
-    ap.add_argument("--paths", type=int, default=None, help="multibounce_paths (default: the config's default)")
+    ap.add_argument("--paths", type=int, default=None, help="multibounce.paths (default: the config's default)")
     ap.add_argument("--scenes", nargs="+", default=SCENES)
     a = ap.parse_args()
-    print(f"tolerance {a.tolerance:.2%}, area estimator, multibounce_paths {a.paths or 'default'}; CPU s in this run")
+    print(f"tolerance {a.tolerance:.2%}, area estimator, multibounce.paths {a.paths or 'default'}; CPU s in this run")
     print("| scene | orders | CPU s | stated error (smoothing bias in it) | actual rel L2 vs all orders (1 ns) | "
           "orders ≥ 3 share | cost ratio |")
     print("|---|---|---|---|---|---|---|")

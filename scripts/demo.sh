@@ -5,4 +5,4 @@ cd "$(dirname "$0")/.."
 bash scripts/debian_packages.sh      # libusb-1.0-0, mesa-vulkan-drivers for `datagen view` (root on Debian)
 python -m pip install --quiet --disable-pip-version-check -e .
 datagen simulate scene_library/demo_room.yaml --out out/demo_room --lookins 10x10 --pixels 60x60 \
-    --secondary full "$@"
+    --secondary full --orders auto "$@"

@@ -78,7 +78,7 @@ class _ComponentTally:
 
 def test_orders_one_and_two_are_bit_identical_with_the_tracer_beside_them_and_for_two_workers():
     scene = datagen.load_scene(DEMO)
-    base = {"estimator": {"kind": "area", "samples": 2048}, "replicas": 2, "multibounce_paths": 2048}
+    base = {"estimator": {"kind": "area", "samples": 2048}, "replicas": 2, "multibounce": {"paths": 2048}}
     two = datagen.simulate(scene, datagen.resolve_config(scene, {**base, "orders": 2}))
     four = datagen.simulate(scene, datagen.resolve_config(scene, {**base, "orders": 4}))
     four_w2 = datagen.simulate(scene, datagen.resolve_config(scene, {**base, "orders": 4, "workers": 2}))
@@ -149,7 +149,7 @@ def test_planner_leaves_orders_3_up_out_before_a_bare_wall_and_counts_the_residu
 def test_planner_turns_orders_3_up_on_in_the_demo_room_and_the_pilot_matches_the_run():
     scene = datagen.load_scene(DEMO)
     cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 8192}, "orders": "auto",
-                                         "multibounce_paths": 16384})
+                                         "multibounce": {"paths": 16384}})
     r = datagen.simulate(scene, cfg)
     pilot = r.attrs["orders"]["pilot_shares"]
     pilot_beyond = sum(v for k, v in pilot.items() if k not in ("order_1", "order_2"))
@@ -169,7 +169,7 @@ def test_a_closed_albedo_one_room_ends_at_the_window(tmp_path):
     scene = datagen.load_scene(path)
     assert {o.material.albedo for o in scene.objects} == {1.0}
     cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 2048}, "orders": "auto",
-                                         "multibounce_paths": 4096, "time": {"t_start": 0, "bin_width": 1e-10,
+                                         "multibounce": {"paths": 4096}, "time": {"t_start": 0, "bin_width": 1e-10,
                                                                             "n_bins": 600}})
     r = datagen.simulate(scene, cfg)
     st = r.attrs["stats"]

@@ -142,7 +142,7 @@ def test_furnace_room_fills_to_the_diffuse_field_and_ends_at_the_window():
     scene = closed_box((a, b, c), albedo=1.0)
     cfg = datagen.resolve_config(scene, {"time": {"t_start": 0.0, "bin_width": 2e-9, "n_bins": 60},
                                          "irf": {"fwhm": 1e-10}, "estimator": {"kind": "area", "samples": 4096},
-                                         "orders": "auto", "multibounce_paths": 20000, "replicas": 4,
+                                         "orders": "auto", "multibounce": {"paths": 20000}, "replicas": 4,
                                          "detector": {"repetition_rate": 1e7, "n_cycles": 1000},
                                          "effects": {"shadow_sensor": False}})
     r = datagen.simulate(scene, cfg)

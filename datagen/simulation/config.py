@@ -119,6 +119,25 @@ DEFAULT_PATHS = 262144
 """Default light paths per laser point of the order ≥ 3 tracer beside estimators without a ``samples`` count."""
 
 
+class MultibounceOptions(BaseModel):
+    """The ``multibounce:`` block of a simulation config: the order ≥ 3 tracer (docs/accuracy.md, "Light of every
+    order").
+
+    Attributes:
+        paths: light paths per laser point, split over the replicas as the estimator's sampling is; unset:
+            :data:`PATHS_PER_SAMPLE` × the estimator's ``samples`` (the area sampler; :data:`DEFAULT_PATHS` for the
+            others), the split that spends about as much time on the tracer as on orders 1–2, which the error of
+            their sum asks for.
+        smoothing: deposit the orders ≥ 3 smoothed in time, with the bias estimated and counted in the stated error;
+            False: every order as impulses (unbiased: what a converged reference uses).
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    paths: int | None = Field(None, ge=1, description="light paths per laser point (unset: 4 x the area samples)")
+    smoothing: bool = Field(True, description="deposit the orders >= 3 smoothed in time, the bias counted")
+
+
 class SimulationConfig(BaseModel):
     """Everything ``simulate`` needs besides the scene: the shared physics and the estimator's own settings.
     Durations accept strings such as "600ps".
@@ -136,13 +155,8 @@ class SimulationConfig(BaseModel):
             same as ``secondary: none``), 2 (primary and secondary), N ≥ 3 (every order up to N: the component
             ``multibounce`` holds orders 3..N) or "auto" (the effect planner's pilot decides whether orders ≥ 3 are
             simulated, :mod:`datagen.planner.orders`). Unset: 1 when ``secondary`` is "none", else 2.
-        multibounce_paths: light paths per laser point of the order ≥ 3 tracer, split over the replicas as the
-            estimator's sampling is; unset: :data:`PATHS_PER_SAMPLE` × the estimator's ``samples`` (the area
-            sampler; :data:`DEFAULT_PATHS` for the others), the split that spends about as much time on the
-            tracer as on orders 1–2, which the error of their sum asks for (docs/accuracy.md).
-        multibounce_smoothing: deposit the tracer's orders ≥ 3 smoothed in time, with the bias estimated and
-            counted in the stated error (docs/accuracy.md, "Light of every order"); False: every order as impulses
-            (unbiased: what a converged reference uses).
+        multibounce: the order ≥ 3 tracer's settings (:class:`MultibounceOptions`), used when orders ≥ 3 are
+            simulated.
         workers: processes sharing the work (1 = in process; the result does not depend on it).
         replicas: R, independent replicas a Monte Carlo estimator's sampling is split into (the registry's
             ``replica`` hook, e.g. ``samples`` / R hidden samples, or lookin grids of side / √R, each); their mean
@@ -169,8 +183,7 @@ class SimulationConfig(BaseModel):
     estimator: SerializeAsAny[EstimatorOptions] = Field(default_factory=lambda: estimator_options("lookin"))
     secondary: Literal["none", "optimized", "full", "exact"] = "full"
     orders: int | Literal["auto"] | None = None
-    multibounce_paths: int | None = Field(None, ge=1)
-    multibounce_smoothing: bool = True
+    multibounce: MultibounceOptions = Field(default_factory=lambda: MultibounceOptions())
     workers: int = Field(1, ge=1)
     replicas: int = Field(8, ge=2, le=4096)
     effect_threshold: float = Field(0.01, gt=0, lt=1)
@@ -217,9 +230,9 @@ class SimulationConfig(BaseModel):
         return self
 
     def tracer_paths(self) -> int:
-        """Light paths per laser point of the order ≥ 3 tracer: ``multibounce_paths``, or its default."""
-        if self.multibounce_paths is not None:
-            return int(self.multibounce_paths)
+        """Light paths per laser point of the order ≥ 3 tracer: ``multibounce.paths``, or its default."""
+        if self.multibounce.paths is not None:
+            return int(self.multibounce.paths)
         samples = getattr(self.estimator, "samples", None)
         return int(PATHS_PER_SAMPLE * samples) if samples else DEFAULT_PATHS
 

@@ -151,7 +151,7 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
     orders = plan.decisions.get("multibounce")
     if orders is not None and orders.on:                 # orders ≥ 3: the tracer beside the estimator
         smooth_order, smooth_width = default_smoothing(config.time.bin_width)
-        smooth_order = smooth_order if config.multibounce_smoothing else 0
+        smooth_order = smooth_order if config.multibounce.smoothing else 0
         tracer = MultibounceTracer(capture, caster, transport.physics,
                                    MultibounceSettings(paths=config.tracer_paths(),
                                                        max_order=int(orders.numbers["max_order"]),
@@ -235,7 +235,8 @@ class Replicas:
         self.replica_config = config.with_estimator(**update)
         if self.entry.replica is not None:             # the order ≥ 3 tracer's paths split as the sampling is
             paths = max(1, -(-config.tracer_paths() // config.replicas))
-            self.replica_config = self.replica_config.model_copy(update={"multibounce_paths": paths})
+            self.replica_config = self.replica_config.model_copy(
+                update={"multibounce": self.replica_config.multibounce.model_copy(update={"paths": paths})})
         self.planned = planned if planned is not None else plan_transport(scene, self.replica_config)
         self.transport, self.plan = prepare_transport(scene, self.replica_config, self.planned)
         self.monte_carlo = self.entry.replica is not None and getattr(self.transport, "monte_carlo", True)

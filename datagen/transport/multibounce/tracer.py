@@ -49,7 +49,8 @@ from ...scene.capture import Capture
 from ...units import SPEED_OF_LIGHT
 from ...vectors import dot
 from ..base import Counters, Sink
-from ..physics import LegPhysics, launched_flux
+from ..area_kernels import fov_targets, sensor_collection
+from ..physics import LegPhysics, fov_connection_weight, launched_flux
 
 MULTIBOUNCE_STREAM = 57
 """The spawn-key entry of the tracer's random stream, appended to the run's :class:`numpy.random.SeedSequence`
@@ -171,6 +172,11 @@ class MultibounceTracer:
         self.t_follow = self.t_stop + (self.smoothing.margin if self.smoothing is not None else 0.0)
         albedo = physics.materials.albedo
         self.survival = np.minimum(1.0, albedo)                   # q per object: Russian roulette
+        # the FoV's pixel regions (aperture captures): one uniform target in each recorded one per vertex
+        self._pixel_area = capture.fov_size[0] * capture.fov_size[1] / capture.n_pixels if capture.n_pixels else 0.0
+        self._p_a = 1.0 / self._pixel_area if self._pixel_area > 0 else 0.0
+        self._fov = (capture.fov_center, capture.fov_u, capture.fov_v, capture.fov_normal,
+                     np.asarray(capture.fov_size, dtype=np.float64), np.asarray(capture.fov_pixels, dtype=np.float64))
         self.stats = MultibounceStats()
 
     def progress_total(self) -> tuple[int, str]:
@@ -188,7 +194,13 @@ class MultibounceTracer:
     def run_laser(self, sink: Sink, rng: np.random.Generator, laser: int,
                   progress: Callable[[int], None] | None = None) -> None:
         """Trace ``paths`` light paths from laser point ``laser`` only (the planner's pilot)."""
-        s = self.settings
+        s, c = self.settings, self.capture
+        pix = np.arange(c.n_pixels)
+        ch = c.channel(laser, pix)
+        pix, ch = pix[ch >= 0], ch[ch >= 0]                    # the pixel regions this laser point records
+        iy, ix = np.divmod(pix, c.fov_pixels[0])
+        self._pix_x, self._pix_y, self._pix_ch = ix.astype(np.int64), iy.astype(np.int64), ch.astype(np.int64)
+        self._corner = np.zeros((len(pix), 2))
         for start in range(0, s.paths, s.batch):
             n = min(s.batch, s.paths - start)
             self._trace(n, laser, sink, rng)
@@ -259,22 +271,37 @@ class MultibounceTracer:
         """Next-event connections of vertices x (m, 3) (normals n_x facing the incoming light) to one uniform point
         per sensor pixel region (aperture) or to the sensor points (point radiance), with their MIS weights."""
         c, ph = self.capture, self.physics
-        conn = ph.connect(x, n_x, laser, rng, (1, 1), jitter=rng.random((len(x), 2)))
-        if not len(conn.b):
+        if c.convention != "aperture":                            # sensor points: the shared connection
+            conn = ph.connect(x, n_x, laser, rng, (1, 1))
+            if not len(conn.b):
+                return
+            b, wk = conn.b, conn.direction
+            weight = flux[b] * ph.brdf(obj[b], n_x[b], w_in[b], wk) * dot(n_x[b], wk) * conn.weight
+            self.stats.connections += len(b)
+            self._deposit(sink, (counted[b] / SPEED_OF_LIGHT) + conn.time,
+                          weight * ph.attenuation(physical[b] + conn.phys), conn.channel, order)
             return
-        b, wk = conn.b, conn.direction
+        # one uniform point per recorded pixel region and vertex (density p_a = 1/A_pixel): the area sampler's
+        # compiled target geometry and sensor collection, a shadow ray x → y
+        b, s_idx, y, wk, r, cos_y = fov_targets(np.ascontiguousarray(x), np.ascontiguousarray(n_x), self._pix_x,
+                                                self._pix_y, self._corner, rng.random((len(x), len(self._pix_x), 2)),
+                                                (1.0, 1.0), self._fov)
+        vis = self.caster.visible(x[b], n_x[b], y, c.fov_normal)
+        ph.stats.shadow_rays += len(b)
+        b, s_idx, y, wk, r, cos_y = b[vis], s_idx[vis], y[vis], wk[vis], r[vis], cos_y[vis]
+        if not len(b):
+            return
+        collect, d_ys = sensor_collection(ph, y, np.broadcast_to(c.fov_normal, y.shape),
+                                          np.full(len(b), ph.wall_object), -wk)
         cos_x = dot(n_x[b], wk)
-        f = ph.brdf(obj[b], n_x[b], w_in[b], wk)
-        weight = flux[b] * f * cos_x * conn.weight
-        if c.convention == "aperture":                            # balance heuristic with the direction hits
-            cos_y = -dot(wk, c.fov_normal)
-            r = dot(x[b] - c.fov_center, c.fov_normal) / cos_y            # y on the FoV plane; cos_y > 0
-            p_a = c.n_pixels / (c.fov_size[0] * c.fov_size[1])
-            p_d = self.survival[obj[b]] * cos_x * cos_y / (np.pi * r * r)
-            weight = weight * (p_a / (p_a + p_d))
-        weight = weight * ph.attenuation(physical[b] + conn.phys)
+        # radiant intensity flux f cosθ_x toward y, times the FoV leg cosθ_y dA_y / r² · collection (A2, A3)
+        weight = flux[b] * ph.brdf(obj[b], n_x[b], w_in[b], wk) * cos_x * fov_connection_weight(
+            cos_y * self._pixel_area, r, collect)
+        p_d = self.survival[obj[b]] * cos_x * cos_y / (np.pi * r * r)     # balance heuristic with the direction hits
+        weight = weight * (self._p_a / (self._p_a + p_d)) * ph.attenuation(physical[b] + r + d_ys)
         self.stats.connections += len(b)
-        self._deposit(sink, (counted[b] / SPEED_OF_LIGHT) + conn.time, weight, conn.channel, order)
+        self._deposit(sink, (counted[b] + r + ph.sensor_leg(d_ys)) / SPEED_OF_LIGHT, weight, self._pix_ch[s_idx],
+                      order)
 
     def _fov_hits(self, hits, origin: np.ndarray, direction: np.ndarray, flux: np.ndarray, counted: np.ndarray,
                   physical: np.ndarray, q: np.ndarray, n_x: np.ndarray, laser: int, sink: Sink, order: int) -> None:
@@ -283,14 +310,15 @@ class MultibounceTracer:
         c, ph = self.capture, self.physics
         if c.convention != "aperture":
             return
-        pts = np.nan_to_num(hits.points)
-        chan = np.where(hits.hit, c.channel(laser, c.fov_pixel(pts, ph.tol)), -1)
-        idx = np.flatnonzero(chan >= 0)
+        on_wall = np.flatnonzero(hits.hit & np.isin(hits.object_id, ph.fov_objects))   # only these can be in the FoV
+        chan = c.channel(laser, c.fov_pixel(hits.points[on_wall], ph.tol))
+        idx = on_wall[chan >= 0]
+        chan = chan[chan >= 0]
         if not len(idx):
             return
-        y, wk, r = pts[idx], direction[idx], hits.distance[idx]
+        y, wk, r = hits.points[idx], direction[idx], hits.distance[idx]
         n_y = hits.normals[idx]
-        collect, d_ys = ph.sensor_collection(y, n_y, np.full(len(idx), ph.wall_object), -wk)
+        collect, d_ys = sensor_collection(ph, y, n_y, np.full(len(idx), ph.wall_object), -wk)
         cos_x = dot(n_x[idx], wk)
         cos_y = -dot(wk, c.fov_normal)
         p_a = c.n_pixels / (c.fov_size[0] * c.fov_size[1])
@@ -298,7 +326,7 @@ class MultibounceTracer:
         weight = flux[idx] * collect * (p_d / (p_a + p_d))
         weight = weight * ph.attenuation(physical[idx] + r + d_ys)
         self.stats.fov_hits += len(idx)
-        self._deposit(sink, (counted[idx] + r + ph.sensor_leg(d_ys)) / SPEED_OF_LIGHT, weight, chan[idx], order)
+        self._deposit(sink, (counted[idx] + r + ph.sensor_leg(d_ys)) / SPEED_OF_LIGHT, weight, chan, order)
 
     def _deposit(self, sink: Sink, t: np.ndarray, weight: np.ndarray, channel: np.ndarray, order: int) -> None:
         """Send impulses of paths of order ``order`` to ``sink`` and tally their in-window weight."""
