@@ -16,6 +16,8 @@ Exported here, what users call: the registry (:func:`register`, :func:`estimator
 - one module per estimator: :mod:`.lookin` (the paper's lookins and hemispherical cameras, ``"lookin"``) with
   its secondaries in :mod:`.secondary`; :mod:`.area` (hidden-surface area sampling, ``"area"``);
   :mod:`.quadrature` (deterministic hidden-surface quadrature, ``"quadrature"``).
+- :mod:`.multibounce`: light of order ≥ 3 (three or more hidden vertices, the component ``multibounce``): a light
+  tracer from the laser spot that runs beside a Monte Carlo estimator when ``simulation.orders`` asks for it.
 """
 from .base import AccuracyLadder, EstimatorOptions, estimator, estimator_names, register
 from .physics import LegPhysics, PhysicsSettings
