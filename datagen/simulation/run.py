@@ -346,7 +346,8 @@ class Replicas:
         orders = self.plan.decisions.get("multibounce")
         omitted = float(orders.numbers.get("residual", 0.0)) if orders is not None else 0.0
         smoothing = self.smoothing_error(tr)
-        total = float(np.sqrt(mc ** 2 + (refined or 0.0) ** 2 + omitted ** 2 + (smoothing or 0.0) ** 2))
+        # in quadrature; hypot(x, 0) is x to the bit, so results without the new terms keep their old estimate
+        total = float(np.hypot(np.hypot(mc, refined or 0.0), np.hypot(omitted, smoothing or 0.0)))
         describe = self.entry.describe or (lambda opts: opts.kind)
         setting = describe(self.replica_config.estimator)
         parts = []
