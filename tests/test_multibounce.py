@@ -195,3 +195,21 @@ def test_converged_reference_holds_every_order_and_does_not_depend_on_the_worker
         assert np.array_equal(one.components[name], both.components[name]), name
     # painted-office albedos: orders >= 3 carry about a quarter of the light
     assert 0.15 < one.components["multibounce"].sum() / one.envelope.sum() < 0.35
+
+
+def test_a_deterministic_estimator_leaves_orders_3_up_out_and_counts_them():
+    """The quadrature runs its primary once: no replicas would measure the tracer's noise, so with orders: auto the
+    pilot's share of orders >= 3 is left out and counted in the stated error (with the order-2 share when the
+    secondary is off), rather than simulated with an unmeasured error."""
+    scene = datagen.load_scene(DEMO)
+    cfg = datagen.resolve_config(scene, {"estimator": {"kind": "quadrature", "edge": 0.2}, "orders": "auto",
+                                         "effects": {"secondary": False}})
+    assert cfg.orders_setting() == "auto"
+    r = datagen.simulate(scene, cfg)
+    d = r.attrs["plan"]["multibounce"]
+    assert d["on"] is False and "multibounce" not in r.components
+    shares = d["numbers"]["pilot_shares"]
+    beyond = sum(v for k, v in shares.items() if k not in ("order_1", "order_2"))
+    assert d["numbers"]["residual"] == pytest.approx(beyond + shares["order_2"])
+    assert r.attrs["error"]["omitted_orders"] == d["numbers"]["residual"] > 0.5     # demo room: most of the light
+    assert r.attrs["error"]["rel_l2"] >= r.attrs["error"]["omitted_orders"]

@@ -225,19 +225,27 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
     plan = Plan({name: _resolve(name, auto[name], forced) for name in EFFECTS}, tol)
     orders = config.orders_setting() if hasattr(config, "orders_setting") else 2
     if orders == "auto" or orders >= 3:
-        plan.decisions["multibounce"] = plan_orders(scene, config, capture, caster, orders, tol)
+        plan.decisions["multibounce"] = plan_orders(scene, config, capture, caster, orders, tol,
+                                                    plan.on("secondary"))
     return plan
 
 
-def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, orders: int | str, tol: float) -> Decision:
+def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, orders: int | str, tol: float,
+                secondary_on: bool = True) -> Decision:
     """The decision on light of order ≥ 3 (:mod:`.orders`): the pilot's shares (``auto`` only), the highest order
-    and the residual share left out, in its numbers."""
+    and the residual share left out, in its numbers; with the secondary off (forced, or planned off) the pilot's
+    order-2 share joins the residual."""
     shares = None
     if orders == "auto":
         shares = order_shares(scene, capture, caster, config.physics_settings(),
                               (config.time.t_start, config.time.t_stop), config.seed)
-    supported = estimator(config.estimator.kind).replica is not None
+    entry = estimator(config.estimator.kind)
+    supported = entry.replica is not None and entry.refine is None     # a Monte Carlo estimator: replicas measure
+                                                                       # the tracer's noise with its own
     on, max_order, residual, reason = decide_orders(orders, shares, tol, supported)
+    if shares is not None and not secondary_on and shares[1] > 0:
+        residual = float(np.hypot(residual, shares[1])) if on else residual + float(shares[1])
+        reason += f"; the secondary is off, and the pilot's order 2 ({shares[1]:.2%}) is counted as left out too"
     numbers = {"orders": orders, "max_order": max_order, "residual": residual}
     if shares is not None:
         numbers["pilot_paths"] = PILOT_PATHS

@@ -58,7 +58,8 @@ def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, supp
 
     Args:
         orders: the config's ``orders`` (an int ≥ 1 or "auto"); shares: :func:`order_shares` (None when not run);
-        tol: the tolerance; supported: whether the estimator can add the tracer (a Monte Carlo estimator).
+        tol: the tolerance; supported: whether the estimator can carry the tracer (a Monte Carlo estimator, whose
+            replicas measure the tracer's noise; the quadrature's deterministic primary runs once).
     Returns:
         on: simulate orders ≥ 3; max_order: the highest order (0: every order); residual: the estimated share of the
         in-window energy left out (0 when every order is simulated or nothing was estimated); reason: one sentence
@@ -71,8 +72,9 @@ def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, supp
             reason = f"orders: {n} (fixed by the config)"
             return False, 0, 0.0, reason
         if not supported:
-            return False, 0, beyond or 0.0, (f"orders: {n} asked, but the estimator has no Monte Carlo replicas to "
-                                              "carry the order ≥ 3 tracer; left out")
+            return False, 0, beyond or 0.0, (f"orders: {n} asked, but the order ≥ 3 tracer runs beside Monte Carlo "
+                                              "estimators only (area, lookin), whose replicas measure its noise; "
+                                              "left out")
         return True, n, 0.0, f"orders: {n} (fixed by the config)"
     threshold = RESIDUAL_FRACTION * tol
     if beyond <= threshold:
@@ -81,7 +83,7 @@ def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, supp
                                   "stated error")
     if not supported:
         return False, 0, beyond, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, but the "
-                                  "estimator has no Monte Carlo replicas to carry the tracer: left out, counted in "
-                                  "the stated error")
+                                  "order ≥ 3 tracer runs beside Monte Carlo estimators only (area, lookin), whose "
+                                  "replicas measure its noise: left out, counted in the stated error")
     return True, 0, 0.0, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, above "
                           f"{RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): every order simulated")
