@@ -156,9 +156,15 @@ def _histogram(path: Path, pixel: str | None):
     data = np.asarray(result.counts if result.counts.any() else result.envelope)
     edges = np.asarray(result.time_edges)
     if pixel is not None:
-        idx = tuple(int(v) for v in pixel.split(","))
+        try:
+            idx = tuple(int(v) for v in pixel.split(","))
+        except ValueError:
+            raise ValueError(f"--pixel {pixel!r}: give the scan point as integers 'i,j'") from None
         if len(idx) != data.ndim - 1:
             raise ValueError(f"--pixel {pixel}: the capture has {data.ndim - 1} scan axes {data.shape[:-1]}")
+        if any(not 0 <= i < n for i, n in zip(idx, data.shape[:-1])):
+            raise ValueError(f"--pixel {pixel}: outside the scan of {path}, whose points run 0..{data.shape[0] - 1}"
+                             + "".join(f", 0..{n - 1}" for n in data.shape[1:-1]))
         h = data[idx]
     else:
         h = data.reshape(-1, data.shape[-1]).sum(0)

@@ -35,6 +35,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -66,8 +67,9 @@ def _load_predictions(pred: Path, extra_keys: tuple[str, ...] = ()) -> dict[str,
     try:
         with np.load(pred, allow_pickle=False) as f:
             data = {k: np.asarray(f[k]) for k in f.files}
-    except (ValueError, OSError, EOFError) as exc:
-        raise DatasetError(f"{pred}: not a NumPy .npz archive ({' '.join(str(exc).split())})") from None
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:      # a truncated archive: BadZipFile
+        raise DatasetError(f"{pred}: not a NumPy .npz archive, or a truncated one "
+                           f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
     unknown = sorted(set(data) - {"depth", "occupancy", "index", *extra_keys})
     if unknown:
         raise DatasetError(f"{pred}: unknown key {unknown[0]!r} (expected "
