@@ -21,6 +21,7 @@ from pathlib import Path
 import click
 
 from ..errors import DatagenError
+from ..planner.orders import OmittedOrdersWarning
 from ..simulation.config import LegacyKeysWarning
 
 MAX_LINE = 2000
@@ -59,6 +60,7 @@ def friendly_errors(func):
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("default", LegacyKeysWarning)      # each distinct note once
+                warnings.simplefilter("default", OmittedOrdersWarning)
                 shown = warnings.showwarning
                 warnings.showwarning = _note_printer(shown)
                 return func(*args, **kwargs)
@@ -72,14 +74,16 @@ def friendly_errors(func):
 
 def _note_printer(shown):
     """A ``warnings.showwarning`` printing a :class:`~datagen.simulation.LegacyKeysWarning` (old configuration
-    keys translated) as one ``note: …`` line on stderr, and anything else as ``shown`` does."""
+    keys translated) as one ``note: …`` line and an :class:`~datagen.planner.orders.OmittedOrdersWarning` as one
+    ``warning: …`` line on stderr, and anything else as ``shown`` does."""
     seen: set[str] = set()
 
     def show(message, category, filename, lineno, file=None, line=None):
-        if issubclass(category, LegacyKeysWarning):
+        if issubclass(category, (LegacyKeysWarning, OmittedOrdersWarning)):
             if str(message) not in seen:            # once per command, wherever it was raised
                 seen.add(str(message))
-                click.echo(f"note: {error_line(message)}", err=True)
+                kind = "note" if issubclass(category, LegacyKeysWarning) else "warning"
+                click.echo(f"{kind}: {error_line(message)}", err=True)
         else:
             shown(message, category, filename, lineno, file, line)
     return show

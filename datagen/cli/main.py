@@ -115,6 +115,7 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
     cap = _parse_time_cap(time_cap)
     if tol is not None:
         from ..simulation import ToleranceOutOfReach, simulate_to_tolerance
+        from ..simulation.tolerance import FIXED_LIMIT
         from ..simulation.tolerance import TIME_CAP_S
         cap = TIME_CAP_S if cap is None else cap
         def named(detail: str) -> str:   # the options, not the library's arguments
@@ -127,7 +128,11 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
         except ToleranceOutOfReach as exc:
             raise ConfigError(f"{named(exc.detail)}: loosen --tolerance or raise --time-cap") from None
         t = result.attrs["tolerance"]
-        missed = "" if t["met"] else f" — NOT met within --time-cap {cap:g} s (rounds run: {len(t['rounds'])})"
+        omitted = result.attrs["error"].get("omitted_orders") or 0.0
+        missed = ("" if t["met"] else
+                  f" — NOT met: the orders left out alone carry {omitted:.2%} (--orders auto simulates them)"
+                  if omitted > FIXED_LIMIT * tol else
+                  f" — NOT met within --time-cap {cap:g} s (rounds run: {len(t['rounds'])})")
         shown = f"{tol:.2%}" if tol >= 1e-4 else f"{tol:.3g}"
         click.echo(f"tolerance {shown}: estimated error {t['estimate']:.2%}{missed}")
     elif cap is not None:

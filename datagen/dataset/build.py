@@ -148,6 +148,7 @@ def write_shard(root: str, config_json: dict, task: ShardTask) -> dict:
         marker = {"split": task.split, "shard": task.shard, "start": task.start, "stop": task.stop,
                   "sha256": hashes, "seconds": [s.seconds for s in samples],
                   "envelope_error": [float(s.arrays["envelope_error"]) for s in samples],
+                  **({"orders": [s.orders for s in samples]} if any(s.orders for s in samples) else {}),
                   "shard_seconds": {"compute": t1 - t0, "write": time.perf_counter() - t1},
                   "worker": {"host": socket.gethostname(), "pid": os.getpid()},
                   "finished": datetime.now(timezone.utc).isoformat(timespec="seconds")}

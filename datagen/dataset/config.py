@@ -41,6 +41,7 @@ from ..simulation.tolerance import MIN_TOLERANCE
 from ..threads import one_blas_thread
 from ..units import parse_duration, parse_fraction
 from .components import COMPONENT_ROOM, OTHER_COMPONENTS, component_arrays, component_slots  # noqa: F401
+from .components import MULTIBOUNCE, orders_summary  # noqa: F401
 from .dtypes import stored_counts
 from .legacy import RENAMED_KEYS, note_old_keys
 
@@ -266,6 +267,16 @@ class DatasetConfig(_Model):
             warnings.simplefilter("ignore", FutureWarning)
             return SimulationConfig.model_validate(merged)
 
+    def stores_multibounce(self) -> bool:
+        """Whether the simulation's ``orders`` is "auto" or ≥ 3 (the first split's resolved config): then
+        ``components`` has the :data:`~datagen.dataset.components.MULTIBOUNCE` slot."""
+        setting = self.simulation_config(next(iter(self.splits))).orders_setting()
+        return setting == "auto" or (isinstance(setting, int) and setting >= 3)
+
+    def component_slots(self) -> list[str]:
+        """The ``components`` slots of this dataset (:func:`~datagen.dataset.components.component_slots`)."""
+        return component_slots(self.label_spec().max_objects, self.stores_multibounce())
+
     def label_spec(self):
         from .labels import LabelSpec
         return LabelSpec.model_validate(self.labels)
@@ -452,6 +463,8 @@ class Sample:
         seconds: wall time per stage (room, simulate, labels, total), s.
         axes: field name → axis names (per sample) of the fields whose axes have a fixed meaning
             (:func:`datagen.dataset.layout.axis_names`: e.g. envelope of a confocal scan ["scan_y", "scan_x", "time"]).
+        orders: when the config's ``orders`` is "auto" or ≥ 3, the light of every order in this sample
+            (:func:`~datagen.dataset.components.orders_summary`), else empty.
     """
 
     arrays: dict[str, np.ndarray]
@@ -459,6 +472,7 @@ class Sample:
     seconds: dict[str, float] = field(default_factory=dict)
     component_names: list[str] = field(default_factory=list)
     axes: dict[str, list[str]] = field(default_factory=dict)
+    orders: dict = field(default_factory=dict)
 
 
 def draw_room(config: DatasetConfig, split: str, index: int):
@@ -534,7 +548,8 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         arrays["counts"] = stored_counts(result.counts, config.store.counts_dtype, where)
     if config.store.components:
         component_names, arrays["components"] = component_arrays(result, room, spec.max_objects,
-                                                                 config.store.envelope_dtype, where)
+                                                                 config.store.envelope_dtype, where,
+                                                                 config.stores_multibounce())
     if config.store.reference:          # the empty room: same walls, capture and sampling stream, no hidden objects
         hidden = {o["name"] for o in room.objects}
         empty = dataclasses.replace(room.scene, objects=[o for o in room.scene.objects if o.name not in hidden])
@@ -550,6 +565,8 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
         params = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
                   "streams": STREAMS, "room": room.params, "objects": room.objects,
                   "effects": result.attrs.get("effects"), "accuracy": _accuracy(result.attrs), "plan": plan}
+        if "orders" in result.attrs:
+            params["orders"] = orders_summary(result)
         arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=_json_default), dtype=object)
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
     kind = None if room.scene.capture is None and room.scene.sensor.fov.pixels == (1, 1) else (
@@ -557,7 +574,8 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     kind = "multizone" if nodes is not None else kind
     axes = {name: names for name, value in arrays.items()
             if (names := axis_names(name, np.ndim(value), kind)) is not None}
-    return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names, axes)
+    return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names, axes,
+                  orders_summary(result) if "orders" in result.attrs else {})
 
 
 def _accuracy(attrs: dict) -> dict:

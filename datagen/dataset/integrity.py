@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import DatasetError
 from .assets import asset_changes, config_asset_entries, current_asset_record
-from .config import DatasetConfig, component_slots, config_from_json
+from .config import DatasetConfig, config_from_json
 from .labels import label_shapes
 from .store import (ShardTask, file_sha256, marker_path, plan_shards, read_card, read_marker,
                     shard_file, zarr_module)
@@ -82,7 +82,7 @@ def _expected(config_json: str, fields_json: str, n_edges: int, axes_json: str =
     fields = {name: (tuple(shape), dtype) for name, (shape, dtype) in json.loads(fields_json).items()}
     files: dict = {}
     group = zarr.open_group(zarr.storage.MemoryStore(files), mode="w", zarr_format=3)
-    create_arrays(group, config, fields, np.zeros(n_edges), component_slots(config.label_spec().max_objects),
+    create_arrays(group, config, fields, np.zeros(n_edges), config.component_slots(),
                   json.loads(axes_json))
     return {key: buf.to_bytes() for key, buf in files.items() if key.endswith("zarr.json") and "/" in key}
 
@@ -186,7 +186,7 @@ def card_problems(card: dict, config: DatasetConfig) -> list[str]:
     expected = {name: (shape, dt.str) for name, (shape, dt) in label_shapes(spec).items()} if config.store.labels \
         else {}
     if config.store.components:
-        expected_slots = len(component_slots(spec.max_objects))
+        expected_slots = len(config.component_slots())
         if "components" in fields and fields["components"][0][:1] != (expected_slots,):
             problems.append(f"card: components has shape {list(fields['components'][0])}, the config implies "
                             f"{expected_slots} component slots first")

@@ -41,7 +41,7 @@ from filelock import FileLock, Timeout
 
 from ..errors import DatasetError
 from .assets import asset_changes
-from .config import STREAMS, DatasetConfig, Sample, component_slots, location_free_json, split_key
+from .config import STREAMS, DatasetConfig, Sample, location_free_json, split_key
 from .legacy import canonical_json
 
 FORMAT = "datagen-dataset"
@@ -355,7 +355,7 @@ def finish_card(root: Path, card: dict, config: DatasetConfig) -> dict:
     """Fill the card from every done marker (hashes, timings, the samples' envelope errors against the tolerance:
     median, p95, max and the samples that missed it); mark complete when every shard is done."""
     shards, totals, stages = {}, [], {}
-    errors, missed = [], []
+    errors, missed, orders = [], [], []
     done = 0
     tasks = plan_shards(config)
     for task in tasks:
@@ -369,6 +369,7 @@ def finish_card(root: Path, card: dict, config: DatasetConfig) -> dict:
             totals.append(s["total"])
             for k, v in s.items():
                 stages.setdefault(k, []).append(v)
+        orders += marker.get("orders", [])
         for i, err in enumerate(marker.get("envelope_error", [])):
             errors.append(err)
             if not err <= config.tolerance:
@@ -379,6 +380,12 @@ def finish_card(root: Path, card: dict, config: DatasetConfig) -> dict:
     card["accuracy"] = {"tolerance": config.tolerance, "time_cap_s": config.cost_cap,
                         "envelope_error": _stats(errors), "n_missed": len(missed),
                         "missed": missed[:MISSED_LISTED]}
+    if orders:              # orders: auto or >= 3 (docs/physics.md §2): what was simulated and what was left out
+        simulated = sorted({o["simulated"] for o in orders})
+        card["orders"] = {"setting": orders[0]["setting"],
+                          "simulated": {k: sum(o["simulated"] == k for o in orders) for k in simulated},
+                          "residual_share": _stats([o["residual_share"] for o in orders]),
+                          "multibounce_share": _stats([o["multibounce_share"] for o in orders])}
     card["status"] = "complete" if done == len(tasks) else "incomplete"
     card["shards_done"], card["shards_total"] = done, len(tasks)
     return card
@@ -478,7 +485,7 @@ def initialize_card(root: Path, config: DatasetConfig, probe: Sample, assets: li
     group = zarr_module().open_group(str(root), mode="a", zarr_format=3)
     group.update_attributes(card)
     create_arrays(root, config, probe_fields(probe), probe.time_edges,
-                  component_slots(config.label_spec().max_objects), probe.axes)
+                  config.component_slots(), probe.axes)
     card.update(card_layout(config, probe))
     group.update_attributes(card)
     return card

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -54,7 +55,7 @@ from ..spad.pileup import pile_up_decision
 from ..transport import PhysicsSettings, estimator
 from ..transport.base import PLANNED_SWITCHES
 from .coarse import CoarseEnergies, coarse_energies
-from .orders import PILOT_PATHS, decide_orders, order_shares
+from .orders import PILOT_PATHS, RESIDUAL_FRACTION, OmittedOrdersWarning, decide_orders, order_shares
 from .geometry import PlanGeometry
 from ..vectors import matmul
 
@@ -224,7 +225,8 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
                                       auto["first_bounce"] if first_bounce_on else None, tol)
     plan = Plan({name: _resolve(name, auto[name], forced) for name in EFFECTS}, tol)
     orders = config.orders_setting() if hasattr(config, "orders_setting") else 2
-    if orders == "auto" or orders >= 3:
+    fixed = getattr(config, "orders", None) is not None           # written by the user: its residual is measured
+    if orders == "auto" or orders >= 3 or fixed:
         plan.decisions["multibounce"] = plan_orders(scene, config, capture, caster, orders, tol,
                                                     plan.on("secondary"))
     return plan
@@ -236,14 +238,14 @@ def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, order
     and the residual share left out, in its numbers; with the secondary off (forced, or planned off) the pilot's
     order-2 share joins the residual."""
     shares = None
-    if orders == "auto":
+    if orders == "auto" or orders <= 2:                 # (orders ≤ 2 comes here only when the user fixed it)
         shares = order_shares(scene, capture, caster, config.physics_settings(),
                               (config.time.t_start, config.time.t_stop), config.seed)
     entry = estimator(config.estimator.kind)
     supported = entry.replica is not None and entry.refine is None     # a Monte Carlo estimator: replicas measure
                                                                        # the tracer's noise with its own
     on, max_order, residual, reason = decide_orders(orders, shares, tol, supported)
-    if shares is not None and not secondary_on and shares[1] > 0:
+    if shares is not None and not secondary_on and shares[1] > 0 and orders != 1:
         residual = float(np.hypot(residual, shares[1])) if on else residual + float(shares[1])
         reason += f"; the secondary is off, and the pilot's order 2 ({shares[1]:.2%}) is counted as left out too"
     numbers = {"orders": orders, "max_order": max_order, "residual": residual}
@@ -251,6 +253,11 @@ def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, order
         numbers["pilot_paths"] = PILOT_PATHS
         numbers["pilot_shares"] = {f"order_{k + 1}" if k + 1 < len(shares) else f"order_{k + 1}_up": float(v)
                                    for k, v in enumerate(shares)}
+    if orders != "auto" and orders <= 2 and residual > RESIDUAL_FRACTION * tol:
+        warnings.warn(OmittedOrdersWarning(
+            f"{scene.source or scene.name}: orders: {orders} leaves out {residual:.1%} of the in-window light (the "
+            f"pilot's estimate, above {RESIDUAL_FRACTION:g} × the tolerance {tol:.2%}); the stated error includes "
+            "it; orders: auto simulates what the scene calls for"), stacklevel=2)
     return Decision(on, reason, orders != "auto", numbers)
 
 

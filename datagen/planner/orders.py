@@ -9,6 +9,11 @@ tolerance; otherwise they are left out and their share is the *residual*, which 
 (``attrs["error"]["omitted_orders"]``). The energy share bounds the relative L2 distance it makes: the omitted light
 is a smooth late tail, whose L2 norm is a smaller fraction of the envelope's than its energy is (docs/accuracy.md).
 The pilot draws from its own stream (:data:`PILOT_STREAM`), so it changes no other random number.
+
+A config that *fixes* ``orders`` at 1 or 2 (written in the file or given with ``--orders``) runs the same pilot:
+the share of the orders it leaves out is its residual, counted in the stated error, and an
+:class:`OmittedOrdersWarning` names it when it exceeds :data:`RESIDUAL_FRACTION` of the tolerance. An ``orders``
+left unset (1 with ``secondary: none``, else 2: what every config meant before ``orders`` existed) runs no pilot.
 """
 from __future__ import annotations
 
@@ -27,6 +32,11 @@ PILOT_STREAM = 5701
 
 RESIDUAL_FRACTION = 0.25
 """Orders ≥ 3 are left out only when their share of the in-window energy is below this fraction of the tolerance."""
+
+
+class OmittedOrdersWarning(UserWarning):
+    """``orders`` is fixed below what the scene calls for: the orders left out carry more than
+    :data:`RESIDUAL_FRACTION` of the tolerance (the CLI prints it as one ``warning: …`` line)."""
 
 
 class _Discard:
@@ -70,7 +80,11 @@ def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, supp
         n = int(orders)
         if n <= 2:
             reason = f"orders: {n} (fixed by the config)"
-            return False, 0, 0.0, reason
+            if shares is None:
+                return False, 0, 0.0, reason
+            left = float(shares[n:].sum())
+            return False, 0, left, (f"{reason}; the pilot finds the orders above {n} carry {left:.2%} of the "
+                                    "in-window energy: left out, counted in the stated error")
         if not supported:
             return False, 0, beyond or 0.0, (f"orders: {n} asked, but the order ≥ 3 tracer runs beside Monte Carlo "
                                               "estimators only (area, lookin), whose replicas measure its noise; "
@@ -87,3 +101,24 @@ def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, supp
                                   "replicas measure its noise: left out, counted in the stated error")
     return True, 0, 0.0, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, above "
                           f"{RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): every order simulated")
+
+
+def orders_record(plan, tracer, n_lasers: int) -> dict:
+    """``attrs["orders"]`` of a result: the orders asked for and simulated ("1", "1..2", "1..N" or "1..all"), the
+    residual share left out, the decision's reason, the pilot's shares and, when the tracer ran, its per-order
+    in-window energy (photons per pulse, mean over its runs).
+
+    Args:
+        plan: the run's :class:`~datagen.planner.Plan` (with its ``multibounce`` decision); tracer: the run's
+            :class:`~datagen.transport.multibounce.MultibounceTracer` or None; n_lasers: laser points per run.
+    """
+    d = plan.decisions["multibounce"]
+    setting = d.numbers["orders"]
+    lowest = "1" if setting == 1 or not plan.on("secondary") else "1..2"
+    out = {"setting": setting, "simulated": (f"1..{d.numbers['max_order'] or 'all'}" if d.on else lowest),
+           "residual_share": d.numbers["residual"], "reason": d.reason,
+           **({"pilot_shares": d.numbers["pilot_shares"]} if "pilot_shares" in d.numbers else {})}
+    if tracer is not None:
+        runs = max(1, tracer.stats.paths // max(1, tracer.settings.paths * n_lasers))
+        out["energy_by_order"] = {f"order_{k + 3}": float(v) / runs for k, v in enumerate(tracer.order_energy[2:])}
+    return out

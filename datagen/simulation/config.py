@@ -111,10 +111,10 @@ def legacy_note(moves: list[str], where: str = "simulation") -> str:
 
 
 PATHS_PER_SAMPLE = 4
-"""Default light paths of the order ≥ 3 tracer per hidden sample of the area sampler: the error of the sum is least
-for a given time when the two take comparable time, and a traced path costs from a quarter of a hidden sample (its
-secondary included; rooms of albedo 0.3–0.8) to twice one (albedo 1); on default.yaml samples the cost to 1 % is
-flat from 4 to 16 paths per sample (docs/accuracy.md, "Light of every order")."""
+"""Default light paths of one replica of the order ≥ 3 tracer per hidden sample of the area sampler's replica. How
+many tracer replicas go with the area sampler's is decided as the run goes, from both parts' measured spread and
+counted work (:func:`datagen.simulation.replicas.tracer_replicas_wanted`): from 1.5 per replica (demo room, albedo 1:
+a path costs two hidden samples) to 16 (rooms of albedo 0.3–0.8), docs/accuracy.md, "Light of every order"."""
 
 DEFAULT_PATHS = 262144
 """Default light paths per laser point of the order ≥ 3 tracer beside estimators without a ``samples`` count."""

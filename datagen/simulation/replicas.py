@@ -100,8 +100,77 @@ class ReplicaSums:
     def error(self) -> float:
         """ε̂, the relative standard error of the mean envelope (module docstring); inf for fewer than 2
         replicas (unless the envelope is zero: then 0)."""
-        mean = self.envelope / max(self.count, 1)                     # in scale units: the ratio needs no more
+        return combined_error([self])
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, variance of the mean) per bin, (n_channels, n_bins) each, in units of ``scale`` (its square for
+        the variance); the variance is inf for fewer than 2 replicas."""
+        mean = self.envelope / max(self.count, 1)
         if self.count < 2:
-            return float("inf") if mean.any() else 0.0
-        var_mean = np.maximum(self.envelope_sq / self.count - mean ** 2, 0.0) / (self.count - 1)
-        return relative_standard_error(mean, var_mean)
+            return mean, np.full_like(mean, np.inf)
+        return mean, np.maximum(self.envelope_sq / self.count - mean ** 2, 0.0) / (self.count - 1)
+
+
+def combined_error(parts: list[ReplicaSums]) -> float:
+    """ε̂ of the sum of independent means, each over its own replicas (orders 1–2 and the order ≥ 3 tracer run
+    different numbers of replicas): sqrt(Σ_b Σ_i var_i,b) / ‖Σ_i mean_i‖ over the bins above ``PEAK_FLOOR`` of the
+    summed mean's peak (module docstring); inf while a part with energy has fewer than 2 replicas, 0 for an
+    all-zero mean."""
+    ref = next((p.scale for p in parts if p.scale), 1.0)          # one unit for all (each part has its own scale)
+    mean, var = None, None
+    for p in parts:
+        m, v = p.moments()
+        if p.count < 2:
+            if m.any():
+                return float("inf")
+            continue                                                 # no energy: adds nothing
+        k = (p.scale or 1.0) / ref
+        if k != 1.0:
+            m, v = m * k, v * (k * k)
+        mean = m if mean is None else mean + m
+        var = v if var is None else var + v
+    if mean is None:
+        return 0.0
+    return relative_standard_error(mean, var)
+
+
+
+def neyman_split(base: ReplicaSums, tracer: ReplicaSums, base_cost: float, tracer_cost: float
+                 ) -> tuple[float, float, float] | None:
+    """The split of the work between two independent estimators of one sum (orders 1–2 and the order ≥ 3 tracer):
+    (v_b, v_t, ρ) with v the relative variance of one replica of each (summed over the error's bins, over the summed
+    mean's norm squared) and ρ = R_t/R_b = sqrt(v_t c_b / (v_b c_t)), the ratio that meets an error target in the
+    least work (Neyman allocation: ε² = v_b/R_b + v_t/R_t at cost c_b R_b + c_t R_t), c the nominal seconds per
+    replica (counted work: the split depends on the seed, never on the machine). None while either has fewer than 2
+    replicas, a cost is unknown or the base has no spread."""
+    if base.count < 2 or tracer.count < 2 or base_cost <= 0 or tracer_cost <= 0:
+        return None
+    mb, vb = base.moments()
+    mt, vt = tracer.moments()
+    kt = (tracer.scale or 1.0) / (base.scale or 1.0)
+    mean = mb + mt * kt
+    peak = float(mean.max())
+    if peak <= 0:
+        return None
+    mask = mean > PEAK_FLOOR * peak
+    norm2 = float(np.sum(mean[mask] ** 2))
+    v_b = float(vb[mask].sum()) * base.count / norm2
+    v_t = float(vt[mask].sum()) * kt * kt * tracer.count / norm2
+    if v_b <= 0:
+        return None
+    return v_b, v_t, float(np.sqrt(v_t * base_cost / (v_b * tracer_cost)))
+
+
+TRACER_MAX_RATIO = 64
+"""Most replicas of the order ≥ 3 tracer per replica of orders 1–2."""
+
+
+def tracer_replicas_wanted(base: ReplicaSums, tracer: ReplicaSums, base_cost: float, tracer_cost: float) -> int:
+    """How many tracer replicas go with ``base.count`` replicas of orders 1–2: ρ·R_b (:func:`neyman_split`),
+    never fewer than already run nor than 2, at most :data:`TRACER_MAX_RATIO` per base replica; as many as the
+    base while the split is unknown."""
+    split = neyman_split(base, tracer, base_cost, tracer_cost)
+    if split is None:
+        return max(tracer.count, base.count)
+    wanted = int(np.ceil(split[2] * base.count))
+    return int(min(max(wanted, tracer.count, 2), TRACER_MAX_RATIO * base.count))

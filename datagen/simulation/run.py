@@ -22,16 +22,19 @@ from ..threads import one_blas_thread
 from .. import spad
 from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..planner import Plan, plan_effects
+from ..planner.orders import orders_record
 from ..scene import RayCaster, Scene, resolve_capture
 from ..scene.capture import Capture
 from ..timing import EnvelopeAccumulator
 from ..transport import estimator
 from ..transport.base import Estimator, run_replicas
 from ..transport.multibounce import AllOrders, MultibounceSettings, MultibounceTracer
-from ..transport.multibounce.tracer import default_smoothing
+from ..transport.multibounce.orders import tracer_nominal_seconds
+from ..transport.multibounce.tracer import default_smoothing, tracer_rng
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
-from .replicas import ReplicaSums, relative_difference, replica_root, replica_rng
+from .replicas import (ReplicaSums, combined_error, neyman_split, relative_difference, replica_root, replica_rng,
+                       tracer_replicas_wanted)
 
 
 @dataclass
@@ -150,12 +153,13 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
                                              plan.secondary_mode(config.secondary))
     orders = plan.decisions.get("multibounce")
     if orders is not None and orders.on:                 # orders ≥ 3: the tracer beside the estimator
-        smooth_order, smooth_width = default_smoothing(config.time.bin_width)
-        smooth_order = smooth_order if config.multibounce.smoothing else 0
+        smoothing = default_smoothing(config.time.bin_width, config.effect_threshold)
+        if not config.multibounce.smoothing:
+            smoothing["smooth_order"] = 0
         tracer = MultibounceTracer(capture, caster, transport.physics,
                                    MultibounceSettings(paths=config.tracer_paths(),
                                                        max_order=int(orders.numbers["max_order"]),
-                                                       smooth_order=smooth_order, smooth_width=smooth_width),
+                                                       **smoothing),
                                    len(transport.component_names), (config.time.t_start, config.time.t_stop))
         transport = AllOrders(transport, tracer)
     return transport, plan
@@ -244,6 +248,10 @@ class Replicas:
         self.n_channels = self.transport.capture.n_channels
         self.total = EnvelopeAccumulator(config.time, config.irf, len(self.names) * self.n_channels)
         self.sums = ReplicaSums.zeros(self.n_channels, config.time.n_bins)
+        # orders ≥ 3: the tracer's replicas are counted apart from the base's, so that each gets the share of the
+        # work that the error of their sum asks for (replicas.tracer_replicas_wanted)
+        self.tracer = getattr(self.transport, "tracer", None) if self.monte_carlo else None
+        self.tracer_sums = ReplicaSums.zeros(self.n_channels if self.tracer is not None else 0, config.time.n_bins)
         self.root = replica_root(rng)
         self.seconds = {"setup": time.perf_counter() - t0, "transport": 0.0, "binning": 0.0}
 
@@ -267,26 +275,59 @@ class Replicas:
             if bar is not None:
                 bar.close()
             return
-        group = max(1, REPLICA_SINK_BYTES // (8 * self.total.n_components * self.total.n_fine))
-        start, stop = self.count, self.count + n
-        for first in range(start, stop, group):                  # replica sinks of one group at a time (memory)
-            sinks = [self.total.spawn() for _ in range(min(group, stop - first))]
-            rngs = [replica_rng(self.root, first + k) for k in range(len(sinks))]
-            t1 = time.perf_counter()
-            run_replicas(self.transport, sinks, rngs, bar.update if bar is not None else None)
-            t2 = time.perf_counter()
-            for sink in sinks:
-                self.total.merge(sink)
-                self.sums.add(sink.binned_total(self.n_channels))
-            del sinks
-            self.seconds["transport"] += t2 - t1
-            self.seconds["binning"] += time.perf_counter() - t2
+        if self.tracer is None:
+            self._run_group(self.transport, self.sums, n, lambda r: replica_rng(self.root, r), bar)
+        else:                                    # orders 1–2, then the tracer's replicas that go with them
+            self._run_group(self.transport.base, self.sums, n, lambda r: replica_rng(self.root, r), bar)
+            streams = lambda r: tracer_rng(replica_rng(self.root, r))      # noqa: E731 (replica r's own stream)
+            if self.tracer_sums.count < 2:
+                self._run_group(self.tracer, self.tracer_sums, 2 - self.tracer_sums.count, streams, None)
+            wanted = tracer_replicas_wanted(self.sums, self.tracer_sums, *self._replica_costs())
+            self._run_group(self.tracer, self.tracer_sums, wanted - self.tracer_sums.count, streams, None)
         if bar is not None:
             bar.close()
 
+    def _replica_costs(self) -> tuple[float, float]:
+        """Nominal seconds of one replica of orders 1–2 and of one of the tracer (0 when unknown)."""
+        base_cost = getattr(self.transport.base, "nominal_seconds", None)
+        return (base_cost() / max(self.count, 1) if base_cost is not None else 0.0,
+                tracer_nominal_seconds(self.tracer.stats) / max(self.tracer_sums.count, 1))
+
+    def replicas_needed(self, budget: float) -> float | None:
+        """Replicas of orders 1–2 that bring the Monte Carlo error to ``budget`` when the tracer's replicas follow
+        the Neyman split ρ (:func:`~datagen.simulation.replicas.neyman_split`): (v_b + v_t/ρ) / budget²; None
+        without a tracer or before the split is known (then the R^(-1/2) law of the total applies)."""
+        if self.tracer is None:
+            return None
+        split = neyman_split(self.sums, self.tracer_sums, *self._replica_costs())
+        if split is None:
+            return None
+        v_b, v_t, rho = split
+        return (v_b + (v_t / rho if rho > 0 else 0.0)) / (budget * budget)
+
+    def _run_group(self, transport, sums: ReplicaSums, n: int, streams, bar) -> None:
+        """Run replicas ``sums.count`` … ``sums.count + n − 1`` of ``transport`` (stream r: ``streams(r)``) into
+        the total and ``sums``, a group of replica sinks at a time (memory)."""
+        group = max(1, REPLICA_SINK_BYTES // (8 * self.total.n_components * self.total.n_fine))
+        start, stop = sums.count, sums.count + max(n, 0)
+        for first in range(start, stop, group):
+            sinks = [self.total.spawn() for _ in range(min(group, stop - first))]
+            rngs = [streams(first + k) for k in range(len(sinks))]
+            t1 = time.perf_counter()
+            run_replicas(transport, sinks, rngs, bar.update if bar is not None else None)
+            t2 = time.perf_counter()
+            for sink in sinks:
+                self.total.merge(sink)
+                sums.add(sink.binned_total(self.n_channels))
+            del sinks
+            self.seconds["transport"] += t2 - t1
+            self.seconds["binning"] += time.perf_counter() - t2
+
     def error(self) -> float:
         """The Monte Carlo part of the error estimate of the mean (0 for a deterministic run)."""
-        return self.sums.error() if self.monte_carlo else 0.0
+        if not self.monte_carlo:
+            return 0.0
+        return self.sums.error() if self.tracer is None else combined_error([self.sums, self.tracer_sums])
 
     def transported(self) -> Transported:
         """The mean of the replicas run so far, binned."""
@@ -294,7 +335,11 @@ class Replicas:
         r = max(self.count, 1)
         binned = self.total.binned(copy=False).reshape(len(self.names), self.n_channels, -1)
         outside = self.total.outside().reshape(len(self.names), self.n_channels)
-        if r > 1:                                  # one replica (every deterministic run): no full-size copy
+        if self.tracer is not None:                # the tracer's component over its own replica count
+            runs = np.full(len(self.names), float(r))
+            runs[self.tracer.component] = max(self.tracer_sums.count, 1)
+            binned, outside = binned / runs[:, None, None], outside / runs[:, None]
+        elif r > 1:                                # one replica (every deterministic run): no full-size copy
             binned, outside = binned / r, outside / r
         self.seconds["binning"] += time.perf_counter() - t0
         return Transported(self.names, binned, outside, self.transport, self.plan, dict(self.seconds))
@@ -318,7 +363,8 @@ class Replicas:
             channels = getattr(self.transport, "coarse_channels", slice(None))
             coarse_p = coarse_acc.binned_total(self.n_channels, channels)
         else:
-            no_secondary = {"secondary": "none", "effects": {**self.replica_config.effects, "secondary": False}}
+            no_secondary = {"secondary": "none", "effects": {**self.replica_config.effects, "secondary": False},
+                            "orders": None}          # the primary only (no pilot: the plan's residual is counted)
             coarse_cfg = self.replica_config.with_estimator(**self.entry.refine(self.replica_config.estimator))
             coarse_cfg = coarse_cfg.model_copy(update=no_secondary)
             coarse = run_transport(self.scene, coarse_cfg, rng)
@@ -329,23 +375,41 @@ class Replicas:
         scale = tr.binned[:, channels].sum(axis=0)
         return relative_difference(fine_p, coarse_p, scale) / abs(ratio ** self.entry.order - 1.0)
 
-    def smoothing_error(self, tr: Transported) -> float | None:
-        """The order ≥ 3 tracer's smoothing bias relative to the envelope (the error measure's bins), or None when
-        no orders were smoothed (:class:`~datagen.transport.multibounce.tracer.DeepSmoothing`)."""
+    def smoothing_error(self, envelope: np.ndarray) -> float | None:
+        """The order ≥ 3 tracer's smoothing bias relative to ``envelope`` (n_channels, n_bins), the mean of every
+        component, on the error measure's bins; None when no orders were smoothed
+        (:class:`~datagen.transport.multibounce.tracer.SmoothingBands`)."""
         tracer = getattr(self.transport, "tracer", None)
         if tracer is None or tracer.smoothing is None:
             return None
-        bias = tracer.smoothing.bias(self.config.time.edges, max(self.count, 1))
-        return relative_difference(bias, np.zeros_like(bias), tr.binned.sum(axis=0))
+        runs = self.tracer_sums.count if self.tracer is not None else self.count
+        bias = tracer.smoothing.bias(self.config.time.edges, max(runs, 1))
+        return relative_difference(bias, np.zeros_like(bias), envelope)
+
+    def omitted_error(self) -> float:
+        """The share of the in-window energy that the orders left out carry (the planner's pilot), or 0."""
+        orders = self.plan.decisions.get("multibounce")
+        return float(orders.numbers.get("residual", 0.0)) if orders is not None else 0.0
+
+    def fixed_error(self) -> float:
+        """The parts of the error estimate that more replicas do not bring down, in quadrature: the orders left out
+        and the deep orders' smoothing bias (relative to the replicas' mean envelope)."""
+        smoothing = None
+        if getattr(getattr(self.transport, "tracer", None), "smoothing", None) is not None:
+            mean = self.sums.mean()
+            if self.tracer is not None and self.tracer_sums.count:
+                mean = mean + self.tracer_sums.mean()
+            smoothing = self.smoothing_error(mean)
+        return float(np.hypot(self.omitted_error(), smoothing or 0.0))
 
     def error_attrs(self, tr: Transported, rng: np.random.Generator) -> dict:
         """``attrs["error"]`` of the result: the estimate (relative L2 of the envelope over bins above 1 % of its
         peak), its parts and how it was made."""
         mc = self.error()
         refined = self.refinement_error(tr, rng)
-        orders = self.plan.decisions.get("multibounce")
-        omitted = float(orders.numbers.get("residual", 0.0)) if orders is not None else 0.0
-        smoothing = self.smoothing_error(tr)
+        omitted = self.omitted_error()
+        smoothed = getattr(getattr(self.transport, "tracer", None), "smoothing", None) is not None
+        smoothing = self.smoothing_error(tr.binned.sum(axis=0)) if smoothed else None
         # in quadrature; hypot(x, 0) is x to the bit, so results without the new terms keep their old estimate
         total = float(np.hypot(np.hypot(mc, refined or 0.0), np.hypot(omitted, smoothing or 0.0)))
         describe = self.entry.describe or (lambda opts: opts.kind)
@@ -353,6 +417,9 @@ class Replicas:
         parts = []
         if self.monte_carlo:
             parts.append(f"standard error of the mean of {self.count} independent replicas ({setting} each)")
+            if self.tracer is not None:
+                parts[-1] += (f" and of {self.tracer_sums.count} of the order ≥ 3 tracer "
+                              f"({self.tracer.settings.paths} light paths each)")
         if refined is not None:
             half = (getattr(self.transport, "coarse", None) is not None
                     and getattr(self.transport, "coarse_ratio", 2.0) < 1)
@@ -367,6 +434,7 @@ class Replicas:
         return {"rel_l2": total, "monte_carlo": mc, "refinement": refined, "omitted_orders": omitted,
                 "smoothing": smoothing,
                 "replicas": self.count, "replica_setting": setting,
+                **({"tracer_replicas": self.tracer_sums.count} if self.tracer is not None else {}),
                 "method": " and ".join(parts) + "; relative L2 over bins above 1 % of the peak"}
 
 
@@ -457,20 +525,6 @@ def detector_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: 
     return counts, detector, plan_attrs
 
 
-def orders_attrs(tr: Transported) -> dict:
-    """``attrs["orders"]``: the orders asked for and simulated, the residual share left out, the pilot's shares and,
-    when the tracer ran, its per-order in-window energy (photons per pulse, mean over replicas)."""
-    d = tr.plan.decisions["multibounce"]
-    out = {"setting": d.numbers["orders"], "simulated": (f"1..{d.numbers['max_order'] or 'all'}" if d.on else "1..2"),
-           "residual_share": d.numbers["residual"], "reason": d.reason,
-           **({"pilot_shares": d.numbers["pilot_shares"]} if "pilot_shares" in d.numbers else {})}
-    tracer = getattr(tr.transport, "tracer", None)
-    if tracer is not None:
-        runs = max(1, tracer.stats.paths // max(1, tracer.settings.paths * tr.transport.capture.n_lasers))
-        out["energy_by_order"] = {f"order_{k + 3}": float(v) / runs for k, v in enumerate(tracer.order_energy[2:])}
-    return out
-
-
 def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
                 noise_rng: np.random.Generator | None, t0: float, extra_attrs: dict | None = None) -> Result:
     """Detector draw and metadata around binned transport output (the last steps of :func:`simulate`): the
@@ -525,7 +579,8 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
             "fov_to_sensor_leg_in_time": config.count_sensor_leg,
             "detector_model": detector.model,
         },
-        **({"orders": orders_attrs(tr)} if "multibounce" in tr.plan.decisions else {}),
+        **({"orders": orders_record(tr.plan, getattr(tr.transport, "tracer", None), capture.n_lasers)}
+           if "multibounce" in tr.plan.decisions else {}),
         "energy_outside_window": {n: float(v) for n, v in zip(names, tr.outside.sum(1))},
         "stats": {k: int(v) for k, v in vars(st).items() if isinstance(v, (int, np.integer))},
         **({"quadrature": transport.attrs()} if hasattr(transport, "attrs") else {}),

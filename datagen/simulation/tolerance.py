@@ -52,6 +52,10 @@ SAFETY = 1.1
 MAX_GROWTH = 8.0
 """Largest growth of the replica count per round (guards a noisy first estimate)."""
 
+FIXED_LIMIT = 0.5
+"""The replicas meet the tolerance less the parts of the error they cannot reduce (orders left out, the deep
+orders' smoothing bias) while those take at most this fraction of it; beyond, the tolerance cannot be met."""
+
 MAX_ROUNDS = 8
 
 SAFETY_EDGE = 0.9
@@ -209,20 +213,28 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     for _ in range(MAX_ROUNDS):
         t_round = time.perf_counter()
         runs.run(target - runs.count)
-        estimate = runs.error()
+        mc, fixed = runs.error(), runs.fixed_error()
+        estimate = float(np.hypot(mc, fixed))
+        # what the replicas may add: the tolerance less what they cannot bring down (orders left out, smoothing
+        # bias) while that is at most FIXED_LIMIT of it; beyond, the tolerance cannot be met, the replicas aim at
+        # the tolerance alone and the result says it missed (met: false), rather than spend without end
+        budget = (math.sqrt(tolerance * tolerance - fixed * fixed) if 0 < fixed <= FIXED_LIMIT * tolerance
+                  else tolerance)
         seconds = time.perf_counter() - t_round
         rounds.append({"replicas": runs.count, "estimate": estimate, "seconds": seconds})
         if progress:
             print(f"{runs.count} replicas ({runs.entry.describe(runs.replica_config.estimator)} each): "
                   f"estimated error {estimate:.3%} ({seconds:.2f} s)")
-        if estimate <= tolerance or (cap is not None and runs.count >= cap):
+        if mc <= budget or (cap is not None and runs.count >= cap):
             break
         if not math.isfinite(estimate) and runs.sums.mean().max() <= 0:
             break
         if max_seconds is not None and len(rounds) == 1:   # the setup before the round is done once
-            _check_projection(seconds, estimate, tolerance, runs.count, max_seconds, f"{runs.count} replicas", warn,
+            _check_projection(seconds, mc, budget, runs.count, max_seconds, f"{runs.count} replicas", warn,
                               fixed_seconds=max(0.0, time.perf_counter() - t0 - seconds))
-        wanted = math.ceil(min(runs.count * MAX_GROWTH, replicas_needed(runs.count, estimate, tolerance)))
+        split = runs.replicas_needed(budget)        # orders ≥ 3: the base's share under the tracer's split
+        needed = replicas_needed(runs.count, mc, budget) if split is None else split * SAFETY
+        wanted = math.ceil(min(runs.count * MAX_GROWTH, needed))
         target = max(runs.count + 1, wanted if cap is None else min(wanted, cap))
         nominal = getattr(runs.transport, "nominal_seconds", None)
         if max_cost is not None and nominal is not None:

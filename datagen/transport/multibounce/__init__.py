@@ -18,7 +18,13 @@ more than a stated fraction of the tolerance; the simulation then wraps the chos
 
 - :mod:`.tracer`: :class:`MultibounceTracer` and its :class:`MultibounceSettings` (light paths from the laser
   spot, next-event connections and direction hits on the FoV under the balance heuristic, Russian roulette).
-- :mod:`.orders`: :class:`AllOrders`, an estimator of orders 1–2 plus the tracer as one estimator.
+- :mod:`.kernels`: the per-vertex arithmetic compiled (the continuation's direction, BRDF, flux and roulette;
+  the next-event BRDFs).
+- :mod:`.orders`: :class:`AllOrders`, an estimator of orders 1–2 plus the tracer as one estimator, and the
+  tracer's nominal cost (:func:`~datagen.transport.multibounce.orders.tracer_nominal_seconds`).
+
+A run counts the tracer's replicas apart from the estimator's and gives each the share of the work that the error
+of their sum asks for (:func:`datagen.simulation.replicas.neyman_split`).
 """
 from .orders import COMPONENT, AllOrders
 from .tracer import MultibounceSettings, MultibounceStats, MultibounceTracer, tracer_rng

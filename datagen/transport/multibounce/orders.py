@@ -66,11 +66,20 @@ class AllOrders:
             self.tracer.run(sink, rng)
 
     def nominal_seconds(self) -> float:
-        """The base's nominal seconds plus the tracer's (``NOMINAL_VERTEX_SECONDS`` per vertex)."""
+        """The base's nominal seconds plus the tracer's (:func:`tracer_nominal_seconds`)."""
         base = getattr(self.base, "nominal_seconds", None)
-        return (base() if base is not None else 0.0) + NOMINAL_VERTEX_SECONDS * self.tracer.stats.vertices
+        return (base() if base is not None else 0.0) + tracer_nominal_seconds(self.tracer.stats)
 
 
-NOMINAL_VERTEX_SECONDS = 1.6e-6
-"""Seconds of one core per traced vertex (a continuation ray, a next-event connection with its shadow ray and the
-weights), for the deterministic cost caps of dataset builds (:meth:`AllOrders.nominal_seconds`)."""
+NOMINAL_TRACER_SECONDS = {"vertex": 3.6e-7, "step": 2.4e-4, "connection": 1.6e-6}
+"""Seconds of one core per traced vertex (its continuation ray, the sampling and the weights), per step (one
+order of one batch: the fixed cost of the array passes, which dominates batches whose paths are short) and per
+next-event connection (target point, shadow ray, sensor collection): a non-negative least-squares fit to 14 runs
+(default.yaml samples, the demo and office rooms, 4096–65536 paths; within 40 %). Dataset builds cap work with it
+and the tolerance loop splits replicas by it, deterministically (:meth:`AllOrders.nominal_seconds`)."""
+
+
+def tracer_nominal_seconds(stats) -> float:
+    """Nominal seconds of the work counted in :class:`~datagen.transport.multibounce.tracer.MultibounceStats`."""
+    n = NOMINAL_TRACER_SECONDS
+    return n["vertex"] * stats.vertices + n["step"] * stats.steps + n["connection"] * stats.connections

@@ -10,9 +10,10 @@ The estimator (docs/physics.md §2, "Light of every order"; docs/accuracy.md for
   its flux is Φ f_l(ω_e, ω) π / N per path of N (:func:`~datagen.transport.physics.launched_flux` of
   :meth:`LegPhysics.spot_emission <datagen.transport.physics.LegPhysics.spot_emission>` over the density). At every hidden vertex x_k the next
   direction is cosine-weighted about the normal on the side the light arrives from, the flux is multiplied by
-  f(ω_in, ω_out) π (the BRDF over the cosine density, :meth:`LegPhysics.brdf`) and divided by the survival
-  probability q = min(1, ρ) of Russian roulette (ρ the material's albedo: a Lambertian path keeps its flux and
-  survives with probability ρ). Roulette is unbiased. Every surface takes part, the relay wall included.
+  f(ω_in, ω_out) π (the BRDF over the cosine density) and divided by the survival probability q = min(1, ρ) of
+  Russian roulette (ρ the material's albedo: a Lambertian path keeps its flux and survives with probability ρ).
+  Roulette is unbiased. Every surface takes part, the relay wall included. This step runs in one compiled pass
+  (:func:`~datagen.transport.multibounce.kernels.continue_paths`).
 - **Termination** is exact and bounded: a path whose counted length already exceeds the window's end c·t_stop can
   add nothing inside the window (every further leg only adds time), so it stops there; a path also stops when
   its ray leaves the scene or roulette ends it. In a closed room of albedo 1 every path ends at the window's end:
@@ -26,6 +27,10 @@ The estimator (docs/physics.md §2, "Light of every order"; docs/accuracy.md for
   measure). Both are combined by the balance heuristic (Veach & Guibas 1995), as the area sampler's FoV
   connections are: the weight stays bounded next to the FoV, where the area strategy alone has G ~ 1/r².
   Point-radiance captures connect to the sensor points only (points cannot be hit).
+- **Time smoothing** of the deep orders (:class:`SmoothingBands`): their impulses are linearly binned on nodes Δ
+  apart and deposited as tents, Δ growing with the order (the tail of deeper orders is smoother) and with the
+  tolerance (Δ ∝ √tolerance keeps the bias a fixed fraction of it); the bias is estimated from the same impulses
+  on nodes 2Δ apart (Richardson) and counted in the stated error.
 - **Time and attenuation**: each impulse arrives at (switched laser leg + hidden legs + r + switched sensor
   leg)/c (:meth:`LegPhysics.laser_leg`, :meth:`LegPhysics.sensor_leg`) and weighs e^{−μ·physical path}
   (:meth:`LegPhysics.attenuation`), as every other estimator's paths.
@@ -49,8 +54,9 @@ from ...scene.capture import Capture
 from ...units import SPEED_OF_LIGHT
 from ...vectors import dot
 from ..base import Counters, Sink
-from ..area_kernels import fov_targets, sensor_collection
+from ..area_kernels import fov_targets, material_arrays, sensor_collection
 from ..physics import LegPhysics, fov_connection_weight, launched_flux
+from .kernels import brdf_many, continue_paths
 
 MULTIBOUNCE_STREAM = 57
 """The spawn-key entry of the tracer's random stream, appended to the run's :class:`numpy.random.SeedSequence`
@@ -59,16 +65,32 @@ MULTIBOUNCE_STREAM = 57
 SMOOTH_ORDER = 3
 """Orders from this one up are deposited smoothed in time (:class:`DeepSmoothing`) by default."""
 
-SMOOTH_WIDTH = 1e-9
-"""Δ, the node spacing of the smoothing, s, by default; no smoothing when the output bins are not at least
-:data:`SMOOTH_MIN_BINS` times finer (nothing to gain)."""
+SMOOTH_WIDTH = 2e-9
+"""Δ, the node spacing of the lowest smoothed orders, s, at a tolerance of :data:`SMOOTH_TOLERANCE`: the bias of a
+kernel estimate grows as Δ² and its noise falls as 1/Δ, so Δ scales as √tolerance (the bias stays the same
+fraction of the tolerance: about a third of it in the shipped rooms at 2 ns and 1 %), and never above this."""
+
+SMOOTH_TOLERANCE = 0.01
+
+SMOOTH_MIN_WIDTH = 0.5e-9
+"""The narrowest Δ, s (tolerances below 0.06 %)."""
+
+SMOOTH_BANDS = 2
+"""Bands of orders with their own Δ: orders s..2s−2 at Δ, deeper orders at 2Δ (:class:`SmoothingBands`)."""
 
 SMOOTH_MIN_BINS = 4
+"""No smoothing when the output bins are not at least this many times finer than Δ (nothing to gain)."""
 
 
-def default_smoothing(bin_width: float) -> tuple[int, float]:
-    """(smooth_order, smooth_width) of :class:`MultibounceSettings` for output bins of ``bin_width`` seconds."""
-    return (SMOOTH_ORDER, SMOOTH_WIDTH) if SMOOTH_MIN_BINS * bin_width <= SMOOTH_WIDTH else (0, SMOOTH_WIDTH)
+def default_smoothing(bin_width: float, tolerance: float) -> dict:
+    """The smoothing fields of :class:`MultibounceSettings` (``smooth_order``, ``smooth_width``,
+    ``smooth_max_width``) for output bins of ``bin_width`` seconds and a target relative error ``tolerance``:
+    Δ = :data:`SMOOTH_WIDTH` · √(tolerance / :data:`SMOOTH_TOLERANCE`) within [:data:`SMOOTH_MIN_WIDTH`,
+    :data:`SMOOTH_WIDTH`], the deeper band at 2Δ; no smoothing when the bins are not :data:`SMOOTH_MIN_BINS`
+    times finer than Δ."""
+    width = float(np.clip(SMOOTH_WIDTH * np.sqrt(tolerance / SMOOTH_TOLERANCE), SMOOTH_MIN_WIDTH, SMOOTH_WIDTH))
+    order = SMOOTH_ORDER if SMOOTH_MIN_BINS * bin_width <= width else 0
+    return {"smooth_order": order, "smooth_width": width, "smooth_max_width": width * 2 ** (SMOOTH_BANDS - 1)}
 
 
 MAX_VERTICES = 10_000
@@ -87,7 +109,8 @@ class MultibounceSettings:
             scene or at the window's end).
         batch: paths traced together (memory: ~1 kB per path).
         smooth_order: orders from this one up are deposited smoothed in time (0: none; see
-            :class:`DeepSmoothing`); smooth_width: Δ, its node spacing, seconds.
+            :class:`SmoothingBands`); smooth_width: Δ, the node spacing of the lowest smoothed orders, seconds;
+            smooth_max_width: the widest node spacing of the deeper orders, seconds (= smooth_width: one Δ for all).
 
     Raises:
         ConfigError: a field out of range (the message names it and the value).
@@ -99,11 +122,16 @@ class MultibounceSettings:
     batch: int = 32768
     smooth_order: int = 0
     smooth_width: float = 1e-9
+    smooth_max_width: float = 1e-9
 
     def __post_init__(self):
-        if not (isinstance(self.smooth_width, (int, float)) and np.isfinite(self.smooth_width)
-                and self.smooth_width > 0):
-            raise ConfigError(f"multibounce tracer: smooth_width must be > 0 seconds, got {self.smooth_width!r}")
+        for name in ("smooth_width", "smooth_max_width"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ConfigError(f"multibounce tracer: {name} must be > 0 seconds, got {v!r}")
+        if self.smooth_max_width < self.smooth_width:
+            raise ConfigError(f"multibounce tracer: smooth_max_width {self.smooth_max_width!r} s is below smooth_width "
+                              f"{self.smooth_width!r} s")
         for name, low in (("paths", 1), ("min_order", 1), ("max_order", 0), ("batch", 1), ("smooth_order", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
@@ -114,10 +142,12 @@ class MultibounceSettings:
 
 @dataclass
 class MultibounceStats(Counters):
-    """Counters of tracer runs (``add`` merges replicas): paths started, vertices reached, next-event connections,
-    direction hits on the FoV, and paths ended by roulette, by escaping, by the window's end."""
+    """Counters of tracer runs (``add`` merges replicas): paths started, vertices reached, steps (one per order and
+    batch: a ray cast for every path still alive), next-event connections, direction hits on the FoV, and paths
+    ended by roulette, by escaping, by the window's end."""
 
     paths: int = 0
+    steps: int = 0
     vertices: int = 0
     connections: int = 0
     fov_hits: int = 0
@@ -165,13 +195,15 @@ class MultibounceTracer:
         self.t_start, self.t_stop = float(window[0]), float(window[1])
         self.order_energy = np.zeros(ORDER_TALLY)
         self.order_time = np.zeros(ORDER_TALLY)
-        self.smoothing = (DeepSmoothing(settings.smooth_width, self.t_start, self.t_stop, capture.n_channels)
+        self.smoothing = (SmoothingBands(settings.smooth_order, settings.smooth_width, settings.smooth_max_width,
+                                         self.t_start, self.t_stop, capture.n_channels)
                           if settings.smooth_order else None)
         # paths are followed past the window's end by the smoothing's reach, so that the kernel near the end
         # receives the mass from beyond it that it spreads into the window
         self.t_follow = self.t_stop + (self.smoothing.margin if self.smoothing is not None else 0.0)
         albedo = physics.materials.albedo
         self.survival = np.minimum(1.0, albedo)                   # q per object: Russian roulette
+        self._mat = material_arrays(physics)
         # the FoV's pixel regions (aperture captures): one uniform target in each recorded one per vertex
         self._pixel_area = capture.fov_size[0] * capture.fov_size[1] / capture.n_pixels if capture.n_pixels else 0.0
         self._p_a = 1.0 / self._pixel_area if self._pixel_area > 0 else 0.0
@@ -228,6 +260,7 @@ class MultibounceTracer:
         order = 0
         limit = SPEED_OF_LIGHT * self.t_follow                    # metres of counted path: the window's end
         while len(flux) and order < MAX_VERTICES:
+            self.stats.steps += 1
             hits = cst.intersect(ray_origin, ray_dir)
             if order >= s.min_order:                            # the ray left a vertex of order ≥ min_order
                 self._fov_hits(hits, ray_origin, ray_dir, flux, counted, physical, q_prev, src_normal, laser, sink,
@@ -252,14 +285,12 @@ class MultibounceTracer:
                 self._connect(x, n_x, obj, w_in, flux, counted, physical, laser, sink, rng, order)
             # continue: cosine direction about n_x, flux × f π / q, roulette with q = min(1, ρ)
             m = len(keep)
-            local, _ = square_to_hemisphere(rng.random(m), rng.random(m), "cosine")
-            w_out = to_world(local, n_x)
-            f = ph.brdf(obj, n_x, w_in, w_out)
+            u, v, r = rng.random(m), rng.random(m), rng.random(m)
+            w_out, flux, live = continue_paths(np.ascontiguousarray(n_x), obj, np.ascontiguousarray(w_in), u, v, r,
+                                               flux, self.survival, self._mat)
             q = self.survival[obj]
-            live = rng.random(m) < q
-            self.stats.roulette += int((~live).sum())
-            flux = np.divide(flux * f * np.pi, q, out=np.zeros(m), where=q > 0)
-            sel = np.flatnonzero(live & (flux > 0))
+            self.stats.roulette += int((r >= q).sum())
+            sel = np.flatnonzero(live)
             flux, counted, physical = flux[sel], counted[sel], physical[sel]
             src_normal, q_prev = n_x[sel], q[sel]
             ray_origin = x[sel] + cst.offset * src_normal
@@ -295,7 +326,9 @@ class MultibounceTracer:
                                           np.full(len(b), ph.wall_object), -wk)
         cos_x = dot(n_x[b], wk)
         # radiant intensity flux f cosθ_x toward y, times the FoV leg cosθ_y dA_y / r² · collection (A2, A3)
-        weight = flux[b] * ph.brdf(obj[b], n_x[b], w_in[b], wk) * cos_x * fov_connection_weight(
+        f = brdf_many(self._mat, obj[b], np.ascontiguousarray(n_x[b]), np.ascontiguousarray(w_in[b]),
+                      np.ascontiguousarray(wk))
+        weight = flux[b] * f * cos_x * fov_connection_weight(
             cos_y * self._pixel_area, r, collect)
         p_d = self.survival[obj[b]] * cos_x * cos_y / (np.pi * r * r)     # balance heuristic with the direction hits
         weight = weight * (self._p_a / (self._p_a + p_d)) * ph.attenuation(physical[b] + r + d_ys)
@@ -334,11 +367,59 @@ class MultibounceTracer:
         k = min(order, ORDER_TALLY) - 1
         self.order_energy[k] += float(weight[inside].sum())
         self.order_time[k] += float(np.dot(weight[inside], t[inside]))
-        if self.smoothing is not None and order >= self.settings.smooth_order:
-            near = self.smoothing.covers(t)
-            self.smoothing.add(t[near], weight[near], channel[near])
+        band = self.smoothing.band(order) if self.smoothing is not None else None
+        if band is not None:
+            near = band.covers(t)
+            band.add(t[near], weight[near], channel[near])
             t, weight, channel = t[~near], weight[~near], channel[~near]
         sink.add(t, weight, self.component * self.capture.n_channels + channel)
+
+
+class SmoothingBands:
+    """The time smoothing of the deep orders, one :class:`DeepSmoothing` per band of orders whose node spacing
+    doubles each time the order doubles: order k ≥ s = ``first_order`` in band ⌊log2((k − 1)/(s − 1))⌋ (orders 3–4, 5–8,
+    9–16, … for s = 3), the last band taking every deeper order, up to ``max_width``.
+
+    Order k's part of the transient is k chord lengths convolved: it spreads in time and its curvature L_k''
+    falls as k grows, so the bias Δ² L_k'' of a kernel of width Δ stays small for a wider kernel on deeper orders,
+    while the noise of a kernel estimate falls as 1/Δ. Each band estimates its own bias (Richardson,
+    :meth:`DeepSmoothing.bias`); their sum is the bias of the smoothed orders.
+
+    Args:
+        first_order: the lowest smoothed order (≥ 2); width: Δ of the band that starts there, s; max_width: the
+            widest Δ, s; t_start, t_stop: the window, s; n_channels: output channels.
+    Attributes:
+        margin: how far past the window's end paths are followed, s (the widest band's reach).
+    """
+
+    def __init__(self, first_order: int, width: float, max_width: float, t_start: float, t_stop: float,
+                 n_channels: int):
+        self.first_order = int(first_order)
+        self.widths: list[float] = []
+        w = float(width)
+        while True:
+            self.widths.append(min(w, max_width))
+            if w >= max_width:
+                break
+            w *= 2.0
+        self.bands = [DeepSmoothing(w, t_start, t_stop, n_channels) for w in self.widths]
+        self.margin = max(b.margin for b in self.bands)
+
+    def band(self, order: int) -> DeepSmoothing | None:
+        """The band that smooths order ``order``, or None below :attr:`first_order`."""
+        if order < self.first_order:
+            return None
+        j = int(np.floor(np.log2((order - 1) / max(self.first_order - 1, 1)) + 1e-12))
+        return self.bands[min(j, len(self.bands) - 1)]
+
+    def flush(self, sink: Sink, component: int) -> None:
+        """:meth:`DeepSmoothing.flush` of every band."""
+        for b in self.bands:
+            b.flush(sink, component)
+
+    def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
+        """The sum of the bands' :meth:`DeepSmoothing.bias`, (n_channels, n_bins) photons per pulse."""
+        return sum(b.bias(edges, runs) for b in self.bands)
 
 
 class DeepSmoothing:
