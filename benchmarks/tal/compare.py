@@ -23,6 +23,13 @@ Steps, for the 16×16 single-spot capture (hidden_square.yaml) and the 32×32 co
 (e) time to 1 % relative L2: datagen (sweeping the quadrature's edge h, halving; the area estimator's samples;
     the lookin grid) vs mitransient (sweeping samples per pixel), both timed in-process on the same 2 cores
     (render only: scene load + JIT/setup + render, not interpreter start).
+
+``--all-orders`` runs the all-depth case instead (docs/tal.md, "Light of every order"): closed_room.yaml, a closed
+2 m box of albedo 0.5 around the relay wall with the white square inside, rendered by mitransient's
+``transient_nlos_path`` at ``max_depth`` 3, 4, 5 and −1 (every depth; laser sampling, Russian roulette; two seeds
+each) and by datagen at ``orders`` 1, 2, 3 and ``auto`` (the area sampler and the order ≥ 3 light tracer,
+``simulate_to_tolerance`` at 1 %): totals per depth, and the relative L2 of datagen's all-order capture against
+mitransient's with both estimators' stated errors.
 """
 from __future__ import annotations
 
@@ -41,6 +48,7 @@ import yaml
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 SCENES = {"single": HERE / "hidden_square.yaml", "confocal": HERE / "hidden_square_confocal.yaml"}
+CLOSED_ROOM = HERE / "closed_room.yaml"
 SQUARE_CENTER = np.array([0.0, 0.0, 1.0])
 PEAK_FRACTION = 0.01
 """Bins entering the relative L2: reference above this fraction of its peak (the issue's definition)."""
@@ -282,6 +290,53 @@ def reader_check(path: Path, venv: Path, env: dict) -> dict:
 # --------------------------------------------------------------------------------------------------------
 
 
+def closed_room_datagen(orders, tolerance: float) -> tuple[np.ndarray, dict, float]:
+    """datagen's capture of closed_room.yaml with ``orders`` (1, 2, N or "auto") at ``tolerance``: (H float64,
+    attrs["error"], CPU seconds)."""
+    from datagen.io import scene_from_tal_yaml, tal_arrays
+    from datagen.simulation import resolve_config
+    from datagen.simulation.tolerance import simulate_to_tolerance
+
+    scene, tal = scene_from_tal_yaml(CLOSED_ROOM)
+    overrides = {"estimator": {"kind": "area", "samples": 16384}, "replicas": 2, "seed": 7, "orders": orders,
+                 "secondary": "none" if orders == 1 else "full"}
+    t0 = time.process_time()
+    result = simulate_to_tolerance(scene, resolve_config(scene, overrides), tolerance)
+    cpu = time.process_time() - t0
+    return np.asarray(tal_arrays(result, tal)["H"], dtype=np.float64), result.attrs["error"], cpu
+
+
+def all_orders(a, out: Path, env: dict) -> dict:
+    """The all-depth case (module docstring): mitransient per depth vs datagen per order on closed_room.yaml."""
+    spp = 100_000 if a.quick else 400_000
+    rows, refs = [], {}
+    for depth, orders in ((3, 1), (4, 2), (5, 3), (-1, "auto")):
+        config = variant_config(CLOSED_ROOM, out / f"closed_room_depth{depth}.yaml", integrator_max_depth=depth)
+        pair = [mitransient(config, spp, seed, "native", out, a.venv, env, f"closed_room_d{depth}", a.threads)
+                for seed in (1, 2)]
+        ref = 0.5 * (pair[0][0] + pair[1][0])
+        ref_err = 0.5 * compare(pair[0][0], pair[1][0])["rel_l2"]
+        refs[depth] = ref
+        h, err, cpu = closed_room_datagen(orders, a.tolerance)
+        # a fixed orders 1-3 leaves the deeper light out on purpose: its error against the same depth is the
+        # estimator's own (the Monte Carlo part and, for order 3, the smoothing bias)
+        own = err["rel_l2"] if orders == "auto" else float(np.hypot(err["monte_carlo"], err.get("smoothing") or 0.0))
+        c = compare(h, ref)
+        rows.append({"max_depth": depth, "orders": orders, "mitransient_total": float(ref.sum()),
+                     "mitransient_error": ref_err, "mitransient_cpu_s": [m["cpu_seconds"] for _, m in pair],
+                     "datagen_total": float(h.sum()), "datagen_stated": own, "datagen_cpu_s": cpu, **c,
+                     "within": bool(c["rel_l2"] <= own + ref_err)})
+        print(f"max_depth {depth:>2} / orders {orders}: total {h.sum() / ref.sum():.4f}× mitransient's, relative L2 "
+              f"{c['rel_l2']:.2%} (datagen states {own:.2%}, mitransient's two seeds {ref_err:.2%}); CPU s: datagen "
+              f"{cpu:.1f}, mitransient {sum(m['cpu_seconds'] for _, m in pair):.1f} for two seeds of {spp} spp",
+              flush=True)
+    two, err2, _ = closed_room_datagen(2, a.tolerance)      # the old model against every order
+    left = {**compare(two, refs[-1]), "stated": err2["rel_l2"], "omitted_orders": err2["omitted_orders"]}
+    print(f"orders 1-2 against every order: relative L2 {left['rel_l2']:.1%}, total {left['total_ratio']:.3f} "
+          f"(stated {left['stated']:.1%}: the pilot's {left['omitted_orders']:.1%} left out, counted)")
+    return {"spp_per_seed": spp, "tolerance": a.tolerance, "rows": rows, "orders_1_2_vs_all": left}
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--venv", type=Path, default=Path(os.environ.get("TAL_BENCH_VENV", "/opt/venvs/tal-bench")))
@@ -291,12 +346,18 @@ def main() -> None:
     p.add_argument("--scenes", nargs="+", default=["single", "confocal"], choices=list(SCENES))
     p.add_argument("--skip-checks", action="store_true", help="skip the tal render / layout / RGB cross-checks")
     p.add_argument("--repeats", type=int, default=2, help="timing repeats (interleaved; fastest kept)")
+    p.add_argument("--all-orders", action="store_true", help="the all-depth case on closed_room.yaml only")
+    p.add_argument("--tolerance", type=float, default=0.01, help="--all-orders: datagen's tolerance")
     a = p.parse_args()
     out = a.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     if not (a.venv / "bin" / "python").is_file():
         raise SystemExit(f"no tal venv at {a.venv}: run bash benchmarks/tal/setup_env.sh")
     env = tal_env(a.venv, out)
+    if a.all_orders:
+        result = all_orders(a, out, env)
+        (out / "all_orders.json").write_text(json.dumps(result, indent=1))
+        return
     # samples per pixel of each reference seed; the mitransient and datagen sweeps
     plan = {
         "single": {"ref_spp": 1_000_000 if a.quick else 4_000_000, "spp": [50_000, 200_000, 800_000],

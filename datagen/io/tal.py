@@ -386,9 +386,10 @@ def scene_from_tal_config(config: dict, base: str | Path | None = None,
     scene and its tal layout.
 
     What is supported is :class:`TalRenderConfig` (the table in docs/tal.md). obj/ply files are read by trimesh,
-    relative to ``base`` or the working directory. ``integrator_max_depth`` 3 gives primary light only; −1 or
-    ≥ 4 adds datagen's one-more-bounce secondary (longer paths omitted, noted). The estimator defaults to the
-    hidden-surface quadrature (``estimator: quadrature``; deterministic, the fastest to 1 % on tal's captures,
+    relative to ``base`` or the working directory. ``integrator_max_depth`` d is ``orders`` d − 2 (3: primary only,
+    4: + secondary, d ≥ 5: every order up to d − 2), −1 is ``orders: auto`` (every order the scene calls for; the
+    order ≥ 3 light runs beside the area and lookin estimators, with the quadrature it is counted as left out).
+    The estimator defaults to the hidden-surface quadrature (``estimator: quadrature``; deterministic, the fastest to 1 % on tal's captures,
     docs/tal.md).
 
     Returns:
@@ -407,10 +408,12 @@ def scene_from_tal_config(config: dict, base: str | Path | None = None,
 
     # -- integrator ----------------------------------------------------------------------------------------
     notes = []
-    secondary = "none" if tc.integrator_max_depth == 3 else "full"
-    if tc.integrator_max_depth not in (3, 4):
-        notes.append(f"integrator_max_depth {tc.integrator_max_depth}: datagen simulates third- and fourth-bounce "
-                     "light (primary + secondary), not longer paths")
+    # Mitsuba's path depth d counts the relay-wall vertices at both ends: d − 2 hidden vertices (docs/physics.md §2,
+    # "Orders"): 3 → primary only, 4 → + secondary, d ≥ 5 → every order up to d − 2, −1 (unbounded) → every order
+    # the scene calls for (the planner's pilot decides)
+    depth = tc.integrator_max_depth
+    orders: int | str = "auto" if depth == -1 else depth - 2
+    secondary = "none" if orders == 1 else "full"
     mono = "mono" in tc.mitsuba_variant        # e_sum: the laser emission summed as tal sums H's channels
     if tc.laser_emission_mode == "rgb":
         rgb = tc.laser_emission * 3 if len(tc.laser_emission) == 1 else tc.laser_emission
@@ -493,6 +496,7 @@ def scene_from_tal_config(config: dict, base: str | Path | None = None,
         "count_laser_leg": legs,
         "count_sensor_leg": legs,
         "secondary": secondary,
+        "orders": orders,
         # the hidden-surface quadrature (datagen.transport.quadrature) reaches 1 % sooner than the area sampler and
         # the lookin estimator on tal's captures (docs/tal.md); a YAML `datagen:` block or the CLI can change it
         "estimator": "quadrature",
