@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from .. import validate
 from .errors import friendly_errors
 
 EXPORT_FORMATS = ("lct-mat", "fk-mat", "znlos", "tal")
@@ -71,18 +72,23 @@ def _kv(items, option: str) -> dict[str, float]:
               help=".mat without 'bin_resolution': the bin width, e.g. 32ps")
 @click.option("--tofgrid", "tofgrid", type=click.Path(path_type=Path), default=None,
               help="a separate .mat holding 'tofgrid' (ps), as the f-k release ships tof.mat")
+@click.option("--allow-negative", "allow_negative", is_flag=True,
+              help="accept negative bins (a background-subtracted capture); their count is printed")
 @friendly_errors
-def import_capture(capture_file, out, width, bin_resolution, tofgrid):
+def import_capture(capture_file, out, width, bin_resolution, tofgrid, allow_negative):
     """Read an LCT / f-k .mat (v5 or v7.3) or ZNLOS HDF5 capture into a datagen result store OUT/result.zarr.
 
     The file's fields are read as its public reader does (docs/capture_io.md: time zero, confocal or not, axis
-    order, units); per-point time offsets (tofgrid, or ZNLOS's wall legs) are stored as time_offsets.
+    order, units); per-point time offsets (tofgrid, or ZNLOS's wall legs) are stored as time_offsets. Transients
+    that are complex, NaN or ±inf are refused, negative ones too unless --allow-negative (docs/capture_io.md).
     """
     from ..io.lab_formats import read_lab_capture, write_capture_store
     from ..units import parse_duration
+    from ..validate import negative_bins
 
     bres = None if bin_resolution is None else parse_duration(bin_resolution)
-    cap = read_lab_capture(capture_file, width=width, bin_resolution=bres, tofgrid_path=tofgrid)
+    cap = read_lab_capture(capture_file, width=width, bin_resolution=bres, tofgrid_path=tofgrid,
+                           allow_negative=allow_negative)
     store = write_capture_store(cap, Path(out) / "result.zarr")
     d = cap.data()
     edges = cap.time_edges()
@@ -91,6 +97,13 @@ def import_capture(capture_file, out, width, bin_resolution, tofgrid):
                f"{(edges[1] - edges[0]) * 1e12:.4g} ps from {edges[0] * 1e9:.4g} ns, dtype {d.dtype}, "
                f"sum {float(np.sum(d, dtype=np.float64)):.6g}; per-point time offsets "
                f"{'stored' if cap.time_offsets() is not None else 'none'}")
+    negative = negative_bins(d)
+    if negative:
+        click.echo(f"note: {negative} of {d.size} bins are negative (--allow-negative: a background-subtracted "
+                   "capture; detect refuses such an envelope)")
+    if cap.capture_type == "confocal" and d.ndim == 3 and d.shape[0] != d.shape[1]:
+        click.echo(f"note: a {d.shape[0]} x {d.shape[1]} confocal scan, not square: LCT and f-k need N x N points "
+                   "at one pitch (export --format lct-mat / fk-mat refuses it)")
     click.echo(f"wrote {store}")
 
 
@@ -143,15 +156,19 @@ def _histogram(path: Path, pixel: str | None):
     if suffix in (".npy", ".csv", ".txt"):
         if not path.is_file():
             raise FileNotFoundError(f"no histogram file at {path}")
-        arr = np.load(path, allow_pickle=False) if suffix == ".npy" else np.loadtxt(path, delimiter="," if
-                                                                                      suffix == ".csv" else None, ndmin=1)
+        try:
+            arr = np.load(path, allow_pickle=False) if suffix == ".npy" else np.loadtxt(
+                path, delimiter="," if suffix == ".csv" else None, ndmin=1)
+        except (ValueError, EOFError, OSError) as exc:        # a header line, a ragged row, a truncated .npy
+            kind = "a NumPy .npy array" if suffix == ".npy" else "columns of numbers (no header line, equal rows)"
+            raise ValueError(f"{path}: cannot read it as {kind}: {' '.join(str(exc).split())[:160]}") from None
         arr = np.asarray(arr)
         if arr.ndim == 2 and arr.shape[1] == 2:          # (time s, counts) columns
-            t = arr[:, 0]
-            return arr[:, 1], float(t[1] - t[0]), float(t[0])
+            t0, dt = validate.uniform_axis(arr[:, 0], str(path), "time column")
+            return validate.histogram_counts(arr[:, 1], str(path), "counts column"), dt, t0
         if arr.ndim != 1:
             raise ValueError(f"{path}: expected one column of counts (or time, counts), got shape {arr.shape}")
-        return arr, None, None
+        return validate.histogram_counts(arr, str(path)), None, None
     result, _, _ = load_capture(path)
     data = np.asarray(result.counts if result.counts.any() else result.envelope)
     edges = np.asarray(result.time_edges)
@@ -168,7 +185,7 @@ def _histogram(path: Path, pixel: str | None):
         h = data[idx]
     else:
         h = data.reshape(-1, data.shape[-1]).sum(0)
-    return h, float(edges[1] - edges[0]), float(edges[0])
+    return validate.histogram_counts(h, str(path)), float(edges[1] - edges[0]), float(edges[0])
 
 
 @click.command("fit-detector")

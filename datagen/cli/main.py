@@ -194,6 +194,10 @@ def detect(result_path, detector_file, exposure, seed):
                                "result; for a dataset draw SPAD noise with other detector settings in the loader: "
                                "NLOSDataset(PATH, noise='resample', detector_ranges={...}) (docs/datasets.md, "
                                "Loading)")
+    from .. import validate
+    validate.transients(result.envelope, str(result_path), "envelope", negative_hint=(
+        "detect draws counts from expected photons per pulse, which cannot be negative (a background-subtracted "
+        "capture holds no envelope to draw from)"))
     data = read_yaml(Path(detector_file), "detector file", ConfigError)   # bounded; names the file on any error
     if isinstance(data, dict) and set(data) == {"detector"}:
         data = data["detector"]

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import validate
 from ..errors import DatasetError
 from ..units import SPEED_OF_LIGHT
 
@@ -242,7 +243,7 @@ def _mat_layout(path: Path, keys: set[str]) -> str:
 
 
 def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolution: float | None = None,
-                     tofgrid_path: str | Path | None = None) -> LabCapture:
+                     tofgrid_path: str | Path | None = None, allow_negative: bool = False) -> LabCapture:
     """Read an LCT / f-k ``.mat`` (v5 or v7.3) or ZNLOS HDF5 capture.
 
     Args:
@@ -251,18 +252,21 @@ def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolu
             hold them (the f-k release keeps them in its script); a value in the file wins over these.
         tofgrid_path: a separate ``.mat`` holding ``tofgrid`` (the f-k release ships ``tof.mat`` beside the
             measurement).
+        allow_negative: accept negative bins (a background-subtracted capture); otherwise they are refused.
     Returns:
         :class:`LabCapture` with the fields as stored.
     Raises:
         FileNotFoundError: no file; DatasetError: another format, a missing or misshapen field (one line naming the
-        file, the field and what was found).
+        file, the field and what was found); :class:`datagen.validate.InputDataError` (a DatasetError): transients
+        that are complex, NaN, ±inf or (unless ``allow_negative``) negative, time offsets that are not finite
+        (:mod:`datagen.validate`).
     """
     fmt, version = detect_format(path)
     path = Path(path)
     if fmt == "znlos":
         raw = _read_hdf5_fields(path, ZNLOS_FIELDS, transpose=False)
         cap = LabCapture(fmt, raw, None, str(path))
-        _check_znlos(cap, path)
+        _check_znlos(cap, path, allow_negative)
         return cap
     raw = _read_mat(path, version)
     if tofgrid_path is not None:
@@ -280,7 +284,7 @@ def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolu
     if "bin_resolution" not in raw and bin_resolution is not None:
         raw["bin_resolution"] = np.array([[float(bin_resolution)]])
     cap = LabCapture(fmt, raw, version, str(path))
-    _check_mat(cap, path)
+    _check_mat(cap, path, allow_negative)
     return cap
 
 
@@ -316,11 +320,15 @@ def _read_hdf5_fields(path: Path, names, transpose: bool) -> dict:
     return out
 
 
-def _check_mat(cap: LabCapture, path: Path) -> None:
+def _check_mat(cap: LabCapture, path: Path, allow_negative: bool = False) -> None:
     name = MAT_FORMATS[cap.format]
     d = np.asarray(cap.raw[name])
-    if d.ndim != 3 or d.shape[0] < 1 or d.shape[2] < 2:
+    if d.ndim != 3 or min(d.shape) < 1:
         raise DatasetError(f"{path}: {name}: expected (N, N, T) transients, got shape {d.shape}")
+    if d.shape[2] < 2:
+        raise DatasetError(f"{path}: {name}: {d.shape[2]} time bin(s) per transient (shape {d.shape}); a transient "
+                           "needs at least 2")
+    validate.transients(d, str(path), name, allow_negative)
     for key, hint in (("width", "half width of the scanned wall in m (--width)"),
                       ("bin_resolution", "bin width in s (--bin-resolution)")):
         if key not in cap.raw:
@@ -329,11 +337,11 @@ def _check_mat(cap: LabCapture, path: Path) -> None:
         if v.size != 1 or not (np.isfinite(v).all() and float(v.reshape(())) > 0):
             raise DatasetError(f"{path}: {key}: expected one number > 0, got {v.ravel()[:4].tolist()}")
     tof = cap.raw.get("tofgrid")
-    if tof is not None and np.shape(tof) != d.shape[:2]:
-        raise DatasetError(f"{path}: tofgrid: shape {np.shape(tof)} differs from the scan {d.shape[:2]}")
+    if tof is not None:
+        validate.time_offsets(tof, str(path), "tofgrid", d.shape[:2])
 
 
-def _check_znlos(cap: LabCapture, path: Path) -> None:
+def _check_znlos(cap: LabCapture, path: Path, allow_negative: bool = False) -> None:
     for key in ("data", "deltaT", "t0", "cameraPosition", "laserPosition", "cameraGridPositions",
                 "cameraGridNormals"):
         if key not in cap.raw:
@@ -346,6 +354,12 @@ def _check_znlos(cap: LabCapture, path: Path) -> None:
                            f"data's grid {d.shape[3:5]}")
     if d.ndim == 7 and cap.capture_type == "exhaustive" and "laserGridPositions" not in cap.raw:
         raise DatasetError(f"{path}: ZNLOS field 'laserGridPositions' is missing")
+    validate.transients(d, str(path), "data", allow_negative)
+    for key in ("deltaT", "t0"):
+        v = validate.real_values(cap.raw[key], str(path), key, "times")
+        if v.size != 1 or not np.isfinite(v).all() or (key == "deltaT" and float(v.reshape(())) <= 0):
+            raise DatasetError(f"{path}: {key}: expected one finite number{' > 0' if key == 'deltaT' else ''}, got "
+                               f"{np.ravel(v)[:4].tolist()}")
 
 
 # -------------------------------------------------------------------------------------------------------------

@@ -1,0 +1,141 @@
+"""One validation layer for the arrays datagen reads from outside: capture files, detector histograms, time axes.
+
+Every command that reads a file it did not write (``import-capture``, ``compare-capture``, ``export`` of an imported
+capture, ``fit-detector``, ``detect``) passes the arrays through these checks before any arithmetic, so a bad value
+is named once, in one place, on one line: the file (``where``), the field and what was found (how many values, the
+first index, an example). Each check returns the array it was given (the file's dtype kept) or raises
+:class:`InputDataError`.
+
+- :func:`transients`: real, finite and, unless negative values are allowed (background-subtracted captures),
+  non-negative photon counts or intensities (docs/capture_io.md);
+- :func:`time_offsets`: per-point offsets (``tofgrid``) of the scan's shape, finite;
+- :func:`histogram_counts`: finite, non-negative counts below :data:`MAX_COUNT` (a detector fit sums and squares
+  them in float64);
+- :func:`uniform_axis`: a time column that increases by one bin width (within :data:`AXIS_RTOL`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import DatasetError
+
+__all__ = ["InputDataError", "MAX_COUNT", "AXIS_RTOL", "real_values", "transients", "time_offsets", "histogram_counts",
+           "uniform_axis", "negative_bins"]
+
+MAX_COUNT = 2.0 ** 53
+"""The largest count a histogram may hold: integers above it are not exact in float64, and their squares in a
+likelihood overflow long before float64's range ends."""
+
+AXIS_RTOL = 1e-3
+"""A time column's steps may differ from their median by this fraction (a CSV's printed digits), no more."""
+
+
+class InputDataError(DatasetError):
+    """An array read from outside holds values datagen cannot use; the message names the file, the field and the
+    values."""
+
+
+def _index(mask: np.ndarray) -> tuple[int, ...]:
+    return tuple(int(i) for i in np.argwhere(mask)[0])
+
+
+def real_values(values, where: str, field: str, what: str) -> np.ndarray:
+    """``values`` as an ndarray of real numbers (bool, int, float), else :class:`InputDataError` naming complex or
+    non-numeric values; ``what`` says what they should be ("photon counts and intensities")."""
+    arr = np.asarray(values)
+    if arr.dtype.kind == "c":
+        bad = np.imag(arr) != 0
+        example = f"; e.g. {arr[_index(bad)]} at index {_index(bad)}" if bad.any() else ""
+        raise InputDataError(f"{where}: {field}: complex values ({int(bad.sum())} with an imaginary part{example}); "
+                             f"{what} are real")
+    if arr.dtype.kind not in "biuf":
+        raise InputDataError(f"{where}: {field}: {arr.dtype} values, not numbers; {what} are real numbers")
+    return arr
+
+
+def _finite(arr: np.ndarray, where: str, field: str) -> None:
+    if arr.dtype.kind == "f":
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            n_nan = int(np.isnan(arr).sum())
+            raise InputDataError(f"{where}: {field}: {int(bad.sum())} of {arr.size} values are not finite ({n_nan} "
+                                 f"NaN, {int(bad.sum()) - n_nan} ±inf), the first at index {_index(bad)}")
+
+
+def negative_bins(values) -> int:
+    """How many values are below zero."""
+    return int((np.asarray(values) < 0).sum())
+
+
+NEGATIVE_HINT = "a background-subtracted capture is read with --allow-negative"
+
+
+def transients(values, where: str, field: str, allow_negative: bool = False,
+               negative_hint: str = NEGATIVE_HINT) -> np.ndarray:
+    """Check transients (any shape, time last): real, finite and, unless ``allow_negative``, ≥ 0.
+
+    Args:
+        values: the array as read; where: the file (or what it came from); field: its name in the file;
+        allow_negative: accept negative bins (a background-subtracted capture; the caller reports how many);
+        negative_hint: what the message about negative bins suggests.
+    Returns:
+        ``values`` as an ndarray, its dtype unchanged.
+    Raises:
+        InputDataError: complex, non-numeric, NaN or ±inf values, or negative ones when not allowed (the count,
+        the first index and the smallest value, and the option that accepts them).
+    """
+    arr = real_values(values, where, field, "photon counts and intensities")
+    _finite(arr, where, field)
+    if not allow_negative:
+        neg = arr < 0
+        if neg.any():
+            raise InputDataError(f"{where}: {field}: {int(neg.sum())} of {arr.size} bins are negative (smallest "
+                                 f"{float(arr.min()):.6g}, the first at index {_index(neg)}); photon counts are ≥ 0: "
+                                 f"{negative_hint}")
+    return arr
+
+
+def time_offsets(values, where: str, field: str, shape: tuple[int, ...]) -> np.ndarray:
+    """Check per-scan-point time offsets: real, finite, of the scan's ``shape``. Returns the array."""
+    arr = real_values(values, where, field, "time offsets")
+    if arr.shape != tuple(shape):
+        raise InputDataError(f"{where}: {field}: shape {arr.shape} differs from the scan {tuple(shape)}")
+    _finite(arr, where, field)
+    return arr
+
+
+def histogram_counts(values, where: str, field: str = "counts") -> np.ndarray:
+    """Check a detector histogram: real, finite, ≥ 0 and ≤ :data:`MAX_COUNT`. Returns the array."""
+    arr = transients(values, where, field)
+    if arr.size and float(arr.max()) > MAX_COUNT:
+        big = arr > MAX_COUNT
+        raise InputDataError(f"{where}: {field}: {int(big.sum())} bins exceed {MAX_COUNT:.3g} counts (largest "
+                             f"{float(arr.max()):.4g}, the first at index {_index(big)}); a histogram holds "
+                             "photon counts")
+    return arr
+
+
+def uniform_axis(times, where: str, field: str = "time") -> tuple[float, float]:
+    """Check a time column (bin starts, s): finite, at least 2 values, increasing in equal steps.
+
+    Returns:
+        (first value, step) in the column's units.
+    Raises:
+        InputDataError: fewer than 2 values, not finite, not increasing (the first step that is not, with its
+        value), or steps that differ by more than :data:`AXIS_RTOL` (the smallest and largest).
+    """
+    t = np.asarray(real_values(times, where, field, "times"), dtype=np.float64).ravel()
+    if t.size < 2:
+        raise InputDataError(f"{where}: {field}: {t.size} value(s); a time axis needs at least 2")
+    _finite(t, where, field)
+    steps = np.diff(t)
+    down = steps <= 0
+    if down.any():
+        i = int(np.argmax(down))
+        raise InputDataError(f"{where}: {field}: not increasing: row {i + 1} ({t[i + 1]:.6g}) follows row {i} "
+                             f"({t[i]:.6g}); the column holds each bin's start time, in order")
+    step = float(np.median(steps))
+    if np.any(np.abs(steps - step) > AXIS_RTOL * step):
+        raise InputDataError(f"{where}: {field}: uneven steps from {steps.min():.6g} to {steps.max():.6g} (median "
+                             f"{step:.6g}); a histogram's bins are of one width")
+    return float(t[0]), step
