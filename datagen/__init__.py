@@ -17,6 +17,7 @@ Public entry points::
 import hashlib
 import os
 import shutil
+import sys
 from pathlib import Path
 
 
@@ -65,40 +66,42 @@ def prune_kernel_caches(current: Path, keep: int = KEPT_KERNEL_CACHES) -> list[P
     return old
 
 
-if not os.environ.get("NUMBA_CACHE_DIR"):
-    import numba
+def _use_kernel_cache() -> None:
+    """Point numba's cache at :func:`kernel_cache_dir` unless ``NUMBA_CACHE_DIR`` is set: through the environment
+    (numba reads it when first imported, here or in a worker process), or on numba's config when numba is already
+    imported. numba itself is not imported here: ``import datagen`` stays light."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    cache = kernel_cache_dir()
+    if not cache.exists():                               # a new key: the first import after an edit or upgrade
+        prune_kernel_caches(cache)
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        numba.config.CACHE_DIR = str(cache)              # before any kernel module is imported
+    else:
+        os.environ["NUMBA_CACHE_DIR"] = str(cache)
 
-    _cache = kernel_cache_dir()
-    if not _cache.exists():                              # a new key: the first import after an edit or upgrade
-        prune_kernel_caches(_cache)
-    numba.config.CACHE_DIR = str(_cache)                 # before any kernel module is imported
+
+_use_kernel_cache()
+
+from . import threads  # noqa: E402,F401  (numba's threading layer, set through its environment: numba not imported)
 
 from .errors import ConfigError, DatagenError, DatasetError, ResourceError, SceneError  # noqa: E402
-from .scene import Scene, load_scene  # noqa: E402
-from .simulation import Result, SimulationConfig, resolve_config, simulate, simulate_to_tolerance  # noqa: E402
+from .lazy import lazy_attributes  # noqa: E402
 
 __all__ = ["Scene", "load_scene", "Result", "SimulationConfig", "resolve_config", "simulate",
            "simulate_to_tolerance", "NLOSDataset", "SPADNoise", "sample_setup", "converged_reference",
            "DatagenError", "SceneError", "ConfigError", "DatasetError", "ResourceError"]
 
+_LAZY = {"Scene": "scene", "load_scene": "scene", "Result": "simulation", "SimulationConfig": "simulation",
+         "resolve_config": "simulation", "simulate": "simulation", "simulate_to_tolerance": "simulation",
+         "NLOSDataset": "dataset.loader", "SPADNoise": "spad.torch_noise", "sample_setup": "dataset.sample_scene",
+         "converged_reference": "analysis.reference"}
+"""Public names loaded on first use (module under ``datagen``): ``import datagen`` imports neither numba nor the
+simulator, so a training script that only reads a dataset (``datagen.NLOSDataset``) pays for neither."""
 
-def __getattr__(name: str):
-    """``datagen.NLOSDataset`` and ``datagen.SPADNoise`` import torch on first use only (``import datagen`` stays
-    light for workers); ``sample_setup`` and ``converged_reference`` load the dataset and analysis layers on
-    first use."""
-    if name == "NLOSDataset":
-        from .dataset import NLOSDataset
-        return NLOSDataset
-    if name == "SPADNoise":
-        from .spad.torch_noise import SPADNoise
-        return SPADNoise
-    if name == "sample_setup":
-        from .dataset import sample_setup
-        return sample_setup
-    if name == "converged_reference":
-        from .analysis import converged_reference
-        return converged_reference
-    raise AttributeError(f"module 'datagen' has no attribute {name!r}")
+
+__getattr__ = lazy_attributes(__name__, _LAZY)
 
 
 def __dir__() -> list[str]:

@@ -18,16 +18,31 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from collections.abc import Iterator
 
-import numba
 from threadpoolctl import ThreadpoolController
 
 __all__ = ["one_blas_thread", "threads_for"]
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")      # read by libgomp when numba's OpenMP layer loads it
-if numba.config.THREADING_LAYER == "default":
-    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+"""numba's threading layers in the order tried (GNU OpenMP first)."""
+
+
+def _set_threading_layer() -> None:
+    """GNU OpenMP first, without importing numba: through ``NUMBA_THREADING_LAYER_PRIORITY`` (read when numba is
+    first imported, here or in a worker process), or on numba's config when numba is already imported; a layer
+    named by ``NUMBA_THREADING_LAYER`` is left alone."""
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read by libgomp when numba's OpenMP layer loads it
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        if numba.config.THREADING_LAYER == "default":
+            numba.config.THREADING_LAYER_PRIORITY = list(LAYER_PRIORITY)
+    elif not os.environ.get("NUMBA_THREADING_LAYER"):
+        os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", " ".join(LAYER_PRIORITY))
+
+
+_set_threading_layer()
 
 
 @contextlib.contextmanager
@@ -36,6 +51,8 @@ def threads_for(work: float, minimum: float) -> Iterator[None]:
     is at least ``minimum``, else on one: a dataset build already keeps every core busy with one worker process
     each, where threads of short kernels only add CPU time. Restores the thread count on exit; results do not
     depend on it."""
+    import numba
+
     threads = numba.get_num_threads()
     numba.set_num_threads(threads if work >= minimum else 1)
     try:

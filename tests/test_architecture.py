@@ -204,3 +204,29 @@ def test_the_export_check_sees_a_missing_name():
     module.__all__ = ["here", "gone", "here"]
     module.here = 1
     assert unresolved(module) == ["here", "gone"]
+
+
+def test_import_datagen_and_its_dataset_loader_stay_light():
+    """``import datagen`` and ``datagen.NLOSDataset`` in a fresh interpreter: neither numba, Embree, the simulator,
+    the transport nor the planner is imported (a training script that reads a dataset pays for none of them), and
+    ``import datagen`` alone does not import torch; the kernel cache and threading layer are still set up (through
+    numba's environment variables, read when numba loads)."""
+    import subprocess
+    import sys
+    code = ("import sys, json, os; import datagen; light = sorted(m for m in ('torch', 'numba') if m in sys.modules); "
+            "datagen.NLOSDataset; heavy = ('numba', 'embreex', 'datagen.simulation.run', 'datagen.transport', "
+            "'datagen.planner', 'datagen.scene.raycast', 'datagen.scene.materials'); "
+            "print(json.dumps({'light': light, 'loaded': [m for m in heavy if m in sys.modules], "
+            "'cache': os.environ.get('NUMBA_CACHE_DIR', ''), 'layer': os.environ.get('NUMBA_THREADING_LAYER_PRIORITY')}))")
+    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("NUMBA_")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    import json
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["light"] == [] and got["loaded"] == [], got
+    assert "numba-" in got["cache"] and got["layer"] == "omp tbb workqueue"
+    # and a simulation in a fresh interpreter still finds numba's threading layer and the kernel cache set
+    code = ("import datagen, numba; s = datagen.load_scene('scene_library/demo_room.yaml'); "
+            "print(numba.config.CACHE_DIR, numba.config.THREADING_LAYER_PRIORITY)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert "numba-" in out.stdout and "['omp', 'tbb', 'workqueue']" in out.stdout, out.stdout

@@ -49,14 +49,7 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.score`: scoring reconstructions against a split's labels (``datagen score``);
 - :mod:`~datagen.dataset.figures`: pictures of scanned samples (``datagen inspect``).
 """
-from .build import BuildError, build_dataset
-from .config import DatasetConfig, load_dataset_config, make_sample
-from .integrity import DatasetCorruptError, verify_dataset
-from .labels import LabelSpec, scene_labels
-from .rooms import load_room_distribution
-from .sample_scene import sample_setup, scene_of_sample
-from .sampler import sample_room
-from .store import read_card
+from ..lazy import lazy_attributes
 
 __all__ = [
     # config and one sample
@@ -65,18 +58,21 @@ __all__ = [
     "build_dataset", "BuildError", "verify_dataset", "read_card", "DatasetCorruptError",
     # room distributions and labels
     "load_room_distribution", "sample_room", "LabelSpec", "scene_labels",
-    # loader (lazy)
+    # loader
     "NLOSDataset", "BatchNoise", "plot_sample",
 ]
 
+_LAZY = {"BuildError": "build", "build_dataset": "build", "DatasetConfig": "config",
+         "load_dataset_config": "config", "make_sample": "config", "DatasetCorruptError": "integrity",
+         "verify_dataset": "integrity", "LabelSpec": "labels", "scene_labels": "labels",
+         "load_room_distribution": "rooms", "sample_setup": "sample_scene", "scene_of_sample": "sample_scene",
+         "sample_room": "sampler", "read_card": "store", "NLOSDataset": "loader", "BatchNoise": "loader",
+         "plot_sample": "loader"}
+"""Every public name, imported from its module on first use: ``import datagen.dataset`` (and the loader alone)
+stays light: the builder's simulator and numba load only when a build or a sample needs them."""
 
-def __getattr__(name: str):
-    """``NLOSDataset``, ``BatchNoise`` and ``plot_sample`` import torch on first use only (``import datagen.dataset``
-    stays light)."""
-    if name in ("NLOSDataset", "BatchNoise", "plot_sample"):
-        from . import loader
-        return getattr(loader, name)
-    raise AttributeError(f"module 'datagen.dataset' has no attribute {name!r}")
+
+__getattr__ = lazy_attributes(__name__, _LAZY)
 
 
 def __dir__() -> list[str]:

@@ -36,8 +36,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ..errors import ConfigError, DatagenError
-from ..scene.load import format_validation_error, read_yaml
-from ..simulation.tolerance import MIN_TOLERANCE
+from ..scene.yamlfile import format_validation_error, read_yaml
+from ..simulation.replicas import MIN_TOLERANCE
 from ..threads import one_blas_thread
 from ..units import parse_duration, parse_fraction
 from .components import COMPONENT_ROOM, OTHER_COMPONENTS, component_arrays, component_slots  # noqa: F401

@@ -31,7 +31,6 @@ import numpy as np
 from ..errors import DatasetError
 from .assets import asset_changes, config_asset_entries, current_asset_record
 from .config import DatasetConfig, config_from_json
-from .labels import label_shapes
 from .store import (ShardTask, file_sha256, marker_path, plan_shards, read_card, read_marker,
                     shard_file, zarr_module)
 
@@ -183,6 +182,8 @@ def card_problems(card: dict, config: DatasetConfig) -> list[str]:
     if card.get("time_edges", {}).get("n_bins") not in (None, n_bins):
         problems.append(f"card: time_edges.n_bins is {card['time_edges']['n_bins']!r}, the config implies {n_bins}")
     spec = config.label_spec()
+    from .labels import label_shapes          # here: the labels' module loads the scene and sampling stages
+
     expected = {name: (shape, dt.str) for name, (shape, dt) in label_shapes(spec).items()} if config.store.labels \
         else {}
     if config.store.components:

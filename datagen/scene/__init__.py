@@ -13,6 +13,7 @@ right-handed, z up, metres (docs/physics.md §1).
 Exported here, what users call: :class:`Scene` and its parts (:class:`SceneObject`, :class:`Material`,
 :class:`Laser`, :class:`Sensor`, :class:`FieldOfView`, :class:`CaptureSpec`, :class:`WallGrid`), scene files
 (:func:`load_scene`, :func:`scene_from_dict`), the builders, :class:`RayCaster` and :func:`resolve_capture`.
+Each is imported from its module on first use (``import datagen.scene`` loads no mesh code, Embree or numba).
 Every other name (input bounds, YAML helpers, BRDF tables, separating planes, ...) is imported from its module;
 :class:`~datagen.errors.SceneError` from :mod:`datagen.errors` (or ``datagen.SceneError``).
 
@@ -24,20 +25,24 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.scene.model`: the :class:`Scene` dataclass (checks and coincident faces on construction);
 - :mod:`~datagen.scene.coincident`: coplanar overlapping faces rejected or de-duplicated;
 - :mod:`~datagen.scene.builders`: meshes and objects built in Python;
-- :mod:`~datagen.scene.load`: the scene-file schema and :func:`load_scene`, :func:`read_yaml`, :func:`parse_yaml`;
+- :mod:`~datagen.scene.load`: the scene-file schema and :func:`load_scene`;
+- :mod:`~datagen.scene.yamlfile`: bounded YAML reading (:func:`read_yaml`, :func:`parse_yaml`) and one-line
+  validation messages, shared by every config reader and light (no meshes, no kernels);
 - :mod:`~datagen.scene.materials`: BRDFs (:class:`Material`, :class:`MaterialTable`);
 - :mod:`~datagen.scene.raycast`: :class:`RayCaster`, :class:`Hits`;
 - :mod:`~datagen.scene.capture`: :class:`Capture`, :func:`resolve_capture`, ``FOV_PLANE_TOL``, ``FOV_EDGE_REL``;
 - :mod:`~datagen.scene.separation`: separating-plane tests between triangles and convex hulls (planner,
   quadrature).
 """
-from .builders import box, import_mesh, l_room, pillar, quad
-from .capture import resolve_capture
-from .load import load_scene, scene_from_dict
-from .materials import Material
-from .model import Scene
-from .parts import CaptureSpec, FieldOfView, Laser, SceneObject, Sensor, WallGrid
-from .raycast import RayCaster
+from ..lazy import lazy_attributes
+
+_LAZY = {"box": "builders", "import_mesh": "builders", "l_room": "builders", "pillar": "builders", "quad": "builders",
+         "resolve_capture": "capture", "load_scene": "load", "scene_from_dict": "load", "Material": "materials",
+         "Scene": "model", "CaptureSpec": "parts", "FieldOfView": "parts", "Laser": "parts", "SceneObject": "parts",
+         "Sensor": "parts", "WallGrid": "parts", "RayCaster": "raycast"}
+"""The exported names, each imported from its module on first use (``import datagen.scene`` stays light)."""
+
+__getattr__ = lazy_attributes(__name__, _LAZY)
 
 __all__ = [
     # the scene and its parts

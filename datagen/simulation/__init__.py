@@ -19,10 +19,14 @@ its module.
 - :mod:`.budget`: the memory a simulation needs, estimated before allocating (:func:`simulation_memory`), and
   the refusal (:class:`ResourceError`) when it exceeds the memory available.
 """
-from .budget import simulation_memory
-from .config import LegacyKeysWarning, SimulationConfig, resolve_config
-from .run import Result, simulate
-from .tolerance import ToleranceOutOfReach, simulate_to_tolerance
+from ..lazy import lazy_attributes
+
+_LAZY = {"simulation_memory": "budget", "LegacyKeysWarning": "config", "SimulationConfig": "config",
+         "resolve_config": "config", "Result": "run", "simulate": "run", "ToleranceOutOfReach": "tolerance",
+         "simulate_to_tolerance": "tolerance"}
+"""The exported names, each imported from its module on first use (``import datagen.simulation`` stays light)."""
+
+__getattr__ = lazy_attributes(__name__, _LAZY)
 
 __all__ = ["SimulationConfig", "resolve_config", "simulate", "Result", "simulate_to_tolerance", "ToleranceOutOfReach",
            "simulation_memory", "LegacyKeysWarning"]

@@ -24,6 +24,10 @@ import numpy as np
 
 from ..vectors import norm
 
+MIN_TOLERANCE = 1e-10
+"""Smallest tolerance accepted: relative errors below it are float64 round-off in sums over many bins and
+samples (machine epsilon 2.2e-16 times the terms summed), not something an estimate can measure or meet."""
+
 PEAK_FLOOR = 0.01
 """Bins where the envelope exceeds this fraction of its peak enter the relative L2 (issue 5)."""
 

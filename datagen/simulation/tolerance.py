@@ -39,7 +39,7 @@ from ..errors import ConfigError
 from ..threads import one_blas_thread
 from ..scene import Scene
 from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
-from .replicas import relative_difference
+from .replicas import MIN_TOLERANCE, relative_difference  # noqa: F401 (MIN_TOLERANCE: its old home)
 from .run import Replicas, Result, make_result
 
 TIME_CAP_S = 600.0
@@ -71,9 +71,6 @@ LEVEL_COST_POWER = 4
 """A quadrature level's cost grows as h^-LEVEL_COST_POWER when the edge shrinks (h^-2 for point sensors to h^-4
 with an aperture): predictions use the steeper law."""
 
-MIN_TOLERANCE = 1e-10
-"""Smallest tolerance accepted: relative errors below it are float64 round-off in sums over many bins and
-samples (machine epsilon 2.2e-16 times the terms summed), not something an estimate can measure or meet."""
 
 HOPELESS = 10.0
 """A first round whose projection (:func:`projected_seconds`) exceeds this multiple of ``max_seconds`` is refused
