@@ -199,12 +199,12 @@ def test_bad_input_is_a_one_line_error():
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, covariance="bootstrap")
     with pytest.raises(ConfigError, match=r"seed must be an integer >= 0, got -1"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, seed=-1)
-    with pytest.raises(ConfigError, match=r"dead_time_bounds=\(8e-09, 2e-09\): needs model 'free_running' \(got "
-                                          r"'free_running'\) and 0 < low < high <= 4 periods"):
+    with pytest.raises(ConfigError, match=r"dead_time_bounds=\(8e-09 s, 2e-09 s\): LOW is not below HIGH; give "
+                                          r"LOW,HIGH with 0 < LOW < HIGH <= 2e-07 s"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, model="free_running",
                      dead_time_bounds=(8e-9, 2e-9))
-    with pytest.raises(ConfigError, match=r"dead_time_bounds=\(2e-09, 8e-09\): needs model 'free_running' \(got "
-                                          r"'pile_up'\)"):
+    with pytest.raises(ConfigError, match=r"dead_time_bounds=\(2e-09, 8e-09\): a dead time is fitted by model "
+                                          r"'free_running' only \(got 'pile_up'\)"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, dead_time_bounds=(2e-9, 8e-9))
     with pytest.raises(ConfigError, match=r"fixed dead_time=1e-08 s is outside dead_time_bounds=\(2e-09, 8e-09\)"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, model="free_running",
@@ -282,4 +282,5 @@ def test_cli_dead_time_bounds_need_two_durations(tmp_path):
     assert res.exit_code == 2 and "expected LOW,HIGH, got '2ns'" in res.output and "Traceback" not in res.output
     res = CliRunner().invoke(main, ["fit-detector", str(tmp_path / "h.csv"), "--repetition-rate", "100MHz",
                                     "--n-cycles", "10", "--bin-width", "50ps", "--dead-time-bounds", "2ns,8ns"])
-    assert res.exit_code == 2 and res.output.startswith("error: dead_time_bounds=(2e-09, 8e-09): needs model")
+    assert res.exit_code == 2 and res.output.startswith("error: dead_time_bounds=(2e-09, 8e-09): a dead time is "
+                                                        "fitted by model 'free_running' only (got 'pile_up')")

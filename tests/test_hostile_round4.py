@@ -139,3 +139,14 @@ def test_fit_detector_refuses_counts_that_overflow_and_time_columns_that_are_not
     (tmp_path / "header.csv").write_text("time,counts\n" + "\n".join(f"{a},{b}" for a, b in zip(t, counts)))
     cli(_fit(tmp_path / "header.csv"), 2, f"{tmp_path / 'header.csv'}: cannot read it as columns of numbers "
                                           "(no header line, equal rows)")
+
+
+def test_messages_blame_the_option_not_the_file_or_the_model(tmp_path, scan_store):
+    """Before: ``detect --exposure -5ms`` blamed the detector file ('hwu_single_pixel.yaml: exposure: …');
+    ``--dead-time-bounds 10ns,2ns`` read 'needs model free_running (got free_running)'."""
+    cli(["detect", scan_store, "--detector", "configs/detectors/hwu_single_pixel.yaml", "--exposure", "-5ms"], 2,
+        "Invalid value for --exposure: '-5ms': an exposure is a duration > 0")
+    np.savetxt(tmp_path / "h.txt", np.full(64, 10.0))
+    cli(["fit-detector", tmp_path / "h.txt", "--bin-width", "16ps", "--repetition-rate", "20MHz", "--n-cycles", "1000",
+         "--model", "free_running", "--dead-time-bounds", "10ns,2ns"], 2,
+        "dead_time_bounds=(1e-08 s, 2e-09 s): LOW is not below HIGH; give LOW,HIGH with 0 < LOW < HIGH")

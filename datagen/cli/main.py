@@ -208,6 +208,9 @@ def detect(result_path, detector_file, exposure, seed):
     if exposure is not None:
         data.pop("n_cycles", None)
         data["exposure"] = parse_duration(exposure)
+        if not data["exposure"] > 0:       # the option's value, not the detector file's
+            raise click.BadParameter(f"{exposure!r}: an exposure is a duration > 0, e.g. 10ms",
+                                     param_hint="--exposure")
     try:
         config = spad.DetectorConfig.model_validate(data)
     except ValidationError as exc:

@@ -263,9 +263,16 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             lo_dt, hi_dt = (float(v) for v in dead_time_bounds)
         except (TypeError, ValueError):
             lo_dt = hi_dt = math.nan
-        if model != "free_running" or not 0 < lo_dt < hi_dt <= MAX_DEAD_TIME_PERIODS / repetition_rate:
-            raise ConfigError(f"dead_time_bounds={dead_time_bounds!r}: needs model 'free_running' (got {model!r}) and "
-                              f"0 < low < high <= {MAX_DEAD_TIME_PERIODS:g} periods (s)")
+        top = MAX_DEAD_TIME_PERIODS / repetition_rate
+        if model != "free_running":
+            raise ConfigError(f"dead_time_bounds={dead_time_bounds!r}: a dead time is fitted by model 'free_running' "
+                              f"only (got {model!r})")
+        if not 0 < lo_dt < hi_dt <= top:
+            why = ("LOW is not below HIGH" if 0 < hi_dt <= lo_dt else "LOW must be > 0" if not lo_dt > 0 else
+                   f"HIGH is above {MAX_DEAD_TIME_PERIODS:g} laser periods ({top:.4g} s)" if hi_dt > top else
+                   "not two numbers")
+            raise ConfigError(f"dead_time_bounds=({lo_dt:.4g} s, {hi_dt:.4g} s): {why}; give LOW,HIGH with "
+                              f"0 < LOW < HIGH <= {top:.4g} s")
     else:
         lo_dt, hi_dt = 2 * bin_width, MAX_DEAD_TIME_PERIODS / repetition_rate
     names_all = fit_parameter_names(model, irf, fit_fraction, afterpulse_time_constant is not None)
