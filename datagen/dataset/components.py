@@ -54,8 +54,8 @@ def component_arrays(result, room, max_objects: int, dtype: str, where: str,
 
 def orders_summary(result) -> dict:
     """The light of every order in one sample (docs/physics.md §2, "Orders"): the ``orders`` setting, the orders
-    simulated ("1..all", "1..2", …), the share of the in-window envelope left out (the planner's pilot; counted in ``envelope_error``) and
-    the share the ``multibounce`` component (orders ≥ 3) carries."""
+    simulated ("1..all", "1..2", …), the share of the in-window envelope left out (the planner's pilot; counted in
+    ``envelope_error``) and the share the ``multibounce`` component (orders ≥ 3) carries."""
     o = result.attrs["orders"]
     env = float(np.sum(result.envelope))
     mb = result.components.get("multibounce")

@@ -113,8 +113,9 @@ def legacy_note(moves: list[str], where: str = "simulation") -> str:
 PATHS_PER_SAMPLE = 4
 """Default light paths of one replica of the order ≥ 3 tracer per hidden sample of the area sampler's replica. How
 many tracer replicas go with the area sampler's is decided as the run goes, from both parts' measured spread and
-counted work (:func:`datagen.simulation.replicas.tracer_replicas_wanted`): from 1.5 per replica (demo room, albedo 1:
-a path costs two hidden samples) to 16 (rooms of albedo 0.3–0.8), docs/accuracy.md, "Light of every order"."""
+counted work (:func:`datagen.simulation.replicas.tracer_replicas_wanted`): 0.4 tracer replicas per base replica in
+the demo room (albedo 1: a path costs two hidden samples), 0.6–1 in ``default.yaml`` rooms (docs/accuracy.md,
+"Light of every order"); replicas this large keep the fixed cost of each order's array passes small."""
 
 DEFAULT_PATHS = 262144
 """Default light paths per laser point of the order ≥ 3 tracer beside estimators without a ``samples`` count."""

@@ -115,28 +115,34 @@ class ReplicaSums:
         return mean, np.maximum(self.envelope_sq / self.count - mean ** 2, 0.0) / (self.count - 1)
 
 
+def _moments_in_common_units(parts: list[ReplicaSums]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each part's (mean, variance of the mean) per bin in one unit, the first non-zero ``scale`` (each part keeps
+    its own; a power of two, so the conversion is exact)."""
+    ref = next((p.scale for p in parts if p.scale), 1.0)
+    out = []
+    for p in parts:
+        m, v = p.moments()
+        k = (p.scale or 1.0) / ref
+        out.append((m, v) if k == 1.0 else (m * k, v * (k * k)))
+    return out
+
+
 def combined_error(parts: list[ReplicaSums]) -> float:
     """ε̂ of the sum of independent means, each over its own replicas (orders 1–2 and the order ≥ 3 tracer run
     different numbers of replicas): sqrt(Σ_b Σ_i var_i,b) / ‖Σ_i mean_i‖ over the bins above ``PEAK_FLOOR`` of the
     summed mean's peak (module docstring); inf while a part with energy has fewer than 2 replicas, 0 for an
     all-zero mean."""
-    ref = next((p.scale for p in parts if p.scale), 1.0)          # one unit for all (each part has its own scale)
     mean, var = None, None
-    for p in parts:
-        m, v = p.moments()
+    for p, (m, v) in zip(parts, _moments_in_common_units(parts)):
         if p.count < 2:
             if m.any():
                 return float("inf")
             continue                                                 # no energy: adds nothing
-        k = (p.scale or 1.0) / ref
-        if k != 1.0:
-            m, v = m * k, v * (k * k)
         mean = m if mean is None else mean + m
         var = v if var is None else var + v
     if mean is None:
         return 0.0
     return relative_standard_error(mean, var)
-
 
 
 def neyman_split(base: ReplicaSums, tracer: ReplicaSums, base_cost: float, tracer_cost: float
@@ -149,17 +155,15 @@ def neyman_split(base: ReplicaSums, tracer: ReplicaSums, base_cost: float, trace
     replicas, a cost is unknown or the base has no spread."""
     if base.count < 2 or tracer.count < 2 or base_cost <= 0 or tracer_cost <= 0:
         return None
-    mb, vb = base.moments()
-    mt, vt = tracer.moments()
-    kt = (tracer.scale or 1.0) / (base.scale or 1.0)
-    mean = mb + mt * kt
+    (mb, vb), (mt, vt) = _moments_in_common_units([base, tracer])
+    mean = mb + mt
     peak = float(mean.max())
     if peak <= 0:
         return None
     mask = mean > PEAK_FLOOR * peak
     norm2 = float(np.sum(mean[mask] ** 2))
     v_b = float(vb[mask].sum()) * base.count / norm2
-    v_t = float(vt[mask].sum()) * kt * kt * tracer.count / norm2
+    v_t = float(vt[mask].sum()) * tracer.count / norm2
     if v_b <= 0:
         return None
     return v_b, v_t, float(np.sqrt(v_t * base_cost / (v_b * tracer_cost)))

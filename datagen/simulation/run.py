@@ -375,15 +375,16 @@ class Replicas:
         scale = tr.binned[:, channels].sum(axis=0)
         return relative_difference(fine_p, coarse_p, scale) / abs(ratio ** self.entry.order - 1.0)
 
-    def smoothing_error(self, envelope: np.ndarray) -> float | None:
-        """The order ≥ 3 tracer's smoothing bias relative to ``envelope`` (n_channels, n_bins), the mean of every
-        component, on the error measure's bins; None when no orders were smoothed
-        (:class:`~datagen.transport.multibounce.tracer.SmoothingBands`)."""
-        tracer = getattr(self.transport, "tracer", None)
-        if tracer is None or tracer.smoothing is None:
-            return None
-        runs = self.tracer_sums.count if self.tracer is not None else self.count
-        bias = tracer.smoothing.bias(self.config.time.edges, max(runs, 1))
+    @property
+    def smoothing(self):
+        """The tracer's time smoothing (:class:`~datagen.transport.multibounce.tracer.SmoothingBands`), or None
+        when no orders are smoothed."""
+        return self.tracer.smoothing if self.tracer is not None else None
+
+    def smoothing_error(self, envelope: np.ndarray) -> float:
+        """The smoothing's bias over the tracer's runs relative to ``envelope`` (n_channels, n_bins), the mean of
+        every component, on the error measure's bins (only when :attr:`smoothing` is not None)."""
+        bias = self.smoothing.bias(self.config.time.edges, max(self.tracer_sums.count, 1))
         return relative_difference(bias, np.zeros_like(bias), envelope)
 
     def omitted_error(self) -> float:
@@ -394,13 +395,10 @@ class Replicas:
     def fixed_error(self) -> float:
         """The parts of the error estimate that more replicas do not bring down, in quadrature: the orders left out
         and the deep orders' smoothing bias (relative to the replicas' mean envelope)."""
-        smoothing = None
-        if getattr(getattr(self.transport, "tracer", None), "smoothing", None) is not None:
-            mean = self.sums.mean()
-            if self.tracer is not None and self.tracer_sums.count:
-                mean = mean + self.tracer_sums.mean()
-            smoothing = self.smoothing_error(mean)
-        return float(np.hypot(self.omitted_error(), smoothing or 0.0))
+        smoothing = 0.0
+        if self.smoothing is not None:
+            smoothing = self.smoothing_error(self.sums.mean() + self.tracer_sums.mean())
+        return float(np.hypot(self.omitted_error(), smoothing))
 
     def error_attrs(self, tr: Transported, rng: np.random.Generator) -> dict:
         """``attrs["error"]`` of the result: the estimate (relative L2 of the envelope over bins above 1 % of its
@@ -408,8 +406,7 @@ class Replicas:
         mc = self.error()
         refined = self.refinement_error(tr, rng)
         omitted = self.omitted_error()
-        smoothed = getattr(getattr(self.transport, "tracer", None), "smoothing", None) is not None
-        smoothing = self.smoothing_error(tr.binned.sum(axis=0)) if smoothed else None
+        smoothing = self.smoothing_error(tr.binned.sum(axis=0)) if self.smoothing is not None else None
         # in quadrature; hypot(x, 0) is x to the bit, so results without the new terms keep their old estimate
         total = float(np.hypot(np.hypot(mc, refined or 0.0), np.hypot(omitted, smoothing or 0.0)))
         describe = self.entry.describe or (lambda opts: opts.kind)
