@@ -150,3 +150,41 @@ def test_messages_blame_the_option_not_the_file_or_the_model(tmp_path, scan_stor
     cli(["fit-detector", tmp_path / "h.txt", "--bin-width", "16ps", "--repetition-rate", "20MHz", "--n-cycles", "1000",
          "--model", "free_running", "--dead-time-bounds", "10ns,2ns"], 2,
         "dead_time_bounds=(1e-08 s, 2e-09 s): LOW is not below HIGH; give LOW,HIGH with 0 < LOW < HIGH")
+
+
+# -- scanned dataset configs -------------------------------------------------------------------------------
+
+def test_the_confocal_configs_draw_square_scans_and_the_rest_of_the_stream_is_unchanged():
+    """Before: confocal.yaml and confocal64.yaml drew the scan's width and height independently, so their samples
+    were rectangles that ``export --format lct-mat`` refused. ``height: width`` draws a square and still spends
+    the height's uniform, so everything else a sample draws is the same as with the room file's rectangles."""
+    from datagen.dataset.config import load_dataset_config, sample_rngs
+    from datagen.dataset.sampler import sample_room
+
+    def drawn(config, i):
+        room = sample_room(config.room_distribution("train"), sample_rngs(config.seed, "train", i))
+        return room.params
+
+    for name, points in (("confocal", 32), ("confocal64", 64), ("confocal_baseline", 16)):
+        config = load_dataset_config(f"configs/datasets/{name}.yaml")
+        for i in range(3):
+            grid = drawn(config, i)["sensor"]["scan"]["laser_grid"]
+            assert grid["size"][0] == grid["size"][1] and 1.2 <= grid["size"][0] <= 1.6, (name, i, grid)
+            assert grid["points"] == [points, points]
+    square = load_dataset_config("configs/datasets/confocal.yaml")
+    rect = square.model_copy(update={"room_overrides": {}})
+    a, b = drawn(square, 0), drawn(rect, 0)
+    assert a["sensor"]["scan"]["laser_grid"]["size"][1] != b["sensor"]["scan"]["laser_grid"]["size"][1]
+    assert a["sensor"]["scan"]["laser_grid"]["size"][0] == b["sensor"]["scan"]["laser_grid"]["size"][0]
+    assert a["sensor"]["scan"]["laser_grid"]["center"][1] == b["sensor"]["scan"]["laser_grid"]["center"][1]
+    assert a["objects"] == b["objects"] and a["materials"] == b["materials"]
+
+
+def test_a_square_scan_too_tall_for_the_ceiling_names_the_width(tmp_path):
+    from datagen.dataset.config import load_dataset_config
+    from datagen.errors import ConfigError
+    config = load_dataset_config("configs/datasets/confocal.yaml")
+    bad = config.model_copy(update={"room_overrides": {"ceiling": {"min": 1.5, "max": 2.0},
+                                                       "capture": {"scan": {"height": "width"}}}})
+    with pytest.raises(ConfigError, match=r"capture\.scan\.width\.max \(height: width\): 1\.6 m does not fit under"):
+        bad.room_distribution("train")

@@ -38,11 +38,12 @@ from .ranges import Model, Positive, Range, Signed, Unit
 
 
 class GridDist(Model):
-    """A grid on the relay wall: rectangle ``width`` × ``height`` (m, uniform ranges), ``points`` (nx, ny) fixed,
-    centre at fractions ``lateral`` (−1..1) and ``height_frac`` (0..1) of the free space (module doc)."""
+    """A grid on the relay wall: rectangle ``width`` × ``height`` (m, uniform ranges; ``height: width`` draws a
+    square, the height equal to the drawn width), ``points`` (nx, ny) fixed, centre at fractions ``lateral``
+    (−1..1) and ``height_frac`` (0..1) of the free space (module doc)."""
 
     width: Positive = Range(min=1.0, max=1.0)
-    height: Positive = Range(min=1.0, max=1.0)
+    height: Positive | Literal["width"] = Range(min=1.0, max=1.0)
     points: tuple[int, int] = (32, 32)
     lateral: Signed = Range(min=0.0, max=0.0)
     height_frac: Unit = Range(min=0.5, max=0.5)
@@ -51,6 +52,16 @@ class GridDist(Model):
     @classmethod
     def _points(cls, v: tuple[int, int]) -> tuple[int, int]:
         return check_counts(v, "point counts")
+
+    @property
+    def square(self) -> bool:
+        """Whether the rectangle is a square (``height: width``)."""
+        return self.height == "width"
+
+    @property
+    def height_range(self) -> Range:
+        """The range the height is drawn from (the width's when square)."""
+        return self.width if self.square else self.height
 
 
 class FloodScan(Model):
@@ -94,8 +105,11 @@ class ScanDist(GridDist):
 
 def _draw_grid(grid: GridDist, rng: np.random.Generator, relay_x: float, wall_width: float, ceiling: float,
                margin: float) -> dict:
-    """Rectangle of ``grid`` on the wall's corridor end: 4 uniforms (width, height, lateral, height_frac)."""
-    w, h = grid.width.draw(rng.random()), grid.height.draw(rng.random())
+    """Rectangle of ``grid`` on the wall's corridor end: 4 uniforms (width, height, lateral, height_frac); a square
+    still draws the height's uniform, so the stream is the same whichever the shape."""
+    w, h = grid.width.draw(rng.random()), grid.height_range.draw(rng.random())
+    if grid.square:
+        h = w
     lateral, up = grid.lateral.draw(rng.random()), grid.height_frac.draw(rng.random())
     cy = lateral * 0.5 * (wall_width - 2 * margin - w)
     cz = margin + h / 2 + up * (ceiling - 2 * margin - h)
@@ -135,8 +149,9 @@ def scan_fits(scan: ScanDist, wall_width: float, ceiling: float, margin: float) 
         if grid.width.max > wall_width - 2 * margin:
             out.append((f"{name}.width.max", f"{grid.width.max} m does not fit the narrowest relay wall "
                         f"({wall_width} m minus 2 × edge_margin {margin} m)"))
-        if grid.height.max > ceiling - 2 * margin:
-            out.append((f"{name}.height.max", f"{grid.height.max} m does not fit under the lowest ceiling "
+        if grid.height_range.max > ceiling - 2 * margin:
+            field = f"{name}.width.max (height: width)" if grid.square else f"{name}.height.max"
+            out.append((field, f"{grid.height_range.max} m does not fit under the lowest ceiling "
                         f"({ceiling} m minus 2 × edge_margin {margin} m)"))
     return out
 
