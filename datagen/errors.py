@@ -9,10 +9,12 @@ the file, the field (or option) and the value; the command line prints it as ``e
     ├── ConfigError     a simulation, detector or dataset config, a command-line option
     ├── DatasetError    a stored dataset, result or file read back (incomplete, damaged, another format)
     └── ResourceError   a setting that needs more memory or time than the machine has, refused up front
+
+Warnings that the command line prints as one ``warning: …`` line derive from :class:`DatagenWarning`.
 """
 from __future__ import annotations
 
-__all__ = ["DatagenError", "SceneError", "ConfigError", "DatasetError", "ResourceError"]
+__all__ = ["DatagenError", "SceneError", "ConfigError", "DatasetError", "ResourceError", "DatagenWarning"]
 
 
 class DatagenError(ValueError):
@@ -34,3 +36,8 @@ class DatasetError(DatagenError):
 class ResourceError(DatagenError):
     """A simulation or build needs more memory (or time) than the machine has; the message names the field, its
     value, the estimate and what is available."""
+
+
+class DatagenWarning(UserWarning):
+    """A result that is valid but probably not what the user meant, or costlier than it needs to be (e.g. orders
+    left out, a zone grid the flood barely lights); the command line prints it once as one ``warning: …`` line."""

@@ -9,8 +9,8 @@ first index, an example). Each check returns the array it was given (the file's 
 - :func:`transients`: real, finite and, unless negative values are allowed (background-subtracted captures),
   non-negative photon counts or intensities (docs/capture_io.md);
 - :func:`time_offsets`: per-point offsets (``tofgrid``) of the scan's shape, finite;
-- :func:`histogram_counts`: finite, non-negative counts below :data:`MAX_COUNT` (a detector fit sums and squares
-  them in float64);
+- :func:`histogram_counts`: finite, non-negative whole counts below :data:`MAX_COUNT` (a detector fit sums and
+  squares them in float64), at least :data:`MIN_HISTOGRAM_BINS` bins, not all zero;
 - :func:`uniform_axis`: a time column that increases by one bin width (within :data:`AXIS_RTOL`).
 """
 from __future__ import annotations
@@ -19,12 +19,15 @@ import numpy as np
 
 from .errors import DatasetError
 
-__all__ = ["InputDataError", "MAX_COUNT", "AXIS_RTOL", "real_values", "transients", "time_offsets", "histogram_counts",
+__all__ = ["InputDataError", "MAX_COUNT", "MIN_HISTOGRAM_BINS", "AXIS_RTOL", "real_values", "transients", "time_offsets", "histogram_counts",
            "uniform_axis", "negative_bins"]
 
 MAX_COUNT = 2.0 ** 53
 """The largest count a histogram may hold: integers above it are not exact in float64, and their squares in a
 likelihood overflow long before float64's range ends."""
+
+MIN_HISTOGRAM_BINS = 8
+"""The fewest bins a detector histogram may have (a fit has up to 7 free parameters)."""
 
 AXIS_RTOL = 1e-3
 """A time column's steps may differ from their median by this fraction (a CSV's printed digits), no more."""
@@ -48,6 +51,9 @@ def real_values(values, where: str, field: str, what: str) -> np.ndarray:
         example = f"; e.g. {arr[_index(bad)]} at index {_index(bad)}" if bad.any() else ""
         raise InputDataError(f"{where}: {field}: complex values ({int(bad.sum())} with an imaginary part{example}); "
                              f"{what} are real")
+    if arr.dtype.kind in "US":
+        text = "".join(str(x) for x in arr.ravel()[:40].tolist())
+        raise InputDataError(f"{where}: {field}: text ({text!r}), not a number; {what} are stored as numbers")
     if arr.dtype.kind not in "biuf":
         raise InputDataError(f"{where}: {field}: {arr.dtype} values, not numbers; {what} are real numbers")
     return arr
@@ -105,13 +111,25 @@ def time_offsets(values, where: str, field: str, shape: tuple[int, ...]) -> np.n
 
 
 def histogram_counts(values, where: str, field: str = "counts") -> np.ndarray:
-    """Check a detector histogram: real, finite, ≥ 0 and ≤ :data:`MAX_COUNT`. Returns the array."""
-    arr = transients(values, where, field)
-    if arr.size and float(arr.max()) > MAX_COUNT:
+    """Check a detector histogram: one axis of at least :data:`MIN_HISTOGRAM_BINS` bins holding whole numbers,
+    finite, ≥ 0 and ≤ :data:`MAX_COUNT`, not all zero. Returns the array."""
+    arr = transients(values, where, field, negative_hint="a detector fit needs the raw histogram, background "
+                                                         "included")
+    if arr.ndim != 1 or arr.size < MIN_HISTOGRAM_BINS:
+        raise InputDataError(f"{where}: {field}: shape {arr.shape}; a histogram is one axis of at least "
+                             f"{MIN_HISTOGRAM_BINS} bins")
+    if float(arr.max()) > MAX_COUNT:
         big = arr > MAX_COUNT
         raise InputDataError(f"{where}: {field}: {int(big.sum())} bins exceed {MAX_COUNT:.3g} counts (largest "
                              f"{float(arr.max()):.4g}, the first at index {_index(big)}); a histogram holds "
                              "photon counts")
+    frac = arr != np.round(arr)
+    if frac.any():
+        raise InputDataError(f"{where}: {field}: {int(frac.sum())} of {arr.size} bins are not whole numbers (e.g. "
+                             f"{float(arr[_index(frac)]):.4g} at index {_index(frac)}); a histogram holds photon "
+                             "counts")
+    if not arr.any():
+        raise InputDataError(f"{where}: {field}: every bin is 0; a fit needs counts")
     return arr
 
 

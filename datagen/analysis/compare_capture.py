@@ -87,6 +87,12 @@ def compare_transients(t: np.ndarray, real: np.ndarray, sim: np.ndarray) -> dict
             "counts_real": float(n)}
 
 
+def _window(edges: np.ndarray, offsets: np.ndarray) -> str:
+    """A capture's window on the hidden time axis, in ns, for messages."""
+    lo, hi = float(edges[0]) - float(offsets.max()), float(edges[-1]) - float(offsets.min())
+    return f"{lo * 1e9:.4g}..{hi * 1e9:.4g} ns"
+
+
 def compare_captures(real: np.ndarray, real_edges: np.ndarray, real_offsets: np.ndarray | None,
                      sim: np.ndarray, sim_edges: np.ndarray, sim_offsets: np.ndarray | None) -> dict:
     """Sim-to-real distance of two captures (module docstring).
@@ -111,12 +117,14 @@ def compare_captures(real: np.ndarray, real_edges: np.ndarray, real_offsets: np.
     hi = min(float(real_edges[-1]) - float(ro.min()), float(sim_edges[-1]) - float(so.min()))
     if hi <= lo + dt:
         raise ValueError(f"the two captures' time windows do not overlap on the hidden time axis (real "
-                         f"{real_edges[0]:.4g}..{real_edges[-1]:.4g} s, sim {sim_edges[0]:.4g}..{sim_edges[-1]:.4g} s)")
+                         f"{_window(real_edges, ro)}, sim {_window(sim_edges, so)})")
     edges = lo + np.arange(int((hi - lo) // dt) + 1) * dt
     r = hidden_time_transients(real, real_edges, ro, edges)
     s = hidden_time_transients(sim, sim_edges, so, edges)
-    if r.sum() <= 0 or s.sum() <= 0:
-        raise ValueError("a capture has no signal in the common time window")
+    empty = [name for name, x in (("real", r), ("sim", s)) if not x.sum() > 0]
+    if empty:
+        raise ValueError(f"{' and '.join(empty)}: no signal in the common time window {lo * 1e9:.4g}..{hi * 1e9:.4g} "
+                         f"ns of hidden time (real {_window(real_edges, ro)}, sim {_window(sim_edges, so)})")
     t = 0.5 * (edges[1:] + edges[:-1])
     out = compare_transients(t, r.sum(0), s.sum(0))
     out["rel_l2_points"] = None

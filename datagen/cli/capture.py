@@ -6,6 +6,7 @@ The commands only parse and call the library (:mod:`datagen.io.lab_formats`, :mo
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import click
@@ -45,6 +46,19 @@ def load_capture(path: Path, width=None, bin_resolution=None):
         return result, offsets, f"datagen store {path}"
     cap = read_lab_capture(path, width=width, bin_resolution=bin_resolution)
     return cap.to_result(), cap.time_offsets(), f"{cap.format} file {path}"
+
+
+def capture_kind(result) -> tuple[str, str]:
+    """(kind, description) of a capture or result: kind "zones" (a multi-zone flood), "confocal", "exhaustive" or
+    "single" (one laser spot, one FoV); the description names its grid, e.g. "a confocal scan of 8 x 8 points"."""
+    lead = tuple(np.shape(result.envelope)[:-1])
+    grid = " x ".join(str(n) for n in lead)
+    if "multizone" in result.attrs:
+        return "zones", f"a multi-zone result of {grid} zones (a flood)"
+    kind = (result.attrs.get("capture") or {}).get("type")
+    if kind in ("confocal", "exhaustive"):
+        return kind, f"an {kind} scan of {grid} points" if kind == "exhaustive" else f"a confocal scan of {grid} points"
+    return "single", f"a single-spot transient{f' ({grid})' if lead else ''}"
 
 
 def _kv(items, option: str) -> dict[str, float]:
@@ -128,7 +142,7 @@ def export(result_path, fmt, out, split, index, use_counts, mat_version):
     from ..io.lab_formats import capture_from_result, write_lab_capture
     from .tal import check_out_file, read_result_input
 
-    check_out_file(out)
+    check_out_file(out, "capture.mat" if fmt.endswith("-mat") else "capture.hdf5")
     if split is not None or index is not None:
         from ..dataset.export import sample_result
 
@@ -150,6 +164,14 @@ def export(result_path, fmt, out, split, index, use_counts, mat_version):
     click.echo(f"wrote {out} ({fmt}, {tuple(np.shape(result.envelope))})")
 
 
+def _read_failure(exc: Exception) -> str:
+    """numpy's reason a histogram file failed to load, without its advice (``use `usecols` …``)."""
+    text = " ".join(str(exc).split())
+    if "could only read" in text or isinstance(exc, EOFError):
+        return f"truncated ({text.split('. (')[0]})"
+    return text.split("; use ")[0][:160]
+
+
 def _histogram(path: Path, pixel: str | None):
     """(counts (bins,), bin width s or None, t_start s or None) from .npy / .csv / .txt, a lab file or a store."""
     suffix = path.suffix.lower()
@@ -157,11 +179,13 @@ def _histogram(path: Path, pixel: str | None):
         if not path.is_file():
             raise FileNotFoundError(f"no histogram file at {path}")
         try:
-            arr = np.load(path, allow_pickle=False) if suffix == ".npy" else np.loadtxt(
-                path, delimiter="," if suffix == ".csv" else None, ndmin=1)
+            with warnings.catch_warnings():       # an empty file: numpy warns, the check below names it
+                warnings.simplefilter("ignore", UserWarning)
+                arr = np.load(path, allow_pickle=False) if suffix == ".npy" else np.loadtxt(
+                    path, delimiter="," if suffix == ".csv" else None, ndmin=1)
         except (ValueError, EOFError, OSError) as exc:        # a header line, a ragged row, a truncated .npy
             kind = "a NumPy .npy array" if suffix == ".npy" else "columns of numbers (no header line, equal rows)"
-            raise ValueError(f"{path}: cannot read it as {kind}: {' '.join(str(exc).split())[:160]}") from None
+            raise ValueError(f"{path}: cannot read it as {kind}: {_read_failure(exc)}") from None
         arr = np.asarray(arr)
         if arr.ndim == 2 and arr.shape[1] == 2:          # (time s, counts) columns
             t0, dt = validate.uniform_axis(arr[:, 0], str(path), "time column")
@@ -270,9 +294,19 @@ def compare_capture(real, sim, png, width, bin_resolution):
     bres = None if bin_resolution is None else parse_duration(bin_resolution)
     r, r_off, r_desc = load_capture(real, width, bres)
     s, s_off, s_desc = load_capture(sim)
-    m = compare_captures(r.counts if r.counts.any() else r.envelope, r.time_edges, r_off, s.envelope, s.time_edges,
-                         s_off)
+    (r_kind, r_what), (s_kind, s_what) = capture_kind(r), capture_kind(s)
+    if "zones" in (r_kind, s_kind) and r_kind != s_kind:
+        raise ValueError(f"{real} is {r_what}, {sim} is {s_what}: a flood's zones and a laser spot's transients are "
+                         "different measurements; compare a multi-zone result with a multi-zone capture")
+    try:
+        m = compare_captures(r.counts if r.counts.any() else r.envelope, r.time_edges, r_off, s.envelope,
+                             s.time_edges, s_off)
+    except ValueError as exc:
+        raise ValueError(f"real {real}, sim {sim}: {exc}") from None
     click.echo(f"real: {r_desc}; sim: {s_desc}; {m['bins']} common bins")
+    if r.envelope.shape[:-1] != s.envelope.shape[:-1]:
+        click.echo(f"note: real is {r_what}, sim {s_what}: compared on the scan-summed transients only (no per-point "
+                   "metric); simulate the capture's grid for a point-by-point comparison", err=True)
     click.echo(f"relative L2 (normalised, scan-summed) {m['rel_l2']:.4f}"
                + ("" if m["rel_l2_points"] is None else f"; per scan point (mean) {m['rel_l2_points']:.4f}"))
     click.echo(f"chi2 per bin {m['chi2_per_bin']:.4g} (real counts {m['counts_real']:.6g})")

@@ -218,13 +218,14 @@ def inspect(path, split, n_samples, png, show_config, no_3d):
 
 @click.command()
 @click.argument("path", type=click.Path(path_type=Path))
+@click.option("--quiet", is_flag=True, help="no progress bar")
 @_dataset_errors
-def verify(path):
+def verify(path, quiet):
     """Check that every shard of the dataset at PATH is present and hashes as its card says (exit 1 if not)."""
     from ..dataset import read_card, verify_dataset
 
     notes: list[str] = []
-    problems = verify_dataset(path, notes)
+    problems = verify_dataset(path, notes, progress=not quiet)
     for line in notes:
         click.echo(f"note: {line}", err=True)
     if problems:

@@ -20,8 +20,7 @@ from pathlib import Path
 
 import click
 
-from ..errors import DatagenError
-from ..planner.orders import OmittedOrdersWarning
+from ..errors import DatagenError, DatagenWarning
 from ..simulation.config import LegacyKeysWarning
 
 MAX_LINE = 2000
@@ -60,7 +59,7 @@ def friendly_errors(func):
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("default", LegacyKeysWarning)      # each distinct note once
-                warnings.simplefilter("default", OmittedOrdersWarning)
+                warnings.simplefilter("default", DatagenWarning)
                 shown = warnings.showwarning
                 warnings.showwarning = _note_printer(shown)
                 return func(*args, **kwargs)
@@ -74,12 +73,12 @@ def friendly_errors(func):
 
 def _note_printer(shown):
     """A ``warnings.showwarning`` printing a :class:`~datagen.simulation.LegacyKeysWarning` (old configuration
-    keys translated) as one ``note: …`` line and an :class:`~datagen.planner.orders.OmittedOrdersWarning` as one
-    ``warning: …`` line on stderr, and anything else as ``shown`` does."""
+    keys translated) as one ``note: …`` line and a :class:`~datagen.errors.DatagenWarning` (orders left out, a
+    zone grid the flood barely lights) as one ``warning: …`` line on stderr, and anything else as ``shown`` does."""
     seen: set[str] = set()
 
     def show(message, category, filename, lineno, file=None, line=None):
-        if issubclass(category, (LegacyKeysWarning, OmittedOrdersWarning)):
+        if issubclass(category, (LegacyKeysWarning, DatagenWarning)):
             if str(message) not in seen:            # once per command, wherever it was raised
                 seen.add(str(message))
                 kind = "note" if issubclass(category, LegacyKeysWarning) else "warning"

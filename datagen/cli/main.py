@@ -107,7 +107,7 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
                  "orders": _parse_orders(orders)}
     if is_multizone_file(scene_file):   # a flood and zones: the multi-zone capture (datagen/cli/multizone.py)
         return run_multizone(scene_file, out, overrides, refused={"--tolerance": tolerance, "--time-cap": time_cap,
-                                                                  "--figures": figures})
+                                                                  "--figures": figures}, progress=not quiet)
     tol = _parse_fraction(tolerance, "--tolerance", MIN_TOLERANCE) if tolerance is not None else None
     check_output_dir(out)
     scene = load_scene(scene_file)

@@ -15,17 +15,19 @@ from ..transport import estimator_names
 from .errors import friendly_errors
 
 
-def check_out_file(out: Path) -> None:
+def check_out_file(out: Path, example: str = "capture.hdf5") -> None:
     """Refuse, before any work, an ``--out`` file that is a directory, lies under a file, or whose nearest
     existing parent directory is not writable (the HDF5 is written beside it as ``OUT.partial``, then renamed).
+
+    ``example`` is the file name the message suggests inside a directory (its suffix: the format's).
 
     Raises:
         IsADirectoryError / NotADirectoryError / PermissionError: naming ``--out`` and the path.
     """
     out = Path(out)
     if out.is_dir():
-        raise IsADirectoryError(f"--out {out} is a directory; give the .hdf5 file to write, e.g. "
-                                f"{out / 'capture.hdf5'}")
+        raise IsADirectoryError(f"--out {out} is a directory; give the {Path(example).suffix} file to write, e.g. "
+                                f"{out / example}")
     parent = out.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent

@@ -277,9 +277,41 @@ def _first_split(config: DatasetConfig) -> str:
     return split
 
 
-def _probe(config: DatasetConfig) -> Sample:
-    """Sample 0 of the first non-empty split: its shapes fix the dataset's (computed before any write)."""
-    return make_sample(config, _first_split(config), 0)
+PROJECTION_NOTE_S = 60.0
+"""A build whose projection (probe time × samples ÷ processes) exceeds this many seconds says so after the probe."""
+
+
+def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, project: bool = True) -> Sample:
+    """Sample 0 of the first non-empty split: its shapes fix the dataset's (computed before any write).
+
+    With ``progress``, one line on stderr says the probe runs (it may take minutes), its transport shows a bar,
+    and (``project``: a new build) a build projected beyond :data:`PROJECTION_NOTE_S` says how long it projects
+    on ``processes``."""
+    split = _first_split(config)
+    if not progress:
+        return make_sample(config, split, 0)
+    import click
+
+    click.echo(f"build {config.name}: probe sample ({split}, 0) first: its arrays fix the dataset's shapes", err=True)
+    t0 = time.perf_counter()
+    probe = make_sample(config, split, 0, progress=True)
+    seconds = time.perf_counter() - t0
+    total = sum(spec.count for spec in config.splits.values())
+    projected = seconds * total / max(processes, 1)
+    if project and projected > PROJECTION_NOTE_S:
+        click.echo(f"build {config.name}: the probe took {seconds:.3g} s; {total} samples project to about "
+                   f"{_duration(projected)} on {processes} process{'es' if processes > 1 else ''} (samples differ: "
+                   "the bar's ETA follows the build)", err=True)
+    return probe
+
+
+def _duration(seconds: float) -> str:
+    """``seconds`` as "42 s", "12 min" or "3.5 h"."""
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
 
 
 def check_build_options(workers: int | None, scheduler: str | None, retries: int, max_tasks_per_child: int) -> None:
@@ -398,8 +430,8 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
     assets = asset_record(entries)     # every mesh's size from its header, then its sha256: before the probe
     if stored is not None:
         check_same_assets(root, stored, assets, entries)
-    probe = _probe(config)
     processes = 1 if workers == 0 or scheduler else (workers or os.cpu_count() or 1)
+    probe = _probe(config, progress, processes, project=stored is None)
     check_shard_memory(config, probe, processes)
     dask = connect_dask(scheduler, workers, worker_timeout) if scheduler else None
     try:

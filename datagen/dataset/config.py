@@ -506,8 +506,10 @@ def setup_sample(config: DatasetConfig, split: str, index: int):
 
 
 @one_blas_thread()
-def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
+def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = False) -> Sample:
     """Compute sample ``index`` of ``split``: room → envelope to the config's tolerance and SPAD counts → labels.
+
+    ``progress`` shows the transport's tqdm bar (the build's probe sample); it changes nothing computed.
 
     A pure function of (config, split, index): every random stream comes from :func:`sample_rngs`, and the
     adaptive sampling (replicas added until the error estimate meets ``config.tolerance``, within
@@ -527,7 +529,7 @@ def make_sample(config: DatasetConfig, split: str, index: int) -> Sample:
     room, sim_config, rngs = setup_sample(config, split, index)
     t1 = time.perf_counter()
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
-                                   sampling_rng=rngs["sampling"], noise_rng=rngs["noise"])
+                                   sampling_rng=rngs["sampling"], noise_rng=rngs["noise"], progress=progress)
     result, nodes = zone_capture(config, split, room, sim_config, result,   # a flood: the zones' result
                                  sample_rngs(config.seed, split, index)["noise"], where)
     t2 = time.perf_counter()

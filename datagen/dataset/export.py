@@ -29,7 +29,8 @@ def sample_result(path: str | Path, split: str, index: int, field: str = "envelo
         (count_laser_leg, count_sensor_leg) and ``dataset`` (path, split, index, field).
     Raises:
         FileNotFoundError: no dataset at ``path``; DatasetError: unknown split, index out of range, a field that
-        is not stored, or a regenerated room whose grids do not match the stored array (a changed code version);
+        is not stored, a multi-zone dataset (no single laser point per transient), or a regenerated room whose
+        grids do not match the stored array (a changed code version);
         ValueError: what the loader refuses (:class:`datagen.dataset.NLOSDataset`: an incomplete build, a missing
         or damaged shard, named).
     """
@@ -56,6 +57,11 @@ def sample_result(path: str | Path, split: str, index: int, field: str = "envelo
     counts = np.asarray(item["counts"]) if "counts" in info["fields"] else np.zeros(data.shape, np.int64)
     time_edges = np.asarray(reader.time_edges, dtype=np.float64)
     config = config_from_json(card["config"])
+    scan = config.room_distribution(split).capture.scan
+    if scan is not None and scan.flood is not None:
+        raise DatasetError(f"{path}: a multi-zone dataset: its samples are zones lit by a flood, with no single "
+                           "laser point per transient, which the capture files (LCT, f-k, ZNLOS, tal) hold; read "
+                           "them with datagen.NLOSDataset (docs/multizone.md)")
     rngs = sample_rngs(config.seed, split, index)
     room = sample_room(config.room_distribution(split), {k: rngs[k] for k in ("geometry", "materials", "sensor")})
     capture = resolve_capture(room.scene, RayCaster(room.scene))

@@ -255,7 +255,7 @@ def asset_problems(card: dict, config: DatasetConfig, notes: list[str] | None = 
             "(its 'assets': name and sha256 of each file); restore them, or build into a new --out"]
 
 
-def verify_dataset(path: str | Path, notes: list[str] | None = None) -> list[str]:
+def verify_dataset(path: str | Path, notes: list[str] | None = None, progress: bool = False) -> list[str]:
     """Check a dataset completely: the build is complete; the card agrees with its config
     (:func:`card_problems`); the mesh asset files are those the card pins (:func:`asset_problems`); every split
     group's and array's metadata, and its consolidated copy, is what the card implies
@@ -265,6 +265,7 @@ def verify_dataset(path: str | Path, notes: list[str] | None = None) -> list[str
     Args:
         path: the dataset directory.
         notes: when given, receives lines about what could not be checked (e.g. a card without pinned assets).
+        progress: a tqdm bar over the shards on stderr (hashing a large dataset takes minutes).
     Returns:
         one line per problem (empty: the dataset is intact), each naming the file, or the split, shard and
         array.
@@ -290,7 +291,11 @@ def verify_dataset(path: str | Path, notes: list[str] | None = None) -> list[str
         return problems + [str(exc)]
     problems += _time_axis_problems(root, config)
     fields = card_fields(card)
-    for task in plan_shards(config):
+    tasks = plan_shards(config)
+    if progress:
+        from tqdm.auto import tqdm
+        tasks = tqdm(tasks, unit="shard", desc=f"verify {root.name}", leave=False)
+    for task in tasks:
         entry = card.get("shards", {}).get(task.split, {}).get(f"{task.shard:06d}")
         where = f"{task.label} (samples {task.start}-{task.stop - 1})"
         if entry is None:

@@ -214,7 +214,7 @@ def detect_format(path: str | Path) -> tuple[str, str | None]:
         return _mat_layout(path, keys), "5"
     if not h5py.is_hdf5(path):
         raise DatasetError(f"{path}: not a MAT v5 file nor HDF5 (MAT v7.3, ZNLOS); cannot read it as a capture")
-    with h5py.File(path, "r") as f:
+    with open_hdf5(path) as f:
         keys = set(f.keys())
     if head.startswith(b"MATLAB 7.3 MAT-file"):
         return _mat_layout(path, keys), "7.3"
@@ -223,6 +223,20 @@ def detect_format(path: str | Path) -> tuple[str, str | None]:
     if "H" in keys:
         raise DatasetError(f"{path}: a tal HDF5 capture; read it with datagen.io.read_tal_hdf5 (format 'tal')")
     raise DatasetError(f"{path}: HDF5 without ZNLOS's 'data' and 'deltaT' (found {sorted(keys)[:8]})")
+
+
+def open_hdf5(path: Path):
+    """``h5py.File(path, "r")``; a file h5py cannot open (truncated, damaged) is a :class:`DatasetError` naming it.
+
+    HDF5's own text ("truncated file: eof = …") says which: the message keeps its gist, not its internals."""
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        text = " ".join(str(exc).split())
+        gist = "truncated (shorter than its header says)" if "truncated file" in text else f"damaged ({text[:120]})"
+        raise DatasetError(f"{path}: cannot read the HDF5 (MAT v7.3) file: {gist}") from None
 
 
 def _mat5_keys(path: Path) -> set[str]:
@@ -306,7 +320,7 @@ def _read_hdf5_fields(path: Path, names, transpose: bool) -> dict:
     import h5py
 
     out = {}
-    with h5py.File(path, "r") as f:
+    with open_hdf5(path) as f:
         for key in f.keys():
             obj = f[key]
             if not isinstance(obj, h5py.Dataset) or (names is not None and key not in names):
@@ -323,7 +337,7 @@ def _read_hdf5_fields(path: Path, names, transpose: bool) -> dict:
 def _check_mat(cap: LabCapture, path: Path, allow_negative: bool = False) -> None:
     name = MAT_FORMATS[cap.format]
     d = np.asarray(cap.raw[name])
-    if d.ndim != 3 or min(d.shape) < 1:
+    if d.ndim != 3 or min(d.shape[:2]) < 1:
         raise DatasetError(f"{path}: {name}: expected (N, N, T) transients, got shape {d.shape}")
     if d.shape[2] < 2:
         raise DatasetError(f"{path}: {name}: {d.shape[2]} time bin(s) per transient (shape {d.shape}); a transient "
@@ -333,7 +347,7 @@ def _check_mat(cap: LabCapture, path: Path, allow_negative: bool = False) -> Non
                       ("bin_resolution", "bin width in s (--bin-resolution)")):
         if key not in cap.raw:
             raise DatasetError(f"{path}: no '{key}' field; give the {hint}")
-        v = np.asarray(cap.raw[key], dtype=np.float64)
+        v = np.asarray(validate.real_values(cap.raw[key], str(path), key, "lengths and durations"), dtype=np.float64)
         if v.size != 1 or not (np.isfinite(v).all() and float(v.reshape(())) > 0):
             raise DatasetError(f"{path}: {key}: expected one number > 0, got {v.ravel()[:4].tolist()}")
     tof = cap.raw.get("tofgrid")
@@ -420,6 +434,17 @@ def _write_hdf5(path: Path, fields: dict, transpose: bool, matlab: bool) -> None
             f.write(header)
 
 
+def refuse_flood(result, fmt: str) -> None:
+    """Raise :class:`DatasetError` when ``result`` is a multi-zone flood (``attrs["multizone"]``): its transients
+    are zones lit by a whole flood, and the capture formats (LCT, f-k, ZNLOS, tal) hold one laser point per
+    transient. docs/multizone.md."""
+    attrs = getattr(result, "attrs", {}) or {}
+    if "multizone" in attrs:
+        zones = " x ".join(str(n) for n in np.shape(result.envelope)[:-1])
+        raise DatasetError(f"a multi-zone result ({zones} zones lit by a flood) has no single laser point per "
+                           f"transient, which {fmt} files hold; keep it as a datagen store (docs/multizone.md)")
+
+
 def capture_from_result(result, fmt: str, *, source: str = "datagen") -> LabCapture:
     """A datagen result (or dataset sample, :func:`datagen.dataset.export.sample_result`) as a lab capture.
 
@@ -430,8 +455,9 @@ def capture_from_result(result, fmt: str, *, source: str = "datagen") -> LabCapt
     lx), deltaT and t0 as optical path (m); the time axis must count both wall legs, as ZNLOS's does.
 
     Raises:
-        DatasetError: a capture the format cannot hold (named: type, grid, legs, bins).
+        DatasetError: a capture the format cannot hold (named: type, grid, legs, bins; a multi-zone flood).
     """
+    refuse_flood(result, fmt)
     env = np.asarray(result.envelope, dtype=np.float64)
     edges = np.asarray(result.time_edges, dtype=np.float64)
     widths = np.diff(edges)

@@ -112,6 +112,9 @@ def _grid_index(src: np.ndarray, dst: np.ndarray, what: str) -> np.ndarray:
 
 def _result_capture(result) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
     """(type, envelope as (Ly, Lx, Sy, Sx, T), laser points (Ly, Lx, 3), sensor points (Sy, Sx, 3))."""
+    from .lab_formats import refuse_flood
+
+    refuse_flood(result, "tal")
     attrs = getattr(result, "attrs", {}) or {}
     cap = attrs.get("capture") or {}
     ctype = cap.get("type", "single")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import DatagenWarning
 from ..scene import RayCaster, Scene
 from ..scene.capture import Capture
 from ..transport.multibounce import MultibounceSettings, MultibounceTracer
@@ -34,7 +35,7 @@ RESIDUAL_FRACTION = 0.25
 """Orders ≥ 3 are left out only when their share of the in-window energy is below this fraction of the tolerance."""
 
 
-class OmittedOrdersWarning(UserWarning):
+class OmittedOrdersWarning(DatagenWarning):
     """``orders`` is fixed below what the scene calls for: the orders left out carry more than
     :data:`RESIDUAL_FRACTION` of the tolerance (the CLI prints it as one ``warning: …`` line)."""
 

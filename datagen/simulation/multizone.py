@@ -17,15 +17,16 @@ flood's nodes) into the zones' result, composed by it and counted as here.
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 
 from ..errors import SceneError
 from ..scene import Scene
-from ..scene.flood import (FloodProfile, MultizoneSpec, flood_capture, flood_field_names, flood_weights,
-                           node_weights, with_flood)
+from ..scene.flood import (FloodProfile, MultizoneSpec, ZoneCoverageWarning, flood_capture, flood_field_names,
+                           flood_weights, node_weights, with_flood, zone_coverage_warning)
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
-from .run import Replicas, Result, detector_counts, library_versions
+from .run import Replicas, Result, detector_counts, library_versions, zero_envelope_warning
 
 
 ZONE_UNITS = {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin, per zone",
@@ -54,8 +55,12 @@ def compose_zones(binned: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConfig | None = None,
                        sampling_rng: np.random.Generator | None = None,
-                       noise_rng: np.random.Generator | None = None) -> Result:
+                       noise_rng: np.random.Generator | None = None, progress: bool = False) -> Result:
     """Simulate a flood-illuminated multi-zone capture: zone envelopes and one SPAD histogram per zone.
+
+    A zone grid the flood lights over less than :data:`~datagen.scene.flood.MIN_ZONE_COVERAGE` of its area is
+    warned about (:class:`~datagen.scene.flood.ZoneCoverageWarning`) before the transport starts, and the warning
+    is kept in ``attrs["warnings"]``.
 
     Args:
         scene: the scene; its capture is replaced by the flood's (:func:`datagen.scene.flood.with_flood`) unless
@@ -63,6 +68,7 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         spec: the flood and the zones (:class:`~datagen.scene.flood.MultizoneSpec`).
         config: as for :func:`datagen.simulate` (default: the scene's ``simulation`` block).
         sampling_rng, noise_rng: as for :func:`datagen.simulate`.
+        progress: show a tqdm bar over the transport.
     Returns:
         :class:`~datagen.simulation.run.Result` with ``envelope`` and ``counts`` shaped (Z_y, Z_x, T) (expected
         detected photons per pulse per bin, int64 detections), ``components`` likewise, ``laser_points`` the
@@ -82,7 +88,10 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         runs = Replicas(scene, config, rng)
     except SceneError as exc:       # a capture error names the multizone block's fields
         raise SceneError(flood_field_names(str(exc))) from None
-    runs.run(config.replicas)
+    coverage = zone_coverage_warning(runs.transport.capture, spec)
+    if coverage is not None:
+        warnings.warn(ZoneCoverageWarning(coverage), stacklevel=2)
+    runs.run(config.replicas, progress)
     tr = runs.transported()
     capture = tr.transport.capture
     weights = flood_weights(capture, spec.flood.profile)
@@ -105,8 +114,8 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         "error": runs.error_attrs(tr, rng),
         "units": ZONE_UNITS,
         "photons_per_pulse": capture.photons,
-        "warnings": list(scene.notes) + ([] if envelope.any() else ["no light path reaches the zones: the "
-                                                                    "envelope is zero"]),
+        "warnings": (list(scene.notes) + ([coverage] if coverage is not None else [])
+                     + zero_envelope_warning(envelope, tr.outside, config, "the zones")),
         "timings_s": {**tr.seconds, "total": time.perf_counter() - t0},
         "versions": library_versions(),
     }

@@ -522,6 +522,22 @@ def detector_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: 
     return counts, detector, plan_attrs
 
 
+def zero_envelope_warning(envelope: np.ndarray, outside: np.ndarray, config: SimulationConfig,
+                          target: str) -> list[str]:
+    """[] when the envelope holds light, else one warning that says why it is zero: the light reaching ``target``
+    ("the FoV", "the zones") arrives outside the time window (``outside``: the transport's weight outside it,
+    any shape), or no light path reaches it at all."""
+    if np.any(envelope):
+        return []
+    edges = config.time.edges
+    window = f"{edges[0] * 1e9:.4g}..{edges[-1] * 1e9:.4g} ns"
+    if float(np.sum(outside)) > 0:
+        return [f"the envelope is zero: the light that reaches {target} arrives outside the time window {window}; "
+                "widen simulation.time (t_start, bin_width, n_bins)"]
+    return [f"no light path reaches {target}: the envelope is zero (no path from the laser reaches the sensor "
+            "grid; counts hold background only)"]
+
+
 def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
                 noise_rng: np.random.Generator | None, t0: float, extra_attrs: dict | None = None) -> Result:
     """Detector draw and metadata around binned transport output (the last steps of :func:`simulate`): the
@@ -531,10 +547,7 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
     shape = capture.channel_shape() + (config.time.n_bins,)
     components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
     envelope = tr.binned.sum(axis=0).reshape(shape)
-    warnings = list(scene.notes)                 # what loading changed (e.g. duplicate faces removed)
-    if not envelope.any():
-        warnings.append("no light path reaches the FoV: the envelope is zero (no path from the laser spot "
-                        "reaches the sensor grid within the time window; counts hold background only)")
+    warnings = list(scene.notes) + zero_envelope_warning(envelope, tr.outside, config, "the FoV")
     t3 = time.perf_counter()
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
     counts, detector, plan_attrs = detector_counts(envelope, config, tr.plan.to_attrs(), noise_rng,

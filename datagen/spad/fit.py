@@ -45,6 +45,7 @@ import numpy as np
 from scipy import optimize, special, stats
 
 from ..errors import ConfigError
+from ..validate import MIN_HISTOGRAM_BINS
 from .config import DetectorConfig
 from .fit_numerics import (REJECTED, inverse_covariance, newton, profile_interval, profile_walk,
                            sandwich_covariance, with_coordinate)
@@ -183,6 +184,20 @@ def _from_fit(name: str, x: np.ndarray | float):
     return x
 
 
+def _trial_overflow_ignored(func):
+    """Run ``func`` under ``np.errstate`` that ignores overflow and division by zero: the optimiser's trial
+    parameters (log scale) can reach inf, which the likelihood rejects (``REJECTED``); the result is checked
+    finite, and no floating-point warning reaches the user."""
+    import functools
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            return func(*args, **kwargs)
+    return wrapper
+
+
+@_trial_overflow_ignored
 def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_cycles: int,
                  model: str = "pile_up", irf: str = "exgauss", t_start: float = 0.0,
                  pulse_sigma: float | None = None, fixed: dict[str, float] | None = None,
@@ -229,8 +244,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             names the argument and the value.
     """
     h = np.asarray(histogram)
-    if h.ndim != 1 or h.size < 8:
-        raise ConfigError(f"histogram must be 1-D with at least 8 bins, got shape {h.shape}")
+    if h.ndim != 1 or h.size < MIN_HISTOGRAM_BINS:
+        raise ConfigError(f"histogram must be 1-D with at least {MIN_HISTOGRAM_BINS} bins, got shape {h.shape}")
     if not np.all(np.isfinite(h)) or np.any(h < 0) or np.any(h != np.round(h)):
         raise ConfigError("histogram must hold counts (finite whole numbers >= 0)")
     h = h.astype(np.float64)
@@ -407,6 +422,10 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                         f"{values['dead_time']:.4g} s and {alias[0]:.4g} s fit within a likelihood ratio of "
                         f"{math.exp(alias[1]):.3g} (threshold {math.exp(DEAD_TIME_ALIAS_MARGIN):.3g}): fix it to a "
                         f"known value or bound it (dead_time_bounds=(low, high) / --dead-time-bounds LOW,HIGH)")
+    bad = [f"{k} = {v}" for k, v in values.items() if not np.isfinite(v)]
+    if bad:
+        raise ConfigError(f"the fit did not converge to finite parameters ({', '.join(bad)}): the histogram may not "
+                          "be a detector's (check the counts and the bin width), or fix those parameters (--fix)")
     mu = expected(values)
     deviance, pearson, dof, p_value = _goodness(h, mu, len(free))
     return DetectorFit(model, irf, values, errors, intervals, joint, {k: v for k, v in fixed.items()
