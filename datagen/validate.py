@@ -12,6 +12,11 @@ first index, an example). Each check returns the array it was given (the file's 
 - :func:`histogram_counts`: finite, non-negative whole counts below :data:`MAX_COUNT` (a detector fit sums and
   squares them in float64), at least :data:`MIN_HISTOGRAM_BINS` bins, not all zero;
 - :func:`uniform_axis`: a time column that increases by one bin width (within :data:`AXIS_RTOL`).
+
+The other files read from outside are checked in one place each, where the knowledge they need lives: scene,
+dataset, room and detector YAML by :func:`datagen.scene.yamlfile.read_yaml` and the pydantic models; reconstruction
+predictions by :mod:`datagen.dataset.score` (their shapes come from the dataset's labels). docs/reliability.md
+lists every bound.
 """
 from __future__ import annotations
 

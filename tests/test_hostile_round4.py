@@ -188,3 +188,140 @@ def test_a_square_scan_too_tall_for_the_ceiling_names_the_width(tmp_path):
                                                        "capture": {"scan": {"height": "width"}}}})
     with pytest.raises(ConfigError, match=r"capture\.scan\.width\.max \(height: width\): 1\.6 m does not fit under"):
         bad.room_distribution("train")
+
+
+# -- files that are truncated, misfiled or empty ------------------------------------------------------------
+
+def test_damaged_capture_files_name_the_file_and_the_cause(tmp_path):
+    """Before: a truncated MAT v7.3 gave HDF5's 'truncated file: eof = …' without the file; a width stored as text
+    passed through numpy's conversion; a 0-bin capture said 'expected (N, N, T)'."""
+    import h5py
+    d = np.random.default_rng(1).poisson(3.0, size=(4, 4, 16)).astype(float)
+    whole = tmp_path / "v73.mat"
+    with h5py.File(whole, "w") as f:
+        f["rect_data"], f["width"], f["bin_resolution"] = d.T, np.array([[0.4]]), np.array([[4e-12]])
+    cut = tmp_path / "cut.mat"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    cli(["import-capture", cut, "--out", tmp_path / "a"], 2,
+        f"error: {cut}: cannot read the HDF5 (MAT v7.3) file: truncated (shorter than its header says)")
+    from scipy.io import savemat
+    text = tmp_path / "text.mat"
+    savemat(text, {"rect_data": d, "width": "0.4", "bin_resolution": np.array([[4e-12]])})
+    cli(["import-capture", text, "--out", tmp_path / "b"], 2,
+        f"error: {text}: width: text ('0.4'), not a number; lengths and durations are stored as numbers")
+    empty = _lct(tmp_path, "zero.mat", lambda x: x[..., :0])
+    cli(["import-capture", empty, "--out", tmp_path / "c"], 2, "rect_data: 0 time bin(s) per transient (shape "
+                                                               "(4, 4, 0)); a transient needs at least 2")
+    assert not any((tmp_path / n).exists() for n in "abc")
+
+
+def test_histogram_files_that_are_cut_ragged_or_empty_name_the_file(tmp_path):
+    np.save(tmp_path / "h.npy", np.full(64, 10.0))
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "h.npy").read_bytes()[:150])
+    cli(_fit(tmp_path / "cut.npy") + ["--bin-width", "16ps"], 2,
+        f"{tmp_path / 'cut.npy'}: cannot read it as a NumPy .npy array: truncated (Failed to read all data")
+    (tmp_path / "ragged.csv").write_text("1e-11,3\n2e-11,4,5\n3e-11,5\n")
+    out = cli(_fit(tmp_path / "ragged.csv"), 2, "the number of columns changed from 2 to 3 at row 2")
+    assert "usecols" not in out                                              # numpy's advice is not ours
+    (tmp_path / "empty.txt").write_text("")
+    cli(_fit(tmp_path / "empty.txt") + ["--bin-width", "16ps"], 2,
+        "empty.txt: counts: shape (0,); a histogram is one axis of at least 8 bins")
+    np.savetxt(tmp_path / "frac.txt", np.full(16, 2.5))
+    cli(_fit(tmp_path / "frac.txt") + ["--bin-width", "16ps"], 2,
+        "frac.txt: counts: 16 of 16 bins are not whole numbers (e.g. 2.5 at index (0,))")
+
+
+def test_export_into_a_folder_suggests_the_formats_file(tmp_path, scan_store):
+    """Before: ``export --format lct-mat --out FOLDER`` suggested FOLDER/capture.hdf5."""
+    (tmp_path / "folder").mkdir()
+    cli(["export", scan_store, "--format", "lct-mat", "--out", tmp_path / "folder"], 2,
+        f"--out {tmp_path / 'folder'} is a directory; give the .mat file to write, e.g. "
+        f"{tmp_path / 'folder' / 'capture.mat'}")
+    cli(["export", scan_store, "--format", "znlos", "--out", tmp_path / "folder"], 2, "capture.hdf5")
+
+
+# -- compare-capture ------------------------------------------------------------------------------------------
+
+def test_compare_capture_names_the_empty_capture_and_both_windows_and_notes_a_grid_mismatch(tmp_path, scan_store):
+    """Before: 'a capture has no signal in the common time window' (which? which windows?); an 8 x 8 scan against a
+    4 x 4 one was compared without a word (the per-point metric silently dropped)."""
+    early = _lct(tmp_path, "early.mat")                  # 32 bins of 4 ps: 0..0.128 ns, before any return
+    cli(["compare-capture", early, scan_store], 2,
+        f"error: real {early}, sim {scan_store}: sim: no signal in the common time window 0..0.128 ns of hidden "
+        "time (real 0..0.128 ns, sim")
+    room = box_before_wall(2)
+    config = resolve_config(room.scene, {"estimator": {"kind": "quadrature", "edge": 0.2}})
+    small = tmp_path / "scan2.zarr"
+    write_result(simulate(room.scene, config), small)
+    out = cli(["compare-capture", small, scan_store], 0,
+              "note: real is a confocal scan of 2 x 2 points, sim a confocal scan of 4 x 4 points: compared on the "
+              "scan-summed transients only (no per-point metric)")
+    assert "per scan point" not in out
+
+
+@pytest.fixture(scope="module")
+def flood_store(tmp_path_factory):
+    """A multi-zone result of scene_library/multizone_room.yaml with a 2 x 2 node flood and a coarse quadrature."""
+    from test_multizone import small_scene_file
+    tmp = tmp_path_factory.mktemp("flood")
+    cli(["multizone", small_scene_file(tmp), "--out", tmp / "mz", "--edge", "0.3", "--quiet"], 0)
+    return tmp / "mz" / "result.zarr"
+
+
+def test_a_flood_is_not_compared_with_a_spot_nor_exported_to_a_capture_file(tmp_path, flood_store, scan_store):
+    """Before: a confocal capture against a multi-zone result was compared without a word; export of a multi-zone
+    result to znlos / tal said 'cannot reshape array of size 192 into shape (1,1,3)'."""
+    cli(["compare-capture", scan_store, flood_store], 2,
+        f"error: {scan_store} is a confocal scan of 4 x 4 points, {flood_store} is a multi-zone result of 4 x 4 "
+        "zones (a flood): a flood's zones and a laser spot's transients are different measurements")
+    for fmt in ("znlos", "tal", "lct-mat"):
+        cli(["export", flood_store, "--format", fmt, "--out", tmp_path / f"x.{fmt}"], 2,
+            f"error: a multi-zone result (4 x 4 zones lit by a flood) has no single laser point per transient, which "
+            f"{fmt} files hold; keep it as a datagen store (docs/multizone.md)")
+    assert not list(tmp_path.iterdir())
+
+
+# -- multi-zone runs that are slow or empty --------------------------------------------------------------------
+
+def _multizone_scene(tmp_path, edit) -> str:
+    import yaml
+    from test_multizone import small_scene_file
+    path = small_scene_file(tmp_path)
+    data = yaml.safe_load(path.read_text())
+    edit(data)
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+def test_a_zone_grid_the_flood_barely_lights_is_warned_about_before_the_work(tmp_path):
+    """Before: zones of 20 m around a 1.4 m flood ran 18x the shipped scene's time with no word and no progress."""
+    def big(d):
+        d["multizone"]["zones"]["size"] = [1.4, 7.0]                # 5x the flood: 20 % of it lit
+    out = cli(["multizone", _multizone_scene(tmp_path, big), "--out", tmp_path / "o", "--edge", "0.3"], 0,
+              "warning: multizone.flood (1.4 x 1.4 m) lights 20.0% of multizone.zones (1.4 x 7 m, 5x its area): a "
+              "multi-zone sensor's zones tile its flood", "transport:")
+    assert out.index("warning: multizone.flood") < out.index("transport:")   # before the work starts
+    assert out.count("lights 20.0%") == 1
+
+
+def test_zone_coverage_is_the_overlap_of_two_rectangles():
+    from datagen.scene import RayCaster
+    from datagen.scene.capture import resolve_capture
+    from datagen.scene.flood import load_multizone_scene, zone_coverage
+    scene, spec = load_multizone_scene("scene_library/multizone_room.yaml")
+    capture = resolve_capture(scene, RayCaster(scene))
+    assert zone_coverage(capture, spec) == pytest.approx(1.0)
+    for size, shift, expected in (([20.0, 20.0], 0.0, 1.96 / 400), ([1.4, 1.4], 0.7, 0.5), ([1.4, 1.4], 1.5, 0.0)):
+        zones = spec.zones.model_copy(update={"size": tuple(size),
+                                              "center": tuple(np.add(spec.zones.center, shift * capture.fov_u))})
+        assert zone_coverage(capture, spec.model_copy(update={"zones": zones})) == pytest.approx(expected, abs=1e-12)
+
+
+def test_a_window_that_ends_before_the_light_says_so(tmp_path):
+    """Before: ``n_bins: 1`` in a multi-zone scene said 'no light path reaches the zones' (it arrives later)."""
+    def one_bin(d):
+        d["simulation"]["time"]["n_bins"] = 1
+    out = cli(["multizone", _multizone_scene(tmp_path, one_bin), "--out", tmp_path / "o", "--edge", "0.3",
+               "--quiet"], 0, "warning: the envelope is zero: the light that reaches the zones arrives outside the "
+                              "time window 0..0.26 ns; widen simulation.time (t_start, bin_width, n_bins)")
+    assert "no light path" not in out and "Warning" not in out       # nor matplotlib's log-scale warning

@@ -280,7 +280,8 @@ def test_cli_simulate_runs_a_multizone_scene_as_multizone_does(tmp_path):
 
     scene = small_scene_file(tmp_path)
     runner = CliRunner()
-    a = runner.invoke(main, ["simulate", str(scene), "--out", str(tmp_path / "a"), "--edge", "0.3", "--seed", "3"])
+    a = runner.invoke(main, ["simulate", str(scene), "--out", str(tmp_path / "a"), "--edge", "0.3", "--seed", "3",
+                             "--quiet"])
     assert a.exit_code == 0, a.output
     lines = a.output.splitlines()
     assert lines[0] == "4×4 zones, flood of 2×2 nodes over 1.4×1.4 m (uniform_intensity)"
@@ -289,7 +290,7 @@ def test_cli_simulate_runs_a_multizone_scene_as_multizone_does(tmp_path):
                          f"{tmp_path / 'a' / 'zones.png'}")
     assert (tmp_path / "a" / "zones.png").stat().st_size > 10_000
     b = runner.invoke(main, ["multizone", str(SCENE), "--out", str(tmp_path / "b"), "--nodes", "2x2",
-                             "--edge", "0.3", "--seed", "3"])
+                             "--edge", "0.3", "--seed", "3", "--quiet"])
     assert b.exit_code == 0, b.output
     assert a.output.replace("/a/", "/b/") == b.output
     ra, rb = read_result(tmp_path / "a" / "result.zarr"), read_result(tmp_path / "b" / "result.zarr")

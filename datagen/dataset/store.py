@@ -302,7 +302,7 @@ def split_entries(config: DatasetConfig, fields: dict[str, tuple[tuple[int, ...]
 
 def code_version() -> str:
     """``git describe --always --dirty --tags`` of the datagen checkout, else the package version."""
-    from ..simulation.run import library_versions
+    from ..simulation.provenance import library_versions
     here = Path(__file__).resolve().parent
     try:
         out = subprocess.run(["git", "describe", "--always", "--dirty", "--tags"], cwd=here, capture_output=True,
@@ -473,7 +473,7 @@ def initialize_card(root: Path, config: DatasetConfig, probe: Sample, assets: li
     Returns:
         The card as written (status "incomplete" until :func:`finish_card`), with :func:`card_layout`'s entries.
     """
-    from ..simulation.run import library_versions
+    from ..simulation.provenance import library_versions
 
     card = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": config.name, "status": "incomplete",
             "config": config.to_json(), "config_sha256": config.fingerprint(), "assets": assets,

@@ -240,8 +240,8 @@ def load_multizone_scene(path: str | Path) -> tuple[Scene, MultizoneSpec]:
 
 MIN_ZONE_COVERAGE = 0.25
 """Below this fraction of the zone grid's area lit by the flood, a multi-zone run warns
-(:class:`ZoneCoverageWarning`): most zones see only light the room scatters, and the run's time grows with the
-zone grid's area."""
+(:class:`ZoneCoverageWarning`): a multi-zone sensor's zones tile its flood, and the run's time grows with the zone
+grid's area."""
 
 
 class ZoneCoverageWarning(DatagenWarning):
@@ -251,26 +251,27 @@ class ZoneCoverageWarning(DatagenWarning):
 
 def zone_coverage(capture: Capture, spec: MultizoneSpec) -> float:
     """Fraction of the zone grid's area (``spec.zones``) that the lit patch (``spec.flood``) covers, in the relay
-    wall's frame of the resolved ``capture`` (``fov_u``, ``fov_v``), in [0, 1]."""
+    wall's frame of the resolved ``capture`` (``fov_u``, ``fov_v``), in [0, 1] (0 for a point flood)."""
     d = np.asarray(spec.zones.center, np.float64) - np.asarray(spec.flood.center, np.float64)
     du, dv = float(np.dot(d, capture.fov_u)), float(np.dot(d, capture.fov_v))
     (fw, fh), (zw, zh) = spec.flood.size, spec.zones.size
 
-    def overlap(offset, a, b):        # overlap of [−a/2, a/2] and [offset − b/2, offset + b/2]
+    def overlap(offset, a, b):        # length of [−a/2, a/2] ∩ [offset − b/2, offset + b/2]
         return max(0.0, min(a / 2, offset + b / 2) - max(-a / 2, offset - b / 2))
 
     return overlap(du, fw, zw) * overlap(dv, fh, zh) / (zw * zh)
 
 
 def zone_coverage_warning(capture: Capture, spec: MultizoneSpec) -> str | None:
-    """The warning's text when the flood lights less than :data:`MIN_ZONE_COVERAGE` of the zone grid, else None."""
-    coverage = zone_coverage(capture, spec)
-    if coverage >= MIN_ZONE_COVERAGE:
-        return None
+    """The warning's text when a flood of non-zero area lights less than :data:`MIN_ZONE_COVERAGE` of the zone
+    grid, else None (a point flood, the single-spot limit, is not warned about)."""
     (fw, fh), (zw, zh) = spec.flood.size, spec.zones.size
-    return (f"multizone.zones ({zw:g} x {zh:g} m) is lit over {coverage:.1%} of its area by multizone.flood "
-            f"({fw:g} x {fh:g} m): zones outside the flood see only light the room scatters, and the run's time "
-            f"grows with the zone grid's area ({zw * zh / (fw * fh):.3g}x the flood's); fit the zones to the flood")
+    coverage = zone_coverage(capture, spec)
+    if fw * fh <= 0 or coverage >= MIN_ZONE_COVERAGE:
+        return None
+    return (f"multizone.flood ({fw:g} x {fh:g} m) lights {coverage:.1%} of multizone.zones ({zw:g} x {zh:g} m, "
+            f"{zw * zh / (fw * fh):.3g}x its area): a multi-zone sensor's zones tile its flood, and the run's time "
+            "grows with the zone grid's area (docs/multizone.md)")
 
 
 def flood_corners(capture: Capture, spec: MultizoneSpec) -> np.ndarray:

@@ -16,6 +16,9 @@ its module.
   in the relative L2 measure of :func:`datagen.analysis.relative_l2`), replica streams.
 - :mod:`.tolerance`: :func:`simulate_to_tolerance` (replicas added, or the quadrature edge refined, until the
   estimate meets a target; ``simulate --tolerance``, dataset builds).
+- :mod:`.multizone`: :func:`~.multizone.simulate_multizone`, a flood-illuminated multi-zone capture (zone
+  envelopes and histograms composed from the flood's nodes; docs/multizone.md).
+- :mod:`.provenance`: :func:`~.provenance.library_versions`, the versions every result and card records.
 - :mod:`.budget`: the memory a simulation needs, estimated before allocating (:func:`simulation_memory`), and
   the refusal (:class:`ResourceError`) when it exceeds the memory available.
 """

@@ -26,7 +26,8 @@ from ..scene import Scene
 from ..scene.flood import (FloodProfile, MultizoneSpec, ZoneCoverageWarning, flood_capture, flood_field_names,
                            flood_weights, node_weights, with_flood, zone_coverage_warning)
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
-from .run import Replicas, Result, detector_counts, library_versions, zero_envelope_warning
+from .provenance import library_versions
+from .run import Replicas, Result, detector_counts, zero_envelope_warning
 
 
 ZONE_UNITS = {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin, per zone",

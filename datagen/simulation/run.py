@@ -8,12 +8,9 @@ streams: :func:`datagen.simulation.config.stream_rng` (docs/physics.md §7).
 """
 from __future__ import annotations
 
-import functools
-import platform
 import time
 from dataclasses import dataclass, field
 from typing import NamedTuple
-from importlib import metadata
 
 import numpy as np
 
@@ -33,6 +30,7 @@ from ..transport.multibounce.orders import tracer_nominal_seconds
 from ..transport.multibounce.tracer import default_smoothing, tracer_rng
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
+from .provenance import library_versions
 from .replicas import (ReplicaSums, combined_error, neyman_split, relative_difference, replica_root, replica_rng,
                        tracer_replicas_wanted)
 
@@ -76,23 +74,6 @@ class Result:
         """Expected detections per pulse in the window (sum of bins) of the envelope or a component."""
         y = self.envelope if name is None else self.components[name]
         return float(y.sum())
-
-
-def library_versions() -> dict[str, str]:
-    """Versions of Python and the libraries a result depends on (recorded in every result's attributes); read
-    once per process (``importlib.metadata`` scans the installed distributions: ≈ 8 ms a call)."""
-    return dict(_library_versions())
-
-
-@functools.lru_cache(maxsize=1)
-def _library_versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    for pkg in ("datagen", "numpy", "scipy", "trimesh", "embreex", "zarr", "pydantic", "torch"):
-        try:
-            out[pkg] = metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            out[pkg] = "not installed"
-    return out
 
 
 @dataclass
@@ -524,16 +505,15 @@ def detector_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: 
 
 def zero_envelope_warning(envelope: np.ndarray, outside: np.ndarray, config: SimulationConfig,
                           target: str) -> list[str]:
-    """[] when the envelope holds light, else one warning that says why it is zero: the light reaching ``target``
-    ("the FoV", "the zones") arrives outside the time window (``outside``: the transport's weight outside it,
-    any shape), or no light path reaches it at all."""
+    """[] when the envelope holds light, else one warning saying why it is zero: the light reaching ``target``
+    ("the FoV", "the zones") arrives outside the time window (``outside``: the transport's weight outside it), or
+    no light path reaches it at all."""
     if np.any(envelope):
         return []
-    edges = config.time.edges
-    window = f"{edges[0] * 1e9:.4g}..{edges[-1] * 1e9:.4g} ns"
     if float(np.sum(outside)) > 0:
-        return [f"the envelope is zero: the light that reaches {target} arrives outside the time window {window}; "
-                "widen simulation.time (t_start, bin_width, n_bins)"]
+        edges = config.time.edges
+        return [f"the envelope is zero: the light that reaches {target} arrives outside the time window "
+                f"{edges[0] * 1e9:.4g}..{edges[-1] * 1e9:.4g} ns; widen simulation.time (t_start, bin_width, n_bins)"]
     return [f"no light path reaches {target}: the envelope is zero (no path from the laser reaches the sensor "
             "grid; counts hold background only)"]
 
