@@ -325,3 +325,26 @@ def test_a_window_that_ends_before_the_light_says_so(tmp_path):
                "--quiet"], 0, "warning: the envelope is zero: the light that reaches the zones arrives outside the "
                               "time window 0..0.26 ns; widen simulation.time (t_start, bin_width, n_bins)")
     assert "no light path" not in out and "Warning" not in out       # nor matplotlib's log-scale warning
+
+
+def test_a_build_says_its_probe_runs_shows_its_bar_and_projects_its_time(tmp_path, monkeypatch):
+    """Before: a build printed nothing while its probe sample ran to the tolerance (over 120 s with the lookin
+    estimator). Now one line says the probe runs, its tolerance loop reports each round, and the projected time
+    follows."""
+    import datagen.dataset.build as build_module
+    from test_hostile_build import config_file
+    monkeypatch.setattr(build_module, "PROJECTION_NOTE_S", 0.0)      # project even this small build
+    out = cli(["build", config_file(tmp_path), "--out", tmp_path / "ds", "--workers", "0"], 0,
+              "build smoke: probe sample (train, 0) first: its arrays fix the dataset's shapes",
+              "4 replicas (512 hidden samples per laser point each): estimated error",   # the probe's rounds
+              "build smoke: the probe took", "3 samples project to about", "on 1 process (samples differ")
+    assert out.index("probe sample (train, 0) first") < out.index("the probe took")
+    quiet = cli(["build", config_file(tmp_path), "--out", tmp_path / "ds2", "--workers", "0", "--quiet"], 0)
+    assert "probe sample" not in quiet and "replicas" not in quiet
+
+
+def test_verify_shows_a_bar_over_the_shards_unless_quiet(tmp_path):
+    from test_hostile_build import config_file
+    cli(["build", config_file(tmp_path), "--out", tmp_path / "ds", "--workers", "0", "--quiet"], 0)
+    assert "verify ds" in cli(["verify", tmp_path / "ds"], 0, "ok, 3 shards")
+    assert "verify ds" not in cli(["verify", tmp_path / "ds", "--quiet"], 0, "ok, 3 shards")

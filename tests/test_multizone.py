@@ -229,6 +229,13 @@ def test_multizone_dataset_stores_the_zones_histograms(tmp_path):
         assert counts.dtype == np.int64 and abs(counts.sum() - expected) < 5 * np.sqrt(expected) + 0.05 * expected
     net = NLOSDataset(out, split="val", layout="network", fields=("envelope", "counts"))[0]
     assert tuple(net["envelope"].shape) == tuple(net["counts"].shape) == (1, 128, 4, 4)
+    # the capture files hold one laser point per transient: a flood's sample is refused with that reason (before:
+    # "the regenerated capture has channels (4, 4, 4, 4) … built by another code version?")
+    from datagen.dataset.export import sample_result
+    from datagen.errors import DatasetError
+    with pytest.raises(DatasetError, match=r"a multi-zone dataset: its samples are zones lit by a flood, with no "
+                                           r"single laser point per transient"):
+        sample_result(out, "val", 0)
 
 
 def test_node_envelope_needs_a_flood():

@@ -284,8 +284,8 @@ PROJECTION_NOTE_S = 60.0
 def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, project: bool = True) -> Sample:
     """Sample 0 of the first non-empty split: its shapes fix the dataset's (computed before any write).
 
-    With ``progress``, one line on stderr says the probe runs (it may take minutes), its transport shows a bar,
-    and (``project``: a new build) a build projected beyond :data:`PROJECTION_NOTE_S` says how long it projects
+    With ``progress``, one line on stderr says the probe runs (it may take minutes), its tolerance loop reports
+    each round (and the transport's bar), and (``project``: a new build) a build projected beyond :data:`PROJECTION_NOTE_S` says how long it projects
     on ``processes``."""
     split = _first_split(config)
     if not progress:
