@@ -106,7 +106,7 @@ def histograms(draw):
     return layout, np.c_[t, counts]
 
 
-@SETTINGS
+@settings(SETTINGS, max_examples=20)        # each accepted histogram is a full fit (≈ 3 s)
 @given(case=histograms())
 def test_fit_detector_of_any_histogram_exits_0_with_finite_parameters_or_2_in_one_line(tmp_path_factory, case):
     layout, arr = case
