@@ -1,4 +1,4 @@
-"""A/B of the area sampler's compiled kernels (datagen/transport/area_kernels.py) against a baseline revision.
+"""A/B of the area sampler's compiled kernels (datagen/transport/area/kernels.py) against a baseline revision.
 
     python benchmarks/bench_area_kernels.py [--quick] [--baseline c2cf3e2] [--rounds 3]
 

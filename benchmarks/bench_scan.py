@@ -23,7 +23,7 @@ on numba's threads: every core unless NUMBA_NUM_THREADS says otherwise):
    1 m in front of a 2 m relay wall; tal's bunny example is 128 × 128 × 750 and takes 2–4 min with mitransient):
    wall and CPU seconds (every thread of the process) at 32 × 32, 64 × 64 and 128 × 128 points (``--quick``: 16 × 16,
    32 × 32), one FoV cell per pixel, h = 3 cm by default (every triangle of the torus is then one sub-triangle:
-   the plain split of datagen/transport/quadrature_split.py), the stored error estimate, and the error of the largest
+   the plain split of datagen/transport/quadrature/split.py), the stored error estimate, and the error of the largest
    capture measured on an 8 × 8 block of its points (in front of the torus's hole) against the same points scanned
    at h / 4 (the quadrature's error falls as h², so that reference is 16× closer to the integral).
 """

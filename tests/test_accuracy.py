@@ -20,7 +20,7 @@ from datagen.timing import EnvelopeAccumulator
 from datagen.scene import RayCaster
 from datagen.analysis import converged_reference
 from datagen.analysis.reference import REFERENCE_POINT_SECONDS, REFERENCE_SAMPLES, check_reference_size, peak_time
-from datagen.transport import LookinSampler, TransportSettings
+from datagen.transport import LookinSampler, LookinSettings
 
 EDGES = np.arange(201) * 10e-12
 
@@ -87,7 +87,7 @@ def test_lookin_primary_error_falls_as_one_over_root_n():
     for n in ns:
         e = []
         for seed in range(3):
-            tr = LookinSampler(scene, TransportSettings(lookins=(n, n), pixels=(32, 32), secondary="none"), caster)
+            tr = LookinSampler(scene, LookinSettings(lookins=(n, n), pixels=(32, 32), secondary="none"), caster)
             acc = EnvelopeAccumulator(AXIS, IRF, len(tr.component_names))
             tr.run(acc, np.random.default_rng(seed))
             e.append(rel_l2(acc.binned().sum(0), ref))
@@ -112,7 +112,7 @@ def test_secondary_estimators_against_closed_form():
         for n in ns:
             vals = []
             for seed in range(3):
-                tr = LookinSampler(scene, TransportSettings(lookins=(n, n), pixels=(32, 32), secondary=mode), caster)
+                tr = LookinSampler(scene, LookinSettings(lookins=(n, n), pixels=(32, 32), secondary=mode), caster)
                 acc = EnvelopeAccumulator(AXIS, IRF, len(tr.component_names))
                 tr.run(acc, np.random.default_rng(seed))
                 vals.append(acc.total_weight()[3] / sec - 1)

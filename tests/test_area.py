@@ -280,7 +280,7 @@ def test_scans_match_the_lookin_estimator_per_channel(convention):
     """An exhaustive scan (2 laser points × 2×2 sensor points): every channel's total agrees with the lookin
     estimator at 64²×32² lookins (its own noise is a few per cent here; tolerance 8 %)."""
     from datagen.scene import CaptureSpec, WallGrid
-    from datagen.transport import LookinSampler, TransportSettings
+    from datagen.transport import LookinSampler, LookinSettings
 
     base = patch_scene()
     capture = CaptureSpec(type="exhaustive", convention=convention,
@@ -292,7 +292,7 @@ def test_scans_match_the_lookin_estimator_per_channel(convention):
     n_ch = sampler.capture.n_channels
     assert n_ch == 8 and sampler.capture.channel_shape() == (1, 2, 2, 2)
     area = acc.total_weight().reshape(-1, n_ch).sum(0)
-    tr = LookinSampler(scene, TransportSettings(lookins=(64, 64), pixels=(32, 32), secondary="none"))
+    tr = LookinSampler(scene, LookinSettings(lookins=(64, 64), pixels=(32, 32), secondary="none"))
     acc2 = EnvelopeAccumulator(AXIS, IRF, len(tr.component_names) * n_ch)
     tr.run(acc2, np.random.default_rng(0))
     lookin = acc2.total_weight().reshape(-1, n_ch).sum(0)

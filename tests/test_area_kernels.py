@@ -1,4 +1,4 @@
-"""The area sampler's compiled kernels (datagen/transport/area_kernels.py) against the numpy formulas they compile:
+"""The area sampler's compiled kernels (datagen/transport/area/kernels.py) against the numpy formulas they compile:
 :class:`~datagen.scene.materials.MaterialTable`, :class:`~datagen.transport.physics.LegPhysics` and the pair weights
 written here with physics.py's functions (the oracle). Same inputs → equal to 1e-12 relative."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ from datagen.sampling import sample_surfaces
 from datagen.scene import Material, Scene, SceneObject
 from datagen.scene.materials import MaterialTable
 from datagen.transport import AreaSampler, AreaSettings
-from datagen.transport.area_kernels import (brdf_value, connection_weights, fov_targets, material_arrays,
+from datagen.transport.area.kernels import (brdf_value, connection_weights, fov_targets, material_arrays,
                                             partner_geometry, partner_irradiance, partner_rays, primary_impulses,
                                             secondary_pairs, sensor_collection, spot_irradiance)
 from datagen.transport.physics import fov_connection_weight
@@ -114,7 +114,7 @@ def test_fov_targets_equal_capture_geometry(demo):
 @pytest.mark.parametrize("mu", [0.0, 0.05])
 def test_partner_and_pair_kernels_equal_the_numpy_formulas(demo, mu):
     """Partner geometry, MIS irradiance, secondary pairs and primary impulses against the formulas of the module
-    docstring of datagen/transport/area.py written with physics.py (brdf, irradiance, attenuation)."""
+    docstring of datagen/transport/area/estimator.py written with physics.py (brdf, irradiance, attenuation)."""
     sampler = AreaSampler(demo, AreaSettings(attenuation=mu))
     physics, cst = sampler.physics, sampler.caster
     rng = np.random.default_rng(11)

@@ -17,7 +17,7 @@ from datagen.planner import EFFECTS, Decision, Plan
 from datagen.simulation.run import prepare_transport
 from datagen.simulation.run import Replicas, detector_model, make_result
 from datagen.spad.pileup import pile_up_from_envelope
-from datagen.transport import (AreaSampler, AreaSettings, EstimatorOptions, LookinSampler, TransportSettings, estimator,
+from datagen.transport import (AreaSampler, AreaSettings, EstimatorOptions, LookinSampler, LookinSettings, estimator,
                                estimator_names)
 from datagen.transport.base import PLANNED_SWITCHES, register, unregister
 
@@ -38,7 +38,7 @@ def no_lookins(monkeypatch):
     """Constructing lookin settings or a lookin sampler raises."""
     def boom(self, *args, **kwargs):
         raise AssertionError(f"{type(self).__name__} constructed")
-    monkeypatch.setattr(TransportSettings, "__init__", boom)
+    monkeypatch.setattr(LookinSettings, "__init__", boom)
     monkeypatch.setattr(LookinSampler, "__init__", boom)
 
 
@@ -47,13 +47,13 @@ def test_planning_and_building_another_estimator_never_constructs_a_lookin_objec
     scene = patch_scene(with_occluder=True)
     transport, plan = prepare_transport(scene, config(scene, kind))
     assert type(transport) is estimator(kind).cls and set(plan.decisions) == set(EFFECTS)
-    assert not isinstance(transport.settings, TransportSettings)
+    assert not isinstance(transport.settings, LookinSettings)
 
 
 def test_the_lookin_estimator_is_the_one_that_builds_lookin_settings(no_lookins):
     """The check above is not vacuous: the lookin estimator's factory is where lookin settings are made."""
     scene = patch_scene(with_occluder=True)
-    with pytest.raises(AssertionError, match="TransportSettings constructed"):
+    with pytest.raises(AssertionError, match="LookinSettings constructed"):
         prepare_transport(scene, config(scene, "lookin"))
 
 

@@ -342,7 +342,7 @@ def test_the_compiled_continuation_is_the_numpy_sampling_and_brdf():
     the office room's glossy box, the demo room's sin θ pillar) to 1e-12 relative, and the roulette."""
     from datagen.sampling import square_to_hemisphere
     from datagen.sampling.directions import to_world
-    from datagen.transport.area_kernels import material_arrays
+    from datagen.transport.area.kernels import material_arrays
     from datagen.transport.multibounce.kernels import continue_paths
     rng = np.random.default_rng(3)
     for scene_file in (DEMO, ROOT / "scene_library" / "office_room.yaml"):

@@ -84,7 +84,7 @@ def test_compiled_primary_with_fov_shadows_equals_the_numpy_path(monkeypatch):
     envelope without the FoV shadows differs by more than 1e-4."""
     import dataclasses
 
-    from datagen.transport import quadrature
+    from datagen.transport.quadrature import estimator as quadrature
 
     original = quadrature.Quadrature.__init__
 

@@ -1,4 +1,4 @@
-"""Graded hidden triangles of the quadrature (datagen.transport.quadrature_grading): the pieces tile their triangles, are
+"""Graded hidden triangles of the quadrature (datagen.transport.quadrature.grading): the pieces tile their triangles, are
 short near the scanned points and untouched far from them, and the graded quadrature of a confocal room is closer
 to a fine reference than the plain one at the same edge."""
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datagen.transport.quadrature_grading import graded_triangles
+from datagen.transport.quadrature.grading import graded_triangles
 
 
 def _area(t: np.ndarray) -> np.ndarray:
@@ -64,8 +64,8 @@ def test_graded_sub_triangles_map_to_their_hidden_faces_in_both_splits(split):
     from datagen.dataset import load_dataset_config
     from datagen.dataset.config import draw_room
     from datagen.transport import Quadrature, QuadratureSettings
-    from datagen.transport.quadrature_primary import dark_faces
-    from datagen.transport.quadrature_split import refined
+    from datagen.transport.quadrature.primary import dark_faces
+    from datagen.transport.quadrature.split import refined
 
     config = load_dataset_config("configs/datasets/confocal_smoke.yaml")
     scene = draw_room(config, "train", 0)[0].scene
@@ -118,7 +118,7 @@ def test_refine_grading_scales_the_grading_ratio_with_the_edge_at_every_level():
     from datagen.dataset import load_dataset_config
     from datagen.dataset.config import draw_room
     from datagen.simulation import resolve_config, simulate_to_tolerance
-    from datagen.transport.quadrature_options import QuadratureOptions
+    from datagen.transport.quadrature.options import QuadratureOptions
 
     opts = QuadratureOptions(edge=0.6, grading=0.5, refine_grading=True)
     assert opts.at_edge(0.3) == {"edge": 0.3, "grading": 0.25} and opts.refine() == {"edge": 1.2, "grading": 1.0}

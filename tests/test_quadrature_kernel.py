@@ -1,4 +1,4 @@
-"""The compiled quadrature primary (datagen.transport.quadrature_kernel / quadrature_primary, datagen.timing.tent_kernel)
+"""The compiled quadrature primary (datagen.transport.quadrature.kernel / .primary, datagen.timing.tent_kernel)
 against the numpy path it replaces (datagen.transport.quadrature, EnvelopeAccumulator.add_tents)."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from datagen.dataset import load_dataset_config, sample_setup
 from datagen.scene import CaptureSpec
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
 from datagen.timing.tent_kernel import deposit_tent, sort3
-from datagen.transport import quadrature
+from datagen.transport.quadrature import estimator as quadrature
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -148,7 +148,7 @@ def test_closed_outward_surfaces():
     """A closed outward torus is recognised; with a face missing, reversed, or a laser point inside its box it is
     not."""
     from datagen.scene import RayCaster
-    from datagen.transport.quadrature_primary import closed_outward
+    from datagen.transport.quadrature.primary import closed_outward
 
     outside, inside = np.array([[0.0, 0.0, 1.05]]), np.array([[-1.0, 0.1, 1.05]])
     for faces, spots, want in ((None, outside, True), (lambda f: f[1:], outside, False),
@@ -163,7 +163,7 @@ def test_never_lit_faces_are_left_out_without_changing_a_bit(monkeypatch):
     laser points' hull) are exactly those a brute-force test over every laser point finds, and leaving their
     sub-triangles out changes no bit of the envelope or the error estimate (the kernel never lights them)."""
     from datagen.scene import RayCaster
-    from datagen.transport.quadrature_primary import dark_faces, front_only
+    from datagen.transport.quadrature.primary import dark_faces, front_only
 
     scene = _torus_scene(6)
     sim = _torus_config(scene, 0.05)
@@ -216,10 +216,10 @@ def _torus_config(scene, edge, **extra):
 
 def test_big_mesh_occluder_candidates_replace_most_rays(monkeypatch):
     """A mesh too big for the numpy occluder test (forced here: PAIR_TEST_MAX_PAIRS = 0) gets its per-face
-    candidates from the compiled hull test with the face's own plane (quadrature_kernel.face_candidates): the envelope
+    candidates from the compiled hull test with the face's own plane (quadrature.kernel.face_candidates): the envelope
     equals the numpy path's (a ray for every lit pair) to 1e-5 (Embree's float32 leaks, as above) and the
     exact-test path of the numpy occluder lists to 1e-9, with under 5 % of the numpy path's rays (measured 0)."""
-    from datagen.transport import quadrature_primary
+    from datagen.transport.quadrature import primary as quadrature_primary
 
     scene = _torus_scene(6)
     sim = _torus_config(scene, 0.05)
@@ -242,7 +242,7 @@ def test_threads_give_bit_identical_envelopes(monkeypatch, fov_cells):
     every lit pair."""
     import numba
 
-    from datagen.transport import quadrature_primary
+    from datagen.transport.quadrature import primary as quadrature_primary
 
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one core: nothing runs in parallel")
@@ -266,7 +266,7 @@ def test_threads_give_bit_identical_envelopes(monkeypatch, fov_cells):
 
 def test_plain_split_and_its_sub_scan_estimate_against_a_converged_reference(monkeypatch):
     """A 64 × 64 scan of a 1 280-triangle torus at h = 8 cm (longer than every edge, ≤ 7.3 cm): the even split
-    would hold 4× the sub-triangles, so the mesh's own triangles are used (quadrature_split's plain split; not those
+    would hold 4× the sub-triangles, so the mesh's own triangles are used (quadrature.split's plain split; not those
     turned away from every laser point) and the error
     estimate is (4/3)‖P(h) − P(h/2)‖ on every 8th laser point per axis. Against the same 8 × 8 block of laser
     points scanned at h/4 (16× closer to the integral) the measured error lies below the estimate and within 3× of
@@ -295,7 +295,7 @@ def test_forced_plain_split_compiled_equals_numpy():
     to 1e-9 on the envelope and on the rule at h/2 of the estimate, which holds that point's channel only; the
     plain split keeps the torus's triangles (but those turned away from every laser point), the rule at h/2 cuts
     each into 4."""
-    from datagen.transport.quadrature import Quadrature, QuadratureSettings
+    from datagen.transport.quadrature.estimator import Quadrature, QuadratureSettings
 
     scene = _torus_scene(8)
     out = []
@@ -320,7 +320,7 @@ def test_forced_plain_split_compiled_equals_numpy():
 def test_run_spheres_bound_each_run():
     """The occluder runs' bounding spheres: centred on each run's bounding box, radius its farthest point (a
     per-run loop as the reference), runs of one to eight triangles."""
-    from datagen.transport.quadrature_primary import run_spheres
+    from datagen.transport.quadrature.primary import run_spheres
 
     rng = np.random.default_rng(0)
     tri = rng.normal(size=(500, 3, 3))
@@ -340,8 +340,8 @@ def test_run_chunks_tile_each_run_and_hold_its_grown_triangles():
     RUN_CHUNKED, which stays one chunk); its chunks tile it in order, at most RUN_CHUNK each; each chunk's sphere holds
     every vertex of its triangles grown by 2δ (and a degenerate triangle's own vertices), so the kernel's sphere test
     can skip only triangles that could not block."""
-    from datagen.transport.quadrature_primary import RUN_CHUNK, RUN_CHUNKED, run_chunks
-    from datagen.transport.quadrature_shadow import grown_triangles
+    from datagen.transport.quadrature.primary import RUN_CHUNK, RUN_CHUNKED, run_chunks
+    from datagen.transport.quadrature.shadow import grown_triangles
 
     rng = np.random.default_rng(1)
     tri = rng.normal(size=(300, 3, 3))
@@ -376,8 +376,8 @@ def test_chunked_segment_tests_change_no_bit(monkeypatch):
     """The self-shadowing torus (faces with dozens of candidate occluders from their own object): the kernel's
     segment tests with chunk spheres (RUN_CHUNK) give the same envelope, error estimate, tents and shadow rays, bit
     for bit, as with one chunk per run (every candidate of a run whose sphere the segment meets is tested)."""
-    from datagen.transport import quadrature_primary
-    from datagen.transport.quadrature_kernel import OCC
+    from datagen.transport.quadrature import primary as quadrature_primary
+    from datagen.transport.quadrature.kernel import OCC
 
     scene = _torus_scene(6)
     sim = _torus_config(scene, 0.05)

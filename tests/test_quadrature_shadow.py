@@ -1,4 +1,4 @@
-"""The laser-leg shadow map of the quadrature's pair loop (datagen/transport/quadrature_shadow.py) is conservative.
+"""The laser-leg shadow map of the quadrature's pair loop (datagen/transport/quadrature/shadow.py) is conservative.
 
 Every (sub-triangle centroid, laser point) pair whose segment passes through a candidate triangle grown by the
 kernel's margin (an independent numpy segment-triangle test) must be marked; the map must also leave most clear
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datagen.transport.quadrature_kernel import occluder_planes
-from datagen.transport.quadrature_shadow import (INSIDE_TOL, grown_triangles, row_span, shadow_flags, spot_buckets,
+from datagen.transport.quadrature.kernel import occluder_planes
+from datagen.transport.quadrature.shadow import (INSIDE_TOL, grown_triangles, row_span, shadow_flags, spot_buckets,
                                                  spot_plane)
 
 MARGIN = 1e-3
@@ -122,7 +122,7 @@ def test_grown_triangle_moves_every_edge_out_by_the_distance():
 @pytest.mark.parametrize("name", ["wall_smoke", "confocal_smoke"])
 def test_a_scan_with_the_map_equals_the_scan_without(monkeypatch, name):
     from datagen.dataset import load_dataset_config, make_sample
-    import datagen.transport.quadrature_primary as primary
+    import datagen.transport.quadrature.primary as primary
     config = load_dataset_config(f"configs/datasets/{name}.yaml")
     calls = []
     real = primary.shadow_flags

@@ -62,7 +62,7 @@ def test_a_scene_far_from_the_world_origin_gives_the_same_primary():
 
     from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
     from datagen.scene import FieldOfView, Laser, Scene, SceneObject, Sensor
-    from datagen.transport import LookinSampler, TransportSettings
+    from datagen.transport import LookinSampler, LookinSettings
 
     def shifted(dx):
         base, d = patch_scene(), np.array([dx, 0.0, 0.0])
@@ -74,7 +74,7 @@ def test_a_scene_far_from_the_world_origin_gives_the_same_primary():
 
     totals = []
     for dx in (0.0, 1e5):
-        tr = LookinSampler(shifted(dx), TransportSettings(lookins=(32, 32), pixels=(24, 24), secondary="none"))
+        tr = LookinSampler(shifted(dx), LookinSettings(lookins=(32, 32), pixels=(24, 24), secondary="none"))
         acc = EnvelopeAccumulator(TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000), Irf(fwhm=100e-12), 3)
         tr.run(acc, np.random.default_rng(0))
         totals.append(acc.total_weight().sum())

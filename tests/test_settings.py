@@ -20,9 +20,9 @@ from datagen.dataset.store import check_same_config
 from datagen.scene import load_scene
 from datagen.simulation import LegacyKeysWarning, SimulationConfig, resolve_config
 from datagen.transport import estimator_names
-from datagen.transport.area import AreaOptions
-from datagen.transport.lookin import LookinOptions
-from datagen.transport.quadrature_options import QuadratureOptions
+from datagen.transport.area.estimator import AreaOptions
+from datagen.transport.lookin.estimator import LookinOptions
+from datagen.transport.quadrature.options import QuadratureOptions
 
 DEMO = Path("scene_library/demo_room.yaml")
 SMOKE = Path("configs/datasets/smoke.yaml")

@@ -7,14 +7,14 @@ from conftest import patch_scene
 
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
 from datagen.analysis.oracle import primary_area_quadrature
-from datagen.transport import LookinSampler, TransportSettings
+from datagen.transport import LookinSampler, LookinSettings
 
 AXIS = TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=1000)
 IRF = Irf(fwhm=100e-12)
 
 
 def run_primary(scene, lookins, pixels, seed=0, **kw):
-    tr = LookinSampler(scene, TransportSettings(lookins=lookins, pixels=pixels, secondary="none", **kw))
+    tr = LookinSampler(scene, LookinSettings(lookins=lookins, pixels=pixels, secondary="none", **kw))
     acc = EnvelopeAccumulator(AXIS, IRF, len(scene.component_names()) + 1)
     tr.run(acc, np.random.default_rng(seed))
     return acc.binned().sum(0), tr
@@ -100,7 +100,7 @@ def demo_like_scene(pillar_kind="sin_theta", pixels=(1, 1)):
 
 
 def secondary(scene, mode, lookins=(8, 8), pixels=(24, 24), seed=3, **kw):
-    tr = LookinSampler(scene, TransportSettings(lookins=lookins, pixels=pixels, secondary=mode, **kw))
+    tr = LookinSampler(scene, LookinSettings(lookins=lookins, pixels=pixels, secondary=mode, **kw))
     acc = EnvelopeAccumulator(TimeAxis(t_start=0.0, bin_width=20e-12, n_bins=5000), Irf(fwhm=600e-12),
                               len(tr.component_names) * tr.capture.n_channels)
     tr.run(acc, np.random.default_rng(seed))
@@ -146,7 +146,7 @@ def test_area_replicas_do_not_depend_on_the_worker_count(replicas, monkeypatch):
     from pathlib import Path
 
     import datagen
-    import datagen.transport.area as area
+    import datagen.transport.area.estimator as area
 
     from datagen.processes import ForkedCall
 
@@ -186,7 +186,7 @@ def test_connect_sensor_sampling_converges_to_the_same_primary():
 
 
 def _secondary_total(scene, seed, **kw):
-    tr = LookinSampler(scene, TransportSettings(secondary="exact", **kw))
+    tr = LookinSampler(scene, LookinSettings(secondary="exact", **kw))
     acc = EnvelopeAccumulator(AXIS, IRF, len(tr.component_names))
     tr.run(acc, np.random.default_rng(seed))
     return dict(zip(tr.component_names, acc.total_weight()))["secondary"], tr.stats
@@ -237,7 +237,7 @@ def test_skipping_unblockable_shadow_rays_changes_nothing():
     assert sensor_blockers and {scene.objects[i].name for i in caster.face_object[list(sensor_blockers)]} == {"box"}
     out = []
     for listed, sensor_listed in ((blockers, sensor_blockers), (None, None)):
-        tr = LookinSampler(scene, TransportSettings(lookins=(12, 12), pixels=(32, 32), secondary="exact",
+        tr = LookinSampler(scene, LookinSettings(lookins=(12, 12), pixels=(32, 32), secondary="exact",
                                                 spot_blockers=listed, sensor_blockers=sensor_listed), caster)
         acc = EnvelopeAccumulator(AXIS, IRF, len(tr.component_names))
         tr.run(acc, np.random.default_rng(3))

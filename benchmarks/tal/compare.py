@@ -58,7 +58,7 @@ LLVM_CANDIDATES = ("/usr/lib/llvm-19/lib/libLLVM.so.1", "/usr/lib/llvm-19/lib/li
 
 sys.path.insert(0, str(ROOT))
 
-from datagen.transport.quadrature_options import QUADRATURE_EDGE  # noqa: E402  (after the path insert)
+from datagen.transport.quadrature.options import QUADRATURE_EDGE  # noqa: E402  (after the path insert)
 
 
 # --------------------------------------------------------------------------------------------------------

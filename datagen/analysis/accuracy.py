@@ -36,7 +36,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..scene import RayCaster, Scene
 from ..timing import EnvelopeAccumulator
-from ..transport.lookin import SecondaryMode
+from ..transport.lookin.estimator import SecondaryMode
 from ..transport import estimator as transport_estimator
 from ..transport import estimator_names as transport_estimator_names
 from .reference import PEAK_FLOOR, Reference, peak_time

@@ -20,7 +20,7 @@ from ..scene import Scene
 from ..scene.load import format_validation_error, short_repr
 from ..scene.parts import MAX_EXTENT
 from ..timing import Irf, TimeAxis
-from ..transport import EstimatorOptions, PhysicsSettings, TransportSettings, estimator, estimator_names
+from ..transport import EstimatorOptions, PhysicsSettings, LookinSettings, estimator, estimator_names
 from ..transport.base import estimator_options
 
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
@@ -147,8 +147,8 @@ class SimulationConfig(BaseModel):
     Attributes:
         estimator: the estimator and its settings, a mapping with ``kind`` ("lookin", "area", "quadrature" or any
             registered estimator) validated by that estimator's model
-            (:class:`datagen.transport.lookin.LookinOptions`, :class:`~datagen.transport.area.AreaOptions`,
-            :class:`~datagen.transport.quadrature_options.QuadratureOptions`); a bare name means its defaults. Old flat keys (``lookins``, ``area_samples``, ``quadrature_edge``, …) are
+            (:class:`datagen.transport.lookin.estimator.LookinOptions`, :class:`~datagen.transport.area.estimator.AreaOptions`,
+            :class:`~datagen.transport.quadrature.options.QuadratureOptions`); a bare name means its defaults. Old flat keys (``lookins``, ``area_samples``, ``quadrature_edge``, …) are
             translated with one :class:`LegacyKeysWarning` (:func:`translate_legacy`).
         secondary: "none", "optimized" (the lookin estimator's strongest ``top_k`` per lookin and FoV point),
             "full" (every pair) or "exact" (the same sum factorised, O(Ñ) per lookin, docs/physics.md §3); the
@@ -286,7 +286,7 @@ class SimulationConfig(BaseModel):
                                first_bounce=forced.get("first_bounce", False),
                                brdf_angles=forced.get("brdf_angles", False))
 
-    def transport_settings(self) -> TransportSettings:
+    def transport_settings(self) -> LookinSettings:
         """Lookin settings from this config, unplanned, for the sampling figures and the analyses that run an
         estimator directly (:func:`datagen.analysis.accuracy.run_estimator`, the converged reference): the
         physics of :meth:`physics_settings`, the secondary mode (``secondary``, "none" when ``effects.secondary``
@@ -295,7 +295,7 @@ class SimulationConfig(BaseModel):
         ``simulate`` does not use them."""
         forced = {k: v for k, v in self.effects.items() if isinstance(v, bool)}
         secondary = self.secondary if forced.get("secondary", True) else "none"
-        return TransportSettings(**self.physics_settings().switches(), **self.estimator.transport_fields(),
+        return LookinSettings(**self.physics_settings().switches(), **self.estimator.transport_fields(),
                                  secondary=secondary, workers=self.workers)
 
 

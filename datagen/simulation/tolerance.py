@@ -16,7 +16,7 @@ costs 1.9× where h/2 costs 4×), or halves after a level whose estimate barely 
 level's error is estimated from the previous one as ‖P(h') − P(h)‖/((h/h')² − 1) (the first level from a run at
 2h) and the edge at least halves. Either is added in quadrature to the replica spread of its Monte Carlo
 secondary. A graded quadrature with ``estimator.refine_grading`` scales its grading ratio with the edge at each
-level (:meth:`datagen.transport.quadrature_options.QuadratureOptions.at_edge`): its error sits near the scan,
+level (:meth:`datagen.transport.quadrature.options.QuadratureOptions.at_edge`): its error sits near the scan,
 which the edge alone barely refines.
 
 A wall-clock cap (``max_seconds``) is available for interactive use; it makes the result depend on the

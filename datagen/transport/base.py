@@ -45,7 +45,7 @@ class EstimatorOptions(BaseModel):
     LEGACY: ClassVar[dict[str, str]] = {}
 
     def transport_fields(self) -> dict:
-        """Sampling fields of the lookin :class:`~datagen.transport.TransportSettings` these options set (for the
+        """Sampling fields of the lookin :class:`~datagen.transport.LookinSettings` these options set (for the
         sampling figures and analyses that build lookin settings from any config:
         :meth:`datagen.simulation.SimulationConfig.transport_settings`); none by default."""
         return {}

@@ -1,8 +1,8 @@
 """The weight of each leg of a light path, written once (docs/physics.md §2).
 
 Every estimator of the transient path integral — the lookin sampler (:mod:`.lookin`, :mod:`.secondary`), the
-area sampler (:mod:`.area` and its compiled passes :mod:`.area_kernels`), the quadrature (:mod:`.quadrature`,
-:mod:`.quadrature_kernel`) — and the effect planner's coarse quadrature and the figures weigh a path with the functions
+area sampler (:mod:`.area` and its compiled passes :mod:`.area.kernels`), the quadrature (:mod:`.quadrature`,
+:mod:`.quadrature.kernel`) — and the effect planner's coarse quadrature and the figures weigh a path with the functions
 here; they differ only in how they *sample* its vertices. Each formula is a numba device function
 (``inline="always"``) that compiled kernels call and numpy code calls on arrays through
 :func:`datagen.scene.brdf_kernel.on_arrays` (the same float operations in the same order); the BRDFs are those of

@@ -54,7 +54,7 @@ from ...scene.capture import Capture
 from ...units import SPEED_OF_LIGHT
 from ...vectors import dot
 from ..base import Counters, Sink
-from ..area_kernels import fov_targets, material_arrays, sensor_collection
+from ..area.kernels import fov_targets, material_arrays, sensor_collection
 from ..physics import LegPhysics, fov_connection_weight, launched_flux
 from .kernels import brdf_many, continue_paths
 

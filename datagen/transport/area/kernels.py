@@ -1,6 +1,6 @@
 """Compiled (numba) passes of the area sampler between its ray batches: the same formulas, fewer array passes.
 
-The area sampler (:mod:`datagen.transport.area`, :mod:`datagen.transport.area_secondary`) casts its rays in
+The area sampler (:mod:`datagen.transport.area`, :mod:`datagen.transport.area.secondary`) casts its rays in
 batches (Embree); between them it used to run dozens of numpy passes over (hidden sample × FoV point) and
 (connection × partner) arrays. The kernels here do that arithmetic in one pass each and take every random
 number pre-drawn by the caller, so the random streams are those of the numpy code. The formulas are those of
@@ -25,11 +25,11 @@ import math
 import numpy as np
 from numba import njit
 
-from ..scene.brdf_kernel import abs_sin_azimuth, brdf_value
-from ..units import SPEED_OF_LIGHT
-from .physics import (attenuation_term, collection_term, emission_term, fov_term, geometry_term,
+from ...scene.brdf_kernel import abs_sin_azimuth, brdf_value
+from ...units import SPEED_OF_LIGHT
+from ..physics import (attenuation_term, collection_term, emission_term, fov_term, geometry_term,
                       irradiance_term)
-from ..vectors import norm
+from ...vectors import norm
 
 __all__ = ["abs_sin_azimuth", "brdf_value", "fov_targets", "material_arrays", "partner_geometry", "partner_irradiance",
            "secondary_pairs"]

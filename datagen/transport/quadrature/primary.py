@@ -1,4 +1,4 @@
-"""The quadrature's primary through the compiled kernel (:mod:`.quadrature_kernel`), and its shadow-ray culling.
+"""The quadrature's primary through the compiled kernel (:mod:`.kernel`), and its shadow-ray culling.
 
 :func:`run_compiled` runs :meth:`datagen.transport.quadrature.Quadrature._primary` for the cases the kernel covers
 (:meth:`~datagen.transport.quadrature.Quadrature.compiled_case`): per block of connections, one compiled pass
@@ -6,7 +6,7 @@ over the (sub-triangle, connection) pairs deposits every contributing pair whose
 Embree shadow rays decide the listed others, and a second compiled pass deposits the visible ones. Which
 triangles can block a face's laser legs comes from the separating-plane test per hidden face
 (:func:`leg_occluders`): the kernel tests those exactly and asks for a ray only when a pair's segment passes within
-a margin of one of their edges (:mod:`.quadrature_kernel` on how this differs from Embree's float32 rays;
+a margin of one of their edges (:mod:`.kernel` on how this differs from Embree's float32 rays;
 ``Quadrature.segment_tests`` = False: a ray for every lit pair, the numpy path's visibility).
 """
 from __future__ import annotations
@@ -16,14 +16,14 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from ..scene import RayCaster
-from ..scene.separation import hull_planes, may_meet, outward_planes
-from ..scene.brdf_kernel import lambertian_value, on_arrays
-from ..threads import threads_for
-from ..units import SPEED_OF_LIGHT
-from .quadrature_kernel import OCC, candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes
-from .quadrature_shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
-from ..vectors import matmul, norm
+from ...scene import RayCaster
+from ...scene.separation import hull_planes, may_meet, outward_planes
+from ...scene.brdf_kernel import lambertian_value, on_arrays
+from ...threads import threads_for
+from ...units import SPEED_OF_LIGHT
+from .kernel import OCC, candidates, channel_groups, deposit_pairs, face_candidates, occluder_planes
+from .shadow import FLAG_MAX_BYTES, grown_triangles, shadow_flags, spot_buckets, spot_plane
+from ...vectors import matmul, norm
 
 __all__ = ["PAIR_TEST_MAX_PAIRS", "PAIR_BLOCK", "RUN_CHUNK", "RUN_CHUNKED", "SHADOW_MAP", "FOV_MAP_PAIRS", "dark_faces",
            "front_only", "leg_occluders", "morton_codes", "run_chunks", "run_compiled", "run_spheres"]
@@ -58,7 +58,7 @@ PAIR_BLOCK = 1 << 22
 
 SHADOW_MAP = True
 """Mark per sub-triangle the laser points a candidate occluder may shadow before the pair loop
-(:mod:`.quadrature_shadow`); False runs the exact segment test for every lit pair (the same envelope, slower)."""
+(:mod:`.shadow`); False runs the exact segment test for every lit pair (the same envelope, slower)."""
 
 FOV_MAP_PAIRS = 1 << 20
 """(sub-triangle, target) pairs per block of the FoV leg's visibility map (the target leg's (pairs, 3) float64
@@ -105,12 +105,12 @@ def _leg_hulls(t: np.ndarray, apexes: np.ndarray) -> tuple:
 
 
 def _occluder_lists(q, front: np.ndarray) -> tuple:
-    """The kernel's :data:`~datagen.transport.quadrature_kernel.OCC` group for quadrature ``q``: per hidden face the
+    """The kernel's :data:`~datagen.transport.quadrature.kernel.OCC` group for quadrature ``q``: per hidden face the
     triangles that may block its laser legs, in runs of one object each (CSR ``run_ptr`` over runs; run r holds
     ``idx[run_lo[r]:run_hi[r]]`` inside the bounding sphere ``spheres[r]``, in the chunks of :func:`run_chunks`),
     their planes and edge planes, the margin, and per hidden face whether every lit pair casts a ray instead. The
     triangles come from :func:`leg_occluders`, or, when that has too many pairs to test (a big mesh), from the
-    compiled :func:`~datagen.transport.quadrature_kernel.face_candidates`, which also separates by a face's own plane
+    compiled :func:`~datagen.transport.quadrature.kernel.face_candidates`, which also separates by a face's own plane
     where only its front is lit (``front`` (F,) bool per hidden face: :func:`closed_outward`); a face with more than
     ``MAX_CANDIDATES`` of them casts rays."""
     caster, faces = q.caster, q.area.hidden_faces
@@ -149,7 +149,7 @@ def _occluder_lists(q, front: np.ndarray) -> tuple:
 def run_chunks(tri: np.ndarray, grown: np.ndarray, occ_of: np.ndarray, run_lo: np.ndarray,
                run_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The runs' triangles in chunks of at most ``RUN_CHUNK``, each inside a sphere that the kernel's segment test
-    checks before its triangles (:func:`datagen.transport.quadrature_kernel.candidates`); a run of at most
+    checks before its triangles (:func:`datagen.transport.quadrature.kernel.candidates`); a run of at most
     ``RUN_CHUNKED`` stays one chunk, in its order.
 
     Args:
@@ -208,9 +208,9 @@ def run_spheres(pts: np.ndarray, starts: np.ndarray) -> np.ndarray:
 
 
 def _shadow_map(q, occ: tuple, grown: np.ndarray, closed: np.ndarray) -> tuple:
-    """The kernel's :data:`~datagen.transport.quadrature_kernel.SHADE` group for quadrature ``q``: per sub-triangle
+    """The kernel's :data:`~datagen.transport.quadrature.kernel.SHADE` group for quadrature ``q``: per sub-triangle
     the laser points (of the connections) whose leg a candidate occluder may block
-    (:func:`~datagen.transport.quadrature_shadow.shadow_flags`), or (False, …) when the laser points are not on one
+    (:func:`~datagen.transport.quadrature.shadow.shadow_flags`), or (False, …) when the laser points are not on one
     plane, nothing is tested, or the map would exceed ``FLAG_MAX_BYTES``."""
     shadow, occ_idx = occ[0], occ[OCC.index("occ_idx")]
     none = (False, np.zeros((1, 1), dtype=np.uint8), np.zeros(1, dtype=np.int64))
@@ -245,7 +245,7 @@ def _plane_axes(n: np.ndarray) -> np.ndarray:
 
 
 def _fov_map(q) -> tuple[bool, np.ndarray]:
-    """The FoV leg's part of the kernel's :data:`~datagen.transport.quadrature_kernel.SHADE` group: (True,
+    """The FoV leg's part of the kernel's :data:`~datagen.transport.quadrature.kernel.SHADE` group: (True,
     ``fov_visible`` (targets, sub-triangles) uint8, 1 where the target's connection weight is positive with its
     shadow ray from the centroid: :meth:`~datagen.transport.quadrature.Quadrature.target_leg`) where ``shadow_fov``,
     else (False, a placeholder). Computed in blocks of at most FOV_MAP_PAIRS pairs."""
@@ -263,7 +263,7 @@ def _fov_map(q) -> tuple[bool, np.ndarray]:
 def _face_candidates(q, front: np.ndarray) -> tuple:
     """(occluders (k,) face ids, face_of (n,), occ_of (n,) pairs of hidden face and index into occluders,
     face-major, and (F,) bool: hidden faces with more than ``MAX_CANDIDATES``) by
-    :func:`~datagen.transport.quadrature_kernel.face_candidates` against the hull of each face and the laser points."""
+    :func:`~datagen.transport.quadrature.kernel.face_candidates` against the hull of each face and the laser points."""
     caster, faces = q.caster, q.area.hidden_faces
     occluders = np.flatnonzero(caster.face_area > 0)
     tri = caster.vertices[caster.faces[occluders]]
@@ -323,7 +323,7 @@ def dark_faces(caster: RayCaster, faces: np.ndarray, front: np.ndarray, spots: n
     p₀ a vertex): the compiled primary never lights such a face (the kernel's ``dark_inside``; the numpy path's
     shadow rays find it blocked, Embree's float32 leaks aside), so its sub-triangles can be left out. The maximum
     over the laser points is taken over the vertices of their convex hull (within their plane,
-    :func:`~datagen.transport.quadrature_shadow.spot_plane` with their normals ``spot_normals`` (L, 3), when they
+    :func:`~datagen.transport.quadrature.shadow.spot_plane` with their normals ``spot_normals`` (L, 3), when they
     lie on one)."""
     if not front.any():
         return np.zeros(len(faces), dtype=bool)
@@ -337,7 +337,7 @@ def dark_faces(caster: RayCaster, faces: np.ndarray, front: np.ndarray, spots: n
 
 def _extreme_points(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Indices of points (n, 3) holding the maximum of every linear function over them: their convex hull's
-    vertices (in their plane, when :func:`~datagen.transport.quadrature_shadow.spot_plane` finds one), or every point
+    vertices (in their plane, when :func:`~datagen.transport.quadrature.shadow.spot_plane` finds one), or every point
     when Qhull cannot build it."""
     if len(points) <= 8:
         return np.arange(len(points))
@@ -356,7 +356,7 @@ def run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> Non
     from :meth:`datagen.timing.EnvelopeAccumulator.tent_grid` (module doc). Photons per pulse; updates ``q.stats``
     (tents, shadow rays, pair rows) and calls ``progress`` with the pairs of each block. Runs over at least
     ``PARALLEL_MIN_PAIRS`` (sub-triangle, target) pairs use numba's threads (so does the rule at h/2 of a plain
-    split's estimate, :func:`datagen.transport.quadrature_split.refined`, with the same targets and 4× the sub-triangles),
+    split's estimate, :func:`datagen.transport.quadrature.split.refined`, with the same targets and 4× the sub-triangles),
     shorter ones one thread; the result is the same bit for bit."""
     with threads_for(q.n_cells * len(q.targets), PARALLEL_MIN_PAIRS):
         _run_compiled(q, grid, coarse, progress)
@@ -394,7 +394,7 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
     legs = (f64(c.spots), f64(y), f64(c.emitter_legs), f64(laser_off), f64(d_y), f64(sensor_off),
             float(q.settings.attenuation), float(SPEED_OF_LIGHT), int(q.coarse_stride))
     cached = getattr(q, "occluder_cache", None)         # the same faces and laser points: kept for the estimate's
-    if cached is None or cached[0] != q.segment_tests:     # sub-scan (quadrature_split.refined) and later runs
+    if cached is None or cached[0] != q.segment_tests:     # sub-scan (split.refined) and later runs
         q.occluder_cache = cached = (q.segment_tests, *_occluder_lists(q, front))
     occ = cached[1]
     shade = (*_shadow_map(q, occ, cached[2], closed), *_fov_map(q))

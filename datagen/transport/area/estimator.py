@@ -55,20 +55,20 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from ..errors import ConfigError
-from ..processes import ForkedCall
-from ..sampling import sample_surfaces, square_to_hemisphere
-from ..sampling.directions import stratified_grid, to_world
-from ..sampling.surfaces import AreaSampling, SurfaceSamples, unit_square_points
-from ..scene import RayCaster, Scene, resolve_capture
-from ..errors import SceneError
-from ..scene.capture import Capture
-from ..vectors import distinct_rows, dot, matmul
-from .base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
-from .area_kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
+from ...errors import ConfigError
+from ...processes import ForkedCall
+from ...sampling import sample_surfaces, square_to_hemisphere
+from ...sampling.directions import stratified_grid, to_world
+from ...sampling.surfaces import AreaSampling, SurfaceSamples, unit_square_points
+from ...scene import RayCaster, Scene, resolve_capture
+from ...errors import SceneError
+from ...scene.capture import Capture
+from ...vectors import distinct_rows, dot, matmul
+from ..base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
+from .kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
                            spot_irradiance)
-from .area_secondary import AreaSecondary
-from .physics import LegPhysics, PhysicsSettings
+from .secondary import AreaSecondary
+from ..physics import LegPhysics, PhysicsSettings
 
 MAX_CONNECTIONS = 1 << 17
 """Cap on hidden samples × FoV targets handled together (the (B, S, 3) float64 arrays of one batch)."""
@@ -353,7 +353,7 @@ class AreaSampler(AreaSecondary):
 
     def _weight_constants(self) -> tuple[float, float, float, float]:
         """(ρ_a = 1/dA_y of the stratified FoV points, D, M_f/A_FoV, sensor leg counted) for
-        :func:`~datagen.transport.area_kernels.connection_weights` (aperture captures)."""
+        :func:`~datagen.transport.area.kernels.connection_weights` (aperture captures)."""
         c, s = self.capture, self.settings
         rho_a = c.n_pixels * s.fov_samples[0] * s.fov_samples[1] / (c.fov_size[0] * c.fov_size[1])
         return (float(rho_a), float(s.fov_directions), float(self._fov_density), float(s.count_sensor_leg))

@@ -12,8 +12,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..units import SPEED_OF_LIGHT
-from .base import Sink
+from ...units import SPEED_OF_LIGHT
+from ..base import Sink
 
 __all__ = ["run_numpy"]
 

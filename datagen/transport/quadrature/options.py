@@ -6,7 +6,7 @@ from typing import ClassVar, Literal
 
 from pydantic import Field
 
-from .base import EstimatorOptions
+from ..base import EstimatorOptions
 
 QUADRATURE_EDGE = 0.02
 """Default sub-triangle edge h (m). On the hidden-square tal captures (0.4 m square 1 m from the wall, 3 mm bins)
@@ -22,7 +22,7 @@ class QuadratureOptions(EstimatorOptions):
         fov_cells: aperture captures integrate each pixel region with ``fov_cells`` × ``fov_cells`` FoV cells
             (None: cells no larger than the edge).
         grading: r (None: off): hidden triangles are first cut into 4 while longer than r × their distance to the
-            scanned points, so sub-triangles near the scan are finer (:mod:`datagen.transport.quadrature_grading`).
+            scanned points, so sub-triangles near the scan are finer (:mod:`datagen.transport.quadrature.grading`).
         refine_grading: the tolerance loop's finer levels (and the coarse run of the error estimate) scale the
             grading ratio with the edge, so the whole graded split refines by one factor (:meth:`at_edge`); False
             (the default, the v1 suites' setting): only the edge changes, and the pieces near the scan only through

@@ -29,7 +29,7 @@ Embree's float32 rays leak through shared edges now and then (measured: a segmen
 4.7 m from its start, reported unblocked); the exact test does not, so the compiled envelope differs from the
 numpy path's by such pairs (2e-8 relative on a confocal room scan). Where ``face_ray`` (per hidden face) each lit
 pair gets its ray; with every face so, the two paths agree to round-off (``tests/test_quadrature_kernel.py``: 1e-9). The
-inner side of a closed outward surface (``closed``, :func:`datagen.transport.quadrature_primary.closed_outward`) is never
+inner side of a closed outward surface (``closed``, :func:`datagen.transport.quadrature.primary.closed_outward`) is never
 lit: no test, no ray (Embree's pushed-off rays call a few such points within an offset of a convex edge lit: 1e-6 of
 a coarse torus's envelope). Visibility of the hidden → FoV leg (``shadow_fov``: targets other than the laser
 points) comes from a map of one shadow ray per (target, sub-triangle) from its centroid, as the numpy path's
@@ -42,10 +42,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .. import threads  # noqa: F401  (numba's threading layer, before any parallel kernel)
-from ..scene.brdf_kernel import PHONG, phong_cos_alpha, phong_power, phong_value
-from ..timing.tent_kernel import deposit_tent, sort3
-from .physics import attenuation_term, emission_term, fov_term, irradiance_term
+from ... import threads  # noqa: F401  (numba's threading layer, before any parallel kernel)
+from ...scene.brdf_kernel import PHONG, phong_cos_alpha, phong_power, phong_value
+from ...timing.tent_kernel import deposit_tent, sort3
+from ..physics import attenuation_term, emission_term, fov_term, irradiance_term
 
 __all__ = ["candidates", "channel_groups", "deposit_pairs", "face_candidates", "occluder_planes"]
 
@@ -89,7 +89,7 @@ def _misses(spheres, r, x0, x1, x2, e0, e1, e2, length2, margin) -> bool:
 def _blocked(centroid, m, spots, l, run_ptr, f, run_chunk, chunk_ptr, spheres, chunk_spheres, idx, plane, edges,
              margin) -> int:
     """Whether a candidate triangle of hidden face f (its runs, each inside a bounding sphere, in chunks of at most
-    ``RUN_CHUNK`` triangles inside spheres of their own: :func:`datagen.transport.quadrature_primary.run_chunks`)
+    ``RUN_CHUNK`` triangles inside spheres of their own: :func:`datagen.transport.quadrature.primary.run_chunks`)
     blocks the segment centroid[m] → spots[l]: 0 no (every one is missed by more than ``margin``, or an end lies on
     its plane: its own surface, which the ray's pushed-off end clears), 1 yes (one is crossed with both ends more
     than ``margin`` off its plane and the crossing more than ``margin`` inside its edges: Embree's ray meets it too),
@@ -230,7 +230,7 @@ GRID = ("t_start", "step", "shift", "n_fine", "min_nodes", "hist", "curv", "tota
 OCC = ("shadow", "run_ptr", "run_lo", "run_hi", "spheres", "run_chunk", "chunk_ptr", "chunk_spheres", "occ_idx",
        "plane", "edges", "margin", "face_ray")
 SHADE = ("use_flags", "flags", "laser_col", "use_fov", "fov_visible")
-"""The kernel's inputs by group (tuples; :func:`datagen.transport.quadrature_primary.run_compiled` builds them). The
+"""The kernel's inputs by group (tuples; :func:`datagen.transport.quadrature.primary.run_compiled` builds them). The
 kernel unpacks every group once before its loops: arrays taken out of a tuple inside numba's inner loop cost an
 atomic reference count each (measured ~100 ns per pair)."""
 
@@ -245,7 +245,7 @@ def _pairs(listed, block, work, geo, pose, conn, legs, grid, has_coarse, coarse,
     slots). The groups of arguments: :data:`WORK`, :data:`GEO`, :data:`POSE`, :data:`CONN`, :data:`LEGS`,
     :data:`GRID` (``grid``, and ``coarse`` for the rule at 2h when ``has_coarse``), :data:`OCC`, :data:`SHADE`
     (where ``use_flags``, a pair (m, l) with ``flags[laser_col[l], m]`` 0 is not blocked without the exact test:
-    :func:`datagen.transport.quadrature_shadow.shadow_flags`; where ``use_fov``, a pair (m, target t) with
+    :func:`datagen.transport.quadrature.shadow.shadow_flags`; where ``use_fov``, a pair (m, target t) with
     ``fov_visible[t, m]`` 0 has its FoV leg blocked)."""
     b0, b1 = block
     ray_cell, ray_count, visible, group_ptr, group_conn = work

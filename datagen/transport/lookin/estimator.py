@@ -4,7 +4,7 @@ Scholes & Leach 2024 (Sensors 24(20):6522) sample the hidden scene from the lase
 from the spot on a √N×√N stratified grid over the hemisphere give N hidden points x_j, each with a 180°
 camera of l×p equal-area pixels whose hits are the *observed points*. Observed points in the sensor's FoV
 close the primary path spot → x_j → y → sensor; pairs of observed points make the secondary
-(:mod:`datagen.transport.secondary`). With ``sensor_sampling="connect"`` the lookins connect to the FoV by
+(:mod:`datagen.transport.lookin.secondary`). With ``sensor_sampling="connect"`` the lookins connect to the FoV by
 next-event estimation instead (forced for point-radiance captures).
 
 Weights come from :mod:`datagen.transport.physics`. The paper's factors map to them per leg:
@@ -33,23 +33,23 @@ import multiprocessing as mp
 import numpy as np
 from pydantic import Field, field_validator
 
-from ..sampling import observe, sample_lookins
-from ..sampling.lookins import Lookins, ObservedPoints
-from ..scene import RayCaster, Scene, resolve_capture
-from ..scene.capture import Capture, FOV_PLANE_TOL
-from ..scene.materials import MaterialTable
-from ..processes import set_parent_death_signal
-from ..units import SPEED_OF_LIGHT, parse_grid
-from ..vectors import dot
-from .base import Connections, Counters, EstimatorOptions, Sink, register, sink_far_time
-from .physics import LegPhysics, PhysicsSettings
+from ...sampling import observe, sample_lookins
+from ...sampling.lookins import Lookins, ObservedPoints
+from ...scene import RayCaster, Scene, resolve_capture
+from ...scene.capture import Capture, FOV_PLANE_TOL
+from ...scene.materials import MaterialTable
+from ...processes import set_parent_death_signal
+from ...units import SPEED_OF_LIGHT, parse_grid
+from ...vectors import dot
+from ..base import Connections, Counters, EstimatorOptions, Sink, register, sink_far_time
+from ..physics import LegPhysics, PhysicsSettings
 from .secondary import ConvGrid, LookinSecondary
 
 SecondaryMode = Literal["none", "optimized", "full", "exact"]
 
 
 @dataclass(frozen=True)
-class TransportSettings(PhysicsSettings):
+class LookinSettings(PhysicsSettings):
     """Settings of the lookin estimator (the user side is :class:`datagen.simulation.SimulationConfig`).
 
     The physics switches (attenuation, pde, leg switches, shadow rays, first bounce, BRDF angles, blockers)
@@ -90,14 +90,14 @@ class TransportSettings(PhysicsSettings):
     workers: int = 1
 
     @classmethod
-    def from_transport(cls, settings: PhysicsSettings, **kwargs) -> "TransportSettings":
+    def from_transport(cls, settings: PhysicsSettings, **kwargs) -> "LookinSettings":
         """``settings`` (lookin settings) with the fields ``kwargs`` replaced; the same call as the other
         estimators' settings classes (:attr:`datagen.transport.base.EstimatorEntry.settings_class`)."""
         return replace(settings, **kwargs)
 
 
 @dataclass
-class TransportStats(Counters):
+class LookinStats(Counters):
     """Counters from a transport run (recorded in the result attributes)."""
 
     lookins_cast: int = 0
@@ -201,7 +201,7 @@ def _lookin_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tupl
     return terms
 
 
-@register("lookin", TransportSettings,
+@register("lookin", LookinSettings,
           "the paper's sampler: lookins from the laser spot and their hemispherical cameras",
           options=LookinOptions, replica=LookinOptions.replica, describe=LookinOptions.describe,
           memory=_lookin_memory, casts_lookins=True)
@@ -214,14 +214,14 @@ class LookinSampler(LookinSecondary):
     direct laser-spot return (:attr:`component_names`).
 
     Attributes:
-        capture: the resolved capture; settings: :class:`TransportSettings`; physics: the
-        :class:`~datagen.transport.physics.LegPhysics` that weighs every leg; stats: :class:`TransportStats`.
+        capture: the resolved capture; settings: :class:`LookinSettings`; physics: the
+        :class:`~datagen.transport.physics.LegPhysics` that weighs every leg; stats: :class:`LookinStats`.
 
     Raises:
         SceneError: the capture errors of :func:`datagen.scene.resolve_capture`.
     """
 
-    def __init__(self, scene: Scene, settings: TransportSettings, caster: RayCaster | None = None,
+    def __init__(self, scene: Scene, settings: LookinSettings, caster: RayCaster | None = None,
                  capture: Capture | None = None):
         self.scene = scene
         self.settings = settings
@@ -230,7 +230,7 @@ class LookinSampler(LookinSecondary):
         self.materials: MaterialTable = scene.materials
         self.object_component = scene.object_component()
         self.n_primary = len(scene.component_names())
-        self.stats = TransportStats()
+        self.stats = LookinStats()
         self.physics = LegPhysics(scene, self.capture, self.caster, settings, self.stats)
         self.configure(settings)
 
@@ -243,7 +243,7 @@ class LookinSampler(LookinSecondary):
         ``config.workers``. The lookins are visible from the spot by construction, so its spot shadow rays are
         the secondary's alone, as the planner's ``shadow_spot`` decision assumes: it follows every decision."""
         planned = {f.name: getattr(physics, f.name) for f in fields(PhysicsSettings)}
-        settings = TransportSettings(**planned, **config.estimator.transport_fields(), secondary=secondary,
+        settings = LookinSettings(**planned, **config.estimator.transport_fields(), secondary=secondary,
                                      workers=config.workers)
         return cls(scene, settings, caster, capture)
 
@@ -256,7 +256,7 @@ class LookinSampler(LookinSecondary):
         """Lookins cast over all laser points."""
         return self.settings.lookins[0] * self.settings.lookins[1] * self.capture.n_lasers, "lookin"
 
-    def configure(self, settings: TransportSettings) -> None:
+    def configure(self, settings: LookinSettings) -> None:
         """Replace the settings (e.g. after the effect planner); point radiance forces ``connect``."""
         if self.capture.convention == "point_radiance" and settings.sensor_sampling != "connect":
             settings = replace(settings, sensor_sampling="connect")
@@ -328,7 +328,7 @@ class LookinSampler(LookinSecondary):
         if not parallel:
             for replica, task in tasks:
                 part = spawns[replica]() if spawns[replica] is not None else None
-                stats = TransportStats()
+                stats = LookinStats()
                 part_conv = convs[replica].empty_like() if convs[replica] is not None else None
                 self._batch(task, part if part is not None else sinks[replica], part_conv, stats)
                 yield part, part_conv, stats
@@ -344,11 +344,11 @@ class LookinSampler(LookinSecondary):
                 yield fut.result()
 
     def _run_batch(self, task, part, part_conv):
-        stats = TransportStats()
+        stats = LookinStats()
         self._batch(task, part, part_conv, stats)
         return part, part_conv, stats
 
-    def _batch(self, task, sink: Sink, conv: ConvGrid | None, stats: TransportStats) -> None:
+    def _batch(self, task, sink: Sink, conv: ConvGrid | None, stats: LookinStats) -> None:
         """One batch of lookins (one random stream), in cache-sized slices of ``CACHE_RAYS`` camera rays."""
         (laser, n_rays, directions, pdf, x, n_x, obj_x, r_lx, seed) = task
         saved, self.stats, self.physics.stats = self.stats, stats, stats
@@ -418,3 +418,6 @@ class LookinSampler(LookinSecondary):
 
 Transport = LookinSampler
 """The lookin estimator's old name (kept for code written against it; not in ``__all__``)."""
+
+TransportSettings = LookinSettings
+"""The lookin settings' old name (kept for code written against it; not in ``__all__``)."""

@@ -14,9 +14,9 @@ functions; only the way x is visited differs from the samplers.
 
 **The rule.** Every hidden face (:meth:`AreaSampler._hidden_faces`: the faces that can carry a primary path) is
 split into k² congruent sub-triangles of edge ≤ h (``edge``, the split of :func:`datagen.sampling.subdivide_triangles`;
-k even or not, with the error estimate that goes with each: :mod:`.quadrature_split`). A face of a closed outward
+k even or not, with the error estimate that goes with each: :mod:`.split`). A face of a closed outward
 surface whose front is turned away from every laser point is left out when the laser leg is shadow-tested: only its
-inner side faces them, which is never lit (:func:`~datagen.transport.quadrature_primary.dark_faces`; a quarter to a
+inner side faces them, which is never lit (:func:`~datagen.transport.quadrature.primary.dark_faces`; a quarter to a
 third of a hidden mesh's faces; the split is chosen before, so nothing else changes).
 For each (sub-triangle T, laser point, target) the weight is evaluated at the centroid and multiplied by the area
 of T (the midpoint rule), and the path length at the three *vertices* of T and at its centroid. On T the path
@@ -60,7 +60,7 @@ scans) the vertex distances are shared. Pairs are processed in blocks of at most
 rows, so memory stays bounded. The common case (Lambertian or Phong hidden surfaces, a fine-grid accumulator) runs
 compiled, one pass per (sub-triangle, connection) pair with exact segment tests instead of most shadow rays (for
 a big mesh too: per-face occluder candidates from a compiled hull test), channels in parallel on numba's threads for
-long runs, bit-identical for any thread count (:mod:`.quadrature_primary`, :mod:`.quadrature_kernel`); the numpy blocks are its
+long runs, bit-identical for any thread count (:mod:`.primary`, :mod:`.kernel`); the numpy blocks are its
 reference.
 
 **Secondary and first bounce.** When the plan asks for the secondary (paths with two hidden vertices), the
@@ -79,20 +79,20 @@ from typing import Literal
 
 import numpy as np
 
-from ..errors import ConfigError
-from ..sampling.surfaces import subdivide_with_vertices
-from ..scene import RayCaster, Scene
-from ..scene.capture import Capture
-from ..scene.materials import LAMBERTIAN, PHONG
-from ..vectors import dot
-from .area import AREA_FOLLOWS_PLAN, AreaSampler, AreaSettings
-from .base import Sink, register
-from .physics import PhysicsSettings, fov_connection_weight
-from .quadrature_grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
-from .quadrature_options import QUADRATURE_EDGE, QuadratureOptions
-from .quadrature_numpy import run_numpy
-from .quadrature_primary import dark_faces, front_only, leg_occluders, run_compiled
-from .quadrature_split import apply_split, choose_split, refined
+from ...errors import ConfigError
+from ...sampling.surfaces import subdivide_with_vertices
+from ...scene import RayCaster, Scene
+from ...scene.capture import Capture
+from ...scene.materials import LAMBERTIAN, PHONG
+from ...vectors import dot
+from ..area.estimator import AREA_FOLLOWS_PLAN, AreaSampler, AreaSettings
+from ..base import Sink, register
+from ..physics import PhysicsSettings, fov_connection_weight
+from .grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
+from .options import QUADRATURE_EDGE, QuadratureOptions
+from .numpy_kernel import run_numpy
+from .primary import dark_faces, front_only, leg_occluders, run_compiled
+from .split import apply_split, choose_split, refined
 
 __all__ = ["QUADRATURE_EDGE", "Quadrature", "QuadratureOptions", "QuadratureSettings", "QuadratureStats",
            "subdivide_with_vertices"]
@@ -112,13 +112,13 @@ class QuadratureSettings(PhysicsSettings):
             ``MAX_FOV_CELLS``).
         grading: None, or r: hidden triangles are first cut into 4 while longer than r × their distance to the
             laser points and FoV (down to 0.4 h), so sub-triangles near the scan are finer
-            (:func:`datagen.transport.quadrature_grading.graded_triangles`).
+            (:func:`datagen.transport.quadrature.grading.graded_triangles`).
         secondary: "none" or "full" (the area sampler's unbiased secondary); secondary_samples: its hidden
             samples per laser point.
         shadow_spot, shadow_fov: shadow rays on the laser → hidden and hidden → FoV legs: None decides by the
             exact occluder test (module doc), True / False forces them.
         batch: (sub-triangle, connection) rows per block.
-        split: "even", "plain" or "auto" (:mod:`.quadrature_split`: the sub-triangles and the error estimate's rule).
+        split: "even", "plain" or "auto" (:mod:`.split`: the sub-triangles and the error estimate's rule).
 
     Raises:
         ConfigError: a field out of range (the message names the field and the value).
@@ -232,10 +232,10 @@ class Quadrature:
         n_cells: M, sub-triangles; targets: (T, 3) FoV targets; total_rows: (cell, connection) rows of a run.
         stats: :class:`QuadratureStats`.
         front: (F_h,) bool per hidden face: only its front can be lit (a closed outward surface,
-        :func:`~datagen.transport.quadrature_primary.front_only`).
+        :func:`~datagen.transport.quadrature.primary.front_only`).
         coarse: after a run on a point-sensor capture (or FoV cells that stay the same at 2h), the rule the error
         estimate compares with (summed over components, channel rows; only the channels ``coarse_channels``), as
-        :mod:`.quadrature_split` says: with the even split (``refine_lasers`` None, ``coarse_ratio`` 2) the primary at twice
+        :mod:`.split` says: with the even split (``refine_lasers`` None, ``coarse_ratio`` 2) the primary at twice
         the edge from the same evaluations (4 fine sub-triangles make a coarse one whose centroid is the middle
         one's, :func:`datagen.sampling.coarse_cells`; every ``coarse_stride``-th channel: at most about
         ``COARSE_CHANNELS`` compiled, ``COARSE_CHANNELS_NUMPY`` in numpy), ‖P(h) − P(2h)‖/3 over those channels
@@ -297,10 +297,10 @@ class Quadrature:
         # -- hidden sub-triangles ------------------------------------------------------------------------------
         tri = self.caster.vertices[self.caster.faces[faces]]
         piece_of = np.arange(len(tri))
-        if s.grading is not None:                                       # finer near the scan (quadrature_grading)
+        if s.grading is not None:                                       # finer near the scan (.grading)
             tri, piece_of = graded_triangles(tri, np.concatenate([c.spots, fov_hull]), s.grading,
                                              GRADING_MIN_EDGE * s.edge)
-        self.refine_lasers = choose_split(tri, s.edge, c, s.split)        # None: the even split (.quadrature_split)
+        self.refine_lasers = choose_split(tri, s.edge, c, s.split)        # None: the even split (.split)
         self.front = front_only(self.caster, faces, c.spots)            # per hidden face: only its front is lit
         dark = (dark_faces(self.caster, faces, self.front, c.spots, c.spot_normals, tol) if self.settings.shadow_spot
                 else np.zeros(len(faces), dtype=bool))
@@ -345,7 +345,7 @@ class Quadrature:
                     capture: Capture | None, secondary: str) -> "Quadrature":
         """The registry's constructor (:attr:`datagen.transport.EstimatorEntry.from_config`): the edge, FoV cells,
         grading and secondary samples of ``config.estimator``
-        (:class:`~datagen.transport.quadrature_options.QuadratureOptions`), the planned ``physics`` and the area
+        (:class:`~datagen.transport.quadrature.options.QuadratureOptions`), the planned ``physics`` and the area
         sampler's secondary unless ``secondary`` is "none". Its entry does not follow the planner's ``shadow_spot``
         (``follows_plan``): shadow rays on the laser and FoV legs follow the quadrature's own exact occluder test
         (module doc), unless the user forces ``shadow_spot`` in ``config.effects``."""
@@ -508,7 +508,7 @@ class Quadrature:
                           None if sink.direct else sink.oversample)
 
     def _primary(self, sink: Sink, progress: Callable[[int], None] | None) -> None:
-        """The primary tents (and the first bounce) into ``sink``: compiled (:mod:`.quadrature_primary`) when
+        """The primary tents (and the first bounce) into ``sink``: compiled (:mod:`.primary`) when
         :attr:`use_compiled` and the case is one it covers (:meth:`compiled_case`), else in numpy."""
         grid = getattr(sink, "tent_grid", None)
         compiled = self.use_compiled and self.compiled_case() and grid is not None and grid() is not None
@@ -521,7 +521,7 @@ class Quadrature:
         else:
             run_numpy(self, sink, coarse, progress)
         if self.refine_lasers is not None and self.coarse is not None:     # the plain split's estimate: h/2
-            sub = refined(self, QuadratureStats())                            # on a sub-scan (.quadrature_split)
+            sub = refined(self, QuadratureStats())                            # on a sub-scan (.split)
             self.coarse_channels = np.unique(sub.conn_channel)
             if compiled:
                 run_compiled(sub, self.coarse.tent_grid(), None, None)

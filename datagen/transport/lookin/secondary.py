@@ -20,12 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from ..errors import ConfigError
-from ..sampling.lookins import ObservedPoints
-from ..units import SPEED_OF_LIGHT
-from ..vectors import dot, matmul
-from .base import Connections, Sink
-from .physics import laser_irradiance
+from ...errors import ConfigError
+from ...sampling.lookins import ObservedPoints
+from ...units import SPEED_OF_LIGHT
+from ...vectors import dot, matmul
+from ..base import Connections, Sink
+from ..physics import laser_irradiance
 
 @dataclass
 class LitPoints:

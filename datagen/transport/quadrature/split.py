@@ -23,8 +23,8 @@ import copy
 
 import numpy as np
 
-from ..sampling.surfaces import coarse_cells, subdivide_with_vertices, subdivisions
-from ..vectors import distinct_rows
+from ...sampling.surfaces import coarse_cells, subdivide_with_vertices, subdivisions
+from ...vectors import distinct_rows
 
 __all__ = ["EVEN_EXTRA", "MIN_REFINE_LASERS", "REFINE_STRIDE", "apply_split", "choose_split", "refine_lasers",
            "refined"]
@@ -69,7 +69,7 @@ def choose_split(tri: np.ndarray, edge: float, capture, split: str = "auto") -> 
 def apply_split(q, tri: np.ndarray, edge: float, even: bool, piece_of: np.ndarray | None = None) -> None:
     """Set the sub-triangles of quadrature ``q`` from the hidden faces ``tri`` (F, 3, 3) (``q.area.hidden_faces``,
     or pieces of them: ``piece_of`` (F,) the hidden face of each piece, from the grading of
-    :func:`datagen.transport.quadrature_grading.graded_triangles`) split at ``edge``: ``vertices`` (V, 3), ``cells``
+    :func:`datagen.transport.quadrature.grading.graded_triangles`) split at ``edge``: ``vertices`` (V, 3), ``cells``
     (M, 3), ``cell_area`` (M,) m², ``cell_hidden`` (M,) index into the hidden faces, ``cell_face``,
     ``centroids``, ``cell_normal``, ``cell_object``, ``n_cells``, and the coarse rule's ``coarse_cells`` (Mc, 3) /
     ``coarse_of`` (M,) (−1: not the middle of a coarse cell; all −1 when not ``even``). ``vertices`` holds each

@@ -1,8 +1,8 @@
 """Which laser legs of each sub-triangle a candidate occluder may block: a conservative map on the laser points' plane.
 
-The compiled pair loop (:mod:`.quadrature_kernel`) tests a pair's laser leg, the segment from sub-triangle m's
+The compiled pair loop (:mod:`.kernel`) tests a pair's laser leg, the segment from sub-triangle m's
 centroid x to laser point s, exactly against the triangles that may block its hidden face's legs
-(:func:`~datagen.transport.quadrature_kernel._blocked` through the public kernels; margin δ). Where every laser
+(:func:`~datagen.transport.quadrature.kernel._blocked` through the public kernels; margin δ). Where every laser
 point lies on one plane P (a scanned relay wall), :func:`shadow_flags` first marks, per sub-triangle, the laser
 points whose segment some candidate could block at all, by central projection from x onto P; the pair loop runs
 the exact test only for marked pairs and takes "not blocked" for the others. The mark is conservative, so the
@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from ..vectors import matmul, norm
+from ...vectors import matmul, norm
 from numba import njit, prange
 
 __all__ = ["FLAG_MAX_BYTES", "grown_triangles", "row_span", "shadow_flags", "spot_buckets", "spot_plane"]
@@ -136,7 +136,7 @@ def shadow_flags(cells, occ, grown, laser_plane, out):
     marks behind it are not needed (some are left 0). The groups of arguments:
 
     - ``cells`` (centroid (M, 3), normal (M, 3), closed (M,) uint8, cell_face (M,) int64 hidden face of each);
-    - ``occ``: the kernel's :data:`datagen.transport.quadrature_kernel.OCC` group (per hidden face the runs
+    - ``occ``: the kernel's :data:`datagen.transport.quadrature.kernel.OCC` group (per hidden face the runs
       ``run_ptr`` / ``run_lo`` / ``run_hi`` over ``idx`` of candidate triangles, their ``plane`` (k, 4), ``edges``
       (k, 3, 4), ``margin`` δ, ``face_ray``), and ``grown`` (k, 3, 3): :func:`grown_triangles` by 2δ;
     - ``laser_plane`` (surface (4,): unit normal and offset of the laser points' plane P; axes (3, 3): an origin

@@ -16,8 +16,8 @@ import math
 
 import numpy as np
 
-from .area import samples_memory
-from .base import TARGET_BYTES
+from ..area.estimator import samples_memory
+from ..base import TARGET_BYTES
 
 __all__ = ["GRADING_MIN_EDGE", "graded_triangles", "quadrature_memory"]
 

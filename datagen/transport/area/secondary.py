@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sampling import sample_surfaces, square_to_hemisphere
-from ..sampling.directions import to_world
-from ..sampling.surfaces import SurfaceSamples
-from ..vectors import dot
-from .area_kernels import (material_arrays, partner_geometry, partner_irradiance, partner_rays, secondary_pairs,
+from ...sampling import sample_surfaces, square_to_hemisphere
+from ...sampling.directions import to_world
+from ...sampling.surfaces import SurfaceSamples
+from ...vectors import dot
+from .kernels import (material_arrays, partner_geometry, partner_irradiance, partner_rays, secondary_pairs,
                            spot_irradiance)
-from .base import Sink
+from ..base import Sink
 
 MIN_PARTNER_DISTANCE_OFFSETS = 10.0
 """A partner x' closer to x than this many ray offsets is dropped: the shadow ray between them is shorter than
