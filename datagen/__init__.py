@@ -13,6 +13,17 @@ Public entry points::
     scene, config = datagen.sample_setup("configs/datasets/default.yaml", "val", 3)
     reference = datagen.converged_reference(scene, config, rel_tol=3e-3)
     noise = datagen.SPADNoise(ds.detector, exposure=("1ms", "10ms"))          # batched SPAD noise in torch
+
+Package map, in data-flow order (docs/architecture.md; each package's ``__init__`` names its modules):
+:mod:`.scene` (geometry, materials, laser, sensor, capture), :mod:`.sampling` (lookins, hemisphere cameras,
+surface points), :mod:`.planner` (the effects and orders a scene calls for), :mod:`.transport` (estimators of the
+path integral), :mod:`.timing` (time axis, IRF, binning), :mod:`.spad` (the detector), :mod:`.simulation` (the
+main job, scene to result), :mod:`.io` (result stores, lab and tal files), :mod:`.dataset` (builds, stores, the
+torch loader), :mod:`.analysis` (accuracy, references, reconstructions), :mod:`.plot` (figures), :mod:`.cli` (the
+``datagen`` command). Shared modules: :mod:`.errors` (the error classes and warnings), :mod:`.validate` (checks of
+arrays read from outside), :mod:`.units` (constants, unit parsing), :mod:`.vectors` (vector helpers),
+:mod:`.threads` (numba's threads), :mod:`.processes` (child processes that die with their parent), :mod:`.lazy`
+(package names imported on first use).
 """
 import hashlib
 import os

@@ -4,12 +4,11 @@ binning, the shadow map): set up once, before the first parallel kernel runs.
 - Threading layer: GNU OpenMP before TBB (numba tries TBB first; the TBB beside Embree here is older than numba
   needs, so that try ends in a NumbaWarning on every first parallel run), unless ``NUMBA_THREADING_LAYER`` names one.
 - numpy's BLAS (OpenBLAS) on one thread inside the pipeline's entry points (:func:`one_blas_thread`): its calls
-  there are norms and small products, where its threads only spin (measured ≈ 0.1 CPU-s per
-  ``configs/datasets/wall.yaml`` sample on 2 cores), and a threaded dot product's partial sums make a stored error
+  there are norms and small products, where its threads only spin, and a threaded dot product's partial sums make a stored error
   estimate depend on the machine's core count in its last digit.
 - ``OMP_WAIT_POLICY=PASSIVE`` unless set: a thread with no work sleeps at once instead of spinning (GNU OpenMP's
   default spins for a while after every parallel region, CPU time that a dataset build's worker processes pay on
-  every short kernel: measured ≈ 0.1 CPU-s per ``configs/datasets/wall.yaml`` sample). Results do not depend on it.
+  every short kernel). Results do not depend on it. The measurements behind both: docs/performance_history.md.
 
 Every kernel's result is the same for any number of threads; ``NUMBA_NUM_THREADS`` sets it, and
 :func:`threads_for` runs short kernels on one.

@@ -230,3 +230,37 @@ def test_import_datagen_and_its_dataset_loader_stay_light():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True,
                          cwd=Path(__file__).resolve().parents[1])
     assert "numba-" in out.stdout and "['omp', 'tbb', 'workqueue']" in out.stdout, out.stdout
+
+
+def _unnamed_modules(package: Path) -> dict[str, list[str]]:
+    """package folder → its modules and subpackages that its ``__init__`` docstring does not name as ``:mod:``."""
+    import re
+    out = {}
+    for init in sorted(package.rglob("__init__.py")):
+        folder = init.parent
+        doc = ast.get_docstring(parse_python(init)) or ""
+        refs = re.findall(r":mod:`~?([\w.]+)`", doc)
+        named = {r.rstrip(".").split(".")[-1] for r in refs} | {r.lstrip(".").split(".")[0] for r in refs}
+        children = [p.stem for p in sorted(folder.glob("*.py")) if p.name != "__init__.py"]
+        children += [p.name for p in sorted(folder.iterdir()) if (p / "__init__.py").is_file()]
+        missing = [c for c in children if c not in named]
+        if missing:
+            out[str(folder.relative_to(package.parent))] = missing
+    return out
+
+
+def test_every_module_is_named_in_its_packages_docstring():
+    """One module map: each package's ``__init__`` docstring names every module and subpackage in it (``:mod:``),
+    so a newcomer finds where a thing lives from the package down; docs/architecture.md links to these."""
+    assert _unnamed_modules(PACKAGE) == {}
+
+
+def test_the_module_map_check_sees_an_unnamed_module(tmp_path):
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text('"""- :mod:`.named`: here.\n- :mod:`~pkg.sub`: there."""\n')
+    (pkg / "named.py").write_text("")
+    (pkg / "forgotten.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text('"""A package whose docstring names nothing."""\n')
+    (pkg / "sub" / "inner.py").write_text("")
+    assert _unnamed_modules(pkg) == {"pkg": ["forgotten"], "pkg/sub": ["inner"]}

@@ -17,8 +17,8 @@ import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-HISTORY_PAGES = {"development.md", "changelog.md"}
-"""Pages that may hold history: the development notes and the changelog (CHANGELOG.md)."""
+HISTORY_PAGES = {"development.md", "performance_history.md", "changelog.md"}
+"""Pages that may hold history: the development notes, the performance history and the changelog (CHANGELOG.md)."""
 
 HASH = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
 TRACKER = re.compile(r"\bissues?\s+#?\d+|\bbefore\s+issue|(?<![\w&])#\d+\b", re.IGNORECASE)
@@ -50,6 +50,13 @@ def test_history_finder_catches_hashes_and_tracker_references():
 def test_readme_is_at_most_10_kb():
     size = (ROOT / "README.md").stat().st_size
     assert size <= 10 * 1024, f"README.md is {size} bytes"
+
+
+def test_the_contributor_guide_is_at_most_12_kb():
+    """docs/development.md is the contributor guide (checks, docs, layout); the performance history has its own
+    page (docs/performance_history.md), so the guide stays readable in one sitting."""
+    size = (ROOT / "docs" / "development.md").stat().st_size
+    assert size <= 12 * 1024, f"docs/development.md is {size} bytes"
 
 
 @pytest.mark.parametrize("page", user_docs(), ids=lambda p: str(p.relative_to(ROOT)))
@@ -98,3 +105,13 @@ def test_api_reference_pages_are_up_to_date():
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / "api_reference.py"), "--check"], capture_output=True,
                        text=True, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_the_code_holds_no_tracker_references():
+    """Comments and docstrings say what the code does and cite the repo's docs; the history of a change ("issue 12",
+    "before issue 24") belongs in git log and the changelog."""
+    found = []
+    for path in sorted((ROOT / "datagen").rglob("*.py")):
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            found += [f"{path.relative_to(ROOT)}:{number}: {m.group(0)}" for m in TRACKER.finditer(line)]
+    assert found == []

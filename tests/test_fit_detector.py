@@ -185,7 +185,7 @@ def test_a_parameter_the_data_cannot_fix_is_named_in_one_line():
 def test_bad_input_is_a_one_line_error():
     with pytest.raises(ConfigError, match=r"histogram must hold counts"):
         fit_detector(np.full(20, 0.5), bin_width=DT, repetition_rate=20e6, n_cycles=10)
-    with pytest.raises(ConfigError, match=r"model must be one of pile_up, poisson, free_running, got 'gated'"):
+    with pytest.raises(ConfigError, match=r"model must be one of poisson, pile_up, free_running, got 'gated'"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, model="gated")
     with pytest.raises(ConfigError, match=r"fixed: unknown parameter 'dead_time' for model 'pile_up'"):
         fit_detector(np.ones(20), bin_width=DT, repetition_rate=20e6, n_cycles=10, fixed={"dead_time": 1e-9})

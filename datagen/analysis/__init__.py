@@ -17,6 +17,11 @@ imported from its module.
   without the transport code.
 - :mod:`.adaptive`: the analysis-layer names of simulating to a tolerance (the loop itself is
   :func:`datagen.simulation.simulate_to_tolerance`, ``simulate --tolerance``).
+- :mod:`.compare_capture`: the sim-to-real distance of a measured capture and its simulation on one time axis
+  (``datagen compare-capture``).
+- reconstructions of confocal scans, the benchmark's baselines: :mod:`.backprojection` (filtered backprojection),
+  :mod:`.lct` (the light-cone transform, O'Toole et al. 2018), :mod:`.phasor` (phasor fields with
+  Rayleigh–Sommerfeld diffraction, Liu et al. 2019).
 """
 from .accuracy import envelope_error, relative_l2, run_accuracy
 from .reference import converged_reference

@@ -1,6 +1,6 @@
 """What accuracy costs: the error measure, ladders of settings per estimator, and the accuracy-vs-time benchmark.
 
-Error measure (issue 5), :func:`envelope_error`: for an estimated binned envelope e and the reference r (same
+Error measure (docs/accuracy.md), :func:`envelope_error`: for an estimated binned envelope e and the reference r (same
 shape, (..., n_bins)),
 
 - ``rel_l2`` = ||e − r|| / ||r|| over the bins (of every channel) where r exceeds ``PEAK_FLOOR`` = 1 % of its

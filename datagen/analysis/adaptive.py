@@ -1,5 +1,5 @@
-"""Simulate to a tolerance (issue 5; since issue 12 the loop lives in :mod:`datagen.simulation.tolerance`, below
-the dataset layer that needs it). This module keeps the analysis-layer names: :func:`simulate_to_tolerance`,
+"""Simulate to a tolerance (the loop lives in :mod:`datagen.simulation.tolerance`, below the dataset layer that
+needs it). This module keeps the analysis-layer names: :func:`simulate_to_tolerance`,
 :func:`replica_error` (the error estimate of K replicas' mean) and :func:`describe_setting`.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ __all__ = ["TIME_CAP_S", "describe_setting", "replica_error", "simulate_to_toler
 def describe_setting(config: dict) -> str:
     """The sampling setting of the JSON config of a result (``result.attrs["config"]``, also one written in the old
     flat form) in words, from the estimator's registry entry, e.g. "65536 hidden samples per laser point"."""
-    block = translate_legacy(config)[0].get("estimator", "lookin")       # results written before issue 24: flat
+    block = translate_legacy(config)[0].get("estimator", "lookin")       # older results: flat keys
     options = estimator_options(block)
     entry = estimator(options.kind)
     return entry.describe(options) if entry.describe is not None else options.kind

@@ -60,8 +60,8 @@ REFERENCE_SEED = 20240611
 
 REFERENCE_SAMPLER = {"spot_fraction": 0.5, "fov_fraction": 0.0, "fov_samples": (4, 4), "fov_directions": 2}
 """The reference's sampling strategies: hidden points by area and from the spot only (no FoV paths), 4×4 FoV
-points and 2 cosine directions per point, i.e. the area sampler as validated against the closed forms before
-issue 12. Estimators with the default :class:`~datagen.transport.AreaSettings` (FoV paths, 3×3 points) thus
+points and 2 cosine directions per point, i.e. the area sampler in the form validated against the closed forms
+(tests/test_area.py). Estimators with the default :class:`~datagen.transport.AreaSettings` (FoV paths, 3×3 points) thus
 share no importance-sampling choice with their reference beyond the per-leg physics."""
 
 REFERENCE_SAMPLES = 1 << 17

@@ -4,7 +4,7 @@ finest edge (``datagen bench accuracy --quadrature-reference``; docs/accuracy.md
 The Monte Carlo reference of :mod:`datagen.analysis.reference` runs the area sampler once per laser point, which a
 scan of hundreds of points cannot afford (:func:`datagen.analysis.reference.check_reference_size`). A scan's
 reference is then the hidden-surface quadrature itself at a fine edge h_ref. The quadrature's error falls as h²
-(docs/development.md, item 29: error / h² within ±15 % from 6 to 12 cm on `wall.yaml` rooms), so against h_ref a
+(docs/performance_history.md, item 29: error / h² within ±15 % from 6 to 12 cm on `wall.yaml` rooms), so against h_ref a
 step at 4 h_ref or coarser carries at most ≈ 1/16 of its own error in the reference. The reference states its own
 error as ‖P(h_ref) − P(2 h_ref)‖ / 3 (the h² law's estimate of P(h_ref)'s error), from one more run at 2 h_ref.
 

@@ -251,20 +251,20 @@ def summary(result) -> str:
     return "\n".join(lines)
 
 
-main.add_command(tal_render)     # tal interop commands (issue 6)
+main.add_command(tal_render)     # tal interop commands
 main.add_command(export_tal)
-main.add_command(build)          # dataset commands (issue 4)
+main.add_command(build)          # dataset commands
 main.add_command(inspect)
 main.add_command(verify)
-main.add_command(score)          # scoring reconstructions (issue 13)
-main.add_command(bench)          # benchmarks: datagen bench accuracy (issue 5)
-main.add_command(view)           # 3D pictures with open3d (issue 15)
-main.add_command(multizone)      # flood-illuminated multi-zone captures (issue 25)
-main.add_command(import_capture)  # real-lab capture files, detector fitting, sim-to-real (issue 26)
+main.add_command(score)          # scoring reconstructions
+main.add_command(bench)          # benchmarks: datagen bench accuracy
+main.add_command(view)           # 3D pictures with open3d
+main.add_command(multizone)      # flood-illuminated multi-zone captures
+main.add_command(import_capture)  # real-lab capture files, detector fitting, sim-to-real
 main.add_command(export)
 main.add_command(fit_detector_cmd)
 main.add_command(compare_capture)
-main.add_command(suite)          # benchmark suites (issue 27)
+main.add_command(suite)          # benchmark suites
 
 
 if __name__ == "__main__":

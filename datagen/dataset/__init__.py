@@ -48,6 +48,15 @@ Modules (they import each other directly, never through this package):
   export-tal DATASET --split --index``);
 - :mod:`~datagen.dataset.score`: scoring reconstructions against a split's labels (``datagen score``);
 - :mod:`~datagen.dataset.figures`: pictures of scanned samples (``datagen inspect``).
+- :mod:`~datagen.dataset.components`: the ``components`` field's slots and array;
+- :mod:`~datagen.dataset.zones`: multi-zone samples (a flood's zones, ``node_envelope``);
+- :mod:`~datagen.dataset.dtypes`: the stored dtypes a config chooses (``store.counts_dtype``);
+- :mod:`~datagen.dataset.dask_engine`: the Dask engine of builds (``--scheduler``, ``LocalCluster``);
+- :mod:`~datagen.dataset.forkserver_preload`: preloaded by the build's fork server, ties its life to the build;
+- :mod:`~datagen.dataset.legacy`: dataset configs with the older key names (renamed keys, the note that lists
+  them, the canonical form cards are compared in);
+- :mod:`~datagen.dataset.suite`: frozen benchmark suites (named, versioned builds with a content hash) and
+  :mod:`~datagen.dataset.suite_score`: their leaderboard scores (docs/benchmark.md).
 """
 from ..lazy import lazy_attributes
 

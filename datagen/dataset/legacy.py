@@ -1,4 +1,4 @@
-"""Dataset configs written before issue 24: renamed keys (:data:`RENAMED_KEYS`), the one-line note that lists the
+"""Dataset configs with the older key names: renamed keys (:data:`RENAMED_KEYS`), the one-line note that lists the
 old keys of a loaded config (:func:`note_old_keys`) and the canonical form that compares a card's config with a
 config in the new form (:func:`canonical_json`, used when a build resumes)."""
 from __future__ import annotations
@@ -14,8 +14,8 @@ line (``simulate --time-cap``); the nominal cap is ``cost_cap``."""
 
 def canonical_json(data: dict) -> dict:
     """A card's ``config`` or :meth:`DatasetConfig.to_json`, location-free
-    (:func:`datagen.dataset.config.location_free_json`), in one form, to compare configs written before and after
-    issue 24: renamed keys new, the ``simulation`` block as it applies over the room's
+    (:func:`datagen.dataset.config.location_free_json`), in one form, to compare configs written with the older and
+    the current key names: renamed keys new, the ``simulation`` block as it applies over the room's
     (:func:`datagen.simulation.config.merge_overrides`) and the rooms' blocks translated."""
     from ..simulation.config import merge_overrides
     data = copy.deepcopy(data)

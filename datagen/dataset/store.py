@@ -423,7 +423,7 @@ def check_same_config(root: Path, card: dict, config: DatasetConfig) -> None:
         return
     stored, current = location_free_json(card.get("config") or {}), location_free_json(config.to_json())
     if canonical_json(stored) == canonical_json(current):
-        return          # the same config, one of them written with the keys before issue 24 (e.g. time_cap)
+        return          # the same config, one of them written with the older keys (e.g. time_cap)
     diff = _config_diff(stored, current) or ["config_sha256"]
     first = diff[0]
     more = f", … ({len(diff)} fields)" if len(diff) > 5 else ""

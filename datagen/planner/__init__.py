@@ -15,6 +15,7 @@ from its module.
 - :mod:`.coarse`: the coarse area quadrature of the primary and secondary energy behind the secondary and
   pile-up decisions.
 - :mod:`.orders`: how many orders of light a scene calls for (``orders: auto``: a pilot of the order ≥ 3 tracer).
+- :mod:`.coarse_kernel`: the compiled (numba) passes of the coarse quadrature.
 """
 from .decisions import EFFECTS, Decision, Plan, plan_effects
 

@@ -51,6 +51,7 @@ from ..scene import RayCaster, Scene
 from ..scene.capture import Capture, FOV_EDGE_REL, FOV_PLANE_TOL
 from ..scene.separation import CHUNK_ELEMENTS, hull_planes, may_meet, outward_planes
 from ..timing.irf import TAIL_MARGIN_TAUS
+from ..spad.models import detector_model, model_names
 from ..spad.pileup import pile_up_decision
 from ..transport import PhysicsSettings, estimator
 from ..transport.base import PLANNED_SWITCHES
@@ -202,9 +203,9 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
     if forced.get("secondary") is True and config.secondary == "none":
         raise ConfigError("effects.secondary is forced on but secondary is 'none': choose an estimator "
                          "(optimized, full or exact)")
-    if forced.get("pile_up") is True and detector.model == "poisson":
-        raise ConfigError("effects.pile_up is forced on but detector.model is 'poisson': choose pile_up, "
-                         "multi_stop or free_running")
+    if forced.get("pile_up") is True and detector_model(detector.model).dead_time == "none":
+        raise ConfigError(f"effects.pile_up is forced on but detector.model is {detector.model!r}, which has no dead "
+                          f"time: choose {', '.join(n for n in model_names() if detector_model(n).dead_time != 'none')}")
     physics = PhysicsSettings(pde=detector.pde, count_laser_leg=config.count_laser_leg,
                               count_sensor_leg=config.count_sensor_leg)
     geometry = PlanGeometry(scene, caster, capture, FOV_PLANE_TOL * caster.offset, physics)

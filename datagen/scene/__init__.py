@@ -33,6 +33,8 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.scene.capture`: :class:`Capture`, :func:`resolve_capture`, ``FOV_PLANE_TOL``, ``FOV_EDGE_REL``;
 - :mod:`~datagen.scene.separation`: separating-plane tests between triangles and convex hulls (planner,
   quadrature).
+- :mod:`~datagen.scene.brdf_kernel`: each BRDF formula once, as numba device functions every kernel calls;
+- :mod:`~datagen.scene.flood`: flood illumination and multi-zone sensors, the scene-stage part (docs/multizone.md).
 """
 from ..lazy import lazy_attributes
 

@@ -29,7 +29,7 @@ MIN_TOLERANCE = 1e-10
 samples (machine epsilon 2.2e-16 times the terms summed), not something an estimate can measure or meet."""
 
 PEAK_FLOOR = 0.01
-"""Bins where the envelope exceeds this fraction of its peak enter the relative L2 (issue 5)."""
+"""Bins where the envelope exceeds this fraction of its peak enter the relative L2 (docs/accuracy.md)."""
 
 
 def replica_root(rng: np.random.Generator) -> int:

@@ -51,6 +51,7 @@ from .fit_numerics import (REJECTED, inverse_covariance, newton, profile_interva
                            sandwich_covariance, with_coordinate)
 from .fit_result import UNITS, DetectorFit
 from .histogram import expected_histogram, sample_histogram
+from .models import model_names
 from .rates import rates_from_envelope
 
 __all__ = [
@@ -103,7 +104,8 @@ SANDWICH_CYCLES = 2000
 """Laser cycles of each simulated histogram (fewer when the data have fewer); the score variance is scaled to the
 data's cycle count (it grows linearly in cycles)."""
 
-FIT_MODELS = ("pile_up", "poisson", "free_running")
+FIT_MODELS = model_names(fittable=True)
+"""The detector models a fit takes: those the registry marks ``fittable`` (:mod:`.models`)."""
 IRF_SHAPES = ("gauss", "exgauss")
 COVARIANCES = ("fisher", "sandwich")
 

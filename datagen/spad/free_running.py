@@ -439,3 +439,4 @@ def event_simulation(r2: np.ndarray, config: DetectorConfig, rng: np.random.Gene
 def _require_model(config: DetectorConfig, model: str) -> None:
     if config.model != model:
         raise ValueError(f"this function needs model={model!r}, got model={config.model!r}")
+

@@ -6,7 +6,8 @@ import numpy as np
 
 from .arrays import check_event_count
 from .config import DetectorConfig
-from .free_running import period_cells
+from .free_running import event_simulation, free_running_expected, period_cells
+from .models import DetectorModel, register_model
 
 __all__ = ["TICKS_PER_PERIOD", "EVENT_SEGMENT_ARRIVALS", "event_simulation_batched"]
 
@@ -125,3 +126,21 @@ def event_simulation_batched(r2: np.ndarray, config: DetectorConfig, rng: np.ran
         hist += np.bincount(pix[recorded][inside] * bins + hb[inside], minlength=n_pix * bins)
         done += s
     return hist.reshape(n_pix, bins)
+
+
+# -- registry entry (datagen/spad/models.py), where both samplers are in reach: (..., T) rates in and out -----
+
+def _expected(rates: np.ndarray, config: DetectorConfig) -> np.ndarray:
+    per_cycle, _ = free_running_expected(rates.reshape(-1, rates.shape[-1]), config)
+    return (config.cycles * per_cycle).reshape(rates.shape)
+
+
+def _sample(rates: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+    rows = rates.reshape(-1, rates.shape[-1])
+    if config.afterpulse_probability > 0:
+        return event_simulation(rows, config, rng).reshape(rates.shape)
+    return event_simulation_batched(rows, config, rng).reshape(rates.shape)
+
+
+register_model(DetectorModel("free_running", _expected, _sample, dead_time="free_running", fittable=True,
+                             description="dead time across laser cycles (Rapp et al. 2019), afterpulsing"))

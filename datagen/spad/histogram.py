@@ -1,5 +1,6 @@
 """Public model dispatch: :func:`expected_histogram` and :func:`sample_histogram` for ``DetectorConfig.model``
-(``poisson``, ``pile_up``, ``multi_stop``, ``free_running``), then the Gaussian jitter after pile-up."""
+through the detector-model registry (:mod:`.models`: ``poisson``, ``pile_up``, ``multi_stop``, ``free_running``),
+then the Gaussian jitter after pile-up."""
 from __future__ import annotations
 
 from typing import Any
@@ -8,17 +9,9 @@ import numpy as np
 
 from .arrays import as_rates
 from .config import DetectorConfig
-from .effects import convolve_last, gaussian_kernel, jitter_counts, sample_pile_up_crosstalk
-from .free_running import event_simulation, free_running_expected
-from .free_running_batched import event_simulation_batched
-from .synchronous import (
-    detection_pmf,
-    multi_stop_dead_bins,
-    multi_stop_expected,
-    multi_stop_sample,
-    sample_first_photon,
-    sample_poisson,
-)
+from .effects import convolve_last, gaussian_kernel, jitter_counts
+from . import free_running_batched, synchronous  # noqa: F401  (importing them registers their models)
+from .models import detector_model
 
 __all__ = [
     "expected_histogram",
@@ -57,18 +50,8 @@ def expected_histogram(rates: Any, config: DetectorConfig) -> np.ndarray:
     if config.crosstalk_probability > 0:
         raise NotImplementedError("crosstalk has no closed-form expected histogram here; "
                                   "average sample_histogram draws (event simulation)")
-    n = config.cycles
     shape = r.shape
-    r2 = r.reshape(-1, shape[-1])
-    if config.model == "poisson":
-        hist = n * r2
-    elif config.model == "pile_up":
-        hist = n * detection_pmf(r2)[:, :-1]
-    elif config.model == "multi_stop":
-        hist = multi_stop_expected(r2, n, multi_stop_dead_bins(config))
-    else:
-        per_cycle, _ = free_running_expected(r2, config)
-        hist = n * per_cycle
+    hist = detector_model(config.model).expected(r, config).reshape(-1, shape[-1])
     if config.jitter > 0:
         kernel, first = gaussian_kernel(config.jitter, config.bin_width)
         hist = convolve_last(hist, kernel, first)
@@ -105,22 +88,8 @@ def sample_histogram(rates: Any, config: DetectorConfig, rng: np.random.Generato
         raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     r = as_rates(rates)
     _check_window(r, config)
-    n = config.cycles
     shape = r.shape
-    r2 = r.reshape(-1, shape[-1])
-    if config.model == "poisson":
-        counts = sample_poisson(n * r2, rng)
-    elif config.model == "pile_up":
-        if config.crosstalk_probability > 0:
-            counts = sample_pile_up_crosstalk(r, config, rng).reshape(r2.shape)
-        else:
-            counts = sample_first_photon(r2, n, rng)
-    elif config.model == "multi_stop":
-        counts = multi_stop_sample(r2, n, multi_stop_dead_bins(config), rng)
-    elif config.afterpulse_probability > 0:
-        counts = event_simulation(r2, config, rng)
-    else:
-        counts = event_simulation_batched(r2, config, rng)
+    counts = detector_model(config.model).sample(r, config, rng).reshape(-1, shape[-1])
     if config.jitter > 0:
         kernel, first = gaussian_kernel(config.jitter, config.bin_width)
         counts = jitter_counts(counts, kernel, first, rng)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import DetectorConfig
+from .models import detector_model
 from .rates import rates_from_envelope
 
 __all__ = ["PileUpDecision", "counting_detector", "pile_up_decision", "pile_up_from_envelope"]
@@ -60,14 +61,15 @@ def pile_up_decision(detector: DetectorConfig, lam: float, window: float, tolera
         counts cannot model); otherwise on exactly when the bound 1 − e^{−M} ≥ ``tolerance``.
     """
     numbers: dict = {"model": detector.model, "lambda_per_cycle": lam}
-    if detector.model == "poisson":
+    dead_time = detector_model(detector.model).dead_time
+    if dead_time == "none":
         return PileUpDecision(False, "detector model is 'poisson' (configured)", numbers)
     if detector.afterpulse_probability > 0 or detector.crosstalk_probability > 0:
         return PileUpDecision(True, f"detector models afterpulsing ({_fmt(detector.afterpulse_probability)}) or "
                               f"crosstalk ({_fmt(detector.crosstalk_probability)}), which Poisson counts cannot",
                               numbers)
     m = lam
-    if detector.model == "free_running":
+    if dead_time == "free_running":
         per_period = lam + detector.background_rate * max(detector.period - window, 0.0)
         m = per_period * (math.ceil(detector.dead_time / detector.period) + 1)
     distortion = -math.expm1(-m)
@@ -104,7 +106,7 @@ def pile_up_from_envelope(envelope: np.ndarray, detector: DetectorConfig, tolera
 def counting_detector(detector: DetectorConfig, pile_up: bool) -> DetectorConfig:
     """The detector model to draw counts with: ``detector`` itself when ``pile_up`` is on (or it is Poisson
     already), else its Poisson version (same cycles, PDE, background, gate, jitter; no dead time)."""
-    if pile_up or detector.model == "poisson":
+    if pile_up or detector_model(detector.model).dead_time == "none":
         return detector
     data = detector.model_dump()
     data.update(model="poisson", dead_time_kind=None, paralyzable=False)

@@ -13,6 +13,7 @@ from numba import njit
 
 from .arrays import as_rates, exclusive_cumsum
 from .config import DetectorConfig
+from .models import DetectorModel, register_model
 
 __all__ = [
     "SAMPLER_PIXEL_CHUNK",
@@ -277,3 +278,45 @@ def sample_poisson(lam: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     counts[big] = np.maximum(np.rint(lam_big + np.sqrt(lam_big) * rng.standard_normal(lam_big.size)),
                              0.0).astype(np.int64)
     return counts
+
+
+# -- registry entries (datagen/spad/models.py): (..., T) rates in, (..., T) counts out ------------------------
+
+def _rows(rates: np.ndarray) -> np.ndarray:
+    return rates.reshape(-1, rates.shape[-1])
+
+
+def _poisson_expected(rates: np.ndarray, config: DetectorConfig) -> np.ndarray:
+    return config.cycles * rates
+
+
+def _poisson_sample(rates: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+    return sample_poisson(config.cycles * _rows(rates), rng).reshape(rates.shape)
+
+
+def _pile_up_expected(rates: np.ndarray, config: DetectorConfig) -> np.ndarray:
+    return (config.cycles * detection_pmf(_rows(rates))[:, :-1]).reshape(rates.shape)
+
+
+def _pile_up_sample(rates: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+    if config.crosstalk_probability > 0:             # event simulation of the (…, H, W) array
+        from .effects import sample_pile_up_crosstalk
+        return sample_pile_up_crosstalk(rates, config, rng).reshape(rates.shape)
+    return sample_first_photon(_rows(rates), config.cycles, rng).reshape(rates.shape)
+
+
+def _multi_stop_expected(rates: np.ndarray, config: DetectorConfig) -> np.ndarray:
+    return multi_stop_expected(_rows(rates), config.cycles, multi_stop_dead_bins(config)).reshape(rates.shape)
+
+
+def _multi_stop_sample(rates: np.ndarray, config: DetectorConfig, rng: np.random.Generator) -> np.ndarray:
+    return multi_stop_sample(_rows(rates), config.cycles, multi_stop_dead_bins(config), rng).reshape(rates.shape)
+
+
+register_model(DetectorModel("poisson", _poisson_expected, _poisson_sample, dead_time="none", torch_noise=True,
+                             fittable=True, description="low-flux limit: independent Poisson counts per bin"))
+register_model(DetectorModel("pile_up", _pile_up_expected, _pile_up_sample, dead_time="synchronous",
+                             torch_noise=True, fittable=True,
+                             description="synchronous first photon per cycle (Coates 1968)"))
+register_model(DetectorModel("multi_stop", _multi_stop_expected, _multi_stop_sample, dead_time="synchronous",
+                             description="several detections per cycle, a dead time in bins after each"))

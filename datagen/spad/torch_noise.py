@@ -47,6 +47,7 @@ from typing import Any, Mapping
 import torch
 
 from .config import DetectorConfig
+from .models import detector_model, model_names
 from .ranges import RANDOMISED_FIELDS, detector_ranges, draw_detector_params, fixed_cycles
 from .rates import NEGATIVE_ENVELOPE_RTOL, gate_fraction
 from .synchronous import MAX_EXPECTED_COUNTS
@@ -108,9 +109,10 @@ class SPADNoise(torch.nn.Module):
                  dtype: torch.dtype = torch.float32):
         super().__init__()
         det = detector if isinstance(detector, DetectorConfig) else DetectorConfig.model_validate(dict(detector))
-        if det.model not in ("pile_up", "poisson"):
+        if not detector_model(det.model).torch_noise:
             raise NotImplementedError(f"SPADNoise: detector model {det.model!r} is not modelled in torch (only "
-                                      "'pile_up' and 'poisson'); use datagen.spad.sample_histogram")
+                                      f"{', '.join(repr(m) for m in model_names(torch_noise=True))}); use "
+                                      "datagen.spad.sample_histogram")
         for field, what in _UNSUPPORTED.items():
             if getattr(det, field):
                 raise NotImplementedError(f"SPADNoise: {field}={getattr(det, field)!r}: {what} is not modelled "

@@ -20,6 +20,9 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.timing.impulses`: input checks of impulses and :func:`bin_impulses`;
 - :mod:`~datagen.timing.tents`: closed forms of tent densities, their convolution with the IRF and their
   O(1)-per-tent second differences (:func:`tent_curvature`).
+- compiled (numba) inner loops: :mod:`~datagen.timing.splat_kernel` (impulses onto the fine grid),
+  :mod:`~datagen.timing.tent_kernel` (one tent onto it), :mod:`~datagen.timing.fold_kernel` (the fine histogram
+  folded and binned).
 """
 from .accumulator import EnvelopeAccumulator
 from .impulses import bin_impulses
