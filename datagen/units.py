@@ -8,6 +8,7 @@ the boundary: :func:`parse_duration`, :func:`parse_rate`, :func:`parse_energy`, 
 """
 from __future__ import annotations
 
+import math
 import re
 from typing import Any
 
@@ -58,6 +59,16 @@ def parse_duration(value: float | int | str) -> float:
         ValueError: the string has no number or an unknown unit (the message names the value).
     """
     return _parse(value, _TIME_UNITS, "duration")
+
+
+def format_duration(seconds: float) -> str:
+    """``seconds`` as a duration :func:`parse_duration` reads back, rounded up: whole seconds below 2 min ("8s"),
+    whole minutes below 2 h ("17min"), tenths of an hour above ("2.5h")."""
+    if seconds < 120:
+        return f"{math.ceil(seconds)}s"
+    if seconds < 7200:
+        return f"{math.ceil(seconds / 60)}min"
+    return f"{math.ceil(seconds / 360) / 10:g}h"
 
 
 def parse_rate(value: float | int | str) -> float:

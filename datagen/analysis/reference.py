@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 import time
 from collections.abc import Callable
@@ -39,6 +38,7 @@ from ..transport.multibounce import AllOrders, MultibounceSettings, MultibounceT
 from ..timing import EnvelopeAccumulator
 from ..scene import RayCaster
 from ..errors import ConfigError
+from ..units import format_duration
 from ..scene import Scene
 
 __all__ = [
@@ -96,18 +96,9 @@ def check_reference_size(scene: Scene, where: str, samples: int, budget: float) 
         scan = ("; or, for a scanned capture, --quadrature-reference (the quadrature against a quarter of its "
                 "edge)") if n > 1 else ""
         raise ConfigError(
-            f"{where}: one reference replica of its {points} takes ≈ {_duration_text(replica)} and cannot stop "
-            f"half-way, more than --budget {_duration_text(budget)}: give --budget {_duration_text(2 * replica)} "
+            f"{where}: one reference replica of its {points} takes ≈ {format_duration(replica)} and cannot stop "
+            f"half-way, more than --budget {format_duration(budget)}: give --budget {format_duration(2 * replica)} "
             f"or more, or --reference-samples {fits} or fewer{scan}")
-
-
-def _duration_text(seconds: float) -> str:
-    """"8s", "17min", "2.5h": whole seconds below 2 min, whole minutes below 2 h, rounded up."""
-    if seconds < 120:
-        return f"{math.ceil(seconds)}s"
-    if seconds < 7200:
-        return f"{math.ceil(seconds / 60)}min"
-    return f"{math.ceil(seconds / 360) / 10:g}h"
 
 
 

@@ -48,19 +48,6 @@ def load_capture(path: Path, width=None, bin_resolution=None):
     return cap.to_result(), cap.time_offsets(), f"{cap.format} file {path}"
 
 
-def capture_kind(result) -> tuple[str, str]:
-    """(kind, description) of a capture or result: kind "zones" (a multi-zone flood), "confocal", "exhaustive" or
-    "single" (one laser spot, one FoV); the description names its grid, e.g. "a confocal scan of 8 x 8 points"."""
-    lead = tuple(np.shape(result.envelope)[:-1])
-    grid = " x ".join(str(n) for n in lead)
-    if "multizone" in result.attrs:
-        return "zones", f"a multi-zone result of {grid} zones (a flood)"
-    kind = (result.attrs.get("capture") or {}).get("type")
-    if kind in ("confocal", "exhaustive"):
-        return kind, f"an {kind} scan of {grid} points" if kind == "exhaustive" else f"a confocal scan of {grid} points"
-    return "single", f"a single-spot transient{f' ({grid})' if lead else ''}"
-
-
 def _kv(items, option: str) -> dict[str, float]:
     from ..units import parse_duration, parse_rate
 
@@ -286,6 +273,7 @@ def compare_capture(real, sim, png, width, bin_resolution):
     the relative L2, the per-bin chi2, the peak-time and width (FWHM) differences; --png draws them side by side.
     """
     from ..analysis.compare_capture import compare_captures
+    from ..io.lab_formats import capture_kind
     from ..units import parse_duration
     from .errors import check_output_file
 

@@ -43,6 +43,9 @@ def run_multizone(scene_file: Path, out: Path, overrides: dict, nodes: str | Non
         ConfigError: a refused option given; click.BadParameter: a malformed ``nodes``; SceneError, ConfigError: as
             :func:`datagen.simulation.multizone.simulate_multizone`.
     """
+    import warnings
+
+    from ..errors import DatagenWarning
     from ..io import write_result
     from ..io.store import RESULT_NAME
     from ..plot.envelope import plot_envelope
@@ -79,9 +82,8 @@ def run_multizone(scene_file: Path, out: Path, overrides: dict, nodes: str | Non
     click.echo(f"transport error of the nodes' envelopes: {err['rel_l2']:.2%} relative L2 ({err['replica_setting']})")
     click.echo(f"SPAD counts: {int(result.counts.sum())} detections over {result.attrs['n_cycles']} laser cycles "
                f"({result.attrs['detector']['model']} model)")
-    for warning in result.attrs.get("warnings", []):
-        if not warning.startswith("multizone.flood ("):   # the zone-coverage warning was printed before the work
-            click.echo(f"warning: {warning}", err=True)
+    for warning in result.attrs.get("warnings", []):   # one `warning:` line each; the CLI's printer skips those
+        warnings.warn(DatagenWarning(warning), stacklevel=2)  # already shown (the zone coverage, before the work)
     click.echo(f"wrote {out / RESULT_NAME}, {out / 'envelope.png'}, {out / 'zones.png'}")
 
 

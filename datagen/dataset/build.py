@@ -21,6 +21,7 @@ import json
 import os
 import shutil
 import socket
+import sys
 import threading
 import time
 import traceback
@@ -35,6 +36,7 @@ import numpy as np
 from .assets import asset_record, config_asset_entries
 from .config import DatasetConfig, Sample, config_from_json, load_dataset_config, make_sample
 from ..errors import DatasetError
+from ..units import format_duration
 from .dask_engine import FATAL_ERRNOS, WORKER_TIMEOUT_S, check_worker_timeout, connect_dask, fatal_error, run_dask
 from .integrity import remove_shard_files, repair_store
 from .store import (DONE_DIR, LOCK_NAME, BuildLock, ShardTask, card_layout, check_dataset_dir, check_same_assets,
@@ -290,28 +292,18 @@ def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, pr
     split = _first_split(config)
     if not progress:
         return make_sample(config, split, 0)
-    import click
-
-    click.echo(f"build {config.name}: probe sample ({split}, 0) first: its arrays fix the dataset's shapes", err=True)
+    print(f"build {config.name}: probe sample ({split}, 0) first: its arrays fix the dataset's shapes",
+          file=sys.stderr)
     t0 = time.perf_counter()
     probe = make_sample(config, split, 0, progress=True)
     seconds = time.perf_counter() - t0
     total = sum(spec.count for spec in config.splits.values())
     projected = seconds * total / max(processes, 1)
     if project and projected > PROJECTION_NOTE_S:
-        click.echo(f"build {config.name}: the probe took {seconds:.3g} s; {total} samples project to about "
-                   f"{_duration(projected)} on {processes} process{'es' if processes > 1 else ''} (samples differ: "
-                   "the bar's ETA follows the build)", err=True)
+        print(f"build {config.name}: the probe took {seconds:.3g} s; {total} samples project to about "
+              f"{format_duration(projected)} on {processes} process{'es' if processes > 1 else ''} (samples differ: "
+              "the bar's ETA follows the build)", file=sys.stderr)
     return probe
-
-
-def _duration(seconds: float) -> str:
-    """``seconds`` as "42 s", "12 min" or "3.5 h"."""
-    if seconds < 120:
-        return f"{seconds:.0f} s"
-    if seconds < 7200:
-        return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.1f} h"
 
 
 def check_build_options(workers: int | None, scheduler: str | None, retries: int, max_tasks_per_child: int) -> None:

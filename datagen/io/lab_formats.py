@@ -434,12 +434,25 @@ def _write_hdf5(path: Path, fields: dict, transpose: bool, matlab: bool) -> None
             f.write(header)
 
 
-def refuse_flood(result, fmt: str) -> None:
-    """Raise :class:`DatasetError` when ``result`` is a multi-zone flood (``attrs["multizone"]``): its transients
-    are zones lit by a whole flood, and the capture formats (LCT, f-k, ZNLOS, tal) hold one laser point per
-    transient. docs/multizone.md."""
-    attrs = getattr(result, "attrs", {}) or {}
+def capture_kind(result) -> tuple[str, str]:
+    """(kind, description) of a capture or result: kind "zones" (a multi-zone flood), "confocal", "exhaustive" or
+    "single" (one laser spot, one FoV); the description names its grid, e.g. "a confocal scan of 8 x 8 points"."""
+    attrs = getattr(result, "attrs", None) or {}
+    lead = tuple(np.shape(result.envelope)[:-1])
+    grid = " x ".join(str(n) for n in lead)
     if "multizone" in attrs:
+        return "zones", f"a multi-zone result of {grid} zones (a flood)"
+    kind = (attrs.get("capture") or {}).get("type")
+    if kind in ("confocal", "exhaustive"):
+        return kind, f"an {kind} scan of {grid} points" if kind == "exhaustive" else f"a confocal scan of {grid} points"
+    return "single", f"a single-spot transient{f' ({grid})' if lead else ''}"
+
+
+def refuse_flood(result, fmt: str) -> None:
+    """Raise :class:`DatasetError` when ``result`` is a multi-zone flood (:func:`capture_kind` "zones"): its
+    transients are zones lit by a whole flood, and the capture formats (LCT, f-k, ZNLOS, tal) hold one laser point
+    per transient. docs/multizone.md."""
+    if capture_kind(result)[0] == "zones":
         zones = " x ".join(str(n) for n in np.shape(result.envelope)[:-1])
         raise DatasetError(f"a multi-zone result ({zones} zones lit by a flood) has no single laser point per "
                            f"transient, which {fmt} files hold; keep it as a datagen store (docs/multizone.md)")

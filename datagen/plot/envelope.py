@@ -34,7 +34,8 @@ def plot_envelope(result: Result, path: str | Path, title: str | None = None) ->
 
     env = flat(result.envelope)
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(9, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
-    if env.max() > 0:
+    lit = env.max() > 0
+    if lit:
         ax.set_yscale("log")             # a zero envelope (all light outside the window) stays on a linear axis
     ax.plot(t_ns, env, color="black", lw=2, label="L(t) total")
     for i, (name, comp) in enumerate(result.components.items()):
@@ -43,8 +44,8 @@ def plot_envelope(result: Result, path: str | Path, title: str | None = None) ->
             continue
         color = COMPONENT_COLORS.get(name, f"C{(i + 4) % 10}")
         ax.plot(t_ns, c, "--", color=color, lw=1.4, label=f"{name} ({c.sum():.3g})")
-    peak = env.max() if env.max() > 0 else 1.0
-    ax.set_ylim(peak * LOG_FLOOR if env.max() > 0 else -0.05, peak * 3)
+    peak = env.max() if lit else 1.0
+    ax.set_ylim(peak * LOG_FLOOR if lit else -0.05, peak * 3)
     ax.set_ylabel(f"expected detections / pulse / {width_ps:.0f} ps bin")
     ax.legend(loc="upper right", fontsize=9, title="component (area)")
     ax.grid(True, which="major", alpha=0.3)
