@@ -8,6 +8,7 @@ that defines the name so lazily exported names (``datagen.NLOSDataset``) resolve
 from __future__ import annotations
 
 import importlib
+import re
 import sys
 from pathlib import Path
 
@@ -31,11 +32,21 @@ def defining_path(package: str, name: str) -> str:
     return f"{package}.{name}"
 
 
+ROLE = re.compile(r":(?:mod|class|func|meth|attr|data|exc):`~?([^`]+)`")
+
+
+def package_doc(module) -> str:
+    """The package docstring as Markdown: what the stage does and its module map (each module named once, as
+    tests/test_architecture.py checks); Sphinx roles (``:mod:`.physics```) become code spans."""
+    paragraphs = [p.replace("\n", " ") if not p.lstrip().startswith("- ") else p
+                  for p in (module.__doc__ or "").strip().split("\n\n")]
+    return ROLE.sub(r"`\1`", "\n\n".join(paragraphs))
+
+
 def page(package: str) -> str:
-    """The Markdown of one package's reference page."""
+    """The Markdown of one package's reference page: its docstring (the module map), then its public names."""
     module = importlib.import_module(package)
-    summary = (module.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
-    lines = [f"# `{package}`", "", summary, "",
+    lines = [f"# `{package}`", "", package_doc(module), "",
              f"Every name of `{package}.__all__` with its docstring (generated from the source by mkdocstrings; "
              "`python scripts/api_reference.py` rewrites this page).", ""]
     for name in module.__all__:

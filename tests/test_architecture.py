@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import ast
 import importlib
+import importlib.util
+import re
 import types
 from pathlib import Path
 
@@ -264,3 +266,17 @@ def test_the_module_map_check_sees_an_unnamed_module(tmp_path):
     (pkg / "sub" / "__init__.py").write_text('"""A package whose docstring names nothing."""\n')
     (pkg / "sub" / "inner.py").write_text("")
     assert _unnamed_modules(pkg) == {"pkg": ["forgotten"], "pkg/sub": ["inner"]}
+
+
+def test_every_dependency_has_a_lower_bound_that_the_lower_bound_run_installs_or_explains():
+    """docs/development.md, "Dependency ranges": scripts/lower_bounds.py pins each range's lowest release series."""
+    spec = importlib.util.spec_from_file_location("lower_bounds", PACKAGE.parent / "scripts" / "lower_bounds.py")
+    lower = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(lower)
+    floors = dict(lower.lower_bound(r) for r in lower.dependencies())
+    assert [name for name, floor in floors.items() if floor is None] == []
+    pinned = {re.sub(r"\[.*", "", pin.split("==")[0]) for pin in lower.pins()}
+    bare = {re.sub(r"\[.*", "", name) for name in floors}
+    assert bare == pinned | set(lower.EXEMPT) and not pinned & set(lower.EXEMPT)
+    assert "numpy==1.26.*" in lower.pins() and "dask[distributed]==2024.8.*" in lower.pins()
+    assert lower.lower_bound("open3d>=0.20,<0.21") == ("open3d", "0.20")

@@ -21,6 +21,24 @@ def test_every_model_a_config_may_name_is_registered_and_nothing_else():
         "poisson": "none", "pile_up": "synchronous", "multi_stop": "synchronous", "free_running": "free_running"}
 
 
+@pytest.mark.parametrize("model", get_args(ModelName))
+def test_a_config_asks_a_model_only_for_the_effects_its_entry_says_it_simulates(model):
+    """DetectorConfig reads the registry's effect flags: each effect is accepted exactly by the models whose entry
+    has it (paralyzable: free_running; afterpulsing: free_running, non-paralyzable; crosstalk: pile_up)."""
+    base = dict(model=model, bin_width=1e-9, repetition_rate=2e7, exposure=1e-5, dead_time=3e-9)
+    entry = detector_model(model)
+    for effect, field in (("paralyzable", {"paralyzable": True}), ("afterpulsing", {"afterpulse_probability": 0.01}),
+                          ("crosstalk", {"crosstalk_probability": 0.01})):
+        if getattr(entry, effect):
+            DetectorConfig(**base, **field)
+        else:
+            supported = " or ".join(f"model={m!r}" for m in model_names(**{effect: True}))
+            with pytest.raises(ValueError, match=supported):
+                DetectorConfig(**base, **field)
+    assert (model_names(paralyzable=True), model_names(afterpulsing=True), model_names(crosstalk=True)) == (
+        ("free_running",), ("free_running",), ("pile_up",))
+
+
 def test_an_unknown_model_and_a_second_registration_are_refused():
     with pytest.raises(ConfigError, match=r"detector model 'nope' is not registered \(registered: poisson, pile_up, "
                                           r"multi_stop, free_running\)"):

@@ -20,8 +20,9 @@ from ..scene import Scene
 from ..scene.load import format_validation_error, short_repr
 from ..scene.parts import MAX_EXTENT
 from ..timing import Irf, TimeAxis
-from ..transport import EstimatorOptions, PhysicsSettings, LookinSettings, estimator, estimator_names
+from ..transport import EstimatorOptions, LookinSettings, PhysicsSettings, estimator, estimator_names
 from ..transport.base import estimator_options
+from ..transport.lookin.estimator import LookinOptions
 
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
 """spawn_key entries of the random streams (docs/physics.md §7)."""
@@ -290,13 +291,14 @@ class SimulationConfig(BaseModel):
         """Lookin settings from this config, unplanned, for the sampling figures and the analyses that run an
         estimator directly (:func:`datagen.analysis.accuracy.run_estimator`, the converged reference): the
         physics of :meth:`physics_settings`, the secondary mode (``secondary``, "none" when ``effects.secondary``
-        is forced off), the estimator's sampling fields
-        (:meth:`~datagen.transport.EstimatorOptions.transport_fields`) or the lookin defaults, and ``workers``.
-        ``simulate`` does not use them."""
+        is forced off), the lookin sampling of a lookin ``estimator`` block
+        (:meth:`~datagen.transport.lookin.LookinOptions.transport_fields`; the lookin defaults for any other
+        estimator), and ``workers``. ``simulate`` does not use them."""
         forced = {k: v for k, v in self.effects.items() if isinstance(v, bool)}
         secondary = self.secondary if forced.get("secondary", True) else "none"
-        return LookinSettings(**self.physics_settings().switches(), **self.estimator.transport_fields(),
-                                 secondary=secondary, workers=self.workers)
+        sampling = self.estimator.transport_fields() if isinstance(self.estimator, LookinOptions) else {}
+        return LookinSettings(**self.physics_settings().switches(), **sampling, secondary=secondary,
+                              workers=self.workers)
 
 
 def merge_simulation(base: dict, overrides: dict) -> dict:

@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from ..errors import ConfigError
 from ..timing.irf import FWHM_PER_SIGMA
 from ..units import parse_duration, parse_rate
+from .models import detector_model, model_names
 
 __all__ = [
     "FWHM_PER_SIGMA",
@@ -27,12 +28,6 @@ ModelName = Literal["poisson", "pile_up", "multi_stop", "free_running"]
 
 DeadTimeKind = Literal["none", "synchronous", "free_running"]
 
-_KIND_OF_MODEL: dict[str, str] = {
-    "poisson": "none",
-    "pile_up": "synchronous",
-    "multi_stop": "synchronous",
-    "free_running": "free_running",
-}
 
 
 MAX_CYCLES = 1 << 62
@@ -181,20 +176,24 @@ class DetectorConfig(BaseModel):
                 raise ValueError(f"gate must be [start, stop] with start < stop, got {list(self.gate)!r}")
         if self.t_start >= self.period:
             raise ValueError(f"t_start={self.t_start!r} s must be inside the laser period {self.period!r} s")
-        expected_kind = _KIND_OF_MODEL[self.model]
-        if self.dead_time_kind is not None and self.dead_time_kind != expected_kind:
+        model = detector_model(self.model)                  # what the model supports: its registry entry
+
+        def models(effect: str) -> str:
+            return " or ".join(f"model={name!r}" for name in model_names(**{effect: True}))
+
+        if self.dead_time_kind is not None and self.dead_time_kind != model.dead_time:
             raise ValueError(f"dead_time_kind={self.dead_time_kind!r} is inconsistent with model={self.model!r} "
-                             f"(which implies {expected_kind!r})")
-        if self.paralyzable and self.model != "free_running":
-            raise ValueError(f"paralyzable=True is only modelled for model='free_running', got model={self.model!r}")
+                             f"(which implies {model.dead_time!r})")
+        if self.paralyzable and not model.paralyzable:
+            raise ValueError(f"paralyzable=True is only modelled for {models('paralyzable')}, got model={self.model!r}")
         if self.afterpulse_probability > 0:
-            if self.model != "free_running" or self.paralyzable:
+            if not model.afterpulsing or self.paralyzable:
                 raise ValueError(f"afterpulse_probability={self.afterpulse_probability!r} needs "
-                                 f"model='free_running' with a non-paralyzable dead time (got model={self.model!r}, "
+                                 f"{models('afterpulsing')} with a non-paralyzable dead time (got model={self.model!r}, "
                                  f"paralyzable={self.paralyzable!r})")
-        if self.crosstalk_probability > 0 and self.model != "pile_up":
+        if self.crosstalk_probability > 0 and not model.crosstalk:
             raise ValueError(f"crosstalk_probability={self.crosstalk_probability!r} is only simulated for "
-                             f"model='pile_up', got model={self.model!r}")
+                             f"{models('crosstalk')}, got model={self.model!r}")
         return self
 
     # ---- derived quantities -----------------------------------------------------------------------
@@ -213,7 +212,7 @@ class DetectorConfig(BaseModel):
     @property
     def resolved_dead_time_kind(self) -> str:
         """``dead_time_kind``, derived from ``model`` when it was not given."""
-        return self.dead_time_kind or _KIND_OF_MODEL[self.model]
+        return self.dead_time_kind or detector_model(self.model).dead_time
 
     @property
     def jitter(self) -> float:

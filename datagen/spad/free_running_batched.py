@@ -143,4 +143,5 @@ def _sample(rates: np.ndarray, config: DetectorConfig, rng: np.random.Generator)
 
 
 register_model(DetectorModel("free_running", _expected, _sample, dead_time="free_running", fittable=True,
+                             paralyzable=True, afterpulsing=True,
                              description="dead time across laser cycles (Rapp et al. 2019), afterpulsing"))

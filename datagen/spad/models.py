@@ -9,7 +9,9 @@ datagen may rely on (docs/physics.md §6, docs/architecture.md "Adding a detecto
 - ``dead_time``: "none" (counts are Poisson: no pile-up to decide), "synchronous" (re-armed every laser cycle) or
   "free_running" (dead time across cycles); the planner's pile-up decision (:mod:`.pileup`) reads it;
 - ``torch_noise``: :class:`~datagen.spad.torch_noise.SPADNoise` draws it on the training device;
-- ``fittable``: ``datagen fit-detector`` fits it (:mod:`.fit`).
+- ``fittable``: ``datagen fit-detector`` fits it (:mod:`.fit`);
+- ``paralyzable``, ``afterpulsing``, ``crosstalk``: the detector effects it simulates beyond its dead time
+  (``DetectorConfig`` refuses a config that asks a model for one it does not).
 
 :mod:`.synchronous` registers ``poisson``, ``pile_up`` and ``multi_stop``; :mod:`.free_running_batched` registers
 ``free_running`` (where both its samplers are in reach); :mod:`.histogram` imports both, and ``datagen.spad`` imports :mod:`.histogram`, so the registry
@@ -38,6 +40,9 @@ class DetectorModel:
     dead_time: Literal["none", "synchronous", "free_running"]
     torch_noise: bool = False
     fittable: bool = False
+    paralyzable: bool = False
+    afterpulsing: bool = False
+    crosstalk: bool = False
     description: str = ""
 
 

@@ -316,7 +316,7 @@ def _multi_stop_sample(rates: np.ndarray, config: DetectorConfig, rng: np.random
 register_model(DetectorModel("poisson", _poisson_expected, _poisson_sample, dead_time="none", torch_noise=True,
                              fittable=True, description="low-flux limit: independent Poisson counts per bin"))
 register_model(DetectorModel("pile_up", _pile_up_expected, _pile_up_sample, dead_time="synchronous",
-                             torch_noise=True, fittable=True,
+                             torch_noise=True, fittable=True, crosstalk=True,
                              description="synchronous first photon per cycle (Coates 1968)"))
 register_model(DetectorModel("multi_stop", _multi_stop_expected, _multi_stop_sample, dead_time="synchronous",
                              description="several detections per cycle, a dead time in bins after each"))

@@ -109,7 +109,8 @@ class SPADNoise(torch.nn.Module):
                  dtype: torch.dtype = torch.float32):
         super().__init__()
         det = detector if isinstance(detector, DetectorConfig) else DetectorConfig.model_validate(dict(detector))
-        if not detector_model(det.model).torch_noise:
+        self.model = detector_model(det.model)                 # its registry entry (datagen.spad.models)
+        if not self.model.torch_noise:
             raise NotImplementedError(f"SPADNoise: detector model {det.model!r} is not modelled in torch (only "
                                       f"{', '.join(repr(m) for m in model_names(torch_noise=True))}); use "
                                       "datagen.spad.sample_histogram")
@@ -195,7 +196,7 @@ class SPADNoise(torch.nn.Module):
                                           ("ambient_rate", det.ambient_rate), ("dcr", det.dcr), ("pde", det.pde))}
         rates = self.rates(envelope, params).reshape(-1, envelope.shape[-1])
         cycles = params["cycles"].repeat_interleave(rates.shape[0] // max(envelope.shape[0], 1))[:, None]
-        if self.detector.model == "poisson":
+        if self.model.dead_time == "none":            # Poisson counts: no dead time
             return (rates * cycles).reshape(envelope.shape)
         survive = torch.cumsum(rates, dim=-1).neg_().exp_()
         pmf = torch.cat([1.0 - survive[:, :1], survive[:, :-1] - survive[:, 1:]], dim=-1)
@@ -242,7 +243,7 @@ class SPADNoise(torch.nn.Module):
         params = self.draw_params(batch, generator, envelope.device)
         rates = self.rates(envelope, params).reshape(-1, envelope.shape[-1])
         cycles = params["cycles"].repeat_interleave(rates.shape[0] // max(batch, 1))
-        if self.detector.model == "poisson":
+        if self.model.dead_time == "none":            # Poisson counts: no dead time
             lam = rates * cycles[:, None]
             if bool((lam > MAX_EXPECTED_COUNTS).any()):
                 raise ValueError(f"SPADNoise: a bin expects {float(lam.max()):.3g} counts, more than "

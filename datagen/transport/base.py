@@ -44,12 +44,6 @@ class EstimatorOptions(BaseModel):
     kind: str
     LEGACY: ClassVar[dict[str, str]] = {}
 
-    def transport_fields(self) -> dict:
-        """Sampling fields of the lookin :class:`~datagen.transport.LookinSettings` these options set (for the
-        sampling figures and analyses that build lookin settings from any config:
-        :meth:`datagen.simulation.SimulationConfig.transport_settings`); none by default."""
-        return {}
-
 
 def estimator_options(value: Any) -> EstimatorOptions:
     """The options model of ``value``: an :class:`EstimatorOptions`, a name (``"area"``: the defaults) or a

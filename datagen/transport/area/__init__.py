@@ -9,7 +9,8 @@ secondary that matters, light of every order (the multibounce tracer runs beside
 
 - :mod:`.estimator`: :class:`AreaSampler` (registered as ``"area"``), :class:`AreaSettings`, the options block
   :class:`~.estimator.AreaOptions` and the memory estimate.
-- :mod:`.secondary`: the secondary's partners and impulses, used by :class:`AreaSampler`.
+- :mod:`.secondary`: :class:`~.secondary.AreaSecondary`, the secondary's partners and impulses (a collaborator each
+  :class:`AreaSampler` holds), and the cosine rays from the spot (:func:`~.secondary.spot_hits`).
 - :mod:`.kernels`: the compiled passes (connection weights, FoV targets, material arrays, partner geometry),
   held to the numpy formulas of :mod:`datagen.transport.physics` by ``tests/test_area_kernels.py``.
 """

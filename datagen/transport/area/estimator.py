@@ -67,7 +67,7 @@ from ...vectors import distinct_rows, dot, matmul
 from ..base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
 from .kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
                            spot_irradiance)
-from .secondary import AreaSecondary
+from .secondary import AreaSecondary, spot_hits
 from ..physics import LegPhysics, PhysicsSettings
 
 MAX_CONNECTIONS = 1 << 17
@@ -250,7 +250,7 @@ def samples_memory(samples: int, field: str) -> list[tuple[str, str, float]]:
 @register("area", AreaSettings,
           "hidden-surface area sampling with next-event connections to the laser spot and the FoV",
           options=AreaOptions, replica=AreaOptions.replica, describe=AreaOptions.describe, memory=area_memory)
-class AreaSampler(AreaSecondary):
+class AreaSampler:
     """Area-sampling estimator with next-event connections to the laser spot and the FoV.
 
     Same interface as :class:`datagen.transport.LookinSampler`: ``AreaSampler(scene, settings, caster).run(sink,
@@ -266,7 +266,8 @@ class AreaSampler(AreaSecondary):
         hidden_faces: (F_h,) int64 faces that can be hidden vertices; hidden_area: their area, m²; is_hidden:
         (F,) bool over every face of the caster.
         stats: :class:`AreaStats`; physics: the :class:`~datagen.transport.physics.LegPhysics` weighing every
-        leg (its ``stats.shadow_rays`` counts the shadow rays).
+        leg (its ``stats.shadow_rays`` counts the shadow rays); secondary_paths: the
+        :class:`~datagen.transport.area.secondary.AreaSecondary` computing the secondary.
 
     Raises:
         ConfigError: invalid settings (``secondary_only`` with secondary "none"). SceneError: the capture errors
@@ -304,6 +305,8 @@ class AreaSampler(AreaSecondary):
         self.is_hidden[self.hidden_faces] = True
         self._fov_density = 0.0                   # M_f / A_FoV of the run under way (FoV paths), 1/m²
         self.stats = AreaStats()
+        self.secondary_paths = AreaSecondary(self.capture, self.settings, self.caster, self.physics, self.hidden_faces,
+                                             self.hidden_area, self.is_hidden, self.n_primary)
 
     @classmethod
     def from_config(cls, scene: Scene, config, physics: PhysicsSettings, caster: RayCaster,
@@ -322,6 +325,7 @@ class AreaSampler(AreaSecondary):
         """Use ``settings`` from now on (same physics object; e.g. the quadrature's shadow-ray decision)."""
         self.settings = settings
         self.physics.configure(settings)
+        self.secondary_paths.configure(settings)
 
     def nominal_seconds(self) -> float:
         """A deterministic measure of the work done so far (runs and replicas summed), in seconds of one core of
@@ -365,17 +369,8 @@ class AreaSampler(AreaSecondary):
         return c.n_pixels * self.settings.fov_samples[0] * self.settings.fov_samples[1]
 
     def from_spot(self, uv: np.ndarray, laser: int) -> tuple[SurfaceSamples, np.ndarray]:
-        """First hits of cosine-weighted rays from laser point ``laser`` through the points ``uv`` (n, 2) of
-        the unit square (Malley's method). Returns the hits (area field 0) and which rays hit (n,)."""
-        c, cst = self.capture, self.caster
-        local, _ = square_to_hemisphere(uv[:, 0], uv[:, 1], "cosine")
-        normal = np.broadcast_to(c.spot_normals[laser], local.shape)
-        hits = cst.intersect(np.broadcast_to(c.spots[laser] + cst.offset * c.spot_normals[laser], local.shape),
-                             to_world(local, normal))
-        face = np.where(hits.hit, hits.face, 0)
-        found = SurfaceSamples(np.nan_to_num(hits.points), cst.face_normals[face], face, cst.face_object[face],
-                               np.zeros(len(face)), uv[:, 2:4] if uv.shape[1] >= 4 else np.zeros((len(face), 2)))
-        return found, hits.hit
+        """First hits of cosine-weighted rays from laser point ``laser`` (:func:`~datagen.transport.area.secondary.spot_hits`)."""
+        return spot_hits(self.capture, self.caster, uv, laser)
 
     def _connect(self, x: np.ndarray, n_x: np.ndarray, rho_x: np.ndarray, laser: int, rng: np.random.Generator,
                  pad: np.ndarray | None = None) -> Connections:
@@ -595,4 +590,4 @@ class AreaSampler(AreaSecondary):
             if len(t):
                 sink.add(t, weight, comp)
         if s.secondary == "full" and len(b):
-            self.secondary_paths(xs, laser, conn, sink, rng)
+            self.secondary_paths.paths(xs, laser, conn, sink, rng, self.stats)

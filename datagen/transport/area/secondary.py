@@ -1,7 +1,7 @@
 """The area sampler's secondary: a partner vertex x' before each hidden point x, three strategies under MIS.
 
-:class:`AreaSecondary` is a mixin of :class:`datagen.transport.area.AreaSampler` (docs/physics.md §2, the module
-docstring of :mod:`datagen.transport.area`): at each hidden point x with FoV connections, partners x' come from
+:class:`AreaSecondary` is a collaborator of :class:`datagen.transport.area.AreaSampler` (docs/physics.md §2, the
+module docstring of :mod:`datagen.transport.area`), built from the state it reads: at each hidden point x with FoV connections, partners x' come from
 the laser spot (cosine directions: density ∝ the laser irradiance pattern), from x (cosine directions: bounds
 the corner singularity G ~ 1/r²) and by area (small objects); each has its own laser connection E(x') and the
 irradiance estimate Σ E(x') f_x'(ω→x_l, ω→x) G(x', x) V(x', x) / Σ_t P_t p_t(x') feeds every FoV connection of
@@ -24,9 +24,41 @@ MIN_PARTNER_DISTANCE_OFFSETS = 10.0
 the surface offsets and cannot be trusted (the pair lies on a set of measure zero in the integral)."""
 
 
+def spot_hits(capture, caster, uv: np.ndarray, laser: int) -> tuple[SurfaceSamples, np.ndarray]:
+    """First hits of cosine-weighted rays from laser point ``laser`` through the points ``uv`` (n, ≥2) of the unit
+    square (Malley's method; columns 2–3, when present, are kept as the samples' padding). Returns the hits (area
+    field 0) and which rays hit (n,) bool."""
+    local, _ = square_to_hemisphere(uv[:, 0], uv[:, 1], "cosine")
+    normal = np.broadcast_to(capture.spot_normals[laser], local.shape)
+    hits = caster.intersect(np.broadcast_to(capture.spots[laser] + caster.offset * capture.spot_normals[laser],
+                                            local.shape), to_world(local, normal))
+    face = np.where(hits.hit, hits.face, 0)
+    found = SurfaceSamples(np.nan_to_num(hits.points), caster.face_normals[face], face, caster.face_object[face],
+                           np.zeros(len(face)), uv[:, 2:4] if uv.shape[1] >= 4 else np.zeros((len(face), 2)))
+    return found, hits.hit
+
+
 class AreaSecondary:
-    """Partners and secondary impulses of :class:`~datagen.transport.area.AreaSampler` (a mixin: it uses the
-    sampler's settings, caster, capture, physics, hidden faces and stats)."""
+    """Partners and secondary impulses of one :class:`~datagen.transport.area.AreaSampler`.
+
+    Args:
+        capture: the resolved :class:`~datagen.scene.Capture`; settings: the sampler's
+            :class:`~datagen.transport.area.AreaSettings` (replaced by :meth:`configure`); caster: the scene's ray
+            caster; physics: the :class:`~datagen.transport.physics.LegPhysics` weighing every leg (its
+            ``stats.shadow_rays`` counts the partners' shadow rays); hidden_faces: (F_h,) int64 faces that can be
+            hidden vertices, hidden_area their area, m²; is_hidden: (F,) bool over every face; n_primary: the
+            number of primary components (the secondary's component id is ``n_primary * n_channels + channel``).
+    """
+
+    def __init__(self, capture, settings, caster, physics, hidden_faces: np.ndarray, hidden_area: float,
+                 is_hidden: np.ndarray, n_primary: int):
+        self.capture, self.settings, self.caster, self.physics = capture, settings, caster, physics
+        self.hidden_faces, self.hidden_area, self.is_hidden = hidden_faces, float(hidden_area), is_hidden
+        self.n_primary = int(n_primary)
+
+    def configure(self, settings) -> None:
+        """Use the sampler's new ``settings`` from now on."""
+        self.settings = settings
 
     def partners(self, x: np.ndarray, nf: np.ndarray, pos: np.ndarray, neg: np.ndarray, laser: int,
                   rng: np.random.Generator) -> tuple[SurfaceSamples, np.ndarray]:
@@ -40,7 +72,7 @@ class AreaSecondary:
         n, pl, pd, pa = len(x), s.spot_partners, s.direction_partners, s.area_partners
         blocks, found = [], []
         if pl:
-            sp, hit = self.from_spot(rng.random((n * pl, 2)), laser)
+            sp, hit = spot_hits(self.capture, cst, rng.random((n * pl, 2)), laser)
             blocks.append(sp)
             found.append(hit)
         if pd:
@@ -65,8 +97,9 @@ class AreaSecondary:
         allp = SurfaceSamples.concat(blocks)
         return allp.take(idx), np.concatenate(found)[idx]
 
-    def secondary_paths(self, xs: SurfaceSamples, laser: int, conn: dict, sink: Sink, rng: np.random.Generator) -> None:
-        """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc)."""
+    def paths(self, xs: SurfaceSamples, laser: int, conn: dict, sink: Sink, rng: np.random.Generator, stats) -> None:
+        """Partners x' of the hidden samples that have FoV connections, combined by MIS (module doc); counts go to
+        ``stats`` (:class:`~datagen.transport.area.AreaStats`)."""
         c, s, cst = self.capture, self.settings, self.caster
         used = np.zeros(len(xs.points), dtype=bool)                 # hidden samples with FoV connections
         used[conn["b"]] = True
@@ -90,7 +123,7 @@ class AreaSecondary:
         if len(check):
             keep[check] = cst.visible(xp.points[check], n_px[check], x[check // p_tot], n_xp[check])
             self.physics.stats.shadow_rays += len(check)
-        self.stats.partners += int(keep.sum())
+        stats.partners += int(keep.sum())
         if not keep.any():
             return
         mat = material_arrays(self.physics)
@@ -104,5 +137,5 @@ class AreaSecondary:
                                           xs.object_id[conn["b"]], mat, legs, self.n_primary * c.n_channels)
         if len(t) == 0:
             return
-        self.stats.secondary_pairs += len(t)
+        stats.secondary_pairs += len(t)
         sink.add(t, weight, comp)

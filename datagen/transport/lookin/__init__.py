@@ -9,8 +9,8 @@ reaches the same error sooner.
 
 - :mod:`.estimator`: :class:`LookinSampler` (registered as ``"lookin"``), :class:`LookinSettings`, the options
   block :class:`~.estimator.LookinOptions`, the counters :class:`~.estimator.LookinStats`.
-- :mod:`.secondary`: the secondary paths between pairs of observed points (full, exact with the dark middle
-  vertices, optimized top-K), used by :class:`LookinSampler`.
+- :mod:`.secondary`: :class:`~.secondary.LookinSecondary`, the secondary paths between pairs of observed points
+  (full, exact with the dark middle vertices, optimized top-K), a collaborator each :class:`LookinSampler` holds.
 """
 from .estimator import LookinSampler, LookinSettings
 

@@ -66,7 +66,7 @@ class LookinSettings(PhysicsSettings):
             sensor pixel region, or to each sensor point for point radiance).
         connect_samples: (n_u, n_v) stratified points per pixel region for ``connect``.
         dark_middle: add the secondary paths whose middle vertex the laser does not light (next-event
-            connections from the lookins' observed points in laser shadow; :meth:`LookinSampler.secondary_dark`)
+            connections from the lookins' observed points in laser shadow; :meth:`LookinSecondary.dark_middle`)
             to the full and exact secondaries. Off reproduces the paper's estimator, which misses them; the
             optimized (top-K) secondary, an approximation by design, never adds them.
         conv_refine: the exact secondary bins its time profiles this many times finer than the envelope's
@@ -160,6 +160,7 @@ class LookinOptions(EstimatorOptions):
         return parse_grid(value, info.field_name)
 
     def transport_fields(self) -> dict:
+        """These options as :class:`LookinSettings` fields (every field but ``kind``)."""
         return self.model_dump(exclude={"kind"})
 
     def replica(self, replicas: int) -> dict:
@@ -205,7 +206,7 @@ def _lookin_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tupl
           "the paper's sampler: lookins from the laser spot and their hemispherical cameras",
           options=LookinOptions, replica=LookinOptions.replica, describe=LookinOptions.describe,
           memory=_lookin_memory, casts_lookins=True)
-class LookinSampler(LookinSecondary):
+class LookinSampler:
     """Runs the lookin estimator over a scene and sends impulses to a sink (module doc).
 
     Component ids sent to the sink: ``component * n_channels + channel`` where component indexes
@@ -215,7 +216,8 @@ class LookinSampler(LookinSecondary):
 
     Attributes:
         capture: the resolved capture; settings: :class:`LookinSettings`; physics: the
-        :class:`~datagen.transport.physics.LegPhysics` that weighs every leg; stats: :class:`LookinStats`.
+        :class:`~datagen.transport.physics.LegPhysics` that weighs every leg; stats: :class:`LookinStats`;
+        secondary_paths: the :class:`~datagen.transport.lookin.secondary.LookinSecondary` computing the secondary.
 
     Raises:
         SceneError: the capture errors of :func:`datagen.scene.resolve_capture`.
@@ -232,6 +234,8 @@ class LookinSampler(LookinSecondary):
         self.n_primary = len(scene.component_names())
         self.stats = LookinStats()
         self.physics = LegPhysics(scene, self.capture, self.caster, settings, self.stats)
+        self.secondary_paths = LookinSecondary(self.capture, settings, self.physics, self.caster, self.materials,
+                                               self.n_primary)
         self.configure(settings)
 
     @classmethod
@@ -264,6 +268,7 @@ class LookinSampler(LookinSecondary):
         self.component_names = self.scene.component_names() + ["secondary"] + (
             ["first_bounce"] if settings.first_bounce else [])
         self.physics.configure(settings)
+        self.secondary_paths.configure(settings)
 
     # -- estimator ---------------------------------------------------------------------------------------
 
@@ -289,7 +294,7 @@ class LookinSampler(LookinSecondary):
         """Independent runs into ``sinks``, one per generator of ``rngs`` (:func:`datagen.transport.base.run_replicas`),
         each as :meth:`run` does it; the batches of every replica share one pool of ``workers`` processes."""
         s, c = self.settings, self.capture
-        convs = [self.conv_grid(sink) if s.secondary == "exact" else None for sink in sinks]
+        convs = [self.secondary_paths.conv_grid(sink) if s.secondary == "exact" else None for sink in sinks]
         tasks = []
         for replica, rng in enumerate(rngs):
             root = np.random.SeedSequence(int(rng.integers(0, 2 ** 63)))
@@ -351,7 +356,7 @@ class LookinSampler(LookinSecondary):
     def _batch(self, task, sink: Sink, conv: ConvGrid | None, stats: LookinStats) -> None:
         """One batch of lookins (one random stream), in cache-sized slices of ``CACHE_RAYS`` camera rays."""
         (laser, n_rays, directions, pdf, x, n_x, obj_x, r_lx, seed) = task
-        saved, self.stats, self.physics.stats = self.stats, stats, stats
+        saved, self.physics.stats = self.physics.stats, stats
         try:
             rng = np.random.default_rng(seed) if seed is not None else None
             # the dark-middle connections draw from their own stream, so switching them on or off (full vs
@@ -362,13 +367,13 @@ class LookinSampler(LookinSecondary):
             for start in range(0, len(x), step):
                 sl = slice(start, start + step)
                 self._lookin_slice(laser, n_rays, directions[sl], pdf[sl], x[sl], n_x[sl], obj_x[sl], r_lx[sl],
-                                   rng, dark_rng, sink, conv)
+                                   rng, dark_rng, sink, conv, stats)
         finally:
-            self.stats = self.physics.stats = saved
+            self.physics.stats = saved
 
     def _lookin_slice(self, laser, n_rays, directions, pdf, x, n_x, obj_x, r_lx, rng, dark_rng, sink,
-                      conv) -> None:
-        c, s, stats = self.capture, self.settings, self.stats
+                      conv, stats: LookinStats) -> None:
+        c, s = self.capture, self.settings
         spot = c.spots[laser]
         w_to_spot = (spot - x) / r_lx[:, None]
         cos_x_l = np.maximum(dot(n_x, w_to_spot), 0.0)
@@ -389,10 +394,11 @@ class LookinSampler(LookinSecondary):
             comp = self.object_component[obj_x[b]] * c.n_channels + out.channel
             sink.add(laser_t + r_lx[b] / SPEED_OF_LIGHT + out.time, weight, comp)
         if s.secondary != "none" and len(out.b):
-            light = self.spot_light(obs, laser)
-            self.secondary(laser, n_rays, pdf, x, n_x, obj_x, r_lx, cos_x_l, obs, light, out, sink, conv)
+            paths = self.secondary_paths
+            light = paths.spot_light(obs, laser, stats)
+            paths.lit_middle(laser, n_rays, pdf, x, n_x, obj_x, r_lx, cos_x_l, obs, light, out, sink, conv, stats)
             if s.dark_middle and s.secondary != "optimized":     # the paper's top-K approximation stays as is
-                self.secondary_dark(laser, flux, x, n_x, obj_x, r_lx, w_to_spot, obs, light, sink, dark_rng)
+                paths.dark_middle(laser, flux, x, n_x, obj_x, r_lx, w_to_spot, obs, light, sink, dark_rng, stats)
 
     # -- sensor side -------------------------------------------------------------------------------------
 

@@ -1,6 +1,7 @@
 """The lookin estimator's secondary: paths laser spot → y' → lookin x_j → FoV point → sensor (docs/physics.md §3).
 
-:class:`LookinSecondary` is a mixin of :class:`datagen.transport.lookin.LookinSampler` (the paper's lookin sampler):
+:class:`LookinSecondary` is a collaborator of :class:`datagen.transport.lookin.LookinSampler` (the paper's lookin
+sampler), built from the capture, settings, leg physics, ray caster and materials it reads:
 
 - ``full``: every (k', k) pair of observed points of a lookin, O(Ñ²) per lookin (the paper's full scheme,
   Eq. 8); ``optimized``: the ``top_k`` strongest k' per (lookin, FoV point) (the paper's optimized scheme,
@@ -128,8 +129,25 @@ def cic_rows(x: np.ndarray, w: np.ndarray, row: np.ndarray, n_rows: int) -> tupl
 
 
 class LookinSecondary:
-    """Secondary paths of the lookin estimator (module doc); mixed into :class:`~datagen.transport.lookin.LookinSampler`,
-    whose ``capture``, ``settings``, ``stats``, ``physics``, ``caster``, ``materials`` and ``n_primary`` it uses."""
+    """Secondary paths of the lookin estimator (module doc), for one :class:`~datagen.transport.lookin.LookinSampler`.
+
+    Args:
+        capture: the resolved :class:`~datagen.scene.Capture`; settings: the sampler's
+            :class:`~datagen.transport.lookin.LookinSettings` (replaced by :meth:`configure`); physics: the
+            :class:`~datagen.transport.physics.LegPhysics` weighing every leg; caster: the scene's ray caster;
+            materials: the scene's :class:`~datagen.scene.MaterialTable`; n_primary: the number of primary
+            components (the secondary's component id is ``n_primary * n_channels + channel``).
+
+    The counting methods add to the :class:`~datagen.transport.lookin.LookinStats` they are given (one per batch).
+    """
+
+    def __init__(self, capture, settings, physics, caster, materials, n_primary: int):
+        self.capture, self.settings, self.physics = capture, settings, physics
+        self.caster, self.materials, self.n_primary = caster, materials, int(n_primary)
+
+    def configure(self, settings) -> None:
+        """Use the sampler's new ``settings`` from now on."""
+        self.settings = settings
 
     def conv_grid(self, sink: Sink) -> ConvGrid:
         """Exact-secondary profile grid aligned to the sink's fine grid, ``conv_refine`` times finer (and at most
@@ -151,7 +169,7 @@ class LookinSecondary:
             raise ConfigError("secondary 'exact' needs an EnvelopeAccumulator sink")
         return ConvGrid(t0, step, n, self.capture.n_channels)
 
-    def spot_light(self, obs: ObservedPoints, laser: int) -> "LitPoints":
+    def spot_light(self, obs: ObservedPoints, laser: int, stats) -> "LitPoints":
         """Which observed points the laser spot lights on the side facing their lookin (one shadow ray each
         where ``shadow_spot``), with the spot → point geometry; shared by both secondary estimators."""
         c, s = self.capture, self.settings
@@ -168,18 +186,18 @@ class LookinSecondary:
         if s.shadow_spot and lit.any():
             idx = np.flatnonzero(lit)
             idx = idx[self.physics.may_be_blocked(spot, w[idx], r[idx], self.physics.spot_spheres)]
-            self.stats.shadow_rays += len(idx)
+            stats.shadow_rays += len(idx)
             lit[idx] = self.caster.visible(y[idx], n_y[idx], spot, spot_n)
         return LitPoints(flat, flat // obs.hit.shape[1], y, n_y, r, w, cos_l, cos_in, lit)
 
-    def secondary(self, laser, n_rays, pdf, x, n_x, obj_x, r_lx, cos_x_l, obs, light: "LitPoints",
-                  out: Connections, sink, conv) -> None:
+    def lit_middle(self, laser, n_rays, pdf, x, n_x, obj_x, r_lx, cos_x_l, obs, light: "LitPoints",
+                   out: Connections, sink, conv, stats) -> None:
         """Paths spot → y' (lit observed point) → lookin x_j → FoV point, for one slice of lookins (B of them).
 
         Each lookin acts as an *area* sample with dA_j = R_j² / (N p_j cosθ_j,l); y' receives the laser
         irradiance E' and reflects it toward x_j through its camera pixel (Ω); x_j scatters toward the FoV
         connections ``out`` like the primary. ``full`` sums every pair, ``optimized`` the ``top_k`` strongest per
-        FoV point, ``exact`` hands the sums to :meth:`secondary_exact` (``conv``, a :class:`ConvGrid`).
+        FoV point, ``exact`` hands the sums to :meth:`exact` (``conv``, a :class:`ConvGrid`).
         """
         c, s = self.capture, self.settings
         # area measure of each lookin as a second hidden vertex: dA_j = R_j² / (N p_j cosθ_j,l)
@@ -187,7 +205,7 @@ class LookinSecondary:
             area = np.where(cos_x_l > 0, r_lx ** 2 / (n_rays * pdf * cos_x_l), 0.0)
         # laser-lit observed points y' of lookins with an area
         cand = np.flatnonzero(light.lit & (area[light.hb] > 0))
-        self.stats.lit_points += len(cand)
+        stats.lit_points += len(cand)
         if len(cand) == 0:
             return
         lb, flat = light.hb[cand], light.flat[cand]
@@ -206,8 +224,7 @@ class LookinSecondary:
         out_w = cos_out * out.weight * self.physics.attenuation(out.phys)
         out_t = laser_t + out.time
         if s.secondary == "exact":
-            self.secondary_exact(x, n_x, obj_x, lb, in_w, in_path / SPEED_OF_LIGHT, in_dir, out, out_w, out_t,
-                                  conv)
+            self.exact(x, n_x, obj_x, lb, in_w, in_path / SPEED_OF_LIGHT, in_dir, out, out_w, out_t, conv, stats)
             return
         sec_comp = self.n_primary * c.n_channels
         for j in range(len(x)):
@@ -225,15 +242,15 @@ class LookinSecondary:
                 pair = np.take_along_axis(pair, keep, axis=0)
                 t_pair = np.take_along_axis(np.broadcast_to(t_pair, (len(a), len(b))), keep, axis=0)
                 chan = chan[:s.top_k]
-            self.stats.secondary_pairs += pair.size
+            stats.secondary_pairs += pair.size
             sink.add(t_pair.ravel(), pair.ravel(), (sec_comp + chan).ravel())
 
-    def secondary_dark(self, laser, flux, x, n_x, obj_x, r_lx, w_to_spot, obs: ObservedPoints,
-                       light: "LitPoints", sink, rng) -> None:
+    def dark_middle(self, laser, flux, x, n_x, obj_x, r_lx, w_to_spot, obs: ObservedPoints,
+                    light: "LitPoints", sink, rng, stats) -> None:
         """Secondary paths whose middle vertex the laser does not light (docs/physics.md §2's path integral;
         docs/accuracy.md, "dark middle vertices").
 
-        The lookin secondary (:meth:`secondary`) puts the middle vertex of spot → y' → x → FoV on a lookin
+        The lookin secondary (:meth:`lit_middle`) puts the middle vertex of spot → y' → x → FoV on a lookin
         x, i.e. on a point the laser spot lights; paths whose middle vertex lies in a laser shadow (behind
         the box, on the side of the pillar turned away from the spot) have no lookin and are missed (6.9 % of
         the demo room's secondary). They are sampled here the other way round: lookin x_j (lit, first
@@ -253,7 +270,7 @@ class LookinSecondary:
         if len(dark) == 0:
             return
         z, n_z = light.y[dark], light.n_y[dark]
-        self.stats.dark_points += len(dark)
+        stats.dark_points += len(dark)
         jitter = rng.random((len(dark), 2)) if rng is not None else np.full((len(dark), 2), 0.5)
         out = self.physics.connect(z, n_z, laser, rng, s.connect_samples, jitter)
         if len(out.b) == 0:
@@ -267,11 +284,11 @@ class LookinSecondary:
         path = r_lx[j] + obs.distance.ravel()[flat]
         weight = phi * f_z * cos_z * out.weight * self.physics.attenuation(c.emitter_legs[laser] + path + out.phys)
         laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
-        self.stats.secondary_pairs += len(out.b)
+        stats.secondary_pairs += len(out.b)
         sink.add(laser_t + path / SPEED_OF_LIGHT + out.time, weight, self.n_primary * c.n_channels + out.channel)
 
-    def secondary_exact(self, x, n_x, obj_x, lb, in_w, in_t, in_dir, out: Connections, out_w, out_t,
-                        conv: ConvGrid) -> None:
+    def exact(self, x, n_x, obj_x, lb, in_w, in_t, in_dir, out: Connections, out_w, out_t,
+              conv: ConvGrid, stats) -> None:
         """Exact secondary at O(N·l·p) cost (docs/physics.md §3): with the split f = c·g(ω_in)·g(ω_out) + lobe, the
         sum over pairs (k', k) at each lookin is c × (incoming profile weighted by g) ⊛ (outgoing profile
         weighted by g): one FFT convolution per lookin and channel. Lobes (Phong) are summed pairwise.
@@ -288,8 +305,8 @@ class LookinSecondary:
                     remap[sel] = np.arange(len(sel))
                     sub = out.take(mo)
                     sub.b = remap[sub.b]
-                    self.secondary_exact(x[sel], n_x[sel], obj_x[sel], remap[lb[mi]], in_w[mi], in_t[mi],
-                                         in_dir[mi], sub, out_w[mo], out_t[mo], conv)
+                    self.exact(x[sel], n_x[sel], obj_x[sel], remap[lb[mi]], in_w[mi], in_t[mi], in_dir[mi], sub,
+                               out_w[mo], out_t[mo], conv, stats)
                 return
         scale = self.materials.separable_scale(obj_x)                                  # (B,)
         g_in = self.physics.separable_factor(obj_x, n_x, lb, in_dir)
@@ -312,7 +329,7 @@ class LookinSecondary:
             vals = prod[row, :length] * scale[j]
             np.maximum(vals, 0.0, out=vals)                       # FFT round-off below zero
             conv.add_block(int(ch), int(a_start[j] + bs), vals)
-        self.stats.secondary_pairs += int(np.bincount(lb, minlength=B) @ np.bincount(out.b, minlength=B))
+        stats.secondary_pairs += int(np.bincount(lb, minlength=B) @ np.bincount(out.b, minlength=B))
         lobe = self.materials.has_lobe(obj_x)
         for j in np.flatnonzero(lobe):
             a = np.flatnonzero(lb == j)
