@@ -146,11 +146,13 @@ def metadata_problems(root: str | Path, card: dict, splits: list[str] | None = N
         elif actual != want:
             problems.append(f"{path}: differs from what the card implies ({_describe(actual, want)})")
         node = "/".join(parts[:-1])
-        copy = {k: v for k, v in copies.get(node, {}).items() if k != "consolidated_metadata"}  # groups: None
-        if copies and copy != want:
+        # a group's copy holds its own (empty) consolidated block, its zarr.json none (or null: zarr 3.1.3)
+        copy = {k: v for k, v in copies.get(node, {}).items() if k != "consolidated_metadata"}
+        want_copy = {k: v for k, v in want.items() if k != "consolidated_metadata"}
+        if copies and copy != want_copy:
             problems.append(f"{root / 'zarr.json'}: consolidated metadata of {node} "
                             f"{'missing' if not copy else 'differs from what the card implies'}"
-                            f"{'' if not copy else f' ({_describe(copy, want)})'}")
+                            f"{'' if not copy else f' ({_describe(copy, want_copy)})'}")
     return problems
 
 
