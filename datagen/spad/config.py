@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from ..errors import ConfigError
 from ..timing.irf import FWHM_PER_SIGMA
 from ..units import parse_duration, parse_rate
-from .models import detector_model, model_names
+from .models import ModelName, detector_model, model_names
 
 __all__ = [
     "FWHM_PER_SIGMA",
@@ -24,11 +24,7 @@ __all__ = [
 ]
 
 
-ModelName = Literal["poisson", "pile_up", "multi_stop", "free_running"]
-
 DeadTimeKind = Literal["none", "synchronous", "free_running"]
-
-
 
 MAX_CYCLES = 1 << 62
 """Most laser cycles one exposure may hold (4.6e18): counts are int64 (9.2e18) and no bin can count more

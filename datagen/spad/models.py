@@ -16,16 +16,19 @@ datagen may rely on (docs/physics.md §6, docs/architecture.md "Adding a detecto
 :mod:`.synchronous` registers ``poisson``, ``pile_up`` and ``multi_stop``; :mod:`.free_running_batched` registers
 ``free_running`` (where both its samplers are in reach); :mod:`.histogram` imports both, and ``datagen.spad`` imports :mod:`.histogram`, so the registry
 is full once ``datagen.spad`` (or any of its modules) is imported. The names a config may give are
-``datagen.spad.config.ModelName``; a test holds the two equal.
+the :data:`ModelName` literal (``DetectorConfig.model``); a test holds the two equal.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Literal
+from typing import Callable, Literal, get_args
 
 import numpy as np
 
 from ..errors import ConfigError
+
+ModelName = Literal["poisson", "pile_up", "multi_stop", "free_running"]
+"""The model names a config may give (``DetectorConfig.model``), in the order listings use."""
 
 __all__ = ["DetectorModel", "register_model", "detector_model", "model_names"]
 
@@ -73,12 +76,8 @@ def detector_model(name: str) -> DetectorModel:
 
 
 def model_names(**supports: bool) -> tuple[str, ...]:
-    """Registered model names, in the order of ``datagen.spad.config.ModelName`` (then any other, by name);
+    """Registered model names, in the order of :data:`ModelName` (then any other, by name);
     keyword filters keep those with the given support, e.g. ``model_names(fittable=True)``."""
-    from typing import get_args
-
-    from .config import ModelName
-
     order = {name: i for i, name in enumerate(get_args(ModelName))}
     names = sorted(_MODELS, key=lambda n: (order.get(n, len(order)), n))
     return tuple(n for n in names if all(getattr(_MODELS[n], k) == v for k, v in supports.items()))
