@@ -199,24 +199,6 @@ def test_converged_reference_holds_every_order_and_does_not_depend_on_the_worker
     assert 0.15 < one.components["multibounce"].sum() / one.envelope.sum() < 0.35
 
 
-def test_a_deterministic_estimator_leaves_orders_3_up_out_and_counts_them():
-    """The quadrature runs its primary once: no replicas would measure the tracer's noise, so with orders: auto the
-    pilot's share of orders >= 3 is left out and counted in the stated error (with the order-2 share when the
-    secondary is off), rather than simulated with an unmeasured error."""
-    scene = datagen.load_scene(DEMO)
-    cfg = datagen.resolve_config(scene, {"estimator": {"kind": "quadrature", "edge": 0.2}, "orders": "auto",
-                                         "effects": {"secondary": False}})
-    assert cfg.orders_setting() == "auto"
-    r = datagen.simulate(scene, cfg)
-    d = r.attrs["plan"]["multibounce"]
-    assert d["on"] is False and "multibounce" not in r.components
-    shares = d["numbers"]["pilot_shares"]
-    beyond = sum(v for k, v in shares.items() if k not in ("order_1", "order_2"))
-    assert d["numbers"]["residual"] == pytest.approx(beyond + shares["order_2"])
-    assert r.attrs["error"]["omitted_orders"] == d["numbers"]["residual"] > 0.5     # demo room: most of the light
-    assert r.attrs["error"]["rel_l2"] >= r.attrs["error"]["omitted_orders"]
-
-
 def test_the_error_of_two_independent_parts_is_their_variances_summed_over_the_summed_mean():
     """combined_error: one part gives ReplicaSums.error to the bit; two parts with their own replica counts give
     sqrt(Σ var_b/R_b + var_t/R_t) / ‖mean_b + mean_t‖ (bins above 1 % of the summed peak), computed by hand."""
@@ -279,7 +261,7 @@ def test_a_run_counts_the_tracer_replicas_apart_and_its_mean_over_them(tmp_path)
 
 
 def test_deeper_orders_are_smoothed_on_wider_nodes():
-    from datagen.transport.multibounce.tracer import SmoothingBands, default_smoothing
+    from datagen.transport.multibounce.smoothing import SmoothingBands, default_smoothing
     bands = SmoothingBands(3, 1e-9, 4e-9, 0.0, 100e-9, 1)
     assert bands.widths == [1e-9, 2e-9, 4e-9] and bands.margin == pytest.approx(16e-9)
     assert bands.band(2) is None
@@ -295,7 +277,7 @@ def test_deeper_orders_are_smoothed_on_wider_nodes():
 def test_the_smoothing_bias_estimate_sees_a_known_curvature():
     """Impulses drawn from a Gaussian of σ = 5 ns, smoothed at Δ = 2 ns: the Richardson estimate
     ‖L(2Δ) − L(Δ)‖/3 is within a factor 1.5 of the actual bias ‖L(Δ) − L‖ computed from the density."""
-    from datagen.transport.multibounce.tracer import DeepSmoothing
+    from datagen.transport.multibounce.smoothing import DeepSmoothing
     edges = np.linspace(0, 100e-9, 2001)
     sm = DeepSmoothing(2e-9, 0.0, 100e-9, 1)
     rng = np.random.default_rng(1)

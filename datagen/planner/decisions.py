@@ -53,7 +53,7 @@ from ..scene.separation import CHUNK_ELEMENTS, hull_planes, may_meet, outward_pl
 from ..timing.irf import TAIL_MARGIN_TAUS
 from ..spad.models import detector_model, model_names
 from ..spad.pileup import pile_up_decision
-from ..transport import PhysicsSettings, estimator
+from ..transport import PhysicsSettings
 from ..transport.base import PLANNED_SWITCHES
 from .coarse import CoarseEnergies, coarse_energies
 from .orders import PILOT_PATHS, RESIDUAL_FRACTION, OmittedOrdersWarning, decide_orders, order_shares
@@ -235,21 +235,16 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
 
 def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, orders: int | str, tol: float,
                 secondary_on: bool = True) -> Decision:
-    """The decision on light of order ≥ 3 (:mod:`.orders`): the pilot's shares (``auto`` only), the highest order
-    and the residual share left out, in its numbers; with the secondary off (forced, or planned off) the pilot's
-    order-2 share joins the residual."""
+    """The decision on the light the estimator's own orders leave out (:mod:`.orders`): the pilot's shares (``auto``
+    and fixed orders ≤ 2), the tracer's lowest and highest order and the residual share left out, in its numbers.
+    With the secondary off (forced, or planned off) the tracer starts at order 2, or, when it does not run, the
+    pilot's order-2 share joins the residual."""
     shares = None
     if orders == "auto" or orders <= 2:                 # (orders ≤ 2 comes here only when the user fixed it)
         shares = order_shares(scene, capture, caster, config.physics_settings(),
                               (config.time.t_start, config.time.t_stop), config.seed)
-    entry = estimator(config.estimator.kind)
-    supported = entry.replica is not None and entry.refine is None     # a Monte Carlo estimator: replicas measure
-                                                                       # the tracer's noise with its own
-    on, max_order, residual, reason = decide_orders(orders, shares, tol, supported)
-    if shares is not None and not secondary_on and shares[1] > 0 and orders != 1:
-        residual = float(np.hypot(residual, shares[1])) if on else residual + float(shares[1])
-        reason += f"; the secondary is off, and the pilot's order 2 ({shares[1]:.2%}) is counted as left out too"
-    numbers = {"orders": orders, "max_order": max_order, "residual": residual}
+    on, min_order, max_order, residual, reason = decide_orders(orders, shares, tol, secondary_on)
+    numbers = {"orders": orders, "min_order": min_order, "max_order": max_order, "residual": residual}
     if shares is not None:
         numbers["pilot_paths"] = PILOT_PATHS
         numbers["pilot_shares"] = {f"order_{k + 1}" if k + 1 < len(shares) else f"order_{k + 1}_up": float(v)

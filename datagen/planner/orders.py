@@ -64,44 +64,40 @@ def order_shares(scene: Scene, capture: Capture, caster: RayCaster, physics: Phy
     return tracer.order_energy / total if total > 0 else tracer.order_energy
 
 
-def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, supported: bool):
-    """(on, max_order, residual, reason) for light of order ≥ 3.
+def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, secondary_on: bool = True):
+    """(on, min_order, max_order, residual, reason) for the light the estimator's own orders leave out.
+
+    The tracer carries every order from ``min_order`` up: 3 beside an estimator with its secondary, 2 beside one
+    without (``secondary: none``, or the planner turned it off: the confocal scans' quadrature).
 
     Args:
         orders: the config's ``orders`` (an int ≥ 1 or "auto"); shares: :func:`order_shares` (None when not run);
-        tol: the tolerance; supported: whether the estimator can carry the tracer (a Monte Carlo estimator, whose
-            replicas measure the tracer's noise; the quadrature's deterministic primary runs once).
+        tol: the tolerance; secondary_on: whether the estimator computes order 2 itself.
     Returns:
-        on: simulate orders ≥ 3; max_order: the highest order (0: every order); residual: the estimated share of the
-        in-window energy left out (0 when every order is simulated or nothing was estimated); reason: one sentence
-        with the numbers.
+        on: run the tracer; min_order: its lowest order (2 or 3); max_order: its highest (0: every order);
+        residual: the estimated share of the in-window energy left out (0 when every order is simulated or nothing
+        was estimated); reason: one sentence with the numbers.
     """
-    beyond = float(shares[2:].sum()) if shares is not None else None
+    lowest = 3 if secondary_on else 2
+    beyond = float(shares[lowest - 1:].sum()) if shares is not None else None
     if orders != "auto":
         n = int(orders)
         if n <= 2:
             reason = f"orders: {n} (fixed by the config)"
             if shares is None:
-                return False, 0, 0.0, reason
-            left = float(shares[n:].sum())
-            return False, 0, left, (f"{reason}; the pilot finds the orders above {n} carry {left:.2%} of the "
-                                    "in-window energy: left out, counted in the stated error")
-        if not supported:
-            return False, 0, beyond or 0.0, (f"orders: {n} asked, but the order ≥ 3 tracer runs beside Monte Carlo "
-                                              "estimators only (area, lookin), whose replicas measure its noise; "
-                                              "left out")
-        return True, n, 0.0, f"orders: {n} (fixed by the config)"
+                return False, lowest, 0, 0.0, reason
+            left = float(shares[n:].sum()) + (float(shares[1]) if n == 2 and not secondary_on else 0.0)
+            return False, lowest, 0, left, (f"{reason}; the pilot finds the orders the run leaves out carry "
+                                            f"{left:.2%} of the in-window energy: counted in the stated error")
+        return True, lowest, n, 0.0, f"orders: {n} (fixed by the config)"
     threshold = RESIDUAL_FRACTION * tol
+    which = "orders ≥ 3" if secondary_on else "orders ≥ 2 (the estimator runs without its secondary)"
     if beyond <= threshold:
-        return False, 0, beyond, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, below "
-                                  f"{RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): left out, counted in the "
-                                  "stated error")
-    if not supported:
-        return False, 0, beyond, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, but the "
-                                  "order ≥ 3 tracer runs beside Monte Carlo estimators only (area, lookin), whose "
-                                  "replicas measure its noise: left out, counted in the stated error")
-    return True, 0, 0.0, (f"the pilot finds orders ≥ 3 carry {beyond:.2%} of the in-window energy, above "
-                          f"{RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): every order simulated")
+        return False, lowest, 0, beyond, (f"the pilot finds {which} carry {beyond:.2%} of the in-window energy, "
+                                          f"below {RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): left out, "
+                                          "counted in the stated error")
+    return True, lowest, 0, 0.0, (f"the pilot finds {which} carry {beyond:.2%} of the in-window energy, above "
+                                  f"{RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): every order simulated")
 
 
 def orders_record(plan, tracer, n_lasers: int) -> dict:

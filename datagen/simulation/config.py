@@ -121,6 +121,9 @@ the demo room (albedo 1: a path costs two hidden samples), 0.6–1 in ``default.
 DEFAULT_PATHS = 262144
 """Default light paths per laser point of the order ≥ 3 tracer beside estimators without a ``samples`` count."""
 
+MIN_SCAN_PATHS = 64
+"""Fewest default light paths per laser point of a scan (:meth:`SimulationConfig.tracer_paths`)."""
+
 
 class MultibounceOptions(BaseModel):
     """The ``multibounce:`` block of a simulation config: the order ≥ 3 tracer (docs/accuracy.md, "Light of every
@@ -232,12 +235,15 @@ class SimulationConfig(BaseModel):
                              "of orders: 1): drop secondary: none, or write orders: 1")
         return self
 
-    def tracer_paths(self) -> int:
-        """Light paths per laser point of the order ≥ 3 tracer: ``multibounce.paths``, or its default."""
+    def tracer_paths(self, n_lasers: int = 1) -> int:
+        """Light paths per laser point of the order ≥ 3 tracer: ``multibounce.paths``, or its default, which a scan
+        of ``n_lasers`` laser points shares among them (at least :data:`MIN_SCAN_PATHS` per point: the tail varies
+        slowly across the scan, and every point's paths are traced together)."""
         if self.multibounce.paths is not None:
             return int(self.multibounce.paths)
         samples = getattr(self.estimator, "samples", None)
-        return int(PATHS_PER_SAMPLE * samples) if samples else DEFAULT_PATHS
+        total = int(PATHS_PER_SAMPLE * samples) if samples else DEFAULT_PATHS
+        return total if n_lasers <= 1 else max(MIN_SCAN_PATHS, -(-total // int(n_lasers)))
 
     def orders_setting(self) -> int | str:
         """The orders asked for: ``orders``, or when unset 1 with ``secondary: none`` and 2 otherwise."""
@@ -320,8 +326,11 @@ def merge_overrides(defaults: dict, overrides: dict) -> tuple[dict, list[str]]:
     possibly in the old flat form, merged in the new form (:func:`merge_simulation`), and the old → new moves
     made in ``defaults`` (the old keys of ``overrides``, the command-line flags' names, are the documented way
     to override one knob and make none). As the old flat merge did, a ``defaults`` block without an estimator
-    mapping takes the estimator ``overrides`` name, and its flat keys apply to that estimator."""
+    mapping takes the estimator ``overrides`` name, and its flat keys apply to that estimator. An ``orders`` of
+    ``overrides`` (other than 1) beats the old spelling ``secondary: none`` (= orders 1) of ``defaults``."""
     given = {k: v for k, v in overrides.items() if v is not None}
+    if given.get("orders", 1) != 1 and "secondary" not in given and (defaults or {}).get("secondary") == "none":
+        given["secondary"] = "full"
     base = dict(defaults)
     kind = _kind_of(base.get("estimator"), "lookin")
     final = _kind_of(given.get("estimator"), kind)
@@ -371,10 +380,6 @@ def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationCon
     """
     where = f"{scene.source} (simulation)" if scene.source else "simulation"
     overrides = dict(overrides or {})
-    asked = overrides.get("orders")
-    if (asked is not None and asked != 1 and overrides.get("secondary") is None
-            and (scene.defaults or {}).get("secondary") == "none"):
-        overrides["secondary"] = "full"        # --orders beats the file's old spelling secondary: none (= orders 1)
     try:
         data, moves = merge_overrides(scene.defaults, overrides)
     except ValueError as exc:

@@ -32,6 +32,10 @@ PEAK_FLOOR = 0.01
 """Bins where the envelope exceeds this fraction of its peak enter the relative L2 (docs/accuracy.md)."""
 
 
+FIRST_TRACER_REPLICAS = 2
+"""Beside a deterministic estimator (the quadrature) the tracer's default paths run as this many replicas first;
+the tolerance loop adds replicas of that size (:func:`datagen.simulation.tolerance.simulate_to_tolerance`)."""
+
 def replica_root(rng: np.random.Generator) -> int:
     """The root seed of a run's replicas, drawn once from its sampling stream ``rng``."""
     return int(rng.integers(0, 2 ** 63))
@@ -75,12 +79,15 @@ class ReplicaSums:
         envelope_sq: (n_channels, n_bins) Σ_r of its square, in ``scale``² units.
         count: R, replicas added.
         scale: photons per pulse per unit of the sums (0 until a replica with energy arrives).
+        exact: the envelope comes from a deterministic estimator run once (the quadrature beside the tracer): its
+            variance is 0, not unknown.
     """
 
     envelope: np.ndarray
     envelope_sq: np.ndarray
     count: int = 0
     scale: float = 0.0
+    exact: bool = False
 
     @classmethod
     def zeros(cls, n_channels: int, n_bins: int) -> ReplicaSums:
@@ -110,6 +117,8 @@ class ReplicaSums:
         """(mean, variance of the mean) per bin, (n_channels, n_bins) each, in units of ``scale`` (its square for
         the variance); the variance is inf for fewer than 2 replicas."""
         mean = self.envelope / max(self.count, 1)
+        if self.exact:
+            return mean, np.zeros_like(mean)
         if self.count < 2:
             return mean, np.full_like(mean, np.inf)
         return mean, np.maximum(self.envelope_sq / self.count - mean ** 2, 0.0) / (self.count - 1)
@@ -134,7 +143,7 @@ def combined_error(parts: list[ReplicaSums]) -> float:
     all-zero mean."""
     mean, var = None, None
     for p, (m, v) in zip(parts, _moments_in_common_units(parts)):
-        if p.count < 2:
+        if p.count < 2 and not p.exact:
             if m.any():
                 return float("inf")
             continue                                                 # no energy: adds nothing

@@ -9,7 +9,7 @@ streams: :func:`datagen.simulation.config.stream_rng` (docs/physics.md §7).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -25,14 +25,15 @@ from ..scene.capture import Capture
 from ..timing import EnvelopeAccumulator
 from ..transport import estimator
 from ..transport.base import Estimator, run_replicas
-from ..transport.multibounce import AllOrders, MultibounceSettings, MultibounceTracer
+from ..transport.multibounce import COMPONENT, AllOrders, MultibounceSettings, MultibounceTracer
 from ..transport.multibounce.orders import tracer_nominal_seconds
-from ..transport.multibounce.tracer import default_smoothing, tracer_rng
+from ..transport.multibounce.smoothing import default_smoothing
+from ..transport.multibounce.tracer import tracer_rng
 from .budget import check_simulation_memory
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .provenance import library_versions
-from .replicas import (ReplicaSums, combined_error, neyman_split, relative_difference, replica_root, replica_rng,
-                       tracer_replicas_wanted)
+from .replicas import (FIRST_TRACER_REPLICAS, ReplicaSums, combined_error, neyman_split, relative_difference,
+                       replica_root, replica_rng, tracer_replicas_wanted)
 
 
 @dataclass
@@ -133,15 +134,17 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
     transport: Estimator = entry.from_config(scene, config, physics, caster, capture,
                                              plan.secondary_mode(config.secondary))
     orders = plan.decisions.get("multibounce")
-    if orders is not None and orders.on:                 # orders ≥ 3: the tracer beside the estimator
-        smoothing = default_smoothing(config.time.bin_width, config.effect_threshold)
-        if not config.multibounce.smoothing:
-            smoothing["smooth_order"] = 0
+    if orders is not None and orders.on:     # the tracer beside the estimator: orders ≥ 3, or ≥ 2 without secondary
+        min_order = int(orders.numbers.get("min_order", 3))
+        smoothing = (default_smoothing(config.time.bin_width, config.effect_threshold, min_order,
+                                       capture.kind == "confocal") if config.multibounce.smoothing else {})
         tracer = MultibounceTracer(capture, caster, transport.physics,
-                                   MultibounceSettings(paths=config.tracer_paths(),
+                                   MultibounceSettings(paths=config.tracer_paths(capture.n_lasers),
+                                                       min_order=min_order,
                                                        max_order=int(orders.numbers["max_order"]),
                                                        **smoothing),
-                                   len(transport.component_names), (config.time.t_start, config.time.t_stop))
+                                   len(transport.component_names), (config.time.t_start, config.time.t_stop),
+                                   transport.component_names.index("secondary") if min_order == 2 else None)
         transport = AllOrders(transport, tracer)
     return transport, plan
 
@@ -218,20 +221,27 @@ class Replicas:
         check_simulation_memory(scene, config)   # the grids as the user gave them (a replica's are smaller)
         update = self.entry.replica(config.estimator, config.replicas) if self.entry.replica is not None else {}
         self.replica_config = config.with_estimator(**update)
+        self.planned = planned if planned is not None else plan_transport(scene, self.replica_config)
         if self.entry.replica is not None:             # the order ≥ 3 tracer's paths split as the sampling is
-            paths = max(1, -(-config.tracer_paths() // config.replicas))
+            paths = max(1, -(-config.tracer_paths(self.planned.capture.n_lasers) // config.replicas))
             self.replica_config = self.replica_config.model_copy(
                 update={"multibounce": self.replica_config.multibounce.model_copy(update={"paths": paths})})
-        self.planned = planned if planned is not None else plan_transport(scene, self.replica_config)
         self.transport, self.plan = prepare_transport(scene, self.replica_config, self.planned)
-        self.monte_carlo = self.entry.replica is not None and getattr(self.transport, "monte_carlo", True)
+        # the tracer's replicas are counted apart from the base's, so that each gets the share of the work that
+        # the error of their sum asks for (replicas.tracer_replicas_wanted); beside a deterministic base (the
+        # quadrature) the base runs once and only the tracer has replicas
+        self.tracer = getattr(self.transport, "tracer", None)
+        base = self.transport.base if self.tracer is not None else self.transport
+        self.base_monte_carlo = self.entry.replica is not None and getattr(base, "monte_carlo", True)
+        self.monte_carlo = self.base_monte_carlo or self.tracer is not None
+        if self.tracer is not None and not self.base_monte_carlo:    # the tracer's paths in FIRST_TRACER_REPLICAS
+            paths = max(1, -(-config.tracer_paths(self.planned.capture.n_lasers) // FIRST_TRACER_REPLICAS))
+            self.tracer.settings = replace(self.tracer.settings, paths=paths)
         self.names = self.transport.component_names
         self.n_channels = self.transport.capture.n_channels
         self.total = EnvelopeAccumulator(config.time, config.irf, len(self.names) * self.n_channels)
         self.sums = ReplicaSums.zeros(self.n_channels, config.time.n_bins)
-        # orders ≥ 3: the tracer's replicas are counted apart from the base's, so that each gets the share of the
-        # work that the error of their sum asks for (replicas.tracer_replicas_wanted)
-        self.tracer = getattr(self.transport, "tracer", None) if self.monte_carlo else None
+        self.sums.exact = not self.base_monte_carlo
         self.tracer_sums = ReplicaSums.zeros(self.n_channels if self.tracer is not None else 0, config.time.n_bins)
         self.root = replica_root(rng)
         self.seconds = {"setup": time.perf_counter() - t0, "transport": 0.0, "binning": 0.0}
@@ -256,11 +266,16 @@ class Replicas:
             if bar is not None:
                 bar.close()
             return
+        streams = lambda r: tracer_rng(replica_rng(self.root, r))          # noqa: E731 (replica r's own stream)
         if self.tracer is None:
             self._run_group(self.transport, self.sums, n, lambda r: replica_rng(self.root, r), bar)
+        elif not self.base_monte_carlo:          # the deterministic base once, then the tracer's replicas
+            first = self.sums.count == 0
+            if first:
+                self._run_group(self.transport.base, self.sums, 1, lambda r: replica_rng(self.root, r), bar)
+            self._run_group(self.tracer, self.tracer_sums, FIRST_TRACER_REPLICAS if first else n, streams, None)
         else:                                    # orders 1–2, then the tracer's replicas that go with them
             self._run_group(self.transport.base, self.sums, n, lambda r: replica_rng(self.root, r), bar)
-            streams = lambda r: tracer_rng(replica_rng(self.root, r))      # noqa: E731 (replica r's own stream)
             if self.tracer_sums.count < 2:
                 self._run_group(self.tracer, self.tracer_sums, 2 - self.tracer_sums.count, streams, None)
             wanted = tracer_replicas_wanted(self.sums, self.tracer_sums, *self._replica_costs())
@@ -318,7 +333,7 @@ class Replicas:
         outside = self.total.outside().reshape(len(self.names), self.n_channels)
         if self.tracer is not None:                # the tracer's component over its own replica count
             runs = np.full(len(self.names), float(r))
-            runs[self.tracer.component] = max(self.tracer_sums.count, 1)
+            runs[self.tracer.components] = max(self.tracer_sums.count, 1)
             binned, outside = binned / runs[:, None, None], outside / runs[:, None]
         elif r > 1:                                # one replica (every deterministic run): no full-size copy
             binned, outside = binned / r, outside / r
@@ -335,7 +350,7 @@ class Replicas:
         if self.entry.refine is None:
             return None
         t0 = time.perf_counter()
-        keep = [i for i, n in enumerate(tr.names) if n not in ("secondary", "first_bounce")]
+        keep = [i for i, n in enumerate(tr.names) if n not in ("secondary", "first_bounce", COMPONENT)]
         coarse_acc = getattr(self.transport, "coarse", None)
         channels = slice(None)
         ratio = 2.0                                # the compared rule's edge over the result's (h/2: 0.5)
@@ -358,7 +373,7 @@ class Replicas:
 
     @property
     def smoothing(self):
-        """The tracer's time smoothing (:class:`~datagen.transport.multibounce.tracer.SmoothingBands`), or None
+        """The tracer's time smoothing (:class:`~datagen.transport.multibounce.smoothing.SmoothingBands`), or None
         when no orders are smoothed."""
         return self.tracer.smoothing if self.tracer is not None else None
 
@@ -393,11 +408,11 @@ class Replicas:
         describe = self.entry.describe or (lambda opts: opts.kind)
         setting = describe(self.replica_config.estimator)
         parts = []
+        tracer = (f"{self.tracer_sums.count} of the order ≥ {self.tracer.settings.min_order} tracer "
+                  f"({self.tracer.settings.paths} light paths per laser point each)") if self.tracer is not None else ""
         if self.monte_carlo:
-            parts.append(f"standard error of the mean of {self.count} independent replicas ({setting} each)")
-            if self.tracer is not None:
-                parts[-1] += (f" and of {self.tracer_sums.count} of the order ≥ 3 tracer "
-                              f"({self.tracer.settings.paths} light paths each)")
+            base = f"{self.count} independent replicas ({setting} each)" if self.base_monte_carlo else ""
+            parts.append("standard error of the mean of " + " and of ".join(p for p in (base, tracer) if p))
         if refined is not None:
             half = (getattr(self.transport, "coarse", None) is not None
                     and getattr(self.transport, "coarse_ratio", 2.0) < 1)

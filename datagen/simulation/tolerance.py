@@ -77,6 +77,10 @@ HOPELESS = 10.0
 (:class:`ToleranceOutOfReach`) rather than run to the cap: the projection from 8 replicas is uncertain by tens of
 percent, not by a factor 10."""
 
+EDGE_SHARE = 0.8
+"""Beside the tracer (a quadrature with orders it leaves to the tracer), the edge is refined until its part of the
+estimate is at most this fraction of the tolerance; the tracer's replicas take the rest (:func:`_top_up_tracer`)."""
+
 STALLED = 0.9
 """A level whose estimate stayed above this fraction of the previous level's is followed by a halved edge: a small
 step can leave the split of the triangles that carry the error unchanged (every triangle is cut into an even number
@@ -202,7 +206,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     cfg = config.model_copy(update={"effect_threshold": tolerance})
     runs = Replicas(scene, cfg, rng)
-    if not runs.monte_carlo or runs.entry.replica is None:
+    if not runs.base_monte_carlo or runs.entry.replica is None:
         return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0, warn)
     cap = max(int(max_replicas), cfg.replicas) if max_replicas is not None else None
     rounds = []
@@ -278,20 +282,13 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
         tr = runs.transported()
         _check_energy(scene, tr)
         primary = _primary(tr)
-        own = getattr(runs.transport, "coarse", None) is not None      # this run's rule at 2h: its own estimate
-        if previous is None or own:
-            error = runs.error_attrs(tr, rng)
+        error = _level_error(runs, tr, rng, primary, h, previous)
+        estimate = error["rel_l2"]
+        edge_part = float(error["refinement"] or 0.0)     # (the smoothing bias's estimate falls with replicas)
+        if runs.tracer is not None and estimate > tolerance and edge_part <= EDGE_SHARE * tolerance:
+            # the edge is fine enough: the tracer's replicas bring the rest down, the quadrature is not re-run
+            tr, error = _top_up_tracer(runs, tolerance, error["refinement"] or 0.0, rng, primary, h, previous)
             estimate = error["rel_l2"]
-        else:
-            ratio = previous[0] / h
-            refined = relative_difference(primary, previous[1], tr.binned.sum(axis=0)) / (ratio ** entry.order - 1)
-            estimate = float(np.hypot(runs.error(), refined))
-            error = {"rel_l2": estimate, "monte_carlo": runs.error(),
-                     "refinement": refined, "replicas": runs.count,
-                     "replica_setting": entry.describe(runs.replica_config.estimator),
-                     "method": f"edge refinement ‖P(h') − P(h)‖/((h'/h)^{entry.order} − 1) of the primary between "
-                               f"the last two levels, with the replica spread of the Monte Carlo secondary; "
-                               f"relative L2 over bins above 1 % of the peak"}
         seconds = time.perf_counter() - t_level
         rounds.append({"quadrature_edge": h, "estimate": estimate, "seconds": seconds})
         if progress:
@@ -302,7 +299,10 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
             _check_projection(seconds, estimate, tolerance, None, max_seconds, f"quadrature edge {h:.4g} m", warn,
                               fixed_seconds=max(0.0, time.perf_counter() - t0 - seconds))
         stalled = len(rounds) > 1 and estimate > STALLED * rounds[-2]["estimate"]
-        shrink = min(MAX_SHRINK if own and not stalled else 0.5, edge_factor(estimate, tolerance))
+        own = getattr(runs.transport, "coarse", None) is not None
+        shrink = min(MAX_SHRINK if own and not stalled else 0.5,
+                     edge_factor(edge_part, EDGE_SHARE * tolerance) if runs.tracer is not None
+                     else edge_factor(estimate, tolerance))
         # cost ∝ h^-2 (point sensors) to h^-4 (aperture): predict with the steeper law
         if max_seconds is not None and time.perf_counter() - t0 + seconds / shrink ** LEVEL_COST_POWER > max_seconds:
             break
@@ -314,7 +314,46 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
     return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
 
 
+def _level_error(runs: Replicas, tr, rng: np.random.Generator, primary: np.ndarray, h: float,
+                 previous: tuple[float, np.ndarray] | None) -> dict:
+    """``attrs["error"]`` of a quadrature level: the run's own (its coarse rule at 2h, or a coarse run) on the first
+    level and whenever the run has its own coarse sums, else the refinement between this level and the previous
+    one, with the Monte Carlo parts' spread and the parts replicas cannot reduce (orders left out, smoothing)."""
+    own = getattr(runs.transport, "coarse", None) is not None      # this run's rule at 2h: its own estimate
+    if previous is None or own:
+        return runs.error_attrs(tr, rng)
+    entry = runs.entry
+    ratio = previous[0] / h
+    refined = relative_difference(primary, previous[1], tr.binned.sum(axis=0)) / (ratio ** entry.order - 1)
+    mc = runs.error()
+    estimate = float(np.hypot(np.hypot(mc, refined), runs.fixed_error()))
+    return {"rel_l2": estimate, "monte_carlo": mc, "refinement": refined, "replicas": runs.count,
+            "replica_setting": entry.describe(runs.replica_config.estimator),
+            **({"tracer_replicas": runs.tracer_sums.count} if runs.tracer is not None else {}),
+            "method": f"edge refinement ‖P(h') − P(h)‖/((h'/h)^{entry.order} − 1) of the primary between "
+                      f"the last two levels, with the replica spread of the Monte Carlo parts; "
+                      f"relative L2 over bins above 1 % of the peak"}
+
+
+def _top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.random.Generator,
+                   primary: np.ndarray, h: float, previous) -> tuple:
+    """Add replicas of the tracer beside a deterministic base until its spread meets what the tolerance leaves
+    after the edge refinement and the fixed parts (at least a third of the tolerance), by the R^(−1/2) law;
+    (the transported mean, its error attrs)."""
+    for _ in range(MAX_ROUNDS):
+        mc = runs.error()
+        room = tolerance * tolerance - refined * refined - runs.fixed_error() ** 2
+        budget = math.sqrt(max(room, (tolerance / 3) ** 2))
+        if mc <= budget or not math.isfinite(mc):
+            break
+        count = runs.tracer_sums.count
+        wanted = math.ceil(min(count * MAX_GROWTH, replicas_needed(count, mc, budget)))
+        runs.run(max(1, wanted - count))
+    tr = runs.transported()
+    return tr, _level_error(runs, tr, rng, primary, h, previous)
+
+
 def _primary(tr) -> np.ndarray:
-    """(n_channels, n_bins) sum of every component but the Monte Carlo secondary."""
-    keep = [i for i, name in enumerate(tr.names) if name != "secondary"]
+    """(n_channels, n_bins) sum of every component but the Monte Carlo ones (secondary, multibounce)."""
+    keep = [i for i, name in enumerate(tr.names) if name not in ("secondary", "multibounce")]
     return tr.binned[keep].sum(axis=0)

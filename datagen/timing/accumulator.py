@@ -21,21 +21,22 @@ Method (docs/physics.md §5), used by :class:`EnvelopeAccumulator`:
 2. The fine histogram is convolved ONCE with the fine-cell-integrated IRF ``p_n = F((n+1/2)delta) -
    F((n-1/2)delta)`` (FFT, overlap-add), giving the exact integral of the envelope over each fine cell for
    impulses sitting on nodes; ``oversample`` consecutive cells are summed into one output bin.
-3. Narrow IRF (its whole support, ``MARGIN_SIGMAS * sigma`` before and after, within one bin: sigma <=
-   bin_width / 8.5, e.g. 0.1 ps against 20 ps bins). A fine grid would need ``oversample >= 34`` nodes per
-   bin (memory and FFT cost growing as bin_width / sigma). Instead each impulse puts its *exact* bin
-   integrals into the bin ``b`` that contains it and its two neighbours: ``w*F(e_b - tau)`` into ``b-1``,
-   ``w*P(X >= e_{b+1} - tau)`` into ``b+1`` and the rest into ``b`` ("direct" mode, two CDF evaluations
-   per impulse, no splatting error, memory O(n_components * n_bins)).
+3. Narrow IRF (its whole support, ``MARGIN_SIGMAS * sigma`` before and after, within one bin: sigma <= bin_width /
+   8.5, e.g. 0.1 ps against 20 ps bins). A fine grid would need ``oversample >= 34`` nodes per bin (memory and FFT
+   cost growing as bin_width / sigma). Instead each impulse puts its *exact* bin integrals into the bin ``b`` that
+   contains it and its two neighbours: ``w*F(e_b - tau)`` into ``b-1``, ``w*P(X >= e_{b+1} - tau)`` into ``b+1`` and
+   the rest into ``b`` ("direct" mode, two CDF evaluations per impulse, no splatting error, memory O(n_components *
+   n_bins)).
 4. Tents (:meth:`EnvelopeAccumulator.add_tents`, used by the hidden-surface quadrature of
-   ``datagen.transport.quadrature``): the pushforward of the area measure of a triangle under a path length
-   that is linear on it is a piecewise-linear "tent" density between the sorted vertex times t0 <= t1 <= t2 (peak 2w/(t2-t0)
-   at t1). Its deposits are exact: in the fine-grid mode each node receives the integral of the tent against
-   the node's linear splatting weight (the limit of infinitely many impulses spread over the tent, splatted as
-   in point 1; for the delta IRF, the exact integral over the fine cell), from the closed-form second
-   antiderivative of the tent (piecewise cubic); in the direct mode each bin receives the exact integral of the
-   tent convolved with the IRF, from the IRF's partial moments E[(c-X)_+] and E[(c-X)_+^2]/2 (closed forms for
-   the Gaussian and the ex-Gaussian, in :mod:`datagen.timing.tents`). A tent of zero span is an impulse.
+   ``datagen.transport.quadrature``): the pushforward of the area measure of a triangle under a path length that is
+   linear on it is a piecewise-linear "tent" density between the sorted vertex times t0 <= t1 <= t2 (peak 2w/(t2-t0)
+   at t1). Its deposits are exact: in the fine-grid mode each node receives the integral of the tent against the
+   node's linear splatting weight (the limit of infinitely many impulses spread over the tent, splatted as in point 1;
+   for the delta IRF, the exact integral over the fine cell), from the closed-form second antiderivative of the tent
+   (piecewise cubic); in the direct mode each bin receives the exact integral of the tent convolved with the IRF, from
+   the IRF's partial moments E[(c-X)_+] and E[(c-X)_+^2]/2 (closed forms for the Gaussian and the ex-Gaussian, in
+   :mod:`datagen.timing.tents`). A tent of zero span is an impulse. :meth:`EnvelopeAccumulator.add_fine` adds node
+   values computed once (a tent's deposit shape) to many components.
 
 Cost is O(paths + fine_nodes * log(kernel)) in time and O(n_components * fine_nodes) in memory, independent
 of the number of paths. :func:`bin_impulses` is the exact per-impulse reference (O(paths * bins)).
@@ -478,15 +479,34 @@ class EnvelopeAccumulator:
 
     def __setstate__(self, state: dict) -> None:
         """Unpickling (a replica sent to or from a worker process): numpy gives each unpickled array a fresh dtype
-        instance instead of its cached one (numpy/numpy#32298), and ``np.add.at`` then leaves its fast path
-        (80× slower; a demo-room replica in a pool worker took 0.23 s instead of 0.18 s). Arrays are re-viewed
-        with the canonical dtype (no copy)."""
+        instance (numpy/numpy#32298), which takes ``np.add.at`` off its fast path; arrays are re-viewed with the
+        canonical dtype (no copy)."""
         self.__dict__.update({k: v.view(np.dtype(v.dtype.str)) if isinstance(v, np.ndarray) else v
                               for k, v in state.items()})
 
-    def spawn(self) -> "EnvelopeAccumulator":
-        """An empty accumulator on the same axis, IRF, components and fine grid (a partial sum)."""
-        return EnvelopeAccumulator(self.axis, self.irf, self.n_components, None if self.direct else self.oversample)
+    def spawn(self, n_components: int | None = None) -> "EnvelopeAccumulator":
+        """An empty accumulator on the same axis, IRF and fine grid (a partial sum), with n_components or these."""
+        return EnvelopeAccumulator(self.axis, self.irf, n_components or self.n_components,
+                                   None if self.direct else self.oversample)
+
+    def add_fine(self, rows: np.ndarray, component: np.ndarray, start: int, total: np.ndarray,
+                 beyond: np.ndarray) -> None:
+        """Add ``rows`` (k, m) float64, this grid's own node values (e.g. a weight × a :meth:`fine_histogram` row of a
+        :meth:`spawn` that received one unit tent), to nodes ``start … start + m − 1`` of the distinct components
+        ``component`` (k,) int, standing for ``total`` (k,) photons of which ``beyond`` (k,) lie outside the grid.
+        Raises ValueError for shapes that do not fit, repeated or out-of-range components."""
+        rows = np.asarray(rows, dtype=np.float64)
+        component = np.asarray(component, dtype=np.int64)
+        if rows.ndim != 2 or len(component) != len(rows) or start < 0 or start + rows.shape[1] > self.n_fine:
+            raise ValueError(f"add_fine: rows {rows.shape} at node {start} do not fit {self.n_fine} nodes")
+        if len(component) and (component.min() < 0 or component.max() >= self.n_components
+                               or len(np.unique(component)) != len(component)):
+            raise ValueError(f"add_fine: component ids must be distinct and in [0, {self.n_components})")
+        self._binned = None
+        self._unbound()
+        self._hist[component, start:start + rows.shape[1]] += rows
+        self._total += np.bincount(component, weights=total, minlength=self.n_components)
+        self._beyond += np.bincount(component, weights=beyond, minlength=self.n_components)
 
     def merge(self, other: "EnvelopeAccumulator") -> None:
         """Add a partial accumulator from :meth:`spawn` (same grid) into this one.
@@ -527,11 +547,8 @@ class EnvelopeAccumulator:
         The convolution runs by overlap-add FFT (direct for kernels <= _DIRECT_KERNEL_MAX taps), whose
         round-off is ~1e-16 of the component's maximum: bins far below that in a tail are not accurate.
         Negative round-off no larger than NEGATIVE_CLAMP_RTOL * max (CURVATURE_CLAMP_RTOL after wide tents) is
-        set to 0. ``copy`` False: the accumulator's own array (read only: it is kept for later calls).
-
-        Raises:
-            RuntimeError: a value more negative than the clamp threshold (cannot happen for weights >= 0;
-                would indicate a bug).
+        set to 0. ``copy`` False: the accumulator's own array (read only: it is kept for later calls). Raises
+        RuntimeError for a value more negative than the clamp threshold (impossible for weights >= 0: a bug).
         """
         if self._binned is None:
             self._binned = self._convolve_rows(self._fold(), self._bound)

@@ -46,7 +46,7 @@ def material_arrays(physics) -> tuple:
 
 
 @njit(cache=True, inline="always")
-def _toward(p0, p1, p2, q0, q1, q2):
+def toward(p0, p1, p2, q0, q1, q2):
     """|q − p| and the unit direction p → q (the numpy code's ``d / max(|d|, 1e-300)``)."""
     d0, d1, d2 = q0 - p0, q1 - p1, q2 - p2
     r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
@@ -91,7 +91,7 @@ def fov_targets(x, n_x, ix, iy, corner, jitter, cells, fov):
             t0 = center[0] + a * fu[0] + c * fv[0]
             t1 = center[1] + a * fu[1] + c * fv[1]
             t2 = center[2] + a * fu[2] + c * fv[2]
-            rr, w0, w1, w2 = _toward(x[b, 0], x[b, 1], x[b, 2], t0, t1, t2)
+            rr, w0, w1, w2 = toward(x[b, 0], x[b, 1], x[b, 2], t0, t1, t2)
             cos_y = -(w0 * fn[0] + w1 * fn[1] + w2 * fn[2])
             if n_x[b, 0] * w0 + n_x[b, 1] * w1 + n_x[b, 2] * w2 > 0.0 and cos_y > 0.0:
                 bi[k], si[k] = b, s
@@ -126,7 +126,7 @@ def partner_geometry(x, nf, pos, neg, p_tot, points, normals, found, min_distanc
     n_xp = np.empty((m, 3))
     for i in range(m):
         o = i // p_tot
-        r, w0, w1, w2 = _toward(points[i, 0], points[i, 1], points[i, 2], x[o, 0], x[o, 1], x[o, 2])
+        r, w0, w1, w2 = toward(points[i, 0], points[i, 1], points[i, 2], x[o, 0], x[o, 1], x[o, 2])
         pw = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2
         xw = nf[o, 0] * w0 + nf[o, 1] * w1 + nf[o, 2] * w2
         rp[i] = r
@@ -229,7 +229,7 @@ def _spot_geometry(points, normals, rows, spot, spot_n, tol):
     lit = np.zeros(n, np.bool_)
     n_lit = np.zeros((n, 3))
     for i in rows:
-        rr, w0, w1, w2 = _toward(points[i, 0], points[i, 1], points[i, 2], spot[0], spot[1], spot[2])
+        rr, w0, w1, w2 = toward(points[i, 0], points[i, 1], points[i, 2], spot[0], spot[1], spot[2])
         nfw = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2
         r[i] = rr
         w[i, 0], w[i, 1], w[i, 2] = w0, w1, w2

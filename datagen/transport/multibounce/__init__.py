@@ -1,23 +1,27 @@
-"""Light of every order: paths with three or more hidden vertices (the component ``multibounce``).
+"""Light of every order: paths with three or more hidden vertices (the component ``multibounce``), and order 2
+(``secondary``) beside an estimator that runs without its own.
 
 **What it converges to.** The transient path integral of docs/physics.md §2 summed over every order k ≥ 3 (k the
 number of hidden vertices; a relay-wall vertex between hidden vertices counts), inside the time window: the light
-that orders 1 (primary, the field's 3-bounce) and 2 (secondary, 5-bounce) leave out. In closed, bright rooms it
-is a large, late, smooth tail (docs/physics.md §2, "Light of every order"). Unbiased: Russian roulette ends paths
-without bias, and a path stops exactly when it can no longer reach the window.
+that orders 1 (primary, the field's 3-bounce) and 2 (secondary, 5-bounce) leave out; from k ≥ 2 when the
+estimator's secondary is off (the confocal configs' quadrature). In closed, bright rooms it is a large, late,
+smooth tail (docs/physics.md §2, "Light of every order"). Unbiased: Russian roulette ends paths without bias, and a
+path stops exactly when it can no longer reach the window; the smoothing's bias is estimated and counted.
 
 **What it costs.** Per light path about (window length × c / mean free path) vertices, each one continuation ray,
-one next-event connection per sensor pixel region with its shadow ray, and the leg weights: linear in the paths
-and in the pixels, bounded even in a closed room of albedo 1 (every path ends at the window's end). Its error falls
-as paths^(-1/2) and is measured with the estimator's replicas.
+one next-event connection per pixel region its laser point records with its shadow ray, and the leg weights:
+linear in the paths, bounded even in a closed room of albedo 1 (every path ends at the window's end). A scan's
+laser points share every batch. Its error falls as paths^(-1/2) and is measured with its own replicas.
 
 **When to pick it.** Not directly: ``simulation.orders`` (``auto``, or an integer) asks the effect planner
-(:mod:`datagen.planner.orders`), which runs a small pilot of this tracer and turns it on when the orders ≥ 3 carry
-more than a stated fraction of the tolerance; the simulation then wraps the chosen estimator in
+(:mod:`datagen.planner.orders`), which runs a small pilot of this tracer and turns it on when the orders it would
+carry exceed a stated fraction of the tolerance; the simulation then wraps the chosen estimator (any of them) in
 :class:`AllOrders`.
 
 - :mod:`.tracer`: :class:`MultibounceTracer` and its :class:`MultibounceSettings` (light paths from the laser
   spot, next-event connections and direction hits on the FoV under the balance heuristic, Russian roulette).
+- :mod:`.smoothing`: the smoothing of the smooth orders in time (nodes that widen with the order and the tolerance)
+  and across a confocal scan's points, each with its bias estimated and counted in the stated error.
 - :mod:`.kernels`: the per-vertex arithmetic compiled (the continuation's direction, BRDF, flux and roulette;
   the next-event BRDFs).
 - :mod:`.orders`: :class:`AllOrders`, an estimator of orders 1–2 plus the tracer as one estimator, and the

@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from ...scene.brdf_kernel import brdf_value
+from ..area.kernels import toward
 
 
 @njit(cache=True)
@@ -80,3 +81,51 @@ def brdf_many(mat, obj, n, w_in, w_out):
         out[i] = brdf_value(mat, obj[i], n[i, 0], n[i, 1], n[i, 2], w_in[i, 0], w_in[i, 1], w_in[i, 2],
                             w_out[i, 0], w_out[i, 1], w_out[i, 2])
     return out
+
+
+@njit(cache=True)
+def fov_targets_ranged(x, n_x, first, count, ix, iy, jitter, fov):
+    """One uniform FoV point in each pixel region that a vertex's laser point records, and the geometry of the pairs
+    that face each other: :func:`datagen.transport.area.kernels.fov_targets` with one cell per pixel, over each
+    vertex's own range of a pixel table (a confocal scan point records its own pixel only).
+
+    Args:
+        x, n_x: (B, 3) vertices and the normals of the side they connect from; first, count: (B,) int64 the range
+            ``first … first + count − 1`` of the table rows that vertex b connects to; ix, iy: (T,) int64 pixel
+            column and row of each table row; jitter: (B, J, 2) uniforms in [0, 1)², J ≥ max(count) (entry j of
+            row b places the point in the range's j-th pixel); fov: as for ``fov_targets``.
+    Returns:
+        (bi (n,) int64, ti (n,) int64 table row, y (n, 3), w (n, 3) unit x → y, r (n,) |y − x|, cos_y (n,)) for
+        the pairs with n_x·w > 0 and cosθ_y = −w·n_fov > 0, in (b, j) order.
+    """
+    center, fu, fv, fn, size, pixels = fov
+    nb = x.shape[0]
+    cap = 0
+    for b in range(nb):
+        cap += count[b]
+    bi = np.empty(cap, np.int64)
+    ti = np.empty(cap, np.int64)
+    y = np.empty((cap, 3))
+    w = np.empty((cap, 3))
+    r = np.empty(cap)
+    cy = np.empty(cap)
+    k = 0
+    for b in range(nb):
+        for j in range(count[b]):
+            s = first[b] + j
+            cu = ix[s] + (0.0 + jitter[b, j, 0] / 1.0)
+            cv = iy[s] + (0.0 + jitter[b, j, 1] / 1.0)
+            a = (cu / pixels[0] - 0.5) * size[0]
+            c = (cv / pixels[1] - 0.5) * size[1]
+            t0 = center[0] + a * fu[0] + c * fv[0]
+            t1 = center[1] + a * fu[1] + c * fv[1]
+            t2 = center[2] + a * fu[2] + c * fv[2]
+            rr, w0, w1, w2 = toward(x[b, 0], x[b, 1], x[b, 2], t0, t1, t2)
+            cos_y = -(w0 * fn[0] + w1 * fn[1] + w2 * fn[2])
+            if n_x[b, 0] * w0 + n_x[b, 1] * w1 + n_x[b, 2] * w2 > 0.0 and cos_y > 0.0:
+                bi[k], ti[k] = b, s
+                y[k, 0], y[k, 1], y[k, 2] = t0, t1, t2
+                w[k, 0], w[k, 1], w[k, 2] = w0, w1, w2
+                r[k], cy[k] = rr, cos_y
+                k += 1
+    return bi[:k], ti[:k], y[:k], w[:k], r[:k], cy[:k]

@@ -27,10 +27,13 @@ The estimator (docs/physics.md §2, "Light of every order"; docs/accuracy.md for
   measure). Both are combined by the balance heuristic (Veach & Guibas 1995), as the area sampler's FoV
   connections are: the weight stays bounded next to the FoV, where the area strategy alone has G ~ 1/r².
   Point-radiance captures connect to the sensor points only (points cannot be hit).
-- **Time smoothing** of the deep orders (:class:`SmoothingBands`): their impulses are linearly binned on nodes Δ
-  apart and deposited as tents, Δ growing with the order (the tail of deeper orders is smoother) and with the
-  tolerance (Δ ∝ √tolerance keeps the bias a fixed fraction of it); the bias is estimated from the same impulses
-  on nodes 2Δ apart (Richardson) and counted in the stated error.
+- **Time smoothing** of the deep orders (:mod:`~datagen.transport.multibounce.smoothing`): their impulses are
+  linearly binned on nodes Δ apart and deposited as tents, Δ growing with the order (the tail of deeper orders is
+  smoother) and with the tolerance (Δ ∝ √tolerance keeps the bias a fixed fraction of it); across a confocal
+  scan's points too. The bias is estimated from the same impulses at twice the width (Richardson) and counted in
+  the stated error.
+- **Scans**: the paths of every laser point are traced in shared batches, each vertex connecting to the pixel
+  regions its own laser point records (a confocal point: its own).
 - **Time and attenuation**: each impulse arrives at (switched laser leg + hidden legs + r + switched sensor
   leg)/c (:meth:`LegPhysics.laser_leg`, :meth:`LegPhysics.sensor_leg`) and weighs e^{−μ·physical path}
   (:meth:`LegPhysics.attenuation`), as every other estimator's paths.
@@ -54,44 +57,14 @@ from ...scene.capture import Capture
 from ...units import SPEED_OF_LIGHT
 from ...vectors import dot
 from ..base import Counters, Sink
-from ..area.kernels import fov_targets, material_arrays, sensor_collection
+from ..area.kernels import material_arrays, sensor_collection
 from ..physics import LegPhysics, fov_connection_weight, launched_flux
-from .kernels import brdf_many, continue_paths
+from .kernels import brdf_many, continue_paths, fov_targets_ranged
+from .smoothing import SmoothingBands
 
 MULTIBOUNCE_STREAM = 57
 """The spawn-key entry of the tracer's random stream, appended to the run's :class:`numpy.random.SeedSequence`
 (so that orders 1–2 draw exactly what they draw without it, whatever order the two run in)."""
-
-SMOOTH_ORDER = 3
-"""Orders from this one up are deposited smoothed in time (:class:`DeepSmoothing`) by default."""
-
-SMOOTH_WIDTH = 2e-9
-"""Δ, the node spacing of the lowest smoothed orders, s, at a tolerance of :data:`SMOOTH_TOLERANCE`: the bias of a
-kernel estimate grows as Δ² and its noise falls as 1/Δ, so Δ scales as √tolerance (the bias stays the same
-fraction of the tolerance: about a third of it in the shipped rooms at 2 ns and 1 %), and never above this."""
-
-SMOOTH_TOLERANCE = 0.01
-
-SMOOTH_MIN_WIDTH = 0.5e-9
-"""The narrowest Δ, s (tolerances below 0.06 %)."""
-
-SMOOTH_BANDS = 2
-"""Bands of orders with their own Δ: orders s..2s−2 at Δ, deeper orders at 2Δ (:class:`SmoothingBands`)."""
-
-SMOOTH_MIN_BINS = 4
-"""No smoothing when the output bins are not at least this many times finer than Δ (nothing to gain)."""
-
-
-def default_smoothing(bin_width: float, tolerance: float) -> dict:
-    """The smoothing fields of :class:`MultibounceSettings` (``smooth_order``, ``smooth_width``,
-    ``smooth_max_width``) for output bins of ``bin_width`` seconds and a target relative error ``tolerance``:
-    Δ = :data:`SMOOTH_WIDTH` · √(tolerance / :data:`SMOOTH_TOLERANCE`) within [:data:`SMOOTH_MIN_WIDTH`,
-    :data:`SMOOTH_WIDTH`], the deeper band at 2Δ; no smoothing when the bins are not :data:`SMOOTH_MIN_BINS`
-    times finer than Δ."""
-    width = float(np.clip(SMOOTH_WIDTH * np.sqrt(tolerance / SMOOTH_TOLERANCE), SMOOTH_MIN_WIDTH, SMOOTH_WIDTH))
-    order = SMOOTH_ORDER if SMOOTH_MIN_BINS * bin_width <= width else 0
-    return {"smooth_order": order, "smooth_width": width, "smooth_max_width": width * 2 ** (SMOOTH_BANDS - 1)}
-
 
 MAX_VERTICES = 10_000
 """Safety bound on the vertices of one path (a path in a closed albedo-1 room stops at the window's end first:
@@ -109,8 +82,10 @@ class MultibounceSettings:
             scene or at the window's end).
         batch: paths traced together (memory: ~1 kB per path).
         smooth_order: orders from this one up are deposited smoothed in time (0: none; see
-            :class:`SmoothingBands`); smooth_width: Δ, the node spacing of the lowest smoothed orders, seconds;
-            smooth_max_width: the widest node spacing of the deeper orders, seconds (= smooth_width: one Δ for all).
+            :class:`~.smoothing.SmoothingBands`); smooth_width: Δ, the node spacing of the lowest smoothed orders, seconds;
+            smooth_max_width: the widest node spacing of the deeper orders, seconds (= smooth_width: one Δ for all);
+            smooth_scan: h, the half-width in scan pitches of the smoothing across a confocal scan's points (0 or 1:
+            none; see :class:`~.smoothing.DeepSmoothing`).
 
     Raises:
         ConfigError: a field out of range (the message names it and the value).
@@ -123,6 +98,7 @@ class MultibounceSettings:
     smooth_order: int = 0
     smooth_width: float = 1e-9
     smooth_max_width: float = 1e-9
+    smooth_scan: int = 0
 
     def __post_init__(self):
         for name in ("smooth_width", "smooth_max_width"):
@@ -132,7 +108,8 @@ class MultibounceSettings:
         if self.smooth_max_width < self.smooth_width:
             raise ConfigError(f"multibounce tracer: smooth_max_width {self.smooth_max_width!r} s is below smooth_width "
                               f"{self.smooth_width!r} s")
-        for name, low in (("paths", 1), ("min_order", 1), ("max_order", 0), ("batch", 1), ("smooth_order", 0)):
+        for name, low in (("paths", 1), ("min_order", 1), ("max_order", 0), ("batch", 1), ("smooth_order", 0),
+                          ("smooth_scan", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise ConfigError(f"multibounce tracer: {name} must be an integer >= {low}, got {v!r}")
@@ -179,6 +156,8 @@ class MultibounceTracer:
         settings: :class:`MultibounceSettings`.
         component: the sink component id of ``multibounce`` (impulses go to ``component * n_channels + channel``).
         window: (t_start, t_stop) of the time axis, s (paths stop once their counted length exceeds c·t_stop).
+        secondary_component: the sink component id of order 2 when ``min_order`` is 2 (the tracer then carries the
+            secondary of an estimator that runs without one: docs/physics.md §2, "Light of every order").
     Attributes:
         stats: :class:`MultibounceStats`.
         order_energy: (:data:`ORDER_TALLY`,) float64, the weight deposited inside the window by order (index k−1
@@ -189,14 +168,18 @@ class MultibounceTracer:
     """
 
     def __init__(self, capture: Capture, caster: RayCaster, physics: LegPhysics, settings: MultibounceSettings,
-                 component: int, window: tuple[float, float]):
+                 component: int, window: tuple[float, float], secondary_component: int | None = None):
         self.capture, self.caster, self.physics, self.settings = capture, caster, physics, settings
         self.component = int(component)
+        self.secondary_component = int(secondary_component) if secondary_component is not None else None
         self.t_start, self.t_stop = float(window[0]), float(window[1])
         self.order_energy = np.zeros(ORDER_TALLY)
         self.order_time = np.zeros(ORDER_TALLY)
+        scan = ((capture.fov_pixels[1], capture.fov_pixels[0], settings.smooth_scan)
+                if capture.kind == "confocal" and capture.n_channels == capture.n_pixels and settings.smooth_scan > 1
+                else None)
         self.smoothing = (SmoothingBands(settings.smooth_order, settings.smooth_width, settings.smooth_max_width,
-                                         self.t_start, self.t_stop, capture.n_channels)
+                                         self.t_start, self.t_stop, capture.n_channels, scan)
                           if settings.smooth_order else None)
         # paths are followed past the window's end by the smoothing's reach, so that the kernel near the end
         # receives the mass from beyond it that it spreads into the window
@@ -207,9 +190,16 @@ class MultibounceTracer:
         # the FoV's pixel regions (aperture captures): one uniform target in each recorded one per vertex
         self._pixel_area = capture.fov_size[0] * capture.fov_size[1] / capture.n_pixels if capture.n_pixels else 0.0
         self._p_a = 1.0 / self._pixel_area if self._pixel_area > 0 else 0.0
+        self._rec_first, self._rec_count, self._rec_x, self._rec_y, self._rec_pix = self._recorded_pixels()
+        self._rec_max = int(self._rec_count.max()) if len(self._rec_count) else 0
         self._fov = (capture.fov_center, capture.fov_u, capture.fov_v, capture.fov_normal,
                      np.asarray(capture.fov_size, dtype=np.float64), np.asarray(capture.fov_pixels, dtype=np.float64))
         self.stats = MultibounceStats()
+
+    @property
+    def components(self) -> list[int]:
+        """The sink component ids this tracer deposits into (``multibounce``, and order 2's when it carries it)."""
+        return [self.component] + ([self.secondary_component] if self.secondary_component is not None else [])
 
     def progress_total(self) -> tuple[int, str]:
         """Light paths over all laser points."""
@@ -218,43 +208,61 @@ class MultibounceTracer:
     def run(self, sink: Sink, rng: np.random.Generator, progress: Callable[[int], None] | None = None) -> None:
         """Trace ``paths`` light paths from every laser point and send the impulses of order ≥ ``min_order`` to
         ``sink``. ``rng`` is used as given (callers pass :func:`tracer_rng` of their stream)."""
-        for laser in range(self.capture.n_lasers):
-            self.run_laser(sink, rng, laser, progress)
+        self.run_lasers(sink, rng, np.arange(self.capture.n_lasers), progress)
         if self.smoothing is not None:
-            self.smoothing.flush(sink, self.component)
+            self.smoothing.flush(sink, self.component, self.secondary_component)
 
     def run_laser(self, sink: Sink, rng: np.random.Generator, laser: int,
                   progress: Callable[[int], None] | None = None) -> None:
         """Trace ``paths`` light paths from laser point ``laser`` only (the planner's pilot)."""
-        s, c = self.settings, self.capture
-        pix = np.arange(c.n_pixels)
-        ch = c.channel(laser, pix)
-        pix, ch = pix[ch >= 0], ch[ch >= 0]                    # the pixel regions this laser point records
-        iy, ix = np.divmod(pix, c.fov_pixels[0])
-        self._pix_x, self._pix_y, self._pix_ch = ix.astype(np.int64), iy.astype(np.int64), ch.astype(np.int64)
-        self._corner = np.zeros((len(pix), 2))
-        for start in range(0, s.paths, s.batch):
-            n = min(s.batch, s.paths - start)
-            self._trace(n, laser, sink, rng)
+        self.run_lasers(sink, rng, np.array([laser]), progress)
+
+    def run_lasers(self, sink: Sink, rng: np.random.Generator, lasers: np.ndarray,
+                   progress: Callable[[int], None] | None = None) -> None:
+        """Trace ``paths`` light paths from each laser point of ``lasers`` (k,) int, in batches of ``batch`` paths
+        that mix laser points (a scan's thousands of points share every array pass and ray cast)."""
+        s = self.settings
+        lasers = np.asarray(lasers, dtype=np.int64)
+        total = s.paths * len(lasers)
+        for start in range(0, total, s.batch):
+            n = min(s.batch, total - start)
+            self._trace(lasers[np.arange(start, start + n) // s.paths], sink, rng)
             if progress is not None:
                 progress(n)
 
+    def _recorded_pixels(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The pixel regions each laser point records, as ranges of one table: (first (n_lasers,) int64, count
+        (n_lasers,) int64, pixel column (T,) int64, pixel row (T,) int64, pixel index (T,) int64). A confocal
+        capture records pixel l from laser point l; every other kind records the same pixels from every point."""
+        c = self.capture
+        pix = np.arange(c.n_pixels)
+        if c.kind == "confocal":
+            first = np.minimum(np.arange(c.n_lasers), c.n_pixels)
+            count = (np.arange(c.n_lasers) < c.n_pixels).astype(np.int64)
+        else:
+            pix = pix[c.channel(0, pix) >= 0]
+            first, count = np.zeros(c.n_lasers, np.int64), np.full(c.n_lasers, len(pix), np.int64)
+        iy, ix = np.divmod(pix, c.fov_pixels[0])
+        return (first.astype(np.int64), count, ix.astype(np.int64), iy.astype(np.int64), pix.astype(np.int64))
+
     # -- one batch of paths ------------------------------------------------------------------------------------
 
-    def _trace(self, n: int, laser: int, sink: Sink, rng: np.random.Generator) -> None:
+    def _trace(self, laser: np.ndarray, sink: Sink, rng: np.random.Generator) -> None:
+        """One batch: light paths from laser points ``laser`` (n,) int (one entry per path)."""
         c, cst, ph, s = self.capture, self.caster, self.physics, self.settings
+        n = len(laser)
         self.stats.paths += n
-        normal = np.broadcast_to(c.spot_normals[laser], (n, 3))
+        normal = c.spot_normals[laser]
         local, _ = square_to_hemisphere(rng.random(n), rng.random(n), "cosine")
         w = to_world(local, normal)
         pdf = local[:, 2] / np.pi                                  # cosine-weighted directions, 1/sr
         flux = np.zeros(n)
         ok = pdf > 0
         # Φ/N per path: N paths per laser point over all batches
-        flux[ok] = on_arrays(launched_flux)(c.photons / s.paths, ph.spot_emission(w[ok], laser), pdf[ok])
-        origin = np.broadcast_to(c.spots[laser] + cst.offset * c.spot_normals[laser], (n, 3))
-        counted = np.full(n, float(ph.laser_leg(laser)))         # metres of the path that count in the time
-        physical = np.full(n, float(c.emitter_legs[laser]))      # metres of physical path (attenuation)
+        flux[ok] = on_arrays(launched_flux)(c.photons / s.paths, ph.spot_emission(w[ok], laser[ok]), pdf[ok])
+        origin = c.spots[laser] + cst.offset * normal
+        counted = np.zeros(n) + ph.laser_leg(laser)              # metres of the path that count in the time
+        physical = c.emitter_legs[laser].astype(np.float64)     # metres of physical path (attenuation)
         ray_origin, ray_dir, src_normal = origin, w, normal
         q_prev = np.ones(n)                                      # survival probability of the ray just cast
         order = 0
@@ -279,7 +287,7 @@ class MultibounceTracer:
             x, n_x = hits.points[keep], hits.normals[keep]      # n_x faces the incoming ray
             obj = hits.object_id[keep]
             w_in = -ray_dir[keep]
-            flux, counted, physical = flux[keep], counted[keep], physical[keep]
+            flux, counted, physical, laser = flux[keep], counted[keep], physical[keep], laser[keep]
             self.stats.vertices += len(keep)
             if order >= s.min_order and len(keep):
                 self._connect(x, n_x, obj, w_in, flux, counted, physical, laser, sink, rng, order)
@@ -291,32 +299,31 @@ class MultibounceTracer:
             q = self.survival[obj]
             self.stats.roulette += int((r >= q).sum())
             sel = np.flatnonzero(live)
-            flux, counted, physical = flux[sel], counted[sel], physical[sel]
+            flux, counted, physical, laser = flux[sel], counted[sel], physical[sel], laser[sel]
             src_normal, q_prev = n_x[sel], q[sel]
             ray_origin = x[sel] + cst.offset * src_normal
             ray_dir = w_out[sel]
 
     def _connect(self, x: np.ndarray, n_x: np.ndarray, obj: np.ndarray, w_in: np.ndarray, flux: np.ndarray,
-                 counted: np.ndarray, physical: np.ndarray, laser: int, sink: Sink, rng: np.random.Generator,
-                 order: int) -> None:
-        """Next-event connections of vertices x (m, 3) (normals n_x facing the incoming light) to one uniform point
-        per sensor pixel region (aperture) or to the sensor points (point radiance), with their MIS weights."""
+                 counted: np.ndarray, physical: np.ndarray, laser: np.ndarray, sink: Sink,
+                 rng: np.random.Generator, order: int) -> None:
+        """Next-event connections of vertices x (m, 3) (normals n_x facing the incoming light; paths from laser
+        points ``laser`` (m,) int) to one uniform point per pixel region that their laser point records
+        (aperture) or to the sensor points (point radiance), with their MIS weights."""
         c, ph = self.capture, self.physics
         if c.convention != "aperture":                            # sensor points: the shared connection
-            conn = ph.connect(x, n_x, laser, rng, (1, 1))
-            if not len(conn.b):
-                return
-            b, wk = conn.b, conn.direction
-            weight = flux[b] * ph.brdf(obj[b], n_x[b], w_in[b], wk) * dot(n_x[b], wk) * conn.weight
-            self.stats.connections += len(b)
-            self._deposit(sink, (counted[b] / SPEED_OF_LIGHT) + conn.time,
-                          weight * ph.attenuation(physical[b] + conn.phys), conn.channel, order)
+            for one in np.unique(laser):                          # one laser point per call
+                rows = laser == one
+                self._connect_points(x[rows], n_x[rows], obj[rows], w_in[rows], flux[rows], counted[rows],
+                                     physical[rows], int(one), sink, rng, order)
             return
-        # one uniform point per recorded pixel region and vertex (density p_a = 1/A_pixel): the area sampler's
-        # compiled target geometry and sensor collection, a shadow ray x → y
-        b, s_idx, y, wk, r, cos_y = fov_targets(np.ascontiguousarray(x), np.ascontiguousarray(n_x), self._pix_x,
-                                                self._pix_y, self._corner, rng.random((len(x), len(self._pix_x), 2)),
-                                                (1.0, 1.0), self._fov)
+        # one uniform point per recorded pixel region and vertex (density p_a = 1/A_pixel): compiled target
+        # geometry (the area sampler's, over each laser point's own pixel regions) and sensor collection, a shadow
+        # ray x → y
+        first, count = self._rec_first[laser], self._rec_count[laser]
+        b, s_idx, y, wk, r, cos_y = fov_targets_ranged(np.ascontiguousarray(x), np.ascontiguousarray(n_x), first,
+                                                       count, self._rec_x, self._rec_y,
+                                                       rng.random((len(x), self._rec_max, 2)), self._fov)
         vis = self.caster.visible(x[b], n_x[b], y, c.fov_normal)
         ph.stats.shadow_rays += len(b)
         b, s_idx, y, wk, r, cos_y = b[vis], s_idx[vis], y[vis], wk[vis], r[vis], cos_y[vis]
@@ -333,18 +340,34 @@ class MultibounceTracer:
         p_d = self.survival[obj[b]] * cos_x * cos_y / (np.pi * r * r)     # balance heuristic with the direction hits
         weight = weight * (self._p_a / (self._p_a + p_d)) * ph.attenuation(physical[b] + r + d_ys)
         self.stats.connections += len(b)
-        self._deposit(sink, (counted[b] + r + ph.sensor_leg(d_ys)) / SPEED_OF_LIGHT, weight, self._pix_ch[s_idx],
-                      order)
+        self._deposit(sink, (counted[b] + r + ph.sensor_leg(d_ys)) / SPEED_OF_LIGHT, weight,
+                      c.channel(laser[b], self._rec_pix[s_idx]), order)
+
+    def _connect_points(self, x: np.ndarray, n_x: np.ndarray, obj: np.ndarray, w_in: np.ndarray, flux: np.ndarray,
+                        counted: np.ndarray, physical: np.ndarray, laser: int, sink: Sink, rng: np.random.Generator,
+                        order: int) -> None:
+        """Point-radiance captures: next-event connections of vertices of laser point ``laser`` to the sensor
+        points (:meth:`LegPhysics.connect`)."""
+        ph = self.physics
+        conn = ph.connect(x, n_x, laser, rng, (1, 1))
+        if not len(conn.b):
+            return
+        b, wk = conn.b, conn.direction
+        weight = flux[b] * ph.brdf(obj[b], n_x[b], w_in[b], wk) * dot(n_x[b], wk) * conn.weight
+        self.stats.connections += len(b)
+        self._deposit(sink, (counted[b] / SPEED_OF_LIGHT) + conn.time,
+                      weight * ph.attenuation(physical[b] + conn.phys), conn.channel, order)
 
     def _fov_hits(self, hits, origin: np.ndarray, direction: np.ndarray, flux: np.ndarray, counted: np.ndarray,
-                  physical: np.ndarray, q: np.ndarray, n_x: np.ndarray, laser: int, sink: Sink, order: int) -> None:
+                  physical: np.ndarray, q: np.ndarray, n_x: np.ndarray, laser: np.ndarray, sink: Sink,
+                  order: int) -> None:
         """Continuation rays (flux already × f π / q) that land on a FoV pixel region: the direction strategy of
         the FoV connection, weighted by the balance heuristic against :meth:`_connect`'s area strategy."""
         c, ph = self.capture, self.physics
         if c.convention != "aperture":
             return
         on_wall = np.flatnonzero(hits.hit & np.isin(hits.object_id, ph.fov_objects))   # only these can be in the FoV
-        chan = c.channel(laser, c.fov_pixel(hits.points[on_wall], ph.tol))
+        chan = c.channel(laser[on_wall], c.fov_pixel(hits.points[on_wall], ph.tol))
         idx = on_wall[chan >= 0]
         chan = chan[chan >= 0]
         if not len(idx):
@@ -372,120 +395,6 @@ class MultibounceTracer:
             near = band.covers(t)
             band.add(t[near], weight[near], channel[near])
             t, weight, channel = t[~near], weight[~near], channel[~near]
-        sink.add(t, weight, self.component * self.capture.n_channels + channel)
-
-
-class SmoothingBands:
-    """The time smoothing of the deep orders, one :class:`DeepSmoothing` per band of orders whose node spacing
-    doubles each time the order doubles: order k ≥ s = ``first_order`` in band ⌊log2((k − 1)/(s − 1))⌋ (orders 3–4, 5–8,
-    9–16, … for s = 3), the last band taking every deeper order, up to ``max_width``.
-
-    Order k's part of the transient is k chord lengths convolved: it spreads in time and its curvature L_k''
-    falls as k grows, so the bias Δ² L_k'' of a kernel of width Δ stays small for a wider kernel on deeper orders,
-    while the noise of a kernel estimate falls as 1/Δ. Each band estimates its own bias (Richardson,
-    :meth:`DeepSmoothing.bias`); their sum is the bias of the smoothed orders.
-
-    Args:
-        first_order: the lowest smoothed order (≥ 2); width: Δ of the band that starts there, s; max_width: the
-            widest Δ, s; t_start, t_stop: the window, s; n_channels: output channels.
-    Attributes:
-        margin: how far past the window's end paths are followed, s (the widest band's reach).
-    """
-
-    def __init__(self, first_order: int, width: float, max_width: float, t_start: float, t_stop: float,
-                 n_channels: int):
-        self.first_order = int(first_order)
-        self.widths: list[float] = []
-        w = float(width)
-        while True:
-            self.widths.append(min(w, max_width))
-            if w >= max_width:
-                break
-            w *= 2.0
-        self.bands = [DeepSmoothing(w, t_start, t_stop, n_channels) for w in self.widths]
-        self.margin = max(b.margin for b in self.bands)
-
-    def band(self, order: int) -> DeepSmoothing | None:
-        """The band that smooths order ``order``, or None below :attr:`first_order`."""
-        if order < self.first_order:
-            return None
-        j = int(np.floor(np.log2((order - 1) / max(self.first_order - 1, 1)) + 1e-12))
-        return self.bands[min(j, len(self.bands) - 1)]
-
-    def flush(self, sink: Sink, component: int) -> None:
-        """:meth:`DeepSmoothing.flush` of every band."""
-        for b in self.bands:
-            b.flush(sink, component)
-
-    def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
-        """The sum of the bands' :meth:`DeepSmoothing.bias`, (n_channels, n_bins) photons per pulse."""
-        return sum(b.bias(edges, runs) for b in self.bands)
-
-
-class DeepSmoothing:
-    """Orders that are smooth in time, deposited smoothed: a kernel estimate with its bias estimated and counted.
-
-    Impulses inside the window are linearly binned onto nodes Δ apart (t_start + jΔ: the mass splits between the
-    two nearest nodes, which keeps it and its mean time); :meth:`flush` deposits each node's mass as a tent of
-    half-width Δ centred on it (:meth:`~datagen.timing.EnvelopeAccumulator.add_tents`), i.e. the piecewise-linear
-    density through the node masses. The deep orders of a closed room are a long tail that changes over many
-    nanoseconds, so the smoothing removes the noise of single paths at a bias of order Δ² L''. The same impulses are
-    also binned at 2Δ: the bias of a kernel estimate grows as its width squared, so ‖L_2Δ − L_Δ‖ / 3 estimates the
-    bias of L_Δ (Richardson), and :meth:`bias` returns it for the result's stated error (noise in that difference
-    only makes the estimate larger).
-
-    The nodes reach :attr:`margin` (4Δ) beyond both ends of the window, and the tracer follows paths that far past
-    its end, so that the kernels near the ends receive from outside the mass they spread out of the window.
-
-    Args:
-        width: Δ, s; t_start, t_stop: the window, s; n_channels: output channels.
-    """
-
-    def __init__(self, width: float, t_start: float, t_stop: float, n_channels: int):
-        self.width, self.n_channels = float(width), int(n_channels)
-        self.margin = 4 * self.width                  # the 2Δ kernel's reach: the nodes cover the window and this
-        self.t_start = float(t_start) - self.margin   # node 0
-        self.t_end = float(t_stop) + self.margin
-        self.nodes = int(np.ceil((self.t_end - self.t_start) / self.width)) + 2
-        self.pending = np.zeros((self.n_channels, self.nodes))      # this run's node masses, photons
-        self.total = np.zeros((self.n_channels, self.nodes))        # every run's, for the bias
-        self.coarse = np.zeros((self.n_channels, self.nodes // 2 + 2))   # every run's at 2Δ
-
-    def covers(self, t: np.ndarray) -> np.ndarray:
-        """(n,) bool: the times t (n,) s that the nodes cover (the window widened by the margin on both sides)."""
-        return (t >= self.t_start) & (t < self.t_end)
-
-    def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray) -> None:
-        """Linearly bin impulses at times t (n,) s, weights (n,) photons, channels (n,) int."""
-        for out, width in ((self.pending, self.width), (self.coarse, 2 * self.width)):
-            f = (t - self.t_start) / width
-            j = np.minimum(f.astype(np.int64), out.shape[1] - 2)
-            frac = f - j
-            flat = out.reshape(-1)
-            base = channel * out.shape[1] + j
-            flat += np.bincount(base, weight * (1.0 - frac), minlength=flat.size)
-            flat += np.bincount(base + 1, weight * frac, minlength=flat.size)
-
-    def flush(self, sink: Sink, component: int) -> None:
-        """Deposit this run's node masses into ``sink`` as tents (component ``component * n_channels +
-        channel``) and start the next run."""
-        ch, j = np.nonzero(self.pending)
-        if len(ch):
-            t = self.t_start + j * self.width
-            sink.add_tents(np.stack([t - self.width, t, t + self.width], axis=1), self.pending[ch, j],
-                           component * self.n_channels + ch)
-        self.total += self.pending
-        self.pending[:] = 0.0
-
-    def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
-        """‖L_2Δ − L_Δ‖ / 3 per output bin: (n_channels, n_bins) photons per pulse, the estimated bias of the
-        smoothed orders' mean over ``runs`` runs on the bins ``edges`` (n_bins + 1,) s."""
-        centres = 0.5 * (edges[1:] + edges[:-1])
-        widths = np.diff(edges)
-        out = np.zeros((self.n_channels, len(centres)))
-        for c in range(self.n_channels):
-            fine = np.interp(centres, self.t_start + self.width * np.arange(self.nodes), self.total[c] / self.width)
-            cells = self.coarse.shape[1]
-            wide = np.interp(centres, self.t_start + 2 * self.width * np.arange(cells), self.coarse[c] / (2 * self.width))
-            out[c] = (wide - fine) * widths / 3.0
-        return out / max(runs, 1)
+        component = self.secondary_component if order == 2 and self.secondary_component is not None \
+            else self.component
+        sink.add(t, weight, component * self.capture.n_channels + channel)

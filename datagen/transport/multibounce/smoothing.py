@@ -1,0 +1,263 @@
+"""The tracer's smoothing of the smooth orders (:class:`~datagen.transport.multibounce.tracer.MultibounceTracer`):
+a kernel estimate in time, and across a confocal scan's points, with its bias estimated and counted
+(docs/physics.md §2, "Light of every order"; docs/accuracy.md).
+
+- :func:`default_smoothing`: the node spacing Δ for a bin width and a tolerance (Δ ∝ √tolerance).
+- :class:`SmoothingBands`: one :class:`DeepSmoothing` per band of orders, Δ doubling as the order doubles.
+- :class:`DeepSmoothing`: linear binning on nodes Δ apart, tents deposited per run, the bias by Richardson; across a
+  scan, :func:`spread_scan` (a separable tent of :func:`tent_weights`) with its own bias from :func:`tent_variance`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..base import Sink
+
+SMOOTH_ORDER = 3
+"""Orders from this one up are deposited smoothed in time (:class:`DeepSmoothing`) by default."""
+
+SMOOTH_WIDTH = 2e-9
+"""Δ, the node spacing of the lowest smoothed orders, s, at a tolerance of :data:`SMOOTH_TOLERANCE`: the bias of a
+kernel estimate grows as Δ² and its noise falls as 1/Δ, so Δ scales as √tolerance (the bias stays the same
+fraction of the tolerance: about a third of it in the shipped rooms at 2 ns and 1 %), and never above this."""
+
+SMOOTH_TOLERANCE = 0.01
+
+SMOOTH_MIN_WIDTH = 0.5e-9
+"""The narrowest Δ, s (tolerances below 0.06 %)."""
+
+SMOOTH_BANDS = 2
+"""Bands of orders with their own Δ: orders s..2s−2 at Δ, deeper orders at 2Δ (:class:`SmoothingBands`)."""
+
+SCAN_SMOOTHING = 2
+"""h, the half-width in scan pitches of the smoothing across a confocal scan (weights ¼, ½, ¼ per axis:
+:func:`spread_scan`), its bias estimated and counted (:meth:`DeepSmoothing.bias`)."""
+
+SMOOTH_MIN_BINS = 4
+"""No smoothing when the output bins are not at least this many times finer than Δ (nothing to gain)."""
+
+
+def default_smoothing(bin_width: float, tolerance: float, first_order: int = SMOOTH_ORDER,
+                      confocal: bool = False) -> dict:
+    """The smoothing fields of :class:`~datagen.transport.multibounce.tracer.MultibounceSettings` (``smooth_order``,
+    ``smooth_width``, ``smooth_max_width``, ``smooth_scan``) for output bins of ``bin_width`` seconds and a target
+    relative error ``tolerance``: Δ = :data:`SMOOTH_WIDTH` · √(tolerance / :data:`SMOOTH_TOLERANCE`) within
+    [:data:`SMOOTH_MIN_WIDTH`, :data:`SMOOTH_WIDTH`], the deeper band at 2Δ, from order ``first_order`` (the
+    tracer's lowest); across a ``confocal`` scan's points a tent of half-width :data:`SCAN_SMOOTHING` pitches; no
+    smoothing when the bins are not :data:`SMOOTH_MIN_BINS` times finer than Δ."""
+    width = float(np.clip(SMOOTH_WIDTH * np.sqrt(tolerance / SMOOTH_TOLERANCE), SMOOTH_MIN_WIDTH, SMOOTH_WIDTH))
+    order = first_order if SMOOTH_MIN_BINS * bin_width <= width else 0
+    return {"smooth_order": order, "smooth_width": width, "smooth_max_width": width * 2 ** (SMOOTH_BANDS - 1),
+            "smooth_scan": SCAN_SMOOTHING if confocal and order else 0}
+
+
+class SmoothingBands:
+    """The time smoothing of the deep orders, one :class:`DeepSmoothing` per band of orders whose node spacing
+    doubles each time the order doubles: order k ≥ s = ``first_order`` in band ⌊log2((k − 1)/(s − 1))⌋ (orders 3–4, 5–8,
+    9–16, … for s = 3), the last band taking every deeper order, up to ``max_width``.
+
+    Order k's part of the transient is k chord lengths convolved: it spreads in time and its curvature L_k''
+    falls as k grows, so the bias Δ² L_k'' of a kernel of width Δ stays small for a wider kernel on deeper orders,
+    while the noise of a kernel estimate falls as 1/Δ. Each band estimates its own bias (Richardson,
+    :meth:`DeepSmoothing.bias`); their sum is the bias of the smoothed orders.
+
+    Args:
+        first_order: the lowest smoothed order (≥ 2); width: Δ of the band that starts there, s; max_width: the
+            widest Δ, s; t_start, t_stop: the window, s; n_channels: output channels; scan: (ny, nx, h) to spread
+            over a scan grid too (:class:`DeepSmoothing`), or None.
+    Attributes:
+        margin: how far past the window's end paths are followed, s (the widest band's reach).
+    """
+
+    def __init__(self, first_order: int, width: float, max_width: float, t_start: float, t_stop: float,
+                 n_channels: int, scan: tuple[int, int, int] | None = None):
+        self.first_order = int(first_order)
+        self.widths: list[float] = []
+        w = float(width)
+        while True:
+            self.widths.append(min(w, max_width))
+            if w >= max_width:
+                break
+            w *= 2.0
+        self.bands = [DeepSmoothing(w, t_start, t_stop, n_channels, scan) for w in self.widths]
+        self.margin = max(b.margin for b in self.bands)
+
+    def band(self, order: int) -> DeepSmoothing | None:
+        """The band that smooths order ``order``, or None below :attr:`first_order`."""
+        if order < self.first_order:
+            return None
+        j = int(np.floor(np.log2((order - 1) / max(self.first_order - 1, 1)) + 1e-12))
+        return self.bands[min(j, len(self.bands) - 1)]
+
+    def flush(self, sink: Sink, component: int, order2_component: int | None = None) -> None:
+        """:meth:`DeepSmoothing.flush` of every band into ``component``; with ``first_order`` 2, the first band
+        (order 2 alone) into ``order2_component`` when given."""
+        for j, b in enumerate(self.bands):
+            own = order2_component is not None and j == 0 and self.first_order == 2
+            b.flush(sink, order2_component if own else component)
+
+    def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
+        """The sum of the bands' :meth:`DeepSmoothing.bias`, (n_channels, n_bins) photons per pulse."""
+        return sum(b.bias(edges, runs) for b in self.bands)
+
+
+class DeepSmoothing:
+    """Orders that are smooth in time, deposited smoothed: a kernel estimate with its bias estimated and counted.
+
+    Impulses inside the window are linearly binned onto nodes Δ apart (t_start + jΔ: the mass splits between the
+    two nearest nodes, which keeps it and its mean time); :meth:`flush` deposits each node's mass as a tent of
+    half-width Δ centred on it (:meth:`~datagen.timing.EnvelopeAccumulator.add_tents`), i.e. the piecewise-linear
+    density through the node masses. The deep orders of a closed room are a long tail that changes over many
+    nanoseconds, so the smoothing removes the noise of single paths at a bias of order Δ² L''. The same impulses are
+    also binned at 2Δ: the bias of a kernel estimate grows as its width squared, so ‖L_2Δ − L_Δ‖ / 3 estimates the
+    bias of L_Δ (Richardson), and :meth:`bias` returns it for the result's stated error (noise in that difference
+    only makes the estimate larger).
+
+    The nodes reach :attr:`margin` (4Δ) beyond both ends of the window, and the tracer follows paths that far past
+    its end, so that the kernels near the ends receive from outside the mass they spread out of the window.
+
+    **Across a scan** (``scan``: the channels are the points of an (ny, nx) scan grid, as a confocal scan's are),
+    the node masses are also spread over neighbouring scan points by a separable tent of half-width h pitches
+    (:func:`spread_scan`; h = 2: weights ¼, ½, ¼, seven times less variance): the light of orders ≥ 2 changes over
+    many scan pitches. Its bias, ∝ h² ∇²L, is estimated the same way, from the spread at 2h, and added.
+
+    Args:
+        width: Δ, s; t_start, t_stop: the window, s; n_channels: output channels; scan: (ny, nx, h) of a scan
+            grid whose points are the channels, or None.
+    """
+
+    def __init__(self, width: float, t_start: float, t_stop: float, n_channels: int,
+                 scan: tuple[int, int, int] | None = None):
+        self.width, self.n_channels = float(width), int(n_channels)
+        self.scan = tuple(int(v) for v in scan) if scan is not None and scan[2] > 1 else None
+        self.margin = 4 * self.width                  # the 2Δ kernel's reach: the nodes cover the window and this
+        self.t_start = float(t_start) - self.margin   # node 0
+        self.t_end = float(t_stop) + self.margin
+        self.nodes = int(np.ceil((self.t_end - self.t_start) / self.width)) + 2
+        self.pending = np.zeros((self.n_channels, self.nodes))      # this run's node masses, photons
+        self.total = np.zeros((self.n_channels, self.nodes))        # every run's, for the bias
+        self.coarse = np.zeros((self.n_channels, self.nodes // 2 + 2))   # every run's at 2Δ
+
+    def covers(self, t: np.ndarray) -> np.ndarray:
+        """(n,) bool: the times t (n,) s that the nodes cover (the window widened by the margin on both sides)."""
+        return (t >= self.t_start) & (t < self.t_end)
+
+    def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray) -> None:
+        """Linearly bin impulses at times t (n,) s, weights (n,) photons, channels (n,) int."""
+        for out, width in ((self.pending, self.width), (self.coarse, 2 * self.width)):
+            f = (t - self.t_start) / width
+            j = np.minimum(f.astype(np.int64), out.shape[1] - 2)
+            frac = f - j
+            flat = out.reshape(-1)
+            base = channel * out.shape[1] + j
+            flat += np.bincount(base, weight * (1.0 - frac), minlength=flat.size)
+            flat += np.bincount(base + 1, weight * frac, minlength=flat.size)
+
+    def flush(self, sink: Sink, component: int) -> None:
+        """Deposit this run's node masses into ``sink`` as tents (component ``component * n_channels +
+        channel``) and start the next run."""
+        masses = self.pending if self.scan is None else spread_scan(self.pending, self.scan)
+        if hasattr(sink, "add_fine"):
+            masses = self._flush_edges(sink, masses, component)
+        ch, j = np.nonzero(masses)
+        if len(ch):
+            t = self.t_start + j * self.width
+            sink.add_tents(np.stack([t - self.width, t, t + self.width], axis=1), masses[ch, j],
+                           component * self.n_channels + ch)
+        self.total += self.pending
+        self.pending[:] = 0.0
+
+    def _flush_edges(self, sink: Sink, masses: np.ndarray, component: int) -> np.ndarray:
+        """Deposit the nodes whose tents cross an end of ``sink``'s fine grid as one shape per node times each
+        channel's mass (:meth:`~datagen.timing.EnvelopeAccumulator.add_fine`; the shape is a unit tent deposited
+        once, so the result is the same as depositing every tent): a tent cut by the grid's end is deposited node
+        by node, one that lies inside it in O(1) (its curvature), and the cut ones of a thousand scan points would
+        cost more than every other part of the tracer. Returns the masses with those nodes zeroed (a copy)."""
+        shapes = self.edge_shapes(sink)
+        if not shapes:
+            return masses
+        masses = masses.copy()
+        for j, (start, shape, lost) in shapes.items():
+            rows = np.flatnonzero(masses[:, j])
+            if len(rows):
+                m = masses[rows, j]
+                sink.add_fine(m[:, None] * shape[None, :], component * self.n_channels + rows, start, m, m * lost)
+                masses[rows, j] = 0.0
+        return masses
+
+    def edge_shapes(self, sink: Sink) -> dict:
+        """{node j: (first fine node, (m,) fine-histogram values of a unit tent at node j, the share of it beyond
+        the grid)} for the nodes whose tents cross an end of ``sink``'s fine grid (computed once per grid)."""
+        key = (sink.n_fine, float(sink.fine_step), float(sink.axis.t_start))
+        if getattr(self, "_shapes_key", None) == key:
+            return self._shapes
+        times = sink.fine_times
+        lo, hi = times[0] - 2 * sink.fine_step, times[-1] + 2 * sink.fine_step
+        t = self.t_start + self.width * np.arange(self.nodes)
+        cut = np.flatnonzero((t + self.width > lo) & (t - self.width < hi)
+                             & ((t - self.width <= lo) | (t + self.width >= hi)))
+        shapes = {}
+        for j in cut:
+            one = sink.spawn(1)
+            one.add_tents(np.array([[t[j] - self.width, t[j], t[j] + self.width]]), 1.0, 0)
+            row = one.fine_histogram()[0]
+            nz = np.flatnonzero(row)
+            if len(nz):
+                shapes[int(j)] = (int(nz[0]), row[nz[0]:nz[-1] + 1].copy(), max(0.0, 1.0 - float(row.sum())))
+            else:
+                shapes[int(j)] = (0, np.zeros(0), 1.0)
+        self._shapes_key, self._shapes = key, shapes
+        return shapes
+
+    def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
+        """‖L_2Δ − L_Δ‖ / 3 per output bin: (n_channels, n_bins) photons per pulse, the estimated bias of the
+        smoothed orders' mean over ``runs`` runs on the bins ``edges`` (n_bins + 1,) s."""
+        centres = 0.5 * (edges[1:] + edges[:-1])
+        widths = np.diff(edges)
+        total, coarse = self.total, self.coarse
+        if self.scan is not None:
+            total, coarse = spread_scan(total, self.scan), spread_scan(coarse, self.scan)
+        out = np.zeros((self.n_channels, len(centres)))
+        node_t = self.t_start + self.width * np.arange(self.nodes)
+        cell_t = self.t_start + 2 * self.width * np.arange(coarse.shape[1])
+        for c in range(self.n_channels):
+            fine = np.interp(centres, node_t, total[c] / self.width)
+            wide = np.interp(centres, cell_t, coarse[c] / (2 * self.width))
+            out[c] = (wide - fine) * widths / 3.0
+        if self.scan is not None:                 # the spread's own bias: (S_2h − S_h) var_h / (var_2h − var_h)
+            ny, nx, h = self.scan
+            wide = spread_scan(self.total, (ny, nx, 2 * h))
+            ratio = tent_variance(h) / (tent_variance(2 * h) - tent_variance(h))
+            for c in range(self.n_channels):
+                out[c] += (np.interp(centres, node_t, wide[c] / self.width)
+                           - np.interp(centres, node_t, total[c] / self.width)) * widths * ratio
+        return out / max(runs, 1)
+
+
+def tent_weights(h: int) -> np.ndarray:
+    """The discrete tent of half-width h pitches: (2h − 1,) float64 weights ∝ h − |k| for |k| < h, summing to 1."""
+    k = np.arange(-h + 1, h)
+    w = (h - np.abs(k)).astype(np.float64)
+    return w / w.sum()
+
+
+def tent_variance(h: int) -> float:
+    """Σ w_k k² of :func:`tent_weights` (pitches²): the bias of the spread grows with it."""
+    k = np.arange(-h + 1, h)
+    return float((tent_weights(h) * k * k).sum())
+
+
+def spread_scan(masses: np.ndarray, scan: tuple[int, int, int]) -> np.ndarray:
+    """Spread masses (ny·nx, m) over an (ny, nx) scan grid by the separable tent of half-width h pitches
+    (:func:`tent_weights`), renormalised at the grid's edges (a point there takes the weighted mean of the points
+    inside): (ny·nx, m) float64."""
+    from scipy.ndimage import convolve1d
+
+    ny, nx, h = scan
+    w = tent_weights(h)
+    grid = masses.reshape(ny, nx, -1)
+    ones = np.ones((ny, nx, 1))
+    for axis in (0, 1):
+        grid = convolve1d(grid, w, axis=axis, mode="constant")
+        ones = convolve1d(ones, w, axis=axis, mode="constant")
+    return (grid / ones).reshape(masses.shape)
