@@ -15,7 +15,8 @@ from conftest import patch_scene
 import datagen
 from datagen.planner import EFFECTS, Decision, Plan
 from datagen.simulation.run import prepare_transport
-from datagen.simulation.run import Replicas, detector_model, make_result
+from datagen.simulation.detection import detector_model, make_result
+from datagen.simulation.run import Replicas
 from datagen.spad.pileup import pile_up_from_envelope
 from datagen.transport import (AreaSampler, AreaSettings, EstimatorOptions, LookinSampler, LookinSettings, estimator,
                                estimator_names)

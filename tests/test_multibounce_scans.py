@@ -143,3 +143,25 @@ def test_a_confocal_scan_to_tolerance_with_every_order():
     assert e["rel_l2"] == pytest.approx(parts, rel=1e-9)
     # a convex box before a bare wall: no order 2 (docs/physics.md), the light of orders >= 3 passes the relay wall
     assert r.components["secondary"].sum() == 0 and r.components["multibounce"].sum() > 0
+
+
+def test_a_finer_quadrature_level_continues_the_tracers_replicas():
+    """The tracer does not depend on the quadrature's edge: a finer level adopts the replicas of the one before
+    (Replicas.adopt_tracer) and its tracer components are those replicas' mean, to round-off, with no new run."""
+    from datagen.simulation.run import Replicas
+    scene = datagen.load_scene(SCAN)
+    cfg = datagen.resolve_config(scene, {"orders": "auto", "multibounce": {"paths": 64}})
+    coarse = Replicas(scene, cfg, np.random.default_rng(1))
+    coarse.run(cfg.replicas)
+    fine = Replicas(scene, cfg.with_estimator(**cfg.estimator.at_edge(cfg.estimator.edge / 2)), np.random.default_rng(2),
+                    planned=coarse.planned)
+    fine.adopt_tracer(coarse)
+    fine.run(cfg.replicas)
+    assert fine.tracer is coarse.tracer and fine.tracer_sums.count == coarse.tracer_sums.count == 2
+    a, b = coarse.transported(), fine.transported()
+    for name in ("secondary", "multibounce"):
+        i = a.names.index(name)
+        assert np.allclose(b.binned[i], a.binned[i], rtol=1e-12, atol=1e-12 * a.binned[i].max())
+        assert np.allclose(b.outside[i], a.outside[i], rtol=1e-9, atol=1e-12)
+    base = [i for i, n in enumerate(a.names) if n not in ("secondary", "multibounce")]
+    assert not np.array_equal(a.binned[base].sum(0), b.binned[base].sum(0))    # the quadrature did run again

@@ -23,7 +23,7 @@ def zone_capture(config, split: str, room, sim_config, result, noise_rng: np.ran
     Args:
         config: the :class:`~datagen.dataset.config.DatasetConfig`; split: the sample's split; room: its
             :class:`~datagen.dataset.sampler.SampledRoom`; sim_config: its resolved simulation config; result: its
-            :class:`~datagen.simulation.run.Result`; noise_rng: the zones' counts' generator (make_sample: a fresh
+            :class:`~datagen.simulation.detection.Result`; noise_rng: the zones' counts' generator (make_sample: a fresh
             noise stream of the sample, :func:`datagen.dataset.config.sample_rngs`); where: names the sample.
     Raises:
         ConfigError: ``store.node_envelope`` without a flood (naming the field), or the zones' detector draw fails.

@@ -1,6 +1,6 @@
 """I/O stage: simulation results on disk, and interoperability with y-tal (``tal``).
 
-In: a :class:`~datagen.simulation.run.Result` (``time_edges`` (T+1,) s, ``envelope`` channel_shape + (T,),
+In: a :class:`~datagen.simulation.detection.Result` (``time_edges`` (T+1,) s, ``envelope`` channel_shape + (T,),
 ``components`` by name, int64 SPAD ``counts``, capture grids ``laser_points`` / ``sensor_points`` (…, 3) m,
 ``wall_normal`` (3,), attributes), a tal render YAML, or a tal HDF5 capture. Out: a Zarr v3 result store
 (:func:`write_result`, :func:`read_result`, :func:`write_detection`), a datagen :class:`~datagen.scene.Scene`

@@ -145,7 +145,7 @@ def tal_arrays(result, tal: TalCapture | None = None, laser_xyz=None, sensor_xyz
     """The tal capture fields (:data:`TAL_FIELDS`) of a datagen result.
 
     Args:
-        result: a :class:`datagen.simulation.run.Result` with capture grids (``laser_points``, ``sensor_points``,
+        result: a :class:`datagen.simulation.detection.Result` with capture grids (``laser_points``, ``sensor_points``,
             ``wall_normal``; attrs["capture"] (type, convention, emitter_position, sensor_position) and
             attrs["config"] (count_laser_leg, count_sensor_leg)).
         tal: when the scene came from a tal render YAML, its :class:`TalCapture`: H is laid out on tal's

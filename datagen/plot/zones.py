@@ -18,7 +18,7 @@ def plot_zones(result: Result, path: str | Path, title: str | None = None) -> Pa
     signal counts (envelope × laser cycles, black line), on shared axes; on the right, the same summed over zones.
 
     Args:
-        result: a multi-zone :class:`~datagen.simulation.run.Result` (:func:`datagen.simulation.multizone.
+        result: a multi-zone :class:`~datagen.simulation.detection.Result` (:func:`datagen.simulation.multizone.
             simulate_multizone`): ``envelope`` and ``counts`` (Z_y, Z_x, T).
         path: PNG path.
     Returns:

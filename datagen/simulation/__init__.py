@@ -8,10 +8,12 @@ its module.
 - :mod:`.config`: :class:`SimulationConfig` (sampling, estimator, time axis, IRF, detector, effects; pydantic),
   :func:`resolve_config` (a scene file's ``simulation`` block merged with overrides) and the random streams
   (:func:`stream_rng`, ``STREAM_SAMPLING`` / ``STREAM_NOISE``).
-- :mod:`.run`: :func:`simulate` → :class:`Result` (``time_edges`` (T+1,) s, ``envelope`` (…, T) detected
+- :mod:`.run`: :func:`simulate` → :class:`~.detection.Result` (``time_edges`` (T+1,) s, ``envelope`` (…, T) detected
   photons per pulse per bin, ``components``, ``counts`` (…, T) int64, ``attrs``); :func:`run_transport` (plan,
-  estimate, bin) → :class:`Transported`; :class:`Replicas` (independent replicas of one estimator and their
-  mean); :func:`make_result` (detector draw and metadata).
+  estimate, bin) → :class:`~.detection.Transported`; :class:`Replicas` (independent replicas of one estimator and their
+  mean, the order ≥ 3 tracer's counted apart).
+- :mod:`.detection`: the detector stage: :class:`Result`, :func:`~.detection.make_result` (pile-up decision from
+  the envelope, the counts, the metadata), :func:`~.detection.detector_counts`.
 - :mod:`.replicas`: the error estimate every result carries (``attrs["error"]``: the replicas' standard error
   in the relative L2 measure of :func:`datagen.analysis.relative_l2`), replica streams.
 - :mod:`.tolerance`: :func:`simulate_to_tolerance` (replicas added, or the quadrature edge refined, until the
@@ -25,7 +27,7 @@ its module.
 from ..lazy import lazy_attributes
 
 _LAZY = {"simulation_memory": "budget", "LegacyKeysWarning": "config", "SimulationConfig": "config",
-         "resolve_config": "config", "Result": "run", "simulate": "run", "ToleranceOutOfReach": "tolerance",
+         "resolve_config": "config", "Result": "detection", "simulate": "run", "ToleranceOutOfReach": "tolerance",
          "simulate_to_tolerance": "tolerance"}
 """The exported names, each imported from its module on first use (``import datagen.simulation`` stays light)."""
 

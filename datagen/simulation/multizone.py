@@ -11,7 +11,7 @@ envelope up to the midpoint quadrature of the lit patch (docs/multizone.md shows
 integral over its patch of the wall is the aperture convention's pixel region, exact as for any sensor grid. The
 detector then draws one histogram per zone from E_z (pile-up decided on E_z, as :func:`datagen.simulate` does).
 :func:`compose_zones` is the composition alone, for envelopes already computed; :func:`zone_result` turns the
-:class:`~datagen.simulation.run.Result` of a flood's exhaustive capture (a dataset sample's, whose laser grid is the
+:class:`~datagen.simulation.detection.Result` of a flood's exhaustive capture (a dataset sample's, whose laser grid is the
 flood's nodes) into the zones' result, composed by it and counted as here.
 """
 from __future__ import annotations
@@ -27,7 +27,8 @@ from ..scene.flood import (FloodProfile, MultizoneSpec, ZoneCoverageWarning, flo
                            flood_weights, node_weights, with_flood, zone_coverage_warning)
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .provenance import library_versions
-from .run import Replicas, Result, detector_counts, zero_envelope_warning
+from .detection import Result, detector_counts, zero_envelope_warning
+from .run import Replicas
 
 
 ZONE_UNITS = {"time_edges": "s", "envelope": "expected detected photons per laser pulse per bin, per zone",
@@ -71,7 +72,7 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         sampling_rng, noise_rng: as for :func:`datagen.simulate`.
         progress: show a tqdm bar over the transport.
     Returns:
-        :class:`~datagen.simulation.run.Result` with ``envelope`` and ``counts`` shaped (Z_y, Z_x, T) (expected
+        :class:`~datagen.simulation.detection.Result` with ``envelope`` and ``counts`` shaped (Z_y, Z_x, T) (expected
         detected photons per pulse per bin, int64 detections), ``components`` likewise, ``laser_points`` the
         flood nodes (n_y, n_x, 3), ``sensor_points`` the zone centres (Z_y, Z_x, 3) and ``attrs["multizone"]``
         (the spec, the node weights (n_y, n_x)); ``attrs["error"]`` is the error estimate of the per-node
@@ -136,13 +137,13 @@ def zone_result(result: Result, emitter, profile: FloodProfile, config: Simulati
     (pile-up decided on it) and ``noise_rng``, as :func:`simulate_multizone` draws them.
 
     Args:
-        result: an exhaustive capture's :class:`~datagen.simulation.run.Result`: ``envelope`` (L_y, L_x, Z_y, Z_x,
+        result: an exhaustive capture's :class:`~datagen.simulation.detection.Result`: ``envelope`` (L_y, L_x, Z_y, Z_x,
             T) float64, ``laser_points`` (L_y, L_x, 3) m, ``wall_normal`` (3,).
         emitter: (3,) the flood's emitter position (m); profile: its :class:`~datagen.scene.flood.FloodProfile`.
         config: the simulation config the result was computed with (its detector draws the counts).
         noise_rng: generator of the zones' counts. where: prefix of error messages (e.g. the sample).
     Returns:
-        :class:`~datagen.simulation.run.Result` with ``envelope``, ``components`` (Z_y, Z_x, T) float64 expected
+        :class:`~datagen.simulation.detection.Result` with ``envelope``, ``components`` (Z_y, Z_x, T) float64 expected
         detected photons per pulse per bin and ``counts`` (Z_y, Z_x, T) int64; ``attrs`` those of ``result``
         (its ``error`` and ``tolerance`` are the per-node envelope's) with ``plan["pile_up"]``, ``detector`` and
         ``n_cycles`` of the zones' draw and ``multizone`` {profile, weights (L_y, L_x), nodes, zones}.

@@ -40,7 +40,8 @@ from ..threads import one_blas_thread
 from ..scene import Scene
 from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
 from .replicas import MIN_TOLERANCE, relative_difference  # noqa: F401 (MIN_TOLERANCE: its old home)
-from .run import Replicas, Result, make_result
+from .detection import Result, make_result
+from .run import Replicas
 
 TIME_CAP_S = 600.0
 """Default wall-time cap of ``simulate --tolerance`` (``max_seconds``): no round starts that is predicted to end
@@ -193,7 +194,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             tolerance; the caller names its options) when the first round projects beyond ``max_seconds`` but
             within ``HOPELESS`` × it; the run then goes on to the cap.
     Returns:
-        :class:`~datagen.simulation.run.Result` with ``attrs["error"]`` (as every result) and
+        :class:`~datagen.simulation.detection.Result` with ``attrs["error"]`` (as every result) and
         ``attrs["tolerance"]``: target, estimate, met, and every round (replicas or edge, estimate, seconds).
         A result that could not meet the target within the caps says so (``met`` False), never silently.
     Raises:
@@ -270,14 +271,15 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
                          noise_rng: np.random.Generator | None, t0: float,
                          warn: Callable[[str], None] | None = None) -> Result:
     """The quadrature: the edge shrinks until the estimate of the latest level meets ``tolerance``."""
-    entry = runs.entry
     h = float(config.estimator.edge)
     rounds, previous = [], None
     for level in range(MAX_ROUNDS + 2):
         t_level = time.perf_counter()
         if level:
+            earlier = runs
             runs = Replicas(scene, config.with_estimator(**config.estimator.at_edge(h)), rng,
                             planned=runs.planned)   # same plan
+            runs.adopt_tracer(earlier)              # the tracer's replicas go on (the edge does not change them)
         runs.run(config.replicas)
         tr = runs.transported()
         _check_energy(scene, tr)
@@ -290,7 +292,8 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
             tr, error = _top_up_tracer(runs, tolerance, error["refinement"] or 0.0, rng, primary, h, previous)
             estimate = error["rel_l2"]
         seconds = time.perf_counter() - t_level
-        rounds.append({"quadrature_edge": h, "estimate": estimate, "seconds": seconds})
+        rounds.append({"quadrature_edge": h, "estimate": estimate, "seconds": seconds,
+                       **({"edge_part": edge_part} if runs.tracer is not None else {})})
         if progress:
             print(f"level {level}: quadrature edge {h:.4g} m: estimated error {estimate:.3%} ({seconds:.2f} s)")
         if estimate <= tolerance or level == MAX_ROUNDS + 1:
@@ -298,7 +301,8 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
         if max_seconds is not None and level == 0:       # the setup before the level is done once
             _check_projection(seconds, estimate, tolerance, None, max_seconds, f"quadrature edge {h:.4g} m", warn,
                               fixed_seconds=max(0.0, time.perf_counter() - t0 - seconds))
-        stalled = len(rounds) > 1 and estimate > STALLED * rounds[-2]["estimate"]
+        part = "edge_part" if runs.tracer is not None else "estimate"      # (the tracer's part does not follow h)
+        stalled = len(rounds) > 1 and rounds[-1][part] > STALLED * rounds[-2][part]
         own = getattr(runs.transport, "coarse", None) is not None
         shrink = min(MAX_SHRINK if own and not stalled else 0.5,
                      edge_factor(edge_part, EDGE_SHARE * tolerance) if runs.tracer is not None

@@ -85,10 +85,9 @@ of max(|fine histogram|, |envelope|) of their row are set to 0."""
 CURVATURE_MIN_NODES = 4.0
 """Fine-grid mode: tents spanning at least this many fine nodes are deposited through their second differences
 (:func:`datagen.timing.tents.tent_curvature`, 16 values per tent instead of one evaluation per node covered,
-compiled: :func:`datagen.timing.curvature.deposit_curvature`),
-summed twice along the nodes when the histogram is read; the same deposits up to round-off (~1e-16 of a tent's
-weight per node summed, measured ≤ 1e-11 relative on scans), so rows holding them clamp negatives within
-CURVATURE_CLAMP_RTOL of their maximum instead of NEGATIVE_CLAMP_RTOL."""
+compiled: :func:`datagen.timing.curvature.deposit_curvature`), summed twice along the nodes when the histogram is
+read; the same deposits up to round-off (~1e-16 of a tent's weight per node summed, ≤ 1e-11 relative on scans),
+so rows holding them clamp negatives within CURVATURE_CLAMP_RTOL of their maximum instead of NEGATIVE_CLAMP_RTOL."""
 
 CURVATURE_CLAMP_RTOL = 1e-9
 
@@ -103,8 +102,7 @@ PARALLEL_MIN_NODES = 1 << 25
 """Fine grids of at least this many nodes (all components; 256 MiB of float64: the 128 × 128 scans) fold, bin and
 sum their rows on numba's threads (:func:`datagen.threads.threads_for`), smaller ones on one: the same result."""
 
-_TENT_ROWS = 1 << 21
-"""Evaluation rows (tents x nodes they cover) processed at once by EnvelopeAccumulator.add_tents."""
+_TENT_ROWS = 1 << 21     # evaluation rows (tents × nodes they cover) processed at once by add_tents
 
 _DIRECT_GUARD_BINS = 2
 """Direct (narrow-IRF) mode: bins kept on each side of the window. An impulse in bin b touches b-1..b+1, so
@@ -497,14 +495,16 @@ class EnvelopeAccumulator:
         Raises ValueError for shapes that do not fit, repeated or out-of-range components."""
         rows = np.asarray(rows, dtype=np.float64)
         component = np.asarray(component, dtype=np.int64)
-        if rows.ndim != 2 or len(component) != len(rows) or start < 0 or start + rows.shape[1] > self.n_fine:
-            raise ValueError(f"add_fine: rows {rows.shape} at node {start} do not fit {self.n_fine} nodes")
-        if len(component) and (component.min() < 0 or component.max() >= self.n_components
-                               or len(np.unique(component)) != len(component)):
-            raise ValueError(f"add_fine: component ids must be distinct and in [0, {self.n_components})")
+        if (rows.ndim != 2 or len(component) != len(rows) or start < 0 or start + rows.shape[1] > self.n_fine
+                or len(component) and (component.min() < 0 or component.max() >= self.n_components
+                                       or len(np.unique(component)) != len(component))):
+            raise ValueError(f"add_fine: rows {rows.shape} at node {start} need distinct components in [0, "
+                             f"{self.n_components}) and nodes in [0, {self.n_fine})")
         self._binned = None
         self._unbound()
-        self._hist[component, start:start + rows.shape[1]] += rows
+        c0 = int(component[0]) if len(component) else 0            # consecutive components: a block, no gather
+        at = slice(c0, c0 + len(component)) if np.array_equal(component, c0 + np.arange(len(component))) else component
+        self._hist[at, start:start + rows.shape[1]] += rows
         self._total += np.bincount(component, weights=total, minlength=self.n_components)
         self._beyond += np.bincount(component, weights=beyond, minlength=self.n_components)
 
