@@ -8,6 +8,8 @@ result to it on 1 ns bins (IRF applied), against the result's stated error.
 
     python benchmarks/multibounce.py [--tolerance 0.01] [--scenes a.yaml b.yaml ...] [--paths N]
     python benchmarks/multibounce.py --dataset configs/datasets/default.yaml [--split train] [--samples 8]
+    python benchmarks/multibounce.py --reference configs/datasets/confocal.yaml [--split test] [--index 0]
+        [--rel-tol 0.01] [--budget 600]
 
 ``--dataset``: the per-sample CPU of a dataset build (``make_sample`` of the first samples of a split, at the
 config's tolerance and cost cap), with ``orders`` unset (orders 1–2, as every config before ``orders``) and with
@@ -97,6 +99,30 @@ def dataset_costs(path: str, split: str, samples: int) -> None:
           f"{totals['auto'] / totals['orders 1-2']:.2f}×")
 
 
+def sample_against_reference(path: str, split: str, index: int, rel_tol: float = 0.01,
+                             budget: float = 600.0) -> None:
+    """``datagen.converged_reference`` of one dataset sample (every order the config asks for, every core, at most
+    ``budget`` seconds) and the sample's stored envelope and stated error against it."""
+    from datagen.dataset import load_dataset_config
+    from datagen.dataset.config import make_sample
+    from datagen.simulation.replicas import relative_difference
+    config = load_dataset_config(path)
+    scene, sim = datagen.sample_setup(config, split, index)
+    t = time.perf_counter()
+    ref = datagen.converged_reference(scene, sim, rel_tol=rel_tol, max_seconds=budget, min_replicas=4)
+    wall = time.perf_counter() - t
+    e = ref.error_estimate
+    print(f"{path} {split} {index}: reference ({ref.settings['sampler']}) {ref.replicas} replicas, {wall:.0f} s wall "
+          f"({ref.seconds:.0f} CPU-s), error {e['rel_l2']:.2%} (Monte Carlo {e.get('monte_carlo', e['rel_l2']):.2%}, "
+          f"quadrature {e.get('refinement') or 0:.2%}), converged to {rel_tol:.2%}: {ref.converged}")
+    s = make_sample(config, split, index)
+    env = np.asarray(s.arrays["envelope"], dtype=np.float64).reshape(ref.envelope.shape)
+    actual = relative_difference(env, ref.envelope, ref.envelope)
+    stated = float(s.arrays["envelope_error"])
+    print(f"stored envelope: stated {stated:.2%}, actual {actual:.2%} against the reference "
+          f"({'within' if actual <= stated else 'above'} its stated error; the reference's own {e['rel_l2']:.2%})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tolerance", type=float, default=0.01)
@@ -105,7 +131,14 @@ def main() -> None:
     ap.add_argument("--dataset", help="a dataset config: per-sample cost of its build with orders: auto")
     ap.add_argument("--split", default="train")
     ap.add_argument("--samples", type=int, default=8)
+    ap.add_argument("--reference", help="a dataset config: one sample against converged_reference (--split, --index)")
+    ap.add_argument("--index", type=int, default=0)
+    ap.add_argument("--rel-tol", type=float, default=0.01, help="--reference: the reference's target error")
+    ap.add_argument("--budget", type=float, default=600.0, help="--reference: its most wall seconds")
     a = ap.parse_args()
+    if a.reference:
+        sample_against_reference(a.reference, a.split, a.index, a.rel_tol, a.budget)
+        return
     if a.dataset:
         dataset_costs(a.dataset, a.split, a.samples)
         return

@@ -153,8 +153,8 @@ def test_a_finer_quadrature_level_continues_the_tracers_replicas():
     cfg = datagen.resolve_config(scene, {"orders": "auto", "multibounce": {"paths": 64}})
     coarse = Replicas(scene, cfg, np.random.default_rng(1))
     coarse.run(cfg.replicas)
-    fine = Replicas(scene, cfg.with_estimator(**cfg.estimator.at_edge(cfg.estimator.edge / 2)), np.random.default_rng(2),
-                    planned=coarse.planned)
+    finer = cfg.with_estimator(**cfg.estimator.at_edge(cfg.estimator.edge / 2))
+    fine = Replicas(scene, finer, np.random.default_rng(2), planned=coarse.planned)
     fine.adopt_tracer(coarse)
     fine.run(cfg.replicas)
     assert fine.tracer is coarse.tracer and fine.tracer_sums.count == coarse.tracer_sums.count == 2
@@ -165,3 +165,26 @@ def test_a_finer_quadrature_level_continues_the_tracers_replicas():
         assert np.allclose(b.outside[i], a.outside[i], rtol=1e-9, atol=1e-12)
     base = [i for i, n in enumerate(a.names) if n not in ("secondary", "multibounce")]
     assert not np.array_equal(a.binned[base].sum(0), b.binned[base].sum(0))    # the quadrature did run again
+
+
+def test_the_reference_of_a_quadrature_config_runs_the_quadrature_once_and_the_tracer_on_every_core():
+    """converged_reference of a scan config: the quadrature at a quarter of the edge once (its own refinement error
+    counted), the unsmoothed tracer as replicas; the same numbers on one core and on two; a result at 5 % lies
+    within twice its stated error of it."""
+    scene = datagen.load_scene(SCAN)
+    cfg = datagen.resolve_config(scene, {"orders": "auto", "estimator": {"kind": "quadrature", "edge": 0.2}})
+    kw = dict(rel_tol=0.05, min_replicas=2, max_replicas=2)
+    one = datagen.converged_reference(scene, cfg, workers=1, **kw)
+    two = datagen.converged_reference(scene, cfg, workers=2, **kw)
+    assert one.settings["sampler"] == "quadrature + tracer" and one.settings["estimator"]["edge"] == pytest.approx(
+        cfg.estimator.edge / 4)
+    assert np.array_equal(one.envelope, two.envelope)
+    e = one.error_estimate
+    assert e["refinement"] is not None and e["monte_carlo"] > 0
+    assert e["rel_l2"] == pytest.approx(np.hypot(e["monte_carlo"], e["refinement"]))
+    assert one.components["multibounce"].sum() > 0
+    from datagen.simulation.replicas import relative_difference
+    from datagen.simulation.tolerance import simulate_to_tolerance
+    r = simulate_to_tolerance(scene, cfg, 0.05)
+    actual = relative_difference(r.envelope, one.envelope, one.envelope)
+    assert actual <= 2 * np.hypot(r.attrs["error"]["rel_l2"], e["rel_l2"]), (actual, r.attrs["error"]["rel_l2"])

@@ -17,6 +17,12 @@ the lookin sampler. The running sums are cached on disk (``cache_dir``) under a 
 config field that changes the envelope, so a later call with the same or a looser tolerance returns at once and
 a tighter one resumes where the last stopped.
 
+A config whose estimator is the quadrature (the scan configs) gets another reference, since the area sampler
+runs once per laser point and a scan's replica would outlast any budget: the quadrature at a quarter of the
+config's edge, run once, its own error (its rule at 2h) added in quadrature to the replicas' spread, and the
+light tracer, unsmoothed, for every order the config asks for beyond the quadrature's, its replicas on every core
+(:func:`_quadrature_parts`; docs/accuracy.md, "The converged reference").
+
 The brute-force oracle of the tests is :func:`datagen.analysis.oracle.primary_area_quadrature`.
 """
 from __future__ import annotations
@@ -221,6 +227,70 @@ def all_orders(sampler: AreaSampler, config, samples: int):
     return AllOrders(sampler, tracer)
 
 
+QUADRATURE_REFERENCE_EDGE = 4
+"""A quadrature config's reference runs the quadrature at 1/this of the config's edge (its grading with it)."""
+
+REFERENCE_SCAN_PATHS = 1024
+"""Light paths per laser point of one replica of a quadrature config's reference tracer (unsmoothed)."""
+
+
+@dataclass
+class _Fixed:
+    """The deterministic part of a quadrature config's reference: its accumulator (added to every replica) and the
+    component names of the runs."""
+
+    sink: EnvelopeAccumulator
+    names: list
+
+
+def _quadrature_parts(scene: Scene, config, rel_tol: float):
+    """The reference of a quadrature config (the scan configs): the quadrature at 1/:data:`QUADRATURE_REFERENCE_EDGE`
+    of the config's edge, run once, with its own error (its rule at 2h: ‖P(h) − P(2h)‖/3, relative to its
+    envelope; a run at 2h when the rule has no coarse sums of its own), and the light tracer, unsmoothed, for
+    every order the config asks for beyond the quadrature's (``orders: auto`` decided at ``rel_tol``: orders
+    carrying more than a quarter of it are traced).
+
+    Returns:
+        (the tracer (or an estimator that adds nothing), :class:`_Fixed`, the refinement error, the settings that
+        identify the reference)."""
+    from ..simulation.replicas import relative_difference
+    from ..simulation.run import prepare_transport
+
+    est = config.estimator
+    cfg = config.with_estimator(**est.at_edge(est.edge / QUADRATURE_REFERENCE_EDGE))
+    cfg = cfg.model_copy(update={"effect_threshold": rel_tol, "multibounce": cfg.multibounce.model_copy(
+        update={"smoothing": False, "paths": REFERENCE_SCAN_PATHS})})
+    transport, _ = prepare_transport(scene, cfg)
+    tracer = getattr(transport, "tracer", None)
+    base = transport.base if tracer is not None else transport
+    n_ch = transport.capture.n_channels
+    sink = EnvelopeAccumulator(cfg.time, cfg.irf, len(transport.component_names) * n_ch)
+    base.run(sink, np.random.default_rng(0))           # deterministic: the quadrature without its secondary
+    coarse = getattr(base, "coarse", None)           # its rule at 2h from the same evaluations, else a run at 2h
+    if coarse is None:
+        wide, _ = prepare_transport(scene, cfg.with_estimator(**cfg.estimator.at_edge(cfg.estimator.edge * 2)))
+        coarse = EnvelopeAccumulator(cfg.time, cfg.irf, len(wide.component_names) * n_ch)
+        (wide.base if getattr(wide, "tracer", None) is not None else wide).run(coarse, np.random.default_rng(0))
+    fine = sink.binned_total(n_ch)
+    refinement = relative_difference(fine, coarse.binned_total(n_ch), fine) / 3.0
+    settings = {"sampler": "quadrature" + (" + tracer" if tracer is not None else ""),
+                "estimator": cfg.estimator.model_dump(mode="json"),
+                "tracer_paths": REFERENCE_SCAN_PATHS if tracer is not None else 0,
+                "min_order": tracer.settings.min_order if tracer is not None else None}
+    return (tracer if tracer is not None else _Nothing(transport)), _Fixed(sink, list(transport.component_names)), \
+        refinement, settings
+
+
+class _Nothing:
+    """An estimator that adds nothing (a quadrature reference without orders beyond the quadrature's)."""
+
+    def __init__(self, transport):
+        self.capture, self.caster = transport.capture, transport.caster
+
+    def run(self, sink, rng) -> None:
+        pass
+
+
 def _replicas_child(estimator, sinks: list, rngs: list) -> list:
     for sink, rng in zip(sinks, rngs):
         estimator.run(sink, rng)
@@ -251,7 +321,10 @@ def replicas_in_processes(estimator, sinks: list, rngs: list, workers: int) -> N
             call.cancel()
 
 
-def _estimate(sums: _Sums, n_components: int, n_channels: int) -> tuple[np.ndarray, dict]:
+def _estimate(sums: _Sums, n_components: int, n_channels: int, refinement: float | None = None
+              ) -> tuple[np.ndarray, dict]:
+    """The mean per component and the error estimate of the mean; ``refinement`` (a deterministic part's own
+    error, relative) is added to rel_l2 in quadrature."""
     r = sums.replicas
     mean_comp = sums.comp / max(r, 1)
     mean = mean_comp.reshape(n_components, n_channels, -1).sum(0)
@@ -262,6 +335,9 @@ def _estimate(sums: _Sums, n_components: int, n_channels: int) -> tuple[np.ndarr
     est = {"rel_l2": relative_standard_error(mean, var_mean) if mean.max() > 0 else float("inf"),
            "total": float(totals.std(ddof=1) / np.sqrt(r) / abs(totals.mean())) if totals.mean() else float("inf"),
            "peak_time": float(np.std(sums.peaks, ddof=1) / np.sqrt(r))}
+    if refinement is not None:
+        est["monte_carlo"], est["refinement"] = est["rel_l2"], refinement
+        est["rel_l2"] = float(np.hypot(est["rel_l2"], refinement))
     return mean_comp, est
 
 
@@ -288,6 +364,9 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
     With ``config.orders`` "auto" or ≥ 3 the reference holds every order (or every order up to N): the light tracer
     of :mod:`datagen.transport.multibounce` beside the area sampler, :data:`REFERENCE_PATHS_PER_SAMPLE` paths per
     hidden sample, every order deposited as impulses (no time smoothing: unbiased), component ``multibounce``.
+    A quadrature config: the quadrature at a quarter of its edge once, and the tracer's replicas
+    (:data:`REFERENCE_SCAN_PATHS` paths per laser point each) beside it (module docstring); ``samples`` and
+    ``sampler`` are not used, ``error_estimate`` adds ``monte_carlo`` and ``refinement``.
     Returns:
         :class:`Reference`.
     Raises:
@@ -301,24 +380,33 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
         raise ConfigError(f"converged_reference: need 2 <= min_replicas <= max_replicas, got {min_replicas!r}, "
                          f"{max_replicas!r}")
     config = config or resolve_config(scene)
-    settings = AreaSettings.from_transport(config.transport_settings(), samples=samples,
-                                           **{**REFERENCE_SAMPLER, **sampler})
-    caster = caster or RayCaster(scene)
-    sampler_ = all_orders(AreaSampler(scene, settings, caster), config, samples)
-    names = sampler_.component_names
+    fixed, refinement = None, None
+    if config.estimator.kind == "quadrature":        # scans: the quadrature once, the tracer's replicas
+        sampler_, fixed, refinement, settings = _quadrature_parts(scene, config, rel_tol)
+        key = hashlib.sha256(json.dumps({"version": REFERENCE_VERSION, "scene": _scene_fingerprint(scene),
+                                         "config": config.model_dump(mode="json", exclude={"replicas", "seed"}),
+                                         "seed": seed, "parts": settings},
+                                        sort_keys=True, default=str).encode()).hexdigest()
+    else:
+        settings = AreaSettings.from_transport(config.transport_settings(), samples=samples,
+                                               **{**REFERENCE_SAMPLER, **sampler})
+        caster = caster or RayCaster(scene)
+        sampler_ = all_orders(AreaSampler(scene, settings, caster), config, samples)
+        key = reference_key(scene, config, settings, seed)
+        settings = {"sampler": "area", **asdict(settings)}
+    names = sampler_.component_names if fixed is None else fixed.names
     cap = sampler_.capture
     n_comp, n_ch = len(names), cap.n_channels
     axis = config.time
     workers = max(1, min(int(workers if workers is not None else (os.cpu_count() or 1)), max_replicas))
-    key = reference_key(scene, config, settings, seed)
     path = Path(cache_dir) / f"reference_{key[:24]}.npz" if cache_dir is not None else None
     shape_comp, shape_env = (n_comp * n_ch, axis.n_bins), (n_ch, axis.n_bins)
     sums = (_load(path, shape_comp, shape_env) if path is not None and path.is_file() else None) or \
         _Sums(np.zeros(shape_comp), np.zeros(shape_env))
-    meta = {"key": key, "scene": scene.name, "settings": asdict(settings)}
+    meta = {"key": key, "scene": scene.name, "settings": settings}
     start_seconds = sums.seconds
     t_start = time.perf_counter()
-    mean_comp, est = _estimate(sums, n_comp, n_ch)
+    mean_comp, est = _estimate(sums, n_comp, n_ch, refinement)
     while sums.replicas < max_replicas and (sums.replicas < min_replicas or est["rel_l2"] > rel_tol):
         if max_seconds is not None and time.perf_counter() - t_start >= max_seconds and sums.replicas >= 2:
             break
@@ -328,6 +416,8 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
         accs = [EnvelopeAccumulator(axis, config.irf, n_comp * n_ch) for _ in batch]
         replicas_in_processes(sampler_, accs, rngs, workers)
         for acc in accs:                                    # in replica order: the sums do not depend on workers
+            if fixed is not None:
+                acc.merge(fixed.sink)                       # the quadrature's deterministic part, in every replica
             binned = acc.binned()
             env = binned.reshape(n_comp, n_ch, -1).sum(0)
             sums.comp += binned
@@ -337,7 +427,7 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
         sums.seconds += (time.perf_counter() - t0) * min(workers, len(accs))    # CPU-seconds: wall × processes
         if path is not None:
             _save(path, sums, meta)
-        mean_comp, est = _estimate(sums, n_comp, n_ch)
+        mean_comp, est = _estimate(sums, n_comp, n_ch, refinement)
         if progress is not None:
             progress(sums.replicas, est)
     shape = cap.channel_shape() + (axis.n_bins,)
@@ -345,7 +435,7 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
     components = {name: per[i].reshape(shape) for i, name in enumerate(names)}
     envelope = per.sum(0).reshape(shape)
     converged = bool(est["rel_l2"] <= rel_tol)
-    info = {"sampler": "area", **asdict(settings), "replicas": sums.replicas, "rel_tol": rel_tol, "seed": seed,
+    info = {**settings, "replicas": sums.replicas, "rel_tol": rel_tol, "seed": seed,
             "key": key, "cache_file": str(path) if path is not None else None,
             "seconds_this_call": time.perf_counter() - t_start, "seconds_cached": start_seconds}
     return Reference(envelope, components, axis.edges, est, info, sums.seconds, sums.replicas, converged)
