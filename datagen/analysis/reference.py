@@ -17,7 +17,8 @@ the lookin sampler. The running sums are cached on disk (``cache_dir``) under a 
 config field that changes the envelope, so a later call with the same or a looser tolerance returns at once and
 a tighter one resumes where the last stopped.
 
-A config whose estimator is the quadrature (the scan configs) gets another reference, since the area sampler
+A config whose estimator is a deterministic rule refined by its edge (the quadrature of the scan configs) gets another
+reference, since the area sampler
 runs once per laser point and a scan's replica would outlast any budget: the quadrature at a quarter of the
 config's edge, run once, its own error (its rule at 2h) added in quadrature to the replicas' spread, and the
 light tracer, unsmoothed, for every order the config asks for beyond the quadrature's, its replicas on every core
@@ -39,7 +40,7 @@ import numpy as np
 
 from ..simulation.replicas import PEAK_FLOOR, relative_standard_error
 from ..processes import ForkedCall
-from ..transport import AreaSampler, AreaSettings
+from ..transport import AreaSampler, AreaSettings, estimator
 from ..transport.multibounce import AllOrders, MultibounceSettings, MultibounceTracer
 from ..timing import EnvelopeAccumulator
 from ..scene import RayCaster
@@ -381,7 +382,8 @@ def converged_reference(scene: Scene, config=None, rel_tol: float = 1e-3, cache_
                          f"{max_replicas!r}")
     config = config or resolve_config(scene)
     fixed, refinement = None, None
-    if config.estimator.kind == "quadrature":        # scans: the quadrature once, the tracer's replicas
+    if estimator(config.estimator.kind).refine is not None:   # a deterministic rule (the scans' quadrature): once,
+                                                              # and the tracer's replicas
         sampler_, fixed, refinement, settings = _quadrature_parts(scene, config, rel_tol)
         key = hashlib.sha256(json.dumps({"version": REFERENCE_VERSION, "scene": _scene_fingerprint(scene),
                                          "config": config.model_dump(mode="json", exclude={"replicas", "seed"}),

@@ -415,6 +415,8 @@ def build_dataset(config: DatasetConfig | str | Path, out: str | Path, workers: 
     _first_split(config)
     root = Path(out)
     check_dataset_dir(root, resume)
+    if resume and (root / LOCK_NAME).exists():   # a build writing it now (its card perhaps not yet written)
+        BuildLock(root).acquire().release()
     stored = read_card(root) if resume and (root / "zarr.json").exists() else None
     if stored is not None:
         check_same_config(root, stored, config)   # first: no asset is read and no sample computed for a wrong one
