@@ -54,6 +54,23 @@ def toward(p0, p1, p2, q0, q1, q2):
     return r, d0 / s, d1 / s, d2 / s
 
 
+@njit(cache=True, inline="always")
+def fov_target(x, n_x, b, cu, cv, fov):
+    """The FoV point at sensor-grid coordinates (cu, cv) (pixel index + position inside it) and its pair with
+    vertex b of x: (y0, y1, y2, |y − x|, unit x → y (3 floats), cosθ_y = −w·n_fov, whether the pair faces each
+    other: n_x·w > 0 and cosθ_y > 0)."""
+    center, fu, fv, fn, size, pixels = fov
+    a = (cu / pixels[0] - 0.5) * size[0]
+    c = (cv / pixels[1] - 0.5) * size[1]
+    t0 = center[0] + a * fu[0] + c * fv[0]
+    t1 = center[1] + a * fu[1] + c * fv[1]
+    t2 = center[2] + a * fu[2] + c * fv[2]
+    rr, w0, w1, w2 = toward(x[b, 0], x[b, 1], x[b, 2], t0, t1, t2)
+    cos_y = -(w0 * fn[0] + w1 * fn[1] + w2 * fn[2])
+    faces = n_x[b, 0] * w0 + n_x[b, 1] * w1 + n_x[b, 2] * w2 > 0.0 and cos_y > 0.0
+    return t0, t1, t2, rr, w0, w1, w2, cos_y, faces
+
+
 @njit(cache=True)
 def fov_targets(x, n_x, ix, iy, corner, jitter, cells, fov):
     """Stratified FoV points of every hidden point and the geometry of the pairs that face each other.
@@ -69,7 +86,6 @@ def fov_targets(x, n_x, ix, iy, corner, jitter, cells, fov):
         (bi (n,) int64, si (n,) int64, y (n, 3), w (n, 3) unit x → y, r (n,) |y − x|, cos_y (n,)) for the
         pairs with n_x·w > 0 and cosθ_y = −w·n_fov > 0, row-major in (b, s) as ``np.nonzero``.
     """
-    center, fu, fv, fn, size, pixels = fov
     mu, mv = cells
     nb, ns = x.shape[0], ix.shape[0]
     shared = jitter.shape[1] == 1
@@ -86,14 +102,8 @@ def fov_targets(x, n_x, ix, iy, corner, jitter, cells, fov):
             j = 0 if shared else s
             cu = ix[s] + (corner[s, 0] + jitter[b, j, 0] / mu)
             cv = iy[s] + (corner[s, 1] + jitter[b, j, 1] / mv)
-            a = (cu / pixels[0] - 0.5) * size[0]
-            c = (cv / pixels[1] - 0.5) * size[1]
-            t0 = center[0] + a * fu[0] + c * fv[0]
-            t1 = center[1] + a * fu[1] + c * fv[1]
-            t2 = center[2] + a * fu[2] + c * fv[2]
-            rr, w0, w1, w2 = toward(x[b, 0], x[b, 1], x[b, 2], t0, t1, t2)
-            cos_y = -(w0 * fn[0] + w1 * fn[1] + w2 * fn[2])
-            if n_x[b, 0] * w0 + n_x[b, 1] * w1 + n_x[b, 2] * w2 > 0.0 and cos_y > 0.0:
+            t0, t1, t2, rr, w0, w1, w2, cos_y, faces = fov_target(x, n_x, b, cu, cv, fov)
+            if faces:
                 bi[k], si[k] = b, s
                 y[k, 0], y[k, 1], y[k, 2] = t0, t1, t2
                 w[k, 0], w[k, 1], w[k, 2] = w0, w1, w2

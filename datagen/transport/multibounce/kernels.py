@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from ...scene.brdf_kernel import brdf_value
-from ..area.kernels import toward
+from ..area.kernels import fov_target
 
 
 @njit(cache=True)
@@ -98,7 +98,6 @@ def fov_targets_ranged(x, n_x, first, count, ix, iy, jitter, fov):
         (bi (n,) int64, ti (n,) int64 table row, y (n, 3), w (n, 3) unit x → y, r (n,) |y − x|, cos_y (n,)) for
         the pairs with n_x·w > 0 and cosθ_y = −w·n_fov > 0, in (b, j) order.
     """
-    center, fu, fv, fn, size, pixels = fov
     nb = x.shape[0]
     cap = 0
     for b in range(nb):
@@ -113,16 +112,10 @@ def fov_targets_ranged(x, n_x, first, count, ix, iy, jitter, fov):
     for b in range(nb):
         for j in range(count[b]):
             s = first[b] + j
-            cu = ix[s] + (0.0 + jitter[b, j, 0] / 1.0)
+            cu = ix[s] + (0.0 + jitter[b, j, 0] / 1.0)         # (as fov_targets with one cell per pixel)
             cv = iy[s] + (0.0 + jitter[b, j, 1] / 1.0)
-            a = (cu / pixels[0] - 0.5) * size[0]
-            c = (cv / pixels[1] - 0.5) * size[1]
-            t0 = center[0] + a * fu[0] + c * fv[0]
-            t1 = center[1] + a * fu[1] + c * fv[1]
-            t2 = center[2] + a * fu[2] + c * fv[2]
-            rr, w0, w1, w2 = toward(x[b, 0], x[b, 1], x[b, 2], t0, t1, t2)
-            cos_y = -(w0 * fn[0] + w1 * fn[1] + w2 * fn[2])
-            if n_x[b, 0] * w0 + n_x[b, 1] * w1 + n_x[b, 2] * w2 > 0.0 and cos_y > 0.0:
+            t0, t1, t2, rr, w0, w1, w2, cos_y, faces = fov_target(x, n_x, b, cu, cv, fov)
+            if faces:
                 bi[k], ti[k] = b, s
                 y[k, 0], y[k, 1], y[k, 2] = t0, t1, t2
                 w[k, 0], w[k, 1], w[k, 2] = w0, w1, w2
