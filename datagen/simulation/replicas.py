@@ -65,6 +65,16 @@ def relative_difference(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> floa
     return float(norm((a - b)[mask]) / norm(scale[mask]))
 
 
+def relative_cross(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> float:
+    """√max(Σ a·b, 0) / ‖scale‖ over the bins of :func:`relative_difference`: for two estimates a, b of one quantity
+    with independent noise, the norm of that quantity without their noise (E[Σ a·b] = Σ E[a]·E[b])."""
+    peak = float(scale.max()) if scale.size else 0.0
+    if peak <= 0:
+        return 0.0
+    mask = scale > PEAK_FLOOR * peak
+    return float(np.sqrt(max(float(np.dot(a[mask], b[mask])), 0.0)) / norm(scale[mask]))
+
+
 @dataclass
 class ReplicaSums:
     """Running sums of the replicas' envelopes: what the error estimate needs, independent of R in size.

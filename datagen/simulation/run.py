@@ -28,8 +28,8 @@ from ..transport.multibounce.tracer import tracer_rng
 from .budget import check_simulation_memory
 from .config import STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .detection import Result, Transported, make_result
-from .replicas import (FIRST_TRACER_REPLICAS, ReplicaSums, combined_error, neyman_split, relative_difference,
-                       replica_root, replica_rng, tracer_replicas_wanted)
+from .replicas import (FIRST_TRACER_REPLICAS, ReplicaSums, combined_error, neyman_split, relative_cross,
+                       relative_difference, replica_root, replica_rng, tracer_replicas_wanted)
 
 
 class Planned(NamedTuple):
@@ -330,6 +330,9 @@ class Replicas:
     def smoothing_error(self, envelope: np.ndarray) -> float:
         """The smoothing's bias over the tracer's runs relative to ``envelope`` (n_channels, n_bins), the mean of
         every component, on the error measure's bins (only when :attr:`smoothing` is not None)."""
+        halves = self.smoothing.bias_halves(self.config.time.edges)
+        if halves is not None:                  # two independent halves: the bias's norm without their noise
+            return relative_cross(*halves, envelope)
         bias = self.smoothing.bias(self.config.time.edges, max(self.tracer_sums.count, 1))
         return relative_difference(bias, np.zeros_like(bias), envelope)
 
@@ -370,7 +373,8 @@ class Replicas:
                          f"edge refinement ‖E(h) − E(2h)‖/{2 ** self.entry.order - 1}")
             parts[-1] += f" of the primary ({setting})"
         if smoothing is not None:
-            parts.append("the estimated bias of the deep orders' time smoothing ‖L(2Δ) − L(Δ)‖/3")
+            parts.append("the estimated bias of the deep orders' time smoothing ‖L(2Δ) − L(Δ)‖/3 (the even runs' "
+                         "against the odd runs': without their noise)")
         if omitted:
             parts.append(f"the share {omitted:.3g} of the in-window energy that the orders left out carry (the "
                          "planner's pilot, docs/planner.md)")
