@@ -321,7 +321,7 @@ def test_bench_accuracy_cli_bad_input_is_one_line(tmp_path):
 
 def test_scan_ladder_keeps_the_configs_fixed_fov_cells():
     """A config that fixes its FoV cells (wall_smoke: one per 12.5 cm pixel, where its 12 cm edge alone would take
-    2 × 2) has them at every step of the ladder and in the reference, so the finest step is the sample's own
+    2 × 2; a scan that leaves them unset gets one per pixel at every edge too) has them at every step of the ladder and in the reference, so the finest step is the sample's own
     transport again (error round-off against ``datagen.simulate``'s envelope)."""
     import datagen
     from datagen.analysis.scan_accuracy import SCAN_LADDER, scan_ladder
@@ -331,7 +331,14 @@ def test_scan_ladder_keeps_the_configs_fixed_fov_cells():
     scene, sim = sample_setup(load_dataset_config("configs/datasets/wall_smoke.yaml"), "train", 0)
     assert sim.estimator.fov_cells == 1
     capture = datagen.scene.resolve_capture(scene, datagen.scene.RayCaster(scene))
-    assert transport_estimator(SCAN_LADDER).cls.aperture_cells(capture, sim.estimator.edge) == 2    # the default
+    cells = transport_estimator(SCAN_LADDER).cls.aperture_cells
+    # unset on a scan: one per pixel at every edge; "edge" (the old default): ceil(12.5 cm / edge)
+    assert [cells(capture, e) for e in (sim.estimator.edge, 0.05, 0.01)] == [1, 1, 1]
+    assert [cells(capture, e, "edge") for e in (sim.estimator.edge, 0.05, 0.01)] == [2, 3, 13]
+    single = datagen.load_scene("scene_library/demo_room.yaml")           # one laser spot: the cells follow the edge
+    spot = datagen.scene.resolve_capture(single, datagen.scene.RayCaster(single))
+    side = max(np.asarray(spot.fov_size) / np.asarray(spot.fov_pixels))
+    assert cells(spot, side / 2.5) == 3 and cells(spot, side / 2.5, 2) == 2
     ladder, ref_step = scan_ladder(scene, sim)
     assert {s["fov_cells"] for s in ladder.ladder} == {1} and ref_step["fov_cells"] == 1
     rows = run_accuracy(scene, datagen.simulate(scene, sim), sim, budget=60.0, estimators=(SCAN_LADDER,),

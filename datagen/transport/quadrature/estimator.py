@@ -89,6 +89,7 @@ from ..area.estimator import AREA_FOLLOWS_PLAN, AreaSampler, AreaSettings
 from ..base import Sink, register
 from ..physics import PhysicsSettings, fov_connection_weight
 from .grading import GRADING_MIN_EDGE, graded_triangles, quadrature_memory
+from .options import fov_cells_per_side
 from .options import QUADRATURE_EDGE, QuadratureOptions
 from .numpy_kernel import run_numpy
 from .primary import dark_faces, front_only, leg_occluders, run_compiled
@@ -125,7 +126,7 @@ class QuadratureSettings(PhysicsSettings):
     """
 
     edge: float = QUADRATURE_EDGE
-    fov_cells: int | None = None
+    fov_cells: int | str | None = None
     grading: float | None = None
     secondary: Literal["none", "full"] = "none"
     secondary_samples: int = 1 << 16
@@ -145,7 +146,7 @@ class QuadratureSettings(PhysicsSettings):
         if isinstance(self.edge, bool) or not isinstance(self.edge, (int, float, np.floating)) \
                 or not np.isfinite(self.edge) or self.edge <= 0:
             bad("edge", self.edge, "must be a finite length > 0 (metres)")
-        if self.fov_cells is not None:
+        if self.fov_cells is not None and self.fov_cells != "edge":
             integer("fov_cells", self.fov_cells, 1)
         if self.grading is not None and (isinstance(self.grading, bool) or not isinstance(self.grading, (int, float))
                                          or not 0 < self.grading < np.inf):
@@ -190,6 +191,7 @@ IRF: all 1 024 channels cost 25 % more time than 64, for an estimate of 0.86 % i
 
 MAX_FOV_CELLS = 64
 """Cap on the automatic FoV cells per pixel side (aperture captures)."""
+
 
 
 @dataclass
@@ -322,7 +324,7 @@ class Quadrature:
         else:
             pw, ph = c.fov_size[0] / nx, c.fov_size[1] / ny
             k = self.aperture_cells(c, s.edge, s.fov_cells)
-            self.fov_cells_fixed = bool(s.fov_cells or self.aperture_cells(c, 2.0 * s.edge) == k)  # the same at 2h
+            self.fov_cells_fixed = self.aperture_cells(c, 2.0 * s.edge, s.fov_cells) == k      # the same at 2h
             g = (np.arange(k) + 0.5) / k
             gu, gv = np.meshgrid(g, g, indexing="xy")                          # (k, k): v rows, u columns
             iy, ix = np.divmod(np.arange(c.n_pixels), nx)
@@ -532,16 +534,18 @@ class Quadrature:
             self.physics.first_bounce(sink, self.n_primary + 1)
 
     @staticmethod
-    def aperture_cells(capture: Capture, edge: float, forced: int | None = None) -> int | None:
+    def aperture_cells(capture: Capture, edge: float, forced: int | str | None = None) -> int | None:
         """FoV cells per pixel side of ``capture`` with hidden sub-triangles of edge ``edge`` (m): ``forced`` (the
-        settings' ``fov_cells``) if given, else ceil(pixel side / edge) clamped to 1 … ``MAX_FOV_CELLS`` (module doc,
-        Error order); None for a point-radiance capture, which connects to its sensor points."""
+        settings' ``fov_cells``) if an int; unset on a scanned capture (more than one laser point) one at every
+        edge, so that the tolerance loop never changes the capture (:func:`~.options.fov_cells_per_side`,
+        docs/scans.md); else ("edge", or unset on a single spot) ceil(pixel side / edge) clamped to 1 …
+        ``MAX_FOV_CELLS`` (module doc, Error order); None for a point-radiance capture, which connects to its sensor
+        points."""
         if capture.convention == "point_radiance":
             return None
-        if forced:
-            return int(forced)
         side = max(capture.fov_size[0] / capture.fov_pixels[0], capture.fov_size[1] / capture.fov_pixels[1])
-        return int(min(MAX_FOV_CELLS, max(1, np.ceil(side / edge - 1e-9))))
+        k = fov_cells_per_side(forced, capture.n_lasers > 1, side, edge)
+        return k if isinstance(forced, int) else min(MAX_FOV_CELLS, k)
 
     def compiled_case(self) -> bool:
         """Whether the compiled primary covers these settings: Lambertian or Phong hidden surfaces, Lambertian laser

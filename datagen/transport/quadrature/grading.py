@@ -18,6 +18,7 @@ import numpy as np
 
 from ..area.estimator import samples_memory
 from ..base import TARGET_BYTES
+from .options import fov_cells_per_side
 
 __all__ = ["GRADING_MIN_EDGE", "graded_triangles", "quadrature_memory"]
 
@@ -110,7 +111,7 @@ def quadrature_memory(scene, config, lasers: int, sensors: int) -> list[tuple[st
     cells = float((np.maximum(k_min, np.ceil(longest / opts.edge)) ** 2).sum())   # no overflow
     fov = scene.sensor.fov     # FoV cells per pixel side: the quadrature caps them (at 64); not here
     side = max(fov.size) / min(fov.pixels) if fov is not None else 0.0
-    k = opts.fov_cells or max(1, math.ceil(side / opts.edge))
+    k = fov_cells_per_side(opts.fov_cells, lasers > 1, side, opts.edge)
     return terms + [("estimator.edge", f"{opts.edge:g} m ({cells:.3g} sub-triangles)",
                      float(QUADRATURE_CELL_BYTES) * cells),
                     ("estimator.edge", f"{opts.edge:g} m ({k}x{k} FoV cells per pixel)",

@@ -2,7 +2,8 @@
 simulation config (:class:`QuadratureOptions`), with its registry hooks (replica, refine, describe)."""
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+import math
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field
 
@@ -14,13 +15,34 @@ it gives 0.13 % (single spot) and 0.22 % (32×32 confocal) relative L2 against t
 inside their 1 % target."""
 
 
+SCAN_FOV_CELLS = 1
+"""FoV cells per pixel side of a scanned capture whose config leaves ``fov_cells`` unset: one, the pixel's midpoint (a
+scan point is the detector's focus, as in the field's renderers), at every edge of the tolerance loop. Following the
+edge instead (``fov_cells: edge``, what the v1 benchmark suites were built with), a sample refined below the pixel
+pitch switched to 2 × 2 cells, a different capture at 18 times the cost (docs/scans.md, "Fix the FoV cells of a scan
+config")."""
+
+
+def fov_cells_per_side(fov_cells: int | str | None, scanned: bool, pixel_side: float, edge: float) -> int:
+    """FoV cells per pixel side for a ``fov_cells`` setting (an int, "edge" or None), a capture that is ``scanned``
+    (more than one laser point) or not, its pixel side (m) and the sub-triangle edge (m): the int; "edge" (and None
+    on a single-spot capture) ceil(pixel side / edge), at least 1 (not capped here); None on a scan
+    :data:`SCAN_FOV_CELLS`."""
+    if isinstance(fov_cells, int) and not isinstance(fov_cells, bool):
+        return int(fov_cells)
+    if fov_cells is None and scanned:
+        return SCAN_FOV_CELLS
+    return max(1, math.ceil(pixel_side / edge - 1e-9))
+
+
 class QuadratureOptions(EstimatorOptions):
     """The quadrature's settings (:mod:`datagen.transport.quadrature`).
 
     Attributes:
         edge: sub-triangles of edge ≤ ``edge`` metres, with exact time binning.
         fov_cells: aperture captures integrate each pixel region with ``fov_cells`` × ``fov_cells`` FoV cells
-            (None: cells no larger than the edge).
+            (None: cells no larger than the edge, and on a scanned capture :data:`SCAN_FOV_CELLS` at every edge;
+            "edge": cells no larger than the edge on scans too).
         grading: r (None: off): hidden triangles are first cut into 4 while longer than r × their distance to the
             scanned points, so sub-triangles near the scan are finer (:mod:`datagen.transport.quadrature.grading`).
         refine_grading: the tolerance loop's finer levels (and the coarse run of the error estimate) scale the
@@ -32,7 +54,7 @@ class QuadratureOptions(EstimatorOptions):
 
     kind: Literal["quadrature"] = "quadrature"
     edge: float = Field(QUADRATURE_EDGE, gt=0.0)
-    fov_cells: int | None = Field(None, ge=1)
+    fov_cells: Annotated[int, Field(ge=1)] | Literal["edge"] | None = None
     grading: float | None = Field(None, gt=0)
     refine_grading: bool = False
     secondary_samples: int = Field(65536, ge=16)
