@@ -181,6 +181,26 @@ def test_bench_accuracy_cli_writes_csv_png_and_table(tmp_path):
     assert list((tmp_path / "cache").glob("reference_*.npz"))
 
 
+def test_bench_accuracy_with_every_order_runs_the_tolerance_loop_against_an_all_order_reference(tmp_path):
+    """--orders auto: the reference holds every order and the tolerance ladder (the area sampler's tolerance loop)
+    runs from 16 % down; each of its results is within twice its tolerance of that reference, and the error falls
+    along the ladder. A bad --orders is one line."""
+    scene = tiny_scene_yaml(tmp_path / "tiny.yaml")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--budget", "40s", "--out", str(out),
+                                    "--rel-tol", "0.02", "--reference-samples", "4096", "--orders", "auto",
+                                    "--cache-dir", str(tmp_path / "cache"), "--estimators", "area,tolerance"])
+    assert res.exit_code == 0, res.output
+    with (out / "accuracy.csv").open() as fh:
+        rows = [r for r in csv.DictReader(fh) if r["estimator"] == "tolerance"]
+    assert len(rows) >= 3 and rows[0]["setting"] == "tol=0.16"
+    for r in rows:
+        assert float(r["rel_l2"]) <= 2 * float(r["setting"].split("=")[1]) + 0.02, r     # + the reference's own
+    assert float(rows[-1]["rel_l2"]) < float(rows[0]["rel_l2"])
+    bad = CliRunner().invoke(main, ["bench", "accuracy", str(scene), "--orders", "0"])
+    assert bad.exit_code == 2 and "--orders" in bad.output and "Traceback" not in bad.output
+
+
 def test_bench_accuracy_over_dataset_rooms_reports_median_and_p95(tmp_path):
     """--dataset CONFIG --samples N: the ladders run on rooms 0 … N-1 of the val split, each against its own
     reference; the CSV has a line per (room, step) and a median / p95 summary per setting."""

@@ -148,7 +148,8 @@ def test_bad_files_are_one_line_errors(tmp_path):
 @pytest.fixture(scope="module")
 def confocal_result():
     room = box_before_wall(16)
-    over = {"estimator": "quadrature", "quadrature_edge": 0.08, "secondary": "none", "count_sensor_leg": True,
+    over = {"estimator": "quadrature", "quadrature_edge": 0.08, "quadrature_fov": "edge", "secondary": "none",
+            "count_sensor_leg": True,
             "time": {"t_start": 0.0, "bin_width": 32e-12, "n_bins": 640}, "irf": {"fwhm": 70e-12},
             "effects": {"first_bounce": False, "secondary": False}}
     return datagen.simulate(room.scene, datagen.resolve_config(room.scene, over)), room

@@ -346,13 +346,15 @@ def test_occluder_shadow_rays_match_the_area_sampler():
 @pytest.mark.parametrize("convention", ["aperture", "point_radiance"])
 def test_scans_equal_single_spot_captures_per_laser_point(convention):
     """Exhaustive (2 laser points × 2×2 sensor points) and confocal (2×1 points) scans: every channel equals a
-    single-spot capture with the laser at that point (one subdivision serves every laser point)."""
+    single-spot capture with the laser at that point (one subdivision serves every laser point; FoV cells by the
+    edge rule in both, ``fov_cells="edge"``: a scan's default is one per pixel)."""
     lasers = WallGrid(center=(2.0, 0.0, 0.0), size=(0.4, 0.2), points=(2, 1))
     sensors = WallGrid(center=(2.0, 0.0, -0.3), size=(0.4, 0.4), points=(2, 2))
     ex, qe = run_quadrature(small_scene(capture=CaptureSpec(type="exhaustive", convention=convention,
-                                                            laser_grid=lasers, sensor_grid=sensors)), edge=0.04)
+                                                            laser_grid=lasers, sensor_grid=sensors)), edge=0.04,
+                            fov_cells="edge")
     co, qc = run_quadrature(small_scene(capture=CaptureSpec(type="confocal", convention=convention,
-                                                            laser_grid=lasers)), edge=0.04)
+                                                            laser_grid=lasers)), edge=0.04, fov_cells="edge")
     assert qc.target_is_laser == (convention == "point_radiance")
     ex_env = ex.binned().reshape(len(qe.component_names), 2, 4, -1).sum(0)        # (laser, pixel, T)
     co_env = co.binned().reshape(len(qc.component_names), 2, -1).sum(0)           # (point, T)
@@ -478,8 +480,9 @@ def test_distinct_rows_is_numpy_unique_and_a_split_shares_its_mesh_vertices():
 
 
 def test_aperture_cells_per_pixel_side():
-    """FoV cells per pixel side: ceil(pixel side / edge) clamped to 1 … MAX_FOV_CELLS, a forced value as given, none
-    for a point-radiance capture; the quadrature takes the same number at the edge it runs."""
+    """FoV cells per pixel side of a scan: one at every edge by default; "edge": ceil(pixel side / edge) clamped to
+    1 … MAX_FOV_CELLS; a forced value as given; none for a point-radiance capture; the quadrature takes the same
+    number at the edge it runs."""
     from dataclasses import replace
 
     from datagen.dataset import load_dataset_config
@@ -492,6 +495,8 @@ def test_aperture_cells_per_pixel_side():
     side = max(c.fov_size[0] / c.fov_pixels[0], c.fov_size[1] / c.fov_pixels[1])    # 2 m / 16 = 0.125 m
     assert c.convention == "aperture" and side == pytest.approx(0.125)
     cells = Quadrature.aperture_cells
-    assert [cells(c, e) for e in (1.0, 0.125, 0.1249, 0.06, 0.03, 1e-5)] == [1, 1, 2, 3, 5, 64]
+    assert [cells(c, e, "edge") for e in (1.0, 0.125, 0.1249, 0.06, 0.03, 1e-5)] == [1, 1, 2, 3, 5, 64]
+    assert [cells(c, e) for e in (1.0, 0.06, 1e-5)] == [1, 1, 1]
     assert cells(c, 0.06, 2) == 2 and cells(replace(c, convention="point_radiance"), 0.06) is None
-    assert Quadrature(scene, QuadratureSettings(edge=0.06, secondary="none")).fov_cells == 3
+    assert Quadrature(scene, QuadratureSettings(edge=0.06, secondary="none", fov_cells="edge")).fov_cells == 3
+    assert Quadrature(scene, QuadratureSettings(edge=0.06, secondary="none")).fov_cells == 1

@@ -122,6 +122,8 @@ class Ladder:
             :class:`datagen.transport.QuadratureSettings` fields).
         cost: nominal cost of a step (used with measured times to predict the next step's time).
         describe: a step's setting in a few characters (the table's "setting" column).
+        run: ``(scene, config, step, caster, seed) → (envelope, seconds)`` for a step that is not one run of
+            ``kind`` (the ``tolerance`` ladder: the tolerance loop), or None.
     """
 
     name: str
@@ -130,6 +132,7 @@ class Ladder:
     ladder: tuple[dict, ...]
     cost: Callable[[dict], float]
     describe: Callable[[dict], str]
+    run: Callable[..., tuple[np.ndarray, float]] | None = None
 
 
 _LOOKIN_STEPS = ((3, 12), (4, 16), (6, 20), (8, 24), (10, 30), (12, 36), (16, 44), (20, 52), (24, 60), (32, 60),
@@ -156,6 +159,23 @@ def _ray_cost(step: dict) -> float:
     return step["lookins"][0] ** 2 * step["pixels"][0] * step["pixels"][1]
 
 
+def _run_tolerance(scene: Scene, config, step: dict, caster: RayCaster, seed: int) -> tuple[np.ndarray, float]:
+    """One step of the ``tolerance`` ladder: ``simulate_to_tolerance`` with the area estimator (a first round of 2
+    replicas of 8192 hidden samples) at ``step["tolerance"]`` and the config's ``orders`` (with ``orders: auto``, every order the planner asks for): what ``datagen simulate
+    --tolerance`` costs, wall seconds of the whole call (plan, pilot, replicas, tracer, error estimate)."""
+    from ..simulation.config import STREAM_SAMPLING, stream_rng
+    from ..simulation.tolerance import simulate_to_tolerance
+    from ..transport.base import estimator_options
+
+    # first round: 2 replicas of 8192 hidden samples, as the dataset configs' (benchmarks/multibounce.py)
+    cfg = config.model_copy(update={"estimator": estimator_options({"kind": "area", "samples": 16384}),
+                                    "replicas": 2})
+    t0 = time.perf_counter()
+    result = simulate_to_tolerance(scene, cfg, step["tolerance"], sampling_rng=stream_rng(seed, STREAM_SAMPLING))
+    seconds = time.perf_counter() - t0
+    return np.asarray(result.envelope, dtype=np.float64), seconds
+
+
 LADDERS: dict[str, Ladder] = {
     "lookin": Ladder("lookin", "lookin, full secondary", "lookin", _lookin_ladder("full"), _pair_cost,
                         _lookin_setting),
@@ -173,11 +193,16 @@ LADDERS: dict[str, Ladder] = {
                                   for i in range(9)),
                             lambda s: s["edge"] ** -4 + s["secondary_samples"] / 16.0,
                             lambda s: f"h={s['edge']:g} m, M2={s['secondary_samples']}"),   # M2: planned secondary
+    "tolerance": Ladder("tolerance", "area, tolerance loop (the config's orders)", "area",
+                        tuple({"tolerance": 0.16 / 2 ** k} for k in range(8)), lambda s: s["tolerance"] ** -2.0,
+                        lambda s: f"tol={s['tolerance']:.3g}", _run_tolerance),
 }
 """Every estimator of the benchmark by name."""
 
-ESTIMATORS = tuple(name for name in LADDERS if name != "exact" or "exact" in get_args(SecondaryMode))
-"""The estimators available in this build (``exact`` only when transport has it)."""
+ESTIMATORS = tuple(name for name in LADDERS if (name != "exact" or "exact" in get_args(SecondaryMode))
+                   and name != "tolerance")
+"""The estimators run by default in this build (``exact`` only when transport has it); ``tolerance`` (the tolerance
+loop, every order with ``orders: auto``) runs when named or with ``datagen bench accuracy --orders``."""
 
 
 def ladders() -> dict[str, Ladder]:
@@ -192,8 +217,9 @@ def ladders() -> dict[str, Ladder]:
 
 
 def available_estimators() -> tuple[str, ...]:
-    """Names ``run_accuracy`` takes: :data:`ESTIMATORS` and the registered estimators' own ladders."""
-    return ESTIMATORS + tuple(n for n in ladders() if n not in LADDERS)
+    """Names ``run_accuracy`` takes: :data:`ESTIMATORS`, ``tolerance`` and the registered estimators' own
+    ladders."""
+    return ESTIMATORS + ("tolerance",) + tuple(n for n in ladders() if n not in LADDERS)
 
 
 @dataclass
@@ -214,6 +240,9 @@ def run_estimator(scene: Scene, config, estimator: Ladder, step: dict, caster: R
                   seed: int = 0) -> tuple[np.ndarray, float]:
     """Run one ladder step; returns the envelope (channel_shape + (n_bins,)) and its wall time (s: transport
     and binning, not the shared BVH)."""
+    if estimator.run is not None:
+        env, seconds = estimator.run(scene, config, step, caster, seed)
+        return env, seconds
     base = config.transport_settings()
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,)))
     t0 = time.perf_counter()

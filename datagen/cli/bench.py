@@ -41,7 +41,13 @@ def bench():
               help="wall time of the whole command, the reference included, e.g. 60s, 5min")
 @click.option("--out", "out", default=None, type=click.Path(path_type=Path),
               help="output directory (default out/bench_accuracy/<scene or dataset name>)")
-@click.option("--estimators", default=None, help="comma-separated subset of: lookin, top1, top8, exact, area, quadrature (default: all)")
+@click.option("--estimators", default=None,
+              help="comma-separated subset of: lookin, top1, top8, exact, area, quadrature, tolerance (default: all "
+                   "but tolerance; with --orders, tolerance too)")
+@click.option("--orders", default=None,
+              help="N or auto: the config's orders for the reference and every run (auto: the reference holds every "
+                   "order, and the tolerance ladder, the area sampler's tolerance loop, adds the tracer where the "
+                   "planner asks for it); default the config's")
 @click.option("--rel-tol", default=None, type=float,
               help="target relative L2 error estimate of the reference (default 1e-3; 3e-3 with --dataset)")
 @click.option("--reference-budget", default="30min", show_default=True,
@@ -58,7 +64,7 @@ def bench():
 @click.option("--reference-edge", default=None, type=float,
               help="with --quadrature-reference: the reference's edge, m (default a quarter of the config's)")
 @friendly_errors
-def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators, rel_tol, reference_budget,
+def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators, orders, rel_tol, reference_budget,
              reference_samples, cache_dir, seed, scan_reference, reference_edge):
     """Error of L(t) against wall time for each estimator, on SCENE_FILE or on --samples rooms of a --dataset
     config: writes accuracy.csv and accuracy.png (log-log; the Pareto front for a scene, median and p95 over the
@@ -74,7 +80,11 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
 
     budget_s = _duration(budget, "--budget")
     ref_budget_s = _duration(reference_budget, "--reference-budget")
-    names = tuple(n.strip() for n in estimators.split(",") if n.strip()) if estimators else ESTIMATORS
+    from ..simulation.config import orders_option
+
+    orders = orders_option(orders, "--orders")
+    names = (tuple(n.strip() for n in estimators.split(",") if n.strip()) if estimators
+             else ESTIMATORS + (("tolerance",) if orders is not None else ()))
     known = available_estimators()
     unknown = [n for n in names if n not in known]
     if unknown:
@@ -93,13 +103,13 @@ def accuracy(scene_file, dataset_file, n_samples, split, budget, out, estimators
     if dataset_file is not None:
         _dataset_accuracy(dataset_file, n_samples, split, budget_s - (time.perf_counter() - t_start), out, names,
                           rel_tol or 3e-3, cache, samples, seed, min(ref_budget_s, 0.5 * budget_s), scan_reference,
-                          reference_edge)
+                          reference_edge, orders)
         return
     from ..scene import load_scene
     from ..simulation import resolve_config
 
     scene = load_scene(scene_file)
-    config = resolve_config(scene)
+    config = resolve_config(scene, {"orders": orders})
     out = out or Path("out") / "bench_accuracy" / scene.name
     rel_tol = rel_tol or 1e-3
     if scan_reference:
@@ -157,7 +167,7 @@ def _scene_scan_accuracy(scene, config, reference_edge, budget_s, out, seed):
 
 
 def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_tol, cache, samples, seed,
-                      reference_budget, scan_reference=False, reference_edge=None):
+                      reference_budget, scan_reference=False, reference_edge=None, orders=None):
     import time
 
     from ..analysis.rooms_accuracy import (format_rooms_table, plot_rooms, run_rooms_accuracy, summarize,
@@ -174,6 +184,11 @@ def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_
     if not 1 <= n_samples <= count:
         raise ValueError(f"--samples must be in [1, {count}] (split {split!r} of {dataset_file}), got {n_samples}")
     rooms = [(f"{split}[{i}]", *sample_setup(config, split, i)) for i in range(n_samples)]
+    if orders is not None:
+        from ..simulation.config import SimulationConfig, merge_overrides
+
+        rooms = [(name, scene, SimulationConfig.model_validate(merge_overrides(sim.model_dump(), {"orders": orders})[0]))
+                 for name, scene, sim in rooms]
     if not scan_reference:
         check_reference_size(rooms[0][1], f"{dataset_file} ({split}[0])", samples, budget_s)   # rooms scan alike
     budget_s -= REPORT_SECONDS

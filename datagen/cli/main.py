@@ -104,7 +104,7 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
 
     overrides = {"lookins": lookins, "pixels": pixels, "secondary": secondary, "top_k": top_k, "seed": seed,
                  "workers": workers, "estimator": estimator, "quadrature_edge": edge, "area_samples": samples,
-                 "orders": _parse_orders(orders)}
+                 "orders": parse_orders(orders)}
     if is_multizone_file(scene_file):   # a flood and zones: the multi-zone capture (datagen/cli/multizone.py)
         return run_multizone(scene_file, out, overrides, refused={"--tolerance": tolerance, "--time-cap": time_cap,
                                                                   "--figures": figures}, progress=not quiet)
@@ -155,17 +155,14 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
     click.echo("wrote " + ", ".join(str(p) for p in written))
 
 
-def _parse_orders(value: str | None) -> int | str | None:
-    """``--orders``: an integer >= 1 or "auto" (None: the scene's)."""
-    if value is None or value.strip().lower() == "auto":
-        return None if value is None else "auto"
+def parse_orders(value: str | None) -> int | str | None:
+    """``--orders``: an integer >= 1 or "auto" (None: the scene's); a click error naming the option otherwise."""
+    from ..simulation.config import orders_option
+
     try:
-        n = int(value)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise click.BadParameter(f"give an integer >= 1 or auto, got {value!r}", param_hint="--orders")
-    return n
+        return orders_option(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--orders") from None
 
 
 @main.command()

@@ -321,6 +321,21 @@ def merge_simulation(base: dict, overrides: dict) -> dict:
     return out
 
 
+def orders_option(value: str | None, name: str = "") -> int | str | None:
+    """A command-line ``orders`` value: None, "auto", or an integer >= 1 (a string). Raises ValueError (ConfigError
+    when ``name``, the option, is given: the message names it) for anything else."""
+    if value is None or value.strip().lower() == "auto":
+        return None if value is None else "auto"
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        message = f"give an integer >= 1 or auto, got {value!r}"
+        raise ConfigError(f"{name} must be an integer >= 1 or auto, got {value!r}") if name else ValueError(message)
+    return n
+
+
 def merge_overrides(defaults: dict, overrides: dict) -> tuple[dict, list[str]]:
     """``overrides`` (None values left out) over ``defaults`` (a scene's or room's ``simulation`` block), both
     possibly in the old flat form, merged in the new form (:func:`merge_simulation`), and the old → new moves

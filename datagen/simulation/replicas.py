@@ -66,13 +66,17 @@ def relative_difference(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> floa
 
 
 def relative_cross(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> float:
-    """√max(Σ a·b, 0) / ‖scale‖ over the bins of :func:`relative_difference`: for two estimates a, b of one quantity
-    with independent noise, the norm of that quantity without their noise (E[Σ a·b] = Σ E[a]·E[b])."""
+    """√max(Σ a·b + √(Σ a²b²), 0) / ‖scale‖ over the bins of :func:`relative_difference`: for two estimates a, b of
+    one quantity with independent noise, the norm of that quantity without their noise (E[Σ a·b] = Σ E[a]·E[b]),
+    raised by one standard error of the sum (√(Σ a²b²) for independent noise), so that a quantity hidden in the noise
+    is not read as zero."""
     peak = float(scale.max()) if scale.size else 0.0
     if peak <= 0:
         return 0.0
     mask = scale > PEAK_FLOOR * peak
-    return float(np.sqrt(max(float(np.dot(a[mask], b[mask])), 0.0)) / norm(scale[mask]))
+    x, y = a[mask], b[mask]
+    product = float(np.dot(x, y)) + float(np.sqrt(np.dot(x * x, y * y)))
+    return float(np.sqrt(max(product, 0.0)) / norm(scale[mask]))
 
 
 @dataclass

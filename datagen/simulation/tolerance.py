@@ -39,7 +39,7 @@ from ..errors import ConfigError
 from ..threads import one_blas_thread
 from ..scene import Scene
 from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
-from .replicas import MIN_TOLERANCE, relative_difference  # noqa: F401 (MIN_TOLERANCE: its old home)
+from .replicas import FIRST_TRACER_REPLICAS, MIN_TOLERANCE, relative_difference  # noqa: F401 (MIN_TOLERANCE: its old home)
 from .detection import Result, make_result
 from .run import Replicas
 
@@ -215,6 +215,9 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     for _ in range(MAX_ROUNDS):
         t_round = time.perf_counter()
         runs.run(target - runs.count)
+        if runs.narrow_smoothing(tolerance):        # a smoothing bias replicas cannot bring down: a finer one
+            target = runs.count + 1
+            continue
         mc, fixed = runs.error(), runs.fixed_error()
         estimate = float(np.hypot(mc, fixed))
         # what the replicas may add: the tolerance less what they cannot bring down (orders left out, smoothing
@@ -345,6 +348,9 @@ def _top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.ran
     after the edge refinement and the fixed parts (at least a third of the tolerance), by the R^(−1/2) law;
     (the transported mean, its error attrs)."""
     for _ in range(MAX_ROUNDS):
+        if runs.narrow_smoothing(tolerance):        # a smoothing bias replicas cannot bring down: a finer one
+            runs.run(FIRST_TRACER_REPLICAS)
+            continue
         mc = runs.error()
         room = tolerance * tolerance - refined * refined - runs.fixed_error() ** 2
         budget = math.sqrt(max(room, (tolerance / 3) ** 2))

@@ -21,29 +21,23 @@ Method (docs/physics.md §5), used by :class:`EnvelopeAccumulator`:
 2. The fine histogram is convolved ONCE with the fine-cell-integrated IRF ``p_n = F((n+1/2)delta) -
    F((n-1/2)delta)`` (FFT, overlap-add), giving the exact integral of the envelope over each fine cell for
    impulses sitting on nodes; ``oversample`` consecutive cells are summed into one output bin.
-3. Narrow IRF (its whole support, ``MARGIN_SIGMAS * sigma`` before and after, within one bin: sigma <= bin_width /
-   8.5, e.g. 0.1 ps against 20 ps bins). A fine grid would need ``oversample >= 34`` nodes per bin (memory and FFT
-   cost growing as bin_width / sigma). Instead each impulse puts its *exact* bin integrals into the bin ``b`` that
-   contains it and its two neighbours: ``w*F(e_b - tau)`` into ``b-1``, ``w*P(X >= e_{b+1} - tau)`` into ``b+1`` and
-   the rest into ``b`` ("direct" mode, two CDF evaluations per impulse, no splatting error, memory O(n_components *
-   n_bins)).
+3. Narrow IRF (``MARGIN_SIGMAS * sigma`` each side within one bin: sigma <= bin_width / 8.5), where a fine grid
+   would need ``oversample >= 34``: each impulse puts its *exact* bin integrals into its bin ``b`` and the two
+   neighbours, ``w*F(e_b - tau)`` into ``b-1``, ``w*P(X >= e_{b+1} - tau)`` into ``b+1``, the rest into ``b``
+   ("direct" mode: two CDF evaluations per impulse, no splatting error, memory O(n_components * n_bins)).
 4. Tents (:meth:`EnvelopeAccumulator.add_tents`, used by the hidden-surface quadrature of
    ``datagen.transport.quadrature``): the pushforward of the area measure of a triangle under a path length that is
    linear on it is a piecewise-linear "tent" density between the sorted vertex times t0 <= t1 <= t2 (peak 2w/(t2-t0)
-   at t1). Its deposits are exact: in the fine-grid mode each node receives the integral of the tent against the
-   node's linear splatting weight (the limit of infinitely many impulses spread over the tent, splatted as in point 1;
-   for the delta IRF, the exact integral over the fine cell), from the closed-form second antiderivative of the tent
-   (piecewise cubic); in the direct mode each bin receives the exact integral of the tent convolved with the IRF, from
-   the IRF's partial moments E[(c-X)_+] and E[(c-X)_+^2]/2 (closed forms for the Gaussian and the ex-Gaussian, in
-   :mod:`datagen.timing.tents`). A tent of zero span is an impulse. :meth:`EnvelopeAccumulator.add_fine` adds node
-   values computed once (a tent's deposit shape) to many components.
+   at t1). Its deposits are exact: fine-grid nodes receive the tent's integral against their splatting weight (the
+   limit of infinitely many impulses splatted as in point 1; delta IRF: over the fine cell) from its closed-form
+   second antiderivative; direct-mode bins the tent convolved with the IRF, from the IRF's partial moments
+   E[(c-X)_+] and E[(c-X)_+^2]/2 (:mod:`datagen.timing.tents`). A tent of zero span is an impulse.
+   :meth:`EnvelopeAccumulator.add_fine` adds node values computed once (a tent's shape) to many components.
 
-Cost is O(paths + fine_nodes * log(kernel)) in time and O(n_components * fine_nodes) in memory, independent
-of the number of paths. :func:`bin_impulses` is the exact per-impulse reference (O(paths * bins)).
-
-Conventions: times in seconds (strings such as ``"20ps"`` are accepted by the models, docs/physics.md §1), weights
-in photons per pulse. ``X`` denotes the IRF delay, i.e. detection time minus impulse time; ``Irf.cdf(x)`` is
-``P(X < x)`` so that half-open bins ``[e_b, e_{b+1})`` are handled exactly, also for the delta IRF.
+Cost is O(paths + fine_nodes * log(kernel)) in time, O(n_components * fine_nodes) in memory; :func:`bin_impulses`
+is the exact per-impulse reference (O(paths * bins)). Times in seconds (docs/physics.md §1), weights in photons per
+pulse. ``X`` is the IRF delay (detection time minus impulse time); ``Irf.cdf(x)`` is ``P(X < x)``, so half-open bins
+``[e_b, e_{b+1})`` are exact, also for the delta IRF.
 """
 from __future__ import annotations
 
@@ -91,8 +85,7 @@ so rows holding them clamp negatives within CURVATURE_CLAMP_RTOL of their maximu
 
 CURVATURE_CLAMP_RTOL = 1e-9
 
-_CHUNK = 1 << 18
-"""Impulses processed per internal chunk in EnvelopeAccumulator.add (bounds temporaries to a few MiB)."""
+_CHUNK = 1 << 18     # impulses per internal chunk of EnvelopeAccumulator.add (temporaries of a few MiB)
 
 _DIRECT_KERNEL_MAX = 256
 """Kernels up to this length are convolved directly over each row's non-zero nodes (compiled,
@@ -105,8 +98,7 @@ sum their rows on numba's threads (:func:`datagen.threads.threads_for`), smaller
 _TENT_ROWS = 1 << 21     # evaluation rows (tents × nodes they cover) processed at once by add_tents
 
 _DIRECT_GUARD_BINS = 2
-"""Direct (narrow-IRF) mode: bins kept on each side of the window. An impulse in bin b touches b-1..b+1, so
-impulses in bins -1 and n_bins still deposit into the guards; anything farther out is wholly outside."""
+"""Direct (narrow-IRF) mode: bins kept each side of the window (an impulse in bin b touches b-1..b+1)."""
 
 
 # ------------------------------------------------------------------------------------------------- tents
@@ -507,6 +499,14 @@ class EnvelopeAccumulator:
         self._hist[at, start:start + rows.shape[1]] += rows
         self._total += np.bincount(component, weights=total, minlength=self.n_components)
         self._beyond += np.bincount(component, weights=beyond, minlength=self.n_components)
+
+    def clear(self, components: np.ndarray) -> None:
+        """Remove everything added to ``components`` (k,) int (a restarted estimator's rows), as if never added."""
+        rows = np.asarray(components, dtype=np.int64)
+        self._fold()
+        self._binned = None
+        self._hist[rows], self._total[rows], self._beyond[rows] = 0.0, 0.0, 0.0
+        self._bound[rows] = (self.n_fine, 0)
 
     def merge(self, other: "EnvelopeAccumulator") -> None:
         """Add a partial accumulator from :meth:`spawn` (same grid) into this one.

@@ -70,13 +70,14 @@ class SmoothingBands:
     Args:
         first_order: the lowest smoothed order (≥ 2); width: Δ of the band that starts there, s; max_width: the
             widest Δ, s; t_start, t_stop: the window, s; n_channels: output channels; scan: (ny, nx, h) to spread
-            over a scan grid too (:class:`DeepSmoothing`), or None.
+            over a scan grid too (:class:`DeepSmoothing`), or None; narrow: n, the lowest band's Δ divided by 2ⁿ (its
+            bias was too large for the tolerance: ``Replicas.narrow_smoothing``).
     Attributes:
         margin: how far past the window's end paths are followed, s (the widest band's reach).
     """
 
     def __init__(self, first_order: int, width: float, max_width: float, t_start: float, t_stop: float,
-                 n_channels: int, scan: tuple[int, int, int] | None = None):
+                 n_channels: int, scan: tuple[int, int, int] | None = None, narrow: int = 0):
         self.first_order = int(first_order)
         self.widths: list[float] = []
         w = float(width)
@@ -85,6 +86,7 @@ class SmoothingBands:
             if w >= max_width:
                 break
             w *= 2.0
+        self.widths[0] /= 2 ** int(narrow)
         self.bands = [DeepSmoothing(w, t_start, t_stop, n_channels, scan) for w in self.widths]
         self.margin = max(b.margin for b in self.bands)
 
@@ -122,10 +124,13 @@ class DeepSmoothing:
     two nearest nodes, which keeps it and its mean time); :meth:`flush` deposits each node's mass as a tent of
     half-width Δ centred on it (:meth:`~datagen.timing.EnvelopeAccumulator.add_tents`), i.e. the piecewise-linear
     density through the node masses. The deep orders of a closed room are a long tail that changes over many
-    nanoseconds, so the smoothing removes the noise of single paths at a bias of order Δ² L''. The same impulses are
-    also binned at 2Δ: the bias of a kernel estimate grows as its width squared, so ‖L_2Δ − L_Δ‖ / 3 estimates the
-    bias of L_Δ (Richardson), and :meth:`bias` returns it for the result's stated error (noise in that difference
-    only makes the estimate larger).
+    nanoseconds, so the smoothing removes the noise of single paths at a bias of order Δ² L''.
+
+    **Its bias** (:meth:`bias`, :meth:`bias_halves`) is estimated from the same impulses binned at Δ/2 too:
+    (L_Δ − L_Δ/2) · 4/3 (Richardson: the bias of a kernel estimate grows as Δ² where the transient is smooth). Next
+    to the sharp onset of an order it grows more slowly (a kink or a jump in L), and the finer pair is then the
+    closer one: on a confocal scan's orders 2 and ≥ 3 it came to 0.88–0.93 × the actual bias where the pair
+    (L_2Δ − L_Δ)/3 came to 0.33–0.57 × (docs/physics.md §2).
 
     The nodes reach :attr:`margin` (4Δ) beyond both ends of the window, and the tracer follows paths that far past
     its end, so that the kernels near the ends receive from outside the mass they spread out of the window.
@@ -133,7 +138,8 @@ class DeepSmoothing:
     **Across a scan** (``scan``: the channels are the points of an (ny, nx) scan grid, as a confocal scan's are),
     the node masses are also spread over neighbouring scan points by a separable tent of half-width h pitches
     (:func:`spread_scan`; h = 3: weights 1, 2, 3, 2, 1 over 9 per axis, 18 times less variance): the light of orders ≥ 2 changes over
-    many scan pitches. Its bias, ∝ h² ∇²L, is estimated the same way, from the spread at 2h, and added.
+    many scan pitches. Its bias, ∝ h² ∇²L, is estimated from the spread at 2h (p = 2, with the tents' variances)
+    and added.
 
     Args:
         width: Δ, s; t_start, t_stop: the window, s; n_channels: output channels; scan: (ny, nx, h) of a scan
@@ -144,17 +150,28 @@ class DeepSmoothing:
                  scan: tuple[int, int, int] | None = None):
         self.width, self.n_channels = float(width), int(n_channels)
         self.scan = tuple(int(v) for v in scan) if scan is not None and scan[2] > 1 else None
-        self.margin = 4 * self.width                  # the 2Δ kernel's reach: the nodes cover the window and this
+        self.margin = 4 * self.width                  # (the reach of a 2Δ kernel) the nodes cover the window and this
         self.t_start = float(t_start) - self.margin   # node 0
         self.t_end = float(t_stop) + self.margin
         self.nodes = int(np.ceil((self.t_end - self.t_start) / self.width)) + 2
-        self.pending = np.zeros((self.n_channels, self.nodes))      # this run's node masses, photons
-        self.pending_coarse = np.zeros((self.n_channels, self.nodes // 2 + 2))   # this run's at 2Δ
-        self.total = np.zeros((self.n_channels, self.nodes))        # every run's, for the bias
-        self.coarse = np.zeros_like(self.pending_coarse)            # every run's at 2Δ
-        self.even_total = np.zeros_like(self.total)                 # the even runs' (0, 2, …): two independent
-        self.even_coarse = np.zeros_like(self.coarse)               # halves for the bias's noise (bias_halves)
+        # node masses at Δ (deposited) and at Δ/2 (the bias estimate), photons: this run's, every run's, and
+        # the even runs' (0, 2, …: two independent halves for the bias without the runs' noise, bias_halves)
+        self.spacings = (1.0, 0.5)
+        shapes = [(self.n_channels, self.nodes if k == 1 else int(np.ceil(self.nodes / k)) + 2) for k in self.spacings]
+        self.pending_levels = [np.zeros(shape) for shape in shapes]
+        self.total_levels = [np.zeros(shape) for shape in shapes]
+        self.even_levels = [np.zeros(shape) for shape in shapes]
         self.runs = 0
+
+    @property
+    def pending(self) -> np.ndarray:
+        """This run's node masses at Δ, (n_channels, nodes) photons."""
+        return self.pending_levels[0]
+
+    @property
+    def total(self) -> np.ndarray:
+        """Every finished run's node masses at Δ, (n_channels, nodes) photons."""
+        return self.total_levels[0]
 
     def covers(self, t: np.ndarray) -> np.ndarray:
         """(n,) bool: the times t (n,) s that the nodes cover (the window widened by the margin on both sides)."""
@@ -162,8 +179,8 @@ class DeepSmoothing:
 
     def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray) -> None:
         """Linearly bin impulses at times t (n,) s, weights (n,) photons, channels (n,) int."""
-        for out, width in ((self.pending, self.width), (self.pending_coarse, 2 * self.width)):
-            f = (t - self.t_start) / width
+        for out, k in zip(self.pending_levels, self.spacings):
+            f = (t - self.t_start) / (k * self.width)
             j = np.minimum(f.astype(np.int64), out.shape[1] - 2)
             frac = f - j
             flat = out.reshape(-1)
@@ -187,14 +204,12 @@ class DeepSmoothing:
 
     def end_run(self) -> None:
         """Add this run's node masses to the totals (the even runs' apart) and start the next run."""
-        self.total += self.pending
-        self.coarse += self.pending_coarse
-        if self.runs % 2 == 0:
-            self.even_total += self.pending
-            self.even_coarse += self.pending_coarse
+        for now, every, even in zip(self.pending_levels, self.total_levels, self.even_levels):
+            every += now
+            if self.runs % 2 == 0:
+                even += now
+            now[:] = 0.0
         self.runs += 1
-        self.pending[:] = 0.0
-        self.pending_coarse[:] = 0.0
 
     def _flush_edges(self, sink: Sink, masses: np.ndarray, component: int) -> np.ndarray:
         """Deposit the nodes whose tents cross an end of ``sink``'s fine grid as one shape per node times each
@@ -239,35 +254,37 @@ class DeepSmoothing:
         return shapes
 
     def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
-        """‖L_2Δ − L_Δ‖ / 3 per output bin: (n_channels, n_bins) photons per pulse, the estimated bias of the
-        smoothed orders' mean over ``runs`` runs on the bins ``edges`` (n_bins + 1,) s."""
-        return self._bias(self.total, self.coarse, edges) / max(runs, 1)
+        """The estimated bias of the smoothed orders' mean over ``runs`` runs per output bin of ``edges``
+        (n_bins + 1,) s: (n_channels, n_bins) photons per pulse (class doc: (L_Δ − L_Δ/2)·4/3 and the scan
+        spread's)."""
+        return self._bias(self.total_levels, edges) / max(runs, 1)
 
     def bias_halves(self, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """:meth:`bias` of the even runs' mean and of the odd runs' mean, each (n_channels, n_bins) photons per
-        pulse, or None before the second run. Their noise is independent and their expectation the same, so
-        Σ a·b estimates ‖bias‖² without the noise that inflates ‖bias‖² of few runs."""
+        pulse, or None before the second run. Their noise is independent and their expectation the same, so Σ a·b
+        estimates ‖bias‖² without the noise that inflates ‖bias‖² of few runs."""
         if self.runs < 2:
             return None
-        even = self.runs - self.runs // 2
-        return (self._bias(self.even_total, self.even_coarse, edges) / even,
-                self._bias(self.total - self.even_total, self.coarse - self.even_coarse, edges) / (self.runs - even))
+        n_even = self.runs - self.runs // 2
+        return (self._bias(self.even_levels, edges) / n_even,
+                self._bias([a - b for a, b in zip(self.total_levels, self.even_levels)], edges) / (self.runs - n_even))
 
-    def _bias(self, total: np.ndarray, coarse: np.ndarray, edges: np.ndarray) -> np.ndarray:
-        """The Richardson bias of node sums ``total`` (at Δ) and ``coarse`` (at 2Δ), plus the scan spread's, per
-        output bin of ``edges``: (n_channels, n_bins) photons (not divided by the runs)."""
+    def _bias(self, levels: list[np.ndarray], edges: np.ndarray) -> np.ndarray:
+        """From node sums at Δ and Δ/2 (``levels``, as :attr:`total_levels`), per output bin of ``edges``: (L_Δ −
+        L_Δ/2)·4/3 plus the scan spread's bias, (n_channels, n_bins) photons (not divided by the runs)."""
         centres = 0.5 * (edges[1:] + edges[:-1])
         widths = np.diff(edges)
-        smoothed, wide = total, coarse
+        raw = levels[0]
         if self.scan is not None:
-            smoothed, wide = spread_scan(total, self.scan), spread_scan(coarse, self.scan)
-        fine = _interpolate(smoothed / self.width, self.t_start, self.width, centres)
-        out = (_interpolate(wide / (2 * self.width), self.t_start, 2 * self.width, centres) - fine) * (widths / 3.0)
+            levels = [spread_scan(level, self.scan) for level in levels]
+        fine, half = (_interpolate(level / (k * self.width), self.t_start, k * self.width, centres) * widths
+                      for level, k in zip(levels, self.spacings))
+        out = (fine - half) * (4.0 / 3.0)
         if self.scan is not None:                 # the spread's own bias: (S_2h − S_h) var_h / (var_2h − var_h)
             ny, nx, h = self.scan
             ratio = tent_variance(h) / (tent_variance(2 * h) - tent_variance(h))
-            twice = _interpolate(spread_scan(total, (ny, nx, 2 * h)) / self.width, self.t_start, self.width, centres)
-            out += (twice - fine) * (widths * ratio)
+            twice = _interpolate(spread_scan(raw, (ny, nx, 2 * h)) / self.width, self.t_start, self.width, centres)
+            out += (twice * widths - fine) * ratio
         return out
 
 

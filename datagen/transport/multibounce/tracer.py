@@ -44,7 +44,7 @@ vertices are sampled (by following the light instead of by area).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -85,7 +85,8 @@ class MultibounceSettings:
             :class:`~.smoothing.SmoothingBands`); smooth_width: Δ, the node spacing of the lowest smoothed orders, seconds;
             smooth_max_width: the widest node spacing of the deeper orders, seconds (= smooth_width: one Δ for all);
             smooth_scan: h, the half-width in scan pitches of the smoothing across a confocal scan's points (0 or 1:
-            none; see :class:`~.smoothing.DeepSmoothing`).
+            none; see :class:`~.smoothing.DeepSmoothing`); smooth_narrow: n, the lowest band's node spacing divided by
+            2ⁿ (the tolerance loop narrows it when its bias is too large, ``Replicas.narrow_smoothing``).
 
     Raises:
         ConfigError: a field out of range (the message names it and the value).
@@ -99,6 +100,7 @@ class MultibounceSettings:
     smooth_width: float = 1e-9
     smooth_max_width: float = 1e-9
     smooth_scan: int = 0
+    smooth_narrow: int = 0
 
     def __post_init__(self):
         for name in ("smooth_width", "smooth_max_width"):
@@ -109,7 +111,7 @@ class MultibounceSettings:
             raise ConfigError(f"multibounce tracer: smooth_max_width {self.smooth_max_width!r} s is below smooth_width "
                               f"{self.smooth_width!r} s")
         for name, low in (("paths", 1), ("min_order", 1), ("max_order", 0), ("batch", 1), ("smooth_order", 0),
-                          ("smooth_scan", 0)):
+                          ("smooth_scan", 0), ("smooth_narrow", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise ConfigError(f"multibounce tracer: {name} must be an integer >= {low}, got {v!r}")
@@ -179,7 +181,7 @@ class MultibounceTracer:
                 if capture.kind == "confocal" and capture.n_channels == capture.n_pixels and settings.smooth_scan > 1
                 else None)
         self.smoothing = (SmoothingBands(settings.smooth_order, settings.smooth_width, settings.smooth_max_width,
-                                         self.t_start, self.t_stop, capture.n_channels, scan)
+                                         self.t_start, self.t_stop, capture.n_channels, scan, settings.smooth_narrow)
                           if settings.smooth_order else None)
         # paths are followed past the window's end by the smoothing's reach, so that the kernel near the end
         # receives the mass from beyond it that it spreads into the window
@@ -195,6 +197,12 @@ class MultibounceTracer:
         self._fov = (capture.fov_center, capture.fov_u, capture.fov_v, capture.fov_normal,
                      np.asarray(capture.fov_size, dtype=np.float64), np.asarray(capture.fov_pixels, dtype=np.float64))
         self.stats = MultibounceStats()
+
+    def narrowed(self) -> "MultibounceTracer":
+        """A fresh tracer (no runs) with the same settings but the lowest smoothing band's node spacing halved."""
+        settings = replace(self.settings, smooth_narrow=self.settings.smooth_narrow + 1)
+        return MultibounceTracer(self.capture, self.caster, self.physics, settings, self.component,
+                                 (self.t_start, self.t_stop), self.secondary_component)
 
     @property
     def components(self) -> list[int]:
