@@ -27,9 +27,17 @@ def builds(tmp_path_factory):
 
 
 def test_shipped_suites_load():
-    assert suite_names() == ["confocal-rooms-v1", "single-pixel-v1", "wall-meshes-v1"]
+    assert suite_names() == ["confocal-rooms-v1", "confocal-rooms-v2", "single-pixel-v1", "single-pixel-v2",
+                             "wall-meshes-v1", "wall-meshes-v2"]
     for name in suite_names():
         s = load_suite(name)
+        # v2: the v1 scenes (same dataset block but the orders and the FoV cells) with every order of light
+        if name.endswith("-v2"):
+            v1, v2 = (yaml.safe_load((SUITES_DIR / f"{name[:-1]}{k}.yaml").read_text())["dataset"] for k in (1, 2))
+            assert v2["seed"] == v1["seed"] and v2["splits"] == v1["splits"] and v2["room"] == v1["room"]
+            assert v2["simulation"]["orders"] == "auto" and v2["simulation"]["estimator"]["fov_cells"] == 1
+            assert "secondary" not in v2["simulation"] and v1["simulation"]["secondary"] == "none"
+            assert s.config.simulation["orders"] == "auto"
         assert set(s.spec.variants) == {"clean", "low-photon"}
         assert s.spec.variants["clean"].input == "envelope" and s.spec.variants["low-photon"].input == "counts"
         assert s.config.name == name and s.spec.test_split in s.config.splits
