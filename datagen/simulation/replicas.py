@@ -56,12 +56,17 @@ def relative_standard_error(mean: np.ndarray, var_mean: np.ndarray) -> float:
     return float(np.sqrt(np.maximum(var_mean[mask], 0.0).sum()) / norm(mean[mask]))
 
 
+def _measured_bins(scale: np.ndarray) -> np.ndarray | None:
+    """The bins where ``scale`` exceeds ``PEAK_FLOOR`` of its peak (the error measure's), or None if it is zero."""
+    peak = float(scale.max()) if scale.size else 0.0
+    return scale > PEAK_FLOOR * peak if peak > 0 else None
+
+
 def relative_difference(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> float:
     """‖a − b‖ / ‖scale‖ over the bins where ``scale`` exceeds ``PEAK_FLOOR`` of its peak (0 if it is zero)."""
-    peak = float(scale.max()) if scale.size else 0.0
-    if peak <= 0:
+    mask = _measured_bins(scale)
+    if mask is None:
         return 0.0
-    mask = scale > PEAK_FLOOR * peak
     return float(norm((a - b)[mask]) / norm(scale[mask]))
 
 
@@ -70,10 +75,9 @@ def relative_cross(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> float:
     one quantity with independent noise, the norm of that quantity without their noise (E[Σ a·b] = Σ E[a]·E[b]),
     raised by one standard error of the sum (√(Σ a²b²) for independent noise), so that a quantity hidden in the noise
     is not read as zero."""
-    peak = float(scale.max()) if scale.size else 0.0
-    if peak <= 0:
+    mask = _measured_bins(scale)
+    if mask is None:
         return 0.0
-    mask = scale > PEAK_FLOOR * peak
     x, y = a[mask], b[mask]
     product = float(np.dot(x, y)) + float(np.sqrt(np.dot(x * x, y * y)))
     return float(np.sqrt(max(product, 0.0)) / norm(scale[mask]))
