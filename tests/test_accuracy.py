@@ -341,8 +341,9 @@ def test_bench_accuracy_cli_bad_input_is_one_line(tmp_path):
 
 def test_scan_ladder_keeps_the_configs_fixed_fov_cells():
     """A config that fixes its FoV cells (wall_smoke: one per 12.5 cm pixel, where its 12 cm edge alone would take
-    2 × 2; a scan that leaves them unset gets one per pixel at every edge too) has them at every step of the ladder and in the reference, so the finest step is the sample's own
-    transport again (error round-off against ``datagen.simulate``'s envelope)."""
+    2 × 2; a scan that leaves them unset gets one per pixel at every edge too) has them at every step of the ladder
+    and in the reference, so the finest step is the sample's own transport again (error round-off against
+    ``datagen.simulate``'s envelope)."""
     import datagen
     from datagen.analysis.scan_accuracy import SCAN_LADDER, scan_ladder
     from datagen.dataset import load_dataset_config, sample_setup

@@ -161,8 +161,9 @@ def _ray_cost(step: dict) -> float:
 
 def _run_tolerance(scene: Scene, config, step: dict, caster: RayCaster, seed: int) -> tuple[np.ndarray, float]:
     """One step of the ``tolerance`` ladder: ``simulate_to_tolerance`` with the area estimator (a first round of 2
-    replicas of 8192 hidden samples) at ``step["tolerance"]`` and the config's ``orders`` (with ``orders: auto``, every order the planner asks for): what ``datagen simulate
-    --tolerance`` costs, wall seconds of the whole call (plan, pilot, replicas, tracer, error estimate)."""
+    replicas of 8192 hidden samples) at ``step["tolerance"]`` and the config's ``orders`` (with ``orders: auto``,
+    every order the planner asks for): what ``datagen simulate --tolerance`` costs. Returns the envelope and the wall
+    seconds of the whole call (plan, pilot, replicas, tracer, error estimate)."""
     from ..simulation.config import STREAM_SAMPLING, stream_rng
     from ..simulation.tolerance import simulate_to_tolerance
     from ..transport.base import estimator_options

@@ -187,7 +187,8 @@ def _dataset_accuracy(dataset_file, n_samples, split, budget_s, out, names, rel_
     if orders is not None:
         from ..simulation.config import SimulationConfig, merge_overrides
 
-        rooms = [(name, scene, SimulationConfig.model_validate(merge_overrides(sim.model_dump(), {"orders": orders})[0]))
+        rooms = [(name, scene,
+                  SimulationConfig.model_validate(merge_overrides(sim.model_dump(), {"orders": orders})[0]))
                  for name, scene, sim in rooms]
     if not scan_reference:
         check_reference_size(rooms[0][1], f"{dataset_file} ({split}[0])", samples, budget_s)   # rooms scan alike

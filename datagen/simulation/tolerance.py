@@ -39,7 +39,8 @@ from ..errors import ConfigError
 from ..threads import one_blas_thread
 from ..scene import Scene
 from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
-from .replicas import FIRST_TRACER_REPLICAS, MIN_TOLERANCE, relative_difference  # noqa: F401 (MIN_TOLERANCE: its old home)
+from .replicas import FIRST_TRACER_REPLICAS, relative_difference
+from .replicas import MIN_TOLERANCE  # noqa: F401 (its old home)
 from .detection import Result, make_result
 from .run import Replicas
 

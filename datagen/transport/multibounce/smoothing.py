@@ -137,9 +137,9 @@ class DeepSmoothing:
 
     **Across a scan** (``scan``: the channels are the points of an (ny, nx) scan grid, as a confocal scan's are),
     the node masses are also spread over neighbouring scan points by a separable tent of half-width h pitches
-    (:func:`spread_scan`; h = 3: weights 1, 2, 3, 2, 1 over 9 per axis, 18 times less variance): the light of orders ≥ 2 changes over
-    many scan pitches. Its bias, ∝ h² ∇²L, is estimated from the spread at 2h (p = 2, with the tents' variances)
-    and added.
+    (:func:`spread_scan`; h = 3: weights 1, 2, 3, 2, 1 over 9 per axis, 18 times less variance): the light of
+    orders ≥ 2 changes over many scan pitches. Its bias, ∝ h² ∇²L, is estimated from the spread at 2h (p = 2, with
+    the tents' variances) and added.
 
     Args:
         width: Δ, s; t_start, t_stop: the window, s; n_channels: output channels; scan: (ny, nx, h) of a scan
@@ -318,8 +318,9 @@ def spread_scan(masses: np.ndarray, scan: tuple[int, int, int]) -> np.ndarray:
     (x₋ₖ = 2x₀ − xₖ), so the spread keeps every linear field, at the edges too, and its bias is ∝ h² ∇²L everywhere
     (which is what :meth:`DeepSmoothing.bias` estimates). A one-sided mean at the edges would move them by ∝ h ∇L,
     a bias of first order that the Richardson estimate misses (half of the tracer's bias on a 32 × 32 confocal scan
-    came from its outer ring). At h = 2 an edge point would keep its own mass along that axis; beyond, a node next to an edge can come out
-    below zero where the masses fall steeply towards it (:meth:`DeepSmoothing.flush` clips at zero)."""
+    came from its outer ring). At h = 2 an edge point keeps its own mass along that axis; at larger h a node next to
+    an edge can come out below zero where the masses fall steeply towards it (:meth:`DeepSmoothing.flush` clips at
+    zero)."""
     ny, nx, h = scan
     w = tent_weights(h)
     grid = masses.reshape(ny, nx, -1)
