@@ -71,16 +71,17 @@ def relative_difference(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> floa
 
 
 def relative_cross(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> float:
-    """√max(Σ a·b + √(Σ a²b²), 0) / ‖scale‖ over the bins of :func:`relative_difference`: for two estimates a, b of
+    """√(max(Σ a·b, 0) + √(Σ a²b²)) / ‖scale‖ over the bins of :func:`relative_difference`: for two estimates a, b of
     one quantity with independent noise, the norm of that quantity without their noise (E[Σ a·b] = Σ E[a]·E[b]),
     raised by one standard error of the sum (√(Σ a²b²) for independent noise), so that a quantity hidden in the noise
-    is not read as zero."""
+    is not read as zero: where the halves disagree by more than they share (Σ a·b < 0, often with one run per half)
+    the reading is that standard error, the size of what the noise can hide."""
     mask = _measured_bins(scale)
     if mask is None:
         return 0.0
     x, y = a[mask], b[mask]
-    product = float(np.dot(x, y)) + float(np.sqrt(np.dot(x * x, y * y)))
-    return float(np.sqrt(max(product, 0.0)) / norm(scale[mask]))
+    product = max(float(np.dot(x, y)), 0.0) + float(np.sqrt(np.dot(x * x, y * y)))
+    return float(np.sqrt(product) / norm(scale[mask]))
 
 
 @dataclass

@@ -20,6 +20,9 @@ carry exceed a stated fraction of the tolerance; the simulation then wraps the c
 
 - :mod:`.tracer`: :class:`MultibounceTracer` and its :class:`MultibounceSettings` (light paths from the laser
   spot, next-event connections and direction hits on the FoV under the balance heuristic, Russian roulette).
+- :mod:`.eye`: the eye vertex, one hidden vertex per path sampled from the FoV's side and joined to every light
+  vertex (a third strategy under the balance heuristic: it samples the FoV leg's 1/r² near the relay wall instead
+  of weighing it), and the pixel table both strategies connect to.
 - :mod:`.smoothing`: the smoothing of the smooth orders in time (nodes that widen with the order and the tolerance)
   and across a confocal scan's points, each with its bias estimated and counted in the stated error.
 - :mod:`.kernels`: the per-vertex arithmetic compiled (the continuation's direction, BRDF, flux and roulette;
