@@ -21,6 +21,7 @@ from numba import njit
 
 from ...scene.brdf_kernel import brdf_value
 from ..area.kernels import fov_target
+from ..physics import geometry_term
 
 
 @njit(cache=True)
@@ -122,3 +123,69 @@ def fov_targets_ranged(x, n_x, first, count, ix, iy, jitter, fov):
                 r[k], cy[k] = rr, cos_y
                 k += 1
     return bi[:k], ti[:k], y[:k], w[:k], r[:k], cy[:k]
+
+
+@njit(cache=True)
+def eye_pairs(x, n_x, e, z, n_z, ok):
+    """The pairs (light vertex x_b, its path's eye vertex z_{e[b]}) that face each other (:mod:`.eye`).
+
+    Args:
+        x, n_x: (m, 3) light vertices and their normals on the lit side; e: (m,) int64 each one's row of the eye
+        vertices z, n_z (E, 3) (normals facing the FoV); ok: (E,) bool the eye vertices that exist.
+    Returns:
+        (rows (k,) int64 into x, w (k, 3) unit x → z, d (k,) |z − x| m, cos_x (k,), cos_z (k,) = −n_z·w) for the
+        pairs with d > 0, n_x·w > 0 and n_z·(x − z) > 0.
+    """
+    m = x.shape[0]
+    rows = np.empty(m, np.int64)
+    w = np.empty((m, 3))
+    d = np.empty(m)
+    cx = np.empty(m)
+    cz = np.empty(m)
+    k = 0
+    for b in range(m):
+        j = e[b]
+        if not ok[j]:
+            continue
+        t0, t1, t2 = z[j, 0] - x[b, 0], z[j, 1] - x[b, 1], z[j, 2] - x[b, 2]
+        dd = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        if dd <= 0.0:
+            continue
+        t0, t1, t2 = t0 / dd, t1 / dd, t2 / dd
+        c_x = n_x[b, 0] * t0 + n_x[b, 1] * t1 + n_x[b, 2] * t2
+        c_z = -(n_z[j, 0] * t0 + n_z[j, 1] * t1 + n_z[j, 2] * t2)
+        if c_x > 0.0 and c_z > 0.0:
+            rows[k] = b
+            w[k, 0], w[k, 1], w[k, 2] = t0, t1, t2
+            d[k], cx[k], cz[k] = dd, c_x, c_z
+            k += 1
+    return rows[:k], w[:k], d[:k], cx[:k], cz[:k]
+
+
+@njit(cache=True)
+def eye_weights(mat, obj, n_x, w_in, w, e, obj_z, n_z, w_zy, survival, flux, d, cos_x, cos_z, g, n_rec, fov, p_a):
+    """The weights (k,) photons, before attenuation, of visible eye connections (:mod:`.eye`; docs/physics.md §2):
+    the radiant intensity of x toward z f_x cosθ_x, its irradiance at z (G = cosθ_x cosθ_z / d²,
+    :func:`~datagen.transport.physics.geometry_term`), z's intensity toward y f_z cosθ_zy, the FoV leg ``fov``; over
+    the eye vertex's density b = (p_A / n_rec) g times its balance weight b / (a + b + c), a = p_light p_A, c = p_light
+    q_z g, p_light = q_x G / π (the FoV leg carries A_pixel = 1 / p_A).
+
+    Args (per pair, k rows): obj (k,) x's object; n_x, w_in, w (k, 3) its normal, the direction light came from, unit
+    x → z; e (k,) the eye row; obj_z, n_z, w_zy, g, n_rec, fov per eye row (:class:`~.eye.EyeVertices`); survival
+    (n_objects,) q; flux (k,); d, cos_x, cos_z (k,) from :func:`eye_pairs`; p_a: 1 / A_pixel, 1/m².
+    """
+    k = obj.shape[0]
+    out = np.empty(k)
+    for i in range(k):
+        j = e[i]
+        f_x = brdf_value(mat, obj[i], n_x[i, 0], n_x[i, 1], n_x[i, 2], w_in[i, 0], w_in[i, 1], w_in[i, 2],
+                         w[i, 0], w[i, 1], w[i, 2])
+        f_z = brdf_value(mat, obj_z[j], n_z[j, 0], n_z[j, 1], n_z[j, 2], -w[i, 0], -w[i, 1], -w[i, 2],
+                         w_zy[j, 0], w_zy[j, 1], w_zy[j, 2])
+        cos_zy = n_z[j, 0] * w_zy[j, 0] + n_z[j, 1] * w_zy[j, 1] + n_z[j, 2] * w_zy[j, 2]
+        geo = geometry_term(cos_x[i], cos_z[i], d[i])
+        p_light = survival[obj[i]] * geo / math.pi
+        b = p_a / n_rec[j] * g[j]
+        mis_over_pdf = p_a / (p_light * p_a + b + p_light * survival[obj_z[j]] * g[j])
+        out[i] = flux[i] * f_x * geo * f_z * cos_zy * fov[j] * mis_over_pdf
+    return out
