@@ -163,7 +163,7 @@ def eye_pairs(x, n_x, e, z, n_z, ok):
 
 
 @njit(cache=True)
-def eye_weights(mat, obj, n_x, w_in, w, e, obj_z, n_z, w_zy, survival, flux, d, cos_x, cos_z, g, n_rec, fov, p_a):
+def eye_weights(mat, obj, n_x, w_in, w, e, eye, survival, flux, d, cos_x, cos_z, p_a):
     """The weights (k,) photons, before attenuation, of visible eye connections (:mod:`.eye`; docs/physics.md §2):
     the radiant intensity of x toward z f_x cosθ_x, its irradiance at z (G = cosθ_x cosθ_z / d²,
     :func:`~datagen.transport.physics.geometry_term`), z's intensity toward y f_z cosθ_zy, the FoV leg ``fov``; over
@@ -171,9 +171,10 @@ def eye_weights(mat, obj, n_x, w_in, w, e, obj_z, n_z, w_zy, survival, flux, d, 
     q_z g, p_light = q_x G / π (the FoV leg carries A_pixel = 1 / p_A).
 
     Args (per pair, k rows): obj (k,) x's object; n_x, w_in, w (k, 3) its normal, the direction light came from, unit
-    x → z; e (k,) the eye row; obj_z, n_z, w_zy, g, n_rec, fov per eye row (:class:`~.eye.EyeVertices`); survival
-    (n_objects,) q; flux (k,); d, cos_x, cos_z (k,) from :func:`eye_pairs`; p_a: 1 / A_pixel, 1/m².
+    x → z; e (k,) the eye row; eye: (obj, n_z, w_zy, g, n_rec, fov) per eye row (:class:`~.eye.EyeVertices`);
+    survival (n_objects,) q; flux (k,); d, cos_x, cos_z (k,) from :func:`eye_pairs`; p_a: 1 / A_pixel, 1/m².
     """
+    obj_z, n_z, w_zy, g, n_rec, fov = eye
     k = obj.shape[0]
     out = np.empty(k)
     for i in range(k):

@@ -446,8 +446,8 @@ class MultibounceTracer:
         if not len(rows):
             return
         weight = eye_weights(self._mat, obj[rows], np.ascontiguousarray(n_x[rows]), np.ascontiguousarray(w_in[rows]),
-                             np.ascontiguousarray(w), e, eye.obj, eye.n_z, eye.w_zy, self.survival, flux[rows], d,
-                             cos_x, cos_z, eye.g, eye.n_rec, eye.fov, self._p_a)
+                             np.ascontiguousarray(w), e, (eye.obj, eye.n_z, eye.w_zy, eye.g, eye.n_rec, eye.fov),
+                             self.survival, flux[rows], d, cos_x, cos_z, self._p_a)
         weight = weight * ph.attenuation(physical[rows] + d + eye.r[e] + eye.d_ys[e])
         self.stats.connections += len(rows)
         self._deposit(sink, (counted[rows] + d + eye.r[e] + ph.sensor_leg(eye.d_ys[e])) / SPEED_OF_LIGHT, weight,
