@@ -242,8 +242,7 @@ def run_estimator(scene: Scene, config, estimator: Ladder, step: dict, caster: R
     """Run one ladder step; returns the envelope (channel_shape + (n_bins,)) and its wall time (s: transport
     and binning, not the shared BVH)."""
     if estimator.run is not None:
-        env, seconds = estimator.run(scene, config, step, caster, seed)
-        return env, seconds
+        return estimator.run(scene, config, step, caster, seed)
     base = config.transport_settings()
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,)))
     t0 = time.perf_counter()

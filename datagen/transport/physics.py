@@ -167,6 +167,11 @@ def laser_irradiance(photons: float, emission: np.ndarray, cos_in: np.ndarray, r
     return on_arrays(irradiance_term)(photons, emission, cos_in, r)
 
 
+def geometry_weight(cos_a: np.ndarray, cos_b: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:func:`geometry_term` on numpy arrays: G = cosθ_a cosθ_b / r², 1/m², (n,) arrays."""
+    return on_arrays(geometry_term)(cos_a, cos_b, r)
+
+
 def fov_connection_weight(numerator: np.ndarray, r: np.ndarray, collection: np.ndarray) -> np.ndarray:
     """:func:`fov_term` on numpy arrays: ``numerator / r² · collection``, (n,) arrays; per unit radiant intensity
     of the hidden point toward y."""
@@ -255,7 +260,7 @@ class LegPhysics:
             idx = idx[self.caster.visible(points[idx], n_lit, spot, spot_n)]
         geo = np.zeros(len(points))
         e = np.zeros(len(points))
-        geo[idx] = on_arrays(geometry_term)(cos_l[idx], cos_in[idx], r[idx])
+        geo[idx] = geometry_weight(cos_l[idx], cos_in[idx], r[idx])
         e[idx] = laser_irradiance(c.photons, self.spot_emission(-w[idx], laser), cos_in[idx], r[idx])
         return e, r, w, geo
 

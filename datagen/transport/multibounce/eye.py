@@ -33,11 +33,10 @@ import numpy as np
 from ...sampling import square_to_hemisphere
 from ...sampling.directions import to_world
 from ...scene import RayCaster
-from ...scene.brdf_kernel import on_arrays
 from ...scene.capture import Capture
 from ...vectors import dot
 from ..area.kernels import sensor_collection
-from ..physics import LegPhysics, fov_connection_weight, geometry_term
+from ..physics import LegPhysics, fov_connection_weight, geometry_weight
 
 EYE_MIN_ORDER = 2
 """The lowest order the eye vertex serves: joined to the light's first hidden vertex it makes a path of order 2
@@ -113,7 +112,7 @@ def eye_vertices(capture: Capture, caster: RayCaster, physics: LegPhysics, pixel
     cos_z = -dot(hits.normals, w)
     ok = (count > 0) & hits.hit & (cos_y > 0) & (cos_z > 0)
     r = np.where(ok, hits.distance, 1.0)
-    g = np.where(ok, on_arrays(geometry_term)(cos_y, cos_z, r) / np.pi, 0.0)
+    g = np.where(ok, geometry_weight(cos_y, cos_z, r) / np.pi, 0.0)
     fov, d_ys = np.zeros(n), np.zeros(n)
     rows = np.flatnonzero(ok)
     if len(rows):

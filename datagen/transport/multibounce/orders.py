@@ -83,5 +83,5 @@ def tracer_nominal_seconds(stats) -> float:
     """Nominal seconds of the work counted in :class:`~datagen.transport.multibounce.tracer.MultibounceStats`."""
     n = NOMINAL_TRACER_SECONDS
     # an eye ray (:mod:`.eye`) is a traced ray with its sensor collection: a vertex's and a connection's work
-    eye = getattr(stats, "eye_rays", 0) * (n["vertex"] + n["connection"])
+    eye = stats.eye_rays * (n["vertex"] + n["connection"])
     return n["vertex"] * stats.vertices + n["step"] * stats.steps + n["connection"] * stats.connections + eye

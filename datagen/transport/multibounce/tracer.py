@@ -64,7 +64,7 @@ from ...units import SPEED_OF_LIGHT
 from ...vectors import dot
 from ..base import Counters, Sink
 from ..area.kernels import material_arrays, sensor_collection
-from ..physics import LegPhysics, fov_connection_weight, geometry_term, launched_flux
+from ..physics import LegPhysics, fov_connection_weight, geometry_weight, launched_flux
 from .eye import EYE_MIN_ORDER, EyeVertices, PixelTable, eye_share, eye_vertices
 from .kernels import brdf_many, continue_paths, eye_pairs, eye_weights, fov_targets_ranged
 from .smoothing import SmoothingBands
@@ -319,7 +319,7 @@ class MultibounceTracer:
             w_in = -ray_dir[keep]
             flux, counted, physical, laser = flux[keep], counted[keep], physical[keep], laser[keep]
             pid, d = (pid[keep] if pid is not None else None), dist[keep]
-            p_in = q_prev[keep] * self._geometry(cos_src[keep], dot(n_x, w_in), d) / np.pi   # roulette, cosine
+            p_in = q_prev[keep] * geometry_weight(cos_src[keep], dot(n_x, w_in), d) / np.pi   # roulette, cosine
             self.stats.vertices += len(keep)
             if order >= s.min_order and len(keep):
                 self._connect(x, n_x, obj, w_in, flux, counted, physical, laser, sink, rng, order, p_in)
@@ -376,9 +376,9 @@ class MultibounceTracer:
                       np.ascontiguousarray(wk))
         weight = flux[b] * f * cos_x * fov_connection_weight(
             cos_y * self.pixels.area, r, collect)
-        g = self._geometry(cos_x, cos_y, r) / np.pi   # the area density of x from y (cosine), 1/m²
+        g = geometry_weight(cos_x, cos_y, r) / np.pi   # the area density of x from y (cosine), 1/m²
         p_d = self.survival[obj[b]] * g               # balance heuristic with the direction hits (and the eye)
-        p_e = eye_share(self._p_a, g, count[b].astype(np.float64), p_in[b]) if self._eye_serves(order) else 0.0
+        p_e = eye_share(self._p_a, g, count[b], p_in[b]) if self._eye_serves(order) else 0.0
         weight = weight * (self._p_a / (self._p_a + p_d + p_e)) * ph.attenuation(physical[b] + r + d_ys)
         self.stats.connections += len(b)
         self._deposit(sink, (counted[b] + r + ph.sensor_leg(d_ys)) / SPEED_OF_LIGHT, weight,
@@ -419,10 +419,9 @@ class MultibounceTracer:
         cos_x = dot(n_x[idx], wk)
         cos_y = -dot(wk, c.fov_normal)
         p_a = c.n_pixels / (c.fov_size[0] * c.fov_size[1])
-        g = self._geometry(cos_x, cos_y, r) / np.pi
+        g = geometry_weight(cos_x, cos_y, r) / np.pi
         p_d = q[idx] * g
-        p_e = (eye_share(p_a, g, self.pixels.count[laser[idx]].astype(np.float64), p_in[idx])
-               if self._eye_serves(order) else 0.0)
+        p_e = eye_share(p_a, g, self.pixels.count[laser[idx]], p_in[idx]) if self._eye_serves(order) else 0.0
         weight = flux[idx] * collect * (p_d / (p_a + p_d + p_e))
         weight = weight * ph.attenuation(physical[idx] + r + d_ys)
         self.stats.fov_hits += len(idx)
@@ -452,11 +451,6 @@ class MultibounceTracer:
         self.stats.connections += len(rows)
         self._deposit(sink, (counted[rows] + d + eye.r[e] + ph.sensor_leg(eye.d_ys[e])) / SPEED_OF_LIGHT, weight,
                       self.capture.channel(laser[rows], self.pixels.pix[eye.row[e]]), order)
-
-    @staticmethod
-    def _geometry(cos_a: np.ndarray, cos_b: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """G = cosθ_a cosθ_b / r² of (n,) arrays (:func:`~datagen.transport.physics.geometry_term`), 1/m²."""
-        return on_arrays(geometry_term)(cos_a, cos_b, r)
 
     def _deposit(self, sink: Sink, t: np.ndarray, weight: np.ndarray, channel: np.ndarray, order: int) -> None:
         """Send impulses of paths of order ``order`` to ``sink`` and tally their in-window weight."""
