@@ -42,7 +42,7 @@ from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
 from .replicas import FIRST_TRACER_REPLICAS, relative_difference
 from .replicas import MIN_TOLERANCE  # noqa: F401 (its old home)
 from .detection import Result, make_result
-from .run import Replicas
+from .run import NARROW_SHARE, Replicas
 
 TIME_CAP_S = 600.0
 """Default wall-time cap of ``simulate --tolerance`` (``max_seconds``): no round starts that is predicted to end
@@ -54,9 +54,11 @@ SAFETY = 1.1
 MAX_GROWTH = 8.0
 """Largest growth of the replica count per round (guards a noisy first estimate)."""
 
-FIXED_LIMIT = 0.5
+FIXED_LIMIT = NARROW_SHARE
 """The replicas meet the tolerance less the parts of the error they cannot reduce (orders left out, the deep
-orders' smoothing bias) while those take at most this fraction of it; beyond, the tolerance cannot be met."""
+orders' smoothing bias) while those take at most this fraction of it; beyond, the tolerance cannot be met. The share
+at which the smoothing is narrowed (:data:`~datagen.simulation.run.NARROW_SHARE`): a smoothing bias is narrowed
+before it can put the tolerance out of reach."""
 
 MAX_ROUNDS = 8
 
@@ -230,6 +232,8 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             target = runs.count + 1
             continue
         mc, fixed = runs.error(), runs.fixed_error()
+        if fixed > FIXED_LIMIT * tolerance and runs.settle_smoothing():
+            continue                                # judged (and narrowed) on more of the tracer's runs
         estimate = float(np.hypot(mc, fixed))
         # what the replicas may add: the tolerance less what they cannot bring down (orders left out, smoothing
         # bias) while that is at most FIXED_LIMIT of it; beyond, the tolerance cannot be met, the replicas aim at
