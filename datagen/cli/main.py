@@ -129,9 +129,12 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
             raise ConfigError(f"{named(exc.detail)}: loosen --tolerance or raise --time-cap") from None
         t = result.attrs["tolerance"]
         omitted = result.attrs["error"].get("omitted_orders") or 0.0
+        smoothing = result.attrs["error"].get("smoothing") or 0.0
         missed = ("" if t["met"] else
                   f" — NOT met: the orders left out alone carry {omitted:.2%} (--orders auto simulates them)"
                   if omitted > FIXED_LIMIT * tol else
+                  f" — NOT met: the deep orders' smoothing bias alone is {smoothing:.2%} (multibounce: "
+                  "{smoothing: false} in the config removes it, at more replicas)" if smoothing > FIXED_LIMIT * tol else
                   f" — NOT met within --time-cap {cap:g} s (rounds run: {len(t['rounds'])})")
         shown = f"{tol:.2%}" if tol >= 1e-4 else f"{tol:.3g}"
         click.echo(f"tolerance {shown}: estimated error {t['estimate']:.2%}{missed}")
