@@ -86,22 +86,30 @@ def test_the_scan_spread_keeps_a_plane_and_estimates_a_parabolas_bias_exactly():
     assert np.allclose(estimate[inner], true_bias[inner]) and np.allclose(true_bias[inner], 3 * tent_variance(h))
 
 
+def _nodes_and_their_tents():
+    """16 channels of 5000 impulses over a 30 ns window and 7.9 ns past both ends, smoothed at Δ = 2 ns (before its
+    flush), an empty accumulator of 2 × 16 components on that window and IRF, and every node's tent deposited into
+    component 16 + channel of one of its spawns by add_tents (the reference)."""
+    axis = TimeAxis(t_start=0.0, bin_width=100e-12, n_bins=300)
+    rng = np.random.default_rng(0)
+    smooth = DeepSmoothing(2e-9, axis.t_start, axis.t_stop, 16)
+    smooth.add(rng.uniform(-7.9e-9, axis.t_stop + 7.9e-9, 5000), rng.random(5000), rng.integers(0, 16, 5000))
+    acc = EnvelopeAccumulator(axis, Irf(fwhm=100e-12), 2 * 16)
+    ch, j = np.nonzero(smooth.pending)
+    t = smooth.t_start + j * smooth.width
+    slow = acc.spawn()
+    slow.add_tents(np.stack([t - smooth.width, t, t + smooth.width], 1), smooth.pending[ch, j], 16 + ch)
+    return smooth, acc, slow
+
+
 def test_tents_cut_by_the_grid_ends_are_deposited_as_add_tents_deposits_them():
     """DeepSmoothing.flush sends the nodes whose tents cross an end of the fine grid as one shape per node times each
     channel's mass (EnvelopeAccumulator.add_fine): the binned envelope, what lies outside and the total weight are
     those of add_tents for every tent (the binned arrays to 1e-12 of their peak)."""
-    axis = TimeAxis(t_start=0.0, bin_width=100e-12, n_bins=300)
-    irf = Irf(fwhm=100e-12)
-    rng = np.random.default_rng(0)
-    smooth = DeepSmoothing(2e-9, axis.t_start, axis.t_stop, 16)
-    smooth.add(rng.uniform(-7.9e-9, axis.t_stop + 7.9e-9, 5000), rng.random(5000), rng.integers(0, 16, 5000))
+    smooth, acc, slow = _nodes_and_their_tents()
     pending = smooth.pending.copy()
-    acc = EnvelopeAccumulator(axis, irf, 2 * 16)
-    fast, slow = acc.spawn(), acc.spawn()
+    fast = acc.spawn()
     smooth.flush(fast, 1)
-    ch, j = np.nonzero(pending)
-    t = smooth.t_start + j * smooth.width
-    slow.add_tents(np.stack([t - smooth.width, t, t + smooth.width], 1), pending[ch, j], 16 + ch)
     assert len(smooth.edge_shapes(fast)) >= 2                                # the grid's end cuts some tents
     assert np.abs(fast.binned() - slow.binned()).max() <= 1e-12 * slow.binned().max()
     assert np.allclose(fast.outside(), slow.outside(), rtol=1e-12, atol=1e-12 * pending.sum())
@@ -193,3 +201,29 @@ def test_the_reference_of_a_quadrature_config_runs_the_quadrature_once_and_the_t
     r = simulate_to_tolerance(scene, cfg, 0.05)
     actual = relative_difference(r.envelope, one.envelope, one.envelope)
     assert actual <= 2 * np.hypot(r.attrs["error"]["rel_l2"], e["rel_l2"]), (actual, r.attrs["error"]["rel_l2"])
+
+
+def test_smoothed_nodes_deposited_binned_are_the_tents_add_tents_deposits():
+    """DeepSmoothing.flush into a BinnedSink: the node masses times the binned unit tents (binned_shapes) give the
+    binned envelope of add_tents for every tent (to 1e-12 of its peak) and the same light outside the window, tents cut
+    by the grid's ends included, without touching the sink's fine grid; impulses beyond the grid's reach are tallied
+    as outside; binned + outside = total for every component."""
+    from datagen.timing.binned_sink import BinnedSink
+    smooth, acc, slow = _nodes_and_their_tents()
+    pending = smooth.pending.copy()
+    sink = BinnedSink(acc.spawn())
+    smooth.flush(sink, 1)
+    assert not sink.holds_fine()
+    assert np.abs(sink.binned_rows - slow.binned()).max() <= 1e-12 * slow.binned().max()
+    assert np.allclose(sink.outside, slow.outside(), rtol=1e-12, atol=1e-12 * pending.sum())
+    assert np.allclose(sink.total, slow.total_weight(), rtol=1e-12)
+    assert np.abs(sink.binned_total(16) - slow.binned_total(16)).max() <= 1e-12 * slow.binned().max()
+    far = np.array([-5e-9, acc.axis.t_stop + 5e-9])                     # beyond the fine grid's reach
+    sink.add(far, np.array([2.0, 3.0]), np.array([0, 5]))
+    sink.add(np.array([10e-9]), np.array([1.0]), np.array([3]))     # within it: on the fine grid
+    assert sink.holds_fine() and sink.outside[0] == 2.0 and sink.outside[5] == 3.0
+    binned = sink.binned_rows + sink.fine.binned()
+    outside = sink.outside + sink.fine.outside()
+    assert np.allclose(binned.sum(axis=1) + outside, sink.total + sink.fine.total_weight(), rtol=1e-12, atol=1e-15)
+    with pytest.raises(ValueError, match="distinct"):
+        sink.add_binned(np.ones((2, 300)), np.array([1, 1]), np.ones(2))

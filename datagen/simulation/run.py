@@ -19,6 +19,7 @@ from ..planner import Plan, plan_effects
 from ..scene import RayCaster, Scene, resolve_capture
 from ..scene.capture import Capture
 from ..timing import EnvelopeAccumulator
+from ..timing.binned_sink import BinnedSink
 from ..transport import estimator
 from ..transport.base import Estimator, run_replicas
 from ..transport.multibounce import COMPONENT, AllOrders, MultibounceSettings, MultibounceTracer
@@ -188,6 +189,9 @@ class Replicas:
         self.names = self.transport.component_names
         self.n_channels = self.transport.capture.n_channels
         self.total = EnvelopeAccumulator(config.time, config.irf, len(self.names) * self.n_channels)
+        # the tracer's replicas deposit their smoothed orders binned (BinnedSink): summed here beside the total
+        rows = self.total.n_components if self.tracer is not None else 0
+        self.tracer_binned, self.tracer_outside = np.zeros((rows, config.time.n_bins)), np.zeros(rows)
         self.sums = ReplicaSums.zeros(self.n_channels, config.time.n_bins)
         self.sums.exact = not self.base_monte_carlo
         self.tracer_sums = ReplicaSums.zeros(self.n_channels if self.tracer is not None else 0, config.time.n_bins)
@@ -211,6 +215,8 @@ class Replicas:
         rows = self._tracer_rows(self.tracer)
         fine, total = earlier.total.fine_histogram()[rows], earlier.total.total_weight()[rows]
         self.total.add_fine(fine, rows, 0, total, total - fine.sum(axis=1))
+        self.tracer_binned[rows] = earlier.tracer_binned[rows]
+        self.tracer_outside[rows] = earlier.tracer_outside[rows]
 
     def _tracer_rows(self, tracer) -> np.ndarray:
         """The rows of :attr:`total` that ``tracer``'s components fill (component × n_channels + channel)."""
@@ -230,7 +236,9 @@ class Replicas:
             return False
         self.tracer = t.narrowed()
         self.transport = AllOrders(self.transport.base, self.tracer)
-        self.total.clear(self._tracer_rows(t))
+        rows = self._tracer_rows(t)
+        self.total.clear(rows)
+        self.tracer_binned[rows], self.tracer_outside[rows] = 0.0, 0.0
         self.tracer_sums = ReplicaSums.zeros(self.n_channels, self.config.time.n_bins)
         return True
 
@@ -304,13 +312,21 @@ class Replicas:
         group = max(1, REPLICA_SINK_BYTES // (8 * self.total.n_components * self.total.n_fine))
         start, stop = sums.count, sums.count + max(n, 0)
         for first in range(start, stop, group):
-            sinks = [self.total.spawn() for _ in range(min(group, stop - first))]
+            binned = transport is self.tracer          # its smoothed orders come binned (BinnedSink)
+            sinks = [BinnedSink(self.total.spawn()) if binned else self.total.spawn()
+                     for _ in range(min(group, stop - first))]
             rngs = [streams(first + k) for k in range(len(sinks))]
             t1 = time.perf_counter()
             run_replicas(transport, sinks, rngs, bar.update if bar is not None else None)
             t2 = time.perf_counter()
             for sink in sinks:
-                self.total.merge(sink)
+                if not binned:
+                    self.total.merge(sink)
+                else:
+                    if sink.holds_fine():
+                        self.total.merge(sink.fine)
+                    self.tracer_binned += sink.binned_rows
+                    self.tracer_outside += sink.outside
                 sums.add(sink.binned_total(self.n_channels))
             del sinks
             self.seconds["transport"] += t2 - t1
@@ -326,8 +342,11 @@ class Replicas:
         """The mean of the replicas run so far, binned."""
         t0 = time.perf_counter()
         r = max(self.count, 1)
-        binned = self.total.binned(copy=False).reshape(len(self.names), self.n_channels, -1)
-        outside = self.total.outside().reshape(len(self.names), self.n_channels)
+        binned, outside = self.total.binned(copy=False), self.total.outside()
+        if len(self.tracer_binned):                # the tracer's binned deposits
+            binned, outside = binned + self.tracer_binned, outside + self.tracer_outside
+        binned = binned.reshape(len(self.names), self.n_channels, -1)
+        outside = outside.reshape(len(self.names), self.n_channels)
         if self.tracer is not None:                # the tracer's component over its own replica count
             runs = np.full(len(self.names), float(r))
             runs[self.tracer.components] = max(self.tracer_sums.count, 1)

@@ -16,6 +16,8 @@ Modules (they import each other directly, never through this package):
   integrals), :func:`fwhm_to_sigma`, :func:`sigma_to_fwhm`;
 - :mod:`~datagen.timing.accumulator`: :class:`EnvelopeAccumulator` (fine-grid splatting + FFT, or the exact
   direct mode for narrow IRFs) and the exact per-impulse reference :func:`bin_impulses`;
+- :mod:`~datagen.timing.binned_sink`: :class:`~datagen.timing.binned_sink.BinnedSink`, a replica's sink that
+  also takes deposits already binned (the light tracer's smoothed orders), its fine grid read only when used;
 - :mod:`~datagen.timing.curvature`: the compiled (numba) deposit of those second differences;
 - :mod:`~datagen.timing.impulses`: input checks of impulses and :func:`bin_impulses`;
 - :mod:`~datagen.timing.tents`: closed forms of tent densities, their convolution with the IRF and their

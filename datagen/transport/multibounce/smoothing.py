@@ -36,6 +36,10 @@ confocal scan h = 3 with order 2 at Δ/2 left the tracer's part 1.4 % from an al
 h = 2 with order 2 at Δ left 1.6 % (most of it a time bias its estimate missed) and h = 4's bias outgrew its estimate
 (docs/scans.md)."""
 
+SHAPE_NODES_MAX = 1 << 23
+"""Most fine nodes (nodes × the fine grid's) of the accumulator that bins the nodes' unit tents once
+(:meth:`DeepSmoothing.binned_shapes`, 64 MiB); longer grids deposit tent by tent."""
+
 SMOOTH_MIN_BINS = 4
 """No smoothing when the output bins are not at least this many times finer than Δ (nothing to gain)."""
 
@@ -193,6 +197,12 @@ class DeepSmoothing:
         channel``) and start the next run."""
         # (the spread's point reflection can leave a node within h − 1 of an edge below zero: photons are not)
         masses = self.pending if self.scan is None else np.maximum(spread_scan(self.pending, self.scan), 0.0)
+        shapes = self.binned_shapes(sink) if hasattr(sink, "add_binned") else None
+        if shapes is not None:                  # node masses × binned unit tents: the same bins, no fine grid
+            sink.add_binned(masses @ shapes, component * self.n_channels + np.arange(self.n_channels),
+                            masses.sum(axis=1))
+            self.end_run()
+            return
         if hasattr(sink, "add_fine"):
             masses = self._flush_edges(sink, masses, component)
         ch, j = np.nonzero(masses)
@@ -252,6 +262,23 @@ class DeepSmoothing:
                 shapes[int(j)] = (0, np.zeros(0), 1.0)
         self._shapes_key, self._shapes = key, shapes
         return shapes
+
+    def binned_shapes(self, sink: Sink) -> np.ndarray | None:
+        """(nodes, n_bins) float64: node j's unit tent deposited on ``sink``'s grid and binned with its IRF (one
+        accumulator of a component per node, once per grid), or None when that accumulator would exceed
+        :data:`SHAPE_NODES_MAX` fine nodes. A node mass m deposits m × its row: what :meth:`flush` deposits tent by
+        tent, up to round-off (:class:`~datagen.timing.binned_sink.BinnedSink`)."""
+        key = (sink.n_fine, float(sink.fine_step), float(sink.axis.t_start), sink.axis.n_bins)
+        if getattr(self, "_binned_key", None) != key:
+            shapes = None
+            if self.nodes * sink.n_fine <= SHAPE_NODES_MAX:
+                one = sink.spawn(self.nodes)
+                t = self.t_start + self.width * np.arange(self.nodes)
+                one.add_tents(np.stack([t - self.width, t, t + self.width], axis=1), np.ones(self.nodes),
+                              np.arange(self.nodes))
+                shapes = one.binned()
+            self._binned_key, self._binned_shapes = key, shapes
+        return self._binned_shapes
 
     def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
         """The estimated bias of the smoothed orders' mean over ``runs`` runs per output bin of ``edges``
