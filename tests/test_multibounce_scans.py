@@ -227,3 +227,7 @@ def test_smoothed_nodes_deposited_binned_are_the_tents_add_tents_deposits():
     assert np.allclose(binned.sum(axis=1) + outside, sink.total + sink.fine.total_weight(), rtol=1e-12, atol=1e-15)
     with pytest.raises(ValueError, match="distinct"):
         sink.add_binned(np.ones((2, 300)), np.array([1, 1]), np.ones(2))
+    with pytest.raises(ValueError, match="non-finite"):                 # beyond the reach too: never tallied silently
+        sink.add(np.array([np.nan]), np.array([1.0]), np.array([0]))
+    with pytest.raises(ValueError, match="component ids"):
+        sink.add(far, np.array([1.0, 1.0]), np.array([0, 99]))

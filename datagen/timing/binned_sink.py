@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from .accumulator import EnvelopeAccumulator
+from .impulses import check_finite, check_weights, times_weights
 
 __all__ = ["BinnedSink"]
 
@@ -63,10 +64,16 @@ class BinnedSink:
 
     def add(self, times: Any, weights: Any, component: int | np.ndarray = 0) -> None:
         """:meth:`~datagen.timing.EnvelopeAccumulator.add` of the impulses within the fine grid's reach; the rest
-        (times (n,) s, weights (n,) photons, component ids (n,) or one) are tallied as outside the window."""
-        t = np.asarray(times, dtype=np.float64).reshape(-1)
-        w = np.broadcast_to(np.asarray(weights, dtype=np.float64), t.shape)
+        (times (n,) s, weights (n,) photons, component ids (n,) or one) are tallied as outside the window. Raises
+        ValueError as :meth:`~datagen.timing.EnvelopeAccumulator.add` does (non-finite times, negative or
+        non-finite weights, ids out of range)."""
+        t, w = times_weights(times, weights)
+        t, w = np.asarray(t, dtype=np.float64), np.asarray(w, dtype=np.float64)
+        check_finite(t, "times")
+        check_weights(w)
         c = np.broadcast_to(np.asarray(component, dtype=np.int64), t.shape)
+        if c.size and (c.min() < 0 or c.max() >= len(self.total)):
+            raise ValueError(f"component ids must be in [0, {len(self.total)}), got {int(c.max())}")
         near = (t >= self._reach[0]) & (t <= self._reach[1])
         if near.any():
             self.fine.add(t[near], w[near], c[near])
