@@ -252,7 +252,7 @@ class Replicas:
             return False
         more = NARROW_RUNS - self.tracer_sums.count
         if more > 0:
-            self._run_group(t, self.tracer_sums, more, lambda r: tracer_rng(replica_rng(self.root, r)), None)
+            self._run_group(t, self.tracer_sums, more, self._tracer_stream, None)
         return more > 0
 
     def run(self, n: int, progress: bool = False) -> None:
@@ -270,7 +270,6 @@ class Replicas:
             if bar is not None:
                 bar.close()
             return
-        streams = lambda r: tracer_rng(replica_rng(self.root, r))          # noqa: E731 (replica r's own stream)
         if self.tracer is None:
             self._run_group(self.transport, self.sums, n, lambda r: replica_rng(self.root, r), bar)
         elif not self.base_monte_carlo:          # the deterministic base once, then the tracer's replicas
@@ -278,15 +277,20 @@ class Replicas:
             if first:
                 self._run_group(self.transport.base, self.sums, 1, lambda r: replica_rng(self.root, r), bar)
             more = max(FIRST_TRACER_REPLICAS - self.tracer_sums.count, 0) if first else n
-            self._run_group(self.tracer, self.tracer_sums, more, streams, None)
+            self._run_group(self.tracer, self.tracer_sums, more, self._tracer_stream, None)
         else:                                    # orders 1–2, then the tracer's replicas that go with them
             self._run_group(self.transport.base, self.sums, n, lambda r: replica_rng(self.root, r), bar)
             if self.tracer_sums.count < 2:
-                self._run_group(self.tracer, self.tracer_sums, 2 - self.tracer_sums.count, streams, None)
+                self._run_group(self.tracer, self.tracer_sums, 2 - self.tracer_sums.count, self._tracer_stream, None)
             wanted = tracer_replicas_wanted(self.sums, self.tracer_sums, *self._replica_costs())
-            self._run_group(self.tracer, self.tracer_sums, wanted - self.tracer_sums.count, streams, None)
+            self._run_group(self.tracer, self.tracer_sums, wanted - self.tracer_sums.count, self._tracer_stream,
+                            None)
         if bar is not None:
             bar.close()
+
+    def _tracer_stream(self, r: int) -> np.random.Generator:
+        """The tracer's stream of replica r (its own, beside the base's ``replica_rng(root, r)``)."""
+        return tracer_rng(replica_rng(self.root, r))
 
     def _replica_costs(self) -> tuple[float, float]:
         """Nominal seconds of one replica of orders 1–2 and of one of the tracer (0 when unknown)."""

@@ -29,14 +29,13 @@ class BinnedSink:
         fine: an empty accumulator (a :meth:`~datagen.timing.EnvelopeAccumulator.spawn` of the run's total).
     Attributes:
         fine: the accumulator; binned_rows: (n_components, n_bins) float64 photons per pulse per bin of the binned
-            deposits; total: (n_components,) photons added here (binned deposits and impulses beyond the grid);
-            outside: (n_components,) of those, the photons outside the window.
+            deposits; outside: (n_components,) photons of what was added here (binned deposits and impulses beyond
+            the grid) that lie outside the window: binned_rows' row sums plus outside are what was added here.
     """
 
     def __init__(self, fine: EnvelopeAccumulator):
         self.fine = fine
         self.binned_rows = np.zeros((fine.n_components, fine.axis.n_bins))
-        self.total = np.zeros(fine.n_components)
         self.outside = np.zeros(fine.n_components)
         times = fine.fine_times
         self._reach = (float(times[0] - fine.fine_step), float(times[-1] + fine.fine_step))
@@ -69,18 +68,16 @@ class BinnedSink:
         non-finite weights, ids out of range)."""
         t, w = times_weights(times, weights)
         t, w = np.asarray(t, dtype=np.float64), np.asarray(w, dtype=np.float64)
-        check_finite(t, "times")
+        check_finite(t, "times")                                 # the whole call, so that the indices are its own
         check_weights(w)
         c = np.broadcast_to(np.asarray(component, dtype=np.int64), t.shape)
-        if c.size and (c.min() < 0 or c.max() >= len(self.total)):
-            raise ValueError(f"component ids must be in [0, {len(self.total)}), got {int(c.max())}")
+        if c.size and (c.min() < 0 or c.max() >= len(self.outside)):
+            raise ValueError(f"component ids must be in [0, {len(self.outside)}), got {int(c.max())}")
         near = (t >= self._reach[0]) & (t <= self._reach[1])
         if near.any():
             self.fine.add(t[near], w[near], c[near])
         if not near.all():
-            far = np.bincount(c[~near], weights=w[~near], minlength=len(self.total))
-            self.total += far
-            self.outside += far
+            self.outside += np.bincount(c[~near], weights=w[~near], minlength=len(self.outside))
 
     def add_tents(self, times: Any, weights: Any, component: int | np.ndarray = 0) -> None:
         """:meth:`~datagen.timing.EnvelopeAccumulator.add_tents` of :attr:`fine`."""
@@ -100,7 +97,6 @@ class BinnedSink:
             raise ValueError(f"add_binned: values {values.shape} need one row of {self.binned_rows.shape[1]} bins per "
                              "distinct component")
         self.binned_rows[component] += values
-        self.total[component] += total
         self.outside[component] += total - values.sum(axis=1)
 
     def holds_fine(self) -> bool:
