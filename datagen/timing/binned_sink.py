@@ -4,8 +4,8 @@ The light tracer's smoothed orders reach a replica as node masses, each deposite
 "Light of every order"). Every tent of a node has the same binned shape (the tent convolved with the IRF and
 integrated over the bins), so a replica's smoothed light is its node masses times one matrix of binned unit tents
 (:meth:`datagen.transport.multibounce.smoothing.DeepSmoothing.flush`), and never needs the fine grid: on a 32 × 32
-confocal scan of 512 bins that grid holds 3 × 1024 rows of 5194 nodes (127 MB), which each replica used to fill,
-fold, merge and bin.
+confocal scan of 512 bins that grid holds 3 × 1024 rows of 5194 nodes (127 MB), which a replica would otherwise
+fill, fold, merge and bin.
 """
 from __future__ import annotations
 
