@@ -292,7 +292,7 @@ def test_a_run_counts_the_tracer_replicas_apart_and_its_mean_over_them(tmp_path)
 def test_deeper_orders_are_smoothed_on_wider_nodes():
     from datagen.transport.multibounce.smoothing import SmoothingBands, default_smoothing
     bands = SmoothingBands(3, 1e-9, 4e-9, 0.0, 100e-9, 1)
-    assert bands.widths == [1e-9, 2e-9, 4e-9] and bands.margin == pytest.approx(16e-9)
+    assert bands.widths == [1e-9, 2e-9, 4e-9] and bands.margin == pytest.approx(8e-9)   # 2Δ of the widest
     assert bands.band(2) is None
     assert [bands.widths.index(bands.band(k).width) for k in (3, 4, 5, 8, 9, 16, 17, 40)] == [0, 0, 1, 1, 2, 2, 2, 2]
     # Δ ∝ √tolerance: 2 ns at 1 %, 1 ns at 0.25 %, never below 0.5 ns; none on bins not 4× finer than Δ
@@ -465,11 +465,11 @@ def test_the_smoothing_bias_of_few_runs_is_estimated_without_their_noise():
     assert actual <= cross <= 1.35 * actual
 
 
-@pytest.mark.parametrize("seed", [5, 7])
+@pytest.mark.parametrize("seed", [12])
 def test_a_smoothing_bias_read_from_two_runs_is_judged_on_more_before_the_tolerance_is_given_up(seed):
     """The demo room at 1 % (area, 2 × 8192 samples, every order): the deep orders' smoothing bias is about 0.52 % of
-    the envelope at the default node spacing (64 tracer runs), but two runs of seeds 5 and 7 read 0.80 % and 0.76 %,
-    more than the tolerance loop can plan the replicas around. The loop then runs the tracer to the runs the
+    the envelope at the default node spacing (64 tracer runs), but two runs of seed 12 (the one of seeds 0–15) read
+    more than FIXED_LIMIT × the tolerance, more than the tolerance loop can plan the replicas around. The loop then runs the tracer to the runs the
     narrowing is judged on (NARROW_RUNS) instead of stopping with the tolerance not met, and meets it."""
     from datagen.simulation.run import NARROW_RUNS
     from datagen.simulation.tolerance import FIXED_LIMIT, simulate_to_tolerance
@@ -492,3 +492,55 @@ def test_a_tolerance_missed_for_the_smoothing_bias_names_it(monkeypatch, tmp_pat
                                     "--out", str(tmp_path / "out")])
     assert out.exit_code == 0, out.output
     assert "NOT met: the deep orders' smoothing bias alone is 1.99% (multibounce: {smoothing: false}" in out.output
+
+
+class _WindowTally:
+    """A sink that sums the weights of the impulses before ``t_end`` (and counts the impulses)."""
+
+    def __init__(self, t_end: float):
+        self.t_end, self.total = t_end, 0.0
+
+    def add(self, times, weights, component):
+        self.total += float(np.sum(np.asarray(weights)[np.asarray(times) < self.t_end]))
+
+
+def test_fov_distance_is_the_distance_to_the_nearest_point_of_the_fov_rectangle():
+    scene = datagen.load_scene(DEMO)
+    cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 64}, "orders": 2})
+    capture = prepare_transport(scene, cfg)[0].capture
+    u, v = np.meshgrid(np.linspace(0, 1, 401), np.linspace(0, 1, 401))
+    grid = capture.fov_points(u.ravel(), v.ravel())           # the 2 m × 2 m rectangle, 5 mm apart
+    points = np.random.default_rng(3).uniform([-2, -1.05, 0], [6, 5.05, 2.85], size=(200, 3))
+    brute = np.linalg.norm(points[:, None, :] - grid[None, :, :], axis=-1).min(axis=1)
+    assert np.allclose(capture.fov_distance(points), brute, atol=4e-3)      # within the grid's half-diagonal
+    assert capture.fov_sensor_distance() == pytest.approx(6.0)    # sensor (0, 0, 1), FoV on the wall x = 6
+
+
+def test_a_path_stops_once_no_impulse_of_it_can_reach_the_window():
+    """The tracer stops a path when its counted length plus its vertex's distance to the FoV plus the shortest
+    FoV → sensor leg passes the window's end: nothing it would still add lands inside. Against the same tracer with
+    a window 4× as long (which follows every path that much farther) cut to the first window: the same in-window
+    energy within 4 standard errors of the difference (6 runs each), with fewer vertices traced. The test has teeth:
+    the same rule 2 m too early loses more than 4 standard errors of light."""
+    scene = datagen.load_scene(DEMO)
+    cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 64}, "orders": 2})
+    transport, _ = prepare_transport(scene, cfg)
+    t_end = 50e-9
+    energy, vertices = {}, {}
+    for name, window, early in (("cut", (0.0, t_end), 0.0), ("long", (0.0, 4 * t_end), 0.0),
+                                ("too early", (0.0, t_end), 2.0)):
+        tracer = MultibounceTracer(transport.capture, transport.caster, transport.physics,
+                                   MultibounceSettings(paths=8000, eye=False), 0, window)
+        tracer.min_tail += early
+        runs = []
+        for seed in range(6):
+            sink = _WindowTally(t_end)
+            tracer.run(sink, np.random.default_rng(700 + seed + (50 if name == "long" else 0)))
+            runs.append(sink.total)
+        energy[name], vertices[name] = np.array(runs), tracer.stats.vertices
+    a, b, c = energy["cut"], energy["long"], energy["too early"]
+    se = np.hypot(a.std(ddof=1), b.std(ddof=1)) / np.sqrt(len(a))
+    assert abs(a.mean() - b.mean()) < 4 * se, (a.mean(), b.mean(), se)
+    assert se / a.mean() < 0.03
+    assert b.mean() - c.mean() > 4 * np.hypot(b.std(ddof=1), c.std(ddof=1)) / np.sqrt(len(b))
+    assert vertices["cut"] < 0.5 * vertices["long"]

@@ -87,13 +87,13 @@ def test_the_scan_spread_keeps_a_plane_and_estimates_a_parabolas_bias_exactly():
 
 
 def _nodes_and_their_tents():
-    """16 channels of 5000 impulses over a 30 ns window and 7.9 ns past both ends, smoothed at Δ = 2 ns (before its
-    flush), an empty accumulator of 2 × 16 components on that window and IRF, and every node's tent deposited into
-    component 16 + channel of one of its spawns by add_tents (the reference)."""
+    """16 channels of 5000 impulses over a 30 ns window and 3.9 ns past both ends (the nodes reach 2Δ), smoothed at
+    Δ = 2 ns (before its flush), an empty accumulator of 2 × 16 components on that window and IRF, and every node's
+    tent deposited into component 16 + channel of one of its spawns by add_tents (the reference)."""
     axis = TimeAxis(t_start=0.0, bin_width=100e-12, n_bins=300)
     rng = np.random.default_rng(0)
     smooth = DeepSmoothing(2e-9, axis.t_start, axis.t_stop, 16)
-    smooth.add(rng.uniform(-7.9e-9, axis.t_stop + 7.9e-9, 5000), rng.random(5000), rng.integers(0, 16, 5000))
+    smooth.add(rng.uniform(-3.9e-9, axis.t_stop + 3.9e-9, 5000), rng.random(5000), rng.integers(0, 16, 5000))
     acc = EnvelopeAccumulator(axis, Irf(fwhm=100e-12), 2 * 16)
     ch, j = np.nonzero(smooth.pending)
     t = smooth.t_start + j * smooth.width

@@ -224,7 +224,8 @@ def all_orders(sampler: AreaSampler, config, samples: int):
     settings = MultibounceSettings(paths=REFERENCE_PATHS_PER_SAMPLE * samples,
                                    max_order=0 if orders == "auto" else int(orders))
     tracer = MultibounceTracer(sampler.capture, sampler.caster, sampler.physics, settings,
-                               len(sampler.component_names), (config.time.t_start, config.time.t_stop))
+                               len(sampler.component_names), (config.time.t_start, config.time.t_stop),
+                               irf_reach=config.irf.support[0])
     return AllOrders(sampler, tracer)
 
 

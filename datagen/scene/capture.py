@@ -89,6 +89,19 @@ class Capture:
         """Sensor points (or pixel regions) S."""
         return self.fov_pixels[0] * self.fov_pixels[1]
 
+    def fov_distance(self, points: np.ndarray) -> np.ndarray:
+        """The distance of points (..., 3) to the nearest point of the FoV rectangle (every pixel region), m: (...,)
+        float64, a lower bound of any path's length from a point to a FoV point or sensor point."""
+        rel = np.asarray(points, dtype=np.float64) - self.fov_center
+        a = np.clip(matmul(rel, self.fov_u), -0.5 * self.fov_size[0], 0.5 * self.fov_size[0])
+        b = np.clip(matmul(rel, self.fov_v), -0.5 * self.fov_size[1], 0.5 * self.fov_size[1])
+        return np.linalg.norm(rel - a[..., None] * self.fov_u - b[..., None] * self.fov_v, axis=-1)
+
+    def fov_sensor_distance(self) -> float:
+        """The shortest distance from the sensor position to the FoV rectangle, m: the shortest FoV → sensor leg of
+        any path."""
+        return float(self.fov_distance(np.asarray(self.sensor, dtype=np.float64)))
+
     @property
     def n_lasers(self) -> int:
         return len(self.spots)

@@ -82,7 +82,8 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
                                                        max_order=int(orders.numbers["max_order"]),
                                                        **smoothing),
                                    len(transport.component_names), (config.time.t_start, config.time.t_stop),
-                                   transport.component_names.index("secondary") if min_order == 2 else None)
+                                   transport.component_names.index("secondary") if min_order == 2 else None,
+                                   config.irf.support[0])
         transport = AllOrders(transport, tracer)
     return transport, plan
 

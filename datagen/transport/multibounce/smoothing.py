@@ -139,8 +139,9 @@ class DeepSmoothing:
     closer one: on a confocal scan's orders 2 and ≥ 3 it came to 0.88–0.93 × the actual bias where the pair
     (L_2Δ − L_Δ)/3 came to 0.33–0.57 × (docs/physics.md §2).
 
-    The nodes reach :attr:`margin` (4Δ) beyond both ends of the window, and the tracer follows paths that far past
-    its end, so that the kernels near the ends receive from outside the mass they spread out of the window.
+    The nodes reach :attr:`margin` (2Δ) beyond both ends of the window, and the tracer follows paths that far past
+    its end, so that the kernels near the ends receive from outside the mass they spread out of the window: an
+    impulse 2Δ or more past the end is binned onto nodes whose tents (and those of the Δ/2 nodes) end past it.
 
     **Across a scan** (``scan``: the channels are the points of an (ny, nx) scan grid, as a confocal scan's are),
     the node masses are also spread over neighbouring scan points by a separable tent of half-width h pitches
@@ -157,7 +158,8 @@ class DeepSmoothing:
                  scan: tuple[int, int, int] | None = None):
         self.width, self.n_channels = float(width), int(n_channels)
         self.scan = tuple(int(v) for v in scan) if scan is not None and scan[2] > 1 else None
-        self.margin = 4 * self.width                  # (the reach of a 2Δ kernel) the nodes cover the window and this
+        self.margin = 2 * self.width                  # (the reach of linear binning and a tent) the nodes cover the
+                                                      # window and this
         self.t_start = float(t_start) - self.margin   # node 0
         self.t_end = float(t_stop) + self.margin
         self.nodes = int(np.ceil((self.t_end - self.t_start) / self.width)) + 2

@@ -14,9 +14,13 @@ The estimator (docs/physics.md §2, "Light of every order"; docs/accuracy.md for
   Russian roulette (ρ the material's albedo: a Lambertian path keeps its flux and survives with probability ρ).
   Roulette is unbiased. Every surface takes part, the relay wall included. This step runs in one compiled pass
   (:func:`~datagen.transport.multibounce.kernels.continue_paths`).
-- **Termination** is exact and bounded: a path whose counted length already exceeds the window's end c·t_stop can
-  add nothing inside the window (every further leg only adds time), so it stops there; a path also stops when
-  its ray leaves the scene or roulette ends it. In a closed room of albedo 1 every path ends at the window's end:
+- **Termination** is exact and bounded: every impulse of a vertex x, or of any later vertex of its path, arrives
+  after the vertex's counted length plus at least x's distance to the FoV rectangle
+  (:meth:`~datagen.scene.capture.Capture.fov_distance`: the legs that remain are at least that long) plus the
+  shortest FoV → sensor leg d_min (:meth:`~datagen.scene.capture.Capture.fov_sensor_distance`, when that leg
+  counts). A path whose vertex is later than c·t_follow by that sum can add nothing inside the window and stops
+  there, t_follow being the window's end plus the reach of the smoothing's kernels and of the IRF; a path also
+  stops when its ray leaves the scene or roulette ends it. In a closed room of albedo 1 every path ends at the window's end:
   the work is bounded by N × (window length × c / mean free path) vertices.
 - **Next-event connections** at every vertex of order k ≥ ``min_order``: one point y per sensor pixel region,
   uniform in it (density p_a = 1/A_pixel), with a shadow ray x→y, weighted by the FoV leg
@@ -171,9 +175,12 @@ class MultibounceTracer:
             (:class:`~datagen.transport.physics.LegPhysics`) of the estimator it runs beside (same switches).
         settings: :class:`MultibounceSettings`.
         component: the sink component id of ``multibounce`` (impulses go to ``component * n_channels + channel``).
-        window: (t_start, t_stop) of the time axis, s (paths stop once their counted length exceeds c·t_stop).
+        window: (t_start, t_stop) of the time axis, s (paths stop once no impulse of theirs can reach it: module
+            docstring, "Termination").
         secondary_component: the sink component id of order 2 when ``min_order`` is 2 (the tracer then carries the
             secondary of an estimator that runs without one: docs/physics.md §2, "Light of every order").
+        irf_reach: how much earlier than an impulse the IRF spreads its light, s (``Irf.support[0]``): impulses
+            that late past the window's end still reach it (0: the in-window tallies only, as the planner's pilot).
     Attributes:
         stats: :class:`MultibounceStats`.
         order_energy: (:data:`ORDER_TALLY`,) float64, the weight deposited inside the window by order (index k−1
@@ -184,8 +191,10 @@ class MultibounceTracer:
     """
 
     def __init__(self, capture: Capture, caster: RayCaster, physics: LegPhysics, settings: MultibounceSettings,
-                 component: int, window: tuple[float, float], secondary_component: int | None = None):
+                 component: int, window: tuple[float, float], secondary_component: int | None = None,
+                 irf_reach: float = 0.0):
         self.capture, self.caster, self.physics, self.settings = capture, caster, physics, settings
+        self.irf_reach = float(irf_reach)
         self.component = int(component)
         self.secondary_component = int(secondary_component) if secondary_component is not None else None
         self.t_start, self.t_stop = float(window[0]), float(window[1])
@@ -197,9 +206,13 @@ class MultibounceTracer:
         self.smoothing = (SmoothingBands(settings.smooth_order, settings.smooth_width, settings.smooth_max_width,
                                          self.t_start, self.t_stop, capture.n_channels, scan, settings.smooth_narrow)
                           if settings.smooth_order else None)
-        # paths are followed past the window's end by the smoothing's reach, so that the kernel near the end
-        # receives the mass from beyond it that it spreads into the window
-        self.t_follow = self.t_stop + (self.smoothing.margin if self.smoothing is not None else 0.0)
+        # paths are followed as long as an impulse can still reach the window: past its end by the smoothing's reach
+        # (the kernels near the end receive the mass from beyond it that they spread into the window) and the
+        # IRF's; and every impulse arrives at least the shortest FoV → sensor leg after its vertex's counted length
+        self.t_follow = self.t_stop + (self.smoothing.margin if self.smoothing is not None else 0.0) + self.irf_reach
+        self.min_tail = float(physics.sensor_leg(capture.fov_sensor_distance()))
+        # no surface point lies farther from the FoV than the farthest mesh vertex (the distance is convex)
+        self._far_fov = float(capture.fov_distance(caster.vertices).max()) if len(caster.vertices) else 0.0
         albedo = physics.materials.albedo
         self.survival = np.minimum(1.0, albedo)                   # q per object: Russian roulette
         self._mat = material_arrays(physics)
@@ -221,7 +234,7 @@ class MultibounceTracer:
         """A fresh tracer (no runs) with the same settings but the lowest smoothing band's node spacing halved."""
         settings = replace(self.settings, smooth_narrow=self.settings.smooth_narrow + 1)
         return MultibounceTracer(self.capture, self.caster, self.physics, settings, self.component,
-                                 (self.t_start, self.t_stop), self.secondary_component)
+                                 (self.t_start, self.t_stop), self.secondary_component, self.irf_reach)
 
     @property
     def components(self) -> list[int]:
@@ -296,7 +309,7 @@ class MultibounceTracer:
         eye, pid = None, None       # the eye vertices, drawn for the paths that reach their first use; each path's row
         p_in = np.ones(n)                                        # the light's area density of the current vertex
         order = 0
-        limit = SPEED_OF_LIGHT * self.t_follow                    # metres of counted path: the window's end
+        limit = SPEED_OF_LIGHT * self.t_follow - self.min_tail     # metres of counted path that can still reach it
         while len(flux) and order < MAX_VERTICES:
             self.stats.steps += 1
             hits = cst.intersect(ray_origin, ray_dir)
@@ -309,7 +322,11 @@ class MultibounceTracer:
             dist = hits.distance
             counted = counted + np.where(alive, dist, 0.0)
             physical = physical + np.where(alive, dist, 0.0)
+            # every impulse of this vertex or a later one crosses at least its distance to the FoV (checked for the
+            # vertices within the farthest surface point's distance of the end only)
             in_window = counted < limit
+            late = np.flatnonzero(alive & in_window & (counted + self._far_fov >= limit))
+            in_window[late] = counted[late] + c.fov_distance(hits.points[late]) < limit
             self.stats.window += int((alive & ~in_window).sum())
             keep = np.flatnonzero(alive & in_window)
             if s.max_order and order > s.max_order:
