@@ -270,6 +270,30 @@ def test_the_tracer_gets_the_neyman_share_of_the_replicas():
     assert tracer_replicas_wanted(base, one, 1.0, 1.0) == 400              # no spread yet: as many as the base
 
 
+def test_the_replica_counts_are_rounded_as_a_whole_at_least_cost():
+    """whole_split: the counts (R_b, R_t) of least cost c_b R_b + c_t R_t with v_b/R_b + v_t/R_t ≤ ε², at least those
+    run, against a brute-force search; where the Neyman split wants 2.2 tracer replicas it keeps 2 and adds cheap
+    base replicas instead of a third tracer replica (each count rounded up alone costs more)."""
+    import math
+
+    from datagen.simulation.replicas import whole_split
+    v_b, v_t, c_b, c_t = 1.0, 1.0, 1.0, 10.0
+    rho = math.sqrt(v_t * c_b / (v_b * c_t))
+    for variance in (0.3, 0.2, 0.1, 0.05, 0.02):
+        r_b, r_t = whole_split(v_b, v_t, c_b, c_t, 2, 2, variance)
+        assert v_b / r_b + v_t / r_t <= variance * (1 + 1e-12)
+        cost = c_b * r_b + c_t * r_t
+        brute = min(c_b * b + c_t * t for b in range(2, 2000) for t in range(2, 200)
+                    if v_b / b + v_t / t <= variance)
+        assert cost == brute, variance
+        n_b = (v_b + v_t / rho) / variance                 # the Neyman split, each count rounded up on its own
+        assert cost <= c_b * math.ceil(n_b) + c_t * max(2, math.ceil(rho * n_b))
+    # ε² = 0.6: the Neyman split is R_b = 6.94, R_t = 2.19, rounded up (7, 3) at a cost of 37; (10, 2) costs 30
+    assert whole_split(v_b, v_t, c_b, c_t, 2, 2, 0.6) == (10, 2)
+    assert whole_split(v_b, v_t, c_b, c_t, 7, 4, 0.7) == (7, 4)            # never fewer than already run
+    assert whole_split(v_b, v_t, c_b, c_t, 2, 2, 0.0) is None
+
+
 def test_a_run_counts_the_tracer_replicas_apart_and_its_mean_over_them(tmp_path):
     """orders ≥ 3 beside the area sampler: the tracer runs its own number of replicas (recorded in the error), the
     multibounce component is its mean over them, and orders 1–2 stay those of the same run with orders: 2."""

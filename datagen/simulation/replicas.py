@@ -210,3 +210,28 @@ def tracer_replicas_wanted(base: ReplicaSums, tracer: ReplicaSums, base_cost: fl
         return max(tracer.count, base.count)
     wanted = int(np.ceil(split[2] * base.count))
     return int(min(max(wanted, tracer.count, 2), TRACER_MAX_RATIO * base.count))
+
+
+def whole_split(v_b: float, v_t: float, base_cost: float, tracer_cost: float, base_count: int, tracer_count: int,
+                variance: float) -> tuple[int, int] | None:
+    """The replica counts (R_b, R_t) of orders 1–2 and of the tracer, at least those already run, of least cost
+    c_b R_b + c_t R_t with v_b/R_b + v_t/R_t ≤ ``variance`` (relative variances of one replica, :func:`neyman_split`).
+
+    The Neyman split rounded as a whole: rounding each count up on its own costs a whole tracer replica where a few
+    more of the cheaper replicas of orders 1–2 would carry the difference (two tracer replicas needing 2.3 go to
+    three: 50 % more of the tracer for 15 %). Every tracer count from the one run up to the rounded-up Neyman count
+    (and two beyond) is tried with the fewest base replicas it allows. None when ``variance`` or a variance or cost is not > 0."""
+    if min(v_b, v_t, base_cost, tracer_cost, variance) <= 0:
+        return None
+    rho = float(np.sqrt(v_t * base_cost / (v_b * tracer_cost)))
+    neyman_t = int(np.ceil(rho * (v_b + v_t / rho) / variance))
+    best = None
+    for r_t in range(max(tracer_count, 2), max(neyman_t, tracer_count, 2) + 3):
+        rest = variance - v_t / r_t
+        if rest <= 0:
+            continue
+        r_b = max(base_count, int(np.ceil(v_b / rest * (1 - 1e-12))))    # (not one more for round-off)
+        cost = base_cost * r_b + tracer_cost * r_t
+        if best is None or cost < best[0]:
+            best = (cost, r_b, r_t)
+    return None if best is None else (best[1], best[2])

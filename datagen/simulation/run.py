@@ -30,7 +30,7 @@ from .budget import check_simulation_memory
 from .config import STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .detection import Result, Transported, make_result
 from .replicas import (FIRST_TRACER_REPLICAS, ReplicaSums, combined_error, neyman_split, relative_cross,
-                       relative_difference, replica_root, replica_rng, tracer_replicas_wanted)
+                       relative_difference, replica_root, replica_rng, tracer_replicas_wanted, whole_split)
 
 
 class Planned(NamedTuple):
@@ -256,8 +256,10 @@ class Replicas:
             self._run_group(t, self.tracer_sums, more, self._tracer_stream, None)
         return more > 0
 
-    def run(self, n: int, progress: bool = False) -> None:
-        """Run the next ``n`` replicas (one, at most, for a deterministic estimator)."""
+    def run(self, n: int, progress: bool = False, tracer_target: int | None = None) -> None:
+        """Run the next ``n`` replicas (one, at most, for a deterministic estimator); beside orders 1–2 that run
+        replicas, the tracer runs to ``tracer_target`` replicas when given (:meth:`whole_top_up`), else to its
+        Neyman share of them (:func:`~datagen.simulation.replicas.tracer_replicas_wanted`)."""
         if not self.monte_carlo:
             n = 1 - self.count
         if n <= 0:
@@ -283,7 +285,8 @@ class Replicas:
             self._run_group(self.transport.base, self.sums, n, lambda r: replica_rng(self.root, r), bar)
             if self.tracer_sums.count < 2:
                 self._run_group(self.tracer, self.tracer_sums, 2 - self.tracer_sums.count, self._tracer_stream, None)
-            wanted = tracer_replicas_wanted(self.sums, self.tracer_sums, *self._replica_costs())
+            wanted = (tracer_target if tracer_target is not None
+                      else tracer_replicas_wanted(self.sums, self.tracer_sums, *self._replica_costs()))
             self._run_group(self.tracer, self.tracer_sums, wanted - self.tracer_sums.count, self._tracer_stream,
                             None)
         if bar is not None:
@@ -310,6 +313,18 @@ class Replicas:
             return None
         v_b, v_t, rho = split
         return (v_b + (v_t / rho if rho > 0 else 0.0)) / (budget * budget)
+
+    def whole_top_up(self, budget: float) -> tuple[int, int] | None:
+        """The replica counts (orders 1–2, tracer) that bring the Monte Carlo error to ``budget`` at least cost,
+        rounded as a whole (:func:`~datagen.simulation.replicas.whole_split`); None without a tracer beside replicas
+        of orders 1–2 or before the split is known."""
+        if self.tracer is None or not self.base_monte_carlo:
+            return None
+        split = neyman_split(self.sums, self.tracer_sums, *self._replica_costs())
+        if split is None:
+            return None
+        return whole_split(split[0], split[1], *self._replica_costs(), self.sums.count, self.tracer_sums.count,
+                           budget * budget)
 
     def _run_group(self, transport, sums: ReplicaSums, n: int, streams, bar) -> None:
         """Run replicas ``sums.count`` … ``sums.count + n − 1`` of ``transport`` (stream r: ``streams(r)``) into

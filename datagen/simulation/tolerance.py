@@ -224,10 +224,11 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0, warn)
     cap = max(int(max_replicas), cfg.replicas) if max_replicas is not None else None
     rounds = []
-    target = cfg.replicas
+    target, tracer_target = cfg.replicas, None
     for _ in range(MAX_ROUNDS):
         t_round = time.perf_counter()
-        runs.run(target - runs.count)
+        runs.run(target - runs.count, tracer_target=tracer_target)
+        tracer_target = None
         if runs.narrow_smoothing(tolerance):        # a smoothing bias replicas cannot bring down: a finer one
             target = runs.count + 1
             continue
@@ -252,10 +253,12 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         if max_seconds is not None and len(rounds) == 1:   # the setup before the round is done once
             _check_projection(seconds, mc, budget, runs.count, max_seconds, f"{runs.count} replicas", warn,
                               fixed_seconds=max(0.0, time.perf_counter() - t0 - seconds))
-        split = runs.replicas_needed(budget)        # orders ≥ 3: the base's share under the tracer's split
-        needed = replicas_needed(runs.count, mc, budget) if split is None else split * SAFETY
+        whole = runs.whole_top_up(budget / math.sqrt(SAFETY))   # orders ≥ 3: both counts, rounded as a whole
+        needed = replicas_needed(runs.count, mc, budget) if whole is None else whole[0]
         wanted = math.ceil(min(runs.count * MAX_GROWTH, needed))
         target = max(runs.count + 1, wanted if cap is None else min(wanted, cap))
+        if whole is not None and target == whole[0]:
+            tracer_target = whole[1]                # (a capped base count takes the tracer's Neyman share)
         nominal = getattr(runs.transport, "nominal_seconds", None)
         if max_cost is not None and nominal is not None:
             affordable = int(max_cost / (nominal() / runs.count))
