@@ -309,7 +309,8 @@ class MultibounceTracer:
         eye, pid = None, None       # the eye vertices, drawn for the paths that reach their first use; each path's row
         p_in = np.ones(n)                                        # the light's area density of the current vertex
         order = 0
-        limit = SPEED_OF_LIGHT * self.t_follow - self.min_tail     # metres of counted path that can still reach it
+        # metres of counted path that can still reach it (a FoV hit may lie up to the tolerance outside the rectangle)
+        limit = SPEED_OF_LIGHT * self.t_follow - self.min_tail + ph.tol
         while len(flux) and order < MAX_VERTICES:
             self.stats.steps += 1
             hits = cst.intersect(ray_origin, ray_dir)
