@@ -277,7 +277,15 @@ class Replicas:
             self._run_group(self.transport, self.sums, n, lambda r: replica_rng(self.root, r), bar)
         elif not self.base_monte_carlo:          # the deterministic base once, then the tracer's replicas
             first = self.sums.count == 0
-            if first:
+            if first and not self.total.total_weight().any():    # straight into the empty total: no sink to merge
+                t1 = time.perf_counter()
+                run_replicas(self.transport.base, [self.total], [replica_rng(self.root, 0)],
+                             bar.update if bar else None)
+                t2 = time.perf_counter()
+                self.sums.add(self.total.binned_total(self.n_channels))
+                self.seconds["transport"] += t2 - t1
+                self.seconds["binning"] += time.perf_counter() - t2
+            elif first:
                 self._run_group(self.transport.base, self.sums, 1, lambda r: replica_rng(self.root, r), bar)
             more = max(FIRST_TRACER_REPLICAS - self.tracer_sums.count, 0) if first else n
             self._run_group(self.tracer, self.tracer_sums, more, self._tracer_stream, None)
