@@ -277,15 +277,7 @@ class Replicas:
             self._run_group(self.transport, self.sums, n, lambda r: replica_rng(self.root, r), bar)
         elif not self.base_monte_carlo:          # the deterministic base once, then the tracer's replicas
             first = self.sums.count == 0
-            if first and not self.total.total_weight().any():    # straight into the empty total: no sink to merge
-                t1 = time.perf_counter()
-                run_replicas(self.transport.base, [self.total], [replica_rng(self.root, 0)],
-                             bar.update if bar else None)
-                t2 = time.perf_counter()
-                self.sums.add(self.total.binned_total(self.n_channels))
-                self.seconds["transport"] += t2 - t1
-                self.seconds["binning"] += time.perf_counter() - t2
-            elif first:
+            if first:
                 self._run_group(self.transport.base, self.sums, 1, lambda r: replica_rng(self.root, r), bar)
             more = max(FIRST_TRACER_REPLICAS - self.tracer_sums.count, 0) if first else n
             self._run_group(self.tracer, self.tracer_sums, more, self._tracer_stream, None)
@@ -310,51 +302,42 @@ class Replicas:
         return (base_cost() / max(self.count, 1) if base_cost is not None else 0.0,
                 tracer_nominal_seconds(self.tracer.stats) / max(self.tracer_sums.count, 1))
 
-    def replicas_needed(self, budget: float) -> float | None:
-        """Replicas of orders 1–2 that bring the Monte Carlo error to ``budget`` when the tracer's replicas follow
-        the Neyman split ρ (:func:`~datagen.simulation.replicas.neyman_split`): (v_b + v_t/ρ) / budget²; None
-        without a tracer or before the split is known (then the R^(-1/2) law of the total applies)."""
-        if self.tracer is None:
-            return None
-        split = neyman_split(self.sums, self.tracer_sums, *self._replica_costs())
-        if split is None:
-            return None
-        v_b, v_t, rho = split
-        return (v_b + (v_t / rho if rho > 0 else 0.0)) / (budget * budget)
-
     def whole_top_up(self, budget: float) -> tuple[int, int] | None:
         """The replica counts (orders 1–2, tracer) that bring the Monte Carlo error to ``budget`` at least cost,
         rounded as a whole (:func:`~datagen.simulation.replicas.whole_split`); None without a tracer beside replicas
         of orders 1–2 or before the split is known."""
         if self.tracer is None or not self.base_monte_carlo:
             return None
-        split = neyman_split(self.sums, self.tracer_sums, *self._replica_costs())
+        costs = self._replica_costs()
+        split = neyman_split(self.sums, self.tracer_sums, *costs)
         if split is None:
             return None
-        return whole_split(split[0], split[1], *self._replica_costs(), self.sums.count, self.tracer_sums.count,
-                           budget * budget)
+        return whole_split(split[0], split[1], *costs, self.sums.count, self.tracer_sums.count, budget * budget)
 
     def _run_group(self, transport, sums: ReplicaSums, n: int, streams, bar) -> None:
         """Run replicas ``sums.count`` … ``sums.count + n − 1`` of ``transport`` (stream r: ``streams(r)``) into
-        the total and ``sums``, a group of replica sinks at a time (memory)."""
+        the total and ``sums``, a group of replica sinks at a time (memory); a single replica into an empty total
+        goes straight into it (the quadrature beside the tracer: no 127 MB sink of a 32 × 32 scan to merge)."""
         group = max(1, REPLICA_SINK_BYTES // (8 * self.total.n_components * self.total.n_fine))
         start, stop = sums.count, sums.count + max(n, 0)
+        binned = transport is self.tracer              # its smoothed orders come binned (BinnedSink)
+        direct = n == 1 and not binned and not self.total.total_weight().any()
         for first in range(start, stop, group):
-            binned = transport is self.tracer          # its smoothed orders come binned (BinnedSink)
-            sinks = [BinnedSink(self.total.spawn()) if binned else self.total.spawn()
-                     for _ in range(min(group, stop - first))]
+            sinks = ([self.total] if direct else
+                     [BinnedSink(self.total.spawn()) if binned else self.total.spawn()
+                      for _ in range(min(group, stop - first))])
             rngs = [streams(first + k) for k in range(len(sinks))]
             t1 = time.perf_counter()
             run_replicas(transport, sinks, rngs, bar.update if bar is not None else None)
             t2 = time.perf_counter()
             for sink in sinks:
-                if not binned:
-                    self.total.merge(sink)
-                else:
+                if binned:
                     if sink.holds_fine():
                         self.total.merge(sink.fine)
                     self.tracer_binned += sink.binned_rows
                     self.tracer_outside += sink.outside
+                elif not direct:
+                    self.total.merge(sink)
                 sums.add(sink.binned_total(self.n_channels))
             del sinks
             self.seconds["transport"] += t2 - t1
