@@ -257,8 +257,6 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         needed = replicas_needed(runs.count, mc, budget) if whole is None else whole[0]
         wanted = math.ceil(min(runs.count * MAX_GROWTH, needed))
         target = max(runs.count + 1, wanted if cap is None else min(wanted, cap))
-        if whole is not None and target == whole[0]:
-            tracer_target = whole[1]                # (a capped base count takes the tracer's Neyman share)
         nominal = getattr(runs.transport, "nominal_seconds", None)
         if max_cost is not None and nominal is not None:
             affordable = int(max_cost / (nominal() / runs.count))
@@ -271,6 +269,8 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             if affordable < 1:
                 break
             target = min(target, runs.count + affordable)
+        if whole is not None and target == whole[0]:
+            tracer_target = whole[1]                # (a capped base count takes the tracer's Neyman share)
     tr = runs.transported()
     _check_energy(scene, tr)
     error = runs.error_attrs(tr, rng)
