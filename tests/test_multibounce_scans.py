@@ -232,3 +232,55 @@ def test_smoothed_nodes_deposited_binned_are_the_tents_add_tents_deposits():
         sink.add(np.array([np.nan]), np.array([1.0]), np.array([0]))
     with pytest.raises(ValueError, match="component ids"):
         sink.add(far, np.array([1.0, 1.0]), np.array([0, 99]))
+
+
+class _ScriptedRuns:
+    """A stand-in for :class:`~datagen.simulation.run.Replicas` beside the quadrature: the tracer's spread is
+    σ/√runs, and its smoothing bias reads 0.75 × the tolerance from fewer than NARROW_RUNS runs (two runs' noisy
+    reading) and 0.2 × from more (what more runs show); ``settle_smoothing`` runs up to NARROW_RUNS."""
+
+    def __init__(self, tolerance: float, sigma: float):
+        from datagen.simulation.run import NARROW_RUNS
+        self.tolerance, self.sigma, self.narrow_runs = tolerance, sigma, NARROW_RUNS
+        self.tracer_sums = type("Sums", (), {"count": 2})()
+        self.counts = [2]
+
+    def narrow_smoothing(self, tolerance):
+        return False
+
+    def fixed_error(self):
+        return (0.75 if self.tracer_sums.count < self.narrow_runs else 0.2) * self.tolerance
+
+    def settle_smoothing(self):
+        more = self.narrow_runs - self.tracer_sums.count
+        if more > 0:
+            self.run(more)
+        return more > 0
+
+    def error(self):
+        return self.sigma / np.sqrt(self.tracer_sums.count)
+
+    def run(self, n):
+        self.tracer_sums.count += n
+        self.counts.append(self.tracer_sums.count)
+
+    def transported(self):
+        return None
+
+
+def test_beside_the_quadrature_a_smoothing_bias_read_from_two_runs_is_read_again_before_replicas_are_planned(
+        monkeypatch):
+    """Tolerance 2 %, σ = 1.6 × it: planned on the two runs' reading (0.75 × the tolerance, leaving √(1 − 0.75²) =
+    0.66 × it) the tracer would run to ⌈2 · (1.6/√2 / 0.66)² · 1.1⌉ = 7; read again on NARROW_RUNS = 4 runs (0.2 ×),
+    its spread there, 0.8 × the tolerance, is within what is left (0.98 ×), and the loop stops at 4."""
+    import datagen.simulation.tolerance as tol_mod
+    monkeypatch.setattr(tol_mod, "_level_error", lambda runs, tr, rng, primary, h, previous: {})
+    runs = _ScriptedRuns(0.02, 1.6 * 0.02)
+    tol_mod._top_up_tracer(runs, 0.02, 0.0, None, None, 1.0, None)
+    assert runs.counts == [2, runs.narrow_runs]
+    # the same loop without the second reading (the bias stays at two runs' reading) plans 7
+    stuck = _ScriptedRuns(0.02, 1.6 * 0.02)
+    monkeypatch.setattr(stuck, "settle_smoothing", lambda: False)
+    monkeypatch.setattr(stuck, "fixed_error", lambda: 0.75 * 0.02)
+    tol_mod._top_up_tracer(stuck, 0.02, 0.0, None, None, 1.0, None)
+    assert stuck.counts == [2, 7]

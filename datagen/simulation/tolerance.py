@@ -364,11 +364,16 @@ def _top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.ran
                    primary: np.ndarray, h: float, previous) -> tuple:
     """Add replicas of the tracer beside a deterministic base until its spread meets what the tolerance leaves
     after the edge refinement and the fixed parts (at least a third of the tolerance), by the R^(−1/2) law;
-    (the transported mean, its error attrs)."""
+    (the transported mean, its error attrs). A smoothing bias read above ``FIXED_LIMIT`` × the tolerance from fewer
+    runs than the narrowing is judged on is read again on that many first (``Replicas.settle_smoothing``, as the
+    Monte Carlo loop does): two runs' reading is noisy, and replicas planned on it were planned for a bias that
+    more runs did not confirm (a ``confocal.yaml`` sample: 11 tracer runs planned from two, 7 after four)."""
     for _ in range(MAX_ROUNDS):
         if runs.narrow_smoothing(tolerance):        # a smoothing bias replicas cannot bring down: a finer one
             runs.run(FIRST_TRACER_REPLICAS)
             continue
+        if runs.fixed_error() > FIXED_LIMIT * tolerance and runs.settle_smoothing():
+            continue                                # judged (and narrowed) on more runs before replicas are planned
         mc = runs.error()
         room = tolerance * tolerance - refined * refined - runs.fixed_error() ** 2
         budget = math.sqrt(max(room, (tolerance / 3) ** 2))
