@@ -216,6 +216,8 @@ class MultibounceTracer:
         albedo = physics.materials.albedo
         self.survival = np.minimum(1.0, albedo)                   # q per object: Russian roulette
         self._mat = material_arrays(physics)
+        self._fov_object = np.zeros(len(albedo), dtype=bool)     # per object id: may hold FoV points
+        self._fov_object[np.asarray(physics.fov_objects, dtype=np.int64)] = True
         # the FoV's pixel regions (aperture captures): one uniform target in each recorded one per vertex
         pixel_area = capture.fov_size[0] * capture.fov_size[1] / capture.n_pixels if capture.n_pixels else 0.0
         self.pixels = PixelTable(*self._recorded_pixels(), pixel_area)
@@ -425,7 +427,7 @@ class MultibounceTracer:
         c, ph = self.capture, self.physics
         if c.convention != "aperture":
             return
-        on_wall = np.flatnonzero(hits.hit & np.isin(hits.object_id, ph.fov_objects))   # only these can be in the FoV
+        on_wall = np.flatnonzero(hits.hit & self._fov_object[hits.object_id])   # only these can be in the FoV
         chan = c.channel(laser[on_wall], c.fov_pixel(hits.points[on_wall], ph.tol))
         idx = on_wall[chan >= 0]
         chan = chan[chan >= 0]
@@ -483,4 +485,5 @@ class MultibounceTracer:
             t, weight, channel = t[~near], weight[~near], channel[~near]
         component = self.secondary_component if order == 2 and self.secondary_component is not None \
             else self.component
-        sink.add(t, weight, component * self.capture.n_channels + channel)
+        if len(t):
+            sink.add(t, weight, component * self.capture.n_channels + channel)
