@@ -264,8 +264,13 @@ class _ScriptedRuns:
         self.tracer_sums.count += n
         self.counts.append(self.tracer_sums.count)
 
+    transport = None                             # no coarse rule of its own: the level's attrs are error_attrs'
+
     def transported(self):
         return None
+
+    def error_attrs(self, tr, rng):
+        return {}
 
 
 def test_beside_the_quadrature_a_smoothing_bias_read_from_two_runs_is_read_again_before_replicas_are_planned(
@@ -273,14 +278,13 @@ def test_beside_the_quadrature_a_smoothing_bias_read_from_two_runs_is_read_again
     """Tolerance 2 %, σ = 1.6 × it: planned on the two runs' reading (0.75 × the tolerance, leaving √(1 − 0.75²) =
     0.66 × it) the tracer would run to ⌈2 · (1.6/√2 / 0.66)² · 1.1⌉ = 7; read again on NARROW_RUNS = 4 runs (0.2 ×),
     its spread there, 0.8 × the tolerance, is within what is left (0.98 ×), and the loop stops at 4."""
-    import datagen.simulation.tolerance as tol_mod
-    monkeypatch.setattr(tol_mod, "_level_error", lambda runs, tr, rng, primary, h, previous: {})
+    from datagen.simulation.tolerance import top_up_tracer
     runs = _ScriptedRuns(0.02, 1.6 * 0.02)
-    tol_mod._top_up_tracer(runs, 0.02, 0.0, None, None, 1.0, None)
+    top_up_tracer(runs, 0.02, 0.0, None, None, 1.0, None)
     assert runs.counts == [2, runs.narrow_runs]
     # the same loop without the second reading (the bias stays at two runs' reading) plans 7
     stuck = _ScriptedRuns(0.02, 1.6 * 0.02)
     monkeypatch.setattr(stuck, "settle_smoothing", lambda: False)
     monkeypatch.setattr(stuck, "fixed_error", lambda: 0.75 * 0.02)
-    tol_mod._top_up_tracer(stuck, 0.02, 0.0, None, None, 1.0, None)
+    top_up_tracer(stuck, 0.02, 0.0, None, None, 1.0, None)
     assert stuck.counts == [2, 7]

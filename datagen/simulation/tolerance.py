@@ -83,7 +83,7 @@ percent, not by a factor 10."""
 
 EDGE_SHARE = 0.8
 """Beside the tracer (a quadrature with orders it leaves to the tracer), the edge is refined until its part of the
-estimate is at most this fraction of the tolerance; the tracer's replicas take the rest (:func:`_top_up_tracer`)."""
+estimate is at most this fraction of the tolerance; the tracer's replicas take the rest (:func:`top_up_tracer`)."""
 
 EDGE_BESIDE_TRACER = 0.7
 """When the planner runs the tracer beside a quadrature, the first level's edge is this fraction of the config's (and
@@ -310,7 +310,7 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
         edge_part = float(error["refinement"] or 0.0)     # (the smoothing bias's estimate falls with replicas)
         if runs.tracer is not None and estimate > tolerance and edge_part <= EDGE_SHARE * tolerance:
             # the edge is fine enough: the tracer's replicas bring the rest down, the quadrature is not re-run
-            tr, error = _top_up_tracer(runs, tolerance, error["refinement"] or 0.0, rng, primary, h, previous)
+            tr, error = top_up_tracer(runs, tolerance, error["refinement"] or 0.0, rng, primary, h, previous)
             estimate = error["rel_l2"]
         seconds = time.perf_counter() - t_level
         rounds.append({"quadrature_edge": h, "estimate": estimate, "seconds": seconds,
@@ -360,14 +360,25 @@ def _level_error(runs: Replicas, tr, rng: np.random.Generator, primary: np.ndarr
                       f"relative L2 over bins above 1 % of the peak"}
 
 
-def _top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.random.Generator,
-                   primary: np.ndarray, h: float, previous) -> tuple:
-    """Add replicas of the tracer beside a deterministic base until its spread meets what the tolerance leaves
-    after the edge refinement and the fixed parts (at least a third of the tolerance), by the R^(−1/2) law;
-    (the transported mean, its error attrs). A smoothing bias read above ``FIXED_LIMIT`` × the tolerance from fewer
-    runs than the narrowing is judged on is read again on that many first (``Replicas.settle_smoothing``, as the
-    Monte Carlo loop does): two runs' reading is noisy, and replicas planned on it were planned for a bias that
-    more runs did not confirm (a ``confocal.yaml`` sample: 11 tracer runs planned from two, 7 after four)."""
+def top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.random.Generator,
+                  primary: np.ndarray, h: float, previous) -> tuple:
+    """Add replicas of the tracer beside a deterministic base (the quadrature at edge ``h``) until their spread meets
+    what the tolerance leaves after the edge refinement and the fixed parts (at least a third of the tolerance), by
+    the R^(−1/2) law.
+
+    A smoothing bias read above ``FIXED_LIMIT`` × the tolerance from fewer runs than the narrowing is judged on is
+    read again on that many first (``Replicas.settle_smoothing``, as the Monte Carlo loop does): two runs' reading is
+    noisy, and replicas planned on it were planned for a bias that more runs did not confirm (a ``confocal.yaml``
+    sample: 11 tracer runs planned from two, 7 after four).
+
+    Args:
+        runs: the level's :class:`~datagen.simulation.run.Replicas` (its tracer's replicas go on); tolerance: the
+            target relative L2 error; refined: the level's edge-refinement part of the estimate (relative);
+            rng: the sampling stream (for the level's error attrs); primary: (n_channels, n_bins) photons, the
+            level's deterministic components; h: its edge, m; previous: (edge, primary) of the previous level, or None.
+    Returns:
+        (the transported mean, its ``attrs["error"]``).
+    """
     for _ in range(MAX_ROUNDS):
         if runs.narrow_smoothing(tolerance):        # a smoothing bias replicas cannot bring down: a finer one
             runs.run(FIRST_TRACER_REPLICAS)
