@@ -237,11 +237,12 @@ def test_smoothed_nodes_deposited_binned_are_the_tents_add_tents_deposits():
 class _ScriptedRuns:
     """A stand-in for :class:`~datagen.simulation.run.Replicas` beside the quadrature: the tracer's spread is
     σ/√runs, and its smoothing bias reads 0.75 × the tolerance from fewer than NARROW_RUNS runs (two runs' noisy
-    reading) and 0.2 × from more (what more runs show); ``settle_smoothing`` runs up to NARROW_RUNS."""
+    reading) and 0.2 × from more (what more runs show); ``settle_smoothing`` runs up to NARROW_RUNS while the bias
+    reads above NARROW_SHARE × the tolerance."""
 
     def __init__(self, tolerance: float, sigma: float):
-        from datagen.simulation.run import NARROW_RUNS
-        self.tolerance, self.sigma, self.narrow_runs = tolerance, sigma, NARROW_RUNS
+        from datagen.simulation.run import NARROW_RUNS, NARROW_SHARE
+        self.tolerance, self.sigma, self.narrow_runs, self.share = tolerance, sigma, NARROW_RUNS, NARROW_SHARE
         self.tracer_sums = type("Sums", (), {"count": 2})()
         self.counts = [2]
 
@@ -251,7 +252,9 @@ class _ScriptedRuns:
     def fixed_error(self):
         return (0.75 if self.tracer_sums.count < self.narrow_runs else 0.2) * self.tolerance
 
-    def settle_smoothing(self):
+    def settle_smoothing(self, tolerance):
+        if self.fixed_error() <= self.share * tolerance:     # as Replicas.settle_smoothing
+            return False
         more = self.narrow_runs - self.tracer_sums.count
         if more > 0:
             self.run(more)
@@ -284,7 +287,7 @@ def test_beside_the_quadrature_a_smoothing_bias_read_from_two_runs_is_read_again
     assert runs.counts == [2, runs.narrow_runs]
     # the same loop without the second reading (the bias stays at two runs' reading) plans 7
     stuck = _ScriptedRuns(0.02, 1.6 * 0.02)
-    monkeypatch.setattr(stuck, "settle_smoothing", lambda: False)
+    monkeypatch.setattr(stuck, "settle_smoothing", lambda tolerance: False)
     monkeypatch.setattr(stuck, "fixed_error", lambda: 0.75 * 0.02)
     top_up_tracer(stuck, 0.02, 0.0, None, None, 1.0, None)
     assert stuck.counts == [2, 7]

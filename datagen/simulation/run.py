@@ -243,13 +243,15 @@ class Replicas:
         self.tracer_sums = ReplicaSums.zeros(self.n_channels, self.config.time.n_bins)
         return True
 
-    def settle_smoothing(self) -> bool:
-        """Run the tracer's replicas up to :data:`NARROW_RUNS` when its smoothing could still be narrowed: a bias
-        estimate of fewer runs is too noisy to narrow on (:meth:`narrow_smoothing`), yet too large to plan the
-        replicas around (demo room, 1 %: two runs read 0.13–0.80 % over eight seeds, 64 runs 0.52 %). Returns whether it ran
-        any."""
+    def settle_smoothing(self, tolerance: float) -> bool:
+        """Run the tracer's replicas up to :data:`NARROW_RUNS` when the fixed parts of the error
+        (:meth:`fixed_error`) exceed :data:`NARROW_SHARE` × ``tolerance`` and the smoothing could still be narrowed: a
+        bias estimate of fewer runs is too noisy to narrow on (:meth:`narrow_smoothing`), yet too large to plan the
+        replicas around (demo room, 1 %: two runs read 0.13–0.80 % over eight seeds, 64 runs 0.52 %). Both tolerance
+        loops ask before they plan replicas. Returns whether it ran any."""
         t = self.tracer
-        if t is None or t.smoothing is None or t.settings.smooth_narrow >= MAX_NARROW:
+        if (t is None or t.smoothing is None or t.settings.smooth_narrow >= MAX_NARROW
+                or self.fixed_error() <= NARROW_SHARE * tolerance):
             return False
         more = NARROW_RUNS - self.tracer_sums.count
         if more > 0:

@@ -233,7 +233,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             target = runs.count + 1
             continue
         mc, fixed = runs.error(), runs.fixed_error()
-        if fixed > FIXED_LIMIT * tolerance and runs.settle_smoothing():
+        if runs.settle_smoothing(tolerance):
             continue                                # judged (and narrowed) on more of the tracer's runs
         estimate = float(np.hypot(mc, fixed))
         # what the replicas may add: the tolerance less what they cannot bring down (orders left out, smoothing
@@ -383,7 +383,7 @@ def top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.rand
         if runs.narrow_smoothing(tolerance):        # a smoothing bias replicas cannot bring down: a finer one
             runs.run(FIRST_TRACER_REPLICAS)
             continue
-        if runs.fixed_error() > FIXED_LIMIT * tolerance and runs.settle_smoothing():
+        if runs.settle_smoothing(tolerance):
             continue                                # judged (and narrowed) on more runs before replicas are planned
         mc = runs.error()
         room = tolerance * tolerance - refined * refined - runs.fixed_error() ** 2
