@@ -40,8 +40,8 @@ The estimator (docs/physics.md §2, "Light of every order"; docs/accuracy.md for
 - **Time smoothing** of the deep orders (:mod:`~datagen.transport.multibounce.smoothing`): their impulses are
   linearly binned on nodes Δ apart and deposited as tents, Δ growing with the order (the tail of deeper orders is
   smoother) and with the tolerance (Δ ∝ √tolerance keeps the bias a fixed fraction of it); across a confocal
-  scan's points too. The bias is estimated from the same impulses at twice the width (Richardson) and counted in
-  the stated error.
+  scan's points too. The bias is estimated from the same impulses at half the width (Richardson) and counted in
+  the stated error; at tolerances of 1 % and below its smooth part is subtracted first.
 - **Scans**: the paths of every laser point are traced in shared batches, each vertex connecting to the pixel
   regions its own laser point records (a confocal point: its own).
 - **Time and attenuation**: each impulse arrives at (switched laser leg + hidden legs + r + switched sensor
@@ -97,7 +97,8 @@ class MultibounceSettings:
             smooth_max_width: the widest node spacing of the deeper orders, seconds (= smooth_width: one Δ for all);
             smooth_scan: h, the half-width in scan pitches of the smoothing across a confocal scan's points (0 or 1:
             none; see :class:`~.smoothing.DeepSmoothing`); smooth_narrow: n, the lowest band's node spacing divided by
-            2ⁿ (the tolerance loop narrows it when its bias is too large, ``Replicas.narrow_smoothing``).
+            2ⁿ (the tolerance loop narrows it when its bias is too large, ``Replicas.narrow_smoothing``);
+            smooth_correct: subtract the smooth part of the estimated bias (:func:`~.smoothing.smoothed_correction`).
         eye: aperture captures: also join every light vertex to one vertex sampled from the FoV's side per path
             (:mod:`.eye`; False: next-event connections and direction hits only, as a check of the strategy).
 
@@ -114,6 +115,7 @@ class MultibounceSettings:
     smooth_max_width: float = 1e-9
     smooth_scan: int = 0
     smooth_narrow: int = 0
+    smooth_correct: bool = False
     eye: bool = True
 
     def __post_init__(self):
@@ -129,8 +131,9 @@ class MultibounceSettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise ConfigError(f"multibounce tracer: {name} must be an integer >= {low}, got {v!r}")
-        if not isinstance(self.eye, (bool, np.bool_)):
-            raise ConfigError(f"multibounce tracer: eye must be true or false, got {self.eye!r}")
+        for name in ("eye", "smooth_correct"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ConfigError(f"multibounce tracer: {name} must be true or false, got {getattr(self, name)!r}")
         if self.max_order and self.max_order < self.min_order:
             raise ConfigError(f"multibounce tracer: max_order {self.max_order} is below min_order {self.min_order}")
 
@@ -204,7 +207,8 @@ class MultibounceTracer:
                 if capture.kind == "confocal" and capture.n_channels == capture.n_pixels and settings.smooth_scan > 1
                 else None)
         self.smoothing = (SmoothingBands(settings.smooth_order, settings.smooth_width, settings.smooth_max_width,
-                                         self.t_start, self.t_stop, capture.n_channels, scan, settings.smooth_narrow)
+                                         self.t_start, self.t_stop, capture.n_channels, scan, settings.smooth_narrow,
+                                         settings.smooth_correct)
                           if settings.smooth_order else None)
         # paths are followed as long as an impulse can still reach the window: past its end by the smoothing's reach
         # (the kernels near the end receive the mass from beyond it that they spread into the window) and the
