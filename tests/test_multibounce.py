@@ -598,6 +598,51 @@ def test_fov_distance_is_the_distance_to_the_nearest_point_of_the_fov_rectangle(
     assert capture.fov_sensor_distance() == pytest.approx(6.0)    # sensor (0, 0, 1), FoV on the wall x = 6
 
 
+def test_the_compiled_step_bookkeeping_is_the_numpy_arithmetic_bit_for_bit():
+    """kernels.arrive and kernels.survivors (the tracer's per-step window test, compaction and next rays) against the
+    numpy expressions they replace, on random hits around the demo room's FoV: the same rows kept, the same float64
+    bits (numpy's row-wise dot of 3-vectors rounds as (x₀y₀ + x₂y₂) + x₁y₁, which the kernels follow), so that
+    datasets rebuild to their hashes."""
+    from datagen.transport.multibounce.kernels import arrive, survivors
+    from datagen.transport.physics import geometry_weight
+    from datagen.vectors import dot
+    scene = datagen.load_scene(DEMO)
+    cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 64}, "orders": 2})
+    c = prepare_transport(scene, cfg)[0].capture
+    rng = np.random.default_rng(5)
+    n = 20000
+    hit = rng.random(n) < 0.9
+    dist, points = rng.uniform(0.1, 3.0, n), rng.uniform([-2, -1, 0], [6.5, 5, 3], size=(n, 3))
+    normals, ray_dir = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    ray_dir /= np.linalg.norm(ray_dir, axis=1, keepdims=True)
+    obj, laser, pid = rng.integers(0, 5, n), np.zeros(n, np.int64), rng.integers(0, 100, n)
+    counted, physical, flux = rng.uniform(5, 30, n), rng.uniform(5, 30, n), rng.random(n)
+    q_prev, cos_src, limit, far = rng.random(n), rng.random(n), 30.0, 8.0
+    fov = (c.fov_center, c.fov_u, c.fov_v, 0.5 * c.fov_size[0], 0.5 * c.fov_size[1])
+    keep, x, n_x, w_in, _, _, pid_k, _, counted_k, physical_k, d, p_in, escaped, late = arrive(
+        hit, dist, points, normals, obj, ray_dir, counted, physical, flux, laser, pid, q_prev, cos_src, limit, far, fov)
+    c_new = counted + np.where(hit, dist, 0.0)
+    inside = c_new < limit
+    near = np.flatnonzero(hit & inside & (c_new + far >= limit))
+    inside[near] = c_new[near] + c.fov_distance(points[near]) < limit
+    expected = np.flatnonzero(hit & inside)
+    assert 0 < len(near) and np.array_equal(keep, expected)
+    assert (escaped, late) == (int((~hit).sum()), int((hit & ~inside).sum()))
+    assert np.array_equal(counted_k, c_new[keep]) and np.array_equal(physical_k, (physical + dist)[keep])
+    assert np.array_equal(pid_k, pid[keep]) and np.array_equal(w_in, -ray_dir[keep])
+    assert np.array_equal(p_in, q_prev[keep] * geometry_weight(cos_src[keep], dot(n_x, w_in), d) / np.pi)
+    m = len(keep)
+    live, r, q = rng.random(m) < 0.7, rng.random(m), np.array([1.0, 0.5, 0.8, 0.3, 0.9])
+    w_out = rng.normal(size=(m, 3))
+    out = survivors(live, r, q, obj[keep], x, n_x, w_out, flux[keep], counted_k, physical_k, laser[keep], pid_k, p_in,
+                    1e-4)
+    sel = np.flatnonzero(live)
+    assert np.array_equal(out[8], x[sel] + 1e-4 * n_x[sel]) and np.array_equal(out[10], dot(n_x[sel], w_out[sel]))
+    assert np.array_equal(out[7], q[obj[keep]][sel]) and out[11] == int((r >= q[obj[keep]]).sum())
+    assert np.array_equal(out[4], pid_k[sel]) and np.array_equal(out[5], p_in[sel])
+
+
 def test_a_path_stops_once_no_impulse_of_it_can_reach_the_window():
     """The tracer stops a path when its counted length plus its vertex's distance to the FoV plus the shortest
     FoV → sensor leg passes the window's end: nothing it would still add lands inside. Against the same tracer with

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -171,8 +172,16 @@ class Capture:
             return self.aperture_normal
         rel = np.asarray(points, dtype=np.float64) - self.fov_center
         nx, ny = self.fov_pixels
-        ix = np.clip(np.floor((matmul(rel, self.fov_u) / self.fov_size[0] + 0.5) * nx), 0, nx - 1)
-        iy = np.clip(np.floor((matmul(rel, self.fov_v) / self.fov_size[1] + 0.5) * ny), 0, ny - 1)
+        ix = np.clip(np.floor((matmul(rel, self.fov_u) / self.fov_size[0] + 0.5) * nx), 0, nx - 1).astype(np.int64)
+        iy = np.clip(np.floor((matmul(rel, self.fov_v) / self.fov_size[1] + 0.5) * ny), 0, ny - 1).astype(np.int64)
+        return self._pixel_aperture_normals[iy, ix]
+
+    @cached_property
+    def _pixel_aperture_normals(self) -> np.ndarray:
+        """(ny, nx, 3) unit directions from the sensor to each pixel region's centre (a confocal scan's aperture
+        normals, :meth:`aperture_normals`), computed once."""
+        nx, ny = self.fov_pixels
+        iy, ix = np.meshgrid(np.arange(ny, dtype=np.float64), np.arange(nx, dtype=np.float64), indexing="ij")
         return unit(self.fov_points(ix + 0.5, iy + 0.5) - self.sensor)
 
     def fov_pixel(self, points: np.ndarray, tol: float) -> np.ndarray:

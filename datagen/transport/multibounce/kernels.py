@@ -11,6 +11,12 @@
 
 ``tests/test_multibounce.py`` checks the directions against the numpy functions for the same uniforms, so the two
 forms cannot drift apart.
+
+The per-step bookkeeping of the tracer runs compiled too, each pass the numpy expressions it replaced in the same
+order (so results keep their bits): :func:`arrive` (the window test of a step's hits, their compaction and the light's
+area density of the vertices), :func:`survivors` (the paths the roulette keeps and their next rays),
+:func:`nee_weights` and :func:`eye_weights` (the impulses of visible next-event and eye connections). Every leg
+weight inside them is a formula function of :mod:`datagen.transport.physics` or :mod:`datagen.scene.brdf_kernel`.
 """
 from __future__ import annotations
 
@@ -20,8 +26,9 @@ import numpy as np
 from numba import njit
 
 from ...scene.brdf_kernel import brdf_value
+from ...units import SPEED_OF_LIGHT
 from ..area.kernels import fov_target
-from ..physics import geometry_term
+from ..physics import fov_term, geometry_term
 
 
 @njit(cache=True)
@@ -70,18 +77,6 @@ def continue_paths(n_x, obj, w_in, u, v, r, flux, survival, mat):
             flux_out[i] = flux[i] * f * math.pi / q
         live[i] = r[i] < q and flux_out[i] > 0.0
     return w_out, flux_out, live
-
-
-@njit(cache=True)
-def brdf_many(mat, obj, n, w_in, w_out):
-    """f(ω_in, ω_out) of :func:`~datagen.scene.brdf_kernel.brdf_value` at m points: obj (m,) int, n, w_in, w_out
-    (m, 3) unit vectors (normals on the lit side, directions away from the surface) → (m,) float64 1/sr."""
-    m = obj.shape[0]
-    out = np.empty(m)
-    for i in range(m):
-        out[i] = brdf_value(mat, obj[i], n[i, 0], n[i, 1], n[i, 2], w_in[i, 0], w_in[i, 1], w_in[i, 2],
-                            w_out[i, 0], w_out[i, 1], w_out[i, 2])
-    return out
 
 
 @njit(cache=True)
@@ -163,30 +158,181 @@ def eye_pairs(x, n_x, e, z, n_z, ok):
 
 
 @njit(cache=True)
-def eye_weights(mat, obj, n_x, w_in, w, e, eye, survival, flux, d, cos_x, cos_z, p_a):
-    """The weights (k,) photons, before attenuation, of visible eye connections (:mod:`.eye`; docs/physics.md §2):
-    the radiant intensity of x toward z f_x cosθ_x, its irradiance at z (G = cosθ_x cosθ_z / d²,
-    :func:`~datagen.transport.physics.geometry_term`), z's intensity toward y f_z cosθ_zy, the FoV leg ``fov``; over
-    the eye vertex's density b = (p_A / n_rec) g times its balance weight b / (a + b + c), a = p_light p_A, c = p_light
-    q_z g, p_light = q_x G / π (the FoV leg carries A_pixel = 1 / p_A).
+def eye_weights(rows, w, d, cos_x, cos_z, obj, n_x, w_in, flux, counted, physical, pid, eye, survival, mat, consts):
+    """The impulses of visible eye connections (:mod:`.eye`; docs/physics.md §2): weights before attenuation, arrival
+    times and physical path lengths. The weight is the radiant intensity of x toward z f_x cosθ_x, its irradiance at
+    z (G = cosθ_x cosθ_z / d², :func:`~datagen.transport.physics.geometry_term`), z's intensity toward y f_z cosθ_zy,
+    the FoV leg ``fov``; over the eye vertex's density b = (p_A / n_rec) g times its balance weight b / (a + b + c),
+    a = p_light p_A, c = p_light q_z g, p_light = q_x G / π (the FoV leg carries A_pixel = 1 / p_A).
 
-    Args (per pair, k rows): obj (k,) x's object; n_x, w_in, w (k, 3) its normal, the direction light came from, unit
-    x → z; e (k,) the eye row; eye: (obj, n_z, w_zy, g, n_rec, fov) per eye row (:class:`~.eye.EyeVertices`);
-    survival (n_objects,) q; flux (k,); d, cos_x, cos_z (k,) from :func:`eye_pairs`; p_a: 1 / A_pixel, 1/m².
+    Args (k visible pairs): rows (k,) int64 the light vertex of each; w (k, 3) unit x → z; d, cos_x, cos_z (k,)
+        from :func:`eye_pairs`; per light vertex: obj (int64), n_x, w_in (3,), flux, counted, physical, pid (int64:
+        its path's eye row); eye: (obj, n_z, w_zy, g, n_rec, fov, r, d_ys) per eye row (:class:`~.eye.EyeVertices`);
+        survival (n_objects,) q; mat the material arrays; consts = (p_A 1/m², count the sensor leg 0/1).
+    Returns:
+        (weight (k,) photons before attenuation, time (k,) s, physical path (k,) m).
     """
-    obj_z, n_z, w_zy, g, n_rec, fov = eye
-    k = obj.shape[0]
-    out = np.empty(k)
-    for i in range(k):
-        j = e[i]
+    obj_z, n_z, w_zy, g, n_rec, fov, r_zy, d_ys = eye
+    p_a, sensor = consts
+    k = rows.shape[0]
+    out, time, path = np.empty(k), np.empty(k), np.empty(k)
+    for m in range(k):
+        i = rows[m]
+        j = pid[i]
         f_x = brdf_value(mat, obj[i], n_x[i, 0], n_x[i, 1], n_x[i, 2], w_in[i, 0], w_in[i, 1], w_in[i, 2],
-                         w[i, 0], w[i, 1], w[i, 2])
-        f_z = brdf_value(mat, obj_z[j], n_z[j, 0], n_z[j, 1], n_z[j, 2], -w[i, 0], -w[i, 1], -w[i, 2],
+                         w[m, 0], w[m, 1], w[m, 2])
+        f_z = brdf_value(mat, obj_z[j], n_z[j, 0], n_z[j, 1], n_z[j, 2], -w[m, 0], -w[m, 1], -w[m, 2],
                          w_zy[j, 0], w_zy[j, 1], w_zy[j, 2])
         cos_zy = n_z[j, 0] * w_zy[j, 0] + n_z[j, 1] * w_zy[j, 1] + n_z[j, 2] * w_zy[j, 2]
-        geo = geometry_term(cos_x[i], cos_z[i], d[i])
+        geo = geometry_term(cos_x[m], cos_z[m], d[m])
         p_light = survival[obj[i]] * geo / math.pi
         b = p_a / n_rec[j] * g[j]
         mis_over_pdf = p_a / (p_light * p_a + b + p_light * survival[obj_z[j]] * g[j])
-        out[i] = flux[i] * f_x * geo * f_z * cos_zy * fov[j] * mis_over_pdf
-    return out
+        out[m] = flux[i] * f_x * geo * f_z * cos_zy * fov[j] * mis_over_pdf
+        path[m] = physical[i] + d[m] + r_zy[j] + d_ys[j]
+        time[m] = (counted[i] + d[m] + r_zy[j] + (d_ys[j] if sensor else 0.0)) / SPEED_OF_LIGHT
+    return out, time, path
+
+
+# -- the per-step bookkeeping of MultibounceTracer._trace in compiled passes: the numpy expressions they replace, in
+# the same order (numpy's row-wise dot of 3-vectors sums (x₀y₀ + x₂y₂) + x₁y₁: _dot3) -----------------------------
+
+@njit(cache=True, inline="always")
+def _dot3(a0, a1, a2, b0, b1, b2):
+    """a·b as :func:`datagen.vectors.dot` rounds it for 3-vectors: (a₀b₀ + a₂b₂) + a₁b₁."""
+    return (a0 * b0 + a2 * b2) + a1 * b1
+
+
+@njit(cache=True)
+def arrive(hit, dist, points, normals, obj, ray_dir, counted, physical, flux, laser, pid, q_prev, cos_src, limit,
+           far_fov, fov):
+    """The vertices m of one step of the tracer that some impulse of theirs can still reach the window with.
+
+    A ray that hit adds its length to the path's counted and physical metres; its vertex is kept while the counted
+    metres are below ``limit`` and, for those within ``far_fov`` of it, while the counted metres plus the vertex's
+    distance to the FoV rectangle (:meth:`~datagen.scene.capture.Capture.fov_distance`) are (the tracer's
+    "Termination").
+
+    Args:
+        hit (n,) bool, dist (n,) m, points, normals (n, 3), obj (n,) int64: the rays' hits; ray_dir (n, 3) their
+        directions; counted, physical, flux (n,) float64, laser (n,) int64, pid (n,) or (0,) int64, q_prev, cos_src
+        (n,) float64: the paths' state; limit, far_fov m; fov = (centre, u, v (3,), half width, half height).
+    Returns:
+        (keep (m,) int64 rows, x, n_x, w_in (m, 3), obj, laser, pid (m,) int64, flux, counted, physical, d, p_in (m,)
+        float64, escaped, out of window): w_in = −ray direction, p_in = q_prev · cosθ_src cosθ_in / d² / π (the light's
+        area density of the vertex), the counts of rays that left the scene and of vertices past the window.
+    """
+    centre, u, v, half_w, half_h = fov
+    n = hit.shape[0]
+    keep = np.empty(n, np.int64)
+    k = 0
+    escaped = 0
+    late = 0
+    for i in range(n):
+        if not hit[i]:
+            escaped += 1
+            continue
+        c = counted[i] + dist[i]
+        inside = c < limit
+        if inside and c + far_fov >= limit:
+            r0, r1, r2 = points[i, 0] - centre[0], points[i, 1] - centre[1], points[i, 2] - centre[2]
+            a = min(max(_dot3(r0, r1, r2, u[0], u[1], u[2]), -half_w), half_w)
+            b = min(max(_dot3(r0, r1, r2, v[0], v[1], v[2]), -half_h), half_h)
+            e0, e1, e2 = r0 - a * u[0] - b * v[0], r1 - a * u[1] - b * v[1], r2 - a * u[2] - b * v[2]
+            inside = c + math.sqrt(e0 * e0 + e1 * e1 + e2 * e2) < limit
+        if not inside:
+            late += 1
+            continue
+        keep[k] = i
+        k += 1
+    keep = keep[:k]
+    x, n_x, w_in = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
+    obj_k, laser_k = np.empty(k, np.int64), np.empty(k, np.int64)
+    pid_k = np.empty(k if pid.shape[0] else 0, np.int64)
+    flux_k, counted_k, physical_k, d_k, p_in = np.empty(k), np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+    for j in range(k):
+        i = keep[j]
+        for c in range(3):
+            x[j, c], n_x[j, c], w_in[j, c] = points[i, c], normals[i, c], -ray_dir[i, c]
+        obj_k[j], laser_k[j] = obj[i], laser[i]
+        if pid.shape[0]:
+            pid_k[j] = pid[i]
+        flux_k[j], counted_k[j], physical_k[j], d_k[j] = flux[i], counted[i] + dist[i], physical[i] + dist[i], dist[i]
+        cos_in = _dot3(n_x[j, 0], n_x[j, 1], n_x[j, 2], w_in[j, 0], w_in[j, 1], w_in[j, 2])
+        p_in[j] = q_prev[i] * geometry_term(cos_src[i], cos_in, dist[i]) / math.pi
+    return (keep, x, n_x, w_in, obj_k, laser_k, pid_k, flux_k, counted_k, physical_k, d_k, p_in, escaped, late)
+
+
+@njit(cache=True)
+def survivors(live, r, survival, obj, x, n_x, w_out, flux, counted, physical, laser, pid, p_in, offset):
+    """The paths that go on after :func:`continue_paths` (``live``), compacted, and their next rays.
+
+    Args: live (m,) bool; r (m,) the roulette's uniforms; survival (n_objects,) q; obj (m,) int64; x, n_x, w_out
+        (m, 3) the vertices, their normals (lit side) and continuation directions; flux (m,) (after the
+        continuation), counted, physical (m,), laser (m,) int64, pid (m,) or (0,) int64, p_in (m,); offset: the ray
+        caster's offset, m.
+    Returns:
+        (flux, counted, physical (s,), laser, pid (s,) int64, p_in (s,), src_normal (s, 3), q_prev (s,), ray_origin
+        = x + offset·n_x, ray_dir (s, 3), cos_src = n_x·ray_dir (s,), the roulette's count of r ≥ q).
+    """
+    m = live.shape[0]
+    roulette = 0
+    s = 0
+    for i in range(m):
+        if r[i] >= survival[obj[i]]:
+            roulette += 1
+        if live[i]:
+            s += 1
+    flux_s, counted_s, physical_s, p_in_s, q_s, cos_s = (np.empty(s), np.empty(s), np.empty(s), np.empty(s),
+                                                         np.empty(s), np.empty(s))
+    laser_s, pid_s = np.empty(s, np.int64), np.empty(s if pid.shape[0] else 0, np.int64)
+    normal_s, origin_s, dir_s = np.empty((s, 3)), np.empty((s, 3)), np.empty((s, 3))
+    j = 0
+    for i in range(m):
+        if not live[i]:
+            continue
+        flux_s[j], counted_s[j], physical_s[j], p_in_s[j] = flux[i], counted[i], physical[i], p_in[i]
+        laser_s[j] = laser[i]
+        if pid.shape[0]:
+            pid_s[j] = pid[i]
+        q_s[j] = survival[obj[i]]
+        for c in range(3):
+            normal_s[j, c] = n_x[i, c]
+            origin_s[j, c] = x[i, c] + offset * n_x[i, c]
+            dir_s[j, c] = w_out[i, c]
+        cos_s[j] = _dot3(n_x[i, 0], n_x[i, 1], n_x[i, 2], w_out[i, 0], w_out[i, 1], w_out[i, 2])
+        j += 1
+    return flux_s, counted_s, physical_s, laser_s, pid_s, p_in_s, normal_s, q_s, origin_s, dir_s, cos_s, roulette
+
+
+@njit(cache=True)
+def nee_weights(b, wk, r, cos_y, collect, d_ys, obj, n_x, w_in, flux, counted, physical, count, p_in, survival, mat,
+                consts):
+    """Weights (before attenuation), arrival times and physical path lengths of visible next-event connections
+    (MultibounceTracer._connect, aperture captures): the radiant intensity flux·f(ω_in, ω_y)·cosθ_x toward y times
+    the FoV leg :func:`~datagen.transport.physics.fov_term` (cosθ_y A_pixel, r, collection), under the balance
+    heuristic p_A / (p_A + q g + [eye] p_A g / (n_rec p_in)), g = cosθ_x cosθ_y / (π r²).
+
+    Args (k connections): b (k,) int64 the vertex of each; wk (k, 3) unit x → y; r, cos_y, collect, d_ys (k,);
+        per vertex: obj (int64), n_x, w_in (3,), flux, counted, physical, count (int64: pixel regions recorded),
+        p_in; survival (n_objects,) q; mat the material arrays; consts = (A_pixel m², p_A 1/m², eye term 0/1,
+        count the sensor leg 0/1).
+    Returns:
+        (weight (k,) photons before attenuation, time (k,) s, physical path (k,) m).
+    """
+    area, p_a, eye, sensor = consts
+    k = b.shape[0]
+    weight, time, path = np.empty(k), np.empty(k), np.empty(k)
+    for j in range(k):
+        i = b[j]
+        cos_x = _dot3(n_x[i, 0], n_x[i, 1], n_x[i, 2], wk[j, 0], wk[j, 1], wk[j, 2])
+        f = brdf_value(mat, obj[i], n_x[i, 0], n_x[i, 1], n_x[i, 2], w_in[i, 0], w_in[i, 1], w_in[i, 2],
+                       wk[j, 0], wk[j, 1], wk[j, 2])
+        w = flux[i] * f * cos_x * fov_term(cos_y[j] * area, r[j], collect[j])
+        g = geometry_term(cos_x, cos_y[j], r[j]) / math.pi
+        p_d = survival[obj[i]] * g
+        p_e = p_a * g / (count[i] * max(p_in[i], 1e-300)) if eye else 0.0
+        weight[j] = w * (p_a / (p_a + p_d + p_e))
+        path[j] = physical[i] + r[j] + d_ys[j]
+        time[j] = (counted[i] + r[j] + (d_ys[j] if sensor else 0.0)) / SPEED_OF_LIGHT
+    return weight, time, path

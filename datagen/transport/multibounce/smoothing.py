@@ -11,6 +11,7 @@ a kernel estimate in time, and across a confocal scan's points, with its bias es
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from ..base import Sink
 
@@ -430,7 +431,18 @@ def _interpolate(values: np.ndarray, t0: float, step: float, t: np.ndarray) -> n
     f = (t - t0) / step
     j = np.clip(np.floor(f).astype(np.int64), 0, values.shape[1] - 2)
     frac = np.clip(f - j, 0.0, 1.0)
-    return values[:, j] * (1.0 - frac) + values[:, j + 1] * frac
+    return _lerp_rows(np.ascontiguousarray(values, dtype=np.float64), j, 1.0 - frac, frac)
+
+
+@njit(cache=True)
+def _lerp_rows(values, j, below, above):
+    """out[r, k] = values[r, j_k] · below_k + values[r, j_k + 1] · above_k (the numpy expression it replaces, in one
+    pass: a 32 × 32 scan's bias reads interpolate a thousand rows several times per round)."""
+    out = np.empty((values.shape[0], j.shape[0]))
+    for r in range(values.shape[0]):
+        for k in range(j.shape[0]):
+            out[r, k] = values[r, j[k]] * below[k] + values[r, j[k] + 1] * above[k]
+    return out
 
 
 def tent_weights(h: int) -> np.ndarray:

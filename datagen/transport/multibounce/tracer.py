@@ -68,9 +68,9 @@ from ...units import SPEED_OF_LIGHT
 from ...vectors import dot
 from ..base import Counters, Sink
 from ..area.kernels import material_arrays, sensor_collection
-from ..physics import LegPhysics, fov_connection_weight, geometry_weight, launched_flux
+from ..physics import LegPhysics, geometry_weight, launched_flux
 from .eye import EYE_MIN_ORDER, EyeVertices, PixelTable, eye_share, eye_vertices
-from .kernels import brdf_many, continue_paths, eye_pairs, eye_weights, fov_targets_ranged
+from .kernels import arrive, continue_paths, eye_pairs, eye_weights, fov_targets_ranged, nee_weights, survivors
 from .smoothing import SmoothingBands
 
 MULTIBOUNCE_STREAM = 57
@@ -317,33 +317,28 @@ class MultibounceTracer:
         order = 0
         # metres of counted path that can still reach it (a FoV hit may lie up to the tolerance outside the rectangle)
         limit = SPEED_OF_LIGHT * self.t_follow - self.min_tail + ph.tol
+        fov = (np.asarray(c.fov_center, dtype=np.float64), np.asarray(c.fov_u, dtype=np.float64),
+               np.asarray(c.fov_v, dtype=np.float64), 0.5 * c.fov_size[0], 0.5 * c.fov_size[1])
+        no_pid = np.zeros(0, np.int64)
         while len(flux) and order < MAX_VERTICES:
             self.stats.steps += 1
             hits = cst.intersect(ray_origin, ray_dir)
             if order >= s.min_order:                            # the ray left a vertex of order ≥ min_order
                 self._fov_hits(hits, ray_origin, ray_dir, flux, counted, physical, q_prev, src_normal, laser, sink,
                                order, p_in)
-            alive = hits.hit
-            self.stats.escaped += int((~alive).sum())
             order += 1
-            dist = hits.distance
-            counted = counted + np.where(alive, dist, 0.0)
-            physical = physical + np.where(alive, dist, 0.0)
-            # every impulse of this vertex or a later one crosses at least its distance to the FoV (checked for the
-            # vertices within the farthest surface point's distance of the end only)
-            in_window = counted < limit
-            late = np.flatnonzero(alive & in_window & (counted + self._far_fov >= limit))
-            in_window[late] = counted[late] + c.fov_distance(hits.points[late]) < limit
-            self.stats.window += int((alive & ~in_window).sum())
-            keep = np.flatnonzero(alive & in_window)
+            # the vertices that an impulse of theirs, or of a later vertex, can still bring into the window: every
+            # such impulse crosses at least the vertex's distance to the FoV (checked for the vertices within the
+            # farthest surface point's distance of the end only)
+            (keep, x, n_x, w_in, obj, laser, pid, flux, counted, physical, d, p_in, escaped, late) = arrive(
+                hits.hit, hits.distance, hits.points, hits.normals, hits.object_id.astype(np.int64, copy=False),
+                np.ascontiguousarray(ray_dir), counted, physical, flux, laser, pid if pid is not None else no_pid,
+                q_prev, cos_src, limit, self._far_fov, fov)
+            self.stats.escaped += escaped
+            self.stats.window += late
             if s.max_order and order > s.max_order:
                 break
-            x, n_x = hits.points[keep], hits.normals[keep]      # n_x faces the incoming ray
-            obj = hits.object_id[keep]
-            w_in = -ray_dir[keep]
-            flux, counted, physical, laser = flux[keep], counted[keep], physical[keep], laser[keep]
-            pid, d = (pid[keep] if pid is not None else None), dist[keep]
-            p_in = q_prev[keep] * geometry_weight(cos_src[keep], dot(n_x, w_in), d) / np.pi   # roulette, cosine
+            pid = pid if eye is not None else None              # (no eye vertices yet: no rows)
             self.stats.vertices += len(keep)
             if order >= s.min_order and len(keep):
                 self._connect(x, n_x, obj, w_in, flux, counted, physical, laser, sink, rng, order, p_in)
@@ -355,17 +350,12 @@ class MultibounceTracer:
             # continue: cosine direction about n_x, flux × f π / q, roulette with q = min(1, ρ)
             m = len(keep)
             u, v, r = rng.random(m), rng.random(m), rng.random(m)
-            w_out, flux, live = continue_paths(np.ascontiguousarray(n_x), obj, np.ascontiguousarray(w_in), u, v, r,
-                                               flux, self.survival, self._mat)
-            q = self.survival[obj]
-            self.stats.roulette += int((r >= q).sum())
-            sel = np.flatnonzero(live)
-            flux, counted, physical, laser = flux[sel], counted[sel], physical[sel], laser[sel]
-            pid, p_in = (pid[sel] if pid is not None else None), p_in[sel]
-            src_normal, q_prev = n_x[sel], q[sel]
-            ray_origin = x[sel] + cst.offset * src_normal
-            ray_dir = w_out[sel]
-            cos_src = dot(src_normal, ray_dir)
+            w_out, flux, live = continue_paths(n_x, obj, w_in, u, v, r, flux, self.survival, self._mat)
+            (flux, counted, physical, laser, pid_next, p_in, src_normal, q_prev, ray_origin, ray_dir, cos_src,
+             roulette) = survivors(live, r, self.survival, obj, x, n_x, w_out, flux, counted, physical, laser,
+                                   pid if pid is not None else no_pid, p_in, cst.offset)
+            pid = pid_next if pid is not None else None
+            self.stats.roulette += roulette
 
     def _connect(self, x: np.ndarray, n_x: np.ndarray, obj: np.ndarray, w_in: np.ndarray, flux: np.ndarray,
                  counted: np.ndarray, physical: np.ndarray, laser: np.ndarray, sink: Sink,
@@ -394,19 +384,15 @@ class MultibounceTracer:
             return
         collect, d_ys = sensor_collection(ph, y, np.broadcast_to(c.fov_normal, y.shape),
                                           np.full(len(b), ph.wall_object), -wk)
-        cos_x = dot(n_x[b], wk)
-        # radiant intensity flux f cosθ_x toward y, times the FoV leg cosθ_y dA_y / r² · collection (A2, A3)
-        f = brdf_many(self._mat, obj[b], np.ascontiguousarray(n_x[b]), np.ascontiguousarray(w_in[b]),
-                      np.ascontiguousarray(wk))
-        weight = flux[b] * f * cos_x * fov_connection_weight(
-            cos_y * self.pixels.area, r, collect)
-        g = geometry_weight(cos_x, cos_y, r) / np.pi   # the area density of x from y (cosine), 1/m²
-        p_d = self.survival[obj[b]] * g               # balance heuristic with the direction hits (and the eye)
-        p_e = eye_share(self._p_a, g, count[b], p_in[b]) if self._eye_serves(order) else 0.0
-        weight = weight * (self._p_a / (self._p_a + p_d + p_e)) * ph.attenuation(physical[b] + r + d_ys)
+        # radiant intensity flux f cosθ_x toward y, times the FoV leg cosθ_y dA_y / r² · collection (A2, A3), under
+        # the balance heuristic with the direction hits (and the eye): one compiled pass
+        weight, t, path = nee_weights(b, wk, r, cos_y, collect, d_ys, obj, n_x, w_in, flux, counted, physical, count,
+                                      p_in, self.survival, self._mat,
+                                      (self.pixels.area, self._p_a, self._eye_serves(order), ph.settings.count_sensor_leg))
+        if ph.settings.attenuation > 0:
+            weight = weight * ph.attenuation(path)
         self.stats.connections += len(b)
-        self._deposit(sink, (counted[b] + r + ph.sensor_leg(d_ys)) / SPEED_OF_LIGHT, weight,
-                      c.channel(laser[b], self.pixels.pix[s_idx]), order)
+        self._deposit(sink, t, weight, c.channel(laser[b], self.pixels.pix[s_idx]), order)
 
     def _connect_points(self, x: np.ndarray, n_x: np.ndarray, obj: np.ndarray, w_in: np.ndarray, flux: np.ndarray,
                         counted: np.ndarray, physical: np.ndarray, laser: int, sink: Sink, rng: np.random.Generator,
@@ -468,13 +454,13 @@ class MultibounceTracer:
         rows, e, w, d, cos_x, cos_z = rows[vis], e[vis], w[vis], d[vis], cos_x[vis], cos_z[vis]
         if not len(rows):
             return
-        weight = eye_weights(self._mat, obj[rows], np.ascontiguousarray(n_x[rows]), np.ascontiguousarray(w_in[rows]),
-                             np.ascontiguousarray(w), e, (eye.obj, eye.n_z, eye.w_zy, eye.g, eye.n_rec, eye.fov),
-                             self.survival, flux[rows], d, cos_x, cos_z, self._p_a)
-        weight = weight * ph.attenuation(physical[rows] + d + eye.r[e] + eye.d_ys[e])
+        weight, t, path = eye_weights(rows, w, d, cos_x, cos_z, obj, n_x, w_in, flux, counted, physical, pid,
+                                      (eye.obj, eye.n_z, eye.w_zy, eye.g, eye.n_rec, eye.fov, eye.r, eye.d_ys),
+                                      self.survival, self._mat, (self._p_a, ph.settings.count_sensor_leg))
+        if ph.settings.attenuation > 0:
+            weight = weight * ph.attenuation(path)
         self.stats.connections += len(rows)
-        self._deposit(sink, (counted[rows] + d + eye.r[e] + ph.sensor_leg(eye.d_ys[e])) / SPEED_OF_LIGHT, weight,
-                      self.capture.channel(laser[rows], self.pixels.pix[eye.row[e]]), order)
+        self._deposit(sink, t, weight, self.capture.channel(laser[rows], self.pixels.pix[eye.row[e]]), order)
 
     def _deposit(self, sink: Sink, t: np.ndarray, weight: np.ndarray, channel: np.ndarray, order: int) -> None:
         """Send impulses of paths of order ``order`` to ``sink`` and tally their in-window weight."""
