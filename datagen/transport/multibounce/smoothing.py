@@ -200,6 +200,7 @@ class DeepSmoothing:
         # the correction subtracted from the node masses at Δ (correct): this run's (None until computed), every
         # run's, the even runs'
         self._applied: np.ndarray | None = None
+        self._scratch: list | None = None
         self.applied_total = np.zeros(shapes[0]) if self.correct else None
         self.applied_even = np.zeros(shapes[0]) if self.correct else None
         self.runs = 0
@@ -219,15 +220,15 @@ class DeepSmoothing:
         return (t >= self.t_start) & (t < self.t_end)
 
     def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray) -> None:
-        """Linearly bin impulses at times t (n,) s, weights (n,) photons, channels (n,) int."""
-        for out, k in zip(self.pending_levels, self.spacings):
-            f = (t - self.t_start) / (k * self.width)
-            j = np.minimum(f.astype(np.int64), out.shape[1] - 2)
-            frac = f - j
-            flat = out.reshape(-1)
-            base = channel * out.shape[1] + j
-            flat += np.bincount(base, weight * (1.0 - frac), minlength=flat.size)
-            flat += np.bincount(base + 1, weight * frac, minlength=flat.size)
+        """Linearly bin impulses at times t (n,) s inside :meth:`covers`, weights (n,) photons, channels (n,) int."""
+        if self._scratch is None:                 # per level: two sums and the nodes they touch (kept zeroed)
+            self._scratch = [(np.zeros(out.size), np.zeros(out.size), np.zeros(out.size, np.bool_),
+                              np.empty(out.size, np.int64)) for out in self.pending_levels]
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        weight = np.ascontiguousarray(weight, dtype=np.float64)
+        channel = np.ascontiguousarray(channel, dtype=np.int64)
+        for out, k, scratch in zip(self.pending_levels, self.spacings, self._scratch):
+            _bin_linear(out.reshape(-1), out.shape[1], t, weight, channel, self.t_start, k * self.width, *scratch)
 
     def flush(self, sink: Sink, component: int) -> None:
         """Deposit this run's node masses into ``sink`` as tents (component ``component * n_channels +
@@ -374,6 +375,32 @@ class DeepSmoothing:
             twice = _interpolate(spread_scan(raw, (ny, nx, 2 * h)) / self.width, self.t_start, self.width, centres)
             out += (twice * widths - fine) * ratio
         return out
+
+
+@njit(cache=True)
+def _bin_linear(flat, nodes, t, weight, channel, t_start, step, below, above, touched, rows):
+    """Linear binning of impulses onto node masses ``flat`` (channels × ``nodes``, flattened) in place: an impulse at
+    f = (t − t_start)/step goes to node ⌊f⌋ (at most nodes − 2) with weight·(1 − frac) and to the next with
+    weight·frac, frac = f − ⌊f⌋. Each node gets the sum of the call's masses for it added once, the two sums in turn
+    ((node + below) + above: what two ``numpy.bincount`` sums added to the nodes give, bit for bit); ``below``,
+    ``above`` (zeros), ``touched`` (False) and ``rows`` are scratch of the nodes' size, left as they came."""
+    m = 0
+    for i in range(t.shape[0]):
+        f = (t[i] - t_start) / step
+        j = min(np.int64(f), nodes - 2)
+        frac = f - j
+        b = channel[i] * nodes + j
+        for node in (b, b + 1):
+            if not touched[node]:
+                touched[node] = True
+                rows[m] = node
+                m += 1
+        below[b] += weight[i] * (1.0 - frac)
+        above[b + 1] += weight[i] * frac
+    for q in range(m):
+        node = rows[q]
+        flat[node] = (flat[node] + below[node]) + above[node]
+        below[node], above[node], touched[node] = 0.0, 0.0, False
 
 
 def smoothed_correction(coarse: np.ndarray, fine: np.ndarray, coarsening: int = CORRECTION_COARSENING) -> np.ndarray:
