@@ -393,9 +393,10 @@ def _decide_shadow_sensor(g: PlanGeometry) -> Decision:
     numbers = {"triangles": int(len(g.tri)), "triangles_in_front_of_fov": int(len(front)),
                "triangles_may_block": int(len(hits))}
     if len(hits) == 0:
+        # (no blockers, a complete list: forced on, as confocal.yaml forces it, the transport casts no ray)
         return Decision(False, f"no triangle can cross the sensor→FoV pyramid ({len(front)} triangles in front of "
                         "the FoV plane, all separated by a pyramid or triangle plane): FoV→sensor rays are never "
-                        "blocked", False, numbers)
+                        "blocked", False, numbers, ())
     numbers["objects"] = g.names(hits)
     return Decision(True, f"{len(hits)} triangles of {', '.join(g.names(hits))} may cross the sensor→FoV pyramid",
                     False, numbers, tuple(int(f) for f in hits))
