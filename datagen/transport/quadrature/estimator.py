@@ -176,7 +176,8 @@ class QuadratureSettings(PhysicsSettings):
     def area_settings(self) -> AreaSettings:
         """The area sampler's settings for the secondary (and the per-leg weights)."""
         return AreaSettings(**{**self.switches(), "shadow_spot": self.shadow_spot is not False},
-                            samples=self.secondary_samples, secondary=self.secondary)
+                            samples=self.secondary_samples, secondary=self.secondary,
+                            sensor_blockers=self.sensor_blockers)
 
 
 COARSE_CHANNELS = 4096
@@ -347,7 +348,8 @@ class Quadrature:
                     capture: Capture | None, secondary: str) -> "Quadrature":
         """The registry's constructor (:attr:`datagen.transport.EstimatorEntry.from_config`): the edge, FoV cells,
         grading and secondary samples of ``config.estimator``
-        (:class:`~datagen.transport.quadrature.options.QuadratureOptions`), the planned ``physics`` and the area
+        (:class:`~datagen.transport.quadrature.options.QuadratureOptions`), the planned ``physics`` with its sensor
+        blockers (FoV → sensor shadow rays only where the planner's pyramid test finds a triangle), and the area
         sampler's secondary unless ``secondary`` is "none". Its entry does not follow the planner's ``shadow_spot``
         (``follows_plan``): shadow rays on the laser and FoV legs follow the quadrature's own exact occluder test
         (module doc), unless the user forces ``shadow_spot`` in ``config.effects``."""
@@ -355,7 +357,8 @@ class Quadrature:
         return cls(scene, QuadratureSettings.from_transport(
             physics, edge=opts.edge, fov_cells=opts.fov_cells, grading=opts.grading,
             secondary="none" if secondary == "none" else "full", secondary_samples=opts.secondary_samples,
-            shadow_spot=forced_spot if isinstance(forced_spot, bool) else None), caster, capture)
+            shadow_spot=forced_spot if isinstance(forced_spot, bool) else None,
+            sensor_blockers=physics.sensor_blockers), caster, capture)
 
     def progress_total(self) -> tuple[int, str]:
         """(sub-triangle, connection) pairs of a run."""
