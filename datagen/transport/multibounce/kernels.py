@@ -306,20 +306,20 @@ def survivors(live, r, survival, obj, x, n_x, w_out, flux, counted, physical, la
 
 
 @njit(cache=True)
-def nee_weights(b, wk, r, cos_y, collect, d_ys, obj, n_x, w_in, flux, counted, physical, count, p_in, survival, mat,
-                consts):
+def nee_weights(conn, obj, n_x, w_in, flux, counted, physical, count, p_in, survival, mat, consts):
     """Weights (before attenuation), arrival times and physical path lengths of visible next-event connections
     (MultibounceTracer._connect, aperture captures): the radiant intensity flux·f(ω_in, ω_y)·cosθ_x toward y times
     the FoV leg :func:`~datagen.transport.physics.fov_term` (cosθ_y A_pixel, r, collection), under the balance
     heuristic p_A / (p_A + q g + [eye] p_A g / (n_rec p_in)), g = cosθ_x cosθ_y / (π r²).
 
-    Args (k connections): b (k,) int64 the vertex of each; wk (k, 3) unit x → y; r, cos_y, collect, d_ys (k,);
-        per vertex: obj (int64), n_x, w_in (3,), flux, counted, physical, count (int64: pixel regions recorded),
+    Args (k connections): conn = (b (k,) int64 the vertex of each, wk (k, 3) unit x → y, r, cos_y, collect, d_ys
+        (k,)); per vertex: obj (int64), n_x, w_in (3,), flux, counted, physical, count (int64: pixel regions recorded),
         p_in; survival (n_objects,) q; mat the material arrays; consts = (A_pixel m², p_A 1/m², eye term 0/1,
         count the sensor leg 0/1).
     Returns:
         (weight (k,) photons before attenuation, time (k,) s, physical path (k,) m).
     """
+    b, wk, r, cos_y, collect, d_ys = conn
     area, p_a, eye, sensor = consts
     k = b.shape[0]
     weight, time, path = np.empty(k), np.empty(k), np.empty(k)

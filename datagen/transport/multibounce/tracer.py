@@ -386,8 +386,8 @@ class MultibounceTracer:
                                           np.full(len(b), ph.wall_object), -wk)
         # radiant intensity flux f cosθ_x toward y, times the FoV leg cosθ_y dA_y / r² · collection (A2, A3), under
         # the balance heuristic with the direction hits (and the eye): one compiled pass
-        weight, t, path = nee_weights(b, wk, r, cos_y, collect, d_ys, obj, n_x, w_in, flux, counted, physical, count,
-                                      p_in, self.survival, self._mat,
+        weight, t, path = nee_weights((b, wk, r, cos_y, collect, d_ys), obj, n_x, w_in, flux, counted, physical,
+                                      count, p_in, self.survival, self._mat,
                                       (self.pixels.area, self._p_a, self._eye_serves(order), ph.settings.count_sensor_leg))
         if ph.settings.attenuation > 0:
             weight = weight * ph.attenuation(path)
