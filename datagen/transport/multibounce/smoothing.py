@@ -220,13 +220,16 @@ class DeepSmoothing:
         return (t >= self.t_start) & (t < self.t_end)
 
     def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray) -> None:
-        """Linearly bin impulses at times t (n,) s inside :meth:`covers`, weights (n,) photons, channels (n,) int."""
+        """Linearly bin impulses at times t (n,) s inside :meth:`covers`, weights (n,) photons, channels (n,) int.
+        Raises ValueError for a channel outside [0, n_channels)."""
         if self._scratch is None:                 # per level: two sums and the nodes they touch (kept zeroed)
             self._scratch = [(np.zeros(out.size), np.zeros(out.size), np.zeros(out.size, np.bool_),
                               np.empty(out.size, np.int64)) for out in self.pending_levels]
         t = np.ascontiguousarray(t, dtype=np.float64)
         weight = np.ascontiguousarray(weight, dtype=np.float64)
         channel = np.ascontiguousarray(channel, dtype=np.int64)
+        if channel.size and (channel.min() < 0 or channel.max() >= self.n_channels):   # (the pass does not check)
+            raise ValueError(f"channels must be in [0, {self.n_channels}), got {channel.min()} … {channel.max()}")
         for out, k, scratch in zip(self.pending_levels, self.spacings, self._scratch):
             _bin_linear(out.reshape(-1), out.shape[1], t, weight, channel, self.t_start, k * self.width, *scratch)
 
