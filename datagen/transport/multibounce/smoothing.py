@@ -519,38 +519,31 @@ def spread_scan(masses: np.ndarray, scan: tuple[int, int, int]) -> np.ndarray:
 
 @njit(cache=True)
 def _spread_grid(grid, w, h):
-    """:func:`spread_scan` of a grid (ny, nx, m) with ny, nx ≥ h: along axis 0, then along axis 1, each output the sum
-    Σ_k w_k x_{i−h+1+k} in order of k, with x₋ⱼ = 2x₀ − xⱼ and x_{n−1+j} = 2x_{n−1} − x_{n−1−j} beyond the edges
-    (numpy's odd reflection, as the numpy form pads)."""
-    ny, nx, m = grid.shape
-    mid = np.empty_like(grid)
-    for i in range(ny):
-        for j in range(nx):
+    """:func:`spread_scan` of a grid (ny, nx, m) with ny, nx ≥ h: :func:`_spread_axis` along axis 0, then along axis 1
+    (the numpy form's order)."""
+    mid = _spread_axis(grid, w, h)
+    return _spread_axis(mid.transpose(1, 0, 2), w, h).transpose(1, 0, 2)
+
+
+@njit(cache=True)
+def _spread_axis(grid, w, h):
+    """Along axis 0 of a grid (n, k, m), n ≥ h: each output the sum Σ_j w_j x_{i−h+1+j} in order of j, with
+    x₋ⱼ = 2x₀ − xⱼ and x_{n−1+j} = 2x_{n−1} − x_{n−1−j} beyond the edges (numpy's odd reflection, as the numpy form
+    pads). Returns a new C-ordered (n, k, m) array."""
+    n, nk, m = grid.shape
+    out = np.empty((n, nk, m))
+    for i in range(n):
+        for j in range(nk):
             for c in range(m):
                 acc = 0.0
                 for k in range(w.shape[0]):
                     p = i - h + 1 + k
                     if p < 0:
                         v = 2 * grid[0, j, c] - grid[-p, j, c]
-                    elif p >= ny:
-                        v = 2 * grid[ny - 1, j, c] - grid[2 * (ny - 1) - p, j, c]
+                    elif p >= n:
+                        v = 2 * grid[n - 1, j, c] - grid[2 * (n - 1) - p, j, c]
                     else:
                         v = grid[p, j, c]
-                    acc += w[k] * v
-                mid[i, j, c] = acc
-    out = np.empty_like(grid)
-    for i in range(ny):
-        for j in range(nx):
-            for c in range(m):
-                acc = 0.0
-                for k in range(w.shape[0]):
-                    p = j - h + 1 + k
-                    if p < 0:
-                        v = 2 * mid[i, 0, c] - mid[i, -p, c]
-                    elif p >= nx:
-                        v = 2 * mid[i, nx - 1, c] - mid[i, 2 * (nx - 1) - p, c]
-                    else:
-                        v = mid[i, p, c]
                     acc += w[k] * v
                 out[i, j, c] = acc
     return out
