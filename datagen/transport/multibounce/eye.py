@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ...sampling import square_to_hemisphere
 from ...sampling.directions import to_world
@@ -123,8 +124,11 @@ def eye_vertices(capture: Capture, caster: RayCaster, physics: LegPhysics, pixel
                        count.astype(np.float64))
 
 
-def eye_share(p_a: float, g: np.ndarray, n_rec: np.ndarray, p_in: np.ndarray) -> np.ndarray:
+@njit(cache=True, inline="always")
+def eye_share(p_a, g, n_rec, p_in):
     """The eye strategy's balance-heuristic term over the next-event strategy's density, p_A g / (n_rec p_in): added
     to the denominators of the next-event and direction-hit weights of a path of an order the eye vertex serves
-    (``p_in``: p_light(x_k | x_{k−1}), the light's density of the vertex in area measure, 1/m²)."""
+    (``p_in``: p_light(x_k | x_{k−1}), the light's density of the vertex in area measure, 1/m²). A scalar device
+    function for the compiled next-event weights (:func:`~.kernels.nee_weights`); on arrays through
+    :func:`~datagen.scene.brdf_kernel.on_arrays`."""
     return p_a * g / (n_rec * np.maximum(p_in, 1e-300))

@@ -29,6 +29,7 @@ from ...scene.brdf_kernel import brdf_value
 from ...units import SPEED_OF_LIGHT
 from ..area.kernels import fov_target
 from ..physics import fov_term, geometry_term
+from .eye import eye_share
 
 
 @njit(cache=True)
@@ -310,7 +311,7 @@ def nee_weights(conn, obj, n_x, w_in, flux, counted, physical, count, p_in, surv
     """Weights (before attenuation), arrival times and physical path lengths of visible next-event connections
     (MultibounceTracer._connect, aperture captures): the radiant intensity flux·f(ω_in, ω_y)·cosθ_x toward y times
     the FoV leg :func:`~datagen.transport.physics.fov_term` (cosθ_y A_pixel, r, collection), under the balance
-    heuristic p_A / (p_A + q g + [eye] p_A g / (n_rec p_in)), g = cosθ_x cosθ_y / (π r²).
+    heuristic p_A / (p_A + q g + [eye] :func:`~.eye.eye_share`), g = cosθ_x cosθ_y / (π r²).
 
     Args (k connections): conn = (b (k,) int64 the vertex of each, wk (k, 3) unit x → y, r, cos_y, collect, d_ys
         (k,)); per vertex: obj (int64), n_x, w_in (3,), flux, counted, physical, count (int64: pixel regions recorded),
@@ -331,7 +332,7 @@ def nee_weights(conn, obj, n_x, w_in, flux, counted, physical, count, p_in, surv
         w = flux[i] * f * cos_x * fov_term(cos_y[j] * area, r[j], collect[j])
         g = geometry_term(cos_x, cos_y[j], r[j]) / math.pi
         p_d = survival[obj[i]] * g
-        p_e = p_a * g / (count[i] * max(p_in[i], 1e-300)) if eye else 0.0
+        p_e = eye_share(p_a, g, count[i], p_in[i]) if eye else 0.0
         weight[j] = w * (p_a / (p_a + p_d + p_e))
         path[j] = physical[i] + r[j] + d_ys[j]
         time[j] = (counted[i] + r[j] + (d_ys[j] if sensor else 0.0)) / SPEED_OF_LIGHT

@@ -431,7 +431,8 @@ class MultibounceTracer:
         p_a = c.n_pixels / (c.fov_size[0] * c.fov_size[1])
         g = geometry_weight(cos_x, cos_y, r) / np.pi
         p_d = q[idx] * g
-        p_e = eye_share(p_a, g, self.pixels.count[laser[idx]], p_in[idx]) if self._eye_serves(order) else 0.0
+        p_e = (on_arrays(eye_share)(p_a, g, self.pixels.count[laser[idx]], p_in[idx]) if self._eye_serves(order)
+               else 0.0)
         weight = flux[idx] * collect * (p_d / (p_a + p_d + p_e))
         weight = weight * ph.attenuation(physical[idx] + r + d_ys)
         self.stats.fov_hits += len(idx)
