@@ -389,8 +389,7 @@ class MultibounceTracer:
         weight, t, path = nee_weights((b, wk, r, cos_y, collect, d_ys), obj, n_x, w_in, flux, counted, physical,
                                       count, p_in, self.survival, self._mat,
                                       (self.pixels.area, self._p_a, self._eye_serves(order), ph.settings.count_sensor_leg))
-        if ph.settings.attenuation > 0:
-            weight = weight * ph.attenuation(path)
+        weight = weight * ph.attenuation(path)
         self.stats.connections += len(b)
         self._deposit(sink, t, weight, c.channel(laser[b], self.pixels.pix[s_idx]), order)
 
@@ -458,8 +457,7 @@ class MultibounceTracer:
         weight, t, path = eye_weights(rows, w, d, cos_x, cos_z, obj, n_x, w_in, flux, counted, physical, pid,
                                       (eye.obj, eye.n_z, eye.w_zy, eye.g, eye.n_rec, eye.fov, eye.r, eye.d_ys),
                                       self.survival, self._mat, (self._p_a, ph.settings.count_sensor_leg))
-        if ph.settings.attenuation > 0:
-            weight = weight * ph.attenuation(path)
+        weight = weight * ph.attenuation(path)
         self.stats.connections += len(rows)
         self._deposit(sink, t, weight, self.capture.channel(laser[rows], self.pixels.pix[eye.row[e]]), order)
 
