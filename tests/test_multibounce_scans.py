@@ -21,7 +21,8 @@ from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
 from datagen.transport.area.kernels import fov_targets
 from datagen.transport.multibounce import MultibounceSettings, MultibounceTracer
 from datagen.transport.multibounce.kernels import fov_targets_ranged
-from datagen.transport.multibounce.smoothing import DeepSmoothing, spread_scan, tent_variance
+from datagen.transport.multibounce.scan_spread import spread_scan, tent_variance
+from datagen.transport.multibounce.smoothing import DeepSmoothing
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / "scene_library" / "demo_room.yaml")

@@ -24,7 +24,12 @@ carry exceed a stated fraction of the tolerance; the simulation then wraps the c
   vertex (a third strategy under the balance heuristic: it samples the FoV leg's 1/r² near the relay wall instead
   of weighing it), and the pixel table both strategies connect to.
 - :mod:`.smoothing`: the smoothing of the smooth orders in time (nodes that widen with the order and the tolerance)
-  and across a confocal scan's points, each with its bias estimated and counted in the stated error.
+  and across a confocal scan's points, each with its bias estimated and counted in the stated error, its kernels kept
+  after each channel's onset.
+- :mod:`.scan_spread`: the spread across a confocal scan's points (a separable tent, point reflection at the edges)
+  and its variance.
+- :mod:`.onset`: the earliest time any light of the hidden scene can reach each channel, a bound from the geometry
+  (causality of the smoothing).
 - :mod:`.kernels`: the per-vertex arithmetic compiled (the continuation's direction, BRDF, flux and roulette;
   the next-event BRDFs).
 - :mod:`.orders`: :class:`AllOrders`, an estimator of orders 1–2 plus the tracer as one estimator, and the

@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 
 from ..base import Sink
+from .scan_spread import spread_scan, tent_variance, tent_weights
 
 SMOOTH_ORDER = 3
 """Orders from this one up are deposited smoothed in time (:class:`DeepSmoothing`) by default."""
@@ -58,6 +59,13 @@ estimate's noise lies at the finest spacings, its expectation (Δ² L'') is smoo
 (0.22 %) at 1.30 × the variance, k = 2 less (0.48 %) at 1.01 ×; k = 1 costs least (docs/accuracy.md)."""
 
 
+ONSET_NARROWING = 0.25
+"""κ: an impulse t − onset after its channel's onset (and less than 2Δ) is deposited as a tent of half-width at most
+κ (t − onset) (:class:`DeepSmoothing`, "Causal"): light reaches back at most κ of its distance to the onset. An order's
+light rises steeply after the onset (the demo room's orders ≥ 3: 2 % of their first 2 ns in the first one), so a
+kernel reaching back to the onset (κ = 1) still put 15–40 × the reference's light into that first nanosecond."""
+
+
 def default_smoothing(bin_width: float, tolerance: float, first_order: int = SMOOTH_ORDER,
                       confocal: bool = False) -> dict:
     """The smoothing fields of :class:`~datagen.transport.multibounce.tracer.MultibounceSettings` (``smooth_order``,
@@ -92,13 +100,16 @@ class SmoothingBands:
             widest Δ, s; t_start, t_stop: the window, s; n_channels: output channels; scan: (ny, nx, h) to spread
             over a scan grid too (:class:`DeepSmoothing`), or None; narrow: n, the lowest band's Δ divided by 2ⁿ (its
             bias was too large for the tolerance: ``Replicas.narrow_smoothing``); correct: every band subtracts the
-            smooth part of its estimated bias (:class:`DeepSmoothing`, :func:`smoothed_correction`).
+            smooth part of its estimated bias (:class:`DeepSmoothing`, :func:`smoothed_correction`); onset: (n_channels,)
+            s, the earliest time any light reaches each channel (:func:`~.onset.earliest_arrival`), or None (no bound:
+            every impulse in the window is smoothed). Each band keeps its kernels after it (:class:`DeepSmoothing`).
     Attributes:
         margin: how far past the window's end paths are followed, s (the widest band's reach).
     """
 
     def __init__(self, first_order: int, width: float, max_width: float, t_start: float, t_stop: float,
-                 n_channels: int, scan: tuple[int, int, int] | None = None, narrow: int = 0, correct: bool = False):
+                 n_channels: int, scan: tuple[int, int, int] | None = None, narrow: int = 0, correct: bool = False,
+                 onset: np.ndarray | None = None):
         self.first_order = int(first_order)
         self.widths: list[float] = []
         w = float(width)
@@ -108,7 +119,7 @@ class SmoothingBands:
                 break
             w *= 2.0
         self.widths[0] /= 2 ** int(narrow)
-        self.bands = [DeepSmoothing(w, t_start, t_stop, n_channels, scan, correct) for w in self.widths]
+        self.bands = [DeepSmoothing(w, t_start, t_stop, n_channels, scan, correct, onset) for w in self.widths]
         self.margin = max(b.margin for b in self.bands)
 
     def band(self, order: int) -> DeepSmoothing | None:
@@ -169,6 +180,19 @@ class DeepSmoothing:
     per run (docs/accuracy.md). The correction is linear in the runs' impulses (a kernel with smooth negative
     lobes), so the replicas' spread sees its noise.
 
+    **Causal** (``onset``: per channel the earliest time any light can arrive, :mod:`.onset`): an impulse less than
+    2Δ after its channel's onset is not binned onto the nodes (whose tents reach up to 2Δ before an impulse) but
+    deposited by itself as a tent of half-width h = min(κ (t − onset), √2 Δ) centred on it (κ = :data:`ONSET_NARROWING`;
+    across a scan, spread over the neighbouring points at the same delay after each one's onset) (:meth:`near_onset`,
+    :meth:`onset_tents`): the kernel narrows towards the onset, so no light lands before it and none is moved from
+    the steep rise of an order onto the onset (a fixed-width kernel there put 35–45 × the light of orders ≥ 3 into
+    the demo room's first nanosecond); √2 Δ matches the nodes' kernel in variance. The Richardson estimate below
+    reads every impulse binned onto the nodes, near the onset too: it estimates the bias of the plain smoothing, which
+    bounds that of the narrower tents (estimating the split parts apart would read their cut as a bias). A node whose tent would still start before its channel's onset
+    (the scan spread brings masses from points whose onset is earlier) is deposited as a tent cut at the onset,
+    [onset, max(t_j, onset), max(t_j + Δ, that + Δ/2)] with the node's mass (:meth:`flush`), and nodes within Δ of
+    the onset take no correction (below).
+
     **Across a scan** (``scan``: the channels are the points of an (ny, nx) scan grid, as a confocal scan's are),
     the node masses are also spread over neighbouring scan points by a separable tent of half-width h pitches
     (:func:`spread_scan`; h = 3: weights 1, 2, 3, 2, 1 over 9 per axis, 18 times less variance): the light of
@@ -177,12 +201,14 @@ class DeepSmoothing:
 
     Args:
         width: Δ, s; t_start, t_stop: the window, s; n_channels: output channels; scan: (ny, nx, h) of a scan
-            grid whose points are the channels, or None; correct: subtract the smooth part of the bias (above).
+            grid whose points are the channels, or None; correct: subtract the smooth part of the bias (above);
+            onset: (n_channels,) s, the time before which no kernel may reach, per channel (above), or None.
     """
 
     def __init__(self, width: float, t_start: float, t_stop: float, n_channels: int,
-                 scan: tuple[int, int, int] | None = None, correct: bool = False):
+                 scan: tuple[int, int, int] | None = None, correct: bool = False, onset: np.ndarray | None = None):
         self.width, self.n_channels = float(width), int(n_channels)
+        self.onset = None if onset is None else np.asarray(onset, dtype=np.float64).reshape(self.n_channels)
         self.correct = bool(correct)
         self.scan = tuple(int(v) for v in scan) if scan is not None and scan[2] > 1 else None
         self.margin = 2 * self.width                  # (the reach of linear binning and a tent) the nodes cover the
@@ -203,12 +229,20 @@ class DeepSmoothing:
         self._scratch: list | None = None
         self.applied_total = np.zeros(shapes[0]) if self.correct else None
         self.applied_even = np.zeros(shapes[0]) if self.correct else None
+        # this run's node masses at Δ of the impulses deposited through the nodes (not those near the onset)
+        self.deposit_pending = np.zeros(shapes[0]) if self.onset is not None else None
         self.runs = 0
 
     @property
     def pending(self) -> np.ndarray:
-        """This run's node masses at Δ, (n_channels, nodes) photons."""
+        """This run's node masses at Δ, (n_channels, nodes) photons (every impulse added: the bias estimate's)."""
         return self.pending_levels[0]
+
+    @property
+    def deposit(self) -> np.ndarray:
+        """This run's node masses at Δ that :meth:`flush` deposits, (n_channels, nodes) photons: :attr:`pending` less
+        the impulses near the onset (class doc, "Causal")."""
+        return self.pending_levels[0] if self.deposit_pending is None else self.deposit_pending
 
     @property
     def total(self) -> np.ndarray:
@@ -219,9 +253,10 @@ class DeepSmoothing:
         """(n,) bool: the times t (n,) s that the nodes cover (the window widened by the margin on both sides)."""
         return (t >= self.t_start) & (t < self.t_end)
 
-    def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray) -> None:
-        """Linearly bin impulses at times t (n,) s inside :meth:`covers`, weights (n,) photons, channels (n,) int.
-        Raises ValueError for a channel outside [0, n_channels)."""
+    def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray, early: np.ndarray | None = None) -> None:
+        """Linearly bin impulses at times t (n,) s inside :meth:`covers`, weights (n,) photons, channels (n,) int;
+        those marked ``early`` (n,) bool (:meth:`near_onset`, deposited by the caller as :meth:`onset_tents`) only
+        into the bias estimate's levels. Raises ValueError for a channel outside [0, n_channels)."""
         if self._scratch is None:                 # per level: two sums and the nodes they touch (kept zeroed)
             self._scratch = [(np.zeros(out.size), np.zeros(out.size), np.zeros(out.size, np.bool_),
                               np.empty(out.size, np.int64)) for out in self.pending_levels]
@@ -232,16 +267,23 @@ class DeepSmoothing:
             raise ValueError(f"channels must be in [0, {self.n_channels}), got {channel.min()} … {channel.max()}")
         for out, k, scratch in zip(self.pending_levels, self.spacings, self._scratch):
             _bin_linear(out.reshape(-1), out.shape[1], t, weight, channel, self.t_start, k * self.width, *scratch)
+        if self.deposit_pending is not None:
+            late = ~early if early is not None else slice(None)
+            out = self.deposit_pending
+            _bin_linear(out.reshape(-1), out.shape[1], t[late], weight[late], channel[late], self.t_start, self.width,
+                        *self._scratch[0])
 
     def flush(self, sink: Sink, component: int) -> None:
         """Deposit this run's node masses into ``sink`` as tents (component ``component * n_channels +
         channel``) and start the next run."""
-        masses = self.pending
+        masses = self.deposit
         if self.correct:
             masses = masses - self.applied_now()
         # (the spread's point reflection can leave a node within h − 1 of an edge below zero: photons are not)
         if self.scan is not None:
             masses = np.maximum(spread_scan(masses, self.scan), 0.0)
+        if self.onset is not None:
+            masses = self._flush_onset(sink, masses, component)
         shapes = self.binned_shapes(sink) if hasattr(sink, "add_binned") else None
         if shapes is not None:                  # node masses × binned unit tents: the same bins, no fine grid
             sink.add_binned(masses @ shapes, component * self.n_channels + np.arange(self.n_channels),
@@ -257,12 +299,67 @@ class DeepSmoothing:
                            component * self.n_channels + ch)
         self.end_run()
 
+    def near_onset(self, t: np.ndarray, channel: np.ndarray) -> np.ndarray:
+        """(n,) bool: which impulses at times t (n,) s on channels (n,) int lie less than 2Δ after their channel's
+        onset (deposited by :meth:`onset_tents` instead of the nodes; class doc, "Causal"); all False without an
+        onset."""
+        if self.onset is None:
+            return np.zeros(len(t), dtype=bool)
+        return t < self.onset[channel] + 2.0 * self.width
+
+    def onset_tents(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The deposits of impulses at t (n,) s, weights (n,) photons, on channels (n,) int that :meth:`near_onset`
+        selected (class doc, "Causal"): tents [t − h, t, t + h], h = min(κ τ, √2 Δ) with τ = t − onset (κ =
+        :data:`ONSET_NARROWING`); across a scan, spread over the neighbouring points by the scan tent (weights
+        renormalised inside the grid), each at the same delay τ after that point's own onset. Returns (tents (m, 3)
+        s, weights (m,) photons, channels (m,) int64)."""
+        tau = np.clip(t - self.onset[channel], 0.0, None)
+        weight = np.asarray(weight, dtype=np.float64)
+        channel = np.asarray(channel, dtype=np.int64)
+        if self.scan is not None:
+            ny, nx, h = self.scan
+            k = np.arange(-h + 1, h)
+            dy, dx = (a.ravel() for a in np.meshgrid(k, k, indexing="ij"))
+            w2 = np.outer(tent_weights(h), tent_weights(h)).ravel()
+            iy, ix = np.divmod(channel, nx)
+            ty, tx = iy[:, None] + dy[None, :], ix[:, None] + dx[None, :]
+            inside = (ty >= 0) & (ty < ny) & (tx >= 0) & (tx < nx)
+            share = np.where(inside, w2[None, :], 0.0)
+            share /= share.sum(axis=1, keepdims=True)
+            rows, cols = np.nonzero(inside)
+            weight = weight[rows] * share[rows, cols]
+            channel = (ty * nx + tx)[rows, cols]
+            tau = tau[rows]
+        centre = self.onset[channel] + tau
+        h = np.minimum(ONSET_NARROWING * tau, np.sqrt(2.0) * self.width)
+        return np.stack([centre - h, centre, centre + h], axis=1), weight, channel
+
+    def _flush_onset(self, sink: Sink, masses: np.ndarray, component: int) -> np.ndarray:
+        """Deposit the nodes whose tents would start before their channel's onset as tents cut at it (class doc,
+        "Causal"); returns the masses with those nodes zeroed (a copy when any was)."""
+        nodes = self.t_start + self.width * np.arange(self.nodes)
+        ch, j = np.nonzero((nodes[None, :] - self.width < self.onset[:, None]) & (masses != 0.0))
+        if not len(ch):
+            return masses
+        onset = self.onset[ch]
+        centre = np.maximum(nodes[j], onset)
+        right = np.maximum(nodes[j] + self.width, centre + 0.5 * self.width)
+        sink.add_tents(np.stack([onset, centre, right], axis=1), masses[ch, j], component * self.n_channels + ch)
+        masses = masses.copy()
+        masses[ch, j] = 0.0
+        return masses
+
     def applied_now(self) -> np.ndarray:
         """The correction this run's node masses at Δ are deposited less (``correct``), (n_channels, nodes) photons:
         :func:`smoothed_correction` of its two levels, clipped so that no mass falls below zero."""
         if self._applied is None:
-            raw = self.pending
-            self._applied = raw - np.maximum(raw - smoothed_correction(*self.pending_levels), 0.0)
+            raw = self.deposit
+            correction = smoothed_correction(*self.pending_levels)
+            if self.onset is not None:            # no kernel before the onset (class doc, "Causal")
+                nodes = self.t_start + self.width * np.arange(self.nodes)
+                correction[nodes[None, :] < (self.onset + self.width)[:, None]] = 0.0
+            self._applied = raw - np.maximum(raw - correction, 0.0)
         return self._applied
 
     def end_run(self) -> None:
@@ -278,6 +375,8 @@ class DeepSmoothing:
             if self.runs % 2 == 0:
                 even += now
             now[:] = 0.0
+        if self.deposit_pending is not None:
+            self.deposit_pending[:] = 0.0
         self.runs += 1
 
     def _flush_edges(self, sink: Sink, masses: np.ndarray, component: int) -> np.ndarray:
@@ -472,78 +571,4 @@ def _lerp_rows(values, j, below, above):
     for r in range(values.shape[0]):
         for k in range(j.shape[0]):
             out[r, k] = values[r, j[k]] * below[k] + values[r, j[k] + 1] * above[k]
-    return out
-
-
-def tent_weights(h: int) -> np.ndarray:
-    """The discrete tent of half-width h pitches: (2h − 1,) float64 weights ∝ h − |k| for |k| < h, summing to 1."""
-    k = np.arange(-h + 1, h)
-    w = (h - np.abs(k)).astype(np.float64)
-    return w / w.sum()
-
-
-def tent_variance(h: int) -> float:
-    """Σ w_k k² of :func:`tent_weights` (pitches²): the bias of the spread grows with it."""
-    k = np.arange(-h + 1, h)
-    return float((tent_weights(h) * k * k).sum())
-
-
-def spread_scan(masses: np.ndarray, scan: tuple[int, int, int]) -> np.ndarray:
-    """Spread masses (ny·nx, m) over an (ny, nx) scan grid by the separable tent of half-width h pitches
-    (:func:`tent_weights`): (ny·nx, m) float64.
-
-    Beyond the grid's edges the masses are continued by point reflection about the edge point
-    (x₋ₖ = 2x₀ − xₖ), so the spread keeps every linear field, at the edges too, and its bias is ∝ h² ∇²L everywhere
-    (which is what :meth:`DeepSmoothing.bias` estimates). A one-sided mean at the edges would move them by ∝ h ∇L,
-    a bias of first order that the Richardson estimate misses (half of the tracer's bias on a 32 × 32 confocal scan
-    came from its outer ring). At h = 2 an edge point keeps its own mass along that axis; at larger h a node next to
-    an edge can come out below zero where the masses fall steeply towards it (:meth:`DeepSmoothing.flush` clips at
-    zero)."""
-    ny, nx, h = scan
-    w = tent_weights(h)
-    if min(ny, nx) >= h:                       # (the compiled pass: the same sums in the same order)
-        return _spread_grid(np.ascontiguousarray(masses, dtype=np.float64).reshape(ny, nx, -1), w, h
-                            ).reshape(masses.shape)
-    grid = masses.reshape(ny, nx, -1)
-    for axis in (0, 1):
-        pad = [(0, 0)] * 3
-        pad[axis] = (h - 1, h - 1)
-        wide = np.pad(grid, pad, mode="reflect", reflect_type="odd")
-        n = grid.shape[axis]
-        out = np.zeros_like(grid)
-        for k, wk in enumerate(w):
-            out += wk * np.take(wide, np.arange(k, k + n), axis=axis)
-        grid = out
-    return grid.reshape(masses.shape)
-
-
-@njit(cache=True)
-def _spread_grid(grid, w, h):
-    """:func:`spread_scan` of a grid (ny, nx, m) with ny, nx ≥ h: :func:`_spread_axis` along axis 0, then along axis 1
-    (the numpy form's order)."""
-    mid = _spread_axis(grid, w, h)
-    return _spread_axis(mid.transpose(1, 0, 2), w, h).transpose(1, 0, 2)
-
-
-@njit(cache=True)
-def _spread_axis(grid, w, h):
-    """Along axis 0 of a grid (n, k, m), n ≥ h: each output the sum Σ_j w_j x_{i−h+1+j} in order of j, with
-    x₋ⱼ = 2x₀ − xⱼ and x_{n−1+j} = 2x_{n−1} − x_{n−1−j} beyond the edges (numpy's odd reflection, as the numpy form
-    pads). Returns a new C-ordered (n, k, m) array."""
-    n, nk, m = grid.shape
-    out = np.empty((n, nk, m))
-    for i in range(n):
-        for j in range(nk):
-            for c in range(m):
-                acc = 0.0
-                for k in range(w.shape[0]):
-                    p = i - h + 1 + k
-                    if p < 0:
-                        v = 2 * grid[0, j, c] - grid[-p, j, c]
-                    elif p >= n:
-                        v = 2 * grid[n - 1, j, c] - grid[2 * (n - 1) - p, j, c]
-                    else:
-                        v = grid[p, j, c]
-                    acc += w[k] * v
-                out[i, j, c] = acc
     return out

@@ -71,6 +71,7 @@ from ..area.kernels import material_arrays, sensor_collection
 from ..physics import LegPhysics, geometry_weight, launched_flux
 from .eye import EYE_MIN_ORDER, EyeVertices, PixelTable, eye_share, eye_vertices
 from .kernels import arrive, continue_paths, eye_pairs, eye_weights, fov_targets_ranged, nee_weights, survivors
+from .onset import earliest_arrival
 from .smoothing import SmoothingBands
 
 MULTIBOUNCE_STREAM = 57
@@ -184,6 +185,8 @@ class MultibounceTracer:
             secondary of an estimator that runs without one: docs/physics.md §2, "Light of every order").
         irf_reach: how much earlier than an impulse the IRF spreads its light, s (``Irf.support[0]``): impulses
             that late past the window's end still reach it (0: the in-window tallies only, as the planner's pilot).
+        onset: (n_channels,) s, the earliest time any light reaches each channel (:func:`.onset.earliest_arrival`,
+            computed when None and the smoothing is on): the smoothing's kernels stay after it.
     Attributes:
         stats: :class:`MultibounceStats`.
         order_energy: (:data:`ORDER_TALLY`,) float64, the weight deposited inside the window by order (index k−1
@@ -195,7 +198,7 @@ class MultibounceTracer:
 
     def __init__(self, capture: Capture, caster: RayCaster, physics: LegPhysics, settings: MultibounceSettings,
                  component: int, window: tuple[float, float], secondary_component: int | None = None,
-                 irf_reach: float = 0.0):
+                 irf_reach: float = 0.0, onset: np.ndarray | None = None):
         self.capture, self.caster, self.physics, self.settings = capture, caster, physics, settings
         self.irf_reach = float(irf_reach)
         self.component = int(component)
@@ -206,9 +209,12 @@ class MultibounceTracer:
         scan = ((capture.fov_pixels[1], capture.fov_pixels[0], settings.smooth_scan)
                 if capture.kind == "confocal" and capture.n_channels == capture.n_pixels and settings.smooth_scan > 1
                 else None)
+        # the smoothing's kernels stay after the earliest time any light reaches each channel (causal, .onset)
+        self.onset = (onset if onset is not None or not settings.smooth_order
+                      else earliest_arrival(capture, caster, physics))
         self.smoothing = (SmoothingBands(settings.smooth_order, settings.smooth_width, settings.smooth_max_width,
                                          self.t_start, self.t_stop, capture.n_channels, scan, settings.smooth_narrow,
-                                         settings.smooth_correct)
+                                         settings.smooth_correct, self.onset)
                           if settings.smooth_order else None)
         # paths are followed as long as an impulse can still reach the window: past its end by the smoothing's reach
         # (the kernels near the end receive the mass from beyond it that they spread into the window) and the
@@ -240,7 +246,7 @@ class MultibounceTracer:
         """A fresh tracer (no runs) with the same settings but the lowest smoothing band's node spacing halved."""
         settings = replace(self.settings, smooth_narrow=self.settings.smooth_narrow + 1)
         return MultibounceTracer(self.capture, self.caster, self.physics, settings, self.component,
-                                 (self.t_start, self.t_stop), self.secondary_component, self.irf_reach)
+                                 (self.t_start, self.t_stop), self.secondary_component, self.irf_reach, self.onset)
 
     @property
     def components(self) -> list[int]:
@@ -468,11 +474,15 @@ class MultibounceTracer:
         self.order_energy[k] += float(weight[inside].sum())
         self.order_time[k] += float(np.dot(weight[inside], t[inside]))
         band = self.smoothing.band(order) if self.smoothing is not None else None
-        if band is not None:
-            near = band.covers(t)
-            band.add(t[near], weight[near], channel[near])
-            t, weight, channel = t[~near], weight[~near], channel[~near]
         component = self.secondary_component if order == 2 and self.secondary_component is not None \
             else self.component
+        if band is not None:
+            near = band.covers(t)
+            early = near & band.near_onset(t, channel)       # narrowing tents of their own (causal: .smoothing)
+            if early.any():
+                tents, w_early, ch_early = band.onset_tents(t[early], weight[early], channel[early])
+                sink.add_tents(tents, w_early, component * self.capture.n_channels + ch_early)
+            band.add(t[near], weight[near], channel[near], early[near])
+            t, weight, channel = t[~near], weight[~near], channel[~near]
         if len(t):
             sink.add(t, weight, component * self.capture.n_channels + channel)
