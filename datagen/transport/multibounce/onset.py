@@ -36,6 +36,11 @@ none could lower it by more (0.067 ns)."""
 MAX_LEVELS = 40
 """Safety bound on the splitting levels (a 100 m triangle reaches the gap in ~13)."""
 
+CACHE_SIZE = 8
+"""Bounds kept (a tolerance loop builds the tracer more than once on the same capture)."""
+
+_CACHE: dict[str, np.ndarray] = {}
+
 
 def channel_pairs(capture: Capture) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The (laser point, pixel) pairs a capture records and their channels: (laser (P,) int64, pixel (P,) int64,
@@ -84,11 +89,6 @@ def earliest_arrival(capture: Capture, caster: RayCaster, physics: LegPhysics, g
     return out
 
 
-CACHE_SIZE = 8
-"""Bounds kept (a tolerance loop builds the tracer more than once on the same capture)."""
-
-_CACHE: dict[str, np.ndarray] = {}
-
 
 def _key(capture: Capture, caster: RayCaster, physics: LegPhysics, gap: float) -> str:
     """A digest of everything :func:`earliest_arrival` reads."""
@@ -97,8 +97,7 @@ def _key(capture: Capture, caster: RayCaster, physics: LegPhysics, gap: float) -
               capture.fov_center, capture.fov_u, capture.fov_v, capture.sensor):
         h.update(np.ascontiguousarray(a).tobytes())
     h.update(repr((capture.kind, capture.fov_size, capture.fov_pixels, float(caster.offset), float(gap),
-                   float(np.sum(physics.laser_leg(np.arange(capture.n_lasers)))),
-                   float(physics.sensor_leg(1.0)))).encode())
+                   bool(physics.settings.count_laser_leg), bool(physics.settings.count_sensor_leg))).encode())
     return h.hexdigest()
 
 

@@ -188,10 +188,10 @@ class DeepSmoothing:
     the steep rise of an order onto the onset (a fixed-width kernel there put 35–45 × the light of orders ≥ 3 into
     the demo room's first nanosecond); √2 Δ matches the nodes' kernel in variance. The Richardson estimate below
     reads every impulse binned onto the nodes, near the onset too: it estimates the bias of the plain smoothing, which
-    bounds that of the narrower tents (estimating the split parts apart would read their cut as a bias). A node whose tent would still start before its channel's onset
-    (the scan spread brings masses from points whose onset is earlier) is deposited as a tent cut at the onset,
-    [onset, max(t_j, onset), max(t_j + Δ, that + Δ/2)] with the node's mass (:meth:`flush`), and nodes within Δ of
-    the onset take no correction (below).
+    bounds that of the narrower tents (estimating the split parts apart would read their cut as a bias). A node whose
+    tent would still start before its channel's onset (the scan spread brings masses from points whose onset is
+    earlier) is deposited as a tent cut at the onset, [onset, max(t_j, onset), max(t_j + Δ, that + Δ/2)] with the
+    node's mass (:meth:`flush`), and nodes within Δ of the onset take no correction (below).
 
     **Across a scan** (``scan``: the channels are the points of an (ny, nx) scan grid, as a confocal scan's are),
     the node masses are also spread over neighbouring scan points by a separable tent of half-width h pitches
@@ -216,6 +216,7 @@ class DeepSmoothing:
         self.t_start = float(t_start) - self.margin   # node 0
         self.t_end = float(t_stop) + self.margin
         self.nodes = int(np.ceil((self.t_end - self.t_start) / self.width)) + 2
+        self.node_times = self.t_start + self.width * np.arange(self.nodes)      # t_j, s
         # node masses at Δ (deposited) and at Δ/2 (the bias estimate), photons: this run's, every run's, and
         # the even runs' (0, 2, …: two independent halves for the bias without the runs' noise, bias_halves)
         self.spacings = (1.0, 0.5)
@@ -294,7 +295,7 @@ class DeepSmoothing:
             masses = self._flush_edges(sink, masses, component)
         ch, j = np.nonzero(masses)
         if len(ch):
-            t = self.t_start + j * self.width
+            t = self.node_times[j]
             sink.add_tents(np.stack([t - self.width, t, t + self.width], axis=1), masses[ch, j],
                            component * self.n_channels + ch)
         self.end_run()
@@ -338,7 +339,7 @@ class DeepSmoothing:
     def _flush_onset(self, sink: Sink, masses: np.ndarray, component: int) -> np.ndarray:
         """Deposit the nodes whose tents would start before their channel's onset as tents cut at it (class doc,
         "Causal"); returns the masses with those nodes zeroed (a copy when any was)."""
-        nodes = self.t_start + self.width * np.arange(self.nodes)
+        nodes = self.node_times
         ch, j = np.nonzero((nodes[None, :] - self.width < self.onset[:, None]) & (masses != 0.0))
         if not len(ch):
             return masses
@@ -357,8 +358,7 @@ class DeepSmoothing:
             raw = self.deposit
             correction = smoothed_correction(*self.pending_levels)
             if self.onset is not None:            # no kernel before the onset (class doc, "Causal")
-                nodes = self.t_start + self.width * np.arange(self.nodes)
-                correction[nodes[None, :] < (self.onset + self.width)[:, None]] = 0.0
+                correction[self.node_times[None, :] < (self.onset + self.width)[:, None]] = 0.0
             self._applied = raw - np.maximum(raw - correction, 0.0)
         return self._applied
 
@@ -405,7 +405,7 @@ class DeepSmoothing:
             return self._shapes
         times = sink.fine_times
         lo, hi = times[0] - 2 * sink.fine_step, times[-1] + 2 * sink.fine_step
-        t = self.t_start + self.width * np.arange(self.nodes)
+        t = self.node_times
         cut = np.flatnonzero((t + self.width > lo) & (t - self.width < hi)
                              & ((t - self.width <= lo) | (t + self.width >= hi)))
         shapes = {}
@@ -431,7 +431,7 @@ class DeepSmoothing:
             shapes = None
             if self.nodes * sink.n_fine <= SHAPE_NODES_MAX:
                 one = sink.spawn(self.nodes)
-                t = self.t_start + self.width * np.arange(self.nodes)
+                t = self.node_times
                 one.add_tents(np.stack([t - self.width, t, t + self.width], axis=1), np.ones(self.nodes),
                               np.arange(self.nodes))
                 shapes = one.binned()
