@@ -10,7 +10,7 @@ d(x, R) the distance to the channel's pixel region R (y lies in it). Near a room
 to the order-1 minimum (v₁, v₂, … at the corner), so this one bound is also the tightest one for orders ≥ 2 that
 the geometry alone gives. :func:`earliest_arrival` computes it by branch and bound on the scene's triangles: f(x) =
 |s − x| + d(x, R) is 2-Lipschitz, so a triangle with centroid c and circumradius r holds no point below f(c) − 2r,
-and only triangles that can hold a point below the best value found so far are split (into four). The bound it
+nor below d(s, T) + d(y, T) − the pixel's half-diagonal (y its centre), and only triangles that can hold a point below the best value found so far are split (into four). The bound it
 returns is a true lower bound (visibility beyond the spot's half-space is ignored, which can only lower it) and lies
 within :data:`ONSET_GAP` of the unoccluded minimum.
 
@@ -120,11 +120,56 @@ def _length(x, s, centre, frame):
 
 
 @njit(cache=True)
+def triangle_distance(p, t):
+    """The distance of point p (3,) to triangle t (3, 3) (its closest point: Ericson, Real-Time Collision Detection
+    §5.1.5), m. Scalar arithmetic (no temporary arrays: it runs for every triangle visited)."""
+    ax, ay, az = t[0, 0], t[0, 1], t[0, 2]
+    abx, aby, abz = t[1, 0] - ax, t[1, 1] - ay, t[1, 2] - az
+    acx, acy, acz = t[2, 0] - ax, t[2, 1] - ay, t[2, 2] - az
+    apx, apy, apz = p[0] - ax, p[1] - ay, p[2] - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    bpx, bpy, bpz = apx - abx, apy - aby, apz - abz
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    cpx, cpy, cpz = apx - acx, apy - acy, apz - acz
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    vc, vb, va = d1 * d4 - d3 * d2, d5 * d2 - d1 * d6, d3 * d6 - d5 * d4
+    if d1 <= 0.0 and d2 <= 0.0:
+        v, w = 0.0, 0.0                                   # (v, w): the closest point a + v·ab + w·ac
+    elif d3 >= 0.0 and d4 <= d3:
+        v, w = 1.0, 0.0
+    elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v, w = d1 / (d1 - d3), 0.0
+    elif d6 >= 0.0 and d5 <= d6:
+        v, w = 0.0, 1.0
+    elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        v, w = 0.0, d2 / (d2 - d6)
+    elif va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        v = 1.0 - w
+    else:
+        denom = va + vb + vc
+        v, w = (vb / denom, vc / denom) if denom > 0.0 else (0.0, 0.0)
+    ex, ey, ez = apx - v * abx - w * acx, apy - v * aby - w * acy, apz - v * abz - w * acz
+    return np.sqrt(ex * ex + ey * ey + ez * ez)
+
+
+@njit(cache=True)
+def _lower(t, c, r, f, s, centre, half_diag):
+    """A lower bound of |s − x| + d(x, R) over triangle t (3, 3) with centroid c, circumradius r and f = the sum at c:
+    the larger of f − 2r (the sum is 2-Lipschitz) and d(s, t) + d(centre, t) − the pixel's half-diagonal."""
+    return max(f - 2.0 * r, triangle_distance(s, t) + triangle_distance(centre, t) - half_diag)
+
+
+@njit(cache=True)
 def _min_lengths(spots, normals, centres, frame, tris, gap, tol):
     """For each pair p: min over surface points x of triangles ``tris`` (K, 3, 3) in front of spot s_p (n_p·(x − s_p)
     > tol) of |s_p − x| + d(x, R_p), less at most ``gap``: (P,) float64 m (module docstring). Depth-first branch and
     bound: a triangle is split into four while it may hold a point more than ``gap`` below the best value attained."""
     n_pairs, n_tris = spots.shape[0], tris.shape[0]
+    half_diag = np.sqrt(frame[2] ** 2 + frame[3] ** 2)
     out = np.empty(n_pairs)
     stack = np.empty((n_tris + 3 * MAX_LEVELS + 3, 3, 3))
     depth = np.empty(n_tris + 3 * MAX_LEVELS + 3, np.int64)
@@ -145,7 +190,7 @@ def _min_lengths(spots, normals, centres, frame, tris, gap, tol):
                 r = max(r, np.sqrt((tris[k, v, 0] - c[0]) ** 2 + (tris[k, v, 1] - c[1]) ** 2
                                    + (tris[k, v, 2] - c[2]) ** 2))
             f = _length(c, s, centres[p], frame)
-            roots[k] = f - 2.0 * r
+            roots[k] = _lower(tris[k], c, r, f, s, centres[p], half_diag)
             if n_s[0] * c[0] + n_s[1] * c[1] + n_s[2] * c[2] - plane > tol and f < best:
                 best = f
                 x_best[:] = c
@@ -173,7 +218,7 @@ def _min_lengths(spots, normals, centres, frame, tris, gap, tol):
             if n_s[0] * c[0] + n_s[1] * c[1] + n_s[2] * c[2] - plane > tol and f < best:
                 best = f
                 x_best[:] = c
-            lower = f - 2.0 * r
+            lower = _lower(t, c, r, f, s, centres[p], half_diag)
             if lower >= best - gap or 2.0 * r <= gap or level >= MAX_LEVELS:
                 floor = min(floor, lower)
                 continue

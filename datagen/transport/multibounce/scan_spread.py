@@ -8,6 +8,15 @@ import numpy as np
 from numba import njit
 
 
+def neighbourhood_max(values: np.ndarray, scan: tuple[int, int, int]) -> np.ndarray:
+    """The largest of ``values`` (ny·nx,) over the scan points within h − 1 pitches along each axis of each point
+    (those :func:`spread_scan` adds its masses to with a positive weight, at the edges too): (ny·nx,) float64."""
+    from scipy.ndimage import maximum_filter
+    ny, nx, h = scan
+    return maximum_filter(np.asarray(values, dtype=np.float64).reshape(ny, nx), size=2 * h - 1,
+                          mode="nearest").reshape(-1)
+
+
 def tent_weights(h: int) -> np.ndarray:
     """The discrete tent of half-width h pitches: (2h − 1,) float64 weights ∝ h − |k| for |k| < h, summing to 1."""
     k = np.arange(-h + 1, h)

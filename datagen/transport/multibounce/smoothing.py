@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from ..base import Sink
-from .scan_spread import spread_scan, tent_variance, tent_weights
+from .scan_spread import neighbourhood_max, spread_scan, tent_variance, tent_weights
 
 SMOOTH_ORDER = 3
 """Orders from this one up are deposited smoothed in time (:class:`DeepSmoothing`) by default."""
@@ -180,18 +180,18 @@ class DeepSmoothing:
     per run (docs/accuracy.md). The correction is linear in the runs' impulses (a kernel with smooth negative
     lobes), so the replicas' spread sees its noise.
 
-    **Causal** (``onset``: per channel the earliest time any light can arrive, :mod:`.onset`): an impulse less than
-    2Δ after its channel's onset is not binned onto the nodes (whose tents reach up to 2Δ before an impulse) but
-    deposited by itself as a tent of half-width h = min(κ (t − onset), √2 Δ) centred on it (κ = :data:`ONSET_NARROWING`;
-    across a scan, spread over the neighbouring points at the same delay after each one's onset) (:meth:`near_onset`,
-    :meth:`onset_tents`): the kernel narrows towards the onset, so no light lands before it and none is moved from
-    the steep rise of an order onto the onset (a fixed-width kernel there put 35–45 × the light of orders ≥ 3 into
-    the demo room's first nanosecond); √2 Δ matches the nodes' kernel in variance. The Richardson estimate below
-    reads every impulse binned onto the nodes, near the onset too: it estimates the bias of the plain smoothing, which
-    bounds that of the narrower tents (estimating the split parts apart would read their cut as a bias). A node whose
-    tent would still start before its channel's onset (the scan spread brings masses from points whose onset is
-    earlier) is deposited as a tent cut at the onset, [onset, max(t_j, onset), max(t_j + Δ, that + Δ/2)] with the
-    node's mass (:meth:`flush`), and nodes within Δ of the onset take no correction (below).
+    **Causal** (``onset``: per channel the earliest time any light can arrive, :mod:`.onset`): a node's tent starts
+    less than 2Δ before an impulse binned onto it, so an impulse is binned onto the nodes only when it lies at least
+    2Δ after the latest onset among the channels its masses reach (itself; across a scan, the points within h − 1
+    pitches: :func:`~.scan_spread.neighbourhood_max`), and nodes within Δ of that take no correction (below). An
+    earlier impulse is deposited by itself (:meth:`onset_tents`, at :meth:`flush`) as a tent of half-width h = min(κ τ,
+    √2 Δ), τ its delay after its channel's onset (κ = :data:`ONSET_NARROWING`; across a scan, spread over the
+    neighbouring points at the same delay after each one's onset): the kernel narrows towards the onset, so no light
+    lands before it and none is moved from the steep rise of an order onto the onset (a fixed-width kernel there put
+    35–45 × the light of orders ≥ 3 into the demo room's first nanosecond); √2 Δ matches the nodes' kernel in
+    variance. The Richardson estimate below reads every impulse binned onto the nodes, near the onset too: it
+    estimates the bias of the plain smoothing, which bounds that of the narrower tents (estimating the split parts
+    apart would read their cut as a bias).
 
     **Across a scan** (``scan``: the channels are the points of an (ny, nx) scan grid, as a confocal scan's are),
     the node masses are also spread over neighbouring scan points by a separable tent of half-width h pitches
@@ -211,6 +211,9 @@ class DeepSmoothing:
         self.onset = None if onset is None else np.asarray(onset, dtype=np.float64).reshape(self.n_channels)
         self.correct = bool(correct)
         self.scan = tuple(int(v) for v in scan) if scan is not None and scan[2] > 1 else None
+        # the latest onset among the points a channel's node masses are spread to: the nodes start Δ after it
+        self.reach_onset = (self.onset if self.onset is None or self.scan is None
+                            else neighbourhood_max(self.onset, self.scan))
         self.margin = 2 * self.width                  # (the reach of linear binning and a tent) the nodes cover the
                                                       # window and this
         self.t_start = float(t_start) - self.margin   # node 0
@@ -232,6 +235,7 @@ class DeepSmoothing:
         self.applied_even = np.zeros(shapes[0]) if self.correct else None
         # this run's node masses at Δ of the impulses deposited through the nodes (not those near the onset)
         self.deposit_pending = np.zeros(shapes[0]) if self.onset is not None else None
+        self._early: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []      # this run's onset tents
         self.runs = 0
 
     @property
@@ -254,10 +258,10 @@ class DeepSmoothing:
         """(n,) bool: the times t (n,) s that the nodes cover (the window widened by the margin on both sides)."""
         return (t >= self.t_start) & (t < self.t_end)
 
-    def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray, early: np.ndarray | None = None) -> None:
+    def add(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray) -> None:
         """Linearly bin impulses at times t (n,) s inside :meth:`covers`, weights (n,) photons, channels (n,) int;
-        those marked ``early`` (n,) bool (:meth:`near_onset`, deposited by the caller as :meth:`onset_tents`) only
-        into the bias estimate's levels. Raises ValueError for a channel outside [0, n_channels)."""
+        those :meth:`near_onset` only into the bias estimate's levels, their :meth:`onset_tents` kept for
+        :meth:`flush`. Raises ValueError for a channel outside [0, n_channels)."""
         if self._scratch is None:                 # per level: two sums and the nodes they touch (kept zeroed)
             self._scratch = [(np.zeros(out.size), np.zeros(out.size), np.zeros(out.size, np.bool_),
                               np.empty(out.size, np.int64)) for out in self.pending_levels]
@@ -269,7 +273,10 @@ class DeepSmoothing:
         for out, k, scratch in zip(self.pending_levels, self.spacings, self._scratch):
             _bin_linear(out.reshape(-1), out.shape[1], t, weight, channel, self.t_start, k * self.width, *scratch)
         if self.deposit_pending is not None:
-            late = ~early if early is not None else slice(None)
+            early = self.near_onset(t, channel)
+            if early.any():
+                self._early.append(self.onset_tents(t[early], weight[early], channel[early]))
+            late = ~early
             out = self.deposit_pending
             _bin_linear(out.reshape(-1), out.shape[1], t[late], weight[late], channel[late], self.t_start, self.width,
                         *self._scratch[0])
@@ -284,7 +291,8 @@ class DeepSmoothing:
         if self.scan is not None:
             masses = np.maximum(spread_scan(masses, self.scan), 0.0)
         if self.onset is not None:
-            masses = self._flush_onset(sink, masses, component)
+            if self._early:
+                self._flush_early(sink, component)
         shapes = self.binned_shapes(sink) if hasattr(sink, "add_binned") else None
         if shapes is not None:                  # node masses × binned unit tents: the same bins, no fine grid
             sink.add_binned(masses @ shapes, component * self.n_channels + np.arange(self.n_channels),
@@ -301,12 +309,12 @@ class DeepSmoothing:
         self.end_run()
 
     def near_onset(self, t: np.ndarray, channel: np.ndarray) -> np.ndarray:
-        """(n,) bool: which impulses at times t (n,) s on channels (n,) int lie less than 2Δ after their channel's
-        onset (deposited by :meth:`onset_tents` instead of the nodes; class doc, "Causal"); all False without an
-        onset."""
+        """(n,) bool: which impulses at times t (n,) s on channels (n,) int lie less than 2Δ after the latest onset
+        their node masses would reach (deposited as :meth:`onset_tents` instead of through the nodes; class doc,
+        "Causal"); all False without an onset."""
         if self.onset is None:
             return np.zeros(len(t), dtype=bool)
-        return t < self.onset[channel] + 2.0 * self.width
+        return t < self.reach_onset[channel] + 2.0 * self.width
 
     def onset_tents(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -336,21 +344,6 @@ class DeepSmoothing:
         h = np.minimum(ONSET_NARROWING * tau, np.sqrt(2.0) * self.width)
         return np.stack([centre - h, centre, centre + h], axis=1), weight, channel
 
-    def _flush_onset(self, sink: Sink, masses: np.ndarray, component: int) -> np.ndarray:
-        """Deposit the nodes whose tents would start before their channel's onset as tents cut at it (class doc,
-        "Causal"); returns the masses with those nodes zeroed (a copy when any was)."""
-        nodes = self.node_times
-        ch, j = np.nonzero((nodes[None, :] - self.width < self.onset[:, None]) & (masses != 0.0))
-        if not len(ch):
-            return masses
-        onset = self.onset[ch]
-        centre = np.maximum(nodes[j], onset)
-        right = np.maximum(nodes[j] + self.width, centre + 0.5 * self.width)
-        sink.add_tents(np.stack([onset, centre, right], axis=1), masses[ch, j], component * self.n_channels + ch)
-        masses = masses.copy()
-        masses[ch, j] = 0.0
-        return masses
-
     def applied_now(self) -> np.ndarray:
         """The correction this run's node masses at Δ are deposited less (``correct``), (n_channels, nodes) photons:
         :func:`smoothed_correction` of its two levels, clipped so that no mass falls below zero."""
@@ -358,7 +351,7 @@ class DeepSmoothing:
             raw = self.deposit
             correction = smoothed_correction(*self.pending_levels)
             if self.onset is not None:            # no kernel before the onset (class doc, "Causal")
-                correction[self.node_times[None, :] < (self.onset + self.width)[:, None]] = 0.0
+                correction[self.node_times[None, :] < (self.reach_onset + self.width)[:, None]] = 0.0
             self._applied = raw - np.maximum(raw - correction, 0.0)
         return self._applied
 
@@ -420,6 +413,13 @@ class DeepSmoothing:
                 shapes[int(j)] = (0, np.zeros(0), 1.0)
         self._shapes_key, self._shapes = key, shapes
         return shapes
+
+    def _flush_early(self, sink: Sink, component: int) -> None:
+        """Deposit this run's :meth:`onset_tents` as tents (they reach a scan's fine grid, which the nodes' binned
+        shapes otherwise spare: docs/accuracy.md)."""
+        tents, weights, channels = (np.concatenate(a) for a in zip(*self._early))
+        self._early = []
+        sink.add_tents(tents, weights, component * self.n_channels + channels)
 
     def binned_shapes(self, sink: Sink) -> np.ndarray | None:
         """(nodes, n_bins) float64: node j's unit tent deposited on ``sink``'s grid and binned with its IRF (one

@@ -474,15 +474,11 @@ class MultibounceTracer:
         self.order_energy[k] += float(weight[inside].sum())
         self.order_time[k] += float(np.dot(weight[inside], t[inside]))
         band = self.smoothing.band(order) if self.smoothing is not None else None
-        component = self.secondary_component if order == 2 and self.secondary_component is not None \
-            else self.component
         if band is not None:
             near = band.covers(t)
-            early = near & band.near_onset(t, channel)       # narrowing tents of their own (causal: .smoothing)
-            if early.any():
-                tents, w_early, ch_early = band.onset_tents(t[early], weight[early], channel[early])
-                sink.add_tents(tents, w_early, component * self.capture.n_channels + ch_early)
-            band.add(t[near], weight[near], channel[near], early[near])
+            band.add(t[near], weight[near], channel[near])
             t, weight, channel = t[~near], weight[~near], channel[~near]
+        component = self.secondary_component if order == 2 and self.secondary_component is not None \
+            else self.component
         if len(t):
             sink.add(t, weight, component * self.capture.n_channels + channel)
