@@ -290,9 +290,8 @@ class DeepSmoothing:
         # (the spread's point reflection can leave a node within h − 1 of an edge below zero: photons are not)
         if self.scan is not None:
             masses = np.maximum(spread_scan(masses, self.scan), 0.0)
-        if self.onset is not None:
-            if self._early:
-                self._flush_early(sink, component)
+        if self._early:
+            self._flush_early(sink, component)
         shapes = self.binned_shapes(sink) if hasattr(sink, "add_binned") else None
         if shapes is not None:                  # node masses × binned unit tents: the same bins, no fine grid
             sink.add_binned(masses @ shapes, component * self.n_channels + np.arange(self.n_channels),
@@ -311,9 +310,7 @@ class DeepSmoothing:
     def near_onset(self, t: np.ndarray, channel: np.ndarray) -> np.ndarray:
         """(n,) bool: which impulses at times t (n,) s on channels (n,) int lie less than 2Δ after the latest onset
         their node masses would reach (deposited as :meth:`onset_tents` instead of through the nodes; class doc,
-        "Causal"); all False without an onset."""
-        if self.onset is None:
-            return np.zeros(len(t), dtype=bool)
+        "Causal"; only with an onset)."""
         return t < self.reach_onset[channel] + 2.0 * self.width
 
     def onset_tents(self, t: np.ndarray, weight: np.ndarray, channel: np.ndarray

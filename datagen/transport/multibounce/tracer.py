@@ -185,8 +185,6 @@ class MultibounceTracer:
             secondary of an estimator that runs without one: docs/physics.md §2, "Light of every order").
         irf_reach: how much earlier than an impulse the IRF spreads its light, s (``Irf.support[0]``): impulses
             that late past the window's end still reach it (0: the in-window tallies only, as the planner's pilot).
-        onset: (n_channels,) s, the earliest time any light reaches each channel (:func:`.onset.earliest_arrival`,
-            computed when None and the smoothing is on): the smoothing's kernels stay after it.
     Attributes:
         stats: :class:`MultibounceStats`.
         order_energy: (:data:`ORDER_TALLY`,) float64, the weight deposited inside the window by order (index k−1
@@ -198,7 +196,7 @@ class MultibounceTracer:
 
     def __init__(self, capture: Capture, caster: RayCaster, physics: LegPhysics, settings: MultibounceSettings,
                  component: int, window: tuple[float, float], secondary_component: int | None = None,
-                 irf_reach: float = 0.0, onset: np.ndarray | None = None):
+                 irf_reach: float = 0.0):
         self.capture, self.caster, self.physics, self.settings = capture, caster, physics, settings
         self.irf_reach = float(irf_reach)
         self.component = int(component)
@@ -209,9 +207,9 @@ class MultibounceTracer:
         scan = ((capture.fov_pixels[1], capture.fov_pixels[0], settings.smooth_scan)
                 if capture.kind == "confocal" and capture.n_channels == capture.n_pixels and settings.smooth_scan > 1
                 else None)
-        # the smoothing's kernels stay after the earliest time any light reaches each channel (causal, .onset)
-        self.onset = (onset if onset is not None or not settings.smooth_order
-                      else earliest_arrival(capture, caster, physics))
+        # the smoothing's kernels stay after the earliest time any light reaches each channel (causal, .onset;
+        # computed once per capture)
+        self.onset = earliest_arrival(capture, caster, physics) if settings.smooth_order else None
         self.smoothing = (SmoothingBands(settings.smooth_order, settings.smooth_width, settings.smooth_max_width,
                                          self.t_start, self.t_stop, capture.n_channels, scan, settings.smooth_narrow,
                                          settings.smooth_correct, self.onset)
@@ -246,7 +244,7 @@ class MultibounceTracer:
         """A fresh tracer (no runs) with the same settings but the lowest smoothing band's node spacing halved."""
         settings = replace(self.settings, smooth_narrow=self.settings.smooth_narrow + 1)
         return MultibounceTracer(self.capture, self.caster, self.physics, settings, self.component,
-                                 (self.t_start, self.t_stop), self.secondary_component, self.irf_reach, self.onset)
+                                 (self.t_start, self.t_stop), self.secondary_component, self.irf_reach)
 
     @property
     def components(self) -> list[int]:
