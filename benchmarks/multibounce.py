@@ -1,8 +1,8 @@
 """Light of every order: what it costs and how close it lands (docs/accuracy.md, "Light of every order").
 
 For each scene and seeds 0…N−1 (``--seeds``; the replicas a seed's tolerance loop lands on vary, so one seed's cost
-is luck): ``simulate_to_tolerance`` with the area estimator at the tolerance, once with ``orders`` unset (2: primary
-and secondary, the old model, with no pilot) and once with ``orders: auto`` (the planner's pilot adds every order ≥ 3
+is luck): ``simulate_to_tolerance`` with the area estimator at the tolerance, once at orders 1–2 without the planner's pilot
+(:func:`estimator_alone`: the old model's cost) and once with ``orders: auto`` (the planner's pilot adds every order ≥ 3
 when the scene calls for it), CPU seconds of each measured in this one run and summed over the seeds; then a converged all-order reference (the same
 unbiased estimators, the deep orders unsmoothed (``multibounce: {smoothing: false}``), at a tolerance four times tighter, a different seed) and the actual relative L2 distance of each
 result to it on 1 ns bins (IRF applied), against the result's stated error.
@@ -13,13 +13,16 @@ result to it on 1 ns bins (IRF applied), against the result's stated error.
         [--rel-tol 0.01] [--budget 600]
 
 ``--dataset``: the per-sample CPU of a dataset build (``make_sample`` of the first samples of a split, at the
-config's tolerance and cost cap), with ``orders`` unset (orders 1–2, as every config before ``orders``) and with
-``orders: auto``, both in this run, and each sample's stated error and multibounce share.
+config's tolerance and cost cap), with the estimator's own orders alone (1–2, or 1 beside a quadrature whose
+secondary is off; no pilot: :func:`estimator_alone`) and with ``orders: auto``, both in this run, and each sample's
+stated error and multibounce share.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
+from unittest import mock
 
 import numpy as np
 
@@ -45,6 +48,12 @@ def rel_l2(a: np.ndarray, ref: np.ndarray) -> float:
     return float(np.linalg.norm(a - ref) / np.linalg.norm(ref))
 
 
+def estimator_alone():
+    """A context in which a fixed ``orders`` of 1 or 2 runs no pilot (the planner's ``order_shares`` gives None):
+    what the estimator's own orders cost, with nothing of orders ≥ 3 measured, as before ``orders`` existed."""
+    return mock.patch("datagen.planner.decisions.order_shares", return_value=None)
+
+
 def run(scene_file: str, tolerance: float, paths: int, seeds: int = 4):
     scene = datagen.load_scene(scene_file)
     warm = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 512}, "orders": "auto",
@@ -53,12 +62,11 @@ def run(scene_file: str, tolerance: float, paths: int, seeds: int = 4):
     out = []
     for seed in range(seeds):                 # the replicas a seed's loop lands on vary: the cost is their sum
         for orders in (2, "auto"):
-            # orders 2 as every config without ``orders`` runs it (no pilot, no residual): the old model's cost
-            chosen = {"orders": orders} if orders == "auto" else {}
             cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": SAMPLES}, "replicas": 2,
-                                                 "multibounce": {"paths": paths}, "seed": seed, **chosen})
+                                                 "multibounce": {"paths": paths}, "seed": seed, "orders": orders})
             t = time.process_time()
-            r = simulate_to_tolerance(scene, cfg, tolerance)
+            with estimator_alone() if orders == 2 else contextlib.nullcontext():
+                r = simulate_to_tolerance(scene, cfg, tolerance)
             out.append((seed, orders, r, time.process_time() - t))
     cfg = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 65536}, "orders": "auto",
                                          "multibounce": {"paths": paths, "smoothing": False},
@@ -81,8 +89,9 @@ def dataset_costs(path: str, split: str, samples: int) -> None:
     from datagen.dataset import load_dataset_config
     from datagen.dataset.config import make_sample
     config = load_dataset_config(path)
-    old = {k: v for k, v in config.simulation.items() if k != "orders"}        # orders unset: 1–2, no pilot
-    variants = {"orders 1-2": config.model_copy(update={"simulation": old}),
+    old = {k: v for k, v in config.simulation.items() if k != "orders"}
+    alone = 1 if (old.get("effects") or {}).get("secondary") is False else 2   # the estimator's own orders
+    variants = {"orders 1-2": config.model_copy(update={"simulation": {**old, "orders": alone}}),
                 "auto": config.model_copy(update={"simulation": {**old, "orders": "auto"}})}
     make_sample(variants["auto"], split, 0)                 # compiled kernels loaded before any timing
     print(f"{path} ({split}, samples 0–{samples - 1}): CPU s per sample in this run")
@@ -92,7 +101,8 @@ def dataset_costs(path: str, split: str, samples: int) -> None:
     for i in range(samples):
         for name, cfg in variants.items():
             t = time.process_time()
-            s = make_sample(cfg, split, i)
+            with estimator_alone() if name != "auto" else contextlib.nullcontext():
+                s = make_sample(cfg, split, i)
             cpu = time.process_time() - t
             totals[name] = totals.get(name, 0.0) + cpu
             share = s.orders.get("multibounce_share", 0.0) if s.orders else 0.0

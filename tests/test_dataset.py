@@ -60,7 +60,8 @@ def test_sample_fields_shapes_dtypes_and_components_sum(smoke):
     assert s.time_edges.shape == (257,)
     np.testing.assert_allclose(s.time_edges[[0, -1]], [15e-9, 15e-9 + 256 * 200e-12], rtol=1e-12)
     k = 4
-    assert s.component_names == ["room"] + [f"object_{i}" for i in range(k)] + ["secondary", "first_bounce"]
+    assert s.component_names == (["room"] + [f"object_{i}" for i in range(k)]
+                                 + ["secondary", "first_bounce", "multibounce"])     # orders unset: auto
     assert a["components"].shape == (len(s.component_names), 256)
     # components are the envelope split by what the lookin hit: they sum back to it (float32 storage)
     np.testing.assert_allclose(a["components"].astype(np.float64).sum(0), a["envelope"], rtol=2e-6,
@@ -194,18 +195,19 @@ def test_bad_config_file_names_the_file(tmp_path):
 
 def test_each_sample_meets_the_tolerance_and_stores_its_error_estimate(smoke):
     """envelope_error is the 0-d float32 estimate of the adaptive run; samples start from 4 replicas and add
-    more only when the estimate asks for it (train[4] of the smoke config: 5 replicas); the parameters record
-    the accuracy the sample reached."""
+    more only when the estimate asks for it (train[4] of the smoke config at 4.4 %: 5 replicas); the parameters
+    record the accuracy the sample reached."""
     import json
     assert smoke.tolerance == 0.05 and smoke.cost_cap == 0.5
+    smoke = smoke.model_copy(update={"tolerance": 0.044})
     replicas = []
     for i in (3, 4):
         s = make_sample(smoke, "train", i)
         err = s.arrays["envelope_error"]
         assert err.shape == () and err.dtype == np.float32
         acc = json.loads(str(s.arrays["params"][()]))["accuracy"]
-        assert acc["envelope_error"] == pytest.approx(float(err), rel=1e-6) and acc["tolerance"] == 0.05
-        assert acc["met"] == (acc["envelope_error"] <= 0.05) and 0 < float(err) <= 0.05
+        assert acc["envelope_error"] == pytest.approx(float(err), rel=1e-6) and acc["tolerance"] == 0.044
+        assert acc["met"] == (acc["envelope_error"] <= 0.044) and 0 < float(err) <= 0.044
         replicas.append(acc["replicas"])
     assert replicas[0] == 4 and replicas[1] > 4
 

@@ -47,7 +47,8 @@ def no_lookins(monkeypatch):
 def test_planning_and_building_another_estimator_never_constructs_a_lookin_object(kind, no_lookins):
     scene = patch_scene(with_occluder=True)
     transport, plan = prepare_transport(scene, config(scene, kind))
-    assert type(transport) is estimator(kind).cls and set(plan.decisions) == set(EFFECTS)
+    assert type(getattr(transport, "base", transport)) is estimator(kind).cls      # (beside the tracer: orders auto)
+    assert set(EFFECTS) <= set(plan.decisions) <= set(EFFECTS) | {"multibounce"}
     assert not isinstance(transport.settings, LookinSettings)
 
 

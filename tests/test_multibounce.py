@@ -107,7 +107,7 @@ class _ComponentTally:
 def test_orders_one_and_two_are_bit_identical_with_the_tracer_beside_them_and_for_two_workers():
     scene = datagen.load_scene(DEMO)
     base = {"estimator": {"kind": "area", "samples": 2048}, "replicas": 2, "multibounce": {"paths": 2048}}
-    two = datagen.simulate(scene, datagen.resolve_config(scene, base))              # orders unset: 2, no pilot
+    two = datagen.simulate(scene, datagen.resolve_config(scene, {**base, "orders": 2}))
     four = datagen.simulate(scene, datagen.resolve_config(scene, {**base, "orders": 4}))
     four_w2 = datagen.simulate(scene, datagen.resolve_config(scene, {**base, "orders": 4, "workers": 2}))
     assert list(four.components) == list(two.components) + ["multibounce"]
@@ -117,7 +117,7 @@ def test_orders_one_and_two_are_bit_identical_with_the_tracer_beside_them_and_fo
         assert np.array_equal(four.components[name], four_w2.components[name]), name
     assert four.components["multibounce"].sum() > 0.2 * four.envelope.sum()     # albedo 1: a large tail
     assert four.attrs["orders"]["simulated"] == "1..4"
-    assert "orders" not in two.attrs
+    assert two.attrs["orders"]["simulated"] == "1..2"
     energy = four.attrs["orders"]["energy_by_order"]
     assert energy["order_3"] > energy["order_4"] > 0 and energy["order_5"] == 0.0    # max_order 4 is honoured
 
@@ -128,7 +128,7 @@ def test_orders_one_is_secondary_none_and_the_old_spelling_still_means_it():
     assert one.secondary == "none" and one.orders_setting() == 1
     old = datagen.resolve_config(scene, {"secondary": "none"})
     assert old.orders_setting() == 1
-    assert datagen.resolve_config(scene, {}).orders_setting() == 2
+    assert datagen.resolve_config(scene, {}).orders_setting() == "auto"      # unset: every order the room calls for
     # --orders beats the file's secondary: none (the old spelling of orders: 1)
     scan = datagen.load_scene(ROOT / "scene_library" / "confocal_scan.yaml")
     assert datagen.resolve_config(scan, {"orders": 2}).secondary == "full"
@@ -471,21 +471,24 @@ def test_the_compiled_continuation_is_the_numpy_sampling_and_brdf():
 def test_orders_fixed_below_what_the_scene_calls_for_warn_and_count_the_residual():
     """orders: 2 written in the config (or --orders 2): the pilot runs, the orders above 2 are the residual in the
     stated error (the demo room: ~60 %), one warning names it, and the CLI says why the tolerance is missed. Left
-    unset, orders 2 runs no pilot and the result is the old one to the bit."""
+    unset, orders is auto: the same orders 1–2 to the bit, and the tracer beside them, nothing omitted."""
     import warnings
     from datagen.planner.orders import OmittedOrdersWarning
     scene = datagen.load_scene(DEMO)
-    unset = datagen.simulate(scene, datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 2048}}))
+    unset = datagen.simulate(scene, datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 2048},
+                                                                   "multibounce": {"paths": 2048}}))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         fixed = datagen.simulate(scene, datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 2048},
                                                                        "orders": 2}))
-    assert "multibounce" not in unset.attrs["plan"] and unset.attrs["error"]["omitted_orders"] == 0.0
+    assert unset.attrs["plan"]["multibounce"]["on"] and unset.attrs["error"]["omitted_orders"] == 0.0
+    assert unset.attrs["orders"]["setting"] == "auto" and unset.attrs["orders"]["simulated"] == "1..all"
     warned = [str(w.message) for w in caught if issubclass(w.category, OmittedOrdersWarning)]
     assert len(warned) == 1 and "orders: 2 leaves out" in warned[0]
     assert 0.5 < fixed.attrs["error"]["omitted_orders"] < 0.7                 # the tracer measured 60 % here
     assert fixed.attrs["error"]["rel_l2"] >= fixed.attrs["error"]["omitted_orders"]
-    assert np.array_equal(unset.envelope, fixed.envelope)                     # the pilot draws from its own stream
+    for name in fixed.components:                                             # the pilot and the tracer draw
+        assert np.array_equal(unset.components[name], fixed.components[name]), name    # from their own streams
     # a bare wall with one object: orders 1 leaves out little (0.5 % at 65536 pilot paths, docs/physics.md), the
     # deterministic quadrature's coarse run plans no second pilot (one warning)
     scan = datagen.load_scene(ROOT / "scene_library" / "confocal_scan.yaml")

@@ -188,20 +188,20 @@ def test_closed_meshes_are_reached_from_the_laser_side_only():
 
 def test_secondary_exactly_zero_for_one_flat_patch_and_forcing_it_on_adds_nothing():
     scene = patch_scene()
-    plan = plan_for(scene)
+    plan = plan_for(scene, orders=2)                # the estimator's own order 2 (auto: the tracer's beside it)
     assert not plan.on("secondary") and "exactly 0" in plan["secondary"].reason
-    forced = run(scene, effects={"secondary": True})
+    forced = run(scene, orders=2, effects={"secondary": True})
     assert forced.attrs["effects"]["secondary"] == "full"
     assert forced.area("secondary") == 0.0
-    assert change(forced.envelope, run(scene).envelope) == 0.0
+    assert change(forced.envelope, run(scene, orders=2).envelope) == 0.0
 
 
 def test_secondary_below_tolerance_is_skipped_and_forcing_it_on_changes_less_than_tolerance():
     scene = patch_with_side(albedo=0.02)
-    d = plan_for(scene)["secondary"]
+    d = plan_for(scene, orders=2)["secondary"]
     assert not d.on and d.numbers["estimate"] == pytest.approx(SECONDARY_SAFETY * d.numbers["ratio"])
     assert 0 < d.numbers["estimate"] < TOL
-    auto, forced = run(scene), run(scene, effects={"secondary": True})
+    auto, forced = run(scene, orders=2), run(scene, orders=2, effects={"secondary": True})
     assert auto.area("secondary") == 0.0 < forced.area("secondary")
     measured = change(forced.envelope, auto.envelope)
     assert 0 < measured < TOL
@@ -393,15 +393,18 @@ def test_pile_up_on_when_the_flux_is_high():
 
 def test_forced_values_win_and_are_recorded_in_the_result():
     scene = alcove(with_box=True)
-    result = run(scene, effects={"secondary": False, "shadow_sensor": True, "first_bounce": "auto"})
+    result = run(scene, orders=2, effects={"secondary": False, "shadow_sensor": True, "first_bounce": "auto"})
     plan = result.attrs["plan"]
-    assert set(plan) == set(EFFECTS)
+    assert set(plan) == set(EFFECTS) | {"multibounce"}
     json.dumps(plan)
     assert plan["secondary"]["forced"] and not plan["secondary"]["on"]
     assert plan["secondary"]["reason"].startswith("forced off by the user (the planner would say on")
     assert plan["shadow_sensor"]["forced"] and plan["shadow_sensor"]["on"]
     assert not plan["first_bounce"]["forced"]
-    assert result.attrs["effects"]["secondary"] == "none" and result.area("secondary") == 0.0
+    assert result.attrs["effects"]["secondary"] == "none"
+    # orders: 2 is the same light with every estimator: with the estimator's secondary forced off, the tracer
+    # carries order 2 alone (docs/planner.md, "Orders")
+    assert result.attrs["orders"]["simulated"] == "1..2" and result.area("secondary") > 0.0
 
 
 def test_bad_effect_settings_raise_clear_errors():

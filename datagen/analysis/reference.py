@@ -170,7 +170,7 @@ def reference_key(scene: Scene, config, settings: AreaSettings, seed: int = REFE
     data = {"version": REFERENCE_VERSION, "scene": _scene_fingerprint(scene),
             "time": config.time.model_dump(mode="json"), "irf": config.irf.model_dump(mode="json"),
             "settings": asdict(settings), "seed": seed}
-    orders = config.orders_setting() if hasattr(config, "orders_setting") else 2
+    orders = config.orders_setting()
     if orders == "auto" or orders > 2:          # every order: another reference (orders 1–2 keys unchanged)
         data["orders"] = {"orders": "all" if orders == "auto" else orders,
                           "paths_per_sample": REFERENCE_PATHS_PER_SAMPLE}

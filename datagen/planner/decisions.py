@@ -225,16 +225,16 @@ def plan_effects(scene: Scene, config, capture: Capture, caster: RayCaster) -> P
     auto["pile_up"] = _decide_pile_up(detector, config, coarse, secondary_on,
                                       auto["first_bounce"] if first_bounce_on else None, tol)
     plan = Plan({name: _resolve(name, auto[name], forced) for name in EFFECTS}, tol)
-    orders = config.orders_setting() if hasattr(config, "orders_setting") else 2
+    orders = config.orders_setting()
     fixed = getattr(config, "orders", None) is not None           # written by the user: its residual is measured
     if orders == "auto" or orders >= 3 or fixed:
         plan.decisions["multibounce"] = plan_orders(scene, config, capture, caster, orders, tol,
-                                                    plan.on("secondary"))
+                                                    plan.on("secondary"), forced.get("secondary") is False)
     return plan
 
 
 def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, orders: int | str, tol: float,
-                secondary_on: bool = True) -> Decision:
+                secondary_on: bool = True, secondary_forced_off: bool = False) -> Decision:
     """The decision on the light the estimator's own orders leave out (:mod:`.orders`): the pilot's shares (``auto``
     and fixed orders ≤ 2), the tracer's lowest and highest order and the residual share left out, in its numbers.
     With the secondary off (forced, or planned off) the tracer starts at order 2, or, when it does not run, the
@@ -243,7 +243,8 @@ def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, order
     if orders == "auto" or orders <= 2:                 # (orders ≤ 2 comes here only when the user fixed it)
         shares = order_shares(scene, capture, caster, config.physics_settings(),
                               (config.time.t_start, config.time.t_stop), config.seed)
-    on, min_order, max_order, residual, reason = decide_orders(orders, shares, tol, secondary_on)
+    on, min_order, max_order, residual, reason = decide_orders(orders, shares, tol, secondary_on,
+                                                               secondary_forced_off)
     numbers = {"orders": orders, "min_order": min_order, "max_order": max_order, "residual": residual}
     if shares is not None:
         numbers["pilot_paths"] = PILOT_PATHS

@@ -13,7 +13,8 @@ The pilot draws from its own stream (:data:`PILOT_STREAM`), so it changes no oth
 A config that *fixes* ``orders`` at 1 or 2 (written in the file or given with ``--orders``) runs the same pilot:
 the share of the orders it leaves out is its residual, counted in the stated error, and an
 :class:`OmittedOrdersWarning` names it when it exceeds :data:`RESIDUAL_FRACTION` of the tolerance. An ``orders``
-left unset (1 with ``secondary: none``, else 2: what every config meant before ``orders`` existed) runs no pilot.
+left unset is "auto", except beside ``secondary: none`` (the old spelling of orders 1): orders 1, no pilot. A fixed
+``orders: 2`` beside an estimator without its secondary has the tracer carry order 2 alone.
 """
 from __future__ import annotations
 
@@ -64,15 +65,20 @@ def order_shares(scene: Scene, capture: Capture, caster: RayCaster, physics: Phy
     return tracer.order_energy / total if total > 0 else tracer.order_energy
 
 
-def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, secondary_on: bool = True):
+def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, secondary_on: bool = True,
+                  secondary_forced_off: bool = False):
     """(on, min_order, max_order, residual, reason) for the light the estimator's own orders leave out.
 
     The tracer carries every order from ``min_order`` up: 3 beside an estimator with its secondary, 2 beside one
-    without (``secondary: none``, or the planner turned it off: the confocal scans' quadrature).
+    without (``secondary: none``, or the planner turned it off: the confocal scans' quadrature); a fixed
+    ``orders: 2`` beside one whose secondary the user switched off has it carry order 2 alone (``min_order`` =
+    ``max_order`` = 2); beside one whose secondary the planner skipped, the skipped share joins the residual.
 
     Args:
         orders: the config's ``orders`` (an int ≥ 1 or "auto"); shares: :func:`order_shares` (None when not run);
-        tol: the tolerance; secondary_on: whether the estimator computes order 2 itself.
+        tol: the tolerance; secondary_on: whether the estimator computes order 2 itself; secondary_forced_off:
+            its order 2 is off by the user's ``effects`` (the confocal configs' quadrature), not because the planner
+            found it below the tolerance: a fixed ``orders: 2`` then has the tracer carry it.
     Returns:
         on: run the tracer; min_order: its lowest order (2 or 3); max_order: its highest (0: every order);
         residual: the estimated share of the in-window energy left out (0 when every order is simulated or nothing
@@ -82,6 +88,12 @@ def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, seco
     beyond = float(shares[lowest - 1:].sum()) if shares is not None else None
     if orders != "auto":
         n = int(orders)
+        if n == 2 and secondary_forced_off:         # order 2 from the tracer: the same light as any estimator's
+            left = float(shares[2:].sum()) if shares is not None else 0.0
+            return True, 2, 2, left, (f"orders: 2 (fixed by the config; the tracer carries order 2 beside an "
+                                      f"estimator without its secondary)" + (
+                                          f"; the pilot finds orders ≥ 3 carry {left:.2%} of the in-window "
+                                          "energy: counted in the stated error" if shares is not None else ""))
         if n <= 2:
             reason = f"orders: {n} (fixed by the config)"
             if shares is None:

@@ -160,7 +160,8 @@ class SimulationConfig(BaseModel):
         orders: how many hidden vertices a path may have (docs/physics.md §2, "Orders"): 1 (primary only, the
             same as ``secondary: none``), 2 (primary and secondary), N ≥ 3 (every order up to N: the component
             ``multibounce`` holds orders 3..N) or "auto" (the effect planner's pilot decides whether orders ≥ 3 are
-            simulated, :mod:`datagen.planner.orders`). Unset: 1 when ``secondary`` is "none", else 2.
+            simulated, :mod:`datagen.planner.orders`). Unset: "auto", except with ``secondary: none`` (the old
+            spelling of orders 1, which the frozen suites use): 1.
         multibounce: the order ≥ 3 tracer's settings (:class:`MultibounceOptions`), used when orders ≥ 3 are
             simulated.
         workers: processes sharing the work (1 = in process; the result does not depend on it).
@@ -246,10 +247,10 @@ class SimulationConfig(BaseModel):
         return total if n_lasers <= 1 else max(MIN_SCAN_PATHS, -(-total // int(n_lasers)))
 
     def orders_setting(self) -> int | str:
-        """The orders asked for: ``orders``, or when unset 1 with ``secondary: none`` and 2 otherwise."""
+        """The orders asked for: ``orders``, or when unset 1 with ``secondary: none`` and "auto" otherwise."""
         if self.orders is not None:
             return self.orders
-        return 1 if self.secondary == "none" else 2
+        return 1 if self.secondary == "none" else "auto"
 
     @field_validator("effects")
     @classmethod
