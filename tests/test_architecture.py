@@ -268,6 +268,40 @@ def test_the_module_map_check_sees_an_unnamed_module(tmp_path):
     assert _unnamed_modules(pkg) == {"pkg": ["forgotten"], "pkg/sub": ["inner"]}
 
 
+def _constructions(root: Path, cls: str) -> list[str]:
+    """Every call ``cls(...)`` in the Python files under ``root``: "path:line in function"."""
+    out = []
+
+    def visit(node: ast.AST, where: str, path: Path) -> None:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            where = node.name
+        if (isinstance(node, ast.Call) and isinstance(node.func, (ast.Name, ast.Attribute))
+                and (node.func.id if isinstance(node.func, ast.Name) else node.func.attr) == cls):
+            out.append(f"{path.relative_to(root.parent)}:{node.lineno} in {where}")
+        for child in ast.iter_child_nodes(node):
+            visit(child, where, path)
+
+    for path in sorted(root.rglob("*.py")):
+        visit(parse_python(path), "<module>", path)
+    return out
+
+
+def test_the_light_tracer_has_one_constructor():
+    """One front door to the tracer: ``MultibounceTracer(...)`` is called in ``build_tracer`` only, in the package,
+    its tests and its benchmarks (every site passes its settings by keyword there)."""
+    sites = [c for folder in (PACKAGE, PACKAGE.parent / "tests", PACKAGE.parent / "benchmarks")
+             for c in _constructions(folder, "MultibounceTracer")]
+    assert len(sites) == 1 and sites[0].endswith("in build_tracer"), sites
+
+
+def test_the_constructor_scan_sees_a_second_site(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "a.py").write_text("def build_tracer():\n    return MultibounceTracer(1)\n")
+    (pkg / "b.py").write_text("import m\n\ndef pilot():\n    return m.MultibounceTracer(2)\n")
+    assert [s.split(" in ")[1] for s in _constructions(pkg, "MultibounceTracer")] == ["build_tracer", "pilot"]
+
+
 def test_every_dependency_has_a_lower_bound_that_the_lower_bound_run_installs_or_explains():
     """docs/development.md, "Dependency ranges": scripts/lower_bounds.py pins each range's lowest release series."""
     spec = importlib.util.spec_from_file_location("lower_bounds", PACKAGE.parent / "scripts" / "lower_bounds.py")

@@ -20,7 +20,7 @@ import datagen
 from datagen.cli.main import main
 from datagen.errors import ConfigError
 from datagen.simulation.run import prepare_transport
-from datagen.transport.multibounce import MultibounceSettings, MultibounceTracer
+from datagen.transport.multibounce import MultibounceSettings, build_tracer
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = str(ROOT / "scene_library" / "demo_room.yaml")
@@ -37,8 +37,8 @@ class Tally:
 
 
 def _order_energy(transport, order: int, paths: int, seed: int, window) -> float:
-    tracer = MultibounceTracer(transport.capture, transport.caster, transport.physics,
-                               MultibounceSettings(paths=paths, min_order=order, max_order=order), 0, window)
+    tracer = build_tracer(transport.capture, transport.caster, transport.physics,
+                          MultibounceSettings(paths=paths, min_order=order, max_order=order), window=window)
     sink = Tally()
     tracer.run(sink, np.random.default_rng(seed))
     return sink.total
@@ -80,8 +80,8 @@ def test_the_eye_vertex_changes_the_spread_of_the_orders_not_their_mean():
     for eye in (False, True):
         energy = []
         for r in range(24):
-            tracer = MultibounceTracer(transport.capture, transport.caster, transport.physics,
-                                       MultibounceSettings(paths=8000, min_order=2, max_order=4, eye=eye), 0, window)
+            tracer = build_tracer(transport.capture, transport.caster, transport.physics,
+                                  MultibounceSettings(paths=8000, min_order=2, max_order=4, eye=eye), window=window)
             tracer.run(Tally(), np.random.default_rng(500 + 100 * eye + r))
             energy.append(tracer.order_energy[1:4].copy())
         runs[eye] = np.array(energy)
@@ -659,8 +659,8 @@ def test_a_path_stops_once_no_impulse_of_it_can_reach_the_window():
     energy, vertices = {}, {}
     for name, window, early in (("cut", (0.0, t_end), 0.0), ("long", (0.0, 4 * t_end), 0.0),
                                 ("too early", (0.0, t_end), 2.0)):
-        tracer = MultibounceTracer(transport.capture, transport.caster, transport.physics,
-                                   MultibounceSettings(paths=8000, eye=False), 0, window)
+        tracer = build_tracer(transport.capture, transport.caster, transport.physics,
+                              MultibounceSettings(paths=8000, eye=False), window=window)
         tracer.min_tail += early
         runs = []
         for seed in range(6):

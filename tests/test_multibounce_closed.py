@@ -22,7 +22,7 @@ import datagen
 from datagen.scene import Material, RayCaster, Scene, resolve_capture
 from datagen.scene.builders import quad
 from datagen.scene.parts import CaptureSpec, Laser, Sensor, SceneObject, WallGrid
-from datagen.transport.multibounce import MultibounceSettings, MultibounceTracer
+from datagen.transport.multibounce import MultibounceSettings, build_tracer
 from datagen.transport.physics import LegPhysics, PhysicsSettings
 from datagen.units import SPEED_OF_LIGHT
 
@@ -77,8 +77,8 @@ def traced(scene: Scene, paths: int, runs: int, window: tuple[float, float], max
     energy, times = [], []
     tracer = None
     for r in range(runs):
-        tracer = MultibounceTracer(capture, caster, legs, MultibounceSettings(paths=paths, min_order=1,
-                                                                              max_order=max_order), 0, window)
+        tracer = build_tracer(capture, caster, legs, MultibounceSettings(paths=paths, min_order=1, max_order=max_order),
+                              window=window)
         tracer.run(_Discard(), np.random.default_rng(seed + r))
         energy.append(tracer.order_energy.copy())
         times.append(tracer.order_time.copy())

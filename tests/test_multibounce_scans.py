@@ -19,7 +19,7 @@ import datagen
 from datagen.simulation.run import prepare_transport
 from datagen.timing import EnvelopeAccumulator, Irf, TimeAxis
 from datagen.transport.area.kernels import fov_targets
-from datagen.transport.multibounce import MultibounceSettings, MultibounceTracer
+from datagen.transport.multibounce import MultibounceSettings, build_tracer
 from datagen.transport.multibounce.kernels import fov_targets_ranged
 from datagen.transport.multibounce.scan_spread import spread_scan, tent_variance
 from datagen.transport.multibounce.smoothing import DeepSmoothing
@@ -61,8 +61,8 @@ def test_a_confocal_point_deposits_on_its_own_pixel_only():
             self.seen |= set(np.asarray(component).tolist())
 
     for laser in (0, capture.n_lasers // 2 + 3):
-        tracer = MultibounceTracer(capture, transport.caster, transport.physics,
-                                   MultibounceSettings(paths=4000, min_order=1), 0, (cfg.time.t_start, 1e-6))
+        tracer = build_tracer(capture, transport.caster, transport.physics, MultibounceSettings(paths=4000, min_order=1),
+                              window=(cfg.time.t_start, 1e-6))
         sink = Channels()
         sink.seen = set()
         tracer.run_lasers(sink, np.random.default_rng(laser), np.array([laser]))

@@ -41,7 +41,8 @@ import numpy as np
 from ..simulation.replicas import PEAK_FLOOR, relative_standard_error
 from ..processes import ForkedCall
 from ..transport import AreaSampler, AreaSettings, estimator
-from ..transport.multibounce import AllOrders, MultibounceSettings, MultibounceTracer
+from ..transport.multibounce import MultibounceSettings
+from ..transport.multibounce.orders import beside
 from ..timing import EnvelopeAccumulator
 from ..scene import RayCaster
 from ..errors import ConfigError
@@ -223,10 +224,7 @@ def all_orders(sampler: AreaSampler, config, samples: int):
         return sampler
     settings = MultibounceSettings(paths=REFERENCE_PATHS_PER_SAMPLE * samples,
                                    max_order=0 if orders == "auto" else int(orders))
-    tracer = MultibounceTracer(sampler.capture, sampler.caster, sampler.physics, settings,
-                               len(sampler.component_names), (config.time.t_start, config.time.t_stop),
-                               irf_reach=config.irf.support[0])
-    return AllOrders(sampler, tracer)
+    return beside(sampler, settings, (config.time.t_start, config.time.t_stop), config.irf.support[0])
 
 
 QUADRATURE_REFERENCE_EDGE = 4

@@ -55,8 +55,9 @@ from ..spad.models import detector_model, model_names
 from ..spad.pileup import pile_up_decision
 from ..transport import PhysicsSettings
 from ..transport.base import PLANNED_SWITCHES
+from ..transport.multibounce.options import OrdersChoice
 from .coarse import CoarseEnergies, coarse_energies
-from .orders import PILOT_PATHS, RESIDUAL_FRACTION, OmittedOrdersWarning, decide_orders, order_shares
+from .orders import RESIDUAL_FRACTION, OmittedOrdersWarning, decide_orders, order_shares
 from .geometry import PlanGeometry
 from ..vectors import matmul
 
@@ -104,6 +105,14 @@ class Decision:
     """shadow_spot / shadow_sensor: every face that can cross a laser point → hidden point segment, or a FoV
     point → sensor segment (complete), or None when not determined; transport uses it to skip shadow rays that
     cannot be blocked (not in the attrs)."""
+
+
+@dataclass(frozen=True)
+class OrdersDecision(Decision):
+    """The ``multibounce`` decision: which orders of light the run simulates, typed (``choice``: min and max order of
+    the tracer, the residual left out, the pilot's shares); ``numbers`` is its JSON form (:mod:`.orders`)."""
+
+    choice: OrdersChoice | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -243,19 +252,14 @@ def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, order
     if orders == "auto" or orders <= 2:                 # (orders ≤ 2 comes here only when the user fixed it)
         shares = order_shares(scene, capture, caster, config.physics_settings(),
                               (config.time.t_start, config.time.t_stop), config.seed)
-    on, min_order, max_order, residual, reason = decide_orders(orders, shares, tol, secondary_on,
-                                                               secondary_forced_off)
-    numbers = {"orders": orders, "min_order": min_order, "max_order": max_order, "residual": residual}
-    if shares is not None:
-        numbers["pilot_paths"] = PILOT_PATHS
-        numbers["pilot_shares"] = {f"order_{k + 1}" if k + 1 < len(shares) else f"order_{k + 1}_up": float(v)
-                                   for k, v in enumerate(shares)}
+    choice, reason = decide_orders(orders, shares, tol, secondary_on, secondary_forced_off)
+    residual = choice.residual
     if orders != "auto" and orders <= 2 and residual > RESIDUAL_FRACTION * tol:
         warnings.warn(OmittedOrdersWarning(
             f"{scene.source or scene.name}: orders: {orders} leaves out {residual:.1%} of the in-window light (the "
             f"pilot's estimate, above {RESIDUAL_FRACTION:g} × the tolerance {tol:.2%}); the stated error includes "
             "it; orders: auto simulates what the scene calls for"), stacklevel=2)
-    return Decision(on, reason, orders != "auto", numbers)
+    return OrdersDecision(choice.on, reason, orders != "auto", choice.numbers(), choice=choice)
 
 
 def _forced_effects(effects: dict) -> dict[str, bool | None]:

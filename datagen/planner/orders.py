@@ -23,7 +23,9 @@ import numpy as np
 from ..errors import DatagenWarning
 from ..scene import RayCaster, Scene
 from ..scene.capture import Capture
-from ..transport.multibounce import MultibounceSettings, MultibounceTracer
+from ..transport.multibounce import MultibounceSettings
+from ..transport.multibounce.options import OrdersChoice
+from ..transport.multibounce.tracer import build_tracer
 from ..transport.physics import LegPhysics, PhysicsSettings
 
 PILOT_PATHS = 4096
@@ -57,7 +59,7 @@ def order_shares(scene: Scene, capture: Capture, caster: RayCaster, physics: Phy
         k; the last entry holds every higher order); zeros when no light reaches the FoV inside the window.
     """
     legs = LegPhysics(scene, capture, caster, physics)
-    tracer = MultibounceTracer(capture, caster, legs, MultibounceSettings(paths=paths, min_order=1), 0, window)
+    tracer = build_tracer(capture, caster, legs, MultibounceSettings(paths=paths, min_order=1), window=window)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(PILOT_STREAM,)))
     laser = capture.n_lasers // 2
     tracer.run_laser(_Discard(), rng, laser)
@@ -66,8 +68,8 @@ def order_shares(scene: Scene, capture: Capture, caster: RayCaster, physics: Phy
 
 
 def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, secondary_on: bool = True,
-                  secondary_forced_off: bool = False):
-    """(on, min_order, max_order, residual, reason) for the light the estimator's own orders leave out.
+                  secondary_forced_off: bool = False) -> tuple[OrdersChoice, str]:
+    """Which orders the run simulates beyond its estimator's own, and why.
 
     The tracer carries every order from ``min_order`` up: 3 beside an estimator with its secondary, 2 beside one
     without (``secondary: none``, or the planner turned it off: the confocal scans' quadrature); a fixed
@@ -80,36 +82,43 @@ def decide_orders(orders: int | str, shares: np.ndarray | None, tol: float, seco
             its order 2 is off by the user's ``effects`` (the confocal configs' quadrature), not because the planner
             found it below the tolerance: a fixed ``orders: 2`` then has the tracer carry it.
     Returns:
-        on: run the tracer; min_order: its lowest order (2 or 3); max_order: its highest (0: every order);
-        residual: the estimated share of the in-window energy left out (0 when every order is simulated or nothing
-        was estimated); reason: one sentence with the numbers.
+        (:class:`~datagen.transport.multibounce.options.OrdersChoice`, one sentence with the numbers). Its residual
+        is the estimated share of the in-window energy left out (0 when every order is simulated or nothing was
+        estimated).
     """
     lowest = 3 if secondary_on else 2
-    beyond = float(shares[lowest - 1:].sum()) if shares is not None else None
+    pilot = ({f"order_{k + 1}" if k + 1 < len(shares) else f"order_{k + 1}_up": float(v) for k, v in enumerate(shares)}
+             if shares is not None else None)
+
+    def choice(on: bool, min_order: int, max_order: int, residual: float) -> OrdersChoice:
+        return OrdersChoice(orders, on, min_order, max_order, residual, pilot, PILOT_PATHS if pilot else 0)
+
     if orders != "auto":
         n = int(orders)
         if n == 2 and secondary_forced_off:         # order 2 from the tracer: the same light as any estimator's
             left = float(shares[2:].sum()) if shares is not None else 0.0
-            return True, 2, 2, left, (f"orders: 2 (fixed by the config; the tracer carries order 2 beside an "
-                                      f"estimator without its secondary)" + (
-                                          f"; the pilot finds orders ≥ 3 carry {left:.2%} of the in-window "
-                                          "energy: counted in the stated error" if shares is not None else ""))
+            return choice(True, 2, 2, left), (
+                "orders: 2 (fixed by the config; the tracer carries order 2 beside an estimator without its "
+                "secondary)" + (f"; the pilot finds orders ≥ 3 carry {left:.2%} of the in-window energy: counted in "
+                                "the stated error" if shares is not None else ""))
         if n <= 2:
             reason = f"orders: {n} (fixed by the config)"
             if shares is None:
-                return False, lowest, 0, 0.0, reason
+                return choice(False, lowest, 0, 0.0), reason
             left = float(shares[n:].sum()) + (float(shares[1]) if n == 2 and not secondary_on else 0.0)
-            return False, lowest, 0, left, (f"{reason}; the pilot finds the orders the run leaves out carry "
-                                            f"{left:.2%} of the in-window energy: counted in the stated error")
-        return True, lowest, n, 0.0, f"orders: {n} (fixed by the config)"
+            return choice(False, lowest, 0, left), (f"{reason}; the pilot finds the orders the run leaves out carry "
+                                                    f"{left:.2%} of the in-window energy: counted in the stated error")
+        return choice(True, lowest, n, 0.0), f"orders: {n} (fixed by the config)"
+    beyond = float(shares[lowest - 1:].sum())
     threshold = RESIDUAL_FRACTION * tol
     which = "orders ≥ 3" if secondary_on else "orders ≥ 2 (the estimator runs without its secondary)"
     if beyond <= threshold:
-        return False, lowest, 0, beyond, (f"the pilot finds {which} carry {beyond:.2%} of the in-window energy, "
-                                          f"below {RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): left out, "
-                                          "counted in the stated error")
-    return True, lowest, 0, 0.0, (f"the pilot finds {which} carry {beyond:.2%} of the in-window energy, above "
-                                  f"{RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): every order simulated")
+        return choice(False, lowest, 0, beyond), (
+            f"the pilot finds {which} carry {beyond:.2%} of the in-window energy, below {RESIDUAL_FRACTION:g} × the "
+            f"tolerance ({threshold:.2%}): left out, counted in the stated error")
+    return choice(True, lowest, 0, 0.0), (f"the pilot finds {which} carry {beyond:.2%} of the in-window energy, "
+                                          f"above {RESIDUAL_FRACTION:g} × the tolerance ({threshold:.2%}): every "
+                                          "order simulated")
 
 
 def orders_record(plan, tracer, n_lasers: int) -> dict:
@@ -122,11 +131,9 @@ def orders_record(plan, tracer, n_lasers: int) -> dict:
             :class:`~datagen.transport.multibounce.MultibounceTracer` or None; n_lasers: laser points per run.
     """
     d = plan.decisions["multibounce"]
-    setting = d.numbers["orders"]
-    lowest = "1" if setting == 1 or not plan.on("secondary") else "1..2"
-    out = {"setting": setting, "simulated": (f"1..{d.numbers['max_order'] or 'all'}" if d.on else lowest),
-           "residual_share": d.numbers["residual"], "reason": d.reason,
-           **({"pilot_shares": d.numbers["pilot_shares"]} if "pilot_shares" in d.numbers else {})}
+    c = d.choice
+    out = {"setting": c.setting, "simulated": c.simulated(plan.on("secondary")), "residual_share": c.residual,
+           "reason": d.reason, **({"pilot_shares": dict(c.pilot_shares)} if c.pilot_shares is not None else {})}
     if tracer is not None:
         runs = max(1, tracer.stats.paths // max(1, tracer.settings.paths * n_lasers))
         out["energy_by_order"] = {f"order_{k + 3}": float(v) / runs for k, v in enumerate(tracer.order_energy[2:])}

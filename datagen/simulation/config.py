@@ -23,6 +23,7 @@ from ..timing import Irf, TimeAxis
 from ..transport import EstimatorOptions, LookinSettings, PhysicsSettings, estimator, estimator_names
 from ..transport.base import estimator_options
 from ..transport.lookin.estimator import LookinOptions
+from ..transport.multibounce.options import MultibounceOptions
 
 STREAM_SAMPLING, STREAM_NOISE = 0, 1
 """spawn_key entries of the random streams (docs/physics.md §7)."""
@@ -109,39 +110,6 @@ def legacy_note(moves: list[str], where: str = "simulation") -> str:
     """The one-line deprecation note of :func:`translate_legacy`'s moves."""
     return (f"{where}: old keys translated ({', '.join(moves)}); write the estimator's settings under "
             "estimator: {kind: ..., ...} (docs/accuracy.md)")
-
-
-PATHS_PER_SAMPLE = 4
-"""Default light paths of one replica of the order ≥ 3 tracer per hidden sample of the area sampler's replica. How
-many tracer replicas go with the area sampler's is decided as the run goes, from both parts' measured spread and
-counted work (:func:`datagen.simulation.replicas.tracer_replicas_wanted`): 0.4 tracer replicas per base replica in
-the demo room (albedo 1: a path costs two hidden samples), 0.6–1 in ``default.yaml`` rooms (docs/accuracy.md,
-"Light of every order"); replicas this large keep the fixed cost of each order's array passes small."""
-
-DEFAULT_PATHS = 262144
-"""Default light paths per laser point of the order ≥ 3 tracer beside estimators without a ``samples`` count."""
-
-MIN_SCAN_PATHS = 64
-"""Fewest default light paths per laser point of a scan (:meth:`SimulationConfig.tracer_paths`)."""
-
-
-class MultibounceOptions(BaseModel):
-    """The ``multibounce:`` block of a simulation config: the order ≥ 3 tracer (docs/accuracy.md, "Light of every
-    order").
-
-    Attributes:
-        paths: light paths per laser point, split over the replicas as the estimator's sampling is; unset:
-            :data:`PATHS_PER_SAMPLE` × the estimator's ``samples`` (the area sampler; :data:`DEFAULT_PATHS` for the
-            others), the split that spends about as much time on the tracer as on orders 1–2, which the error of
-            their sum asks for.
-        smoothing: deposit the orders ≥ 3 smoothed in time, with the bias estimated and counted in the stated error;
-            False: every order as impulses (unbiased: what a converged reference uses).
-    """
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    paths: int | None = Field(None, ge=1, description="light paths per laser point (unset: 4 x the area samples)")
-    smoothing: bool = Field(True, description="deposit the orders >= 3 smoothed in time, the bias counted")
 
 
 class SimulationConfig(BaseModel):
@@ -237,14 +205,9 @@ class SimulationConfig(BaseModel):
         return self
 
     def tracer_paths(self, n_lasers: int = 1) -> int:
-        """Light paths per laser point of the order ≥ 3 tracer: ``multibounce.paths``, or its default, which a scan
-        of ``n_lasers`` laser points shares among them (at least :data:`MIN_SCAN_PATHS` per point: the tail varies
-        slowly across the scan, and every point's paths are traced together)."""
-        if self.multibounce.paths is not None:
-            return int(self.multibounce.paths)
-        samples = getattr(self.estimator, "samples", None)
-        total = int(PATHS_PER_SAMPLE * samples) if samples else DEFAULT_PATHS
-        return total if n_lasers <= 1 else max(MIN_SCAN_PATHS, -(-total // int(n_lasers)))
+        """Light paths per laser point of the order ≥ 3 tracer's run (:meth:`MultibounceOptions.paths_per_laser` of
+        ``multibounce`` for this estimator's ``samples``, shared by ``n_lasers`` laser points)."""
+        return self.multibounce.paths_per_laser(getattr(self.estimator, "samples", None), n_lasers)
 
     def orders_setting(self) -> int | str:
         """The orders asked for: ``orders``, or when unset 1 with ``secondary: none`` and "auto" otherwise."""

@@ -22,9 +22,8 @@ from ..timing import EnvelopeAccumulator
 from ..timing.binned_sink import BinnedSink
 from ..transport import estimator
 from ..transport.base import Estimator, run_replicas
-from ..transport.multibounce import COMPONENT, AllOrders, MultibounceSettings, MultibounceTracer
-from ..transport.multibounce.orders import tracer_nominal_seconds
-from ..transport.multibounce.smoothing import default_smoothing
+from ..transport.multibounce import COMPONENT, AllOrders
+from ..transport.multibounce.orders import beside, tracer_nominal_seconds, tracer_settings
 from ..transport.multibounce.tracer import tracer_rng
 from .budget import check_simulation_memory
 from .config import STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
@@ -73,18 +72,9 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
                                              plan.secondary_mode(config.secondary))
     orders = plan.decisions.get("multibounce")
     if orders is not None and orders.on:     # the tracer beside the estimator: orders ≥ 3, or ≥ 2 without secondary
-        min_order = int(orders.numbers.get("min_order", 3))
-        smoothing = (default_smoothing(config.time.bin_width, config.effect_threshold, min_order,
-                                       capture.kind == "confocal") if config.multibounce.smoothing else {})
-        tracer = MultibounceTracer(capture, caster, transport.physics,
-                                   MultibounceSettings(paths=config.tracer_paths(capture.n_lasers),
-                                                       min_order=min_order,
-                                                       max_order=int(orders.numbers["max_order"]),
-                                                       **smoothing),
-                                   len(transport.component_names), (config.time.t_start, config.time.t_stop),
-                                   transport.component_names.index("secondary") if min_order == 2 else None,
-                                   config.irf.support[0])
-        transport = AllOrders(transport, tracer)
+        settings = tracer_settings(orders.choice, config.multibounce, config.tracer_paths(capture.n_lasers),
+                                   config.time.bin_width, config.effect_threshold, capture.kind == "confocal")
+        transport = beside(transport, settings, (config.time.t_start, config.time.t_stop), config.irf.support[0])
     return transport, plan
 
 
@@ -418,7 +408,7 @@ class Replicas:
     def omitted_error(self) -> float:
         """The share of the in-window energy that the orders left out carry (the planner's pilot), or 0."""
         orders = self.plan.decisions.get("multibounce")
-        return float(orders.numbers.get("residual", 0.0)) if orders is not None else 0.0
+        return orders.choice.residual if orders is not None else 0.0
 
     def fixed_error(self) -> float:
         """The parts of the error estimate that more replicas do not bring down, in quadrature: the orders left out

@@ -25,7 +25,6 @@ from .base import AccuracyLadder, EstimatorOptions, estimator, estimator_names, 
 from .physics import LegPhysics, PhysicsSettings
 # importing the estimator modules registers them
 from .lookin import LookinSampler, LookinSettings
-from .lookin.estimator import Transport, TransportSettings  # noqa: F401  (the old names, not in __all__)
 from .area import AreaSampler, AreaSettings
 from .quadrature import Quadrature, QuadratureSettings
 

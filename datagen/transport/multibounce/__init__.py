@@ -18,8 +18,13 @@ laser points share every batch. Its error falls as paths^(-1/2) and is measured 
 carry exceed a stated fraction of the tolerance; the simulation then wraps the chosen estimator (any of them) in
 :class:`AllOrders`.
 
+- :mod:`.options`: the ``multibounce:`` block of a simulation config (:class:`MultibounceOptions`, the light paths
+  it defaults to) and :class:`OrdersChoice`, the planner's typed decision on which orders the tracer carries.
 - :mod:`.tracer`: :class:`MultibounceTracer` and its :class:`MultibounceSettings` (light paths from the laser
-  spot, next-event connections and direction hits on the FoV under the balance heuristic, Russian roulette).
+  spot, next-event connections and direction hits on the FoV under the balance heuristic, Russian roulette), and
+  :func:`build_tracer`, its one constructor.
+- :mod:`.basic`: a short numpy light tracer (continuation, roulette, next-event connections; no smoothing, no eye
+  vertex, no second strategy), to read first and the tests' independent check of the fast one.
 - :mod:`.eye`: the eye vertex, one hidden vertex per path sampled from the FoV's side and joined to every light
   vertex (a third strategy under the balance heuristic: it samples the FoV leg's 1/r² near the relay wall instead
   of weighing it), and the pixel table both strategies connect to.
@@ -32,13 +37,15 @@ carry exceed a stated fraction of the tolerance; the simulation then wraps the c
   (causality of the smoothing).
 - :mod:`.kernels`: the per-vertex arithmetic compiled (the continuation's direction, BRDF, flux and roulette;
   the next-event BRDFs).
-- :mod:`.orders`: :class:`AllOrders`, an estimator of orders 1–2 plus the tracer as one estimator, and the
-  tracer's nominal cost (:func:`~datagen.transport.multibounce.orders.tracer_nominal_seconds`).
+- :mod:`.orders`: :class:`AllOrders`, an estimator of orders 1–2 plus the tracer as one estimator, :func:`beside`,
+  the front door that puts the tracer beside a built estimator, and the tracer's nominal cost (:func:`~datagen.transport.multibounce.orders.tracer_nominal_seconds`).
 
 A run counts the tracer's replicas apart from the estimator's and gives each the share of the work that the error
 of their sum asks for (:func:`datagen.simulation.replicas.neyman_split`).
 """
-from .orders import COMPONENT, AllOrders
-from .tracer import MultibounceSettings, MultibounceStats, MultibounceTracer, tracer_rng
+from .options import MultibounceOptions, OrdersChoice
+from .orders import COMPONENT, AllOrders, beside
+from .tracer import MultibounceSettings, MultibounceStats, MultibounceTracer, build_tracer, tracer_rng
 
-__all__ = ["AllOrders", "MultibounceTracer", "MultibounceSettings"]
+__all__ = ["AllOrders", "MultibounceTracer", "MultibounceSettings", "MultibounceOptions", "OrdersChoice", "beside",
+           "build_tracer"]

@@ -1,5 +1,6 @@
 """Any estimator plus the light of order ≥ 3: :class:`AllOrders` runs an estimator's orders 1–2 and the
-:class:`~datagen.transport.multibounce.tracer.MultibounceTracer` into the same sink, as one estimator.
+:class:`~datagen.transport.multibounce.tracer.MultibounceTracer` into the same sink, as one estimator; :func:`beside`
+is the front door that puts the tracer beside an estimator (:func:`tracer_settings`: its settings for a run).
 
 The tracer draws from its own stream (:func:`~datagen.transport.multibounce.tracer.tracer_rng`), so the orders
 1–2 of a run with ``orders: 3`` or more are bit-identical to the same run with ``orders: 2``, and the components
@@ -13,11 +14,44 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from ...errors import ConfigError
 from ..base import Estimator, Sink, run_replicas
-from .tracer import MultibounceTracer, tracer_rng
+from .options import MultibounceOptions, OrdersChoice
+from .smoothing import default_smoothing
+from .tracer import MultibounceSettings, MultibounceTracer, build_tracer, tracer_rng
 
 COMPONENT = "multibounce"
 """The component name of light with three or more hidden vertices (docs/physics.md §2, "Orders")."""
+
+
+def tracer_settings(choice: OrdersChoice, options: MultibounceOptions, paths: int, bin_width: float,
+                    tolerance: float, confocal: bool = False) -> MultibounceSettings:
+    """The tracer's settings for a run: the orders ``choice`` asks for, ``paths`` light paths per laser point, and
+    unless ``options.smoothing`` is False the time smoothing of :func:`~.smoothing.default_smoothing` for output bins
+    of ``bin_width`` seconds at ``tolerance`` (across the points of a ``confocal`` scan too)."""
+    smoothing = (default_smoothing(bin_width, tolerance, choice.min_order, confocal) if options.smoothing else {})
+    return MultibounceSettings(paths=paths, min_order=choice.min_order, max_order=choice.max_order, **smoothing)
+
+
+def beside(base: Estimator, settings: MultibounceSettings, window: tuple[float, float],
+           irf_reach: float = 0.0) -> "AllOrders":
+    """The front door: ``base`` (a built estimator) with the light tracer of ``settings`` beside it, on the same
+    capture, caster and leg physics, depositing into the component ``multibounce`` after the base's components (and
+    order 2 into its ``secondary`` when ``settings.min_order`` is 2).
+
+    Args:
+        base: the estimator of orders 1–2; settings: :class:`~.tracer.MultibounceSettings`; window: (t_start,
+            t_stop) of the time axis, s; irf_reach: how much earlier than an impulse the IRF spreads light, s.
+    Raises:
+        ConfigError: ``min_order`` 2 beside an estimator without a ``secondary`` component."""
+    names = list(base.component_names)
+    if settings.min_order == 2 and "secondary" not in names:
+        raise ConfigError(f"the tracer carries order 2 into the component 'secondary', which the {type(base).__name__} "
+                          f"has not (components {names})")
+    tracer = build_tracer(base.capture, base.caster, base.physics, settings, window=window, component=len(names),
+                          secondary_component=names.index("secondary") if settings.min_order == 2 else None,
+                          irf_reach=irf_reach)
+    return AllOrders(base, tracer)
 
 
 class AllOrders:

@@ -243,8 +243,9 @@ class MultibounceTracer:
     def narrowed(self) -> "MultibounceTracer":
         """A fresh tracer (no runs) with the same settings but the lowest smoothing band's node spacing halved."""
         settings = replace(self.settings, smooth_narrow=self.settings.smooth_narrow + 1)
-        return MultibounceTracer(self.capture, self.caster, self.physics, settings, self.component,
-                                 (self.t_start, self.t_stop), self.secondary_component, self.irf_reach)
+        return build_tracer(self.capture, self.caster, self.physics, settings, window=(self.t_start, self.t_stop),
+                            component=self.component, secondary_component=self.secondary_component,
+                            irf_reach=self.irf_reach)
 
     @property
     def components(self) -> list[int]:
@@ -480,3 +481,14 @@ class MultibounceTracer:
             else self.component
         if len(t):
             sink.add(t, weight, component * self.capture.n_channels + channel)
+
+
+
+def build_tracer(capture: Capture, caster: RayCaster, physics: LegPhysics, settings: MultibounceSettings, *,
+                 window: tuple[float, float], component: int = 0, secondary_component: int | None = None,
+                 irf_reach: float = 0.0) -> MultibounceTracer:
+    """The one constructor of the light tracer: every site builds it here (the planner's pilot, a run beside its
+    estimator through :func:`~datagen.transport.multibounce.orders.beside`, the converged reference, a narrowed
+    smoothing); ``tests/test_architecture.py`` fails on a second. Arguments as :class:`MultibounceTracer`'s;
+    ``component`` 0 and no IRF reach suit a tally that no sink keeps (the pilot)."""
+    return MultibounceTracer(capture, caster, physics, settings, component, window, secondary_component, irf_reach)
