@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..sampling.surfaces import subdivide_triangles, subdivisions
-from ..transport.area.kernels import material_arrays
+from ..transport.leg_kernels import material_arrays
 from ..transport.physics import fov_connection_weight, laser_irradiance
 from .coarse_kernel import outgoing_sums, primary_energy, secondary_candidates, secondary_energy
 from .geometry import PlanGeometry

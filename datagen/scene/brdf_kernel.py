@@ -137,7 +137,7 @@ def abs_sin_azimuth(n0, n1, n2, a0, a1, a2, w0, w1, w2):
 def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
     """f(ω_in, ω_out) in 1/sr at a point of object ``obj`` with unit normal n (lit side) for unit directions
     ω_in = (i0, i1, i2), ω_out = (o0, o1, o2) away from the surface; ``mat`` = (kind int8, albedo, specular,
-    exponent, axis (n, 3), constant f) per object id (:func:`datagen.transport.area.kernels.material_arrays`).
+    exponent, axis (n, 3), constant f) per object id (:func:`datagen.transport.leg_kernels.material_arrays`).
 
     The constant f of ``mat`` when it is not NaN (Lambertian without angle work,
     :meth:`datagen.transport.physics.LegPhysics.brdf`), else :meth:`MaterialTable.evaluate`: 0 unless both

@@ -15,6 +15,8 @@ One folder per estimator; its ``__init__`` says what it converges to, what it co
 - :mod:`.physics`: the weight of each leg, written once (:class:`LegPhysics`), and :class:`PhysicsSettings`,
   the physics switches every estimator's settings derive from.
 - :mod:`.base`: the sink, the estimator interface and the registry by name (:func:`estimator`).
+- :mod:`.leg_kernels`: compiled leg pieces the estimators share (the material table as kernels take it, a FoV
+  target's geometry, the sensor collection in one pass).
 - :mod:`.lookin`: the paper's lookins and hemispherical cameras (``"lookin"``).
 - :mod:`.area`: hidden-surface area sampling with next-event connections (``"area"``).
 - :mod:`.quadrature`: the deterministic hidden-surface quadrature (``"quadrature"``).

@@ -22,7 +22,7 @@ direction). Each weight is bounded: near the relay wall the eye vertex takes ove
 surfaces the light's own continuation does. docs/physics.md §2 ("Light of every order") gives the estimator.
 
 Every leg weight is the one the other strategies use (:func:`~datagen.transport.physics.fov_connection_weight`,
-:func:`~datagen.transport.area.kernels.sensor_collection`, the BRDFs of :mod:`datagen.scene.brdf_kernel`).
+:func:`~datagen.transport.leg_kernels.sensor_collection`, the BRDFs of :mod:`datagen.scene.brdf_kernel`).
 """
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ from ...sampling.directions import to_world
 from ...scene import RayCaster
 from ...scene.capture import Capture
 from ...vectors import dot
-from ..area.kernels import sensor_collection
+from ..leg_kernels import sensor_collection
 from ..physics import LegPhysics, fov_connection_weight, geometry_weight
 
 EYE_MIN_ORDER = 2

@@ -27,7 +27,7 @@ from numba import njit
 
 from ...scene.brdf_kernel import brdf_value
 from ...units import SPEED_OF_LIGHT
-from ..area.kernels import fov_target
+from ..leg_kernels import fov_target
 from ..physics import fov_term, geometry_term
 from .eye import eye_share
 
@@ -41,7 +41,7 @@ def continue_paths(n_x, obj, w_in, u, v, r, flux, survival, mat):
         n_x (m, 3) unit normals on the side the light arrives from; obj (m,) int object ids; w_in (m, 3) unit
         directions toward where the light came from; u, v (m,) uniforms of the direction, r (m,) of the roulette;
         flux (m,) photons; survival (n_objects,) q per object; mat the material arrays
-        (:func:`datagen.transport.area.kernels.material_arrays`).
+        (:func:`datagen.transport.leg_kernels.material_arrays`).
     Returns:
         (w_out (m, 3) float64, flux_out (m,) float64 = flux·f·π/q (0 where q = 0), live (m,) bool: the roulette
         kept the path and its flux is > 0).

@@ -67,7 +67,7 @@ from ...scene.capture import Capture
 from ...units import SPEED_OF_LIGHT
 from ...vectors import dot
 from ..base import Counters, Sink
-from ..area.kernels import material_arrays, sensor_collection
+from ..leg_kernels import material_arrays, sensor_collection
 from ..physics import LegPhysics, geometry_weight, launched_flux
 from .eye import EYE_MIN_ORDER, EyeVertices, PixelTable, eye_share, eye_vertices
 from .kernels import arrive, continue_paths, eye_pairs, eye_weights, fov_targets_ranged, nee_weights, survivors
