@@ -8,6 +8,7 @@ unbiased estimators, the deep orders unsmoothed (``multibounce: {smoothing: fals
 result to it on 1 ns bins (IRF applied), against the result's stated error.
 
     python benchmarks/multibounce.py [--tolerance 0.01] [--scenes a.yaml b.yaml ...] [--paths N] [--seeds 4]
+        [--albedo 0.9]
     python benchmarks/multibounce.py --dataset configs/datasets/default.yaml [--split train] [--samples 8]
     python benchmarks/multibounce.py --reference configs/datasets/confocal.yaml [--split test] [--index 0]
         [--rel-tol 0.01] [--budget 600]
@@ -54,8 +55,26 @@ def estimator_alone():
     return mock.patch("datagen.planner.decisions.order_shares", return_value=None)
 
 
-def run(scene_file: str, tolerance: float, paths: int, seeds: int = 4):
-    scene = datagen.load_scene(scene_file)
+def with_albedo(scene_file: str, albedo: float | None):
+    """The scene of ``scene_file``, with every material's albedo set to ``albedo`` when given (a brighter room of
+    the same geometry: the issue's closed corridor at 0.9)."""
+    if albedo is None:
+        return datagen.load_scene(scene_file)
+    import yaml
+    from pathlib import Path
+    from datagen.scene.load import scene_from_dict
+
+    def bright(node):
+        if isinstance(node, dict):
+            return {k: (albedo if k == "albedo" else bright(v)) for k, v in node.items()}
+        return [bright(v) for v in node] if isinstance(node, list) else node
+
+    data = bright(yaml.safe_load(Path(scene_file).read_text()))
+    return scene_from_dict(data, source=f"{scene_file} (every albedo {albedo:g})", base=Path(scene_file).parent)
+
+
+def run(scene_file: str, tolerance: float, paths: int, seeds: int = 4, albedo: float | None = None):
+    scene = with_albedo(scene_file, albedo)
     warm = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 512}, "orders": "auto",
                                           "replicas": 2})
     datagen.simulate(scene, warm)             # compiled kernels loaded before any timing
@@ -141,6 +160,7 @@ def main() -> None:
     ap.add_argument("--paths", type=int, default=None, help="multibounce.paths (default: the config's default)")
     ap.add_argument("--scenes", nargs="+", default=SCENES)
     ap.add_argument("--seeds", type=int, default=4, help="seeds 0..N-1 per scene: the cost is their sum")
+    ap.add_argument("--albedo", type=float, default=None, help="set every material's albedo (e.g. 0.9)")
     ap.add_argument("--dataset", help="a dataset config: per-sample cost of its build with orders: auto")
     ap.add_argument("--split", default="train")
     ap.add_argument("--samples", type=int, default=8)
@@ -156,14 +176,14 @@ def main() -> None:
         dataset_costs(a.dataset, a.split, a.samples)
         return
     print(f"tolerance {a.tolerance:.2%}, area estimator, multibounce.paths {a.paths or 'default'}, seeds "
-          f"0–{a.seeds - 1}; CPU s in this run")
+          f"0–{a.seeds - 1}{f', every albedo {a.albedo:g}' if a.albedo is not None else ''}; CPU s in this run")
     print("| scene | seed | orders | CPU s | stated error (smoothing bias in it) | actual rel L2 vs all orders (1 ns) | "
           "orders ≥ 3 share |")
     print("|---|---|---|---|---|---|---|")
     summary = []
     for f in a.scenes:
         name = f.split('/')[-1]
-        rows, (t_ref, ref_err, ref_share) = run(f, a.tolerance, a.paths, a.seeds)
+        rows, (t_ref, ref_err, ref_share) = run(f, a.tolerance, a.paths, a.seeds, a.albedo)
         for seed, orders, cpu, stated, actual, share, smooth, met in rows:
             bias = f" ({smooth:.2%})" if smooth is not None else ""
             print(f"| {name} | {seed} | {orders} | {cpu:.2f} | {stated:.2%}{bias}{'' if met else ' NOT met'} | "
