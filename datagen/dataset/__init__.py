@@ -36,6 +36,7 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.integrity`: what the files must be; verification, resume repairs, the loader's checks;
 - :mod:`~datagen.dataset.workers`: worker processes that die with the build (no orphans after a SIGKILL);
 - :mod:`~datagen.dataset.build`: the shard task and the build engines (in process, process pool, Dask);
+- :mod:`~datagen.dataset.probe`: what the build's probe sample says before the build spends (a missed tolerance);
 - :mod:`~datagen.dataset.sample_scene`: :func:`scene_of_sample`, a built sample's room drawn again from the
   card (``datagen view``, ``datagen inspect``), and :func:`sample_setup` (a sample's scene and simulation config,
   to regenerate it at any accuracy);

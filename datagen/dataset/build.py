@@ -35,6 +35,7 @@ import numpy as np
 
 from .assets import asset_record, config_asset_entries
 from .config import DatasetConfig, Sample, config_from_json, load_dataset_config, make_sample
+from .probe import probe_notice
 from ..errors import DatasetError
 from ..units import format_duration
 from .dask_engine import FATAL_ERRNOS, WORKER_TIMEOUT_S, check_worker_timeout, connect_dask, fatal_error, run_dask
@@ -287,22 +288,25 @@ def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, pr
     """Sample 0 of the first non-empty split: its shapes fix the dataset's (computed before any write).
 
     With ``progress``, one line on stderr says the probe runs (it may take minutes), its tolerance loop reports
-    each round (and the transport's bar), and (``project``: a new build) a build projected beyond :data:`PROJECTION_NOTE_S` says how long it projects
-    on ``processes``."""
+    each round (and the transport's bar), and (``project``: a new build) a build projected beyond
+    :data:`PROJECTION_NOTE_S` says how long it projects on ``processes``. A new build's probe that missed its
+    tolerance says so in one line (:func:`probe_notice`) before the build spends, with or without ``progress``."""
     split = _first_split(config)
-    if not progress:
-        return make_sample(config, split, 0)
-    print(f"build {config.name}: probe sample ({split}, 0) first: its arrays fix the dataset's shapes",
-          file=sys.stderr)
+    if progress:
+        print(f"build {config.name}: probe sample ({split}, 0) first: its arrays fix the dataset's shapes",
+              file=sys.stderr)
     t0 = time.perf_counter()
-    probe = make_sample(config, split, 0, progress=True)
+    probe = make_sample(config, split, 0, progress=True) if progress else make_sample(config, split, 0)
     seconds = time.perf_counter() - t0
     total = sum(spec.count for spec in config.splits.values())
     projected = seconds * total / max(processes, 1)
-    if project and projected > PROJECTION_NOTE_S:
+    if progress and project and projected > PROJECTION_NOTE_S:
         print(f"build {config.name}: the probe took {seconds:.3g} s; {total} samples project to about "
               f"{format_duration(projected)} on {processes} process{'es' if processes > 1 else ''} (samples differ: "
               "the bar's ETA follows the build)", file=sys.stderr)
+    line = probe_notice(config, split, probe) if project else None
+    if line is not None:
+        print(line, file=sys.stderr)
     return probe
 
 

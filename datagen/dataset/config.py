@@ -465,6 +465,8 @@ class Sample:
             (:func:`datagen.dataset.layout.axis_names`: e.g. envelope of a confocal scan ["scan_y", "scan_x", "time"]).
         orders: when the config's ``orders`` is "auto" or ≥ 3, the light of every order in this sample
             (:func:`~datagen.dataset.components.orders_summary`), else empty.
+        accuracy: ``params``' accuracy and, when the sample missed its tolerance, why (``capped``, ``unreachable``, …:
+            :func:`datagen.simulation.simulate_to_tolerance`); not stored (:func:`datagen.dataset.probe.probe_notice`).
     """
 
     arrays: dict[str, np.ndarray]
@@ -473,6 +475,7 @@ class Sample:
     component_names: list[str] = field(default_factory=list)
     axes: dict[str, list[str]] = field(default_factory=dict)
     orders: dict = field(default_factory=dict)
+    accuracy: dict = field(default_factory=dict)
 
 
 def draw_room(config: DatasetConfig, split: str, index: int):
@@ -576,8 +579,11 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
     kind = "multizone" if nodes is not None else kind
     axes = {name: names for name, value in arrays.items()
             if (names := axis_names(name, np.ndim(value), kind)) is not None}
+    why = ("capped", "unreachable", "projected_nominal_seconds", "monte_carlo", "omitted_orders", "smoothing")
+    accuracy = {**_accuracy(result.attrs), **{k: v for part in ("tolerance", "error")
+                                               for k, v in result.attrs[part].items() if k in why}}
     return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names, axes,
-                  orders_summary(result) if "orders" in result.attrs else {})
+                  orders_summary(result) if "orders" in result.attrs else {}, accuracy)
 
 
 def _accuracy(attrs: dict) -> dict:

@@ -20,7 +20,14 @@ level (:meth:`datagen.transport.quadrature.options.QuadratureOptions.at_edge`): 
 which the edge alone barely refines.
 
 A wall-clock cap (``max_seconds``) is available for interactive use; it makes the result depend on the
-machine's speed, so dataset builds cap the replica count instead (``max_replicas``, deterministic). With such a
+machine's speed, so dataset builds cap the work in nominal seconds instead (``max_cost``: the estimator's
+``nominal_seconds()``, counted work at fixed rates fitted to one machine, so the cap is deterministic; the lookin and
+area samplers, the quadrature and the order ≥ 3 tracer beside any of them each count theirs), or the replica count
+(``max_replicas``). Every cap bounds every estimator: the Monte Carlo loop plans no round beyond it, the quadrature
+starts no level predicted (cost ∝ h^-``LEVEL_COST_POWER``) to end beyond it, and the tracer's replicas beside the
+quadrature stop at it too; the first round (level) always runs. A result that missed its tolerance says which cap
+stopped it (``capped``) and what meeting the tolerance projects in nominal seconds, or that the parts of the error
+no sampling reduces (orders left out, smoothing bias) exceed it (``unreachable``). With a wall-clock
 cap the first round's estimate is projected to the tolerance (:func:`projected_seconds`: the same predictions
 the loop makes for its next round, :func:`replicas_needed` and :func:`edge_factor`, taken all the way to the
 tolerance). A projection beyond ``HOPELESS`` × the cap is refused (:class:`ToleranceOutOfReach`, naming the
@@ -39,7 +46,8 @@ from ..errors import ConfigError
 from ..threads import one_blas_thread
 from ..scene import Scene
 from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
-from .replicas import FIRST_TRACER_REPLICAS, relative_difference
+from .replicas import FIRST_TRACER_REPLICAS, TRACER_MAX_RATIO, neyman_split, relative_difference
+from ..transport.multibounce.orders import tracer_nominal_seconds
 from .replicas import MIN_TOLERANCE  # noqa: F401 (its old home)
 from .detection import Result, make_result
 from .run import NARROW_SHARE, Replicas
@@ -61,6 +69,11 @@ at which the smoothing is narrowed (:data:`~datagen.simulation.run.NARROW_SHARE`
 before it can put the tolerance out of reach."""
 
 MAX_ROUNDS = 8
+
+MIN_STEP = 1 / 8
+"""Under a cost cap, a round adds at least this fraction of the replicas run so far (their error falls by 6 %) or
+the loop stops at the cap: rounds of a replica or two, each re-planned as the cost per replica drifts, cost their
+error estimate and gain nothing."""
 
 SAFETY_EDGE = 0.9
 """Factor on the quadrature's predicted edge."""
@@ -193,8 +206,9 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         tolerance: target relative L2 error of the envelope (bins above 1 % of its peak), in (0, 1).
         max_replicas: most replicas in all (Monte Carlo estimators; deterministic cap).
         max_cost: most work in all, in the estimator's nominal seconds (``nominal_seconds()``: counted work
-            times fixed rates, so the cap is deterministic; estimators without it are capped by ``max_replicas``
-            only). The first round always runs.
+            times fixed rates, so the cap is deterministic; an estimator without it is capped by ``max_replicas``
+            only). The first round (the quadrature's first level) always runs; no later round or level is planned
+            beyond the cap.
         max_seconds: stop once the next round is predicted to end after this much wall time (not deterministic);
             a first round projecting more than ``HOPELESS`` × it to meet the tolerance is refused, one projecting
             more than it is reported to ``warn`` (:func:`projected_seconds`).
@@ -205,8 +219,10 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
             within ``HOPELESS`` × it; the run then goes on to the cap.
     Returns:
         :class:`~datagen.simulation.detection.Result` with ``attrs["error"]`` (as every result) and
-        ``attrs["tolerance"]``: target, estimate, met, and every round (replicas or edge, estimate, seconds).
-        A result that could not meet the target within the caps says so (``met`` False), never silently.
+        ``attrs["tolerance"]``: target, estimate, met, ``nominal_seconds`` (Monte Carlo loop), and every round
+        (replicas or edge, estimate, seconds, nominal seconds so far). A result that could not meet the target
+        within the caps says so (``met`` False, ``capped``, ``unreachable``, ``projected_nominal_seconds``:
+        :func:`_capped_info`), never silently.
     Raises:
         ConfigError: tolerance outside [:data:`MIN_TOLERANCE`, 1) (before any work), or an envelope with no energy
             in the window.
@@ -221,10 +237,16 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         cfg = cfg.with_estimator(**cfg.estimator.at_edge(EDGE_BESIDE_TRACER * float(cfg.estimator.edge)))
         runs = Replicas(scene, cfg, rng, planned=runs.planned)       # the same plan, a finer first level
     if not runs.base_monte_carlo or runs.entry.replica is None:
-        return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0, warn)
+        return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0, warn,
+                                    max_cost)
     cap = max(int(max_replicas), cfg.replicas) if max_replicas is not None else None
+
+    def nominal() -> float | None:               # (narrow_smoothing replaces the transport: asked each time)
+        cost = getattr(runs.transport, "nominal_seconds", None)
+        return cost() if cost is not None else None
+
     rounds = []
-    target, tracer_target = cfg.replicas, None
+    target, tracer_target, capped = cfg.replicas, None, None
     for _ in range(MAX_ROUNDS):
         t_round = time.perf_counter()
         runs.run(target - runs.count, tracer_target=tracer_target)
@@ -242,11 +264,15 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         budget = (math.sqrt(tolerance * tolerance - fixed * fixed) if 0 < fixed <= FIXED_LIMIT * tolerance
                   else tolerance)
         seconds = time.perf_counter() - t_round
-        rounds.append({"replicas": runs.count, "estimate": estimate, "seconds": seconds})
+        rounds.append({"replicas": runs.count, "estimate": estimate, "seconds": seconds,
+                       "nominal_seconds": nominal()})
         if progress:
             print(f"{runs.count} replicas ({runs.entry.describe(runs.replica_config.estimator)} each): "
                   f"estimated error {estimate:.3%} ({seconds:.2f} s)")
-        if mc <= budget or (cap is not None and runs.count >= cap):
+        if mc <= budget:
+            break
+        if cap is not None and runs.count >= cap:
+            capped = "replicas"
             break
         if not math.isfinite(estimate) and runs.sums.mean().max() <= 0:
             break
@@ -257,28 +283,89 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         needed = replicas_needed(runs.count, mc, budget) if whole is None else whole[0]
         wanted = math.ceil(min(runs.count * MAX_GROWTH, needed))
         target = max(runs.count + 1, wanted if cap is None else min(wanted, cap))
-        nominal = getattr(runs.transport, "nominal_seconds", None)
-        if max_cost is not None and nominal is not None:
-            affordable = int(max_cost / (nominal() / runs.count))
-            if affordable <= runs.count:
+        scaled = None
+        if max_cost is not None and nominal() is not None:
+            plan = _within_cost(runs, target, whole[1] if whole is not None and target == whole[0] else None,
+                                max_cost, nominal())
+            if plan is None:
+                capped = "cost"
                 break
-            target = min(target, affordable)
+            target, scaled = plan
         if max_seconds is not None:
             per_replica = (time.perf_counter() - t0) / runs.count
             affordable = int((max_seconds - (time.perf_counter() - t0)) / per_replica)
             if affordable < 1:
+                capped = "time"
                 break
             target = min(target, runs.count + affordable)
-        if whole is not None and target == whole[0]:
+        if scaled is not None:
+            tracer_target = scaled                  # the cost cap scaled both counts down
+        elif whole is not None and target == whole[0]:
             tracer_target = whole[1]                # (a capped base count takes the tracer's Neyman share)
     tr = runs.transported()
     _check_energy(scene, tr)
     error = runs.error_attrs(tr, rng)
-    nominal = getattr(runs.transport, "nominal_seconds", None)
-    info = {"target": tolerance, "estimate": error["rel_l2"], "met": bool(error["rel_l2"] <= tolerance),
+    met = bool(error["rel_l2"] <= tolerance)
+    info = {"target": tolerance, "estimate": error["rel_l2"], "met": met,
             "method": error["method"], "rounds": rounds,
-            "nominal_seconds": nominal() if nominal is not None else None}
+            "nominal_seconds": nominal(),
+            **_capped_info(met, capped, error, tolerance,
+                           lambda budget: (nominal() / runs.count * replicas_needed(runs.count, error["monte_carlo"],
+                                                                                    budget)
+                                           if nominal() is not None and error["monte_carlo"] > budget else None))}
     return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
+
+
+def _within_cost(runs: Replicas, target: int, tracer_target: int | None, max_cost: float, spent: float
+                 ) -> tuple[int, int | None] | None:
+    """The next round's replica counts within ``max_cost`` nominal seconds (``spent`` so far): (base count, None)
+    when the planned round fits (the tracer then takes its share as planned), else both counts' increments scaled
+    down to fit, the tracer's given explicitly; None when the cap leaves room for fewer than ``MIN_STEP`` × the
+    replicas of orders 1–2 run so far (and at least one).
+
+    Without the tracer every replica costs the same (the mean so far). Beside it, a replica of orders 1–2 and one of
+    the tracer each cost what they have cost so far on average, and the tracer's count is ``tracer_target`` or its
+    Neyman share of ``target`` (as :func:`~datagen.simulation.replicas.tracer_replicas_wanted` gives it): the mean
+    cost per replica of orders 1–2 would count the tracer's replicas again in every one, and the rounds would creep
+    toward the cap (a smoke sample at 0.5 %: 5 → 35 → 48 → 50 → 51 replicas; so, 5 → 40 → 52)."""
+    count = runs.count
+    least = count + max(1, math.ceil(MIN_STEP * count))
+    if runs.tracer is None:
+        affordable = int(max_cost / (spent / count))
+        return None if affordable < min(target, least) else (min(target, affordable), None)
+    have = runs.tracer_sums.count
+    base_cost = getattr(runs.transport.base, "nominal_seconds", None)
+    c_base = base_cost() / count if base_cost is not None else 0.0
+    c_tracer = tracer_nominal_seconds(runs.tracer.stats) / max(have, 1)
+    if tracer_target is None:
+        split = neyman_split(runs.sums, runs.tracer_sums, c_base, c_tracer)
+        tracer_target = (max(have, target) if split is None else
+                         min(max(math.ceil(split[2] * target), have, 2), TRACER_MAX_RATIO * target))
+    more_base, more_tracer = max(target - count, 0), max(tracer_target - have, 0)
+    planned = c_base * more_base + c_tracer * more_tracer
+    if spent + planned <= max_cost or planned <= 0:        # (no cost counted for what the round adds)
+        return (target, None) if spent < max_cost or planned > 0 else None
+    tracer = have + int(max(max_cost - spent, 0.0) / planned * more_tracer)      # both scaled alike; what the
+    left = max_cost - spent - c_tracer * (tracer - have)                          # tracer's rounding leaves goes
+    base = min(target, count + int(left / c_base)) if c_base > 0 else count       # to orders 1–2
+    return None if base < min(target, least) else (base, tracer)
+
+
+def _capped_info(met: bool, capped: str | None, error: dict, tolerance: float,
+                 projection: Callable[[float], float | None]) -> dict:
+    """``attrs["tolerance"]`` keys of a run that missed ``tolerance`` (none when it met it): ``capped``, the cap that
+    stopped it ("cost", "time", "replicas" or None: the rounds ran out), ``unreachable`` (True when the parts of the
+    error that more sampling does not bring down, the orders left out and the smoothing bias, exceed ``FIXED_LIMIT``
+    × the tolerance) and, when the sampling can meet it, ``projected_nominal_seconds``: what ``projection(budget)``
+    predicts for the whole run to bring the reducible parts to ``budget`` (the tolerance less the fixed parts) by the
+    laws the loop plans its rounds with (None without a nominal cost)."""
+    if met:
+        return {}
+    fixed = float(np.hypot(error.get("omitted_orders") or 0.0, error.get("smoothing") or 0.0))
+    if fixed > FIXED_LIMIT * tolerance:
+        return {"capped": capped, "unreachable": True, "projected_nominal_seconds": None}
+    projected = projection(math.sqrt(tolerance * tolerance - fixed * fixed))
+    return {"capped": capped, "unreachable": False, "projected_nominal_seconds": projected}
 
 
 def _check_energy(scene: Scene, tr) -> None:
@@ -290,10 +377,13 @@ def _check_energy(scene: Scene, tr) -> None:
 def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas, tolerance: float,
                          max_seconds: float | None, progress: bool, rng: np.random.Generator,
                          noise_rng: np.random.Generator | None, t0: float,
-                         warn: Callable[[str], None] | None = None) -> Result:
-    """The quadrature: the edge shrinks until the estimate of the latest level meets ``tolerance``."""
+                         warn: Callable[[str], None] | None = None, max_cost: float | None = None) -> Result:
+    """The quadrature: the edge shrinks until the estimate of the latest level meets ``tolerance``, while the next
+    level is predicted (cost ∝ h^-``LEVEL_COST_POWER``) to end within ``max_cost`` nominal seconds (the levels'
+    quadratures and the tracer's replicas, :func:`_nominal`) and ``max_seconds``; the tracer's top-up replicas
+    within a level are capped the same way (:func:`top_up_tracer`). The first level always runs."""
     h = float(config.estimator.edge)
-    rounds, previous = [], None
+    rounds, previous, capped, levels_cost = [], None, None, 0.0
     for level in range(MAX_ROUNDS + 2):
         t_level = time.perf_counter()
         if level:
@@ -308,17 +398,24 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
         error = _level_error(runs, tr, rng, primary, h, previous)
         estimate = error["rel_l2"]
         edge_part = float(error["refinement"] or 0.0)     # (the smoothing bias's estimate falls with replicas)
+        level_cost, tracer_cost = _nominal(runs)
         if runs.tracer is not None and estimate > tolerance and edge_part <= EDGE_SHARE * tolerance:
             # the edge is fine enough: the tracer's replicas bring the rest down, the quadrature is not re-run
-            tr, error = top_up_tracer(runs, tolerance, error["refinement"] or 0.0, rng, primary, h, previous)
-            estimate = error["rel_l2"]
+            caps = _Caps(max_cost, levels_cost + level_cost, max_seconds, t0)
+            tr, error = top_up_tracer(runs, tolerance, error["refinement"] or 0.0, rng, primary, h, previous, caps)
+            estimate, capped = error["rel_l2"], caps.hit
+            level_cost, tracer_cost = _nominal(runs)
+        levels_cost += level_cost
         seconds = time.perf_counter() - t_level
         rounds.append({"quadrature_edge": h, "estimate": estimate, "seconds": seconds,
+                       "nominal_seconds": levels_cost + tracer_cost,
                        **({"edge_part": edge_part} if runs.tracer is not None else {})})
         if progress:
             print(f"level {level}: quadrature edge {h:.4g} m: estimated error {estimate:.3%} ({seconds:.2f} s)")
-        if estimate <= tolerance or level == MAX_ROUNDS + 1:
+        if estimate <= tolerance or level == MAX_ROUNDS + 1 or capped is not None:
             break
+        if edge_part <= EDGE_SHARE * tolerance and runs.fixed_error() > FIXED_LIMIT * tolerance:
+            break       # what is left (orders left out, smoothing bias) is what no finer edge brings down
         if max_seconds is not None and level == 0:       # the setup before the level is done once
             _check_projection(seconds, estimate, tolerance, None, max_seconds, f"quadrature edge {h:.4g} m", warn,
                               fixed_seconds=max(0.0, time.perf_counter() - t0 - seconds))
@@ -330,13 +427,71 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
                      else edge_factor(estimate, tolerance))
         # cost ∝ h^-2 (point sensors) to h^-4 (aperture): predict with the steeper law
         if max_seconds is not None and time.perf_counter() - t0 + seconds / shrink ** LEVEL_COST_POWER > max_seconds:
+            capped = "time"
+            break
+        if max_cost is not None and levels_cost + tracer_cost + level_cost / shrink ** LEVEL_COST_POWER > max_cost:
+            capped = "cost"
             break
         previous = (h, primary)
         h *= shrink
-    info = {"target": tolerance, "estimate": estimate, "met": bool(estimate <= tolerance),
-            "method": error["method"], "rounds": rounds}
+    met = bool(estimate <= tolerance)
+    info = {"target": tolerance, "estimate": estimate, "met": met, "method": error["method"], "rounds": rounds,
+            **_capped_info(met, capped, error, tolerance,
+                           lambda budget: _projected_levels(levels_cost, level_cost, tracer_cost, error, budget, runs))}
     cfg = config.with_estimator(**config.estimator.at_edge(h))
     return make_result(scene, cfg, tr, noise_rng, t0, {"error": error, "tolerance": info})
+
+
+def _nominal(runs: Replicas) -> tuple[float, float]:
+    """(nominal seconds of this level's quadrature, of the tracer's replicas so far: they carry over from level to
+    level); 0 where the estimator reports none."""
+    base = runs.transport.base if runs.tracer is not None else runs.transport
+    cost = getattr(base, "nominal_seconds", None)
+    return (cost() if cost is not None else 0.0,
+            tracer_nominal_seconds(runs.tracer.stats) if runs.tracer is not None else 0.0)
+
+
+def _projected_levels(levels_cost: float, level_cost: float, tracer_cost: float, error: dict, budget: float,
+                      runs: Replicas) -> float | None:
+    """Nominal seconds the quadrature's loop projects to bring the edge's part of ``error`` and the tracer's spread to
+    ``budget``: the nominal seconds spent, a level at the edge the h² law asks (``edge_factor``, cost ∝
+    h^-``LEVEL_COST_POWER``; beside the tracer its part is ``EDGE_SHARE`` of the budget) and the tracer's replicas by
+    the R^(-1/2) law for the rest; None without a cost."""
+    if level_cost <= 0:
+        return None
+    edge, mc = error.get("refinement") or 0.0, error.get("monte_carlo") or 0.0
+    edge_budget = EDGE_SHARE * budget if runs.tracer is not None else budget
+    projected = levels_cost + tracer_cost
+    if edge > edge_budget:
+        projected += level_cost / edge_factor(edge, edge_budget) ** LEVEL_COST_POWER
+    if runs.tracer is not None and tracer_cost > 0 and mc > 0:
+        count = max(runs.tracer_sums.count, 1)
+        room = math.sqrt(max(budget * budget - min(edge, edge_budget) ** 2, (budget / 3) ** 2))
+        projected += tracer_cost / count * max(replicas_needed(count, mc, room) - count, 0.0)
+    return projected
+
+
+class _Caps:
+    """The caps of a top-up within a quadrature level: ``max_cost`` nominal seconds of which ``spent`` went to the
+    levels' quadratures, and ``max_seconds`` of wall time since ``t0``; ``hit`` names the cap that stopped it."""
+
+    def __init__(self, max_cost: float | None, spent: float, max_seconds: float | None, t0: float):
+        self.max_cost, self.spent, self.max_seconds, self.t0 = max_cost, spent, max_seconds, t0
+        self.hit: str | None = None
+
+    def affordable(self, runs: Replicas, wanted: int) -> int:
+        """``wanted`` tracer replicas in all, fewer if a cap allows fewer (at the cost per replica so far)."""
+        count = max(runs.tracer_sums.count, 1)
+        if self.max_cost is not None:
+            per = tracer_nominal_seconds(runs.tracer.stats) / count
+            if per > 0 and int((self.max_cost - self.spent) / per) < wanted:
+                wanted, self.hit = int((self.max_cost - self.spent) / per), "cost"
+        if self.max_seconds is not None:          # as the Monte Carlo loop: the time so far over the replicas so far
+            elapsed = time.perf_counter() - self.t0
+            left = int((self.max_seconds - elapsed) / (elapsed / count))
+            if count + left < wanted:
+                wanted, self.hit = count + left, "time"
+        return wanted
 
 
 def _level_error(runs: Replicas, tr, rng: np.random.Generator, primary: np.ndarray, h: float,
@@ -361,7 +516,7 @@ def _level_error(runs: Replicas, tr, rng: np.random.Generator, primary: np.ndarr
 
 
 def top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.random.Generator,
-                  primary: np.ndarray, h: float, previous) -> tuple:
+                  primary: np.ndarray, h: float, previous, caps: _Caps | None = None) -> tuple:
     """Add replicas of the tracer beside a deterministic base (the quadrature at edge ``h``) until their spread meets
     what the tolerance leaves after the edge refinement and the fixed parts (at least a third of the tolerance), by
     the R^(−1/2) law.
@@ -375,7 +530,9 @@ def top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.rand
         runs: the level's :class:`~datagen.simulation.run.Replicas` (its tracer's replicas go on); tolerance: the
             target relative L2 error; refined: the level's edge-refinement part of the estimate (relative);
             rng: the sampling stream (for the level's error attrs); primary: (n_channels, n_bins) photons, the
-            level's deterministic components; h: its edge, m; previous: (edge, primary) of the previous level, or None.
+            level's deterministic components; h: its edge, m; previous: (edge, primary) of the previous level, or None;
+            caps: the cost and time caps (:class:`_Caps`: no replicas beyond them; ``caps.hit`` says which stopped
+            the top-up), or None.
     Returns:
         (the transported mean, its ``attrs["error"]``).
     """
@@ -392,6 +549,10 @@ def top_up_tracer(runs: Replicas, tolerance: float, refined: float, rng: np.rand
             break
         count = runs.tracer_sums.count
         wanted = math.ceil(min(count * MAX_GROWTH, replicas_needed(count, mc, budget)))
+        if caps is not None:
+            wanted = caps.affordable(runs, wanted)
+            if wanted <= count:
+                break
         runs.run(max(1, wanted - count))
     tr = runs.transported()
     return tr, _level_error(runs, tr, rng, primary, h, previous)

@@ -98,7 +98,15 @@ class LookinSettings(PhysicsSettings):
 
 @dataclass
 class LookinStats(Counters):
-    """Counters from a transport run (recorded in the result attributes)."""
+    """Counters from a transport run (recorded in the result attributes).
+
+    ``secondary_pairs`` counts the secondary pairs a run represents (the exact secondary sums them by convolution);
+    the work :meth:`LookinSampler.nominal_seconds` weighs is ``sink_nodes`` (fine-grid nodes × components of each
+    replica's sink: spawned, merged and binned), ``slices`` (array passes of at most ``CACHE_RAYS`` camera rays),
+    ``camera_rays``, ``shadow_rays``, ``secondary_lookins`` (lookins whose lit observed points the secondary pairs
+    with the FoV), ``pairs_summed`` (pairs weighed one by one: full, optimized before its top-k, dark middle, the
+    exact secondary's lobes) and of those ``glossy_pairs`` (a non-Lambertian middle vertex) and ``ranked_pairs``
+    (ranked for the optimized top-k)."""
 
     lookins_cast: int = 0
     lookins_hit: int = 0
@@ -108,11 +116,27 @@ class LookinStats(Counters):
     shadow_rays: int = 0
     dark_points: int = 0
     secondary_pairs: int = 0
+    sink_nodes: int = 0
+    slices: int = 0
+    camera_rays: int = 0
+    secondary_lookins: int = 0
+    pairs_summed: int = 0
+    glossy_pairs: int = 0
+    ranked_pairs: int = 0
 
 
 CACHE_RAYS = 1 << 15
 """Camera rays processed together inside a batch: ~30k rays keep the slice's (rays, 3) float64 arrays within
 a 2 MiB L2 cache (the choice and its measurement: docs/performance_history.md)."""
+
+NOMINAL_SECONDS = {"sink_nodes": 1.8e-8, "slices": 1.0e-3, "camera_rays": 2.1e-7, "shadow_rays": 5.3e-7,
+                   "secondary_lookins": 1.2e-4, "pairs_summed": 1.1e-8, "glossy_pairs": 1.4e-7, "ranked_pairs": 9.4e-9}
+"""Seconds of one core per counted unit of :class:`LookinStats` (:meth:`LookinSampler.nominal_seconds`): a
+non-negative least-squares fit (relative errors) of the CPU time of 72 runs of replicas (``python
+benchmarks/fit_nominal.py lookin``: the demo, office and closed-corridor rooms and three smoke-dataset rooms with a
+12 ns window; 1×1 to 8×8 lookins a replica, 16×16 to 60×60 pixels, secondary none, full, optimized and exact; 6 to
+400 replicas, 0.12–6.1 s a run) on the shared 2-core machine: relative residual 14 % RMS, worst 50 % (the office
+room's Phong pairs). The lookin counts and the exact secondary's convolutions took rate 0 and are left out."""
 
 _WORKER: dict = {}
 
@@ -256,6 +280,14 @@ class LookinSampler:
         """How the FoV is reached: "camera" (the paper's hemispherical cameras) or "connect" (next-event)."""
         return self.settings.sensor_sampling
 
+    def nominal_seconds(self) -> float:
+        """A deterministic measure of the work done so far (runs and replicas summed), in seconds of one core of
+        the reference machine: the counters of :class:`LookinStats` at the rates ``NOMINAL_SECONDS``. Dataset
+        builds cap the adaptive sampling with it (``cost_cap``), so that the cap, unlike a wall clock, never
+        depends on the machine's load."""
+        st = vars(self.stats)
+        return float(sum(rate * st[key] for key, rate in NOMINAL_SECONDS.items()))
+
     def progress_total(self) -> tuple[int, str]:
         """Lookins cast over all laser points."""
         return self.settings.lookins[0] * self.settings.lookins[1] * self.capture.n_lasers, "lookin"
@@ -298,6 +330,7 @@ class LookinSampler:
         tasks = []
         for replica, rng in enumerate(rngs):
             root = np.random.SeedSequence(int(rng.integers(0, 2 ** 63)))
+            self.stats.sink_nodes += getattr(sinks[replica], "n_fine", 0) * getattr(sinks[replica], "n_components", 0)
             for laser in range(c.n_lasers):
                 look_rng = np.random.default_rng(root.spawn(1)[0]) if s.jitter else None
                 look = self.lookins(look_rng, laser)
@@ -379,7 +412,9 @@ class LookinSampler:
         cos_x_l = np.maximum(dot(n_x, w_to_spot), 0.0)
         flux = c.photons * self.physics.spot_emission(directions, laser) / (n_rays * pdf)   # W_j, photons
         obs = observe(self.caster, x, n_x, s.pixels, rng) if self.needs_camera() else None
+        stats.slices += 1
         if obs is not None:
+            stats.camera_rays += obs.hit.size
             stats.observed_points += int(obs.hit.sum())
         out = self._camera_out(obs, laser) if s.sensor_sampling == "camera" else \
             self.physics.connect(x, n_x, laser, rng, s.connect_samples)
@@ -421,9 +456,3 @@ class LookinSampler:
         # per unit radiant intensity toward ω_k the pixel carries Ω photons to y (the caller applies f·cos)
         return Connections(flat // obs.hit.shape[1], direction, obs.solid_angle * collect, time, r + d_ys, ch)
 
-
-Transport = LookinSampler
-"""The lookin estimator's old name (kept for code written against it; not in ``__all__``)."""
-
-TransportSettings = LookinSettings
-"""The lookin settings' old name (kept for code written against it; not in ``__all__``)."""

@@ -206,6 +206,7 @@ class LookinSecondary:
         # laser-lit observed points y' of lookins with an area
         cand = np.flatnonzero(light.lit & (area[light.hb] > 0))
         stats.lit_points += len(cand)
+        stats.secondary_lookins += len(x)
         if len(cand) == 0:
             return
         lb, flat = light.hb[cand], light.flat[cand]
@@ -243,6 +244,11 @@ class LookinSecondary:
                 t_pair = np.take_along_axis(np.broadcast_to(t_pair, (len(a), len(b))), keep, axis=0)
                 chan = chan[:s.top_k]
             stats.secondary_pairs += pair.size
+            stats.pairs_summed += len(a) * len(b)
+            if not self.materials.lambertian[obj_x[j]]:
+                stats.glossy_pairs += len(a) * len(b)
+            if s.secondary == "optimized" and s.top_k < len(a):
+                stats.ranked_pairs += len(a) * len(b)
             sink.add(t_pair.ravel(), pair.ravel(), (sec_comp + chan).ravel())
 
     def dark_middle(self, laser, flux, x, n_x, obj_x, r_lx, w_to_spot, obs: ObservedPoints,
@@ -285,6 +291,7 @@ class LookinSecondary:
         weight = phi * f_z * cos_z * out.weight * self.physics.attenuation(c.emitter_legs[laser] + path + out.phys)
         laser_t = self.physics.laser_leg(laser) / SPEED_OF_LIGHT
         stats.secondary_pairs += len(out.b)
+        stats.pairs_summed += len(out.b)
         sink.add(laser_t + path / SPEED_OF_LIGHT + out.time, weight, self.n_primary * c.n_channels + out.channel)
 
     def exact(self, x, n_x, obj_x, lb, in_w, in_t, in_dir, out: Connections, out_w, out_t,
@@ -339,6 +346,8 @@ class LookinSecondary:
             f = self.materials.lobe(np.full((len(a), len(b)), obj_x[j]), n_x[j], in_dir[a][:, None, :],
                                     out.direction[b][None])
             pair = in_w[a, None] * f * out_w[None, b]
+            stats.pairs_summed += pair.size
+            stats.glossy_pairs += pair.size
             t_pair = in_t[a, None] + out_t[None, b]
             chan = np.broadcast_to(out.channel[b][None, :], pair.shape)
             conv.add_impulses(t_pair.ravel(), pair.ravel(), chan.ravel())

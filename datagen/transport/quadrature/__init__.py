@@ -2,8 +2,10 @@
 
 Converges to: the primary L_p, deterministically, as O(h²) in the sub-triangle edge h away from kernel singularities
 (≈ O(h) where a surface meets the FoV); a planned secondary comes from the area sampler (docs/physics.md §3.4). No
-noise: the error estimate is the difference between edges h and 2h. Pick it for small smooth hidden objects seen by
-point sensors or scanned walls (tal's captures, confocal and exhaustive scans, docs/scans.md, docs/tal.md).
+noise: the error estimate is the difference between edges h and 2h; a finer level costs ∝ h⁻² to h⁻⁴, counted in
+nominal seconds for a dataset's ``cost_cap`` (:meth:`Quadrature.nominal_seconds`). Pick it for small smooth hidden
+objects seen by point sensors or scanned walls (tal's captures, confocal and exhaustive scans, docs/scans.md,
+docs/tal.md).
 
 - :mod:`.estimator`: :class:`Quadrature` (registered as ``"quadrature"``) and :class:`QuadratureSettings`.
 - :mod:`.options`: the options block (:class:`~.options.QuadratureOptions`, the edge ladder of the tolerance loop).

@@ -197,14 +197,24 @@ MAX_FOV_CELLS = 64
 
 @dataclass
 class QuadratureStats:
-    """Counters from a quadrature run (recorded in the result attributes)."""
+    """Counters from a quadrature run (recorded in the result attributes); ``runs`` counts the primary's passes."""
 
+    runs: int = 0
     cells: int = 0
     targets: int = 0
     connections: int = 0
     pair_rows: int = 0
     tents: int = 0
     shadow_rays: int = 0
+
+
+NOMINAL_SECONDS = {"runs": 1.0e-2, "cells": 1.6e-6, "pair_rows": 1.4e-8, "tents": 4.0e-8}
+"""Seconds of one core per counted unit of :class:`QuadratureStats` (:meth:`Quadrature.nominal_seconds`): a
+non-negative least-squares fit (relative errors) of the CPU time of 30 tolerance-loop levels, set-up and run
+(``python benchmarks/fit_nominal.py quadrature``: three rooms each of ``confocal_smoke.yaml``, ``wall_smoke.yaml``,
+``confocal.yaml`` and the single-pixel-v2 suite at two or three edges; 0.013–3.9 s a level, the compiled kernel's
+two threads counted) on the shared 2-core machine: relative residual 25 % RMS, worst 55 % (a 0.09 s level), the
+``confocal.yaml`` levels within 14 %. Shadow rays took rate 0 and are left out."""
 
 
 def _leg_may_be_blocked(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray, tol: float,
@@ -359,6 +369,15 @@ class Quadrature:
             secondary="none" if secondary == "none" else "full", secondary_samples=opts.secondary_samples,
             shadow_spot=forced_spot if isinstance(forced_spot, bool) else None,
             sensor_blockers=physics.sensor_blockers), caster, capture)
+
+    def nominal_seconds(self) -> float:
+        """A deterministic measure of the work done so far, in seconds of one core of the reference machine: the
+        set-up's sub-triangles and the runs' (sub-triangle, connection) rows, tents and shadow rays (those of the
+        error estimate's rule at h/2 included) at the rates ``NOMINAL_SECONDS``, plus the area sampler's secondary
+        (:meth:`AreaSampler.nominal_seconds`). The tolerance loop caps its levels with it (``cost_cap``)."""
+        counted = [self.stats] + ([self.refine_stats] if getattr(self, "refine_stats", None) is not None else [])
+        work = sum(rate * getattr(st, key) for st in counted for key, rate in NOMINAL_SECONDS.items())
+        return float(work + (self.area.nominal_seconds() if self.monte_carlo else 0.0))
 
     def progress_total(self) -> tuple[int, str]:
         """(sub-triangle, connection) pairs of a run."""
@@ -515,6 +534,7 @@ class Quadrature:
     def _primary(self, sink: Sink, progress: Callable[[int], None] | None) -> None:
         """The primary tents (and the first bounce) into ``sink``: compiled (:mod:`.primary`) when
         :attr:`use_compiled` and the case is one it covers (:meth:`compiled_case`), else in numpy."""
+        self.stats.runs += 1
         grid = getattr(sink, "tent_grid", None)
         compiled = self.use_compiled and self.compiled_case() and grid is not None and grid() is not None
         n_channels = self.capture.n_channels
