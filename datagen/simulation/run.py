@@ -237,7 +237,7 @@ class Replicas:
         """Run the tracer's replicas up to :data:`NARROW_RUNS` when the fixed parts of the error
         (:meth:`fixed_error`) exceed :data:`NARROW_SHARE` × ``tolerance`` and the smoothing could still be narrowed: a
         bias estimate of fewer runs is too noisy to narrow on (:meth:`narrow_smoothing`), yet too large to plan the
-        replicas around (demo room, 1 %: two runs read 0.13–0.80 % over eight seeds, 64 runs 0.52 %). Both tolerance
+        replicas around (docs/accuracy.md, "The error budget", gives the spread measured). Both tolerance
         loops ask before they plan replicas. Returns whether it ran any."""
         t = self.tracer
         if (t is None or t.smoothing is None or t.settings.smooth_narrow >= MAX_NARROW

@@ -22,7 +22,7 @@ SMOOTH_ORDER = 3
 SMOOTH_WIDTH = 2e-9
 """Δ, the node spacing of the lowest smoothed orders, s, at a tolerance of :data:`SMOOTH_TOLERANCE`: the bias of a
 kernel estimate grows as Δ² and its noise falls as 1/Δ, so Δ scales as √tolerance (the bias stays the same
-fraction of the tolerance: about a third of it in the shipped rooms at 2 ns and 1 %), and never above this."""
+fraction of the tolerance), and never above this (docs/accuracy.md, "The smoothing's constants, measured")."""
 
 SMOOTH_TOLERANCE = 0.01
 
@@ -34,10 +34,8 @@ SMOOTH_BANDS = 2
 
 SCAN_SMOOTHING = 3
 """h, the half-width in scan pitches of the smoothing across a confocal scan (weights 1, 2, 3, 2, 1 over 9 per axis,
-:func:`spread_scan`: 18 times less variance), its bias estimated and counted (:meth:`DeepSmoothing.bias`). On a 32 × 32
-confocal scan h = 3 with order 2 at Δ/2 left the tracer's part 1.4 % from an all-order reference per 5 replicas, where
-h = 2 with order 2 at Δ left 1.6 % (most of it a time bias its estimate missed) and h = 4's bias outgrew its estimate
-(docs/scans.md)."""
+:func:`spread_scan`: 18 times less variance), its bias estimated and counted (:meth:`DeepSmoothing.bias`); why 3:
+docs/accuracy.md, "The smoothing's constants, measured"."""
 
 SHAPE_NODES_MAX = 1 << 23
 """Most fine nodes (nodes × the fine grid's) of the accumulator that bins the nodes' unit tents once
@@ -48,22 +46,21 @@ SMOOTH_MIN_BINS = 4
 
 CORRECT_TOLERANCE = SMOOTH_TOLERANCE
 """The smooth part of the estimated bias is subtracted (:func:`smoothed_correction`) at tolerances up to this one,
-where Δ follows √tolerance and the bias is about a third of the tolerance: in the demo room at 1 % it takes the bias
-from 0.53 % to 0.34 % of the envelope at 1.08 × the variance per run, and the run to the tolerance costs 11 % less.
-Above it Δ stays at :data:`SMOOTH_WIDTH`, the bias is a smaller share of the tolerance and the added variance does
-not pay (confocal.yaml at 2 %: 1.03 × dearer)."""
+where Δ follows √tolerance and the bias is a fixed share of the tolerance; above it Δ stays at :data:`SMOOTH_WIDTH`,
+the bias is a smaller share of the tolerance and the added variance does not pay (docs/accuracy.md, "The smoothing's
+constants, measured")."""
 
 CORRECTION_COARSENING = 1
 """The correction is the Richardson bias estimate binned onto nodes 2^k Δ apart (k = this) and spread back: the
-estimate's noise lies at the finest spacings, its expectation (Δ² L'') is smooth. k = 0 removes more of the bias
-(0.22 %) at 1.30 × the variance, k = 2 less (0.48 %) at 1.01 ×; k = 1 costs least (docs/accuracy.md)."""
+estimate's noise lies at the finest spacings, its expectation (Δ² L'') is smooth; k = 1 costs least
+(docs/accuracy.md, "The smoothing's constants, measured")."""
 
 
 ONSET_NARROWING = 0.25
 """κ: an impulse t − onset after its channel's onset (and less than 2Δ) is deposited as a tent of half-width at most
 κ (t − onset) (:class:`DeepSmoothing`, "Causal"): light reaches back at most κ of its distance to the onset. An order's
-light rises steeply after the onset (the demo room's orders ≥ 3: 2 % of their first 2 ns in the first one), so a
-kernel reaching back to the onset (κ = 1) still put 15–40 × the reference's light into that first nanosecond."""
+light rises steeply after the onset, so a kernel reaching back to the onset (κ = 1) piles light into the first
+nanosecond (docs/accuracy.md, "The smoothing's constants, measured")."""
 
 
 def default_smoothing(bin_width: float, tolerance: float, first_order: int = SMOOTH_ORDER,
@@ -78,7 +75,7 @@ def default_smoothing(bin_width: float, tolerance: float, first_order: int = SMO
     width = float(np.clip(SMOOTH_WIDTH * np.sqrt(tolerance / SMOOTH_TOLERANCE), SMOOTH_MIN_WIDTH, SMOOTH_WIDTH))
     order = first_order if SMOOTH_MIN_BINS * bin_width <= width else 0
     # Δ belongs to orders SMOOTH_ORDER..2·SMOOTH_ORDER−2; a lower first order starts a band below at Δ/2 (order 2's
-    # transient has a sharp first hump: at Δ = 2 ns its kernel bias on a confocal scan was 0.9 %, at 1 ns 0.36 %)
+    # transient has a sharp first hump: docs/accuracy.md, "The smoothing's constants, measured")
     first = width * max(first_order - 1, 1) / (SMOOTH_ORDER - 1) if first_order < SMOOTH_ORDER else width
     return {"smooth_order": order, "smooth_width": first, "smooth_max_width": width * 2 ** (SMOOTH_BANDS - 1),
             "smooth_scan": SCAN_SMOOTHING if confocal and order else 0,
@@ -164,8 +161,7 @@ class DeepSmoothing:
     **Its bias** (:meth:`bias`, :meth:`bias_halves`) is estimated from the same impulses binned at Δ/2 too:
     (L_Δ − L_Δ/2) · 4/3 (Richardson: the bias of a kernel estimate grows as Δ² where the transient is smooth). Next
     to the sharp onset of an order it grows more slowly (a kink or a jump in L), and the finer pair is then the
-    closer one: on a confocal scan's orders 2 and ≥ 3 it came to 0.88–0.93 × the actual bias where the pair
-    (L_2Δ − L_Δ)/3 came to 0.33–0.57 × (docs/physics.md §2).
+    closer one (docs/physics.md §2; docs/accuracy.md, "The smoothing's constants, measured").
 
     The nodes reach :attr:`margin` (2Δ) beyond both ends of the window, and the tracer follows paths that far past
     its end, so that the kernels near the ends receive from outside the mass they spread out of the window: an
@@ -175,10 +171,9 @@ class DeepSmoothing:
     Richardson estimate of the bias smoothed by :func:`smoothed_correction` (binned onto nodes 2Δ apart and spread
     back: its noise lies at the finest spacings, its expectation Δ² L'' is smooth), clipped so that no node mass falls
     below zero. What is left is the bias's rough part, (I − S)·bias, and the clipping's: the estimate below subtracts
-    the correction the runs applied from the Richardson estimate, so it reads the bias of what was deposited. In the
-    demo room at 1 % it leaves 0.34 % of the envelope where the plain smoothing holds 0.53 %, at 1.08 × the variance
-    per run (docs/accuracy.md). The correction is linear in the runs' impulses (a kernel with smooth negative
-    lobes), so the replicas' spread sees its noise.
+    the correction the runs applied from the Richardson estimate, so it reads the bias of what was deposited (what
+    it leaves, measured: docs/accuracy.md). The correction is linear in the runs' impulses (a kernel with smooth
+    negative lobes), so the replicas' spread sees its noise.
 
     **Causal** (``onset``: per channel the earliest time any light can arrive, :mod:`.onset`): a node's tent starts
     less than 2Δ before an impulse binned onto it, so an impulse is binned onto the nodes only when it lies at least
@@ -187,11 +182,11 @@ class DeepSmoothing:
     earlier impulse is deposited by itself (:meth:`onset_tents`, at :meth:`flush`) as a tent of half-width h = min(κ τ,
     √2 Δ), τ its delay after its channel's onset (κ = :data:`ONSET_NARROWING`; across a scan, spread over the
     neighbouring points at the same delay after each one's onset): the kernel narrows towards the onset, so no light
-    lands before it and none is moved from the steep rise of an order onto the onset (a fixed-width kernel there put
-    35–45 × the light of orders ≥ 3 into the demo room's first nanosecond); √2 Δ matches the nodes' kernel in
-    variance. The Richardson estimate below reads every impulse binned onto the nodes, near the onset too: it
-    estimates the bias of the plain smoothing, which bounds that of the narrower tents (estimating the split parts
-    apart would read their cut as a bias).
+    lands before it and none is moved from the steep rise of an order onto the onset; √2 Δ matches the nodes' kernel
+    in variance. The Richardson estimate below reads every impulse binned onto the nodes, near the onset too: it
+    estimates the bias of the plain smoothing, meant to bound that of the narrower tents (estimating the split parts
+    apart would read their cut as a bias; how far it falls short under the demo room's primary peak:
+    docs/accuracy.md, "What the stated error is").
 
     **Across a scan** (``scan``: the channels are the points of an (ny, nx) scan grid, as a confocal scan's are),
     the node masses are also spread over neighbouring scan points by a separable tent of half-width h pitches

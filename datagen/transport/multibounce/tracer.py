@@ -35,8 +35,8 @@ The estimator (docs/physics.md §2, "Light of every order"; docs/accuracy.md for
   uniform point of a recorded pixel region, a cosine direction into the room; drawn when the path reaches the first
   vertex that uses it); every light vertex of order ≥ max(1, ``min_order`` − 1) is joined to z by a shadow ray, a
   path one order higher. It is the third strategy of the same paths under the same balance heuristic: it samples
-  the FoV leg's 1/r² where next-event connections only weigh it (vertices near the relay wall). On a confocal sample
-  it cut the tracer's variance per unit of CPU by 1.85×, in the demo room by 1.35× (docs/accuracy.md).
+  the FoV leg's 1/r² where next-event connections only weigh it (vertices near the relay wall); what it saves,
+  measured: docs/accuracy.md.
 - **Time smoothing** of the deep orders (:mod:`~datagen.transport.multibounce.smoothing`): their impulses are
   linearly binned on nodes Δ apart and deposited as tents, Δ growing with the order (the tail of deeper orders is
   smoother) and with the tolerance (Δ ∝ √tolerance keeps the bias a fixed fraction of it); across a confocal
