@@ -258,7 +258,8 @@ def plan_orders(scene: Scene, config, capture: Capture, caster: RayCaster, order
         warnings.warn(OmittedOrdersWarning(
             f"{scene.source or scene.name}: orders: {orders} leaves out {residual:.1%} of the in-window light (the "
             f"pilot's estimate, above {RESIDUAL_FRACTION:g} × the tolerance {tol:.2%}); the stated error includes "
-            "it; orders: auto simulates what the scene calls for"), stacklevel=2)
+            f"it, so no tolerance below {residual:.1%} can be met; orders: auto simulates what the scene calls for"),
+            stacklevel=2)
     return OrdersDecision(choice.on, reason, orders != "auto", choice.numbers(), choice=choice)
 
 
