@@ -167,6 +167,12 @@ def test_the_quadrature_carries_the_tracer_from_order_2_when_its_secondary_is_of
     assert abs(second / reference - 1) < 0.06, (second, reference)
     # the demo room's albedo-1 walls: orders >= 3 carry most of the light (docs/physics.md)
     assert r.components["multibounce"].sum() > r.components["secondary"].sum()
+    # orders: 2 is the same light with every estimator: the tracer carries order 2 alone, into `secondary` (no
+    # multibounce component), and the orders above it are the residual in the stated error
+    two = datagen.simulate(scene, cfg.model_copy(update={"orders": 2}))
+    assert list(two.components) == [n for n in r.components if n != "multibounce"]
+    assert two.attrs["orders"]["simulated"] == "1..2" and 0.5 < two.attrs["error"]["omitted_orders"] < 0.7
+    assert abs(two.components["secondary"].sum() / reference - 1) < 0.06, (two.components["secondary"].sum(), reference)
 
 
 def test_a_confocal_scan_to_tolerance_with_every_order():

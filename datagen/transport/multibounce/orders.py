@@ -48,16 +48,19 @@ def beside(base: Estimator, settings: MultibounceSettings, window: tuple[float, 
     if settings.min_order == 2 and "secondary" not in names:
         raise ConfigError(f"the tracer carries order 2 into the component 'secondary', which the {type(base).__name__} "
                           f"has not (components {names})")
-    tracer = build_tracer(base.capture, base.caster, base.physics, settings, window=window, component=len(names),
-                          secondary_component=names.index("secondary") if settings.min_order == 2 else None,
+    secondary = names.index("secondary") if settings.min_order == 2 else None
+    only_two = settings.max_order == 2                # order 2 alone: no component of its own (none would be lit)
+    tracer = build_tracer(base.capture, base.caster, base.physics, settings, window=window,
+                          component=secondary if only_two else len(names), secondary_component=secondary,
                           irf_reach=irf_reach)
     return AllOrders(base, tracer)
 
 
 class AllOrders:
     """An estimator of orders 1–2 (``base``) and the order ≥ 3 tracer, behind the estimator interface
-    (:class:`datagen.transport.base.Estimator`): ``component_names`` are the base's plus ``"multibounce"``; every
-    other attribute is the base's (capture, settings, physics, …).
+    (:class:`datagen.transport.base.Estimator`): ``component_names`` are the base's plus ``"multibounce"`` (none added
+    when the tracer carries order 2 alone, into the base's ``secondary``); every other attribute is the base's
+    (capture, settings, physics, …).
 
     Args:
         base: a built estimator (area, lookin); tracer: the :class:`MultibounceTracer` of the same capture,
@@ -66,7 +69,8 @@ class AllOrders:
 
     def __init__(self, base: Estimator, tracer: MultibounceTracer):
         self.base, self.tracer = base, tracer
-        self.component_names = list(base.component_names) + [COMPONENT]
+        own = tracer.component >= len(base.component_names)      # (order 2 alone goes into the base's secondary)
+        self.component_names = list(base.component_names) + ([COMPONENT] if own else [])
 
     def __getattr__(self, name: str):
         if name in ("base", "tracer"):        # not set yet (unpickling): no recursion

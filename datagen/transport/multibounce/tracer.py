@@ -250,7 +250,8 @@ class MultibounceTracer:
     @property
     def components(self) -> list[int]:
         """The sink component ids this tracer deposits into (``multibounce``, and order 2's when it carries it)."""
-        return [self.component] + ([self.secondary_component] if self.secondary_component is not None else [])
+        both = [self.component] + ([self.secondary_component] if self.secondary_component is not None else [])
+        return list(dict.fromkeys(both))              # (one when order 2 alone goes into the secondary)
 
     def progress_total(self) -> tuple[int, str]:
         """Light paths over all laser points."""
