@@ -201,15 +201,17 @@ TRACER_MAX_RATIO = 64
 """Most replicas of the order ≥ 3 tracer per replica of orders 1–2."""
 
 
-def tracer_replicas_wanted(base: ReplicaSums, tracer: ReplicaSums, base_cost: float, tracer_cost: float) -> int:
-    """How many tracer replicas go with ``base.count`` replicas of orders 1–2: ρ·R_b (:func:`neyman_split`),
-    never fewer than already run nor than 2, at most :data:`TRACER_MAX_RATIO` per base replica; as many as the
-    base while the split is unknown."""
+def tracer_replicas_wanted(base: ReplicaSums, tracer: ReplicaSums, base_cost: float, tracer_cost: float,
+                           base_count: int | None = None) -> int:
+    """How many tracer replicas go with ``base_count`` (default ``base.count``) replicas of orders 1–2: ρ·R_b
+    (:func:`neyman_split`), never fewer than already run nor than 2, at most :data:`TRACER_MAX_RATIO` per base
+    replica; as many as the base while the split is unknown."""
+    r_b = base.count if base_count is None else int(base_count)
     split = neyman_split(base, tracer, base_cost, tracer_cost)
     if split is None:
-        return max(tracer.count, base.count)
-    wanted = int(np.ceil(split[2] * base.count))
-    return int(min(max(wanted, tracer.count, 2), TRACER_MAX_RATIO * base.count))
+        return max(tracer.count, r_b)
+    wanted = int(np.ceil(split[2] * r_b))
+    return int(min(max(wanted, tracer.count, 2), TRACER_MAX_RATIO * r_b))
 
 
 def whole_split(v_b: float, v_t: float, base_cost: float, tracer_cost: float, base_count: int, tracer_count: int,

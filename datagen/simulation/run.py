@@ -278,7 +278,7 @@ class Replicas:
             if self.tracer_sums.count < 2:
                 self._run_group(self.tracer, self.tracer_sums, 2 - self.tracer_sums.count, self._tracer_stream, None)
             wanted = (tracer_target if tracer_target is not None
-                      else tracer_replicas_wanted(self.sums, self.tracer_sums, *self._replica_costs()))
+                      else tracer_replicas_wanted(self.sums, self.tracer_sums, *self.replica_costs()))
             self._run_group(self.tracer, self.tracer_sums, wanted - self.tracer_sums.count, self._tracer_stream,
                             None)
         if bar is not None:
@@ -288,7 +288,7 @@ class Replicas:
         """The tracer's stream of replica r (its own, beside the base's ``replica_rng(root, r)``)."""
         return tracer_rng(replica_rng(self.root, r))
 
-    def _replica_costs(self) -> tuple[float, float]:
+    def replica_costs(self) -> tuple[float, float]:
         """Nominal seconds of one replica of orders 1–2 and of one of the tracer (0 when unknown)."""
         base_cost = getattr(self.transport.base, "nominal_seconds", None)
         return (base_cost() / max(self.count, 1) if base_cost is not None else 0.0,
@@ -300,7 +300,7 @@ class Replicas:
         of orders 1–2 or before the split is known."""
         if self.tracer is None or not self.base_monte_carlo:
             return None
-        costs = self._replica_costs()
+        costs = self.replica_costs()
         split = neyman_split(self.sums, self.tracer_sums, *costs)
         if split is None:
             return None

@@ -46,7 +46,7 @@ from ..errors import ConfigError
 from ..threads import one_blas_thread
 from ..scene import Scene
 from .config import STREAM_SAMPLING, SimulationConfig, stream_rng
-from .replicas import FIRST_TRACER_REPLICAS, TRACER_MAX_RATIO, neyman_split, relative_difference
+from .replicas import FIRST_TRACER_REPLICAS, relative_difference, tracer_replicas_wanted
 from ..transport.multibounce.orders import tracer_nominal_seconds
 from .replicas import MIN_TOLERANCE  # noqa: F401 (its old home)
 from .detection import Result, make_result
@@ -334,13 +334,9 @@ def _within_cost(runs: Replicas, target: int, tracer_target: int | None, max_cos
         affordable = int(max_cost / (spent / count))
         return None if affordable < min(target, least) else (min(target, affordable), None)
     have = runs.tracer_sums.count
-    base_cost = getattr(runs.transport.base, "nominal_seconds", None)
-    c_base = base_cost() / count if base_cost is not None else 0.0
-    c_tracer = tracer_nominal_seconds(runs.tracer.stats) / max(have, 1)
+    c_base, c_tracer = runs.replica_costs()
     if tracer_target is None:
-        split = neyman_split(runs.sums, runs.tracer_sums, c_base, c_tracer)
-        tracer_target = (max(have, target) if split is None else
-                         min(max(math.ceil(split[2] * target), have, 2), TRACER_MAX_RATIO * target))
+        tracer_target = tracer_replicas_wanted(runs.sums, runs.tracer_sums, c_base, c_tracer, target)
     more_base, more_tracer = max(target - count, 0), max(tracer_target - have, 0)
     planned = c_base * more_base + c_tracer * more_tracer
     if spent + planned <= max_cost or planned <= 0:        # (no cost counted for what the round adds)
@@ -483,7 +479,7 @@ class _Caps:
         """``wanted`` tracer replicas in all, fewer if a cap allows fewer (at the cost per replica so far)."""
         count = max(runs.tracer_sums.count, 1)
         if self.max_cost is not None:
-            per = tracer_nominal_seconds(runs.tracer.stats) / count
+            per = runs.replica_costs()[1]
             if per > 0 and int((self.max_cost - self.spent) / per) < wanted:
                 wanted, self.hit = int((self.max_cost - self.spent) / per), "cost"
         if self.max_seconds is not None:          # as the Monte Carlo loop: the time so far over the replicas so far
