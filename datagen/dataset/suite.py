@@ -8,7 +8,10 @@ A suite is a YAML file in ``configs/suites/`` (``NAME.yaml``) with two blocks:
     ``input``: the stored field a method reconstructs from, ``envelope`` for the clean variant, ``counts`` for the
     low-photon one; both come from one build), ``content_sha256`` (the content hash of the reference build,
     null until it is recorded) and ``earlier_sha256`` (the hashes of reference builds by earlier datagen code of
-    the same definition, whose values differ from today's in float round-off only; :func:`hash_verdict`).
+    the same definition, whose values differ from today's in float round-off only; :func:`hash_verdict`) and
+    ``pins``: simulation settings whose default changed after the reference build, at the values it was built with
+    (e.g. ``error_confidence: null``, the stated error as the RMS estimate it then was), so that the frozen
+    ``dataset`` block builds the same samples; they are merged into its ``simulation`` block.
 ``dataset``
     an ordinary dataset config (:class:`datagen.dataset.DatasetConfig`: config, splits, seed, exposure, noise
     and detector); relative paths are relative to the suite file.
@@ -60,6 +63,7 @@ class SuiteSpec(BaseModel):
     variants: dict[str, VariantSpec] = Field(min_length=1)
     content_sha256: str | None = Field(None, pattern=r"^[0-9a-f]{64}$")
     earlier_sha256: list[Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]] = []
+    pins: dict = {}
 
 
 @dataclass
@@ -107,6 +111,9 @@ def load_suite(name: str | Path) -> Suite:
     if spec.name != path.stem:
         raise ConfigError(f"{path}: suite.name is {spec.name!r}, the file is {path.stem}.yaml: they must agree")
     config = load_dataset_config(data["dataset"], base_dir=path.parent)
+    if spec.pins:                      # settings whose default changed after the reference build, at its values
+        config = load_dataset_config({**data["dataset"], "simulation": {**data["dataset"].get("simulation", {}),
+                                                                        **spec.pins}}, base_dir=path.parent)
     for key in ("train_split", "test_split"):
         split = getattr(spec, key)
         if split not in config.splits:
@@ -221,7 +228,9 @@ def suite_of_dataset(path: str | Path) -> tuple[Suite, bool]:
     suite = load_suite(name)
     built = config_from_json(card["config"])
     counts = {s: spec.count for s, spec in built.splits.items()}
-    if cut_splits(suite.config, counts).fingerprint() != built.fingerprint():
+    # a card written before the suite pinned a setting lacks it: the suite's pins complete it
+    pinned = built.model_copy(update={"simulation": {**built.simulation, **suite.spec.pins}})
+    if cut_splits(suite.config, counts).fingerprint() not in (built.fingerprint(), pinned.fingerprint()):
         raise DatasetError(f"{path}: its config differs from suite {suite.name}'s ({suite.path}): not a build of "
                            "this suite (rebuild it with `datagen suite build`)")
     full = counts == {s: spec.count for s, spec in suite.config.splits.items()}

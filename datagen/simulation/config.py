@@ -20,6 +20,7 @@ from ..scene import Scene
 from ..scene.load import format_validation_error, short_repr
 from ..scene.parts import MAX_EXTENT
 from ..timing import Irf, TimeAxis
+from .confidence import CONFIDENCE
 from ..transport import EstimatorOptions, LookinSettings, PhysicsSettings, estimator, estimator_names
 from ..transport.base import estimator_options
 from ..transport.lookin.estimator import LookinOptions
@@ -151,6 +152,10 @@ class SimulationConfig(BaseModel):
             False: the primary summed into one component, "primary" (:meth:`datagen.scene.Scene.with_summed_primary`;
             "secondary" and "first_bounce" stay apart), which spares a fine histogram and an IRF convolution per
             object (a dataset that stores no components sets it False; the envelope is the same sum).
+        error_confidence: the probability q with which the stated Monte Carlo error bounds the actual one (the
+            replicas' standard error times √F_q(d, ν), :mod:`datagen.simulation.confidence`); a tolerance is met by
+            that bound. None: the standard error itself, an RMS estimate that the actual error exceeds about half the
+            time (the frozen ``-v1``/``-v2`` suites were built with it).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -171,6 +176,7 @@ class SimulationConfig(BaseModel):
     count_sensor_leg: bool = True
     detector: dict = Field(default_factory=dict)
     split_components: bool = True
+    error_confidence: float | None = Field(CONFIDENCE, ge=0.5, lt=1)
 
     @model_validator(mode="before")
     @classmethod

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..vectors import norm
+from .confidence import autocorrelation, bound_factor, part_dimensions
 
 MIN_TOLERANCE = 1e-10
 """Smallest tolerance accepted: relative errors below it are float64 round-off in sums over many bins and
@@ -100,17 +101,25 @@ class ReplicaSums:
         scale: photons per pulse per unit of the sums (0 until a replica with energy arrives).
         exact: the envelope comes from a deterministic estimator run once (the quadrature beside the tracer): its
             variance is 0, not unknown.
+        lags: (n_bins,) Σ_r of each replica's autocorrelation pooled over channels
+            (:func:`~datagen.simulation.confidence.autocorrelation`), in ``scale``² units: the correlation in time of
+            the replicas' deviations (the stated error's confidence factor, :mod:`datagen.simulation.confidence`).
+        channel_sq: (n_bins,) Σ_r of the square of each replica's channel sum, in ``scale``² units: the correlation
+            across channels.
     """
 
     envelope: np.ndarray
     envelope_sq: np.ndarray
+    lags: np.ndarray
+    channel_sq: np.ndarray
     count: int = 0
     scale: float = 0.0
     exact: bool = False
 
     @classmethod
     def zeros(cls, n_channels: int, n_bins: int) -> ReplicaSums:
-        return cls(np.zeros((n_channels, n_bins)), np.zeros((n_channels, n_bins)))
+        return cls(np.zeros((n_channels, n_bins)), np.zeros((n_channels, n_bins)), np.zeros(n_bins),
+                   np.zeros(n_bins))
 
     def add(self, envelope: np.ndarray) -> None:
         """Add one replica's envelope (n_channels, n_bins)."""
@@ -121,16 +130,36 @@ class ReplicaSums:
         scaled = envelope / self.scale if self.scale else envelope
         self.envelope += scaled
         self.envelope_sq += scaled ** 2
+        if scaled.size:
+            self.lags += autocorrelation(scaled)
+            self.channel_sq += scaled.sum(axis=0) ** 2
         self.count += 1
 
     def mean(self) -> np.ndarray:
         """(n_channels, n_bins) mean envelope of the replicas, photons per pulse."""
         return self.envelope / max(self.count, 1) * (self.scale or 1.0)
 
-    def error(self) -> float:
-        """ε̂, the relative standard error of the mean envelope (module docstring); inf for fewer than 2
-        replicas (unless the envelope is zero: then 0)."""
-        return combined_error([self])
+    def error(self, confidence: float | None = None) -> float:
+        """ε̂, the relative standard error of the mean envelope (module docstring), raised to its upper
+        ``confidence`` limit when that is given (:func:`combined_error`); inf for fewer than 2 replicas (unless the
+        envelope is zero: then 0)."""
+        return combined_error([self], confidence)
+
+    def dimensions(self, var_mean: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
+        """(V, T) of :func:`~datagen.simulation.confidence.part_dimensions` for this part, from its variance of the
+        mean per bin ``var_mean`` (in any unit: V and T come in it) and the measured bins ``mask``; the correlations
+        are read from the sums (unitless); needs ≥ 2 replicas."""
+        r = self.count
+        mean = self.envelope / r
+        lag_cov = (self.lags - r * autocorrelation(mean)) / (r - 1)
+        n_channels = mean.shape[0]
+        channel_corr = 0.0
+        if n_channels > 1:
+            per_channel = float((self.envelope_sq - r * mean ** 2).sum())
+            of_sum = float((self.channel_sq - r * mean.sum(axis=0) ** 2).sum())
+            if per_channel > 0:
+                channel_corr = (of_sum / per_channel - 1.0) / (n_channels - 1)
+        return part_dimensions(var_mean, mask, r, lag_cov, channel_corr)
 
     def moments(self) -> tuple[np.ndarray, np.ndarray]:
         """(mean, variance of the mean) per bin, (n_channels, n_bins) each, in units of ``scale`` (its square for
@@ -155,12 +184,13 @@ def _moments_in_common_units(parts: list[ReplicaSums]) -> list[tuple[np.ndarray,
     return out
 
 
-def combined_error(parts: list[ReplicaSums]) -> float:
+def combined_error(parts: list[ReplicaSums], confidence: float | None = None) -> float:
     """ε̂ of the sum of independent means, each over its own replicas (orders 1–2 and the order ≥ 3 tracer run
     different numbers of replicas): sqrt(Σ_b Σ_i var_i,b) / ‖Σ_i mean_i‖ over the bins above ``PEAK_FLOOR`` of the
-    summed mean's peak (module docstring); inf while a part with energy has fewer than 2 replicas, 0 for an
-    all-zero mean."""
-    mean, var = None, None
+    summed mean's peak (module docstring); with a ``confidence`` q, that times the factor k ≥ 1 that makes it an
+    upper bound of the actual error with probability q (:func:`~datagen.simulation.confidence.bound_factor`).
+    inf while a part with energy has fewer than 2 replicas, 0 for an all-zero mean."""
+    mean, var, used = None, None, []
     for p, (m, v) in zip(parts, _moments_in_common_units(parts)):
         if p.count < 2 and not p.exact:
             if m.any():
@@ -168,9 +198,15 @@ def combined_error(parts: list[ReplicaSums]) -> float:
             continue                                                 # no energy: adds nothing
         mean = m if mean is None else mean + m
         var = v if var is None else var + v
+        used.append((p, m, v))
     if mean is None:
         return 0.0
-    return relative_standard_error(mean, var)
+    error = relative_standard_error(mean, var)
+    if confidence is None or error == 0.0:
+        return error
+    mask = _measured_bins(mean)
+    noisy = [(*p.dimensions(v, mask), p.count) for p, _, v in used if not p.exact]
+    return error * bound_factor(noisy, confidence)
 
 
 def neyman_split(base: ReplicaSums, tracer: ReplicaSums, base_cost: float, tracer_cost: float

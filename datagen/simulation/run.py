@@ -339,7 +339,8 @@ class Replicas:
         """The Monte Carlo part of the error estimate of the mean (0 for a deterministic run)."""
         if not self.monte_carlo:
             return 0.0
-        return self.sums.error() if self.tracer is None else combined_error([self.sums, self.tracer_sums])
+        q = self.config.error_confidence
+        return self.sums.error(q) if self.tracer is None else combined_error([self.sums, self.tracer_sums], q)
 
     def transported(self) -> Transported:
         """The mean of the replicas run so far, binned."""
