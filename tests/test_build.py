@@ -29,9 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def tiny_config(shard_size: int, train: int = 6, val: int = 2, test_phong: int = 2):
-    """The smoke config cut to 10 samples (a few seconds of work), at a tolerance of 4.4 % (5 %: every sample meets
-    it with the first round; 4.4 %: train[4] takes a fifth replica)."""
-    config = load_dataset_config(SMOKE).model_copy(update={"tolerance": 0.044})
+    """The smoke config cut to 10 samples (a few seconds of work), at a tolerance of 6.1 % (7 %: every sample meets
+    it with the first round; 6.1 %: train[4] takes more replicas)."""
+    config = load_dataset_config(SMOKE).model_copy(update={"tolerance": 0.061})
     splits = {"train": SplitSpec(count=train), "val": SplitSpec(count=val),
               "test_phong": config.splits["test_phong"].model_copy(update={"count": test_phong})}
     return config.model_copy(update={"splits": splits, "shard_size": shard_size})
@@ -92,16 +92,16 @@ def test_dask_localcluster_build_equals_local_build(reference, tmp_path):
 
 def test_card_records_the_tolerance_the_error_distribution_and_the_misses(reference, tmp_path):
     """The card's accuracy block: tolerance, time cap, median / p95 / max of the stored envelope_error and the
-    samples that missed the tolerance (none at 4.4 %; a 0.1 % tolerance with a tight time cap misses every sample,
+    samples that missed the tolerance (none at 6.1 %; a 0.1 % tolerance with a tight time cap misses every sample,
     and each is flagged by name, never silently accepted); ``inspect`` prints them."""
     card = read_card(reference)
     acc = card["accuracy"]
     stored = np.concatenate([zarr.open_group(str(reference), mode="r")[s]["envelope_error"][...]
                              for s in ("train", "val", "test_phong")])
-    assert acc["tolerance"] == 0.044 and acc["time_cap_s"] == 0.5 and acc["n_missed"] == 0
+    assert acc["tolerance"] == 0.061 and acc["time_cap_s"] == 0.5 and acc["n_missed"] == 0
     assert acc["envelope_error"]["n"] == 10 and acc["envelope_error"]["max"] == pytest.approx(stored.max(), rel=1e-6)
     assert acc["envelope_error"]["median"] == pytest.approx(np.median(stored.astype(np.float64)), rel=1e-6)
-    assert 0 < stored.max() <= 0.044
+    assert 0 < stored.max() <= 0.061
     strict = tiny_config(shard_size=4, train=3, val=1, test_phong=0).model_copy(
         update={"tolerance": 0.001, "cost_cap": 0.2})
     out = tmp_path / "strict"

@@ -195,19 +195,20 @@ def test_bad_config_file_names_the_file(tmp_path):
 
 def test_each_sample_meets_the_tolerance_and_stores_its_error_estimate(smoke):
     """envelope_error is the 0-d float32 estimate of the adaptive run; samples start from 4 replicas and add
-    more only when the estimate asks for it (train[4] of the smoke config at 4.4 %: 5 replicas); the parameters
+    more only when the estimate asks for it (at 6.1 % train[3] meets it with 4, stating 6.08 %; train[4] states
+    6.14 % at 4 and adds replicas); the parameters
     record the accuracy the sample reached."""
     import json
     assert smoke.tolerance == 0.05 and smoke.cost_cap == 0.5
-    smoke = smoke.model_copy(update={"tolerance": 0.044})
+    smoke = smoke.model_copy(update={"tolerance": 0.061})
     replicas = []
     for i in (3, 4):
         s = make_sample(smoke, "train", i)
         err = s.arrays["envelope_error"]
         assert err.shape == () and err.dtype == np.float32
         acc = json.loads(str(s.arrays["params"][()]))["accuracy"]
-        assert acc["envelope_error"] == pytest.approx(float(err), rel=1e-6) and acc["tolerance"] == 0.044
-        assert acc["met"] == (acc["envelope_error"] <= 0.044) and 0 < float(err) <= 0.044
+        assert acc["envelope_error"] == pytest.approx(float(err), rel=1e-6) and acc["tolerance"] == 0.061
+        assert acc["met"] == (acc["envelope_error"] <= 0.061) and 0 < float(err) <= 0.061
         replicas.append(acc["replicas"])
     assert replicas[0] == 4 and replicas[1] > 4
 

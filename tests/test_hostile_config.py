@@ -155,7 +155,7 @@ def test_a_hopeless_tolerance_is_refused_after_the_first_round(tmp_path):
     out = cli(simulate_args(scene_file(tmp_path), tmp_path / "out", "--tolerance", "1e-9"), 2)
     line = one_error_line(out)
     assert line.startswith("error: --tolerance 1e-9: the first round (8 replicas, ")
-    assert "estimates the error at 0.638, which projects " in line   # the patch scene's 8 replicas, seed 0
+    assert "estimates the error at 0.829, which projects " in line   # the patch scene's 8 replicas, seed 0
     assert line.endswith("beyond --time-cap 600 s (within it about " + line.split("about ")[1].split(" ")[0]
                          + " is reachable): loosen --tolerance or raise --time-cap")
     projected = float(line.split("projects ")[1].split(" s")[0])
@@ -183,8 +183,8 @@ def test_a_tolerance_projected_beyond_the_cap_warns_in_one_line_then_stops_at_th
     fake_clock(monkeypatch, 30.0)      # each round "takes" minutes while its replicas take milliseconds
     out = cli(simulate_args(scene_file(tmp_path), tmp_path / "out", "--tolerance", "10%", "--time-cap", "600s"), 0)
     warning = [line for line in out.splitlines() if line.startswith("warning:")]
-    assert warning == ["warning: --tolerance 10%: the first round (8 replicas, 90 s) estimates the error at 0.638, "
-                       "which projects 1.4e+03 s to reach 0.1, beyond --time-cap 600 s (within it about 0.153 is "
+    assert warning == ["warning: --tolerance 10%: the first round (8 replicas, 90 s) estimates the error at 0.829, "
+                       "which projects 2.33e+03 s to reach 0.1, beyond --time-cap 600 s (within it about 0.197 is "
                        "reachable); running on to it"]
     assert "NOT met within --time-cap 600 s" in out
     assert (tmp_path / "out" / "result.zarr").is_dir()
@@ -216,7 +216,7 @@ def test_the_library_raises_tolerance_out_of_reach_with_the_numbers(monkeypatch,
     exc = info.value
     assert isinstance(exc, ConfigError) and exc.max_seconds == 100.0 and exc.projected > HOPELESS * 100
     assert exc.reachable == pytest.approx(1e-4 * math.sqrt(exc.projected / 100))
-    assert str(exc).startswith("tolerance 0.0001: the first round (8 replicas, 3 s) estimates the error at 0.638")
+    assert str(exc).startswith("tolerance 0.0001: the first round (8 replicas, 3 s) estimates the error at 0.829")
 
 
 # ------------------------------------------------------------------------------------------ time axis, laser

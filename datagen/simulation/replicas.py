@@ -8,7 +8,8 @@ the variance of M in bin b is estimated by s_b² / R (s_b² the replicas' sample
 
     ε̂ = sqrt(Σ_b s_b² / R) / ‖M‖      over the bins b (of every channel) where M exceeds PEAK_FLOOR of its peak
 
-estimates the relative L2 error of M in the measure of :func:`datagen.analysis.relative_l2` (which compares
+estimates the RMS relative L2 error of M (raised to an upper confidence limit by :mod:`.confidence` where the
+config asks for one) in the measure of :func:`datagen.analysis.relative_l2` (which compares
 against a converged reference over the bins above 1 % of *its* peak). The estimate aggregates many bins, so
 it is stable even for few replicas, and it sees every source of Monte Carlo noise (hidden samples, FoV
 points, secondary partners); it cannot see a bias (there is none beyond the time binning's ~1e-5).

@@ -25,6 +25,7 @@ from ..transport.base import Estimator, run_replicas
 from ..transport.multibounce import COMPONENT, AllOrders
 from ..transport.multibounce.orders import beside, tracer_nominal_seconds, tracer_settings
 from ..transport.multibounce.tracer import tracer_rng
+from ..transport.multibounce.smoothing import RICHARDSON, RICHARDSON_KINK
 from .budget import check_simulation_memory
 from .config import STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .detection import Result, Transported, make_result
@@ -304,7 +305,17 @@ class Replicas:
         split = neyman_split(self.sums, self.tracer_sums, *costs)
         if split is None:
             return None
-        return whole_split(split[0], split[1], *costs, self.sums.count, self.tracer_sums.count, budget * budget)
+        rms = budget / self.confidence_factor()          # the split's variances are the standard error's
+        return whole_split(split[0], split[1], *costs, self.sums.count, self.tracer_sums.count, rms * rms)
+
+    def confidence_factor(self) -> float:
+        """:meth:`error` over the plain standard error (≥ 1: the factor that makes it a bound at
+        ``config.error_confidence``; 1 without one, or while either is not finite and positive)."""
+        if self.config.error_confidence is None:
+            return 1.0
+        bound = self.error()
+        rms = self.sums.error() if self.tracer is None else combined_error([self.sums, self.tracer_sums])
+        return bound / rms if 0 < rms < float("inf") and bound < float("inf") else 1.0
 
     def _run_group(self, transport, sums: ReplicaSums, n: int, streams, bar) -> None:
         """Run replicas ``sums.count`` … ``sums.count + n − 1`` of ``transport`` (stream r: ``streams(r)``) into
@@ -400,10 +411,11 @@ class Replicas:
     def smoothing_error(self, envelope: np.ndarray) -> float:
         """The smoothing's bias over the tracer's runs relative to ``envelope`` (n_channels, n_bins), the mean of
         every component, on the error measure's bins (only when :attr:`smoothing` is not None)."""
-        halves = self.smoothing.bias_halves(self.config.time.edges)
+        factor = RICHARDSON if self.config.error_confidence is None else RICHARDSON_KINK   # an estimate / a bound
+        halves = self.smoothing.bias_halves(self.config.time.edges, factor)
         if halves is not None:                  # two independent halves: the bias's norm without their noise
             return relative_cross(*halves, envelope)
-        bias = self.smoothing.bias(self.config.time.edges, max(self.tracer_sums.count, 1))
+        bias = self.smoothing.bias(self.config.time.edges, max(self.tracer_sums.count, 1), factor)
         return relative_difference(bias, np.zeros_like(bias), envelope)
 
     def omitted_error(self) -> float:

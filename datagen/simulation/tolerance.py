@@ -251,11 +251,12 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
         t_round = time.perf_counter()
         runs.run(target - runs.count, tracer_target=tracer_target)
         tracer_target = None
-        if runs.narrow_smoothing(tolerance):        # a smoothing bias replicas cannot bring down: a finer one
+        spent = max_cost is not None and nominal() is not None and nominal() >= max_cost   # no more work at all
+        if not spent and runs.narrow_smoothing(tolerance):   # a smoothing bias replicas cannot bring down: finer
             target = runs.count + 1
             continue
         mc, fixed = runs.error(), runs.fixed_error()
-        if runs.settle_smoothing(tolerance):
+        if not spent and runs.settle_smoothing(tolerance):
             continue                                # judged (and narrowed) on more of the tracer's runs
         estimate = float(np.hypot(mc, fixed))
         # what the replicas may add: the tolerance less what they cannot bring down (orders left out, smoothing

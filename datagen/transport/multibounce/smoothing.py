@@ -82,6 +82,14 @@ def default_smoothing(bin_width: float, tolerance: float, first_order: int = SMO
             "smooth_correct": bool(order) and tolerance <= CORRECT_TOLERANCE}
 
 
+RICHARDSON = 4.0 / 3.0
+"""(L_Δ − L_Δ/2)·4/3 is a kernel estimate's bias where it grows as Δ² (a smooth transient): 1/(1 − 2^−2)."""
+
+RICHARDSON_KINK = 2.0
+"""(L_Δ − L_Δ/2)·2 is its bias where it grows as Δ (next to the kink of an order's onset): 1/(1 − 2^−1); between the
+two the bias grows as Δ^p, 1 ≤ p ≤ 2, so this factor bounds it (the stated error as a bound, docs/accuracy.md)."""
+
+
 class SmoothingBands:
     """The time smoothing of the deep orders, one :class:`DeepSmoothing` per band of orders whose node spacing
     doubles each time the order doubles: order k ≥ s = ``first_order`` in band ⌊log2((k − 1)/(s − 1))⌋ (orders 3–4, 5–8,
@@ -133,17 +141,17 @@ class SmoothingBands:
             own = order2_component is not None and j == 0 and self.first_order == 2
             b.flush(sink, order2_component if own else component)
 
-    def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
+    def bias(self, edges: np.ndarray, runs: int, factor: float = RICHARDSON) -> np.ndarray:
         """The sum of the bands' :meth:`DeepSmoothing.bias`, (n_channels, n_bins) photons per pulse."""
-        return sum(b.bias(edges, runs) for b in self.bands)
+        return sum(b.bias(edges, runs, factor) for b in self.bands)
 
-    def bias_halves(self, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def bias_halves(self, edges: np.ndarray, factor: float = RICHARDSON) -> tuple[np.ndarray, np.ndarray] | None:
         """The sums of the bands' :meth:`DeepSmoothing.bias_halves` (even runs, odd runs), or None before the
-        second run; computed once per state of the runs and ``edges`` (a tolerance round reads them two or three
-        times: 80 ms each on a 32 × 32 scan)."""
-        key = (tuple(b.runs for b in self.bands), len(edges), float(edges[0]), float(edges[-1]))
+        second run; computed once per state of the runs, ``edges`` and ``factor`` (a tolerance round reads them two
+        or three times: 80 ms each on a 32 × 32 scan)."""
+        key = (tuple(b.runs for b in self.bands), len(edges), float(edges[0]), float(edges[-1]), factor)
         if getattr(self, "_halves_key", None) != key:
-            halves = [b.bias_halves(edges) for b in self.bands]
+            halves = [b.bias_halves(edges, factor) for b in self.bands]
             value = None if any(h is None for h in halves) else (sum(h[0] for h in halves), sum(h[1] for h in halves))
             self._halves_key, self._halves = key, value
         return self._halves
@@ -430,27 +438,29 @@ class DeepSmoothing:
             self._binned_key, self._binned_shapes = key, shapes
         return self._binned_shapes
 
-    def bias(self, edges: np.ndarray, runs: int) -> np.ndarray:
+    def bias(self, edges: np.ndarray, runs: int, factor: float = RICHARDSON) -> np.ndarray:
         """The estimated bias of the smoothed orders' mean over ``runs`` runs per output bin of ``edges``
-        (n_bins + 1,) s: (n_channels, n_bins) photons per pulse (class doc: (L_Δ − L_Δ/2)·4/3 and the scan
-        spread's)."""
-        return self._bias(self.total_levels, edges, self.applied_total) / max(runs, 1)
+        (n_bins + 1,) s: (n_channels, n_bins) photons per pulse (class doc: (L_Δ − L_Δ/2)·``factor`` and the scan
+        spread's; ``factor`` :data:`RICHARDSON` where the transient is smooth, :data:`RICHARDSON_KINK` to bound it
+        next to an onset too)."""
+        return self._bias(self.total_levels, edges, self.applied_total, factor) / max(runs, 1)
 
-    def bias_halves(self, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """:meth:`bias` of the even runs' mean and of the odd runs' mean, each (n_channels, n_bins) photons per
+    def bias_halves(self, edges: np.ndarray, factor: float = RICHARDSON) -> tuple[np.ndarray, np.ndarray] | None:
+        """:meth:`bias` (at ``factor``) of the even runs' mean and of the odd runs' mean, each (n_channels, n_bins) photons per
         pulse, or None before the second run. Their noise is independent and their expectation the same, so Σ a·b
         estimates ‖bias‖² without the noise that inflates ‖bias‖² of few runs."""
         if self.runs < 2:
             return None
         n_even = self.runs - self.runs // 2
         odd_applied = self.applied_total - self.applied_even if self.correct else None
-        return (self._bias(self.even_levels, edges, self.applied_even) / n_even,
-                self._bias([a - b for a, b in zip(self.total_levels, self.even_levels)], edges, odd_applied)
+        return (self._bias(self.even_levels, edges, self.applied_even, factor) / n_even,
+                self._bias([a - b for a, b in zip(self.total_levels, self.even_levels)], edges, odd_applied, factor)
                 / (self.runs - n_even))
 
-    def _bias(self, levels: list[np.ndarray], edges: np.ndarray, applied: np.ndarray | None = None) -> np.ndarray:
+    def _bias(self, levels: list[np.ndarray], edges: np.ndarray, applied: np.ndarray | None = None,
+              factor: float = 4.0 / 3.0) -> np.ndarray:
         """From node sums at Δ and Δ/2 (``levels``, as :attr:`total_levels`), per output bin of ``edges``: (L_Δ −
-        L_Δ/2)·4/3 plus the scan spread's bias, less the correction the same runs were deposited less (``applied``,
+        L_Δ/2)·``factor`` plus the scan spread's bias, less the correction the same runs were deposited less (``applied``,
         node sums at Δ, or None), (n_channels, n_bins) photons (not divided by the runs)."""
         centres = 0.5 * (edges[1:] + edges[:-1])
         widths = np.diff(edges)
@@ -459,7 +469,7 @@ class DeepSmoothing:
             levels = [spread_scan(level, self.scan) for level in levels]
         fine, half = (_interpolate(level / (k * self.width), self.t_start, k * self.width, centres) * widths
                       for level, k in zip(levels, self.spacings))
-        out = (fine - half) * (4.0 / 3.0)
+        out = (fine - half) * factor
         if applied is not None:
             spread = applied if self.scan is None else spread_scan(applied, self.scan)
             out -= _interpolate(spread / self.width, self.t_start, self.width, centres) * widths
