@@ -16,6 +16,8 @@ its module.
   the envelope, the counts, the metadata), :func:`~.detection.detector_counts`.
 - :mod:`.replicas`: the error estimate every result carries (``attrs["error"]``: the replicas' standard error
   in the relative L2 measure of :func:`datagen.analysis.relative_l2`), replica streams.
+- :mod:`.confidence`: the stated error as a bound: the factor √F_q(d, ν) that raises the replicas' standard error
+  to an upper confidence limit, d and ν read from the replicas' correlations (docs/accuracy.md).
 - :mod:`.tolerance`: :func:`simulate_to_tolerance` (replicas added, or the quadrature edge refined, until the
   estimate meets a target; ``simulate --tolerance``, dataset builds).
 - :mod:`.multizone`: :func:`~.multizone.simulate_multizone`, a flood-illuminated multi-zone capture (zone
