@@ -3,14 +3,14 @@ replicas with known correlated noise, and its pieces against closed forms."""
 import numpy as np
 import pytest
 
-from datagen.simulation.confidence import autocorrelation, bound_factor, time_correlation
+from datagen.simulation.confidence import bound_factor, lags, power_spectrum, time_correlation
 from datagen.simulation.replicas import ReplicaSums, combined_error, relative_difference
 
 
-def test_autocorrelation_is_the_pooled_lag_sum():
+def test_the_power_spectrum_transforms_the_pooled_lag_sum():
     x = np.random.default_rng(0).normal(size=(3, 50))
     want = [sum(np.dot(c[: 50 - lag], c[lag:]) for c in x) for lag in range(50)]
-    assert np.allclose(autocorrelation(x), want, rtol=1e-12, atol=1e-12)
+    assert np.allclose(lags(power_spectrum(x)), want, rtol=1e-12, atol=1e-12)
 
 
 def test_time_correlation_of_an_ar1_sequence():

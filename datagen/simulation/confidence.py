@@ -41,13 +41,32 @@ WINDOW_REACH = 3
 MIN_WINDOW = 8
 """Fewest bins in that average."""
 
+FFT_BLOCK = 1 << 20
+"""Values of padded rows transformed at once by :func:`power_spectrum` (16 MiB of spectrum)."""
 
-def autocorrelation(x: np.ndarray) -> np.ndarray:
-    """Σ_c Σ_b x[c, b]·x[c, b + l] for l = 0 … n_bins − 1 of ``x`` (n_channels, n_bins), by FFT (zero padded:
-    no wrap-around); float64 (n_bins,)."""
+
+def power_spectrum(x: np.ndarray) -> np.ndarray:
+    """Σ_c |F x[c]|² of ``x`` (n_channels, n_bins), F the real FFT zero padded to 2·n_bins (no wrap-around): the
+    transform of the autocorrelation pooled over channels (:func:`lags`); float64 (n_bins + 1,). Channels are
+    transformed a block of about ``FFT_BLOCK`` values at a time, so a long axis or a large scan needs a few copies
+    of one block, not of the whole array."""
     n = x.shape[-1]
-    f = np.fft.rfft(x.reshape(-1, n), 2 * n, axis=-1)
-    return np.fft.irfft((f.real ** 2 + f.imag ** 2).sum(axis=0), 2 * n)[:n]
+    rows = x.reshape(-1, n)
+    out = np.zeros(n + 1)
+    step = max(1, FFT_BLOCK // (2 * n))
+    for i in range(0, rows.shape[0], step):
+        f = np.fft.rfft(rows[i:i + step], 2 * n, axis=-1)
+        power = f.real ** 2
+        power += f.imag ** 2
+        out += power.sum(axis=0)
+    return out
+
+
+def lags(spectrum: np.ndarray) -> np.ndarray:
+    """The pooled lag sums Σ_c Σ_b x[c, b]·x[c, b + l], l = 0 … n_bins − 1, of a :func:`power_spectrum` (n_bins + 1,)
+    (or a sum or difference of them: the transform is linear); float64 (n_bins,)."""
+    n = spectrum.size - 1
+    return np.fft.irfft(spectrum, 2 * n)[:n]
 
 
 def time_correlation(lag_cov: np.ndarray) -> float:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..vectors import norm
-from .confidence import autocorrelation, bound_factor, part_dimensions
+from .confidence import bound_factor, lags, part_dimensions, power_spectrum
 
 MIN_TOLERANCE = 1e-10
 """Smallest tolerance accepted: relative errors below it are float64 round-off in sums over many bins and
@@ -102,16 +102,18 @@ class ReplicaSums:
         scale: photons per pulse per unit of the sums (0 until a replica with energy arrives).
         exact: the envelope comes from a deterministic estimator run once (the quadrature beside the tracer): its
             variance is 0, not unknown.
-        lags: (n_bins,) Σ_r of each replica's autocorrelation pooled over channels
-            (:func:`~datagen.simulation.confidence.autocorrelation`), in ``scale``² units: the correlation in time of
-            the replicas' deviations (the stated error's confidence factor, :mod:`datagen.simulation.confidence`).
+        spectrum: (n_bins + 1,) Σ_r of each replica's power spectrum pooled over channels
+            (:func:`~datagen.simulation.confidence.power_spectrum`), in ``scale``² units: the transform of their lag
+            sums, whose correlation in time the stated error's confidence factor reads
+            (:mod:`datagen.simulation.confidence`); summed in the frequency domain, transformed back once per reading
+            (empty without channels: a tracer that does not run).
         channel_sq: (n_bins,) Σ_r of the square of each replica's channel sum, in ``scale``² units: the correlation
-            across channels.
+            across channels (empty for one channel).
     """
 
     envelope: np.ndarray
     envelope_sq: np.ndarray
-    lags: np.ndarray
+    spectrum: np.ndarray
     channel_sq: np.ndarray
     count: int = 0
     scale: float = 0.0
@@ -119,8 +121,8 @@ class ReplicaSums:
 
     @classmethod
     def zeros(cls, n_channels: int, n_bins: int) -> ReplicaSums:
-        return cls(np.zeros((n_channels, n_bins)), np.zeros((n_channels, n_bins)), np.zeros(n_bins),
-                   np.zeros(n_bins))
+        return cls(np.zeros((n_channels, n_bins)), np.zeros((n_channels, n_bins)),
+                   np.zeros(n_bins + 1 if n_channels else 0), np.zeros(n_bins if n_channels > 1 else 0))
 
     def add(self, envelope: np.ndarray) -> None:
         """Add one replica's envelope (n_channels, n_bins)."""
@@ -132,8 +134,9 @@ class ReplicaSums:
         self.envelope += scaled
         self.envelope_sq += scaled ** 2
         if scaled.size:
-            self.lags += autocorrelation(scaled)
-            self.channel_sq += scaled.sum(axis=0) ** 2
+            self.spectrum += power_spectrum(scaled)
+            if self.channel_sq.size:
+                self.channel_sq += scaled.sum(axis=0) ** 2
         self.count += 1
 
     def mean(self) -> np.ndarray:
@@ -152,7 +155,7 @@ class ReplicaSums:
         are read from the sums (unitless); needs ≥ 2 replicas."""
         r = self.count
         mean = self.envelope / r
-        lag_cov = (self.lags - r * autocorrelation(mean)) / (r - 1)
+        lag_cov = lags(self.spectrum - r * power_spectrum(mean)) / (r - 1)
         n_channels = mean.shape[0]
         channel_corr = 0.0
         if n_channels > 1:
