@@ -110,10 +110,10 @@ def load_suite(name: str | Path) -> Suite:
         raise ConfigError(format_validation_error(exc, f"{path} (suite)")) from None
     if spec.name != path.stem:
         raise ConfigError(f"{path}: suite.name is {spec.name!r}, the file is {path.stem}.yaml: they must agree")
-    config = load_dataset_config(data["dataset"], base_dir=path.parent)
-    if spec.pins:                      # settings whose default changed after the reference build, at its values
-        config = load_dataset_config({**data["dataset"], "simulation": {**data["dataset"].get("simulation", {}),
-                                                                        **spec.pins}}, base_dir=path.parent)
+    dataset = data["dataset"]
+    if spec.pins and isinstance(dataset, dict):   # settings whose default changed after the reference build
+        dataset = {**dataset, "simulation": {**(dataset.get("simulation") or {}), **spec.pins}}
+    config = load_dataset_config(dataset, base_dir=path.parent)
     for key in ("train_split", "test_split"):
         split = getattr(spec, key)
         if split not in config.splits:

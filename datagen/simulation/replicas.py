@@ -202,14 +202,14 @@ def combined_error(parts: list[ReplicaSums], confidence: float | None = None) ->
             continue                                                 # no energy: adds nothing
         mean = m if mean is None else mean + m
         var = v if var is None else var + v
-        used.append((p, m, v))
+        used.append((p, v))
     if mean is None:
         return 0.0
     error = relative_standard_error(mean, var)
     if confidence is None or error == 0.0:
         return error
     mask = _measured_bins(mean)
-    noisy = [(*p.dimensions(v, mask), p.count) for p, _, v in used if not p.exact]
+    noisy = [(*p.dimensions(v, mask), p.count) for p, v in used if not p.exact]
     return error * bound_factor(noisy, confidence)
 
 

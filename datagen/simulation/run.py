@@ -308,13 +308,16 @@ class Replicas:
         rms = budget / self.confidence_factor()          # the split's variances are the standard error's
         return whole_split(split[0], split[1], *costs, self.sums.count, self.tracer_sums.count, rms * rms)
 
+    def _mc_parts(self) -> list[ReplicaSums]:
+        """The independent Monte Carlo parts: the replicas of orders 1–2, and the tracer's beside them."""
+        return [self.sums] if self.tracer is None else [self.sums, self.tracer_sums]
+
     def confidence_factor(self) -> float:
         """:meth:`error` over the plain standard error (≥ 1: the factor that makes it a bound at
         ``config.error_confidence``; 1 without one, or while either is not finite and positive)."""
         if self.config.error_confidence is None:
             return 1.0
-        bound = self.error()
-        rms = self.sums.error() if self.tracer is None else combined_error([self.sums, self.tracer_sums])
+        bound, rms = self.error(), combined_error(self._mc_parts())
         return bound / rms if 0 < rms < float("inf") and bound < float("inf") else 1.0
 
     def _run_group(self, transport, sums: ReplicaSums, n: int, streams, bar) -> None:
@@ -350,8 +353,7 @@ class Replicas:
         """The Monte Carlo part of the error estimate of the mean (0 for a deterministic run)."""
         if not self.monte_carlo:
             return 0.0
-        q = self.config.error_confidence
-        return self.sums.error(q) if self.tracer is None else combined_error([self.sums, self.tracer_sums], q)
+        return combined_error(self._mc_parts(), self.config.error_confidence)
 
     def transported(self) -> Transported:
         """The mean of the replicas run so far, binned."""
