@@ -38,7 +38,7 @@ def test_lookin_replicas_are_added_until_the_tolerance_holds(reference, tol):
     actual = relative_l2(result.envelope, ref)
     assert actual <= 1.25 * tol and actual <= 2.0 * info["estimate"]   # the estimate is an honest scale
     counts = [r["replicas"] for r in info["rounds"]]
-    assert counts == sorted(counts) and counts[0] == config.replicas
+    assert counts == sorted(counts) and counts[0] == config.error.replicas
     assert result.attrs["error"]["replicas"] == counts[-1]
     assert result.attrs["error"]["replica_setting"] == "lookins 4x4, pixels 24x24"
 

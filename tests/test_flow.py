@@ -106,7 +106,7 @@ def test_the_pile_up_decision_is_the_detector_stages_and_needs_no_planner():
     scene = patch_scene()
     cfg = config(scene, "area")
     runs = Replicas(scene, cfg, np.random.default_rng(0))
-    runs.run(cfg.replicas)
+    runs.run(cfg.error.replicas)
     tr = runs.transported()
     envelope = tr.binned.sum(axis=0).reshape(tr.transport.capture.channel_shape() + (cfg.time.n_bins,))
     # without any plan: the detector stage decides from the envelope (low flux: Poisson counts)

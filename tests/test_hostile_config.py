@@ -344,7 +344,7 @@ def test_view_size_bounds():
 
 FIELDS = ["splits.train.count", "splits.val.count", "shard_size", "seed", "tolerance", "cost_cap",
           "simulation.time.t_start", "simulation.time.bin_width", "simulation.time.n_bins", "simulation.irf.fwhm",
-          "simulation.replicas", "simulation.estimator.samples", "detector.pde", "detector.dcr", "detector.ambient_rate",
+          "simulation.error.replicas", "simulation.estimator.samples", "detector.pde", "detector.dcr", "detector.ambient_rate",
           "detector.repetition_rate", "detector.exposure", "detector.model", "labels.max_objects",
           "labels.depth_map", "labels.voxels", "store.envelope", "store.counts", "store.components",
           "store.envelope_dtype"]
@@ -367,7 +367,7 @@ def cheap(config) -> bool:
     n_bins = sim.get("time", {}).get("n_bins", 0)
     return (sum(s.count for s in config.splits.values()) <= 4 and config.cost_cap <= 0.5
             and config.tolerance >= 0.05 and isinstance(n_bins, int) and n_bins <= 4096
-            and sim.get("replicas", 4) <= 16 and sim.get("area_samples", 2048) <= 4096)
+            and (sim.get("error") or {}).get("replicas", 4) <= 16 and sim.get("area_samples", 2048) <= 4096)
 
 
 def check_build(config_path: Path, out: Path, expected_counts: dict[str, int]) -> None:
@@ -434,7 +434,7 @@ def test_the_lookin_smoke_config_with_its_15ns_gate_builds(tmp_path):
     the 15 ns gate, measured against the window's own peak (timing/accumulator.py now scales it by the fine
     histogram; tests/test_irf.py::test_gated_window_round_off_is_not_an_error). Two samples build and verify."""
     config = tiny(train=2, val=1)
-    sim = {**config.simulation, "estimator": {"kind": "lookin", "lookins": "4x4", "pixels": "16x16"}, "replicas": 8}
+    sim = {**config.simulation, "estimator": {"kind": "lookin", "lookins": "4x4", "pixels": "16x16"}, "error": {"replicas": 8}}
     assert parse_duration(sim["time"]["t_start"]) == pytest.approx(15e-9)
     config = config.model_copy(update={"simulation": sim, "splits": {"train": config.splits["train"]}})
     path = tmp_path / "lookin.yaml"

@@ -200,11 +200,11 @@ def test_a_finer_quadrature_level_continues_the_tracers_replicas():
     # orders fixed (no pilot): this scene's orders >= 2 carry 0.5 %, near what orders: auto leaves out
     cfg = datagen.resolve_config(scene, {"orders": 4, "multibounce": {"paths": 64}})
     coarse = Replicas(scene, cfg, np.random.default_rng(1))
-    coarse.run(cfg.replicas)
+    coarse.run(cfg.error.replicas)
     finer = cfg.with_estimator(**cfg.estimator.at_edge(cfg.estimator.edge / 2))
     fine = Replicas(scene, finer, np.random.default_rng(2), planned=coarse.planned)
     fine.adopt_tracer(coarse)
-    fine.run(cfg.replicas)
+    fine.run(cfg.error.replicas)
     assert fine.tracer is coarse.tracer and fine.tracer_sums.count == coarse.tracer_sums.count == 2
     a, b = coarse.transported(), fine.transported()
     for name in ("secondary", "multibounce"):

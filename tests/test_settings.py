@@ -36,6 +36,8 @@ OLD_AND_NEW = [
       "area_samples": 512, "tolerance": 0.05},
      {"estimator": {"kind": "quadrature", "edge": 0.1, "fov_cells": 2, "grading": 0.5, "secondary_samples": 512},
       "effect_threshold": 0.05}),
+    ({"replicas": 3, "error_confidence": 0.9}, {"error": {"replicas": 3, "confidence": 0.9}}),
+    ({"replicas": 5, "error": {"confidence": None}}, {"error": {"replicas": 5, "confidence": None}}),
 ]
 
 
@@ -172,3 +174,20 @@ def test_a_flat_key_of_the_command_line_estimator_applies_beside_a_new_form_bloc
     path.write_text(yaml.safe_dump(data))
     with pytest.warns(LegacyKeysWarning, match="area_samples -> estimator.samples"):
         assert resolve_config(load_scene(path), {"estimator": "area"}).estimator == AreaOptions(samples=16384)
+
+
+def test_the_stated_error_settings_are_one_block_and_an_old_key_beside_it_is_one_line(tmp_path):
+    config = SimulationConfig(error={"confidence": None})
+    assert config.error.replicas == 8 and config.error.confidence is None
+    assert SimulationConfig().error.confidence == 0.95
+    with pytest.raises(ValueError, match="error.replicas"):
+        SimulationConfig(error={"replicas": 1})
+    data = yaml.safe_load(SMOKE.read_text())
+    assert data["simulation"]["error"] == {"replicas": 4}
+    data["simulation"]["replicas"] = 3                        # the old key beside its new home, at another value
+    path = tmp_path / "both.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_dataset_config(path, base_dir=SMOKE.parent)
+    line = str(err.value)
+    assert "\n" not in line and str(path) in line and "replicas 3 and error.replicas 4 are both given" in line

@@ -87,7 +87,7 @@ def test_simulate_to_tolerance_adds_the_toys_replicas():
     a = simulate_to_tolerance(scene, toy, 0.05)
     b = simulate_to_tolerance(scene, area, 0.05)
     assert a.attrs["tolerance"]["met"] and a.attrs["tolerance"]["estimate"] <= 0.05
-    assert a.attrs["error"]["replica_setting"] == f"toy with {SAMPLES // toy.replicas} samples"
+    assert a.attrs["error"]["replica_setting"] == f"toy with {SAMPLES // toy.error.replicas} samples"
     np.testing.assert_array_equal(a.envelope, b.envelope)
 
 

@@ -146,7 +146,7 @@ def test_lookin_points_are_the_runs_lookins(monkeypatch):
     simulate(scene, config)
     monkeypatch.setattr(LookinSampler, "lookins", original)
     points = lookin_points(scene, config)
-    assert len(cast) == config.replicas and len(points) >= 16      # 8 replicas of a 2x2 grid, most hit
+    assert len(cast) == config.error.replicas and len(points) >= 16      # 8 replicas of a 2x2 grid, most hit
     np.testing.assert_array_equal(points, np.concatenate(cast))
 
 

@@ -119,7 +119,7 @@ def card_summary(card: dict) -> str:
     acc = card.get("accuracy")
     if acc and acc["envelope_error"].get("n"):
         e = acc["envelope_error"]
-        lines.append(f"envelope error (estimated relative L2, tolerance {acc['tolerance']:.2%}, time cap "
+        lines.append(f"envelope error (stated relative L2, tolerance {acc['tolerance']:.2%}, time cap "
                      f"{acc['time_cap_s']:g} s): median {e['median']:.2%}, p95 {e['p95']:.2%}, max {e['max']:.2%} "
                      f"over {e['n']} samples; {acc['n_missed']} missed the tolerance")
         for m in acc["missed"][:10]:

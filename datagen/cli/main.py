@@ -237,7 +237,9 @@ def summary(result) -> str:
         lines.append(f"{name:<12}{peak:>10.2f}{area:>18.4e}{area / total if total else 0:>8.1%}")
     err = result.attrs.get("error")
     if err is not None:
-        lines.append(f"estimated error of the envelope: {err['rel_l2']:.2%} relative L2 ({err['replicas']} "
+        what = (f"stated error of the envelope ({err['confidence']:.0%} bound)" if err.get("confidence") else
+                "estimated error of the envelope")
+        lines.append(f"{what}: {err['rel_l2']:.2%} relative L2 ({err['replicas']} "
                      f"replica{'s' if err['replicas'] != 1 else ''} of {err['replica_setting']})")
     orders = result.attrs.get("orders")
     if orders is not None:

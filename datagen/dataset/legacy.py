@@ -7,6 +7,8 @@ import copy
 import warnings
 from typing import Any
 
+from ..errors import ConfigError
+
 RENAMED_KEYS = {"time_cap": "cost_cap"}
 """Dataset config keys renamed (old → new): ``time_cap`` was nominal seconds here and wall seconds on the command
 line (``simulate --time-cap``); the nominal cap is ``cost_cap``."""
@@ -36,7 +38,10 @@ def canonical_json(data: dict) -> dict:
 
 def note_old_keys(data: Any, where: str) -> None:
     """One :class:`~datagen.simulation.LegacyKeysWarning` listing the old keys of a dataset config (its
-    ``simulation`` block's and :data:`RENAMED_KEYS`), if any."""
+    ``simulation`` block's and :data:`RENAMED_KEYS`), if any.
+
+    Raises:
+        ConfigError: an old key and its new home both given, at different values (naming ``where``)."""
     from ..simulation import LegacyKeysWarning
     from ..simulation.config import legacy_note, translate_legacy
     if not isinstance(data, dict):
@@ -45,6 +50,9 @@ def note_old_keys(data: Any, where: str) -> None:
     sim = data.get("simulation")
     if isinstance(sim, dict):
         kind = sim.get("estimator") if isinstance(sim.get("estimator"), str) else None
-        moves += [m for m in translate_legacy(sim, kind or "lookin")[1] if kind or "dropped" not in m]
+        try:
+            moves += [m for m in translate_legacy(sim, kind or "lookin")[1] if kind or "dropped" not in m]
+        except ValueError as exc:               # an old key beside its new home, at another value
+            raise ConfigError(f"{where}: simulation: {exc}") from None
     if moves:
         warnings.warn(legacy_note(moves, where), LegacyKeysWarning, stacklevel=3)

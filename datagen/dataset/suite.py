@@ -10,8 +10,8 @@ A suite is a YAML file in ``configs/suites/`` (``NAME.yaml``) with two blocks:
     null until it is recorded) and ``earlier_sha256`` (the hashes of reference builds by earlier datagen code of
     the same definition, whose values differ from today's in float round-off only; :func:`hash_verdict`) and
     ``pins``: simulation settings whose default changed after the reference build, at the values it was built with
-    (e.g. ``error_confidence: null``, the stated error as the RMS estimate it then was), so that the frozen
-    ``dataset`` block builds the same samples; they are merged into its ``simulation`` block.
+    (e.g. ``error: {confidence: null}``, the stated error as the RMS estimate it then was), so that the frozen
+    ``dataset`` block builds the same samples; they are merged into its ``simulation`` block, block by block.
 ``dataset``
     an ordinary dataset config (:class:`datagen.dataset.DatasetConfig`: config, splits, seed, exposure, noise
     and detector); relative paths are relative to the suite file.
@@ -79,6 +79,15 @@ class Suite:
         return self.spec.name
 
 
+def pinned(simulation: dict, pins: dict) -> dict:
+    """``simulation`` with ``pins`` over it, a block of both (e.g. ``error``) merged key by key."""
+    out = dict(simulation)
+    for key, value in pins.items():
+        old = out.get(key)
+        out[key] = {**old, **value} if isinstance(old, dict) and isinstance(value, dict) else value
+    return out
+
+
 def suite_names(folder: Path = SUITES_DIR) -> list[str]:
     """Names of the suites in ``folder`` (default :data:`SUITES_DIR`), sorted."""
     return sorted(p.stem for p in Path(folder).glob("*.yaml"))
@@ -112,7 +121,7 @@ def load_suite(name: str | Path) -> Suite:
         raise ConfigError(f"{path}: suite.name is {spec.name!r}, the file is {path.stem}.yaml: they must agree")
     dataset = data["dataset"]
     if spec.pins and isinstance(dataset, dict):   # settings whose default changed after the reference build
-        dataset = {**dataset, "simulation": {**(dataset.get("simulation") or {}), **spec.pins}}
+        dataset = {**dataset, "simulation": pinned(dataset.get("simulation") or {}, spec.pins)}
     config = load_dataset_config(dataset, base_dir=path.parent)
     for key in ("train_split", "test_split"):
         split = getattr(spec, key)

@@ -287,11 +287,11 @@ def lookin_points(scene: Scene, config: SimulationConfig, rng: np.random.Generat
     rng = rng if rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     root_seed = replica_root(rng)                                     # as simulation.run.Replicas
     entry = estimator("lookin")
-    one = config.with_estimator(**entry.replica(config.estimator, config.replicas)) if entry.replica else config
+    one = config.with_estimator(**entry.replica(config.estimator, config.error.replicas)) if entry.replica else config
     transport = LookinSampler(scene, one.transport_settings())
     s = transport.settings
     out = []
-    for replica in range(config.replicas):                            # as LookinSampler.run_replicas
+    for replica in range(config.error.replicas):                            # as LookinSampler.run_replicas
         root = np.random.SeedSequence(int(replica_rng(root_seed, replica).integers(0, 2 ** 63)))
         for laser in range(transport.capture.n_lasers):
             look = transport.lookins(np.random.default_rng(root.spawn(1)[0]) if s.jitter else None, laser)

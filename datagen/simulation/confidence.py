@@ -29,7 +29,7 @@ from scipy import stats
 from scipy.ndimage import uniform_filter1d
 
 CONFIDENCE = 0.95
-"""Default probability q with which the stated error bounds the actual one (``SimulationConfig.error_confidence``):
+"""Default probability q with which the stated error bounds the actual one (``SimulationConfig.error.confidence``):
 measured coverage in docs/accuracy.md ("What the stated error is, and how often it bounds")."""
 
 SMOOTHING_WINDOWS = 4

@@ -49,6 +49,31 @@ RENAMED = {"tolerance": "effect_threshold"}
 """Shared simulation keys renamed (old → new): ``tolerance`` was both the planner's threshold and the adaptive
 target; in a simulation config it is the planner's :attr:`SimulationConfig.effect_threshold`."""
 
+ERROR_KEYS = {"replicas": "replicas", "error_confidence": "confidence"}
+"""Flat keys of the stated error's settings (old key → its field in the ``error`` block, :class:`ErrorOptions`)."""
+
+
+class ErrorOptions(BaseModel):
+    """How a Monte Carlo result's stated error is made: the ``error`` block of a simulation config
+    (docs/accuracy.md, "What the stated error is, and how often it bounds").
+
+    Attributes:
+        replicas: R, independent replicas a Monte Carlo estimator's sampling is split into (the registry's
+            ``replica`` hook, e.g. ``samples`` / R hidden samples, or lookin grids of side / √R, each); their mean
+            is the envelope and their spread its error (``attrs["error"]``, :mod:`datagen.simulation.replicas`).
+            ``simulate_to_tolerance`` starts from them and adds replicas of the same size. Old flat key
+            ``replicas``.
+        confidence: the probability q with which the stated error bounds the actual one (the replicas' standard
+            error times √F_q(d, ν), :mod:`datagen.simulation.confidence`); a tolerance is met by that bound. None:
+            the standard error itself, an RMS estimate that the actual error exceeds about half the time (the
+            frozen ``-v1``/``-v2`` suites were built with it). Old flat key ``error_confidence``.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    replicas: int = Field(8, ge=2, le=4096)
+    confidence: float | None = Field(CONFIDENCE, ge=0.5, lt=1)
+
 
 def legacy_keys() -> dict[str, dict[str, str]]:
     """Flat keys of the estimators' old settings: old key → {estimator kind: its field}."""
@@ -69,6 +94,16 @@ def _kind_of(value: Any, default: str | None) -> str | None:
     return default
 
 
+def _block(value: Any) -> dict:
+    """A settings block as a plain mapping (a model dumped; anything else that is not a mapping: empty, for the
+    validator to name)."""
+    return value.model_dump() if isinstance(value, BaseModel) else dict(value) if isinstance(value, dict) else {}
+
+
+def _old_name(field: str) -> str:
+    return next(old for old, new in ERROR_KEYS.items() if new == field)
+
+
 def translate_legacy(data: dict, default_kind: str = "lookin") -> tuple[dict, list[str]]:
     """``data`` (a simulation mapping) in the new form, and the old → new moves made (empty: nothing old).
 
@@ -76,10 +111,11 @@ def translate_legacy(data: dict, default_kind: str = "lookin") -> tuple[dict, li
     :attr:`~datagen.transport.EstimatorOptions.LEGACY`) move into the ``estimator`` block of the chosen kind
     (``estimator`` as a name or a mapping; ``default_kind`` when absent), where the block's own values win; keys of
     another estimator are dropped (a scene's lookin settings under ``--estimator area``). Renamed shared keys
-    (:data:`RENAMED`) take their new name.
+    (:data:`RENAMED`) take their new name; the stated error's flat keys (:data:`ERROR_KEYS`) move into the
+    ``error`` block.
     """
     table = legacy_keys()
-    old = [k for k in data if k in table or k in RENAMED]
+    old = [k for k in data if k in table or k in RENAMED or k in ERROR_KEYS]
     if not old:
         return data, []
     data, moves = dict(data), []
@@ -87,6 +123,16 @@ def translate_legacy(data: dict, default_kind: str = "lookin") -> tuple[dict, li
         value = data.pop(key)
         data.setdefault(RENAMED[key], value)
         moves.append(f"{key} -> {RENAMED[key]}")
+    flat_error = {ERROR_KEYS[k]: data.pop(k) for k in old if k in ERROR_KEYS}
+    if flat_error:
+        block = _block(data.get("error"))
+        for field, value in flat_error.items():
+            if field in block and block[field] != value:
+                raise ValueError(f"{_old_name(field)} {value!r} and error.{field} {block[field]!r} are both given: "
+                                 f"keep error.{field}")
+            block.setdefault(field, value)
+            moves.append(f"{_old_name(field)} -> error.{field}")
+        data["error"] = block
     flat = {k: data.pop(k) for k in old if k in table}
     if flat:
         est = data.get("estimator")
@@ -134,11 +180,8 @@ class SimulationConfig(BaseModel):
         multibounce: the order ≥ 3 tracer's settings (:class:`MultibounceOptions`), used when orders ≥ 3 are
             simulated.
         workers: processes sharing the work (1 = in process; the result does not depend on it).
-        replicas: R, independent replicas a Monte Carlo estimator's sampling is split into (the registry's
-            ``replica`` hook, e.g. ``samples`` / R hidden samples, or lookin grids of side / √R, each); their mean
-            is the envelope and their spread its error estimate (``attrs["error"]``,
-            :mod:`datagen.simulation.replicas`). ``simulate_to_tolerance`` starts from them and adds replicas of
-            the same size.
+        error: how the stated Monte Carlo error is made (:class:`ErrorOptions`): ``replicas`` R and the
+            ``confidence`` with which it bounds the actual error (old flat keys ``replicas``, ``error_confidence``).
         effect_threshold: relative change of the envelope below which the effect planner skips an effect (old key
             ``tolerance``; ``simulate_to_tolerance`` sets it to its target).
         effects: per effect "auto" (the planner decides) or true/false (forced); see datagen.planner.
@@ -152,10 +195,6 @@ class SimulationConfig(BaseModel):
             False: the primary summed into one component, "primary" (:meth:`datagen.scene.Scene.with_summed_primary`;
             "secondary" and "first_bounce" stay apart), which spares a fine histogram and an IRF convolution per
             object (a dataset that stores no components sets it False; the envelope is the same sum).
-        error_confidence: the probability q with which the stated Monte Carlo error bounds the actual one (the
-            replicas' standard error times √F_q(d, ν), :mod:`datagen.simulation.confidence`); a tolerance is met by
-            that bound. None: the standard error itself, an RMS estimate that the actual error exceeds about half the
-            time (the frozen ``-v1``/``-v2`` suites were built with it).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -165,7 +204,7 @@ class SimulationConfig(BaseModel):
     orders: int | Literal["auto"] | None = None
     multibounce: MultibounceOptions = Field(default_factory=lambda: MultibounceOptions())
     workers: int = Field(1, ge=1)
-    replicas: int = Field(8, ge=2, le=4096)
+    error: ErrorOptions = Field(default_factory=lambda: ErrorOptions())
     effect_threshold: float = Field(0.01, gt=0, lt=1)
     effects: dict[str, bool | Literal["auto"]] = Field(default_factory=dict)
     seed: int = Field(0, ge=0)
@@ -176,7 +215,6 @@ class SimulationConfig(BaseModel):
     count_sensor_leg: bool = True
     detector: dict = Field(default_factory=dict)
     split_components: bool = True
-    error_confidence: float | None = Field(CONFIDENCE, ge=0.5, lt=1)
 
     @model_validator(mode="before")
     @classmethod
@@ -279,9 +317,11 @@ class SimulationConfig(BaseModel):
 
 def merge_simulation(base: dict, overrides: dict) -> dict:
     """``overrides`` over ``base`` (both simulation mappings in the new form, :func:`translate_legacy`): the
-    estimator block is merged key by key when ``overrides`` keeps its kind (or gives none), and replaced when it
+    ``error`` block is merged key by key, the estimator block when ``overrides`` keeps its kind (or gives none), and replaced when it
     names another estimator (whose defaults then apply)."""
     out = {**base, **overrides}
+    if "error" in base and "error" in overrides:
+        out["error"] = {**_block(base["error"]), **_block(overrides["error"])}
     if "estimator" in base and "estimator" in overrides:
         old, new = base["estimator"], overrides["estimator"]
         old = old.model_dump() if isinstance(old, EstimatorOptions) else {"kind": old} if isinstance(old, str) else old

@@ -93,7 +93,7 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
     coverage = zone_coverage_warning(runs.transport.capture, spec)
     if coverage is not None:
         warnings.warn(ZoneCoverageWarning(coverage), stacklevel=2)
-    runs.run(config.replicas, progress)
+    runs.run(config.error.replicas, progress)
     tr = runs.transported()
     capture = tr.transport.capture
     weights = flood_weights(capture, spec.flood.profile)

@@ -139,7 +139,7 @@ class Replicas:
     """The configured estimator built once and run replica by replica (docs/accuracy.md; :mod:`.replicas`).
 
     A Monte Carlo estimator (one whose registry entry gives ``replica``) runs at the *replica setting*, the
-    config's sampling split R = ``config.replicas`` ways (e.g. ``samples`` / R hidden samples); replica r
+    config's sampling split R = ``config.error.replicas`` ways (e.g. ``samples`` / R hidden samples); replica r
     draws from :func:`~datagen.simulation.replicas.replica_rng` (root, r), so the result of R replicas does not
     depend on how they were run (in one call or in rounds, on any number of workers). A deterministic estimator
     (the quadrature without a Monte Carlo secondary) runs once.
@@ -160,11 +160,11 @@ class Replicas:
         self.scene, self.config = scene, config
         self.entry = estimator(config.estimator.kind)
         check_simulation_memory(scene, config)   # the grids as the user gave them (a replica's are smaller)
-        update = self.entry.replica(config.estimator, config.replicas) if self.entry.replica is not None else {}
+        update = self.entry.replica(config.estimator, config.error.replicas) if self.entry.replica is not None else {}
         self.replica_config = config.with_estimator(**update)
         self.planned = planned if planned is not None else plan_transport(scene, self.replica_config)
         if self.entry.replica is not None:             # the order ≥ 3 tracer's paths split as the sampling is
-            paths = max(1, -(-config.tracer_paths(self.planned.capture.n_lasers) // config.replicas))
+            paths = max(1, -(-config.tracer_paths(self.planned.capture.n_lasers) // config.error.replicas))
             self.replica_config = self.replica_config.model_copy(
                 update={"multibounce": self.replica_config.multibounce.model_copy(update={"paths": paths})})
         self.transport, self.plan = prepare_transport(scene, self.replica_config, self.planned)
@@ -314,8 +314,8 @@ class Replicas:
 
     def confidence_factor(self) -> float:
         """:meth:`error` over the plain standard error (≥ 1: the factor that makes it a bound at
-        ``config.error_confidence``; 1 without one, or while either is not finite and positive)."""
-        if self.config.error_confidence is None:
+        ``config.error.confidence``; 1 without one, or while either is not finite and positive)."""
+        if self.config.error.confidence is None:
             return 1.0
         bound, rms = self.error(), combined_error(self._mc_parts())
         return bound / rms if 0 < rms < float("inf") and bound < float("inf") else 1.0
@@ -353,7 +353,7 @@ class Replicas:
         """The Monte Carlo part of the error estimate of the mean (0 for a deterministic run)."""
         if not self.monte_carlo:
             return 0.0
-        return combined_error(self._mc_parts(), self.config.error_confidence)
+        return combined_error(self._mc_parts(), self.config.error.confidence)
 
     def transported(self) -> Transported:
         """The mean of the replicas run so far, binned."""
@@ -413,7 +413,7 @@ class Replicas:
     def smoothing_error(self, envelope: np.ndarray) -> float:
         """The smoothing's bias over the tracer's runs relative to ``envelope`` (n_channels, n_bins), the mean of
         every component, on the error measure's bins (only when :attr:`smoothing` is not None)."""
-        factor = RICHARDSON if self.config.error_confidence is None else RICHARDSON_KINK   # an estimate / a bound
+        factor = RICHARDSON if self.config.error.confidence is None else RICHARDSON_KINK   # an estimate / a bound
         halves = self.smoothing.bias_halves(self.config.time.edges, factor)
         if halves is not None:                  # two independent halves: the bias's norm without their noise
             return relative_cross(*halves, envelope)
@@ -450,6 +450,7 @@ class Replicas:
         smoothing = self.smoothing_error(tr.binned.sum(axis=0)) if self.smoothing is not None else None
         # in quadrature; hypot(x, 0) is x to the bit, so results without the new terms keep their old estimate
         total = float(np.hypot(np.hypot(mc, refined or 0.0), np.hypot(omitted, smoothing or 0.0)))
+        q = self.config.error.confidence
         describe = self.entry.describe or (lambda opts: opts.kind)
         setting = describe(self.replica_config.estimator)
         parts = []
@@ -458,6 +459,9 @@ class Replicas:
         if self.monte_carlo:
             base = f"{self.count} independent replicas ({setting} each)" if self.base_monte_carlo else ""
             parts.append("standard error of the mean of " + " and of ".join(p for p in (base, tracer) if p))
+            if q is not None:
+                parts[-1] += (f", times √F_{q:g}(d, ν) = {self.confidence_factor():.3g}: a {q:.0%} upper bound "
+                              "(docs/accuracy.md)")
         if refined is not None:
             half = (getattr(self.transport, "coarse", None) is not None
                     and getattr(self.transport, "coarse_ratio", 2.0) < 1)
@@ -465,13 +469,14 @@ class Replicas:
                          f"edge refinement ‖E(h) − E(2h)‖/{2 ** self.entry.order - 1}")
             parts[-1] += f" of the primary ({setting})"
         if smoothing is not None:
-            parts.append("the estimated bias of the deep orders' time smoothing (L(Δ) − L(Δ/2))·4/3 (the even runs' "
-                         "against the odd runs': without their noise)")
+            factor = "4/3" if q is None else "2"
+            parts.append(f"the estimated bias of the deep orders' time smoothing (L(Δ) − L(Δ/2))·{factor} (the even "
+                         "runs' against the odd runs': without their noise)")
         if omitted:
             parts.append(f"the share {omitted:.3g} of the in-window energy that the orders left out carry (the "
                          "planner's pilot, docs/planner.md)")
         return {"rel_l2": total, "monte_carlo": mc, "refinement": refined, "omitted_orders": omitted,
-                "smoothing": smoothing,
+                "smoothing": smoothing, "confidence": q if self.monte_carlo else None,
                 "replicas": self.count, "replica_setting": setting,
                 **({"tracer_replicas": self.tracer_sums.count} if self.tracer is not None else {}),
                 "method": " and ".join(parts) + "; relative L2 over bins above 1 % of the peak"}
@@ -483,7 +488,7 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
              noise_rng: np.random.Generator | None = None) -> Result:
     """Simulate the envelope and a SPAD histogram for ``scene``, with an estimate of the envelope's error.
 
-    A Monte Carlo estimator runs as ``config.replicas`` independent replicas that share its sampling (their
+    A Monte Carlo estimator runs as ``config.error.replicas`` independent replicas that share its sampling (their
     mean is the envelope; :class:`Replicas`); the quadrature runs once and estimates its error from a coarser
     edge. ``attrs["error"]["rel_l2"]`` is the estimated relative L2 error of the envelope over bins above 1 %
     of its peak (:mod:`datagen.simulation.replicas`).
@@ -505,6 +510,6 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
     t0 = time.perf_counter()
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     runs = Replicas(scene, config, rng)
-    runs.run(config.replicas, progress)
+    runs.run(config.error.replicas, progress)
     tr = runs.transported()
     return make_result(scene, config, tr, noise_rng, t0, {"error": runs.error_attrs(tr, rng)})

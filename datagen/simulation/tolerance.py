@@ -1,6 +1,6 @@
 """Simulate to a tolerance: add sampling until the result's own error estimate meets a target (docs/accuracy.md).
 
-Monte Carlo estimators (area, lookin): the config's sampling is split into R = ``config.replicas`` independent
+Monte Carlo estimators (area, lookin): the config's sampling is split into R = ``config.error.replicas`` independent
 replicas (:class:`~datagen.simulation.run.Replicas`); their spread gives the relative L2 error estimate ε̂ of
 their mean (:mod:`datagen.simulation.replicas`). While ε̂ > tolerance, more replicas of the same size are
 added: ε̂ falls as R^(-1/2), so the next round brings the total to R·(ε̂/tol)²·``SAFETY`` (at most ×``MAX_GROWTH``
@@ -201,7 +201,7 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     """Simulate with the least sampling whose error estimate meets ``tolerance`` (module docstring).
 
     Args:
-        scene, config: as for :func:`datagen.simulate` (``config.replicas`` replicas of the config's sampling
+        scene, config: as for :func:`datagen.simulate` (``config.error.replicas`` replicas of the config's sampling
             are the first round; the quadrature starts from ``config.estimator.edge``).
         tolerance: target relative L2 error of the envelope (bins above 1 % of its peak), in (0, 1).
         max_replicas: most replicas in all (Monte Carlo estimators; deterministic cap).
@@ -239,14 +239,14 @@ def simulate_to_tolerance(scene: Scene, config: SimulationConfig, tolerance: flo
     if not runs.base_monte_carlo or runs.entry.replica is None:
         return _refine_to_tolerance(scene, cfg, runs, tolerance, max_seconds, progress, rng, noise_rng, t0, warn,
                                     max_cost)
-    cap = max(int(max_replicas), cfg.replicas) if max_replicas is not None else None
+    cap = max(int(max_replicas), cfg.error.replicas) if max_replicas is not None else None
 
     def nominal() -> float | None:               # (narrow_smoothing replaces the transport: asked each time)
         cost = getattr(runs.transport, "nominal_seconds", None)
         return cost() if cost is not None else None
 
     rounds = []
-    target, tracer_target, capped = cfg.replicas, None, None
+    target, tracer_target, capped = cfg.error.replicas, None, None
     for _ in range(MAX_ROUNDS):
         t_round = time.perf_counter()
         runs.run(target - runs.count, tracer_target=tracer_target)
@@ -388,7 +388,7 @@ def _refine_to_tolerance(scene: Scene, config: SimulationConfig, runs: Replicas,
             runs = Replicas(scene, config.with_estimator(**config.estimator.at_edge(h)), rng,
                             planned=runs.planned)   # same plan
             runs.adopt_tracer(earlier)              # the tracer's replicas go on (the edge does not change them)
-        runs.run(config.replicas)
+        runs.run(config.error.replicas)
         tr = runs.transported()
         _check_energy(scene, tr)
         primary = _primary(tr)
