@@ -1,0 +1,182 @@
+"""Hostile input, round 5: no zero written with a false reason, every knob bounded, real files through
+every command.
+
+Each case exited 0 with a wrong or silent answer, or blamed the wrong thing; now it gives a right result or one
+line naming the file, field or option, the value and what to do. The real Stanford files are read from
+``$DATAGEN_REAL_DATA`` or ``../shared/real`` (tests that need them skip, saying why, when they are absent); the
+other tests make small synthetic files.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_hostile import cli
+
+REAL = Path(os.environ.get("DATAGEN_REAL_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "real"))
+
+
+def real_file(name: str) -> Path:
+    path = REAL / name
+    if not path.is_file():
+        pytest.skip(f"{path} is absent: the Stanford LCT files are not shipped (set DATAGEN_REAL_DATA to their folder)")
+    return path
+
+
+def lct_file(path: Path, peak: int | None = 20, n: int = 4, bins: int = 64, **fields) -> Path:
+    """An LCT .mat of n × n transients: Poisson counts of a background of 2 per bin and, when ``peak`` is given, a
+    return of 400 counts around bin ``peak`` (sigma 2 bins); ``fields`` replace or drop (None) width and
+    bin_resolution."""
+    from scipy.io import savemat
+    rng = np.random.default_rng(5)
+    mean = np.full(bins, 2.0)
+    if peak is not None:
+        mean += 400.0 * np.exp(-0.5 * ((np.arange(bins) - peak) / 2.0) ** 2)
+    data = rng.poisson(np.broadcast_to(mean, (n, n, bins))).astype(np.float64)
+    values = {"rect_data": data, "width": np.array([[0.4]]), "bin_resolution": np.array([[16e-12]]), **fields}
+    savemat(path, {k: v for k, v in values.items() if v is not None})
+    return path
+
+
+# -- import-capture --bin-resolution: plausible, and blamed on the option ------------------------------------
+
+@pytest.mark.parametrize("value, words", [
+    ("4", "'4' is 4 s, not a TCSPC bin width (0.1 ps .. 100 ns); a number without a unit is seconds: write the unit"),
+    ("4ms", "'4ms' is 4 ms, not a TCSPC bin width (0.1 ps .. 100 ns)"),
+    ("1e9ps", "'1e9ps' is 1 ms, not a TCSPC bin width"),
+    ("0.01ps", "'0.01ps' is 10 fs, not a TCSPC bin width"),
+    ("-5ps", "'-5ps': a bin width is a duration > 0, e.g. 4ps"),
+    ("0ps", "'0ps': a bin width is a duration > 0, e.g. 4ps"),
+])
+def test_import_capture_refuses_a_bin_resolution_no_tcspc_has_and_names_the_option(tmp_path, value, words):
+    """Before: 4 / 4ms / 1e9ps were imported as bins of 4 s, 4 ms, 1 ms (exit 0); -5ps and 0ps read 'error: FILE:
+    bin_resolution: expected one number > 0', a command-line value blamed on the file."""
+    path = lct_file(tmp_path / "no_bins.mat", bin_resolution=None)
+    out = cli(["import-capture", path, "--out", tmp_path / "o", "--bin-resolution", value], 2,
+              "Invalid value for --bin-resolution", words)
+    assert str(path) not in out and not (tmp_path / "o").exists()
+
+
+def test_a_files_own_bin_resolution_and_width_are_checked_and_blamed_on_the_file(tmp_path):
+    path = lct_file(tmp_path / "four_seconds.mat", bin_resolution=np.array([[4.0]]))
+    cli(["import-capture", path, "--out", tmp_path / "a"], 2,
+        f"error: {path}: bin_resolution: 4 s is not a TCSPC bin width (0.1 ps .. 100 ns); the field holds seconds "
+        "(4 ps is 4e-12)")
+    for width in ("-1", "nan", "1e9"):
+        cli(["import-capture", lct_file(tmp_path / "w.mat", width=None), "--out", tmp_path / "b", "--width", width], 2,
+            "Invalid value for --width", "the half width of the scanned wall in m, > 0 and at most 100")
+
+
+def test_a_znlos_delta_t_outside_a_tcspc_bin_is_named(tmp_path):
+    from datagen.errors import DatasetError
+    from datagen.io.lab_checks import check_znlos_fields
+    from datagen.io.lab_formats import LabCapture
+    grid = np.zeros((3, 2, 2))
+    grid[2] = 1.0
+    raw = {"data": np.ones((1, 8, 1, 2, 2)), "deltaT": np.array(1e6), "t0": np.array(0.0),
+           "cameraPosition": np.zeros(3), "laserPosition": np.zeros(3), "cameraGridPositions": grid,
+           "cameraGridNormals": grid}
+    with pytest.raises(DatasetError, match=r"deltaT: 1e\+06 m of path \(3\.336 ms a bin\) is not a TCSPC bin width"):
+        check_znlos_fields(LabCapture("znlos", raw, None, "z.hdf5"), Path("z.hdf5"))
+
+
+# -- fit-detector reads the Stanford files as import-capture does ---------------------------------------------
+
+FIT = ["--repetition-rate", "10MHz", "--n-cycles", "100000"]
+
+
+def test_fit_detector_reads_a_mat_without_bin_resolution_with_the_same_options_as_import_capture(tmp_path):
+    """Before: 'no bin_resolution field; give the bin width in s (--bin-resolution)', an option fit-detector did not
+    have, and --bin-width was ignored."""
+    path = lct_file(tmp_path / "no_bins.mat", bin_resolution=None)
+    cli(["fit-detector", path, "--pixel", "1,2"] + FIT, 2,
+        f"error: {path}: no 'bin_resolution' field; give the bin width in s (--bin-resolution)")
+    a = cli(["fit-detector", path, "--pixel", "1,2", "--bin-resolution", "16ps"] + FIT, 0, "model pile_up")
+    b = cli(["fit-detector", path, "--pixel", "1,2", "--bin-width", "16ps"] + FIT, 0, "model pile_up")
+    cli(["import-capture", path, "--out", tmp_path / "store", "--bin-resolution", "16ps"], 0)
+    c = cli(["fit-detector", tmp_path / "store", "--pixel", "1,2"] + FIT, 0, "model pile_up")
+    assert a == b == c                                         # one reader, one histogram, one fit
+    cli(["fit-detector", path, "--bin-resolution", "4"] + FIT, 2, "Invalid value for --bin-resolution: '4' is 4 s")
+    cli(["fit-detector", path, "--bin-width", "-4ps"] + FIT, 2, "Invalid value for --bin-width: '-4ps'")
+
+
+def test_fit_detector_refuses_a_return_cut_at_bin_0_instead_of_writing_a_degenerate_detector(tmp_path):
+    """Before: on an imported Stanford store at (32, 32) it wrote a detector YAML with a jitter of 2.5e-82 s, saying
+    only that 3 parameters were unidentifiable (the files start at the direct light: the return peaks in bin 0)."""
+    path = lct_file(tmp_path / "cut.mat", peak=-1)
+    cli(["import-capture", path, "--out", tmp_path / "store"], 0)
+    out_yaml = tmp_path / "det.yaml"
+    cli(["fit-detector", tmp_path / "store", "--pixel", "2,3", "--out", out_yaml] + FIT, 2,
+        f"error: {tmp_path / 'store'} point (2, 3): the return peaks in bin 0 of 64 and every bin before it holds "
+        "more than half its peak: the histogram starts after the return's rising edge, so its position and jitter "
+        "cannot be fitted", "hold both with --fix position=... --fix jitter_sigma=...")
+    assert not out_yaml.exists()
+    cli(["fit-detector", tmp_path / "store", "--pixel", "2,3", "--fix", "position=0", "--fix", "jitter_sigma=20ps"]
+        + FIT, 0, "model pile_up")                              # held: the rest is fitted
+
+
+def test_the_library_fit_refuses_the_same_histogram():
+    from datagen.errors import ConfigError
+    from datagen.spad.fit import fit_detector, rising_edge_missing
+    h = np.r_[np.linspace(500, 20, 30), np.full(34, 20.0)].round()
+    assert rising_edge_missing(h) == 0
+    assert rising_edge_missing(np.r_[np.full(10, 20.0), h]) is None
+    with pytest.raises(ConfigError, match=r"peaks in bin 0 of 64 .*\(its rising edge is before the first bin\)"):
+        fit_detector(h, bin_width=16e-12, repetition_rate=1e7, n_cycles=100000)
+
+
+def test_the_stanford_file_through_import_capture_and_fit_detector():
+    """data_s_u.mat (no bin_resolution; 4 ps bins): both commands read it the same way and say what is wrong."""
+    path = real_file("data_s_u.mat")
+    cli(["import-capture", path, "--out", "/nonexistent/never", "--bin-resolution", "4"], 2,
+        "Invalid value for --bin-resolution: '4' is 4 s")
+    cli(["fit-detector", path, "--pixel", "32,32", "--bin-width", "4ps"] + FIT, 2,
+        f"error: {path} point (32, 32): the return peaks in bin 0 of 2048")
+
+
+# -- every command that reads a store checks its values ------------------------------------------------------
+
+@pytest.fixture
+def tampered_store(tmp_path):
+    """An imported 4 × 4 capture store, and a function that writes values into its envelope."""
+    import zarr
+    path = lct_file(tmp_path / "c.mat")
+    cli(["import-capture", path, "--out", tmp_path / "st"], 0)
+
+    def put(index, value):
+        group = zarr.open_group(str(tmp_path / "st" / "result.zarr"), mode="a")
+        env = group["envelope"][...]
+        env[index] = value
+        group["envelope"][...] = env
+        return tmp_path / "st"
+    return path, put
+
+
+def test_a_store_holding_nan_is_named_by_every_command_that_reads_it(tmp_path, tampered_store):
+    """Before: compare-capture said 'real: no signal in the common time window'; export wrote the .mat without a
+    word; export-tal wrote H with 'sum nan'."""
+    mat, put = tampered_store
+    store = put((1, 2, 5), np.nan)
+    words = (f"error: store {store}: envelope: 1 of 1024 values are not finite (1 NaN, 0 ±inf), the first at index "
+             "(1, 2, 5); no store datagen writes holds them: write it again")
+    cli(["compare-capture", store, mat], 2, words)
+    cli(["compare-capture", mat, store], 2, words)
+    cli(["export", store, "--format", "lct-mat", "--out", tmp_path / "x.mat"], 2, words)
+    cli(["export-tal", store, "--out", tmp_path / "x.hdf5"], 2, words)
+    cli(["fit-detector", store] + FIT, 2, words)
+    assert not (tmp_path / "x.mat").exists() and not (tmp_path / "x.hdf5").exists()
+
+
+def test_a_store_holding_negative_values_is_named_and_read_with_allow_negative(tmp_path, tampered_store):
+    mat, put = tampered_store
+    store = put((0, 0, 3), -1.0)
+    words = (f"error: store {store}: envelope: 1 of 1024 bins are negative (smallest -1, the first at index "
+             "(0, 0, 3)); photon counts are ≥ 0: a background-subtracted capture is read with --allow-negative")
+    cli(["compare-capture", store, mat], 2, words)
+    cli(["export", store, "--format", "lct-mat", "--out", tmp_path / "x.mat"], 2, words)
+    cli(["export", store, "--format", "lct-mat", "--out", tmp_path / "x.mat", "--allow-negative"], 0,
+        "note: 1 of 1024 bins are negative (--allow-negative")
+    cli(["compare-capture", store, mat, "--allow-negative"], 0, "relative L2")
+    cli(["fit-detector", store] + FIT, 2, "bins are negative", "a detector fit needs the raw histogram")
