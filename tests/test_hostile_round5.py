@@ -180,3 +180,34 @@ def test_a_store_holding_negative_values_is_named_and_read_with_allow_negative(t
         "note: 1 of 1024 bins are negative (--allow-negative")
     cli(["compare-capture", store, mat, "--allow-negative"], 0, "relative L2")
     cli(["fit-detector", store] + FIT, 2, "bins are negative", "a detector fit needs the raw histogram")
+
+
+# -- a full disk names the store ----------------------------------------------------------------------------
+
+def multizone_config(tmp_path: Path) -> Path:
+    """configs/datasets/multizone_smoke.yaml cut to one sample per split."""
+    import yaml
+    from datagen.dataset import load_dataset_config
+    from datagen.dataset.config import SplitSpec
+    config = load_dataset_config(Path(__file__).resolve().parents[1] / "configs" / "datasets" / "multizone_smoke.yaml")
+    config = config.model_copy(update={"splits": {"train": SplitSpec(count=1), "val": SplitSpec(count=1)}})
+    path = tmp_path / "mz.yaml"
+    path.write_text(yaml.safe_dump(config.to_json()))
+    return path
+
+
+def test_a_full_disk_while_creating_a_multizone_store_names_the_store(tmp_path, monkeypatch):
+    """Before: 'error: [Errno 28] No space left on device', no path (shard writes named theirs; creating the store's
+    arrays and card did not)."""
+    import errno
+
+    import zarr
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(zarr.Group, "create_array", full)
+    out = tmp_path / "ds"
+    cli(["build", multizone_config(tmp_path), "--out", out, "--workers", "0", "--quiet"], 2,
+        f"No space left on device while creating the dataset store {out}; free space, then run again")
+    assert not out.exists()                                   # nothing half-made is left to block the next build

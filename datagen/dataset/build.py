@@ -38,7 +38,8 @@ from .config import DatasetConfig, Sample, config_from_json, load_dataset_config
 from .probe import probe_notice
 from ..errors import DatasetError
 from ..units import format_duration
-from .dask_engine import FATAL_ERRNOS, WORKER_TIMEOUT_S, check_worker_timeout, connect_dask, fatal_error, run_dask
+from .dask_engine import (FATAL_ERRNOS, WORKER_TIMEOUT_S, StoreWriteError, check_worker_timeout, connect_dask,
+                          fatal_error, named_write_errors, run_dask)
 from .integrity import remove_shard_files, repair_store
 from .store import (DONE_DIR, LOCK_NAME, BuildLock, ShardTask, card_layout, check_dataset_dir, check_same_assets,
                     check_same_config, consolidate, file_sha256, finish_card, initialize_card, marker_path,
@@ -62,10 +63,6 @@ class BuildError(RuntimeError):
     def __init__(self, message: str, failures: dict[tuple[str, int], str]):
         super().__init__(message)
         self.failures = failures
-
-
-class StoreWriteError(OSError):
-    """The store cannot be written (:data:`FATAL_ERRNOS`); finished shards are kept, the build resumes later."""
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -496,8 +493,10 @@ def _build(config: DatasetConfig, root: Path, probe: Sample, pinned: tuple[list[
     root.mkdir(parents=True, exist_ok=True)
     try:
         with BuildLock(root):
-            card, repairs = _open_store(root, config, probe, pinned, resume)
-            repairs += repair_store(root, card, config)
+            with named_write_errors(f"{'opening' if resume else 'creating'} the dataset store {root}", "free space, "
+                                    "then run again" + (" with --resume (its shards are kept)" if resume else "")):
+                card, repairs = _open_store(root, config, probe, pinned, resume)
+                repairs += repair_store(root, card, config)
             report = _run(config, root, card, cfg_json, dask, workers, scheduler, retries, max_tasks_per_child,
                           progress, on_shard, engine, t_start)
             report.repairs = repairs

@@ -18,6 +18,7 @@ import sys
 import time
 import traceback
 from collections import Counter
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
@@ -46,6 +47,23 @@ class SchedulerError(ConfigError):
 def fatal_error(exc: BaseException | None) -> bool:
     """True for a write error no retry can fix (:data:`FATAL_ERRNOS`)."""
     return isinstance(exc, OSError) and exc.errno in FATAL_ERRNOS
+
+
+class StoreWriteError(OSError):
+    """The store cannot be written (:data:`FATAL_ERRNOS`); finished shards are kept, the build resumes later."""
+
+
+@contextmanager
+def named_write_errors(doing: str, then: str):
+    """Turn a :func:`fatal_error` raised inside into a :class:`StoreWriteError` of one line naming what was being
+    written and the file, when known: "No space left on device while ``doing`` (FILE); ``then``"."""
+    try:
+        yield
+    except OSError as exc:
+        if not fatal_error(exc):
+            raise
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        raise StoreWriteError(exc.errno, f"{os.strerror(exc.errno)} while {doing}{where}; {then}") from None
 
 
 def one_line(exc: BaseException) -> str:
