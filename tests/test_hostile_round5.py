@@ -211,3 +211,37 @@ def test_a_full_disk_while_creating_a_multizone_store_names_the_store(tmp_path, 
     cli(["build", multizone_config(tmp_path), "--out", out, "--workers", "0", "--quiet"], 2,
         f"No space left on device while creating the dataset store {out}; free space, then run again")
     assert not out.exists()                                   # nothing half-made is left to block the next build
+
+
+# -- builds say when their samples miss the tolerance, --quiet or not ---------------------------------------
+
+def test_a_quiet_build_whose_samples_miss_the_tolerance_says_so(tmp_path, monkeypatch):
+    """Before: ``build --quiet`` of smoke.yaml at tolerance 0.01 % printed 'status complete' and nothing else, while
+    the card recorded that every sample missed it; the projection of a long build was printed only with the bar."""
+    import yaml
+    import datagen.dataset.build as build_module
+    from test_hostile_build import tiny
+    monkeypatch.setattr(build_module, "PROJECTION_NOTE_S", 0.0)       # project even this small build
+    data = tiny(train=2, val=0).to_json()
+    data["tolerance"] = 1e-4
+    config = tmp_path / "tight.yaml"
+    config.write_text(yaml.safe_dump(data))
+    out = cli(["build", config, "--out", tmp_path / "ds", "--workers", "0", "--quiet"], 0,
+              "status complete",
+              "build smoke: the probe took",                              # the projection, without the bar
+              "build smoke: the probe sample (train, 0) reached an estimated error of",
+              "above the tolerance 0.01%",
+              "warning: 2 of 2 samples missed the tolerance 0.01% (estimated envelope errors",
+              "they are stored with their error and listed in the card (accuracy.missed): raise cost_cap (0.5 s) or "
+              "loosen the tolerance")
+    assert out.count("warning:") == 1 and "replicas" not in out          # one line; no bar, no rounds
+    met = cli(["build", config_file_at(tmp_path, tiny(train=1, val=0)), "--out", tmp_path / "ok", "--workers", "0",
+               "--quiet"], 0, "status complete")
+    assert "missed" not in met and "warning" not in met
+
+
+def config_file_at(tmp_path: Path, config) -> Path:
+    import yaml
+    path = tmp_path / f"config_{len(list(tmp_path.glob('config_*')))}.yaml"
+    path.write_text(yaml.safe_dump(config.to_json()))
+    return path

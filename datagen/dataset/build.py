@@ -284,10 +284,10 @@ PROJECTION_NOTE_S = 60.0
 def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, project: bool = True) -> Sample:
     """Sample 0 of the first non-empty split: its shapes fix the dataset's (computed before any write).
 
-    With ``progress``, one line on stderr says the probe runs (it may take minutes), its tolerance loop reports
-    each round (and the transport's bar), and (``project``: a new build) a build projected beyond
-    :data:`PROJECTION_NOTE_S` says how long it projects on ``processes``. A new build's probe that missed its
-    tolerance says so in one line (:func:`probe_notice`) before the build spends, with or without ``progress``."""
+    With ``progress``, one line on stderr says the probe runs (it may take minutes) and its tolerance loop reports
+    each round (and the transport's bar). With or without it, a new build (``project``) projected beyond
+    :data:`PROJECTION_NOTE_S` says how long on ``processes``, and a probe that missed its tolerance says so in one
+    line (:func:`probe_notice`), before the build spends."""
     split = _first_split(config)
     if progress:
         print(f"build {config.name}: probe sample ({split}, 0) first: its arrays fix the dataset's shapes",
@@ -297,7 +297,7 @@ def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, pr
     seconds = time.perf_counter() - t0
     total = sum(spec.count for spec in config.splits.values())
     projected = seconds * total / max(processes, 1)
-    if progress and project and projected > PROJECTION_NOTE_S:
+    if project and projected > PROJECTION_NOTE_S:          # a long build says so, --quiet or not
         print(f"build {config.name}: the probe took {seconds:.3g} s; {total} samples project to about "
               f"{format_duration(projected)} on {processes} process{'es' if processes > 1 else ''} (samples differ: "
               "the bar's ETA follows the build)", file=sys.stderr)
