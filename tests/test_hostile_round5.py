@@ -245,3 +245,80 @@ def config_file_at(tmp_path: Path, config) -> Path:
     path = tmp_path / f"config_{len(list(tmp_path.glob('config_*')))}.yaml"
     path.write_text(yaml.safe_dump(config.to_json()))
     return path
+
+
+# -- zero results state the true reason; zones the sampling cannot resolve are refused up front --------------
+
+def multizone_scene(tmp_path: Path, zones: list[int], size: float = 20.0) -> Path:
+    """scene_library/multizone_room.yaml with a 2 × 2 node flood and ``zones`` zones over a size × size m grid."""
+    import yaml
+    data = yaml.safe_load((Path(__file__).resolve().parents[1] / "scene_library" / "multizone_room.yaml").read_text())
+    data["multizone"]["flood"]["nodes"] = [2, 2]
+    data["multizone"]["zones"].update(size=[size, size], zones=zones)
+    path = tmp_path / "mz.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_zones_whose_only_sample_points_miss_the_wall_are_refused_before_the_work(tmp_path):
+    """Before: 4 × 4 zones of a 20 m grid around the 1.4 m flood: exit 0, an all-zero envelope and 'no path from the
+    laser reaches the sensor grid' (false: 16 × 16 zones of the same grid collect light). The quadrature samples a
+    flood's zone at its centre, and every centre was off the 2 m-high wall."""
+    scene = multizone_scene(tmp_path, [4, 4])
+    out = cli(["multizone", scene, "--out", tmp_path / "o", "--quiet"], 2,
+              f"error: {scene}: multizone.zones: 4 x 4 zones of 5 x 5 m sampled at 1 x 1 point(s) each (the "
+              "quadrature's FoV cells at their centres): none of the 16 points lies on a surface the sensor sees, "
+              "while 4 zones hold one (4% .. 9% of their area): the envelope would be zero though light reaches them; "
+              "set simulation.estimator.fov_cells: 16")
+    assert "no path" not in out and not (tmp_path / "o").exists()
+
+
+def test_zones_the_sampling_resolves_badly_are_warned_about_and_the_run_goes_on(tmp_path):
+    """3 × 3 zones of the same grid: the middle zone's centre is on the wall, which covers a tenth of it; the
+    quadrature counts the whole zone as wall."""
+    out = cli(["multizone", multizone_scene(tmp_path, [3, 3]), "--out", tmp_path / "o", "--quiet"], 0,
+              "warning: multizone.zones: 3 x 3 zones of 6.67 x 6.67 m sampled at 1 x 1 point(s) each",
+              "in 1 of 9 zones the share of the points on a surface the sensor sees is off that of the zone's area "
+              "by more than 50% of it", "set simulation.estimator.fov_cells")
+    assert out.index("warning: multizone.zones") < out.index("3×3 zones, flood")     # before the work
+    quiet = cli(["multizone", multizone_scene(tmp_path, [4, 4], size=1.4), "--out", tmp_path / "p", "--quiet"], 0)
+    assert "warning" not in quiet                        # the shipped zones tile the wall: nothing to say
+
+
+def glossy_box(tmp_path: Path, exponent: float = 1e6) -> Path:
+    """A closed 3 × 2 × 2.5 m box whose every wall is a Phong lobe (specular 1) of ``exponent``."""
+    import yaml
+    m = {"kind": "phong", "albedo": 0.9, "specular": 1.0, "exponent": exponent}
+    walls = [("relay_wall", [3, -1, 0], [0, 2, 0], [0, 0, 2.5]), ("back", [0, -1, 0], [0, 2, 0], [0, 0, 2.5]),
+             ("left", [0, -1, 0], [3, 0, 0], [0, 0, 2.5]), ("right", [0, 1, 0], [3, 0, 0], [0, 0, 2.5]),
+             ("floor", [0, -1, 0], [3, 0, 0], [0, 2, 0]), ("ceiling", [0, -1, 2.5], [3, 0, 0], [0, 2, 0])]
+    objects = [{"builder": "quad", "name": n, "corner": c, "edge_u": u, "edge_v": v, "material": m,
+                **({"label": "relay_wall"} if n == "relay_wall" else {})} for n, c, u, v in walls]
+    scene = {"name": "glossy_box", "objects": objects,
+             "laser": {"emitter": [1.5, 0, 1.25], "spot": [3, 0.3, 1.6], "photons_per_pulse": 1.0},
+             "sensor": {"position": [1.5, 0, 1.25], "aperture_radius": "10mm",
+                        "fov": {"center": [3, -0.2, 1.0], "size": [0.4, 0.4]}},
+             "simulation": {"time": {"t_start": "0ns", "bin_width": "100ps", "n_bins": 200}, "irf": {"fwhm": "200ps"},
+                            "detector": {"model": "poisson", "repetition_rate": "10MHz", "n_cycles": 1000}}}
+    path = tmp_path / "glossy_box.yaml"
+    path.write_text(yaml.safe_dump(scene))
+    return path
+
+
+def test_a_zero_of_lobes_too_narrow_to_sample_says_so_not_that_no_path_exists(tmp_path):
+    """Before: a closed box of Phong walls (exponent 1e6, specular 1), --orders auto: exit 0, all-zero envelope and
+    'no path from the laser reaches the sensor grid'; paths exist, no sample found one."""
+    out = cli(["simulate", glossy_box(tmp_path), "--out", tmp_path / "o", "--lookins", "2x2", "--pixels", "16x16",
+               "--orders", "auto", "--quiet"], 0,
+              "warning: the envelope of the FoV is zero: no sample (lookins 2x2, pixels 16x16) found a path; the "
+              "glossy lobes of back, ceiling, floor, left (+2 more) (phong exponent up to 1e+06, about 0.001 rad "
+              "wide) may be narrower than the sampling resolves, so paths may exist that it missed")
+    assert "no path from the laser reaches" not in out
+
+
+def test_a_scene_where_nothing_reaches_the_fov_says_what_was_sampled(tmp_path):
+    scene = Path(__file__).resolve().parents[1] / "scene_library" / "hard" / "nothing_reaches_fov.yaml"
+    cli(["simulate", scene, "--out", tmp_path / "o", "--lookins", "4x4", "--pixels", "16x16", "--quiet"], 0,
+        "warning: the envelope of the FoV is zero: no sampled path (lookins 4x4, pixels 16x16) from the laser reached "
+        "the sensor grid: the surfaces the laser lights face away from it or are blocked from it, or the sampling is "
+        "too coarse to find the paths; counts hold background only")
