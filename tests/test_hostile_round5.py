@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
 from test_hostile import cli
 
 REAL = Path(os.environ.get("DATAGEN_REAL_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "real"))
@@ -322,3 +324,191 @@ def test_a_scene_where_nothing_reaches_the_fov_says_what_was_sampled(tmp_path):
         "warning: the envelope of the FoV is zero: no sampled path (lookins 4x4, pixels 16x16) from the laser reached "
         "the sensor grid: the surfaces the laser lights face away from it or are blocked from it, or the sampling is "
         "too coarse to find the paths; counts hold background only")
+
+
+# -- every numeric knob has an upper bound, checked before the work --------------------------------------------
+
+def test_light_paths_beyond_their_bound_are_refused_before_the_work_and_long_work_is_projected(tmp_path):
+    """Before: ``multibounce: {paths: 1e12}`` was accepted; ``simulate --quiet`` ran silent until killed at 600 s."""
+    import yaml
+    data = bounded_scene()
+    data["simulation"].update(orders=3, secondary="full", multibounce={"paths": 1e12})
+    path = tmp_path / "paths.yaml"
+    path.write_text(yaml.safe_dump(data))
+    cli(["simulate", path, "--out", tmp_path / "o", "--quiet"], 2,
+        f"error: {path} (simulation): multibounce.paths 1000000000000 is above its bound of 1.074e+09 light paths "
+        "(10-20 min of tracing at about 1 µs a path): lower multibounce.paths")
+    data["simulation"]["multibounce"]["paths"] = 10**9
+    path.write_text(yaml.safe_dump(data))
+    out = stopped_at_the_work(["simulate", path, "--out", tmp_path / "p", "--quiet"])
+    assert "note: multibounce.paths 1e+09 project about 17min of transport on one core" in out
+
+
+def test_build_options_beyond_their_bounds_are_refused(tmp_path):
+    from datagen.dataset.workers import check_build_options
+    for option, args, words in (("--workers", (10**15, None, 2, 4), "--workers 1000000000000000 is above its bound "
+                                                                     "of 1024: give at most 1024"),
+                                ("--retries", (0, None, 10**15, 4), "--retries 1000000000000000 is above its bound"),
+                                ("--tasks-per-worker", (0, None, 2, 10**15), "--tasks-per-worker 1000000000000000 is")):
+        with pytest.raises(ValueError, match=words):
+            check_build_options(*args)
+    from datagen.dataset.dask_engine import check_worker_timeout
+    with pytest.raises(ValueError, match=r"--worker-timeout 1e\+15 is above its bound of 86400 s"):
+        check_worker_timeout(1e15)
+    cli(["simulate", "scene_library/demo_room.yaml", "--out", tmp_path / "o", "--tolerance", "1%", "--time-cap",
+         "1e15"], 2, "Invalid value for --time-cap: must be a duration > 0 and at most 86400 s (a day)")
+
+
+def bounded_scene() -> dict:
+    """tests/test_hostile.py's patch scene with a small lookin sampling and a 26 ns window."""
+    import copy
+    from test_hostile import PATCH
+    data = copy.deepcopy(PATCH)
+    data["simulation"] = {"estimator": {"kind": "lookin", "lookins": [4, 4], "pixels": [8, 8]}, "secondary": "none",
+                          "replicas": 4, "time": {"t_start": 0.0, "bin_width": "100ps", "n_bins": 256},
+                          "irf": {"fwhm": "200ps"},
+                          "detector": {"model": "poisson", "repetition_rate": "10MHz", "n_cycles": 1000}}
+    return data
+
+
+class StopBeforeWork(Exception):
+    """Raised where the transport would start: the command accepted every knob."""
+
+
+def invoke_stopping_at_the_work(args):
+    """``datagen args`` run in process with the transport replaced by :class:`StopBeforeWork` (click's Result)."""
+    from click.testing import CliRunner
+
+    from datagen.cli import main
+    from datagen.simulation.run import Replicas
+
+    def stop(self, *args, **kwargs):
+        raise StopBeforeWork
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(Replicas, "run", stop)
+        return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def stopped_at_the_work(args) -> str:
+    """Run ``datagen args`` up to the transport's start (:func:`invoke_stopping_at_the_work`); the command must get
+    there (no refusal). Returns its output."""
+    res = invoke_stopping_at_the_work(args)
+    assert isinstance(res.exception, StopBeforeWork), res.output
+    return res.output
+
+
+def _sim(key, value):
+    def edit(data):
+        data["simulation"][key] = value
+    return edit
+
+
+def _estimator(block):
+    def edit(data):
+        data["simulation"]["estimator"] = block
+        data["simulation"]["secondary"] = "full" if "secondary_samples" in block or "top_k" in block else "none"
+    return edit
+
+
+KNOBS = {   # knob → (scene edit for value v, the largest v run to the end here; beyond it the run stops at the work)
+    "multibounce.paths": (lambda v: lambda d: d["simulation"].update(orders=3, secondary="full",
+                                                                      multibounce={"paths": v}), 10**6),
+    "replicas": (lambda v: _sim("replicas", v), 64),
+    "time.n_bins": (lambda v: lambda d: d["simulation"]["time"].update(n_bins=v), 10**5),
+    "orders": (lambda v: lambda d: d["simulation"].update(orders=v, secondary="full"), 10**15),
+    "workers": (lambda v: _sim("workers", v), 1),
+    "estimator.samples": (lambda v: _estimator({"kind": "area", "samples": v}), 10**5),
+    "estimator.secondary_samples": (lambda v: _estimator({"kind": "quadrature", "edge": 0.2,
+                                                           "secondary_samples": v}), 10**5),
+    "estimator.fov_cells": (lambda v: _estimator({"kind": "quadrature", "edge": 0.2, "fov_cells": v}), 8),
+    "estimator.lookins": (lambda v: _estimator({"kind": "lookin", "lookins": [v, 1], "pixels": [8, 8]}), 256),
+    "estimator.pixels": (lambda v: _estimator({"kind": "lookin", "lookins": [2, 2], "pixels": [v, 1]}), 1024),
+    "estimator.top_k": (lambda v: _estimator({"kind": "lookin", "lookins": [2, 2], "pixels": [8, 8], "top_k": v}),
+                        10**15),
+    "estimator.batch": (lambda v: _estimator({"kind": "lookin", "lookins": [2, 2], "pixels": [8, 8], "batch": v}),
+                        10**15),
+    "estimator.connect_samples": (lambda v: _estimator({"kind": "lookin", "lookins": [2, 2], "pixels": [8, 8],
+                                                        "sensor_sampling": "connect", "connect_samples": [v, 1]}), 16),
+    "sensor.fov.pixels": (lambda v: lambda d: d["sensor"]["fov"].update(pixels=[v, 1]), 64),
+}
+"""The bounded knobs of a simulation the property test draws (multi-zone zones and nodes are drawn apart)."""
+
+RUN_S = 60.0
+"""Wall seconds an accepted run of the small scene must end within (this shared 2-core machine; runs take 1–5 s)."""
+
+REFUSE_S = 30.0
+"""Wall seconds a refusal must take at most (it comes before the transport)."""
+
+
+def one_line_error(output: str) -> str:
+    lines = [line for line in output.splitlines() if line.startswith(("error:", "Error:"))]
+    assert len(lines) == 1 and "Traceback" not in output, output
+    return lines[0]
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=list(HealthCheck))
+@given(knob=st.sampled_from(sorted(KNOBS)), exponent=st.floats(0.0, 15.0))
+@example(knob="multibounce.paths", exponent=9.0)           # accepted, 17 min projected: stopped at the work
+@example(knob="estimator.samples", exponent=8.0)           # accepted, 7 min projected
+@example(knob="estimator.lookins", exponent=3.5)           # accepted, no projection worth printing
+@example(knob="workers", exponent=2.0)                     # accepted: 100 processes would start; stopped
+@example(knob="time.n_bins", exponent=7.0)                 # 2e7 fine nodes: refused by the bound, not the accumulator
+def test_every_bounded_knob_drawn_up_to_1e15_is_refused_in_one_line_or_runs_in_a_stated_time(tmp_path_factory, knob,
+                                                                                           exponent):
+    """A value drawn log-uniformly from 1 to 1e15: a one-line refusal naming the knob, before the work (within
+    REFUSE_S), or an accepted run. Accepted values up to the knob's run limit run to the end within RUN_S; larger
+    ones are stopped where the transport starts (so this test stays short), after every check passed and, when the
+    work projects beyond LONG_WORK_S, the projection was printed: the bounds keep that projection within about an
+    hour (docs/reliability.md, "Bounds")."""
+    import time
+
+    import yaml
+    from click.testing import CliRunner
+
+    from datagen.cli import main
+    from datagen.scene import load_scene
+    from datagen.simulation import resolve_config
+    from datagen.simulation.bounds import LONG_WORK_S, projected_work
+
+    value = max(1, int(round(10 ** exponent)))
+    edit, run_limit = KNOBS[knob]
+    data = bounded_scene()
+    edit(value)(data)
+    tmp = tmp_path_factory.mktemp("knob")
+    path = tmp / "scene.yaml"
+    path.write_text(yaml.safe_dump(data))
+    args = ["simulate", path, "--out", tmp / "o", "--quiet"]
+    t0 = time.perf_counter()
+    if value > run_limit:
+        res = invoke_stopping_at_the_work(args)
+        if isinstance(res.exception, StopBeforeWork):       # accepted: the projection was said when it is long
+            seconds, _ = projected_work(load_scene(path), resolve_config(load_scene(path)))
+            assert seconds <= 4 * 3600, (knob, value, seconds)
+            assert (seconds > LONG_WORK_S) == ("project about" in res.output), res.output
+            return
+    else:
+        res = CliRunner().invoke(main, [str(a) for a in args])
+    elapsed = time.perf_counter() - t0
+    assert res.exception is None or isinstance(res.exception, SystemExit), (knob, value, res.exception)
+    if res.exit_code == 2:
+        line = one_line_error(res.output)
+        field = knob.split(".")[-1]
+        assert field in line or knob.split(".")[0] in line, (knob, value, line)
+        assert elapsed < REFUSE_S, (knob, value, elapsed)
+    else:
+        assert res.exit_code == 0 and elapsed < RUN_S, (knob, value, elapsed, res.output)
+
+
+@pytest.mark.parametrize("exponent", [2, 6, 15])
+def test_multizone_zones_and_nodes_up_to_1e15_are_refused_in_one_line(tmp_path, exponent):
+    import yaml
+    path = multizone_scene(tmp_path, [4, 4], size=1.4)
+    n = 10 ** exponent
+    line = one_line_error(cli(["multizone", path, "--out", tmp_path / "a", "--nodes", f"{n}x2", "--quiet"], 2))
+    assert "--nodes" in line and "64" in line, line
+    data = yaml.safe_load(path.read_text())
+    data["multizone"]["zones"]["zones"] = [n, 4]
+    path.write_text(yaml.safe_dump(data))
+    line = one_line_error(cli(["multizone", path, "--out", tmp_path / "b", "--quiet"], 2))
+    assert "multizone.zones.zones" in line and "16" in line, line

@@ -44,7 +44,7 @@ from .integrity import remove_shard_files, repair_store
 from .store import (DONE_DIR, LOCK_NAME, BuildLock, ShardTask, card_layout, check_dataset_dir, check_same_assets,
                     check_same_config, consolidate, file_sha256, finish_card, initialize_card, marker_path,
                     plan_shards, read_card, read_marker, shard_file, write_json_atomic, zarr_module)
-from .workers import BUILD_PID_ENV, init_worker
+from .workers import BUILD_PID_ENV, check_build_options, init_worker
 
 DEFAULT_RETRIES = 2
 DEFAULT_TASKS_PER_CHILD = 4
@@ -305,25 +305,6 @@ def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, pr
     if line is not None:
         print(line, file=sys.stderr)
     return probe
-
-
-def check_build_options(workers: int | None, scheduler: str | None, retries: int, max_tasks_per_child: int) -> None:
-    """Refuse invalid build options before anything runs or is written.
-
-    Raises:
-        ValueError: naming the option (CLI spelling) and the value.
-    """
-    def is_int(v):
-        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-
-    if workers is not None and not (is_int(workers) and workers >= 0):
-        raise ValueError(f"--workers must be an integer >= 0, got {workers!r}")
-    if not (is_int(retries) and retries >= 0):
-        raise ValueError(f"--retries must be an integer >= 0, got {retries!r}")
-    if not (is_int(max_tasks_per_child) and max_tasks_per_child >= 1):
-        raise ValueError(f"--tasks-per-worker must be an integer >= 1, got {max_tasks_per_child!r}")
-    if scheduler is not None and scheduler != "local" and (not isinstance(scheduler, str) or "://" not in scheduler):
-        raise ValueError(f"--scheduler must be 'local' or an address such as tcp://HOST:8786, got {scheduler!r}")
 
 
 def check_shard_memory(config: DatasetConfig, probe: Sample, processes: int) -> None:

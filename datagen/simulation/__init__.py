@@ -26,6 +26,8 @@ its module.
 - :mod:`.provenance`: :func:`~.provenance.library_versions`, the versions every result and card records.
 - :mod:`.budget`: the memory a simulation needs, estimated before allocating (:func:`simulation_memory`), and
   the refusal (:class:`ResourceError`) when it exceeds the memory available.
+- :mod:`.bounds`: the upper bound of every numeric knob (light paths, samples, grids, bins, workers), checked
+  before any work, and the projection of long work (:func:`~.bounds.projected_work`).
 """
 from ..lazy import lazy_attributes
 
