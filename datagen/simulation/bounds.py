@@ -52,7 +52,7 @@ MAX_CHANNELS = 1 << 22
 MAX_FINE_NODES = ACCUMULATOR_MAX_NODES
 """Nodes of the accumulator's fine time grid per component: ``time.n_bins`` × its oversample (1–34 fine nodes a
 bin, from the IRF's width over the bin width) plus the IRF's guard nodes (16.8 M: the 1 km corridor's 1.67 M bins
-need 3.3 M)."""
+need 1.67 M)."""
 
 MAX_WORKERS = 256
 """Processes a simulation may start (``workers``): each is a full copy of the run's arrays."""
@@ -208,7 +208,8 @@ def projected_work(scene: Scene, config: SimulationConfig) -> tuple[float, str]:
     per = f" x {lasers} laser points" if lasers > 1 else ""
     for field in ("samples", "secondary_samples"):
         n = getattr(est, field, None)
-        if isinstance(n, int) and (field == "samples" or config.secondary != "none"):
+        secondary = config.secondary != "none" and config.effects.get("secondary", True) is not False
+        if isinstance(n, int) and (field == "samples" or secondary):
             parts.append((n * lasers * SECONDS_PER["sample"], f"estimator.{field} {n:g}{per}"))
     if getattr(est, "lookins", None) is not None and getattr(est, "pixels", None) is not None:
         rays = math.prod(est.lookins) * math.prod(est.pixels) * lasers
