@@ -119,6 +119,14 @@ def test_fit_detector_refuses_a_return_cut_at_bin_0_instead_of_writing_a_degener
         + FIT, 0, "model pile_up")                              # held: the rest is fitted
 
 
+def test_a_histogram_file_cut_at_its_first_bin_or_given_a_bin_width_in_seconds_is_refused(tmp_path):
+    np.savetxt(tmp_path / "cut.txt", np.r_[np.linspace(500, 20, 30), np.full(34, 20.0)].round())
+    cli(["fit-detector", tmp_path / "cut.txt", "--bin-width", "16ps"] + FIT, 2,
+        f"error: {tmp_path / 'cut.txt'}: the return peaks in bin 0 of 64")
+    cli(["fit-detector", tmp_path / "cut.txt", "--bin-width", "16"] + FIT, 2,
+        "Invalid value for --bin-width: '16' is 16 s, not a TCSPC bin width")
+
+
 def test_the_library_fit_refuses_the_same_histogram():
     from datagen.errors import ConfigError
     from datagen.spad.fit import fit_detector, rising_edge_missing
@@ -240,6 +248,22 @@ def test_a_quiet_build_whose_samples_miss_the_tolerance_says_so(tmp_path, monkey
     met = cli(["build", config_file_at(tmp_path, tiny(train=1, val=0)), "--out", tmp_path / "ok", "--workers", "0",
                "--quiet"], 0, "status complete")
     assert "missed" not in met and "warning" not in met
+
+
+def test_a_quiet_lookin_build_at_a_tiny_cost_cap_and_no_tolerance_says_what_it_missed(tmp_path):
+    """Before: a lookin dataset with ``cost_cap: 0.1s`` and no tolerance printed nothing with --quiet."""
+    import yaml
+    from test_hostile_build import tiny
+    data = tiny(train=2, val=0).to_json()
+    data["simulation"]["estimator"] = {"kind": "lookin", "lookins": [4, 4], "pixels": [16, 16]}
+    data["cost_cap"] = "0.1s"
+    data.pop("tolerance", None)
+    config = tmp_path / "lookin.yaml"
+    config.write_text(yaml.safe_dump(data))
+    cli(["build", config, "--out", tmp_path / "ds", "--workers", "0", "--quiet"], 0,
+        "above the tolerance 1.00% (the default: the config sets none)",
+        "warning: 2 of 2 samples missed the tolerance 1% (estimated envelope errors",
+        "raise cost_cap (0.1 s) or loosen the tolerance")
 
 
 def config_file_at(tmp_path: Path, config) -> Path:
