@@ -11,7 +11,11 @@ first index, an example). Each check returns the array it was given (the file's 
 - :func:`time_offsets`: per-point offsets (``tofgrid``) of the scan's shape, finite;
 - :func:`histogram_counts`: finite, non-negative whole counts below :data:`MAX_COUNT` (a detector fit sums and
   squares them in float64), at least :data:`MIN_HISTOGRAM_BINS` bins, not all zero;
-- :func:`uniform_axis`: a time column that increases by one bin width (within :data:`AXIS_RTOL`).
+- :func:`uniform_axis`: a time column that increases by one bin width (within :data:`AXIS_RTOL`);
+- :func:`bin_width`: a histogram's bin width within :data:`BIN_WIDTH_RANGE_S` (a TCSPC bin is picoseconds to
+  nanoseconds; outside is a unit slip, ``4`` meant as 4 ps);
+- :func:`result_values`: the envelope, counts and time edges of a stored result (a capture store or a
+  simulation's), checked as the files are when a command reads one back.
 
 The other files read from outside are checked in one place each, where the knowledge they need lives: scene,
 dataset, room and detector YAML by :func:`datagen.scene.yamlfile.read_yaml` and the pydantic models; reconstruction
@@ -20,12 +24,15 @@ lists every bound.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .errors import DatasetError
 
 __all__ = ["InputDataError", "MAX_COUNT", "MIN_HISTOGRAM_BINS", "AXIS_RTOL", "real_values", "transients", "time_offsets", "histogram_counts",
-           "uniform_axis", "negative_bins"]
+           "uniform_axis", "negative_bins", "BIN_WIDTH_RANGE_S", "bin_width", "format_seconds",
+           "result_values"]
 
 MAX_COUNT = 2.0 ** 53
 """The largest count a histogram may hold: integers above it are not exact in float64, and their squares in a
@@ -33,6 +40,11 @@ likelihood overflow long before float64's range ends."""
 
 MIN_HISTOGRAM_BINS = 8
 """The fewest bins a detector histogram may have (a fit has up to 7 free parameters)."""
+
+BIN_WIDTH_RANGE_S = (1e-13, 1e-7)
+"""The bin widths (s) a time-correlated photon-counting histogram may have: 0.1 ps (below the finest
+time-to-digital converters, ~1 ps) to 100 ns (a bin as long as a 10 MHz laser's whole period holds no transient).
+A value outside is a unit slip (``4`` read as 4 s where 4 ps was meant, ``4ms``)."""
 
 AXIS_RTOL = 1e-3
 """A time column's steps may differ from their median by this fraction (a CSV's printed digits), no more."""
@@ -64,13 +76,13 @@ def real_values(values, where: str, field: str, what: str) -> np.ndarray:
     return arr
 
 
-def _finite(arr: np.ndarray, where: str, field: str) -> None:
+def _finite(arr: np.ndarray, where: str, field: str, hint: str = "") -> None:
     if arr.dtype.kind == "f":
         bad = ~np.isfinite(arr)
         if bad.any():
             n_nan = int(np.isnan(arr).sum())
             raise InputDataError(f"{where}: {field}: {int(bad.sum())} of {arr.size} values are not finite ({n_nan} "
-                                 f"NaN, {int(bad.sum()) - n_nan} ±inf), the first at index {_index(bad)}")
+                                 f"NaN, {int(bad.sum()) - n_nan} ±inf), the first at index {_index(bad)}{hint}")
 
 
 def negative_bins(values) -> int:
@@ -82,13 +94,14 @@ NEGATIVE_HINT = "a background-subtracted capture is read with --allow-negative"
 
 
 def transients(values, where: str, field: str, allow_negative: bool = False,
-               negative_hint: str = NEGATIVE_HINT) -> np.ndarray:
+               negative_hint: str = NEGATIVE_HINT, finite_hint: str = "") -> np.ndarray:
     """Check transients (any shape, time last): real, finite and, unless ``allow_negative``, ≥ 0.
 
     Args:
         values: the array as read; where: the file (or what it came from); field: its name in the file;
         allow_negative: accept negative bins (a background-subtracted capture; the caller reports how many);
-        negative_hint: what the message about negative bins suggests.
+        negative_hint: what the message about negative bins suggests; finite_hint: appended to the message about
+        NaN / ±inf values.
     Returns:
         ``values`` as an ndarray, its dtype unchanged.
     Raises:
@@ -96,7 +109,7 @@ def transients(values, where: str, field: str, allow_negative: bool = False,
         the first index and the smallest value, and the option that accepts them).
     """
     arr = real_values(values, where, field, "photon counts and intensities")
-    _finite(arr, where, field)
+    _finite(arr, where, field, finite_hint)
     if not allow_negative:
         neg = arr < 0
         if neg.any():
@@ -162,3 +175,52 @@ def uniform_axis(times, where: str, field: str = "time") -> tuple[float, float]:
         raise InputDataError(f"{where}: {field}: uneven steps from {steps.min():.6g} to {steps.max():.6g} (median "
                              f"{step:.6g}); a histogram's bins are of one width")
     return float(t[0]), step
+
+
+def format_seconds(seconds: float) -> str:
+    """``seconds`` in the unit that reads best ("4 s", "4 ms", "-5 ps"; 1e-3 s is "1 ms"), as
+    :func:`datagen.units.parse_duration` reads it back (µs for microseconds)."""
+    s = float(seconds)
+    if not math.isfinite(s) or s == 0:
+        return f"{s:g} s"
+    for unit, scale, floor in (("s", 1.0, 1.0), ("ms", 1e-3, 1e-3), ("µs", 1e-6, 1e-6), ("ns", 1e-9, 1e-9),
+                               ("ps", 1e-12, 1e-13)):
+        if abs(s) >= floor * (1 - 1e-9):
+            return f"{s / scale:.4g} {unit}"
+    return f"{s / 1e-15:.4g} fs"
+
+
+def bin_width(seconds: float, where: str, field: str) -> float:
+    """Check a histogram's bin width (s): finite and within :data:`BIN_WIDTH_RANGE_S`. Returns it as a float.
+
+    Raises:
+        InputDataError: "``where``: ``field``: 4 s is not a TCSPC bin width (0.1 ps .. 100 ns) …", saying that the
+        field holds seconds.
+    """
+    s = float(seconds)
+    lo, hi = BIN_WIDTH_RANGE_S
+    if not (math.isfinite(s) and lo <= s <= hi):
+        what = "is not > 0" if not s > 0 else f"is not a TCSPC bin width ({format_seconds(lo)} .. {format_seconds(hi)})"
+        raise InputDataError(f"{where}: {field}: {format_seconds(s)} {what}; the field holds seconds (4 ps is "
+                             "4e-12)")
+    return s
+
+
+def result_values(result, where: str, allow_negative: bool = False, negative_hint: str = NEGATIVE_HINT) -> None:
+    """Check a stored result as :func:`transients` checks a capture file: its envelope (real, finite, ≥ 0 unless
+    ``allow_negative``), its counts (≥ 0) and its time edges (finite, increasing).
+
+    Args:
+        result: a :class:`~datagen.simulation.Result` read back from a store; where: the store (the messages
+            start with it); negative_hint: what the message about negative bins suggests.
+    Raises:
+        InputDataError: naming the store, the array, how many values are wrong and the first index.
+    """
+    damaged = "; no store datagen writes holds them: write it again (import-capture, simulate)"
+    transients(result.envelope, where, "envelope", allow_negative, negative_hint, damaged)
+    transients(result.counts, where, "counts", negative_hint="detections are counted, never negative")
+    edges = np.asarray(real_values(result.time_edges, where, "time_edges", "times"), dtype=np.float64)
+    _finite(edges, where, "time_edges", damaged)
+    if edges.size < 2 or np.any(np.diff(edges) <= 0):
+        raise InputDataError(f"{where}: time_edges: {edges.size} edges, not increasing (from {edges[:3].tolist()}); "
+                             "a result's bins follow one another")

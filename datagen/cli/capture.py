@@ -17,14 +17,58 @@ from .errors import friendly_errors
 
 EXPORT_FORMATS = ("lct-mat", "fk-mat", "znlos", "tal")
 
+MAX_WALL_HALF_WIDTH_M = 100.0
+"""Largest ``--width`` (half width of a scanned relay wall, m): lab scans are 0.2–1 m; more is a unit slip."""
+
+
+def bin_option(text: str | None, option: str) -> float | None:
+    """A bin width given on the command line (``--bin-resolution``, ``--bin-width``), in s: a duration within
+    :data:`datagen.validate.BIN_WIDTH_RANGE_S`; None when not given. click.BadParameter naming the option
+    otherwise (never the file: the value is the command line's)."""
+    from ..units import parse_duration
+
+    if text is None:
+        return None
+    try:
+        seconds = parse_duration(text)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint=option) from None
+    if not seconds > 0:
+        raise click.BadParameter(f"{text!r}: a bin width is a duration > 0, e.g. 4ps", param_hint=option)
+    try:
+        return validate.bin_width(seconds, option, "bin width")
+    except validate.InputDataError:
+        lo, hi = (validate.format_seconds(v) for v in validate.BIN_WIDTH_RANGE_S)
+        raise click.BadParameter(f"{text!r} is {validate.format_seconds(seconds)}, not a TCSPC bin width ({lo} .. "
+                                 f"{hi}); a number without a unit is seconds: write the unit, e.g. 4ps",
+                                 param_hint=option) from None
+
+
+def width_option(width: float | None) -> float | None:
+    """``--width`` (m): finite, > 0 and at most :data:`MAX_WALL_HALF_WIDTH_M`; click.BadParameter otherwise."""
+    if width is not None and not 0 < width <= MAX_WALL_HALF_WIDTH_M:
+        raise click.BadParameter(f"{width!r}: the half width of the scanned wall in m, > 0 and at most "
+                                 f"{MAX_WALL_HALF_WIDTH_M:g}", param_hint="--width")
+    return width
+
+
+def checked_store(result, path: Path, allow_negative: bool = False, negative_hint: str = validate.NEGATIVE_HINT):
+    """``result``, read from the store at ``path``, after :func:`datagen.validate.result_values` (NaN, ±inf and,
+    unless ``allow_negative``, negative values named as a capture file's are)."""
+    validate.result_values(result, f"store {path}", allow_negative, negative_hint)
+    return result
+
 
 def _is_store(path: Path) -> bool:
     return (path / "zarr.json").exists() or (path / "result.zarr" / "zarr.json").exists()
 
 
-def load_capture(path: Path, width=None, bin_resolution=None):
+def load_capture(path: Path, width=None, bin_resolution=None, allow_negative: bool = False,
+                 negative_hint: str = validate.NEGATIVE_HINT):
     """(Result, per-point time offsets (s) or None, description) of a lab file, an imported capture store or a
-    datagen result store (offsets: the counted wall legs of a confocal scan)."""
+    datagen result store (offsets: the counted wall legs of a confocal scan). A file is read as import-capture
+    reads it (``width``, ``bin_resolution``: the values a ``.mat`` lacks), a store's values are checked as a
+    file's are (:func:`checked_store`)."""
     from ..io.lab_formats import read_capture_store, read_lab_capture
     from ..units import SPEED_OF_LIGHT
 
@@ -33,6 +77,7 @@ def load_capture(path: Path, width=None, bin_resolution=None):
         if not _is_store(path):
             raise FileNotFoundError(f"{path}: neither a capture file nor a datagen result store")
         result, offsets = read_capture_store(path)
+        checked_store(result, path, allow_negative, negative_hint)
         cap = result.attrs.get("capture") or {}
         conf = result.attrs.get("config") or {}
         if offsets is None and "lab_capture" not in result.attrs and cap.get("type") == "confocal":
@@ -44,7 +89,7 @@ def load_capture(path: Path, width=None, bin_resolution=None):
                 legs += np.linalg.norm(pts - np.asarray(cap["sensor_position"], float), axis=-1)
             offsets = legs / SPEED_OF_LIGHT
         return result, offsets, f"datagen store {path}"
-    cap = read_lab_capture(path, width=width, bin_resolution=bin_resolution)
+    cap = read_lab_capture(path, width=width, bin_resolution=bin_resolution, allow_negative=allow_negative)
     return cap.to_result(), cap.time_offsets(), f"{cap.format} file {path}"
 
 
@@ -84,11 +129,10 @@ def import_capture(capture_file, out, width, bin_resolution, tofgrid, allow_nega
     that are complex, NaN or ±inf are refused, negative ones too unless --allow-negative (docs/capture_io.md).
     """
     from ..io.lab_formats import read_lab_capture, write_capture_store
-    from ..units import parse_duration
     from ..validate import negative_bins
 
-    bres = None if bin_resolution is None else parse_duration(bin_resolution)
-    cap = read_lab_capture(capture_file, width=width, bin_resolution=bres, tofgrid_path=tofgrid,
+    bres = bin_option(bin_resolution, "--bin-resolution")
+    cap = read_lab_capture(capture_file, width=width_option(width), bin_resolution=bres, tofgrid_path=tofgrid,
                            allow_negative=allow_negative)
     store = write_capture_store(cap, Path(out) / "result.zarr")
     d = cap.data()
@@ -117,12 +161,15 @@ def import_capture(capture_file, out, width, bin_resolution, tofgrid, allow_nega
 @click.option("--counts", "use_counts", is_flag=True, help="export the SPAD counts, not the envelope")
 @click.option("--mat-version", "mat_version", type=click.Choice(["5", "7.3"]), default="5",
               help=".mat formats: MAT v5 (scipy) or v7.3 (HDF5; arrays over 2 GiB)")
+@click.option("--allow-negative", "allow_negative", is_flag=True,
+              help="export negative bins (a background-subtracted capture); their count is printed")
 @friendly_errors
-def export(result_path, fmt, out, split, index, use_counts, mat_version):
+def export(result_path, fmt, out, split, index, use_counts, mat_version, allow_negative):
     """Write a datagen result, or one dataset sample, as an LCT / f-k .mat, a ZNLOS HDF5 or a tal HDF5 capture.
 
     LCT / f-k: confocal N x N scans; the counted wall legs and t_start go into tofgrid (ps). ZNLOS: the time
-    axis must count both wall legs (ZNLOS's convention). Conventions: docs/capture_io.md.
+    axis must count both wall legs (ZNLOS's convention). Conventions: docs/capture_io.md. NaN or ±inf values are
+    refused, negative ones too unless --allow-negative (as import-capture reads files).
     """
     from ..dataset.integrity import require_complete
     from ..io import write_tal_hdf5
@@ -137,8 +184,10 @@ def export(result_path, fmt, out, split, index, use_counts, mat_version):
             raise ValueError("a dataset sample needs both --split and --index")
         require_complete(result_path)
         result = sample_result(result_path, split, index, "counts" if use_counts else "envelope")
+        checked_store(result, f"{result_path} ({split} sample {index})", allow_negative)
     else:
-        result = read_result_input(result_path, "export", "give --split and --index to export one of its samples")
+        result = checked_store(read_result_input(result_path, "export", "give --split and --index to export one "
+                                                 "of its samples"), result_path, allow_negative)
         if use_counts:              # the drawn SPAD histogram in the envelope's place, as a lab file holds it
             import dataclasses
             result = dataclasses.replace(result, envelope=np.asarray(result.counts, dtype=np.float64), components={})
@@ -149,6 +198,10 @@ def export(result_path, fmt, out, split, index, use_counts, mat_version):
         cap = capture_from_result(result, fmt, source=str(result_path))
         write_lab_capture(cap, out, mat_version=mat_version if fmt != "znlos" else None)
     click.echo(f"wrote {out} ({fmt}, {tuple(np.shape(result.envelope))})")
+    negative = validate.negative_bins(result.envelope)
+    if negative:
+        click.echo(f"note: {negative} of {np.size(result.envelope)} bins are negative (--allow-negative: a "
+                   "background-subtracted capture)")
 
 
 def _read_failure(exc: Exception) -> str:
@@ -159,8 +212,13 @@ def _read_failure(exc: Exception) -> str:
     return text.split("; use ")[0][:160]
 
 
-def _histogram(path: Path, pixel: str | None):
-    """(counts (bins,), bin width s or None, t_start s or None) from .npy / .csv / .txt, a lab file or a store."""
+FIT_NEGATIVE_HINT = "a detector fit needs the raw histogram, background included"
+"""What a refusal of negative bins suggests to ``fit-detector`` (which has no --allow-negative)."""
+
+
+def _histogram(path: Path, pixel: str | None, width: float | None = None, bin_resolution: float | None = None):
+    """(counts (bins,), bin width s or None, t_start s or None, what it is) from .npy / .csv / .txt, a lab file
+    (read as import-capture reads it, ``width`` and ``bin_resolution`` for a ``.mat`` without them) or a store."""
     suffix = path.suffix.lower()
     if suffix in (".npy", ".csv", ".txt"):
         if not path.is_file():
@@ -176,11 +234,11 @@ def _histogram(path: Path, pixel: str | None):
         arr = np.asarray(arr)
         if arr.ndim == 2 and arr.shape[1] == 2:          # (time s, counts) columns
             t0, dt = validate.uniform_axis(arr[:, 0], str(path), "time column")
-            return validate.histogram_counts(arr[:, 1], str(path), "counts column"), dt, t0
+            return validate.histogram_counts(arr[:, 1], str(path), "counts column"), dt, t0, str(path)
         if arr.ndim != 1:
             raise ValueError(f"{path}: expected one column of counts (or time, counts), got shape {arr.shape}")
-        return validate.histogram_counts(arr, str(path)), None, None
-    result, _, _ = load_capture(path)
+        return validate.histogram_counts(arr, str(path)), None, None, str(path)
+    result, _, _ = load_capture(path, width, bin_resolution, negative_hint=FIT_NEGATIVE_HINT)
     data = np.asarray(result.counts if result.counts.any() else result.envelope)
     edges = np.asarray(result.time_edges)
     if pixel is not None:
@@ -193,10 +251,10 @@ def _histogram(path: Path, pixel: str | None):
         if any(not 0 <= i < n for i, n in zip(idx, data.shape[:-1])):
             raise ValueError(f"--pixel {pixel}: outside the scan of {path}, whose points run 0..{data.shape[0] - 1}"
                              + "".join(f", 0..{n - 1}" for n in data.shape[1:-1]))
-        h = data[idx]
+        h, what = data[idx], f"{path} point {idx}"
     else:
-        h = data.reshape(-1, data.shape[-1]).sum(0)
-    return validate.histogram_counts(h, str(path)), float(edges[1] - edges[0]), float(edges[0])
+        h, what = data.reshape(-1, data.shape[-1]).sum(0), f"{path} (every scan point summed)"
+    return validate.histogram_counts(h, str(path)), float(edges[1] - edges[0]), float(edges[0]), what
 
 
 @click.command("fit-detector")
@@ -204,6 +262,9 @@ def _histogram(path: Path, pixel: str | None):
 @click.option("--repetition-rate", "repetition_rate", required=True, help="laser repetition rate, e.g. 20MHz")
 @click.option("--n-cycles", "n_cycles", required=True, type=click.IntRange(min=1), help="laser cycles of the exposure")
 @click.option("--bin-width", "bin_width", default=None, help="bin width, e.g. 16ps (default: the file's)")
+@click.option("--bin-resolution", "bin_resolution", default=None,
+              help=".mat without 'bin_resolution': its bin width, e.g. 4ps (as import-capture; default --bin-width)")
+@click.option("--width", type=float, default=None, help=".mat without 'width': half width of the scanned wall, m")
 @click.option("--t-start", "t_start", default=None, help="first bin edge within the period (default: the file's or 0)")
 @click.option("--model", type=click.Choice(["pile_up", "poisson", "free_running"]), default="pile_up",
               help="synchronous first photon (pile_up), poisson, or free_running (dead time)")
@@ -220,22 +281,35 @@ def _histogram(path: Path, pixel: str | None):
               help="free_running: search the dead time only in LOW,HIGH (e.g. 2ns,10ns; a datasheet range)")
 @click.option("--out", "out", type=click.Path(path_type=Path), default=None, help="detector YAML to write")
 @friendly_errors
-def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, t_start, model, irf, fit_fraction, pulse_sigma,
-                     fix, initial, pixel, afterpulse_tau, dead_time_bounds, out):
+def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, bin_resolution, width, t_start, model, irf,
+                     fit_fraction, pulse_sigma, fix, initial, pixel, afterpulse_tau, dead_time_bounds, out):
     """Fit datagen's detector model to the histogram HIST of a known return (maximum likelihood).
 
-    HIST: .npy / .csv / .txt (counts, or time s and counts), a lab capture file or a datagen store. Prints each
-    parameter with its 1-sigma error and 95 % interval, the goodness of fit, one line per parameter the data do
-    not determine, and writes --out (a configs/detectors YAML, checked by loading it).
+    HIST: .npy / .csv / .txt (counts, or time s and counts), a lab capture file (read as import-capture reads it:
+    --bin-resolution and --width for a .mat without them) or a datagen store. Prints each parameter with its
+    1-sigma error and 95 % interval, the goodness of fit, one line per parameter the data do not determine, and
+    writes --out (a configs/detectors YAML, checked by loading it). A return whose rising edge lies before the
+    histogram's first bin (the Stanford LCT files start at the direct light) is refused unless position and
+    jitter_sigma are held (--fix).
     """
-    from ..spad.fit import fit_detector
+    from ..spad.fit import fit_detector, rising_edge_missing
     from ..units import parse_duration, parse_rate
     from .errors import check_output_file
 
     if out is not None:
         check_output_file(out, "--out")
-    h, dt_file, t0_file = _histogram(Path(hist), pixel)
-    dt = parse_duration(bin_width) if bin_width is not None else dt_file
+    dt_given = bin_option(bin_width, "--bin-width")
+    h, dt_file, t0_file, what = _histogram(Path(hist), pixel, width_option(width),
+                                           bin_option(bin_resolution, "--bin-resolution") or dt_given)
+    fixed = _kv(fix, "--fix")
+    peak = rising_edge_missing(h)
+    if peak is not None and not {"position", "jitter_sigma"} <= set(fixed):
+        raise ValueError(f"{what}: the return peaks in bin {peak} of {h.size} and every bin before it holds more than "
+                         "half its peak: the histogram starts after the return's rising edge, so its position and "
+                         "jitter cannot be fitted (a fit gives a degenerate detector; the Stanford LCT files are "
+                         "cropped to start at the direct light); fit a histogram that holds the whole return, or "
+                         "hold both with --fix position=... --fix jitter_sigma=...")
+    dt = dt_given if dt_given is not None else dt_file
     if dt is None:
         raise click.BadParameter("the histogram file has no time axis: give --bin-width", param_hint="--bin-width")
     t0 = parse_duration(t_start) if t_start is not None else (t0_file or 0.0)
@@ -248,7 +322,7 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, t_start, model,
     fit = fit_detector(h, bin_width=dt, repetition_rate=parse_rate(repetition_rate), n_cycles=n_cycles, model=model,
                        irf=irf, t_start=max(t0, 0.0),
                        pulse_sigma=None if pulse_sigma is None else parse_duration(pulse_sigma),
-                       fixed=_kv(fix, "--fix"), fit_fraction=fit_fraction, initial=_kv(initial, "--initial") or None,
+                       fixed=fixed, fit_fraction=fit_fraction, initial=_kv(initial, "--initial") or None,
                        afterpulse_time_constant=None if afterpulse_tau is None else parse_duration(afterpulse_tau),
                        dead_time_bounds=bounds)
     click.echo(fit.summary())
@@ -265,8 +339,10 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, t_start, model,
 @click.option("--png", "png", type=click.Path(path_type=Path), default=None, help="side-by-side figure to write")
 @click.option("--width", type=float, default=None, help="REAL .mat without 'width' (m)")
 @click.option("--bin-resolution", "bin_resolution", default=None, help="REAL .mat without 'bin_resolution'")
+@click.option("--allow-negative", "allow_negative", is_flag=True,
+              help="REAL may hold negative bins (a background-subtracted capture)")
 @friendly_errors
-def compare_capture(real, sim, png, width, bin_resolution):
+def compare_capture(real, sim, png, width, bin_resolution, allow_negative):
     """Sim-to-real distance of REAL (a lab file or store) and SIM (a datagen result store or a lab file).
 
     Both are put on the hidden time axis (per-point offsets removed) at REAL's bin width and normalised; prints
@@ -274,13 +350,12 @@ def compare_capture(real, sim, png, width, bin_resolution):
     """
     from ..analysis.compare_capture import compare_captures
     from ..io.lab_formats import capture_kind
-    from ..units import parse_duration
     from .errors import check_output_file
 
     if png is not None:
         check_output_file(png, "--png")
-    bres = None if bin_resolution is None else parse_duration(bin_resolution)
-    r, r_off, r_desc = load_capture(real, width, bres)
+    r, r_off, r_desc = load_capture(real, width_option(width), bin_option(bin_resolution, "--bin-resolution"),
+                                    allow_negative)
     s, s_off, s_desc = load_capture(sim)
     (r_kind, r_what), (s_kind, s_what) = capture_kind(r), capture_kind(s)
     if "zones" in (r_kind, s_kind) and r_kind != s_kind:

@@ -55,6 +55,7 @@ def build(config_file, out, workers, scheduler, worker_timeout, resume, retries,
           split_counts):
     """Build the dataset of CONFIG_FILE (configs/datasets/*.yaml) into OUT, shard by shard."""
     from ..dataset import build_dataset, load_dataset_config
+    from ..dataset.probe import missed_notice
 
     config = load_dataset_config(config_file)
     if split_counts is not None:
@@ -67,6 +68,9 @@ def build(config_file, out, workers, scheduler, worker_timeout, resume, retries,
     click.echo(f"{out}: {report.shards_built} shards built ({report.samples_built} samples, "
                f"{report.samples_per_second:.2f} samples/s, {report.engine}), {report.shards_skipped} already done; "
                f"status {report.card.get('status')}; per sample {timing.get('mean', float('nan')):.3f} s mean")
+    missed = missed_notice(report.card)
+    if missed is not None:     # with or without --quiet: a dataset that misses its target says so
+        click.echo(f"warning: {missed}", err=True)
 
 
 def _cut_splits(config, text: str, config_file) -> dict:

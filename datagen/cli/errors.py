@@ -97,3 +97,16 @@ def check_output_file(path: Path, option: str) -> None:
         raise FileExistsError(f"{option} {path}: {path.parent} is a file, not a directory")
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{option} {path}: directory {path.parent} does not exist")
+
+
+def announce_work(scene, config) -> None:
+    """Before a simulation's work: check its memory and every knob's bound (:func:`datagen.simulation.budget.
+    check_simulation_memory`: one ``error:`` line when one fails), then print the projection of long work as one
+    ``note:`` line on stderr, --quiet or not (:func:`datagen.simulation.bounds.long_work_line`)."""
+    from ..simulation.bounds import long_work_line
+    from ..simulation.budget import check_simulation_memory
+
+    check_simulation_memory(scene, config)
+    line = long_work_line(scene, config)
+    if line is not None:
+        click.echo(f"note: {line}", err=True)

@@ -17,7 +17,7 @@ from ..transport import estimator_names
 from .bench import bench
 from .capture import compare_capture, export, fit_detector_cmd, import_capture
 from .dataset import build, inspect, score, verify
-from .errors import friendly_errors
+from .errors import announce_work, friendly_errors
 from .suite import suite
 from .tal import export_tal, read_result_input, tal_render
 from .multizone import is_multizone_file, multizone, run_multizone
@@ -45,6 +45,11 @@ def _parse_fraction(text: str, option: str, minimum: float = 0.0) -> float:
     return value
 
 
+MAX_TIME_CAP_S = 86400.0
+"""Largest ``--time-cap``: a day (the tolerance loop refuses projections beyond ten times the cap, so a larger cap
+would let it run for weeks)."""
+
+
 def _parse_time_cap(text: str | None) -> float | None:
     """'120s' / '2.5' (seconds) → seconds > 0; click.BadParameter naming --time-cap otherwise."""
     if text is None:
@@ -54,8 +59,9 @@ def _parse_time_cap(text: str | None) -> float | None:
         value = parse_duration(text)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--time-cap") from None
-    if not (math.isfinite(value) and value > 0):
-        raise click.BadParameter(f"must be a finite duration > 0, got {text!r}", param_hint="--time-cap")
+    if not (math.isfinite(value) and 0 < value <= MAX_TIME_CAP_S):
+        raise click.BadParameter(f"must be a duration > 0 and at most {MAX_TIME_CAP_S:g} s (a day), got {text!r}",
+                                 param_hint="--time-cap")
     return value
 
 
@@ -113,6 +119,7 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
     scene = load_scene(scene_file)
     config = resolve_config(scene, {**overrides, "effect_threshold": tol})
     cap = _parse_time_cap(time_cap)
+    announce_work(scene, config)
     if tol is not None:
         from ..simulation import ToleranceOutOfReach, simulate_to_tolerance
         from ..simulation.tolerance import FIXED_LIMIT

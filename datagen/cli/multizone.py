@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 
 from ..errors import ConfigError
-from .errors import friendly_errors
+from .errors import announce_work, friendly_errors
 
 
 def is_multizone_file(path: Path) -> bool:
@@ -64,6 +64,7 @@ def run_multizone(scene_file: Path, out: Path, overrides: dict, nodes: str | Non
     if nodes is not None:
         spec = _with_nodes(spec, nodes)
     config = resolve_config(scene, overrides)
+    announce_work(scene, config)
     result = simulate_multizone(scene, spec, config, progress=progress)
     out.mkdir(parents=True, exist_ok=True)
     write_result(result, out / RESULT_NAME)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from .. import validate
 from ..transport import estimator_names
 
 from .errors import friendly_errors
@@ -163,6 +164,7 @@ def export_tal(result_path, out, split, index, use_counts, float32, compression)
     else:
         result = read_result_input(result_path, "export-tal", "give --split and --index to export one of its "
                                    "samples")
+    validate.result_values(result, f"store {result_path}", allow_negative=True)   # NaN / inf named, not written
     out.parent.mkdir(parents=True, exist_ok=True)
     write_tal_hdf5(result, out, compression_level=compression, dtype="float32" if float32 else "float64",
                    scene_info=info)

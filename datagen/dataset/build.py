@@ -38,12 +38,13 @@ from .config import DatasetConfig, Sample, config_from_json, load_dataset_config
 from .probe import probe_notice
 from ..errors import DatasetError
 from ..units import format_duration
-from .dask_engine import FATAL_ERRNOS, WORKER_TIMEOUT_S, check_worker_timeout, connect_dask, fatal_error, run_dask
+from .dask_engine import (FATAL_ERRNOS, WORKER_TIMEOUT_S, StoreWriteError, check_worker_timeout, connect_dask,
+                          fatal_error, named_write_errors, run_dask)
 from .integrity import remove_shard_files, repair_store
 from .store import (DONE_DIR, LOCK_NAME, BuildLock, ShardTask, card_layout, check_dataset_dir, check_same_assets,
                     check_same_config, consolidate, file_sha256, finish_card, initialize_card, marker_path,
                     plan_shards, read_card, read_marker, shard_file, write_json_atomic, zarr_module)
-from .workers import BUILD_PID_ENV, init_worker
+from .workers import BUILD_PID_ENV, check_build_options, init_worker
 
 DEFAULT_RETRIES = 2
 DEFAULT_TASKS_PER_CHILD = 4
@@ -62,10 +63,6 @@ class BuildError(RuntimeError):
     def __init__(self, message: str, failures: dict[tuple[str, int], str]):
         super().__init__(message)
         self.failures = failures
-
-
-class StoreWriteError(OSError):
-    """The store cannot be written (:data:`FATAL_ERRNOS`); finished shards are kept, the build resumes later."""
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -287,10 +284,10 @@ PROJECTION_NOTE_S = 60.0
 def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, project: bool = True) -> Sample:
     """Sample 0 of the first non-empty split: its shapes fix the dataset's (computed before any write).
 
-    With ``progress``, one line on stderr says the probe runs (it may take minutes), its tolerance loop reports
-    each round (and the transport's bar), and (``project``: a new build) a build projected beyond
-    :data:`PROJECTION_NOTE_S` says how long it projects on ``processes``. A new build's probe that missed its
-    tolerance says so in one line (:func:`probe_notice`) before the build spends, with or without ``progress``."""
+    With ``progress``, one line on stderr says the probe runs (it may take minutes) and its tolerance loop reports
+    each round (and the transport's bar). With or without it, a new build (``project``) projected beyond
+    :data:`PROJECTION_NOTE_S` says how long on ``processes``, and a probe that missed its tolerance says so in one
+    line (:func:`probe_notice`), before the build spends."""
     split = _first_split(config)
     if progress:
         print(f"build {config.name}: probe sample ({split}, 0) first: its arrays fix the dataset's shapes",
@@ -300,7 +297,7 @@ def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, pr
     seconds = time.perf_counter() - t0
     total = sum(spec.count for spec in config.splits.values())
     projected = seconds * total / max(processes, 1)
-    if progress and project and projected > PROJECTION_NOTE_S:
+    if project and projected > PROJECTION_NOTE_S:          # a long build says so, --quiet or not
         print(f"build {config.name}: the probe took {seconds:.3g} s; {total} samples project to about "
               f"{format_duration(projected)} on {processes} process{'es' if processes > 1 else ''} (samples differ: "
               "the bar's ETA follows the build)", file=sys.stderr)
@@ -308,25 +305,6 @@ def _probe(config: DatasetConfig, progress: bool = False, processes: int = 1, pr
     if line is not None:
         print(line, file=sys.stderr)
     return probe
-
-
-def check_build_options(workers: int | None, scheduler: str | None, retries: int, max_tasks_per_child: int) -> None:
-    """Refuse invalid build options before anything runs or is written.
-
-    Raises:
-        ValueError: naming the option (CLI spelling) and the value.
-    """
-    def is_int(v):
-        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-
-    if workers is not None and not (is_int(workers) and workers >= 0):
-        raise ValueError(f"--workers must be an integer >= 0, got {workers!r}")
-    if not (is_int(retries) and retries >= 0):
-        raise ValueError(f"--retries must be an integer >= 0, got {retries!r}")
-    if not (is_int(max_tasks_per_child) and max_tasks_per_child >= 1):
-        raise ValueError(f"--tasks-per-worker must be an integer >= 1, got {max_tasks_per_child!r}")
-    if scheduler is not None and scheduler != "local" and (not isinstance(scheduler, str) or "://" not in scheduler):
-        raise ValueError(f"--scheduler must be 'local' or an address such as tcp://HOST:8786, got {scheduler!r}")
 
 
 def check_shard_memory(config: DatasetConfig, probe: Sample, processes: int) -> None:
@@ -496,8 +474,10 @@ def _build(config: DatasetConfig, root: Path, probe: Sample, pinned: tuple[list[
     root.mkdir(parents=True, exist_ok=True)
     try:
         with BuildLock(root):
-            card, repairs = _open_store(root, config, probe, pinned, resume)
-            repairs += repair_store(root, card, config)
+            with named_write_errors(f"{'opening' if resume else 'creating'} the dataset store {root}", "free space, "
+                                    "then run again" + (" with --resume (its shards are kept)" if resume else "")):
+                card, repairs = _open_store(root, config, probe, pinned, resume)
+                repairs += repair_store(root, card, config)
             report = _run(config, root, card, cfg_json, dask, workers, scheduler, retries, max_tasks_per_child,
                           progress, on_shard, engine, t_start)
             report.repairs = repairs

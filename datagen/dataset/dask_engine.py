@@ -18,6 +18,7 @@ import sys
 import time
 import traceback
 from collections import Counter
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
@@ -30,6 +31,9 @@ SCHEDULER_TIMEOUT_S = 10
 WORKER_TIMEOUT_S = 60.0
 """Default seconds a build waits for at least one Dask worker on its scheduler (``--worker-timeout``): when
 it connects, and whenever every worker is gone during the build."""
+
+MAX_WORKER_TIMEOUT_S = 86400.0
+"""Longest ``--worker-timeout``: a day."""
 
 WATCH_S = 2.0
 """Seconds between checks of the worker count while no shard finishes."""
@@ -46,6 +50,23 @@ class SchedulerError(ConfigError):
 def fatal_error(exc: BaseException | None) -> bool:
     """True for a write error no retry can fix (:data:`FATAL_ERRNOS`)."""
     return isinstance(exc, OSError) and exc.errno in FATAL_ERRNOS
+
+
+class StoreWriteError(OSError):
+    """The store cannot be written (:data:`FATAL_ERRNOS`); finished shards are kept, the build resumes later."""
+
+
+@contextmanager
+def named_write_errors(doing: str, then: str):
+    """Turn a :func:`fatal_error` raised inside into a :class:`StoreWriteError` of one line naming what was being
+    written and the file, when known: "No space left on device while ``doing`` (FILE); ``then``"."""
+    try:
+        yield
+    except OSError as exc:
+        if not fatal_error(exc):
+            raise
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        raise StoreWriteError(exc.errno, f"{os.strerror(exc.errno)} while {doing}{where}; {then}") from None
 
 
 def one_line(exc: BaseException) -> str:
@@ -88,11 +109,14 @@ class DaskConnection:
 
 
 def check_worker_timeout(worker_timeout) -> None:
-    """Refuse a worker timeout that is not a positive finite number of seconds (ValueError naming
-    ``--worker-timeout``)."""
+    """Refuse a worker timeout that is not a number of seconds > 0 and at most :data:`MAX_WORKER_TIMEOUT_S`
+    (ValueError naming ``--worker-timeout``)."""
     ok = isinstance(worker_timeout, (int, float)) and not isinstance(worker_timeout, bool)
     if not (ok and 0 < worker_timeout < float("inf")):
         raise ValueError(f"--worker-timeout must be a number of seconds > 0, got {worker_timeout!r}")
+    if worker_timeout > MAX_WORKER_TIMEOUT_S:
+        raise ValueError(f"--worker-timeout {worker_timeout:g} is above its bound of {MAX_WORKER_TIMEOUT_S:g} s (a "
+                         "day): a build waits that long at most for a worker")
 
 
 def connect_dask(scheduler: str, workers: int | None, worker_timeout: float = WORKER_TIMEOUT_S,

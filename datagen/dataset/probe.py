@@ -1,4 +1,5 @@
-"""What a build's probe sample says before the build spends (:func:`probe_notice`).
+"""What a build's probe sample says before the build spends (:func:`probe_notice`), and what its samples' accuracy
+says once it has built them (:func:`missed_notice`).
 
 The probe (sample 0 of the first non-empty split, :func:`datagen.dataset.build.build_dataset`) runs before anything is
 written; when it misses the config's tolerance, one line says why: the cap it stopped at (``cost_cap``, nominal
@@ -33,3 +34,19 @@ def probe_notice(config: DatasetConfig, split: str, probe: Sample) -> str | None
     need = f"; meeting it projects about {projected:.3g} nominal s per sample" if projected is not None else ""
     return (f"{head} {stop}, above {tol}{need}: samples that miss it are built and listed in the card (raise "
             "cost_cap or the tolerance to meet it)")
+
+
+def missed_notice(card: dict) -> str | None:
+    """One line when built samples missed the tolerance (None when none did): how many of how many, their
+    estimated errors, where the card lists them and what to change. Read from the card's ``accuracy``
+    (:func:`datagen.dataset.store.finish_card`), so a resumed build counts every shard done."""
+    acc = card.get("accuracy") or {}
+    missed, errors = int(acc.get("n_missed") or 0), acc.get("envelope_error") or {}
+    if not missed:
+        return None
+    def pct(key: str) -> str:
+        return f"{100 * float(errors.get(key) or 0):.3g}%"
+    return (f"{missed} of {errors.get('n', missed)} samples missed the tolerance {100 * acc['tolerance']:.3g}% "
+            f"(estimated envelope errors {pct('min')} .. {pct('max')}, median {pct('median')}); they are stored with "
+            f"their error and listed in the card (accuracy.missed): raise cost_cap ({acc.get('time_cap_s', 0):g} s) "
+            "or loosen the tolerance")

@@ -16,13 +16,27 @@ process when its parent dies, so:
   workers) is gone.
 
 Measured by tests/test_hostile_build.py: no process of a SIGKILLed build is left after 5 s.
+
+:func:`check_build_options` checks the options that start and recycle the workers (with their upper bounds)
+before a build runs anything.
 """
 from __future__ import annotations
 
 import os
 import signal
 
+import numpy as np
+
 from ..processes import process_alive, set_parent_death_signal, watch_process
+
+MAX_BUILD_WORKERS = 1024
+"""Most worker processes (``--workers``; a Dask LocalCluster starts that many): each holds a sample's arrays."""
+
+MAX_RETRIES = 100
+"""Most extra attempts of a failed shard (``--retries``): a shard failing that often fails for good."""
+
+MAX_TASKS_PER_WORKER = 10**6
+"""Most shards a local worker computes before it is replaced (``--tasks-per-worker``)."""
 
 BUILD_PID_ENV = "DATAGEN_BUILD_PID"
 """Environment variable holding the pid of the build process, read by the fork server's preload module."""
@@ -49,3 +63,24 @@ def init_worker(build_pid: int) -> None:
     ``build_pid`` (watch thread)."""
     set_parent_death_signal()
     watch_process(build_pid)
+
+
+def check_build_options(workers: int | None, scheduler: str | None, retries: int, max_tasks_per_child: int) -> None:
+    """Refuse invalid build options before anything runs or is written: ``--workers`` 0 ..
+    :data:`MAX_BUILD_WORKERS`, ``--retries`` 0 .. :data:`MAX_RETRIES`, ``--tasks-per-worker`` 1 ..
+    :data:`MAX_TASKS_PER_WORKER`, ``--scheduler`` "local" or an address.
+
+    Raises:
+        ValueError: naming the option (CLI spelling) and the value.
+    """
+    for option, value, low, high in (("--workers", workers, 0, MAX_BUILD_WORKERS),
+                                     ("--retries", retries, 0, MAX_RETRIES),
+                                     ("--tasks-per-worker", max_tasks_per_child, 1, MAX_TASKS_PER_WORKER)):
+        if value is None and option == "--workers":
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise ValueError(f"{option} must be an integer >= {low}, got {value!r}")
+        if value > high:
+            raise ValueError(f"{option} {value} is above its bound of {high}: give at most {high}")
+    if scheduler is not None and scheduler != "local" and (not isinstance(scheduler, str) or "://" not in scheduler):
+        raise ValueError(f"--scheduler must be 'local' or an address such as tcp://HOST:8786, got {scheduler!r}")

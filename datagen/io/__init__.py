@@ -19,7 +19,7 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.io.tal`: tal render YAML → scene and :class:`TalCapture` (frames, units, radiometry);
 - :mod:`~datagen.io.tal_hdf5`: tal's HDF5 capture layout, a result as tal's fields, HDF5 read/write.
 - :mod:`~datagen.io.lab_formats`: real labs' files both ways: Stanford LCT / f-k ``.mat`` (v5, v7.3) and
-  ZNLOS HDF5 (docs/capture_io.md).
+  ZNLOS HDF5 (docs/capture_io.md); :mod:`~datagen.io.lab_checks` checks their fields once read.
 """
 from .store import read_result, write_detection, write_result
 from .tal import scene_from_tal_yaml

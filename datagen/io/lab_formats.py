@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from .. import validate
 from ..errors import DatasetError
 from ..units import SPEED_OF_LIGHT
+from .lab_checks import MAT_FORMATS, check_mat_fields, check_znlos_fields
 
 __all__ = [
     "FORMATS", "MAT_FORMATS", "LabCapture", "read_lab_capture", "write_lab_capture", "capture_from_result",
@@ -34,9 +34,6 @@ __all__ = [
 
 FORMATS = ("lct-mat", "fk-mat", "znlos")
 """Lab formats read and written here (tal's HDF5 is :mod:`datagen.io.tal_hdf5`)."""
-
-MAT_FORMATS = {"lct-mat": "rect_data", "fk-mat": "meas"}
-"""Field holding the transients in each ``.mat`` layout."""
 
 ZNLOS_FIELDS = ("data", "deltaT", "t0", "cameraPosition", "cameraGridPositions", "cameraGridNormals",
                 "cameraGridPoints", "cameraGridSize", "laserPosition", "laserGridPositions", "laserGridNormals",
@@ -280,7 +277,7 @@ def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolu
     if fmt == "znlos":
         raw = _read_hdf5_fields(path, ZNLOS_FIELDS, transpose=False)
         cap = LabCapture(fmt, raw, None, str(path))
-        _check_znlos(cap, path, allow_negative)
+        check_znlos_fields(cap, path, allow_negative)
         return cap
     raw = _read_mat(path, version)
     if tofgrid_path is not None:
@@ -293,12 +290,13 @@ def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolu
         if "tofgrid" not in extra:
             raise DatasetError(f"{tofgrid_path}: no 'tofgrid' field (found {sorted(extra)[:8]})")
         raw["tofgrid"] = extra["tofgrid"]
-    if "width" not in raw and width is not None:
-        raw["width"] = np.array([[float(width)]])
-    if "bin_resolution" not in raw and bin_resolution is not None:
-        raw["bin_resolution"] = np.array([[float(bin_resolution)]])
+    given = set()
+    for key, value in (("width", width), ("bin_resolution", bin_resolution)):
+        if key not in raw and value is not None:
+            raw[key] = np.array([[float(value)]])
+            given.add(key)
     cap = LabCapture(fmt, raw, version, str(path))
-    _check_mat(cap, path, allow_negative)
+    check_mat_fields(cap, path, allow_negative, given)
     return cap
 
 
@@ -332,48 +330,6 @@ def _read_hdf5_fields(path: Path, names, transpose: bool) -> dict:
                 value = value.T
             out[key] = np.asarray(value)
     return out
-
-
-def _check_mat(cap: LabCapture, path: Path, allow_negative: bool = False) -> None:
-    name = MAT_FORMATS[cap.format]
-    d = np.asarray(cap.raw[name])
-    if d.ndim != 3 or min(d.shape[:2]) < 1:
-        raise DatasetError(f"{path}: {name}: expected (N, N, T) transients, got shape {d.shape}")
-    if d.shape[2] < 2:
-        raise DatasetError(f"{path}: {name}: {d.shape[2]} time bin(s) per transient (shape {d.shape}); a transient "
-                           "needs at least 2")
-    validate.transients(d, str(path), name, allow_negative)
-    for key, hint in (("width", "half width of the scanned wall in m (--width)"),
-                      ("bin_resolution", "bin width in s (--bin-resolution)")):
-        if key not in cap.raw:
-            raise DatasetError(f"{path}: no '{key}' field; give the {hint}")
-        v = np.asarray(validate.real_values(cap.raw[key], str(path), key, "lengths and durations"), dtype=np.float64)
-        if v.size != 1 or not (np.isfinite(v).all() and float(v.reshape(())) > 0):
-            raise DatasetError(f"{path}: {key}: expected one number > 0, got {v.ravel()[:4].tolist()}")
-    tof = cap.raw.get("tofgrid")
-    if tof is not None:
-        validate.time_offsets(tof, str(path), "tofgrid", d.shape[:2])
-
-
-def _check_znlos(cap: LabCapture, path: Path, allow_negative: bool = False) -> None:
-    for key in ("data", "deltaT", "t0", "cameraPosition", "laserPosition", "cameraGridPositions",
-                "cameraGridNormals"):
-        if key not in cap.raw:
-            raise DatasetError(f"{path}: ZNLOS field '{key}' is missing")
-    d = cap.raw["data"]
-    if d.ndim not in (5, 7):
-        raise DatasetError(f"{path}: data: expected (colors, T, bounces, ny, nx[, ly, lx]), got shape {d.shape}")
-    if cap.sensor_points().shape[:2] != d.shape[3:5]:
-        raise DatasetError(f"{path}: cameraGridPositions {np.shape(cap.raw['cameraGridPositions'])} does not match "
-                           f"data's grid {d.shape[3:5]}")
-    if d.ndim == 7 and cap.capture_type == "exhaustive" and "laserGridPositions" not in cap.raw:
-        raise DatasetError(f"{path}: ZNLOS field 'laserGridPositions' is missing")
-    validate.transients(d, str(path), "data", allow_negative)
-    for key in ("deltaT", "t0"):
-        v = validate.real_values(cap.raw[key], str(path), key, "times")
-        if v.size != 1 or not np.isfinite(v).all() or (key == "deltaT" and float(v.reshape(())) <= 0):
-            raise DatasetError(f"{path}: {key}: expected one finite number{' > 0' if key == 'deltaT' else ''}, got "
-                               f"{np.ravel(v)[:4].tolist()}")
 
 
 # -------------------------------------------------------------------------------------------------------------

@@ -22,9 +22,14 @@ its module.
   estimate meets a target; ``simulate --tolerance``, dataset builds).
 - :mod:`.multizone`: :func:`~.multizone.simulate_multizone`, a flood-illuminated multi-zone capture (zone
   envelopes and histograms composed from the flood's nodes; docs/multizone.md).
+- :mod:`.fov_sampling`: what a run sampled of the sensor grid: zones its fixed FoV points cannot resolve,
+  refused or warned about before the work (:func:`~.fov_sampling.zone_sampling`), and the true reason of a zero
+  envelope (:func:`~.fov_sampling.zero_reason`).
 - :mod:`.provenance`: :func:`~.provenance.library_versions`, the versions every result and card records.
 - :mod:`.budget`: the memory a simulation needs, estimated before allocating (:func:`simulation_memory`), and
   the refusal (:class:`ResourceError`) when it exceeds the memory available.
+- :mod:`.bounds`: the upper bound of every numeric knob (light paths, samples, grids, bins, workers), checked
+  before any work, and the projection of long work (:func:`~.bounds.projected_work`).
 """
 from ..lazy import lazy_attributes
 

@@ -6,7 +6,8 @@ bins), the lookin grid, the camera rays of one slice (pixels per lookin) and the
 (pixels²), the capture's laser and sensor grids, the area sampler's hidden samples and the quadrature's
 sub-triangles (edge) — each with the field that sets it. :func:`check_simulation_memory` compares the total with the memory available to this process
 (:func:`available_memory`) and raises :class:`ResourceError` naming the dominant field, its value and both
-figures in GiB. ``simulate`` and ``simulate_to_tolerance`` call it before building anything
+figures in GiB, then checks every knob's bound of work (:mod:`.bounds`). ``simulate`` and
+``simulate_to_tolerance`` call it before building anything
 (:func:`datagen.simulation.run.run_transport`); dataset builds add their shard buffers
 (:mod:`datagen.dataset.build`).
 
@@ -26,6 +27,7 @@ from ..scene import Scene
 from ..timing import EnvelopeAccumulator
 from ..transport import estimator
 from ..transport.base import TARGET_BYTES
+from .bounds import check_bounds
 from .config import SimulationConfig
 
 GIB = float(1 << 30)
@@ -139,12 +141,15 @@ def check_simulation_memory(scene: Scene, config: SimulationConfig) -> float:
     available; returns the estimate in bytes.
 
     Raises:
-        ResourceError: naming the scene file, the dominant field, its value and both figures in GiB.
+        ResourceError: naming the scene file, the dominant field, its value and both figures in GiB;
+        ConfigError: a knob beyond its bound of work (:func:`datagen.simulation.bounds.check_bounds`).
     """
+    check_bounds(scene, config, memory=False)    # the knobs of work alone (light paths, workers, …) first
     terms = simulation_memory(scene, config)
     total = sum(t[2] for t in terms)
     field, value, _ = terms[0]
     where = f"{scene.source} (simulation): " if scene.source else "simulation: "
     check_memory(total, field, value, where)
+    check_bounds(scene, config, memory=True)     # then those memory counted too: the bound of their work
     return total
 

@@ -8,6 +8,7 @@ decides pile-up from the envelope itself; :func:`detector_counts` draws the hist
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 import numpy as np
 
@@ -19,6 +20,7 @@ from ..scene import Scene
 from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..transport.base import Estimator
 from .config import STREAM_NOISE, SimulationConfig, stream_rng
+from .fov_sampling import zero_reason
 from .provenance import library_versions
 
 
@@ -135,19 +137,27 @@ def detector_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: 
     return counts, detector, plan_attrs
 
 
-def zero_envelope_warning(envelope: np.ndarray, outside: np.ndarray, config: SimulationConfig,
-                          target: str) -> list[str]:
+def zero_envelope_warning(envelope: np.ndarray, outside: np.ndarray, config: SimulationConfig, target: str,
+                          why: Callable[[], str] | None = None) -> list[str]:
     """[] when the envelope holds light, else one warning saying why it is zero: the light reaching ``target``
     ("the FoV", "the zones") arrives outside the time window (``outside``: the transport's weight outside it), or
-    no light path reaches it at all."""
+    no sample found light at all, with ``why()`` saying what was sampled and what that can mean
+    (:func:`datagen.simulation.fov_sampling.zero_reason`)."""
     if np.any(envelope):
         return []
     if float(np.sum(outside)) > 0:
         edges = config.time.edges
         return [f"the envelope is zero: the light that reaches {target} arrives outside the time window "
                 f"{edges[0] * 1e9:.4g}..{edges[-1] * 1e9:.4g} ns; widen simulation.time (t_start, bin_width, n_bins)"]
-    return [f"no light path reaches {target}: the envelope is zero (no path from the laser reaches the sensor "
-            "grid; counts hold background only)"]
+    reason = why() if why is not None else "no sample found a path from the laser to the sensor grid"
+    return [f"the envelope of {target} is zero: {reason}; counts hold background only"]
+
+
+def sampling_words(config: SimulationConfig) -> str:
+    """The estimator's sampling setting in words (its registry entry's ``describe``), or its name."""
+    from ..transport import estimator
+    entry = estimator(config.estimator.kind)
+    return entry.describe(config.estimator) if entry.describe is not None else config.estimator.kind
 
 
 def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
@@ -159,7 +169,8 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
     shape = capture.channel_shape() + (config.time.n_bins,)
     components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
     envelope = tr.binned.sum(axis=0).reshape(shape)
-    warnings = list(scene.notes) + zero_envelope_warning(envelope, tr.outside, config, "the FoV")
+    warnings = list(scene.notes) + zero_envelope_warning(envelope, tr.outside, config, "the FoV",
+                                                         lambda: zero_reason(scene, transport, sampling_words(config)))
     t3 = time.perf_counter()
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
     counts, detector, plan_attrs = detector_counts(envelope, config, tr.plan.to_attrs(), noise_rng,

@@ -27,7 +27,8 @@ from ..scene.flood import (FloodProfile, MultizoneSpec, ZoneCoverageWarning, flo
                            flood_weights, node_weights, with_flood, zone_coverage_warning)
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
 from .provenance import library_versions
-from .detection import Result, detector_counts, zero_envelope_warning
+from .detection import Result, detector_counts, sampling_words, zero_envelope_warning
+from .fov_sampling import zone_sampling, zero_reason
 from .run import Replicas
 
 
@@ -93,6 +94,10 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
     coverage = zone_coverage_warning(runs.transport.capture, spec)
     if coverage is not None:
         warnings.warn(ZoneCoverageWarning(coverage), stacklevel=2)
+    sampled = zone_sampling(runs.transport, runs.planned.caster, "multizone.zones",
+                            f"{scene.source}: " if scene.source else "")
+    if sampled is not None:
+        warnings.warn(ZoneCoverageWarning(sampled), stacklevel=2)
     runs.run(config.error.replicas, progress)
     tr = runs.transported()
     capture = tr.transport.capture
@@ -116,8 +121,9 @@ def simulate_multizone(scene: Scene, spec: MultizoneSpec, config: SimulationConf
         "error": runs.error_attrs(tr, rng),
         "units": ZONE_UNITS,
         "photons_per_pulse": capture.photons,
-        "warnings": (list(scene.notes) + ([coverage] if coverage is not None else [])
-                     + zero_envelope_warning(envelope, tr.outside, config, "the zones")),
+        "warnings": (list(scene.notes) + [w for w in (coverage, sampled) if w is not None]
+                     + zero_envelope_warning(envelope, tr.outside, config, "the zones", lambda: zero_reason(
+                         scene, tr.transport, sampling_words(config)))),
         "timings_s": {**tr.seconds, "total": time.perf_counter() - t0},
         "versions": library_versions(),
     }

@@ -56,7 +56,7 @@ from .rates import rates_from_envelope
 
 __all__ = [
     "IDENTIFIABLE_SPAN", "FIT_MODELS", "IRF_SHAPES", "DetectorFit", "return_envelope", "fit_detector",
-    "fit_parameter_names", "joint_z",
+    "fit_parameter_names", "joint_z", "rising_edge_missing",
 ]
 
 IDENTIFIABLE_SPAN = 10.0
@@ -130,6 +130,17 @@ def return_envelope(n_bins: int, bin_width: float, position: float, signal: floa
             env[k] = signal
         return env
     return signal * np.diff(special.ndtr((edges - position) / pulse_sigma))
+
+
+def rising_edge_missing(histogram: Any) -> int | None:
+    """The peak bin of a histogram whose return starts before its first bin, else None: every bin up to the peak
+    of the background-subtracted counts holds more than half of it (the rising half maximum is not in the window),
+    so the return's position and jitter are not in the data (a fit drives the jitter to 0). The background is the
+    mean of the lowest quarter of the bins, as :func:`fit_detector` starts from."""
+    h = np.asarray(histogram, dtype=np.float64)
+    net = h - float(np.mean(np.sort(h)[: max(h.size // 4, 1)]))
+    peak = int(np.argmax(net))
+    return peak if net[peak] > 0 and bool(np.all(net[: peak + 1] > 0.5 * net[peak])) else None
 
 
 def fit_parameter_names(model: str, irf: str, fit_fraction: bool, afterpulsing: bool = False) -> list[str]:
@@ -243,7 +254,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
     Raises:
         ConfigError: bad arguments (unknown model, IRF, covariance or parameter, a sandwich for a model whose
             likelihood is exact, a histogram that is empty, negative, non-integer or has no counts); the message
-            names the argument and the value.
+            names the argument and the value; a return whose rising edge is before the first bin
+            (:func:`rising_edge_missing`) unless ``position`` and ``jitter_sigma`` are held.
     """
     h = np.asarray(histogram)
     if h.ndim != 1 or h.size < MIN_HISTOGRAM_BINS:
@@ -294,6 +306,11 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         lo_dt, hi_dt = 2 * bin_width, MAX_DEAD_TIME_PERIODS / repetition_rate
     names_all = fit_parameter_names(model, irf, fit_fraction, afterpulse_time_constant is not None)
     fixed = dict(fixed or {})
+    peak = rising_edge_missing(h)
+    if peak is not None and not {"position", "jitter_sigma"} <= set(fixed):
+        raise ConfigError(f"histogram: the return peaks in bin {peak} of {n_bins} with every bin before it above half "
+                          "its peak (its rising edge is before the first bin): position and jitter_sigma cannot be "
+                          "fitted; give a histogram that holds the whole return, or hold both (fixed={...})")
     for k in fixed:
         if k not in names_all and k != "diffusion_fraction":
             raise ConfigError(f"fixed: unknown parameter {k!r} for model {model!r}, IRF {irf!r} (parameters: "
