@@ -198,7 +198,8 @@ def test_confocal_sample_exported_to_lct_reconstructs_at_the_same_depth(tmp_path
 
 
 def test_the_readme_capture_recipe_round_trips_a_simulated_histogram(tmp_path):
-    """README: simulate the bundled confocal scene, export its SPAD counts as an LCT .mat, import it, compare."""
+    """README: simulate the bundled confocal scene, export its SPAD counts as an LCT .mat, import it, compare,
+    reconstruct."""
     from click.testing import CliRunner
 
     from datagen.cli.main import main
@@ -218,3 +219,5 @@ def test_the_readme_capture_recipe_round_trips_a_simulated_histogram(tmp_path):
     assert np.array_equal(imported.counts, counts)          # integers in float64: exact
     out = run.invoke(main, ["compare-capture", str(real), str(sim), "--png", str(tmp_path / "c.png")])
     assert out.exit_code == 0 and "peak time" in out.output, out.output
+    out = run.invoke(main, ["reconstruct", str(real), "--out", str(tmp_path / "rec")])     # the box, 0.7 m away
+    assert out.exit_code == 0 and "median depth 0.7" in out.output, out.output
