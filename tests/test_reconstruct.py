@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from datagen.analysis.confocal import align_confocal, direct_light_bins, grid_pitch
+from datagen.analysis.confocal import align_confocal, direct_light_bins, grid_pitches
 from datagen.analysis.lct import lct_volume
 from datagen.analysis.reconstruct import coarsen, confocal_volume, depth_map
 from datagen.units import SPEED_OF_LIGHT as C
@@ -16,13 +16,13 @@ HALF = 0.375                                           # the LCT grid linspace(�
 PITCH = 2 * HALF / (N - 1)
 
 
-def point_scan(depth: float, offset: float = 0.0) -> np.ndarray:
-    """(N, N, M) transients of a point `depth` m before the centre of the scan: one count at its round trip
-    2·|x − p|/c (+ ``offset`` s) at every scan point."""
+def point_scan(depth: float, offset: float = 0.0, rows: np.ndarray | None = None) -> np.ndarray:
+    """(N, N, M) transients of a point `depth` m before the centre of the scan (rows at ``rows`` m, default the
+    columns' grid): one count at its round trip 2·|x − p|/c (+ ``offset`` s) at every scan point."""
     xs = np.linspace(-HALF, HALF, N)
-    gy, gx = np.meshgrid(xs, xs, indexing="ij")
+    gy, gx = np.meshgrid(xs if rows is None else rows, xs, indexing="ij")
     t = 2 * np.sqrt(depth ** 2 + gx ** 2 + gy ** 2) / C + offset
-    scan = np.zeros((N, N, M))
+    scan = np.zeros(gx.shape + (M,))
     np.put_along_axis(scan, (t // DT).astype(int)[..., None], 1.0, axis=2)
     return scan
 
@@ -89,10 +89,21 @@ def test_each_method_finds_the_point_at_its_depth(method):
     assert np.isfinite(depth[iy, ix]) and np.isnan(depth).any() and front.shape == (N, N)
 
 
-def test_bins_are_summed_in_pairs_down_to_the_limit_and_lct_needs_a_square_grid():
+@pytest.mark.parametrize("method", ["lct", "phasor"])
+def test_a_rectangle_of_two_pitches_puts_the_point_where_it_is(method):
+    """12 rows 8 cm apart, 16 columns 5 cm apart: the kernel takes each axis's pitch (a point 10 cm up, centred)."""
+    rows = np.linspace(-0.44, 0.44, 12)
+    vol, depths, _ = confocal_volume(point_scan(0.45, rows=rows - 0.10), DT, (0.08, PITCH), method)
+    iy, ix, k = np.unravel_index(vol.argmax(), vol.shape)
+    assert vol.shape[:2] == (12, N) and depths[k] == pytest.approx(0.45, abs=0.02)
+    assert rows[iy] == pytest.approx(0.10, abs=0.08) and abs(ix - 7.5) <= 1
+
+
+def test_bins_are_summed_in_pairs_and_a_grid_has_one_pitch_per_axis():
     scan, dt = coarsen(np.ones((2, 2, 2048)), 4e-12, 512)
     assert scan.shape == (2, 2, 512) and dt == 16e-12 and scan.sum() == 4 * 2048
-    with pytest.raises(ValueError, match="lct needs an N x N scan; this one is 16 x 8"):
-        confocal_volume(np.zeros((16, 8, 64)), DT, PITCH)
-    with pytest.raises(ValueError, match="not a grid of one pitch"):
-        grid_pitch(np.stack(np.meshgrid(np.arange(3) * 0.1, np.arange(4) * 0.2, [0.0]), -1)[..., 0, :])
+    grid = np.stack(np.meshgrid(np.arange(3) * 0.1, np.arange(4) * 0.2, [0.0]), -1)[..., 0, :]   # (4, 3, 3)
+    assert grid_pitches(grid) == pytest.approx((0.2, 0.1))
+    grid[0, 0, 0] = 0.03
+    with pytest.raises(ValueError, match="not a regular grid: the spacing between rows runs from 0.2 m to 0.202"):
+        grid_pitches(grid)

@@ -103,20 +103,23 @@ def direct_light_bins(scan: np.ndarray, bin_width: float) -> int:
     return peak + int(np.argmin(tail[:end + 1]))
 
 
-def grid_pitch(points: np.ndarray) -> float:
-    """Pitch (m) of a regular confocal grid: (ny, nx, 3) scan points spaced alike along rows and columns.
+def grid_pitches(points: np.ndarray) -> tuple[float, float]:
+    """(between rows, between columns) pitch in m of a regular confocal grid of (ny, nx, 3) scan points: rows
+    spaced alike, columns spaced alike (a rectangle's two pitches may differ).
 
     Raises:
-        ValueError: not (ny, nx, 3) with ny, nx ≥ 2, or spacings that differ by more than 1e-6 relative (the message
-            gives both).
+        ValueError: not (ny, nx, 3) with ny, nx ≥ 2, or spacings that vary along an axis by more than 1e-6
+            relative (the message gives the range).
     """
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 3 or pts.shape[-1] != 3 or min(pts.shape[:2]) < 2:
         raise ValueError(f"expected a grid of at least 2 x 2 points (ny, nx, 3), got shape {pts.shape}")
-    du = np.linalg.norm(np.diff(pts, axis=1), axis=-1)
-    dv = np.linalg.norm(np.diff(pts, axis=0), axis=-1)
-    pitch = float(du.mean())
-    if not (pitch > 0 and np.allclose(du, pitch, rtol=1e-6) and np.allclose(dv, pitch, rtol=1e-6)):
-        raise ValueError(f"the scan points are not a grid of one pitch: {pitch:.6g} m along rows, "
-                         f"{float(dv.mean()):.6g} m along columns")
-    return pitch
+    out = []
+    for axis, name in ((0, "rows"), (1, "columns")):
+        d = np.linalg.norm(np.diff(pts, axis=axis), axis=-1)
+        pitch = float(d.mean())
+        if not (pitch > 0 and np.allclose(d, pitch, rtol=1e-6)):
+            raise ValueError(f"the scan points are not a regular grid: the spacing between {name} runs from "
+                             f"{float(d.min()):.6g} m to {float(d.max()):.6g} m")
+        out.append(pitch)
+    return out[0], out[1]

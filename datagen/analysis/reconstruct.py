@@ -12,7 +12,8 @@ power of two and runs one method:
   Laplacian −∇² (:func:`~datagen.analysis.backprojection.laplacian_filter`; the f-k release's script filters its
   backprojection with a Laplacian of Gaussian);
 - "phasor": :func:`~datagen.analysis.phasor.phasor_rsd` (Liu et al. 2019) with a virtual wavelength of
-  :data:`PHASOR_PITCHES` grid pitches (at least 4 bins of path), on planes every eighth of it.
+  :data:`PHASOR_PITCHES` grid pitches (the larger of a rectangle's two; at least 4 bins of path), on planes every
+  eighth of it.
 
 The radiometric falloff (t² retroreflective, the release script's default, or t⁴ diffuse) applies to "lct" and
 "fbp". Depths no farther than the trimmed round trip are set to 0 (their light was zeroed). :func:`depth_map` gives each scan point the depth of its strongest voxel where the volume's front view (its
@@ -62,15 +63,16 @@ def coarsen(scan: np.ndarray, bin_width: float, max_bins: int) -> tuple[np.ndarr
     return out, bin_width
 
 
-def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float, method: str = "lct",
+def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float | tuple[float, float], method: str = "lct",
                     falloff: Literal["diffuse", "retroreflective"] = "retroreflective", snr: float = 0.8,
                     trim: float | Literal["auto"] | None = "auto", max_bins: int = MAX_BINS
                     ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Reconstruct an aligned confocal scan with one of :data:`METHODS`.
 
     Args:
-        scan: (ny, nx, M) transients ≥ 0 on the hidden round-trip axis from t = 0 (:func:`align_confocal`), scan
-            points on a grid of one ``pitch`` (m) in both directions, row up the wall, column along u.
+        scan: (ny, nx, M) transients ≥ 0 on the hidden round-trip axis from t = 0 (:func:`align_confocal`), row
+            up the wall, column along u; pitch: the grid's spacing (m), or (between rows, between columns)
+            (:func:`~datagen.analysis.confocal.grid_pitches`).
         bin_width: s; method: "lct", "phasor" or "fbp"; falloff, snr: :func:`~datagen.analysis.lct.lct_volume`'s
             (the release script's defaults: t², 0.8; its diffuse "S" used t⁴ and 0.08).
         trim: the direct light to zero: "auto" (:func:`direct_light_bins`), a duration in s, or None.
@@ -80,8 +82,8 @@ def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float, method: st
         axis; info {"bin_width": s reconstructed, "trim_bins": bins zeroed, "trim": s zeroed, "wavelength": m or
         None}.
     Raises:
-        ValueError: an unknown method, a scan that is not (ny, nx, M), lct / fbp on a grid that is not N × N, or
-            what :func:`~datagen.analysis.lct.lct_volume` refuses.
+        ValueError: an unknown method, a scan that is not (ny, nx, M), or what
+            :func:`~datagen.analysis.lct.lct_volume` refuses.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -89,8 +91,7 @@ def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float, method: st
     if data.ndim != 3:
         raise ValueError(f"a confocal scan is (ny, nx, M); got shape {data.shape}")
     ny, nx = data.shape[:2]
-    if method != "phasor" and ny != nx:
-        raise ValueError(f"{method} needs an N x N scan; this one is {ny} x {nx} (phasor takes any grid)")
+    pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
     data, dt = coarsen(data, float(bin_width), max_bins)
     if trim == "auto":
         n_trim = direct_light_bins(data, dt)
@@ -103,13 +104,14 @@ def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float, method: st
     data = np.concatenate([data, np.zeros(data.shape[:2] + (m - data.shape[-1],))], axis=-1)
     info = {"bin_width": dt, "trim_bins": n_trim, "trim": n_trim * dt, "wavelength": None}
     if method == "phasor":
-        wavelength = max(PHASOR_PITCHES * pitch, 4 * SPEED_OF_LIGHT * dt)
+        wavelength = max(PHASOR_PITCHES * max(pitch_y, pitch_x), 4 * SPEED_OF_LIGHT * dt)
         step = max(SPEED_OF_LIGHT * dt / 2, wavelength / 8)
         depths = np.arange(step, m * SPEED_OF_LIGHT * dt / 2, step)
         info["wavelength"] = wavelength
-        vol = phasor_rsd(data, dt, pitch, depths, wavelength)
+        vol = phasor_rsd(data, dt, (pitch_y, pitch_x), depths, wavelength)
     else:
-        vol = lct_volume(data, dt, pitch * (nx - 1) / 2, snr=snr, falloff=falloff, trim=None,
+        half = (pitch_y * (ny - 1) / 2, pitch_x * (nx - 1) / 2)           # the release's width, per axis
+        vol = lct_volume(data, dt, half[0] if half[0] == half[1] else half, snr=snr, falloff=falloff, trim=None,
                          backprojection=method == "fbp")
         if method == "fbp":
             vol = np.maximum(laplacian_filter(vol), 0.0)

@@ -83,7 +83,7 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
     of what it found. Arrays are in datagen's orientation: row up the wall, column to the right as the wall sees the
     hidden scene (docs/capture_io.md, "Orientation").
     """
-    from ..analysis.confocal import align_confocal, grid_pitch
+    from ..analysis.confocal import align_confocal, grid_pitches
     from ..analysis.reconstruct import confocal_volume, depth_map
     from ..plot.reconstruction import plot_reconstruction
     from ..units import parse_duration
@@ -98,7 +98,7 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
         raise FileExistsError(f"--out {out} is a file, not a directory")
     env, edges, offsets, points, what = _scan_input(Path(store), split, index, use_counts)
     try:
-        pitch = grid_pitch(points)
+        pitch = grid_pitches(points)
     except ValueError as exc:
         raise ValueError(f"{store}: laser_points: {exc}") from None
     scan, dt = align_confocal(env, edges, offsets)
@@ -114,7 +114,9 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
     found = np.isfinite(depth)
     title = f"{Path(store).name}: {method}" + (f", {falloff}" if method != "phasor" else "")
     plot_reconstruction(volume, depths, depth, pitch, out / "reconstruction.png", title)
-    click.echo(f"{what}: {scan.shape[0]} x {scan.shape[1]} points of pitch {pitch * 1e3:.4g} mm, "
+    pitches = (f"{pitch[0] * 1e3:.4g}" if pitch[0] == pitch[1] else
+               f"{pitch[0] * 1e3:.4g} (between rows) x {pitch[1] * 1e3:.4g} (between columns)")
+    click.echo(f"{what}: {scan.shape[0]} x {scan.shape[1]} points of pitch {pitches} mm, "
                f"{method} on {info['bin_width'] * 1e12:.4g} ps bins, direct light trimmed to "
                f"{info['trim'] * 1e9:.4g} ns ({'auto' if trim_s == 'auto' else 'given'})")
     median = f"median depth {np.median(depth[found]):.4f} m" if found.any() else "nothing found"

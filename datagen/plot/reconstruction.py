@@ -14,14 +14,15 @@ import numpy as np
 __all__ = ["plot_reconstruction"]
 
 
-def plot_reconstruction(volume: np.ndarray, depths: np.ndarray, depth: np.ndarray, pitch: float,
-                        path: str | Path, title: str = "") -> Path:
+def plot_reconstruction(volume: np.ndarray, depths: np.ndarray, depth: np.ndarray,
+                        pitch: float | tuple[float, float], path: str | Path, title: str = "") -> Path:
     """Write a PNG: front view | depth map | top view of a reconstruction.
 
     Args:
         volume: (ny, nx, Z) reconstruction ≥ 0; depths: (Z,) m of its last axis.
         depth: (ny, nx) m, NaN where nothing was found (:func:`datagen.analysis.reconstruct.depth_map`).
-        pitch: the scan grid's pitch (m): the axes run over ±pitch·(N − 1)/2 about the scan's centre.
+        pitch: the scan grid's pitch (m), or (between rows, between columns): the axes run over ±pitch·(N − 1)/2
+            about the scan's centre.
         path: the .png to write; title: above the panels.
     Returns:
         the path written.
@@ -32,8 +33,9 @@ def plot_reconstruction(volume: np.ndarray, depths: np.ndarray, depth: np.ndarra
 
     vol = np.asarray(volume, dtype=np.float64)
     ny, nx = vol.shape[:2]
-    hu, hv = pitch * (nx - 1) / 2, pitch * (ny - 1) / 2
-    wall = [-hu - pitch / 2, hu + pitch / 2, -hv - pitch / 2, hv + pitch / 2]
+    pv, pu = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
+    hu, hv = pu * nx / 2, pv * ny / 2
+    wall = [-hu, hu, -hv, hv]
     found = np.isfinite(depth)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
     ax = axes[0]
