@@ -81,6 +81,11 @@ def test_lct_trims_the_direct_light_itself_and_finds_the_point_with_either_fallo
 
 @pytest.mark.parametrize("method", ["lct", "fbp", "phasor"])
 def test_each_method_finds_the_point_at_its_depth(method):
+    scan = with_direct_light(point_scan(0.45), np.random.default_rng(3))
+    given = scan.copy()
+    vol, depths, info = confocal_volume(given, DT, PITCH, method)
+    np.testing.assert_array_equal(given, scan)                    # the caller's scan is not trimmed
+    assert 0 < info["trim_bins"] and not vol[..., depths <= C * info["trim"] / 2].any()
     vol, depths, info = confocal_volume(point_scan(0.45), DT, PITCH, method)
     assert vol.shape[:2] == (N, N) and vol.shape[2] == len(depths) and info["trim_bins"] == 0
     iy, ix, k = np.unravel_index(vol.argmax(), vol.shape)

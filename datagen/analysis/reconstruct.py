@@ -87,7 +87,7 @@ def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float | tuple[flo
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    data = np.asarray(scan, dtype=np.float64)
+    data = np.array(scan, dtype=np.float64)                   # a copy: the trim below must not zero the caller's
     if data.ndim != 3:
         raise ValueError(f"a confocal scan is (ny, nx, M); got shape {data.shape}")
     ny, nx = data.shape[:2]
