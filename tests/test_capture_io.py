@@ -14,6 +14,7 @@ import datagen
 from conftest import box_before_wall
 from datagen.analysis.backprojection import locate_confocal
 from datagen.errors import DatasetError
+from datagen.io.lab_formats import MAT_FORMATS as MAT
 from datagen.io.lab_formats import (capture_from_result, detect_format, read_capture_store, read_lab_capture,
                                     write_capture_store, write_lab_capture)
 from datagen.units import SPEED_OF_LIGHT
@@ -21,7 +22,7 @@ from datagen.units import SPEED_OF_LIGHT
 
 def lct_fields(rng, n=4, t=32, dtype=np.float64):
     data = rng.poisson(3.0, size=(n, n, t)).astype(dtype)
-    data[1, 2, 7] = 41.0                         # a marker at (row 1, column 2, bin 7)
+    data[0, 2, 7] = 41.0                         # a marker at rect_data(1, 3, 8) in MATLAB's 1-based indices
     return {"rect_data": data, "width": np.array([[0.4]]), "bin_resolution": np.array([[4e-12]]),
             "tofgrid": rng.uniform(1000, 2000, size=(n, n))}
 
@@ -43,12 +44,15 @@ def test_hand_made_lct_v5_file_reads_in_its_layout(tmp_path):
     cap = read_lab_capture(tmp_path / "lct.mat")
     assert (cap.format, cap.mat_version, cap.capture_type) == ("lct-mat", "5", "confocal")
     d = cap.data()
-    assert d.shape == (4, 4, 32) and d[1, 2, 7] == 41.0           # rect_data(i, j, t) → (ny, nx, T)
+    # rect_data(i, j, t) → (iy, ix, t) = (N − 1 − j, N − 1 − i, t): the release's front view, drawn origin="lower"
+    assert d.shape == (4, 4, 32) and d[1, 3, 7] == 41.0 and d.sum() == fields["rect_data"].sum()
+    np.testing.assert_array_equal(d[::-1, ::-1].transpose(1, 0, 2), fields["rect_data"])
     assert cap.time_edges()[1] == 4e-12 and cap.time_edges()[0] == 0.0
-    np.testing.assert_array_equal(cap.time_offsets(), fields["tofgrid"] * 1e-12)
-    pts = cap.sensor_points()                                    # linspace(−width, width, N), x along columns
-    np.testing.assert_allclose(pts[0, 0], [-0.4, -0.4, 0.0])
-    np.testing.assert_allclose(pts[1, 2], [-0.4 + 2 * 0.8 / 3, -0.4 + 0.8 / 3, 0.0])
+    np.testing.assert_array_equal(cap.time_offsets()[1, 3], fields["tofgrid"][0, 2] * 1e-12)   # ordered alike
+    pts = cap.sensor_points()               # linspace(−width, width, N): columns along +x, rows up +z, wall y = 0
+    np.testing.assert_allclose(pts[0, 0], [-0.4, 0.0, -0.4])
+    np.testing.assert_allclose(pts[1, 3], [0.4, 0.0, -0.4 + 0.8 / 3])
+    np.testing.assert_array_equal(cap.wall_normal(), [0.0, 1.0, 0.0])
 
 
 @pytest.mark.parametrize("fmt", ["lct-mat", "fk-mat"])
@@ -62,7 +66,8 @@ def test_mat_round_trip_is_bit_exact(tmp_path, fmt, version):
     savemat(src, fields) if version == "5" else write_mat73_by_hand(src, fields)
     cap = read_lab_capture(src)
     assert (cap.format, cap.mat_version) == (fmt, version)
-    assert cap.data()[1, 2, 7] == 41.0                           # v7.3 axes reversed back to MATLAB order
+    assert cap.raw[MAT[fmt]][0, 2, 7] == 41.0                    # v7.3 axes reversed back to MATLAB order
+    assert cap.data()[(1, 3, 7) if fmt == "lct-mat" else (0, 2, 7)] == 41.0     # f-k: read as stored
     out = write_lab_capture(cap, tmp_path / "out.mat")
     again = read_lab_capture(out)
     assert detect_format(out) == (fmt, version)
@@ -71,7 +76,7 @@ def test_mat_round_trip_is_bit_exact(tmp_path, fmt, version):
         assert again.raw[k].dtype == np.asarray(v).dtype, k
         np.testing.assert_array_equal(again.raw[k], np.asarray(v).reshape(again.raw[k].shape), err_msg=k)
     if version == "5":                                           # and scipy (MATLAB's own layout) reads it as written
-        np.testing.assert_array_equal(loadmat(out)[("meas" if fmt == "fk-mat" else "rect_data")], cap.data())
+        np.testing.assert_array_equal(loadmat(out)[MAT[fmt]], cap.raw[MAT[fmt]])
 
 
 def test_fk_file_without_width_needs_it_named(tmp_path):
@@ -181,19 +186,20 @@ def test_confocal_sample_exported_to_lct_reconstructs_at_the_same_depth(tmp_path
                                offsets=legs)
     depth_original = float((found - center) @ n)
 
-    # re-imported, in the file's own frame (wall z = 0, hidden side +z), offsets from tofgrid
+    # re-imported, in the files' frame (wall y = 0, hidden side +y), offsets from tofgrid
     ipts = imported.laser_points.reshape(-1, 3)
     found2, info = locate_confocal(imported.envelope.reshape(len(ipts), -1), imported.time_edges, ipts,
-                                   np.array([-1.0, -1.0, 0.05]), np.array([1.0, 1.0, 1.6]),
+                                   np.array([-1.0, 0.05, -1.0]), np.array([1.0, 1.6, 1.0]),
                                    offsets=offsets.reshape(-1))
-    depth_imported = float(found2[2])
+    depth_imported = float(found2 @ imported.wall_normal)
     voxel = 0.02                                                  # the fine pass of locate_confocal
     assert abs(depth_imported - depth_original) <= voxel, (depth_imported, depth_original)
     assert 0.2 < depth_original < 1.6
 
 
 def test_the_readme_capture_recipe_round_trips_a_simulated_histogram(tmp_path):
-    """README: simulate the bundled confocal scene, export its SPAD counts as an LCT .mat, import it, compare."""
+    """README: simulate the bundled confocal scene, export its SPAD counts as an LCT .mat, import it, compare,
+    reconstruct."""
     from click.testing import CliRunner
 
     from datagen.cli.main import main
@@ -213,3 +219,5 @@ def test_the_readme_capture_recipe_round_trips_a_simulated_histogram(tmp_path):
     assert np.array_equal(imported.counts, counts)          # integers in float64: exact
     out = run.invoke(main, ["compare-capture", str(real), str(sim), "--png", str(tmp_path / "c.png")])
     assert out.exit_code == 0 and "peak time" in out.output, out.output
+    out = run.invoke(main, ["reconstruct", str(real), "--out", str(tmp_path / "rec")])     # the box, 0.7 m away
+    assert out.exit_code == 0 and "median depth 0.7" in out.output, out.output

@@ -11,6 +11,7 @@ from scipy.io import savemat
 from datagen.analysis.compare_capture import compare_captures, fwhm, peak_time
 from datagen.cli.main import main
 from datagen.io import write_result
+from datagen.io.orientation import scan_to_lct
 from datagen.simulation import Result
 from datagen.units import SPEED_OF_LIGHT
 
@@ -42,7 +43,8 @@ def scene(tmp_path, shift=0.0, sigma=100e-12):
     real = np.stack([[pulse(edges, tof_ps[i, j] * 1e-12 + hidden[i, j], 100e-12, 2000.0) for j in range(N)]
                      for i in range(N)])
     counts = rng.poisson(real).astype(np.float64)
-    savemat(tmp_path / "real.mat", {"rect_data": counts, "width": 0.3, "bin_resolution": DT, "tofgrid": tof_ps})
+    savemat(tmp_path / "real.mat", {"rect_data": scan_to_lct(counts), "width": 0.3, "bin_resolution": DT,
+                                    "tofgrid": scan_to_lct(tof_ps)})      # the release's order (datagen.io.orientation)
     sensor = np.array([0.0, -1.0, -1.5])
     legs = np.linalg.norm(pts - sensor, axis=-1) / SPEED_OF_LIGHT
     sedges = 9e-9 + np.arange(601) * 8e-12

@@ -109,8 +109,8 @@ def test_an_all_nan_tofgrid_is_refused_and_a_non_square_scan_says_what_it_is(tmp
     path = _lct(tmp_path, "tof.mat", tofgrid=np.full((4, 4), np.nan))
     cli(["import-capture", path, "--out", tmp_path / "a"], 2,
         "tofgrid: 16 of 16 values are not finite (16 NaN, 0 ±inf), the first at index (0, 0)")
-    path = _lct(tmp_path, "rect.mat", n=(4, 2))
-    cli(["import-capture", path, "--out", tmp_path / "b"], 0, "note: a 4 x 2 confocal scan, not square: LCT and f-k "
+    path = _lct(tmp_path, "rect.mat", n=(4, 2))          # rect_data 4 x 2: datagen's (ny, nx) = (2, 4)
+    cli(["import-capture", path, "--out", tmp_path / "b"], 0, "note: a 2 x 4 confocal scan, not square: LCT and f-k "
                                                                "need N x N points")
 
 

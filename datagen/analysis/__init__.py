@@ -21,7 +21,8 @@ imported from its module.
   (``datagen compare-capture``).
 - reconstructions of confocal scans, the benchmark's baselines: :mod:`.backprojection` (filtered backprojection),
   :mod:`.lct` (the light-cone transform, O'Toole et al. 2018), :mod:`.phasor` (phasor fields with
-  Rayleigh–Sommerfeld diffraction, Liu et al. 2019).
+  Rayleigh–Sommerfeld diffraction, Liu et al. 2019); :mod:`.confocal` puts any confocal scan on their time axis and
+  finds its direct light, :mod:`.reconstruct` runs one of them and maps depth (``datagen reconstruct``).
 """
 from .accuracy import envelope_error, relative_l2, run_accuracy
 from .reference import converged_reference

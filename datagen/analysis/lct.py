@@ -1,33 +1,47 @@
 """Light-cone transform (O'Toole, Lindell & Wetzstein 2018) of confocal scans: the benchmark's LCT baseline.
 
 y-tal 0.20 (the reconstructions docs/benchmark.md runs through tal's venv) has no LCT, so this is datagen's own,
-following the paper's procedure: scale the transients by (t/T)⁴ (diffuse hidden surfaces), resample time to
-v = t² (the light cone becomes a shift-invariant 3-D convolution), Wiener-deconvolve with the light-cone kernel in
-a zero-padded 3-D FFT, resample back. The scan must be square (N × N points over a square of side ``2·half_width``)
-with a power-of-two number of time bins starting at t = 0, time counting both wall ↔ hidden legs
-(t = 2·|x − p|/c: the confocal configs' ``count_sensor_leg: false``, docs/scans.md).
+following the paper's procedure and its release's script (``cnlos_reconstruction.m``): zero the direct light,
+scale the transients by (t/T)⁴ (diffuse hidden surfaces: two legs of 1/r² each) or (t/T)² (retroreflective ones,
+which return the light towards its source: the paper's "minor modification"), resample time to v = t² (the light
+cone becomes a shift-invariant 3-D convolution), Wiener-deconvolve with the light-cone kernel in a zero-padded 3-D
+FFT (or, for backprojection, multiply by its conjugate), resample back. The scan is a regular grid (the release's
+``linspace(−half_width, half_width, N)`` along each axis; a half width per axis for a grid of two pitches) with a
+power-of-two number of time bins starting at t = 0, time counting both wall ↔ hidden legs (t = 2·|x − p|/c:
+:func:`datagen.analysis.confocal.align_confocal`; the confocal configs' ``count_sensor_leg: false``,
+docs/scans.md). The kernel is even along both scan axes, so the volume keeps the scan's orientation
+(docs/capture_io.md, "Orientation").
 """
 from __future__ import annotations
+
+from typing import Literal
 
 import numpy as np
 
 from ..units import SPEED_OF_LIGHT
+from .confocal import direct_light_bins
+
+FALLOFF_POWER = {"diffuse": 4, "retroreflective": 2}
+"""Power of t in the radiometric scaling of each hidden-surface model (O'Toole et al. 2018, Eq. 2 and Methods)."""
 
 
-def light_cone_psf(n: int, m: int, slope: float) -> np.ndarray:
-    """(2m, 2n, 2n) light-cone kernel, normalised, centred at (0, 0, 0) of the padded lateral grid.
+def light_cone_psf(n: int | tuple[int, int], m: int, slope: float | tuple[float, float]) -> np.ndarray:
+    """(2m, 2ny, 2nx) light-cone kernel, normalised, centred at (0, 0, 0) of the padded lateral grid.
 
     Args:
-        n: scan points per side; m: time bins; slope: half_width / range (range = m · c · Δt).
+        n: scan points per side, or (rows ny, columns nx); m: time bins; slope: half_width / range
+            (range = m · c · Δt), or (rows', columns') for a grid of two pitches.
     """
-    x = np.linspace(-1, 1, 2 * n)
+    ny, nx = (n, n) if np.ndim(n) == 0 else n
+    sy, sx = (slope, slope) if np.ndim(slope) == 0 else slope
     z = np.linspace(0, 2, 2 * m)
-    gz, gy, gx = np.meshgrid(z, x, x, indexing="ij")
-    psf = np.abs((4 * slope) ** 2 * (gx ** 2 + gy ** 2) - gz)
+    gz, gy, gx = np.meshgrid(z, np.linspace(-1, 1, 2 * ny), np.linspace(-1, 1, 2 * nx), indexing="ij")
+    cone = (4 * sx) ** 2 * (gx ** 2 + gy ** 2) if sx == sy else (4 * sx) ** 2 * gx ** 2 + (4 * sy) ** 2 * gy ** 2
+    psf = np.abs(cone - gz)
     psf = (psf == psf.min(axis=0, keepdims=True)).astype(np.float64)
-    psf /= psf[:, n, n].sum()
+    psf /= psf[:, ny, nx].sum()
     psf /= np.linalg.norm(psf)
-    return np.roll(psf, (n, n), axis=(1, 2))
+    return np.roll(psf, (ny, nx), axis=(1, 2))
 
 
 def resampling_operator(m: int) -> tuple[np.ndarray, np.ndarray]:
@@ -49,34 +63,54 @@ def resampling_operator(m: int) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(mtx.todense()), np.asarray(mtxi.todense())
 
 
-def lct_volume(scan: np.ndarray, bin_width: float, half_width: float, snr: float = 0.8) -> np.ndarray:
+def lct_volume(scan: np.ndarray, bin_width: float, half_width: float | tuple[float, float], snr: float = 0.8,
+               falloff: Literal["diffuse", "retroreflective"] = "diffuse", trim: float | Literal["auto"] | None = "auto",
+               backprojection: bool = False) -> np.ndarray:
     """LCT reconstruction of a confocal scan.
 
     Args:
-        scan: (N, N, M) transients (any units) of an N × N confocal grid (rows, columns), M a power of two, time
-            from t = 0 in bins of ``bin_width`` seconds; half_width: half the scanned square's side (m);
-            snr: the Wiener filter's signal-to-noise ratio (the paper's 0.8).
+        scan: (ny, nx, M) transients (any units, ≥ 0) of a confocal grid (rows, columns), M a power of two, time
+            from t = 0 in bins of ``bin_width`` seconds; half_width: the release's ``width``, half the span of the
+            scan's grid, pitch·(N − 1)/2 (m), or (rows', columns') for a grid of two pitches; snr: the Wiener
+            filter's signal-to-noise ratio (the paper's 0.8; its script uses 0.08 for the diffuse "S").
+        falloff: "diffuse" scales the transients by t⁴, "retroreflective" by t² (:data:`FALLOFF_POWER`).
+        trim: the direct light to zero first: "auto" (:func:`~datagen.analysis.confocal.direct_light_bins`), a
+            duration in s (the release's script: 2.4e-9), or None / 0 for none.
+        backprojection: multiply by the kernel's conjugate instead of Wiener-deconvolving (the script's
+            ``isbackprop``; filtered by :func:`datagen.analysis.reconstruct.confocal_volume`'s "fbp").
     Returns:
-        (N, N, M) float64 albedo volume ≥ 0; index k along the last axis is depth (k + ½)·c·Δt/2 from the wall.
+        (ny, nx, M) float64 albedo volume ≥ 0, in the scan's orientation; index k along the last axis is depth
+        (k + ½)·c·Δt/2 from the wall.
     Raises:
-        ValueError: a scan that is not N × N × M with M a power of two, or non-positive bin_width / half_width.
+        ValueError: a scan that is not (ny, nx, M) with M a power of two, non-positive bin_width / half_width / snr,
+            an unknown falloff, or a negative trim.
     """
-    scan = np.asarray(scan, dtype=np.float64)
-    if scan.ndim != 3 or scan.shape[0] != scan.shape[1]:
-        raise ValueError(f"LCT needs an (N, N, M) confocal scan, got shape {scan.shape}")
-    if not (bin_width > 0 and half_width > 0):
-        raise ValueError(f"LCT needs bin_width > 0 and half_width > 0, got {bin_width}, {half_width}")
-    n, m = scan.shape[0], scan.shape[2]
+    scan = np.array(scan, dtype=np.float64)
+    if scan.ndim != 3:
+        raise ValueError(f"LCT needs an (ny, nx, M) confocal scan, got shape {scan.shape}")
+    if not (bin_width > 0 and np.all(np.asarray(half_width) > 0) and snr > 0):
+        raise ValueError(f"LCT needs bin_width, half_width and snr > 0, got {bin_width}, {half_width}, {snr}")
+    if falloff not in FALLOFF_POWER:
+        raise ValueError(f"falloff must be one of {', '.join(FALLOFF_POWER)}, got {falloff!r}")
+    ny, nx, m = scan.shape
     mtx, mtxi = resampling_operator(m)
-    data = np.moveaxis(scan, 2, 0) * np.linspace(0, 1, m)[:, None, None] ** 4      # (M, N, N)
+    if trim == "auto":
+        scan[..., :direct_light_bins(scan, bin_width)] = 0.0
+    elif trim:
+        if not trim > 0:
+            raise ValueError(f"trim must be 'auto', None or a duration >= 0 s, got {trim!r}")
+        scan[..., :int(np.ceil(trim / bin_width - 1e-9))] = 0.0
+    data = np.moveaxis(scan, 2, 0) * np.linspace(0, 1, m)[:, None, None] ** FALLOFF_POWER[falloff]   # (M, ny, nx)
     rng = m * SPEED_OF_LIGHT * bin_width
-    fpsf = np.fft.fftn(light_cone_psf(n, m, half_width / rng))
-    invpsf = np.conj(fpsf) / (np.abs(fpsf) ** 2 + 1.0 / snr)
-    padded = np.zeros((2 * m, 2 * n, 2 * n))
-    padded[:m, :n, :n] = (mtx @ data.reshape(m, -1)).reshape(m, n, n)
-    vol = np.fft.ifftn(np.fft.fftn(padded) * invpsf)[:m, :n, :n]
-    vol = (mtxi @ vol.reshape(m, -1)).reshape(m, n, n)
-    return np.moveaxis(np.maximum(vol.real, 0.0), 0, 2)
+    slope = half_width / rng if np.ndim(half_width) == 0 else tuple(np.asarray(half_width, float) / rng)
+    fpsf = np.fft.rfftn(light_cone_psf((ny, nx), m, slope))
+    invpsf = np.conj(fpsf) if backprojection else np.conj(fpsf) / (np.abs(fpsf) ** 2 + 1.0 / snr)
+    padded = np.zeros((2 * m, 2 * ny, 2 * nx))
+    padded[:m, :ny, :nx] = (mtx @ data.reshape(m, -1)).reshape(m, ny, nx)
+    # the kernel and the data are real: the real FFT gives the real part of the complex one's result
+    vol = np.fft.irfftn(np.fft.rfftn(padded) * invpsf, s=padded.shape, axes=(0, 1, 2))[:m, :ny, :nx]
+    vol = (mtxi @ vol.reshape(m, -1)).reshape(m, ny, nx)
+    return np.moveaxis(np.maximum(vol, 0.0), 0, 2)
 
 
 def depth_from_volume(volume: np.ndarray, depths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

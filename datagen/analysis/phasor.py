@@ -22,13 +22,14 @@ SPECTRUM_CUT = 1e-3
 """Wavenumbers whose Gaussian weight is below this fraction of the peak are left out of the sum."""
 
 
-def phasor_rsd(scan: np.ndarray, bin_width: float, pitch: float, depths: np.ndarray, wavelength: float,
+def phasor_rsd(scan: np.ndarray, bin_width: float, pitch: float | tuple[float, float], depths: np.ndarray, wavelength: float,
                sigma: float | None = None, t_start: float = 0.0, sensor_leg: np.ndarray | None = None) -> np.ndarray:
     """Phasor-field RSD volume of a scan on a regular wall grid.
 
     Args:
-        scan: (H, W, T) transients (any units) of an H × W grid of wall points with spacing ``pitch`` (m), time
-            bins of ``bin_width`` s from ``t_start`` s. Confocal (``sensor_leg`` None): t = 2·|x − p|/c.
+        scan: (H, W, T) transients (any units) of an H × W grid of wall points with spacing ``pitch`` (m; or
+            (between rows, between columns) for a grid of two pitches), time bins of ``bin_width`` s from
+            ``t_start`` s. Confocal (``sensor_leg`` None): t = 2·|x − p|/c.
             Single sensor: t = (|x − l| + |x − s|)/c and ``sensor_leg`` gives |x − s| in metres at every voxel,
             (H, W, Z).
         depths: (Z,) plane distances from the wall (m, > 0); voxel (i, j, k) is grid point (i, j) moved by
@@ -45,7 +46,8 @@ def phasor_rsd(scan: np.ndarray, bin_width: float, pitch: float, depths: np.ndar
     depths = np.asarray(depths, dtype=np.float64)
     if scan.ndim != 3:
         raise ValueError(f"phasor_rsd needs an (H, W, T) scan, got shape {scan.shape}")
-    if not (bin_width > 0 and pitch > 0 and wavelength > 0 and np.all(depths > 0)):
+    pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
+    if not (bin_width > 0 and pitch_y > 0 and pitch_x > 0 and wavelength > 0 and np.all(depths > 0)):
         raise ValueError("phasor_rsd needs bin_width, pitch, wavelength and every depth > 0")
     h, w, nt = scan.shape
     if sensor_leg is not None and np.shape(sensor_leg) != (h, w, len(depths)):
@@ -61,8 +63,8 @@ def phasor_rsd(scan: np.ndarray, bin_width: float, pitch: float, depths: np.ndar
     spectrum = spectrum * np.exp(-1j * kappa * SPEED_OF_LIGHT * t_start) * weight    # L measured from 0
     mult = 1.0 if sensor_leg is not None else 2.0
     # lateral offsets of the padded convolution grid
-    oy = (np.fft.fftfreq(2 * h) * 2 * h) * pitch
-    ox = (np.fft.fftfreq(2 * w) * 2 * w) * pitch
+    oy = (np.fft.fftfreq(2 * h) * 2 * h) * pitch_y
+    ox = (np.fft.fftfreq(2 * w) * 2 * w) * pitch_x
     r2 = oy[:, None] ** 2 + ox[None, :] ** 2
     f_spec = np.fft.fft2(np.moveaxis(spectrum, -1, 0), s=(2 * h, 2 * w))            # (K, 2H, 2W)
     out = np.empty((h, w, len(depths)))

@@ -63,14 +63,32 @@ def _is_store(path: Path) -> bool:
     return (path / "zarr.json").exists() or (path / "result.zarr" / "zarr.json").exists()
 
 
+def counted_legs(result) -> np.ndarray | None:
+    """(ny, nx) s: the wall legs a datagen confocal result's time axis counts at each scan point (emitter → point
+    when ``count_laser_leg``, point → sensor when ``count_sensor_leg``, docs/physics.md §1); None for other
+    captures or a result without a laser grid."""
+    from ..units import SPEED_OF_LIGHT
+
+    cap = result.attrs.get("capture") or {}
+    conf = result.attrs.get("config") or {}
+    if cap.get("type") != "confocal" or result.laser_points is None:
+        return None
+    pts = np.asarray(result.laser_points, float).reshape(result.envelope.shape[:-1] + (3,))
+    legs = np.zeros(pts.shape[:-1])
+    if conf.get("count_laser_leg"):
+        legs += np.linalg.norm(pts - np.asarray(cap["emitter_position"], float), axis=-1)
+    if conf.get("count_sensor_leg", True):
+        legs += np.linalg.norm(pts - np.asarray(cap["sensor_position"], float), axis=-1)
+    return legs / SPEED_OF_LIGHT
+
+
 def load_capture(path: Path, width=None, bin_resolution=None, allow_negative: bool = False,
                  negative_hint: str = validate.NEGATIVE_HINT):
     """(Result, per-point time offsets (s) or None, description) of a lab file, an imported capture store or a
-    datagen result store (offsets: the counted wall legs of a confocal scan). A file is read as import-capture
-    reads it (``width``, ``bin_resolution``: the values a ``.mat`` lacks), a store's values are checked as a
-    file's are (:func:`checked_store`)."""
+    datagen result store (offsets: the counted wall legs of a confocal scan, :func:`counted_legs`). A file is read
+    as import-capture reads it (``width``, ``bin_resolution``: the values a ``.mat`` lacks), a store's values are
+    checked as a file's are (:func:`checked_store`)."""
     from ..io.lab_formats import read_capture_store, read_lab_capture
-    from ..units import SPEED_OF_LIGHT
 
     path = Path(path)
     if path.is_dir():
@@ -78,16 +96,8 @@ def load_capture(path: Path, width=None, bin_resolution=None, allow_negative: bo
             raise FileNotFoundError(f"{path}: neither a capture file nor a datagen result store")
         result, offsets = read_capture_store(path)
         checked_store(result, path, allow_negative, negative_hint)
-        cap = result.attrs.get("capture") or {}
-        conf = result.attrs.get("config") or {}
-        if offsets is None and "lab_capture" not in result.attrs and cap.get("type") == "confocal":
-            pts = np.asarray(result.laser_points, float).reshape(result.envelope.shape[:-1] + (3,))
-            legs = np.zeros(pts.shape[:-1])
-            if conf.get("count_laser_leg"):
-                legs += np.linalg.norm(pts - np.asarray(cap["emitter_position"], float), axis=-1)
-            if conf.get("count_sensor_leg", True):
-                legs += np.linalg.norm(pts - np.asarray(cap["sensor_position"], float), axis=-1)
-            offsets = legs / SPEED_OF_LIGHT
+        if offsets is None and "lab_capture" not in result.attrs:
+            offsets = counted_legs(result)
         return result, offsets, f"datagen store {path}"
     cap = read_lab_capture(path, width=width, bin_resolution=bin_resolution, allow_negative=allow_negative)
     return cap.to_result(), cap.time_offsets(), f"{cap.format} file {path}"

@@ -21,6 +21,7 @@ from .errors import announce_work, friendly_errors
 from .suite import suite
 from .tal import export_tal, read_result_input, tal_render
 from .multizone import is_multizone_file, multizone, run_multizone
+from .reconstruct import reconstruct
 from .view import view
 
 
@@ -273,6 +274,7 @@ main.add_command(import_capture)  # real-lab capture files, detector fitting, si
 main.add_command(export)
 main.add_command(fit_detector_cmd)
 main.add_command(compare_capture)
+main.add_command(reconstruct)    # baselines on any confocal store
 main.add_command(suite)          # benchmark suites
 
 

@@ -11,7 +11,8 @@ writes ``raw`` back unchanged, so read → write → read is bit-exact. :func:`c
 per-point ``time_offsets``), :func:`read_capture_store` reads it back.
 
 Shapes (datagen order, docs/physics.md §1): confocal (ny, nx, T); single (ny, nx, T) with one laser point;
-exhaustive (ly, lx, ny, nx, T). Times in s inside datagen; the files keep their own units (LCT/f-k: s and ps,
+exhaustive (ly, lx, ny, nx, T). LCT files are turned into that order and back by :mod:`datagen.io.orientation`
+(the release's ``rect_data(i, j, t)`` is datagen's scan anti-transposed). Times in s inside datagen; the files keep their own units (LCT/f-k: s and ps,
 ZNLOS: optical path in metres).
 """
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 from ..errors import DatasetError
 from ..units import SPEED_OF_LIGHT
 from .lab_checks import MAT_FORMATS, check_mat_fields, check_znlos_fields
+from .orientation import LCT_WALL_NORMAL, lct_half_width, lct_scan_points, lct_to_scan, scan_to_lct, square_pitch
 
 __all__ = [
     "FORMATS", "MAT_FORMATS", "LabCapture", "read_lab_capture", "write_lab_capture", "capture_from_result",
@@ -81,8 +83,11 @@ class LabCapture:
         return "single" if d.shape[5] * d.shape[6] == 1 else "exhaustive"
 
     def data(self) -> np.ndarray:
-        """Transients in datagen's order and the file's dtype: (ny, nx, T) or (ly, lx, ny, nx, T); ZNLOS colour
-        and bounce axes summed."""
+        """Transients in datagen's order and the file's dtype: (ny, nx, T) or (ly, lx, ny, nx, T). LCT:
+        ``rect_data`` anti-transposed (:func:`~datagen.io.orientation.lct_to_scan`, a view); f-k: ``meas`` as
+        stored; ZNLOS: colour and bounce axes summed."""
+        if self.format == "lct-mat":
+            return lct_to_scan(self.raw["rect_data"])
         if self.format in MAT_FORMATS:
             return self.raw[MAT_FORMATS[self.format]]
         d = self.raw["data"]                            # (C, T, B, sy, sx[, ly, lx])
@@ -110,11 +115,14 @@ class LabCapture:
 
     def time_offsets(self) -> np.ndarray | None:
         """Per scan point (ny, nx), the time in s that its transient's time axis holds beyond the hidden round
-        trip: LCT / f-k ``tofgrid`` (ps → s; None without one); ZNLOS confocal: the emitter → point → camera
-        legs (None for other scans: the legs differ per laser/sensor pair)."""
+        trip: LCT / f-k ``tofgrid`` (ps → s, in the order of :meth:`data`; None without one); ZNLOS confocal:
+        the emitter → point → camera legs (None for other scans: the legs differ per laser/sensor pair)."""
         if self.format in MAT_FORMATS:
             tof = self.raw.get("tofgrid")
-            return None if tof is None else np.asarray(tof, dtype=np.float64) * 1e-12
+            if tof is None:
+                return None
+            tof = np.asarray(tof, dtype=np.float64) * 1e-12
+            return lct_to_scan(tof).copy() if self.format == "lct-mat" else tof
         if self.capture_type != "confocal":
             return None
         pts = self.sensor_points()
@@ -131,15 +139,11 @@ class LabCapture:
         raise DatasetError(f"{self.source}: {key}: expected (3, ny, nx) or (nx, ny, 3) points, got {g.shape}")
 
     def sensor_points(self) -> np.ndarray:
-        """(ny, nx, 3) scan points in m. LCT / f-k: the file has no frame; the wall is z = 0 with the scan
-        ``linspace(−width, width, N)`` in x (second index) and y (first index), as the public reader labels its
-        axes."""
+        """(ny, nx, 3) scan points in m, in the order of :meth:`data`. LCT / f-k: the file has no frame; the
+        release's grid ``linspace(−width, width, N)`` on the vertical wall y = 0, columns along +x, rows up +z
+        (:func:`~datagen.io.orientation.lct_scan_points`)."""
         if self.format in MAT_FORMATS:
-            ny, nx = self.data().shape[:2]
-            w = float(np.squeeze(self.raw["width"]))
-            ys, xs = np.linspace(-w, w, ny), np.linspace(-w, w, nx)
-            gy, gx = np.meshgrid(ys, xs, indexing="ij")
-            return np.stack([gx, gy, np.zeros_like(gx)], axis=-1)
+            return lct_scan_points(float(np.squeeze(self.raw["width"])), self.data().shape[:2])
         return self._grid("cameraGridPositions")
 
     def laser_points(self) -> np.ndarray:
@@ -149,10 +153,10 @@ class LabCapture:
         return self._grid("laserGridPositions")
 
     def wall_normal(self) -> np.ndarray:
-        """(3,) wall normal: +z for LCT / f-k (the hidden side, by datagen's choice), the file's first grid
-        normal for ZNLOS."""
+        """(3,) wall normal: +y for LCT / f-k (the hidden side of the wall y = 0, by datagen's choice), the
+        file's first grid normal for ZNLOS."""
         if self.format in MAT_FORMATS:
-            return np.array([0.0, 0.0, 1.0])
+            return LCT_WALL_NORMAL.copy()
         n = self._grid("cameraGridNormals").reshape(-1, 3)[0]
         return n / np.linalg.norm(n)
 
@@ -418,9 +422,11 @@ def capture_from_result(result, fmt: str, *, source: str = "datagen") -> LabCapt
     """A datagen result (or dataset sample, :func:`datagen.dataset.export.sample_result`) as a lab capture.
 
     LCT / f-k: confocal scans on a square N × N grid of equal pitch in both directions; ``rect_data`` / ``meas``
-    (ny, nx, T) float64 is the envelope, ``bin_resolution`` the bin width (s), ``width`` = pitch·(N−1)/2 (m), and
-    ``tofgrid`` (ps) = the counted wall legs − t_start, so that the public reader's shift puts the light at the
-    wall at bin 0 (omitted when zero everywhere). ZNLOS: data (1, T, 1, ny, nx) confocal or (1, T, 1, ny, nx, ly,
+    (N, N, T) float64 is the envelope (LCT: anti-transposed into the release's order,
+    :func:`~datagen.io.orientation.scan_to_lct`; f-k: as datagen orders it), ``bin_resolution`` the bin width
+    (s), ``width`` = pitch·(N−1)/2 (m, the release's ``linspace(−width, width, N)``), and ``tofgrid`` (ps, ordered
+    as the transients) = the counted wall legs − t_start, so that the public reader's shift puts the light at
+    the wall at bin 0 (omitted when zero everywhere). ZNLOS: data (1, T, 1, ny, nx) confocal or (1, T, 1, ny, nx, ly,
     lx), deltaT and t0 as optical path (m); the time axis must count both wall legs, as ZNLOS's does.
 
     Raises:
@@ -447,7 +453,7 @@ def capture_from_result(result, fmt: str, *, source: str = "datagen") -> LabCapt
                                f"with envelope {env.shape}")
         ny, nx = env.shape[:2]
         pts = sensor.reshape(ny, nx, 3)
-        pitch = _square_pitch(pts, fmt)
+        pitch = square_pitch(pts, fmt)
         legs = np.zeros((ny, nx))
         emitter, sensor_pos = cap.get("emitter_position"), cap.get("sensor_position")
         if laser_leg:
@@ -455,7 +461,9 @@ def capture_from_result(result, fmt: str, *, source: str = "datagen") -> LabCapt
         if sensor_leg:
             legs += np.linalg.norm(pts - np.asarray(sensor_pos, float), axis=-1)
         tof_ps = (legs / SPEED_OF_LIGHT - edges[0]) * 1e12
-        raw = {MAT_FORMATS[fmt]: env, "width": np.array([[pitch * (nx - 1) / 2]]),
+        to_file = scan_to_lct if fmt == "lct-mat" else np.ascontiguousarray
+        env, tof_ps = to_file(env), to_file(tof_ps)
+        raw = {MAT_FORMATS[fmt]: env, "width": np.array([[lct_half_width(pitch, nx)]]),
                "bin_resolution": np.array([[float(widths[0])]])}
         if np.any(tof_ps != 0):
             raw["tofgrid"] = tof_ps
@@ -494,20 +502,6 @@ def capture_from_result(result, fmt: str, *, source: str = "datagen") -> LabCapt
         "isConfocal": np.int64(ctype == "confocal"), "t": np.int64(env.shape[-1]),
     }
     return LabCapture("znlos", raw, None, source, meta)
-
-
-def _square_pitch(pts: np.ndarray, fmt: str) -> float:
-    """Pitch of an N × N grid with equal spacing along rows and columns (what LCT / f-k files can describe)."""
-    ny, nx = pts.shape[:2]
-    if ny != nx or nx < 2:
-        raise DatasetError(f"{fmt} files hold an N × N scan; the result's grid is {ny} × {nx}")
-    du = np.linalg.norm(np.diff(pts, axis=1), axis=-1)
-    dv = np.linalg.norm(np.diff(pts, axis=0), axis=-1)
-    pitch = float(du.mean())
-    if not (np.allclose(du, pitch, rtol=1e-6) and np.allclose(dv, pitch, rtol=1e-6)):
-        raise DatasetError(f"{fmt} files hold a grid of one pitch in both directions; the result's pitches are "
-                           f"{float(du.mean()):.6g} m and {float(dv.mean()):.6g} m")
-    return pitch
 
 
 # -------------------------------------------------------------------------------------------------------------

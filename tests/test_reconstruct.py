@@ -1,0 +1,114 @@
+"""The reconstruction baselines on any confocal scan (datagen.analysis.confocal, .lct, .reconstruct): the time axis
+put on the hidden round trip, the direct light found and zeroed, t² and t⁴ falloffs, and each method finding a
+point target where it is."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from datagen.analysis.confocal import align_confocal, direct_light_bins, grid_pitches
+from datagen.analysis.lct import lct_volume
+from datagen.analysis.reconstruct import coarsen, confocal_volume, depth_map
+from datagen.units import SPEED_OF_LIGHT as C
+
+N, DT, M = 16, 32e-12, 256
+HALF = 0.375                                           # the LCT grid linspace(−0.375, 0.375, 16): pitch 5 cm
+PITCH = 2 * HALF / (N - 1)
+
+
+def point_scan(depth: float, offset: float = 0.0, rows: np.ndarray | None = None) -> np.ndarray:
+    """(N, N, M) transients of a point `depth` m before the centre of the scan (rows at ``rows`` m, default the
+    columns' grid): one count at its round trip 2·|x − p|/c (+ ``offset`` s) at every scan point."""
+    xs = np.linspace(-HALF, HALF, N)
+    gy, gx = np.meshgrid(xs if rows is None else rows, xs, indexing="ij")
+    t = 2 * np.sqrt(depth ** 2 + gx ** 2 + gy ** 2) / C + offset
+    scan = np.zeros(gx.shape + (M,))
+    np.put_along_axis(scan, (t // DT).astype(int)[..., None], 1.0, axis=2)
+    return scan
+
+
+def with_direct_light(scan: np.ndarray, rng) -> np.ndarray:
+    """A capture as the LCT release's look: a direct return at t = 0 a thousand times the hidden one with a slow
+    exponential tail (400 ps), on a background floor, in Poisson counts."""
+    t = (np.arange(M) + 0.5) * DT
+    direct = 2000.0 * np.exp(-t / 400e-12)
+    return rng.poisson(50.0 * scan + direct + 0.5).astype(float)
+
+
+def test_align_removes_each_points_offset_and_the_window_start():
+    off = np.random.default_rng(0).uniform(1e-9, 3e-9, (N, N))
+    stored = point_scan(0.5, offset=0.0)
+    edges = 0.8e-9 + np.arange(M + 1) * DT                     # the window starts at 0.8 ns
+    shifted = np.zeros_like(stored)
+    for iy, ix in np.ndindex(N, N):                            # what the store holds: t + offset, from 0.8 ns
+        s = int(np.rint((off[iy, ix] - 0.8e-9) / DT))
+        shifted[iy, ix, s:] = stored[iy, ix, :M - s]
+    aligned, dt = align_confocal(shifted, edges, off)
+    assert dt == pytest.approx(DT, rel=1e-12)
+    np.testing.assert_array_equal(aligned[..., :M - 80], stored[..., :M - 80])
+
+
+def test_align_refuses_offsets_of_another_shape():
+    with pytest.raises(ValueError, match=r"offsets must be finite and of the scan's shape \(16, 16\)"):
+        align_confocal(point_scan(0.5), np.arange(M + 1) * DT, np.zeros((4, 4)))
+
+
+def test_the_direct_light_ends_before_the_hidden_return():
+    rng = np.random.default_rng(1)
+    hidden = point_scan(0.5)
+    first = int(np.argmax(hidden.reshape(-1, M).sum(0) > 0))   # the hidden return's first bin
+    end = direct_light_bins(with_direct_light(hidden, rng), DT)
+    assert 0.6 * first < end <= first, (end, first)             # the tail (down to the floor) and nothing after
+    assert direct_light_bins(hidden, DT) == 0                    # no direct light: nothing to trim
+
+
+def test_lct_trims_the_direct_light_itself_and_finds_the_point_with_either_falloff():
+    rng = np.random.default_rng(2)
+    scan = with_direct_light(point_scan(0.5), rng)
+    depths = (np.arange(M) + 0.5) * C * DT / 2
+    for falloff in ("retroreflective", "diffuse"):
+        vol = lct_volume(scan, DT, HALF, falloff=falloff)
+        assert depths[np.unravel_index(vol.argmax(), vol.shape)[2]] == pytest.approx(0.5, abs=0.015), falloff
+    by_hand = scan.copy()
+    by_hand[..., :direct_light_bins(scan, DT)] = 0.0
+    np.testing.assert_array_equal(lct_volume(scan, DT, HALF), lct_volume(by_hand, DT, HALF, trim=None))
+    by_hand = scan.copy()
+    by_hand[..., :75] = 0.0                                      # the release's way: a duration, 2.4 ns = 75 bins
+    np.testing.assert_array_equal(lct_volume(scan, DT, HALF, trim=2.4e-9), lct_volume(by_hand, DT, HALF, trim=None))
+    with pytest.raises(ValueError, match="falloff must be one of diffuse, retroreflective"):
+        lct_volume(scan, DT, HALF, falloff="specular")
+
+
+@pytest.mark.parametrize("method", ["lct", "fbp", "phasor"])
+def test_each_method_finds_the_point_at_its_depth(method):
+    scan = with_direct_light(point_scan(0.45), np.random.default_rng(3))
+    given = scan.copy()
+    vol, depths, info = confocal_volume(given, DT, PITCH, method)
+    np.testing.assert_array_equal(given, scan)                    # the caller's scan is not trimmed
+    assert 0 < info["trim_bins"] and not vol[..., depths <= C * info["trim"] / 2].any()
+    vol, depths, info = confocal_volume(point_scan(0.45), DT, PITCH, method)
+    assert vol.shape[:2] == (N, N) and vol.shape[2] == len(depths) and info["trim_bins"] == 0
+    iy, ix, k = np.unravel_index(vol.argmax(), vol.shape)
+    assert depths[k] == pytest.approx(0.45, abs=0.02) and abs(iy - 7.5) <= 1 and abs(ix - 7.5) <= 1
+    depth, front = depth_map(vol, depths, 0.5)
+    assert np.isfinite(depth[iy, ix]) and np.isnan(depth).any() and front.shape == (N, N)
+
+
+@pytest.mark.parametrize("method", ["lct", "phasor"])
+def test_a_rectangle_of_two_pitches_puts_the_point_where_it_is(method):
+    """12 rows 8 cm apart, 16 columns 5 cm apart: the kernel takes each axis's pitch (a point 10 cm up, centred)."""
+    rows = np.linspace(-0.44, 0.44, 12)
+    vol, depths, _ = confocal_volume(point_scan(0.45, rows=rows - 0.10), DT, (0.08, PITCH), method)
+    iy, ix, k = np.unravel_index(vol.argmax(), vol.shape)
+    assert vol.shape[:2] == (12, N) and depths[k] == pytest.approx(0.45, abs=0.02)
+    assert rows[iy] == pytest.approx(0.10, abs=0.08) and abs(ix - 7.5) <= 1
+
+
+def test_bins_are_summed_in_pairs_and_a_grid_has_one_pitch_per_axis():
+    scan, dt = coarsen(np.ones((2, 2, 2048)), 4e-12, 512)
+    assert scan.shape == (2, 2, 512) and dt == 16e-12 and scan.sum() == 4 * 2048
+    grid = np.stack(np.meshgrid(np.arange(3) * 0.1, np.arange(4) * 0.2, [0.0]), -1)[..., 0, :]   # (4, 3, 3)
+    assert grid_pitches(grid) == pytest.approx((0.2, 0.1))
+    grid[0, 0, 0] = 0.03
+    with pytest.raises(ValueError, match="not a regular grid: the spacing between rows runs from 0.2 m to 0.202"):
+        grid_pitches(grid)
