@@ -9,6 +9,7 @@ import pytest
 import datagen
 from datagen.sampling import sample_surfaces
 from datagen.scene import Material, Scene, SceneObject
+from datagen.scene.brdf_kernel import on_arrays, retro_cos_h, retro_pdf
 from datagen.scene.materials import MaterialTable
 from datagen.transport import AreaSampler, AreaSettings
 from datagen.transport.area.kernels import (brdf_value, connection_weights, fov_targets, material_arrays,
@@ -47,16 +48,18 @@ def test_brdf_value_equals_material_table_evaluate():
                            Material(kind="phong", albedo=0.8, specular=0.3, exponent=12.5),
                            Material(kind="phong", albedo=0.4, specular=0.9, exponent=1.0),
                            Material(kind="sin_theta", albedo=0.9, axis=(1.0, 0.2, 0.0)),
-                           Material(kind="sin_theta", albedo=0.9, axis=(0.0, 0.0, 1.0))])
+                           Material(kind="sin_theta", albedo=0.9, axis=(0.0, 0.0, 1.0)),
+                           Material(kind="retroreflective", albedo=0.7, specular=0.8, lobe_width=0.3)])
     n = 4000
-    obj = rng.integers(0, 5, n)
+    obj = rng.integers(0, 6, n)
     normals = _unit(rng.normal(size=(n, 3)))
     normals[:50] = [0.0, 0.0, 1.0]                       # axis ∥ normal: the tangent-frame fallback
     w_in, w_out = _unit(rng.normal(size=(n, 3))), _unit(rng.normal(size=(n, 3)))
     w_out[100:200] = 2 * np.einsum("ij,ij->i", normals[100:200], w_in[100:200])[:, None] * normals[100:200] \
         - w_in[100:200]                                  # mirror directions: the Phong lobe's peak
+    w_out[200:300] = _unit(w_in[200:300] + 0.1 * rng.normal(size=(100, 3)))   # near ω_in: the retroreflective peak
     expected = table.evaluate(obj, normals, w_in, w_out)
-    mat = (table.kind, table.albedo, table.specular, table.exponent, table.axis, np.full(5, np.nan))
+    mat = (table.kind, table.albedo, table.specular, table.exponent, table.axis, np.full(6, np.nan), table.width)
     got = np.array([brdf_value(mat, obj[i], *normals[i], *w_in[i], *w_out[i]) for i in range(n)])
     assert (expected > 0).sum() > n // 5 and (expected == 0).sum() > n // 5
     _close(got, expected)
