@@ -211,10 +211,23 @@ def test_connection_weights_equal_the_balance_heuristic_with_fov_connection_weig
     r, cos_y = rng.uniform(0.05, 4, m), rng.uniform(0, 1, m)
     collect, d_ys = rng.uniform(0, 1e-3, m), rng.uniform(1, 3, m)
     rho_a, n_dir, fov_density = 900.0, 1.0, 12.5
+    # half the points retroreflective: their direction rays follow the BRDF's sampler (density p_d × its ratio s)
+    table = MaterialTable([Material(kind="lambertian", albedo=0.5),
+                           Material(kind="retroreflective", albedo=0.9, specular=0.7, lobe_width=0.2)])
+    mat = (table.kind, table.albedo, table.specular, table.exponent, table.axis, np.full(2, np.nan), table.width)
+    obj = rng.integers(0, 2, n)
+    w_in = _unit(n_x + rng.normal(size=(n, 3)))
     weight, time, phys = connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys,
-                                            (rho_a, n_dir, fov_density, count_sensor))
-    p_d = np.einsum("ij,ij->i", n_x[b], w) * cos_y / (np.pi * r ** 2)
-    density = rho_x[b] * (rho_a + n_dir * p_d) + fov_density * p_d
+                                            (rho_a, n_dir, fov_density, count_sensor), obj, w_in, mat)
+    cos_x = np.einsum("ij,ij->i", n_x[b], w)
+    p_d = cos_x * cos_y / (np.pi * r ** 2)
+    cos_in = np.einsum("ij,ij->i", n_x[b], w_in[b])
+    lobe = (obj[b] == 1) & (cos_in > 0) & (cos_x > 0)
+    cos_h = on_arrays(retro_cos_h)(cos_in[lobe], cos_x[lobe], np.einsum("ij,ij->i", w_in[b][lobe], w[lobe]))
+    s = np.ones(m)
+    s[lobe] = 0.3 + 0.7 * on_arrays(retro_pdf)(0.2, cos_in[lobe], cos_h) * np.pi / cos_x[lobe]
+    assert lobe.sum() > 100
+    density = rho_x[b] * (rho_a + n_dir * p_d * s) + fov_density * p_d
     expected = np.divide(1.0, density, out=np.zeros(m), where=density > 0) * fov_connection_weight(cos_y, r, collect)
     assert (density <= 0).sum() > 10
     _close(weight, expected)

@@ -7,8 +7,9 @@ part.
   (forward) GGX reflection lobe written here from Walter et al. 2007 (the model's energy theorem: the reflection
   about the normal keeps solid angle and cosθ_out), ρ exactly without a lobe, and tends to ρ as the lobe narrows.
 - Reciprocity to round-off, a peak at ω_out = ω_in, and the GGX distribution's normalisation ∫ D cosθ_h dω = 1.
-- Sampling: the lobe sampler's directions (retro_sample) against its density (retro_pdf) by a χ² test on a fixed
-  seed; the same test rejects a density without its masking term G₁.
+- Sampling: the lobe sampler's directions (retro_sample) and the light tracer's continuation (continue_paths, the
+  mixture k_s·lobe + (1 − k_s)·cosine) against their densities (retro_pdf, the returned ratio × cosθ/π) by a χ² test
+  on a fixed seed; the same test rejects a density without its masking term G₁.
 - Bad widths are refused with the field and the value named.
 """
 from __future__ import annotations
@@ -179,6 +180,33 @@ def test_the_lobe_samplers_histogram_matches_its_density(alpha, theta):
     assert chi2_pvalue(counts, lobe_expectation(alpha, w_in, n)) > 1e-3
     if theta >= 50.0:          # teeth: without the masking term G₁ (≠ 1 away from the normal) the test fails
         assert chi2_pvalue(counts, lobe_expectation(alpha, w_in, n, masked=False)) < 1e-6
+
+
+def test_the_tracers_continuation_samples_the_mixture_it_weighs():
+    """continue_paths at a retroreflective vertex: its directions follow ratio·cosθ/π (the density its flux and
+    balance-heuristic weights use), and flux·f·π/(q·ratio) is f·cosθ/(q·p)."""
+    from datagen.transport.multibounce.kernels import continue_paths
+    table = MaterialTable([Material(kind="retroreflective", albedo=0.9, specular=0.6, lobe_width=0.3)])
+    mat = (table.kind, table.albedo, table.specular, table.exponent, table.axis, np.full(1, np.nan), table.width)
+    n = 200_000
+    rng = np.random.default_rng(11)
+    w_in = incident(40.0)
+    u, v, r = rng.random(n), rng.random(n), np.zeros(n)
+    w, flux, live, ratio = continue_paths(np.tile(UP, (n, 1)), np.zeros(n, np.int64), np.tile(w_in, (n, 1)), u, v, r,
+                                          np.ones(n), np.array([0.9]), mat)
+    counts = np.bincount(bin_of(w), minlength=16 * 24 + 1)
+    nodes, d_omega = hemisphere_bins()
+    cos_h = on_arrays(retro_cos_h)(w_in[2], nodes[..., 2], nodes @ w_in)
+    p = 0.6 * on_arrays(retro_pdf)(0.3, w_in[2], cos_h) + 0.4 * nodes[..., 2] / np.pi
+    per_bin = p.sum(1) * d_omega
+    assert chi2_pvalue(counts, n * np.append(per_bin, 1.0 - per_bin.sum())) > 1e-3
+    up = w[:, 2] > 0
+    c = on_arrays(retro_cos_h)(w_in[2], w[up, 2], w[up] @ w_in)
+    want = 0.6 * on_arrays(retro_pdf)(0.3, w_in[2], c) + 0.4 * w[up, 2] / np.pi
+    np.testing.assert_allclose(ratio[up] * w[up, 2] / np.pi, want, rtol=1e-10)
+    f = table.evaluate(np.zeros(up.sum(), dtype=int), UP, w_in, w[up])
+    np.testing.assert_allclose(flux[up], f * w[up, 2] / (0.9 * want), rtol=1e-10)
+    assert np.array_equal(live, flux > 0)
 
 
 @pytest.mark.parametrize("width,words", [(0.0, "greater than 0"), (-0.1, "greater than 0"),
