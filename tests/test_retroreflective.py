@@ -126,6 +126,18 @@ def test_reciprocity_and_the_peak_back_toward_the_light(rng):
     assert np.all(peak > 100 * 0.9 * 0.2 / np.pi)
 
 
+def test_the_separable_split_adds_up_to_the_brdf(rng):
+    """The lookin secondary's split f = c + lobe (MaterialTable.separable_scale, lobe): c = (1 − k_s)ρ/π."""
+    table = MaterialTable([Material(kind="retroreflective", albedo=0.8, specular=0.6, lobe_width=0.1)])
+    v = rng.normal(size=(2, 3000, 3))
+    v /= np.linalg.norm(v, axis=2, keepdims=True)
+    v[..., 2] = np.abs(v[..., 2])
+    ids = np.zeros(3000, dtype=int)
+    assert table.separable_scale(np.array([0]))[0] == pytest.approx(0.4 * 0.8 / np.pi, rel=1e-15)
+    np.testing.assert_allclose(table.separable_scale(ids) + table.lobe(ids, UP, v[0], v[1]),
+                               table.evaluate(ids, UP, v[0], v[1]), rtol=1e-12)
+
+
 def hemisphere_bins(n_cos: int = 16, n_phi: int = 24):
     """Equal-solid-angle bins over the hemisphere above UP in (cosθ, φ), and a quadrature of each bin (k² midpoints):
     (nodes (n_bins, k², 3), solid angle per node)."""

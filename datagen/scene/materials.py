@@ -163,12 +163,14 @@ class MaterialTable:
 
         Lambertian: c = ρ/π, g = 1, no lobe. sin θ: c = ρ/2, g = |sin azimuth|, no lobe (the lobe is a
         product of an incoming and an outgoing factor). Phong: c = (1 − k_s)ρ/π, g = 1, lobe = ρ·k_s·(n+2)/(2π)
-        ·cos^n α (not separable: summed pairwise).
+        ·cos^n α (not separable: summed pairwise). Retroreflective: c = (1 − k_s)ρ/π, g = 1, lobe = ρ·k_s·
+        D G₂/(4 cosθ_i cosθ_o) (summed pairwise).
         """
         ids = np.asarray(object_ids)
         kind, rho = self.kind[ids], self.albedo[ids]
         return np.where(kind == SIN_THETA, on_arrays(sin_theta_scale)(rho),
-                        np.where(kind == PHONG, on_arrays(phong_diffuse_scale)(rho, self.specular[ids]),
+                        np.where((kind == PHONG) | (kind == RETROREFLECTIVE),
+                                 on_arrays(phong_diffuse_scale)(rho, self.specular[ids]),
                                  on_arrays(lambertian_value)(rho)))
 
     def separable_factor(self, object_ids: np.ndarray, normals: np.ndarray, w: np.ndarray) -> np.ndarray:
