@@ -156,7 +156,9 @@ def test_primary_matches_closed_form_patch():
     (Material(albedo=0.8), Material(albedo=0.7)),
     (Material(kind="phong", albedo=0.8, specular=0.7, exponent=10.0),
      Material(kind="phong", albedo=0.7, specular=0.5, exponent=5.0)),
-], ids=["lambertian", "phong"])
+    (Material(kind="retroreflective", albedo=0.8, specular=0.8, lobe_width=0.4),
+     Material(kind="retroreflective", albedo=0.7, specular=0.6, lobe_width=0.6)),
+], ids=["lambertian", "phong", "retroreflective"])
 def test_primary_and_secondary_match_closed_form_two_patches(materials):
     p0, p1, sec = two_patch_closed_form(materials)
     assert two_patch_closed_form(materials, n=10)[2] == pytest.approx(sec, rel=1e-9)     # the rule has converged

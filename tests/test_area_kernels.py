@@ -9,6 +9,7 @@ import pytest
 import datagen
 from datagen.sampling import sample_surfaces
 from datagen.scene import Material, Scene, SceneObject
+from datagen.scene.brdf_kernel import on_arrays, retro_cos_h, retro_pdf
 from datagen.scene.materials import MaterialTable
 from datagen.transport import AreaSampler, AreaSettings
 from datagen.transport.area.kernels import (brdf_value, connection_weights, fov_targets, material_arrays,
@@ -47,16 +48,18 @@ def test_brdf_value_equals_material_table_evaluate():
                            Material(kind="phong", albedo=0.8, specular=0.3, exponent=12.5),
                            Material(kind="phong", albedo=0.4, specular=0.9, exponent=1.0),
                            Material(kind="sin_theta", albedo=0.9, axis=(1.0, 0.2, 0.0)),
-                           Material(kind="sin_theta", albedo=0.9, axis=(0.0, 0.0, 1.0))])
+                           Material(kind="sin_theta", albedo=0.9, axis=(0.0, 0.0, 1.0)),
+                           Material(kind="retroreflective", albedo=0.7, specular=0.8, lobe_width=0.3)])
     n = 4000
-    obj = rng.integers(0, 5, n)
+    obj = rng.integers(0, 6, n)
     normals = _unit(rng.normal(size=(n, 3)))
     normals[:50] = [0.0, 0.0, 1.0]                       # axis ∥ normal: the tangent-frame fallback
     w_in, w_out = _unit(rng.normal(size=(n, 3))), _unit(rng.normal(size=(n, 3)))
     w_out[100:200] = 2 * np.einsum("ij,ij->i", normals[100:200], w_in[100:200])[:, None] * normals[100:200] \
         - w_in[100:200]                                  # mirror directions: the Phong lobe's peak
+    w_out[200:300] = _unit(w_in[200:300] + 0.1 * rng.normal(size=(100, 3)))   # near ω_in: the retroreflective peak
     expected = table.evaluate(obj, normals, w_in, w_out)
-    mat = (table.kind, table.albedo, table.specular, table.exponent, table.axis, np.full(5, np.nan))
+    mat = (table.kind, table.albedo, table.specular, table.exponent, table.axis, np.full(6, np.nan), table.width)
     got = np.array([brdf_value(mat, obj[i], *normals[i], *w_in[i], *w_out[i]) for i in range(n)])
     assert (expected > 0).sum() > n // 5 and (expected == 0).sum() > n // 5
     _close(got, expected)
@@ -208,10 +211,23 @@ def test_connection_weights_equal_the_balance_heuristic_with_fov_connection_weig
     r, cos_y = rng.uniform(0.05, 4, m), rng.uniform(0, 1, m)
     collect, d_ys = rng.uniform(0, 1e-3, m), rng.uniform(1, 3, m)
     rho_a, n_dir, fov_density = 900.0, 1.0, 12.5
+    # half the points retroreflective: their direction rays follow the BRDF's sampler (density p_d × its ratio s)
+    table = MaterialTable([Material(kind="lambertian", albedo=0.5),
+                           Material(kind="retroreflective", albedo=0.9, specular=0.7, lobe_width=0.2)])
+    mat = (table.kind, table.albedo, table.specular, table.exponent, table.axis, np.full(2, np.nan), table.width)
+    obj = rng.integers(0, 2, n)
+    w_in = _unit(n_x + rng.normal(size=(n, 3)))
     weight, time, phys = connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys,
-                                            (rho_a, n_dir, fov_density, count_sensor))
-    p_d = np.einsum("ij,ij->i", n_x[b], w) * cos_y / (np.pi * r ** 2)
-    density = rho_x[b] * (rho_a + n_dir * p_d) + fov_density * p_d
+                                            (rho_a, n_dir, fov_density, count_sensor), obj, w_in, mat)
+    cos_x = np.einsum("ij,ij->i", n_x[b], w)
+    p_d = cos_x * cos_y / (np.pi * r ** 2)
+    cos_in = np.einsum("ij,ij->i", n_x[b], w_in[b])
+    lobe = (obj[b] == 1) & (cos_in > 0) & (cos_x > 0)
+    cos_h = on_arrays(retro_cos_h)(cos_in[lobe], cos_x[lobe], np.einsum("ij,ij->i", w_in[b][lobe], w[lobe]))
+    s = np.ones(m)
+    s[lobe] = 0.3 + 0.7 * on_arrays(retro_pdf)(0.2, cos_in[lobe], cos_h) * np.pi / cos_x[lobe]
+    assert lobe.sum() > 100
+    density = rho_x[b] * (rho_a + n_dir * p_d * s) + fov_density * p_d
     expected = np.divide(1.0, density, out=np.zeros(m), where=density > 0) * fov_connection_weight(cos_y, r, collect)
     assert (density <= 0).sum() > 10
     _close(weight, expected)

@@ -11,7 +11,8 @@ from datagen.sampling.directions import stratified_grid
 
 MATERIALS = [Material(kind="lambertian", albedo=0.7), Material(kind="sin_theta", albedo=0.9),
              Material(kind="phong", albedo=1.0, specular=0.6, exponent=20.0),
-             Material(kind="phong", albedo=1.0, specular=1.0, exponent=2000.0)]   # near-mirror
+             Material(kind="phong", albedo=1.0, specular=1.0, exponent=2000.0),   # near-mirror
+             Material(kind="retroreflective", albedo=0.8, specular=0.7, lobe_width=0.2)]
 
 
 def random_hemisphere(rng, n):

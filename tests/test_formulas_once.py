@@ -10,6 +10,7 @@ looks for the expression *shapes* that characterise each formula (:data:`SHAPES`
 - ``lambertian``: an albedo divided by π (``rho / math.pi``, ``albedo[o] / np.pi``);
 - ``sin_theta``: one half times an albedo (``0.5 * rho``);
 - ``phong``: the lobe's normalisation (e + 2)/(2π);
+- ``ggx``: the GGX distribution's α² / (π (t·t)) (the retroreflective lobe);
 - ``attenuation``: exp of minus μ times a length (``np.exp(-mu * path)``);
 - ``collection``: a product holding the detection efficiency ``pde`` and a cosine;
 - ``irradiance``: a product holding ``photons`` and a cosine;
@@ -38,7 +39,8 @@ MAX_KERNEL_ARGS = 16
 FORMULAS = {
     "scene/brdf_kernel.py": ("lambertian_value", "sin_theta_scale", "sin_theta_value", "phong_gloss", "phong_value",
                              "phong_diffuse_scale", "phong_power", "phong_cos_alpha", "abs_sin_azimuth",
-                             "brdf_value"),
+                             "ggx_ndf", "smith_lambda", "retro_cos_h", "retro_lobe", "retro_value", "retro_pdf",
+                             "retro_sample", "sampling_ratio", "brdf_value"),
     "transport/physics.py": ("emission_term", "irradiance_term", "geometry_term", "fov_term", "collection_term",
                              "direct_term", "launched_flux", "attenuation_term"),
 }
@@ -48,6 +50,7 @@ HOMES = {
     "lambertian": {("scene/brdf_kernel.py", "lambertian_value"), ("scene/brdf_kernel.py", "phong_diffuse_scale")},
     "sin_theta": {("scene/brdf_kernel.py", "sin_theta_scale")},
     "phong": {("scene/brdf_kernel.py", "phong_gloss")},
+    "ggx": {("scene/brdf_kernel.py", "ggx_ndf")},
     "attenuation": {("transport/physics.py", "attenuation_term")},
     "collection": {("transport/physics.py", "collection_term"), ("transport/physics.py", "direct_term")},
     "irradiance": {("transport/physics.py", "irradiance_term"), ("transport/physics.py", "direct_term")},
@@ -120,6 +123,9 @@ def _shapes(node: ast.AST) -> set[str]:
                 and isinstance(right, ast.BinOp) and isinstance(right.op, ast.Mult)
                 and isinstance(right.left, ast.Constant) and right.left.value == 2.0 and _is_pi(right.right)):
             out.add("phong")
+        if (isinstance(op, ast.Div) and isinstance(right, ast.BinOp) and isinstance(right.op, ast.Mult)
+                and _is_pi(right.left) and _square(right.right)):
+            out.add("ggx")
         if isinstance(op, ast.Div) and _square(right) and _has_cos(left):
             out.add("inverse_square")
         if isinstance(op, ast.Mult) and _square(right) and _has_cos(left):
@@ -191,6 +197,7 @@ def test_the_detectors_catch_a_pasted_copy(tmp_path):
                        "    lamb = rho / math.pi\n"
                        "    half = 0.5 * rho\n"
                        "    norm = (expo + 2.0) / (2.0 * math.pi)\n"
+                       "    ndf = a2 / (math.pi * (t * t))\n"
                        "    att = math.exp(-mu * path)\n"
                        "    out = pde * f * cos_ap * area / d ** 2\n")
     found = set()

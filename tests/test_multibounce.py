@@ -458,7 +458,8 @@ def test_the_compiled_continuation_is_the_numpy_sampling_and_brdf():
         obj = rng.integers(0, len(ph.materials.kind), m)
         u, v, r, flux = rng.random(m), rng.random(m), rng.random(m), rng.random(m) + 0.5
         q = np.minimum(1.0, ph.materials.albedo)
-        w_out, flux_out, live = continue_paths(n, obj, w_in, u, v, r, flux, q, material_arrays(ph))
+        w_out, flux_out, live, ratio = continue_paths(n, obj, w_in, u, v, r, flux, q, material_arrays(ph))
+        assert np.all(ratio == 1.0)                                         # no retroreflective lobe: cosine draws
         expected = to_world(square_to_hemisphere(u, v, "cosine")[0], n)
         assert np.max(np.abs(w_out - expected)) < 1e-12
         f = ph.materials.evaluate(obj, n, w_in, expected)

@@ -465,22 +465,23 @@ def test_a_confocal_scan_is_planned_over_its_whole_laser_grid():
 def test_coarse_kernel_sums_equal_a_numpy_sum_with_the_material_table():
     """The planner's compiled primary / secondary sums (planner/coarse_kernel.py, which factor the Lambertian and
     sin θ BRDFs out of the FoV-cell sum) equal a brute-force numpy sum over every (element, partner, cell) with
-    MaterialTable.evaluate, for random geometry and all three BRDF kinds (relative 1e-12)."""
+    MaterialTable.evaluate, for random geometry and every BRDF kind (relative 1e-12)."""
     from datagen.planner.coarse_kernel import outgoing_sums, primary_energy, secondary_candidates, secondary_energy
     from datagen.scene.materials import Material, MaterialTable
 
     rng = np.random.default_rng(7)
     mats = MaterialTable([Material(kind="lambertian", albedo=0.7), Material(kind="sin_theta", albedo=0.9),
                           Material(kind="phong", albedo=0.8, specular=0.6, exponent=12.0),
-                          Material(kind="sin_theta", albedo=0.5, axis=(1.0, 0.0, 0.0))])
+                          Material(kind="sin_theta", albedo=0.5, axis=(1.0, 0.0, 0.0)),
+                          Material(kind="retroreflective", albedo=0.9, specular=0.7, lobe_width=0.4)])
     lamb = np.where(mats.kind == 0, mats.albedo / np.pi, np.nan)
-    mat = (mats.kind, mats.albedo, mats.specular, mats.exponent, np.ascontiguousarray(mats.axis), lamb)
+    mat = (mats.kind, mats.albedo, mats.specular, mats.exponent, np.ascontiguousarray(mats.axis), lamb, mats.width)
     m, k = 40, 6
     x = rng.normal(size=(m, 3))
     n_geo = rng.normal(size=(m, 3))
     n_geo[:4] = (0.0, 0.0, 1.0)                       # normals along the sin θ axis: the tangent-frame fallback
     n_geo /= np.linalg.norm(n_geo, axis=1, keepdims=True)
-    obj = rng.integers(0, 4, m)
+    obj = rng.integers(0, 5, m)
     area = rng.uniform(0.01, 0.1, m)
     spot = np.array([0.0, 0.0, -3.0])
     w_lx = (x - spot) / np.linalg.norm(x - spot, axis=1, keepdims=True)

@@ -89,6 +89,30 @@ def test_changed_material_distribution_keeps_geometry_and_other_classes(default_
     assert n_boxes >= 5
 
 
+def test_retroreflective_objects_are_opt_in_and_leave_every_other_draw_in_place(default_dist):
+    """The retroreflective kind (road signs, safety apparel, bicycle reflectors) weighs 0 unless a config names it:
+    naming it with weight 0 changes nothing, and with a weight it replaces the same boxes' kinds from the same
+    uniforms (albedo and k_s where Phong's would be, α log-uniform in lobe_width), every other draw unmoved."""
+    zero = default_dist.with_overrides({"materials": {"box": {"kinds": {**default_dist.materials.box.kinds,
+                                                                        "retroreflective": 0.0}}}})
+    retro = default_dist.with_overrides({"materials": {"box": {"kinds": {"retroreflective": 1.0},
+                                                               "lobe_width": {"min": 0.005, "max": 0.02}}}})
+    n_boxes = 0
+    for i in range(12):
+        a, z, b = (sample_room(d, rngs_for(2, i)) for d in (default_dist, zero, retro))
+        assert json.dumps(a.params, sort_keys=True) == json.dumps(z.params, sort_keys=True)
+        assert geometry_of(a)["json"] == geometry_of(b)["json"] and a.params["materials"] == b.params["materials"]
+        for oa, ob in zip(a.objects, b.objects):
+            if oa["class"] != "box":
+                assert ob["material"] == oa["material"]
+                continue
+            n_boxes += 1
+            m = ob["material"]
+            assert m["kind"] == "retroreflective" and m["albedo"] == oa["material"]["albedo"]
+            assert 0.005 <= m["lobe_width"] <= 0.02 and "lobe_width" not in oa["material"]
+    assert n_boxes >= 3
+
+
 def test_sampled_room_simulates(smoke_dist):
     room = sample_room(smoke_dist, rngs_for(0, 0))
     config = datagen.resolve_config(room.scene, {"lookins": "3x3", "pixels": "8x8"})
@@ -259,6 +283,8 @@ BAD = [
     ({"materials": {"wall": {"albedo": {"min": 0.5, "max": 1.2}}}}, "materials.wall.albedo", "1.2"),
     ({"materials": {"box": {"kinds": {"glossy": 1.0}}}}, "materials.box.kinds.glossy.[key]", "glossy"),
     ({"materials": {"box": {"kinds": {"phong": 0.0}}}}, "materials.box.kinds", "positive weight"),
+    ({"materials": {"box": {"lobe_width": {"min": 0.0, "max": 0.05}}}}, "materials.box.lobe_width", "0.0"),
+    ({"materials": {"box": {"lobe_width": {"min": 0.01, "max": 3.0}}}}, "materials.box.lobe_width", "3.0"),
     ({"objects": {"pillar": {"count": {"min": 0, "max": 12}}}}, "objects", "room too small"),
     ({"objects": {"pillar": {"size": {"x": {"min": 0.5, "max": 3.5}}}}}, "objects.pillar.size", "does not fit"),
     ({"objects": {"box": {"count": {"min": -1, "max": 1}}}}, "objects.box.count.min", "-1"),

@@ -108,7 +108,7 @@ def secondary(scene, mode, lookins=(8, 8), pixels=(24, 24), seed=3, **kw):
     return per[tr.n_primary], tr
 
 
-@pytest.mark.parametrize("kind", ["lambertian", "sin_theta", "phong"])
+@pytest.mark.parametrize("kind", ["lambertian", "sin_theta", "phong", "retroreflective"])
 def test_exact_secondary_equals_full_pairs(kind):
     """The factorised O(N) secondary (docs/physics.md §3) sums the same pairs as the O(Ñ²) one: identical up to
     time binning of its profiles (measured 1e-5 relative L2 on the demo room at 30×30×30×30)."""

@@ -198,7 +198,8 @@ def scene_labels(room: SampledRoom, spec: LabelSpec) -> dict[str, np.ndarray]:
         object_count: int32 (); object_class: int32 (K,) 0 box / 1 pillar, −1 pad;
         object_center, object_size: float32 (K, 3) m (box centre; a pillar's size z is the ceiling height);
         object_yaw: float32 (K,) rad about +z; object_albedo: float32 (K,); object_brdf: int32 (K,) index
-        in :data:`datagen.scene.materials.BRDF_KINDS` (0 lambertian, 1 sin_theta, 2 phong), −1 pad; float pads are 0.
+        in :data:`datagen.scene.materials.BRDF_KINDS` (0 lambertian, 1 sin_theta, 2 phong, 3 retroreflective), −1 pad;
+        float pads are 0.
         depth: float32 (H, W) m, distance along each pixel ray from the camera at the FoV centre (see
         :func:`camera_directions`) to the first surface (walls, floor, ceiling and objects), 0 where the
         ray escapes (the open corridor end); rays start ε = offset/cos θ along their line (RayCaster

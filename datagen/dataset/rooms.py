@@ -26,6 +26,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from ..errors import ConfigError
 from ..scene import Laser, Material
 from ..scene.brdf_kernel import BRDF_KINDS
+from ..scene.materials import LOBE_WIDTH_MAX
 from ..scene.load import format_validation_error, read_yaml
 from ..scene.parts import check_counts
 from ..units import parse_energy, parse_length
@@ -41,8 +42,8 @@ MATERIAL_CLASSES = ("relay_wall", "wall", "floor", "ceiling", "pillar", "box", "
 """Classes with their own material distribution (scene labels of :func:`datagen.scene.l_room` + objects)."""
 
 UNIFORMS_PER_MATERIAL = 4
-"""Uniform draws per material (kind, albedo, specular, exponent), fixed whatever the kind: changing one
-class's distribution leaves every other draw of the materials stream where it was."""
+"""Uniform draws per material (kind, albedo, specular, exponent or lobe width), fixed whatever the kind: changing
+one class's distribution leaves every other draw of the materials stream where it was."""
 
 PACKING_LIMIT = 0.5
 """Largest share of a region's floor that the inflated footprints of the maximum object count may cover.
@@ -251,13 +252,17 @@ class ObjectsDist(Model):
 class MaterialDist(Model):
     """Per-class materials: albedo range, BRDF kind mixture weights (absent kinds weigh 0), lobe ranges.
 
-    ``exponent`` is drawn log-uniformly (lobe sharpness spans decades); ``axis`` is the sin θ reference.
+    ``exponent`` (Phong) and ``lobe_width`` (retroreflective) are drawn log-uniformly (lobe sharpness spans decades);
+    ``specular`` is the lobe's fraction k_s of both; ``axis`` is the sin θ reference. The ``retroreflective`` kind
+    (road signs, safety apparel, bicycle reflectors; docs/rooms.md) weighs 0 unless a config gives it a weight, and
+    a kind's draw uses the same four uniforms whatever the kinds: configs without it draw what they drew before.
     """
 
     albedo: Unit = Range(min=1.0, max=1.0)
-    kinds: dict[Literal["lambertian", "sin_theta", "phong"], float] = {"lambertian": 1.0}
+    kinds: dict[Literal["lambertian", "sin_theta", "phong", "retroreflective"], float] = {"lambertian": 1.0}
     specular: Unit = Range(min=0.5, max=0.5)
     exponent: Positive = Range(min=50.0, max=50.0)
+    lobe_width: Positive = Range(min=0.01, max=0.05)
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
     @field_validator("kinds")
@@ -270,6 +275,13 @@ class MaterialDist(Model):
             raise ValueError(f"at least one kind needs a positive weight, got {v}")
         return v
 
+    @field_validator("lobe_width")
+    @classmethod
+    def _width(cls, v: Range) -> Range:
+        if v.max > LOBE_WIDTH_MAX:
+            raise ValueError(f"max must be <= {LOBE_WIDTH_MAX} (GGX α), got {v.max}")
+        return v
+
     @field_validator("axis")
     @classmethod
     def _axis(cls, v: tuple) -> tuple:
@@ -278,7 +290,7 @@ class MaterialDist(Model):
         return v
 
     def draw(self, u: np.ndarray) -> Material:
-        """Material at uniforms ``u`` (4,) float64 in [0, 1): kind by inverse CDF, then albedo, k_s, n."""
+        """Material at uniforms ``u`` (4,) float64 in [0, 1): kind by inverse CDF, then albedo, k_s, n or α."""
         weights = np.array([self.kinds.get(k, 0.0) for k in BRDF_KINDS], dtype=np.float64)
         cdf = np.cumsum(weights) / weights.sum()
         kind = BRDF_KINDS[min(int(np.searchsorted(cdf, u[0], side="right")), len(BRDF_KINDS) - 1)]
@@ -287,6 +299,10 @@ class MaterialDist(Model):
             lo, hi = math.log(self.exponent.min), math.log(self.exponent.max)
             return Material(kind=kind, albedo=albedo, specular=self.specular.draw(u[2]),
                             exponent=float(math.exp(lo + u[3] * (hi - lo))))
+        if kind == "retroreflective":
+            lo, hi = math.log(self.lobe_width.min), math.log(self.lobe_width.max)
+            return Material(kind=kind, albedo=albedo, specular=self.specular.draw(u[2]),
+                            lobe_width=float(math.exp(lo + u[3] * (hi - lo))))
         if kind == "sin_theta":
             return Material(kind=kind, albedo=albedo, axis=self.axis)
         return Material(kind=kind, albedo=albedo)

@@ -93,7 +93,7 @@ def outgoing_sums(obj, n_geo, s_xy, w_xy, geo, mat):
     Args: as :func:`primary_energy` (n_geo: (M, 3) geometric normals). Returns: (M, 2) float64, column 0 for the
     side −n_geo, column 1 for +n_geo.
     """
-    kind, albedo, _, _, axis, const_f = mat
+    kind, albedo, _, _, axis, const_f, _ = mat
     out = np.zeros((obj.shape[0], 2))
     for b in range(obj.shape[0]):
         o = obj[b]
@@ -127,7 +127,7 @@ def secondary_energy(pairs, irradiance, area, obj, n_lit, w_lx, n_geo, s_xy, w_x
     ``table`` (M, 2): the y-sums of factoring BRDFs, :func:`outgoing_sums` (the same for every laser point).
     Returns float, photons per pulse."""
     xa, xb, w, r, cos_a, cos_b, side_b = pairs
-    kind, _, _, _, axis, const_f = mat
+    kind, _, _, _, axis, const_f, _ = mat
     total = 0.0
     for p in range(xa.shape[0]):
         a, b = xa[p], xb[p]

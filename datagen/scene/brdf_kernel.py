@@ -9,6 +9,17 @@ The formulas of :mod:`datagen.scene.materials` (its module doc states them and t
   f = ρ·[(1 − k_s)/π + k_s·(e + 2)/(2π)·cos^e α], α the angle between ω_out and the mirror direction of ω_in;
   :func:`phong_gloss` is its glossy term k_s·(e + 2)/(2π)·cos^e α, :func:`phong_diffuse_scale` the c =
   (1 − k_s)ρ/π of the separable split;
+- :func:`retro_value`: the retroreflective kind, a diffuse part plus the Minimal Retroreflective Microfacet lobe
+  (Portsmouth, Raab, Belcour & Liu, JCGT 15(1), 2026: a GGX microfacet BRDF evaluated at the *back vector*
+  h_b = unit(ω_in + R ω_out), R the mirror reflection about the normal)
+  f = ρ·[(1 − k_s)/π + k_s·D(h_b)·G₂(ω_in, ω_out)/(4 cosθ_in cosθ_out)], with :func:`ggx_ndf` D (Trowbridge &
+  Reitz 1975; Walter et al. 2007), :func:`smith_lambda` Λ and the height-correlated Smith G₂ = 1/(1 + Λ_in + Λ_out)
+  (Heitz 2014); :func:`retro_lobe` is its lobe per unit ρ·k_s and :func:`retro_cos_h` the cosine of h_b;
+  :func:`retro_pdf` and :func:`retro_sample` sample that lobe through the distribution of visible normals (Heitz,
+  "Sampling the GGX distribution of visible normals", JCGT 7(4), 2018), reflected about the normal;
+- :func:`sample_direction`: the directions estimators draw at a surface point, cosine-weighted, or for a
+  retroreflective material the mixture k_s·lobe + (1 − k_s)·cosine; :func:`sampling_ratio` is its density over the
+  cosine density (exactly 1 for a cosine draw), which the balance heuristics of the estimators that draw them use;
 - :func:`brdf_value`: f(ω_in, ω_out) of one point of any kind from the material arrays (the compiled form of
   :meth:`~datagen.scene.materials.MaterialTable.evaluate`).
 
@@ -24,20 +35,23 @@ from __future__ import annotations
 import math
 import types
 
+import numpy as np
 from numba import njit
 from numba.core.registry import CPUDispatcher
 
-BRDF_KINDS = ("lambertian", "sin_theta", "phong")
-LAMBERTIAN, SIN_THETA, PHONG = range(3)
+BRDF_KINDS = ("lambertian", "sin_theta", "phong", "retroreflective")
+LAMBERTIAN, SIN_THETA, PHONG, RETROREFLECTIVE = range(4)
 """BRDF kind codes (:attr:`datagen.scene.materials.MaterialTable.kind`), indices into ``BRDF_KINDS``."""
 
 TANGENT_EPS = 1e-12
 """Below this squared tangential length a direction is along the normal and its azimuth is undefined;
 the sin θ lobe is then 0 there (a set of measure zero)."""
 
-__all__ = ["BRDF_KINDS", "LAMBERTIAN", "PHONG", "SIN_THETA", "TANGENT_EPS", "abs_sin_azimuth", "brdf_value",
-           "lambertian_value", "on_arrays", "phong_cos_alpha", "phong_diffuse_scale", "phong_gloss", "phong_power",
-           "phong_value", "sin_theta_scale", "sin_theta_value"]
+__all__ = ["BRDF_KINDS", "LAMBERTIAN", "PHONG", "RETROREFLECTIVE", "SIN_THETA", "TANGENT_EPS", "abs_sin_azimuth",
+           "brdf_value", "ggx_ndf", "lambertian_value", "on_arrays", "phong_cos_alpha", "phong_diffuse_scale",
+           "phong_gloss", "phong_power", "phong_value", "retro_cos_h", "retro_directions", "retro_lobe", "retro_pdf",
+           "retro_sample", "retro_value", "sample_direction", "sample_directions", "samples_lobe", "sampling_ratio",
+           "sin_theta_scale", "sin_theta_value", "smith_lambda"]
 
 
 _ON_ARRAYS: dict = {}
@@ -90,7 +104,8 @@ def phong_value(rho, ks, expo, power):
 
 @njit(cache=True, inline="always")
 def phong_diffuse_scale(rho, ks):
-    """c = (1 − k_s)ρ/π of the Phong kind's separable split (the part of f that does not depend on angles)."""
+    """c = (1 − k_s)ρ/π of the Phong and retroreflective kinds' separable split (the part of f that does not depend
+    on angles)."""
     return (1.0 - ks) * rho / math.pi
 
 
@@ -106,6 +121,160 @@ def phong_cos_alpha(cos_in, n0, n1, n2, i0, i1, i2, o0, o1, o2):
     unit normal n (cos_in = n·ω_in)."""
     m0, m1, m2 = 2.0 * cos_in * n0 - i0, 2.0 * cos_in * n1 - i1, 2.0 * cos_in * n2 - i2
     return min(max(m0 * o0 + m1 * o1 + m2 * o2, 0.0), 1.0)
+
+
+@njit(cache=True, inline="always")
+def ggx_ndf(alpha, cos_h):
+    """GGX (Trowbridge–Reitz) microfacet distribution D = α² / (π (cos²θ_h (α² − 1) + 1)²) in 1/sr, normalised so
+    that ∫ D cosθ_h dω_h = 1 over the hemisphere (Walter et al., EGSR 2007, eq. 33); α > 0 its width, cos_h = n·h."""
+    a2 = alpha * alpha
+    t = cos_h * cos_h * (a2 - 1.0) + 1.0
+    return a2 / (math.pi * (t * t))
+
+
+@njit(cache=True, inline="always")
+def smith_lambda(alpha, cos):
+    """Λ(ω) of the GGX Smith masking function, (√(1 + x) − 1)/2 with x = α² tan²θ (Heitz, JCGT 3(2), 2014, eq. 72),
+    written x / (2(1 + √(1 + x))) so that small x keeps its digits; cos = n·ω > 0."""
+    c2 = cos * cos
+    x = alpha * alpha * (1.0 - c2) / c2
+    return x / (2.0 * (1.0 + (1.0 + x) ** 0.5))
+
+
+@njit(cache=True, inline="always")
+def retro_cos_h(cos_in, cos_out, cos_io):
+    """n·h_b of the back vector h_b = unit(ω_in + R ω_out), R ω = 2(n·ω)n − ω the mirror image about the normal:
+    (cosθ_in + cosθ_out) / √(2 + 2(2 cosθ_in cosθ_out − ω_in·ω_out)); ``cos_io`` = ω_in·ω_out. It is 1 at
+    ω_out = ω_in and symmetric in the two directions."""
+    return (cos_in + cos_out) / (2.0 + 2.0 * (2.0 * cos_in * cos_out - cos_io)) ** 0.5
+
+
+@njit(cache=True, inline="always")
+def retro_lobe(alpha, cos_in, cos_out, cos_h):
+    """The retroreflective lobe per unit ρ·k_s, D(h_b)·G₂ / (4 cosθ_in cosθ_out) (1/sr), G₂ = 1/(1 + Λ_in + Λ_out) the
+    height-correlated Smith shadowing-masking (Heitz 2014, eq. 99); α = ``lobe_width``, cos_h from :func:`retro_cos_h`.
+    Its albedo ∫ lobe cosθ_out dω_out is that of the forward GGX lobe at the same incidence (R keeps solid angle and
+    cosθ_out), ≤ 1 since G₂ ≤ G₁(ω_in) (Portsmouth et al. 2026)."""
+    masking = 1.0 + (smith_lambda(alpha, cos_in) + smith_lambda(alpha, cos_out))
+    return ggx_ndf(alpha, cos_h) / (4.0 * cos_in * cos_out * masking)
+
+
+@njit(cache=True, inline="always")
+def retro_value(rho, ks, alpha, cos_in, cos_out, cos_h):
+    """Retroreflective f = ρ·[(1 − k_s)/π + k_s·:func:`retro_lobe`] (1/sr); ρ albedo, k_s the fraction in the lobe,
+    α its width, both cosines > 0."""
+    return rho * ((1.0 - ks) / math.pi + ks * retro_lobe(alpha, cos_in, cos_out, cos_h))
+
+
+@njit(cache=True, inline="always")
+def retro_pdf(alpha, cos_in, cos_h):
+    """Density (1/sr) of the directions :func:`retro_sample` draws, G₁(ω_in)·D(h_b) / (4 cosθ_in), G₁ = 1/(1 + Λ_in):
+    the visible-normal density G₁ D max(0, ω_in·h)/cosθ_in (Heitz 2018, eq. 2) over the reflection's Jacobian
+    4 ω_in·h; R keeps solid angle. Some of its mass lies below the surface (draws there carry f = 0)."""
+    return ggx_ndf(alpha, cos_h) / (4.0 * cos_in * (1.0 + smith_lambda(alpha, cos_in)))
+
+
+@njit(cache=True, inline="always")
+def retro_sample(alpha, v0, v1, v2, u1, u2):
+    """A direction of the retroreflective lobe for ω_in = v (local frame, normal +z, v2 > 0) from uniforms u1, u2:
+    a visible normal h of the GGX distribution seen from v (Heitz, JCGT 7(4), 2018: stretch, a point of the
+    projected hemisphere, unstretch), the mirror direction 2(v·h)h − v, then its image under R (x, y negated), so
+    that the back vector of (v, result) is h. Returns (o0, o1, o2); o2 ≤ 0 when the draw falls below the surface."""
+    s0, s1, s2 = alpha * v0, alpha * v1, v2
+    inv = 1.0 / math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    s0, s1, s2 = s0 * inv, s1 * inv, s2 * inv
+    lensq = s0 * s0 + s1 * s1
+    if lensq > 0.0:
+        il = 1.0 / math.sqrt(lensq)
+        t0, t1, t2 = -s1 * il, s0 * il, 0.0
+    else:
+        t0, t1, t2 = 1.0, 0.0, 0.0
+    b0, b1, b2 = s1 * t2 - s2 * t1, s2 * t0 - s0 * t2, s0 * t1 - s1 * t0
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    p1, p2 = r * math.cos(phi), r * math.sin(phi)
+    blend = 0.5 * (1.0 + s2)
+    p2 = (1.0 - blend) * math.sqrt(max(0.0, 1.0 - p1 * p1)) + blend * p2
+    pz = math.sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2))
+    h0 = alpha * (p1 * t0 + p2 * b0 + pz * s0)
+    h1 = alpha * (p1 * t1 + p2 * b1 + pz * s1)
+    h2 = max(0.0, p1 * t2 + p2 * b2 + pz * s2)
+    inv = 1.0 / math.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
+    h0, h1, h2 = h0 * inv, h1 * inv, h2 * inv
+    d = 2.0 * (v0 * h0 + v1 * h1 + v2 * h2)
+    return -(d * h0 - v0), -(d * h1 - v1), d * h2 - v2
+
+
+@njit(cache=True)
+def retro_directions(alpha, w_in, u1, u2):
+    """:func:`retro_sample` over arrays: w_in (m, 3) local unit directions (normal +z), u1, u2 (m,) uniforms →
+    (m, 3) float64 (rows with z ≤ 0 fell below the surface)."""
+    out = np.empty((w_in.shape[0], 3))
+    for i in range(w_in.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = retro_sample(alpha, w_in[i, 0], w_in[i, 1], w_in[i, 2], u1[i], u2[i])
+    return out
+
+
+@njit(cache=True, inline="always")
+def samples_lobe(mat, obj, cos_in):
+    """Whether the direction sampler of object ``obj``'s material (:func:`sample_direction`) draws from a lobe for
+    light arriving from ω_in (``cos_in`` = n·ω_in): a retroreflective material with k_s > 0 lit from above."""
+    return mat[0][obj] == RETROREFLECTIVE and mat[2][obj] > 0.0 and cos_in > 0.0
+
+
+@njit(cache=True, inline="always")
+def sample_direction(mat, obj, n0, n1, n2, i0, i1, i2, u, v):
+    """A direction leaving a point of object ``obj`` (unit normal n, light from unit ω_in = i) from uniforms u, v:
+    cosine-weighted about n (Shirley & Chiu's concentric disk lifted by Malley's method, in the tangent frame of
+    Duff et al., JCGT 6(1), 2017), or where :func:`samples_lobe` holds, the retroreflective lobe
+    (:func:`retro_sample`) when u < k_s and a cosine direction from (u − k_s)/(1 − k_s) otherwise: one uniform picks
+    the part and places the direction. Density: :func:`sampling_ratio` × cosθ_out/π. Returns (o0, o1, o2, cosθ_out);
+    a lobe draw below the surface has cosθ_out ≤ 0 (it carries f = 0)."""
+    sign = 1.0 if n2 >= 0.0 else -1.0
+    aa = -1.0 / (sign + n2)
+    bb = n0 * n1 * aa
+    t0, t1, t2 = 1.0 + sign * n0 * n0 * aa, sign * bb, -sign * n0
+    b0, b1, b2 = bb, sign + n1 * n1 * aa, -n1
+    lobe = samples_lobe(mat, obj, i0 * n0 + i1 * n1 + i2 * n2)
+    ks = mat[2][obj]
+    if lobe and u < ks:
+        lx, ly, z = retro_sample(mat[6][obj], i0 * t0 + i1 * t1 + i2 * t2, i0 * b0 + i1 * b1 + i2 * b2,
+                                 i0 * n0 + i1 * n1 + i2 * n2, u / ks, v)
+    else:
+        if lobe:
+            u = (u - ks) / (1.0 - ks)
+        a, b = 2.0 * u - 1.0, 2.0 * v - 1.0
+        if abs(a) > abs(b):
+            rr, phi = a, (math.pi / 4) * (b / a)
+        elif b != 0.0:
+            rr, phi = b, math.pi / 2 - (math.pi / 4) * (a / b)
+        else:
+            rr, phi = b, 0.0
+        z = math.sqrt(max(0.0, 1.0 - rr * rr))
+        lx, ly = rr * math.cos(phi), rr * math.sin(phi)
+    return lx * t0 + ly * b0 + z * n0, lx * t1 + ly * b1 + z * n1, lx * t2 + ly * b2 + z * n2, z
+
+
+@njit(cache=True)
+def sample_directions(normals, obj, w_in, u, v, mat):
+    """:func:`sample_direction` over arrays: normals, w_in (m, 3) unit, obj (m,) int, u, v (m,) uniforms, mat the
+    material arrays (:func:`datagen.transport.leg_kernels.material_arrays`) → (m, 3) float64 directions."""
+    out = np.empty((normals.shape[0], 3))
+    for i in range(normals.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2], _ = sample_direction(mat, obj[i], normals[i, 0], normals[i, 1], normals[i, 2],
+                                                              w_in[i, 0], w_in[i, 1], w_in[i, 2], u[i], v[i])
+    return out
+
+
+@njit(cache=True, inline="always")
+def sampling_ratio(mat, obj, cos_in, cos_out, cos_io):
+    """p(ω_out) / (cosθ_out/π): the density of :func:`sample_direction` for object ``obj``'s material over the cosine
+    density (ω_out above the surface, cos_in = n·ω_in, cos_io = ω_in·ω_out). Exactly 1.0 where it draws cosine
+    directions only (:func:`samples_lobe` false), else (1 − k_s) + k_s·:func:`retro_pdf`·π/cosθ_out."""
+    if not (samples_lobe(mat, obj, cos_in) and cos_out > 0.0):
+        return 1.0
+    ks, alpha = mat[2][obj], mat[6][obj]
+    return (1.0 - ks) + ks * (retro_pdf(alpha, cos_in, retro_cos_h(cos_in, cos_out, cos_io)) * math.pi / cos_out)
 
 
 @njit(cache=True, inline="always")
@@ -137,13 +306,14 @@ def abs_sin_azimuth(n0, n1, n2, a0, a1, a2, w0, w1, w2):
 def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
     """f(ω_in, ω_out) in 1/sr at a point of object ``obj`` with unit normal n (lit side) for unit directions
     ω_in = (i0, i1, i2), ω_out = (o0, o1, o2) away from the surface; ``mat`` = (kind int8, albedo, specular,
-    exponent, axis (n, 3), constant f) per object id (:func:`datagen.transport.leg_kernels.material_arrays`).
+    exponent, axis (n, 3), constant f, lobe width) per object id
+    (:func:`datagen.transport.leg_kernels.material_arrays`).
 
     The constant f of ``mat`` when it is not NaN (Lambertian without angle work,
     :meth:`datagen.transport.physics.LegPhysics.brdf`), else :meth:`MaterialTable.evaluate`: 0 unless both
     cosines are > 0, then the kind's formula (module doc).
     """
-    kind, albedo, specular, exponent, axis, const_f = mat
+    kind, albedo, specular, exponent, axis, const_f, width = mat
     f = const_f[obj]
     if not math.isnan(f):
         return f
@@ -160,6 +330,9 @@ def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
         expo = exponent[obj]
         return phong_value(rho, specular[obj], expo,
                            phong_power(phong_cos_alpha(cos_in, n0, n1, n2, i0, i1, i2, o0, o1, o2), expo))
+    if k == RETROREFLECTIVE:
+        cos_h = retro_cos_h(cos_in, cos_out, i0 * o0 + i1 * o1 + i2 * o2)
+        return retro_value(rho, specular[obj], width[obj], cos_in, cos_out, cos_h)
     if k == LAMBERTIAN:
         return lambertian_value(rho)
     return 0.0

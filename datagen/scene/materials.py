@@ -18,37 +18,68 @@ Kinds:
 - ``phong``: normalised modified Phong (Lafortune & Willems 1994): f = ρ·[(1−k_s)/π + k_s·(n+2)/(2π)·
   max(0, r_i·ω_o)^n], r_i the mirror direction of ω_i. Reciprocal since r_i·ω_o = r_o·ω_i; the lobe's
   albedo is ≤ 1 for every incidence, so a(ω_i) ≤ ρ. Large n approaches a mirror.
+- ``retroreflective``: light sent back toward where it came from (road signs, safety apparel, bicycle reflectors:
+  glass beads or corner cubes), the Minimal Retroreflective Microfacet model (Portsmouth, Raab, Belcour & Liu,
+  "The Minimal Retroreflective Microfacet Model", JCGT 15(1), 2026; the back-vector formulation adopted by OpenPBR
+  and MaterialX): f = ρ·[(1−k_s)/π + k_s·D(h_b)·G₂(ω_i, ω_o)/(4 cosθ_i cosθ_o)], a GGX lobe of width α =
+  ``lobe_width`` evaluated at the back vector h_b = unit(ω_i + R ω_o), R the mirror reflection about the normal, so
+  that it peaks at ω_o = ω_i. Reciprocal (h_b(ω_o, ω_i) = R h_b(ω_i, ω_o) and D, G₂ are symmetric about the
+  normal); R keeps solid angle and cosθ_o, so its lobe's albedo is that of the forward GGX lobe, ≤ 1 (G₂ ≤ G₁),
+  and a(ω_i) ≤ ρ. For small α the returned light falls to half its peak ≈ 1.29·α rad from ω_i (at normal
+  incidence); real sheeting returns most of its light within 1–2°, α ≈ 0.01–0.03. Formulas and sources:
+  :mod:`datagen.scene.brdf_kernel`.
 """
 from __future__ import annotations
 
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer
 
-from .brdf_kernel import (BRDF_KINDS, LAMBERTIAN, PHONG, SIN_THETA, TANGENT_EPS, lambertian_value, on_arrays,
-                          phong_diffuse_scale, phong_gloss, phong_value, sin_theta_scale, sin_theta_value)
+from .brdf_kernel import (BRDF_KINDS, LAMBERTIAN, PHONG, RETROREFLECTIVE, SIN_THETA, TANGENT_EPS, lambertian_value,
+                          on_arrays, phong_diffuse_scale, phong_gloss, phong_value, retro_cos_h, retro_lobe,
+                          retro_value, sin_theta_scale, sin_theta_value)
 from ..vectors import norm
 
-__all__ = ["BRDF_KINDS", "LAMBERTIAN", "PHONG", "SIN_THETA", "TANGENT_EPS", "Material", "MaterialTable",
-           "tangent_frame"]
+__all__ = ["BRDF_KINDS", "LAMBERTIAN", "LOBE_WIDTH_MAX", "PHONG", "RETROREFLECTIVE", "SIN_THETA", "TANGENT_EPS",
+           "Material", "MaterialTable", "tangent_frame"]
+
+LOBE_WIDTH_MAX = 1.0
+"""Widest retroreflective lobe accepted (GGX α): at α = 1 the lobe already spreads over the whole hemisphere, and a
+wider one is no retroreflector."""
 
 
 class Material(BaseModel):
     """Surface material: albedo (reflectivity Γ of the paper) and BRDF kind with its lobe parameters.
 
+    ``lobe_width`` is written out (:meth:`model_dump`) only for the retroreflective kind, so that the other kinds'
+    records are what they were before it existed.
+
     Raises:
         pydantic.ValidationError: albedo outside [0, 1], unknown kind, specular outside [0, 1],
-            exponent ≤ 0, or a zero-length anisotropy axis (the message names the field and value).
+            exponent ≤ 0, lobe_width outside (0, :data:`LOBE_WIDTH_MAX`], or a zero-length anisotropy axis (the
+            message names the field and value).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    kind: Literal["lambertian", "sin_theta", "phong"] = "lambertian"
+    kind: Literal["lambertian", "sin_theta", "phong", "retroreflective"] = "lambertian"
     albedo: float = Field(1.0, ge=0.0, le=1.0, description="hemispherical reflectance scale ρ (Γ), 0..1")
-    specular: float = Field(0.5, ge=0.0, le=1.0, description="phong: fraction k_s of ρ in the glossy lobe")
+    specular: float = Field(0.5, ge=0.0, le=1.0,
+                            description="phong, retroreflective: fraction k_s of ρ in the glossy or "
+                                        "retroreflective lobe")
     exponent: float = Field(50.0, gt=0.0, allow_inf_nan=False, description="phong: lobe exponent n (larger is sharper)")
     axis: tuple[float, float, float] = Field((0.0, 0.0, 1.0), description="sin_theta: azimuth reference axis")
+    lobe_width: float = Field(0.05, gt=0.0, le=LOBE_WIDTH_MAX, allow_inf_nan=False,
+                              description="retroreflective: GGX width α of the lobe about the incident direction "
+                                          "(half maximum ≈ 1.29·α rad from it)")
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler):
+        data = handler(self)
+        if self.kind != "retroreflective":
+            data.pop("lobe_width", None)
+        return data
 
     @field_validator("axis")
     @classmethod
@@ -60,15 +91,15 @@ class Material(BaseModel):
     @property
     def is_lambertian(self) -> bool:
         """True when f does not depend on directions (enables the factorised secondary, docs/physics.md §3)."""
-        return self.kind == "lambertian" or (self.kind == "phong" and self.specular == 0.0)
+        return self.kind == "lambertian" or (self.kind in ("phong", "retroreflective") and self.specular == 0.0)
 
 
 class MaterialTable:
     """Materials of a scene as parallel arrays, indexed by object id, for vectorised BRDF evaluation.
 
     Attributes:
-        kind: (n_objects,) int8 BRDF kind code (LAMBERTIAN, SIN_THETA, PHONG).
-        albedo, specular, exponent: (n_objects,) float64.
+        kind: (n_objects,) int8 BRDF kind code (LAMBERTIAN, SIN_THETA, PHONG, RETROREFLECTIVE).
+        albedo, specular, exponent, width: (n_objects,) float64 (width: the retroreflective lobe_width α).
         axis: (n_objects, 3) float64 unit anisotropy axes.
     """
 
@@ -78,6 +109,7 @@ class MaterialTable:
         self.albedo = np.array([m.albedo for m in materials], dtype=np.float64)
         self.specular = np.array([m.specular for m in materials], dtype=np.float64)
         self.exponent = np.array([m.exponent for m in materials], dtype=np.float64)
+        self.width = np.array([m.lobe_width for m in materials], dtype=np.float64)
         axis = np.array([m.axis for m in materials], dtype=np.float64).reshape(-1, 3)
         self.axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
         self.lambertian = np.array([m.is_lambertian for m in materials], dtype=bool)
@@ -115,6 +147,12 @@ class MaterialTable:
             mirror = 2.0 * cos_in[sel][:, None] * n - wi
             cos_alpha = np.clip(np.einsum("ij,ij->i", mirror, wo), 0.0, 1.0)
             f[sel] = on_arrays(phong_value)(rho[sel], ks, expo, cos_alpha ** expo)
+        sel = (kind == RETROREFLECTIVE) & (cos_in > 0) & (cos_out > 0)
+        if np.any(sel):
+            ids = object_ids[sel]
+            cos_h = _retro_cos_h(cos_in[sel], cos_out[sel], w_in[sel], w_out[sel])
+            f[sel] = on_arrays(retro_value)(rho[sel], self.specular[ids], self.width[ids], cos_in[sel], cos_out[sel],
+                                            cos_h)
         return np.where((cos_in > 0) & (cos_out > 0), f, 0.0)
 
 
@@ -125,12 +163,14 @@ class MaterialTable:
 
         Lambertian: c = ρ/π, g = 1, no lobe. sin θ: c = ρ/2, g = |sin azimuth|, no lobe (the lobe is a
         product of an incoming and an outgoing factor). Phong: c = (1 − k_s)ρ/π, g = 1, lobe = ρ·k_s·(n+2)/(2π)
-        ·cos^n α (not separable: summed pairwise).
+        ·cos^n α (not separable: summed pairwise). Retroreflective: c = (1 − k_s)ρ/π, g = 1, lobe = ρ·k_s·
+        D G₂/(4 cosθ_i cosθ_o) (summed pairwise).
         """
         ids = np.asarray(object_ids)
         kind, rho = self.kind[ids], self.albedo[ids]
         return np.where(kind == SIN_THETA, on_arrays(sin_theta_scale)(rho),
-                        np.where(kind == PHONG, on_arrays(phong_diffuse_scale)(rho, self.specular[ids]),
+                        np.where((kind == PHONG) | (kind == RETROREFLECTIVE),
+                                 on_arrays(phong_diffuse_scale)(rho, self.specular[ids]),
                                  on_arrays(lambertian_value)(rho)))
 
     def separable_factor(self, object_ids: np.ndarray, normals: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -152,13 +192,14 @@ class MaterialTable:
         return g
 
     def has_lobe(self, object_ids: np.ndarray) -> np.ndarray:
-        """True where the material has a non-separable lobe (Phong with k_s > 0)."""
+        """True where the material has a non-separable lobe (Phong or retroreflective with k_s > 0)."""
         ids = np.asarray(object_ids)
-        return (self.kind[ids] == PHONG) & (self.specular[ids] > 0)
+        return ((self.kind[ids] == PHONG) | (self.kind[ids] == RETROREFLECTIVE)) & (self.specular[ids] > 0)
 
     def lobe(self, object_ids: np.ndarray, normals: np.ndarray, w_in: np.ndarray,
              w_out: np.ndarray) -> np.ndarray:
-        """The non-separable part of f (Phong glossy lobe; 0 for other kinds), broadcasting like evaluate."""
+        """The non-separable part of f (Phong's glossy lobe, the retroreflective lobe; 0 for other kinds), broadcasting
+        like evaluate."""
         object_ids, normals, w_in, w_out = _broadcast(object_ids, normals, w_in, w_out)
         cos_in = np.einsum("...k,...k->...", normals, w_in)
         cos_out = np.einsum("...k,...k->...", normals, w_out)
@@ -166,10 +207,16 @@ class MaterialTable:
         sel = self.has_lobe(object_ids) & (cos_in > 0) & (cos_out > 0)
         if np.any(sel):
             ids = object_ids[sel]
+            retro = self.kind[ids] == RETROREFLECTIVE
             mirror = 2.0 * cos_in[sel][..., None] * normals[sel] - w_in[sel]
             cos_alpha = np.clip(np.einsum("...k,...k->...", mirror, w_out[sel]), 0.0, 1.0)
             expo = self.exponent[ids]
-            out[sel] = self.albedo[ids] * on_arrays(phong_gloss)(self.specular[ids], expo, cos_alpha ** expo)
+            lobe = np.where(retro, 0.0, on_arrays(phong_gloss)(self.specular[ids], expo, cos_alpha ** expo))
+            if np.any(retro):
+                ci, co = cos_in[sel][retro], cos_out[sel][retro]
+                cos_h = _retro_cos_h(ci, co, w_in[sel][retro], w_out[sel][retro])
+                lobe[retro] = self.specular[ids][retro] * on_arrays(retro_lobe)(self.width[ids][retro], ci, co, cos_h)
+            out[sel] = self.albedo[ids] * lobe
         return out
 
 
@@ -178,6 +225,12 @@ def _broadcast(ids, normals, w_in, w_out):
     shape = np.broadcast_shapes(ids.shape, normals.shape[:-1], w_in.shape[:-1], w_out.shape[:-1])
     return (np.broadcast_to(ids, shape), np.broadcast_to(normals, shape + (3,)),
             np.broadcast_to(w_in, shape + (3,)), np.broadcast_to(w_out, shape + (3,)))
+
+
+def _retro_cos_h(cos_in: np.ndarray, cos_out: np.ndarray, w_in: np.ndarray, w_out: np.ndarray) -> np.ndarray:
+    """n·h_b of the retroreflective back vector (:func:`~datagen.scene.brdf_kernel.retro_cos_h`) for (m,) cosines
+    and (m, 3) directions."""
+    return on_arrays(retro_cos_h)(cos_in, cos_out, np.einsum("ij,ij->i", w_in, w_out))
 
 
 def _abs_sin_azimuth(normals: np.ndarray, axis: np.ndarray, w: np.ndarray) -> np.ndarray:

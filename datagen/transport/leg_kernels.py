@@ -18,12 +18,13 @@ __all__ = ["fov_target", "material_arrays", "sensor_collection", "toward"]
 
 def material_arrays(physics) -> tuple:
     """The material table of a :class:`~datagen.transport.physics.LegPhysics` as the tuple the kernels take:
-    (kind int8, albedo, specular, exponent, axis (n, 3), constant f) per object id, where constant f is
-    :meth:`~datagen.transport.physics.LegPhysics.constant_brdf` (ρ/π without angle work, NaN: evaluate)."""
+    (kind int8, albedo, specular, exponent, axis (n, 3), constant f, lobe width) per object id, where constant f is
+    :meth:`~datagen.transport.physics.LegPhysics.constant_brdf` (ρ/π without angle work, NaN: evaluate) and lobe
+    width the retroreflective kind's α."""
     m = physics.materials
     ids = np.arange(len(m.kind))
     return (m.kind, m.albedo, m.specular, m.exponent, np.ascontiguousarray(m.axis),
-            np.ascontiguousarray(physics.constant_brdf(ids), dtype=np.float64))
+            np.ascontiguousarray(physics.constant_brdf(ids), dtype=np.float64), m.width)
 
 
 @njit(cache=True, inline="always")

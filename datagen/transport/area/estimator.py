@@ -65,8 +65,8 @@ from ...errors import SceneError
 from ...scene.capture import Capture
 from ...vectors import distinct_rows, dot, matmul
 from ..base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
-from .kernels import (connection_weights, fov_targets, material_arrays, primary_impulses, sensor_collection,
-                           spot_irradiance)
+from .kernels import (connection_weights, fov_targets, lobe_directions, material_arrays, primary_impulses,
+                      sensor_collection, spot_irradiance)
 from .secondary import AreaSecondary, spot_hits
 from ..physics import LegPhysics, PhysicsSettings
 
@@ -373,7 +373,7 @@ class AreaSampler:
         return spot_hits(self.capture, self.caster, uv, laser)
 
     def _connect(self, x: np.ndarray, n_x: np.ndarray, rho_x: np.ndarray, laser: int, rng: np.random.Generator,
-                 pad: np.ndarray | None = None) -> Connections:
+                 pad: np.ndarray | None, obj: np.ndarray, w_spot: np.ndarray) -> Connections:
         """Next-event connections of hidden points x (B, 3), from the side of normals n_x (B, 3), to the sensor.
 
         Two strategies under the balance heuristic: the area strategy of transport's ``connect`` sensor
@@ -382,7 +382,9 @@ class AreaSampler:
         (``pad`` (B, 2) in [0,1)², the padding coordinates of the sampling pattern; None: independent jitter
         per cell), since transport draws one grid per batch of lookins, which would correlate the FoV error of
         thousands of area samples; and ``fov_directions`` cosine-weighted rays from x whose first hit lies in the FoV
-        (density p_d = cosθ_x cosθ_y /(π r²) in area measure). Each connection weighs cosθ_y / r² ·
+        (density p_d = cosθ_x cosθ_y /(π r²) in area measure; at a retroreflective point, objects ``obj`` (B,), lit
+        from the unit directions ``w_spot`` (B, 3) toward the laser point, the rays follow its BRDF instead,
+        :func:`~datagen.scene.brdf_kernel.sample_direction` from the same uniforms, density p_d s). Each connection weighs cosθ_y / r² ·
         collection(y) / (ρ_a + D·p_d), per unit radiant intensity of x toward y (:attr:`Connections.weight`).
         Without the direction strategy a point a few cm from the FoV (a side wall meeting the relay wall, the
         box 10 cm in front of it) has G(x, y) ~ 1/r² and a huge variance; with it the weight stays below
@@ -415,9 +417,11 @@ class AreaSampler:
         n_y = np.broadcast_to(c.fov_normal, y.shape)
         obj_y = np.full(len(bi), self.physics.wall_object)
         if n_dir:
-            local, _ = square_to_hemisphere(rng.random((len(x), n_dir)), rng.random((len(x), n_dir)), "cosine")
+            u, v = rng.random((len(x), n_dir)), rng.random((len(x), n_dir))
+            local, _ = square_to_hemisphere(u, v, "cosine")
             n_b = np.broadcast_to(n_x[:, None], (len(x), n_dir, 3))
             dirs = to_world(local, n_b)
+            lobe_directions(dirs, n_x, obj, w_spot, (u, v), material_arrays(self.physics))
             hits = cst.intersect(x[:, None] + cst.offset * n_b, dirs)
             hp = np.nan_to_num(hits.points)
             hch = np.where(hits.hit, c.channel(laser, c.fov_pixel(hp, self.tol)), -1)
@@ -432,7 +436,8 @@ class AreaSampler:
             bi = np.concatenate([bi, db])
         collect, d_ys = sensor_collection(self.physics, y, n_y, obj_y, -wk)
         weight, time, phys = connection_weights(bi, np.ascontiguousarray(n_x), rho_x, wk, rr, cy, collect, d_ys,
-                                                self._weight_constants())
+                                                self._weight_constants(), obj, np.ascontiguousarray(w_spot),
+                                                material_arrays(self.physics))
         return Connections(bi, wk, weight, time, phys, chan)
 
     # -- estimator -------------------------------------------------------------------------------------------
@@ -521,7 +526,7 @@ class AreaSampler:
         rho_x = density_a[xs.face] + n_spot * geo / np.pi                    # ρ_a + ρ_s, 1/m²
         n_front = np.where(dot(xs.normals, w_spot)[:, None] < 0, -xs.normals, xs.normals)   # facing the spot
         pad = None if s.sampling == "random" else xs.pad
-        out = self._connect(xs.points, n_front, rho_x, laser, rng, pad)
+        out = self._connect(xs.points, n_front, rho_x, laser, rng, pad, xs.object_id, w_spot)
         self.stats.fov_connections += len(out.b)
         conn = {"normal": n_front[out.b], **{name: getattr(out, name) for name in Connections.FIELDS}}
         lit = np.ones(len(out.b), dtype=bool)
@@ -531,7 +536,7 @@ class AreaSampler:
             corners = c.fov_center + matmul(half, np.stack([c.fov_u, c.fov_v]))
             behind = np.flatnonzero((dot(corners[None] - xs.points[:, None], -n_front[:, None]) > 0).any(axis=1))
             back = self._connect(xs.points[behind], -n_front[behind], rho_x[behind], laser, rng,
-                                 None if pad is None else pad[behind])
+                                 None if pad is None else pad[behind], xs.object_id[behind], w_spot[behind])
             back.b = behind[back.b]
             self.stats.fov_connections += len(back.b)
             conn = {name: np.concatenate([conn[name], getattr(back, name)]) for name in Connections.FIELDS}
@@ -570,7 +575,8 @@ class AreaSampler:
         collect, d_ys = sensor_collection(self.physics, y, normal[keep], np.full(len(y), self.physics.wall_object), -w)
         b = np.arange(len(x))
         weight, time, phys = connection_weights(b, np.ascontiguousarray(n_side), rho_x, w, r, cos_y, collect, d_ys,
-                                                self._weight_constants())
+                                                self._weight_constants(), xs.object_id.astype(np.int64),
+                                                np.ascontiguousarray(w_spot), material_arrays(self.physics))
         conn = {"b": b, "direction": w, "weight": weight, "time": time, "phys": phys, "channel": chan,
                 "normal": n_side}
         self._deposit(xs, e_x, r_lx, w_spot, conn, dot(n_side, w_spot) > 0, laser, sink, rng)

@@ -9,6 +9,7 @@ number pre-drawn by the caller, so the random streams are those of the numpy cod
 - :func:`~datagen.scene.brdf_kernel.brdf_value` (re-exported here): f(ω_in, ω_out) of one point, every BRDF kind
   from the formula functions of :mod:`datagen.scene.brdf_kernel` (0 where a direction lies below the surface);
 - :func:`fov_targets`: the stratified FoV points of :meth:`AreaSampler._connect` and their geometry;
+  :func:`lobe_directions`: its FoV direction rays at retroreflective points, drawn from their BRDF;
 - :func:`partner_geometry` / :func:`partner_irradiance`: the x' → x geometry of the secondary's partners and
   the MIS irradiance term E(x') f_x' G / Σ_t P_t p_t(x');
 - :func:`secondary_pairs`: every (FoV connection, partner) pair's time, weight (per-connection weight × partner
@@ -25,14 +26,14 @@ import math
 import numpy as np
 from numba import njit
 
-from ...scene.brdf_kernel import abs_sin_azimuth, brdf_value
+from ...scene.brdf_kernel import RETROREFLECTIVE, abs_sin_azimuth, brdf_value, sample_directions, sampling_ratio
 from ...units import SPEED_OF_LIGHT
 from ..leg_kernels import fov_target, material_arrays, sensor_collection, toward  # noqa: F401 (shared)
 from ..physics import attenuation_term, emission_term, fov_term, geometry_term, irradiance_term
 from ...vectors import norm
 
-__all__ = ["abs_sin_azimuth", "brdf_value", "fov_targets", "material_arrays", "partner_geometry", "partner_irradiance",
-           "secondary_pairs"]
+__all__ = ["abs_sin_azimuth", "brdf_value", "fov_targets", "lobe_directions", "material_arrays", "partner_geometry",
+           "partner_irradiance", "secondary_pairs"]
 
 
 @njit(cache=True)
@@ -309,17 +310,20 @@ def partner_rays(keep, e_p, n_px, w_sp, p_tot, first_hits):
 
 
 @njit(cache=True)
-def connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys, consts):
+def connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys, consts, obj, w_in, mat):
     """Weights, times and path lengths of FoV connections (hidden point ``b`` → FoV point y): the balance heuristic
     of :meth:`datagen.transport.area.AreaSampler._connect` times
     :func:`~datagen.transport.physics.fov_connection_weight`,
 
-        weight = cosθ_y / r² · collection / (ρ_x (ρ_a + D p_d) + (M_f/A_FoV) p_d)   (0 where the density is 0),
+        weight = cosθ_y / r² · collection / (ρ_x (ρ_a + D p_d s) + (M_f/A_FoV) p_d)   (0 where the density is 0),
         p_d = cosθ_x cosθ_y / (π r²),  cosθ_x = n_x[b]·ω,
 
-    time = (r + d_ys if the sensor leg counts, else r) / c, phys = r + d_ys. b (n,) rows of n_x (B, 3) and
-    rho_x (B,); w (n, 3) unit x → y; r, cos_y, collect, d_ys (n,); consts = (ρ_a 1/m², D, M_f/A_FoV 1/m²,
-    sensor leg counted 1.0 or 0.0)."""
+    s the density of the point's direction sampler over the cosine density toward y
+    (:func:`~datagen.scene.brdf_kernel.sampling_ratio` for light from ω_in = w_in[b]: exactly 1 but at
+    retroreflective points). time = (r + d_ys if the sensor leg counts, else r) / c, phys = r + d_ys. b (n,) rows of
+    n_x (B, 3), rho_x (B,), obj (B,) int and w_in (B, 3) (unit, toward the laser point); w (n, 3) unit x → y; r,
+    cos_y, collect, d_ys (n,); consts = (ρ_a 1/m², D, M_f/A_FoV 1/m², sensor leg counted 1.0 or 0.0); mat the
+    material arrays."""
     rho_a, n_dir, fov_density, count_sensor = consts
     n = b.shape[0]
     weight = np.empty(n)
@@ -328,10 +332,32 @@ def connection_weights(b, n_x, rho_x, w, r, cos_y, collect, d_ys, consts):
     for i in range(n):
         k = b[i]
         r2 = r[i] ** 2
-        p_d = (n_x[k, 0] * w[i, 0] + n_x[k, 1] * w[i, 1] + n_x[k, 2] * w[i, 2]) * cos_y[i] / (np.pi * r2)
-        density = rho_x[k] * (rho_a + n_dir * p_d) + fov_density * p_d
+        cos_x = n_x[k, 0] * w[i, 0] + n_x[k, 1] * w[i, 1] + n_x[k, 2] * w[i, 2]
+        p_d = cos_x * cos_y[i] / (np.pi * r2)
+        s = sampling_ratio(mat, obj[k], n_x[k, 0] * w_in[k, 0] + n_x[k, 1] * w_in[k, 1] + n_x[k, 2] * w_in[k, 2],
+                           cos_x, w_in[k, 0] * w[i, 0] + w_in[k, 1] * w[i, 1] + w_in[k, 2] * w[i, 2])
+        density = rho_x[k] * (rho_a + n_dir * p_d * s) + fov_density * p_d
         inverse = 1.0 / density if density > 0.0 else 0.0
         weight[i] = inverse * fov_term(cos_y[i], r[i], collect[i])
         time[i] = (r[i] + d_ys[i] if count_sensor else r[i]) / SPEED_OF_LIGHT
         phys[i] = r[i] + d_ys[i]
     return weight, time, phys
+
+
+def lobe_directions(dirs: np.ndarray, n_x: np.ndarray, obj: np.ndarray, w_spot: np.ndarray, uv: tuple,
+                    mat: tuple) -> None:
+    """Redraw, in place, the FoV direction rays ``dirs`` (B, D, 3) of :meth:`AreaSampler._connect` at the points
+    whose material samples a lobe (retroreflective, lit from above the side n_x (B, 3) connects from:
+    :func:`~datagen.scene.brdf_kernel.samples_lobe`, light from the unit directions ``w_spot`` (B, 3) toward the
+    laser point; objects ``obj`` (B,) int) from their BRDF (:func:`~datagen.scene.brdf_kernel.sample_direction`),
+    with the same uniforms ``uv`` = (u, v), each (B, D); the other rows keep their cosine directions and their bits.
+    :func:`connection_weights` weighs both by the density they were drawn from."""
+    kind, specular = mat[0], mat[2]
+    rows = np.flatnonzero((kind[obj] == RETROREFLECTIVE) & (specular[obj] > 0)
+                          & (np.einsum("ij,ij->i", n_x, w_spot) > 0))
+    if not len(rows):
+        return
+    u, v = uv
+    d = dirs.shape[1]
+    dirs[rows] = sample_directions(np.repeat(n_x[rows], d, 0), np.repeat(obj[rows], d), np.repeat(w_spot[rows], d, 0),
+                                   u[rows].ravel(), v[rows].ravel(), mat).reshape(len(rows), d, 3)

@@ -8,7 +8,8 @@ sampler), built from the capture, settings, leg physics, ray caster and material
   biased low by design).
 - ``exact``: the same sum as ``full`` at O(Ñ) cost: with the BRDF at the lookin split as
   f = c·g(ω_in)·g(ω_out) + lobe, the pair sum is c × (incoming time profile ⊛ outgoing time profile), one FFT
-  convolution per lookin and channel (:class:`ConvGrid` holds the profiles); lobes (Phong) are summed pairwise.
+  convolution per lookin and channel (:class:`ConvGrid` holds the profiles); lobes (Phong, retroreflective) are
+  summed pairwise.
 - dark-middle connections: paths whose middle vertex the laser does not light, which the lookin secondary
   cannot sample (docs/accuracy.md), by next-event connections from the lookins' laser-shadowed observed points.
 
@@ -298,8 +299,8 @@ class LookinSecondary:
               conv: ConvGrid, stats) -> None:
         """Exact secondary at O(N·l·p) cost (docs/physics.md §3): with the split f = c·g(ω_in)·g(ω_out) + lobe, the
         sum over pairs (k', k) at each lookin is c × (incoming profile weighted by g) ⊛ (outgoing profile
-        weighted by g): one FFT convolution per lookin and channel. Lobes (Phong) are summed pairwise.
-        Profiles are binned on ``conv``'s grid (cloud-in-cell), its only approximation."""
+        weighted by g): one FFT convolution per lookin and channel. Lobes (Phong, retroreflective) are summed
+        pairwise. Profiles are binned on ``conv``'s grid (cloud-in-cell), its only approximation."""
         B = len(x)
         if B > 1:
             t_all = np.concatenate([in_t, out_t])

@@ -18,7 +18,8 @@ combined by the balance heuristic (Veach & Guibas 1995) over the densities of (x
 
 with p_A = 1 / A_pixel, n_rec the pixel regions the laser point records, g = cosθ_y cosθ_x / (π r²) and
 p_light(x_k | x_{k−1}) = q_{k−1} cosθ_{k−1} cosθ_{k,in} / (π d²) (Russian roulette at x_{k−1}, then a cosine
-direction). Each weight is bounded: near the relay wall the eye vertex takes over, near a corner between hidden
+direction; at a retroreflective vertex both light densities carry the factor s of its lobe sampler,
+:func:`~datagen.scene.brdf_kernel.sampling_ratio`). Each weight is bounded: near the relay wall the eye vertex takes over, near a corner between hidden
 surfaces the light's own continuation does. docs/physics.md §2 ("Light of every order") gives the estimator.
 
 Every leg weight is the one the other strategies use (:func:`~datagen.transport.physics.fov_connection_weight`,

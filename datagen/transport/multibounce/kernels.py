@@ -4,9 +4,11 @@
 
 - the cosine-weighted direction about the normal: :func:`datagen.sampling.square_to_hemisphere` (``"cosine"``:
   Shirley & Chiu's concentric disk lifted by Malley's method) rotated by :func:`datagen.sampling.directions.to_world`
-  (the tangent frame of Duff et al. 2017, :func:`datagen.scene.materials.tangent_frame`);
+  (the tangent frame of Duff et al. 2017, :func:`datagen.scene.materials.tangent_frame`), or, at a retroreflective
+  vertex, a draw of its lobe (:func:`datagen.scene.brdf_kernel.retro_sample`) with probability k_s;
 - the BRDF f(ω_in, ω_out) of :func:`datagen.scene.brdf_kernel.brdf_value` (each formula defined once there);
-- the flux update Φ·f·π/q over the cosine density and Russian roulette with survival q
+- the flux update Φ·f·π/(q·s) over the direction's density (s = 1 for a cosine direction,
+  :func:`datagen.scene.brdf_kernel.sampling_ratio`) and Russian roulette with survival q
   (docs/physics.md §2, "Light of every order").
 
 ``tests/test_multibounce.py`` checks the directions against the numpy functions for the same uniforms, so the two
@@ -25,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ...scene.brdf_kernel import brdf_value
+from ...scene.brdf_kernel import brdf_value, sample_direction, samples_lobe, sampling_ratio
 from ...units import SPEED_OF_LIGHT
 from ..leg_kernels import fov_target
 from ..physics import fov_term, geometry_term
@@ -34,8 +36,12 @@ from .eye import eye_share
 
 @njit(cache=True)
 def continue_paths(n_x, obj, w_in, u, v, r, flux, survival, mat):
-    """Continue m paths from their vertices: a cosine-weighted direction about the normal, the flux over its
-    density and the survival probability, and Russian roulette.
+    """Continue m paths from their vertices: a direction from the material's sampler, the flux over its density and
+    the survival probability, and Russian roulette.
+
+    The sampler is :func:`~datagen.scene.brdf_kernel.sample_direction`: the cosine-weighted hemisphere about the
+    normal for every kind but retroreflective with k_s > 0, which draws from its lobe when u < k_s and a cosine
+    direction from (u − k_s)/(1 − k_s) otherwise.
 
     Args:
         n_x (m, 3) unit normals on the side the light arrives from; obj (m,) int object ids; w_in (m, 3) unit
@@ -43,41 +49,32 @@ def continue_paths(n_x, obj, w_in, u, v, r, flux, survival, mat):
         flux (m,) photons; survival (n_objects,) q per object; mat the material arrays
         (:func:`datagen.transport.leg_kernels.material_arrays`).
     Returns:
-        (w_out (m, 3) float64, flux_out (m,) float64 = flux·f·π/q (0 where q = 0), live (m,) bool: the roulette
-        kept the path and its flux is > 0).
+        (w_out (m, 3) float64, flux_out (m,) float64 = flux·f·π/(q·s) (0 where q = 0), live (m,) bool: the roulette
+        kept the path and its flux is > 0, s (m,) float64: the direction's density over the cosine density,
+        :func:`~datagen.scene.brdf_kernel.sampling_ratio`, exactly 1 for a cosine direction).
     """
     m = n_x.shape[0]
     w_out = np.empty((m, 3))
     flux_out = np.zeros(m)
     live = np.zeros(m, dtype=np.bool_)
+    ratio = np.ones(m)
     for i in range(m):
-        # concentric disk (Shirley & Chiu 1997), lifted to the cosine-weighted hemisphere (Malley)
-        a, b = 2.0 * u[i] - 1.0, 2.0 * v[i] - 1.0
-        if abs(a) > abs(b):
-            rr, phi = a, (math.pi / 4) * (b / a)
-        elif b != 0.0:
-            rr, phi = b, math.pi / 2 - (math.pi / 4) * (a / b)
-        else:
-            rr, phi = b, 0.0
-        z = math.sqrt(max(0.0, 1.0 - rr * rr))
-        lx, ly = rr * math.cos(phi), rr * math.sin(phi)
-        # tangent frame (Duff et al. 2017), t × b = n
         n0, n1, n2 = n_x[i, 0], n_x[i, 1], n_x[i, 2]
-        sign = 1.0 if n2 >= 0.0 else -1.0
-        aa = -1.0 / (sign + n2)
-        bb = n0 * n1 * aa
-        t0, t1, t2 = 1.0 + sign * n0 * n0 * aa, sign * bb, -sign * n0
-        b0, b1, b2 = bb, sign + n1 * n1 * aa, -n1
-        o0 = lx * t0 + ly * b0 + z * n0
-        o1 = lx * t1 + ly * b1 + z * n1
-        o2 = lx * t2 + ly * b2 + z * n2
+        i0, i1, i2 = w_in[i, 0], w_in[i, 1], w_in[i, 2]
+        o = obj[i]
+        o0, o1, o2, z = sample_direction(mat, o, n0, n1, n2, i0, i1, i2, u[i], v[i])
         w_out[i, 0], w_out[i, 1], w_out[i, 2] = o0, o1, o2
-        q = survival[obj[i]]
+        q = survival[o]
         if q > 0.0:
-            f = brdf_value(mat, obj[i], n0, n1, n2, w_in[i, 0], w_in[i, 1], w_in[i, 2], o0, o1, o2)
-            flux_out[i] = flux[i] * f * math.pi / q
+            f = brdf_value(mat, o, n0, n1, n2, i0, i1, i2, o0, o1, o2)
+            cos_in = n0 * i0 + n1 * i1 + n2 * i2
+            if samples_lobe(mat, o, cos_in):
+                ratio[i] = sampling_ratio(mat, o, cos_in, z, i0 * o0 + i1 * o1 + i2 * o2)
+                flux_out[i] = flux[i] * f * math.pi / (q * ratio[i]) if f > 0.0 else 0.0
+            else:
+                flux_out[i] = flux[i] * f * math.pi / q
         live[i] = r[i] < q and flux_out[i] > 0.0
-    return w_out, flux_out, live
+    return w_out, flux_out, live, ratio
 
 
 @njit(cache=True)
@@ -164,7 +161,8 @@ def eye_weights(rows, w, d, cos_x, cos_z, obj, n_x, w_in, flux, counted, physica
     times and physical path lengths. The weight is the radiant intensity of x toward z f_x cosθ_x, its irradiance at
     z (G = cosθ_x cosθ_z / d², :func:`~datagen.transport.physics.geometry_term`), z's intensity toward y f_z cosθ_zy,
     the FoV leg ``fov``; over the eye vertex's density b = (p_A / n_rec) g times its balance weight b / (a + b + c),
-    a = p_light p_A, c = p_light q_z g, p_light = q_x G / π (the FoV leg carries A_pixel = 1 / p_A).
+    a = p_light p_A, c = p_light q_z g s_z, p_light = q_x G s_x / π (the FoV leg carries A_pixel = 1 / p_A; s the
+    continuation's density over the cosine density, :func:`~datagen.scene.brdf_kernel.sampling_ratio`).
 
     Args (k visible pairs): rows (k,) int64 the light vertex of each; w (k, 3) unit x → z; d, cos_x, cos_z (k,)
         from :func:`eye_pairs`; per light vertex: obj (int64), n_x, w_in (3,), flux, counted, physical, pid (int64:
@@ -186,9 +184,13 @@ def eye_weights(rows, w, d, cos_x, cos_z, obj, n_x, w_in, flux, counted, physica
                          w_zy[j, 0], w_zy[j, 1], w_zy[j, 2])
         cos_zy = n_z[j, 0] * w_zy[j, 0] + n_z[j, 1] * w_zy[j, 1] + n_z[j, 2] * w_zy[j, 2]
         geo = geometry_term(cos_x[m], cos_z[m], d[m])
-        p_light = survival[obj[i]] * geo / math.pi
+        cos_in_x = n_x[i, 0] * w_in[i, 0] + n_x[i, 1] * w_in[i, 1] + n_x[i, 2] * w_in[i, 2]
+        cos_io_x = w_in[i, 0] * w[m, 0] + w_in[i, 1] * w[m, 1] + w_in[i, 2] * w[m, 2]
+        p_light = survival[obj[i]] * geo / math.pi * sampling_ratio(mat, obj[i], cos_in_x, cos_x[m], cos_io_x)
         b = p_a / n_rec[j] * g[j]
-        mis_over_pdf = p_a / (p_light * p_a + b + p_light * survival[obj_z[j]] * g[j])
+        cos_io_z = -(w[m, 0] * w_zy[j, 0] + w[m, 1] * w_zy[j, 1] + w[m, 2] * w_zy[j, 2])
+        s_z = sampling_ratio(mat, obj_z[j], cos_z[m], cos_zy, cos_io_z)
+        mis_over_pdf = p_a / (p_light * p_a + b + p_light * survival[obj_z[j]] * g[j] * s_z)
         out[m] = flux[i] * f_x * geo * f_z * cos_zy * fov[j] * mis_over_pdf
         path[m] = physical[i] + d[m] + r_zy[j] + d_ys[j]
         time[m] = (counted[i] + d[m] + r_zy[j] + (d_ys[j] if sensor else 0.0)) / SPEED_OF_LIGHT
@@ -265,16 +267,17 @@ def arrive(hit, dist, points, normals, obj, ray_dir, counted, physical, flux, la
 
 
 @njit(cache=True)
-def survivors(live, r, survival, obj, x, n_x, w_out, flux, counted, physical, laser, pid, p_in, offset):
+def survivors(live, r, survival, obj, x, n_x, w_out, flux, counted, physical, laser, pid, p_in, offset, ratio):
     """The paths that go on after :func:`continue_paths` (``live``), compacted, and their next rays.
 
     Args: live (m,) bool; r (m,) the roulette's uniforms; survival (n_objects,) q; obj (m,) int64; x, n_x, w_out
         (m, 3) the vertices, their normals (lit side) and continuation directions; flux (m,) (after the
         continuation), counted, physical (m,), laser (m,) int64, pid (m,) or (0,) int64, p_in (m,); offset: the ray
-        caster's offset, m.
+        caster's offset, m; ratio (m,): each direction's density over the cosine density (:func:`continue_paths`).
     Returns:
-        (flux, counted, physical (s,), laser, pid (s,) int64, p_in (s,), src_normal (s, 3), q_prev (s,), ray_origin
-        = x + offset·n_x, ray_dir (s, 3), cos_src = n_x·ray_dir (s,), the roulette's count of r ≥ q).
+        (flux, counted, physical (s,), laser, pid (s,) int64, p_in (s,), src_normal (s, 3), q_prev (s,) = q × ratio
+        (the ray's density is q_prev·cosθ_src/π per sr), ray_origin = x + offset·n_x, ray_dir (s, 3), cos_src =
+        n_x·ray_dir (s,), the roulette's count of r ≥ q).
     """
     m = live.shape[0]
     roulette = 0
@@ -296,7 +299,7 @@ def survivors(live, r, survival, obj, x, n_x, w_out, flux, counted, physical, la
         laser_s[j] = laser[i]
         if pid.shape[0]:
             pid_s[j] = pid[i]
-        q_s[j] = survival[obj[i]]
+        q_s[j] = survival[obj[i]] * ratio[i]
         for c in range(3):
             normal_s[j, c] = n_x[i, c]
             origin_s[j, c] = x[i, c] + offset * n_x[i, c]
@@ -311,7 +314,8 @@ def nee_weights(conn, obj, n_x, w_in, flux, counted, physical, count, p_in, surv
     """Weights (before attenuation), arrival times and physical path lengths of visible next-event connections
     (MultibounceTracer._connect, aperture captures): the radiant intensity flux·f(ω_in, ω_y)·cosθ_x toward y times
     the FoV leg :func:`~datagen.transport.physics.fov_term` (cosθ_y A_pixel, r, collection), under the balance
-    heuristic p_A / (p_A + q g + [eye] :func:`~.eye.eye_share`), g = cosθ_x cosθ_y / (π r²).
+    heuristic p_A / (p_A + q g s + [eye] :func:`~.eye.eye_share`), g = cosθ_x cosθ_y / (π r²), s the continuation's
+    density over the cosine density toward y (:func:`~datagen.scene.brdf_kernel.sampling_ratio`).
 
     Args (k connections): conn = (b (k,) int64 the vertex of each, wk (k, 3) unit x → y, r, cos_y, collect, d_ys
         (k,)); per vertex: obj (int64), n_x, w_in (3,), flux, counted, physical, count (int64: pixel regions recorded),
@@ -331,7 +335,10 @@ def nee_weights(conn, obj, n_x, w_in, flux, counted, physical, count, p_in, surv
                        wk[j, 0], wk[j, 1], wk[j, 2])
         w = flux[i] * f * cos_x * fov_term(cos_y[j] * area, r[j], collect[j])
         g = geometry_term(cos_x, cos_y[j], r[j]) / math.pi
-        p_d = survival[obj[i]] * g
+        p_d = survival[obj[i]] * g * sampling_ratio(mat, obj[i], _dot3(n_x[i, 0], n_x[i, 1], n_x[i, 2], w_in[i, 0],
+                                                                       w_in[i, 1], w_in[i, 2]), cos_x,
+                                                    _dot3(w_in[i, 0], w_in[i, 1], w_in[i, 2], wk[j, 0], wk[j, 1],
+                                                          wk[j, 2]))
         p_e = eye_share(p_a, g, count[i], p_in[i]) if eye else 0.0
         weight[j] = w * (p_a / (p_a + p_d + p_e))
         path[j] = physical[i] + r[j] + d_ys[j]

@@ -12,8 +12,12 @@ The estimator (docs/physics.md §2, "Light of every order"; docs/accuracy.md for
   direction is cosine-weighted about the normal on the side the light arrives from, the flux is multiplied by
   f(ω_in, ω_out) π (the BRDF over the cosine density) and divided by the survival probability q = min(1, ρ) of
   Russian roulette (ρ the material's albedo: a Lambertian path keeps its flux and survives with probability ρ).
-  Roulette is unbiased. Every surface takes part, the relay wall included. This step runs in one compiled pass
-  (:func:`~datagen.transport.multibounce.kernels.continue_paths`).
+  Roulette is unbiased. Every surface takes part, the relay wall included. A retroreflective vertex samples its
+  BRDF instead: its lobe with probability k_s (:func:`~datagen.scene.brdf_kernel.retro_sample`), a cosine direction
+  otherwise, the flux × f cosθ / (q p) over that mixture's density p, and every balance-heuristic density below
+  that holds the continuation's cosθ/π holds p instead (the factor s = p π / cosθ,
+  :func:`~datagen.scene.brdf_kernel.sampling_ratio`, exactly 1 for the other kinds). This step runs in one compiled
+  pass (:func:`~datagen.transport.multibounce.kernels.continue_paths`).
 - **Termination** is exact and bounded: every impulse of a vertex x, or of any later vertex of its path, arrives
   after the vertex's counted length plus at least x's distance to the FoV rectangle
   (:meth:`~datagen.scene.capture.Capture.fov_distance`: the legs that remain are at least that long) plus the
@@ -28,7 +32,7 @@ The estimator (docs/physics.md §2, "Light of every order"; docs/accuracy.md for
   :meth:`LegPhysics.sensor_collection`) times the vertex's radiant intensity flux · f(ω_in, ω_y) cosθ_x.
 - **Direction hits** (aperture captures): the continuation ray of a vertex of order k ≥ ``min_order`` that lands
   on a FoV pixel region is a second strategy for the same path (density q cosθ_x cosθ_y/(π r²) in area
-  measure). Both are combined by the balance heuristic (Veach & Guibas 1995), as the area sampler's FoV
+  measure, × s at a retroreflective vertex). Both are combined by the balance heuristic (Veach & Guibas 1995), as the area sampler's FoV
   connections are: the weight stays bounded next to the FoV, where the area strategy alone has G ~ 1/r².
   Point-radiance captures connect to the sensor points only (points cannot be hit).
 - **Eye vertices** (aperture captures, :mod:`.eye`): per path one hidden vertex z sampled from the FoV's side (a
@@ -353,13 +357,14 @@ class MultibounceTracer:
                     eye, pid = eye_vertices(c, cst, ph, self.pixels, laser, rng), np.arange(len(keep))
                     self.stats.eye_rays += len(keep)
                 self._connect_eye(x, n_x, obj, w_in, flux, counted, physical, laser, eye, pid, sink, order + 1)
-            # continue: cosine direction about n_x, flux × f π / q, roulette with q = min(1, ρ)
+            # continue: the material's direction sampler (cosine about n_x but for retroreflective lobes), flux × f π /
+            # (q s), roulette with q = min(1, ρ); q_prev carries q s, s the direction's density over the cosine density
             m = len(keep)
             u, v, r = rng.random(m), rng.random(m), rng.random(m)
-            w_out, flux, live = continue_paths(n_x, obj, w_in, u, v, r, flux, self.survival, self._mat)
+            w_out, flux, live, ratio = continue_paths(n_x, obj, w_in, u, v, r, flux, self.survival, self._mat)
             (flux, counted, physical, laser, pid_next, p_in, src_normal, q_prev, ray_origin, ray_dir, cos_src,
              roulette) = survivors(live, r, self.survival, obj, x, n_x, w_out, flux, counted, physical, laser,
-                                   pid if pid is not None else no_pid, p_in, cst.offset)
+                                   pid if pid is not None else no_pid, p_in, cst.offset, ratio)
             pid = pid_next if pid is not None else None
             self.stats.roulette += roulette
 
@@ -417,8 +422,9 @@ class MultibounceTracer:
     def _fov_hits(self, hits, origin: np.ndarray, direction: np.ndarray, flux: np.ndarray, counted: np.ndarray,
                   physical: np.ndarray, q: np.ndarray, n_x: np.ndarray, laser: np.ndarray, sink: Sink,
                   order: int, p_in: np.ndarray) -> None:
-        """Continuation rays (flux already × f π / q) that land on a FoV pixel region: the direction strategy of
-        the FoV connection, weighted by the balance heuristic against :meth:`_connect`'s area strategy."""
+        """Continuation rays (flux already × f π / (q s)) that land on a FoV pixel region: the direction strategy of
+        the FoV connection, weighted by the balance heuristic against :meth:`_connect`'s area strategy (``q``: the
+        rays' q s, :func:`~datagen.transport.multibounce.kernels.survivors`)."""
         c, ph = self.capture, self.physics
         if c.convention != "aperture":
             return

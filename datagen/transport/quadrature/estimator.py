@@ -83,7 +83,7 @@ from ...errors import ConfigError
 from ...sampling.surfaces import subdivide_with_vertices
 from ...scene import RayCaster, Scene
 from ...scene.capture import Capture
-from ...scene.materials import LAMBERTIAN, PHONG
+from ...scene.materials import LAMBERTIAN, PHONG, RETROREFLECTIVE
 from ...vectors import dot
 from ..area.estimator import AREA_FOLLOWS_PLAN, AreaSampler, AreaSettings
 from ..base import Sink, register
@@ -571,9 +571,9 @@ class Quadrature:
         return k if isinstance(forced, int) else min(MAX_FOV_CELLS, k)
 
     def compiled_case(self) -> bool:
-        """Whether the compiled primary covers these settings: Lambertian or Phong hidden surfaces, Lambertian laser
-        points and relay wall, no ``brdf_angles``."""
+        """Whether the compiled primary covers these settings: Lambertian, Phong or retroreflective hidden surfaces,
+        Lambertian laser points and relay wall, no ``brdf_angles``."""
         m = self.materials
         return bool(m.lambertian[self.capture.spot_objects].all() and not self._wall_angles
-                    and np.isin(m.kind[self.cell_object], (LAMBERTIAN, PHONG)).all()
+                    and np.isin(m.kind[self.cell_object], (LAMBERTIAN, PHONG, RETROREFLECTIVE)).all()
                     and not self.settings.brdf_angles)

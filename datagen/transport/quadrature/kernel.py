@@ -3,14 +3,15 @@
 For each pair of a block of connections (laser point l, target y, channel) and each sub-triangle T (centroid x,
 face normal n, area A) the kernel evaluates what :meth:`datagen.transport.quadrature.Quadrature._primary` builds
 from the per-leg functions of :mod:`datagen.transport.physics` (the documented source of every factor), for
-Lambertian or Phong hidden surfaces, Lambertian laser points and relay wall (``brdf_angles`` off; the wall's
-collection then does not depend on the incoming direction):
+Lambertian, Phong or retroreflective hidden surfaces, Lambertian laser points and relay wall (``brdf_angles`` off;
+the wall's collection then does not depend on the incoming direction):
 
 - laser leg (:meth:`~datagen.transport.physics.LegPhysics.irradiance`): E = Φ (ρ_l/π) cosθ_l cosθ_x,in / r_l²,
   lit on the side of T facing x_l, when cosθ_l > 0, cosθ_x,in > 0 and r_l > tol;
 - target leg (:func:`~datagen.transport.physics.fov_connection_weight`): G = |cosθ_x,out| cosθ_y / r_y² ·
   collection(y) dA_y, on the side facing y;
-- weight A · E · f · G (· e^{−μ·path}), f = ρ/π or Phong's (:meth:`datagen.scene.materials.MaterialTable.evaluate`),
+- weight A · E · f · G (· e^{−μ·path}), f = ρ/π, Phong's or the retroreflective kind's
+  (:meth:`datagen.scene.materials.MaterialTable.evaluate`),
   when both legs reach the same side; path lengths at the vertices of T and the tent shift of the module doc of
   :mod:`datagen.transport.quadrature`; the tent (and the coarse rule's tent for the error estimate) goes to the
   accumulator's fine grid by :func:`datagen.timing.tent_kernel.deposit_tent`.
@@ -43,7 +44,8 @@ import numpy as np
 from numba import njit, prange
 
 from ... import threads  # noqa: F401  (numba's threading layer, before any parallel kernel)
-from ...scene.brdf_kernel import PHONG, phong_cos_alpha, phong_power, phong_value
+from ...scene.brdf_kernel import (PHONG, RETROREFLECTIVE, phong_cos_alpha, phong_power, phong_value, retro_cos_h,
+                                  retro_value)
 from ...timing.tent_kernel import deposit_tent, sort3
 from ..physics import attenuation_term, emission_term, fov_term, irradiance_term
 
@@ -160,10 +162,11 @@ def _cell_legs(m, l, t, same, soa, spots, spot_n, spot_f, photons, targets, fov_
 @njit(cache=True, inline="always")
 def _cell_brdf(m, l, t, same, soa, spots, targets, cell_brdf) -> float:
     """The hidden BRDF f of pair (cell m, connection (l, t)) (row m of ``cell_brdf``: :data:`CELL_BRDF`): ρ/π, or
-    Phong's with the lit-side normal (:mod:`datagen.scene.brdf_kernel`) from the directions to the laser point and
-    the target."""
+    Phong's or the retroreflective kind's with the lit-side normal (:mod:`datagen.scene.brdf_kernel`) from the
+    directions to the laser point and the target."""
     f = cell_brdf[m, 0]
-    if cell_brdf[m, 1] == PHONG:
+    kind = cell_brdf[m, 1]
+    if kind == PHONG or kind == RETROREFLECTIVE:
         n0, n1, n2 = soa[3, m], soa[4, m], soa[5, m]
         w0, w1, w2 = spots[l, 0] - soa[0, m], spots[l, 1] - soa[1, m], spots[l, 2] - soa[2, m]
         inv_l = 1.0 / max(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2), 1e-300)
@@ -176,10 +179,17 @@ def _cell_brdf(m, l, t, same, soa, spots, targets, cell_brdf) -> float:
             d0, d1, d2 = d0 * inv_y, d1 * inv_y, d2 * inv_y
         nfw = n0 * w0 + n1 * w1 + n2 * w2
         sgn = 1.0 if nfw > 0.0 else -1.0
-        expo = cell_brdf[m, 4]
-        f = phong_value(cell_brdf[m, 2], cell_brdf[m, 3], expo,
-                        phong_power(phong_cos_alpha(abs(nfw), sgn * n0, sgn * n1, sgn * n2, w0, w1, w2, d0, d1, d2),
-                                    expo))
+        if kind == PHONG:
+            expo = cell_brdf[m, 4]
+            f = phong_value(cell_brdf[m, 2], cell_brdf[m, 3], expo,
+                            phong_power(phong_cos_alpha(abs(nfw), sgn * n0, sgn * n1, sgn * n2, w0, w1, w2, d0, d1,
+                                                        d2), expo))
+        else:
+            cos_out = sgn * (n0 * d0 + n1 * d1 + n2 * d2)
+            if not (cos_out > 0.0 and nfw != 0.0):
+                return 0.0
+            cos_h = retro_cos_h(abs(nfw), cos_out, w0 * d0 + w1 * d1 + w2 * d2)
+            f = retro_value(cell_brdf[m, 2], cell_brdf[m, 3], cell_brdf[m, 5], abs(nfw), cos_out, cos_h)
     return f
 
 
@@ -217,9 +227,10 @@ def _node_map(speed, t_start, step, shift):
 SOA = ("x", "y", "z", "n_x", "n_y", "n_z", "area", "dark_inside")
 """Rows of the pair kernel's per-cell array (8, M) float64: centroid, unit normal, area (m²), and 1.0 where the inner
 side of a closed outward surface is never lit (the laser leg is shadow-tested and the cell is ``closed``), else 0."""
-CELL_BRDF = ("f_lamb", "kind", "rho", "ks", "expo")
-"""Columns of the kernel's per-sub-triangle BRDF array (M, 5) float64: constant f = ρ/π (Lambertian), the kind
-code (:data:`datagen.scene.brdf_kernel.PHONG` …), albedo, specular fraction and exponent of its object."""
+CELL_BRDF = ("f_lamb", "kind", "rho", "ks", "expo", "width")
+"""Columns of the kernel's per-sub-triangle BRDF array (M, 6) float64: constant f = ρ/π (Lambertian), the kind
+code (:data:`datagen.scene.brdf_kernel.PHONG` …), albedo, specular fraction, Phong exponent and retroreflective
+lobe width of its object."""
 WORK = ("ray_cell", "ray_count", "visible", "group_ptr", "group_conn")
 GEO = ("vertices", "cells", "area", "comp_base", "coarse_of", "coarse_cells")
 POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol",

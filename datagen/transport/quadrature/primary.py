@@ -381,7 +381,8 @@ def _run_compiled(q, grid, coarse, progress: Callable[[int], None] | None) -> No
     i64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)
     mat = q.materials
     cell_brdf = np.ascontiguousarray(np.stack([f_lamb, mat.kind[q.cell_object], mat.albedo[q.cell_object],   # CELL_BRDF
-                                               mat.specular[q.cell_object], mat.exponent[q.cell_object]], axis=1),
+                                               mat.specular[q.cell_object], mat.exponent[q.cell_object],
+                                               mat.width[q.cell_object]], axis=1),
                                      dtype=np.float64)
     geo = (f64(q.vertices), i64(q.cells), f64(q.cell_area), comp_base, i64(q.coarse_of),
            i64(q.coarse_cells.reshape(-1, 3)))
