@@ -244,7 +244,10 @@ class DetectorConfig(BaseModel):
     def from_yaml(cls, path: str | os.PathLike) -> "DetectorConfig":
         """Read a preset such as ``configs/detectors/cmos_spad_array.yaml``.
 
-        The file holds a mapping of the fields above (optionally under a top-level ``detector:`` key).
+        The file holds a mapping of the fields above, or a ``detector:`` block beside an optional ``irf:`` block (the
+        keys of a scene file's ``simulation`` block, as ``datagen fit-detector --irf two_tail`` and
+        ``datagen estimate-capture`` write them; the ``irf:`` block is the simulation's, read by
+        :class:`~datagen.timing.irf.Irf`, and is not checked here).
 
         Raises:
             ConfigError (a ValueError): the file cannot be read or parsed, or a field is unknown or invalid; the
@@ -257,7 +260,7 @@ class DetectorConfig(BaseModel):
             data = read_yaml(path, "detector config", ConfigError)
         except OSError as exc:
             raise ConfigError(f"{path}: cannot read detector config: {exc}") from None
-        if isinstance(data, dict) and set(data) == {"detector"}:
+        if isinstance(data, dict) and "detector" in data and set(data) <= {"detector", "irf"}:
             data = data["detector"]
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: expected a mapping of detector fields, got {type(data).__name__}")
