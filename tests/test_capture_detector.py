@@ -155,3 +155,47 @@ def test_estimate_capture_on_the_release_dot_chart(tmp_path):
     assert np.corrcoef(gain.ravel(), direct.ravel())[0, 1] >= 0.99
     assert np.corrcoef(gain.ravel(), hidden.ravel())[0, 1] >= 0.5
     assert 10 < record["direct_to_hidden"] < 200                    # suppressed: datagen's own is 1e5-1e6
+
+
+# ---- drawn per sample on the training device (datagen.SPADNoise, datagen.spad.map_draws) ---------------------
+
+def test_gain_fields_and_background_bands_drawn_per_sample_have_their_stated_ranges():
+    import torch
+
+    from datagen.spad.map_draws import draw_background_bands, draw_gain_fields
+
+    gen = torch.Generator().manual_seed(70)
+    gain = draw_gain_fields((16, 16), 14.0, 32, gen)
+    ratio = gain.amax(dim=(1, 2)) / gain.amin(dim=(1, 2))
+    torch.testing.assert_close(ratio, torch.full((32,), 14.0, dtype=torch.float64), rtol=1e-12, atol=0)
+    torch.testing.assert_close(gain.mean(dim=(1, 2)), torch.ones(32, dtype=torch.float64), rtol=1e-12, atol=0)
+    assert float((gain[:, 1:] / gain[:, :-1]).max()) < 14.0 ** 0.5    # smooth: neighbours within a factor sqrt(R)
+    bands = draw_background_bands((16, 16), 4.0, 3, 32, gen)
+    assert bool((bands == bands[:, :1, :]).all())                    # constant down each column
+    assert float((bands.amax(dim=(1, 2)) / bands.amin(dim=(1, 2))).max()) <= 4.0 + 1e-12
+    assert max(len(torch.unique(b[0])) for b in bands) <= 3
+    with pytest.raises(ValueError, match="gain_range must be a finite dynamic range >= 1"):
+        draw_gain_fields((4, 4), 0.5, 1)
+
+
+def test_spad_noise_draws_the_maps_per_sample_and_applies_fixed_ones():
+    import torch
+
+    det = {"model": "poisson", "repetition_rate": 1e7, "n_cycles": 10**6, "bin_width": 16e-12, "dcr": 1e5}
+    env = torch.full((4, 8, 8, 20), 1e-3, dtype=torch.float64)
+    noise = datagen.SPADNoise(det, gain_range=10.0, background_bands=(3.0, 2), dtype=torch.float64)
+    gen = torch.Generator().manual_seed(1)
+    params = noise.draw_params(4, gen)
+    params.update(noise.draw_maps((8, 8), 4, gen))
+    rates = noise.rates(env, params)
+    expected = 1e-3 * params["gain"][..., None] + 1e5 * 16e-12 * params["background"][..., None]
+    torch.testing.assert_close(rates, expected.expand_as(rates), rtol=1e-12, atol=0)
+    counts = noise(env, generator=3)
+    assert counts.shape == env.shape
+    gain, _ = _known_maps()
+    fixed = datagen.SPADNoise({**det, "gain_map": gain.tolist()}, dtype=torch.float64)
+    mean = fixed.expected(env)
+    torch.testing.assert_close(mean[0, ..., 0], torch.as_tensor(gain) * 1e-3 * 1e6 + 1e5 * 16e-12 * 1e6,
+                               rtol=1e-12, atol=0)
+    with pytest.raises(ValueError, match=r"gain_map has shape \(8, 8\) but the capture has \(4, 4\)"):
+        fixed(env[:, :4, :4])
