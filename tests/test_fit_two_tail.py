@@ -82,11 +82,12 @@ REAL_FITS = [("data_dot_chart_40cm", "30:34,30:34"), ("data_dot_chart_65cm", "30
 
 
 def _fit_real(name: str, block: str):
-    from datagen.cli.capture import _histogram
-    from pathlib import Path
+    from datagen.io.lab_formats import read_lab_capture
 
-    h, dt, _, _ = _histogram(Path(REAL / f"{name}.mat"), block, None, 4 * PS)
-    return fit_detector(h[:300], bin_width=dt, repetition_rate=10e6, n_cycles=1_000_000, model="poisson",
+    data = read_lab_capture(REAL / f"{name}.mat", bin_resolution=4 * PS).data()
+    (a0, a1), (b0, b1) = (tuple(int(v) for v in part.split(":")) for part in block.split(","))
+    h = np.asarray(data[a0:a1, b0:b1, :300], dtype=np.int64).reshape(-1, 300).sum(0)
+    return fit_detector(h, bin_width=4 * PS, repetition_rate=10e6, n_cycles=1_000_000, model="poisson",
                         irf="two_tail", allow_cropped_edge=True)
 
 

@@ -310,11 +310,11 @@ def _window(bins: str | None, n: int, dt: float | None, t0: float | None) -> tup
 @click.option("--model", type=click.Choice(["pile_up", "poisson", "free_running"]), default="pile_up",
               help="synchronous first photon (pile_up), poisson, or free_running (dead time)")
 @click.option("--irf", type=click.Choice(["gauss", "exgauss", "two_tail"]), default="exgauss",
-              help="Gaussian jitter, jitter + exponential diffusion tail, or two_tail: a Gaussian core + two "
+              help="gauss: a Gaussian core; exgauss: plus an exponential diffusion tail; two_tail: plus two "
                    "exponential tails (docs/detector.md)")
 @click.option("--allow-cropped-edge", "allow_cropped_edge", is_flag=True,
-              help="fit position and jitter although the return starts before the first bin (the Stanford LCT "
-                   "files start at their direct light)")
+              help="fit the return's position and core width although it starts before the first bin (the "
+                   "Stanford LCT files start at their direct light)")
 @click.option("--bins", "bins", default=None,
               help="fit only bins FIRST:STOP of the histogram (e.g. 0:300: a direct return without the hidden one)")
 @click.option("--fit-fraction", is_flag=True, help="also fit the diffusion tail's share (default 1)")
