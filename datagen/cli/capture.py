@@ -378,7 +378,8 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, bin_resolution,
                        fixed=fixed, fit_fraction=fit_fraction, initial=_kv(initial, "--initial") or None,
                        afterpulse_time_constant=None if afterpulse_tau is None else parse_duration(afterpulse_tau),
                        dead_time_bounds=bounds, allow_cropped_edge=allow_cropped_edge)
-    click.echo(f"fitted: {what}" + (f", bins {bins}" if bins is not None else ""))
+    if bins is not None:
+        click.echo(f"fitted bins {bins} of {what}")
     click.echo(fit.summary())
     for line in fit.messages:
         click.echo(f"note: {line}")
