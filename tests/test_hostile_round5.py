@@ -3,7 +3,7 @@ every command.
 
 Each case exited 0 with a wrong or silent answer, or blamed the wrong thing; now it gives a right result or one
 line naming the file, field or option, the value and what to do. The real Stanford files are read from
-``$DATAGEN_REAL_DATA`` or ``../shared/real`` (tests that need them skip, saying why, when they are absent); the
+``$DATAGEN_REAL_CAPTURES`` or ``../shared/real`` (tests that need them skip, saying why, when they are absent); the
 other tests make small synthetic files.
 """
 from __future__ import annotations
@@ -17,13 +17,13 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from test_hostile import cli
 
-REAL = Path(os.environ.get("DATAGEN_REAL_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "real"))
+REAL = Path(os.environ.get("DATAGEN_REAL_CAPTURES", Path(__file__).resolve().parents[1].parent / "shared" / "real"))
 
 
 def real_file(name: str) -> Path:
     path = REAL / name
     if not path.is_file():
-        pytest.skip(f"{path} is absent: the Stanford LCT files are not shipped (set DATAGEN_REAL_DATA to their folder)")
+        pytest.skip(f"{path} is absent: the Stanford LCT files are not shipped (set DATAGEN_REAL_CAPTURES to their folder)")
     return path
 
 
@@ -100,8 +100,22 @@ def test_fit_detector_reads_a_mat_without_bin_resolution_with_the_same_options_a
     cli(["import-capture", path, "--out", tmp_path / "store", "--bin-resolution", "16ps"], 0)
     c = cli(["fit-detector", tmp_path / "store", "--pixel", "1,2"] + FIT, 0, "model pile_up")
     assert a == b == c                                         # one reader, one histogram, one fit
-    cli(["fit-detector", path, "--bin-resolution", "4"] + FIT, 2, "Invalid value for --bin-resolution: '4' is 4 s")
-    cli(["fit-detector", path, "--bin-width", "-4ps"] + FIT, 2, "Invalid value for --bin-width: '-4ps'")
+    named = "Invalid value for --bin-width / --bin-resolution"                # one option, two names
+    cli(["fit-detector", path, "--bin-resolution", "4"] + FIT, 2, f"{named}: '4' is 4 s")
+    cli(["fit-detector", path, "--bin-width", "-4ps"] + FIT, 2, f"{named}: '-4ps'")
+
+
+def test_fit_detector_refuses_negative_bins_of_a_file_without_suggesting_an_option_it_lacks(tmp_path):
+    """Before: a .mat with negative bins was refused with 'a background-subtracted capture is read with
+    --allow-negative', which fit-detector does not take."""
+    from scipy.io import loadmat, savemat
+    path = lct_file(tmp_path / "neg.mat")
+    data = loadmat(path)
+    data["rect_data"][0, 1, 3] = -2.0
+    savemat(path, {k: v for k, v in data.items() if not k.startswith("__")})
+    out = cli(["fit-detector", path, "--pixel", "1,2"] + FIT, 2, "a detector fit needs the raw histogram")
+    assert "--allow-negative" not in out and str(path) in out
+    cli(["import-capture", path, "--out", tmp_path / "s", "--bin-resolution", "16ps"], 2, "--allow-negative")
 
 
 def test_fit_detector_refuses_a_return_cut_at_bin_0_instead_of_writing_a_degenerate_detector(tmp_path):
@@ -124,7 +138,7 @@ def test_a_histogram_file_cut_at_its_first_bin_or_given_a_bin_width_in_seconds_i
     cli(["fit-detector", tmp_path / "cut.txt", "--bin-width", "16ps"] + FIT, 2,
         f"error: {tmp_path / 'cut.txt'}: the return peaks in bin 0 of 64")
     cli(["fit-detector", tmp_path / "cut.txt", "--bin-width", "16"] + FIT, 2,
-        "Invalid value for --bin-width: '16' is 16 s, not a TCSPC bin width")
+        "Invalid value for --bin-width / --bin-resolution: '16' is 16 s, not a TCSPC bin width")
 
 
 def test_the_library_fit_refuses_the_same_histogram():

@@ -640,7 +640,7 @@ def test_the_compiled_step_bookkeeping_is_the_numpy_arithmetic_bit_for_bit():
     live, r, q = rng.random(m) < 0.7, rng.random(m), np.array([1.0, 0.5, 0.8, 0.3, 0.9])
     w_out = rng.normal(size=(m, 3))
     out = survivors(live, r, q, obj[keep], x, n_x, w_out, flux[keep], counted_k, physical_k, laser[keep], pid_k, p_in,
-                    1e-4)
+                    1e-4, np.ones(m))                    # cosine draws: no retroreflective lobe's density ratio
     sel = np.flatnonzero(live)
     assert np.array_equal(out[8], x[sel] + 1e-4 * n_x[sel]) and np.array_equal(out[10], dot(n_x[sel], w_out[sel]))
     assert np.array_equal(out[7], q[obj[keep]][sel]) and out[11] == int((r >= q[obj[keep]]).sum())

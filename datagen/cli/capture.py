@@ -99,7 +99,8 @@ def load_capture(path: Path, width=None, bin_resolution=None, allow_negative: bo
         if offsets is None and "lab_capture" not in result.attrs:
             offsets = counted_legs(result)
         return result, offsets, f"datagen store {path}"
-    cap = read_lab_capture(path, width=width, bin_resolution=bin_resolution, allow_negative=allow_negative)
+    cap = read_lab_capture(path, width=width, bin_resolution=bin_resolution, allow_negative=allow_negative,
+                           negative_hint=negative_hint)
     return cap.to_result(), cap.time_offsets(), f"{cap.format} file {path}"
 
 
@@ -302,9 +303,9 @@ def _window(bins: str | None, n: int, dt: float | None, t0: float | None) -> tup
 @click.argument("hist", type=click.Path(path_type=Path))
 @click.option("--repetition-rate", "repetition_rate", required=True, help="laser repetition rate, e.g. 20MHz")
 @click.option("--n-cycles", "n_cycles", required=True, type=click.IntRange(min=1), help="laser cycles of the exposure")
-@click.option("--bin-width", "bin_width", default=None, help="bin width, e.g. 16ps (default: the file's)")
-@click.option("--bin-resolution", "bin_resolution", default=None,
-              help=".mat without 'bin_resolution': its bin width, e.g. 4ps (as import-capture; default --bin-width)")
+@click.option("--bin-width", "--bin-resolution", "bin_width", default=None,
+              help="bin width, e.g. 4ps (default: the file's; a .mat without 'bin_resolution' needs it, as "
+                   "import-capture's --bin-resolution)")
 @click.option("--width", type=float, default=None, help=".mat without 'width': half width of the scanned wall, m")
 @click.option("--t-start", "t_start", default=None, help="first bin edge within the period (default: the file's or 0)")
 @click.option("--model", type=click.Choice(["pile_up", "poisson", "free_running"]), default="pile_up",
@@ -329,13 +330,12 @@ def _window(bins: str | None, n: int, dt: float | None, t0: float | None) -> tup
               help="free_running: search the dead time only in LOW,HIGH (e.g. 2ns,10ns; a datasheet range)")
 @click.option("--out", "out", type=click.Path(path_type=Path), default=None, help="detector YAML to write")
 @friendly_errors
-def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, bin_resolution, width, t_start, model, irf,
-                     allow_cropped_edge, bins, fit_fraction, pulse_sigma, fix, initial, pixel, afterpulse_tau,
-                     dead_time_bounds, out):
+def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start, model, irf, allow_cropped_edge,
+                     bins, fit_fraction, pulse_sigma, fix, initial, pixel, afterpulse_tau, dead_time_bounds, out):
     """Fit datagen's detector model to the histogram HIST of a known return (maximum likelihood).
 
     HIST: .npy / .csv / .txt (counts, or time s and counts), a lab capture file (read as import-capture reads it:
-    --bin-resolution and --width for a .mat without them) or a datagen store. Prints each parameter with its
+    --bin-width (alias --bin-resolution) and --width for a .mat without them) or a datagen store. Prints each parameter with its
     1-sigma error and 95 % interval, the goodness of fit, one line per parameter the data do not determine, and
     writes --out (a configs/detectors YAML, checked by loading it). A return whose rising edge lies before the
     histogram's first bin (the Stanford LCT files start at the direct light) is refused unless position and
@@ -348,9 +348,8 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, bin_resolution,
 
     if out is not None:
         check_output_file(out, "--out")
-    dt_given = bin_option(bin_width, "--bin-width")
-    h, dt_file, t0_file, what = _histogram(Path(hist), pixel, width_option(width),
-                                           bin_option(bin_resolution, "--bin-resolution") or dt_given)
+    dt_given = bin_option(bin_width, "--bin-width / --bin-resolution")
+    h, dt_file, t0_file, what = _histogram(Path(hist), pixel, width_option(width), dt_given)
     fixed = _kv(fix, "--fix")
     dt_file, t0_file = _window(bins, h.size, dt_file, t0_file)
     h = h[_slice(bins, h.size)] if bins is not None else h

@@ -36,11 +36,12 @@ def _scalar(cap, path: Path, key: str, given: set[str]) -> float:
     return float(v.reshape(()))
 
 
-def check_mat_fields(cap, path: Path, allow_negative: bool = False, given: set[str] = frozenset()) -> None:
+def check_mat_fields(cap, path: Path, allow_negative: bool = False, given: set[str] = frozenset(),
+                     negative_hint: str = validate.NEGATIVE_HINT) -> None:
     """Check an LCT / f-k capture (:class:`~datagen.io.lab_formats.LabCapture`): (N, N, T) transients of at least
     2 bins (:func:`datagen.validate.transients`), ``width`` one number > 0, ``bin_resolution`` a TCSPC bin width
     (:func:`datagen.validate.bin_width`), ``tofgrid`` of the scan's shape. ``given``: the fields that came from the
-    caller, not the file.
+    caller, not the file; ``negative_hint``: what a refusal of negative bins suggests (the reading command's way).
 
     Raises:
         DatasetError: naming the file, the field and the value.
@@ -52,7 +53,7 @@ def check_mat_fields(cap, path: Path, allow_negative: bool = False, given: set[s
     if d.shape[2] < 2:
         raise DatasetError(f"{path}: {name}: {d.shape[2]} time bin(s) per transient (shape {d.shape}); a transient "
                            "needs at least 2")
-    validate.transients(d, str(path), name, allow_negative)
+    validate.transients(d, str(path), name, allow_negative, negative_hint)
     _scalar(cap, path, "width", given)
     dt = _scalar(cap, path, "bin_resolution", given)
     validate.bin_width(dt, str(path), "bin_resolution (given: the file has none)" if "bin_resolution" in given
@@ -62,7 +63,8 @@ def check_mat_fields(cap, path: Path, allow_negative: bool = False, given: set[s
         validate.time_offsets(tof, str(path), "tofgrid", d.shape[:2])
 
 
-def check_znlos_fields(cap, path: Path, allow_negative: bool = False) -> None:
+def check_znlos_fields(cap, path: Path, allow_negative: bool = False,
+                       negative_hint: str = validate.NEGATIVE_HINT) -> None:
     """Check a ZNLOS capture: its required fields, the data's and grids' shapes, the transients' values,
     ``deltaT`` a TCSPC bin width in metres of path (:func:`datagen.validate.bin_width` of deltaT / c) and ``t0``.
 
@@ -81,7 +83,7 @@ def check_znlos_fields(cap, path: Path, allow_negative: bool = False) -> None:
                            f"data's grid {d.shape[3:5]}")
     if d.ndim == 7 and cap.capture_type == "exhaustive" and "laserGridPositions" not in cap.raw:
         raise DatasetError(f"{path}: ZNLOS field 'laserGridPositions' is missing")
-    validate.transients(d, str(path), "data", allow_negative)
+    validate.transients(d, str(path), "data", allow_negative, negative_hint)
     for key in ("deltaT", "t0"):
         v = validate.real_values(cap.raw[key], str(path), key, "times")
         if v.size != 1 or not np.isfinite(v).all() or (key == "deltaT" and float(v.reshape(())) <= 0):

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import validate
 from ..errors import DatasetError
 from ..units import SPEED_OF_LIGHT
 from .lab_checks import MAT_FORMATS, check_mat_fields, check_znlos_fields
@@ -258,7 +259,8 @@ def _mat_layout(path: Path, keys: set[str]) -> str:
 
 
 def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolution: float | None = None,
-                     tofgrid_path: str | Path | None = None, allow_negative: bool = False) -> LabCapture:
+                     tofgrid_path: str | Path | None = None, allow_negative: bool = False,
+                     negative_hint: str = validate.NEGATIVE_HINT) -> LabCapture:
     """Read an LCT / f-k ``.mat`` (v5 or v7.3) or ZNLOS HDF5 capture.
 
     Args:
@@ -267,7 +269,8 @@ def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolu
             hold them (the f-k release keeps them in its script); a value in the file wins over these.
         tofgrid_path: a separate ``.mat`` holding ``tofgrid`` (the f-k release ships ``tof.mat`` beside the
             measurement).
-        allow_negative: accept negative bins (a background-subtracted capture); otherwise they are refused.
+        allow_negative: accept negative bins (a background-subtracted capture); otherwise they are refused, the
+            message suggesting ``negative_hint``.
     Returns:
         :class:`LabCapture` with the fields as stored.
     Raises:
@@ -281,7 +284,7 @@ def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolu
     if fmt == "znlos":
         raw = _read_hdf5_fields(path, ZNLOS_FIELDS, transpose=False)
         cap = LabCapture(fmt, raw, None, str(path))
-        check_znlos_fields(cap, path, allow_negative)
+        check_znlos_fields(cap, path, allow_negative, negative_hint)
         return cap
     raw = _read_mat(path, version)
     if tofgrid_path is not None:
@@ -300,7 +303,7 @@ def read_lab_capture(path: str | Path, *, width: float | None = None, bin_resolu
             raw[key] = np.array([[float(value)]])
             given.add(key)
     cap = LabCapture(fmt, raw, version, str(path))
-    check_mat_fields(cap, path, allow_negative, given)
+    check_mat_fields(cap, path, allow_negative, given, negative_hint)
     return cap
 
 
