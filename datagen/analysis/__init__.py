@@ -19,6 +19,8 @@ imported from its module.
   :func:`datagen.simulation.simulate_to_tolerance`, ``simulate --tolerance``).
 - :mod:`.compare_capture`: the sim-to-real distance of a measured capture and its simulation on one time axis
   (``datagen compare-capture``).
+- :mod:`.capture_detector`: a confocal capture's detector estimated from it: background and gain maps, the
+  direct-to-hidden ratio and a two-tail IRF fit (``datagen estimate-capture``).
 - reconstructions of confocal scans, the benchmark's baselines: :mod:`.backprojection` (filtered backprojection),
   :mod:`.lct` (the light-cone transform, O'Toole et al. 2018), :mod:`.phasor` (phasor fields with
   Rayleigh–Sommerfeld diffraction, Liu et al. 2019); :mod:`.confocal` puts any confocal scan on their time axis and

@@ -15,6 +15,7 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.cli.bench`: ``bench accuracy``;
 - :mod:`~datagen.cli.view`: ``view`` (3D pictures with open3d).
 - :mod:`~datagen.cli.capture`: ``import-capture``, ``export``, ``fit-detector``, ``compare-capture``;
+- :mod:`~datagen.cli.estimate`: ``estimate-capture`` (the IRF, gain and background maps of a capture);
 - :mod:`~datagen.cli.reconstruct`: ``reconstruct`` (LCT, phasor or FBP on any confocal store);
 - :mod:`~datagen.cli.multizone`: ``multizone`` and the multi-zone path of ``simulate``;
 - :mod:`~datagen.cli.suite`: ``suite build``, ``suite verify``, ``suite score``;

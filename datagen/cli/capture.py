@@ -114,7 +114,8 @@ def _kv(items, option: str) -> dict[str, float]:
             raise click.BadParameter(f"expected NAME=VALUE, got {item!r}", param_hint=option)
         try:
             value = parse_rate(text) if name.strip() == "background_rate" else parse_duration(text) \
-                if name.strip() in ("position", "jitter_sigma", "diffusion_tail", "dead_time") else float(text)
+                if name.strip() in ("position", "jitter_sigma", "diffusion_tail", "dead_time", "tail", "tail2",
+                                    "tail_delay") else float(text)
         except ValueError as exc:
             raise click.BadParameter(f"{name}: {exc}", param_hint=option) from None
         out[name.strip()] = float(value)
@@ -252,6 +253,16 @@ def _histogram(path: Path, pixel: str | None, width: float | None = None, bin_re
     result, _, _ = load_capture(path, width, bin_resolution, negative_hint=FIT_NEGATIVE_HINT)
     data = np.asarray(result.counts if result.counts.any() else result.envelope)
     edges = np.asarray(result.time_edges)
+    if pixel is not None and ":" in pixel and data.ndim == 3:        # a block i0:i1,j0:j1 of scan points, summed
+        try:
+            (a0, a1), (b0, b1) = (tuple(int(v) for v in part.split(":")) for part in pixel.split(","))
+        except ValueError:
+            raise ValueError(f"--pixel {pixel!r}: give a block of scan points as 'i0:i1,j0:j1'") from None
+        if not (0 <= a0 < a1 <= data.shape[0] and 0 <= b0 < b1 <= data.shape[1]):
+            raise ValueError(f"--pixel {pixel}: outside the scan of {path} ({data.shape[0]} x {data.shape[1]} points)")
+        h = data[a0:a1, b0:b1].reshape(-1, data.shape[-1]).sum(0)
+        return validate.histogram_counts(h, str(path)), float(edges[1] - edges[0]), float(edges[0]), \
+            f"{path} points {pixel} summed"
     if pixel is not None:
         try:
             idx = tuple(int(v) for v in pixel.split(","))
@@ -268,6 +279,26 @@ def _histogram(path: Path, pixel: str | None, width: float | None = None, bin_re
     return validate.histogram_counts(h, str(path)), float(edges[1] - edges[0]), float(edges[0]), what
 
 
+def _slice(bins: str, n: int) -> slice:
+    """``--bins FIRST:STOP`` as a slice of a histogram of ``n`` bins; click.BadParameter unless 0 <= FIRST < STOP."""
+    first, sep, stop = bins.partition(":")
+    try:
+        a, b = int(first or 0), int(stop) if stop else n
+    except ValueError:
+        a = b = -1
+    if not sep or not 0 <= a < min(b, n):
+        raise click.BadParameter(f"{bins!r}: give FIRST:STOP with 0 <= FIRST < STOP, within the histogram's {n} bins",
+                                 param_hint="--bins")
+    return slice(a, min(b, n))
+
+
+def _window(bins: str | None, n: int, dt: float | None, t0: float | None) -> tuple[float | None, float | None]:
+    """(bin width, first edge) of the histogram after ``--bins`` (the first edge moves by FIRST bins)."""
+    if bins is None or dt is None:
+        return dt, t0
+    return dt, (t0 or 0.0) + _slice(bins, n).start * dt
+
+
 @click.command("fit-detector")
 @click.argument("hist", type=click.Path(path_type=Path))
 @click.option("--repetition-rate", "repetition_rate", required=True, help="laser repetition rate, e.g. 20MHz")
@@ -279,21 +310,28 @@ def _histogram(path: Path, pixel: str | None, width: float | None = None, bin_re
 @click.option("--t-start", "t_start", default=None, help="first bin edge within the period (default: the file's or 0)")
 @click.option("--model", type=click.Choice(["pile_up", "poisson", "free_running"]), default="pile_up",
               help="synchronous first photon (pile_up), poisson, or free_running (dead time)")
-@click.option("--irf", type=click.Choice(["gauss", "exgauss"]), default="exgauss",
-              help="Gaussian jitter, or jitter + exponential diffusion tail")
+@click.option("--irf", type=click.Choice(["gauss", "exgauss", "two_tail"]), default="exgauss",
+              help="gauss: a Gaussian core; exgauss: plus an exponential diffusion tail; two_tail: plus two "
+                   "exponential tails (docs/detector.md)")
+@click.option("--allow-cropped-edge", "allow_cropped_edge", is_flag=True,
+              help="fit the return's position and core width although it starts before the first bin (the "
+                   "Stanford LCT files start at their direct light)")
+@click.option("--bins", "bins", default=None,
+              help="fit only bins FIRST:STOP of the histogram (e.g. 0:300: a direct return without the hidden one)")
 @click.option("--fit-fraction", is_flag=True, help="also fit the diffusion tail's share (default 1)")
 @click.option("--pulse-sigma", "pulse_sigma", default=None, help="known laser pulse std (default half a bin)")
 @click.option("--fix", "fix", multiple=True, help="hold a parameter, NAME=VALUE (e.g. dead_time=77ns)")
 @click.option("--initial", "initial", multiple=True, help="start a parameter at NAME=VALUE (e.g. dead_time=50ns)")
-@click.option("--pixel", default=None, help="a scan capture: the scan point 'i,j' (default: all summed)")
+@click.option("--pixel", default=None,
+              help="a scan capture: the scan point 'i,j' or a block 'i0:i1,j0:j1' summed (default: all summed)")
 @click.option("--afterpulse-time-constant", "afterpulse_tau", default=None,
               help="free_running: also fit the afterpulse probability, with this time constant (e.g. 2ns)")
 @click.option("--dead-time-bounds", "dead_time_bounds", default=None,
               help="free_running: search the dead time only in LOW,HIGH (e.g. 2ns,10ns; a datasheet range)")
 @click.option("--out", "out", type=click.Path(path_type=Path), default=None, help="detector YAML to write")
 @friendly_errors
-def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start, model, irf,
-                     fit_fraction, pulse_sigma, fix, initial, pixel, afterpulse_tau, dead_time_bounds, out):
+def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start, model, irf, allow_cropped_edge,
+                     bins, fit_fraction, pulse_sigma, fix, initial, pixel, afterpulse_tau, dead_time_bounds, out):
     """Fit datagen's detector model to the histogram HIST of a known return (maximum likelihood).
 
     HIST: .npy / .csv / .txt (counts, or time s and counts), a lab capture file (read as import-capture reads it:
@@ -301,7 +339,8 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
     1-sigma error and 95 % interval, the goodness of fit, one line per parameter the data do not determine, and
     writes --out (a configs/detectors YAML, checked by loading it). A return whose rising edge lies before the
     histogram's first bin (the Stanford LCT files start at the direct light) is refused unless position and
-    jitter_sigma are held (--fix).
+    jitter_sigma are held (--fix) or --allow-cropped-edge is given. --pixel takes a scan point 'i,j' or a block
+    'i0:i1,j0:j1' of them, summed.
     """
     from ..spad.fit import fit_detector, rising_edge_missing
     from ..units import parse_duration, parse_rate
@@ -312,13 +351,16 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
     dt_given = bin_option(bin_width, "--bin-width / --bin-resolution")
     h, dt_file, t0_file, what = _histogram(Path(hist), pixel, width_option(width), dt_given)
     fixed = _kv(fix, "--fix")
+    dt_file, t0_file = _window(bins, h.size, dt_file, t0_file)
+    h = h[_slice(bins, h.size)] if bins is not None else h
     peak = rising_edge_missing(h)
-    if peak is not None and not {"position", "jitter_sigma"} <= set(fixed):
+    if peak is not None and not allow_cropped_edge and not {"position", "jitter_sigma"} <= set(fixed):
         raise ValueError(f"{what}: the return peaks in bin {peak} of {h.size} and every bin before it holds more than "
                          "half its peak: the histogram starts after the return's rising edge, so its position and "
                          "jitter cannot be fitted (a fit gives a degenerate detector; the Stanford LCT files are "
                          "cropped to start at the direct light); fit a histogram that holds the whole return, or "
-                         "hold both with --fix position=... --fix jitter_sigma=...")
+                         "hold both with --fix position=... --fix jitter_sigma=..., or fit the falling half with "
+                         "--allow-cropped-edge")
     dt = dt_given if dt_given is not None else dt_file
     if dt is None:
         raise click.BadParameter("the histogram file has no time axis: give --bin-width", param_hint="--bin-width")
@@ -334,7 +376,9 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
                        pulse_sigma=None if pulse_sigma is None else parse_duration(pulse_sigma),
                        fixed=fixed, fit_fraction=fit_fraction, initial=_kv(initial, "--initial") or None,
                        afterpulse_time_constant=None if afterpulse_tau is None else parse_duration(afterpulse_tau),
-                       dead_time_bounds=bounds)
+                       dead_time_bounds=bounds, allow_cropped_edge=allow_cropped_edge)
+    if bins is not None:
+        click.echo(f"fitted bins {bins} of {what}")
     click.echo(fit.summary())
     for line in fit.messages:
         click.echo(f"note: {line}")

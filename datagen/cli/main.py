@@ -17,6 +17,7 @@ from ..transport import estimator_names
 from .bench import bench
 from .capture import compare_capture, export, fit_detector_cmd, import_capture
 from .dataset import build, inspect, score, verify
+from .estimate import estimate_capture
 from .errors import announce_work, friendly_errors
 from .suite import suite
 from .tal import export_tal, read_result_input, tal_render
@@ -274,6 +275,7 @@ main.add_command(import_capture)  # real-lab capture files, detector fitting, si
 main.add_command(export)
 main.add_command(fit_detector_cmd)
 main.add_command(compare_capture)
+main.add_command(estimate_capture)  # the detector of a capture: IRF, gain, background
 main.add_command(reconstruct)    # baselines on any confocal store
 main.add_command(suite)          # benchmark suites
 

@@ -15,7 +15,8 @@ matplotlib is imported with the Agg backend; nothing here changes a result.
 
 Exported here, what users call: :func:`plot_envelope`, :func:`write_sampling_figures`, :func:`render_scene`,
 :func:`render_scene_image` and :class:`ViewUnavailable`; the rest is imported from its module.
-- :mod:`.capture`: a measured capture beside its simulation (``compare-capture --png``); :mod:`.zones`: a
+- :mod:`.capture`: a measured capture beside its simulation (``compare-capture --png``); :mod:`.capture_maps`: the
+  maps ``estimate-capture`` draws; :mod:`.zones`: a
   multi-zone capture's zone histograms; :mod:`.view_flood`: the flood and zones that ``datagen view`` adds;
   :mod:`.reconstruction`: a reconstruction's front view, depth map and top view (``datagen reconstruct``).
 """

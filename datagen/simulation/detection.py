@@ -3,7 +3,8 @@
 
 :func:`make_result` is the last step of :func:`datagen.simulate` and of the tolerance loop; :func:`detector_model`
 decides pile-up from the envelope itself; :func:`detector_counts` draws the histogram;
-:func:`zero_envelope_warning` says when the light arrives outside the window.
+:func:`zero_envelope_warning` says when the light arrives outside the window; :func:`direct_times` and
+:func:`attenuate_direct` model ``detector.direct`` (the direct light gated by a stated factor, docs/detector.md).
 """
 from __future__ import annotations
 
@@ -17,7 +18,9 @@ from ..errors import ConfigError
 from ..planner import Plan
 from ..planner.orders import orders_record
 from ..scene import Scene
+from ..spad.maps import direct_factor
 from ..spad.pileup import counting_detector, pile_up_from_envelope
+from ..units import SPEED_OF_LIGHT
 from ..transport.base import Estimator
 from .config import STREAM_NOISE, SimulationConfig, stream_rng
 from .fov_sampling import zero_reason
@@ -137,6 +140,36 @@ def detector_counts(envelope: np.ndarray, config: SimulationConfig, plan_attrs: 
     return counts, detector, plan_attrs
 
 
+def direct_times(capture, config: SimulationConfig) -> np.ndarray:
+    """(ny, nx) s: each confocal scan point's direct return on the simulation's time axis, the wall legs it counts
+    (emitter → point with ``count_laser_leg``, point → sensor with ``count_sensor_leg``, docs/physics.md §1).
+
+    Raises:
+        ConfigError: a capture other than a confocal scan (its direct return is not one time per channel).
+    """
+    if capture.kind != "confocal" or capture.legacy_single_pixel:
+        raise ConfigError(f"detector.direct: the direct light is gated per scan point of a confocal scan; this capture "
+                          f"is {capture.kind!r} (drop detector.direct, or scan confocally)")
+    points = capture.sensor_points()
+    legs = np.zeros(points.shape[:-1])
+    if config.count_laser_leg:
+        legs += np.linalg.norm(points - capture.emitter, axis=-1)
+    if config.count_sensor_leg:
+        legs += np.linalg.norm(points - capture.sensor, axis=-1)
+    return legs / SPEED_OF_LIGHT
+
+
+def attenuate_direct(arrays: list[np.ndarray], capture, config: SimulationConfig) -> list[np.ndarray]:
+    """``arrays`` (each shaped like the envelope, (ny, nx, n_bins)) with ``detector.direct`` applied: the light
+    before ``until`` after each point's direct return (:func:`direct_times`) times ``attenuation``
+    (:func:`datagen.spad.maps.direct_factor`); unchanged (the same objects) when ``detector.direct`` is not set."""
+    direct = config.detector_config().direct
+    if direct is None:
+        return arrays
+    factor = direct_factor(config.time.edges, direct_times(capture, config), direct)
+    return [a * factor for a in arrays]
+
+
 def zero_envelope_warning(envelope: np.ndarray, outside: np.ndarray, config: SimulationConfig, target: str,
                           why: Callable[[], str] | None = None) -> list[str]:
     """[] when the envelope holds light, else one warning saying why it is zero: the light reaching ``target``
@@ -169,6 +202,9 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
     shape = capture.channel_shape() + (config.time.n_bins,)
     components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
     envelope = tr.binned.sum(axis=0).reshape(shape)
+    if config.detector.get("direct") is not None:         # the direct light gated: the envelope the detector sees
+        attenuated = attenuate_direct([envelope] + list(components.values()), capture, config)
+        envelope, components = attenuated[0], dict(zip(components, attenuated[1:]))
     warnings = list(scene.notes) + zero_envelope_warning(envelope, tr.outside, config, "the FoV",
                                                          lambda: zero_reason(scene, transport, sampling_words(config)))
     t3 = time.perf_counter()

@@ -57,6 +57,8 @@ Modules (each imports only the ones above it):
 * :mod:`~datagen.spad.counters`: counting-mode detectors (no TDC).
 * :mod:`~datagen.spad.histogram`: :func:`expected_histogram` and :func:`sample_histogram` for every model.
 * :mod:`~datagen.spad.fit_numerics`: Newton polishing, inverse information and sandwich covariance of the fit.
+* :mod:`~datagen.spad.maps`: the direct light gated by a stated factor, per-scan-point gain and background maps.
+* :mod:`~datagen.spad.fit_two_tail`: the two-tail IRF in a detector fit (envelope, starts, length check).
 * :mod:`~datagen.spad.fit`: detector parameters fitted to a measured histogram (docs/capture_io.md).
 * :mod:`~datagen.spad.models`: the detector-model registry (each model's expected histogram, sampler, dead time,
   torch and fit support), filled by the modules that implement the models.
@@ -64,6 +66,7 @@ Modules (each imports only the ones above it):
 * :mod:`~datagen.spad.markov_kernel`: the compiled transition of the free-running chain.
 * :mod:`~datagen.spad.pileup`: whether dead time changes the counts beyond a tolerance (the planner's pile-up).
 * :mod:`~datagen.spad.ranges`: detector randomisation ranges and how a sample's detector is drawn.
+* :mod:`~datagen.spad.map_draws`: gain fields and background bands drawn per sample (torch).
 * :mod:`~datagen.spad.torch_noise`: :class:`SPADNoise`, batched SPAD noise on the training device (torch).
 """
 from __future__ import annotations

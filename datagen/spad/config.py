@@ -8,11 +8,13 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, Field, ValidationError, field_validator, model_serializer,
+                      model_validator)
 
 from ..errors import ConfigError
 from ..timing.irf import FWHM_PER_SIGMA
 from ..units import parse_duration, parse_rate
+from .maps import MAP_FIELDS, DirectLight, read_map
 from .models import ModelName, detector_model, model_names
 
 __all__ = [
@@ -73,6 +75,12 @@ class DetectorConfig(BaseModel):
         model: ``"poisson" | "pile_up" | "multi_stop" | "free_running"`` (see :mod:`datagen.spad`).
         markov_oversample: cells per TDC bin of the free-running Markov chain (default: automatic, per pixel from
             its brightest bin).
+        direct: the direct light off each scan point attenuated by a stated factor until a stated time after its
+            direct return (:class:`~datagen.spad.maps.DirectLight`, ``{attenuation: 1e-4, until: 300ps}``);
+            applied by the simulation to the envelope (docs/detector.md). Default: none.
+        gain_map / background_map: (ny, nx) per-scan-point factors on the light and on the background rate, inline
+            or a ``.npy`` path (:func:`~datagen.spad.maps.read_map`; relative to the YAML that names it). Default:
+            none (1 everywhere).
 
     Raises:
         pydantic.ValidationError (a ValueError): unknown field, bad value or inconsistent combination;
@@ -103,6 +111,28 @@ class DetectorConfig(BaseModel):
     diffusion_fraction: float = Field(1.0, ge=0.0, le=1.0)
     model: ModelName = "pile_up"
     markov_oversample: int | None = Field(None, ge=1)
+    direct: DirectLight | None = None
+    gain_map: tuple[tuple[float, ...], ...] | None = None
+    background_map: tuple[tuple[float, ...], ...] | None = None
+
+    @field_validator("gain_map", "background_map", mode="before")
+    @classmethod
+    def _read_map(cls, value: Any, info) -> Any:
+        return None if value is None else read_map(value, info.field_name)
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler):
+        data = handler(self)
+        if isinstance(data, dict):                        # detectors without them dump as before
+            for key in ("direct",) + MAP_FIELDS:
+                if data.get(key) is None:
+                    data.pop(key, None)
+        return data
+
+    def scan_map(self, field: str) -> np.ndarray | None:
+        """``gain_map`` or ``background_map`` as float64 (ny, nx), or None when not set."""
+        value = getattr(self, field)
+        return None if value is None else np.asarray(value, dtype=np.float64)
 
     # ---- parsing at the boundary ------------------------------------------------------------------
     @field_validator("exposure", "bin_width", "t_start", "dead_time", "afterpulse_time_constant",
@@ -244,7 +274,10 @@ class DetectorConfig(BaseModel):
     def from_yaml(cls, path: str | os.PathLike) -> "DetectorConfig":
         """Read a preset such as ``configs/detectors/cmos_spad_array.yaml``.
 
-        The file holds a mapping of the fields above (optionally under a top-level ``detector:`` key).
+        The file holds a mapping of the fields above, or a ``detector:`` block beside an optional ``irf:`` block (the
+        keys of a scene file's ``simulation`` block, as ``datagen fit-detector --irf two_tail`` and
+        ``datagen estimate-capture`` write them; the ``irf:`` block is the simulation's, read by
+        :class:`~datagen.timing.irf.Irf`, and is not checked here).
 
         Raises:
             ConfigError (a ValueError): the file cannot be read or parsed, or a field is unknown or invalid; the
@@ -257,8 +290,11 @@ class DetectorConfig(BaseModel):
             data = read_yaml(path, "detector config", ConfigError)
         except OSError as exc:
             raise ConfigError(f"{path}: cannot read detector config: {exc}") from None
-        if isinstance(data, dict) and set(data) == {"detector"}:
+        if isinstance(data, dict) and "detector" in data and set(data) <= {"detector", "irf"}:
             data = data["detector"]
+        if isinstance(data, dict):                         # map paths are relative to this file
+            data = {k: (str(path.parent / v) if k in MAP_FIELDS and isinstance(v, str) and not Path(v).is_absolute()
+                        else v) for k, v in data.items()}
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: expected a mapping of detector fields, got {type(data).__name__}")
         try:

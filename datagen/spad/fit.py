@@ -6,7 +6,9 @@ The model is the one :func:`datagen.spad.sample_histogram` draws from, evaluated
 
 * the return: ``signal`` expected detected photons per laser cycle arriving at ``position`` (s, from the first
   bin edge), a Gaussian laser pulse of known ``pulse_sigma`` integrated over the bins (:func:`return_envelope`);
-* the detector: diffusion tail (``diffusion_tail``, ``diffusion_fraction``, before pile-up), background
+* the detector: diffusion tail (``diffusion_tail``, ``diffusion_fraction``, before pile-up), or with
+  ``irf="two_tail"`` the two-tail IRF (a Gaussian core and two exponential tails, all before pile-up:
+  :mod:`.fit_two_tail`), background
   ``background_rate`` (avalanches/s: pde·ambient + dark counts, before pile-up), Gaussian ``jitter_sigma`` (after
   pile-up), and the histogram model: ``pile_up`` (synchronous first photon), ``poisson``, or ``free_running``
   (with its ``dead_time``).
@@ -50,6 +52,8 @@ from .config import DetectorConfig
 from .fit_numerics import (REJECTED, inverse_covariance, newton, profile_interval, profile_walk,
                            sandwich_covariance, with_coordinate)
 from .fit_result import UNITS, DetectorFit
+from .fit_two_tail import (TWO_TAIL_DELAY_STARTS, TWO_TAIL_PARAMETERS, check_two_tail_length, two_tail_envelope, two_tail_irf,
+                           two_tail_start)
 from .histogram import expected_histogram, sample_histogram
 from .models import model_names
 from .rates import rates_from_envelope
@@ -106,11 +110,11 @@ data's cycle count (it grows linearly in cycles)."""
 
 FIT_MODELS = model_names(fittable=True)
 """The detector models a fit takes: those the registry marks ``fittable`` (:mod:`.models`)."""
-IRF_SHAPES = ("gauss", "exgauss")
+IRF_SHAPES = ("gauss", "exgauss", "two_tail")
 COVARIANCES = ("fisher", "sandwich")
 
-_LOG = ("signal", "jitter_sigma", "diffusion_tail", "background_rate", "dead_time")
-_LOGIT = ("diffusion_fraction", "afterpulse_probability")
+_LOG = ("signal", "jitter_sigma", "diffusion_tail", "background_rate", "dead_time", "tail", "tail2", "tail_delay")
+_LOGIT = ("diffusion_fraction", "afterpulse_probability", "tail_weight", "tail2_weight")
 
 
 def return_envelope(n_bins: int, bin_width: float, position: float, signal: float,
@@ -151,6 +155,8 @@ def fit_parameter_names(model: str, irf: str, fit_fraction: bool, afterpulsing: 
         names.append("diffusion_tail")
         if fit_fraction:
             names.append("diffusion_fraction")
+    if irf == "two_tail":
+        names.extend(TWO_TAIL_PARAMETERS)
     names.append("background_rate")
     if model == "free_running":
         names.append("dead_time")
@@ -216,7 +222,8 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                  pulse_sigma: float | None = None, fixed: dict[str, float] | None = None,
                  fit_fraction: bool = False, initial: dict[str, float] | None = None,
                  afterpulse_time_constant: float | None = None, covariance: str | None = None,
-                 seed: int = 0, dead_time_bounds: tuple[float, float] | None = None) -> DetectorFit:
+                 seed: int = 0, dead_time_bounds: tuple[float, float] | None = None,
+                 allow_cropped_edge: bool = False) -> DetectorFit:
     """Maximum-likelihood fit of datagen's detector model to the histogram of a known return.
 
     Args:
@@ -224,7 +231,10 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         bin_width: s; repetition_rate: Hz; n_cycles: laser cycles of the exposure; t_start: s, the first bin's
             left edge within the laser period.
         model: "pile_up" (synchronous, first photon), "poisson", or "free_running" (dead time).
-        irf: "gauss" (jitter only) or "exgauss" (jitter + exponential diffusion tail).
+        irf: "gauss" (jitter only), "exgauss" (jitter + exponential diffusion tail) or "two_tail" (a Gaussian
+            core of std sqrt(pulse_sigma² + jitter_sigma²) plus two exponential tails delayed alike, the
+            :class:`~datagen.timing.irf.Irf` of kind ``two_tail``, all before pile-up: :mod:`.fit_two_tail`;
+            :attr:`DetectorFit.irf_model` is the fitted IRF).
         pulse_sigma: the laser pulse's std in s (known; default half a bin, which only smooths the sub-bin
             position of the return).
         fixed: parameters to hold (names of :func:`fit_parameter_names`, plus ``diffusion_fraction``, default 1
@@ -246,6 +256,9 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
             periods). A free-running histogram determines the dead time modulo the laser period, its whole number
             of periods only weakly (τ and τ ± T give the same detection-phase chain, see DEAD_TIME_ALIAS_MARGIN);
             bounds narrower than a period exclude the aliases.
+        allow_cropped_edge: fit ``position`` and ``jitter_sigma`` although the return's rising edge is before the
+            first bin (a capture rectified to start at its direct light, as the Stanford LCT files are): the core's
+            falling half and the tails then fix them; the result says so in :attr:`DetectorFit.messages`.
         seed: the sandwich's simulation stream, ``numpy.random.default_rng(seed)`` (int ≥ 0; results are
             deterministic in it).
     Returns:
@@ -255,7 +268,9 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         ConfigError: bad arguments (unknown model, IRF, covariance or parameter, a sandwich for a model whose
             likelihood is exact, a histogram that is empty, negative, non-integer or has no counts); the message
             names the argument and the value; a return whose rising edge is before the first bin
-            (:func:`rising_edge_missing`) unless ``position`` and ``jitter_sigma`` are held.
+            (:func:`rising_edge_missing`) unless ``position`` and ``jitter_sigma`` are held (``two_tail``: unless
+            ``allow_cropped_edge``); a two-tail fit of a histogram with fewer than
+            :data:`~datagen.spad.fit_two_tail.TWO_TAIL_MIN_BINS` bins after the return's peak.
     """
     h = np.asarray(histogram)
     if h.ndim != 1 or h.size < MIN_HISTOGRAM_BINS:
@@ -307,7 +322,10 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
     names_all = fit_parameter_names(model, irf, fit_fraction, afterpulse_time_constant is not None)
     fixed = dict(fixed or {})
     peak = rising_edge_missing(h)
-    if peak is not None and not {"position", "jitter_sigma"} <= set(fixed):
+    if irf == "two_tail":
+        check_two_tail_length(h, int(np.argmax(h)))
+    cropped = peak is not None and allow_cropped_edge
+    if peak is not None and not cropped and not {"position", "jitter_sigma"} <= set(fixed):
         raise ConfigError(f"histogram: the return peaks in bin {peak} of {n_bins} with every bin before it above half "
                           "its peak (its rising edge is before the first bin): position and jitter_sigma cannot be "
                           "fitted; give a histogram that holds the whole return, or hold both (fixed={...})")
@@ -321,6 +339,10 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         fixed.setdefault("diffusion_fraction", 1.0)
     free = [k for k in names_all if k not in fixed]
     start = _initial_guess(h, bin_width, n_cycles, model, pulse)
+    if irf == "two_tail":
+        start.update(two_tail_start(h, bin_width, int(np.argmax(h))))
+        if cropped:                        # the core's peak at the first bin: half its width to the half maximum
+            start["position"] = 0.5 * bin_width
     start.update(initial or {})
     if dead_time_bounds is not None:
         start["dead_time"] = min(max(start["dead_time"], lo_dt * 1.01), hi_dt * 0.99)
@@ -337,12 +359,15 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
 
     def expected(p: dict[str, float]) -> np.ndarray:
         cfg = _config(base, p, irf)
-        env = return_envelope(n_bins, bin_width, p["position"], p["signal"], pulse)
+        env = (two_tail_envelope(n_bins, bin_width, p, pulse) if irf == "two_tail" else
+               return_envelope(n_bins, bin_width, p["position"], p["signal"], pulse))
         return expected_histogram(rates_from_envelope(env, cfg), cfg)
 
     def nll(x: np.ndarray) -> float:
         p = params_of(x)
         if p.get("dead_time", 0.0) > hi_dt or (dead_time_bounds is not None and p["dead_time"] < lo_dt):
+            return REJECTED
+        if p.get("tail_weight", 0.0) + p.get("tail2_weight", 0.0) > 1.0:
             return REJECTED
         try:
             mu = expected(p)
@@ -361,6 +386,13 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
         return newton(nll, res.x, steps)
 
     best, hess, converged = local_fit(x0)
+    if "tail_delay" in free and "tail_delay" not in (initial or {}):
+        # two tails: a delayed fast tail (a shoulder after the core) and an undelayed one are separate optima
+        i = free.index("tail_delay")
+        for bins in TWO_TAIL_DELAY_STARTS:
+            other = local_fit(with_coordinate(x0, i, math.log(bins * bin_width)))
+            if nll(other[0]) < nll(best):
+                best, hess, converged = other
     alias = None                          # (the runner-up's dead time, its −log L above the best)
     if "dead_time" in free:
         # the likelihood has local minima in the dead time: scan it with the other parameters held and refit from
@@ -447,6 +479,9 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                           "be a detector's (check the counts and the bin width), or fix those parameters (--fix)")
     mu = expected(values)
     deviance, pearson, dof, p_value = _goodness(h, mu, len(free))
+    if cropped:
+        messages.append(f"the return's rising edge is before the first bin (its peak is in bin {peak}): position and "
+                        "jitter_sigma come from the falling half of the core and the tails only")
     return DetectorFit(model, irf, values, errors, intervals, joint, {k: v for k, v in fixed.items()
                                                                if k in names_all or irf == "exgauss"},
                        identifiable, messages, deviance, pearson, dof, p_value, mu, _config(base, values, irf),
@@ -457,11 +492,13 @@ def fit_detector(histogram: Any, *, bin_width: float, repetition_rate: float, n_
                            if alias is not None else {}),
                         **({"sandwich_replicates": SANDWICH_REPLICATES,
                             "sandwich_cycles": min(int(n_cycles), SANDWICH_CYCLES), "seed": int(seed)}
-                           if covariance == "sandwich" else {})})
+                           if covariance == "sandwich" else {})},
+                       two_tail_irf(values, pulse) if irf == "two_tail" else None)
 
 
 def _config(base: dict, p: dict, irf: str) -> DetectorConfig:
-    extra = {"dcr": p["background_rate"], "jitter_sigma": p["jitter_sigma"]}
+    # two_tail: the jitter is the IRF's core, in the envelope (.fit_two_tail)
+    extra = {"dcr": p["background_rate"], "jitter_sigma": 0.0 if irf == "two_tail" else p["jitter_sigma"]}
     if irf == "exgauss":
         extra["diffusion_tail"] = p["diffusion_tail"]
         extra["diffusion_fraction"] = p.get("diffusion_fraction", 1.0)
@@ -477,7 +514,8 @@ def _simulate_replicates(base: dict, values: dict, irf: str, n_bins: int, pulse:
     """SANDWICH_REPLICATES histograms of ``cycles`` cycles drawn from the fitted model (one event simulation, a
     pixel per replicate, ``numpy.random.default_rng(seed)``): int64 (replicates, bins)."""
     cfg = _config({**base, "n_cycles": cycles}, values, irf)
-    env = return_envelope(n_bins, base["bin_width"], values["position"], values["signal"], pulse)
+    env = (two_tail_envelope(n_bins, base["bin_width"], values, pulse) if irf == "two_tail" else
+           return_envelope(n_bins, base["bin_width"], values["position"], values["signal"], pulse))
     rates = rates_from_envelope(env, cfg)
     return sample_histogram(np.tile(rates, (SANDWICH_REPLICATES, 1)), cfg, np.random.default_rng(seed))
 

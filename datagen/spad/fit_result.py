@@ -7,12 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..timing.irf import Irf
 from .config import DetectorConfig
 
 __all__ = ["UNITS", "DetectorFit"]
 
 UNITS = {"signal": "photons/cycle", "position": "s", "jitter_sigma": "s", "diffusion_tail": "s",
-          "diffusion_fraction": "", "background_rate": "Hz", "dead_time": "s", "afterpulse_probability": ""}
+          "diffusion_fraction": "", "background_rate": "Hz", "dead_time": "s", "afterpulse_probability": "",
+          "tail": "s", "tail_weight": "", "tail2": "s", "tail2_weight": "", "tail_delay": "s"}
 """Unit of each fit parameter, as :meth:`DetectorFit.summary` prints it."""
 
 
@@ -36,6 +38,8 @@ class DetectorFit:
             the χ² p-value of the deviance).
         expected: float64 (bins,) best-fit expected histogram; config: the fitted :class:`DetectorConfig`.
         settings: what the fit was told (bin width, repetition rate, cycles, t_start, pulse_sigma).
+        irf_model: a two-tail fit's IRF (:class:`~datagen.timing.irf.Irf` of kind ``two_tail``, core = laser pulse
+            and jitter), else None.
     """
 
     model: str
@@ -54,6 +58,7 @@ class DetectorFit:
     expected: np.ndarray
     config: DetectorConfig
     settings: dict = field(default_factory=dict)
+    irf_model: Irf | None = None
 
     def summary(self) -> str:
         """Human-readable table: value ± 1σ [95 % interval; simultaneous 95 % interval] per parameter, then the
@@ -70,7 +75,12 @@ class DetectorFit:
             lines.append(f"  {name:<20s} {value:.6g} ± {self.errors[name]:.3g} {unit} "
                          f"[95 %: {lo:.6g}, {hi:.6g}; all jointly: {jlo:.6g}, {jhi:.6g}]{flag}")
         lines.append(f"  goodness of fit: deviance {self.deviance:.1f}, Pearson chi2 {self.pearson_chi2:.1f} on "
-                     f"{self.dof} dof (p = {self.p_value:.3g})")
+                     f"{self.dof} dof (p = {self.p_value:.3g}; chi2/dof {self.pearson_chi2 / self.dof:.3g})")
+        if self.irf_model is not None:
+            from .fit_two_tail import response_fwhm
+            lines.append(f"  IRF: core FWHM {self.irf_model.fwhm * 1e12:.1f} ps (laser pulse and jitter), whole "
+                         f"response FWHM {response_fwhm(self.irf_model) * 1e12:.1f} ps, mean delay "
+                         f"{self.irf_model.mean * 1e12:.1f} ps")
         if self.settings.get("covariance") == "sandwich":
             lines.append(f"  intervals: sandwich (quasi-likelihood score variance from "
                          f"{self.settings['sandwich_replicates']} histograms of {self.settings['sandwich_cycles']} "
@@ -78,7 +88,9 @@ class DetectorFit:
         return "\n".join(lines)
 
     def detector_yaml(self) -> str:
-        """The fitted detector as a ``configs/detectors`` YAML (:meth:`DetectorConfig.from_yaml` reads it)."""
+        """The fitted detector as a ``configs/detectors`` YAML (:meth:`DetectorConfig.from_yaml` reads it). A
+        two-tail fit writes ``detector:`` and ``irf:`` blocks, the keys of a scene file's ``simulation`` block
+        (docs/detector.md "detector.yaml")."""
         c = self.config
         rows = [
             "# Detector fitted by maximum likelihood to a measured histogram (datagen fit-detector;",
@@ -112,6 +124,12 @@ class DetectorFit:
                             f"[{jlo:.6g}, {jhi:.6g}]"
                             + ("" if self.identifiable[name] else " not identifiable"))
         rows.append(f"#   deviance {self.deviance:.2f} on {self.dof} dof, p = {self.p_value:.3g}")
+        if self.irf_model is not None:
+            head = [r for r in rows if r.startswith("#")][:3]
+            body = ["  " + r for r in rows[3:] if not r.startswith("#")]
+            rows = head + ["detector:"] + body + ["irf:"] + [f"  {k}: {v!r}" for k, v in
+                                                              self.irf_model.model_dump().items()] + \
+                [r for r in rows[3:] if r.startswith("#")]
         return "\n".join(rows) + "\n"
 
     def write_yaml(self, path: str | Path) -> Path:

@@ -9,6 +9,7 @@ import numpy as np
 
 from .config import DetectorConfig
 from .effects import convolve_last, exponential_kernel
+from .maps import check_map_shape
 
 __all__ = [
     "NEGATIVE_ENVELOPE_RTOL",
@@ -101,8 +102,9 @@ def rebin_envelope(fine_envelope: Any, fine_edges: Any, edges: Any) -> np.ndarra
 def rates_from_envelope(envelope: Any, config: DetectorConfig) -> np.ndarray:
     """Expected avalanches per laser cycle per bin from a detected-photon envelope.
 
-    ``rates = K_tail ⊗ envelope + (pde·ambient_rate + dcr)·width_i``, multiplied by the gate fraction of each
-    bin.  The envelope already contains the PDE (docs/physics.md §2), so only ambient light is thinned here; the
+    ``rates = G·K_tail ⊗ envelope + B·(pde·ambient_rate + dcr)·width_i``, multiplied by the gate fraction of
+    each bin; G and B are each scan point's ``gain_map`` and ``background_map`` values (1 when not set,
+    docs/detector.md "Direct light, gain and background maps").  The envelope already contains the PDE (docs/physics.md §2), so only ambient light is thinned here; the
     diffusion tail (``diffusion_tail``, ``diffusion_fraction``) acts before pile-up (docs/physics.md §6).  Widths
     are ``config.bin_widths`` when given (DNL), else ``bin_width``.
 
@@ -113,8 +115,9 @@ def rates_from_envelope(envelope: Any, config: DetectorConfig) -> np.ndarray:
         float64 (..., bins) rates ≥ 0.
     Raises:
         ValueError: NaN/inf in the envelope, values more negative than FFT round-off
-            (``NEGATIVE_ENVELOPE_RTOL`` × the pixel maximum; smaller ones are clamped to 0), or a bin count
-            different from ``len(config.bin_widths)``.
+            (``NEGATIVE_ENVELOPE_RTOL`` × the pixel maximum; smaller ones are clamped to 0), a bin count
+            different from ``len(config.bin_widths)``, or a gain / background map whose shape is not the envelope's
+            leading (scan point) shape.
     """
     e = _clamp_envelope(envelope)
     n_bins = e.shape[-1]
@@ -122,7 +125,14 @@ def rates_from_envelope(envelope: Any, config: DetectorConfig) -> np.ndarray:
     if config.diffusion_tail > 0 and config.diffusion_fraction > 0:
         kernel, first = exponential_kernel(config.diffusion_tail, config.bin_width, config.diffusion_fraction)
         e = convolve_last(e, kernel, first)
-    rates = e + config.background_rate * widths
+    gain, background = (config.scan_map(f) for f in ("gain_map", "background_map"))
+    if gain is not None:
+        e *= check_map_shape(gain, "gain_map", e.shape[:-1])[..., None]
+    if background is None:
+        rates = e + config.background_rate * widths
+    else:
+        rates = e + config.background_rate * check_map_shape(background, "background_map", e.shape[:-1])[..., None] \
+            * widths
     if config.gate is not None:
         rates *= gate_fraction(config.bin_edges(n_bins), config.gate)
     return rates

@@ -4,11 +4,13 @@ finite-exposure histograms from a batch of envelopes with a ``torch.Generator``.
 The physics is the detector model of docs/physics.md §6, as :func:`datagen.spad.rates_from_envelope` and
 :func:`datagen.spad.sample_histogram` implement it for one capture at a time in numpy:
 
-    r_i = g_i · ( (q / q_env)·L_i + (q·ambient_rate + DCR)·Δ_i )          expected avalanches per cycle, bin i
+    r_i = g_i · ( G·(q / q_env)·L_i + B·(q·ambient_rate + DCR)·Δ_i )      expected avalanches per cycle, bin i
 
 with L the envelope (detected photons per pulse and bin, simulated with the PDE q_env, docs/physics.md §2), q
 the PDE of the drawn detector, Δ_i the bin widths (``DetectorConfig.widths``, DNL included) and g_i the gate
-fraction of each bin (:func:`datagen.spad.gate_fraction`). Over n = round(exposure × repetition_rate) cycles:
+fraction of each bin (:func:`datagen.spad.gate_fraction`), G and B each scan point's gain and background factors:
+the detector's ``gain_map`` / ``background_map``, or maps drawn per sample (``gain_range``, ``background_bands``:
+:mod:`datagen.spad.map_draws`), else 1. Over n = round(exposure × repetition_rate) cycles:
 
 * ``pile_up`` (synchronous first photon, Coates 1968): the counts are Multinomial(n; p_0 … p_{T−1}, p_none)
   with p_i = e^{−C_i}(1 − e^{−r_i}) = e^{−C_i} − e^{−C_{i+1}}, C_i = Σ_{j<i} r_j, p_none = e^{−Λ};
@@ -47,6 +49,8 @@ from typing import Any, Mapping
 import torch
 
 from .config import DetectorConfig
+from .map_draws import draw_background_bands, draw_gain_fields
+from .maps import check_map_shape
 from .models import detector_model, model_names
 from .ranges import RANDOMISED_FIELDS, detector_ranges, draw_detector_params, fixed_cycles
 from .rates import NEGATIVE_ENVELOPE_RTOL, gate_fraction
@@ -85,6 +89,12 @@ class SPADNoise(torch.nn.Module):
         pde: photon detection efficiency, number or range in [0, 1]. The envelope is rescaled by
             pde / envelope_pde (it already contains the PDE it was simulated with, docs/physics.md §2).
         envelope_pde: the PDE inside the envelopes, a finite number in [0, 1]; default ``detector.pde``.
+        gain_range: draw a smooth gain map per sample of this dynamic range (max/min ≥ 1, mean 1) over the scan
+            points (the envelope's axes between the sample and the bins: (B, ny, nx, T));
+            :func:`datagen.spad.map_draws.draw_gain_fields`. Default: the detector's ``gain_map``, else none.
+        background_bands: (ratio, bands): draw a background map per sample in ``bands`` bands of columns, levels
+            up to ``ratio`` apart (mean 1; :func:`datagen.spad.map_draws.draw_background_bands`). Default: the
+            detector's ``background_map``, else none.
         dtype: dtype of the returned counts (float32 default). It must hold every count a bin can reach exactly
             (:func:`check_counts_dtype`): an integer or floating torch dtype whose exact range (``iinfo.max``;
             2**24 for float32, 2**11 float16, 2**8 bfloat16, 2**53 float64) reaches the most laser cycles of an
@@ -106,6 +116,7 @@ class SPADNoise(torch.nn.Module):
 
     def __init__(self, detector: DetectorConfig | Mapping[str, Any], *, exposure: Any = None,
                  ambient_rate: Any = None, dcr: Any = None, pde: Any = None, envelope_pde: float | None = None,
+                 gain_range: float | None = None, background_bands: tuple[float, int] | None = None,
                  dtype: torch.dtype = torch.float32):
         super().__init__()
         det = detector if isinstance(detector, DetectorConfig) else DetectorConfig.model_validate(dict(detector))
@@ -129,6 +140,12 @@ class SPADNoise(torch.nn.Module):
         if round(self.ranges["exposure"][0] * det.repetition_rate) < 1 and self.fixed_cycles is None:
             raise ValueError(f"SPADNoise: exposure {self.ranges['exposure'][0]!r} s is less than one laser cycle at "
                              f"{det.repetition_rate!r} Hz")
+        self.gain_range = None if gain_range is None else float(gain_range)
+        self.background_bands = None if background_bands is None else (float(background_bands[0]),
+                                                                       int(background_bands[1]))
+        draw_gain_fields((1, 1), self.gain_range, 0) if self.gain_range is not None else None     # checks the values
+        if self.background_bands is not None:
+            draw_background_bands((1, 1), *self.background_bands, 0)
         self.dtype = check_counts_dtype(dtype, max_cycles)
         self.count_limit = exact_count_limit(dtype)
         self._axis: dict[tuple[int, str], tuple[torch.Tensor, torch.Tensor]] = {}
@@ -148,6 +165,28 @@ class SPADNoise(torch.nn.Module):
         seeds a new generator (:func:`as_generator`)."""
         return draw_detector_params(self.ranges, self.detector.repetition_rate, self.fixed_cycles, batch,
                                     as_generator(generator, device), device)
+
+    def draw_maps(self, scan: tuple[int, ...], batch: int, generator: torch.Generator | None | bool,
+                  device: torch.device | str = "cpu") -> dict[str, torch.Tensor]:
+        """Per-sample ``gain`` and ``background`` maps, float64 (batch, *scan), for the scan shape ``scan`` (the
+        envelope's axes between the sample and the bins): drawn (``gain_range``, ``background_bands``; after the
+        detector parameters, from the same generator) or the detector's fixed maps; absent keys are 1.
+        ``generator=False``: the detector's fixed maps only (no draw).
+
+        Raises:
+            ValueError: a fixed map of another shape than ``scan``, or a draw for a scan that is not (ny, nx).
+        """
+        out = {}
+        for key, field, draw in (("gain", "gain_map", self.gain_range is not None and generator is not False),
+                                 ("background", "background_map",
+                                  self.background_bands is not None and generator is not False)):
+            if draw:
+                out[key] = (draw_gain_fields(scan, self.gain_range, batch, generator, device) if key == "gain" else
+                            draw_background_bands(scan, *self.background_bands, batch, generator, device))
+            elif getattr(self.detector, field) is not None:
+                fixed = check_map_shape(self.detector.scan_map(field), field, tuple(scan), "SPADNoise: detector.")
+                out[key] = torch.as_tensor(fixed, device=device).expand((batch,) + tuple(scan))
+        return out
 
     def _time_axis(self, n_bins: int, device: torch.device) -> tuple[torch.Tensor | None, torch.Tensor]:
         """(gate fraction g_i or None when every bin is fully inside the gate, g_i × width_i in s), float64
@@ -174,9 +213,14 @@ class SPADNoise(torch.nn.Module):
         pde = params["pde"]
         scale = pde / self.envelope_pde if self.envelope_pde > 0 else torch.zeros_like(pde)
         rates = torch.mul(envelope, scale.view(lead))                # float64 (type promotion)
+        if "gain" in params:
+            rates.mul_(params["gain"][..., None])
         if gate is not None:
             rates.mul_(gate)
-        return rates.addcmul_((pde * params["ambient_rate"] + params["dcr"]).view(lead), weight)
+        background = (pde * params["ambient_rate"] + params["dcr"]).view(lead)
+        if "background" in params:
+            background = background * params["background"][..., None]
+        return rates.addcmul_(background, weight)
 
     def expected(self, envelope: torch.Tensor, params: Mapping[str, torch.Tensor] | None = None) -> torch.Tensor:
         """Expected counts over the exposure: n·p_i (pile-up) or n·r_i (poisson), float64 (B, ..., T).
@@ -194,6 +238,7 @@ class SPADNoise(torch.nn.Module):
             params = {name: torch.full((batch,), float(value), dtype=torch.float64, device=envelope.device)
                       for name, value in (("exposure", det.cycles / det.repetition_rate), ("cycles", det.cycles),
                                           ("ambient_rate", det.ambient_rate), ("dcr", det.dcr), ("pde", det.pde))}
+            params.update(self.draw_maps(tuple(envelope.shape[1:-1]), batch, False, envelope.device))
         rates = self.rates(envelope, params).reshape(-1, envelope.shape[-1])
         cycles = params["cycles"].repeat_interleave(rates.shape[0] // max(envelope.shape[0], 1))[:, None]
         if self.model.dead_time == "none":            # Poisson counts: no dead time
@@ -241,6 +286,7 @@ class SPADNoise(torch.nn.Module):
             envelope = envelope.clamp_min(0.0)                       # round-off, as rates_from_envelope does
         batch = envelope.shape[0]
         params = self.draw_params(batch, generator, envelope.device)
+        params.update(self.draw_maps(tuple(envelope.shape[1:-1]), batch, generator, envelope.device))
         rates = self.rates(envelope, params).reshape(-1, envelope.shape[-1])
         cycles = params["cycles"].repeat_interleave(rates.shape[0] // max(batch, 1))
         if self.model.dead_time == "none":            # Poisson counts: no dead time

@@ -12,7 +12,7 @@ Exported here: :class:`TimeAxis`, :class:`Irf`, :class:`EnvelopeAccumulator` and
 
 Modules (they import each other directly, never through this package):
 
-- :mod:`~datagen.timing.irf`: :class:`TimeAxis`, :class:`Irf` (Gaussian / ex-Gaussian, CDF and bin
+- :mod:`~datagen.timing.irf`: :class:`TimeAxis`, :class:`Irf` (Gaussian / ex-Gaussian / two-tail, CDF and bin
   integrals), :func:`fwhm_to_sigma`, :func:`sigma_to_fwhm`;
 - :mod:`~datagen.timing.accumulator`: :class:`EnvelopeAccumulator` (fine-grid splatting + FFT, or the exact
   direct mode for narrow IRFs) and the exact per-impulse reference :func:`bin_impulses`;

@@ -2,7 +2,8 @@
 
 :class:`TimeAxis` is the uniform histogram axis: ``n_bins`` half-open bins ``[e_b, e_{b+1})``. :class:`Irf`
 is the density ``h`` of the delay ``X`` = detection time − impulse time: a Gaussian of width sigma (sigma = 0:
-the ideal, delta IRF) or an ex-Gaussian (Gaussian jitter core plus exponential diffusion tail), with its CDF
+the ideal, delta IRF), an ex-Gaussian (Gaussian jitter core plus exponential diffusion tail) or a two-tail IRF
+(a Gaussian core plus two exponential tails, the slow response of real SPADs, docs/detector.md), with its CDF
 ``F``, survival function and the stable bin integral :meth:`Irf.interval_mass`. Binning impulses with it is
 :mod:`datagen.timing.accumulator`'s job: a bin holds ``w * [F(e_{b+1} - tau) - F(e_b - tau)]``, an integral,
 never the density sampled at the bin centre.
@@ -17,7 +18,7 @@ import math
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer, model_validator
 from scipy.special import ndtr
 from scipy.stats import exponnorm
 
@@ -32,6 +33,7 @@ __all__ = [
     "Irf",
     "fwhm_to_sigma",
     "sigma_to_fwhm",
+    "TWO_TAIL_FIELDS",
 ]
 
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
@@ -42,6 +44,10 @@ MARGIN_SIGMAS = 8.5
 
 TAIL_MARGIN_TAUS = 40.0
 """Exponential-tail support kept after an impulse (ex-Gaussian), in tail constants: exp(-40) ~ 4e-18."""
+
+
+TWO_TAIL_FIELDS = ("tail_weight", "tail2", "tail2_weight", "tail_delay")
+"""Fields only the two-tail IRF uses (absent from a Gaussian's or an ex-Gaussian's dump, which stay as before)."""
 
 
 def fwhm_to_sigma(fwhm: float) -> float:
@@ -129,17 +135,29 @@ class Irf(BaseModel):
         ``"exgaussian"``: X = N(0, sigma^2) + Exponential(mean ``tail``), the SPAD jitter core plus diffusion
             tail (docs/physics.md §5); CDF from ``scipy.stats.exponnorm`` with K = tail / sigma, scale = sigma.
             Requires sigma > 0 and tail > 0. Its mean is ``tail``, not 0.
+        ``"two_tail"``: the mixture h = (1 − a1 − a2)·N(0, sigma²) + a1·EMG(sigma, tail) + a2·EMG(sigma, tail2),
+            both tails delayed by ``tail_delay`` d ≥ 0 (EMG: the ex-Gaussian above; a1 = ``tail_weight``,
+            a2 = ``tail2_weight``, each ≥ 0, a1 + a2 ≤ 1): a Gaussian core (jitter and laser pulse) plus the fast
+            and the slow diffusion tail of a real SPAD (docs/detector.md "Two-tail IRF"). Unit area by
+            construction; CDF F = (1 − a1 − a2)·Φ(x/sigma) + a1·F_EMG(x − d; tail) + a2·F_EMG(x − d; tail2), mean
+            (a1 + a2)·d + a1·tail + a2·tail2, variance in :attr:`variance`. With a2 = 0, a1 = 1, d = 0 it is the
+            ex-Gaussian. Requires sigma > 0, tail > 0, tail2 > 0.
 
     Raises:
         pydantic.ValidationError (a ValueError): both or neither of sigma/fwhm, a negative or non-finite
-            width, ``tail`` given for a Gaussian or missing/non-positive for an ex-Gaussian.
+            width, ``tail`` given for a Gaussian or missing/non-positive for an ex-Gaussian or a two-tail IRF, a
+            two-tail field given to another kind, weights outside [0, 1] or summing above 1.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     sigma: float = Field(ge=0.0, allow_inf_nan=False)
-    kind: Literal["gaussian", "exgaussian"] = "gaussian"
+    kind: Literal["gaussian", "exgaussian", "two_tail"] = "gaussian"
     tail: float | None = Field(default=None, allow_inf_nan=False)
+    tail_weight: float | None = Field(default=None, ge=0.0, le=1.0, allow_inf_nan=False)
+    tail2: float | None = Field(default=None, allow_inf_nan=False)
+    tail2_weight: float | None = Field(default=None, ge=0.0, le=1.0, allow_inf_nan=False)
+    tail_delay: float | None = Field(default=None, ge=0.0, allow_inf_nan=False)
 
     @model_validator(mode="before")
     @classmethod
@@ -162,7 +180,7 @@ class Irf(BaseModel):
                 raise ValueError(f"fwhm must be a duration, got fwhm={fwhm!r}")
         else:
             data.pop("fwhm", None)
-        for key in ("sigma", "tail"):
+        for key in ("sigma", "tail", "tail2", "tail_delay"):
             if isinstance(data.get(key), str):
                 data[key] = parse_duration(data[key])
         return data
@@ -170,7 +188,26 @@ class Irf(BaseModel):
     @model_validator(mode="after")
     def _check_kind(self) -> Irf:
         if self.kind == "gaussian" and self.tail is not None:
-            raise ValueError(f"tail is only used by kind='exgaussian', got tail={self.tail!r} for a gaussian")
+            raise ValueError(f"tail is only used by kind='exgaussian' or 'two_tail', got tail={self.tail!r} for a "
+                             "gaussian")
+        if self.kind != "two_tail":
+            extra = {k: getattr(self, k) for k in TWO_TAIL_FIELDS if getattr(self, k) is not None}
+            if extra:
+                name, value = next(iter(extra.items()))
+                raise ValueError(f"{name} is only used by kind='two_tail', got {name}={value!r} for kind={self.kind!r}")
+        else:
+            for name in ("tail", "tail2"):
+                value = getattr(self, name)
+                if value is None or not value > 0:
+                    raise ValueError(f"kind='two_tail' needs {name} > 0 (seconds), got {name}={value!r}")
+            if not self.sigma > 0:
+                raise ValueError(f"kind='two_tail' needs sigma > 0, got sigma={self.sigma!r}")
+            for name in ("tail_weight", "tail2_weight"):
+                if getattr(self, name) is None:
+                    raise ValueError(f"kind='two_tail' needs {name} in [0, 1], got {name}=None")
+            if self.tail_weight + self.tail2_weight > 1.0 + 1e-12:
+                raise ValueError(f"kind='two_tail' needs tail_weight + tail2_weight <= 1, got {self.tail_weight!r} + "
+                                 f"{self.tail2_weight!r}")
         if self.kind == "exgaussian":
             if self.tail is None or not self.tail > 0:
                 raise ValueError(f"kind='exgaussian' needs tail > 0 (seconds), got tail={self.tail!r}")
@@ -178,10 +215,38 @@ class Irf(BaseModel):
                 raise ValueError(f"kind='exgaussian' needs sigma > 0, got sigma={self.sigma!r}")
         return self
 
+    @model_serializer(mode="wrap")
+    def _dump(self, handler):
+        data = handler(self)
+        if self.kind != "two_tail" and isinstance(data, dict):       # the other kinds dump as before
+            for key in TWO_TAIL_FIELDS:
+                data.pop(key, None)
+        return data
+
     @property
     def fwhm(self) -> float:
         """FWHM of the Gaussian core, seconds."""
         return sigma_to_fwhm(self.sigma)
+
+    @property
+    def components(self) -> tuple[tuple[float, float | None, float], ...]:
+        """The IRF as a mixture: ((weight, tail or None for the bare Gaussian core, delay s), ...), weights summing
+        to 1. A Gaussian is ((1, None, 0),), an ex-Gaussian ((1, tail, 0),), a two-tail IRF its core and tails."""
+        if self.kind == "gaussian":
+            return ((1.0, None, 0.0),)
+        if self.kind == "exgaussian":
+            return ((1.0, float(self.tail), 0.0),)
+        a1, a2, d = float(self.tail_weight), float(self.tail2_weight), float(self.tail_delay or 0.0)
+        return ((max(1.0 - a1 - a2, 0.0), None, 0.0), (a1, float(self.tail), d), (a2, float(self.tail2), d))
+
+    @property
+    def variance(self) -> float:
+        """Var X, s²: sigma² for the Gaussian core; each tail component (weight a, tail tau, delay d) has mean
+        d + tau and second moment sigma² + (d + tau)² + tau² (an ex-Gaussian's: Var = sigma² + tau²)."""
+        s2 = self.sigma ** 2
+        mean = self.mean
+        second = sum(w * (s2 + (0.0 if tau is None else (d + tau) ** 2 + tau ** 2)) for w, tau, d in self.components)
+        return float(second - mean * mean)
 
     @property
     def is_delta(self) -> bool:
@@ -190,7 +255,10 @@ class Irf(BaseModel):
 
     @property
     def mean(self) -> float:
-        """Mean delay E[X], seconds: 0 for a Gaussian, ``tail`` for an ex-Gaussian."""
+        """Mean delay E[X], seconds: 0 for a Gaussian, ``tail`` for an ex-Gaussian, (a1 + a2)·tail_delay +
+        a1·tail + a2·tail2 for a two-tail IRF."""
+        if self.kind == "two_tail":
+            return float(sum(w * (d + tau) for w, tau, d in self.components if tau is not None))
         return 0.0 if self.kind == "gaussian" else float(self.tail)
 
     @property
@@ -200,6 +268,8 @@ class Irf(BaseModel):
         before = MARGIN_SIGMAS * sigma; after adds TAIL_MARGIN_TAUS * tail for the ex-Gaussian.
         """
         before = MARGIN_SIGMAS * self.sigma
+        if self.kind == "two_tail":
+            return before, before + float(self.tail_delay or 0.0) + TAIL_MARGIN_TAUS * max(self.tail, self.tail2)
         after = before + (TAIL_MARGIN_TAUS * self.tail if self.kind == "exgaussian" else 0.0)
         return before, after
 
@@ -214,6 +284,9 @@ class Irf(BaseModel):
             return (x > 0).astype(np.float64)
         if self.kind == "gaussian":
             return ndtr(x / self.sigma)
+        if self.kind == "two_tail":
+            return self._mixture(x, lambda y, tau: ndtr(y / self.sigma) if tau is None else
+                                 ex_gaussian_cdf(y, self.sigma, tau))
         return ex_gaussian_cdf(x, self.sigma, self.tail)
 
     def sf(self, x: np.ndarray | float) -> np.ndarray:
@@ -223,7 +296,27 @@ class Irf(BaseModel):
             return (x <= 0).astype(np.float64)
         if self.kind == "gaussian":
             return ndtr(-x / self.sigma)
+        if self.kind == "two_tail":
+            return self._mixture(x, lambda y, tau: ndtr(-y / self.sigma) if tau is None else
+                                 exponnorm.sf(y, tau / self.sigma, scale=self.sigma))
         return exponnorm.sf(x, self.tail / self.sigma, scale=self.sigma)
+
+    def pdf(self, x: np.ndarray | float) -> np.ndarray:
+        """The density h(x), 1/s, float64 of x's shape (sigma > 0): the normal density, ``exponnorm.pdf`` or the
+        two-tail mixture of both. Raises ValueError for the delta IRF (it has no density)."""
+        x = np.asarray(x, dtype=np.float64)
+        if self.is_delta:
+            raise ValueError("the delta IRF (sigma = 0) has no density")
+        return self._mixture(x, lambda y, tau: np.exp(-0.5 * (y / self.sigma) ** 2) / (math.sqrt(2.0 * math.pi) *
+                             self.sigma) if tau is None else exponnorm.pdf(y, tau / self.sigma, scale=self.sigma))
+
+    def _mixture(self, x: np.ndarray, part) -> np.ndarray:
+        """Σ weight · part(x − delay, tail) over :attr:`components` (weight-0 components skipped)."""
+        out = np.zeros(np.shape(x))
+        for w, tau, d in self.components:
+            if w > 0:
+                out = out + w * part(x - d, tau)
+        return out
 
     def interval_mass(self, lo: np.ndarray | float, hi: np.ndarray | float) -> np.ndarray:
         """P(lo <= X < hi), float64, broadcast shape of ``lo`` and ``hi`` (seconds, lo <= hi).

@@ -7,7 +7,7 @@ mass). The hidden-surface quadrature deposits whole sub-triangles as tents
 :func:`tent_cdf` (piecewise quadratic), its antiderivative :func:`tent_cdf2` (piecewise cubic; the
 linear-splatting weights of a fine grid) and :func:`tent_irf_cdf`, the CDF of the tent convolved with an
 :class:`~datagen.timing.irf.Irf` (from the IRF's partial moments E[(c-X)_+] and E[(c-X)_+^2]/2, closed forms
-for the Gaussian and the ex-Gaussian). All functions work elementwise on arrays of one shape.
+for the Gaussian, the ex-Gaussian and the two-tail mixture). All functions work elementwise on arrays of one shape.
 """
 from __future__ import annotations
 
@@ -76,23 +76,36 @@ def _partial_moments(irf: Irf, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     antiderivatives of its CDF. Gaussian: sigma*A1(z), sigma^2*A2(z), z = c/sigma, A1 = z Phi + phi,
     A2 = ((z^2+1) Phi + z phi)/2. Ex-Gaussian (X = N(0, sigma^2) + Exp(mean tau)): M1 = sigma A1 - tau F_X(c),
     M2 = sigma^2 A2 - tau sigma A1 + tau^2 F_X(c) (integrating F_X = Phi(z) - e^{-c/tau + sigma^2/2tau^2}
-    Phi(z - sigma/tau) by parts; F_X from scipy.stats.exponnorm)."""
-    s = irf.sigma
+    Phi(z - sigma/tau) by parts; F_X from scipy.stats.exponnorm). Two-tail IRF: the partial moments are linear in
+    the distribution, so its mixture's are the weighted sums of its components' at c - delay."""
+    if irf.kind == "two_tail":
+        m1, m2 = np.zeros(np.shape(c)), np.zeros(np.shape(c))
+        for w, tau, d in irf.components:
+            if w > 0:
+                a, b = _component_moments(irf.sigma, tau, c - d)
+                m1, m2 = m1 + w * a, m2 + w * b
+        return m1, m2
+    return _component_moments(irf.sigma, None if irf.kind == "gaussian" else float(irf.tail), c)
+
+
+def _component_moments(s: float, tau: float | None, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M1, M2) of :func:`_partial_moments` for N(0, s²) (``tau`` None) or N(0, s²) + Exp(mean ``tau``)."""
     z = c / s
     cdf = ndtr(z)
     pdf = np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
     a1 = z * cdf + pdf
     a2 = 0.5 * ((z * z + 1.0) * cdf + z * pdf)
-    if irf.kind == "gaussian":
+    if tau is None:
         return s * a1, s * s * a2
-    tau = float(irf.tail)
-    fx = irf.cdf(c)
+    fx = exponnorm.cdf(c, tau / s, scale=s)
     return s * a1 - tau * fx, s * s * a2 - tau * s * a1 + tau * tau * fx
 
 
 def _irf_pdf(irf: Irf, c: np.ndarray) -> np.ndarray:
     if irf.kind == "gaussian":
         return np.exp(-0.5 * (c / irf.sigma) ** 2) / (math.sqrt(2.0 * math.pi) * irf.sigma)
+    if irf.kind == "two_tail":
+        return irf.pdf(c)
     return exponnorm.pdf(c, irf.tail / irf.sigma, scale=irf.sigma)
 
 

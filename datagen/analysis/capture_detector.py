@@ -1,0 +1,152 @@
+"""The detector a confocal capture was measured with, estimated from the capture alone (docs/detector.md
+"Estimating the detector of a capture"; ``datagen estimate-capture``).
+
+From the histograms of a confocal scan, (ny, nx, T) counts, on the hidden round-trip axis (bin k holds round trips
+[k·Δt, (k+1)·Δt) from the scanned point, the direct light at t = 0; :func:`~datagen.analysis.confocal.align_confocal`
+puts any scan there):
+
+* the background map: each point's floor, the mean counts per bin of its late bins (after the hidden scene's
+  return; by default the last :data:`LATE_FRACTION` of the window), :func:`background_map`;
+* the gain map: each point's direct counts (the first :data:`GAIN_WINDOW` s after its direct return, less its
+  floor), divided by their mean, :func:`gain_map` (the light each point receives, relative: laser power, focus,
+  the wall's albedo there; what the hidden counts follow);
+* the direct-to-hidden ratio: the net counts of the direct light (the bins :func:`direct_light_bins` gives) over the
+  net counts after it, :func:`direct_to_hidden`. What fraction of the direct light the set-up lets through cannot be
+  told from the capture alone (it needs the geometry's prediction of the hidden return): compare this ratio with a
+  simulation of the scene (attenuation = real ratio / simulated ratio, ``detector.direct``);
+* the IRF: a two-tail fit (:func:`datagen.spad.fit.fit_detector`) of the direct returns summed over the scan.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .confocal import direct_light_bins
+
+__all__ = ["LATE_FRACTION", "GAIN_WINDOW", "IRF_WINDOW", "CaptureDetector", "background_map", "gain_map",
+           "direct_to_hidden", "estimate_capture_detector"]
+
+LATE_FRACTION = 0.1
+"""The background floor is read on the last 10 % of the window (the LCT release's captures: bins 1843-2047 of 2048,
+after the hidden returns of scenes within 1.4 m)."""
+
+GAIN_WINDOW = 0.2e-9
+"""s: a point's direct counts are summed over the first 0.2 ns after its direct return (the core of the response
+and its fast tail: 50 bins of the LCT release's 4 ps), where the direct light outweighs the hidden scene."""
+
+IRF_WINDOW = 1.2e-9
+"""s: the direct return the two-tail fit takes, 1.2 ns from its peak (the hidden returns of the LCT release's
+scenes start after 2.4 ns)."""
+
+
+@dataclass
+class CaptureDetector:
+    """What :func:`estimate_capture_detector` estimates.
+
+    Attributes:
+        background: float64 (ny, nx) counts per bin of each point's floor.
+        gain: float64 (ny, nx) each point's net direct counts over their mean (mean 1).
+        direct_counts, hidden_counts: float64 (ny, nx) net counts (floor removed) of the direct light and after it.
+        direct_to_hidden: total net direct over total net hidden counts.
+        direct_bins: the number of leading bins that hold the direct light (:func:`direct_light_bins`).
+        fit: the two-tail :class:`~datagen.spad.fit_result.DetectorFit` of the scan-summed direct return, or None.
+        notes: one line each for what the estimate could not do.
+    """
+
+    background: np.ndarray
+    gain: np.ndarray
+    direct_counts: np.ndarray
+    hidden_counts: np.ndarray
+    direct_to_hidden: float
+    direct_bins: int
+    fit: object | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def _late(n_bins: int, late: tuple[int, int] | None) -> slice:
+    if late is None:
+        return slice(n_bins - max(1, int(round(LATE_FRACTION * n_bins))), n_bins)
+    first, stop = late
+    if not 0 <= first < stop <= n_bins:
+        raise ValueError(f"late bins {first}:{stop} are not within the capture's {n_bins} bins")
+    return slice(first, stop)
+
+
+def background_map(scan: np.ndarray, late: tuple[int, int] | None = None) -> np.ndarray:
+    """Each point's floor: the mean counts per bin over the late bins (``late`` = (first, stop), default the last
+    :data:`LATE_FRACTION` of the window). scan: (ny, nx, T) counts ≥ 0. Returns float64 (ny, nx). Its relative
+    standard error is 1/sqrt(floor × late bins) per point."""
+    s = np.asarray(scan, dtype=np.float64)
+    return s[..., _late(s.shape[-1], late)].mean(axis=-1)
+
+
+def gain_map(scan: np.ndarray, bin_width: float, background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(gain, net direct counts): each point's counts over the first :data:`GAIN_WINDOW` s of the aligned axis less
+    ``background`` (counts per bin) times those bins, and that over its mean. scan: (ny, nx, T) aligned counts;
+    returns float64 (ny, nx) twice. Raises ValueError when the direct light holds no net counts."""
+    s = np.asarray(scan, dtype=np.float64)
+    k = max(1, min(s.shape[-1], int(round(GAIN_WINDOW / bin_width))))
+    direct = s[..., :k].sum(axis=-1) - k * background
+    mean = float(direct.mean())
+    if not mean > 0:
+        raise ValueError("the scan's first bins hold no net counts above the floor: no direct light to read a gain "
+                         "from (is the capture on the hidden round-trip axis, its direct light at t = 0?)")
+    return direct / mean, direct
+
+
+def direct_to_hidden(scan: np.ndarray, background: np.ndarray, direct_bins: int) -> tuple[float, np.ndarray,
+                                                                                          np.ndarray]:
+    """(ratio, net direct counts (ny, nx), net hidden counts (ny, nx)): the counts of the first ``direct_bins``
+    bins and of the rest, each less the floor ``background`` (counts per bin) times its bins; the ratio of the
+    totals (inf when the hidden counts are not above the floor)."""
+    s = np.asarray(scan, dtype=np.float64)
+    n = s.shape[-1]
+    direct = s[..., :direct_bins].sum(axis=-1) - direct_bins * background
+    hidden = s[..., direct_bins:].sum(axis=-1) - (n - direct_bins) * background
+    total = float(hidden.sum())
+    return (float(direct.sum()) / total if total > 0 else float("inf")), direct, hidden
+
+
+def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple[int, int] | None = None,
+                              direct_bins: int | None = None, fit_irf: bool = True, repetition_rate: float = 10e6,
+                              n_cycles: int = 1_000_000) -> CaptureDetector:
+    """Background, gain, direct-to-hidden ratio and IRF of a confocal capture (module doc).
+
+    Args:
+        scan: (ny, nx, T) counts ≥ 0 on the hidden round-trip axis (:func:`~.confocal.align_confocal`).
+        bin_width: Δt, s. late: (first, stop) bins of the floor (default the last :data:`LATE_FRACTION`).
+        direct_bins: bins of the direct light (default :func:`~.confocal.direct_light_bins`).
+        fit_irf: fit the two-tail IRF to the scan-summed direct return (:data:`IRF_WINDOW`).
+        repetition_rate, n_cycles: the exposure, for the fit's background rate in Hz (the IRF's shape does not
+            depend on them; the LCT files do not state them).
+    Returns:
+        :class:`CaptureDetector`.
+    Raises:
+        ValueError: not an (ny, nx, T) scan of counts, late bins outside the window, no direct light.
+    """
+    s = np.asarray(scan, dtype=np.float64)
+    if s.ndim != 3 or s.shape[-1] < 2 or not np.isfinite(s).all() or (s < 0).any():
+        raise ValueError(f"expected a confocal scan of counts (ny, nx, T) >= 0, got shape {s.shape}")
+    background = background_map(s, late)
+    gain, _ = gain_map(s, bin_width, background)
+    n_direct = direct_light_bins(s, bin_width) if direct_bins is None else int(direct_bins)
+    notes = []
+    if n_direct <= 0:
+        notes.append("no direct light found at t = 0: the direct-to-hidden ratio is not estimated")
+    ratio, direct, hidden = direct_to_hidden(s, background, max(n_direct, 1))
+    fit = None
+    if fit_irf:
+        from ..errors import ConfigError
+        from ..spad.fit import fit_detector
+
+        summed = s.reshape(-1, s.shape[-1]).sum(axis=0)
+        peak = int(np.argmax(summed[: max(1, int(round(GAIN_WINDOW / bin_width)))]))
+        stop = min(summed.size, peak + int(round(IRF_WINDOW / bin_width)))
+        h = np.rint(summed[:stop])
+        try:
+            fit = fit_detector(h, bin_width=bin_width, repetition_rate=repetition_rate, n_cycles=n_cycles,
+                               model="poisson", irf="two_tail", allow_cropped_edge=True)
+        except ConfigError as exc:
+            notes.append(f"the IRF was not fitted: {exc}")
+    return CaptureDetector(background, gain, direct, hidden, ratio, n_direct, fit, notes)

@@ -1,0 +1,131 @@
+"""``datagen estimate-capture``: the detector a confocal capture was measured with, estimated from the capture
+(docs/detector.md "Estimating the detector of a capture"): its IRF (a two-tail fit of the direct returns), its
+background and gain maps and its direct-to-hidden ratio, written as ``detector.yaml`` (the ``detector:`` and
+``irf:`` blocks of a scene file's ``simulation``), ``gain.npy``, ``background.npy`` and a picture of the maps.
+
+The command only parses and calls the library (:mod:`datagen.analysis.capture_detector`,
+:mod:`datagen.plot.capture_maps`); :mod:`datagen.cli.main` registers it.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from .errors import friendly_errors
+
+
+def _bins(text: str | None, option: str) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    first, sep, stop = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return int(first), int(stop)
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: give FIRST:STOP bin indices", param_hint=option) from None
+
+
+def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_cycles: int) -> str:
+    """The ``detector.yaml`` text of an estimate (:class:`~datagen.analysis.capture_detector.CaptureDetector`):
+    ``detector:`` (poisson, the exposure given, the mean floor as ``dcr``, the maps as ``gain.npy`` and
+    ``background.npy`` beside it) and, when the IRF was fitted, ``irf:``; the estimates as comments."""
+    floor = float(est.background.mean())
+    rows = [f"# Estimated by datagen estimate-capture from {source} (docs/detector.md \"detector.yaml\").",
+            f"# background: mean {floor:.4g} counts per bin per scan point (range {est.background.min():.4g} .. "
+            f"{est.background.max():.4g}); background.npy holds it relative (mean 1)",
+            f"# gain: max/min {est.gain.max() / max(est.gain.min(), 1e-300):.3g} (gain.npy, mean 1)",
+            f"# direct-to-hidden ratio of net counts: {est.direct_to_hidden:.4g} (direct light: the first "
+            f"{est.direct_bins} bins); detector.direct's attenuation = this / a simulation's ratio",
+            "# the exposure (repetition_rate, n_cycles) is assumed when the capture does not state it: dcr holds the",
+            "# floor at that exposure",
+            "detector:",
+            "  model: poisson",
+            f"  repetition_rate: {repetition_rate!r}",
+            f"  n_cycles: {int(n_cycles)}",
+            f"  bin_width: {bin_width!r}",
+            f"  dcr: {floor / (n_cycles * bin_width)!r}",
+            "  gain_map: gain.npy",
+            "  background_map: background.npy"]
+    if est.fit is not None:
+        rows.append("irf:")
+        rows += [f"  {k}: {v!r}" for k, v in est.fit.irf_model.model_dump().items()]
+        rows.append(f"# IRF fit: chi2/dof {est.fit.pearson_chi2 / est.fit.dof:.3g} on {est.fit.dof} dof")
+    return "\n".join(rows) + "\n"
+
+
+@click.command("estimate-capture")
+@click.argument("capture", type=click.Path(path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory")
+@click.option("--width", type=float, default=None, help=".mat without 'width': half width of the scanned wall, m")
+@click.option("--bin-resolution", "bin_resolution", default=None,
+              help=".mat without 'bin_resolution': the bin width, e.g. 4ps")
+@click.option("--late", default=None, help="bins FIRST:STOP of the floor (default: the last 10 %% of the window)")
+@click.option("--direct-bins", "direct_bins", type=click.IntRange(min=1), default=None,
+              help="bins of the direct light from t = 0 (default: where its tail ends)")
+@click.option("--no-irf", "no_irf", is_flag=True, help="skip the two-tail IRF fit")
+@click.option("--repetition-rate", "repetition_rate", default="10MHz",
+              help="the laser's repetition rate, for the floor in Hz (default 10MHz: the LCT files do not state it)")
+@click.option("--n-cycles", "n_cycles", type=click.IntRange(min=1), default=1_000_000,
+              help="laser cycles per scan point (default 1e6)")
+@friendly_errors
+def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_irf, repetition_rate, n_cycles):
+    """Estimate the detector of the confocal capture CAPTURE (a lab file or a store) and write OUT/detector.yaml,
+    OUT/gain.npy, OUT/background.npy, OUT/estimates.json and OUT/maps.png.
+
+    Background: each point's floor on its late bins; gain: its direct counts (0.2 ns from its direct return)
+    relative to their mean; the direct-to-hidden ratio of net counts; the IRF: a two-tail fit of the scan-summed
+    direct return (docs/detector.md).
+    """
+    from ..analysis.capture_detector import estimate_capture_detector
+    from ..analysis.confocal import align_confocal
+    from ..plot.capture_maps import plot_capture_maps
+    from ..spad import DetectorConfig
+    from ..units import parse_rate
+    from .capture import bin_option, load_capture, width_option
+
+    result, offsets, desc = load_capture(capture, width_option(width), bin_option(bin_resolution, "--bin-resolution"))
+    data = np.asarray(result.counts if np.any(result.counts) else result.envelope, dtype=np.float64)
+    if data.ndim != 3:
+        raise ValueError(f"{capture}: a confocal scan (ny, nx, T) is needed, got shape {data.shape}")
+    scan, dt = align_confocal(data, result.time_edges, offsets)
+    est = estimate_capture_detector(scan, dt, late=_bins(late, "--late"), direct_bins=direct_bins,
+                                    fit_irf=not no_irf, repetition_rate=parse_rate(repetition_rate),
+                                    n_cycles=n_cycles)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    np.save(out / "gain.npy", est.gain)
+    floor = float(est.background.mean())
+    np.save(out / "background.npy", est.background / floor if floor > 0 else np.ones_like(est.background))
+    (out / "detector.yaml").write_text(detector_yaml(est, desc, dt, parse_rate(repetition_rate), n_cycles))
+    DetectorConfig.from_yaml(out / "detector.yaml")                # it loads, maps and all
+    record = {"source": desc, "bin_width_s": dt, "background_counts_per_bin": est.background.tolist(),
+              "background_mean_counts_per_bin": floor, "direct_counts": est.direct_counts.tolist(),
+              "hidden_counts": est.hidden_counts.tolist(), "direct_to_hidden": est.direct_to_hidden,
+              "direct_bins": est.direct_bins, "notes": est.notes,
+              "irf": None if est.fit is None else est.fit.irf_model.model_dump(),
+              "irf_chi2_per_dof": None if est.fit is None else est.fit.pearson_chi2 / est.fit.dof}
+    (out / "estimates.json").write_text(json.dumps(record))
+    plot_capture_maps({"gain (direct counts / mean)": est.gain, "background (counts per bin)": est.background,
+                       "net direct counts": est.direct_counts, "net hidden counts": est.hidden_counts},
+                      out / "maps.png", title=desc)
+    click.echo(f"{desc}: {scan.shape[0]} x {scan.shape[1]} points, {scan.shape[2]} bins of {dt * 1e12:.4g} ps")
+    click.echo(f"background: mean {floor:.4g} counts per bin (range {est.background.min():.4g} .. "
+               f"{est.background.max():.4g})")
+    click.echo(f"gain: max/min {est.gain.max() / max(est.gain.min(), 1e-300):.3g}; correlation with the hidden "
+               f"counts {np.corrcoef(est.gain.ravel(), est.hidden_counts.ravel())[0, 1]:.3f}")
+    click.echo(f"direct-to-hidden ratio (net counts) {est.direct_to_hidden:.4g}, direct light in the first "
+               f"{est.direct_bins} bins ({est.direct_bins * dt * 1e9:.3g} ns)")
+    if est.fit is not None:
+        from ..spad.fit_two_tail import response_fwhm
+        irf = est.fit.irf_model
+        click.echo(f"IRF (two-tail): core FWHM {irf.fwhm * 1e12:.1f} ps, response FWHM {response_fwhm(irf) * 1e12:.1f}"
+                   f" ps, tails {irf.tail * 1e12:.3g} ps ({irf.tail_weight:.3g}) and {irf.tail2 * 1e12:.3g} ps "
+                   f"({irf.tail2_weight:.3g}) after {float(irf.tail_delay or 0) * 1e12:.3g} ps; chi2/dof "
+                   f"{est.fit.pearson_chi2 / est.fit.dof:.3g}")
+    for line in est.notes:
+        click.echo(f"note: {line}")
+    click.echo(f"wrote {out / 'detector.yaml'}, gain.npy, background.npy, estimates.json, maps.png")
