@@ -9,7 +9,8 @@ bin width. Then, in order:
    ("auto"), or a given duration. The simulation is not asked to model the direct light (real set-ups gate or
    attenuate it by a factor no file records).
 2. **Background.** Each point's floor (dark counts, ambient light: it drifts over a real scan) is the mean of its
-   bins where the simulation's scan-summed return is below :data:`SIGNAL_FREE` of its peak (at least
+   bins where the simulation's scan-summed return (smoothed over :data:`EDGE_SMOOTHING`) is below
+   :data:`SIGNAL_FREE` of its peak (plus three times its counting noise when it holds counts) (at least
    :data:`MIN_FLOOR_BINS`; else the last tenth of the window), subtracted from both scans.
 3. **Gain.** Optionally each simulated point is multiplied by a gain map: "direct" estimates it from the measured
    scan's direct light (each point's counts in the excluded bins above its floor, over their mean: laser power,
@@ -212,9 +213,11 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
     real_h = r_al[..., n_trim:].reshape(-1, n - n_trim)
     sim_h = s_al[..., n_trim:].reshape(-1, n - n_trim)
     t = (n_trim + np.arange(n - n_trim) + 0.5) * dt
-    ss = sim_h.sum(axis=0)
+    width = max(1, int(round(EDGE_SMOOTHING / dt)))
+    ss = _smooth(sim_h.sum(axis=0), width)
     signal = ss - ss.min()
-    floor_bins = signal < SIGNAL_FREE * signal.max() if signal.max() > 0 else np.ones(len(ss), bool)
+    noise = 3.0 * np.sqrt(max(float(ss.min()), 1.0) / width) if sim_is_counts else 0.0   # a drawn simulation's
+    floor_bins = (signal <= SIGNAL_FREE * signal.max() + noise if signal.max() > 0 else np.ones(len(ss), bool))
     if floor_bins.sum() < MIN_FLOOR_BINS:
         floor_bins = np.zeros(len(ss), bool)
         floor_bins[-max(1, len(ss) // 10):] = True

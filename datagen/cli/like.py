@@ -80,7 +80,11 @@ def like_setup(scene, store: Path, detector_path: Path | None, echo) -> tuple[ob
     for line in notes:
         echo(f"note: {line}")
     det = overrides.get("detector") or {}
-    exposure = det.get("exposure") or (f"{det['n_cycles']} cycles" if det.get("n_cycles") else None)
+    from ..units import parse_duration
+    from ..validate import format_seconds
+
+    exposure = (format_seconds(parse_duration(det["exposure"])) if det.get("exposure") is not None else
+                f"{det['n_cycles']} cycles" if det.get("n_cycles") else None)
     origin = ("--detector " + str(detector_path) if detector_path is not None and
               {"exposure", "n_cycles"} & set(detector) else f"the store {store}" if template.detector and
               {"exposure", "n_cycles"} & set(template.detector) else "the scene's detector block")
