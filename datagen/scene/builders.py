@@ -168,6 +168,11 @@ MASK_SYMBOLS = {"#": True, ".": False}
 """Characters of a mask row in a scene file: "#" filled, "." empty."""
 
 
+MASK_PERPENDICULAR = 1e-5
+"""|û·v̂| up to which a mask's u and v count as perpendicular: directions written with six decimals in a scene file
+are perpendicular to about 1e-6."""
+
+
 def mask_mesh(mask: np.ndarray, pitch: float, center: Vec3, u: Vec3 = (1.0, 0.0, 0.0),
               v: Vec3 = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     """A planar cut-out: the filled cells of a binary mask as a triangle mesh in scene coordinates.
@@ -186,7 +191,7 @@ def mask_mesh(mask: np.ndarray, pitch: float, center: Vec3, u: Vec3 = (1.0, 0.0,
         (vertices (4·R, 3) float64 m, faces (2·R, 3) int64) with R the runs; the faces' normal is û × v̂.
     Raises:
         SceneError: a mask that is not 2-D or has no filled cell, a pitch that is not finite and > 0, u or v zero or
-            not perpendicular (|û·v̂| > 1e-9).
+            not perpendicular (|û·v̂| > :data:`MASK_PERPENDICULAR`; within it v is made exactly perpendicular).
     """
     m = np.asarray(mask)
     if m.ndim != 2 or m.size == 0:
@@ -200,8 +205,10 @@ def mask_mesh(mask: np.ndarray, pitch: float, center: Vec3, u: Vec3 = (1.0, 0.0,
     if not (nu > 0 and nv > 0):
         raise SceneError(f"mask: u {list(u)} and v {list(v)} must be non-zero directions")
     uu, vv = uu / nu, vv / nv
-    if abs(float(uu @ vv)) > 1e-9:
+    if abs(float(uu @ vv)) > MASK_PERPENDICULAR:
         raise SceneError(f"mask: u {list(u)} and v {list(v)} must be perpendicular (u·v = {float(uu @ vv):.3g})")
+    vv = vv - (uu @ vv) * uu                               # exactly perpendicular: a planar, rectangular grid
+    vv /= np.linalg.norm(vv)
     ny, nx = m.shape
     padded = np.zeros((ny, nx + 2), dtype=np.int8)
     padded[:, 1:-1] = m
