@@ -104,6 +104,6 @@ def plot_hidden_comparison(comparison: dict, path: str | Path, real_label: str =
     ax.set_ylim(max(peak * 1e-4, 1e-2), peak * 2)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=64)
     plt.close(fig)
     return path
