@@ -167,6 +167,7 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
               "#   assumed (below); photons_per_pulse is set so the simulated hidden counts are about the capture's.",
               "# Simulate the capture: datagen simulate THIS.yaml --like STORE --out DIR  (STORE: datagen import-capture",
               f"#   {capture} --bin-resolution 4ps --out STORE); compare: datagen compare-capture STORE DIR.",
+              f"#   simulate --like took {SECONDS[name]} s on two cores (docs/real.md).",
               f"name: {name}", "", "objects:",
               "  - builder: quad", "    name: relay_wall", "    label: relay_wall",
               f"    corner: [{-width - 0.2:.2f}, 0.0, {-width - 0.2:.2f}]",
@@ -208,9 +209,14 @@ ESTIMATOR = {
 }
 """The quadrature's settings per scene: cost against how finely the retroreflected cone is integrated."""
 
-PHOTONS = {"stanford_dot_chart_40cm": 1e9, "stanford_dot_chart_65cm": 1e9, "stanford_diffuse_s": 1e9,
-           "stanford_s_u": 1e9, "stanford_exit_sign": 1e9}
-"""Photons per pulse, set so the simulated hidden counts are about the capture's (docs/real.md)."""
+PHOTONS = {"stanford_dot_chart_40cm": 3.3e4, "stanford_dot_chart_65cm": 5.8e4, "stanford_diffuse_s": 8.1e6,
+           "stanford_s_u": 2.0e4, "stanford_exit_sign": 4.7e4}
+"""Photons per pulse, set so the simulated hidden counts over the 0.1 s exposure are about the capture's (the
+compare-capture hidden counts of docs/real.md); not a prediction of the laser's power."""
+
+SECONDS = {"stanford_dot_chart_40cm": 93, "stanford_dot_chart_65cm": 93, "stanford_diffuse_s": 16,
+           "stanford_s_u": 282, "stanford_exit_sign": 113}
+"""Wall time of ``simulate --like`` on the 2-core machine the figures were measured on (docs/real.md)."""
 
 
 def main(folder: Path) -> None:
@@ -222,7 +228,7 @@ def main(folder: Path) -> None:
         if "chart" in name:
             parts, notes = chart(front, depth, width, pitch)
         else:
-            parts, notes = cutouts(name, front, depth, width, pitch, DIFFUSE if falloff == "diffuse" else RETRO)
+            parts, notes = cutouts(name, front, depth, width, pitch, DIFFUSE if name == "stanford_diffuse_s" else RETRO)
         out = ROOT / "scene_library" / f"{name}.yaml"
         out.write_text(scene_text(name, what, capture, width, parts, notes, PHOTONS[name]))
         print(f"wrote {out}")
