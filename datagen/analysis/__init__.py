@@ -18,7 +18,8 @@ imported from its module.
 - :mod:`.adaptive`: the analysis-layer names of simulating to a tolerance (the loop itself is
   :func:`datagen.simulation.simulate_to_tolerance`, ``simulate --tolerance``).
 - :mod:`.compare_capture`: the sim-to-real distance of a measured capture and its simulation on one time axis
-  (``datagen compare-capture``).
+  (``datagen compare-capture``); :mod:`.hidden_compare`: the hidden signal of a confocal capture against its
+  simulation (direct light excluded, floor, gain, scale), each metric beside its Poisson noise floor.
 - :mod:`.capture_detector`: a confocal capture's detector estimated from it: background and gain maps, the
   direct-to-hidden ratio and a two-tail IRF fit (``datagen estimate-capture``).
 - reconstructions of confocal scans, the benchmark's baselines: :mod:`.backprojection` (filtered backprojection),

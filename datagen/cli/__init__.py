@@ -9,6 +9,7 @@ code 2 (:func:`~datagen.cli.errors.friendly_errors`).
 Modules (they import each other directly, never through this package):
 
 - :mod:`~datagen.cli.main`: the ``main`` group, ``simulate`` and ``detect``; registers the other commands;
+- :mod:`~datagen.cli.like`: ``simulate --like STORE`` and ``--detector FILE`` (what they read and change);
 - :mod:`~datagen.cli.errors`: :func:`~datagen.cli.errors.friendly_errors`, shared by the command modules;
 - :mod:`~datagen.cli.tal`: ``tal-render``, ``export-tal``;
 - :mod:`~datagen.cli.dataset`: ``build``, ``inspect``, ``verify``;

@@ -395,12 +395,25 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
 @click.option("--bin-resolution", "bin_resolution", default=None, help="REAL .mat without 'bin_resolution'")
 @click.option("--allow-negative", "allow_negative", is_flag=True,
               help="REAL may hold negative bins (a background-subtracted capture)")
+@click.option("--trim", default="auto", show_default=True,
+              help="hidden signal: the direct light to exclude, auto (found in REAL) or a duration, e.g. 2.4ns")
+@click.option("--gain", default="none", show_default=True,
+              help="hidden signal: per-point gain applied to SIM: none, direct (estimated from REAL's direct "
+                   "light) or a .npy (ny, nx) map")
+@click.option("--draws", type=click.IntRange(min=1, max=64), default=4, show_default=True,
+              help="pairs of Poisson draws per noise floor")
 @friendly_errors
-def compare_capture(real, sim, png, width, bin_resolution, allow_negative):
+def compare_capture(real, sim, png, width, bin_resolution, allow_negative, trim, gain, draws):
     """Sim-to-real distance of REAL (a lab file or store) and SIM (a datagen result store or a lab file).
 
-    Both are put on the hidden time axis (per-point offsets removed) at REAL's bin width and normalised; prints
-    the relative L2, the per-bin chi2, the peak-time and width (FWHM) differences; --png draws them side by side.
+    Whole transients: both put on the hidden time axis (per-point offsets removed) at REAL's bin width and
+    normalised; prints the relative L2, the per-bin chi2, the peak-time and width (FWHM) differences.
+
+    Hidden signal (confocal scans of one grid, docs/capture_io.md "Comparing a capture with its simulation"): the
+    direct light excluded (--trim), each point's background floor subtracted, SIM scaled to REAL's hidden counts
+    (--gain: per point too); prints the scan-summed relative L2, the per-point leading-edge difference (median,
+    spread), the hidden-count maps' correlation, the return's FWHM and decay, each with its Poisson noise floor (a
+    perfect simulation scores about 1x). --png draws the count maps, transients and LCT reconstructions side by side.
     """
     from ..analysis.compare_capture import compare_captures
     from ..io.lab_formats import capture_kind
@@ -408,6 +421,8 @@ def compare_capture(real, sim, png, width, bin_resolution, allow_negative):
 
     if png is not None:
         check_output_file(png, "--png")
+    trim_s = _trim_option(trim)
+    gain_v = _gain_option(gain)
     r, r_off, r_desc = load_capture(real, width_option(width), bin_option(bin_resolution, "--bin-resolution"),
                                     allow_negative)
     s, s_off, s_desc = load_capture(sim)
@@ -415,15 +430,16 @@ def compare_capture(real, sim, png, width, bin_resolution, allow_negative):
     if "zones" in (r_kind, s_kind) and r_kind != s_kind:
         raise ValueError(f"{real} is {r_what}, {sim} is {s_what}: a flood's zones and a laser spot's transients are "
                          "different measurements; compare a multi-zone result with a multi-zone capture")
+    r_data = r.counts if r.counts.any() else r.envelope
     try:
-        m = compare_captures(r.counts if r.counts.any() else r.envelope, r.time_edges, r_off, s.envelope,
-                             s.time_edges, s_off)
+        m = compare_captures(r_data, r.time_edges, r_off, s.envelope, s.time_edges, s_off)
     except ValueError as exc:
         raise ValueError(f"real {real}, sim {sim}: {exc}") from None
     click.echo(f"real: {r_desc}; sim: {s_desc}; {m['bins']} common bins")
     if r.envelope.shape[:-1] != s.envelope.shape[:-1]:
         click.echo(f"note: real is {r_what}, sim {s_what}: compared on the scan-summed transients only (no per-point "
                    "metric); simulate the capture's grid for a point-by-point comparison", err=True)
+    click.echo("whole transients (direct light included, each normalised to sum 1):")
     click.echo(f"relative L2 (normalised, scan-summed) {m['rel_l2']:.4f}"
                + ("" if m["rel_l2_points"] is None else f"; per scan point (mean) {m['rel_l2_points']:.4f}"))
     click.echo(f"chi2 per bin {m['chi2_per_bin']:.4g} (real counts {m['counts_real']:.6g})")
@@ -431,8 +447,111 @@ def compare_capture(real, sim, png, width, bin_resolution, allow_negative):
                f"diff {m['peak_time_diff'] * 1e12:+.1f} ps")
     click.echo(f"FWHM: real {m['fwhm_real'] * 1e12:.1f} ps, sim {m['fwhm_sim'] * 1e12:.1f} ps, "
                f"diff {m['width_diff'] * 1e12:+.1f} ps")
+    hidden = None
+    if r_kind == s_kind == "confocal" and r.envelope.ndim == 3 and r.envelope.shape[:-1] == s.envelope.shape[:-1]:
+        hidden = _hidden_section(r_data, r, r_off, s, s_off, trim_s, gain_v, draws, f"real {real}, sim {sim}")
+    elif r_kind == s_kind == "confocal":
+        click.echo("note: no hidden-signal comparison: it needs two confocal scans of one grid")
     if png is not None:
-        from ..plot.capture import plot_capture_comparison
+        if hidden is not None:
+            from ..plot.capture import plot_hidden_comparison
 
-        plot_capture_comparison(m, png, real_label=Path(real).name, sim_label=Path(sim).name)
+            plot_hidden_comparison(hidden, png, real_label=Path(real).name, sim_label=Path(sim).name,
+                                   pitch=_pitch_of(r), fronts=_fronts(hidden, _pitch_of(r)))
+        else:
+            from ..plot.capture import plot_capture_comparison
+
+            plot_capture_comparison(m, png, real_label=Path(real).name, sim_label=Path(sim).name)
         click.echo(f"wrote {png}")
+
+
+def _trim_option(trim: str):
+    from ..units import parse_duration
+
+    try:
+        value = "auto" if trim.strip() == "auto" else parse_duration(trim)
+    except ValueError as exc:
+        raise click.BadParameter(f"expected auto or a duration, e.g. 2.4ns: {exc}", param_hint="--trim") from None
+    if value != "auto" and not (np.isfinite(value) and value >= 0):
+        raise click.BadParameter(f"expected auto or a duration >= 0, got {trim!r}", param_hint="--trim")
+    return value
+
+
+def _gain_option(gain: str):
+    if gain in ("none", "direct"):
+        return gain
+    path = Path(gain)
+    if path.suffix.lower() != ".npy":
+        raise click.BadParameter(f"expected none, direct or a .npy gain map, got {gain!r}", param_hint="--gain")
+    if not path.is_file():
+        raise FileNotFoundError(f"--gain {path}: no such file")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"--gain {path}: cannot read it as a NumPy .npy array: {' '.join(str(exc).split())[:160]}") \
+            from None
+
+
+def _pitch_of(result) -> tuple[float, float] | None:
+    if result.laser_points is None:
+        return None
+    from ..analysis.confocal import grid_pitches
+
+    try:
+        return grid_pitches(np.asarray(result.laser_points, float).reshape(np.shape(result.envelope)[:2] + (3,)))
+    except ValueError:
+        return None
+
+
+def _fronts(hidden, pitch):
+    """Front views (max over depth) of LCT reconstructions of the compared hidden transients (the direct light
+    already excluded), or None without a grid."""
+    if pitch is None:
+        return None
+    from ..analysis.reconstruct import confocal_volume
+
+    out = []
+    for key in ("real", "model"):
+        scan = np.concatenate([np.zeros(hidden[key].shape[:2] + (hidden["trim_bins"],)), np.maximum(hidden[key], 0)],
+                              axis=-1)
+        vol, _, _ = confocal_volume(scan, hidden["bin_width"], pitch, "lct", trim=hidden["trim"])
+        out.append(vol.max(axis=-1))
+    return tuple(out)
+
+
+def _hidden_section(r_data, r, r_off, s, s_off, trim, gain, draws, where: str):
+    """Run and print the hidden-signal comparison; returns it, or None (with a note) when it cannot run."""
+    from ..analysis.hidden_compare import hidden_comparison
+
+    sim_counts = not np.any(s.envelope) or ("lab_capture" in s.attrs)
+    sim_data = s.counts if sim_counts and s.counts.any() else s.envelope
+    try:
+        h = hidden_comparison(r_data, r.time_edges, r_off, sim_data, s.time_edges, s_off,
+                              sim_is_counts=bool(sim_counts), trim=trim, gain=gain, draws=draws)
+    except ValueError as exc:
+        if isinstance(gain, np.ndarray) and "gain map" in str(exc):
+            raise ValueError(f"--gain: {exc}") from None
+        click.echo(f"note: no hidden-signal comparison: {exc}")
+        return None
+    f = h["floor"]
+
+    def vs(value: float, floor: float) -> str:
+        ratio = abs(value) / floor if floor > 0 else float("inf")
+        return f"(noise floor {floor:.3g}, {ratio:.3g}x)"
+
+    def ps(x: float) -> str:
+        return f"{x * 1e12:.1f} ps"
+
+    click.echo(f"hidden signal: direct light excluded (the first {h['trim'] * 1e9:.4g} ns, {h['trim_how']}; not "
+               f"modelled), background floor per point from {h['floor_bins']} signal-free bins subtracted, gain "
+               f"{h['gain']}, sim scaled x{h['scale']:.4g} to real's hidden counts")
+    click.echo(f"hidden counts: real {h['counts_real']:.6g}, sim {h['counts_sim']:.6g} (above the floor)")
+    click.echo(f"relative L2 (scan-summed hidden) {h['rel_l2']:.4f} {vs(h['rel_l2'], f['rel_l2'])}")
+    click.echo(f"leading edge sim - real over {h['edge_points']} points: median {ps(h['edge_median'])} (noise floor "
+               f"{ps(f['edge_median'])}), spread {ps(h['edge_spread'])} (noise floor {ps(f['edge_spread'])})")
+    click.echo(f"hidden-count maps: correlation {h['map_corr']:.4f} (1 - r {h['map_decorrelation']:.3g}, noise floor "
+               f"{f['map_decorrelation']:.3g})")
+    click.echo(f"return FWHM: real {ps(h['fwhm_real'])}, sim {ps(h['fwhm_sim'])}, diff {ps(h['fwhm_diff'])} "
+               f"(noise floor {ps(f['fwhm_diff'])}); 1/e decay after the peak: real {ps(h['decay_real'])}, sim "
+               f"{ps(h['decay_sim'])}, diff {ps(h['decay_diff'])} (noise floor {ps(f['decay_diff'])})")
+    return h

@@ -93,12 +93,24 @@ def _parse_time_cap(text: str | None) -> float | None:
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="root seed of every random stream (>= 0)")
 @click.option("--figures", is_flag=True,
               help="also write the paper's Figure 3 and 5 sampling views and a 3D picture of the scene")
+@click.option("--like", "like", type=click.Path(path_type=Path), default=None,
+              help="simulate the confocal capture this store holds (datagen import-capture's): its grid replaces the "
+                   "scene's (centred on the scene's laser_grid), its bins and time zero the time axis; refused when "
+                   "the scene has no confocal capture")
+@click.option("--detector", "detector_file", type=click.Path(path_type=Path), default=None,
+              help="YAML with detector and/or irf blocks (or one flat detector block) applied over the scene's")
 @click.option("--quiet", is_flag=True, help="no progress bar")
 @friendly_errors
 def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edge, tolerance, time_cap, samples,
              workers, top_k, seed,
-             figures, quiet):
-    """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png."""
+             figures, like, detector_file, quiet):
+    """Simulate SCENE_FILE: write OUT/result.zarr (envelope, components, SPAD counts) and OUT/envelope.png.
+
+    With --like STORE the simulation is the capture STORE holds (docs/capture_io.md, "Simulating a capture"): the
+    scene's confocal grid takes the capture's points and pitch about its own centre, the time axis the capture's
+    bins and time zero (the hidden round trip, per-point offsets as the store keeps them), the detector the store's
+    (a datagen result) or the scene's, then --detector's; the store written goes to compare-capture as it is.
+    """
     from ..plot.envelope import plot_envelope
     from ..errors import ConfigError
     from ..scene import load_scene
@@ -113,12 +125,29 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
     overrides = {"lookins": lookins, "pixels": pixels, "secondary": secondary, "top_k": top_k, "seed": seed,
                  "workers": workers, "estimator": estimator, "quadrature_edge": edge, "area_samples": samples,
                  "orders": parse_orders(orders)}
+    if is_multizone_file(scene_file) and (like is not None or detector_file is not None):
+        raise click.BadParameter(f"{scene_file} is a multi-zone scene (a flood and zones): --like and --detector "
+                                 "apply to laser-spot scans", param_hint="--like" if like is not None else "--detector")
     if is_multizone_file(scene_file):   # a flood and zones: the multi-zone capture (datagen/cli/multizone.py)
         return run_multizone(scene_file, out, overrides, refused={"--tolerance": tolerance, "--time-cap": time_cap,
                                                                   "--figures": figures}, progress=not quiet)
     tol = _parse_fraction(tolerance, "--tolerance", MIN_TOLERANCE) if tolerance is not None else None
     check_output_dir(out)
     scene = load_scene(scene_file)
+    template = None
+    if like is not None:
+        from .like import like_setup
+
+        scene, like_over, template = like_setup(scene, like, detector_file, click.echo)
+        overrides.update(like_over)
+    elif detector_file is not None:
+        from .like import read_detector_file
+
+        det = scene.defaults.get("detector") if isinstance(scene.defaults.get("detector"), dict) else {}
+        file_det, file_irf = read_detector_file(detector_file, det)
+        from ..io.like_capture import merge_detector
+
+        overrides.update({"detector": merge_detector(det, file_det), "irf": file_irf})
     config = resolve_config(scene, {**overrides, "effect_threshold": tol})
     cap = _parse_time_cap(time_cap)
     announce_work(scene, config)
@@ -152,7 +181,12 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
     else:
         result = run_simulation(scene, config, progress=not quiet)
     out.mkdir(parents=True, exist_ok=True)
-    write_result(result, out / RESULT_NAME)
+    if template is not None:
+        from .like import like_finish
+
+        _, result = like_finish(result, template, out, config.seed)
+    else:
+        write_result(result, out / RESULT_NAME)
     plot_envelope(result, out / "envelope.png")
     written = [out / RESULT_NAME, out / "envelope.png"]
     if figures:

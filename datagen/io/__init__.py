@@ -21,7 +21,9 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.io.lab_formats`: real labs' files both ways: Stanford LCT / f-k ``.mat`` (v5, v7.3) and
   ZNLOS HDF5 (docs/capture_io.md); :mod:`~datagen.io.lab_checks` checks their fields once read;
 - :mod:`~datagen.io.orientation`: the one orientation of confocal scans (row up the wall, column to the right as
-  the wall sees the hidden scene) and the LCT release's ``rect_data`` order and grid mapped to it, both ways.
+  the wall sees the hidden scene) and the LCT release's ``rect_data`` order and grid mapped to it, both ways;
+- :mod:`~datagen.io.like_capture`: what a simulation of a stored capture must reproduce (grid, bins, time zero,
+  detector) and its result put on the capture's bins (``simulate --like``).
 """
 from .store import read_result, write_detection, write_result
 from .tal import scene_from_tal_yaml

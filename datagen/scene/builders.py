@@ -1,8 +1,9 @@
 """Scene builders: meshes and :class:`~datagen.scene.parts.SceneObject` s built in Python.
 
-:func:`quad_mesh` and :func:`box_mesh` return bare (vertices, faces) arrays; :func:`l_room` (corridor with an
-L-bend room behind the relay wall), :func:`pillar`, :func:`box`, :func:`quad` and :func:`import_mesh` (any mesh
-file trimesh reads) return labelled objects. The YAML object specs of :mod:`datagen.scene.load` call them.
+:func:`quad_mesh`, :func:`box_mesh` and :func:`mask_mesh` (a binary mask's filled cells as a planar cut-out) return
+bare (vertices, faces) arrays; :func:`l_room` (corridor with an L-bend room behind the relay wall), :func:`pillar`,
+:func:`box`, :func:`quad`, :func:`mask_cutout` (a mask written as text rows) and :func:`import_mesh` (any mesh file
+trimesh reads) return labelled objects. The YAML object specs of :mod:`datagen.scene.load` call them.
 """
 from __future__ import annotations
 
@@ -160,4 +161,92 @@ def import_mesh(name: str, path: str | Path, scale: float = 1.0, left_handed: bo
         vertices = vertices * np.array([1.0, -1.0, 1.0])
         faces = faces[:, ::-1]
     vertices = matmul(vertices, _rotation_z(rotation_deg).T) + np.asarray(translate, dtype=np.float64)
+    return SceneObject(name, label, material or Material(), vertices, faces)
+
+
+MASK_SYMBOLS = {"#": True, ".": False}
+"""Characters of a mask row in a scene file: "#" filled, "." empty."""
+
+
+MASK_PERPENDICULAR = 1e-5
+"""|û·v̂| up to which a mask's u and v count as perpendicular: directions written with six decimals in a scene file
+are perpendicular to about 1e-6."""
+
+
+def mask_mesh(mask: np.ndarray, pitch: float, center: Vec3, u: Vec3 = (1.0, 0.0, 0.0),
+              v: Vec3 = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """A planar cut-out: the filled cells of a binary mask as a triangle mesh in scene coordinates.
+
+    Cell (iy, ix) of the (ny, nx) mask is the square of side ``pitch`` centred at
+    center + (ix − (nx − 1)/2)·pitch·û + (iy − (ny − 1)/2)·pitch·v̂ (û, v̂ the unit vectors of ``u`` and ``v``): row 0
+    is the lowest, as a confocal scan's rows and ``imshow(..., origin="lower")`` (docs/capture_io.md,
+    "Orientation"), so the front view of a reconstruction (ny, nx), thresholded, is the object its scan saw once
+    ``center`` is the scan's centre moved ``depth`` along the wall normal. Each run of filled cells along a row is
+    one rectangle (two triangles); neighbouring rectangles share their edges exactly (no cracks).
+
+    Args:
+        mask: (ny, nx) bool (or 0/1); pitch: cell side in m (> 0); center: (3,) m, the mask's centre;
+        u, v: (3,) directions of the columns and rows (need not be unit; they must be perpendicular).
+    Returns:
+        (vertices (4·R, 3) float64 m, faces (2·R, 3) int64) with R the runs; the faces' normal is û × v̂.
+    Raises:
+        SceneError: a mask that is not 2-D or has no filled cell, a pitch that is not finite and > 0, u or v zero or
+            not perpendicular (|û·v̂| > :data:`MASK_PERPENDICULAR`; within it v is made exactly perpendicular).
+    """
+    m = np.asarray(mask)
+    if m.ndim != 2 or m.size == 0:
+        raise SceneError(f"mask: expected a (ny, nx) array of cells, got shape {m.shape}")
+    m = m.astype(bool)
+    if not m.any():
+        raise SceneError(f"mask: none of its {m.shape[0]} x {m.shape[1]} cells is filled")
+    check_sizes([pitch], "mask pitch")
+    uu, vv = (np.asarray(a, dtype=np.float64) for a in (u, v))
+    nu, nv = np.linalg.norm(uu), np.linalg.norm(vv)
+    if not (nu > 0 and nv > 0):
+        raise SceneError(f"mask: u {list(u)} and v {list(v)} must be non-zero directions")
+    uu, vv = uu / nu, vv / nv
+    if abs(float(uu @ vv)) > MASK_PERPENDICULAR:
+        raise SceneError(f"mask: u {list(u)} and v {list(v)} must be perpendicular (u·v = {float(uu @ vv):.3g})")
+    vv = vv - (uu @ vv) * uu                               # exactly perpendicular: a planar, rectangular grid
+    vv /= np.linalg.norm(vv)
+    ny, nx = m.shape
+    padded = np.zeros((ny, nx + 2), dtype=np.int8)
+    padded[:, 1:-1] = m
+    change = np.diff(padded, axis=1)                       # +1 where a run starts, −1 one past where it ends
+    rows, starts = np.nonzero(change == 1)
+    _, stops = np.nonzero(change == -1)                    # same row order (row-major), one stop per start
+    a0 = (starts - (nx - 1) / 2 - 0.5) * pitch             # the runs' left and right edges along û
+    a1 = (stops - (nx - 1) / 2 - 0.5) * pitch
+    b0 = (rows - (ny - 1) / 2 - 0.5) * pitch               # their lower and upper edges along v̂
+    b1 = b0 + pitch
+    corners = np.stack([np.stack([a0, b0], -1), np.stack([a1, b0], -1), np.stack([a1, b1], -1),
+                        np.stack([a0, b1], -1)], axis=1)   # (R, 4, 2): counter-clockwise about û × v̂
+    vertices = (np.asarray(center, dtype=np.float64) + corners[..., :1] * uu + corners[..., 1:] * vv).reshape(-1, 3)
+    base = 4 * np.arange(len(rows))[:, None]
+    faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=1).reshape(-1, 3).astype(np.int64)
+    return vertices, faces
+
+
+def mask_cutout(name: str, rows: list[str], pitch: float, center: Vec3, u: Vec3 = (1.0, 0.0, 0.0),
+                v: Vec3 = (0.0, 0.0, 1.0), material: Material | None = None, label: str = "mesh") -> SceneObject:
+    """A planar cut-out written as text rows (a scene file's ``mask`` builder): ``rows`` top row first (as the
+    picture reads, highest v̂ first), "#" filled and "." empty (:data:`MASK_SYMBOLS`); :func:`mask_mesh` builds it.
+
+    Raises:
+        SceneError: rows of different lengths, another character (the row and column are named), or what
+            :func:`mask_mesh` refuses.
+    """
+    if not rows or len({len(r) for r in rows}) != 1:
+        raise SceneError(f"mask {name!r}: rows must be equally long strings, got lengths "
+                         f"{sorted({len(r) for r in rows})}")
+    for i, row in enumerate(rows):
+        bad = [c for c in row if c not in MASK_SYMBOLS]
+        if bad:
+            raise SceneError(f"mask {name!r}: rows.{i} column {row.index(bad[0])}: {bad[0]!r} is neither '#' (filled) "
+                             "nor '.' (empty)")
+    mask = np.array([[MASK_SYMBOLS[c] for c in row] for row in rows[::-1]], dtype=bool)
+    try:
+        vertices, faces = mask_mesh(mask, pitch, center, u, v)
+    except SceneError as exc:
+        raise SceneError(f"mask {name!r}: {str(exc).removeprefix('mask: ')}") from None
     return SceneObject(name, label, material or Material(), vertices, faces)

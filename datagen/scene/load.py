@@ -3,7 +3,7 @@
 :func:`load_scene` reads a scene YAML (see scene_library/demo_room.yaml), validates it with pydantic
 (:class:`SceneFile`; an error names the file, the field and the value, :func:`format_validation_error`) and
 builds its objects with the builders of :mod:`datagen.scene.builders` (one spec per ``builder``: l_room,
-pillar, box, quad, mesh). :func:`read_yaml` / :func:`parse_yaml` are the shared, bounded readers of YAML inputs
+pillar, box, quad, mesh, mask). :func:`read_yaml` / :func:`parse_yaml` are the shared, bounded readers of YAML inputs
 (scene files, room distributions, dataset configs, detector presets, tal configs): size and alias expansion are
 capped so a hostile file fails in one short line instead of filling memory; :func:`check_output_dir` refuses an
 output directory that cannot be created before any work.
@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from ..errors import DatagenError
 from .yamlfile import (MAX_PROBLEMS, MAX_SHOWN, MAX_YAML_BYTES, MAX_YAML_VALUES, DuplicateKeyError,  # noqa: F401
                        UniqueKeyLoader, format_validation_error, parse_yaml, read_yaml, short_repr)
-from .builders import box, import_mesh, l_room, pillar, quad
+from .builders import box, import_mesh, l_room, mask_cutout, pillar, quad
 from .materials import Material
 from .model import Scene
 from .parts import MAX_EXTENT, CaptureSpec, Laser, SceneError, SceneObject, Sensor, Vec3
@@ -112,7 +112,26 @@ class MeshSpec(_Spec):
                             self.material, self.label)]
 
 
-ObjectSpec = Annotated[Union[LRoomSpec, PillarSpec, BoxSpec, QuadSpec, MeshSpec], Field(discriminator="builder")]
+class MaskSpec(_Spec):
+    """A planar cut-out drawn as text (:func:`~datagen.scene.builders.mask_cutout`): ``rows`` top first, "#" filled,
+    "." empty, cells of side ``pitch`` m centred on ``center``, columns along ``u`` and rows up ``v``."""
+
+    builder: Literal["mask"]
+    name: str
+    label: str = "mesh"
+    rows: list[str] = Field(min_length=1, max_length=4096)
+    pitch: float = Field(gt=0, le=MAX_EXTENT)
+    center: Vec3
+    u: Vec3 = (1.0, 0.0, 0.0)
+    v: Vec3 = (0.0, 0.0, 1.0)
+    material: Material = Material()
+
+    def build(self) -> list[SceneObject]:
+        return [mask_cutout(self.name, self.rows, self.pitch, self.center, self.u, self.v, self.material, self.label)]
+
+
+ObjectSpec = Annotated[Union[LRoomSpec, PillarSpec, BoxSpec, QuadSpec, MeshSpec, MaskSpec],
+                       Field(discriminator="builder")]
 
 
 class SceneFile(_Spec):

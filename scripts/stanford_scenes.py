@@ -1,0 +1,239 @@
+"""Write the Stanford LCT release's scenes as datagen scene files (scene_library/stanford_*.yaml), read off
+datagen's own reconstructions of the release's captures (docs/real.md).
+
+Usage: PYTHONPATH=. python scripts/stanford_scenes.py [FOLDER]   (FOLDER: the release's data_*.mat files; default
+$DATAGEN_REAL_CAPTURES or ../shared/real). The files are not shipped; the scene files this writes are.
+
+Each capture is read as ``datagen import-capture --bin-resolution 4ps`` reads it, reconstructed as ``datagen
+reconstruct --method lct`` does as shipped (t² falloff, snr 0.8: on the diffuse "S" too, whose t⁴ reconstruction is
+noisier; only its outline and depth are read here), and:
+- the dot charts become nine disks (diameter read off the front view's half maximum, less the reconstruction's blur)
+  on a grid of 0.10 m about the centre the front view gives, at the median depth;
+- the other scenes become a mask of the front view (the reconstruction's maximum over depth, smoothed over one
+  pitch for the noisy diffuse "S", at :data:`MASK_LEVEL` of its maximum) on a plane fitted to the depth map where
+  it found something (the "S U": one plane per letter).
+Everything is in the frame of an imported LCT capture (docs/capture_io.md, "Orientation"): the wall y = 0, the
+hidden side +y, columns along +x, rows up +z; so ``simulate --like`` puts the scan points exactly where the import
+has them.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+ROOT = Path(__file__).resolve().parents[1]
+MASK_LEVEL = 0.5
+DISK_PITCH = 0.0025           # m: the cells of the charts' disks
+CHART_SPACING = 0.10          # m: the dots' spacing (the front views give 0.097–0.101)
+
+SCENES = {  # file: (capture, width, falloff, snr, material, what the paper says)
+    "stanford_dot_chart_40cm": ("data_dot_chart_40cm.mat", "retroreflective", 0.8,
+                                "the release's dot chart, 40 cm from the wall (retroreflective)"),
+    "stanford_dot_chart_65cm": ("data_dot_chart_65cm.mat", "retroreflective", 0.8,
+                                "the same dot chart, 65 cm from the wall (retroreflective)"),
+    "stanford_diffuse_s": ("data_diffuse_s.mat", "retroreflective", 0.8, "a white diffuse (Lambertian) letter S"),
+    "stanford_s_u": ("data_s_u.mat", "retroreflective", 0.8, "the letters S and U (retroreflective)"),
+    "stanford_exit_sign": ("data_exit_sign.mat", "retroreflective", 0.8,
+                           "an exit sign, 0.61 m x 0.61 m (retroreflective; its text and arrow are not)"),
+}
+
+RETRO = {"kind": "retroreflective", "albedo": 0.9, "specular": 0.9, "lobe_width": 0.005}
+DIFFUSE = {"kind": "lambertian", "albedo": 0.8}
+
+
+def reconstruct(path: Path, falloff: str, snr: float):
+    from datagen.analysis.confocal import align_confocal
+    from datagen.analysis.reconstruct import confocal_volume, depth_map
+    from datagen.io.lab_formats import read_lab_capture
+
+    cap = read_lab_capture(path, bin_resolution=4e-12)
+    width = float(np.squeeze(cap.raw["width"]))
+    n = cap.data().shape[0]
+    pitch = 2 * width / (n - 1)
+    scan, dt = align_confocal(cap.data(), cap.time_edges(), cap.time_offsets())
+    vol, depths, _ = confocal_volume(scan, dt, pitch, "lct", falloff, snr)
+    depth, front = depth_map(vol, depths)
+    return width, pitch, front, depth
+
+
+def rows_of(mask: np.ndarray) -> list[str]:
+    return ["".join("#" if c else "." for c in r) for r in mask[::-1]]
+
+
+def plane(depth: np.ndarray, found: np.ndarray, u: np.ndarray, v: np.ndarray):
+    """depth ≈ d0 + a·u + b·v over ``found``: (d0, a, b, rms m)."""
+    A = np.column_stack([np.ones(found.sum()), u[found], v[found]])
+    coef, *_ = np.linalg.lstsq(A, depth[found], rcond=None)
+    rms = float(np.sqrt(np.mean((A @ coef - depth[found]) ** 2)))
+    return float(coef[0]), float(coef[1]), float(coef[2]), rms
+
+
+def frame(a: float, b: float) -> tuple[list[float], list[float]]:
+    """Unit u, v of the plane y = d0 + a x + b z (v made perpendicular to u)."""
+    u = np.array([1.0, a, 0.0]) / np.hypot(1.0, a)
+    v = np.array([0.0, b, 1.0])
+    v = v - (v @ u) * u
+    v /= np.linalg.norm(v)
+    return [round(float(x), 6) for x in u], [round(float(x), 6) for x in v]
+
+
+def chart(front: np.ndarray, depth: np.ndarray, width: float, pitch: float):
+    """Nine disks: (centre (u, v), diameter m, mask (ny, nx), mask centre, depth m, notes)."""
+    n = front.shape[0]
+    g = np.linspace(-width, width, n)
+    lab, k = ndimage.label(front > 0.3 * front.max())
+    cents, diams = [], []
+    for i in range(1, k + 1):
+        sel = lab == i
+        if sel.sum() < 5:
+            continue
+        w = front * sel
+        cy, cx = ndimage.center_of_mass(w)
+        m = sel & (front >= 0.5 * front[sel].max())
+        cents.append((np.interp(cx, np.arange(n), g), np.interp(cy, np.arange(n), g)))
+        diams.append(2 * np.sqrt(m.sum() * pitch ** 2 / np.pi))
+    cents = np.array(cents)
+    # the grid's centre: each dot's offset from the nearest grid node, averaged (merged blobs skipped by the median)
+    c0 = np.median(cents - np.round((cents - np.median(cents, 0)) / CHART_SPACING) * CHART_SPACING, axis=0)
+    blur = 3e8 * 60e-12 * np.nanmedian(depth) / (2 * width)          # the LCT's lateral resolution, c·FWHM·z/(2w)
+    diam = float(np.sqrt(max(np.median(diams) ** 2 - blur ** 2, (0.5 * np.median(diams)) ** 2)))
+    centres = [(c0[0] + i * CHART_SPACING, c0[1] + j * CHART_SPACING) for i in (-1, 0, 1) for j in (-1, 0, 1)]
+    cs = np.array(centres)
+    lo, hi = cs.min(0) - diam / 2 - DISK_PITCH, cs.max(0) + diam / 2 + DISK_PITCH
+    nu, nv = (int(np.ceil((hi[i] - lo[i]) / DISK_PITCH)) for i in (0, 1))
+    uu = lo[0] + (np.arange(nu) + 0.5) * DISK_PITCH
+    vv = lo[1] + (np.arange(nv) + 0.5) * DISK_PITCH
+    U, V = np.meshgrid(uu, vv)
+    mask = np.zeros(U.shape, bool)
+    for c in cs:
+        mask |= (U - c[0]) ** 2 + (V - c[1]) ** 2 <= (diam / 2) ** 2
+    d = float(np.nanmedian(depth))
+    notes = [f"dots: 3 x 3 disks {diam * 100:.1f} cm across (front view's half maximum {np.median(diams) * 100:.1f} "
+             f"cm less the LCT's blur {blur * 100:.1f} cm; +- 1 cm), {CHART_SPACING:.2f} m apart about u = "
+             f"{c0[0]:+.4f}, v = {c0[1]:+.4f} m (+- 5 mm)",
+             f"depth {d:.4f} m: the median of datagen's LCT depth map (+- 5 mm: one 16 ps bin is 2.4 mm, the "
+             "dots' depths spread +- 5 mm)"]
+    return [("dot_chart", mask, DISK_PITCH, ((uu[0] + uu[-1]) / 2, d, (vv[0] + vv[-1]) / 2),
+             [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], RETRO)], notes
+
+
+def cutouts(name: str, front: np.ndarray, depth: np.ndarray, width: float, pitch: float, material: dict):
+    n = front.shape[0]
+    g = np.linspace(-width, width, n)
+    V, U = np.meshgrid(g, g, indexing="ij")
+    f = ndimage.gaussian_filter(front, 1.0) if name == "stanford_diffuse_s" else front
+    found = np.isfinite(depth)
+    if name == "stanford_s_u":                                       # two letters at two depths
+        groups = [("letter_s", found & (depth < 0.85)), ("letter_u", found & (depth >= 0.85))]
+    else:
+        groups = [(name.removeprefix("stanford_"), found)]
+    parts, notes = [], []
+    for part, region in groups:
+        mask = region & (f >= MASK_LEVEL * f[region].max())          # each letter at half its own maximum
+        lab, k = ndimage.label(mask)
+        sizes = ndimage.sum(mask, lab, range(1, k + 1))
+        sel = np.isin(lab, 1 + np.flatnonzero(sizes >= 10))          # specks of a few cells are noise
+        d0, a, b, rms = plane(depth, sel, U, V)
+        u, v = frame(a, b)
+        sub = sel
+        ys, xs = np.nonzero(sub)
+        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        cu, cv = (g[x0] + g[x1 - 1]) / 2, (g[y0] + g[y1 - 1]) / 2
+        centre = (cu, d0 + a * cu + b * cv, cv)
+        parts.append((part, sub[y0:y1, x0:x1], pitch, centre, u, v, material))
+        tilt = np.degrees(np.arctan(np.hypot(a, b)))
+        notes.append(f"{part}: plane fitted to the depth map where the front view reaches {MASK_LEVEL:g} of its "
+                     f"maximum (its own): depth {centre[1]:.4f} m at its centre, tilted {tilt:.1f} deg (slopes {a:+.3f} along "
+                     f"u, {b:+.3f} along v), rms {rms * 1000:.0f} mm off the plane; outline: the front view at "
+                     f"{MASK_LEVEL:g} of its maximum, one cell = the scan pitch {pitch * 1000:.2f} mm (+- a cell, "
+                     "and the reconstruction's blur of about 1-2 cm); cells projected on the wall (a tilted letter "
+                     f"is {100 * (1 / np.cos(np.radians(tilt)) - 1):.0f} % longer across its tilt)")
+    return parts, notes
+
+
+def scene_text(name: str, what: str, capture: str, width: float, parts, notes, photons: float) -> str:
+    lines = [f"# {what}: a scene of the Stanford LCT release (O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)),",
+             f"# its capture {capture} ({2 * width:.2f} m x {2 * width:.2f} m scanned at 64 x 64, 4 ps bins). Written by",
+             "# scripts/stanford_scenes.py from datagen's own LCT reconstruction of the capture (docs/real.md).",
+             "# Frame: an imported LCT capture's (docs/capture_io.md, \"Orientation\"): the relay wall is y = 0, the",
+             "# hidden side +y, u = +x to the right as the wall sees the scene, v = +z up.",
+             "# Uncertainty:"]
+    lines += [f"#   {t}" for t in notes]
+    lines += ["#   laser / SPAD position, the wall's albedo, the laser's energy and the detector are not in the files:",
+              "#   assumed (below); photons_per_pulse is set so the simulated hidden counts are about the capture's.",
+              "# Simulate the capture: datagen simulate THIS.yaml --like STORE --out DIR  (STORE: datagen import-capture",
+              f"#   {capture} --bin-resolution 4ps --out STORE); compare: datagen compare-capture STORE DIR.",
+              f"#   simulate --like took {SECONDS[name]} s on two cores (docs/real.md).",
+              f"name: {name}", "", "objects:",
+              "  - builder: quad", "    name: relay_wall", "    label: relay_wall",
+              f"    corner: [{-width - 0.2:.2f}, 0.0, {-width - 0.2:.2f}]",
+              f"    edge_u: [{2 * width + 0.4:.2f}, 0.0, 0.0]", f"    edge_v: [0.0, 0.0, {2 * width + 0.4:.2f}]",
+              "    material: {kind: lambertian, albedo: 0.8}      # assumed"]
+    for part, mask, pitch, centre, u, v, mat in parts:
+        lines += ["  - builder: mask", f"    name: {part}", f"    pitch: {pitch:.6g}",
+                  f"    center: [{centre[0]:.5f}, {centre[1]:.5f}, {centre[2]:.5f}]",
+                  f"    u: {list(u)}", f"    v: {list(v)}",
+                  "    material: {" + ", ".join(f"{k}: {v}" for k, v in mat.items()) + "}",
+                  "    rows:"]
+        lines += [f"      - \"{r}\"" for r in rows_of(mask)]
+    lines += ["", "laser:                           # beside the scene, off the hidden objects' side: no beam crosses them",
+              "  emitter: [-2.5, 1.5, 0.0]", "  spot: [0.0, 0.0, 0.0]", f"  photons_per_pulse: {photons:.3g}", "",
+              "sensor:", "  position: [-2.5, 1.5, 0.0]", "  aperture_radius: 20mm", "",
+              "capture:                         # --like replaces the grid by the capture's (same centre)",
+              "  type: confocal",
+              f"  laser_grid: {{center: [0.0, 0.0, 0.0], size: [{2 * width * 64 / 63:.5f}, {2 * width * 64 / 63:.5f}], "
+              "points: [64, 64]}", "",
+              "simulation:",
+              "  estimator: {kind: quadrature, " + ESTIMATOR[name],
+              "  secondary: none",
+              "  effects: {first_bounce: false}   # the direct light is not modelled (compare-capture excludes it)",
+              "  count_laser_leg: false", "  count_sensor_leg: false",
+              "  time: {t_start: 0ns, bin_width: 4ps, n_bins: 2048}   # the release's rectified bins",
+              "  irf: {fwhm: 60ps}               # the paper's 60 ps; real SPADs add a slow tail (not modelled here)",
+              "  detector:", "    model: poisson", "    pde: 0.3", "    dcr: 1.0e5                    # ~0.1 MHz floor",
+              "    repetition_rate: 1.0e7        # assumed (not in the paper)",
+              "    exposure: 100ms               # the paper's 0.1 s per point (exit sign)", ""]
+    return "\n".join(lines)
+
+
+ESTIMATOR = {
+    "stanford_dot_chart_40cm": "edge: 0.01, fov_cells: 6}   # FoV cells ~1 mm: the retroreflected cone integrated",
+    "stanford_dot_chart_65cm": "edge: 0.01, fov_cells: 6}   # FoV cells ~1 mm: the retroreflected cone integrated",
+    "stanford_diffuse_s": "edge: 0.02}                # Lambertian: each scan cell's midpoint suffices",
+    "stanford_s_u": "edge: 0.03, fov_cells: 3}   # FoV cells ~4 mm (cheaper than the charts' 1 mm)",
+    "stanford_exit_sign": "edge: 0.03, fov_cells: 3}   # FoV cells ~4 mm (cheaper than the charts' 1 mm)",
+}
+"""The quadrature's settings per scene: cost against how finely the retroreflected cone is integrated."""
+
+PHOTONS = {"stanford_dot_chart_40cm": 3.3e4, "stanford_dot_chart_65cm": 5.8e4, "stanford_diffuse_s": 8.1e6,
+           "stanford_s_u": 2.0e4, "stanford_exit_sign": 4.7e4}
+"""Photons per pulse, set so the simulated hidden counts over the 0.1 s exposure are about the capture's (the
+compare-capture hidden counts of docs/real.md); not a prediction of the laser's power."""
+
+SECONDS = {"stanford_dot_chart_40cm": 93, "stanford_dot_chart_65cm": 93, "stanford_diffuse_s": 16,
+           "stanford_s_u": 282, "stanford_exit_sign": 113}
+"""Wall time of ``simulate --like`` on the 2-core machine the figures were measured on (docs/real.md)."""
+
+
+def main(folder: Path) -> None:
+    for name, (capture, falloff, snr, what) in SCENES.items():
+        path = folder / capture
+        if not path.is_file():
+            sys.exit(f"{path}: not found (give the folder of the release's data_*.mat files)")
+        width, pitch, front, depth = reconstruct(path, falloff, snr)
+        if "chart" in name:
+            parts, notes = chart(front, depth, width, pitch)
+        else:
+            parts, notes = cutouts(name, front, depth, width, pitch, DIFFUSE if name == "stanford_diffuse_s" else RETRO)
+        out = ROOT / "scene_library" / f"{name}.yaml"
+        out.write_text(scene_text(name, what, capture, width, parts, notes, PHOTONS[name]))
+        print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    default = Path(os.environ.get("DATAGEN_REAL_CAPTURES", ROOT.parent / "shared" / "real"))
+    main(Path(sys.argv[1]) if len(sys.argv) > 1 else default)
