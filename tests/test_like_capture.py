@@ -135,6 +135,21 @@ def test_detector_file_blocks_apply(tmp_path, imported):
         120e-12 / 2.3548, rel=1e-3)
 
 
+def test_estimate_captures_detector_file_applies_as_it_is_written(tmp_path, imported, monkeypatch):
+    """estimate-capture's detector.yaml names its maps relative to itself (gain.npy, background.npy); --like read
+    them relative to the working directory and failed ('No such file or directory: gain.npy')."""
+    _, _, store = imported
+    run("estimate-capture", store, "--out", tmp_path / "est", "--no-irf")
+    monkeypatch.chdir(tmp_path)                                    # the maps are not in the working directory
+    out = run("simulate", small_scan(tmp_path), "--like", store, "--detector", Path("est") / "detector.yaml", "--out",
+              tmp_path / "s", "--quiet")
+    assert "wrote" in out
+    gain = np.load(tmp_path / "est" / "gain.npy")
+    det = read_result(tmp_path / "s" / "result.zarr").attrs["detector"]
+    assert np.allclose(np.asarray(det["gain_map"], float), gain) if not isinstance(det["gain_map"], str) else \
+        np.allclose(np.load(det["gain_map"]), gain)
+
+
 @NEEDS_REAL
 def test_the_real_captures_grid_on_the_library_scene(tmp_path):
     """The dot chart's import, as --like reads it: 64 x 64 points of the release's linspace(−0.2, 0.2, 64), 2048 bins

@@ -83,11 +83,12 @@ def background_map(scan: np.ndarray, late: tuple[int, int] | None = None) -> np.
 
 def gain_map(scan: np.ndarray, bin_width: float, background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(gain, net direct counts): each point's counts over the first :data:`GAIN_WINDOW` s of the aligned axis less
-    ``background`` (counts per bin) times those bins, and that over its mean. scan: (ny, nx, T) aligned counts;
+    ``background`` (counts per bin) times those bins (at least 0: a gain is never negative), and that over its
+    mean. scan: (ny, nx, T) aligned counts;
     returns float64 (ny, nx) twice. Raises ValueError when the direct light holds no net counts."""
     s = np.asarray(scan, dtype=np.float64)
     k = max(1, min(s.shape[-1], int(round(GAIN_WINDOW / bin_width))))
-    direct = s[..., :k].sum(axis=-1) - k * background
+    direct = np.maximum(s[..., :k].sum(axis=-1) - k * background, 0.0)   # a noisy floor above a dark point: no gain
     mean = float(direct.mean())
     if not mean > 0:
         raise ValueError("the scan's first bins hold no net counts above the floor: no direct light to read a gain "

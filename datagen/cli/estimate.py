@@ -63,7 +63,7 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
 @click.option("--width", type=float, default=None, help=".mat without 'width': half width of the scanned wall, m")
 @click.option("--bin-resolution", "bin_resolution", default=None,
               help=".mat without 'bin_resolution': the bin width, e.g. 4ps")
-@click.option("--late", default=None, help="bins FIRST:STOP of the floor (default: the last 10 %% of the window)")
+@click.option("--late", default=None, help="bins FIRST:STOP of the floor (default: the last 10 % of the window)")
 @click.option("--direct-bins", "direct_bins", type=click.IntRange(min=1), default=None,
               help="bins of the direct light from t = 0 (default: where its tail ends)")
 @click.option("--no-irf", "no_irf", is_flag=True, help="skip the two-tail IRF fit")

@@ -15,8 +15,9 @@ block (a configs/detectors preset, what ``fit-detector --out`` writes)."""
 
 def read_detector_file(path: Path, scene_detector: dict | None = None) -> tuple[dict, dict | None]:
     """(detector fields, irf block or None) of a ``--detector`` YAML: a mapping with ``detector`` and / or ``irf``
-    blocks (the simulation's), or one flat detector mapping. The detector is checked merged over the scene's
-    (``scene_detector``), the IRF alone.
+    blocks (the simulation's), or one flat detector mapping; its map paths (``gain_map``, ``background_map``) are
+    relative to the file, as :meth:`datagen.spad.DetectorConfig.from_yaml` reads them. The detector is checked
+    merged over the scene's (``scene_detector``), the IRF alone.
 
     Raises:
         ConfigError: not a mapping, a block that is not a mapping, or a field the detector or IRF refuses (one line
@@ -27,6 +28,7 @@ def read_detector_file(path: Path, scene_detector: dict | None = None) -> tuple[
     from .. import spad
     from ..errors import ConfigError
     from ..scene.load import format_validation_error, read_yaml
+    from ..spad.config import MAP_FIELDS
     from ..timing.irf import Irf
 
     data = read_yaml(Path(path), "detector file", ConfigError)
@@ -39,7 +41,8 @@ def read_detector_file(path: Path, scene_detector: dict | None = None) -> tuple[
     for name, block in (("detector", detector), ("irf", irf)):
         if block is not None and not isinstance(block, dict):
             raise ConfigError(f"{path}: {name}: expected a mapping, got {type(block).__name__}")
-    detector = dict(detector or {})
+    detector = {k: (str(Path(path).parent / v) if k in MAP_FIELDS and isinstance(v, str) and not Path(v).is_absolute()
+                    else v) for k, v in (detector or {}).items()}       # map paths are relative to this file
     try:
         if irf is not None:
             Irf.model_validate(irf)
