@@ -1,0 +1,117 @@
+"""datagen against the Stanford LCT release's captures, per capture: the baselines' depths and the matched
+simulation's distance (docs/real.md).
+
+    python benchmarks/real_captures.py FOLDER [--out DIR] [--methods lct phasor fbp] [--only NAME ...]
+
+FOLDER holds the release's ``data_*.mat`` files (the project never ships them; the release is published with
+O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file with a scene file
+``scene_library/stanford_<name>.yaml`` it runs, as a user would:
+
+1. ``datagen import-capture FILE --bin-resolution 4ps`` (the release's bins);
+2. ``datagen reconstruct STORE --method M`` for each method, and reads the median depth it prints;
+3. ``datagen estimate-capture STORE`` (the two-tail IRF, background and gain maps, docs/detector.md);
+4. ``datagen simulate SCENE --like STORE --detector EST/detector.yaml``;
+5. ``datagen compare-capture STORE SIM --gain direct`` and reads its hidden-signal figures (docs/capture_io.md).
+
+It prints one table row per capture and, when both dot charts are present, their hidden-count ratio (bins 600–1899
+of 4 ps less the per-bin floor of bins 1900–2047, the measure of the release's README). Wall times are of this
+machine, one run each.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEPTHS = {"dot_chart_40cm": 0.40, "dot_chart_65cm": 0.65, "diffuse_s": 0.50}
+"""Reference depths (m): the charts' nominal distances, the diffuse "S" where the release's script puts it."""
+
+FIGURES = {   # compare-capture's hidden-signal lines → (name, pattern)
+    "rel_l2": r"relative L2 \(scan-summed hidden\) ([0-9.]+) \(noise floor ([0-9.]+)",
+    "edge": r"leading edge sim - real over \d+ points: median ([-+0-9.]+) ps",
+    "map_r": r"hidden-count maps: correlation ([-0-9.]+)",
+    "fwhm": r"return FWHM: real ([0-9.]+) ps, sim ([0-9.]+) ps",
+}
+
+
+def datagen(*args) -> str:
+    """Run ``datagen args`` in a subprocess; its output, or SystemExit with its last lines on failure."""
+    proc = subprocess.run([sys.executable, "-m", "datagen.cli", *map(str, args)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"datagen {' '.join(map(str, args))} failed:\n{(proc.stdout + proc.stderr)[-800:]}")
+    return proc.stdout + proc.stderr
+
+
+def hidden_counts(store: Path) -> float:
+    """The release README's hidden counts of a store (scan-summed, bins 600–1899 less 1300 × the floor)."""
+    from datagen.io.lab_formats import read_capture_store
+    result, _ = read_capture_store(store)
+    data = np.asarray(result.counts if np.asarray(result.counts).any() else result.envelope, dtype=np.float64)
+    s = data.reshape(-1, data.shape[-1]).sum(axis=0)
+    return float(s[600:1900].sum() - 1300 * s[1900:2048].mean())
+
+
+def one_capture(mat: Path, scene: Path, work: Path, methods: list[str]) -> dict:
+    """The figures of one capture (module doc); stores under ``work``."""
+    name = mat.stem.removeprefix("data_")
+    real, est, sim = work / f"real_{name}", work / f"est_{name}", work / f"sim_{name}"
+    datagen("import-capture", mat, "--bin-resolution", "4ps", "--out", real)
+    row = {"capture": name}
+    for method in methods:
+        out = datagen("reconstruct", real, "--method", method, "--out", work / f"recon_{name}_{method}")
+        found = re.search(r"median depth ([0-9.]+) m", out)
+        row[method] = float(found.group(1)) if found else float("nan")
+    datagen("estimate-capture", real, "--out", est)
+    t0 = time.perf_counter()
+    datagen("simulate", scene, "--like", real, "--detector", est / "detector.yaml", "--out", sim, "--quiet")
+    row["sim_s"] = time.perf_counter() - t0
+    out = datagen("compare-capture", real, sim, "--gain", "direct", "--png", work / f"compare_{name}.png")
+    for key, pattern in FIGURES.items():
+        found = re.search(pattern, out)
+        row[key] = tuple(float(g) for g in found.groups()) if found else None
+    row["hidden"] = (hidden_counts(real), hidden_counts(sim))
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folder", type=Path, help="the release's data_*.mat files")
+    parser.add_argument("--out", type=Path, default=None, help="keep the stores here (default: a temporary folder)")
+    parser.add_argument("--methods", nargs="+", default=["lct"], choices=["lct", "phasor", "fbp"])
+    parser.add_argument("--only", nargs="+", default=None, help="capture names, e.g. dot_chart_40cm")
+    args = parser.parse_args()
+    mats = sorted(args.folder.glob("data_*.mat"))
+    if not mats:
+        raise SystemExit(f"{args.folder}: no data_*.mat files (the Stanford LCT release's captures)")
+    work = args.out or Path(tempfile.mkdtemp(prefix="real_captures_"))
+    work.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for mat in mats:
+        name = mat.stem.removeprefix("data_")
+        scene = ROOT / "scene_library" / f"stanford_{name}.yaml"
+        if (args.only and name not in args.only) or not scene.is_file():
+            continue
+        rows.append(one_capture(mat, scene, work, args.methods))
+        r = rows[-1]
+        depths = ", ".join(f"{m} {r[m]:.4f} m" for m in args.methods)
+        ref = f" (reference {DEPTHS[name]:.2f} m)" if name in DEPTHS else ""
+        l2, edge, map_r, fwhm = r["rel_l2"], r["edge"], r["map_r"], r["fwhm"]
+        print(f"{name}: depth {depths}{ref}; simulate --like {r['sim_s']:.0f} s; hidden relative L2 {l2[0]:.3f} "
+              f"(noise floor {l2[1]:.3f}); leading edge {edge[0]:+.1f} ps; map correlation {map_r[0]:.3f}; FWHM real "
+              f"{fwhm[0]:.0f} ps, sim {fwhm[1]:.0f} ps ({fwhm[1] / fwhm[0] - 1:+.1%})", flush=True)
+    charts = {r["capture"]: r["hidden"] for r in rows}
+    if {"dot_chart_40cm", "dot_chart_65cm"} <= set(charts):
+        (r40, s40), (r65, s65) = charts["dot_chart_40cm"], charts["dot_chart_65cm"]
+        print(f"hidden counts 40 cm / 65 cm: real {r40 / r65:.2f}, simulated {s40 / s65:.2f}")
+    print(f"stores and comparison PNGs in {work}")
+
+
+if __name__ == "__main__":
+    main()
