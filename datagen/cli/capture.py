@@ -421,7 +421,7 @@ def compare_capture(real, sim, png, width, bin_resolution, allow_negative, trim,
 
     if png is not None:
         check_output_file(png, "--png")
-    trim_s = _trim_option(trim)
+    trim_s = trim_option(trim)
     gain_v = _gain_option(gain)
     r, r_off, r_desc = load_capture(real, width_option(width), bin_option(bin_resolution, "--bin-resolution"),
                                     allow_negative)
@@ -465,7 +465,8 @@ def compare_capture(real, sim, png, width, bin_resolution, allow_negative, trim,
         click.echo(f"wrote {png}")
 
 
-def _trim_option(trim: str):
+def trim_option(trim: str) -> str | float:
+    """A ``--trim`` value: "auto" or a duration ≥ 0 in seconds (click's BadParameter naming --trim otherwise)."""
     from ..units import parse_duration
 
     try:

@@ -86,14 +86,9 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
     from ..analysis.confocal import align_confocal, grid_pitches
     from ..analysis.reconstruct import confocal_volume, depth_map
     from ..plot.reconstruction import plot_reconstruction
-    from ..units import parse_duration
+    from .capture import trim_option
 
-    try:
-        trim_s = "auto" if trim.strip() == "auto" else parse_duration(trim)
-    except ValueError as exc:
-        raise click.BadParameter(f"expected auto or a duration, e.g. 2.4ns: {exc}", param_hint="--trim") from None
-    if trim_s != "auto" and not (np.isfinite(trim_s) and trim_s >= 0):
-        raise click.BadParameter(f"expected auto or a duration >= 0, got {trim!r}", param_hint="--trim")
+    trim_s = trim_option(trim)
     if out.exists() and not out.is_dir():
         raise FileExistsError(f"--out {out} is a file, not a directory")
     env, edges, offsets, points, what = _scan_input(Path(store), split, index, use_counts)
