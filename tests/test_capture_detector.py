@@ -98,6 +98,20 @@ def test_a_map_of_the_wrong_shape_in_a_scene_is_one_line_naming_file_field_and_s
     assert DetectorConfig.from_yaml(tmp_path / "det.yaml").scan_map("background_map").shape == (3, 3)
 
 
+def test_a_scene_files_relative_map_is_read_from_the_scene_files_folder(tmp_path, monkeypatch):
+    """A scene's detector block naming ``gain.npy`` beside it was read from the working directory (docs/detector.md:
+    relative to the YAML that names it, as detector files and --detector files are)."""
+    folder = tmp_path / "scenes"
+    folder.mkdir()
+    gain = np.linspace(0.5, 1.5, 64).reshape(8, 8)
+    np.save(folder / "gain.npy", gain)
+    scene = dataclasses.replace(patch_scene(), source=str(folder / "scene.yaml"),
+                                defaults={"detector": {**DETECTOR, "gain_map": "gain.npy"}})
+    monkeypatch.chdir(tmp_path)                                  # no gain.npy here
+    config = datagen.resolve_config(scene, {k: v for k, v in OVER.items() if k != "detector"})
+    np.testing.assert_array_equal(config.detector_config().scan_map("gain_map"), gain)
+
+
 def _synthetic_capture(env: np.ndarray, seed: int = 1):
     """Poisson counts of ``env`` through a detector with the known maps: 1e10 cycles, a floor of 20 counts per bin
     at background factor 1 (dcr 125 Hz over 16 ps bins)."""

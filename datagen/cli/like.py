@@ -28,7 +28,7 @@ def read_detector_file(path: Path, scene_detector: dict | None = None) -> tuple[
     from .. import spad
     from ..errors import ConfigError
     from ..scene.load import format_validation_error, read_yaml
-    from ..spad.config import MAP_FIELDS
+    from ..spad.maps import maps_relative_to
     from ..timing.irf import Irf
 
     data = read_yaml(Path(path), "detector file", ConfigError)
@@ -41,8 +41,7 @@ def read_detector_file(path: Path, scene_detector: dict | None = None) -> tuple[
     for name, block in (("detector", detector), ("irf", irf)):
         if block is not None and not isinstance(block, dict):
             raise ConfigError(f"{path}: {name}: expected a mapping, got {type(block).__name__}")
-    detector = {k: (str(Path(path).parent / v) if k in MAP_FIELDS and isinstance(v, str) and not Path(v).is_absolute()
-                    else v) for k, v in (detector or {}).items()}       # map paths are relative to this file
+    detector = maps_relative_to(detector or {}, Path(path).parent)
     try:
         if irf is not None:
             Irf.model_validate(irf)

@@ -8,6 +8,7 @@ detector noise, so re-drawing noise never changes the envelope.
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -16,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, SerializeAsAny, ValidationErr
 from ..errors import ConfigError
 from .. import spad
 from ..planner import EFFECTS
+from ..spad.maps import maps_relative_to
 from ..scene import Scene
 from ..scene.load import format_validation_error, short_repr
 from ..scene.parts import MAX_EXTENT
@@ -394,7 +396,8 @@ def detector_error(exc: ValidationError, config: SimulationConfig, source: str |
 
 def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationConfig:
     """Merge the scene file's ``simulation`` block with ``overrides`` (e.g. CLI options; None values are left out)
-    and validate (:func:`merge_simulation`).
+    and validate (:func:`merge_simulation`). The map paths of the scene's ``detector`` block (``gain_map``,
+    ``background_map``) are relative to the scene file.
 
     ``overrides`` may use the flat keys the command-line flags set (``lookins``, ``area_samples``,
     ``quadrature_edge``, …): they are translated silently for the estimator ``overrides`` or the scene chooses. Old
@@ -405,8 +408,11 @@ def resolve_config(scene: Scene, overrides: dict | None = None) -> SimulationCon
     """
     where = f"{scene.source} (simulation)" if scene.source else "simulation"
     overrides = dict(overrides or {})
+    defaults = scene.defaults
+    if scene.source and isinstance(defaults.get("detector"), dict):      # its map paths: from the scene file's folder
+        defaults = {**defaults, "detector": maps_relative_to(defaults["detector"], Path(scene.source).parent)}
     try:
-        data, moves = merge_overrides(scene.defaults, overrides)
+        data, moves = merge_overrides(defaults, overrides)
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     if moves:

@@ -14,7 +14,7 @@ from pydantic import (BaseModel, ConfigDict, Field, ValidationError, field_valid
 from ..errors import ConfigError
 from ..timing.irf import FWHM_PER_SIGMA
 from ..units import parse_duration, parse_rate
-from .maps import MAP_FIELDS, DirectLight, read_map
+from .maps import MAP_FIELDS, DirectLight, maps_relative_to, read_map
 from .models import ModelName, detector_model, model_names
 
 __all__ = [
@@ -293,8 +293,7 @@ class DetectorConfig(BaseModel):
         if isinstance(data, dict) and "detector" in data and set(data) <= {"detector", "irf"}:
             data = data["detector"]
         if isinstance(data, dict):                         # map paths are relative to this file
-            data = {k: (str(path.parent / v) if k in MAP_FIELDS and isinstance(v, str) and not Path(v).is_absolute()
-                        else v) for k, v in data.items()}
+            data = maps_relative_to(data, path.parent)
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: expected a mapping of detector fields, got {type(data).__name__}")
         try:

@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ..units import parse_duration
 
-__all__ = ["MAP_FIELDS", "DirectLight", "read_map", "check_map_shape", "direct_factor"]
+__all__ = ["MAP_FIELDS", "DirectLight", "read_map", "maps_relative_to", "check_map_shape", "direct_factor"]
 
 MAP_FIELDS = ("gain_map", "background_map")
 """The per-scan-point maps of a :class:`~datagen.spad.DetectorConfig`."""
@@ -52,6 +52,13 @@ class DirectLight(BaseModel):
     @classmethod
     def _duration(cls, value: Any) -> Any:
         return parse_duration(value) if isinstance(value, str) else value
+
+
+def maps_relative_to(detector: dict, base: str | Path) -> dict:
+    """``detector`` (a detector mapping) with its map paths (:data:`MAP_FIELDS` given as relative ``.npy`` paths)
+    made relative to ``base``, the folder of the file that names them; other fields as they are (a copy)."""
+    return {k: (str(Path(base) / v) if k in MAP_FIELDS and isinstance(v, str) and not Path(v).is_absolute() else v)
+            for k, v in detector.items()}
 
 
 def read_map(value: Any, field: str, base: Path | None = None) -> tuple[tuple[float, ...], ...]:
