@@ -7,6 +7,7 @@ The commands only parse and call the library (:mod:`datagen.io.lab_formats`, :mo
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import click
@@ -42,6 +43,18 @@ def bin_option(text: str | None, option: str) -> float | None:
         raise click.BadParameter(f"{text!r} is {validate.format_seconds(seconds)}, not a TCSPC bin width ({lo} .. "
                                  f"{hi}); a number without a unit is seconds: write the unit, e.g. 4ps",
                                  param_hint=option) from None
+
+
+def mat_options(file: str = "") -> Callable:
+    """The options every command reading a lab file takes for a ``.mat`` that lacks them: ``--width`` (m) and
+    ``--bin-resolution`` (a duration), parsed by :func:`width_option` and :func:`bin_option`. ``file``: which
+    argument they are for (e.g. "REAL "), when a command reads two."""
+    def add(command: Callable) -> Callable:
+        command = click.option("--bin-resolution", "bin_resolution", default=None,
+                               help=f"{file}.mat without 'bin_resolution': the bin width, e.g. 4ps")(command)
+        return click.option("--width", type=float, default=None,
+                            help=f"{file}.mat without 'width': half width of the scanned wall, m")(command)
+    return add
 
 
 def width_option(width: float | None) -> float | None:
@@ -125,9 +138,7 @@ def _kv(items, option: str) -> dict[str, float]:
 @click.command("import-capture")
 @click.argument("capture_file", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory (result store)")
-@click.option("--width", type=float, default=None, help=".mat without 'width': half width of the scanned wall, m")
-@click.option("--bin-resolution", "bin_resolution", default=None,
-              help=".mat without 'bin_resolution': the bin width, e.g. 32ps")
+@mat_options()
 @click.option("--tofgrid", "tofgrid", type=click.Path(path_type=Path), default=None,
               help="a separate .mat holding 'tofgrid' (ps), as the f-k release ships tof.mat")
 @click.option("--allow-negative", "allow_negative", is_flag=True,
@@ -391,8 +402,7 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
 @click.argument("real", type=click.Path(path_type=Path))
 @click.argument("sim", type=click.Path(path_type=Path))
 @click.option("--png", "png", type=click.Path(path_type=Path), default=None, help="side-by-side figure to write")
-@click.option("--width", type=float, default=None, help="REAL .mat without 'width' (m)")
-@click.option("--bin-resolution", "bin_resolution", default=None, help="REAL .mat without 'bin_resolution'")
+@mat_options("REAL ")
 @click.option("--allow-negative", "allow_negative", is_flag=True,
               help="REAL may hold negative bins (a background-subtracted capture)")
 @click.option("--trim", default="auto", show_default=True,

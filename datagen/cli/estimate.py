@@ -14,6 +14,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from .capture import mat_options
 from .errors import friendly_errors
 
 
@@ -60,9 +61,7 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
 @click.command("estimate-capture")
 @click.argument("capture", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory")
-@click.option("--width", type=float, default=None, help=".mat without 'width': half width of the scanned wall, m")
-@click.option("--bin-resolution", "bin_resolution", default=None,
-              help=".mat without 'bin_resolution': the bin width, e.g. 4ps")
+@mat_options()
 @click.option("--late", default=None, help="bins FIRST:STOP of the floor (default: the last 10 % of the window)")
 @click.option("--direct-bins", "direct_bins", type=click.IntRange(min=1), default=None,
               help="bins of the direct light from t = 0 (default: where its tail ends)")
