@@ -165,7 +165,8 @@ def test_the_real_captures_grid_on_the_library_scene(tmp_path):
     assert t.shape == (64, 64) and t.offsets is None
     assert t.pitch == pytest.approx((0.4 / 63, 0.4 / 63), rel=1e-9)
     np.testing.assert_allclose(t.time_edges, np.arange(2049) * 4e-12, rtol=0, atol=1e-18)
-    scene, _ = scene_like(load_scene(ROOT / "scene_library" / "stanford_dot_chart_40cm.yaml"), t)
+    scene, notes = scene_like(load_scene(ROOT / "scene_library" / "stanford_dot_chart_40cm.yaml"), t)
+    assert notes == []                # its grid, written to 0.1 µm of the capture's, is the capture's: no note
     cap = resolve_capture(scene, RayCaster(scene))
     np.testing.assert_allclose(cap.spots.reshape(64, 64, 3), t.points, atol=1e-9)
 

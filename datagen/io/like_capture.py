@@ -137,6 +137,11 @@ def capture_template(result, offsets: np.ndarray | None, source: str) -> Capture
     return CaptureTemplate(str(source), points, pitch, edges, off, detector)
 
 
+GRID_SAME = 1e-6
+"""m: a scene's scan size within 1 µm of the capture's is the capture's (a scene file written with four decimals
+of the capture's pitch is not "replaced")."""
+
+
 def scene_like(scene, template: CaptureTemplate) -> tuple[object, list[str]]:
     """``scene`` with its confocal grid replaced by the capture's: ``template.shape`` points at its pitch, centred
     where the scene's ``capture.laser_grid`` is (its wall frame gives the columns' and rows' directions).
@@ -159,7 +164,7 @@ def scene_like(scene, template: CaptureTemplate) -> tuple[object, list[str]]:
     old = cap.laser_grid
     grid = WallGrid(center=old.center, size=(dx * nx, dy * ny), points=(nx, ny))
     notes = []
-    if tuple(old.points) != (nx, ny) or not np.allclose(old.size, grid.size, rtol=1e-9):
+    if tuple(old.points) != (nx, ny) or not np.allclose(old.size, grid.size, rtol=0.0, atol=GRID_SAME):
         notes.append(f"{where}capture.laser_grid: {old.points[0]} x {old.points[1]} points over "
                      f"{old.size[0]:.4g} x {old.size[1]:.4g} m replaced by the capture's {nx} x {ny} over "
                      f"{grid.size[0]:.4g} x {grid.size[1]:.4g} m (cells of the pitch, centred as the capture's points)")
