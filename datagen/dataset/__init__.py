@@ -26,6 +26,11 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.scan`: scanned captures in room distributions (``capture.scan``: confocal or
   exhaustive laser grids over a rectangle of the relay wall);
 - :mod:`~datagen.dataset.assets`: mesh assets as hidden objects (asset folders, reading, placing);
+- :mod:`~datagen.dataset.cutouts`: planar cut-outs of the LCT release's kind (glyphs, signs, dot and bar charts)
+  as mesh assets (``scripts/make_cutouts.py``, ``assets/meshes/cutouts``);
+- :mod:`~datagen.dataset.detector_draws`: a detector drawn per sample at build time (``detector_draws``: IRF,
+  background, gain and background maps, direct light);
+- :mod:`~datagen.dataset.sample_params`: pieces of a sample's ``params`` record;
 - :mod:`~datagen.dataset.sampler`: :func:`sample_room` → :class:`SampledRoom` (its generator keys are
   ``datagen.dataset.sampler.STREAMS``; the config's stream ids are ``datagen.dataset.config.STREAMS``);
 - :mod:`~datagen.dataset.obb`: exact oriented-box geometry (overlaps, beam and view tests, points inside);

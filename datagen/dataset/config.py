@@ -44,6 +44,7 @@ from .components import COMPONENT_ROOM, OTHER_COMPONENTS, component_arrays, comp
 from .components import MULTIBOUNCE, orders_summary  # noqa: F401
 from .dtypes import stored_counts
 from .legacy import RENAMED_KEYS, note_old_keys
+from .sample_params import accuracy_record, json_default
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
 """Stream ids: the last entry of the spawn_key of each random stream of a sample (fixed forever)."""
@@ -160,6 +161,7 @@ class DatasetConfig(_Model):
                                  "before the split's own room_overrides")
     simulation: dict = Field(default_factory=dict)
     detector: str | dict | None = None
+    detector_draws: dict | None = None      # drawn per sample (datagen.dataset.detector_draws)
     labels: dict = Field(default_factory=dict)
     store: StoreSpec = StoreSpec()
     tolerance: float = Field(0.01, ge=MIN_TOLERANCE, lt=1)   # below: float64 round-off, not measurable
@@ -227,8 +229,9 @@ class DatasetConfig(_Model):
         """The config as a JSON-able dict (what workers receive and the card records); an empty
         ``room_overrides`` is left out, so configs written before it existed keep their fingerprint."""
         data = self.model_dump(mode="json")
-        if not data["room_overrides"]:
-            del data["room_overrides"]
+        for key in ("room_overrides", "detector_draws"):     # left out when empty: older fingerprints hold
+            if not data[key]:
+                del data[key]
         for key, default in STORE_DEFAULTS_UNHASHED.items():
             if data["store"].get(key) == default:
                 del data["store"][key]
@@ -403,6 +406,8 @@ def _field_errors(exc: ValidationError, prefix: str, head: str) -> str:
 def _validate_parts(config: DatasetConfig, prefix: str) -> None:
     from ..simulation import SimulationConfig
     from ..simulation.config import detector_error
+    from .detector_draws import check_detector_draws
+    check_detector_draws(config.detector_draws, prefix)
     try:
         spec = config.label_spec()
     except ValidationError as exc:
@@ -525,11 +530,13 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
     from .layout import axis_names
     from .labels import scene_labels
     from .zones import zone_capture
+    from .detector_draws import draw_sample_detector
     from ..simulation import simulate_to_tolerance
 
     where = f"sample ({split}, {index})"
     t0 = time.perf_counter()
     room, sim_config, rngs = setup_sample(config, split, index)
+    sim_config, drawn = draw_sample_detector(config, split_key(split), index, room, sim_config)
     t1 = time.perf_counter()
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"], progress=progress)
@@ -569,10 +576,11 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
         plan = {effect: {k: d[k] for k in ("on", "forced", "reason")} for effect, d in result.attrs["plan"].items()}
         params = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
                   "streams": STREAMS, "room": room.params, "objects": room.objects,
-                  "effects": result.attrs.get("effects"), "accuracy": _accuracy(result.attrs), "plan": plan}
+                  "effects": result.attrs.get("effects"), "accuracy": accuracy_record(result.attrs), "plan": plan}
         if "orders" in result.attrs:
             params["orders"] = orders_summary(result)
-        arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=_json_default), dtype=object)
+        params.update({"detector_draw": drawn} if drawn else {})
+        arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=json_default), dtype=object)
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
     kind = None if room.scene.capture is None and room.scene.sensor.fov.pixels == (1, 1) else (
         room.scene.capture.type if room.scene.capture is not None else "single")
@@ -580,21 +588,7 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
     axes = {name: names for name, value in arrays.items()
             if (names := axis_names(name, np.ndim(value), kind)) is not None}
     why = ("capped", "unreachable", "projected_nominal_seconds", "monte_carlo", "omitted_orders", "smoothing")
-    accuracy = {**_accuracy(result.attrs), **{k: v for part in ("tolerance", "error")
+    accuracy = {**accuracy_record(result.attrs), **{k: v for part in ("tolerance", "error")
                                                for k, v in result.attrs[part].items() if k in why}}
     return Sample(arrays, np.asarray(result.time_edges, dtype=np.float64), seconds, component_names, axes,
                   orders_summary(result) if "orders" in result.attrs else {}, accuracy)
-
-
-def _accuracy(attrs: dict) -> dict:
-    """What the sample's adaptive sampling did: target, estimate, met, replicas and their setting, nominal s."""
-    tol, err = attrs["tolerance"], attrs["error"]
-    return {"tolerance": tol["target"], "envelope_error": err["rel_l2"], "met": tol["met"],
-            "replicas": err["replicas"], "replica_setting": err["replica_setting"],
-            "nominal_seconds": tol.get("nominal_seconds")}
-
-
-def _json_default(value):
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"not JSON-able: {type(value).__name__}")

@@ -1,0 +1,237 @@
+"""A detector drawn per sample at build time: the ``detector_draws`` block of a dataset config (docs/datasets.md,
+"The LCT release's kind of set-up").
+
+Real confocal captures differ from one another in their detector and set-up as much as in their scenes: the SPAD's
+slow-tail IRF, the floor of dark and ambient counts, the per-point gain (laser power, focus, the wall's albedo) and
+the background that drifts in bands over a scan, how much of the direct light gets through (docs/detector.md). A
+dataset whose ``detector_draws`` names ranges for them gives every sample its own detector, drawn from its own
+stream and recorded in its params as ``detector_draw``; the envelope then holds the sample's IRF and direct-light
+attenuation, the counts its gain, background map, dark count rate and exposure. Fields (each optional; absent
+ones keep the config's fixed value):
+
+============================  =================================================================================
+``irf``                       ``{sigma, tail, tail_weight, tail2, tail2_weight, tail_delay}``: ranges of a
+                              two-tail IRF (:class:`datagen.timing.irf.Irf`, kind ``two_tail``; s, or "60ps")
+``dcr``                       Hz: the background rate (the floor per bin is dcr × bin width × cycles)
+``exposure``                  s per scan point
+``gain_scale``                the gain map's mean: the light each point receives, relative to the transport's
+``gain_range``                the gain map's max/min, drawn log-uniformly (a smooth field:
+                              :func:`datagen.spad.map_draws.draw_gain_fields`)
+``background_bands``          ``{ratio, bands}``: the background map's band levels up to ``ratio`` apart in
+                              ``bands`` bands of columns (:func:`datagen.spad.map_draws.draw_background_bands`)
+``direct``                    ``{attenuation, until}``: :class:`datagen.spad.maps.DirectLight`, the attenuation
+                              drawn log-uniformly
+============================  =================================================================================
+
+Every draw is uniform in its range (``gain_range`` and ``direct.attenuation`` log-uniform: they span decades). The
+stream is ``SeedSequence(seed, spawn_key=(split_key, index, DETECTOR_STREAM))``: :data:`N_UNIFORMS` uniforms in a
+fixed order whatever fields are set, then one integer seeding the torch generator of the maps, so a sample's draw
+depends only on (config, split, index) and adding a field moves no other draw.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError, field_validator, model_validator
+
+from ..errors import ConfigError
+from ..units import parse_duration
+from .ranges import CountRange, Model, NonNegative, Positive, Range, Unit
+
+__all__ = ["DETECTOR_STREAM", "N_UNIFORMS", "DetectorDraws", "check_detector_draws", "draw_detector",
+           "draw_sample_detector"]
+
+DETECTOR_STREAM = 5
+"""Last entry of the spawn_key of a sample's detector draw (the build's streams are 0–4: :data:`~.config.STREAMS`)."""
+
+N_UNIFORMS = 16
+"""Uniforms drawn per sample, in the order of :data:`_ORDER` (the rest reserved)."""
+
+_ORDER = ("irf.sigma", "irf.tail", "irf.tail_weight", "irf.tail2", "irf.tail2_weight", "irf.tail_delay", "dcr",
+          "exposure", "gain_scale", "gain_range", "background_bands.ratio", "background_bands.bands",
+          "direct.attenuation", "direct.until")
+
+
+def _durations(value: Any) -> Any:
+    """A range of durations: "60ps", ["50ps", "80ps"] or {min: "50ps", max: "80ps"} → seconds."""
+    def one(v):
+        return parse_duration(v) if isinstance(v, str) else v
+    if isinstance(value, dict):
+        return {k: one(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [one(v) for v in value]
+    return one(value)
+
+
+class IrfDraws(Model):
+    """Ranges of a two-tail IRF's parameters (:class:`datagen.timing.irf.Irf`): s, or strings such as "60ps"."""
+
+    sigma: Positive
+    tail: Positive
+    tail_weight: Unit
+    tail2: Positive
+    tail2_weight: Unit
+    tail_delay: NonNegative = Range(min=0.0, max=0.0)
+
+    @field_validator("sigma", "tail", "tail2", "tail_delay", mode="before")
+    @classmethod
+    def _seconds(cls, value: Any) -> Any:
+        return _durations(value)
+
+    @model_validator(mode="after")
+    def _weights(self) -> "IrfDraws":
+        if self.tail_weight.max + self.tail2_weight.max > 1:
+            raise ValueError(f"tail_weight.max + tail2_weight.max must be <= 1, got {self.tail_weight.max} + "
+                             f"{self.tail2_weight.max}")
+        return self
+
+
+class BandDraws(Model):
+    """The background map's bands: level ``ratio`` (max/min ≥ 1) and the number of ``bands`` (≥ 1)."""
+
+    ratio: Range
+    bands: CountRange
+
+    @model_validator(mode="after")
+    def _bounds(self) -> "BandDraws":
+        if self.ratio.min < 1 or self.bands.min < 1:
+            raise ValueError(f"ratio must be >= 1 and bands >= 1, got ratio.min {self.ratio.min}, "
+                             f"bands.min {self.bands.min}")
+        return self
+
+
+class DirectDraws(Model):
+    """The direct light's ``attenuation`` (in (0, 1], log-uniform) and ``until`` (s, or "1.5ns")."""
+
+    attenuation: Range
+    until: Positive
+
+    @field_validator("until", mode="before")
+    @classmethod
+    def _seconds(cls, value: Any) -> Any:
+        return _durations(value)
+
+    @model_validator(mode="after")
+    def _bounds(self) -> "DirectDraws":
+        if not (0 < self.attenuation.min and self.attenuation.max <= 1):
+            raise ValueError(f"attenuation must lie in (0, 1], got [{self.attenuation.min}, {self.attenuation.max}]")
+        return self
+
+
+class DetectorDraws(Model):
+    """The ``detector_draws`` block (module doc)."""
+
+    irf: IrfDraws | None = None
+    dcr: NonNegative | None = None
+    exposure: Positive | None = None
+    gain_scale: Positive | None = None
+    gain_range: Range | None = None
+    background_bands: BandDraws | None = None
+    direct: DirectDraws | None = None
+
+    @field_validator("exposure", mode="before")
+    @classmethod
+    def _seconds(cls, value: Any) -> Any:
+        return _durations(value)
+
+    @field_validator("gain_range")
+    @classmethod
+    def _at_least_one(cls, value: Range | None) -> Range | None:
+        if value is not None and value.min < 1:
+            raise ValueError(f"min must be >= 1 (a dynamic range max/min), got {value.min}")
+        return value
+
+
+def check_detector_draws(value: dict | None, where: str) -> DetectorDraws | None:
+    """The validated block, or None. Raises ConfigError: one line per problem, ``where: detector_draws.field:
+    message (got value)``."""
+    if value is None:
+        return None
+    try:
+        return DetectorDraws.model_validate(value)
+    except ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            loc = ".".join(["detector_draws"] + [str(p) for p in err["loc"]])
+            got = err.get("input")
+            shown = "" if isinstance(got, dict) else f" (got {got!r})"
+            lines.append(f"{where}{loc}: {str(err['msg']).removeprefix('Value error, ')}{shown}")
+        raise ConfigError("; ".join(lines)) from None
+
+
+def _log_uniform(r: Range, u: float) -> float:
+    lo, hi = math.log(r.min), math.log(r.max)
+    return float(math.exp(lo + u * (hi - lo)))
+
+
+def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int, int] | None, sim_config):
+    """Sample's simulation config with its drawn detector, and the draw's record.
+
+    Args:
+        value: the dataset config's ``detector_draws`` (None: nothing drawn); rng: the sample's detector stream
+            (module doc); scan: (ny, nx) scan points (the gain and background maps need one); sim_config: the
+            sample's resolved :class:`~datagen.simulation.SimulationConfig`.
+    Returns:
+        (SimulationConfig, dict): the config with ``irf`` and ``detector`` updated, and the JSON-able draw
+        (``{}`` when nothing is drawn).
+    Raises:
+        ConfigError: maps drawn for a capture that is not a scan, or an invalid block.
+    """
+    draws = check_detector_draws(value, "")
+    if draws is None:
+        return sim_config, {}
+    u = dict(zip(_ORDER, rng.random(N_UNIFORMS)))
+    record: dict[str, Any] = {}
+    detector = dict(sim_config.detector)
+    update: dict[str, Any] = {}
+    if draws.irf is not None:
+        from ..timing.irf import Irf
+        irf = {k: getattr(draws.irf, k).draw(u[f"irf.{k}"]) for k in IrfDraws.model_fields}
+        update["irf"] = Irf(kind="two_tail", **irf)
+        record["irf"] = irf
+    for key in ("dcr", "exposure"):
+        if getattr(draws, key) is not None:
+            record[key] = detector[key] = getattr(draws, key).draw(u[key])
+    if draws.direct is not None:
+        record["direct"] = detector["direct"] = {
+            "attenuation": _log_uniform(draws.direct.attenuation, u["direct.attenuation"]),
+            "until": draws.direct.until.draw(u["direct.until"])}
+    maps = (draws.gain_scale, draws.gain_range, draws.background_bands)
+    if any(m is not None for m in maps):
+        if scan is None:
+            raise ConfigError("detector_draws: gain_scale, gain_range and background_bands need a scanned capture "
+                              "(capture.scan in the room distribution)")
+        import torch
+
+        from ..spad.map_draws import draw_background_bands, draw_gain_fields
+        gen = torch.Generator().manual_seed(int(rng.integers(2**62)))
+        scale = draws.gain_scale.draw(u["gain_scale"]) if draws.gain_scale is not None else 1.0
+        span = _log_uniform(draws.gain_range, u["gain_range"]) if draws.gain_range is not None else 1.0
+        gain = scale * draw_gain_fields(tuple(scan), span, 1, gen)[0].numpy()
+        detector["gain_map"] = gain.tolist()
+        record.update(gain_scale=scale, gain_range=span)
+        if draws.background_bands is not None:
+            b = draws.background_bands
+            ratio = b.ratio.draw(u["background_bands.ratio"])
+            bands = b.bands.min + min(int(u["background_bands.bands"] * (b.bands.max - b.bands.min + 1)),
+                                      b.bands.max - b.bands.min)
+            detector["background_map"] = draw_background_bands(tuple(scan), ratio, bands, 1, gen)[0].numpy().tolist()
+            record["background_bands"] = {"ratio": ratio, "bands": bands}
+    update["detector"] = detector
+    return sim_config.model_copy(update=update), record
+
+
+def draw_sample_detector(config, split_key: int, index: int, room, sim_config):
+    """:func:`draw_detector` for sample ``index`` of the split keyed ``split_key`` (:func:`~.config.split_key`) of a
+    :class:`~datagen.dataset.config.DatasetConfig` (its ``detector_draws``, the sample's detector stream, the scan of
+    its sampled ``room``). Returns (SimulationConfig, record); unchanged and ``{}`` when the config draws nothing."""
+    if config.detector_draws is None:
+        return sim_config, {}
+    rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(int(split_key), int(index),
+                                                                                DETECTOR_STREAM)))
+    capture = room.scene.capture
+    grid = capture.laser_grid if capture is not None and capture.type == "confocal" else None
+    scan = None if grid is None else (int(grid.points[1]), int(grid.points[0]))     # points are (nx, ny)
+    return draw_detector(config.detector_draws, rng, scan, sim_config)
