@@ -1,5 +1,5 @@
 """Planar cut-outs of the Stanford LCT release's kind as mesh assets: letters and digits, signs, dot and bar charts
-(docs/datasets.md, "The LCT release's kind of set-up"; the release's scenes: ../shared/real/README.md).
+(docs/datasets.md, "The LCT release's kind of set-up"; the release's scenes: docs/real.md).
 
 A cut-out is a binary mask of cells, the filled cells one flat sheet (:func:`datagen.scene.builders.mask_mesh`, the
 scene files' ``mask`` builder: each run of filled cells along a row is one rectangle, two triangles). Here the sheet
