@@ -65,9 +65,11 @@ def split_key(name: str) -> int:
     return zlib.crc32(name.encode("utf-8"))
 
 
-def sample_seed_sequence(seed: int, split: str, index: int, stream: str) -> np.random.SeedSequence:
-    """``SeedSequence(seed, spawn_key=(split_key(split), index, STREAMS[stream]))`` (docs/physics.md §7)."""
-    return np.random.SeedSequence(seed, spawn_key=(split_key(split), int(index), STREAMS[stream]))
+def sample_seed_sequence(seed: int, split: str, index: int, stream: str | int) -> np.random.SeedSequence:
+    """``SeedSequence(seed, spawn_key=(split_key(split), index, STREAMS[stream]))`` (docs/physics.md §7); an int
+    ``stream`` is a stream id outside :data:`STREAMS` (the detector draw's, :mod:`.detector_draws`)."""
+    sid = STREAMS[stream] if isinstance(stream, str) else int(stream)
+    return np.random.SeedSequence(seed, spawn_key=(split_key(split), int(index), sid))
 
 
 def sample_rngs(seed: int, split: str, index: int) -> dict[str, np.random.Generator]:
@@ -530,13 +532,14 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
     from .layout import axis_names
     from .labels import scene_labels
     from .zones import zone_capture
-    from .detector_draws import draw_sample_detector
+    from .detector_draws import DETECTOR_STREAM, draw_sample_detector
     from ..simulation import simulate_to_tolerance
 
     where = f"sample ({split}, {index})"
     t0 = time.perf_counter()
     room, sim_config, rngs = setup_sample(config, split, index)
-    sim_config, drawn = draw_sample_detector(config, split_key(split), index, room, sim_config)
+    sim_config, drawn = draw_sample_detector(config.detector_draws, sample_seed_sequence(
+        config.seed, split, index, DETECTOR_STREAM), room, sim_config)
     t1 = time.perf_counter()
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"], progress=progress)

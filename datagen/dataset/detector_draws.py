@@ -30,7 +30,6 @@ depends only on (config, split, index) and adding a field moves no other draw.
 """
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -161,11 +160,6 @@ def check_detector_draws(value: dict | None, where: str) -> DetectorDraws | None
         raise ConfigError("; ".join(lines)) from None
 
 
-def _log_uniform(r: Range, u: float) -> float:
-    lo, hi = math.log(r.min), math.log(r.max)
-    return float(math.exp(lo + u * (hi - lo)))
-
-
 def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int, int] | None, sim_config):
     """Sample's simulation config with its drawn detector, and the draw's record.
 
@@ -196,7 +190,7 @@ def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int,
             record[key] = detector[key] = getattr(draws, key).draw(u[key])
     if draws.direct is not None:
         record["direct"] = detector["direct"] = {
-            "attenuation": _log_uniform(draws.direct.attenuation, u["direct.attenuation"]),
+            "attenuation": draws.direct.attenuation.draw_log(u["direct.attenuation"]),
             "until": draws.direct.until.draw(u["direct.until"])}
     maps = (draws.gain_scale, draws.gain_range, draws.background_bands)
     if any(m is not None for m in maps):
@@ -208,7 +202,7 @@ def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int,
         from ..spad.map_draws import draw_background_bands, draw_gain_fields
         gen = torch.Generator().manual_seed(int(rng.integers(2**62)))
         scale = draws.gain_scale.draw(u["gain_scale"]) if draws.gain_scale is not None else 1.0
-        span = _log_uniform(draws.gain_range, u["gain_range"]) if draws.gain_range is not None else 1.0
+        span = draws.gain_range.draw_log(u["gain_range"]) if draws.gain_range is not None else 1.0
         gain = scale * draw_gain_fields(tuple(scan), span, 1, gen)[0].numpy()
         detector["gain_map"] = gain.tolist()
         record.update(gain_scale=scale, gain_range=span)
@@ -223,15 +217,13 @@ def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int,
     return sim_config.model_copy(update=update), record
 
 
-def draw_sample_detector(config, split_key: int, index: int, room, sim_config):
-    """:func:`draw_detector` for sample ``index`` of the split keyed ``split_key`` (:func:`~.config.split_key`) of a
-    :class:`~datagen.dataset.config.DatasetConfig` (its ``detector_draws``, the sample's detector stream, the scan of
-    its sampled ``room``). Returns (SimulationConfig, record); unchanged and ``{}`` when the config draws nothing."""
-    if config.detector_draws is None:
+def draw_sample_detector(draws: dict | None, stream: np.random.SeedSequence, room, sim_config):
+    """:func:`draw_detector` for one sample: a :class:`~datagen.dataset.config.DatasetConfig`'s ``detector_draws``,
+    the sample's detector stream (``sample_seed_sequence(seed, split, index, DETECTOR_STREAM)``) and the scan of its
+    sampled ``room``. Returns (SimulationConfig, record); unchanged and ``{}`` when the config draws nothing."""
+    if draws is None:
         return sim_config, {}
-    rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(int(split_key), int(index),
-                                                                                DETECTOR_STREAM)))
     capture = room.scene.capture
     grid = capture.laser_grid if capture is not None and capture.type == "confocal" else None
     scan = None if grid is None else (int(grid.points[1]), int(grid.points[0]))     # points are (nx, ny)
-    return draw_detector(config.detector_draws, rng, scan, sim_config)
+    return draw_detector(draws, np.random.default_rng(stream), scan, sim_config)

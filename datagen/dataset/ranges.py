@@ -46,6 +46,12 @@ class Range(Model):
         """The value at quantile ``u`` ∈ [0, 1) of the uniform distribution."""
         return float(self.min + u * (self.max - self.min))
 
+    def draw_log(self, u: float) -> float:
+        """The value at quantile ``u`` ∈ [0, 1) of the log-uniform distribution on [min, max] (min > 0: for
+        quantities that span decades, e.g. a Phong exponent, a retroreflective lobe width, an attenuation)."""
+        lo, hi = math.log(self.min), math.log(self.max)
+        return float(math.exp(lo + u * (hi - lo)))
+
     def contains(self, x: float, tol: float = 1e-9) -> bool:
         return self.min - tol <= x <= self.max + tol
 

@@ -296,13 +296,11 @@ class MaterialDist(Model):
         kind = BRDF_KINDS[min(int(np.searchsorted(cdf, u[0], side="right")), len(BRDF_KINDS) - 1)]
         albedo = self.albedo.draw(u[1])
         if kind == "phong":
-            lo, hi = math.log(self.exponent.min), math.log(self.exponent.max)
             return Material(kind=kind, albedo=albedo, specular=self.specular.draw(u[2]),
-                            exponent=float(math.exp(lo + u[3] * (hi - lo))))
+                            exponent=self.exponent.draw_log(u[3]))
         if kind == "retroreflective":
-            lo, hi = math.log(self.lobe_width.min), math.log(self.lobe_width.max)
             return Material(kind=kind, albedo=albedo, specular=self.specular.draw(u[2]),
-                            lobe_width=float(math.exp(lo + u[3] * (hi - lo))))
+                            lobe_width=self.lobe_width.draw_log(u[3]))
         if kind == "sin_theta":
             return Material(kind=kind, albedo=albedo, axis=self.axis)
         return Material(kind=kind, albedo=albedo)
