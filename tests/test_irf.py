@@ -332,19 +332,24 @@ def test_components_kept_separate_and_sum_to_single():
     assert np.all(_conservation_error(multi) <= 1e-12)
 
 
-def test_exgaussian_matches_reference_and_conserves():
-    # SPAD jitter: 40 ps FWHM core + 50 ps diffusion tail (docs/physics.md §5), 4 ps TDC bins.
-    axis = TimeAxis(t_start=0.0, bin_width=4 * PS, n_bins=1000)
-    irf = Irf(fwhm="40ps", kind="exgaussian", tail="50ps")
-    e = np.linspace(-0.5 * NS, 3 * NS, 4001)
+@pytest.mark.parametrize("irf, n_bins, n_tau, tau_stop, seed, e_stop", [
+    # SPAD jitter: 40 ps FWHM core + 50 ps diffusion tail (docs/physics.md §5), 4 ps TDC bins
+    (Irf(fwhm="40ps", kind="exgaussian", tail="50ps"), 1000, 400, 4.2 * NS, 4, 3 * NS),
+    # the real SPAD's two tails (docs/detector.md "Two-tail IRF")
+    (Irf(kind="two_tail", fwhm="60ps", tail="40ps", tail_weight=0.3, tail2="300ps", tail2_weight=0.2,
+         tail_delay="50ps"), 1500, 300, 5 * NS, 70, 15 * NS),
+], ids=["exgaussian", "two_tail"])
+def test_a_tailed_irf_bins_as_the_exact_reference_and_conserves(irf, n_bins, n_tau, tau_stop, seed, e_stop):
+    axis = TimeAxis(t_start=0.0, bin_width=4 * PS, n_bins=n_bins)
+    e = np.linspace(-0.5 * NS, e_stop, 4001)
     assert irf.interval_mass(e[:-1], e[1:]).sum() == pytest.approx(1.0, rel=1e-13)
-    rng = np.random.default_rng(4)
-    tau = rng.uniform(-0.5 * NS, 4.2 * NS, 400)
+    rng = np.random.default_rng(seed)
+    tau = rng.uniform(-0.5 * NS, tau_stop, n_tau)
     w = rng.uniform(0, 1, tau.size)
     acc = EnvelopeAccumulator(axis, irf, n_components=1)
     acc.add(tau, w)
     ref = bin_impulses(tau, w, axis, irf)
-    ratio = acc.fine_step / irf.sigma
+    ratio = acc.fine_step / irf.sigma                    # linear splatting: error ~ (fine step / sigma)² / 8
     np.testing.assert_allclose(acc.binned()[0], ref, rtol=0, atol=0.125 * ratio**2 * ref.max())
     assert _conservation_error(acc)[0] <= 1e-12
 
