@@ -113,7 +113,7 @@ def test_the_measurement_takes_the_slow_tail_out_and_finds_the_echo():
     m = second_round_trip(mu, EDGES)
     assert m.window[0] == pytest.approx(2 * 2.7e-9, abs=0.15e-9)
     # the echo's last ~2 % lies past the window, where the baseline's second side takes it in: the size reads 6 %
-    # low and the time 23 ps early here (on the simulated chart 2-4 % and 5-11 ps against its order-3 component)
+    # low and the time 23 ps early here (on the simulated chart 2-4 % and 3-11 ps against its order-3 component)
     assert m.size == pytest.approx(0.004, rel=0.08)
     assert m.time == pytest.approx(median_time(echo), abs=30e-12)
     none = second_round_trip(synthetic(0.0)[0], EDGES)
