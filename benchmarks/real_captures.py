@@ -13,9 +13,10 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file with a scen
 4. ``datagen simulate SCENE --like STORE --detector EST/detector.yaml``;
 5. ``datagen compare-capture STORE SIM --gain direct`` and reads its hidden-signal figures (docs/capture_io.md).
 
-It prints one table row per capture and, when both dot charts are present, their hidden-count ratio (bins 600–1899
-of 4 ps less the per-bin floor of bins 1900–2047, the measure of the release's README). Wall times are of this
-machine, one run each.
+It prints one table row per capture (with the second round trip of the real and the simulated scan where it falls
+inside the record: :func:`datagen.analysis.second_round_trip.second_round_trip`, docs/real.md) and, when both dot
+charts are present, their hidden-count ratio (bins 600–1899 of 4 ps less the per-bin floor of bins 1900–2047, the
+measure of the release's README). Wall times are of this machine, one run each.
 """
 from __future__ import annotations
 
@@ -49,13 +50,32 @@ def datagen(*args) -> str:
     return proc.stdout + proc.stderr
 
 
-def hidden_counts(store: Path) -> float:
-    """The release README's hidden counts of a store (scan-summed, bins 600–1899 less 1300 × the floor)."""
+def scan(store: Path, expected: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(data (ny, nx, K) float64, time edges (K+1,) s) of a store: its counts (a capture), or with ``expected`` a
+    simulation's expected envelope (its counts when it has none)."""
     from datagen.io.lab_formats import read_capture_store
     result, _ = read_capture_store(store)
-    data = np.asarray(result.counts if np.asarray(result.counts).any() else result.envelope, dtype=np.float64)
+    counts = np.asarray(result.counts)
+    data = result.envelope if expected or not counts.any() else counts
+    return np.asarray(data, dtype=np.float64), np.asarray(result.time_edges, dtype=np.float64)
+
+
+def hidden_counts(store: Path) -> float:
+    """The release README's hidden counts of a store (scan-summed, bins 600–1899 less 1300 × the floor)."""
+    data, _ = scan(store)
     s = data.reshape(-1, data.shape[-1]).sum(axis=0)
     return float(s[600:1900].sum() - 1300 * s[1900:2048].mean())
+
+
+def echo(store: Path, expected: bool = False):
+    """The second round trip of a store's scan (real: with its counting noise from 100 Poisson redraws), or None
+    when it falls too late in the record to be measured."""
+    from datagen.analysis.second_round_trip import second_round_trip
+    data, edges = scan(store, expected)
+    try:
+        return second_round_trip(data, edges, draws=0 if expected else 100, rng=np.random.default_rng(0))
+    except ValueError:
+        return None
 
 
 def one_capture(mat: Path, scene: Path, work: Path, methods: list[str]) -> dict:
@@ -77,6 +97,7 @@ def one_capture(mat: Path, scene: Path, work: Path, methods: list[str]) -> dict:
         found = re.search(pattern, out)
         row[key] = tuple(float(g) for g in found.groups()) if found else None
     row["hidden"] = (hidden_counts(real), hidden_counts(sim))
+    row["echo"] = (echo(real), echo(sim, expected=True))
     return row
 
 
@@ -106,6 +127,12 @@ def main() -> None:
         print(f"{name}: depth {depths}{ref}; simulate --like {r['sim_s']:.0f} s; hidden relative L2 {l2[0]:.3f} "
               f"(noise floor {l2[1]:.3f}); leading edge {edge[0]:+.1f} ps; map correlation {map_r[0]:.3f}; FWHM real "
               f"{fwhm[0]:.0f} ps, sim {fwhm[1]:.0f} ps ({fwhm[1] / fwhm[0] - 1:+.1%})", flush=True)
+        er, es = r["echo"]
+        if er is not None and es is not None:
+            print(f"  second round trip: real {er.size:.3%} of the main return (noise {er.size_sd:.3%}) at "
+                  f"{er.time * 1e9:.3f} ns (noise {er.time_sd * 1e12:.0f} ps), sim {es.size:.3%} at "
+                  f"{es.time * 1e9:.3f} ns: size {es.size / er.size - 1:+.0%}, time {(es.time - er.time) * 1e12:+.0f} ps",
+                  flush=True)
     charts = {r["capture"]: r["hidden"] for r in rows}
     if {"dot_chart_40cm", "dot_chart_65cm"} <= set(charts):
         (r40, s40), (r65, s65) = charts["dot_chart_40cm"], charts["dot_chart_65cm"]
