@@ -14,7 +14,8 @@ The formulas of :mod:`datagen.scene.materials` (its module doc states them and t
   h_b = unit(ω_in + R ω_out), R the mirror reflection about the normal)
   f = ρ·[(1 − k_s)/π + k_s·D(h_b)·G₂(ω_in, ω_out)/(4 cosθ_in cosθ_out)], with :func:`ggx_ndf` D (Trowbridge &
   Reitz 1975; Walter et al. 2007), :func:`smith_lambda` Λ and the height-correlated Smith G₂ = 1/(1 + Λ_in + Λ_out)
-  (Heitz 2014); :func:`retro_lobe` is its lobe per unit ρ·k_s and :func:`retro_cos_h` the cosine of h_b;
+  (Heitz 2014), times the entrance-angle falloff (cosθ_in cosθ_out)^(m/2) of real sheeting (:func:`retro_entrance`);
+  :func:`retro_lobe` is its lobe per unit ρ·k_s and :func:`retro_cos_h` the cosine of h_b;
   :func:`retro_pdf` and :func:`retro_sample` sample that lobe through the distribution of visible normals (Heitz,
   "Sampling the GGX distribution of visible normals", JCGT 7(4), 2018), reflected about the normal;
 - :func:`sample_direction`: the directions estimators draw at a surface point, cosine-weighted, or for a
@@ -49,9 +50,9 @@ the sin θ lobe is then 0 there (a set of measure zero)."""
 
 __all__ = ["BRDF_KINDS", "LAMBERTIAN", "PHONG", "RETROREFLECTIVE", "SIN_THETA", "TANGENT_EPS", "abs_sin_azimuth",
            "brdf_value", "ggx_ndf", "lambertian_value", "on_arrays", "phong_cos_alpha", "phong_diffuse_scale",
-           "phong_gloss", "phong_power", "phong_value", "retro_cos_h", "retro_directions", "retro_lobe", "retro_pdf",
-           "retro_sample", "retro_value", "sample_direction", "sample_directions", "samples_lobe", "sampling_ratio",
-           "sin_theta_scale", "sin_theta_value", "smith_lambda"]
+           "phong_gloss", "phong_power", "phong_value", "retro_cos_h", "retro_directions", "retro_entrance",
+           "retro_lobe", "retro_pdf", "retro_sample", "retro_value", "sample_direction", "sample_directions", "samples_lobe",
+           "sampling_ratio", "sin_theta_scale", "sin_theta_value", "smith_lambda"]
 
 
 _ON_ARRAYS: dict = {}
@@ -150,20 +151,31 @@ def retro_cos_h(cos_in, cos_out, cos_io):
 
 
 @njit(cache=True, inline="always")
-def retro_lobe(alpha, cos_in, cos_out, cos_h):
-    """The retroreflective lobe per unit ρ·k_s, D(h_b)·G₂ / (4 cosθ_in cosθ_out) (1/sr), G₂ = 1/(1 + Λ_in + Λ_out) the
-    height-correlated Smith shadowing-masking (Heitz 2014, eq. 99); α = ``lobe_width``, cos_h from :func:`retro_cos_h`.
-    Its albedo ∫ lobe cosθ_out dω_out is that of the forward GGX lobe at the same incidence (R keeps solid angle and
-    cosθ_out), ≤ 1 since G₂ ≤ G₁(ω_in) (Portsmouth et al. 2026)."""
-    masking = 1.0 + (smith_lambda(alpha, cos_in) + smith_lambda(alpha, cos_out))
-    return ggx_ndf(alpha, cos_h) / (4.0 * cos_in * cos_out * masking)
+def retro_entrance(falloff, cos_in, cos_out):
+    """The retroreflective lobe's entrance-angle factor (cosθ_in cosθ_out)^(m/2), m = ``entrance_falloff`` ≥ 0:
+    cos^m of the entrance angle where the lobe is (ω_out ≈ ω_in), symmetric in the two directions and ≤ 1; exactly 1
+    for m = 0 (x⁰ = 1 in IEEE pow: no falloff, bit for bit). Real sheeting's coefficient of retroreflection falls
+    with the entrance angle (ASTM D4956's minimum R_A at +30° is 0.43–0.60 of that at −4°: m ≈ 3.6–6;
+    docs/physics.md, "Retroreflective")."""
+    return (cos_in * cos_out) ** (0.5 * falloff)
 
 
 @njit(cache=True, inline="always")
-def retro_value(rho, ks, alpha, cos_in, cos_out, cos_h):
+def retro_lobe(alpha, falloff, cos_in, cos_out, cos_h):
+    """The retroreflective lobe per unit ρ·k_s, D(h_b)·G₂ / (4 cosθ_in cosθ_out)·:func:`retro_entrance` (1/sr),
+    G₂ = 1/(1 + Λ_in + Λ_out) the height-correlated Smith shadowing-masking (Heitz 2014, eq. 99); α = ``lobe_width``,
+    ``falloff`` the entrance-angle exponent m, cos_h from :func:`retro_cos_h`. Without the falloff its albedo
+    ∫ lobe cosθ_out dω_out is that of the forward GGX lobe at the same incidence (R keeps solid angle and cosθ_out),
+    ≤ 1 since G₂ ≤ G₁(ω_in) (Portsmouth et al. 2026); the falloff, ≤ 1, only lowers it."""
+    masking = 1.0 + (smith_lambda(alpha, cos_in) + smith_lambda(alpha, cos_out))
+    return ggx_ndf(alpha, cos_h) / (4.0 * cos_in * cos_out * masking) * retro_entrance(falloff, cos_in, cos_out)
+
+
+@njit(cache=True, inline="always")
+def retro_value(rho, ks, alpha, falloff, cos_in, cos_out, cos_h):
     """Retroreflective f = ρ·[(1 − k_s)/π + k_s·:func:`retro_lobe`] (1/sr); ρ albedo, k_s the fraction in the lobe,
-    α its width, both cosines > 0."""
-    return rho * ((1.0 - ks) / math.pi + ks * retro_lobe(alpha, cos_in, cos_out, cos_h))
+    α its width, ``falloff`` its entrance-angle exponent m, both cosines > 0."""
+    return rho * ((1.0 - ks) / math.pi + ks * retro_lobe(alpha, falloff, cos_in, cos_out, cos_h))
 
 
 @njit(cache=True, inline="always")
@@ -306,7 +318,8 @@ def abs_sin_azimuth(n0, n1, n2, a0, a1, a2, w0, w1, w2):
 def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
     """f(ω_in, ω_out) in 1/sr at a point of object ``obj`` with unit normal n (lit side) for unit directions
     ω_in = (i0, i1, i2), ω_out = (o0, o1, o2) away from the surface; ``mat`` = (kind int8, albedo, specular,
-    exponent, axis (n, 3), constant f, lobe width) per object id
+    exponent (Phong's e; the retroreflective kind's entrance-angle exponent m), axis (n, 3), constant f, lobe width)
+    per object id
     (:func:`datagen.transport.leg_kernels.material_arrays`).
 
     The constant f of ``mat`` when it is not NaN (Lambertian without angle work,
@@ -332,7 +345,7 @@ def brdf_value(mat, obj, n0, n1, n2, i0, i1, i2, o0, o1, o2):
                            phong_power(phong_cos_alpha(cos_in, n0, n1, n2, i0, i1, i2, o0, o1, o2), expo))
     if k == RETROREFLECTIVE:
         cos_h = retro_cos_h(cos_in, cos_out, i0 * o0 + i1 * o1 + i2 * o2)
-        return retro_value(rho, specular[obj], width[obj], cos_in, cos_out, cos_h)
+        return retro_value(rho, specular[obj], width[obj], exponent[obj], cos_in, cos_out, cos_h)
     if k == LAMBERTIAN:
         return lambertian_value(rho)
     return 0.0

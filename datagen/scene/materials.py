@@ -26,8 +26,10 @@ Kinds:
   that it peaks at ω_o = ω_i. Reciprocal (h_b(ω_o, ω_i) = R h_b(ω_i, ω_o) and D, G₂ are symmetric about the
   normal); R keeps solid angle and cosθ_o, so its lobe's albedo is that of the forward GGX lobe, ≤ 1 (G₂ ≤ G₁),
   and a(ω_i) ≤ ρ. For small α the returned light falls to half its peak ≈ 1.29·α rad from ω_i (at normal
-  incidence); real sheeting returns most of its light within 1–2°, α ≈ 0.01–0.03. Formulas and sources:
-  :mod:`datagen.scene.brdf_kernel`.
+  incidence); real sheeting returns most of its light within 1–2°, α ≈ 0.01–0.03. ``entrance_falloff`` m ≥ 0
+  multiplies the lobe by (cosθ_i cosθ_o)^(m/2), cos^m of the entrance angle at retroreflection, as real sheeting's
+  return falls with it (glass beads, micro-prisms); symmetric and ≤ 1, so reciprocity and a(ω_i) ≤ ρ hold. Formulas
+  and sources: :mod:`datagen.scene.brdf_kernel`.
 """
 from __future__ import annotations
 
@@ -41,23 +43,26 @@ from .brdf_kernel import (BRDF_KINDS, LAMBERTIAN, PHONG, RETROREFLECTIVE, SIN_TH
                           retro_value, sin_theta_scale, sin_theta_value)
 from ..vectors import norm
 
-__all__ = ["BRDF_KINDS", "LAMBERTIAN", "LOBE_WIDTH_MAX", "PHONG", "RETROREFLECTIVE", "SIN_THETA", "TANGENT_EPS",
-           "Material", "MaterialTable", "tangent_frame"]
+__all__ = ["BRDF_KINDS", "ENTRANCE_FALLOFF_MAX", "LAMBERTIAN", "LOBE_WIDTH_MAX", "PHONG", "RETROREFLECTIVE", "SIN_THETA",
+           "TANGENT_EPS", "Material", "MaterialTable", "tangent_frame"]
 
 LOBE_WIDTH_MAX = 1.0
 """Widest retroreflective lobe accepted (GGX α): at α = 1 the lobe already spreads over the whole hemisphere, and a
 wider one is no retroreflector."""
+ENTRANCE_FALLOFF_MAX = 50.0
+"""Largest retroreflective entrance-angle exponent m accepted: cos^50 is 0.5 at 9.5°, steeper than any sheeting."""
 
 
 class Material(BaseModel):
     """Surface material: albedo (reflectivity Γ of the paper) and BRDF kind with its lobe parameters.
 
-    ``lobe_width`` is written out (:meth:`model_dump`) only for the retroreflective kind, so that the other kinds'
-    records are what they were before it existed.
+    ``lobe_width`` is written out (:meth:`model_dump`) only for the retroreflective kind, and ``entrance_falloff``
+    only for a retroreflective material that has one, so that other records are what they were before these existed.
 
     Raises:
         pydantic.ValidationError: albedo outside [0, 1], unknown kind, specular outside [0, 1],
-            exponent ≤ 0, lobe_width outside (0, :data:`LOBE_WIDTH_MAX`], or a zero-length anisotropy axis (the
+            exponent ≤ 0, lobe_width outside (0, :data:`LOBE_WIDTH_MAX`], entrance_falloff outside
+            [0, :data:`ENTRANCE_FALLOFF_MAX`], or a zero-length anisotropy axis (the
             message names the field and value).
     """
 
@@ -73,12 +78,17 @@ class Material(BaseModel):
     lobe_width: float = Field(0.05, gt=0.0, le=LOBE_WIDTH_MAX, allow_inf_nan=False,
                               description="retroreflective: GGX width α of the lobe about the incident direction "
                                           "(half maximum ≈ 1.29·α rad from it)")
+    entrance_falloff: float = Field(0.0, ge=0.0, le=ENTRANCE_FALLOFF_MAX, allow_inf_nan=False,
+                                    description="retroreflective: exponent m of the lobe's falloff with the entrance "
+                                                "angle θ, cos^m θ (0: none; real sheeting ≈ 3.6–6)")
 
     @model_serializer(mode="wrap")
     def _dump(self, handler):
         data = handler(self)
         if self.kind != "retroreflective":
             data.pop("lobe_width", None)
+        if self.kind != "retroreflective" or self.entrance_falloff == 0.0:
+            data.pop("entrance_falloff", None)
         return data
 
     @field_validator("axis")
@@ -99,7 +109,8 @@ class MaterialTable:
 
     Attributes:
         kind: (n_objects,) int8 BRDF kind code (LAMBERTIAN, SIN_THETA, PHONG, RETROREFLECTIVE).
-        albedo, specular, exponent, width: (n_objects,) float64 (width: the retroreflective lobe_width α).
+        albedo, specular, exponent, width: (n_objects,) float64 (width: the retroreflective lobe_width α; exponent:
+        Phong's n, or for the retroreflective kind its entrance_falloff m, the slot the kernels read it from).
         axis: (n_objects, 3) float64 unit anisotropy axes.
     """
 
@@ -108,7 +119,8 @@ class MaterialTable:
         self.kind = np.array([BRDF_KINDS.index(m.kind) for m in materials], dtype=np.int8)
         self.albedo = np.array([m.albedo for m in materials], dtype=np.float64)
         self.specular = np.array([m.specular for m in materials], dtype=np.float64)
-        self.exponent = np.array([m.exponent for m in materials], dtype=np.float64)
+        self.exponent = np.array([m.entrance_falloff if m.kind == "retroreflective" else m.exponent
+                                  for m in materials], dtype=np.float64)
         self.width = np.array([m.lobe_width for m in materials], dtype=np.float64)
         axis = np.array([m.axis for m in materials], dtype=np.float64).reshape(-1, 3)
         self.axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
@@ -151,8 +163,8 @@ class MaterialTable:
         if np.any(sel):
             ids = object_ids[sel]
             cos_h = _retro_cos_h(cos_in[sel], cos_out[sel], w_in[sel], w_out[sel])
-            f[sel] = on_arrays(retro_value)(rho[sel], self.specular[ids], self.width[ids], cos_in[sel], cos_out[sel],
-                                            cos_h)
+            f[sel] = on_arrays(retro_value)(rho[sel], self.specular[ids], self.width[ids], self.exponent[ids],
+                                            cos_in[sel], cos_out[sel], cos_h)
         return np.where((cos_in > 0) & (cos_out > 0), f, 0.0)
 
 
@@ -215,7 +227,8 @@ class MaterialTable:
             if np.any(retro):
                 ci, co = cos_in[sel][retro], cos_out[sel][retro]
                 cos_h = _retro_cos_h(ci, co, w_in[sel][retro], w_out[sel][retro])
-                lobe[retro] = self.specular[ids][retro] * on_arrays(retro_lobe)(self.width[ids][retro], ci, co, cos_h)
+                lobe[retro] = self.specular[ids][retro] * on_arrays(retro_lobe)(self.width[ids][retro],
+                                                                                expo[retro], ci, co, cos_h)
             out[sel] = self.albedo[ids] * lobe
         return out
 

@@ -189,7 +189,8 @@ def _cell_brdf(m, l, t, same, soa, spots, targets, cell_brdf) -> float:
             if not (cos_out > 0.0 and nfw != 0.0):
                 return 0.0
             cos_h = retro_cos_h(abs(nfw), cos_out, w0 * d0 + w1 * d1 + w2 * d2)
-            f = retro_value(cell_brdf[m, 2], cell_brdf[m, 3], cell_brdf[m, 5], abs(nfw), cos_out, cos_h)
+            f = retro_value(cell_brdf[m, 2], cell_brdf[m, 3], cell_brdf[m, 5], cell_brdf[m, 4], abs(nfw), cos_out,
+                            cos_h)
     return f
 
 
@@ -229,8 +230,8 @@ SOA = ("x", "y", "z", "n_x", "n_y", "n_z", "area", "dark_inside")
 side of a closed outward surface is never lit (the laser leg is shadow-tested and the cell is ``closed``), else 0."""
 CELL_BRDF = ("f_lamb", "kind", "rho", "ks", "expo", "width")
 """Columns of the kernel's per-sub-triangle BRDF array (M, 6) float64: constant f = ρ/π (Lambertian), the kind
-code (:data:`datagen.scene.brdf_kernel.PHONG` …), albedo, specular fraction, Phong exponent and retroreflective
-lobe width of its object."""
+code (:data:`datagen.scene.brdf_kernel.PHONG` …), albedo, specular fraction, Phong exponent (the retroreflective
+kind's entrance-angle exponent m) and retroreflective lobe width of its object."""
 WORK = ("ray_cell", "ray_count", "visible", "group_ptr", "group_conn")
 GEO = ("vertices", "cells", "area", "comp_base", "coarse_of", "coarse_cells")
 POSE = ("centroid", "normal", "cell_face", "closed", "spot_n", "spot_f", "photons", "fov_n", "collect", "tol",
