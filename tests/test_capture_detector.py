@@ -64,6 +64,36 @@ def test_direct_light_attenuated_by_the_stated_factor_until_the_stated_time(scan
     assert "direct" not in plain.attrs["detector"] and gated.attrs["detector"]["direct"]["attenuation"] == 1e-3
 
 
+def test_the_direct_component_attenuated_at_every_time_and_nothing_else():
+    """``detector.direct`` without ``until``: the first_bounce component (laser spot → FoV point → sensor), its slow
+    IRF tail included, times the attenuation in every bin; the hidden components untouched; the envelope their sum.
+    A two-tail IRF (τ₂ = 280 ps) carries the direct light past 2 ns, into the hidden return, which a time gate
+    (``until``) would leave unattenuated there."""
+    scene = patch_scene()
+    irf = {"kind": "two_tail", "sigma": 25e-12, "tail": 45e-12, "tail_weight": 0.15, "tail2": 280e-12,
+           "tail2_weight": 0.3, "tail_delay": 0.0}
+    over = {**OVER, "irf": irf}
+    plain = datagen.simulate(scene, datagen.resolve_config(scene, over))
+    attenuated = datagen.simulate(scene, datagen.resolve_config(
+        scene, {**over, "detector": {**DETECTOR, "direct": {"attenuation": 1e-3}}}))
+    late = plain.time_edges[:-1] >= 2e-9
+    first = plain.components["first_bounce"]
+    assert first[..., late].sum() > 0                                      # the direct light's tail reaches 2 ns
+    np.testing.assert_allclose(attenuated.components["first_bounce"], 1e-3 * first, rtol=1e-12, atol=0)
+    for name in plain.components:
+        if name != "first_bounce":
+            np.testing.assert_array_equal(attenuated.components[name], plain.components[name])
+    total = sum(attenuated.components.values())
+    np.testing.assert_allclose(attenuated.envelope, total, rtol=1e-12, atol=1e-12 * float(total.max()))
+    assert attenuated.attrs["detector"]["direct"] == {"attenuation": 1e-3, "until": None}
+    no_direct = {**over, "effects": {"first_bounce": False, "secondary": False},
+                 "detector": {**DETECTOR, "direct": {"attenuation": 1e-3}}}
+    with pytest.raises(ConfigError) as err:
+        datagen.simulate(scene, datagen.resolve_config(scene, no_direct))
+    text = str(err.value)
+    assert "\n" not in text and "detector.direct" in text and "first_bounce" in text and "until" in text
+
+
 def _known_maps(shape=(8, 8)):
     """A smooth gain over a factor 10 and a background in two bands of columns 3.5x apart (mean 1 each)."""
     y, x = np.meshgrid(np.linspace(0, 1, shape[0]), np.linspace(0, 1, shape[1]), indexing="ij")

@@ -19,8 +19,9 @@ ones keep the config's fixed value):
                               :func:`datagen.spad.map_draws.draw_gain_fields`)
 ``background_bands``          ``{ratio, bands}``: the background map's band levels up to ``ratio`` apart in
                               ``bands`` bands of columns (:func:`datagen.spad.map_draws.draw_background_bands`)
-``direct``                    ``{attenuation, until}``: :class:`datagen.spad.maps.DirectLight`, the attenuation
-                              drawn log-uniformly
+``direct``                    ``{attenuation[, until]}``: :class:`datagen.spad.maps.DirectLight`, the
+                              attenuation drawn log-uniformly (without ``until``: the direct component at every
+                              time; it needs ``effects.first_bounce``)
 ============================  =================================================================================
 
 Every draw is uniform in its range (``gain_range`` and ``direct.attenuation`` log-uniform: they span decades). The
@@ -102,10 +103,11 @@ class BandDraws(Model):
 
 
 class DirectDraws(Model):
-    """The direct light's ``attenuation`` (in (0, 1], log-uniform) and ``until`` (s, or "1.5ns")."""
+    """The direct light's ``attenuation`` (in (0, 1], log-uniform) and optionally a gate's ``until`` (s, or "1.5ns");
+    without ``until`` the direct component is attenuated at every time (:class:`datagen.spad.maps.DirectLight`)."""
 
     attenuation: Range
-    until: Positive
+    until: Positive | None = None
 
     @field_validator("until", mode="before")
     @classmethod
@@ -189,9 +191,10 @@ def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int,
         if getattr(draws, key) is not None:
             record[key] = detector[key] = getattr(draws, key).draw(u[key])
     if draws.direct is not None:
-        record["direct"] = detector["direct"] = {
-            "attenuation": draws.direct.attenuation.draw_log(u["direct.attenuation"]),
-            "until": draws.direct.until.draw(u["direct.until"])}
+        direct = {"attenuation": draws.direct.attenuation.draw_log(u["direct.attenuation"])}
+        if draws.direct.until is not None:
+            direct["until"] = draws.direct.until.draw(u["direct.until"])
+        record["direct"] = detector["direct"] = direct
     maps = (draws.gain_scale, draws.gain_range, draws.background_bands)
     if any(m is not None for m in maps):
         if scan is None:

@@ -4,7 +4,8 @@
 :func:`make_result` is the last step of :func:`datagen.simulate` and of the tolerance loop; :func:`detector_model`
 decides pile-up from the envelope itself; :func:`detector_counts` draws the histogram;
 :func:`zero_envelope_warning` says when the light arrives outside the window; :func:`direct_times` and
-:func:`attenuate_direct` model ``detector.direct`` (the direct light gated by a stated factor, docs/detector.md).
+:func:`attenuate_direct` model ``detector.direct`` (the direct light attenuated by a stated factor, at every time or
+under a time gate, docs/detector.md).
 """
 from __future__ import annotations
 
@@ -159,15 +160,31 @@ def direct_times(capture, config: SimulationConfig) -> np.ndarray:
     return legs / SPEED_OF_LIGHT
 
 
-def attenuate_direct(arrays: list[np.ndarray], capture, config: SimulationConfig) -> list[np.ndarray]:
-    """``arrays`` (each shaped like the envelope, (ny, nx, n_bins)) with ``detector.direct`` applied: the light
-    before ``until`` after each point's direct return (:func:`direct_times`) times ``attenuation``
-    (:func:`datagen.spad.maps.direct_factor`); unchanged (the same objects) when ``detector.direct`` is not set."""
+def attenuate_direct(envelope: np.ndarray, components: dict[str, np.ndarray], capture,
+                     config: SimulationConfig) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The envelope and components as the detector sees them with ``detector.direct`` applied (docs/detector.md):
+    without ``until``, the ``first_bounce`` component times ``attenuation`` at every time and the envelope less the
+    light removed (the other components untouched); with ``until``, every array's light before ``until`` after each
+    scan point's direct return (:func:`direct_times`) times ``attenuation`` (:func:`datagen.spad.maps.direct_factor`).
+    Unchanged (the same objects) when ``detector.direct`` is not set.
+
+    Raises:
+        ConfigError: a direct attenuation without ``until`` where the simulation computes no direct light
+            (``effects.first_bounce`` off), or a gate on a capture other than a confocal scan.
+    """
     direct = config.detector_config().direct
     if direct is None:
-        return arrays
+        return envelope, components
+    if direct.until is None:
+        if "first_bounce" not in components:
+            raise ConfigError("detector.direct: attenuates the direct light (the first_bounce component), which this "
+                              "simulation does not compute; set simulation.effects.first_bounce: true, or give "
+                              "detector.direct.until for a time gate")
+        first = components["first_bounce"]
+        kept = first * direct.attenuation
+        return envelope - (first - kept), {**components, "first_bounce": kept}
     factor = direct_factor(config.time.edges, direct_times(capture, config), direct)
-    return [a * factor for a in arrays]
+    return envelope * factor, {name: a * factor for name, a in components.items()}
 
 
 def zero_envelope_warning(envelope: np.ndarray, outside: np.ndarray, config: SimulationConfig, target: str,
@@ -202,9 +219,8 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
     shape = capture.channel_shape() + (config.time.n_bins,)
     components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
     envelope = tr.binned.sum(axis=0).reshape(shape)
-    if config.detector.get("direct") is not None:         # the direct light gated: the envelope the detector sees
-        attenuated = attenuate_direct([envelope] + list(components.values()), capture, config)
-        envelope, components = attenuated[0], dict(zip(components, attenuated[1:]))
+    if config.detector.get("direct") is not None:         # the direct light attenuated: what the detector sees
+        envelope, components = attenuate_direct(envelope, components, capture, config)
     warnings = list(scene.notes) + zero_envelope_warning(envelope, tr.outside, config, "the FoV",
                                                          lambda: zero_reason(scene, transport, sampling_words(config)))
     t3 = time.perf_counter()

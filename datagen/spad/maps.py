@@ -2,10 +2,12 @@
 background maps"): the direct light off each scanned point attenuated by a stated factor, a per-scan-point gain
 (laser power, focus, the wall's local albedo) and a background that changes over the scan.
 
-* :class:`DirectLight` (``detector.direct``): the light arriving before ``until`` after each scan point's direct
-  return is multiplied by ``attenuation`` (a time gate with a transmission: a gated SPAD, or a neutral-density
-  filter switched over the first bounce). :func:`direct_factor` is the per-bin factor, exact for the fraction of a
-  bin before the gate's end.
+* :class:`DirectLight` (``detector.direct``): the direct light (the ``first_bounce`` component: laser spot → FoV
+  point → sensor, with its IRF tail) multiplied by ``attenuation`` at every time (a set-up that keeps the first
+  bounce out of the SPAD: spot and FoV apart, a polariser, a mask); or, with ``until``, the light arriving before
+  ``until`` after each scan point's direct return (a time gate with a transmission: a gated SPAD, or a
+  neutral-density filter switched over the first bounce). :func:`direct_factor` is the gate's per-bin factor, exact
+  for the fraction of a bin before the gate's end.
 * ``detector.gain_map`` and ``detector.background_map``: (ny, nx) non-negative factors, one per scan point, given
   inline or as a ``.npy`` file (:func:`read_map`); the gain multiplies the light each point's histogram receives
   and the background map the background rate (pde·ambient + dcr) there (:func:`datagen.spad.rates_from_envelope`).
@@ -31,13 +33,14 @@ MAX_MAP_POINTS = 1 << 20
 
 
 class DirectLight(BaseModel):
-    """The direct light gated or attenuated, relative to each scan point's direct return (``detector.direct``).
+    """The direct light attenuated (``detector.direct``): the whole direct component, or a time gate.
 
     Fields:
-        attenuation: the factor (0 < attenuation ≤ 1) on the light that arrives before ``until`` after the direct
-            return (the transmission of the gate; e.g. 1e-4).
-        until: s (> 0; strings such as "300ps"): how long after each scan point's direct return the attenuation
-            lasts. Light after it is untouched.
+        attenuation: the factor (0 < attenuation ≤ 1; e.g. 1e-4). Without ``until`` it multiplies the direct light
+            (the ``first_bounce`` component, its IRF tail included) at every time and nothing else; with ``until``
+            it multiplies all the light that arrives before ``until`` after each scan point's direct return.
+        until: s (> 0; strings such as "300ps") or None (default): how long after each scan point's direct return
+            the gate lasts (light after it is untouched); None: no gate, the direct component attenuated.
 
     Raises:
         pydantic.ValidationError (a ValueError): a value out of range, naming the field and the value.
@@ -46,7 +49,7 @@ class DirectLight(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     attenuation: float = Field(gt=0.0, le=1.0)
-    until: float = Field(gt=0.0)
+    until: float | None = Field(None, gt=0.0)
 
     @field_validator("until", mode="before")
     @classmethod
