@@ -38,6 +38,9 @@ def test_a_smoke_sample_draws_its_detector_within_the_ranges():
     assert ranges.dcr.contains(drawn["dcr"]) and ranges.gain_scale.contains(drawn["gain_scale"])
     assert ranges.gain_range.contains(drawn["gain_range"])
     assert ranges.background_bands.ratio.contains(drawn["background_bands"]["ratio"])
+    assert ranges.direct.attenuation.contains(drawn["direct"]["attenuation"]) and "until" not in drawn["direct"]
+    summed = sample.arrays["envelope"].sum(axis=(0, 1))           # the direct light from t = 0 (its slow tail
+    assert np.all(np.diff(summed[:100]) < 0) and summed[0] > 0    # falling), the hidden light from 2 ns (bin 125)
     assert sample.arrays["counts"].shape == (16, 16, 512) and "wall_depth" in sample.arrays
     again = make_sample(config, "train", 0)                       # a pure function of (config, split, index)
     assert json.loads(str(again.arrays["params"]))["detector_draw"] == drawn

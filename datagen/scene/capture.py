@@ -155,7 +155,11 @@ class Capture:
     def spot_inside_fov(self, laser: int) -> bool:
         """Whether laser point ``laser`` lies strictly inside the sensor grid's rectangle (a point on its edge,
         within ``FOV_EDGE_REL`` of the FoV size, counts as outside)."""
-        return bool(self.fov_margin(self.spots[laser]) > FOV_EDGE_REL * max(self.fov_size))
+        return bool(self.spots_inside_fov()[laser])
+
+    def spots_inside_fov(self) -> np.ndarray:
+        """(L,) bool: :meth:`spot_inside_fov` of every laser point."""
+        return self.fov_margin(self.spots) > FOV_EDGE_REL * max(self.fov_size)
 
     def aperture_normals(self, points: np.ndarray) -> np.ndarray:
         """Unit aperture normal(s) (pointing from the sensor into the scene) seen by FoV points (n, 3): (3,) or (n, 3).

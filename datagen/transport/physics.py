@@ -437,15 +437,13 @@ class LegPhysics:
         c = self.capture
         if c.convention != "aperture":
             return
-        comp = component * c.n_channels
-        for laser in range(c.n_lasers):
-            if not c.spot_inside_fov(laser):            # on the FoV's edge (or outside): not imaged
-                continue
-            ch = c.channel(laser, c.fov_pixel(c.spots[laser][None], self.tol))
-            if ch[0] < 0:
-                continue
-            weight, _, t = self.first_bounce_weight(laser)
-            sink.add(np.array([t]), np.array([weight]), np.array([comp + ch[0]]))
+        lasers = np.flatnonzero(c.spots_inside_fov())   # on the FoV's edge (or outside): not imaged
+        ch = c.channel(lasers, c.fov_pixel(c.spots[lasers], self.tol))
+        lasers, ch = lasers[ch >= 0], ch[ch >= 0]
+        if len(lasers) == 0:
+            return
+        weight, _, t = self.first_bounce_weight(lasers)
+        sink.add(t, weight, component * c.n_channels + ch)
 
     # -- shadow-ray culling ------------------------------------------------------------------------------
 
