@@ -1,0 +1,80 @@
+"""benchmarks/real_low_light.py (docs/real.md, "Baselines at lower exposures") on a synthetic capture in the release's
+format: a 0.3 m square patch 0.5 m from the wall, simulated, exported as an LCT ``.mat`` (rectified: the direct light
+at t = 0, no tofgrid) into a folder named as the release names its files; and the binomial thinning it lowers the
+exposure with."""
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import datagen
+from datagen.io.lab_formats import capture_from_result, write_lab_capture
+from datagen.scene import CaptureSpec, FieldOfView, Laser, Material, Scene, Sensor, WallGrid, quad
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import real_low_light  # noqa: E402
+
+GRID = {"center": (2.0, 0.0, 1.0), "size": (0.6, 0.6), "points": (16, 16)}
+DEPTH = 0.5
+
+
+@pytest.fixture(scope="module")
+def release_folder(tmp_path_factory):
+    wall = quad("relay_wall", (2.0, -1.05, -0.05), (0.0, 0.0, 2.1), (0.0, 2.1, 0.0), Material(albedo=0.8),
+                label="relay_wall")
+    patch = quad("patch", (2.0 - DEPTH, -0.15, 0.85), (0.0, 0.3, 0.0), (0.0, 0.0, 0.3), Material(albedo=0.9))
+    scene = Scene([wall, patch], Laser(emitter=(1.5, -3.0, 1.0), spot=(2.0, 0.0, 1.0), photons_per_pulse=1e6),
+                  Sensor(position=(1.5, -3.0, 1.0), aperture_radius=0.02,
+                         fov=FieldOfView(center=GRID["center"], size=GRID["size"])), name="patch",
+                  capture=CaptureSpec(type="confocal", laser_grid=WallGrid(**GRID)))
+    over = {"estimator": "quadrature", "quadrature_edge": 0.04, "quadrature_fov": "edge", "secondary": "none",
+            "count_sensor_leg": False, "time": {"t_start": 0.0, "bin_width": 16e-12, "n_bins": 512},
+            "irf": {"fwhm": 60e-12}, "effects": {"first_bounce": True, "secondary": False},
+            "detector": {"model": "poisson", "pde": 0.3, "repetition_rate": 1.0e7, "exposure": "100ms"}}
+    result = datagen.simulate(scene, datagen.resolve_config(scene, over), noise_rng=np.random.default_rng(3))
+    folder = tmp_path_factory.mktemp("release")
+    counts = dataclasses.replace(result, envelope=np.asarray(result.counts, dtype=np.float64))   # the files hold counts
+    write_lab_capture(capture_from_result(counts, "lct-mat"), folder / "data_patch.mat")
+    return folder, result
+
+
+def test_the_baselines_find_the_patch_at_full_and_thinned_exposure(release_folder, capsys):
+    folder, result = release_folder
+    rows = real_low_light.main([str(folder), "--exposures", "1", "0.1", "--methods", "lct", "fbp"])
+    assert [(r["exposure"], r["method"]) for r in rows] == [(1.0, "lct"), (1.0, "fbp"), (0.1, "lct"), (0.1, "fbp")]
+    full = rows[0]
+    assert full["iou"] == 1.0                                  # the reference mask is the full-exposure LCT's
+    for row in rows:                 # LCT within 1 cm, the Laplacian-filtered backprojection within 1.5 cm
+        assert row["depth"] == pytest.approx(DEPTH, abs=0.01 if row["method"] == "lct" else 0.015), row
+    assert rows[2]["iou"] > 0.6                               # LCT at 1/10 (0.73 here); FBP finds the patch's edges
+    assert 0.3 < rows[1]["iou"] < 0.6 and 0.3 < rows[3]["iou"] < 0.6   # only: 0.40 / 0.41
+    total = float(np.asarray(result.counts).sum())
+    assert full["counts"] == total
+    assert rows[2]["counts"] == pytest.approx(0.1 * total, abs=5 * np.sqrt(0.1 * total))
+    printed = capsys.readouterr().out
+    assert "patch | 0.1 | lct |" in printed
+
+
+def test_thinning_is_binomial_seeded_and_refuses_a_bad_fraction():
+    counts = np.random.default_rng(0).poisson(50.0, size=(8, 8, 64)).astype(np.float64)
+    a = real_low_light.thin(counts, 0.01, np.random.default_rng(7))
+    b = real_low_light.thin(counts, 0.01, np.random.default_rng(7))
+    np.testing.assert_array_equal(a, b)
+    assert np.all(a <= counts) and np.all(a == np.round(a))
+    n = counts.sum()
+    assert a.sum() == pytest.approx(0.01 * n, abs=4 * np.sqrt(0.01 * 0.99 * n))     # Binomial(n, p): mean, sd
+    np.testing.assert_array_equal(real_low_light.thin(counts, 1.0, np.random.default_rng(7)), counts)
+    for bad in (0.0, -0.1, 1.5):
+        with pytest.raises(ValueError, match="exposure fraction lies in"):
+            real_low_light.thin(counts, bad, np.random.default_rng(7))
+
+
+def test_an_empty_folder_or_a_bad_exposure_is_one_line(tmp_path, release_folder):
+    with pytest.raises(SystemExit, match="no data_\\*.mat files"):
+        real_low_light.main([str(tmp_path)])
+    with pytest.raises(SystemExit, match="--exposures: a fraction lies in"):
+        real_low_light.main([str(release_folder[0]), "--exposures", "2"])
