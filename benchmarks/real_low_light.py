@@ -24,6 +24,10 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
 4. **Scores.** Per capture, exposure and method: the median depth over the reference mask (m; NaN where the method
    found nothing there), its difference from the reference depth, and the IoU of the method's found points with the
    reference mask.
+5. **A network** (``--network FILE.pt``, written by ``python -m examples.train_depth_image DATA --save FILE.pt``):
+   the same thinned counts summed to its time axis (the release's 2048 bins of 4 ps summed pairwise down to its
+   bins: 512 of 16 ps for a network trained on ``configs/datasets/lct_release.yaml``) and over its pool of scan
+   points, its depth image; it gives a depth everywhere and no mask, so its IoU is not scored (NaN).
 
 f-k migration is not among the methods here: datagen runs it through tal in a separate environment
 (benchmarks/bench_recon.py); its column is to come. The printed table is the one docs/real.md quotes.
@@ -80,18 +84,34 @@ def score(depth: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
             float((hit & mask).sum()) / union if union else float("nan"))
 
 
+def network_depth(network, scan: np.ndarray, dt: float) -> np.ndarray:
+    """(ny, nx) depth (m) of ``network`` = (net, record) (``examples.train_depth_image.load_model``) on a scan of
+    counts (ny, nx, T) of bin width ``dt``: summed pairwise to at most its bins, zero-padded to them."""
+    from datagen.analysis.reconstruct import coarsen
+    from examples.train_depth_image import predict_depth
+
+    net, record = network
+    data, _ = coarsen(scan, dt, record["bins"])
+    data = np.concatenate([data, np.zeros(data.shape[:2] + (record["bins"] - data.shape[-1],))], axis=-1)
+    return predict_depth(net, record, data)
+
+
 def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURES, methods=("lct", "phasor", "fbp"),
-             rng: np.random.Generator | None = None) -> list[dict]:
-    """Rows {capture, exposure, method, depth, error, iou, seconds} of one capture (module doc)."""
+             rng: np.random.Generator | None = None, network=None) -> list[dict]:
+    """Rows {capture, exposure, method, depth, error, iou, seconds} of one capture (module doc); ``network`` a
+    loaded (net, record) adds its row."""
     rng = rng if rng is not None else np.random.default_rng(0)
     mask = ~np.isnan(found(counts, dt, pitch, "lct"))
     reference = DEPTHS.get(name)
     rows = []
     for fraction in exposures:
         scan = thin(counts, fraction, rng)
-        for method in methods:
+        for method in list(methods) + (["network"] if network is not None else []):
             t0 = time.perf_counter()
-            depth, iou = score(found(scan, dt, pitch, method), mask)
+            if method == "network":
+                depth, iou = score(network_depth(network, scan, dt), mask)[0], float("nan")
+            else:
+                depth, iou = score(found(scan, dt, pitch, method), mask)
             rows.append({"capture": name, "exposure": fraction, "method": method, "depth": depth,
                          "error": depth - reference if reference is not None else float("nan"), "iou": iou,
                          "counts": float(scan.sum()), "seconds": time.perf_counter() - t0})
@@ -105,7 +125,15 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--methods", nargs="+", default=["lct", "phasor", "fbp"], choices=["lct", "phasor", "fbp"])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--only", nargs="+", default=None, help="captures by name (dot_chart_40cm ...)")
+    parser.add_argument("--network", type=Path, default=None, help="a trained network (.pt, module doc)")
     args = parser.parse_args(argv)
+    network = None
+    if args.network is not None:
+        sys.path.insert(0, str(ROOT))
+        from examples.train_depth_image import load_model
+        if not args.network.is_file():
+            raise SystemExit(f"--network: no file at {args.network}")
+        network = load_model(args.network)
     files = sorted(args.folder.glob("data_*.mat"))
     seeds = {path: k for k, path in enumerate(files)}           # a capture's stream is its place in the folder
     if args.only:
@@ -121,7 +149,7 @@ def main(argv=None) -> list[dict]:
         name = path.stem.removeprefix("data_")
         counts, dt, pitch = read_release_file(path)
         for row in evaluate(counts, dt, pitch, name, args.exposures, args.methods,
-                            np.random.default_rng([args.seed, seeds[path]])):
+                            np.random.default_rng([args.seed, seeds[path]]), network):
             rows.append(row)
             print(f"{row['capture']} | {row['exposure']:g} | {row['method']} | {row['depth']:.4f} | "
                   f"{row['error']:+.4f} | {row['iou']:.3f} | {row['counts']:.3g} | {row['seconds']:.1f}", flush=True)

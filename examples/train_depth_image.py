@@ -4,6 +4,8 @@ CPU-sized; writes its validation predictions in the layout of ``datagen score``.
     python -m examples.train_depth_image data/wall_baseline          # → data/wall_baseline_net_val.npz
     datagen score data/wall_baseline_net_val.npz --dataset data/wall_baseline --split val
     python -m examples.train_depth_image data/wall128 --pool 4       # 128×128 scans pooled to 32×32 inputs
+    python -m examples.train_depth_image data/lct_release --pool 4 --save lct_net.pt   # keep the network:
+    python benchmarks/real_low_light.py FOLDER --network lct_net.pt  # ... and run it on the LCT release's captures
 
 Reads the ``train`` and ``val`` splits with ``NLOSDataset(..., layout="network")`` (envelope and counts as
 (1, T, H, W), ``wall_depth`` as (1, H, W)) into memory. Training inputs are fresh SPAD counts every step, drawn in
@@ -73,6 +75,7 @@ class DepthNet(torch.nn.Module):
         super().__init__()
         if bins % 32:
             raise ValueError(f"DepthNet: the scan needs a multiple of 32 time bins, got {bins}")
+        self.bins = bins
         relu = torch.nn.ReLU
         self.temporal = torch.nn.Sequential(
             torch.nn.Conv3d(1, 16, (8, 1, 1), stride=(8, 1, 1)), relu(),
@@ -98,11 +101,40 @@ def draw_counts(noise: datagen.SPADNoise, envelope: torch.Tensor, gen: torch.Gen
     return noise(envelope.permute(0, 1, 3, 4, 2), gen).permute(0, 1, 4, 2, 3)
 
 
+def save_model(path, net: DepthNet, pool: int, x_norm: tuple[float, float], d_norm: tuple[float, float],
+               data) -> None:
+    """Write the trained network, what its input needs (bins, pool, the log-count standardisation) and its depth
+    scale to ``path`` (torch.save of a dict; :func:`load_model` reads it), with the data set it was trained on."""
+    torch.save({"state": net.state_dict(), "bins": net.bins, "pool": pool, "x_norm": x_norm, "d_norm": d_norm,
+                "data": str(data)}, path)
+
+
+def load_model(path) -> tuple[DepthNet, dict]:
+    """(network in eval mode, its record) of a :func:`save_model` file."""
+    record = torch.load(path, map_location="cpu", weights_only=True)
+    net = DepthNet(record["bins"])
+    net.load_state_dict(record["state"])
+    return net.eval(), record
+
+
+def predict_depth(net: DepthNet, record: dict, counts: np.ndarray) -> np.ndarray:
+    """(H, W) float64 depth (m) of one scan of counts (H, W, T) on the network's time axis (``record["bins"]``
+    bins of its training set's width), summed over ``record["pool"]`` × ``record["pool"]`` scan points, the depth
+    upsampled back to (H, W)."""
+    x = torch.as_tensor(np.moveaxis(np.asarray(counts, dtype=np.float32), -1, 0))[None]
+    x = pool_scan(x, record["pool"])[None]
+    (x_mean, x_std), (d_mean, d_std) = record["x_norm"], record["d_norm"]
+    with torch.no_grad():
+        out = net((torch.log1p(x) - x_mean) / x_std, tuple(counts.shape[:2]))[0]
+    return (out * d_std + d_mean).double().numpy()
+
+
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
-          val_split: str = "val", pool: int = 1, log=print) -> dict[str, np.ndarray]:
+          val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
-    doc). Returns {"depth": (N, H, W) float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the
-    training mean depth over the object pixels}."""
+    doc); with ``save`` the trained network goes to that file (:func:`save_model`). Returns {"depth": (N, H, W)
+    float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the object
+    pixels}."""
     torch.manual_seed(seed)
     t0 = time.perf_counter()
     tr, va = load_split(path, train_split, pool), load_split(path, val_split, pool)
@@ -140,6 +172,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         if log and (epoch + 1) % max(1, epochs // 5) == 0:
             log(f"  epoch {epoch + 1}/{epochs}: train loss {loss.item():.3f} ({time.perf_counter() - t0:.0f} s)")
     net.eval()
+    if save is not None:
+        save_model(save, net, pool, (float(x_mean), float(x_std)), (float(d_mean), float(d_std)), path)
     with torch.no_grad():
         x = (torch.log1p(va["counts"]) - x_mean) / x_std
         depth = torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)]) * d_std + d_mean
@@ -160,10 +194,11 @@ def main(argv=None):
     parser.add_argument("--pool", type=int, default=1, help="sum the scan over POOL × POOL scan points (module doc)")
     parser.add_argument("--out", default=None, help="predictions .npz (default: DATA_net_<val>.npz); the "
                                                     "trivial baseline goes to the same name with _trivial")
+    parser.add_argument("--save", default=None, help="write the trained network to this file (.pt)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
-                 pool=args.pool)
+                 pool=args.pool, save=args.save)
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
     trivial = out.with_name(out.stem + "_trivial.npz")
