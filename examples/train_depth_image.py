@@ -130,11 +130,13 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray) -> np.ndarray
 
 
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
-          val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None) -> dict[str, np.ndarray]:
+          val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
+          stored: bool = False) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
-    doc); with ``save`` the trained network goes to that file (:func:`save_model`). Returns {"depth": (N, H, W)
-    float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the object
-    pixels}."""
+    doc); with ``save`` the trained network goes to that file (:func:`save_model`); with ``stored`` the training
+    inputs are the stored counts (each sample's own drawn detector: exposure, gain and background maps, IRF; one
+    noise draw per sample) instead of fresh counts from the split's detector. Returns {"depth": (N, H, W) float32 m
+    on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the object pixels}."""
     torch.manual_seed(seed)
     t0 = time.perf_counter()
     tr, va = load_split(path, train_split, pool), load_split(path, val_split, pool)
@@ -149,8 +151,10 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     gen = torch.Generator().manual_seed(seed)
     mask_tr = tr["depth"] > 0
     d_mean, d_std = tr["depth"][mask_tr].mean(), tr["depth"][mask_tr].std()
+    inputs = (lambda rows: tr["counts"][rows]) if stored else (lambda rows: draw_counts(noise, tr["envelope"][rows],
+                                                                                          gen))
     with torch.no_grad():
-        x = torch.log1p(draw_counts(noise, tr["envelope"][:64], gen))
+        x = torch.log1p(inputs(torch.arange(min(64, len(tr["depth"])))))
         x_mean, x_std = x.mean(), x.std() + 1e-6
     net = DepthNet(tr["envelope"].shape[2])
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
@@ -161,7 +165,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         order = torch.randperm(n, generator=gen)
         for start in range(0, n, batch):
             rows = order[start:start + batch]
-            x = (torch.log1p(draw_counts(noise, tr["envelope"][rows], gen)) - x_mean) / x_std
+            x = (torch.log1p(inputs(rows)) - x_mean) / x_std
             mask = mask_tr[rows]
             err = net(x, size) - (tr["depth"][rows] - d_mean) / d_std
             loss = (err[mask] ** 2).mean() if mask.any() else (err * 0).sum()
@@ -195,10 +199,12 @@ def main(argv=None):
     parser.add_argument("--out", default=None, help="predictions .npz (default: DATA_net_<val>.npz); the "
                                                     "trivial baseline goes to the same name with _trivial")
     parser.add_argument("--save", default=None, help="write the trained network to this file (.pt)")
+    parser.add_argument("--stored-counts", action="store_true",
+                        help="train on the stored counts (each sample's drawn detector) instead of fresh noise")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
-                 pool=args.pool, save=args.save)
+                 pool=args.pool, save=args.save, stored=args.stored_counts)
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
     trivial = out.with_name(out.stem + "_trivial.npz")

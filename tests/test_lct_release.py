@@ -39,6 +39,7 @@ def test_a_smoke_sample_draws_its_detector_within_the_ranges():
     assert ranges.gain_range.contains(drawn["gain_range"])
     assert ranges.background_bands.ratio.contains(drawn["background_bands"]["ratio"])
     assert ranges.direct.attenuation.contains(drawn["direct"]["attenuation"]) and "until" not in drawn["direct"]
+    assert ranges.exposure.contains(drawn["exposure"])
     summed = sample.arrays["envelope"].sum(axis=(0, 1))           # the direct light from t = 0 (its slow tail
     assert np.all(np.diff(summed[:100]) < 0) and summed[0] > 0    # falling), the hidden light from 2 ns (bin 125)
     assert sample.arrays["counts"].shape == (16, 16, 512) and "wall_depth" in sample.arrays
@@ -58,6 +59,20 @@ def test_the_drawn_maps_and_irf_reach_the_simulation():
     assert gain.max() / gain.min() == pytest.approx(record["gain_range"])
     assert det.scan_map("background_map").mean() == pytest.approx(1.0)
     assert out.irf.kind == "two_tail" and out.irf.tail2 == pytest.approx(record["irf"]["tail2"])
+
+
+def test_the_exposure_is_drawn_log_uniformly_down_to_a_hundredth():
+    """``detector_draws.exposure: [1ms, 100ms]``: log-uniform, so its median is the geometric mean 10 ms (a uniform
+    draw's would be 50 ms) and a quarter of the samples lie below 3.2 ms; each draw reaches the detector."""
+    config = load_dataset_config(SMOKE)
+    from datagen.dataset.config import setup_sample
+    _, sim, _ = setup_sample(config, "train", 0)
+    drawn = [draw_detector({"exposure": ["1ms", "100ms"]}, np.random.default_rng(i), None, sim) for i in range(400)]
+    exposures = np.array([record["exposure"] for _, record in drawn])
+    assert exposures.min() >= 1e-3 and exposures.max() <= 0.1
+    assert np.median(exposures) == pytest.approx(1e-2, rel=0.25)            # 400 draws: the median's spread ~ 12 %
+    assert np.mean(exposures < 10 ** -2.5) == pytest.approx(0.25, abs=0.07)
+    assert all(out.detector_config().exposure == record["exposure"] for out, record in drawn[:5])
 
 
 @pytest.mark.parametrize("index", range(8))

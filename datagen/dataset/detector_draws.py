@@ -13,7 +13,8 @@ ones keep the config's fixed value):
 ``irf``                       ``{sigma, tail, tail_weight, tail2, tail2_weight, tail_delay}``: ranges of a
                               two-tail IRF (:class:`datagen.timing.irf.Irf`, kind ``two_tail``; s, or "60ps")
 ``dcr``                       Hz: the background rate (the floor per bin is dcr × bin width × cycles)
-``exposure``                  s per scan point
+``exposure``                  s per scan point, drawn log-uniformly (a capture at a tenth or a hundredth of the
+                              light: the detections thinned, signal and background alike)
 ``gain_scale``                the gain map's mean: the light each point receives, relative to the transport's
 ``gain_range``                the gain map's max/min, drawn log-uniformly (a smooth field:
                               :func:`datagen.spad.map_draws.draw_gain_fields`)
@@ -24,7 +25,8 @@ ones keep the config's fixed value):
                               time; it needs ``effects.first_bounce``)
 ============================  =================================================================================
 
-Every draw is uniform in its range (``gain_range`` and ``direct.attenuation`` log-uniform: they span decades). The
+Every draw is uniform in its range (``exposure``, ``gain_range`` and ``direct.attenuation`` log-uniform: they span
+decades). The
 stream is ``SeedSequence(seed, spawn_key=(split_key, index, DETECTOR_STREAM))``: :data:`N_UNIFORMS` uniforms in a
 fixed order whatever fields are set, then one integer seeding the torch generator of the maps, so a sample's draw
 depends only on (config, split, index) and adding a field moves no other draw.
@@ -187,9 +189,10 @@ def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int,
         irf = {k: getattr(draws.irf, k).draw(u[f"irf.{k}"]) for k in IrfDraws.model_fields}
         update["irf"] = Irf(kind="two_tail", **irf)
         record["irf"] = irf
-    for key in ("dcr", "exposure"):
-        if getattr(draws, key) is not None:
-            record[key] = detector[key] = getattr(draws, key).draw(u[key])
+    if draws.dcr is not None:
+        record["dcr"] = detector["dcr"] = draws.dcr.draw(u["dcr"])
+    if draws.exposure is not None:
+        record["exposure"] = detector["exposure"] = draws.exposure.draw_log(u["exposure"])
     if draws.direct is not None:
         direct = {"attenuation": draws.direct.attenuation.draw_log(u["direct.attenuation"])}
         if draws.direct.until is not None:
