@@ -71,8 +71,9 @@ class DepthNet(torch.nn.Module):
     bins: (k, 1, 1) 3-D convolutions encode each scan point's transient (8-bin patches, then two stride-2
     layers), a 1 × 1 convolution maps its T/32 × 16 features to 32, three 2-D convolutions mix neighbours."""
 
-    def __init__(self, bins: int, features: int = 32):
+    def __init__(self, bins: int, features: int = 32, mask: bool = False):
         super().__init__()
+        self.mask = mask
         if bins % 32:
             raise ValueError(f"DepthNet: the scan needs a multiple of 32 time bins, got {bins}")
         self.bins = bins
@@ -85,15 +86,16 @@ class DepthNet(torch.nn.Module):
             torch.nn.Conv2d(16 * (bins // 32), features, 1), relu(),
             torch.nn.Conv2d(features, 32, 3, padding=1), relu(),
             torch.nn.Conv2d(32, 32, 3, padding=1), relu(),
-            torch.nn.Conv2d(32, 1, 1))
+            torch.nn.Conv2d(32, 2 if mask else 1, 1))
 
     def forward(self, x: torch.Tensor, size: tuple[int, int] | None = None) -> torch.Tensor:
-        """(B, 1, T, h, w) → (B, h, w), or (B, *size) upsampled bilinearly to a label grid ``size``."""
+        """(B, 1, T, h, w) → (B, h, w), or (B, *size) upsampled bilinearly to a label grid ``size``; with ``mask``
+        (B, 2, h, w): the standardised depth and the logit of "the hidden object is seen here"."""
         b, _, _, h, w = x.shape
         out = self.spatial(self.temporal(x).reshape(b, -1, h, w))
         if size is not None and tuple(size) != (h, w):
             out = torch.nn.functional.interpolate(out, size=tuple(size), mode="bilinear", align_corners=False)
-        return out[:, 0]
+        return out if self.mask else out[:, 0]
 
 
 def draw_counts(noise: datagen.SPADNoise, envelope: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
@@ -105,14 +107,14 @@ def save_model(path, net: DepthNet, pool: int, x_norm: tuple[float, float], d_no
                data) -> None:
     """Write the trained network, what its input needs (bins, pool, the log-count standardisation) and its depth
     scale to ``path`` (torch.save of a dict; :func:`load_model` reads it), with the data set it was trained on."""
-    torch.save({"state": net.state_dict(), "bins": net.bins, "pool": pool, "x_norm": x_norm, "d_norm": d_norm,
-                "data": str(data)}, path)
+    torch.save({"state": net.state_dict(), "bins": net.bins, "mask": net.mask, "pool": pool, "x_norm": x_norm,
+                "d_norm": d_norm, "data": str(data)}, path)
 
 
 def load_model(path) -> tuple[DepthNet, dict]:
     """(network in eval mode, its record) of a :func:`save_model` file."""
     record = torch.load(path, map_location="cpu", weights_only=True)
-    net = DepthNet(record["bins"])
+    net = DepthNet(record["bins"], mask=record.get("mask", False))
     net.load_state_dict(record["state"])
     return net.eval(), record
 
@@ -120,22 +122,27 @@ def load_model(path) -> tuple[DepthNet, dict]:
 def predict_depth(net: DepthNet, record: dict, counts: np.ndarray) -> np.ndarray:
     """(H, W) float64 depth (m) of one scan of counts (H, W, T) on the network's time axis (``record["bins"]``
     bins of its training set's width), summed over ``record["pool"]`` × ``record["pool"]`` scan points, the depth
-    upsampled back to (H, W)."""
+    upsampled back to (H, W); a network with a mask head gives NaN where it sees no object (probability < 0.5)."""
     x = torch.as_tensor(np.moveaxis(np.asarray(counts, dtype=np.float32), -1, 0))[None]
     x = pool_scan(x, record["pool"])[None]
     (x_mean, x_std), (d_mean, d_std) = record["x_norm"], record["d_norm"]
     with torch.no_grad():
         out = net((torch.log1p(x) - x_mean) / x_std, tuple(counts.shape[:2]))[0]
-    return (out * d_std + d_mean).double().numpy()
+    if not net.mask:
+        return (out * d_std + d_mean).double().numpy()
+    depth = (out[0] * d_std + d_mean).double().numpy()
+    return np.where(out[1].numpy() >= 0.0, depth, np.nan)
 
 
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
           val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
-          stored: bool = False) -> dict[str, np.ndarray]:
+          stored: bool = False, mask: bool = False) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`); with ``stored`` the training
     inputs are the stored counts (each sample's own drawn detector: exposure, gain and background maps, IRF; one
-    noise draw per sample) instead of fresh counts from the split's detector. Returns {"depth": (N, H, W) float32 m
+    noise draw per sample) instead of fresh counts from the split's detector; with ``mask`` the network also learns
+    where the object is seen (a second output, binary cross-entropy against ``wall_depth > 0`` over every pixel,
+    added to the depth loss). Returns {"depth": (N, H, W) float32 m
     on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the object pixels}."""
     torch.manual_seed(seed)
     t0 = time.perf_counter()
@@ -156,7 +163,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     with torch.no_grad():
         x = torch.log1p(inputs(torch.arange(min(64, len(tr["depth"])))))
         x_mean, x_std = x.mean(), x.std() + 1e-6
-    net = DepthNet(tr["envelope"].shape[2])
+    net = DepthNet(tr["envelope"].shape[2], mask=mask)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     n = len(tr["depth"])
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=epochs * -(-n // batch))
@@ -166,9 +173,12 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         for start in range(0, n, batch):
             rows = order[start:start + batch]
             x = (torch.log1p(inputs(rows)) - x_mean) / x_std
-            mask = mask_tr[rows]
-            err = net(x, size) - (tr["depth"][rows] - d_mean) / d_std
-            loss = (err[mask] ** 2).mean() if mask.any() else (err * 0).sum()
+            seen = mask_tr[rows]
+            out = net(x, size)
+            err = (out[:, 0] if mask else out) - (tr["depth"][rows] - d_mean) / d_std
+            loss = (err[seen] ** 2).mean() if seen.any() else (err * 0).sum()
+            if mask:
+                loss = loss + torch.nn.functional.binary_cross_entropy_with_logits(out[:, 1], seen.float())
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -180,7 +190,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         save_model(save, net, pool, (float(x_mean), float(x_std)), (float(d_mean), float(d_std)), path)
     with torch.no_grad():
         x = (torch.log1p(va["counts"]) - x_mean) / x_std
-        depth = torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)]) * d_std + d_mean
+        out = torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)])
+        depth = (out[:, 0] if mask else out) * d_std + d_mean
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
             "trivial": np.full(tuple(va["depth"].shape), float(d_mean), dtype=np.float32)}
@@ -199,12 +210,13 @@ def main(argv=None):
     parser.add_argument("--out", default=None, help="predictions .npz (default: DATA_net_<val>.npz); the "
                                                     "trivial baseline goes to the same name with _trivial")
     parser.add_argument("--save", default=None, help="write the trained network to this file (.pt)")
+    parser.add_argument("--mask", action="store_true", help="also learn where the object is seen (a mask head)")
     parser.add_argument("--stored-counts", action="store_true",
                         help="train on the stored counts (each sample's drawn detector) instead of fresh noise")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
-                 pool=args.pool, save=args.save, stored=args.stored_counts)
+                 pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask)
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
     trivial = out.with_name(out.stem + "_trivial.npz")

@@ -99,5 +99,11 @@ def test_a_saved_network_runs_on_the_capture_beside_the_baselines(release_folder
     assert [r["exposure"] for r in net_rows] == [1.0, 0.1]
     for row in net_rows:
         assert np.isnan(row["iou"]) and row["depth"] == pytest.approx(0.7, abs=0.2)
+    save_model(tmp_path / "masked.pt", DepthNet(512, mask=True), 4, (1.0, 2.0), (0.7, 0.2), "synthetic")
+    assert load_model(tmp_path / "masked.pt")[0].mask
+    rows = real_low_light.main([str(release_folder[0]), "--exposures", "1", "--methods", "lct",
+                                "--network", str(tmp_path / "masked.pt")])
+    masked = [r for r in rows if r["method"] == "network"][0]      # its mask head's found points are scored
+    assert 0.0 <= masked["iou"] <= 1.0
     with pytest.raises(SystemExit, match="--network: no file at"):
         real_low_light.main([str(release_folder[0]), "--network", str(tmp_path / "absent.pt")])
