@@ -27,8 +27,8 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
 5. **A network** (``--network FILE.pt``, written by ``python -m examples.train_depth_image DATA --save FILE.pt``):
    the same thinned counts summed to its time axis (the release's 2048 bins of 4 ps summed pairwise down to its
    bins: 512 of 16 ps for a network trained on ``configs/datasets/lct_release.yaml``) and over its pool of scan
-   points, its depth image; with a mask head (``--mask``) its found points are where it sees the object, else it
-   gives a depth everywhere and its IoU is not scored (NaN).
+   points, its depth image, whose median over the reference mask is its depth; with a mask head (``--mask``) the
+   IoU is of where it sees the object (probability ≥ 0.5), without one it is not scored (NaN).
 
 f-k migration is not among the methods here: datagen runs it through tal in a separate environment
 (benchmarks/bench_recon.py); its column is to come. The printed table is the one docs/real.md quotes.
@@ -85,9 +85,10 @@ def score(depth: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
             float((hit & mask).sum()) / union if union else float("nan"))
 
 
-def network_depth(network, scan: np.ndarray, dt: float) -> np.ndarray:
-    """(ny, nx) depth (m) of ``network`` = (net, record) (``examples.train_depth_image.load_model``) on a scan of
-    counts (ny, nx, T) of bin width ``dt``: summed pairwise to at most its bins, zero-padded to them."""
+def network_depth(network, scan: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """((ny, nx) depth m, (ny, nx) bool where it sees the object) of ``network`` = (net, record)
+    (``examples.train_depth_image.load_model``) on a scan of counts (ny, nx, T) of bin width ``dt``: summed pairwise
+    to at most its bins, zero-padded to them."""
     from datagen.analysis.reconstruct import coarsen
     from examples.train_depth_image import predict_depth
 
@@ -109,9 +110,10 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
         scan = thin(counts, fraction, rng)
         for method in list(methods) + (["network"] if network is not None else []):
             t0 = time.perf_counter()
-            if method == "network":                    # its mask head's found points, or no IoU without one
-                depth, iou = score(network_depth(network, scan, dt), mask)
-                iou = iou if network[0].mask else float("nan")
+            if method == "network":                    # its depth over the object; its mask head's IoU
+                depth_map, seen = network_depth(network, scan, dt)
+                depth = score(depth_map, mask)[0]
+                iou = score(np.where(seen, 0.0, np.nan), mask)[1] if network[0].mask else float("nan")
             else:
                 depth, iou = score(found(scan, dt, pitch, method), mask)
             rows.append({"capture": name, "exposure": fraction, "method": method, "depth": depth,

@@ -119,19 +119,20 @@ def load_model(path) -> tuple[DepthNet, dict]:
     return net.eval(), record
 
 
-def predict_depth(net: DepthNet, record: dict, counts: np.ndarray) -> np.ndarray:
+def predict_depth(net: DepthNet, record: dict, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) float64 depth (m) of one scan of counts (H, W, T) on the network's time axis (``record["bins"]``
     bins of its training set's width), summed over ``record["pool"]`` × ``record["pool"]`` scan points, the depth
-    upsampled back to (H, W); a network with a mask head gives NaN where it sees no object (probability < 0.5)."""
+    upsampled back to (H, W); and (H, W) bool where it sees the object (its mask head's probability ≥ 0.5; True
+    everywhere for a network without one)."""
     x = torch.as_tensor(np.moveaxis(np.asarray(counts, dtype=np.float32), -1, 0))[None]
     x = pool_scan(x, record["pool"])[None]
     (x_mean, x_std), (d_mean, d_std) = record["x_norm"], record["d_norm"]
     with torch.no_grad():
         out = net((torch.log1p(x) - x_mean) / x_std, tuple(counts.shape[:2]))[0]
     if not net.mask:
-        return (out * d_std + d_mean).double().numpy()
-    depth = (out[0] * d_std + d_mean).double().numpy()
-    return np.where(out[1].numpy() >= 0.0, depth, np.nan)
+        depth = (out * d_std + d_mean).double().numpy()
+        return depth, np.ones(depth.shape, bool)
+    return (out[0] * d_std + d_mean).double().numpy(), out[1].numpy() >= 0.0
 
 
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
