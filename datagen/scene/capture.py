@@ -152,13 +152,9 @@ class Capture:
         return np.minimum(0.5 * self.fov_size[0] - np.abs(matmul(rel, self.fov_u)),
                           0.5 * self.fov_size[1] - np.abs(matmul(rel, self.fov_v)))
 
-    def spot_inside_fov(self, laser: int) -> bool:
-        """Whether laser point ``laser`` lies strictly inside the sensor grid's rectangle (a point on its edge,
-        within ``FOV_EDGE_REL`` of the FoV size, counts as outside)."""
-        return bool(self.spots_inside_fov()[laser])
-
     def spots_inside_fov(self) -> np.ndarray:
-        """(L,) bool: :meth:`spot_inside_fov` of every laser point."""
+        """(L,) bool: whether each laser point lies strictly inside the sensor grid's rectangle (a point on its edge,
+        within ``FOV_EDGE_REL`` of the FoV size, counts as outside)."""
         return self.fov_margin(self.spots) > FOV_EDGE_REL * max(self.fov_size)
 
     def aperture_normals(self, points: np.ndarray) -> np.ndarray:
