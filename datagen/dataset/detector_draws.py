@@ -26,17 +26,16 @@ ones keep the config's fixed value):
 ============================  =================================================================================
 
 Every draw is uniform in its range (``exposure``, ``gain_range`` and ``direct.attenuation`` log-uniform: they span
-decades). The
-stream is ``SeedSequence(seed, spawn_key=(split_key, index, DETECTOR_STREAM))``: :data:`N_UNIFORMS` uniforms in a
-fixed order whatever fields are set, then one integer seeding the torch generator of the maps, so a sample's draw
-depends only on (config, split, index) and adding a field moves no other draw.
+decades). The stream is ``SeedSequence(seed, spawn_key=(split_key, index, DETECTOR_STREAM))``: :data:`N_UNIFORMS`
+uniforms in a fixed order whatever fields are set, then one integer seeding the torch generator of the maps, so a
+sample's draw depends only on (config, split, index) and adding a field moves no other draw.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
-from pydantic import ValidationError, field_validator, model_validator
+from pydantic import BeforeValidator, ValidationError, field_validator, model_validator
 
 from ..errors import ConfigError
 from ..units import parse_duration
@@ -67,20 +66,21 @@ def _durations(value: Any) -> Any:
     return one(value)
 
 
+Seconds = Annotated[Positive, BeforeValidator(_durations)]
+"""A :data:`~.ranges.Positive` range of durations: s, or strings such as "60ps"."""
+SecondsFromZero = Annotated[NonNegative, BeforeValidator(_durations)]
+"""A :data:`~.ranges.NonNegative` range of durations."""
+
+
 class IrfDraws(Model):
     """Ranges of a two-tail IRF's parameters (:class:`datagen.timing.irf.Irf`): s, or strings such as "60ps"."""
 
-    sigma: Positive
-    tail: Positive
+    sigma: Seconds
+    tail: Seconds
     tail_weight: Unit
-    tail2: Positive
+    tail2: Seconds
     tail2_weight: Unit
-    tail_delay: NonNegative = Range(min=0.0, max=0.0)
-
-    @field_validator("sigma", "tail", "tail2", "tail_delay", mode="before")
-    @classmethod
-    def _seconds(cls, value: Any) -> Any:
-        return _durations(value)
+    tail_delay: SecondsFromZero = Range(min=0.0, max=0.0)
 
     @model_validator(mode="after")
     def _weights(self) -> "IrfDraws":
@@ -109,12 +109,7 @@ class DirectDraws(Model):
     without ``until`` the direct component is attenuated at every time (:class:`datagen.spad.maps.DirectLight`)."""
 
     attenuation: Range
-    until: Positive | None = None
-
-    @field_validator("until", mode="before")
-    @classmethod
-    def _seconds(cls, value: Any) -> Any:
-        return _durations(value)
+    until: Seconds | None = None
 
     @model_validator(mode="after")
     def _bounds(self) -> "DirectDraws":
@@ -128,16 +123,11 @@ class DetectorDraws(Model):
 
     irf: IrfDraws | None = None
     dcr: NonNegative | None = None
-    exposure: Positive | None = None
+    exposure: Seconds | None = None
     gain_scale: Positive | None = None
     gain_range: Range | None = None
     background_bands: BandDraws | None = None
     direct: DirectDraws | None = None
-
-    @field_validator("exposure", mode="before")
-    @classmethod
-    def _seconds(cls, value: Any) -> Any:
-        return _durations(value)
 
     @field_validator("gain_range")
     @classmethod
