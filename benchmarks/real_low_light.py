@@ -49,6 +49,7 @@ from real_captures import DEPTHS  # noqa: E402  (the reference depths, one table
 EXPOSURES = (1.0, 0.1, 0.01)
 """Fractions of each capture's exposure."""
 
+
 def read_release_file(path: Path) -> tuple[np.ndarray, float, tuple[float, float]]:
     """(counts (ny, nx, T) float64 in datagen's orientation, bin width s, (row, column) pitch m) of a release file
     (4 ps bins where the file does not say; :func:`datagen.io.lab_formats.read_lab_capture`)."""
@@ -76,10 +77,11 @@ def found(scan: np.ndarray, dt: float, pitch, method: str) -> np.ndarray:
     return depth_map(volume, depths)[0]
 
 
-def score(depth: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
-    """(median depth over ``mask`` where found, m (NaN: nothing found there); IoU of the found points with mask)."""
-    hit = ~np.isnan(depth)
-    inside = depth[mask & hit]
+def score(depth: np.ndarray, mask: np.ndarray, hit: np.ndarray | None = None) -> tuple[float, float]:
+    """(median depth over ``mask`` where found, m (NaN: nothing found there); IoU of the found points with mask).
+    The found points are ``hit`` where given (a network's mask output), else where the depth is not NaN."""
+    hit = ~np.isnan(depth) if hit is None else hit
+    inside = depth[mask & hit & ~np.isnan(depth)]
     union = int((hit | mask).sum())
     return (float(np.median(inside)) if inside.size else float("nan"),
             float((hit & mask).sum()) / union if union else float("nan"))
@@ -113,7 +115,7 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
             if method == "network":                    # its depth over the object; its mask head's IoU
                 depth_map, seen = network_depth(network, scan, dt)
                 depth = score(depth_map, mask)[0]
-                iou = score(np.where(seen, 0.0, np.nan), mask)[1] if network[0].mask else float("nan")
+                iou = score(depth_map, mask, seen)[1] if network[0].mask else float("nan")
             else:
                 depth, iou = score(found(scan, dt, pitch, method), mask)
             rows.append({"capture": name, "exposure": fraction, "method": method, "depth": depth,

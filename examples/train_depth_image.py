@@ -97,6 +97,11 @@ class DepthNet(torch.nn.Module):
             out = torch.nn.functional.interpolate(out, size=tuple(size), mode="bilinear", align_corners=False)
         return out if self.mask else out[:, 0]
 
+    def heads(self, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(standardised depth (B, h, w), the mask logit (B, h, w) or None without a mask head) of a forward
+        output."""
+        return (out[:, 0], out[:, 1]) if self.mask else (out, None)
+
 
 def draw_counts(noise: datagen.SPADNoise, envelope: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
     """Fresh counts (B, 1, T, H, W) of envelopes in the network layout (SPADNoise wants time last)."""
@@ -128,11 +133,9 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray) -> tuple[np.n
     x = pool_scan(x, record["pool"])[None]
     (x_mean, x_std), (d_mean, d_std) = record["x_norm"], record["d_norm"]
     with torch.no_grad():
-        out = net((torch.log1p(x) - x_mean) / x_std, tuple(counts.shape[:2]))[0]
-    if not net.mask:
-        depth = (out * d_std + d_mean).double().numpy()
-        return depth, np.ones(depth.shape, bool)
-    return (out[0] * d_std + d_mean).double().numpy(), out[1].numpy() >= 0.0
+        depth, logit = net.heads(net((torch.log1p(x) - x_mean) / x_std, tuple(counts.shape[:2])))
+    depth = (depth[0] * d_std + d_mean).double().numpy()
+    return depth, (logit[0].numpy() >= 0.0 if logit is not None else np.ones(depth.shape, bool))
 
 
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
@@ -143,8 +146,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     inputs are the stored counts (each sample's own drawn detector: exposure, gain and background maps, IRF; one
     noise draw per sample) instead of fresh counts from the split's detector; with ``mask`` the network also learns
     where the object is seen (a second output, binary cross-entropy against ``wall_depth > 0`` over every pixel,
-    added to the depth loss). Returns {"depth": (N, H, W) float32 m
-    on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the object pixels}."""
+    added to the depth loss). Returns {"depth": (N, H, W) float32 m on the label's grid, "index": (N,), "trivial":
+    (N, H, W) the training mean depth over the object pixels}."""
     torch.manual_seed(seed)
     t0 = time.perf_counter()
     tr, va = load_split(path, train_split, pool), load_split(path, val_split, pool)
@@ -175,11 +178,11 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
             rows = order[start:start + batch]
             x = (torch.log1p(inputs(rows)) - x_mean) / x_std
             seen = mask_tr[rows]
-            out = net(x, size)
-            err = (out[:, 0] if mask else out) - (tr["depth"][rows] - d_mean) / d_std
+            depth, logit = net.heads(net(x, size))
+            err = depth - (tr["depth"][rows] - d_mean) / d_std
             loss = (err[seen] ** 2).mean() if seen.any() else (err * 0).sum()
-            if mask:
-                loss = loss + torch.nn.functional.binary_cross_entropy_with_logits(out[:, 1], seen.float())
+            if logit is not None:
+                loss = loss + torch.nn.functional.binary_cross_entropy_with_logits(logit, seen.float())
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -191,8 +194,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         save_model(save, net, pool, (float(x_mean), float(x_std)), (float(d_mean), float(d_std)), path)
     with torch.no_grad():
         x = (torch.log1p(va["counts"]) - x_mean) / x_std
-        out = torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)])
-        depth = (out[:, 0] if mask else out) * d_std + d_mean
+        depth = net.heads(torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)]))[0] * d_std + d_mean
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
             "trivial": np.full(tuple(va["depth"].shape), float(d_mean), dtype=np.float32)}
