@@ -88,10 +88,12 @@ def test_the_direct_component_attenuated_at_every_time_and_nothing_else():
     assert attenuated.attrs["detector"]["direct"] == {"attenuation": 1e-3, "until": None}
     no_direct = {**over, "effects": {"first_bounce": False, "secondary": False},
                  "detector": {**DETECTOR, "direct": {"attenuation": 1e-3}}}
+    named = dataclasses.replace(scene, source="patch.yaml")
     with pytest.raises(ConfigError) as err:
-        datagen.simulate(scene, datagen.resolve_config(scene, no_direct))
+        datagen.simulate(named, datagen.resolve_config(named, no_direct))
     text = str(err.value)
     assert "\n" not in text and "detector.direct" in text and "first_bounce" in text and "until" in text
+    assert "patch.yaml" in text and "attenuation: 0.001" in text
 
 
 def _known_maps(shape=(8, 8)):

@@ -161,7 +161,7 @@ def direct_times(capture, config: SimulationConfig) -> np.ndarray:
 
 
 def attenuate_direct(envelope: np.ndarray, components: dict[str, np.ndarray], capture,
-                     config: SimulationConfig) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+                     config: SimulationConfig, where: str = "") -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The envelope and components as the detector sees them with ``detector.direct`` applied (docs/detector.md):
     without ``until``, the ``first_bounce`` component times ``attenuation`` at every time and the envelope less the
     light removed (the other components untouched); with ``until``, every array's light before ``until`` after each
@@ -170,16 +170,17 @@ def attenuate_direct(envelope: np.ndarray, components: dict[str, np.ndarray], ca
 
     Raises:
         ConfigError: a direct attenuation without ``until`` where the simulation computes no direct light
-            (``effects.first_bounce`` off), or a gate on a capture other than a confocal scan.
+            (``effects.first_bounce`` off; one line prefixed ``where``, the scene file), or a gate on a capture other
+            than a confocal scan.
     """
     direct = config.detector_config().direct
     if direct is None:
         return envelope, components
     if direct.until is None:
         if "first_bounce" not in components:
-            raise ConfigError("detector.direct: attenuates the direct light (the first_bounce component), which this "
-                              "simulation does not compute; set simulation.effects.first_bounce: true, or give "
-                              "detector.direct.until for a time gate")
+            raise ConfigError(f"{where}detector.direct: {{attenuation: {direct.attenuation:g}}} attenuates the direct "
+                              "light (the first_bounce component), which this simulation does not compute; set "
+                              "simulation.effects.first_bounce: true, or give detector.direct.until for a time gate")
         first = components["first_bounce"]
         kept = first * direct.attenuation
         return envelope - (first - kept), {**components, "first_bounce": kept}
@@ -219,14 +220,14 @@ def make_result(scene: Scene, config: SimulationConfig, tr: Transported,
     shape = capture.channel_shape() + (config.time.n_bins,)
     components = {name: tr.binned[i].reshape(shape) for i, name in enumerate(names)}
     envelope = tr.binned.sum(axis=0).reshape(shape)
+    where = f"{scene.source} (simulation): " if scene.source else ""
     if config.detector.get("direct") is not None:         # the direct light attenuated: what the detector sees
-        envelope, components = attenuate_direct(envelope, components, capture, config)
+        envelope, components = attenuate_direct(envelope, components, capture, config, where)
     warnings = list(scene.notes) + zero_envelope_warning(envelope, tr.outside, config, "the FoV",
                                                          lambda: zero_reason(scene, transport, sampling_words(config)))
     t3 = time.perf_counter()
     noise_rng = noise_rng if noise_rng is not None else stream_rng(config.seed, STREAM_NOISE)
-    counts, detector, plan_attrs = detector_counts(envelope, config, tr.plan.to_attrs(), noise_rng,
-                                                   f"{scene.source} (simulation): " if scene.source else "")
+    counts, detector, plan_attrs = detector_counts(envelope, config, tr.plan.to_attrs(), noise_rng, where)
     t_detect = time.perf_counter() - t3
     st = transport.stats
     settings = transport.settings
