@@ -54,12 +54,16 @@ def patch_scene(r: float, material: dict, corner=None, edge_u=(0.0, PATCH, 0.0),
     return scene_from_dict(data, source="falloff.yaml")
 
 
-def simulated_return(r: float, material: dict) -> float:
-    """Photons per pulse of the patch, summed over the time bins (area sampler, orders 1)."""
-    scene = patch_scene(r, material)
-    config = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 8192}})
+def scene_return(scene, estimator: dict) -> float:
+    """Photons per pulse of a scene's one scan point, summed over the time bins (orders 1; fixed seeds)."""
+    config = datagen.resolve_config(scene, {"estimator": estimator})
     result = datagen.simulate(scene, config, sampling_rng=np.random.default_rng(7), noise_rng=np.random.default_rng(8))
     return float(np.asarray(result.envelope).sum())
+
+
+def simulated_return(r: float, material: dict) -> float:
+    """Photons per pulse of the patch facing the spot at r (area sampler)."""
+    return scene_return(patch_scene(r, material), {"kind": "area", "samples": 8192})
 
 
 def form_factor(x: float, y: float) -> float:
@@ -109,10 +113,7 @@ def tilted_patch_return(estimator: dict, falloff: float, tilt_deg: float = 40.0)
     edge_u, edge_v = PATCH * np.array([math.sin(t), math.cos(t), 0.0]), np.array([0.0, 0.0, PATCH])
     material = {"kind": "retroreflective", "albedo": RHO, "specular": 1.0, "lobe_width": 0.002,
                 "entrance_falloff": falloff}
-    scene = patch_scene(0.5, material, centre - edge_u / 2 - edge_v / 2, edge_u, edge_v)
-    config = datagen.resolve_config(scene, {"estimator": estimator})
-    result = datagen.simulate(scene, config, sampling_rng=np.random.default_rng(7), noise_rng=np.random.default_rng(8))
-    return float(np.asarray(result.envelope).sum())
+    return scene_return(patch_scene(0.5, material, centre - edge_u / 2 - edge_v / 2, edge_u, edge_v), estimator)
 
 
 @pytest.mark.parametrize("estimator", [{"kind": "area", "samples": 8192}, {"kind": "quadrature"}],
