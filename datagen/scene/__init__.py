@@ -34,6 +34,8 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.scene.separation`: separating-plane tests between triangles and convex hulls (planner,
   quadrature).
 - :mod:`~datagen.scene.brdf_kernel`: each BRDF formula once, as numba device functions every kernel calls;
+- :mod:`~datagen.scene.motion`: moving objects' poses over time (keyframes, velocity, walk) and a capture's
+  frames (:class:`~datagen.scene.motion.FrameSpec`; docs/motion.md);
 - :mod:`~datagen.scene.flood`: flood illumination and multi-zone sensors, the scene-stage part (docs/multizone.md).
 """
 from ..lazy import lazy_attributes

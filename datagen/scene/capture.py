@@ -316,7 +316,7 @@ def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     capture = Capture(kind, convention, spots, spot_normals, spot_objects, laser_shape, emitter, emitter_legs,
                       sensor, scene.sensor.aperture_area,
                       unit(center - sensor), center, u, v, normal, size, pixels, photons,
-                      legacy_single_pixel=(cap is None and pixels == (1, 1)))
+                      legacy_single_pixel=(cap is None or cap.model_fields_set <= {"frames"}) and pixels == (1, 1))
     # Probe the sensor grid from the sensor: some of it must be a surface the sensor sees.
     tol = FOV_PLANE_TOL * caster.offset
     g = (np.arange(9) + 0.5) / 9 - 0.5

@@ -21,12 +21,19 @@ from .yamlfile import (MAX_PROBLEMS, MAX_SHOWN, MAX_YAML_BYTES, MAX_YAML_VALUES,
                        UniqueKeyLoader, format_validation_error, parse_yaml, read_yaml, short_repr)
 from .builders import box, import_mesh, l_room, mask_cutout, pillar, quad
 from .materials import Material
-from .model import Scene
+from .model import Moving, Scene
+from .motion import Motion
 from .parts import MAX_EXTENT, CaptureSpec, Laser, SceneError, SceneObject, Sensor, Vec3
 
 
 class _Spec(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+
+class _Movable(_Spec):
+    """A hidden object's spec: it may move (``motion``, :mod:`datagen.scene.motion`)."""
+
+    motion: Motion | None = None
 
 
 class LRoomSpec(_Spec):
@@ -46,7 +53,7 @@ class LRoomSpec(_Spec):
         return l_room(**kwargs, materials=dict(self.materials))
 
 
-class PillarSpec(_Spec):
+class PillarSpec(_Movable):
     builder: Literal["pillar"]
     name: str = "pillar"
     label: str = "pillar"
@@ -60,7 +67,7 @@ class PillarSpec(_Spec):
         return [pillar(self.name, self.center, self.size, self.height, self.rotation_deg, self.material, self.label)]
 
 
-class BoxSpec(_Spec):
+class BoxSpec(_Movable):
     builder: Literal["box"]
     name: str = "box"
     label: str = "box"
@@ -80,7 +87,7 @@ class BoxSpec(_Spec):
         return [box(self.name, self.center, self.size, self.rotation_deg, self.material, self.label)]
 
 
-class QuadSpec(_Spec):
+class QuadSpec(_Movable):
     builder: Literal["quad"]
     name: str
     label: str = "mesh"
@@ -93,7 +100,7 @@ class QuadSpec(_Spec):
         return [quad(self.name, self.corner, self.edge_u, self.edge_v, self.material, self.label)]
 
 
-class MeshSpec(_Spec):
+class MeshSpec(_Movable):
     builder: Literal["mesh"]
     name: str
     label: str = "mesh"
@@ -112,7 +119,7 @@ class MeshSpec(_Spec):
                             self.material, self.label)]
 
 
-class MaskSpec(_Spec):
+class MaskSpec(_Movable):
     """A planar cut-out drawn as text (:func:`~datagen.scene.builders.mask_cutout`): ``rows`` top first, "#" filled,
     "." empty, cells of side ``pitch`` m centred on ``center``, columns along ``u`` and rows up ``v``."""
 
@@ -166,12 +173,17 @@ def scene_from_dict(data: dict, source: str | None = None, base: Path | None = N
     except ValidationError as exc:
         raise SceneError(format_validation_error(exc, source)) from None
     objects: list[SceneObject] = []
+    moving: dict[str, Moving] = {}
     for i, obj in enumerate(spec.objects):
         try:
-            objects.extend(obj.build(base) if isinstance(obj, MeshSpec) else obj.build())
+            built = obj.build(base) if isinstance(obj, MeshSpec) else obj.build()
         except SceneError as exc:
             raise SceneError(f"{source + ': ' if source else ''}objects.{i}: {exc}") from None
-    return Scene(objects, spec.laser, spec.sensor, spec.name, source, spec.simulation, spec.capture)
+        objects.extend(built)
+        if getattr(obj, "motion", None) is not None:
+            moving[built[0].name] = Moving(obj.motion, built[0].vertices, f"objects.{i}.motion")
+    scene = Scene(objects, spec.laser, spec.sensor, spec.name, source, spec.simulation, spec.capture)
+    return scene.with_motion(moving) if moving else scene
 
 
 def load_scene(path: str | Path) -> Scene:

@@ -18,9 +18,29 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from typing import Any
+
 from .coincident import resolve_coincident_faces
 from .materials import MaterialTable
+from .motion import object_anchor, posed_vertices
 from .parts import ROOM_LABELS, CaptureSpec, Laser, SceneError, SceneObject, Sensor
+
+ROOM_MARGIN = 1e-6
+"""Metres a moving object may stand past the room's bounding box (its faces may touch the walls and floor)."""
+
+
+ROOM_CHECK_CHUNK = 256
+"""Instants whose posed vertices are checked against the room at once (bounds the (instants, V) arrays)."""
+
+
+@dataclass(frozen=True)
+class Moving:
+    """A moving object's motion (:mod:`datagen.scene.motion`), its vertices (V, 3) m as built, and the scene-file
+    field that gave it (``objects.2.motion``, for errors)."""
+
+    motion: Any
+    vertices: np.ndarray
+    field: str = "motion"
 
 
 @dataclass
@@ -36,10 +56,12 @@ class Scene:
             :func:`datagen.scene.coincident.resolve_coincident_faces`) and objects of zero area.
         summed_primary: one primary component, "primary", for every object (:meth:`component_names`) instead of
             the room and each hidden object (set by :meth:`with_summed_primary`).
+        moving: the moving objects by name (:class:`Moving`; set by :meth:`with_motion`); the objects stand at
+            their pose at the sequence's start (:meth:`at` gives another instant).
 
     Raises:
-        SceneError: repeated object names (ignoring case), no objects, no FoV, or coincident faces with different materials
-            (:func:`datagen.scene.coincident.resolve_coincident_faces`).
+        SceneError: repeated object names (ignoring case), no objects, no FoV, or coincident faces with different
+            materials (:func:`datagen.scene.coincident.resolve_coincident_faces`).
     """
 
     objects: list[SceneObject]
@@ -50,6 +72,7 @@ class Scene:
     defaults: dict = field(default_factory=dict)
     capture: CaptureSpec | None = None
     summed_primary: bool = False
+    moving: dict[str, Moving] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list, init=False)
 
     def __post_init__(self):
@@ -124,3 +147,75 @@ class Scene:
         """(2, 3) axis-aligned bounding box of all objects and the laser/sensor positions."""
         pts = np.concatenate([self.vertices, [self.laser.emitter, self.laser.spot, self.sensor.position]])
         return np.stack([pts.min(axis=0), pts.max(axis=0)])
+
+    # --- moving objects (docs/motion.md) ---------------------------------------------------------------------
+
+    def with_motion(self, moving: dict[str, Moving]) -> "Scene":
+        """This scene with the objects named in ``moving`` moving, posed at the sequence's start (``frames.start``
+        of the capture, else 0 s).
+
+        Raises:
+            SceneError: a name that is no object of the scene, or a motion that takes an object out of the room
+                (the bounding box of the walls, floor, ceiling and relay wall, when the scene has walls, a floor or a
+                ceiling) at a frame's start or end, naming the field, the time and the coordinate.
+        """
+        unknown = sorted(set(moving) - {o.name for o in self.objects})
+        if unknown:
+            raise SceneError(f"{self._where()}moving objects not in the scene: {unknown}")
+        out = copy.copy(self)
+        out.moving = dict(moving)
+        out._check_room()
+        return out.at(out.frame_times()[0]) if moving else out
+
+    def frame_times(self) -> np.ndarray:
+        """(n,) float64 s: the starts of the capture's frames (``capture.frames``), or [0] without frames."""
+        frames = self.capture.frames if self.capture is not None else None
+        return frames.times() if frames is not None else np.zeros(1)
+
+    def at(self, t: float) -> "Scene":
+        """The scene at time ``t`` s: every moving object at its pose then, the rest unchanged (a new
+        :class:`Scene`; construction's checks run again). Without moving objects, this scene."""
+        if not self.moving:
+            return self
+        objects = [SceneObject(o.name, o.label, o.material, posed_vertices(self.moving[o.name].motion,
+                                                                          self.moving[o.name].vertices, t), o.faces)
+                   if o.name in self.moving else o for o in self.objects]
+        out = Scene(objects, self.laser, self.sensor, self.name, self.source, self.defaults, self.capture,
+                    self.summed_primary, self.moving)
+        return out
+
+    def without_moving(self) -> "Scene":
+        """The static part: this scene without its moving objects (a new :class:`Scene`)."""
+        if not self.moving:
+            return self
+        return Scene([o for o in self.objects if o.name not in self.moving], self.laser, self.sensor, self.name,
+                     self.source, self.defaults, self.capture, self.summed_primary)
+
+    def _check_room(self) -> None:
+        room = [o.vertices for o in self.objects if o.label in ROOM_LABELS]
+        if not self.moving or not any(o.label in ("wall", "floor", "ceiling") for o in self.objects):
+            return                                  # no room around the objects (a bare relay wall)
+        pts = np.concatenate(room)
+        lo, hi = pts.min(axis=0) - ROOM_MARGIN, pts.max(axis=0) + ROOM_MARGIN
+        frames = self.capture.frames if self.capture is not None else None
+        times = (np.concatenate([frames.times(), frames.times() + frames.exposure]) if frames is not None
+                 else np.zeros(1))
+        times = np.sort(times)
+        for name, m in self.moving.items():
+            anchor = object_anchor(m.vertices)
+            pos, yaw = m.motion.pose(times, anchor)
+            rel = m.vertices - anchor
+            for k0 in range(0, len(times), ROOM_CHECK_CHUNK):       # the posed vertices' exact extents
+                c, s = np.cos(yaw[k0:k0 + ROOM_CHECK_CHUNK, None]), np.sin(yaw[k0:k0 + ROOM_CHECK_CHUNK, None])
+                x, y = c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]
+                p = pos[k0:k0 + ROOM_CHECK_CHUNK]
+                low = np.stack([x.min(axis=1), y.min(axis=1), np.full(len(p), rel[:, 2].min())], axis=1) + p
+                high = np.stack([x.max(axis=1), y.max(axis=1), np.full(len(p), rel[:, 2].max())], axis=1) + p
+                out = (low < lo) | (high > hi)
+                if out.any():
+                    k, axis = np.argwhere(out)[0]
+                    value = low[k, axis] if low[k, axis] < lo[axis] else high[k, axis]
+                    raise SceneError(
+                        f"{self._where()}{m.field}: object {name!r} leaves the room at t = {times[k0 + k]:g} s "
+                        f"({'xyz'[axis]} reaches {value:.3f} m, the room spans {lo[axis] + ROOM_MARGIN:.3f}.."
+                        f"{hi[axis] - ROOM_MARGIN:.3f} m): slow it, move its start or shorten the sequence")

@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from .materials import Material
+from .motion import FrameSpec
 from ..errors import SceneError
 from ..units import parse_energy, parse_length, photons_per_pulse
 
@@ -296,6 +297,9 @@ class CaptureSpec(BaseModel):
     imaged through the aperture; the envelope is expected detected photons per pulse per bin (docs/physics.md §2).
     ``point_radiance`` (tal / mitransient): radiance leaving the wall point toward ``sensor.position`` per
     unit power delivered to the laser spot, per bin, in 1/(m²·sr); no PDE, aperture or sensor visibility.
+
+    ``frames`` (:class:`~datagen.scene.motion.FrameSpec`) makes the capture a sequence of frames (scenes whose
+    objects move, docs/motion.md).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -304,6 +308,7 @@ class CaptureSpec(BaseModel):
     convention: Literal["aperture", "point_radiance"] = "aperture"
     laser_grid: WallGrid | None = None
     sensor_grid: WallGrid | None = None
+    frames: FrameSpec | None = None
 
     @model_validator(mode="after")
     def _grids(self) -> "CaptureSpec":

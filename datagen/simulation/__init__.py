@@ -20,6 +20,8 @@ its module.
   to an upper confidence limit, d and ν read from the replicas' correlations (docs/accuracy.md).
 - :mod:`.tolerance`: :func:`simulate_to_tolerance` (replicas added, or the quadrature edge refined, until the
   estimate meets a target; ``simulate --tolerance``, dataset builds).
+- :mod:`.sequence`: :func:`~.sequence.simulate_sequence`, the frames of a scene whose objects move, at the cost of
+  what changes (docs/motion.md).
 - :mod:`.multizone`: :func:`~.multizone.simulate_multizone`, a flood-illuminated multi-zone capture (zone
   envelopes and histograms composed from the flood's nodes; docs/multizone.md).
 - :mod:`.fov_sampling`: what a run sampled of the sensor grid: zones its fixed FoV points cannot resolve,

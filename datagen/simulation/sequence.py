@@ -1,0 +1,264 @@
+"""Capture sequences of scenes whose objects move: one envelope and one SPAD histogram per frame (docs/motion.md).
+
+:func:`simulate_sequence` simulates the frames of ``scene.capture.frames`` (:class:`~datagen.scene.motion.FrameSpec`)
+for a scene with moving objects (:meth:`~datagen.scene.Scene.with_motion`). Each frame is the scene at the middle of
+the frame's exposure; a scanned capture visits its points one after another during the exposure, so its points are
+simulated in ``slots`` groups of consecutive points, each group at its middle time (motion during the scan).
+
+Two methods give the same frames in expectation:
+
+- ``"frames"``: every frame (and slot) simulated in full with :func:`~datagen.simulation.simulate` and the config's
+  seed: the random numbers are shared across frames (common random numbers), so light that does not change from
+  frame to frame carries the same error in every frame and a difference of two frames is nearly free of it.
+- ``"changes"`` (default): the sequence costs what changes. The first frame's scene (the reference) is simulated
+  once at the config's sampling; every frame adds only the *change* from the reference, estimated with
+  ``1 / change_split`` of that sampling on the frame's scene and on the reference with the same random streams
+  (common random numbers: every path that meets neither the moving object nor its shadow cancels to the bit), in
+  two independent halves. Frame f = reference + change_f, unbiased. Its stated error is the reference's error and
+  the change's, added in quadrature; the change's is read from the spread of its two halves, pooled over the
+  frames (docs/motion.md, "What a frame's error is").
+
+Random streams: the reference and the ``"frames"`` method take the config's (``STREAM_SAMPLING``); the change's
+halves h = 0, 1 take ``SeedSequence(seed, spawn_key=(STREAM_CHANGES, h))``; frame f's detector noise takes
+``SeedSequence(seed, spawn_key=(STREAM_NOISE, f))`` — independent in every frame, as a real detector's is.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import SceneError
+from ..scene import RayCaster, Scene, resolve_capture
+from ..scene.motion import object_anchor, posed_vertices, velocity_at
+from ..transport import estimator
+from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
+from .detection import Result, detector_counts, make_result
+from .run import Planned, Replicas
+
+STREAM_CHANGES = 3
+"""Spawn-key entry of the change's random streams (after sampling 0, noise 1 and the dataset's 2)."""
+
+CONFIDENCE_Z = 1.96
+"""Two-sided 95 % normal quantile: the change's stated error is a 95 % bound, as the reference's is."""
+
+DEFAULT_CHANGE_SPLIT = 128
+"""The change of a frame is estimated with 1/128 of the reference's sampling (in two halves): in the demo room a
+100-frame sequence then costs about 5 frames, each frame's stated error a few per cent above a single frame's
+(docs/motion.md gives the measured ratio and errors, ``python benchmarks/sequence_cost.py``)."""
+
+
+@dataclass
+class SequenceResult:
+    """Output of :func:`simulate_sequence`.
+
+    Attributes:
+        time_edges: (T+1,) float64 s.
+        frame_times: (F,) float64 s: each frame's start.
+        envelopes: (F, *channel_shape, T) float64 expected detected photons per pulse per bin of each frame.
+        counts: (F, *channel_shape, T) int64 SPAD histogram of each frame over its exposure.
+        error: (F,) float64 stated relative L2 error of each frame's envelope (95 % bound; docs/motion.md): the
+            reference's stated error (light left out included) and the change's, in quadrature.
+        monte_carlo_error: (F,) float64: the same without the parts every frame shares with the reference (the
+            orders left out, the smoothing): the noise of each frame's estimate.
+        difference_error: stated relative L2 error of a difference of two frames, relative to the frame (95 %).
+        positions, velocities: (F, M, 3) float64 m and m/s of the M moving objects' anchors at each frame's middle.
+        boxes: (F, M, 2, 3) float64 m: their axis-aligned bounding boxes (min, max corners) then.
+        moving: the M moving objects' names.
+        attrs: JSON-able metadata (method, change_split, slots, seconds, the reference's error and attrs).
+    """
+
+    time_edges: np.ndarray
+    frame_times: np.ndarray
+    envelopes: np.ndarray
+    counts: np.ndarray
+    error: np.ndarray
+    monte_carlo_error: np.ndarray
+    difference_error: float
+    positions: np.ndarray
+    velocities: np.ndarray
+    boxes: np.ndarray
+    moving: list[str]
+    attrs: dict = field(default_factory=dict)
+
+
+def change_config(config: SimulationConfig, split: int, n_lasers: int = 1) -> SimulationConfig:
+    """``config`` with ``1/split`` of its sampling: the estimator's own split (its registry entry's ``replica`` hook,
+    the rule its replicas use) and the order ≥ 3 tracer's paths per laser point (of ``n_lasers``).
+
+    Raises:
+        SceneError: a deterministic estimator (one refined, not only replicated: the quadrature): at a coarser
+            setting its change would carry another bias than the reference.
+    """
+    entry = estimator(config.estimator.kind)
+    if entry.replica is None or entry.refine is not None:
+        raise SceneError(f"method 'changes' needs a Monte Carlo estimator; {config.estimator.kind!r} is "
+                         "deterministic: use method 'frames' (docs/motion.md)")
+    small = config.with_estimator(**entry.replica(config.estimator, split))
+    paths = max(1, -(-config.tracer_paths(n_lasers) // split))
+    return small.model_copy(update={"multibounce": small.multibounce.model_copy(update={"paths": paths}),
+                                    "error": small.error.model_copy(update={"replicas": 1})})
+
+
+def _simulate(scene: Scene, config: SimulationConfig):
+    """:func:`~datagen.simulation.simulate`'s steps, to the bit, also returning the effect plan."""
+    t0 = time.perf_counter()
+    rng = stream_rng(config.seed, STREAM_SAMPLING)
+    runs = Replicas(scene, config, rng)
+    runs.run(config.error.replicas)
+    tr = runs.transported()
+    return make_result(scene, config, tr, None, t0, {"error": runs.error_attrs(tr, rng)}), tr.plan
+
+
+def _change_run(scene: Scene, config: SimulationConfig, rng: np.random.Generator, plan) -> np.ndarray:
+    """The binned envelope (n_channels, n_bins) of ``scene`` at the change's ``config``, under the reference's
+    effect ``plan`` (every frame's change is made under the same decisions, so that the streams line up), the tracer
+    run for as many replicas as the base."""
+    if not config.split_components:
+        scene = scene.with_summed_primary()
+    caster = RayCaster(scene)
+    runs = Replicas(scene, config, rng, Planned(scene, caster, resolve_capture(scene, caster), plan))
+    runs.run(config.error.replicas, tracer_target=config.error.replicas)
+    return runs.transported().binned.sum(axis=0)
+
+
+def _norm(a: np.ndarray) -> float:
+    return float(np.sqrt(np.sum(a * a)))
+
+
+def _rng(seed: int, *key: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+
+
+def _slot_times(scene: Scene, config: SimulationConfig, slots: int | None):
+    """(F, S) slot times s, and (S, P) bool: which of the P scan points each slot holds (P = 1 unscanned)."""
+    frames = scene.capture.frames
+    spec = scene.capture
+    if spec.type == "single":
+        return (frames.times() + frames.exposure / 2)[:, None], np.ones((1, 1), dtype=bool)
+    grid = spec.laser_grid.points
+    shape = (grid[1], grid[0])                       # (ny, nx): rows of nx points
+    n = shape[0] * shape[1]
+    point_t = frames.point_times(n, shape)           # (F, P)
+    rank = np.argsort(np.argsort(point_t[0]))        # visit rank of each point
+    slots = n if slots is None else max(1, min(int(slots), n))
+    slot_of = rank * slots // n
+    holds = slot_of[None, :] == np.arange(slots)[:, None]
+    times = np.stack([point_t[:, h].mean(axis=1) for h in holds], axis=1)
+    return times, holds
+
+
+def _frame_from_slots(slot_envelopes: list[np.ndarray], holds: np.ndarray) -> np.ndarray:
+    """One frame's envelope: each scan point's channels from the simulation at its slot's time."""
+    if len(slot_envelopes) == 1:
+        return slot_envelopes[0]
+    out = np.empty_like(slot_envelopes[0])
+    flat_out = out.reshape((holds.shape[1], -1))
+    for env, h in zip(slot_envelopes, holds):
+        flat_out[h] = env.reshape((holds.shape[1], -1))[h]
+    return out
+
+
+def _labels(scene: Scene, times: np.ndarray):
+    names = list(scene.moving)
+    pos = np.zeros((len(times), len(names), 3))
+    vel = np.zeros_like(pos)
+    box = np.zeros((len(times), len(names), 2, 3))
+    for j, name in enumerate(names):
+        m = scene.moving[name]
+        pos[:, j] = m.motion.pose(times, object_anchor(m.vertices))[0]
+        vel[:, j] = velocity_at(m.motion, m.vertices, times)
+        for i, t in enumerate(times):
+            v = posed_vertices(m.motion, m.vertices, t)
+            box[i, j] = v.min(axis=0), v.max(axis=0)
+    return names, pos, vel, box
+
+
+def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, method: str = "changes",
+                      change_split: int = DEFAULT_CHANGE_SPLIT, slots: int | None = None) -> SequenceResult:
+    """Simulate every frame of ``scene.capture.frames`` (module docstring: the two methods and their errors).
+
+    Args:
+        scene: a scene with a ``frames`` block in its capture (moving objects optional: without them every frame
+            is the same scene).
+        config: as for :func:`~datagen.simulation.simulate`; the detector's exposure is replaced by the frame's
+            (per scan point: the frame's exposure over the points).
+        method: "changes" (default) or "frames".
+        change_split: the change's sampling is 1/``change_split`` of the config's ("changes").
+        slots: groups of consecutive scan points simulated at one time (scanned captures; default: one per point).
+    Returns:
+        :class:`SequenceResult`.
+    Raises:
+        SceneError: no ``frames`` block, an unknown method, or "changes" with a deterministic estimator.
+    """
+    if scene.capture is None or scene.capture.frames is None:
+        raise SceneError(f"{scene.source or scene.name}: capture.frames is missing: a sequence needs frames "
+                         "(count, rate, exposure; docs/motion.md)")
+    if method not in ("changes", "frames"):
+        raise SceneError(f"sequence method {method!r}: expected 'changes' or 'frames'")
+    config = config or resolve_config(scene)
+    t0 = time.perf_counter()
+    frames = scene.capture.frames
+    times, holds = _slot_times(scene, config, slots)
+    n_frames, n_slots = times.shape
+    first, plan = _simulate(scene.at(times[0, 0]), config)
+    ref_error = float(first.attrs["error"]["rel_l2"])
+    ref_noise = float(first.attrs["error"].get("monte_carlo") or 0.0)
+    envelopes = np.empty((n_frames,) + first.envelope.shape)
+    var = np.zeros(n_frames)
+    if method == "frames":
+        for f in range(n_frames):
+            envelopes[f] = _frame_from_slots([first.envelope if (f, s) == (0, 0) else
+                                              _simulate(scene.at(times[f, s]), config)[0].envelope
+                                              for s in range(n_slots)], holds)
+        error, noise = np.full(n_frames, ref_error), np.full(n_frames, ref_noise)
+    else:
+        grid = scene.capture.laser_grid
+        small = change_config(config, 2 * change_split, grid.points[0] * grid.points[1] if grid else 1)
+        ref = scene.at(times[0, 0])
+        shape = first.envelope.shape
+        base = [_change_run(ref, small, _rng(config.seed, STREAM_CHANGES, h), plan).reshape(shape) for h in (0, 1)]
+        reference = first.envelope
+        step_var = np.zeros(n_frames)
+        prev = None
+        for f in range(n_frames):
+            parts = []
+            for s in range(n_slots):
+                if (f, s) == (0, 0):
+                    parts.append((np.zeros_like(reference), np.zeros_like(reference)))
+                    continue
+                sc = scene.at(times[f, s])
+                parts.append(tuple(_change_run(sc, small, _rng(config.seed, STREAM_CHANGES, h), plan).reshape(shape)
+                                   - base[h] for h in (0, 1)))
+            d0 = _frame_from_slots([p[0] for p in parts], holds)
+            d1 = _frame_from_slots([p[1] for p in parts], holds)
+            envelopes[f] = reference + 0.5 * (d0 + d1)
+            var[f] = float(np.sum((d0 - d1) ** 2)) / 4.0       # the variance of the mean of two halves, summed
+            if prev is not None:                               # that of the step from the frame before
+                step_var[f] = float(np.sum(((d0 - prev[0]) - (d1 - prev[1])) ** 2)) / 4.0
+            prev = (d0, d1)
+        pooled = math.sqrt(var[1:].mean()) if n_frames > 1 else 0.0
+        norms = np.sqrt(np.sum(envelopes.reshape(n_frames, -1) ** 2, axis=1))
+        change_error = CONFIDENCE_Z * pooled / np.maximum(norms, np.finfo(float).tiny)
+        change_error = np.where(np.arange(n_frames) == 0, 0.0, change_error)
+        error, noise = np.hypot(ref_error, change_error), np.hypot(ref_noise, change_error)
+    norms = np.sqrt(np.sum(envelopes.reshape(n_frames, -1) ** 2, axis=1))
+    steps = np.array([_norm(envelopes[f + 1] - envelopes[f]) / norms[f] for f in range(n_frames - 1)])
+    difference_error = (float(CONFIDENCE_Z * math.sqrt(step_var[1:].mean()) / norms.mean())
+                        if method == "changes" and n_frames > 1 else float("nan"))
+    detector = dict(config.detector)
+    detector["exposure"] = frames.exposure / holds.shape[1]
+    frame_config = config.model_copy(update={"detector": detector})
+    counts = np.empty(envelopes.shape, dtype=np.int64)
+    for f in range(n_frames):
+        noise = _rng(config.seed, STREAM_NOISE, f)
+        counts[f] = detector_counts(envelopes[f], frame_config, first.attrs["plan"], noise)[0]
+    names, pos, vel, box = _labels(scene, frames.times() + frames.exposure / 2)
+    attrs = {"method": method, "change_split": change_split if method == "changes" else None, "slots": n_slots,
+             "frames": frames.model_dump(mode="json"), "seconds": time.perf_counter() - t0,
+             "reference_error": ref_error, "mean_step": float(steps.mean()) if steps.size else 0.0,
+             "reference": first.attrs}
+    return SequenceResult(first.time_edges, frames.times(), envelopes, counts, error, noise, difference_error, pos,
+                          vel, box, names, attrs)

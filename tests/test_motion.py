@@ -1,0 +1,183 @@
+"""Moving objects: poses against closed forms, the refusals of bad motion input, and sequences of frames against
+frames simulated on their own (datagen/scene/motion.py, datagen/simulation/sequence.py; docs/motion.md)."""
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+import datagen
+from datagen.errors import SceneError
+from datagen.scene.load import scene_from_dict
+from datagen.scene.motion import FrameSpec, KeyframeMotion, VelocityMotion, WalkMotion, posed_vertices
+from datagen.simulation.sequence import simulate_sequence
+
+ROOM = {"builder": "l_room", "relay_x": 6.0, "height": 2.85}
+WALKER = {"builder": "box", "name": "walker", "center": [4.0, 3.5, 0.9], "size": [0.4, 0.3, 1.8],
+          "motion": {"kind": "walk", "path": [[4.0, 3.5], [5.0, 2.5], [5.0, 4.5]], "speed": 1.0}}
+SCENE = {"name": "moving", "objects": [ROOM, WALKER],
+         "laser": {"emitter": [0, 0, 1], "spot": [6.0, 0.0, 2.5]},
+         "sensor": {"position": [0, 0, 1], "aperture_radius": "20mm",
+                    "fov": {"center": [6.0, 0.0, 1.5], "size": [2.0, 2.0]}},
+         "capture": {"frames": {"count": 3, "rate": "2Hz", "exposure": "10ms"}},
+         "simulation": {"estimator": {"kind": "area", "samples": 16384}, "orders": 1,
+                        "time": {"t_start": "20ns", "bin_width": "200ps", "n_bins": 200}, "irf": {"fwhm": "600ps"},
+                        "detector": {"model": "poisson", "pde": 0.3, "dcr": 100, "repetition_rate": 1e7,
+                                     "exposure": "10ms"}}}
+
+
+def scene_with(**changes) -> dict:
+    data = copy.deepcopy(SCENE)
+    for path, value in changes.items():
+        node = data
+        keys = path.split(".")
+        for k in keys[:-1]:
+            node = node[int(k)] if isinstance(node, list) else node[k]
+        node[keys[-1]] = value
+    return data
+
+
+def test_keyframes_interpolate_linearly_and_hold_outside():
+    m = KeyframeMotion(kind="keyframes", keyframes=[{"t": 0, "position": [0, 0, 0]},
+                                                    {"t": "2s", "position": [2, 4, 0], "yaw_deg": 90}])
+    pos, yaw = m.pose(np.array([-1.0, 0.5, 2.0, 9.0]), np.zeros(3))
+    np.testing.assert_allclose(pos, [[0, 0, 0], [0.5, 1, 0], [2, 4, 0], [2, 4, 0]], atol=1e-15)
+    np.testing.assert_allclose(yaw, np.radians([0, 22.5, 90, 90]), atol=1e-15)
+    smooth = m.model_copy(update={"interpolation": "smooth"})
+    np.testing.assert_allclose(smooth.pose(np.array([0.0, 2.0]), np.zeros(3))[0], [[0, 0, 0], [2, 4, 0]],
+                               atol=1e-15)
+
+
+def test_velocity_with_turning_follows_the_circular_arc():
+    v, w = 1.5, 30.0                                      # m/s along x, °/s
+    m = VelocityMotion(kind="velocity", velocity=[v, 0, 0], turn_rate_deg=w, start=[1, 1, 0])
+    half_turn = math.pi / math.radians(w)                 # a semicircle of radius v/ω
+    pos, yaw = m.pose(np.array([half_turn]), np.zeros(3))
+    np.testing.assert_allclose(pos[0], [1, 1 + 2 * v / math.radians(w), 0], atol=1e-12)
+    assert yaw[0] == pytest.approx(math.pi)
+    t = np.linspace(0, 5, 501)                            # speed stays |v| all along
+    p = m.pose(t, np.zeros(3))[0]
+    speed = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t)
+    np.testing.assert_allclose(speed, v, rtol=1e-4)
+
+
+def test_walk_reaches_each_waypoint_when_its_length_is_walked_and_faces_the_way():
+    m = WalkMotion(kind="walk", path=[[0, 0], [3, 4], [3, 0]], speed=2.0, start_time=1.0)
+    pos, yaw = m.pose(np.array([0.0, 1.0 + 5 / 2, 1.0 + 9 / 2, 100.0]), np.array([9, 9, 0.7]))
+    np.testing.assert_allclose(pos, [[0, 0, 0.7], [3, 4, 0.7], [3, 0, 0.7], [3, 0, 0.7]], atol=1e-12)
+    mid_second_leg = m.pose(np.array([1.0 + 7 / 2]), np.zeros(3))[1][0]
+    assert mid_second_leg == pytest.approx(-math.pi / 2 - math.atan2(4, 3))
+
+
+def test_scene_at_moves_only_the_moving_object_rigidly():
+    scene = scene_from_dict(SCENE)
+    later = scene.at(1.2)
+    for a, b in zip(scene.objects, later.objects):
+        if a.name == "walker":
+            da = np.linalg.norm(a.vertices[:, None] - a.vertices[None], axis=2)
+            db = np.linalg.norm(b.vertices[:, None] - b.vertices[None], axis=2)
+            np.testing.assert_allclose(db, da, atol=1e-12)
+            assert np.abs(b.vertices - a.vertices).max() > 0.5
+        else:
+            assert b.vertices is a.vertices
+    built = scene.moving["walker"].vertices
+    np.testing.assert_allclose(posed_vertices(scene.moving["walker"].motion, built, 0.0), built, atol=1e-12)
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")
+@pytest.mark.parametrize("changes, expected", [
+    ({"objects.1.motion": {"kind": "keyframes", "keyframes": [{"t": 0, "position": [4, 3, 0.9]},
+                                                              {"t": 2, "position": [4, 3.5, 0.9]},
+                                                              {"t": 1, "position": [4, 4, 0.9]}]}},
+     "objects.1.box.motion.keyframes: keyframe times must increase: keyframes.2.t = 1 s is not after"),
+    ({"objects.1.motion": {"kind": "velocity", "velocity": [0, 2.0, 0]},
+      "capture.frames": {"count": 100, "rate": "10Hz", "exposure": "10ms"}},
+     "objects.1.motion: object 'walker' leaves the room at t = 0.71 s (y reaches 5.070 m, the room spans "
+     "-1.050..5.050 m)"),
+    ({"capture.frames": {"count": 10, "rate": "10Hz", "exposure": "200ms"}},
+     "capture.frames: exposure 200 ms is longer than a frame (1/rate = 100 ms at 10 Hz)"),
+    ({"objects.1.motion.path": [[4, 3], [4, 3]]}, "path.1 repeats path.0 [4.0, 3.0]"),
+    ({"objects.1.motion.speed": 0}, "objects.1.box.motion.walk.speed: Input should be greater than 0"),
+])
+def test_bad_motion_input_is_refused_in_one_line_naming_the_field(tmp_path, changes, expected):
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(scene_with(**changes)))
+    with pytest.raises(SceneError) as err:
+        datagen.load_scene(path)
+    message = str(err.value)
+    assert "\n" not in message and message.startswith(str(path)) and expected in message, message
+
+
+def test_frame_spec_scan_order_times():
+    frames = FrameSpec(count=2, rate=10, exposure=0.04, scan_order="serpentine")
+    t = frames.point_times(4, (2, 2))        # dwell 10 ms: rows visited 0 1 | 3 2
+    np.testing.assert_allclose(t[1] - 0.1, [0.005, 0.015, 0.035, 0.025], atol=1e-15)
+
+
+def _norm(a):
+    return float(np.sqrt(np.sum(a * a)))
+
+
+def test_sequence_frames_match_frames_simulated_alone_within_their_stated_error():
+    """Frames 0, 1, 2 of the 'changes' method against each instant simulated on its own at 16× the sampling
+    (another seed: an independent estimate), and the step between two frames against that of the references."""
+    scene = scene_from_dict(SCENE)
+    config = datagen.resolve_config(scene)
+    seq = simulate_sequence(scene, config, change_split=8)
+    assert seq.envelopes.shape == (3, 200) and seq.counts.shape == (3, 200) and seq.counts.dtype == np.int64
+    fine = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 262144}, "seed": 7})
+    refs = []
+    for f, t in enumerate(seq.frame_times + 0.005):
+        ref = datagen.simulate(scene.at(t), fine)
+        refs.append(ref.envelope)
+        bound = math.hypot(seq.monte_carlo_error[f], ref.attrs["error"]["monte_carlo"])   # the same orders
+        gap = _norm(seq.envelopes[f] - ref.envelope) / _norm(ref.envelope)
+        assert gap <= bound, (f, gap, bound)
+    assert seq.monte_carlo_error[1] < 1.5 * seq.monte_carlo_error[0]   # the change adds little noise
+    step, ref_step = seq.envelopes[2] - seq.envelopes[1], refs[2] - refs[1]
+    assert _norm(step) / _norm(seq.envelopes[1]) > 0.003           # the walker moved: the frames differ
+    np.testing.assert_allclose(seq.positions[:, 0, :2], [[4.0035, 3.4965], [4.3571, 3.1429], [4.7107, 2.7893]],
+                               atol=1e-4)
+    np.testing.assert_allclose(np.linalg.norm(seq.velocities[:, 0], axis=1), 1.0, rtol=1e-6)
+    assert np.all(seq.boxes[:, 0, 0] < seq.positions[:, 0]) and np.all(seq.positions[:, 0] < seq.boxes[:, 0, 1])
+    step_gap = _norm(step - ref_step) / _norm(seq.envelopes[1])
+    assert step_gap <= seq.difference_error + ref.attrs["error"]["monte_carlo"] / 4, (step_gap, seq.difference_error)
+    assert seq.difference_error < seq.monte_carlo_error[0] / 2
+
+
+def test_motion_during_a_confocal_scan_is_each_point_at_its_own_instant():
+    """A box crossing a 3 × 3 confocal scan during one frame: the 'frames' method with one slot per point equals,
+    to the bit, a scan simulated at each point's instant with that point kept; the late points see the box moved
+    (its return earlier or later than in a scan frozen at the frame's start)."""
+    data = {"name": "scan_motion",
+            "objects": [{"builder": "quad", "name": "relay_wall", "label": "relay_wall", "corner": [2.0, -1.05, -0.05],
+                         "edge_u": [0.0, 0.0, 2.1], "edge_v": [0.0, 2.1, 0.0]},
+                        {"builder": "box", "name": "box", "center": [1.1, -0.6, 1.0], "size": [0.3, 0.3, 0.3],
+                         "motion": {"kind": "velocity", "velocity": [-1.0, 12.0, 0.0]}}],
+            "laser": {"emitter": [1.5, -3.0, 1.0], "spot": [2.0, 0.0, 1.0], "pulse_energy": "10pJ"},
+            "sensor": {"position": [1.5, -3.0, 1.0], "aperture_radius": "20mm"},
+            "capture": {"type": "confocal", "laser_grid": {"center": [2.0, 0.0, 1.0], "size": [1.0, 1.0],
+                                                            "points": [3, 3]},
+                        "frames": {"count": 1, "rate": "10Hz", "exposure": "90ms"}},
+            "simulation": {"estimator": {"kind": "quadrature", "edge": 0.1}, "orders": 1,
+                           "effects": {"first_bounce": False}, "count_laser_leg": False, "count_sensor_leg": False,
+                           "time": {"t_start": "0ns", "bin_width": "32ps", "n_bins": 256}, "irf": {"fwhm": "70ps"},
+                           "detector": {"model": "poisson", "pde": 0.3, "dcr": 100, "repetition_rate": 1e7,
+                                        "exposure": "10ms"}}}
+    scene = scene_from_dict(data)
+    config = datagen.resolve_config(scene)
+    seq = simulate_sequence(scene, config, method="frames")
+    times = scene.capture.frames.point_times(9, (3, 3))[0]
+    by_hand = np.empty((9, 256))
+    for k, t in enumerate(times):
+        by_hand[k] = datagen.simulate(scene.at(t), config).envelope.reshape(9, 256)[k]
+    np.testing.assert_array_equal(seq.envelopes[0].reshape(9, 256), by_hand)
+    frozen = datagen.simulate(scene.at(times[0]), config).envelope.reshape(9, 256)
+    centre = lambda e: (e * np.arange(256)).sum(axis=-1) / e.sum(axis=-1)   # noqa: E731
+    np.testing.assert_array_equal(by_hand[0], frozen[0])
+    assert np.abs(centre(by_hand[-3:]) - centre(frozen[-3:])).max() > 2      # bins: the last row sees it moved
+    with pytest.raises(SceneError, match="needs a Monte Carlo estimator"):
+        simulate_sequence(scene, config, method="changes")
