@@ -181,3 +181,59 @@ def test_motion_during_a_confocal_scan_is_each_point_at_its_own_instant():
     assert np.abs(centre(by_hand[-3:]) - centre(frozen[-3:])).max() > 2      # bins: the last row sees it moved
     with pytest.raises(SceneError, match="needs a Monte Carlo estimator"):
         simulate_sequence(scene, config, method="changes")
+
+
+def test_sequence_command_writes_a_store_that_reads_back_and_its_figure(tmp_path):
+    from click.testing import CliRunner
+
+    from datagen.cli.main import main
+    from datagen.io.store import read_sequence
+
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(scene_with(**{"simulation.estimator.samples": 4096,
+                                                 "capture.frames.count": 4})))
+    out = tmp_path / "out"
+    run = CliRunner().invoke(main, ["sequence", str(path), "--out", str(out), "--change-split", "4"])
+    assert run.exit_code == 0, run.output
+    assert "4 frames at 2 Hz, 10 ms each (changes)" in run.output and "walker: from [4.004, 3.496, 0.9]" in run.output
+    seq = read_sequence(out)
+    assert seq.envelopes.shape == (4, 200) and seq.counts.shape == (4, 200) and seq.moving == ["walker"]
+    assert seq.positions.shape == (4, 1, 3) and seq.boxes.shape == (4, 1, 2, 3) and seq.attrs["change_split"] == 4
+    assert (out / "sequence.png").stat().st_size > 10_000
+    again = CliRunner().invoke(main, ["sequence", str(path), "--out", str(tmp_path / "again"), "--change-split", "4"])
+    np.testing.assert_array_equal(read_sequence(tmp_path / "again").counts, seq.counts)   # a seed's bits
+    path.write_text(yaml.safe_dump(scene_with(**{"capture": {"type": "single"}})))
+    refused = CliRunner().invoke(main, ["sequence", str(path), "--out", str(out)])
+    assert refused.exit_code != 0 and "capture.frames is missing" in refused.output
+    assert len(refused.output.strip().splitlines()) == 1
+
+
+def test_rooms_draw_walkers_that_stay_in_the_room_and_pass_the_objects():
+    from datagen.dataset.rooms import load_room_distribution
+    from datagen.dataset.obb import box_hits_segment
+    from datagen.dataset.sampler import sample_room
+    from datagen.errors import ConfigError
+
+    frames = {"count": 50, "rate": "10Hz", "exposure": "50ms"}
+    dist = load_room_distribution("configs/rooms/default.yaml").with_overrides(
+        {"motion": {"walkers": 1, "speed": {"min": 0.5, "max": 2.0}, "frames": frames}})
+    for seed in range(6):
+        streams = ("geometry", "materials", "sensor", "motion")
+        rngs = {k: np.random.default_rng([seed, i]) for i, k in enumerate(streams)}
+        room = sample_room(dist, rngs)
+        walker = room.params["motion"]["walkers"][0]
+        assert 0.5 <= walker["speed"] <= 2.0 and 1.6 <= walker["size"][2] <= 1.9
+        scene = room.scene
+        assert list(scene.moving) == ["walker_0"] and scene.capture.frames.count == 50
+        ends = np.array(walker["path"])
+        for o in room.objects:     # the straight walk, widened by the walker, misses every object below its top
+            if o["center"][2] - o["size"][2] / 2 < walker["size"][2]:
+                z = o["center"][2]
+                assert not box_hits_segment(o, np.array([*ends[0], z]), np.array([*ends[1], z]),
+                                            math.hypot(*walker["size"][:2]))
+        again = sample_room(dist, {k: np.random.default_rng([seed, i]) for i, k in enumerate(streams)})
+        assert again.params["motion"] == room.params["motion"]
+    with pytest.raises(ConfigError, match="motion: walkers need frames"):
+        load_room_distribution("configs/rooms/default.yaml").with_overrides({"motion": {"walkers": 1}})
+    with pytest.raises(ConfigError, match="needs a 'motion' stream"):
+        sample_room(dist, {k: np.random.default_rng(0) for k in ("geometry", "materials", "sensor")})

@@ -20,6 +20,7 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.cli.reconstruct`: ``reconstruct`` (LCT, phasor or FBP on any confocal store);
 - :mod:`~datagen.cli.multizone`: ``multizone`` and the multi-zone path of ``simulate``;
 - :mod:`~datagen.cli.suite`: ``suite build``, ``suite verify``, ``suite score``;
+- :mod:`~datagen.cli.sequence`: ``sequence`` (the frames of a scene whose objects move);
 - :mod:`~datagen.cli.__main__`: ``python -m datagen.cli``.
 """
 from .main import main

@@ -2,7 +2,8 @@
 
 Defines the ``main`` group (the ``datagen`` entry point) with ``simulate`` and ``detect``, and registers the
 commands of :mod:`datagen.cli.tal` (``tal-render``, ``export-tal``), :mod:`datagen.cli.dataset` (``build``,
-``inspect``, ``verify``), :mod:`datagen.cli.bench` (``bench accuracy``) and :mod:`datagen.cli.view` (``view``);
+``inspect``, ``verify``), :mod:`datagen.cli.bench` (``bench accuracy``), :mod:`datagen.cli.view` (``view``) and
+:mod:`datagen.cli.sequence` (``sequence``);
 those import at most :mod:`datagen.cli.errors`, never this module.
 """
 from __future__ import annotations
@@ -23,6 +24,7 @@ from .suite import suite
 from .tal import export_tal, read_result_input, tal_render
 from .multizone import is_multizone_file, multizone, run_multizone
 from .reconstruct import reconstruct
+from .sequence import sequence
 from .view import view
 
 
@@ -312,6 +314,7 @@ main.add_command(compare_capture)
 main.add_command(estimate_capture)  # the detector of a capture: IRF, gain, background
 main.add_command(reconstruct)    # baselines on any confocal store
 main.add_command(suite)          # benchmark suites
+main.add_command(sequence)       # moving objects: capture sequences
 
 
 if __name__ == "__main__":

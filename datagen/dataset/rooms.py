@@ -28,6 +28,7 @@ from ..scene import Laser, Material
 from ..scene.brdf_kernel import BRDF_KINDS
 from ..scene.materials import LOBE_WIDTH_MAX
 from ..scene.load import format_validation_error, read_yaml
+from ..scene.motion import FrameSpec
 from ..scene.parts import check_counts
 from ..units import parse_energy, parse_length
 from .assets import asset_files, resolve_assets
@@ -316,6 +317,25 @@ class MaterialsDist(Model):
     mesh: MaterialDist = MaterialDist()
 
 
+class MotionDist(Model):
+    """People walking across the hidden room during a capture sequence (docs/motion.md): ``walkers`` person-sized
+    boxes (``size``: x along the way they walk, y across, z tall, m), each walking a straight line between two
+    points drawn uniformly on the L-bend room's floor (inset by the walker's half-diagonal, so that it never leaves
+    the room) at ``speed`` m/s, standing once it arrives; ``frames``: the capture's frames
+    (:class:`~datagen.scene.motion.FrameSpec`: count, rate, exposure). Drawn from the sample's "motion" stream."""
+
+    walkers: CountRange = CountRange()
+    size: Size3 = Size3(x=Range(min=0.25, max=0.35), y=Range(min=0.4, max=0.5), z=Range(min=1.6, max=1.9))
+    speed: Positive = Range(min=0.5, max=2.0)
+    frames: FrameSpec | None = None
+
+    @model_validator(mode="after")
+    def _frames(self) -> "MotionDist":
+        if self.walkers.max > 0 and self.frames is None:
+            raise ValueError("walkers need frames (count, rate, exposure): a sequence to walk in")
+        return self
+
+
 class LabelRegion(Model):
     """Axis-aligned box (origin = min corner, size) in metres, e.g. for the occupancy grid."""
 
@@ -336,7 +356,8 @@ class RoomDistribution(Model):
     Fields: ``family`` ("l_room": the corridor and its L-bend room; "wall": the relay wall alone, the corridor
     end's w × ceiling rectangle, with hidden objects in front of it and nothing else, the set-up of LFE and
     NLOST's training data), ``relay_x`` (m, the relay wall plane), ``corridor``, ``room``, ``ceiling`` (height
-    range, m), ``capture``, ``objects``, ``materials``, ``label_region`` (fixed occupancy-grid box; ``null``: the
+    range, m), ``capture``, ``objects``, ``materials``, ``motion`` (:class:`MotionDist`: walkers and frames),
+    ``label_region`` (fixed occupancy-grid box; ``null``: the
     hull of every room the distribution can make, see :meth:`label_box`) and ``simulation`` (passed to
     :class:`~datagen.scene.Scene` ``defaults``, i.e. a scene file's simulation block).
     """
@@ -351,6 +372,7 @@ class RoomDistribution(Model):
     objects: ObjectsDist = ObjectsDist()
     materials: MaterialsDist = MaterialsDist()
     label_region: LabelRegion | None = None
+    motion: MotionDist = MotionDist()
     simulation: dict = {}
     source: str | None = Field(None, exclude=True, description="file it was loaded from (error messages)")
 
@@ -500,6 +522,16 @@ def check_feasible(dist: RoomDistribution) -> None:
         if cap.fov.height.max > h_min - 2 * m:
             _fail(dist, "capture.fov.height.max", f"{cap.fov.height.max} m does not fit under the lowest ceiling "
                   f"({h_min} m minus 2 × edge_margin {m} m)")
+    walk = dist.motion
+    if walk.walkers.max > 0:
+        if dist.family == "wall":
+            _fail(dist, "motion.walkers", "the wall family has no L-bend room to walk in")
+        reach = 2 * math.hypot(walk.size.x.max, walk.size.y.max) / 2
+        if reach >= min(r.depth.min, r.length.min):
+            _fail(dist, "motion.size", f"a walker {reach:.3g} m across (any way it turns) does not fit the smallest "
+                  f"room ({r.depth.min} × {r.length.min} m)")
+        if walk.size.z.max > h_min:
+            _fail(dist, "motion.size.z.max", f"{walk.size.z.max} m is above the lowest ceiling ({h_min} m)")
     if obj.mesh.count.max > 0:
         try:
             asset_files(tuple(obj.mesh.assets))

@@ -27,7 +27,10 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..scene import FieldOfView, Laser, Scene, SceneObject, Sensor, box, l_room, pillar, quad
-from ..scene.parts import ROOM_LABELS
+from ..scene import Material
+from ..scene.model import Moving
+from ..scene.motion import WalkMotion
+from ..scene.parts import ROOM_LABELS, CaptureSpec
 from .assets import asset_box, asset_files, asset_name, load_asset, place_asset
 from .obb import box_hits_pyramid, box_hits_segment, boxes_overlap
 from .rooms import (OBJECT_CLASSES, UNIFORMS_PER_MATERIAL, MeshObjectDist, ObjectDist, PointDist, Range,
@@ -35,7 +38,7 @@ from .rooms import (OBJECT_CLASSES, UNIFORMS_PER_MATERIAL, MeshObjectDist, Objec
 from .scan import draw_scan, rectangle_corners, scan_capture
 
 STREAMS = ("geometry", "materials", "sensor")
-"""Keys of the generator mapping :func:`sample_room` takes."""
+"""Keys of the generator mapping :func:`sample_room` takes; a distribution with walkers also takes "motion"."""
 
 OBJECT_KEYS = ("class", "name", "region", "center", "size", "yaw_deg", "material")
 """Keys of every hidden object's record (``center``, ``size``, ``yaw_deg``: its oriented bounding box)."""
@@ -311,4 +314,57 @@ def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator])
         "label_region": {"origin": origin.tolist(), "size": size.tolist()},
         "layout_tries": tries,
     }
+    if dist.motion.walkers.max > 0:
+        if "motion" not in rngs:
+            raise ConfigError("sample_room: a distribution with walkers needs a 'motion' stream in rngs")
+        scene, params["motion"] = _add_walkers(dist, room, scene, objects, rngs["motion"])
     return SampledRoom(scene, params, objects)
+
+
+WALK_TRIES = 64
+"""Draws of a walker's way (8 uniforms each) before giving up on a room whose objects block every way across."""
+
+
+def _add_walkers(dist: RoomDistribution, room: dict, scene: Scene, placed: list[dict], rng: np.random.Generator):
+    """``scene`` with the walkers of ``dist.motion`` (:class:`~datagen.dataset.rooms.MotionDist`) and its frames;
+    their record (name, size, path, speed) for the sample's params. A walker's way is drawn (8 uniforms a try) until
+    its straight path, widened by the walker and ``objects.min_gap``, passes every object below its height.
+
+    Raises:
+        ConfigError: no way found in :data:`WALK_TRIES` draws."""
+    walk = dist.motion
+    side, half_w = room["bend_side"], room["corridor_width"] / 2
+    x_lo, x_hi = room["relay_x"] - room["room_depth"], room["relay_x"]
+    y_near, y_far = side * half_w, side * (half_w + room["room_length"])
+    y_lo, y_hi = min(y_near, y_far), max(y_near, y_far)
+    objects, moving, record = list(scene.objects), {}, []
+    for i in range(int(rng.integers(walk.walkers.min, walk.walkers.max + 1))):
+        for _ in range(WALK_TRIES):
+            u = rng.random(8)
+            size = [walk.size.x.min + u[0] * (walk.size.x.max - walk.size.x.min),
+                    walk.size.y.min + u[1] * (walk.size.y.max - walk.size.y.min),
+                    walk.size.z.min + u[2] * (walk.size.z.max - walk.size.z.min)]
+            inset = math.hypot(size[0], size[1]) / 2 + 1e-3          # any heading stays inside the room
+            ends = [(x_lo + inset + a * (x_hi - x_lo - 2 * inset), y_lo + inset + b * (y_hi - y_lo - 2 * inset))
+                    for a, b in (u[3:5], u[5:7])]
+            gap = 2 * inset + dist.objects.min_gap
+            if not any(box_hits_segment(o, np.array([*ends[0], o["center"][2]]), np.array([*ends[1], o["center"][2]]),
+                                        gap) for o in placed + record
+                       if o["center"][2] - o["size"][2] / 2 < size[2]):
+                break
+        else:
+            raise ConfigError(f"motion.walkers: no straight walk across the room avoids its objects in {WALK_TRIES} "
+                              "draws: fewer or smaller objects, or fewer walkers")
+        speed = walk.speed.min + u[7] * (walk.speed.max - walk.speed.min)
+        heading = math.degrees(math.atan2(ends[1][1] - ends[0][1], ends[1][0] - ends[0][0]))
+        name = f"walker_{i}"
+        objects.append(box(name, (ends[0][0], ends[0][1], size[2] / 2), tuple(size), heading, Material(), "walker"))
+        moving[name] = Moving(WalkMotion(kind="walk", path=ends, speed=speed), objects[-1].vertices,
+                              f"motion.walkers ({name})")
+        record.append({"name": name, "size": [float(v) for v in size], "path": [[float(v) for v in e] for e in ends],
+                       "speed": float(speed), "center": [float(ends[0][0]), float(ends[0][1]), float(size[2] / 2)],
+                       "yaw_deg": heading})
+    spec = (scene.capture.model_copy(update={"frames": walk.frames}) if scene.capture is not None
+            else CaptureSpec(frames=walk.frames))
+    out = Scene(objects, scene.laser, scene.sensor, scene.name, scene.source, scene.defaults, spec)
+    return out.with_motion(moving), {"walkers": record, "frames": walk.frames.model_dump(mode="json")}

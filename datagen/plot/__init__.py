@@ -18,7 +18,8 @@ Exported here, what users call: :func:`plot_envelope`, :func:`write_sampling_fig
 - :mod:`.capture`: a measured capture beside its simulation (``compare-capture --png``); :mod:`.capture_maps`: the
   maps ``estimate-capture`` draws; :mod:`.zones`: a
   multi-zone capture's zone histograms; :mod:`.view_flood`: the flood and zones that ``datagen view`` adds;
-  :mod:`.reconstruction`: a reconstruction's front view, depth map and top view (``datagen reconstruct``).
+  :mod:`.reconstruction`: a reconstruction's front view, depth map and top view (``datagen reconstruct``);
+  :mod:`.sequence`: a capture sequence's tracks over the room's plan and its frames' changes (``datagen sequence``).
 """
 from .envelope import plot_envelope
 from .figures import write_sampling_figures

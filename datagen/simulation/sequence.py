@@ -253,8 +253,8 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     frame_config = config.model_copy(update={"detector": detector})
     counts = np.empty(envelopes.shape, dtype=np.int64)
     for f in range(n_frames):
-        noise = _rng(config.seed, STREAM_NOISE, f)
-        counts[f] = detector_counts(envelopes[f], frame_config, first.attrs["plan"], noise)[0]
+        frame_noise = _rng(config.seed, STREAM_NOISE, f)
+        counts[f] = detector_counts(envelopes[f], frame_config, first.attrs["plan"], frame_noise)[0]
     names, pos, vel, box = _labels(scene, frames.times() + frames.exposure / 2)
     attrs = {"method": method, "change_split": change_split if method == "changes" else None, "slots": n_slots,
              "frames": frames.model_dump(mode="json"), "seconds": time.perf_counter() - t0,
