@@ -321,7 +321,7 @@ class MotionDist(Model):
     """People walking across the hidden room during a capture sequence (docs/motion.md): ``walkers`` person-sized
     boxes (``size``: x along the way they walk, y across, z tall, m), each walking a straight line between two
     points drawn uniformly on the L-bend room's floor (inset by the walker's half-diagonal, so that it never leaves
-    the room) at ``speed`` m/s, standing once it arrives; ``frames``: the capture's frames
+    the room) at ``speed`` m/s, back and forth until the sequence ends; ``frames``: the capture's frames
     (:class:`~datagen.scene.motion.FrameSpec`: count, rate, exposure). Drawn from the sample's "motion" stream."""
 
     walkers: CountRange = CountRange()

@@ -359,7 +359,8 @@ def _add_walkers(dist: RoomDistribution, room: dict, scene: Scene, placed: list[
         heading = math.degrees(math.atan2(ends[1][1] - ends[0][1], ends[1][0] - ends[0][0]))
         name = f"walker_{i}"
         objects.append(box(name, (ends[0][0], ends[0][1], size[2] / 2), tuple(size), heading, Material(), "walker"))
-        moving[name] = Moving(WalkMotion(kind="walk", path=ends, speed=speed), objects[-1].vertices,
+        moving[name] = Moving(WalkMotion(kind="walk", path=ends, speed=speed, at_end="back_and_forth"),
+                              objects[-1].vertices,
                               f"motion.walkers ({name})")
         record.append({"name": name, "size": [float(v) for v in size], "path": [[float(v) for v in e] for e in ends],
                        "speed": float(speed), "center": [float(ends[0][0]), float(ends[0][1]), float(size[2] / 2)],

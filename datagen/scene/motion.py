@@ -10,7 +10,8 @@ through the anchor, radians, 0 = as built). Three kinds, as the field's tracking
 - ``velocity``: constant speed from ``start`` (default: where it was built), turning at ``turn_rate_deg`` °/s
   (the velocity turns with the object: a circular arc);
 - ``walk``: a walking person's path, waypoints on the floor (x, y) walked at ``speed`` m/s from ``start_time``,
-  the object facing its direction of travel (as built it faces the first leg), standing still at the end.
+  the object facing its direction of travel (as built it faces the first leg), standing still at the end or walking
+  the path back and forth.
 
 :class:`FrameSpec` (a capture's ``frames`` block) gives the sequence: ``count`` frames at ``rate`` Hz, each
 exposed for ``exposure`` s from its start; a scanned capture visits its scan points one after another during the
@@ -124,12 +125,14 @@ class VelocityMotion(_Model):
 
 class WalkMotion(_Model):
     """A walk along ``path`` (waypoints (x, y) m on the floor; the anchor's height stays as built) at ``speed``
-    m/s, starting at ``start_time`` s, facing the direction of travel; the object as built faces the first leg."""
+    m/s, starting at ``start_time`` s, facing the direction of travel; the object as built faces the first leg.
+    At the path's end it stops (``at_end: stop``) or walks the path back and forth (``back_and_forth``)."""
 
     kind: Literal["walk"]
     path: list[tuple[float, float]] = Field(min_length=2, max_length=10_000)
     speed: float = Field(gt=0, le=MAX_SPEED)
     start_time: Time = 0.0
+    at_end: Literal["stop", "back_and_forth"] = "stop"
 
     @field_validator("path")
     @classmethod
@@ -144,12 +147,18 @@ class WalkMotion(_Model):
         legs = np.diff(pts, axis=0)
         length = np.hypot(legs[:, 0], legs[:, 1])
         ends = np.concatenate([[0.0], np.cumsum(length)])
-        d = np.clip((t - self.start_time) * self.speed, 0.0, ends[-1])
+        walked = np.maximum((t - self.start_time) * self.speed, 0.0)
+        back = np.zeros(len(t), dtype=bool)
+        if self.at_end == "back_and_forth":
+            walked = np.mod(walked, 2 * ends[-1])
+            back = walked > ends[-1]
+            walked = np.where(back, 2 * ends[-1] - walked, walked)
+        d = np.minimum(walked, ends[-1])
         i = np.clip(np.searchsorted(ends, d, side="right") - 1, 0, len(legs) - 1)
         xy = pts[i] + ((d - ends[i]) / length[i])[:, None] * legs[i]
         heading = np.arctan2(legs[:, 1], legs[:, 0])
         pos = np.concatenate([xy, np.full((len(t), 1), anchor[2])], axis=1)
-        return pos, heading[i] - heading[0]
+        return pos, heading[i] - heading[0] + np.where(back, np.pi, 0.0)
 
 
 Motion = Annotated[Union[KeyframeMotion, VelocityMotion, WalkMotion], Field(discriminator="kind")]

@@ -289,6 +289,10 @@ class Replicas:
         """The tracer's stream of replica r (its own, beside the base's ``replica_rng(root, r)``)."""
         return tracer_rng(replica_rng(self.root, r))
 
+    def tracer_paths_run(self) -> int:
+        """Light paths per laser point the order ≥ 3 tracer has traced over all its replicas so far (0 without it)."""
+        return 0 if self.tracer is None else int(self.tracer.settings.paths) * self.tracer_sums.count
+
     def replica_costs(self) -> tuple[float, float]:
         """Nominal seconds of one replica of orders 1–2 and of one of the tracer (0 when unknown)."""
         base_cost = getattr(self.transport.base, "nominal_seconds", None)

@@ -38,6 +38,10 @@ from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_con
 from .detection import Result, detector_counts, make_result
 from .run import Planned, Replicas
 
+MIN_TRACER_RUNS = 2
+"""Replicas the order ≥ 3 tracer runs in each half of a change (:class:`~datagen.simulation.run.Replicas` runs at
+least two beside replicas of orders 1–2)."""
+
 STREAM_CHANGES = 3
 """Spawn-key entry of the change's random streams (after sampling 0, noise 1 and the dataset's 2)."""
 
@@ -84,9 +88,11 @@ class SequenceResult:
     attrs: dict = field(default_factory=dict)
 
 
-def change_config(config: SimulationConfig, split: int, n_lasers: int = 1) -> SimulationConfig:
-    """``config`` with ``1/split`` of its sampling: the estimator's own split (its registry entry's ``replica`` hook,
-    the rule its replicas use) and the order ≥ 3 tracer's paths per laser point (of ``n_lasers``).
+def change_config(config: SimulationConfig, split: int, tracer_paths: int | None = None) -> SimulationConfig:
+    """``config`` with ``1/split`` of its sampling, in one replica: the estimator's own split (its registry entry's
+    ``replica`` hook, the rule its replicas use) and ``tracer_paths`` / ``split`` light paths per laser point of the
+    order ≥ 3 tracer in each of its :data:`MIN_TRACER_RUNS` replicas (``tracer_paths``: what the reference traced in
+    all its tracer replicas).
 
     Raises:
         SceneError: a deterministic estimator (one refined, not only replicated: the quadrature): at a coarser
@@ -97,9 +103,11 @@ def change_config(config: SimulationConfig, split: int, n_lasers: int = 1) -> Si
         raise SceneError(f"method 'changes' needs a Monte Carlo estimator; {config.estimator.kind!r} is "
                          "deterministic: use method 'frames' (docs/motion.md)")
     small = config.with_estimator(**entry.replica(config.estimator, split))
-    paths = max(1, -(-config.tracer_paths(n_lasers) // split))
-    return small.model_copy(update={"multibounce": small.multibounce.model_copy(update={"paths": paths}),
-                                    "error": small.error.model_copy(update={"replicas": 1})})
+    update = {"error": small.error.model_copy(update={"replicas": 1})}
+    if tracer_paths is not None:
+        paths = max(1, -(-tracer_paths // (split * MIN_TRACER_RUNS)))
+        update["multibounce"] = small.multibounce.model_copy(update={"paths": paths})
+    return small.model_copy(update=update)
 
 
 def _simulate(scene: Scene, config: SimulationConfig):
@@ -109,19 +117,24 @@ def _simulate(scene: Scene, config: SimulationConfig):
     runs = Replicas(scene, config, rng)
     runs.run(config.error.replicas)
     tr = runs.transported()
-    return make_result(scene, config, tr, None, t0, {"error": runs.error_attrs(tr, rng)}), tr.plan
+    return make_result(scene, config, tr, None, t0, {"error": runs.error_attrs(tr, rng)}), tr.plan, runs
 
 
-def _change_run(scene: Scene, config: SimulationConfig, rng: np.random.Generator, plan) -> np.ndarray:
-    """The binned envelope (n_channels, n_bins) of ``scene`` at the change's ``config``, under the reference's
-    effect ``plan`` (every frame's change is made under the same decisions, so that the streams line up), the tracer
-    run for as many replicas as the base."""
+def _change_run(scene: Scene, config: SimulationConfig, seed: int, plan) -> tuple[np.ndarray, ...]:
+    """The two halves' binned envelopes ((n_channels, n_bins) each) of ``scene`` at the change's ``config``, under
+    the reference's effect ``plan`` (every frame's change is made under the same decisions, so that the streams line
+    up): two independent runs (streams ``SeedSequence(seed, spawn_key=(STREAM_CHANGES, h))``) sharing one ray
+    caster, each the config's replicas (the tracer, when planned, at least its two)."""
     if not config.split_components:
         scene = scene.with_summed_primary()
     caster = RayCaster(scene)
-    runs = Replicas(scene, config, rng, Planned(scene, caster, resolve_capture(scene, caster), plan))
-    runs.run(config.error.replicas, tracer_target=config.error.replicas)
-    return runs.transported().binned.sum(axis=0)
+    planned = Planned(scene, caster, resolve_capture(scene, caster), plan)
+    halves = []
+    for h in (0, 1):
+        runs = Replicas(scene, config, _rng(seed, STREAM_CHANGES, h), planned)
+        runs.run(config.error.replicas, tracer_target=MIN_TRACER_RUNS)
+        halves.append(runs.transported().binned.sum(axis=0))
+    return tuple(halves)
 
 
 def _norm(a: np.ndarray) -> float:
@@ -199,11 +212,13 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     if method not in ("changes", "frames"):
         raise SceneError(f"sequence method {method!r}: expected 'changes' or 'frames'")
     config = config or resolve_config(scene)
+    config = config.model_copy(update={"multibounce": config.multibounce.model_copy(
+        update={"common_random_numbers": True})})            # the tracer's paths line up from frame to frame
     t0 = time.perf_counter()
     frames = scene.capture.frames
     times, holds = _slot_times(scene, config, slots)
     n_frames, n_slots = times.shape
-    first, plan = _simulate(scene.at(times[0, 0]), config)
+    first, plan, runs = _simulate(scene.at(times[0, 0]), config)
     ref_error = float(first.attrs["error"]["rel_l2"])
     ref_noise = float(first.attrs["error"].get("monte_carlo") or 0.0)
     envelopes = np.empty((n_frames,) + first.envelope.shape)
@@ -215,11 +230,10 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
                                               for s in range(n_slots)], holds)
         error, noise = np.full(n_frames, ref_error), np.full(n_frames, ref_noise)
     else:
-        grid = scene.capture.laser_grid
-        small = change_config(config, 2 * change_split, grid.points[0] * grid.points[1] if grid else 1)
+        small = change_config(config, 2 * change_split, runs.tracer_paths_run() if runs.tracer is not None else None)
         ref = scene.at(times[0, 0])
         shape = first.envelope.shape
-        base = [_change_run(ref, small, _rng(config.seed, STREAM_CHANGES, h), plan).reshape(shape) for h in (0, 1)]
+        base = [b.reshape(shape) for b in _change_run(ref, small, config.seed, plan)]
         reference = first.envelope
         step_var = np.zeros(n_frames)
         prev = None
@@ -230,8 +244,8 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
                     parts.append((np.zeros_like(reference), np.zeros_like(reference)))
                     continue
                 sc = scene.at(times[f, s])
-                parts.append(tuple(_change_run(sc, small, _rng(config.seed, STREAM_CHANGES, h), plan).reshape(shape)
-                                   - base[h] for h in (0, 1)))
+                parts.append(tuple(half.reshape(shape) - base[h] for h, half in
+                                   enumerate(_change_run(sc, small, config.seed, plan))))
             d0 = _frame_from_slots([p[0] for p in parts], holds)
             d1 = _frame_from_slots([p[1] for p in parts], holds)
             envelopes[f] = reference + 0.5 * (d0 + d1)

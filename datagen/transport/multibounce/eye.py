@@ -95,19 +95,26 @@ class EyeVertices:
 
 
 def eye_vertices(capture: Capture, caster: RayCaster, physics: LegPhysics, pixels: PixelTable, laser: np.ndarray,
-                 rng: np.random.Generator) -> EyeVertices:
+                 rng: np.random.Generator, uniforms: np.ndarray | None = None) -> EyeVertices:
     """Sample one eye vertex for each path of laser points ``laser`` (n,) int64 (module docstring): a uniform pixel
     region among the ``pixels`` its laser point records, a uniform point y in it, a cosine-weighted direction about
-    the FoV normal, and the ray's hit (aperture captures: the FoV leg of ``physics``)."""
+    the FoV normal, and the ray's hit (aperture captures: the FoV leg of ``physics``). ``uniforms`` (n, 5): the
+    uniforms to use in that order (the tracer's aligned draws) instead of five draws from ``rng``."""
     c, cst, ph = capture, caster, physics
     n = len(laser)
+    if uniforms is None:
+        def take(_):
+            return rng.random(n)
+    else:
+        def take(k):
+            return uniforms[:, k]
     count = pixels.count[laser]
-    pick = np.minimum((rng.random(n) * count).astype(np.int64), np.maximum(count - 1, 0))
+    pick = np.minimum((take(0) * count).astype(np.int64), np.maximum(count - 1, 0))
     row = np.minimum(pixels.first[laser] + pick, max(len(pixels.ix) - 1, 0))
-    y = c.fov_points(pixels.ix[row] + rng.random(n), pixels.iy[row] + rng.random(n)) if len(pixels.ix) \
+    y = c.fov_points(pixels.ix[row] + take(1), pixels.iy[row] + take(2)) if len(pixels.ix) \
         else np.zeros((n, 3))
     normal = np.broadcast_to(np.asarray(c.fov_normal, dtype=np.float64), (n, 3))
-    local, _ = square_to_hemisphere(rng.random(n), rng.random(n), "cosine")
+    local, _ = square_to_hemisphere(take(3), take(4), "cosine")
     w = to_world(local, normal)
     hits = cst.intersect(y + cst.offset * normal, w)
     cos_y = local[:, 2]

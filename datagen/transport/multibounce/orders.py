@@ -30,7 +30,8 @@ def tracer_settings(choice: OrdersChoice, options: MultibounceOptions, paths: in
     unless ``options.smoothing`` is False the time smoothing of :func:`~.smoothing.default_smoothing` for output bins
     of ``bin_width`` seconds at ``tolerance`` (across the points of a ``confocal`` scan too)."""
     smoothing = (default_smoothing(bin_width, tolerance, choice.min_order, confocal) if options.smoothing else {})
-    return MultibounceSettings(paths=paths, min_order=choice.min_order, max_order=choice.max_order, **smoothing)
+    return MultibounceSettings(paths=paths, min_order=choice.min_order, max_order=choice.max_order,
+                               aligned=options.common_random_numbers, **smoothing)
 
 
 def beside(base: Estimator, settings: MultibounceSettings, window: tuple[float, float],

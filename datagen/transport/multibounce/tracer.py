@@ -82,6 +82,10 @@ MULTIBOUNCE_STREAM = 57
 """The spawn-key entry of the tracer's random stream, appended to the run's :class:`numpy.random.SeedSequence`
 (so that orders 1–2 draw exactly what they draw without it, whatever order the two run in)."""
 
+EYE_UNIFORMS = 5
+"""Uniforms one eye vertex takes (:func:`~.eye.eye_vertices`): its pixel region, the point in it (2), the direction
+(2)."""
+
 MAX_VERTICES = 10_000
 """Safety bound on the vertices of one path (a path in a closed albedo-1 room stops at the window's end first:
 at ~1 m mean free path a 1 µs window holds ~300 vertices)."""
@@ -106,6 +110,11 @@ class MultibounceSettings:
             smooth_correct: subtract the smooth part of the estimated bias (:func:`~.smoothing.smoothed_correction`).
         eye: aperture captures: also join every light vertex to one vertex sampled from the FoV's side per path
             (:mod:`.eye`; False: next-event connections and direction hits only, as a check of the strategy).
+        aligned: every path of a batch draws its random numbers from its own slot of fixed-size draws (each bounce
+            draws for all the batch's paths, dead or alive), so that two scenes that differ in one object trace the
+            paths that never meet it identically (common random numbers: capture sequences, docs/motion.md); False:
+            draws for the live paths only (cheaper at deep orders). Aperture captures (a point-radiance capture's
+            connections are drawn per laser point either way).
 
     Raises:
         ConfigError: a field out of range (the message names it and the value).
@@ -122,6 +131,7 @@ class MultibounceSettings:
     smooth_narrow: int = 0
     smooth_correct: bool = False
     eye: bool = True
+    aligned: bool = False
 
     def __post_init__(self):
         for name in ("smooth_width", "smooth_max_width"):
@@ -308,6 +318,7 @@ class MultibounceTracer:
         c, cst, ph, s = self.capture, self.caster, self.physics, self.settings
         n = len(laser)
         self.stats.paths += n
+        ids = np.arange(n) if s.aligned else None        # each live path's slot in the batch's draws
         normal = c.spot_normals[laser]
         local, _ = square_to_hemisphere(rng.random(n), rng.random(n), "cosine")
         w = to_world(local, normal)
@@ -346,34 +357,42 @@ class MultibounceTracer:
                 q_prev, cos_src, limit, self._far_fov, fov)
             self.stats.escaped += escaped
             self.stats.window += late
+            ids = ids[keep] if ids is not None else None
             if s.max_order and order > s.max_order:
                 break
             pid = pid if eye is not None else None              # (no eye vertices yet: no rows)
             self.stats.vertices += len(keep)
             if order >= s.min_order and len(keep):
-                self._connect(x, n_x, obj, w_in, flux, counted, physical, laser, sink, rng, order, p_in)
+                self._connect(x, n_x, obj, w_in, flux, counted, physical, laser, sink, rng, order, p_in, (ids, n))
             if self._eye_serves(order + 1) and len(keep):
                 if eye is None:
-                    eye, pid = eye_vertices(c, cst, ph, self.pixels, laser, rng), np.arange(len(keep))
+                    u = rng.random((n, EYE_UNIFORMS))[ids] if ids is not None else None
+                    eye, pid = eye_vertices(c, cst, ph, self.pixels, laser, rng, u), np.arange(len(keep))
                     self.stats.eye_rays += len(keep)
                 self._connect_eye(x, n_x, obj, w_in, flux, counted, physical, laser, eye, pid, sink, order + 1)
             # continue: the material's direction sampler (cosine about n_x but for retroreflective lobes), flux × f π /
             # (q s), roulette with q = min(1, ρ); q_prev carries q s, s the direction's density over the cosine density
             m = len(keep)
-            u, v, r = rng.random(m), rng.random(m), rng.random(m)
+            if ids is None:
+                u, v, r = rng.random(m), rng.random(m), rng.random(m)
+            else:
+                u, v, r = rng.random((3, n))[:, ids]
             w_out, flux, live, ratio = continue_paths(n_x, obj, w_in, u, v, r, flux, self.survival, self._mat)
             (flux, counted, physical, laser, pid_next, p_in, src_normal, q_prev, ray_origin, ray_dir, cos_src,
              roulette) = survivors(live, r, self.survival, obj, x, n_x, w_out, flux, counted, physical, laser,
                                    pid if pid is not None else no_pid, p_in, cst.offset, ratio)
             pid = pid_next if pid is not None else None
+            ids = ids[live] if ids is not None else None
             self.stats.roulette += roulette
 
     def _connect(self, x: np.ndarray, n_x: np.ndarray, obj: np.ndarray, w_in: np.ndarray, flux: np.ndarray,
                  counted: np.ndarray, physical: np.ndarray, laser: np.ndarray, sink: Sink,
-                 rng: np.random.Generator, order: int, p_in: np.ndarray) -> None:
+                 rng: np.random.Generator, order: int, p_in: np.ndarray,
+                 slots: tuple[np.ndarray | None, int] = (None, 0)) -> None:
         """Next-event connections of vertices x (m, 3) (normals n_x facing the incoming light; paths from laser
         points ``laser`` (m,) int) to one uniform point per pixel region that their laser point records
-        (aperture) or to the sensor points (point radiance), with their MIS weights."""
+        (aperture) or to the sensor points (point radiance), with their MIS weights. ``slots``: (each vertex's slot
+        (m,) int64 in draws for n paths, n) when the draws are aligned (:attr:`MultibounceSettings.aligned`)."""
         c, ph = self.capture, self.physics
         if c.convention != "aperture":                            # sensor points: the shared connection
             for one in np.unique(laser):                          # one laser point per call
@@ -385,9 +404,11 @@ class MultibounceTracer:
         # geometry (the area sampler's, over each laser point's own pixel regions) and sensor collection, a shadow
         # ray x → y
         first, count = self.pixels.first[laser], self.pixels.count[laser]
+        ids, n = slots
+        points = (rng.random((len(x), self.pixels.max_count, 2)) if ids is None
+                  else rng.random((n, self.pixels.max_count, 2))[ids])
         b, s_idx, y, wk, r, cos_y = fov_targets_ranged(np.ascontiguousarray(x), np.ascontiguousarray(n_x), first,
-                                                       count, self.pixels.ix, self.pixels.iy,
-                                                       rng.random((len(x), self.pixels.max_count, 2)), self._fov)
+                                                       count, self.pixels.ix, self.pixels.iy, points, self._fov)
         vis = self.caster.visible(x[b], n_x[b], y, c.fov_normal)
         ph.stats.shadow_rays += len(b)
         b, s_idx, y, wk, r, cos_y = b[vis], s_idx[vis], y[vis], wk[vis], r[vis], cos_y[vis]
