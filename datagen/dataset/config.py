@@ -487,24 +487,24 @@ class Sample:
 
 def draw_room(config: DatasetConfig, split: str, index: int):
     """The room of sample ``index`` of ``split``: :func:`datagen.dataset.sampler.sample_room` on the split's
-    distribution with the sample's geometry, materials and sensor streams (:func:`sample_rngs`), exactly as
-    :func:`make_sample` draws it (``datagen view`` and ``datagen inspect`` re-draw rooms with it).
-
-    Returns:
-        (room, rngs): the :class:`~datagen.dataset.sampler.SampledRoom` and the sample's streams (name →
-        Generator; ``sampling`` and ``noise`` not yet used).
+    distribution with the sample's geometry, materials and sensor streams (:func:`sample_rngs`; walkers: stream
+    6), exactly as :func:`make_sample` draws it (``datagen view`` and ``datagen inspect`` re-draw rooms with it).
+    Returns (room, rngs): the :class:`~datagen.dataset.sampler.SampledRoom` and the sample's streams (name →
+    Generator; ``sampling`` and ``noise`` not yet used).
     Raises:
         ConfigError: the split is unknown, the index is out of range, or the room cannot be sampled.
     """
-    from .sampler import sample_room
+    from .sampler import MOTION_STREAM, sample_room
 
     if split not in config.splits:
         raise ConfigError(f"split {split!r} is not in the config (splits: {sorted(config.splits)})")
     if not 0 <= index < config.splits[split].count:
         raise ConfigError(f"index {index} is outside split {split!r} (count {config.splits[split].count})")
-    rngs = sample_rngs(config.seed, split, index)
-    room = sample_room(config.room_distribution(split), {k: rngs[k] for k in ("geometry", "materials", "sensor")})
-    return room, rngs
+    rngs, dist = sample_rngs(config.seed, split, index), config.room_distribution(split)
+    given = {k: rngs[k] for k in ("geometry", "materials", "sensor")} | (    # walkers: a stream of their own
+        {"motion": np.random.default_rng(sample_seed_sequence(config.seed, split, index, MOTION_STREAM))}
+        if dist.motion.walkers.max > 0 else {})
+    return sample_room(dist, given), rngs
 
 
 def setup_sample(config: DatasetConfig, split: str, index: int):
@@ -533,6 +533,7 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
     from .labels import scene_labels
     from .zones import zone_capture
     from .detector_draws import DETECTOR_STREAM, draw_sample_detector
+    from .sequences import sequence_sample
     from ..simulation import simulate_to_tolerance
 
     where = f"sample ({split}, {index})"
@@ -541,6 +542,8 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
     sim_config, drawn = draw_sample_detector(config.detector_draws, sample_seed_sequence(
         config.seed, split, index, DETECTOR_STREAM), room, sim_config)
     t1 = time.perf_counter()
+    if room.scene.moving:                 # walkers: a capture sequence (datagen/dataset/sequences.py)
+        return sequence_sample(config, split, index, room, sim_config, drawn, t0, t1)
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"], progress=progress)
     result, nodes = zone_capture(config, split, room, sim_config, result,   # a flood: the zones' result

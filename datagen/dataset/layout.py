@@ -21,6 +21,11 @@ import numpy as np
 
 SCAN_FIELDS = ("envelope", "counts")
 
+FRAME_FIELDS = ("envelope", "counts", "frame_error", "frame_times", "track_position", "track_velocity", "track_box",
+                "depth", "normal", "wall_depth", "wall_normal", "wall_albedo", "wall_mask")
+"""The fields a capture sequence stores per frame (leading frame axis; datagen/dataset/sequences.py): a clip of the
+loader (``NLOSDataset(..., clip=L)``) slices them."""
+
 
 def axis_names(name: str, ndim: int, capture_kind: str | None) -> list[str] | None:
     """Axis names of stored field ``name`` (per sample, ``ndim`` axes) for a capture of ``capture_kind``
@@ -32,13 +37,20 @@ def axis_names(name: str, ndim: int, capture_kind: str | None) -> list[str] | No
     if name == "node_envelope":         # a multi-zone capture's per-node envelope (datagen/dataset/zones.py)
         return ["node_y", "node_x", "zone_y", "zone_x", "time"] if ndim == 5 else None
     if name in ("envelope", "counts"):
+        if ndim == len(lead) + 2:        # a capture sequence's frames (datagen/dataset/sequences.py)
+            return ["frame"] + lead + ["time"]
         return lead + ["time"] if lead and ndim == len(lead) + 1 else None
     if name == "components":
         inner = axis_names("envelope", ndim - 1, capture_kind)
         return None if inner is None else ["component"] + inner
     view = {"wall_depth": ["view_y", "view_x"], "wall_albedo": ["view_y", "view_x"],
-            "wall_normal": ["view_y", "view_x", "xyz"], "wall_mask": ["object", "view_y", "view_x"]}
-    return view.get(name)
+            "wall_normal": ["view_y", "view_x", "xyz"], "wall_mask": ["object", "view_y", "view_x"],
+            "frame_error": ["frame"], "frame_times": ["frame"], "track_position": ["frame", "walker", "xyz"],
+            "track_velocity": ["frame", "walker", "xyz"], "track_box": ["frame", "walker", "corner", "xyz"]}
+    names = view.get(name)
+    if names is not None and name.startswith("wall_") and ndim == len(names) + 1:
+        return ["frame"] + names           # a sequence's wall-view labels, per frame
+    return names
 
 
 def _scan_shape(shape: tuple[int, ...]) -> tuple[int, int] | None:

@@ -106,6 +106,10 @@ class NLOSDataset(torch.utils.data.Dataset):
             has none) before returning any sample of it: once per shard and process (each DataLoader worker
             hashes the shards it reads), reading each shard file once more in full. Without it a byte changed
             inside a chunk's compressed data is returned as data (module doc "Integrity").
+        clip: a capture sequence's split (docs/motion.md): items are clips of ``clip`` consecutive frames, the
+            F // clip non-overlapping clips of each sequence in turn; the per-frame fields
+            (:data:`~datagen.dataset.layout.FRAME_FIELDS`) are cut to the clip, and the item gains ``sequence``
+            and ``first_frame`` (int64 ()).
     Item:
         dict field → torch tensor with the stored shape and dtype: envelope (*S, T) float32 expected detected
         photons per pulse per bin, counts (*S, T) int64, depth (H, W) float32 m, normal (H, W, 3),
@@ -127,7 +131,7 @@ class NLOSDataset(torch.utils.data.Dataset):
                  noise: Literal["frozen", "resample"] = "frozen", transform: Callable | None = None,
                  counts_dtype: torch.dtype | None = None, object_order: Literal["stored", "distance"] = "stored",
                  layout: Literal["stored", "network"] = "stored", detector_ranges: dict[str, Any] | None = None,
-                 verify: bool = False):
+                 verify: bool = False, clip: int | None = None):
         if not isinstance(split, str):
             raise TypeError(f"split must be one split name (a str), got {split!r} ({type(split).__name__}); "
                             f"splits: {sorted(read_card(Path(path))['splits'])}")
@@ -205,6 +209,14 @@ class NLOSDataset(torch.utils.data.Dataset):
         if layout == "network":
             from .layout import network_shapes
             network_shapes(info["fields"])
+        self.clip, self._clips = None, 1
+        if clip is not None:
+            frames = info["fields"].get("frame_times", {}).get("shape", [0])[0]
+            if not frames:
+                raise ValueError(f"clip={clip}: {self.path}/{split} holds no capture sequences (no frame_times)")
+            if isinstance(clip, bool) or not isinstance(clip, int) or not 1 <= clip <= frames:
+                raise ValueError(f"clip must be an integer from 1 to the sequences' {frames} frames, got {clip!r}")
+            self.clip, self._clips = clip, frames // clip
 
     def _field_reader(self, name: str) -> FieldReader:
         """The reader of field ``name``, with the card's per-shard sha256 of it when ``verify``."""
@@ -217,7 +229,7 @@ class NLOSDataset(torch.utils.data.Dataset):
         return "photons_per_pulse" in stored or "params" in stored
 
     def __len__(self) -> int:
-        return self.count
+        return self.count * self._clips
 
     def set_epoch(self, epoch: int) -> None:
         """Select the epoch of the re-drawn noise (call before iterating; a DataLoader with
@@ -309,8 +321,18 @@ class NLOSDataset(torch.utils.data.Dataset):
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         index = sample_index(index)
+        clip = None
+        if self.clip is not None:            # (sequence, clip) of a capture sequence's split
+            if not -len(self) <= index < len(self):
+                raise IndexError(f"index {index} out of range for the {len(self)} clips of split {self.split!r}")
+            index, clip = divmod(index % len(self), self._clips)
         out = self._read(index, widen=self.counts_dtype is None and self.layout != "network")  # network: float32
         arrays = {name: out[name] for name in self.fields}
+        if clip is not None:
+            from .layout import FRAME_FIELDS
+            first = clip * self.clip
+            arrays = {name: (a[first:first + self.clip] if name in FRAME_FIELDS else a) for name, a in arrays.items()}
+            arrays["sequence"], arrays["first_frame"] = np.array(index, dtype=np.int64), np.array(first, np.int64)
         if self.layout == "network":
             from .layout import to_network
             arrays = to_network(arrays)
@@ -451,9 +473,10 @@ def plot_sample(sample: dict, time_edges: np.ndarray, title: str | None = None, 
     for ax, key in zip(axes[1:], panels):
         data = _np(sample[key])
         if key == "depth":
+            data = data[0] if data.ndim == 3 else data     # a capture sequence's: its first frame
             im = ax.imshow(np.where(data > 0, data, np.nan), origin="lower", cmap="viridis")
             fig.colorbar(im, ax=ax, label="depth (m)")
-            ax.set_title("depth from the FoV centre")
+            ax.set_title("depth from the FoV centre" + (" (frame 0)" if _np(sample[key]).ndim == 3 else ""))
         else:
             ax.imshow(data.max(axis=2).T, origin="lower", cmap="Greys", interpolation="nearest")
             ax.set_title("occupancy (max over z; x →, y ↑)")

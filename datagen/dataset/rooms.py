@@ -322,12 +322,15 @@ class MotionDist(Model):
     boxes (``size``: x along the way they walk, y across, z tall, m), each walking a straight line between two
     points drawn uniformly on the L-bend room's floor (inset by the walker's half-diagonal, so that it never leaves
     the room) at ``speed`` m/s, back and forth until the sequence ends; ``frames``: the capture's frames
-    (:class:`~datagen.scene.motion.FrameSpec`: count, rate, exposure). Drawn from the sample's "motion" stream."""
+    (:class:`~datagen.scene.motion.FrameSpec`: count, rate, exposure); ``change_split``: each frame's change is
+    simulated with 1/N of the sampling. Drawn from the sample's "motion" stream."""
 
     walkers: CountRange = CountRange()
     size: Size3 = Size3(x=Range(min=0.25, max=0.35), y=Range(min=0.4, max=0.5), z=Range(min=1.6, max=1.9))
     speed: Positive = Range(min=0.5, max=2.0)
     frames: FrameSpec | None = None
+    change_split: int = Field(128, ge=1, le=4096, description="a frame's change takes 1/N of the sampling "
+                              "(datagen.simulation.sequence.simulate_sequence)")
 
     @model_validator(mode="after")
     def _frames(self) -> "MotionDist":

@@ -37,6 +37,10 @@ from .rooms import (OBJECT_CLASSES, UNIFORMS_PER_MATERIAL, MeshObjectDist, Objec
                     RoomDistribution)
 from .scan import draw_scan, rectangle_corners, scan_capture
 
+MOTION_STREAM = 6
+"""Stream id of a dataset sample's walkers (docs/motion.md; the detector draw's is 5), drawn only when the
+distribution has walkers, so that every other draw stays where it was."""
+
 STREAMS = ("geometry", "materials", "sensor")
 """Keys of the generator mapping :func:`sample_room` takes; a distribution with walkers also takes "motion"."""
 

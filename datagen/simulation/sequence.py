@@ -14,13 +14,16 @@ Two methods give the same frames in expectation:
   once at the config's sampling; every frame adds only the *change* from the reference, estimated with
   ``1 / change_split`` of that sampling on the frame's scene and on the reference with the same random streams
   (common random numbers: every path that meets neither the moving object nor its shadow cancels to the bit), in
-  two independent halves. Frame f = reference + change_f, unbiased. Its stated error is the reference's error and
+  two independent halves. Frame f = reference + change_f, unbiased but for the bins where a noisy change takes an
+  empty bin below zero, which are set to zero (``attrs["clamped"]``: the largest such negative sum of a frame, over
+  the frame's L2 norm). Its stated error is the reference's error and
   the change's, added in quadrature; the change's is read from the spread of its two halves, pooled over the
   frames (docs/motion.md, "What a frame's error is").
 
-Random streams: the reference and the ``"frames"`` method take the config's (``STREAM_SAMPLING``); the change's
-halves h = 0, 1 take ``SeedSequence(seed, spawn_key=(STREAM_CHANGES, h))``; frame f's detector noise takes
-``SeedSequence(seed, spawn_key=(STREAM_NOISE, f))`` — independent in every frame, as a real detector's is.
+Random streams, children of a root (``SeedSequence(seed)``, or a dataset sample's): the reference and the
+``"frames"`` method take (``STREAM_SAMPLING``,), as :func:`~datagen.simulation.simulate` does; the change's halves
+h = 0, 1 take (``STREAM_CHANGES``, h); frame f's detector noise takes (``STREAM_NOISE``, f): independent in every
+frame, as a real detector's is.
 """
 from __future__ import annotations
 
@@ -34,7 +37,7 @@ from ..errors import SceneError
 from ..scene import RayCaster, Scene, resolve_capture
 from ..scene.motion import object_anchor, posed_vertices, velocity_at
 from ..transport import estimator
-from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config, stream_rng
+from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config
 from .detection import Result, detector_counts, make_result
 from .run import Planned, Replicas
 
@@ -110,20 +113,21 @@ def change_config(config: SimulationConfig, split: int, tracer_paths: int | None
     return small.model_copy(update=update)
 
 
-def _simulate(scene: Scene, config: SimulationConfig):
-    """:func:`~datagen.simulation.simulate`'s steps, to the bit, also returning the effect plan."""
+def _simulate(scene: Scene, config: SimulationConfig, root: np.random.SeedSequence):
+    """:func:`~datagen.simulation.simulate`'s steps, to the bit (its sampling stream is ``root``'s child
+    ``STREAM_SAMPLING``), also returning the effect plan and the replicas."""
     t0 = time.perf_counter()
-    rng = stream_rng(config.seed, STREAM_SAMPLING)
+    rng = _rng(root, STREAM_SAMPLING)
     runs = Replicas(scene, config, rng)
     runs.run(config.error.replicas)
     tr = runs.transported()
     return make_result(scene, config, tr, None, t0, {"error": runs.error_attrs(tr, rng)}), tr.plan, runs
 
 
-def _change_run(scene: Scene, config: SimulationConfig, seed: int, plan) -> tuple[np.ndarray, ...]:
+def _change_run(scene: Scene, config: SimulationConfig, root: np.random.SeedSequence, plan) -> tuple[np.ndarray, ...]:
     """The two halves' binned envelopes ((n_channels, n_bins) each) of ``scene`` at the change's ``config``, under
     the reference's effect ``plan`` (every frame's change is made under the same decisions, so that the streams line
-    up): two independent runs (streams ``SeedSequence(seed, spawn_key=(STREAM_CHANGES, h))``) sharing one ray
+    up): two independent runs (streams: ``root``'s children (STREAM_CHANGES, h)) sharing one ray
     caster, each the config's replicas (the tracer, when planned, at least its two)."""
     if not config.split_components:
         scene = scene.with_summed_primary()
@@ -131,7 +135,7 @@ def _change_run(scene: Scene, config: SimulationConfig, seed: int, plan) -> tupl
     planned = Planned(scene, caster, resolve_capture(scene, caster), plan)
     halves = []
     for h in (0, 1):
-        runs = Replicas(scene, config, _rng(seed, STREAM_CHANGES, h), planned)
+        runs = Replicas(scene, config, _rng(root, STREAM_CHANGES, h), planned)
         runs.run(config.error.replicas, tracer_target=MIN_TRACER_RUNS)
         halves.append(runs.transported().binned.sum(axis=0))
     return tuple(halves)
@@ -141,8 +145,9 @@ def _norm(a: np.ndarray) -> float:
     return float(np.sqrt(np.sum(a * a)))
 
 
-def _rng(seed: int, *key: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+def _rng(root: np.random.SeedSequence, *key: int) -> np.random.Generator:
+    """The generator of ``root``'s child ``key``: SeedSequence(root's entropy, spawn_key=root's key + ``key``)."""
+    return np.random.default_rng(np.random.SeedSequence(root.entropy, spawn_key=tuple(root.spawn_key) + key))
 
 
 def _slot_times(scene: Scene, config: SimulationConfig, slots: int | None):
@@ -190,7 +195,8 @@ def _labels(scene: Scene, times: np.ndarray):
 
 
 def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, method: str = "changes",
-                      change_split: int = DEFAULT_CHANGE_SPLIT, slots: int | None = None) -> SequenceResult:
+                      change_split: int = DEFAULT_CHANGE_SPLIT, slots: int | None = None,
+                      streams: np.random.SeedSequence | None = None) -> SequenceResult:
     """Simulate every frame of ``scene.capture.frames`` (module docstring: the two methods and their errors).
 
     Args:
@@ -201,6 +207,8 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
         method: "changes" (default) or "frames".
         change_split: the change's sampling is 1/``change_split`` of the config's ("changes").
         slots: groups of consecutive scan points simulated at one time (scanned captures; default: one per point).
+        streams: the root of the sequence's random streams (default ``SeedSequence(config.seed)``: the reference
+            then draws what :func:`~datagen.simulation.simulate` draws); dataset builds pass the sample's.
     Returns:
         :class:`SequenceResult`.
     Raises:
@@ -218,7 +226,8 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     frames = scene.capture.frames
     times, holds = _slot_times(scene, config, slots)
     n_frames, n_slots = times.shape
-    first, plan, runs = _simulate(scene.at(times[0, 0]), config)
+    root = streams if streams is not None else np.random.SeedSequence(config.seed)
+    first, plan, runs = _simulate(scene.at(times[0, 0]), config, root)
     ref_error = float(first.attrs["error"]["rel_l2"])
     ref_noise = float(first.attrs["error"].get("monte_carlo") or 0.0)
     envelopes = np.empty((n_frames,) + first.envelope.shape)
@@ -226,16 +235,16 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     if method == "frames":
         for f in range(n_frames):
             envelopes[f] = _frame_from_slots([first.envelope if (f, s) == (0, 0) else
-                                              _simulate(scene.at(times[f, s]), config)[0].envelope
+                                              _simulate(scene.at(times[f, s]), config, root)[0].envelope
                                               for s in range(n_slots)], holds)
         error, noise = np.full(n_frames, ref_error), np.full(n_frames, ref_noise)
     else:
         small = change_config(config, 2 * change_split, runs.tracer_paths_run() if runs.tracer is not None else None)
         ref = scene.at(times[0, 0])
         shape = first.envelope.shape
-        base = [b.reshape(shape) for b in _change_run(ref, small, config.seed, plan)]
+        base = [b.reshape(shape) for b in _change_run(ref, small, root, plan)]
         reference = first.envelope
-        step_var = np.zeros(n_frames)
+        step_var, negative = np.zeros(n_frames), np.zeros(n_frames)
         prev = None
         for f in range(n_frames):
             parts = []
@@ -245,10 +254,12 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
                     continue
                 sc = scene.at(times[f, s])
                 parts.append(tuple(half.reshape(shape) - base[h] for h, half in
-                                   enumerate(_change_run(sc, small, config.seed, plan))))
+                                   enumerate(_change_run(sc, small, root, plan))))
             d0 = _frame_from_slots([p[0] for p in parts], holds)
             d1 = _frame_from_slots([p[1] for p in parts], holds)
             envelopes[f] = reference + 0.5 * (d0 + d1)
+            negative[f] = -float(envelopes[f][envelopes[f] < 0].sum())
+            np.maximum(envelopes[f], 0.0, out=envelopes[f])     # a noisy change below an empty bin: no light
             var[f] = float(np.sum((d0 - d1) ** 2)) / 4.0       # the variance of the mean of two halves, summed
             if prev is not None:                               # that of the step from the frame before
                 step_var[f] = float(np.sum(((d0 - prev[0]) - (d1 - prev[1])) ** 2)) / 4.0
@@ -267,12 +278,14 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     frame_config = config.model_copy(update={"detector": detector})
     counts = np.empty(envelopes.shape, dtype=np.int64)
     for f in range(n_frames):
-        frame_noise = _rng(config.seed, STREAM_NOISE, f)
+        frame_noise = _rng(root, STREAM_NOISE, f)
         counts[f] = detector_counts(envelopes[f], frame_config, first.attrs["plan"], frame_noise)[0]
     names, pos, vel, box = _labels(scene, frames.times() + frames.exposure / 2)
     attrs = {"method": method, "change_split": change_split if method == "changes" else None, "slots": n_slots,
              "frames": frames.model_dump(mode="json"), "seconds": time.perf_counter() - t0,
              "reference_error": ref_error, "mean_step": float(steps.mean()) if steps.size else 0.0,
+             "clamped": (float(negative.max() / max(float(norms.max()), np.finfo(float).tiny))
+                         if method == "changes" else 0.0),
              "reference": first.attrs}
     return SequenceResult(first.time_edges, frames.times(), envelopes, counts, error, noise, difference_error, pos,
                           vel, box, names, attrs)
