@@ -56,6 +56,7 @@ Modules (they import each other directly, never through this package):
 - :mod:`~datagen.dataset.figures`: pictures of scanned samples (``datagen inspect``).
 - :mod:`~datagen.dataset.components`: the ``components`` field's slots and array;
 - :mod:`~datagen.dataset.zones`: multi-zone samples (a flood's zones, ``node_envelope``);
+- :mod:`~datagen.dataset.sequences`: capture-sequence samples (rooms with walkers: frames, tracks; docs/motion.md);
 - :mod:`~datagen.dataset.dtypes`: the stored dtypes a config chooses (``store.counts_dtype``);
 - :mod:`~datagen.dataset.dask_engine`: the Dask engine of builds (``--scheduler``, ``LocalCluster``);
 - :mod:`~datagen.dataset.forkserver_preload`: preloaded by the build's fork server, ties its life to the build;

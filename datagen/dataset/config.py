@@ -3,9 +3,8 @@
 A dataset config (YAML, see ``configs/datasets/*.yaml``) names a root ``seed``, the ``splits`` (name →
 ``count`` and optional ``room_overrides`` for held-out material or geometry splits), the ``shard_size``, the
 room distribution (``room``: a path to ``configs/rooms/*.yaml`` or an inline mapping, see
-:mod:`datagen.dataset.rooms`), ``simulation`` overrides (passed to
-:func:`datagen.simulation.run.resolve_config`), the
-``detector`` (a preset path such as ``configs/detectors/hwu_single_pixel.yaml`` or an inline mapping of
+:mod:`datagen.dataset.rooms`), ``simulation`` overrides (passed to :func:`datagen.simulation.run.resolve_config`),
+the ``detector`` (a preset path such as ``configs/detectors/hwu_single_pixel.yaml`` or an inline mapping of
 :class:`datagen.spad.DetectorConfig` fields), the ``labels`` (:class:`datagen.dataset.labels.LabelSpec`) and which
 fields to ``store``.
 
@@ -543,7 +542,8 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
         config.seed, split, index, DETECTOR_STREAM), room, sim_config)
     t1 = time.perf_counter()
     if room.scene.moving:                 # walkers: a capture sequence (datagen/dataset/sequences.py)
-        return sequence_sample(config, split, index, room, sim_config, drawn, t0, t1)
+        return Sample(*sequence_sample(config, split, index, room, sim_config, drawn, (t0, t1),
+                                       sample_seed_sequence(config.seed, split, index, "sampling"), STREAMS))
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"], progress=progress)
     result, nodes = zone_capture(config, split, room, sim_config, result,   # a flood: the zones' result

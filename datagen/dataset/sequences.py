@@ -29,18 +29,19 @@ from .labels import scene_labels
 from .layout import FRAME_FIELDS
 
 
-def sequence_sample(config, split: str, index: int, room, sim_config, drawn: dict, t0: float, t1: float):
-    """The :class:`~datagen.dataset.config.Sample` of sample ``index`` of ``split`` whose room has walkers: its
-    sequence's arrays (:func:`sequence_arrays`), ``photons_per_pulse``, ``params`` (as every sample's, with the
-    walkers in ``room.motion``) and the reference frame's accuracy record."""
-    from .config import STREAMS, Sample, sample_seed_sequence, split_key
+def sequence_sample(config, split: str, index: int, room, sim_config, drawn: dict, times: tuple[float, float],
+                    root: np.random.SeedSequence, streams: dict) -> tuple:
+    """The fields of the :class:`~datagen.dataset.config.Sample` (arrays, time_edges, seconds, component names,
+    axes, orders, accuracy) of sample ``index`` of ``split`` whose room has walkers: its sequence's arrays
+    (:func:`sequence_arrays`, ``root`` the sample's sampling stream), ``photons_per_pulse``, ``params`` (as every
+    sample's, ``streams`` the stream ids, the walkers in ``room.motion``) and the accuracy record. ``times``: the
+    build's clock at the sample's start and after its room was drawn."""
     from .layout import axis_names
     from .sample_params import json_default
 
     where = f"sample ({split}, {index})"
     motion = config.room_distribution(split).motion
-    arrays, seq = sequence_arrays(config, room, sim_config, sample_seed_sequence(config.seed, split, index,
-                                                                                 "sampling"), motion, where)
+    arrays, seq = sequence_arrays(config, room, sim_config, root, motion, where)
     t2 = time.perf_counter()
     ref = seq.attrs["reference"]
     arrays["photons_per_pulse"] = np.asarray(ref["photons_per_pulse"], dtype=np.float64)
@@ -51,15 +52,16 @@ def sequence_sample(config, split: str, index: int, room, sim_config, drawn: dic
                              "difference_error": seq.difference_error}}
     if config.store.params:
         plan = {effect: {k: d[k] for k in ("on", "forced", "reason")} for effect, d in ref["plan"].items()}
-        params = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
-                  "streams": STREAMS, "room": room.params, "objects": room.objects, "effects": ref.get("effects"),
+        params = {"dataset_seed": config.seed, "split": split, "split_key": int(root.spawn_key[0]), "index": index,
+                  "streams": streams, "room": room.params, "objects": room.objects, "effects": ref.get("effects"),
                   "accuracy": accuracy, "plan": plan, **({"detector_draw": drawn} if drawn else {})}
         arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=json_default), dtype=object)
     kind = room.scene.capture.type if room.scene.capture.model_fields_set - {"frames"} else None
     axes = {name: names for name, value in arrays.items()
             if (names := axis_names(name, np.ndim(value), kind)) is not None}
+    t0, t1 = times
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": 0.0, "total": time.perf_counter() - t0}
-    return Sample(arrays, np.asarray(seq.time_edges, dtype=np.float64), seconds, [], axes, {}, accuracy)
+    return arrays, np.asarray(seq.time_edges, dtype=np.float64), seconds, [], axes, {}, accuracy
 
 
 def sequence_arrays(config, room, sim_config, root: np.random.SeedSequence, motion, where: str):
