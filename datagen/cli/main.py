@@ -152,6 +152,10 @@ def simulate(scene_file, out, lookins, pixels, secondary, orders, estimator, edg
         overrides.update({"detector": merge_detector(det, file_det), "irf": file_irf})
     config = resolve_config(scene, {**overrides, "effect_threshold": tol})
     cap = _parse_time_cap(time_cap)
+    if scene.moving or (scene.capture is not None and scene.capture.frames is not None):
+        frames = scene.capture.frames.count if scene.capture and scene.capture.frames else 1
+        click.echo(f"note: {scene_file} moves ({', '.join(scene.moving) or 'frames'}): simulate takes its first "
+                   f"instant; `datagen sequence {scene_file} --out DIR` simulates its {frames} frames", err=True)
     announce_work(scene, config)
     if tol is not None:
         from ..simulation import ToleranceOutOfReach, simulate_to_tolerance
