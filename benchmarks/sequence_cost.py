@@ -5,7 +5,8 @@ frames and their steps come to frames simulated on their own (docs/motion.md, "W
 
 Two scenes, each with a person-sized walker: ``scene_library/demo_room_walker.yaml`` (the demo room, the lookin
 estimator at its 10 × 10 lookins and 60 × 60 pixels, every order) and room 0 of ``configs/rooms/default.yaml`` with
-one walker drawn (``motion.walkers: 1``; the room file's lookin settings). For each:
+one walker drawn (``motion.walkers: 1``) at ``configs/datasets/default.yaml``'s sampling (the area sampler, 16384
+hidden samples a replica, every order; :data:`ROOM_REPLICAS` replicas). For each:
 
 1. **One frame**: the scene at the first frame's instant, simulated alone (the unit of cost).
 2. **New**: :func:`datagen.simulation.sequence.simulate_sequence` with ``method="changes"``.
@@ -30,12 +31,17 @@ import time
 import numpy as np
 
 import datagen
+from datagen.dataset.config import load_dataset_config
 from datagen.dataset.rooms import load_room_distribution
 from datagen.dataset.sampler import sample_room
 from datagen.scene.motion import FrameSpec
 from datagen.simulation.sequence import DEFAULT_CHANGE_SPLIT, simulate_sequence
 
 WALKER_FRAMES = {"count": 100, "rate": "10Hz", "exposure": "50ms"}
+
+ROOM_REPLICAS = 24
+"""Replicas of configs/datasets/default.yaml's sampling (16384 hidden samples each) for the room's frames: the
+dataset adds replicas of that size until its 1 % tolerance; a sequence runs a fixed count."""
 
 
 def _norm(a: np.ndarray) -> float:
@@ -46,18 +52,21 @@ def demo_scene(frames: int):
     scene = datagen.load_scene("scene_library/demo_room_walker.yaml")
     scene.capture = scene.capture.model_copy(update={"frames": scene.capture.frames.model_copy(
         update={"count": frames})})
-    return "demo room + walker", scene
+    return "demo room + walker", scene, datagen.resolve_config(scene)
 
 
 def room_scene(frames: int):
     dist = load_room_distribution("configs/rooms/default.yaml").with_overrides(
         {"motion": {"walkers": 1, "frames": {**WALKER_FRAMES, "count": frames}}})
     rngs = {k: np.random.default_rng([0, i]) for i, k in enumerate(("geometry", "materials", "sensor", "motion"))}
-    return "default.yaml room 0 + walker", sample_room(dist, rngs).scene
+    scene = sample_room(dist, rngs).scene
+    overrides = load_dataset_config("configs/datasets/default.yaml").simulation_overrides()
+    config = datagen.resolve_config(scene, overrides)
+    return "default.yaml room 0 + walker", scene, config.model_copy(update={"error": config.error.model_copy(
+        update={"replicas": ROOM_REPLICAS})})
 
 
-def measure(name: str, scene, split: int, old: bool) -> None:
-    config = datagen.resolve_config(scene)
+def measure(name: str, scene, config, split: int, old: bool) -> None:
     frames: FrameSpec = scene.capture.frames
     mids = frames.times() + frames.exposure / 2
     n = len(mids)

@@ -248,8 +248,8 @@ def test_aligned_tracer_draws_share_the_paths_that_miss_a_moved_object():
     gaps = {}
     for aligned in (False, True):
         config = datagen.resolve_config(scene)
-        config = config.model_copy(update={"multibounce": config.multibounce.model_copy(
-            update={"common_random_numbers": aligned, "paths": 20000})})
+        config = config.model_copy(update={"common_random_numbers": aligned, "multibounce": config.multibounce.model_copy(
+            update={"paths": 20000})})
         a = datagen.simulate(scene, config).components["multibounce"]
         b = datagen.simulate(moved, config).components["multibounce"]
         other = datagen.simulate(scene, config.model_copy(update={"seed": 1})).components["multibounce"]

@@ -181,6 +181,10 @@ class SimulationConfig(BaseModel):
             spelling of orders 1, which the frozen suites use): 1.
         multibounce: the order ≥ 3 tracer's settings (:class:`MultibounceOptions`), used when orders ≥ 3 are
             simulated.
+        common_random_numbers: every path draws its random numbers from a slot of its own (the tracer's paths,
+            the area sampler's back connections and secondary partners), so that two scenes that differ in one
+            object trace the paths that never meet it identically (capture sequences, docs/motion.md); off:
+            draws for the live paths only (cheaper).
         workers: processes sharing the work (1 = in process; the result does not depend on it).
         error: how the stated Monte Carlo error is made (:class:`ErrorOptions`): ``replicas`` R and the
             ``confidence`` with which it bounds the actual error (old flat keys ``replicas``, ``error_confidence``).
@@ -205,6 +209,7 @@ class SimulationConfig(BaseModel):
     secondary: Literal["none", "optimized", "full", "exact"] = "full"
     orders: int | Literal["auto"] | None = None
     multibounce: MultibounceOptions = Field(default_factory=lambda: MultibounceOptions())
+    common_random_numbers: bool = False
     workers: int = Field(1, ge=1)
     error: ErrorOptions = Field(default_factory=lambda: ErrorOptions())
     effect_threshold: float = Field(0.01, gt=0, lt=1)

@@ -74,7 +74,8 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
     orders = plan.decisions.get("multibounce")
     if orders is not None and orders.on:     # the tracer beside the estimator: orders ≥ 3, or ≥ 2 without secondary
         settings = tracer_settings(orders.choice, config.multibounce, config.tracer_paths(capture.n_lasers),
-                                   config.time.bin_width, config.effect_threshold, capture.kind == "confocal")
+                                   config.time.bin_width, config.effect_threshold, capture.kind == "confocal",
+                                   config.common_random_numbers)
         transport = beside(transport, settings, (config.time.t_start, config.time.t_stop), config.irf.support[0])
     return transport, plan
 
@@ -249,10 +250,11 @@ class Replicas:
             self._run_group(t, self.tracer_sums, more, self._tracer_stream, None)
         return more > 0
 
-    def run(self, n: int, progress: bool = False, tracer_target: int | None = None) -> None:
+    def run(self, n: int, progress: bool = False, tracer_target: int | None = None, min_tracer: int = 2) -> None:
         """Run the next ``n`` replicas (one, at most, for a deterministic estimator); beside orders 1–2 that run
         replicas, the tracer runs to ``tracer_target`` replicas when given (:meth:`whole_top_up`), else to its
-        Neyman share of them (:func:`~datagen.simulation.replicas.tracer_replicas_wanted`)."""
+        Neyman share of them (:func:`~datagen.simulation.replicas.tracer_replicas_wanted`), and to ``min_tracer`` at
+        least (two: the spread that share is read from; a capture sequence's change runs its halves one by one)."""
         if not self.monte_carlo:
             n = 1 - self.count
         if n <= 0:
@@ -276,8 +278,9 @@ class Replicas:
             self._run_group(self.tracer, self.tracer_sums, more, self._tracer_stream, None)
         else:                                    # orders 1–2, then the tracer's replicas that go with them
             self._run_group(self.transport.base, self.sums, n, lambda r: replica_rng(self.root, r), bar)
-            if self.tracer_sums.count < 2:
-                self._run_group(self.tracer, self.tracer_sums, 2 - self.tracer_sums.count, self._tracer_stream, None)
+            if self.tracer_sums.count < min_tracer:
+                self._run_group(self.tracer, self.tracer_sums, min_tracer - self.tracer_sums.count,
+                                self._tracer_stream, None)
             wanted = (tracer_target if tracer_target is not None
                       else tracer_replicas_wanted(self.sums, self.tracer_sums, *self.replica_costs()))
             self._run_group(self.tracer, self.tracer_sums, wanted - self.tracer_sums.count, self._tracer_stream,

@@ -22,7 +22,7 @@ Two methods give the same frames in expectation:
 
 Random streams, children of a root (``SeedSequence(seed)``, or a dataset sample's): the reference and the
 ``"frames"`` method take (``STREAM_SAMPLING``,), as :func:`~datagen.simulation.simulate` does; the change's halves
-h = 0, 1 take (``STREAM_CHANGES``, h); frame f's detector noise takes (``STREAM_NOISE``, f): independent in every
+are replicas 0 and 1 of a run on (``STREAM_CHANGES``,); frame f's detector noise takes (``STREAM_NOISE``, f): independent in every
 frame, as a real detector's is.
 """
 from __future__ import annotations
@@ -40,10 +40,6 @@ from ..transport import estimator
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config
 from .detection import Result, detector_counts, make_result
 from .run import Planned, Replicas
-
-MIN_TRACER_RUNS = 2
-"""Replicas the order ≥ 3 tracer runs in each half of a change (:class:`~datagen.simulation.run.Replicas` runs at
-least two beside replicas of orders 1–2)."""
 
 STREAM_CHANGES = 3
 """Spawn-key entry of the change's random streams (after sampling 0, noise 1 and the dataset's 2)."""
@@ -92,10 +88,9 @@ class SequenceResult:
 
 
 def change_config(config: SimulationConfig, split: int, tracer_paths: int | None = None) -> SimulationConfig:
-    """``config`` with ``1/split`` of its sampling, in one replica: the estimator's own split (its registry entry's
-    ``replica`` hook, the rule its replicas use) and ``tracer_paths`` / ``split`` light paths per laser point of the
-    order ≥ 3 tracer in each of its :data:`MIN_TRACER_RUNS` replicas (``tracer_paths``: what the reference traced in
-    all its tracer replicas).
+    """``config`` with ``1/split`` of its sampling in two replicas, the change's halves: the estimator's own split
+    (its registry entry's ``replica`` hook, the rule its replicas use) and ``tracer_paths`` / ``split`` light paths
+    per laser point of the order ≥ 3 tracer (``tracer_paths``: what the reference traced in all its replicas).
 
     Raises:
         SceneError: a deterministic estimator (one refined, not only replicated: the quadrature): at a coarser
@@ -106,9 +101,9 @@ def change_config(config: SimulationConfig, split: int, tracer_paths: int | None
         raise SceneError(f"method 'changes' needs a Monte Carlo estimator; {config.estimator.kind!r} is "
                          "deterministic: use method 'frames' (docs/motion.md)")
     small = config.with_estimator(**entry.replica(config.estimator, split))
-    update = {"error": small.error.model_copy(update={"replicas": 1})}
+    update = {"error": small.error.model_copy(update={"replicas": 2})}
     if tracer_paths is not None:
-        paths = max(1, -(-tracer_paths // (split * MIN_TRACER_RUNS)))
+        paths = max(1, -(-tracer_paths // split))
         update["multibounce"] = small.multibounce.model_copy(update={"paths": paths})
     return small.model_copy(update=update)
 
@@ -127,18 +122,17 @@ def _simulate(scene: Scene, config: SimulationConfig, root: np.random.SeedSequen
 def _change_run(scene: Scene, config: SimulationConfig, root: np.random.SeedSequence, plan) -> tuple[np.ndarray, ...]:
     """The two halves' binned envelopes ((n_channels, n_bins) each) of ``scene`` at the change's ``config``, under
     the reference's effect ``plan`` (every frame's change is made under the same decisions, so that the streams line
-    up): two independent runs (streams: ``root``'s children (STREAM_CHANGES, h)) sharing one ray
-    caster, each the config's replicas (the tracer, when planned, at least its two)."""
+    up): replicas 0 and 1 of one run (stream: ``root``'s child (STREAM_CHANGES,)), each with one replica of the
+    tracer when it is planned."""
     if not config.split_components:
         scene = scene.with_summed_primary()
     caster = RayCaster(scene)
-    planned = Planned(scene, caster, resolve_capture(scene, caster), plan)
-    halves = []
-    for h in (0, 1):
-        runs = Replicas(scene, config, _rng(root, STREAM_CHANGES, h), planned)
-        runs.run(config.error.replicas, tracer_target=MIN_TRACER_RUNS)
-        halves.append(runs.transported().binned.sum(axis=0))
-    return tuple(halves)
+    runs = Replicas(scene, config, _rng(root, STREAM_CHANGES),
+                    Planned(scene, caster, resolve_capture(scene, caster), plan))
+    runs.run(1, tracer_target=1, min_tracer=1)
+    first = runs.transported().binned.sum(axis=0)
+    runs.run(1, tracer_target=2, min_tracer=1)
+    return first, 2.0 * runs.transported().binned.sum(axis=0) - first
 
 
 def _norm(a: np.ndarray) -> float:
@@ -220,8 +214,7 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     if method not in ("changes", "frames"):
         raise SceneError(f"sequence method {method!r}: expected 'changes' or 'frames'")
     config = config or resolve_config(scene)
-    config = config.model_copy(update={"multibounce": config.multibounce.model_copy(
-        update={"common_random_numbers": True})})            # the tracer's paths line up from frame to frame
+    config = config.model_copy(update={"common_random_numbers": True})   # paths line up from frame to frame
     t0 = time.perf_counter()
     frames = scene.capture.frames
     times, holds = _slot_times(scene, config, slots)
@@ -239,7 +232,7 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
                                               for s in range(n_slots)], holds)
         error, noise = np.full(n_frames, ref_error), np.full(n_frames, ref_noise)
     else:
-        small = change_config(config, 2 * change_split, runs.tracer_paths_run() if runs.tracer is not None else None)
+        small = change_config(config, change_split, runs.tracer_paths_run() if runs.tracer is not None else None)
         ref = scene.at(times[0, 0])
         shape = first.envelope.shape
         base = [b.reshape(shape) for b in _change_run(ref, small, root, plan)]

@@ -108,6 +108,9 @@ class AreaSettings(PhysicsSettings):
             sample for each strategy (sum ≥ 1 when secondary is "full").
         batch: hidden samples processed together (lowered so that batch × FoV points ≤ ``MAX_CONNECTIONS``).
         workers: processes sharing the replicas of :meth:`AreaSampler.run_replicas` (results do not depend on it).
+        aligned: the draws of the back connections and the secondary partners made for every hidden sample of a
+            batch and picked for those that use them (``SimulationConfig.common_random_numbers``: scenes that differ
+            in one object draw alike for every sample it does not touch; capture sequences, docs/motion.md).
 
     Raises:
         ConfigError: a field out of range (the message names the field and the value).
@@ -125,6 +128,7 @@ class AreaSettings(PhysicsSettings):
     area_partners: int = 1
     batch: int = 4096
     workers: int = 1
+    aligned: bool = False
 
     def __post_init__(self):
         def bad(name, value, why):
@@ -319,7 +323,8 @@ class AreaSampler:
         return cls(scene, AreaSettings.from_transport(physics, samples=config.estimator.samples,
                                                       secondary="none" if secondary == "none" else "full",
                                                       sensor_blockers=physics.sensor_blockers,
-                                                      workers=config.workers), caster, capture=capture)
+                                                      workers=config.workers,
+                                                      aligned=config.common_random_numbers), caster, capture=capture)
 
     def configure(self, settings: AreaSettings) -> None:
         """Use ``settings`` from now on (same physics object; e.g. the quadrature's shadow-ray decision)."""
@@ -373,7 +378,8 @@ class AreaSampler:
         return spot_hits(self.capture, self.caster, uv, laser)
 
     def _connect(self, x: np.ndarray, n_x: np.ndarray, rho_x: np.ndarray, laser: int, rng: np.random.Generator,
-                 pad: np.ndarray | None, obj: np.ndarray, w_spot: np.ndarray) -> Connections:
+                 pad: np.ndarray | None, obj: np.ndarray, w_spot: np.ndarray,
+                 drawn: dict | None = None) -> Connections:
         """Next-event connections of hidden points x (B, 3), from the side of normals n_x (B, 3), to the sensor.
 
         Two strategies under the balance heuristic: the area strategy of transport's ``connect`` sensor
@@ -389,6 +395,8 @@ class AreaSampler:
         Without the direction strategy a point a few cm from the FoV (a side wall meeting the relay wall, the
         box 10 cm in front of it) has G(x, y) ~ 1/r² and a huge variance; with it the weight stays below
         π·collection/(D cosθ_x). Point-radiance captures connect to the sensor points (transport's code).
+        ``drawn``: the uniforms to use instead of drawing them ("jitter" (B, P, 2), "u" and "v" (B, D); the aligned
+        draws of :attr:`AreaSettings.aligned`).
         """
         c, s, cst = self.capture, self.settings, self.caster
         if c.convention == "point_radiance":
@@ -405,7 +413,8 @@ class AreaSampler:
         iy, ix = np.divmod(pix, nx)
         cell = stratified_grid(mu, mv, None)[0] - 0.5 / np.array([mu, mv])      # cell corners, (M, 2)
         corner = np.tile(cell, (c.n_pixels, 1))[keep]
-        jitter = rng.random((len(x), len(pix), 2)) if pad is None else pad[:, None, :]
+        jitter = (pad[:, None, :] if pad is not None else drawn["jitter"] if drawn is not None
+                  else rng.random((len(x), len(pix), 2)))
         fov = (c.fov_center, c.fov_u, c.fov_v, c.fov_normal, np.asarray(c.fov_size, dtype=np.float64),
                np.asarray(c.fov_pixels, dtype=np.float64))
         bi, si, y, wk, rr, cy = fov_targets(np.ascontiguousarray(x), np.ascontiguousarray(n_x), ix, iy,
@@ -417,7 +426,8 @@ class AreaSampler:
         n_y = np.broadcast_to(c.fov_normal, y.shape)
         obj_y = np.full(len(bi), self.physics.wall_object)
         if n_dir:
-            u, v = rng.random((len(x), n_dir)), rng.random((len(x), n_dir))
+            u, v = ((drawn["u"], drawn["v"]) if drawn is not None
+                    else (rng.random((len(x), n_dir)), rng.random((len(x), n_dir))))
             local, _ = square_to_hemisphere(u, v, "cosine")
             n_b = np.broadcast_to(n_x[:, None], (len(x), n_dir, 3))
             dirs = to_world(local, n_b)
@@ -535,8 +545,13 @@ class AreaSampler:
             half = np.array([[a * c.fov_size[0] / 2, b * c.fov_size[1] / 2] for a in (-1, 1) for b in (-1, 1)])
             corners = c.fov_center + matmul(half, np.stack([c.fov_u, c.fov_v]))
             behind = np.flatnonzero((dot(corners[None] - xs.points[:, None], -n_front[:, None]) > 0).any(axis=1))
+            drawn = None
+            if s.aligned:                 # drawn for every sample, picked for those behind (common random numbers)
+                n, n_pix, n_dir = len(xs.points), c.n_pixels * s.fov_samples[0] * s.fov_samples[1], s.fov_directions
+                drawn = {"jitter": rng.random((n, n_pix, 2))[behind] if pad is None else None,
+                         "u": rng.random((n, n_dir))[behind], "v": rng.random((n, n_dir))[behind]}
             back = self._connect(xs.points[behind], -n_front[behind], rho_x[behind], laser, rng,
-                                 None if pad is None else pad[behind], xs.object_id[behind], w_spot[behind])
+                                 None if pad is None else pad[behind], xs.object_id[behind], w_spot[behind], drawn)
             back.b = behind[back.b]
             self.stats.fov_connections += len(back.b)
             conn = {name: np.concatenate([conn[name], getattr(back, name)]) for name in Connections.FIELDS}

@@ -61,8 +61,10 @@ class AreaSecondary:
         self.settings = settings
 
     def partners(self, x: np.ndarray, nf: np.ndarray, pos: np.ndarray, neg: np.ndarray, laser: int,
-                  rng: np.random.Generator) -> tuple[SurfaceSamples, np.ndarray]:
-        """Secondary partners of the n points x (n, 3): P_l from the spot, P_d from x, P_a by area.
+                  rng: np.random.Generator, slots: tuple[np.ndarray, int] | None = None
+                  ) -> tuple[SurfaceSamples, np.ndarray]:
+        """Secondary partners of the n points x (n, 3): P_l from the spot, P_d from x, P_a by area. ``slots``
+        (rows (n,), N): draw for N points and take the rows (the aligned draws of ``AreaSettings.aligned``).
 
         The direction strategy samples the hemisphere of each side of x that has FoV connections (pos: the
         +normal side, neg: the −normal side; both: each with probability ½). Returns the partners flattened
@@ -70,23 +72,29 @@ class AreaSecondary:
         """
         s, cst = self.settings, self.caster
         n, pl, pd, pa = len(x), s.spot_partners, s.direction_partners, s.area_partners
+        rows, total = slots if slots is not None else (slice(None), n)
+
+        def draw(k: int, *tail: int) -> np.ndarray:      # (n, k, *tail) uniforms, in slots of their own if aligned
+            return rng.random((total, k, *tail))[rows]
         blocks, found = [], []
         if pl:
-            sp, hit = spot_hits(self.capture, cst, rng.random((n * pl, 2)), laser)
+            sp, hit = spot_hits(self.capture, cst, draw(pl, 2).reshape(n * pl, 2), laser)
             blocks.append(sp)
             found.append(hit)
         if pd:
-            coin = rng.random((n, pd)) < 0.5
+            coin = draw(pd) < 0.5
             flip = np.where((pos & neg)[:, None], coin, ~pos[:, None])        # sample the −normal side
             n_side = np.where(flip[..., None], -nf[:, None], nf[:, None])
-            local, _ = square_to_hemisphere(rng.random((n, pd)), rng.random((n, pd)), "cosine")
+            local, _ = square_to_hemisphere(draw(pd), draw(pd), "cosine")
             hits = cst.intersect(x[:, None] + cst.offset * n_side, to_world(local, n_side))
             face = np.where(hits.hit, hits.face, 0).ravel()
             blocks.append(SurfaceSamples(np.nan_to_num(hits.points).reshape(-1, 3), cst.face_normals[face], face,
                                          cst.face_object[face], np.zeros(len(face)), np.zeros((len(face), 2))))
             found.append(hits.hit.ravel())
         if pa:
-            ap, _ = sample_surfaces(cst, self.hidden_faces, n * pa, "random", rng)
+            ap, _ = sample_surfaces(cst, self.hidden_faces, total * pa, "random", rng)
+            if slots is not None:
+                ap = ap.take((np.asarray(rows)[:, None] * pa + np.arange(pa)).ravel())
             blocks.append(ap)
             found.append(np.ones(n * pa, dtype=bool))
         # blocks are strategy-major (n·P_t rows each, owner-major inside); gather owner-major rows
@@ -115,7 +123,7 @@ class AreaSecondary:
         n_sides = pos.astype(int) + neg.astype(int)
         pl, pd, pa = s.spot_partners, s.direction_partners, s.area_partners
         p_tot = pl + pd + pa
-        xp, found = self.partners(x, nf, pos, neg, laser, rng)
+        xp, found = self.partners(x, nf, pos, neg, laser, rng, (rows, len(xs.points)) if s.aligned else None)
         rp, wpx, cos_p, cos_x, on_pos, keep, n_px, n_xp = partner_geometry(
             x, nf, pos, neg, p_tot, xp.points, xp.normals, found, MIN_PARTNER_DISTANCE_OFFSETS * cst.offset)
         e_p, r_lp, w_sp, geo_p = spot_irradiance(self.physics, xp.points, xp.normals, laser, np.flatnonzero(keep))

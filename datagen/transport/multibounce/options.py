@@ -32,17 +32,12 @@ class MultibounceOptions(BaseModel):
             their sum asks for.
         smoothing: deposit the orders ≥ 3 smoothed in time, with the bias estimated and counted in the stated error;
             False: every order as impulses (unbiased: what a converged reference uses).
-        common_random_numbers: the tracer's aligned draws (:attr:`~.tracer.MultibounceSettings.aligned`): two scenes
-            that differ in one object trace the paths that never meet it identically (capture sequences,
-            docs/motion.md); a little slower at deep orders.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     paths: int | None = Field(None, ge=1, description="light paths per laser point (unset: 4 x the area samples)")
     smoothing: bool = Field(True, description="deposit the orders >= 3 smoothed in time, the bias counted")
-    common_random_numbers: bool = Field(False, description="every light path draws from its own slot, so that "
-                                        "scenes differing in one object share the paths that miss it (sequences)")
 
     def paths_per_laser(self, samples: int | None, n_lasers: int = 1) -> int:
         """Light paths per laser point of one run: ``paths``, or its default for an estimator of ``samples`` hidden

@@ -25,13 +25,14 @@ COMPONENT = "multibounce"
 
 
 def tracer_settings(choice: OrdersChoice, options: MultibounceOptions, paths: int, bin_width: float,
-                    tolerance: float, confocal: bool = False) -> MultibounceSettings:
+                    tolerance: float, confocal: bool = False, aligned: bool = False) -> MultibounceSettings:
     """The tracer's settings for a run: the orders ``choice`` asks for, ``paths`` light paths per laser point, and
     unless ``options.smoothing`` is False the time smoothing of :func:`~.smoothing.default_smoothing` for output bins
-    of ``bin_width`` seconds at ``tolerance`` (across the points of a ``confocal`` scan too)."""
+    of ``bin_width`` seconds at ``tolerance`` (across the points of a ``confocal`` scan too); ``aligned``: the
+    paths' draws in slots of their own (:attr:`~.tracer.MultibounceSettings.aligned`)."""
     smoothing = (default_smoothing(bin_width, tolerance, choice.min_order, confocal) if options.smoothing else {})
     return MultibounceSettings(paths=paths, min_order=choice.min_order, max_order=choice.max_order,
-                               aligned=options.common_random_numbers, **smoothing)
+                               aligned=aligned, **smoothing)
 
 
 def beside(base: Estimator, settings: MultibounceSettings, window: tuple[float, float],
