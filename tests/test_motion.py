@@ -122,30 +122,30 @@ def _norm(a):
 
 
 def test_sequence_frames_match_frames_simulated_alone_within_their_stated_error():
-    """Frames 0, 1, 2 of the 'changes' method against each instant simulated on its own at 16× the sampling
-    (another seed: an independent estimate), and the step between two frames against that of the references."""
-    scene = scene_from_dict(SCENE)
+    """A 100-frame sequence by the 'changes' method: frames 0, 50 and 99 against each instant simulated on its own
+    at 16× the sampling (another seed: an independent estimate), within the two stated Monte Carlo errors; the step
+    from frame 50 to 51 against that of the references, within the stated step error and the references' noise."""
+    scene = scene_from_dict(scene_with(**{"capture.frames": {"count": 100, "rate": "25Hz", "exposure": "10ms"}}))
     config = datagen.resolve_config(scene)
     seq = simulate_sequence(scene, config, change_split=8)
-    assert seq.envelopes.shape == (3, 200) and seq.counts.shape == (3, 200) and seq.counts.dtype == np.int64
+    assert seq.envelopes.shape == (100, 200) and seq.counts.shape == (100, 200) and seq.counts.dtype == np.int64
     fine = datagen.resolve_config(scene, {"estimator": {"kind": "area", "samples": 262144}, "seed": 7})
-    refs = []
-    for f, t in enumerate(seq.frame_times + 0.005):
-        ref = datagen.simulate(scene.at(t), fine)
-        refs.append(ref.envelope)
+    refs = {}
+    for f in (0, 50, 51, 99):
+        ref = datagen.simulate(scene.at(seq.frame_times[f] + 0.005), fine)
+        refs[f] = ref.envelope
         bound = math.hypot(seq.monte_carlo_error[f], ref.attrs["error"]["monte_carlo"])   # the same orders
         gap = _norm(seq.envelopes[f] - ref.envelope) / _norm(ref.envelope)
         assert gap <= bound, (f, gap, bound)
-    assert seq.monte_carlo_error[1] < 1.5 * seq.monte_carlo_error[0]   # the change adds little noise
-    step, ref_step = seq.envelopes[2] - seq.envelopes[1], refs[2] - refs[1]
-    assert _norm(step) / _norm(seq.envelopes[1]) > 0.003           # the walker moved: the frames differ
-    np.testing.assert_allclose(seq.positions[:, 0, :2], [[4.0035, 3.4965], [4.3571, 3.1429], [4.7107, 2.7893]],
-                               atol=1e-4)
-    np.testing.assert_allclose(np.linalg.norm(seq.velocities[:, 0], axis=1), 1.0, rtol=1e-6)
-    assert np.all(seq.boxes[:, 0, 0] < seq.positions[:, 0]) and np.all(seq.positions[:, 0] < seq.boxes[:, 0, 1])
-    step_gap = _norm(step - ref_step) / _norm(seq.envelopes[1])
+    assert seq.monte_carlo_error[50] < 1.5 * seq.monte_carlo_error[0]   # the change adds little noise
+    step, ref_step = seq.envelopes[51] - seq.envelopes[50], refs[51] - refs[50]
+    assert _norm(step) / _norm(seq.envelopes[50]) > 1e-4             # the walker moved 4 cm: the frames differ
+    step_gap = _norm(step - ref_step) / _norm(seq.envelopes[50])
     assert step_gap <= seq.difference_error + ref.attrs["error"]["monte_carlo"] / 4, (step_gap, seq.difference_error)
     assert seq.difference_error < seq.monte_carlo_error[0] / 2
+    np.testing.assert_allclose(seq.positions[[0, 50], 0, :2], [[4.0035, 3.4965], [5.0, 3.0908]], atol=1e-4)
+    np.testing.assert_allclose(np.linalg.norm(seq.velocities[:50, 0], axis=1), 1.0, rtol=1e-6)
+    assert np.all(seq.boxes[:, 0, 0] < seq.positions[:, 0]) and np.all(seq.positions[:, 0] < seq.boxes[:, 0, 1])
 
 
 def test_motion_during_a_confocal_scan_is_each_point_at_its_own_instant():
