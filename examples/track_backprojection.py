@@ -6,9 +6,10 @@ background, by backprojection onto the floor plane, as the field's first tracker
 For each sequence of the split (docs/motion.md; ``configs/datasets/tracking.yaml``): the background is the per-bin
 median over the sequence's frames (the walker stands at any one place for a few frames only); a frame's difference
 is the frame minus it, smoothed in time by a Gaussian of the IRF's width (one bin at least), its negative part dropped
-(the walker adds light where it is), read between bin centres by linear interpolation. Every candidate point p of a 5 cm grid over the L-bend room's floor, at ``--height`` (m), collects the
-difference of each SPAD pixel k at the round trip spot → p → y_k (→ sensor when that leg counts), y_k the pixel's
-centre on the relay wall; the frame's estimate is the point that collects most. Scores: the distance (m, in the floor
+(the walker adds light where it is), read between bin centres by linear interpolation. Every candidate point p of a
+5 cm grid over the L-bend room's floor, at ``--height`` (m), collects the difference of each SPAD pixel k at the round
+trip spot → p → y_k (→ sensor when that leg counts), y_k the pixel's centre on the relay wall; the frame's estimate
+is the point that collects most. Scores: the distance (m, in the floor
 plane) from the walker's true anchor per frame, its mean over each sequence's frames (along the track), the mean and
 median over the split, beside the trivial guess (the room's centre). ``--png`` draws the first sequences' tracks,
 true and estimated, over the room's plan.

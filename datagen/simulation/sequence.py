@@ -16,14 +16,15 @@ Two methods give the same frames in expectation:
   (common random numbers: every path that meets neither the moving object nor its shadow cancels to the bit), in
   two independent halves. Frame f = reference + change_f, unbiased but for the bins where a noisy change takes an
   empty bin below zero, which are set to zero (``attrs["clamped"]``: the largest such negative sum of a frame, over
-  the frame's L2 norm). Its stated error is the reference's error and
-  the change's, added in quadrature; the change's is read from the spread of its two halves, pooled over the
-  frames (docs/motion.md, "What a frame's error is").
+  the frame's L2 norm). Its stated error is the reference's error and the change's, added in quadrature; the
+  change's is read from the spread of its two halves, pooled over the frames (docs/motion.md, "The two methods,
+  and what a frame's error is").
 
-Random streams, children of a root (``SeedSequence(seed)``, or a dataset sample's): the reference and the
-``"frames"`` method take (``STREAM_SAMPLING``,), as :func:`~datagen.simulation.simulate` does; the change's halves
-are replicas 0 and 1 of a run on (``STREAM_CHANGES``,); frame f's detector noise takes (``STREAM_NOISE``, f): independent in every
-frame, as a real detector's is.
+Both run with ``common_random_numbers`` (:class:`~datagen.simulation.SimulationConfig`): every path draws from a slot
+of its own. Random streams, children of a root (``SeedSequence(seed)``, or a dataset sample's): the reference and
+the ``"frames"`` method take (``STREAM_SAMPLING``,), as :func:`~datagen.simulation.simulate` does; the change's
+halves are replicas 0 and 1 of a run on (``STREAM_CHANGES``,); frame f's detector noise takes (``STREAM_NOISE``, f):
+independent in every frame, as a real detector's is.
 """
 from __future__ import annotations
 
@@ -38,11 +39,11 @@ from ..scene import RayCaster, Scene, resolve_capture
 from ..scene.motion import object_anchor, posed_vertices, velocity_at
 from ..transport import estimator
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config
-from .detection import Result, detector_counts, make_result
+from .detection import detector_counts, make_result
 from .run import Planned, Replicas
 
 STREAM_CHANGES = 3
-"""Spawn-key entry of the change's random streams (after sampling 0, noise 1 and the dataset's 2)."""
+"""Spawn-key entry of the change's random stream under the sequence's root (the sampling stream is 0, the noise 1)."""
 
 CONFIDENCE_Z = 1.96
 """Two-sided 95 % normal quantile: the change's stated error is a 95 % bound, as the reference's is."""
