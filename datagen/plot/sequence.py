@@ -59,8 +59,8 @@ def plot_sequence(seq: SequenceResult, scene: Scene, path: str | Path, tracks: d
     fig.colorbar(im, ax=ax2, label="change from frame 0 (photons / pulse / bin)")
     ax2.set_xlabel("time (ns)")
     ax2.set_ylabel("frame")
-    ax2.set_title(f"each frame minus the first ({seq.attrs['method']}; stated error per frame "
-                  f"{np.nanmax(seq.error):.1%})")
+    ax2.set_title(f"each frame minus the first\n({seq.attrs['method']}; stated error per frame up to "
+                  f"{np.nanmax(seq.error):.1%})", fontsize=10)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
