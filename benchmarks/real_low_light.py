@@ -87,14 +87,17 @@ def score(depth: np.ndarray, mask: np.ndarray, hit: np.ndarray | None = None) ->
             float((hit & mask).sum()) / union if union else float("nan"))
 
 
-def network_depth(network, scan: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarray, np.ndarray]:
     """((ny, nx) depth m, (ny, nx) bool where it sees the object) of ``network`` = (net, record)
-    (``examples.train_depth_image.load_model``) on a scan of counts (ny, nx, T) of bin width ``dt``: summed pairwise
-    to at most its bins, zero-padded to them."""
+    (``examples.train_depth_image.load_model``) on a scan of counts (ny, nx, T) of bin width ``dt`` and grid pitch
+    ``pitch`` (m): a network on the LCT volume reconstructs it from the scan as it is; one on counts gets them summed
+    pairwise to at most its bins, zero-padded to them."""
     from datagen.analysis.reconstruct import coarsen
     from examples.train_depth_image import predict_depth
 
     net, record = network
+    if record.get("input", "counts") == "lct":
+        return predict_depth(net, record, scan, dt, pitch)
     data, _ = coarsen(scan, dt, record["bins"])
     data = np.concatenate([data, np.zeros(data.shape[:2] + (record["bins"] - data.shape[-1],))], axis=-1)
     return predict_depth(net, record, data)
@@ -113,7 +116,7 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
         for method in list(methods) + (["network"] if network is not None else []):
             t0 = time.perf_counter()
             if method == "network":                    # its depth over the object; its mask head's IoU
-                depth_map, seen = network_depth(network, scan, dt)
+                depth_map, seen = network_depth(network, scan, dt, pitch)
                 depth = score(depth_map, mask)[0]
                 iou = score(depth_map, mask, seen)[1] if network[0].mask else float("nan")
             else:
