@@ -4,8 +4,8 @@ CPU-sized; writes its validation predictions in the layout of ``datagen score``.
     python -m examples.train_depth_image data/wall_baseline          # → data/wall_baseline_net_val.npz
     datagen score data/wall_baseline_net_val.npz --dataset data/wall_baseline --split val
     python -m examples.train_depth_image data/wall128 --pool 4       # 128×128 scans pooled to 32×32 inputs
-    python -m examples.train_depth_image data/lct_release --pool 4 --save lct_net.pt   # keep the network:
-    python benchmarks/real_low_light.py FOLDER --network lct_net.pt  # ... and run it on the LCT release's captures
+    python -m examples.train_depth_image data/lct_release --input lct --mask --epochs 20 --save lct_net.pt
+    python benchmarks/real_low_light.py FOLDER --network lct_net.pt  # ... run it on the LCT release's captures
 
 Reads the ``train`` and ``val`` splits with ``NLOSDataset(..., layout="network")`` (envelope and counts as
 (1, T, H, W), ``wall_depth`` as (1, H, W)) into memory. Training inputs are fresh SPAD counts every step, drawn in
@@ -28,6 +28,18 @@ Results on small builds of both configs: docs/datasets.md ("Network resolution")
 Loss: mean squared depth error over the pixels where the label sees the hidden object (``wall_depth > 0``), the
 pixels ``datagen score`` scores. The trivial baseline is the training set's mean depth over those pixels, the same
 for every pixel and sample.
+
+The LCT input (``--input lct``, for ``configs/datasets/lct_release.yaml``; docs/training.md): each sample's stored
+counts reconstructed by LCT as ``datagen reconstruct`` does (256 depth bins of 4.8 mm, on the scan grid, pooled by
+``--pool``), divided by its maximum; the network's depth output is a correction to the depth of each column's
+strongest voxel. On the raw counts the mask head does not learn where a cut-out is (the hidden light of one scan
+point comes from the whole object: a 3 × 3 neighbourhood of 16 × 16 pooled points does not see the shape); on the
+LCT volume each column holds its own point's object. The mask loss weighs the object pixels by the training set's
+background-to-object ratio and adds a soft Dice term (:func:`mask_loss`); the probability threshold is the one of
+best validation IoU (:data:`MASK_THRESHOLDS`), kept in the saved record. A saved network also records the data it
+was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that trained
+it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, trained on the first 800 +
+100 samples of ``configs/datasets/lct_release.yaml``.
 """
 from __future__ import annotations
 
@@ -265,6 +277,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     object pixels, "iou": the validation mask IoU (NaN without ``mask``)}."""
     torch.manual_seed(seed)
     t0 = time.perf_counter()
+    version = git_version(Path(__file__).resolve().parent)          # of the code as it is loaded, at the start
     tr, va = load_split(path, train_split, pool, lct), load_split(path, val_split, pool, lct)
     ds = datagen.NLOSDataset(path, split=train_split, fields=("counts",))
     det = ds.detector_config()
@@ -334,7 +347,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
                    config_sha256=card["config_sha256"], config_name=card["name"],
                    splits={s: int(card["splits"][s]["count"]) for s in (train_split, val_split)},
                    dataset_code_version=card.get("code_version", "unknown"),
-                   code_version=git_version(Path(__file__).resolve().parent), command=command,
+                   code_version=version, command=command,
                    train_seconds=round(time.perf_counter() - t0, 1), val={"depth_mae_m": mae, "mask_iou": iou})
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
