@@ -4,7 +4,7 @@ CPU-sized; writes its validation predictions in the layout of ``datagen score``.
     python -m examples.train_depth_image data/wall_baseline          # → data/wall_baseline_net_val.npz
     datagen score data/wall_baseline_net_val.npz --dataset data/wall_baseline --split val
     python -m examples.train_depth_image data/wall128 --pool 4       # 128×128 scans pooled to 32×32 inputs
-    python -m examples.train_depth_image data/lct_release --input lct --mask --epochs 20 --save lct_net.pt
+    python -m examples.train_depth_image data/lct_release --input lct --pool 2 --mask --epochs 20 --save lct_net.pt
     python benchmarks/real_low_light.py FOLDER --network lct_net.pt  # ... run it on the LCT release's captures
 
 Reads the ``train`` and ``val`` splits with ``NLOSDataset(..., layout="network")`` (envelope and counts as
