@@ -203,9 +203,10 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: fl
     where it sees the object (its mask head's probability ≥ ``record["mask_threshold"]``, 0.5 where the record has
     none; True everywhere for a network without a mask head). A network on counts (``record["input"]`` "counts",
     the default) takes them on its time axis (``record["bins"]`` bins of its training set's width) and sums them
-    over ``record["pool"]`` × ``record["pool"]`` scan points; one on the LCT volume (``"lct"``) takes them at any
-    bin width covering its training set's record (``bin_width`` s and the grid ``pitch`` m are then required:
-    :func:`lct_input`).
+    over ``record["pool"]`` × ``record["pool"]`` scan points; one on the LCT volume (``"lct"``) takes them at their
+    own bin width (``bin_width`` s and the grid ``pitch`` m are then required: :func:`lct_input`), which, summed
+    pairwise to at most LCT_BINS bins, must come to its training set's (32 ps for ``lct_release``: the release's
+    2048 bins of 4 ps, the data set's 512 of 16 ps); that is not checked (the record does not hold it).
 
     Raises:
         ValueError: an LCT-input network without ``bin_width`` and ``pitch``.
