@@ -95,8 +95,10 @@ LCT_BINS = 256
 """Depth bins of the LCT input (``--input lct``): the dataset's 512 bins of 16 ps summed pairwise, 4.8 mm each."""
 
 
-def scan_pitch(params: dict) -> float:
-    """Grid pitch (m) of a confocal sample's scan: its laser grid's side over its points (cell centres)."""
+def scan_pitch(params) -> float:
+    """Grid pitch (m) of a confocal sample's scan: its laser grid's side over its points (cell centres); ``params``
+    the sample's parameters, as a dict or as the JSON text the store holds (str, or a 0-d array of it)."""
+    params = params if isinstance(params, dict) else json.loads(str(np.asarray(params).item()))
     grid = params["room"]["sensor"]["scan"]["laser_grid"]
     return float(grid["size"][0]) / int(grid["points"][0])
 
@@ -113,9 +115,8 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False) -> dict[str, 
     for i in range(len(ds)):
         item = ds[i]
         if lct:
-            params = json.loads(item["params"]) if isinstance(item["params"], str) else item["params"]
             volume, strongest = lct_input(np.moveaxis(item["counts"][0].numpy(), 0, -1), bin_width,
-                                          scan_pitch(params), pool)
+                                          scan_pitch(item["params"]), pool)
             out["lct"].append(volume.half())                # float16: 2 MiB per 64 × 64 sample
             out["strongest"].append(strongest)
         else:
