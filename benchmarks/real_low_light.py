@@ -3,6 +3,7 @@ the low-photon regime a network trained on datagen is meant for, and the figures
 "Baselines at lower exposures").
 
     python benchmarks/real_low_light.py FOLDER [--exposures 1 0.1 0.01] [--methods lct phasor fbp] [--seed 0]
+                                               [--network FILE.pt | none]
 
 FOLDER holds the release's ``data_*.mat`` files (the project never ships them; the release is published with
 O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``datagen import-capture
@@ -24,11 +25,14 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
 4. **Scores.** Per capture, exposure and method: the median depth over the reference mask (m; NaN where the method
    found nothing there), its difference from the reference depth, and the IoU of the method's found points with the
    reference mask.
-5. **A network** (``--network FILE.pt``, written by ``python -m examples.train_depth_image DATA --save FILE.pt``):
-   the same thinned counts summed to its time axis (the release's 2048 bins of 4 ps summed pairwise down to its
-   bins: 512 of 16 ps for a network trained on ``configs/datasets/lct_release.yaml``) and over its pool of scan
-   points, its depth image, whose median over the reference mask is its depth; with a mask head (``--mask``) the
-   IoU is of where it sees the object (probability ≥ 0.5), without one it is not scored (NaN).
+5. **A network** (``--network FILE.pt``, written by ``python -m examples.train_depth_image DATA --save FILE.pt``;
+   by default the one shipped in :data:`SHIPPED`, trained on ``configs/datasets/lct_release.yaml``; ``--network
+   none`` leaves it out): the same thinned counts, as its record says it reads them (the LCT volume of the scan,
+   or the counts summed to its time axis and over its pool of scan points), its depth image, whose median over the
+   reference mask is its depth; with a mask head (``--mask``) the IoU is of where it sees the object (its
+   probability ≥ the record's threshold), without one it is not scored (NaN). The run prints what the record says
+   of the network's training (``examples.train_depth_image.describe``) and a warning when the dataset config it
+   was trained on is no longer the repository's (:func:`stale`).
 
 f-k migration is not among the methods here: datagen runs it through tal in a separate environment
 (benchmarks/bench_recon.py); its column is to come. The printed table is the one docs/real.md quotes.
@@ -48,6 +52,36 @@ from real_captures import DEPTHS  # noqa: E402  (the reference depths, one table
 
 EXPOSURES = (1.0, 0.1, 0.01)
 """Fractions of each capture's exposure."""
+
+SHIPPED = ROOT / "examples" / "weights" / "lct_release_net.pt"
+"""The network trained on ``configs/datasets/lct_release.yaml`` that ships with the repository (docs/training.md)."""
+
+
+def config_fingerprint(record: dict) -> str:
+    """sha256 of the repository's dataset config named in a network's record (``configs/datasets/<config_name>.yaml``)
+    cut to the record's split counts, as ``datagen build --splits`` cuts it: the card's ``config_sha256`` of a build
+    of that config today (:meth:`datagen.dataset.DatasetConfig.fingerprint`).
+
+    Raises:
+        FileNotFoundError: no such config in the repository.
+    """
+    from datagen.dataset import load_dataset_config
+
+    config = load_dataset_config(ROOT / "configs" / "datasets" / f"{record['config_name']}.yaml")
+    splits = {name: config.splits[name].model_copy(update={"count": n}) for name, n in record["splits"].items()}
+    return config.model_copy(update={"splits": splits}).fingerprint()
+
+
+def stale(record: dict) -> str | None:
+    """None when a network's record was trained on a build of the repository's dataset config as it is now, else a
+    one-line reason (the record's ``config_sha256`` and the config's)."""
+    if "config_sha256" not in record:
+        return "its record holds no config_sha256 (saved without a dataset card)"
+    now = config_fingerprint(record)
+    if now != record["config_sha256"]:
+        return (f"trained on config_sha256 {record['config_sha256'][:16]}…, configs/datasets/{record['config_name']}"
+                f".yaml cut to {record['splits']} hashes to {now[:16]}… now: retrain it (docs/training.md)")
+    return None
 
 
 def read_release_file(path: Path) -> tuple[np.ndarray, float, tuple[float, float]]:
@@ -87,14 +121,17 @@ def score(depth: np.ndarray, mask: np.ndarray, hit: np.ndarray | None = None) ->
             float((hit & mask).sum()) / union if union else float("nan"))
 
 
-def network_depth(network, scan: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarray, np.ndarray]:
     """((ny, nx) depth m, (ny, nx) bool where it sees the object) of ``network`` = (net, record)
-    (``examples.train_depth_image.load_model``) on a scan of counts (ny, nx, T) of bin width ``dt``: summed pairwise
-    to at most its bins, zero-padded to them."""
+    (``examples.train_depth_image.load_model``) on a scan of counts (ny, nx, T) of bin width ``dt`` and grid pitch
+    ``pitch`` (m): a network on the LCT volume reconstructs it from the scan as it is; one on counts gets them summed
+    pairwise to at most its bins, zero-padded to them."""
     from datagen.analysis.reconstruct import coarsen
     from examples.train_depth_image import predict_depth
 
     net, record = network
+    if record.get("input", "counts") == "lct":
+        return predict_depth(net, record, scan, dt, pitch)
     data, _ = coarsen(scan, dt, record["bins"])
     data = np.concatenate([data, np.zeros(data.shape[:2] + (record["bins"] - data.shape[-1],))], axis=-1)
     return predict_depth(net, record, data)
@@ -113,7 +150,7 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
         for method in list(methods) + (["network"] if network is not None else []):
             t0 = time.perf_counter()
             if method == "network":                    # its depth over the object; its mask head's IoU
-                depth_map, seen = network_depth(network, scan, dt)
+                depth_map, seen = network_depth(network, scan, dt, pitch)
                 depth = score(depth_map, mask)[0]
                 iou = score(depth_map, mask, seen)[1] if network[0].mask else float("nan")
             else:
@@ -131,15 +168,20 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--methods", nargs="+", default=["lct", "phasor", "fbp"], choices=["lct", "phasor", "fbp"])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--only", nargs="+", default=None, help="captures by name (dot_chart_40cm ...)")
-    parser.add_argument("--network", type=Path, default=None, help="a trained network (.pt, module doc)")
+    parser.add_argument("--network", default=str(SHIPPED),
+                        help="a trained network (.pt, module doc; default: the shipped one), or 'none'")
     args = parser.parse_args(argv)
     network = None
-    if args.network is not None:
+    if args.network != "none":
         sys.path.insert(0, str(ROOT))
-        from examples.train_depth_image import load_model
-        if not args.network.is_file():
+        from examples.train_depth_image import describe, load_model
+        if not Path(args.network).is_file():
             raise SystemExit(f"--network: no file at {args.network}")
         network = load_model(args.network)
+        print(f"network {args.network}: {describe(network[1])}")
+        reason = stale(network[1]) if "config_name" in network[1] else None
+        if reason is not None:
+            print(f"warning: network {args.network} is stale: {reason}", file=sys.stderr)
     files = sorted(args.folder.glob("data_*.mat"))
     seeds = {path: k for k, path in enumerate(files)}           # a capture's stream is its place in the folder
     if args.only:

@@ -4,8 +4,8 @@ CPU-sized; writes its validation predictions in the layout of ``datagen score``.
     python -m examples.train_depth_image data/wall_baseline          # → data/wall_baseline_net_val.npz
     datagen score data/wall_baseline_net_val.npz --dataset data/wall_baseline --split val
     python -m examples.train_depth_image data/wall128 --pool 4       # 128×128 scans pooled to 32×32 inputs
-    python -m examples.train_depth_image data/lct_release --pool 4 --save lct_net.pt   # keep the network:
-    python benchmarks/real_low_light.py FOLDER --network lct_net.pt  # ... and run it on the LCT release's captures
+    python -m examples.train_depth_image data/lct_release --input lct --pool 2 --mask --epochs 20 --save lct_net.pt
+    python benchmarks/real_low_light.py FOLDER --network lct_net.pt  # ... run it on the LCT release's captures
 
 Reads the ``train`` and ``val`` splits with ``NLOSDataset(..., layout="network")`` (envelope and counts as
 (1, T, H, W), ``wall_depth`` as (1, H, W)) into memory. Training inputs are fresh SPAD counts every step, drawn in
@@ -28,10 +28,24 @@ Results on small builds of both configs: docs/datasets.md ("Network resolution")
 Loss: mean squared depth error over the pixels where the label sees the hidden object (``wall_depth > 0``), the
 pixels ``datagen score`` scores. The trivial baseline is the training set's mean depth over those pixels, the same
 for every pixel and sample.
+
+The LCT input (``--input lct``, for ``configs/datasets/lct_release.yaml``; docs/training.md): each sample's stored
+counts reconstructed by LCT as ``datagen reconstruct`` does (256 depth bins of 4.8 mm, on the scan grid, pooled by
+``--pool``), divided by its maximum; the network's depth output is a correction to the depth of each column's
+strongest voxel. On the raw counts the mask head does not learn where a cut-out is (the hidden light of one scan
+point comes from the whole object: a 3 × 3 neighbourhood of 16 × 16 pooled points does not see the shape); on the
+LCT volume each column holds its own point's object. The mask loss weighs the object pixels by the training set's
+background-to-object ratio and adds a soft Dice term (:func:`mask_loss`); the probability threshold is the one of
+best validation IoU (:data:`MASK_THRESHOLDS`), kept in the saved record. A saved network also records the data it
+was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that trained
+it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, trained on the first 800 +
+100 samples of ``configs/datasets/lct_release.yaml``.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 import time
 from pathlib import Path
 
@@ -52,16 +66,62 @@ def pool_scan(scan: torch.Tensor, pool: int) -> torch.Tensor:
     return scan.reshape(1, t, h // pool, pool, w // pool, pool).sum((3, 5))
 
 
-def load_split(path, split: str, pool: int = 1) -> dict[str, torch.Tensor]:
+def lct_input(counts: np.ndarray, bin_width: float, pitch: float | tuple[float, float],
+              pool: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """((1, LCT_BINS, H/pool, W/pool) float32 in [0, 1], (H/pool, W/pool) float32 m): the LCT volume of one scan of
+    counts (H, W, T) (bin width s, grid pitch m, as :func:`datagen.analysis.reconstruct.confocal_volume` takes them),
+    reconstructed from the counts summed over pool × pool scan points (the pitch times pool) and LCT_BINS bins, as
+    ``datagen reconstruct`` runs it (the direct light trimmed, t² falloff, snr 0.8), depth on the first axis, divided
+    by its maximum; and the depth of each column's strongest voxel (the network's depth is a correction to it)."""
+    from datagen.analysis.reconstruct import confocal_volume
+
+    pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
+    scan = pool_scan(torch.as_tensor(np.moveaxis(np.asarray(counts, np.float32), -1, 0))[None], pool)[0]
+    volume, depths, _ = confocal_volume(np.moveaxis(scan.double().numpy(), 0, -1), bin_width,
+                                   (pitch_y * pool, pitch_x * pool), "lct", max_bins=LCT_BINS)
+    volume, depths = volume[..., :LCT_BINS], depths[:LCT_BINS]
+    top = volume.max()
+    strongest = depths[np.argmax(volume, axis=-1)].astype(np.float32)
+    volume = np.moveaxis(volume / top if top > 0 else volume, -1, 0)[None].astype(np.float32)
+    return torch.as_tensor(volume), torch.as_tensor(strongest)
+
+
+def upsample_nearest(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """(B, h, w) → (B, *size), each pixel the value of the input pixel it falls in (an integer factor: repeats)."""
+    return torch.nn.functional.interpolate(image[:, None], size=tuple(size), mode="nearest")[:, 0]
+
+
+LCT_BINS = 256
+"""Depth bins of the LCT input (``--input lct``): the dataset's 512 bins of 16 ps summed pairwise, 4.8 mm each."""
+
+
+def scan_pitch(params) -> float:
+    """Grid pitch (m) of a confocal sample's scan: its laser grid's side over its points (cell centres); ``params``
+    the sample's parameters, as a dict or as the JSON text the store holds (str, or a 0-d array of it)."""
+    params = params if isinstance(params, dict) else json.loads(str(np.asarray(params).item()))
+    grid = params["room"]["sensor"]["scan"]["laser_grid"]
+    return float(grid["size"][0]) / int(grid["points"][0])
+
+
+def load_split(path, split: str, pool: int = 1, lct: bool = False) -> dict[str, torch.Tensor]:
     """{"envelope", "counts": (N, 1, T, H/pool, W/pool) float32 (summed over pool × pool scan points), "depth":
-    (N, H, W) float32 m (the label's grid)} of one split, in memory."""
-    ds = datagen.NLOSDataset(path, split=split, fields=("envelope", "counts", "wall_depth"), layout="network",
-                             counts_dtype=torch.float32)
-    out = {"envelope": [], "counts": [], "depth": []}
+    (N, H, W) float32 m (the label's grid)} of one split, in memory; with ``lct`` instead of the envelope and counts
+    "lct": (N, 1, LCT_BINS, H/pool, W/pool) float16 the LCT volume of each sample's stored counts and "strongest":
+    (N, H/pool, W/pool) the depth m of its strongest voxels (:func:`lct_input`)."""
+    fields = ("counts", "wall_depth") + (("params",) if lct else ("envelope",))
+    ds = datagen.NLOSDataset(path, split=split, fields=fields, layout="network", counts_dtype=torch.float32)
+    bin_width = float(ds.card["time_edges"]["bin_width"])
+    out = {"depth": [], **({"lct": [], "strongest": []} if lct else {"envelope": [], "counts": []})}
     for i in range(len(ds)):
         item = ds[i]
-        out["envelope"].append(pool_scan(item["envelope"], pool))
-        out["counts"].append(pool_scan(item["counts"], pool))
+        if lct:
+            volume, strongest = lct_input(np.moveaxis(item["counts"][0].numpy(), 0, -1), bin_width,
+                                          scan_pitch(item["params"]), pool)
+            out["lct"].append(volume.half())                # float16: 2 MiB per 64 × 64 sample
+            out["strongest"].append(strongest)
+        else:
+            out["envelope"].append(pool_scan(item["envelope"], pool))
+            out["counts"].append(pool_scan(item["counts"], pool))
         out["depth"].append(item["wall_depth"][0])
     return {k: torch.stack(v) for k, v in out.items()}
 
@@ -109,65 +169,144 @@ def draw_counts(noise: datagen.SPADNoise, envelope: torch.Tensor, gen: torch.Gen
 
 
 def save_model(path, net: DepthNet, pool: int, x_norm: tuple[float, float], d_norm: tuple[float, float],
-               data) -> None:
-    """Write the trained network, what its input needs (bins, pool, the log-count standardisation) and its depth
-    scale to ``path`` (torch.save of a dict; :func:`load_model` reads it), with the data set it was trained on."""
+               data, **provenance) -> None:
+    """Write the trained network, what its input needs (bins, pool, the input's standardisation) and its depth
+    scale to ``path`` (torch.save of a dict; :func:`load_model` reads it), with the data set it was trained on and
+    ``provenance`` (str, float, int or dicts of them: :func:`train` writes ``input``, ``mask_threshold``,
+    ``config_sha256``, ``splits``, ``dataset_code_version``, ``code_version``, ``command``, ``train_seconds``,
+    ``val``)."""
     torch.save({"state": net.state_dict(), "bins": net.bins, "mask": net.mask, "pool": pool, "x_norm": x_norm,
-                "d_norm": d_norm, "data": str(data)}, path)
+                "d_norm": d_norm, "data": str(data), **provenance}, path)
 
 
 def load_model(path) -> tuple[DepthNet, dict]:
-    """(network in eval mode, its record) of a :func:`save_model` file."""
+    """(network in eval mode, its record) of a :func:`save_model` file; :func:`describe` says what the record holds
+    of its training."""
     record = torch.load(path, map_location="cpu", weights_only=True)
     net = DepthNet(record["bins"], mask=record.get("mask", False))
     net.load_state_dict(record["state"])
     return net.eval(), record
 
 
-def predict_depth(net: DepthNet, record: dict, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) float64 depth (m) of one scan of counts (H, W, T) on the network's time axis (``record["bins"]``
-    bins of its training set's width), summed over ``record["pool"]`` × ``record["pool"]`` scan points, the depth
-    upsampled back to (H, W); and (H, W) bool where it sees the object (its mask head's probability ≥ 0.5; True
-    everywhere for a network without one)."""
-    x = torch.as_tensor(np.moveaxis(np.asarray(counts, dtype=np.float32), -1, 0))[None]
-    x = pool_scan(x, record["pool"])[None]
+def describe(record: dict) -> str:
+    """One line: the network's input, the data set it was trained on (the card's ``config_sha256``, split counts,
+    the code that built it), the code that trained it and the command."""
+    splits = ", ".join(f"{k}={v}" for k, v in record.get("splits", {}).items()) or "?"
+    sha = str(record.get("config_sha256", "?"))[:16]
+    return (f"input {record.get('input', 'counts')}, pool {record['pool']}, {record['bins']} bins; data "
+            f"{record['data']} (config_sha256 {sha}…, {splits}, built by {record.get('dataset_code_version', '?')}); "
+            f"trained by {record.get('code_version', '?')}: {record.get('command', '?')}")
+
+
+def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: float | None = None,
+                  pitch: float | tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float64 depth (m) of one scan of counts (H, W, T), the depth upsampled back to (H, W); and (H, W) bool
+    where it sees the object (its mask head's probability ≥ ``record["mask_threshold"]``, 0.5 where the record has
+    none; True everywhere for a network without a mask head). A network on counts (``record["input"]`` "counts",
+    the default) takes them on its time axis (``record["bins"]`` bins of its training set's width) and sums them
+    over ``record["pool"]`` × ``record["pool"]`` scan points; one on the LCT volume (``"lct"``) takes them at their
+    own bin width (``bin_width`` s and the grid ``pitch`` m are then required: :func:`lct_input`), which, summed
+    pairwise to at most LCT_BINS bins, must come to its training set's (32 ps for ``lct_release``: the release's
+    2048 bins of 4 ps, the data set's 512 of 16 ps); that is not checked (the record does not hold it).
+
+    Raises:
+        ValueError: an LCT-input network without ``bin_width`` and ``pitch``.
+    """
     (x_mean, x_std), (d_mean, d_std) = record["x_norm"], record["d_norm"]
+    if record.get("input", "counts") == "lct":
+        if bin_width is None or pitch is None:
+            raise ValueError("predict_depth: a network on the LCT volume needs the scan's bin_width and pitch")
+        x, strongest = lct_input(counts, bin_width, pitch, record["pool"])
+        x, base = x[None], upsample_nearest(strongest[None], tuple(counts.shape[:2]))[0].double().numpy()
+    else:
+        base = 0.0
+        x = torch.as_tensor(np.moveaxis(np.asarray(counts, dtype=np.float32), -1, 0))[None]
+        x = torch.log1p(pool_scan(x, record["pool"])[None])
     with torch.no_grad():
-        depth, logit = net.heads(net((torch.log1p(x) - x_mean) / x_std, tuple(counts.shape[:2])))
-    depth = (depth[0] * d_std + d_mean).double().numpy()
-    return depth, (logit[0].numpy() >= 0.0 if logit is not None else np.ones(depth.shape, bool))
+        depth, logit = net.heads(net((x - x_mean) / x_std, tuple(counts.shape[:2])))
+    depth = base + (depth[0] * d_std + d_mean).double().numpy()
+    if logit is None:
+        return depth, np.ones(depth.shape, bool)
+    return depth, torch.sigmoid(logit[0]).numpy() >= record.get("mask_threshold", 0.5)
+
+
+def mask_loss(logit: torch.Tensor, seen: torch.Tensor, pos_weight: float) -> torch.Tensor:
+    """Binary cross-entropy of the mask logit (B, H, W) against ``seen`` (B, H, W) bool, its object pixels weighted
+    ``pos_weight`` (the training set's background-to-object ratio: the objects cover 16 % of the lct_release scans),
+    plus the soft Dice loss per sample, 1 − (2 Σ p·y + 1) / (Σ p + Σ y + 1), averaged over the batch."""
+    y = seen.float()
+    bce = torch.nn.functional.binary_cross_entropy_with_logits(logit, y, pos_weight=torch.tensor(pos_weight))
+    p = torch.sigmoid(logit)
+    dice = 1 - (2 * (p * y).sum((1, 2)) + 1) / (p.sum((1, 2)) + y.sum((1, 2)) + 1)
+    return bce + dice.mean()
+
+
+def mask_iou(prob: torch.Tensor, seen: torch.Tensor, threshold: float) -> float:
+    """Mean over the samples with object pixels of the IoU of ``prob`` (N, H, W) ≥ threshold with ``seen``."""
+    hit = prob >= threshold
+    keep = seen.flatten(1).any(1)
+    inter, union = (hit & seen).flatten(1).sum(1), (hit | seen).flatten(1).sum(1)
+    return float((inter[keep] / union[keep]).mean()) if keep.any() else float("nan")
+
+
+MASK_THRESHOLDS = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
+"""Mask-probability thresholds tried on the validation split; the one of best mean IoU goes to the record."""
+
+
+def git_version(path: Path) -> str:
+    """``git:`` + ``git describe --always --dirty`` of the checkout holding ``path``, or "unknown"."""
+    import subprocess
+    try:
+        out = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=path, capture_output=True, text=True,
+                             timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return f"git:{out.stdout.strip()}" if out.returncode == 0 and out.stdout.strip() else "unknown"
 
 
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
           val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
-          stored: bool = False, mask: bool = False) -> dict[str, np.ndarray]:
+          stored: bool = False, mask: bool = False, lct: bool = False, command: str = "") -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
-    doc); with ``save`` the trained network goes to that file (:func:`save_model`); with ``stored`` the training
-    inputs are the stored counts (each sample's own drawn detector: exposure, gain and background maps, IRF; one
-    noise draw per sample) instead of fresh counts from the split's detector; with ``mask`` the network also learns
-    where the object is seen (a second output, binary cross-entropy against ``wall_depth > 0`` over every pixel,
-    added to the depth loss). Returns {"depth": (N, H, W) float32 m on the label's grid, "index": (N,), "trivial":
-    (N, H, W) the training mean depth over the object pixels}."""
+    doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
+    ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
+    the training inputs are the stored counts (each sample's own drawn detector: exposure, gain and background maps,
+    IRF; one noise draw per sample) instead of fresh counts from the split's detector; with ``lct`` the input is the
+    LCT volume of the stored counts (:func:`lct_input`; implies ``stored``); with ``mask`` the network also learns
+    where the object is seen (a second output, :func:`mask_loss` against ``wall_depth > 0`` over every pixel, added
+    to the depth loss; its threshold the one of :data:`MASK_THRESHOLDS` of best validation IoU). Returns {"depth":
+    (N, H, W) float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the
+    object pixels, "iou": the validation mask IoU (NaN without ``mask``)}."""
     torch.manual_seed(seed)
     t0 = time.perf_counter()
-    tr, va = load_split(path, train_split, pool), load_split(path, val_split, pool)
-    ds = datagen.NLOSDataset(path, split=train_split, fields=("envelope",))
+    version = git_version(Path(__file__).resolve().parent)          # of the code as it is loaded, at the start
+    tr, va = load_split(path, train_split, pool, lct), load_split(path, val_split, pool, lct)
+    ds = datagen.NLOSDataset(path, split=train_split, fields=("counts",))
     det = ds.detector_config()
     noise = ds.spad_noise() if pool == 1 else ds.spad_noise(dcr=det.dcr * pool ** 2,        # summed background
                                                             ambient_rate=det.ambient_rate * pool ** 2)
     size = tuple(tr["depth"].shape[1:])
+    key = "lct" if lct else "counts"
     if log:
-        log(f"  loaded {len(tr['depth'])} + {len(va['depth'])} samples, input {tuple(tr['envelope'].shape[1:])}, "
+        log(f"  loaded {len(tr['depth'])} + {len(va['depth'])} samples, input {tuple(tr[key].shape[1:])}, "
             f"labels {size} ({time.perf_counter() - t0:.0f} s)")
     gen = torch.Generator().manual_seed(seed)
     mask_tr = tr["depth"] > 0
-    d_mean, d_std = tr["depth"][mask_tr].mean(), tr["depth"][mask_tr].std()
-    inputs = (lambda rows: tr["counts"][rows]) if stored else (lambda rows: draw_counts(noise, tr["envelope"][rows],
-                                                                                          gen))
+    for split in (tr, va):            # the depth learnt: the label less the LCT's strongest voxel (0 on counts)
+        split["base"] = upsample_nearest(split["strongest"], size) if lct else torch.zeros_like(split["depth"])
+    target = tr["depth"] - tr["base"]
+    d_mean, d_std = target[mask_tr].mean(), target[mask_tr].std()
+    pos_weight = float((~mask_tr).sum() / mask_tr.sum().clamp(min=1))
+    if lct:
+        inputs = lambda rows: tr["lct"][rows].float()                           # noqa: E731
+    elif stored:
+        inputs = lambda rows: torch.log1p(tr["counts"][rows])                   # noqa: E731
+    else:
+        inputs = lambda rows: torch.log1p(draw_counts(noise, tr["envelope"][rows], gen))   # noqa: E731
     with torch.no_grad():
-        x = torch.log1p(inputs(torch.arange(min(64, len(tr["depth"])))))
+        x = inputs(torch.arange(min(64, len(tr["depth"]))))
         x_mean, x_std = x.mean(), x.std() + 1e-6
-    net = DepthNet(tr["envelope"].shape[2], mask=mask)
+    net = DepthNet(tr[key].shape[2], mask=mask)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     n = len(tr["depth"])
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=epochs * -(-n // batch))
@@ -176,13 +315,13 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         order = torch.randperm(n, generator=gen)
         for start in range(0, n, batch):
             rows = order[start:start + batch]
-            x = (torch.log1p(inputs(rows)) - x_mean) / x_std
+            x = (inputs(rows) - x_mean) / x_std
             seen = mask_tr[rows]
             depth, logit = net.heads(net(x, size))
-            err = depth - (tr["depth"][rows] - d_mean) / d_std
+            err = depth - (target[rows] - d_mean) / d_std
             loss = (err[seen] ** 2).mean() if seen.any() else (err * 0).sum()
             if logit is not None:
-                loss = loss + torch.nn.functional.binary_cross_entropy_with_logits(logit, seen.float())
+                loss = loss + mask_loss(logit, seen, pos_weight)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -190,14 +329,32 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         if log and (epoch + 1) % max(1, epochs // 5) == 0:
             log(f"  epoch {epoch + 1}/{epochs}: train loss {loss.item():.3f} ({time.perf_counter() - t0:.0f} s)")
     net.eval()
-    if save is not None:
-        save_model(save, net, pool, (float(x_mean), float(x_std)), (float(d_mean), float(d_std)), path)
     with torch.no_grad():
-        x = (torch.log1p(va["counts"]) - x_mean) / x_std
-        depth = net.heads(torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)]))[0] * d_std + d_mean
+        x = ((va["lct"].float() if lct else torch.log1p(va["counts"])) - x_mean) / x_std
+        depth, logit = net.heads(torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)]))
+        depth = va["base"] + depth * d_std + d_mean
+    seen_va = va["depth"] > 0
+    threshold, iou = 0.5, float("nan")
+    if logit is not None:
+        prob = torch.sigmoid(logit)
+        iou, threshold = max((mask_iou(prob, seen_va, t), t) for t in MASK_THRESHOLDS)
+        if log:
+            log(f"  validation mask IoU {iou:.3f} at probability ≥ {threshold}")
+    if save is not None:
+        card = ds.card
+        err = (depth - va["depth"]).abs()
+        mae = float(np.mean([float(e[m].mean()) for e, m in zip(err, seen_va) if m.any()]))
+        save_model(save, net, pool, (float(x_mean), float(x_std)), (float(d_mean), float(d_std)), path,
+                   input="lct" if lct else "counts", mask_threshold=threshold,
+                   config_sha256=card["config_sha256"], config_name=card["name"],
+                   splits={s: int(card["splits"][s]["count"]) for s in (train_split, val_split)},
+                   dataset_code_version=card.get("code_version", "unknown"),
+                   code_version=version, command=command,
+                   train_seconds=round(time.perf_counter() - t0, 1), val={"depth_mae_m": mae, "mask_iou": iou})
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
-            "trivial": np.full(tuple(va["depth"].shape), float(d_mean), dtype=np.float32)}
+            "trivial": np.full(tuple(va["depth"].shape), float(tr["depth"][mask_tr].mean()), dtype=np.float32),
+            "iou": iou}
 
 
 def main(argv=None):
@@ -216,10 +373,13 @@ def main(argv=None):
     parser.add_argument("--mask", action="store_true", help="also learn where the object is seen (a mask head)")
     parser.add_argument("--stored-counts", action="store_true",
                         help="train on the stored counts (each sample's drawn detector) instead of fresh noise")
+    parser.add_argument("--input", choices=["counts", "lct"], default="counts",
+                        help="the network's input: the counts' log, or the LCT volume of the stored counts")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
-                 pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask)
+                 pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask, lct=args.input == "lct",
+                 command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None else argv))
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
     trivial = out.with_name(out.stem + "_trivial.npz")

@@ -84,3 +84,30 @@ def test_backprojection_refuses_an_empty_depth_range(wall, capsys):
         backprojection_baseline.main([str(wall), "--far", "0.2"])
     assert exc.value.code == 2
     assert "--near 0.3 and --far 0.2: need 0 <= near < far - 0.02 m" in capsys.readouterr().err
+
+
+def test_depth_network_on_the_lct_volume_saves_what_it_was_trained_on(wall, tmp_path):
+    """``--input lct --mask --save``: the record names the data set by its card's config_sha256 and split counts, the
+    command and the input; the trivial file is still the training mean depth (not the mean of the depth correction);
+    the saved network predicts a finite depth and a mask from a stored scan's counts, bin width and pitch."""
+    torch.set_num_threads(1)
+    out, net_file = tmp_path / "lct.npz", tmp_path / "lct.pt"
+    argv = [str(wall), "--val", "test", "--epochs", "2", "--batch", "2", "--threads", "1", "--input", "lct", "--mask",
+            "--out", str(out), "--save", str(net_file)]
+    train_depth_image.main(argv)
+    labels = np.stack([NLOSDataset(wall, split="train", fields=("wall_depth",)).read(i)["wall_depth"]
+                       for i in range(3)])
+    with np.load(tmp_path / "lct_trivial.npz") as f:
+        np.testing.assert_allclose(f["depth"], labels[labels > 0].mean(), rtol=1e-6)
+    net, record = train_depth_image.load_model(net_file)
+    card = NLOSDataset(wall, split="train", fields=("counts",)).card
+    assert record["config_sha256"] == card["config_sha256"] and record["splits"] == {"train": 3, "test": 2}
+    assert record["input"] == "lct" and net.mask and record["mask_threshold"] in train_depth_image.MASK_THRESHOLDS
+    assert record["command"] == "python -m examples.train_depth_image " + " ".join(argv)
+    item = NLOSDataset(wall, split="test", fields=("counts", "params")).read(0)
+    depth, seen = train_depth_image.predict_depth(net, record, np.asarray(item["counts"], np.float64),
+                                                  card["time_edges"]["bin_width"],
+                                                  train_depth_image.scan_pitch(item["params"]))
+    assert depth.shape == seen.shape == (16, 16) and np.isfinite(depth).all() and seen.dtype == bool
+    with pytest.raises(ValueError, match="needs the scan's bin_width and pitch"):
+        train_depth_image.predict_depth(net, record, np.asarray(item["counts"], np.float64))

@@ -44,7 +44,8 @@ def release_folder(tmp_path_factory):
 
 def test_the_baselines_find_the_patch_at_full_and_thinned_exposure(release_folder, capsys):
     folder, result = release_folder
-    rows = real_low_light.main([str(folder), "--exposures", "1", "0.1", "--methods", "lct", "fbp"])
+    rows = real_low_light.main([str(folder), "--exposures", "1", "0.1", "--methods", "lct", "fbp", "--network",
+                                "none"])
     assert [(r["exposure"], r["method"]) for r in rows] == [(1.0, "lct"), (1.0, "fbp"), (0.1, "lct"), (0.1, "fbp")]
     full = rows[0]
     assert full["iou"] == 1.0                                  # the reference mask is the full-exposure LCT's
@@ -77,7 +78,7 @@ def test_an_empty_folder_or_a_bad_exposure_is_one_line(tmp_path, release_folder)
     with pytest.raises(SystemExit, match="no data_\\*.mat files"):
         real_low_light.main([str(tmp_path)])
     with pytest.raises(SystemExit, match="--exposures: a fraction lies in"):
-        real_low_light.main([str(release_folder[0]), "--exposures", "2"])
+        real_low_light.main([str(release_folder[0]), "--exposures", "2", "--network", "none"])
 
 
 def test_a_saved_network_runs_on_the_capture_beside_the_baselines(release_folder, tmp_path):
@@ -107,3 +108,33 @@ def test_a_saved_network_runs_on_the_capture_beside_the_baselines(release_folder
     assert 0.0 <= masked["iou"] <= 1.0
     with pytest.raises(SystemExit, match="--network: no file at"):
         real_low_light.main([str(release_folder[0]), "--network", str(tmp_path / "absent.pt")])
+
+
+def test_the_shipped_network_was_trained_on_the_repository_config():
+    """examples/weights/lct_release_net.pt names the data set it was trained on by the card's config_sha256: a build
+    of configs/datasets/lct_release.yaml cut to its splits must hash the same today, else the weights are stale."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from examples.train_depth_image import load_model
+
+    net, record = load_model(real_low_light.SHIPPED)
+    reason = real_low_light.stale(record)
+    assert reason is None, f"{real_low_light.SHIPPED} is stale: {reason}"
+    assert record["config_name"] == "lct_release" and record["splits"] == {"train": 800, "val": 100}
+    assert record["input"] == "lct" and net.mask and record["pool"] == 2 and record["bins"] == 256
+    assert record["code_version"].startswith("git:") and not record["code_version"].endswith("-dirty")
+    assert record["command"].startswith("python -m examples.train_depth_image ") and "--input lct" in record["command"]
+    assert real_low_light.SHIPPED.stat().st_size < 2 ** 20
+    changed = dict(record, config_sha256="0" * 64)
+    assert "retrain it" in real_low_light.stale(changed)
+
+
+def test_the_shipped_network_finds_the_patch_beside_lct(release_folder):
+    """The shipped network (the default ``--network``) on the synthetic release-format capture, a Lambertian patch on
+    a 16 × 16 grid of 3.75 cm pitch (the training set's pitches are 0.6–1.6 cm): its depth within 3 cm of the patch's
+    0.5 m at full exposure and 1/10 (0.523, 0.519 m; LCT 0.498, 0.499 m) and its mask's IoU with the full-exposure
+    LCT's over 0.55 (0.61, 0.63; LCT at 1/10 0.72)."""
+    rows = real_low_light.main([str(release_folder[0]), "--exposures", "1", "0.1", "--methods", "lct"])
+    assert [(r["exposure"], r["method"]) for r in rows] == [(1.0, "lct"), (1.0, "network"), (0.1, "lct"),
+                                                            (0.1, "network")]
+    for row in rows[1::2]:
+        assert row["depth"] == pytest.approx(DEPTH, abs=0.03) and row["iou"] > 0.55, row
