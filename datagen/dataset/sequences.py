@@ -56,7 +56,8 @@ def sequence_sample(config, split: str, index: int, room, sim_config, drawn: dic
                   "streams": streams, "room": room.params, "objects": room.objects, "effects": ref.get("effects"),
                   "accuracy": accuracy, "plan": plan, **({"detector_draw": drawn} if drawn else {})}
         arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=json_default), dtype=object)
-    kind = room.scene.capture.type if room.scene.capture.model_fields_set - {"frames"} else None
+    given = room.scene.capture.model_fields_set - {"frames"}          # the capture as make_sample names it
+    kind = room.scene.capture.type if given else None if room.scene.sensor.fov.pixels == (1, 1) else "single"
     axes = {name: names for name, value in arrays.items()
             if (names := axis_names(name, np.ndim(value), kind)) is not None}
     t0, t1 = times
