@@ -92,7 +92,7 @@ def test_scene_at_moves_only_the_moving_object_rigidly():
     ({"objects.1.motion": {"kind": "keyframes", "keyframes": [{"t": 0, "position": [4, 3, 0.9]},
                                                               {"t": 2, "position": [4, 3.5, 0.9]},
                                                               {"t": 1, "position": [4, 4, 0.9]}]}},
-     "objects.1.box.motion.keyframes: keyframe times must increase: keyframes.2.t = 1 s is not after"),
+     "objects.1.box.motion.keyframes.keyframes: keyframe times must increase: keyframes.2.t = 1 s is not after"),
     ({"objects.1.motion": {"kind": "velocity", "velocity": [0, 2.0, 0]},
       "capture.frames": {"count": 100, "rate": "10Hz", "exposure": "10ms"}},
      "objects.1.motion: object 'walker' leaves the room at t = 0.71 s (y reaches 5.070 m, the room spans "
@@ -248,8 +248,8 @@ def test_aligned_tracer_draws_share_the_paths_that_miss_a_moved_object():
     gaps = {}
     for aligned in (False, True):
         config = datagen.resolve_config(scene)
-        config = config.model_copy(update={"common_random_numbers": aligned, "multibounce": config.multibounce.model_copy(
-            update={"paths": 20000})})
+        config = config.model_copy(update={"error": config.error.model_copy(update={"common_random_numbers": aligned}),
+                                           "multibounce": config.multibounce.model_copy(update={"paths": 20000})})
         a = datagen.simulate(scene, config).components["multibounce"]
         b = datagen.simulate(moved, config).components["multibounce"]
         other = datagen.simulate(scene, config.model_copy(update={"seed": 1})).components["multibounce"]

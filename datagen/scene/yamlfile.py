@@ -34,8 +34,7 @@ def format_validation_error(exc: ValidationError, source: str | None = None, hea
     lines = []
     errors = exc.errors()
     for err in errors[:MAX_PROBLEMS]:
-        parts = [str(p) for p in err["loc"]]     # a union's tag repeats the field it tags (keyframes.keyframes)
-        loc = ".".join(([head] if head else []) + [p for i, p in enumerate(parts) if i == 0 or p != parts[i - 1]])
+        loc = ".".join(([head] if head else []) + [str(p) for p in err["loc"]])
         value = err.get("input")
         shown = "" if isinstance(value, dict) else f" (got {short_repr(value)})"
         msg = " ".join(str(err["msg"]).split()).removeprefix("Value error, ")[:300]

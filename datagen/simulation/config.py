@@ -69,12 +69,17 @@ class ErrorOptions(BaseModel):
             error times √F_q(d, ν), :mod:`datagen.simulation.confidence`); a tolerance is met by that bound. None:
             the standard error itself, an RMS estimate that the actual error exceeds about half the time (the
             frozen ``-v1``/``-v2`` suites were built with it). Old flat key ``error_confidence``.
+        common_random_numbers: every path draws its random numbers from a slot of its own (the tracer's paths,
+            the area sampler's back connections and secondary partners), so that two runs of scenes that differ in
+            one object trace the paths that never meet it identically and the error of their *difference* is the
+            changed light's alone (capture sequences, docs/motion.md); off: draws for the live paths only (cheaper).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     replicas: int = Field(8, ge=2, le=4096)
     confidence: float | None = Field(CONFIDENCE, ge=0.5, lt=1)
+    common_random_numbers: bool = False
 
 
 def legacy_keys() -> dict[str, dict[str, str]]:
@@ -181,10 +186,6 @@ class SimulationConfig(BaseModel):
             spelling of orders 1, which the frozen suites use): 1.
         multibounce: the order ≥ 3 tracer's settings (:class:`MultibounceOptions`), used when orders ≥ 3 are
             simulated.
-        common_random_numbers: every path draws its random numbers from a slot of its own (the tracer's paths,
-            the area sampler's back connections and secondary partners), so that two scenes that differ in one
-            object trace the paths that never meet it identically (capture sequences, docs/motion.md); off:
-            draws for the live paths only (cheaper).
         workers: processes sharing the work (1 = in process; the result does not depend on it).
         error: how the stated Monte Carlo error is made (:class:`ErrorOptions`): ``replicas`` R and the
             ``confidence`` with which it bounds the actual error (old flat keys ``replicas``, ``error_confidence``).
@@ -209,7 +210,6 @@ class SimulationConfig(BaseModel):
     secondary: Literal["none", "optimized", "full", "exact"] = "full"
     orders: int | Literal["auto"] | None = None
     multibounce: MultibounceOptions = Field(default_factory=lambda: MultibounceOptions())
-    common_random_numbers: bool = False
     workers: int = Field(1, ge=1)
     error: ErrorOptions = Field(default_factory=lambda: ErrorOptions())
     effect_threshold: float = Field(0.01, gt=0, lt=1)

@@ -75,7 +75,7 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
     if orders is not None and orders.on:     # the tracer beside the estimator: orders ≥ 3, or ≥ 2 without secondary
         settings = tracer_settings(orders.choice, config.multibounce, config.tracer_paths(capture.n_lasers),
                                    config.time.bin_width, config.effect_threshold, capture.kind == "confocal",
-                                   config.common_random_numbers)
+                                   config.error.common_random_numbers)
         transport = beside(transport, settings, (config.time.t_start, config.time.t_stop), config.irf.support[0])
     return transport, plan
 

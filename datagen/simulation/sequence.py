@@ -215,7 +215,8 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     if method not in ("changes", "frames"):
         raise SceneError(f"sequence method {method!r}: expected 'changes' or 'frames'")
     config = config or resolve_config(scene)
-    config = config.model_copy(update={"common_random_numbers": True})   # paths line up from frame to frame
+    config = config.model_copy(update={"error": config.error.model_copy(     # paths line up from frame to frame
+        update={"common_random_numbers": True})})
     t0 = time.perf_counter()
     frames = scene.capture.frames
     times, holds = _slot_times(scene, config, slots)

@@ -7,8 +7,8 @@ strategies under MIS. Cost: the relative L2 error falls as ≈ M^−0.53 (random
 samples M; the demo room reaches 1 % in about 0.5 s (docs/accuracy.md). Pick it for rooms: bright walls, a
 secondary that matters, light of every order (the multibounce tracer runs beside it, :mod:`..multibounce`).
 
-- :mod:`.estimator`: :class:`AreaSampler` (registered as ``"area"``), :class:`AreaSettings`, the options block
-  :class:`~.estimator.AreaOptions` and the memory estimate.
+- :mod:`.estimator`: :class:`AreaSampler` (registered as ``"area"``), :class:`AreaSettings` and the options block
+  :class:`~.estimator.AreaOptions`; :mod:`.memory`: the memory estimate (bytes per hidden sample).
 - :mod:`.secondary`: :class:`~.secondary.AreaSecondary`, the secondary's partners and impulses (a collaborator each
   :class:`AreaSampler` holds), and the cosine rays from the spot (:func:`~.secondary.spot_hits`).
 - :mod:`.kernels`: the compiled passes (connection weights, FoV targets, material arrays, partner geometry),

@@ -67,6 +67,7 @@ from ...vectors import distinct_rows, dot, matmul
 from ..base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Sink, register
 from .kernels import (connection_weights, fov_targets, lobe_directions, material_arrays, primary_impulses,
                       sensor_collection, spot_irradiance)
+from .memory import area_memory
 from .secondary import AreaSecondary, spot_hits
 from ..physics import LegPhysics, PhysicsSettings
 
@@ -110,7 +111,7 @@ class AreaSettings(PhysicsSettings):
         workers: processes sharing the replicas of :meth:`AreaSampler.run_replicas` (results do not depend on it).
         aligned: the draws of the back connections and the secondary partners made for every hidden sample of a
             batch and picked for those that use them (``SimulationConfig.common_random_numbers``: scenes that differ
-            in one object draw alike for every sample it does not touch; capture sequences, docs/motion.md).
+            in one object draw alike for every sample it does not touch; ``error.common_random_numbers``, docs/motion.md).
 
     Raises:
         ConfigError: a field out of range (the message names the field and the value).
@@ -235,22 +236,6 @@ AREA_FOLLOWS_PLAN = tuple(s for s in PLANNED_SWITCHES if s != "shadow_spot")
 """The planned switches the area sampler (and the quadrature, which samples the same way) follows: all but
 ``shadow_spot``, which the planner decides for the laser leg of secondary paths only."""
 
-AREA_SAMPLE_BYTES = 500
-"""Bytes per hidden sample of the area sampler (point, normal, ids, both connections, weights)."""
-
-
-def area_memory(scene: Scene, config, lasers: int, sensors: int) -> list[tuple[str, str, float]]:
-    """(field, value, bytes) of the area sampler's hidden samples (``config.estimator.samples``; the quadrature's
-    Monte Carlo secondary passes its ``secondary_samples``) (:attr:`EstimatorEntry.memory
-    <datagen.transport.EstimatorEntry>`)."""
-    return samples_memory(config.estimator.samples, "estimator.samples")
-
-
-def samples_memory(samples: int, field: str) -> list[tuple[str, str, float]]:
-    """(field, value, bytes) of ``samples`` hidden samples of the area sampler."""
-    return [(field, str(samples), float(AREA_SAMPLE_BYTES) * samples)]
-
-
 @register("area", AreaSettings,
           "hidden-surface area sampling with next-event connections to the laser spot and the FoV",
           options=AreaOptions, replica=AreaOptions.replica, describe=AreaOptions.describe, memory=area_memory)
@@ -324,7 +309,8 @@ class AreaSampler:
                                                       secondary="none" if secondary == "none" else "full",
                                                       sensor_blockers=physics.sensor_blockers,
                                                       workers=config.workers,
-                                                      aligned=config.common_random_numbers), caster, capture=capture)
+                                                      aligned=config.error.common_random_numbers), caster,
+                   capture=capture)
 
     def configure(self, settings: AreaSettings) -> None:
         """Use ``settings`` from now on (same physics object; e.g. the quadrature's shadow-ray decision)."""

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from ..area.estimator import samples_memory
+from ..area.memory import samples_memory
 from ..base import TARGET_BYTES
 from .options import fov_cells_per_side
 
