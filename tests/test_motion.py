@@ -255,3 +255,29 @@ def test_aligned_tracer_draws_share_the_paths_that_miss_a_moved_object():
         other = datagen.simulate(scene, config.model_copy(update={"seed": 1})).components["multibounce"]
         gaps[aligned] = _norm(b - a) / _norm(other - a)
     assert gaps[True] < 0.2 < gaps[False], gaps
+
+
+def test_a_person_walks_in_a_scene_file_and_in_the_rooms():
+    """The person builder: 72 triangles, feet on the floor, head at its height, 0.17 H deep and 0.43 H wide facing +x;
+    a scene file's walking person keeps its shape; a room's walker can be a person."""
+    from datagen.dataset.rooms import load_room_distribution
+    from datagen.dataset.sampler import sample_room
+    from datagen.scene.builders import person
+
+    p = person("p", (1.0, 2.0), 1.8)
+    assert len(p.faces) == 72
+    np.testing.assert_allclose(p.vertices.min(axis=0), [1.0 - 0.085 * 1.8, 2.0 - 0.215 * 1.8, 0.0], atol=1e-12)
+    np.testing.assert_allclose(p.vertices.max(axis=0), [1.0 + 0.085 * 1.8, 2.0 + 0.215 * 1.8, 1.8], atol=1e-12)
+    walker = {"builder": "person", "name": "walker", "center": [4.0, 3.5], "height": 1.7,
+              "motion": {"kind": "walk", "path": [[4.0, 3.5], [5.0, 3.5]], "speed": 1.0}}
+    scene = scene_from_dict(scene_with(**{"objects": [ROOM, walker]}))
+    later = scene.at(0.5).objects[-1].vertices
+    np.testing.assert_allclose(later - scene.objects[-1].vertices, np.tile([0.5, 0.0, 0.0], (len(later), 1)),
+                               atol=1e-12)
+    dist = load_room_distribution("configs/rooms/default.yaml").with_overrides(
+        {"motion": {"walkers": 1, "shape": "person", "frames": {"count": 4, "rate": "10Hz", "exposure": "50ms"}}})
+    room = sample_room(dist, {k: np.random.default_rng([3, i])
+                              for i, k in enumerate(("geometry", "materials", "sensor", "motion"))})
+    body = room.scene.objects[-1]
+    height = room.params["motion"]["walkers"][0]["size"][2]
+    assert len(body.faces) == 72 and body.vertices[:, 2].max() == pytest.approx(height)

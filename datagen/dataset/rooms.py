@@ -319,13 +319,15 @@ class MaterialsDist(Model):
 
 class MotionDist(Model):
     """People walking across the hidden room during a capture sequence (docs/motion.md): ``walkers`` person-sized
-    boxes (``size``: x along the way they walk, y across, z tall, m), each walking a straight line between two
+    boxes (``size``: x along the way they walk, y across, z tall, m) or, with ``shape: person``, standing figures of
+    :func:`~datagen.scene.builders.person` (``size.z`` their height, their width and depth its proportions), each walking a straight line between two
     points drawn uniformly on the L-bend room's floor (inset by the walker's half-diagonal, so that it never leaves
     the room) at ``speed`` m/s, back and forth until the sequence ends; ``frames``: the capture's frames
     (:class:`~datagen.scene.motion.FrameSpec`: count, rate, exposure); ``change_split``: each frame's change is
     simulated with 1/N of the sampling. Drawn from the sample's "motion" stream."""
 
     walkers: CountRange = CountRange()
+    shape: Literal["box", "person"] = "box"
     size: Size3 = Size3(x=Range(min=0.25, max=0.35), y=Range(min=0.4, max=0.5), z=Range(min=1.6, max=1.9))
     speed: Positive = Range(min=0.5, max=2.0)
     frames: FrameSpec | None = None

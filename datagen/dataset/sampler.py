@@ -28,6 +28,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..scene import FieldOfView, Laser, Scene, SceneObject, Sensor, box, l_room, pillar, quad
 from ..scene import Material
+from ..scene.builders import person
 from ..scene.model import Moving
 from ..scene.motion import WalkMotion
 from ..scene.parts import ROOM_LABELS, CaptureSpec
@@ -325,6 +326,9 @@ def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator])
     return SampledRoom(scene, params, objects)
 
 
+PERSON_DEPTH, PERSON_WIDTH = 0.17, 0.43
+"""A :func:`~datagen.scene.builders.person`'s bounding box, depth and width over its height."""
+
 WALK_TRIES = 64
 """Draws of a walker's way (8 uniforms each) before giving up on a room whose objects block every way across."""
 
@@ -348,6 +352,8 @@ def _add_walkers(dist: RoomDistribution, room: dict, scene: Scene, placed: list[
             size = [walk.size.x.min + u[0] * (walk.size.x.max - walk.size.x.min),
                     walk.size.y.min + u[1] * (walk.size.y.max - walk.size.y.min),
                     walk.size.z.min + u[2] * (walk.size.z.max - walk.size.z.min)]
+            if walk.shape == "person":                             # its proportions (datagen.scene.builders.person)
+                size[:2] = [PERSON_DEPTH * size[2], PERSON_WIDTH * size[2]]
             inset = math.hypot(size[0], size[1]) / 2 + 1e-3          # any heading stays inside the room
             ends = [(x_lo + inset + a * (x_hi - x_lo - 2 * inset), y_lo + inset + b * (y_hi - y_lo - 2 * inset))
                     for a, b in (u[3:5], u[5:7])]
@@ -362,7 +368,8 @@ def _add_walkers(dist: RoomDistribution, room: dict, scene: Scene, placed: list[
         speed = walk.speed.min + u[7] * (walk.speed.max - walk.speed.min)
         heading = math.degrees(math.atan2(ends[1][1] - ends[0][1], ends[1][0] - ends[0][0]))
         name = f"walker_{i}"
-        objects.append(box(name, (ends[0][0], ends[0][1], size[2] / 2), tuple(size), heading, Material(), "walker"))
+        objects.append(person(name, ends[0], size[2], heading, Material(), "walker") if walk.shape == "person" else
+                       box(name, (ends[0][0], ends[0][1], size[2] / 2), tuple(size), heading, Material(), "walker"))
         moving[name] = Moving(WalkMotion(kind="walk", path=ends, speed=speed, at_end="back_and_forth"),
                               objects[-1].vertices,
                               f"motion.walkers ({name})")

@@ -123,6 +123,33 @@ def box(name: str, center: Vec3, size: Vec3, rotation_deg: float = 0.0, material
     return SceneObject(name, label, material or Material(), *box_mesh(center, size, rotation_deg))
 
 
+PERSON_PARTS = (   # (centre x, y, z; size x, y, z) for a 1 m tall figure facing +x, feet on z = 0
+    (0.0, -0.06, 0.24, 0.16, 0.11, 0.48), (0.0, 0.06, 0.24, 0.16, 0.11, 0.48),        # legs
+    (0.0, 0.0, 0.64, 0.17, 0.30, 0.34),                                                # torso
+    (0.0, -0.18, 0.62, 0.08, 0.07, 0.32), (0.0, 0.18, 0.62, 0.08, 0.07, 0.32),        # arms
+    (0.0, 0.0, 0.90, 0.13, 0.11, 0.20))                                                # neck and head
+"""A person's blocks in units of its height H (legs to 0.48 H, torso 0.47–0.81 H, head to 1.0 H; arms beside the
+torso): each overlaps the next by about 1 cm at 1.75 m, so that no two faces of the figure are coplanar."""
+
+
+def person(name: str, center_xy: tuple[float, float], height: float, rotation_deg: float = 0.0,
+           material: Material | None = None, label: str = "person") -> SceneObject:
+    """A standing person of ``height`` m as six closed blocks (legs, torso, arms, head: :data:`PERSON_PARTS`), feet
+    on the floor z = 0 at ``center_xy`` (m), facing +x turned by ``rotation_deg`` about z; 72 triangles. Its
+    bounding box is 0.17 H deep, 0.43 H wide and H tall (0.30 × 0.75 × 1.75 m at 1.75 m).
+
+    Raises:
+        SceneError: a height not finite and > 0.
+    """
+    check_sizes((height,), f"person {name!r}: height")
+    turn = _rotation_z(rotation_deg)
+    parts = []
+    for cx, cy, cz, sx, sy, sz in PERSON_PARTS:
+        v, f = box_mesh((cx * height, cy * height, cz * height), (sx * height, sy * height, sz * height))
+        parts.append((matmul(v, turn.T) + np.array([center_xy[0], center_xy[1], 0.0]), f))
+    return SceneObject(name, label, material or Material(), *_merge(parts))
+
+
 def quad(name: str, corner: Vec3, edge_u: Vec3, edge_v: Vec3, material: Material | None = None,
          label: str = "mesh") -> SceneObject:
     """A single rectangle corner, corner+u, corner+u+v, corner+v (two triangles)."""

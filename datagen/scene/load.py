@@ -3,7 +3,7 @@
 :func:`load_scene` reads a scene YAML (see scene_library/demo_room.yaml), validates it with pydantic
 (:class:`SceneFile`; an error names the file, the field and the value, :func:`format_validation_error`) and
 builds its objects with the builders of :mod:`datagen.scene.builders` (one spec per ``builder``: l_room,
-pillar, box, quad, mesh, mask). :func:`read_yaml` / :func:`parse_yaml` are the shared, bounded readers of YAML inputs
+pillar, box, person, quad, mesh, mask). :func:`read_yaml` / :func:`parse_yaml` are the shared, bounded readers of YAML inputs
 (scene files, room distributions, dataset configs, detector presets, tal configs): size and alias expansion are
 capped so a hostile file fails in one short line instead of filling memory; :func:`check_output_dir` refuses an
 output directory that cannot be created before any work.
@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from ..errors import DatagenError
 from .yamlfile import (MAX_PROBLEMS, MAX_SHOWN, MAX_YAML_BYTES, MAX_YAML_VALUES, DuplicateKeyError,  # noqa: F401
                        UniqueKeyLoader, format_validation_error, parse_yaml, read_yaml, short_repr)
-from .builders import box, import_mesh, l_room, mask_cutout, pillar, quad
+from .builders import box, import_mesh, l_room, mask_cutout, person, pillar, quad
 from .materials import Material
 from .model import Moving, Scene
 from .motion import Motion
@@ -87,6 +87,21 @@ class BoxSpec(_Movable):
         return [box(self.name, self.center, self.size, self.rotation_deg, self.material, self.label)]
 
 
+class PersonSpec(_Movable):
+    """A standing person (:func:`~datagen.scene.builders.person`): feet at ``center`` (x, y) on the floor."""
+
+    builder: Literal["person"]
+    name: str = "person"
+    label: str = "person"
+    center: tuple[float, float]
+    height: float = Field(1.75, gt=0, le=3.0)
+    rotation_deg: float = 0.0
+    material: Material = Material()
+
+    def build(self) -> list[SceneObject]:
+        return [person(self.name, self.center, self.height, self.rotation_deg, self.material, self.label)]
+
+
 class QuadSpec(_Movable):
     builder: Literal["quad"]
     name: str
@@ -137,7 +152,7 @@ class MaskSpec(_Movable):
         return [mask_cutout(self.name, self.rows, self.pitch, self.center, self.u, self.v, self.material, self.label)]
 
 
-ObjectSpec = Annotated[Union[LRoomSpec, PillarSpec, BoxSpec, QuadSpec, MeshSpec, MaskSpec],
+ObjectSpec = Annotated[Union[LRoomSpec, PillarSpec, BoxSpec, PersonSpec, QuadSpec, MeshSpec, MaskSpec],
                        Field(discriminator="builder")]
 
 
