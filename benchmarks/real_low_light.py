@@ -73,11 +73,12 @@ def config_fingerprint(record: dict) -> str:
 
 
 def stale(record: dict) -> str | None:
-    """None when a network's record was trained on a build of the repository's dataset config as it is now, else a
-    one-line reason (the record's ``config_sha256`` and the config's)."""
+    """None when a network's record was trained on a build of the repository's dataset config as it is now (or on a
+    config the repository does not hold), else a one-line reason (the record's ``config_sha256`` and the config's)."""
     if "config_sha256" not in record:
         return "its record holds no config_sha256 (saved without a dataset card)"
-    now = config_fingerprint(record)
+    if not (ROOT / "configs" / "datasets" / f"{record['config_name']}.yaml").is_file():
+        return None                     # a config of the user's own: nothing in the repository to compare with
     if now != record["config_sha256"]:
         return (f"trained on config_sha256 {record['config_sha256'][:16]}…, configs/datasets/{record['config_name']}"
                 f".yaml cut to {record['splits']} hashes to {now[:16]}… now: retrain it (docs/training.md)")
