@@ -79,6 +79,7 @@ def stale(record: dict) -> str | None:
         return "its record holds no config_sha256 (saved without a dataset card)"
     if not (ROOT / "configs" / "datasets" / f"{record['config_name']}.yaml").is_file():
         return None                     # a config of the user's own: nothing in the repository to compare with
+    now = config_fingerprint(record)
     if now != record["config_sha256"]:
         return (f"trained on config_sha256 {record['config_sha256'][:16]}…, configs/datasets/{record['config_name']}"
                 f".yaml cut to {record['splits']} hashes to {now[:16]}… now: retrain it (docs/training.md)")
