@@ -24,6 +24,7 @@ import numpy as np
 import datagen
 from datagen.dataset.config import DatasetConfig
 from datagen.dataset.sample_scene import scene_of_sample
+from datagen.dataset.sampler import room_floor
 from datagen.scene import RayCaster, resolve_capture
 from datagen.units import SPEED_OF_LIGHT
 
@@ -33,10 +34,8 @@ GRID_STEP = 0.05
 
 def floor_grid(room: dict, step: float = GRID_STEP) -> tuple[np.ndarray, np.ndarray]:
     """(xs (a,), ys (b,)) m: the L-bend room's floor (room params of a sample) on a ``step`` grid."""
-    side, half = room["bend_side"], room["corridor_width"] / 2
-    y0, y1 = sorted((side * half, side * (half + room["room_length"])))
-    return (np.arange(room["relay_x"] - room["room_depth"] + step / 2, room["relay_x"], step),
-            np.arange(y0 + step / 2, y1, step))
+    x0, x1, y0, y1 = room_floor(room)
+    return np.arange(x0 + step / 2, x1, step), np.arange(y0 + step / 2, y1, step)
 
 
 def geometry(path: Path, split: str, index: int, config: DatasetConfig):

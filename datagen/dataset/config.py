@@ -43,7 +43,7 @@ from .components import COMPONENT_ROOM, OTHER_COMPONENTS, component_arrays, comp
 from .components import MULTIBOUNCE, orders_summary  # noqa: F401
 from .dtypes import stored_counts
 from .legacy import RENAMED_KEYS, note_old_keys
-from .sample_params import accuracy_record, json_default
+from .sample_params import accuracy_record, params_array
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
 """Stream ids: the last entry of the spawn_key of each random stream of a sample (fixed forever)."""
@@ -528,7 +528,7 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
         ConfigError: the split is unknown, the index is out of range, the room cannot be sampled, or it holds
             more hidden objects than ``labels.max_objects``; the message names the sample.
     """
-    from .layout import axis_names
+    from .layout import array_axes, capture_kind
     from .labels import scene_labels
     from .zones import zone_capture
     from .detector_draws import DETECTOR_STREAM, draw_sample_detector
@@ -541,9 +541,11 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
     sim_config, drawn = draw_sample_detector(config.detector_draws, sample_seed_sequence(
         config.seed, split, index, DETECTOR_STREAM), room, sim_config)
     t1 = time.perf_counter()
+    ids = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
+           "streams": STREAMS}
     if room.scene.moving:                 # walkers: a capture sequence (datagen/dataset/sequences.py)
         return Sample(*sequence_sample(config, split, index, room, sim_config, drawn, (t0, t1),
-                                       sample_seed_sequence(config.seed, split, index, "sampling"), STREAMS))
+                                       sample_seed_sequence(config.seed, split, index, "sampling"), ids))
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"], progress=progress)
     result, nodes = zone_capture(config, split, room, sim_config, result,   # a flood: the zones' result
@@ -579,20 +581,10 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
         arrays[name] = np.asarray(value)
     arrays["photons_per_pulse"] = np.asarray(result.attrs["photons_per_pulse"], dtype=np.float64)  # envelope scale Φ
     if config.store.params:
-        plan = {effect: {k: d[k] for k in ("on", "forced", "reason")} for effect, d in result.attrs["plan"].items()}
-        params = {"dataset_seed": config.seed, "split": split, "split_key": split_key(split), "index": index,
-                  "streams": STREAMS, "room": room.params, "objects": room.objects,
-                  "effects": result.attrs.get("effects"), "accuracy": accuracy_record(result.attrs), "plan": plan}
-        if "orders" in result.attrs:
-            params["orders"] = orders_summary(result)
-        params.update({"detector_draw": drawn} if drawn else {})
-        arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=json_default), dtype=object)
+        arrays["params"] = params_array(ids, room, result.attrs, accuracy_record(result.attrs), drawn,
+                                        orders_summary(result) if "orders" in result.attrs else None)
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": t3 - t2, "total": time.perf_counter() - t0}
-    kind = None if room.scene.capture is None and room.scene.sensor.fov.pixels == (1, 1) else (
-        room.scene.capture.type if room.scene.capture is not None else "single")
-    kind = "multizone" if nodes is not None else kind
-    axes = {name: names for name, value in arrays.items()
-            if (names := axis_names(name, np.ndim(value), kind)) is not None}
+    axes = array_axes(arrays, "multizone" if nodes is not None else capture_kind(room.scene))
     why = ("capped", "unreachable", "projected_nominal_seconds", "monte_carlo", "omitted_orders", "smoothing")
     accuracy = {**accuracy_record(result.attrs), **{k: v for part in ("tolerance", "error")
                                                for k, v in result.attrs[part].items() if k in why}}

@@ -188,8 +188,9 @@ def card_problems(card: dict, config: DatasetConfig) -> list[str]:
 
     expected = {name: (shape, dt.str) for name, (shape, dt) in label_shapes(spec).items()} if config.store.labels \
         else {}
-    frames = config.room_distribution(next(iter(config.splits))).motion.frames
-    if frames is not None and config.room_distribution(next(iter(config.splits))).motion.walkers.max > 0:
+    motion = config.room_distribution(next(iter(config.splits))).motion
+    frames = motion.frames
+    if frames is not None and motion.walkers.max > 0:
         from .layout import FRAME_FIELDS       # a capture sequence's labels: one per frame
         expected = {name: ((frames.count, *shape) if name in FRAME_FIELDS else shape, dt)
                     for name, (shape, dt) in expected.items()}

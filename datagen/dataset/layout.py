@@ -53,6 +53,23 @@ def axis_names(name: str, ndim: int, capture_kind: str | None) -> list[str] | No
     return names
 
 
+def capture_kind(scene) -> str | None:
+    """The capture kind :func:`axis_names` takes for a :class:`~datagen.scene.Scene`: None for the paper's single
+    pixel (no capture block, or one that gives only ``frames``, and one FoV pixel), else the capture's type
+    ("single" for a sensor grid without a capture block)."""
+    cap = scene.capture
+    given = cap is not None and bool(cap.model_fields_set - {"frames"})
+    if given:
+        return cap.type
+    return None if scene.sensor.fov.pixels == (1, 1) else "single"
+
+
+def array_axes(arrays: dict, capture_kind: str | None) -> dict[str, list[str]]:
+    """Axis names (:func:`axis_names`) of every named array of a sample (name → per-sample array)."""
+    return {name: names for name, value in arrays.items()
+            if (names := axis_names(name, np.ndim(value), capture_kind)) is not None}
+
+
 def _scan_shape(shape: tuple[int, ...]) -> tuple[int, int] | None:
     """(H, W) of a stored per-sample scan shape, or None when it has no (1, T, H, W) layout."""
     if len(shape) == 3:

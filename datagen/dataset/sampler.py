@@ -329,6 +329,14 @@ def sample_room(dist: RoomDistribution, rngs: Mapping[str, np.random.Generator])
 PERSON_DEPTH, PERSON_WIDTH = 0.17, 0.43
 """A :func:`~datagen.scene.builders.person`'s bounding box, depth and width over its height."""
 
+def room_floor(room: dict) -> tuple[float, float, float, float]:
+    """(x_lo, x_hi, y_lo, y_hi) m: the L-bend room's floor rectangle from a sample's room params (``params["room"]``:
+    relay_x, room_depth, room_length, corridor_width, bend_side)."""
+    side, half_w = room["bend_side"], room["corridor_width"] / 2
+    y_near, y_far = side * half_w, side * (half_w + room["room_length"])
+    return room["relay_x"] - room["room_depth"], room["relay_x"], min(y_near, y_far), max(y_near, y_far)
+
+
 WALK_TRIES = 64
 """Draws of a walker's way (8 uniforms each) before giving up on a room whose objects block every way across."""
 
@@ -341,10 +349,7 @@ def _add_walkers(dist: RoomDistribution, room: dict, scene: Scene, placed: list[
     Raises:
         ConfigError: no way found in :data:`WALK_TRIES` draws."""
     walk = dist.motion
-    side, half_w = room["bend_side"], room["corridor_width"] / 2
-    x_lo, x_hi = room["relay_x"] - room["room_depth"], room["relay_x"]
-    y_near, y_far = side * half_w, side * (half_w + room["room_length"])
-    y_lo, y_hi = min(y_near, y_far), max(y_near, y_far)
+    x_lo, x_hi, y_lo, y_hi = room_floor(room)
     objects, moving, record = list(scene.objects), {}, []
     for i in range(int(rng.integers(walk.walkers.min, walk.walkers.max + 1))):
         for _ in range(WALK_TRIES):

@@ -18,7 +18,6 @@ sequence sample stores, with a leading frame axis F:
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 
 import numpy as np
@@ -30,14 +29,14 @@ from .layout import FRAME_FIELDS
 
 
 def sequence_sample(config, split: str, index: int, room, sim_config, drawn: dict, times: tuple[float, float],
-                    root: np.random.SeedSequence, streams: dict) -> tuple:
+                    root: np.random.SeedSequence, ids: dict) -> tuple:
     """The fields of the :class:`~datagen.dataset.config.Sample` (arrays, time_edges, seconds, component names,
     axes, orders, accuracy) of sample ``index`` of ``split`` whose room has walkers: its sequence's arrays
     (:func:`sequence_arrays`, ``root`` the sample's sampling stream), ``photons_per_pulse``, ``params`` (as every
-    sample's, ``streams`` the stream ids, the walkers in ``room.motion``) and the accuracy record. ``times``: the
-    build's clock at the sample's start and after its room was drawn."""
-    from .layout import axis_names
-    from .sample_params import json_default
+    sample's, :func:`~datagen.dataset.sample_params.params_array` with ``ids``; the walkers in ``room.motion``) and
+    the accuracy record. ``times``: the build's clock at the sample's start and after its room was drawn."""
+    from .layout import array_axes, capture_kind
+    from .sample_params import params_array
 
     where = f"sample ({split}, {index})"
     motion = config.room_distribution(split).motion
@@ -51,15 +50,8 @@ def sequence_sample(config, split: str, index: int, room, sim_config, drawn: dic
                 "sequence": {"method": seq.attrs["method"], "change_split": seq.attrs["change_split"],
                              "difference_error": seq.difference_error}}
     if config.store.params:
-        plan = {effect: {k: d[k] for k in ("on", "forced", "reason")} for effect, d in ref["plan"].items()}
-        params = {"dataset_seed": config.seed, "split": split, "split_key": int(root.spawn_key[0]), "index": index,
-                  "streams": streams, "room": room.params, "objects": room.objects, "effects": ref.get("effects"),
-                  "accuracy": accuracy, "plan": plan, **({"detector_draw": drawn} if drawn else {})}
-        arrays["params"] = np.array(json.dumps(params, sort_keys=True, default=json_default), dtype=object)
-    given = room.scene.capture.model_fields_set - {"frames"}          # the capture as make_sample names it
-    kind = room.scene.capture.type if given else None if room.scene.sensor.fov.pixels == (1, 1) else "single"
-    axes = {name: names for name, value in arrays.items()
-            if (names := axis_names(name, np.ndim(value), kind)) is not None}
+        arrays["params"] = params_array(ids, room, ref, accuracy, drawn)
+    axes = array_axes(arrays, capture_kind(room.scene))
     t0, t1 = times
     seconds = {"room": t1 - t0, "simulate": t2 - t1, "labels": 0.0, "total": time.perf_counter() - t0}
     return arrays, np.asarray(seq.time_edges, dtype=np.float64), seconds, [], axes, {}, accuracy

@@ -45,17 +45,17 @@ def _consolidate(path: Path) -> None:
         zarr.consolidate_metadata(str(path))
 
 
-def _existing_store(path: str | Path) -> Path:
-    """The ``.zarr`` store at ``path`` (the store itself or the result directory holding it).
+def _existing_store(path: str | Path, name: str = RESULT_NAME, what: str = "result") -> Path:
+    """The ``.zarr`` store at ``path`` (the store itself or the directory holding it as ``name``).
 
     Raises:
-        FileNotFoundError: no result store there.
+        FileNotFoundError: no ``what`` store there.
     """
     path = Path(path)
-    if (path / RESULT_NAME).exists():
-        path = path / RESULT_NAME
+    if (path / name).exists():
+        path = path / name
     if not (path / "zarr.json").exists():
-        raise FileNotFoundError(f"no datagen result store at {path}")
+        raise FileNotFoundError(f"no datagen {what} store at {path}")
     return path
 
 
@@ -98,14 +98,9 @@ def read_sequence(path: str | Path) -> SequenceResult:
     """Read a sequence written by :func:`write_sequence` (``path`` is the ``.zarr`` or its directory).
 
     Raises:
-        FileNotFoundError: no sequence store at ``path``.
+        FileNotFoundError: no datagen sequence store at ``path``.
     """
-    path = Path(path)
-    if path.is_dir() and (path / SEQUENCE_NAME).is_dir():
-        path = path / SEQUENCE_NAME
-    if not (path / "zarr.json").is_file():
-        raise FileNotFoundError(f"no sequence store at {path}")
-    root = zarr.open_group(str(path), mode="r")
+    root = zarr.open_group(str(_existing_store(path, SEQUENCE_NAME, "sequence")), mode="r")
     attrs = dict(root.attrs)
     arrays = {name: root[name][...] for name in SEQUENCE_ARRAYS}
     diff = attrs.pop("difference_error")

@@ -16,13 +16,13 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from typing import Any
+
+import numpy as np
 
 from .coincident import resolve_coincident_faces
 from .materials import MaterialTable
-from .motion import object_anchor, posed_vertices
+from .motion import posed_vertices
 from .parts import ROOM_LABELS, CaptureSpec, Laser, SceneError, SceneObject, Sensor
 
 ROOM_MARGIN = 1e-6
@@ -30,7 +30,7 @@ ROOM_MARGIN = 1e-6
 
 
 ROOM_CHECK_CHUNK = 256
-"""Instants whose posed vertices are checked against the room at once (bounds the (instants, V) arrays)."""
+"""Instants whose posed vertices are checked against the room at once (bounds the (instants, V, 3) arrays)."""
 
 
 @dataclass(frozen=True)
@@ -184,13 +184,6 @@ class Scene:
                     self.summed_primary, self.moving)
         return out
 
-    def without_moving(self) -> "Scene":
-        """The static part: this scene without its moving objects (a new :class:`Scene`)."""
-        if not self.moving:
-            return self
-        return Scene([o for o in self.objects if o.name not in self.moving], self.laser, self.sensor, self.name,
-                     self.source, self.defaults, self.capture, self.summed_primary)
-
     def _check_room(self) -> None:
         room = [o.vertices for o in self.objects if o.label in ROOM_LABELS]
         if not self.moving or not any(o.label in ("wall", "floor", "ceiling") for o in self.objects):
@@ -202,15 +195,9 @@ class Scene:
                  else np.zeros(1))
         times = np.sort(times)
         for name, m in self.moving.items():
-            anchor = object_anchor(m.vertices)
-            pos, yaw = m.motion.pose(times, anchor)
-            rel = m.vertices - anchor
             for k0 in range(0, len(times), ROOM_CHECK_CHUNK):       # the posed vertices' exact extents
-                c, s = np.cos(yaw[k0:k0 + ROOM_CHECK_CHUNK, None]), np.sin(yaw[k0:k0 + ROOM_CHECK_CHUNK, None])
-                x, y = c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]
-                p = pos[k0:k0 + ROOM_CHECK_CHUNK]
-                low = np.stack([x.min(axis=1), y.min(axis=1), np.full(len(p), rel[:, 2].min())], axis=1) + p
-                high = np.stack([x.max(axis=1), y.max(axis=1), np.full(len(p), rel[:, 2].max())], axis=1) + p
+                posed = posed_vertices(m.motion, m.vertices, times[k0:k0 + ROOM_CHECK_CHUNK])
+                low, high = posed.min(axis=1), posed.max(axis=1)
                 out = (low < lo) | (high > hi)
                 if out.any():
                     k, axis = np.argwhere(out)[0]

@@ -170,18 +170,21 @@ def object_anchor(vertices: np.ndarray) -> np.ndarray:
     return 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
 
 
-def posed_vertices(motion: Any, vertices: np.ndarray, t: float) -> np.ndarray:
-    """(V, 3) float64: ``vertices`` (V, 3) m as built, moved to their pose at time ``t`` s by ``motion``: turned
-    by the yaw about z through the anchor (:func:`object_anchor`), then the anchor moved to the position."""
+def posed_vertices(motion: Any, vertices: np.ndarray, t: float | np.ndarray) -> np.ndarray:
+    """``vertices`` (V, 3) m as built, moved to their pose at time ``t`` s by ``motion``: turned by the yaw about z
+    through the anchor (:func:`object_anchor`), then the anchor moved to the position. A float ``t`` gives (V, 3)
+    float64, times (n,) give (n, V, 3)."""
     anchor = object_anchor(vertices)
-    pos, yaw = motion.pose(np.array([float(t)]), anchor)
-    c, s = math.cos(yaw[0]), math.sin(yaw[0])
+    times = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    pos, yaw = motion.pose(times, anchor)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
     rel = vertices - anchor
-    out = np.empty_like(rel)
-    out[:, 0] = c * rel[:, 0] - s * rel[:, 1]
-    out[:, 1] = s * rel[:, 0] + c * rel[:, 1]
-    out[:, 2] = rel[:, 2]
-    return out + pos[0]
+    out = np.empty((len(times),) + rel.shape)
+    out[..., 0] = c * rel[:, 0] - s * rel[:, 1]
+    out[..., 1] = s * rel[:, 0] + c * rel[:, 1]
+    out[..., 2] = rel[:, 2]
+    out += pos[:, None, :]
+    return out[0] if np.ndim(t) == 0 else out
 
 
 def velocity_at(motion: Any, vertices: np.ndarray, t: np.ndarray, dt: float = 1e-4) -> np.ndarray:

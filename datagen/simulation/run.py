@@ -513,10 +513,18 @@ def simulate(scene: Scene, config: SimulationConfig | None = None, progress: boo
         SceneError: invalid scene (laser spot off every surface, FoV sees no surface, …); ConfigError: invalid
             config (a detector setting the noise model cannot draw, …).
     """
+    return simulate_runs(scene, config, progress, sampling_rng, noise_rng)[0]
+
+
+def simulate_runs(scene: Scene, config: SimulationConfig | None = None, progress: bool = False,
+                  sampling_rng: np.random.Generator | None = None,
+                  noise_rng: np.random.Generator | None = None) -> tuple[Result, Replicas]:
+    """:func:`simulate`, also returning its :class:`Replicas` (their effect plan and the tracer's light paths, which a
+    capture sequence's changes follow: :mod:`datagen.simulation.sequence`)."""
     config = config or resolve_config(scene)
     t0 = time.perf_counter()
     rng = sampling_rng if sampling_rng is not None else stream_rng(config.seed, STREAM_SAMPLING)
     runs = Replicas(scene, config, rng)
     runs.run(config.error.replicas, progress)
     tr = runs.transported()
-    return make_result(scene, config, tr, noise_rng, t0, {"error": runs.error_attrs(tr, rng)})
+    return make_result(scene, config, tr, noise_rng, t0, {"error": runs.error_attrs(tr, rng)}), runs

@@ -39,8 +39,8 @@ from ..scene import RayCaster, Scene, resolve_capture
 from ..scene.motion import object_anchor, posed_vertices, velocity_at
 from ..transport import estimator
 from .config import STREAM_NOISE, STREAM_SAMPLING, SimulationConfig, resolve_config
-from .detection import detector_counts, make_result
-from .run import Planned, Replicas
+from .detection import detector_counts
+from .run import Planned, Replicas, simulate_runs
 
 STREAM_CHANGES = 3
 """Spawn-key entry of the change's random stream under the sequence's root (the sampling stream is 0, the noise 1)."""
@@ -109,17 +109,6 @@ def change_config(config: SimulationConfig, split: int, tracer_paths: int | None
     return small.model_copy(update=update)
 
 
-def _simulate(scene: Scene, config: SimulationConfig, root: np.random.SeedSequence):
-    """:func:`~datagen.simulation.simulate`'s steps, to the bit (its sampling stream is ``root``'s child
-    ``STREAM_SAMPLING``), also returning the effect plan and the replicas."""
-    t0 = time.perf_counter()
-    rng = _rng(root, STREAM_SAMPLING)
-    runs = Replicas(scene, config, rng)
-    runs.run(config.error.replicas)
-    tr = runs.transported()
-    return make_result(scene, config, tr, None, t0, {"error": runs.error_attrs(tr, rng)}), tr.plan, runs
-
-
 def _change_run(scene: Scene, config: SimulationConfig, root: np.random.SeedSequence, plan) -> tuple[np.ndarray, ...]:
     """The two halves' binned envelopes ((n_channels, n_bins) each) of ``scene`` at the change's ``config``, under
     the reference's effect ``plan`` (every frame's change is made under the same decisions, so that the streams line
@@ -134,10 +123,6 @@ def _change_run(scene: Scene, config: SimulationConfig, root: np.random.SeedSequ
     first = runs.transported().binned.sum(axis=0)
     runs.run(1, tracer_target=2, min_tracer=1)
     return first, 2.0 * runs.transported().binned.sum(axis=0) - first
-
-
-def _norm(a: np.ndarray) -> float:
-    return float(np.sqrt(np.sum(a * a)))
 
 
 def _rng(root: np.random.SeedSequence, *key: int) -> np.random.Generator:
@@ -183,9 +168,8 @@ def _labels(scene: Scene, times: np.ndarray):
         m = scene.moving[name]
         pos[:, j] = m.motion.pose(times, object_anchor(m.vertices))[0]
         vel[:, j] = velocity_at(m.motion, m.vertices, times)
-        for i, t in enumerate(times):
-            v = posed_vertices(m.motion, m.vertices, t)
-            box[i, j] = v.min(axis=0), v.max(axis=0)
+        posed = posed_vertices(m.motion, m.vertices, times)
+        box[:, j, 0], box[:, j, 1] = posed.min(axis=1), posed.max(axis=1)
     return names, pos, vel, box
 
 
@@ -222,24 +206,23 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     times, holds = _slot_times(scene, config, slots)
     n_frames, n_slots = times.shape
     root = streams if streams is not None else np.random.SeedSequence(config.seed)
-    first, plan, runs = _simulate(scene.at(times[0, 0]), config, root)
+    ref = scene.at(times[0, 0])
+    first, runs = simulate_runs(ref, config, sampling_rng=_rng(root, STREAM_SAMPLING))
     ref_error = float(first.attrs["error"]["rel_l2"])
     ref_noise = float(first.attrs["error"].get("monte_carlo") or 0.0)
     envelopes = np.empty((n_frames,) + first.envelope.shape)
-    var = np.zeros(n_frames)
+    var, step_var, negative = np.zeros(n_frames), np.zeros(n_frames), np.zeros(n_frames)
     if method == "frames":
         for f in range(n_frames):
             envelopes[f] = _frame_from_slots([first.envelope if (f, s) == (0, 0) else
-                                              _simulate(scene.at(times[f, s]), config, root)[0].envelope
+                                              simulate_runs(scene.at(times[f, s]), config,
+                                                            sampling_rng=_rng(root, STREAM_SAMPLING))[0].envelope
                                               for s in range(n_slots)], holds)
-        error, noise = np.full(n_frames, ref_error), np.full(n_frames, ref_noise)
     else:
         small = change_config(config, change_split, runs.tracer_paths_run() if runs.tracer is not None else None)
-        ref = scene.at(times[0, 0])
         shape = first.envelope.shape
-        base = [b.reshape(shape) for b in _change_run(ref, small, root, plan)]
+        base = [b.reshape(shape) for b in _change_run(ref, small, root, runs.plan)]
         reference = first.envelope
-        step_var, negative = np.zeros(n_frames), np.zeros(n_frames)
         prev = None
         for f in range(n_frames):
             parts = []
@@ -249,7 +232,7 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
                     continue
                 sc = scene.at(times[f, s])
                 parts.append(tuple(half.reshape(shape) - base[h] for h, half in
-                                   enumerate(_change_run(sc, small, root, plan))))
+                                   enumerate(_change_run(sc, small, root, runs.plan))))
             d0 = _frame_from_slots([p[0] for p in parts], holds)
             d1 = _frame_from_slots([p[1] for p in parts], holds)
             envelopes[f] = reference + 0.5 * (d0 + d1)
@@ -259,15 +242,15 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
             if prev is not None:                               # that of the step from the frame before
                 step_var[f] = float(np.sum(((d0 - prev[0]) - (d1 - prev[1])) ** 2)) / 4.0
             prev = (d0, d1)
-        pooled = math.sqrt(var[1:].mean()) if n_frames > 1 else 0.0
-        norms = np.sqrt(np.sum(envelopes.reshape(n_frames, -1) ** 2, axis=1))
-        change_error = CONFIDENCE_Z * pooled / np.maximum(norms, np.finfo(float).tiny)
-        change_error = np.where(np.arange(n_frames) == 0, 0.0, change_error)
-        error, noise = np.hypot(ref_error, change_error), np.hypot(ref_noise, change_error)
-    norms = np.sqrt(np.sum(envelopes.reshape(n_frames, -1) ** 2, axis=1))
-    steps = np.array([_norm(envelopes[f + 1] - envelopes[f]) / norms[f] for f in range(n_frames - 1)])
-    difference_error = (float(CONFIDENCE_Z * math.sqrt(step_var[1:].mean()) / norms.mean())
-                        if method == "changes" and n_frames > 1 else float("nan"))
+    norms = np.linalg.norm(envelopes.reshape(n_frames, -1), axis=1)
+    steps = np.linalg.norm(np.diff(envelopes, axis=0).reshape(n_frames - 1, envelopes[0].size), axis=1) / norms[:-1]
+    changes = method == "changes" and n_frames > 1          # "frames": every frame carries the reference's error
+    pooled = math.sqrt(var[1:].mean()) if changes else 0.0
+    change_error = CONFIDENCE_Z * pooled / np.maximum(norms, np.finfo(float).tiny)
+    change_error[0] = 0.0                                   # frame 0 is the reference
+    error, noise = np.hypot(ref_error, change_error), np.hypot(ref_noise, change_error)
+    difference_error = (float(CONFIDENCE_Z * math.sqrt(step_var[1:].mean()) / norms.mean()) if changes
+                        else float("nan"))
     detector = dict(config.detector)
     detector["exposure"] = frames.exposure / holds.shape[1]
     frame_config = config.model_copy(update={"detector": detector})
@@ -279,8 +262,7 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     attrs = {"method": method, "change_split": change_split if method == "changes" else None, "slots": n_slots,
              "frames": frames.model_dump(mode="json"), "seconds": time.perf_counter() - t0,
              "reference_error": ref_error, "mean_step": float(steps.mean()) if steps.size else 0.0,
-             "clamped": (float(negative.max() / max(float(norms.max()), np.finfo(float).tiny))
-                         if method == "changes" else 0.0),
+             "clamped": float(negative.max() / max(float(norms.max()), np.finfo(float).tiny)),
              "reference": first.attrs}
     return SequenceResult(first.time_edges, frames.times(), envelopes, counts, error, noise, difference_error, pos,
                           vel, box, names, attrs)
