@@ -8,6 +8,8 @@ estimator at its 10 × 10 lookins and 60 × 60 pixels, every order) and room 0 o
 one walker drawn (``motion.walkers: 1``) at ``configs/datasets/default.yaml``'s sampling (the area sampler, 16384
 hidden samples a replica, every order; :data:`ROOM_REPLICAS` replicas). For each:
 
+0. **Warm-up** (untimed): one frame and a 2-frame sequence, so that neither figure below carries the process's
+   one-off costs (numba's compiled kernels loaded from its cache, or compiled; first imports).
 1. **One frame**: the scene at the first frame's instant, simulated alone (the unit of cost).
 2. **New**: :func:`datagen.simulation.sequence.simulate_sequence` with ``method="changes"``.
 3. **Old**: the same frames each simulated in full (``method="frames"``: 100 independent frames, the cost of a
@@ -25,6 +27,7 @@ Wall times are one run each, on this machine, one process; the ratios are what t
 from __future__ import annotations
 
 import argparse
+import copy
 import math
 import time
 
@@ -66,10 +69,20 @@ def room_scene(frames: int):
         update={"replicas": ROOM_REPLICAS})})
 
 
+def _first_frames(scene, count: int):
+    """``scene`` with only the first ``count`` frames of its capture."""
+    frames = scene.capture.frames.model_copy(update={"count": count})
+    out = copy.copy(scene)
+    out.capture = scene.capture.model_copy(update={"frames": frames})
+    return out
+
+
 def measure(name: str, scene, config, split: int, old: bool) -> None:
     frames: FrameSpec = scene.capture.frames
     mids = frames.times() + frames.exposure / 2
     n = len(mids)
+    datagen.simulate(scene.at(mids[0]), config)                          # warm-up, untimed
+    simulate_sequence(_first_frames(scene, 2), config, "changes", split)
     t0 = time.perf_counter()
     datagen.simulate(scene.at(mids[0]), config)
     one = time.perf_counter() - t0
