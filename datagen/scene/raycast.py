@@ -9,6 +9,7 @@ size), so a 6 m room and a 600 m tunnel both work.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,8 +104,8 @@ class RayCaster:
         """
         origins = np.asarray(origins, dtype=np.float64)
         directions = np.asarray(directions, dtype=np.float64)
-        shape = np.broadcast_shapes(origins.shape, directions.shape)[:-1]
-        n = int(np.prod(shape, dtype=np.int64))
+        shape = _batch_shape(origins, directions)
+        n = math.prod(shape)
         o, d = _rows(origins, shape), _rows(directions, shape)
         o32, d32 = _float32_rays(o, d, self.center, n)
         face = np.empty(n, dtype=np.int64)
@@ -130,8 +131,8 @@ class RayCaster:
             (...,) bool, True where nothing blocks the segment.
         """
         p, q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
-        shape = np.broadcast_shapes(p.shape, q.shape)[:-1]
-        n = int(np.prod(shape, dtype=np.int64))
+        shape = _batch_shape(p, q)
+        n = math.prod(shape)
         rows = [_rows(v, shape) for v in (p, n_p if n_p is not None else p, q, n_q if n_q is not None else q)]
         # ends pushed off their surfaces, centred, in float32 (Embree's precision; the offset is ~100 ULPs)
         a, d, tmax, ok = _segments(*rows, n_p is not None, n_q is not None, self.center, self.offset, n)
@@ -144,11 +145,19 @@ class RayCaster:
         return out.reshape(shape)
 
 
+def _batch_shape(a: np.ndarray, b: np.ndarray) -> tuple:
+    """The batch shape of two (..., 3) arrays broadcast against each other (their common shape when equal: the
+    usual case, without numpy's broadcasting machinery, which costs more than a small batch's rays)."""
+    return a.shape[:-1] if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape)[:-1]
+
+
 def _rows(v: np.ndarray, shape: tuple) -> np.ndarray:
     """(n, 3) float64 rows of v for a batch of ``shape``, or (1, 3) when v is one point (broadcast)."""
     v = np.asarray(v, dtype=np.float64)
     if v.size == 3:
         return v.reshape(1, 3)
+    if v.shape == shape + (3,) and v.flags.c_contiguous:        # already one row per ray: a view, as below
+        return v.reshape(-1, 3)
     return np.ascontiguousarray(np.broadcast_to(v, shape + (3,))).reshape(-1, 3)
 
 
