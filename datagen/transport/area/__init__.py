@@ -13,6 +13,8 @@ secondary that matters, light of every order (the multibounce tracer runs beside
   :class:`AreaSampler` holds), and the cosine rays from the spot (:func:`~.secondary.spot_hits`).
 - :mod:`.kernels`: the compiled passes (connection weights, FoV targets, material arrays, partner geometry),
   held to the numpy formulas of :mod:`datagen.transport.physics` by ``tests/test_area_kernels.py``.
+- :mod:`.points`: the points of the unit square (FoV paths, spot samples), a scrambled Sobol set drawn again from a
+  seed sequence in the same state taken from a memo (a capture sequence's changes draw the same sets every frame).
 """
 from .estimator import AreaSampler, AreaSettings
 
