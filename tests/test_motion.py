@@ -148,6 +148,29 @@ def test_sequence_frames_match_frames_simulated_alone_within_their_stated_error(
     assert np.all(seq.boxes[:, 0, 0] < seq.positions[:, 0]) and np.all(seq.positions[:, 0] < seq.boxes[:, 0, 1])
 
 
+def test_a_changes_sequence_starts_from_its_first_frame_simulated_alone_and_scrambles_each_sobol_set_once():
+    """The 'changes' method's reference runs with the config as given: frame 0 is the frame simulated on its own, to
+    the bit. Its changes draw the same Sobol sets every frame: the area sampler's memo gives them to the bit and
+    spawns the child the scrambling would have spawned, so every later draw is the same too."""
+    from datagen.sampling.surfaces import unit_square_points
+    from datagen.transport.area.points import square_points
+
+    scene = scene_from_dict(scene_with())
+    config = datagen.resolve_config(scene)
+    seq = simulate_sequence(scene, config, change_split=8)
+    alone = datagen.simulate(scene.at(seq.frame_times[0] + 0.005), config)
+    np.testing.assert_array_equal(seq.envelopes[0], alone.envelope)
+    assert seq.error[0] == alone.attrs["error"]["rel_l2"] and np.all(seq.error[1:] > seq.error[0])
+
+    def draws(points):
+        rng = np.random.default_rng(np.random.SeedSequence(11, spawn_key=(3, 0)))
+        return [points(128, "sobol", rng), points(64, "sobol", rng), rng.random(4), points(128, "sobol", rng)]
+    first = draws(unit_square_points)
+    for _ in range(2):                       # the second time from the memo
+        for a, b in zip(first, draws(square_points)):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_motion_during_a_confocal_scan_is_each_point_at_its_own_instant():
     """A box crossing a 3 × 3 confocal scan during one frame: the 'frames' method with one slot per point equals,
     to the bit, a scan simulated at each point's instant with that point kept; the late points see the box moved

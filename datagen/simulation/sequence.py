@@ -12,19 +12,23 @@ Two methods give the same frames in expectation:
   frame to frame carries the same error in every frame and a difference of two frames is nearly free of it.
 - ``"changes"`` (default): the sequence costs what changes. The first frame's scene (the reference) is simulated
   once at the config's sampling; every frame adds only the *change* from the reference, estimated with
-  ``1 / change_split`` of that sampling on the frame's scene and on the reference with the same random streams
-  (common random numbers: every path that meets neither the moving object nor its shadow cancels to the bit), in
-  two independent halves. Frame f = reference + change_f, unbiased but for the bins where a noisy change takes an
-  empty bin below zero, which are set to zero (``attrs["clamped"]``: the largest such negative sum of a frame, over
-  the frame's L2 norm). Its stated error is the reference's error and the change's, added in quadrature; the
-  change's is read from the spread of its two halves, pooled over the frames (docs/motion.md, "The two methods,
-  and what a frame's error is").
+  ``1 / change_split`` of that sampling in one run on the frame's scene and on the reference with the same random
+  streams (common random numbers: every path that meets neither the moving object nor its shadow cancels to the bit).
+  Frame f = reference + change_f, unbiased but for the bins where a noisy change takes an empty bin below zero, which
+  are set to zero (``attrs["clamped"]``: the largest such negative sum of a frame, over the frame's L2 norm). Its
+  stated error is the reference's error and the change's, added in quadrature. The change's is read from a second,
+  independent run of the same size on every :data:`SPREAD_EVERY`-th frame and the frame after it (and on the
+  reference): the spread of the two, pooled over those frames (docs/motion.md, "The two methods, and what a frame's
+  error is").
 
-Both run with ``common_random_numbers`` (:class:`~datagen.simulation.SimulationConfig`): every path draws from a slot
-of its own. Random streams, children of a root (``SeedSequence(seed)``, or a dataset sample's): the reference and
-the ``"frames"`` method take (``STREAM_SAMPLING``,), as :func:`~datagen.simulation.simulate` does; the change's
-halves are replicas 0 and 1 of a run on (``STREAM_CHANGES``,); frame f's detector noise takes (``STREAM_NOISE``, f):
-independent in every frame, as a real detector's is.
+Every frame of ``"frames"`` and every change of ``"changes"`` run with ``common_random_numbers``
+(:class:`~datagen.simulation.SimulationConfig`): every path draws from a slot of its own, so that paths line up from
+frame to frame. The reference of ``"changes"`` runs with the config as given: it meets no other frame's paths (the
+changes subtract their own run of the reference), so it is the first frame simulated on its own, to the bit, and
+costs no more. Random streams, children of a root (``SeedSequence(seed)``, or a dataset sample's): the reference and
+the ``"frames"`` method take (``STREAM_SAMPLING``,), as :func:`~datagen.simulation.simulate` does; every frame's
+change is replica 0 of a run on (``STREAM_CHANGES``,), its second run replica 1; frame f's detector noise takes
+(``STREAM_NOISE``, f): independent in every frame, as a real detector's is.
 """
 from __future__ import annotations
 
@@ -49,9 +53,14 @@ CONFIDENCE_Z = 1.96
 """Two-sided 95 % normal quantile: the change's stated error is a 95 % bound, as the reference's is."""
 
 DEFAULT_CHANGE_SPLIT = 128
-"""The change of a frame is estimated with 1/128 of the reference's sampling (in two halves): in the demo room a
-100-frame sequence then costs about 5 frames, each frame's stated error a few per cent above a single frame's
-(docs/motion.md gives the measured ratio and errors, ``python benchmarks/sequence_cost.py``)."""
+"""The change of a frame is estimated with 1/128 of the reference's sampling (in one run): in the demo room a
+frame's stated error then stays a few per cent above a single frame's (docs/motion.md gives the measured cost and
+errors, ``python benchmarks/sequence_cost.py``)."""
+
+SPREAD_EVERY = 10
+"""Every 10th frame (1, 11, 21, …) and the frame after it run the change a second time (replica 1): a fifth of the
+frames, whose two runs' spread is the change's error (pooled over them) and, the pairs being consecutive, a step's.
+Each such frame costs a second run; fewer would leave the pooled spread to a handful of frames."""
 
 
 @dataclass
@@ -89,9 +98,11 @@ class SequenceResult:
 
 
 def change_config(config: SimulationConfig, split: int, tracer_paths: int | None = None) -> SimulationConfig:
-    """``config`` with ``1/split`` of its sampling in two replicas, the change's halves: the estimator's own split
-    (its registry entry's ``replica`` hook, the rule its replicas use) and ``tracer_paths`` / ``split`` light paths
-    per laser point of the order ≥ 3 tracer (``tracer_paths``: what the reference traced in all its replicas).
+    """``config`` with ``1/split`` of its sampling in one replica, a frame's change: the estimator's own split (its
+    registry entry's ``replica`` hook, the rule its replicas use) and ``tracer_paths`` / ``split`` light paths per
+    laser point of the order ≥ 3 tracer (``tracer_paths``: what the reference traced in all its replicas). Its
+    ``error.replicas`` is 1, below what a user's config may ask (2): the config is the change's own, and its second
+    replica, run on some frames only, gives the spread (:func:`simulate_sequence`).
 
     Raises:
         SceneError: a deterministic estimator (one refined, not only replicated: the quadrature): at a coarser
@@ -102,27 +113,45 @@ def change_config(config: SimulationConfig, split: int, tracer_paths: int | None
         raise SceneError(f"method 'changes' needs a Monte Carlo estimator; {config.estimator.kind!r} is "
                          "deterministic: use method 'frames' (docs/motion.md)")
     small = config.with_estimator(**entry.replica(config.estimator, split))
-    update = {"error": small.error.model_copy(update={"replicas": 2})}
+    update = {"error": small.error.model_copy(update={"replicas": 1})}
     if tracer_paths is not None:
         paths = max(1, -(-tracer_paths // split))
         update["multibounce"] = small.multibounce.model_copy(update={"paths": paths})
     return small.model_copy(update=update)
 
 
-def _change_run(scene: Scene, config: SimulationConfig, root: np.random.SeedSequence, plan) -> tuple[np.ndarray, ...]:
-    """The two halves' binned envelopes ((n_channels, n_bins) each) of ``scene`` at the change's ``config``, under
-    the reference's effect ``plan`` (every frame's change is made under the same decisions, so that the streams line
-    up): replicas 0 and 1 of one run (stream: ``root``'s child (STREAM_CHANGES,)), each with one replica of the
-    tracer when it is planned."""
+def _change_run(scene: Scene, config: SimulationConfig, root: np.random.SeedSequence, plan, second: bool
+                ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The binned envelopes ((n_channels, n_bins) each) of replicas 0 and, when ``second``, 1 of ``scene`` at the
+    change's ``config`` (stream: ``root``'s child (STREAM_CHANGES,); None for replica 1 when not ``second``), each
+    with one replica of the tracer when it is planned, under the reference's effect ``plan`` (every frame's change is
+    made under the same decisions, so that the streams line up)."""
     if not config.split_components:
         scene = scene.with_summed_primary()
     caster = RayCaster(scene)
     runs = Replicas(scene, config, _rng(root, STREAM_CHANGES),
                     Planned(scene, caster, resolve_capture(scene, caster), plan))
     runs.run(1, tracer_target=1, min_tracer=1)
-    first = runs.transported().binned.sum(axis=0)
+    first = _replica_total(runs)
+    if not second:
+        return first, None
     runs.run(1, tracer_target=2, min_tracer=1)
-    return first, 2.0 * runs.transported().binned.sum(axis=0) - first
+    return first, _replica_total(runs) - first
+
+
+def _replica_total(runs: Replicas) -> np.ndarray:
+    """(n_channels, n_bins) the sum over the replicas run so far of their envelopes (components summed), orders
+    1–2 and the tracer's: read from their sums (each replica's envelope binned once, as it was added), not from the
+    total, which would bin every component again."""
+    parts = [runs.sums] + ([runs.tracer_sums] if runs.tracer is not None else [])
+    return sum(p.mean() * p.count for p in parts)
+
+
+def _spread_frames(n_frames: int) -> np.ndarray:
+    """(F,) bool: the frames whose change runs twice: frame 0 (the reference's, whose change is zero) and, for
+    :data:`SPREAD_EVERY` = k, frames 1 + j·k and 2 + j·k (pairs of consecutive frames, for the steps' spread)."""
+    f = np.arange(n_frames)
+    return (f == 0) | ((f - 1) % SPREAD_EVERY < 2)
 
 
 def _rng(root: np.random.SeedSequence, *key: int) -> np.random.Generator:
@@ -198,8 +227,8 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
                          "(count, rate, exposure; docs/motion.md)")
     if method not in ("changes", "frames"):
         raise SceneError(f"sequence method {method!r}: expected 'changes' or 'frames'")
-    config = config or resolve_config(scene)
-    config = config.model_copy(update={"error": config.error.model_copy(     # paths line up from frame to frame
+    alone = config or resolve_config(scene)                                 # the reference's ("changes")
+    config = alone.model_copy(update={"error": alone.error.model_copy(       # paths line up from frame to frame
         update={"common_random_numbers": True})})
     t0 = time.perf_counter()
     frames = scene.capture.frames
@@ -207,7 +236,8 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     n_frames, n_slots = times.shape
     root = streams if streams is not None else np.random.SeedSequence(config.seed)
     ref = scene.at(times[0, 0])
-    first, runs = simulate_runs(ref, config, sampling_rng=_rng(root, STREAM_SAMPLING))
+    first, runs = simulate_runs(ref, config if method == "frames" else alone,
+                                sampling_rng=_rng(root, STREAM_SAMPLING))
     ref_error = float(first.attrs["error"]["rel_l2"])
     ref_noise = float(first.attrs["error"].get("monte_carlo") or 0.0)
     envelopes = np.empty((n_frames,) + first.envelope.shape)
@@ -221,7 +251,8 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
     else:
         small = change_config(config, change_split, runs.tracer_paths_run() if runs.tracer is not None else None)
         shape = first.envelope.shape
-        base = [b.reshape(shape) for b in _change_run(ref, small, root, runs.plan)]
+        spread = _spread_frames(n_frames)
+        base = [b.reshape(shape) for b in _change_run(ref, small, root, runs.plan, True)]
         reference = first.envelope
         prev = None
         for f in range(n_frames):
@@ -230,26 +261,28 @@ def simulate_sequence(scene: Scene, config: SimulationConfig | None = None, meth
                 if (f, s) == (0, 0):
                     parts.append((np.zeros_like(reference), np.zeros_like(reference)))
                     continue
-                sc = scene.at(times[f, s])
-                parts.append(tuple(half.reshape(shape) - base[h] for h, half in
-                                   enumerate(_change_run(sc, small, root, runs.plan))))
+                runs_f = _change_run(scene.at(times[f, s]), small, root, runs.plan, bool(spread[f]))
+                parts.append(tuple(None if run is None else run.reshape(shape) - base[r]
+                                   for r, run in enumerate(runs_f)))
             d0 = _frame_from_slots([p[0] for p in parts], holds)
-            d1 = _frame_from_slots([p[1] for p in parts], holds)
-            envelopes[f] = reference + 0.5 * (d0 + d1)
+            envelopes[f] = reference + d0
             negative[f] = -float(envelopes[f][envelopes[f] < 0].sum())
             np.maximum(envelopes[f], 0.0, out=envelopes[f])     # a noisy change below an empty bin: no light
-            var[f] = float(np.sum((d0 - d1) ** 2)) / 4.0       # the variance of the mean of two halves, summed
-            if prev is not None:                               # that of the step from the frame before
-                step_var[f] = float(np.sum(((d0 - prev[0]) - (d1 - prev[1])) ** 2)) / 4.0
-            prev = (d0, d1)
+            d1 = _frame_from_slots([p[1] for p in parts], holds) if spread[f] else None
+            if d1 is not None:
+                var[f] = float(np.sum((d0 - d1) ** 2)) / 2.0   # the variance of one run, summed over bins
+                if prev is not None:                           # that of the step from the frame before
+                    step_var[f] = float(np.sum(((d0 - prev[0]) - (d1 - prev[1])) ** 2)) / 2.0
+            prev = (d0, d1) if d1 is not None else None
     norms = np.linalg.norm(envelopes.reshape(n_frames, -1), axis=1)
     steps = np.linalg.norm(np.diff(envelopes, axis=0).reshape(n_frames - 1, envelopes[0].size), axis=1) / norms[:-1]
     changes = method == "changes" and n_frames > 1          # "frames": every frame carries the reference's error
-    pooled = math.sqrt(var[1:].mean()) if changes else 0.0
+    pooled = math.sqrt(var[1:][spread[1:]].mean()) if changes else 0.0
     change_error = CONFIDENCE_Z * pooled / np.maximum(norms, np.finfo(float).tiny)
     change_error[0] = 0.0                                   # frame 0 is the reference
     error, noise = np.hypot(ref_error, change_error), np.hypot(ref_noise, change_error)
-    difference_error = (float(CONFIDENCE_Z * math.sqrt(step_var[1:].mean()) / norms.mean()) if changes
+    stepped = spread[1:] & spread[:-1] if changes else None     # steps between two frames run twice
+    difference_error = (float(CONFIDENCE_Z * math.sqrt(step_var[1:][stepped].mean()) / norms.mean()) if changes
                         else float("nan"))
     detector = dict(config.detector)
     detector["exposure"] = frames.exposure / holds.shape[1]
