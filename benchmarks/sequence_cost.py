@@ -10,7 +10,8 @@ hidden samples split into :data:`ROOM_REPLICAS` replicas, every order). For each
 
 0. **Warm-up** (untimed): one frame and a 2-frame sequence, so that neither figure below carries the process's
    one-off costs (numba's compiled kernels loaded from its cache, or compiled; first imports).
-1. **One frame**: the scene at the first frame's instant, simulated alone (the unit of cost).
+1. **One frame**: the scene at the first frame's instant, simulated alone (the unit of cost): the median of
+   :data:`UNIT_RUNS` runs, since a single frame's time moves with the machine's load more than a sequence's does.
 2. **New**: :func:`datagen.simulation.sequence.simulate_sequence` with ``method="changes"``.
 3. **Old**: the same frames each simulated in full (``method="frames"``: 100 independent frames, the cost of a
    sequence made frame by frame).
@@ -41,6 +42,9 @@ from datagen.scene.motion import FrameSpec
 from datagen.simulation.sequence import DEFAULT_CHANGE_SPLIT, simulate_sequence
 
 WALKER_FRAMES = {"count": 100, "rate": "10Hz", "exposure": "50ms"}
+
+UNIT_RUNS = 3
+"""Runs of one frame whose median is the unit of cost."""
 
 ROOM_REPLICAS = 24
 """Replicas the room's frame splits configs/datasets/default.yaml's 16384 hidden samples into (683 each; a stated
@@ -84,15 +88,18 @@ def measure(name: str, scene, config, split: int, old: bool) -> None:
     n = len(mids)
     datagen.simulate(scene.at(mids[0]), config)                          # warm-up, untimed
     simulate_sequence(_first_frames(scene, 2), config, "changes", split)
-    t0 = time.perf_counter()
-    datagen.simulate(scene.at(mids[0]), config)
-    one = time.perf_counter() - t0
+    ones = []
+    for _ in range(UNIT_RUNS):
+        t0 = time.perf_counter()
+        datagen.simulate(scene.at(mids[0]), config)
+        ones.append(time.perf_counter() - t0)
+    one = float(np.median(ones))
     t0 = time.perf_counter()
     new = simulate_sequence(scene, config, "changes", split)
     t_new = time.perf_counter() - t0
     print(f"\n{name}: {n} frames, {config.estimator.kind} {config.estimator.model_dump(exclude={'kind'})}")
-    print(f"  one frame {one:.1f} s; changes (split {split}) {t_new:.1f} s = {t_new / one:.2f} frames "
-          f"({t_new / one / n:.3f} of a frame per frame)")
+    print(f"  one frame {one:.2f} s (median of {', '.join(f'{t:.2f}' for t in ones)}); changes (split {split}) "
+          f"{t_new:.1f} s = {t_new / one:.2f} frames ({t_new / one / n:.3f} of a frame per frame)")
     print(f"  stated error per frame: {new.error.min():.2%}..{new.error.max():.2%} (one frame alone: "
           f"{new.attrs['reference_error']:.2%}); Monte Carlo part {new.monte_carlo_error.min():.2%}.."
           f"{new.monte_carlo_error.max():.2%}")
