@@ -168,7 +168,7 @@ def scene_like(scene, template: CaptureTemplate) -> tuple[object, list[str]]:
         notes.append(f"{where}capture.laser_grid: {old.points[0]} x {old.points[1]} points over "
                      f"{old.size[0]:.4g} x {old.size[1]:.4g} m replaced by the capture's {nx} x {ny} over "
                      f"{grid.size[0]:.4g} x {grid.size[1]:.4g} m (cells of the pitch, centred as the capture's points)")
-    new_cap = CaptureSpec(type="confocal", convention=cap.convention, laser_grid=grid)
+    new_cap = CaptureSpec(type="confocal", convention=cap.convention, laser_grid=grid, detector_fov=cap.detector_fov)
     return dataclasses.replace(scene, capture=new_cap), notes
 
 

@@ -46,6 +46,9 @@ class Capture:
         fov_pixels: (nx, ny) sensor points (cell centres) / pixel regions (cells).
         photons: Φ, photons per pulse (1 for point radiance: per unit power at the spot).
         legacy_single_pixel: the scene used the paper's one-pixel ``sensor.fov`` (envelope shape (T,)).
+        pixel_size: (w, h) m, a confocal scan's detector field of view at each scan point (``capture.detector_fov``):
+            pixel region i is the w × h rectangle centred on sensor point i, and neighbouring regions may overlap;
+            None: each pixel region is its cell of the grid (:attr:`region_size`).
     """
 
     kind: str
@@ -67,6 +70,7 @@ class Capture:
     fov_pixels: tuple[int, int]
     photons: float
     legacy_single_pixel: bool = False
+    pixel_size: tuple[float, float] | None = None
 
     # -- the first laser point, for single-spot callers (figures, planner) --------------------------------
     @property
@@ -90,12 +94,78 @@ class Capture:
         """Sensor points (or pixel regions) S."""
         return self.fov_pixels[0] * self.fov_pixels[1]
 
+    @property
+    def region_size(self) -> tuple[float, float]:
+        """(w, h) m of each pixel region: :attr:`pixel_size`, or the grid's cell (fov_size / fov_pixels)."""
+        if self.pixel_size is not None:
+            return self.pixel_size
+        return (self.fov_size[0] / self.fov_pixels[0], self.fov_size[1] / self.fov_pixels[1])
+
+    @property
+    def fov_extent(self) -> tuple[float, float]:
+        """(w, h) m of the rectangle that holds every pixel region: the grid's ``fov_size``, widened by the overhang of
+        regions larger than their cells (:attr:`pixel_size`)."""
+        if self.pixel_size is None:
+            return self.fov_size
+        return tuple(max(s, s - s / n + r) for s, n, r in zip(self.fov_size, self.fov_pixels, self.pixel_size))
+
+    def pixel_area(self, parts: int = 1) -> float:
+        """The area (m²) of one pixel region divided into ``parts`` equal cells."""
+        if self.pixel_size is None:
+            return self.fov_size[0] * self.fov_size[1] / (self.n_pixels * parts)
+        return self.pixel_size[0] * self.pixel_size[1] / parts
+
+    def pixel_density(self) -> float:
+        """1 / the area of one pixel region (1/m²): the density of a point drawn uniformly in it."""
+        if self.pixel_size is None:
+            return self.n_pixels / (self.fov_size[0] * self.fov_size[1])
+        return 1.0 / (self.pixel_size[0] * self.pixel_size[1])
+
+    def region_offsets(self, uv: np.ndarray) -> np.ndarray:
+        """Positions (..., 2) in [0, 1]² inside a pixel region ((0.5, 0.5): its centre) as offsets from the pixel's
+        index in sensor-grid units (what :meth:`fov_points` and the compiled FoV kernels take): ``uv`` itself for
+        regions that are their cells, else 0.5 + (uv − 0.5) · region / cell, which may reach into the neighbours'
+        cells (:attr:`pixel_size`)."""
+        if self.pixel_size is None:
+            return uv
+        scale = np.asarray(self.pixel_size) * np.asarray(self.fov_pixels) / np.asarray(self.fov_size)
+        return 0.5 + (np.asarray(uv, dtype=np.float64) - 0.5) * scale
+
+    def region_points(self, ix: np.ndarray, iy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """World points (..., 3) inside pixel regions: pixel (ix, iy) and the position (a, b) in [0, 1]² inside its
+        region ((0.5, 0.5): its centre, the sensor point), broadcast together: :meth:`fov_points` of
+        (ix + a, iy + b) with (a, b) mapped by :meth:`region_offsets`."""
+        if self.pixel_size is None:
+            return self.fov_points(ix + a, iy + b)
+        a, b = np.broadcast_arrays(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
+        off = self.region_offsets(np.stack([a, b], axis=-1))
+        return self.fov_points(ix + off[..., 0], iy + off[..., 1])
+
+    def points_channel(self, laser: int | np.ndarray, points: np.ndarray, tol: float) -> np.ndarray:
+        """Output channel (int64, (...,)) that wall points (..., 3) lit from laser point(s) ``laser`` (an index, or
+        one per point) are recorded in; −1: in no recorded pixel region. Without :attr:`pixel_size`,
+        ``channel(laser, fov_pixel(points, tol))``; with it (confocal), laser point l records the points within
+        ``tol`` of the wall's plane inside its own region (overlapping regions: a point may count for several laser
+        points, each in its own scan)."""
+        if self.pixel_size is None:
+            return self.channel(laser, self.fov_pixel(points, tol))
+        laser = np.broadcast_to(np.asarray(laser, dtype=np.int64), np.shape(points)[:-1])
+        ok = laser < self.n_pixels
+        iy, ix = np.divmod(np.where(ok, laser, 0), self.fov_pixels[0])
+        rel = np.asarray(points, dtype=np.float64) - self.fov_points(ix + 0.5, iy + 0.5)
+        inside = (ok & (np.abs(matmul(rel, self.fov_normal)) <= tol)
+                  & (np.abs(matmul(rel, self.fov_u)) <= 0.5 * self.pixel_size[0])
+                  & (np.abs(matmul(rel, self.fov_v)) <= 0.5 * self.pixel_size[1]))
+        return np.where(inside, laser, -1)
+
     def fov_distance(self, points: np.ndarray) -> np.ndarray:
-        """The distance of points (..., 3) to the nearest point of the FoV rectangle (every pixel region), m: (...,)
-        float64, a lower bound of any path's length from a point to a FoV point or sensor point."""
+        """The distance of points (..., 3) to the nearest point of the FoV rectangle (every pixel region,
+        :attr:`fov_extent`), m: (...,) float64, a lower bound of any path's length from a point to a FoV point or
+        sensor point."""
         rel = np.asarray(points, dtype=np.float64) - self.fov_center
-        a = np.clip(matmul(rel, self.fov_u), -0.5 * self.fov_size[0], 0.5 * self.fov_size[0])
-        b = np.clip(matmul(rel, self.fov_v), -0.5 * self.fov_size[1], 0.5 * self.fov_size[1])
+        w, h = self.fov_extent
+        a = np.clip(matmul(rel, self.fov_u), -0.5 * w, 0.5 * w)
+        b = np.clip(matmul(rel, self.fov_v), -0.5 * h, 0.5 * h)
         return np.linalg.norm(rel - a[..., None] * self.fov_u - b[..., None] * self.fov_v, axis=-1)
 
     def fov_sensor_distance(self) -> float:
@@ -316,7 +386,8 @@ def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     capture = Capture(kind, convention, spots, spot_normals, spot_objects, laser_shape, emitter, emitter_legs,
                       sensor, scene.sensor.aperture_area,
                       unit(center - sensor), center, u, v, normal, size, pixels, photons,
-                      legacy_single_pixel=(cap is None or cap.model_fields_set <= {"frames"}) and pixels == (1, 1))
+                      legacy_single_pixel=(cap is None or cap.model_fields_set <= {"frames"}) and pixels == (1, 1),
+                      pixel_size=cap.detector_fov if cap is not None else None)
     # Probe the sensor grid from the sensor: some of it must be a surface the sensor sees.
     tol = FOV_PLANE_TOL * caster.offset
     g = (np.arange(9) + 0.5) / 9 - 0.5

@@ -300,6 +300,12 @@ class CaptureSpec(BaseModel):
 
     ``frames`` (:class:`~datagen.scene.motion.FrameSpec`) makes the capture a sequence of frames (scenes whose
     objects move, docs/motion.md).
+
+    ``detector_fov`` (confocal, aperture convention): the SPAD's field of view on the relay wall at each scan point,
+    a square of this side (m, or a length string such as ``"30mm"``) or a ``[w, h]`` rectangle centred on the laser
+    point; unset: the scan's cell (its pitch). A real confocal scanner's detector may see a larger patch of wall
+    than the scan's pitch; a retroreflector returns its light around the laser point, so how much of it is collected
+    depends on this size (docs/physics.md, "Retroreflective"; docs/real.md).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -309,6 +315,20 @@ class CaptureSpec(BaseModel):
     laser_grid: WallGrid | None = None
     sensor_grid: WallGrid | None = None
     frames: FrameSpec | None = None
+    detector_fov: tuple[float, float] | None = None
+
+    @field_validator("detector_fov", mode="before")
+    @classmethod
+    def _fov(cls, v: Any) -> Any:
+        if v is None:
+            return v
+        sides = [v, v] if isinstance(v, (int, float, str)) else list(v)
+        if len(sides) != 2:
+            raise ValueError(f"give one side or [w, h], got {v!r}")
+        sides = [parse_length(x) for x in sides]
+        if not all(np.isfinite(x) and 0 < x <= MAX_EXTENT for x in sides):
+            raise ValueError(f"both sides must be > 0 and <= {MAX_EXTENT:g} m, got {v!r}")
+        return tuple(sides)
 
     @model_validator(mode="after")
     def _grids(self) -> "CaptureSpec":
@@ -318,4 +338,7 @@ class CaptureSpec(BaseModel):
             raise ValueError("confocal captures use laser_grid for the sensor points too; drop sensor_grid")
         if self.type == "single" and self.laser_grid is not None:
             raise ValueError("single captures use laser.spot; laser_grid needs type confocal or exhaustive")
+        if self.detector_fov is not None and (self.type != "confocal" or self.convention != "aperture"):
+            raise ValueError(f"detector_fov is the field of view at each scan point of a confocal capture "
+                             f"(aperture convention), not of type {self.type!r} ({self.convention})")
         return self

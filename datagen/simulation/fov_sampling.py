@@ -57,7 +57,7 @@ def _cell_points(capture: Capture, k: int) -> np.ndarray:
     g = (np.arange(k) + 0.5) / k
     gu, gv = np.meshgrid(g, g, indexing="xy")
     iy, ix = np.divmod(np.arange(capture.n_pixels), nx)
-    return capture.fov_points(ix[:, None] + gu.reshape(1, -1), iy[:, None] + gv.reshape(1, -1))
+    return capture.region_points(ix[:, None], iy[:, None], gu.reshape(1, -1), gv.reshape(1, -1))
 
 
 def _shares(caster, capture: Capture, k: int) -> np.ndarray:

@@ -18,9 +18,10 @@ from ..threads import one_blas_thread
 from ..planner import Plan, plan_effects
 from ..scene import RayCaster, Scene, resolve_capture
 from ..scene.capture import Capture
+from ..errors import SceneError
 from ..timing import EnvelopeAccumulator
 from ..timing.binned_sink import BinnedSink
-from ..transport import estimator
+from ..transport import estimator, estimator_names
 from ..transport.base import Estimator, run_replicas
 from ..transport.multibounce import COMPONENT, AllOrders
 from ..transport.multibounce.orders import beside, tracer_nominal_seconds, tracer_settings
@@ -68,9 +69,15 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
     check_simulation_memory(scene, config)     # refuse what cannot fit before allocating anything
     scene, caster, capture, plan = planned if planned is not None else plan_transport(scene, config)
     entry = estimator(config.estimator.kind)
+    secondary = plan.secondary_mode(config.secondary)
+    if capture.pixel_size is not None and (not entry.wide_pixels or secondary != "none"):
+        where = f"{scene.source}: " if scene.source else ""
+        raise SceneError(f"{where}capture.detector_fov {[float(x) for x in capture.pixel_size]} m (a field of view "
+                         f"per scan point other than the scan's cell) is integrated by the "
+                         f"{' / '.join(e for e in estimator_names() if estimator(e).wide_pixels)} estimator only, with "
+                         f"secondary: none (got estimator {entry.name!r}, secondary {secondary!r})")
     physics = plan.apply(config.physics_settings(), entry.follows_plan)
-    transport: Estimator = entry.from_config(scene, config, physics, caster, capture,
-                                             plan.secondary_mode(config.secondary))
+    transport: Estimator = entry.from_config(scene, config, physics, caster, capture, secondary)
     orders = plan.decisions.get("multibounce")
     if orders is not None and orders.on:     # the tracer beside the estimator: orders ≥ 3, or ≥ 2 without secondary
         settings = tracer_settings(orders.choice, config.multibounce, config.tracer_paths(capture.n_lasers),

@@ -192,6 +192,9 @@ class EstimatorEntry:
         casts_lookins: the estimator samples the scene from the laser spot with lookins (pictures can show them).
         ladder: the settings the accuracy benchmark steps through (``datagen bench accuracy``,
             :func:`datagen.analysis.run_accuracy`), or None: the benchmark's own ladders only.
+        wide_pixels: the estimator integrates pixel regions wider than their grid cells (a confocal capture's
+            ``detector_fov``, :attr:`datagen.scene.capture.Capture.pixel_size`) in its primary; the others refuse
+            such a capture, and so does every estimator's Monte Carlo secondary.
         follows_plan: the planned physics switches (:data:`PLANNED_SWITCHES`) the estimator takes from the
             effect planner; for any other its ``from_config`` applies its own rule (the physics it gets holds the
             user's forced value or the default there), e.g. the area sampler's primary always needs the laser
@@ -213,6 +216,7 @@ class EstimatorEntry:
     casts_lookins: bool = False
     ladder: "AccuracyLadder | None" = None
     follows_plan: tuple[str, ...] = PLANNED_SWITCHES
+    wide_pixels: bool = False
 
 
 @dataclass(frozen=True)
@@ -239,14 +243,14 @@ def register(name: str, settings_class: type, summary: str, *, options: type,
              refine: Callable[[Any], dict] | None = None, describe: Callable[[Any], str] | None = None,
              order: int = 2, memory: Callable[..., list[tuple[str, str, float]]] | None = None,
              casts_lookins: bool = False, ladder: AccuracyLadder | None = None,
-             follows_plan: tuple[str, ...] | None = None) -> Callable:
+             follows_plan: tuple[str, ...] | None = None, wide_pixels: bool = False) -> Callable:
     """Class decorator: register an estimator class under ``name`` with its ``settings_class``; the class provides
     the classmethod ``from_config(scene, config, physics, caster, capture, secondary)`` (``config.estimator`` is an
     instance of ``options``, the estimator's settings model: :class:`EstimatorOptions`). A Monte Carlo estimator gives
     ``replica`` (how to split its sampling into independent replicas, whose spread is the error estimate of
     every result); a deterministic one gives ``refine`` and ``order``; one with both parts gives both (the
     quadrature: a deterministic primary and a Monte Carlo secondary). ``memory``, ``casts_lookins``, ``ladder``
-    and ``follows_plan``: see :class:`EstimatorEntry`; ``follows_plan`` None takes the class attribute
+    ``follows_plan`` and ``wide_pixels``: see :class:`EstimatorEntry`; ``follows_plan`` None takes the class attribute
     ``follows_plan`` (so a subclass keeps its base estimator's rule), or all of :data:`PLANNED_SWITCHES`.
 
     Raises:
@@ -264,7 +268,8 @@ def register(name: str, settings_class: type, summary: str, *, options: type,
             raise ValueError(f"estimator {name!r}: follows_plan {sorted(set(follows) - set(PLANNED_SWITCHES))} "
                              f"are not planned switches {list(PLANNED_SWITCHES)}")
         _REGISTRY[name] = EstimatorEntry(name, cls, settings_class, cls.from_config, summary, options, replica,
-                                         refine, describe, order, memory, casts_lookins, ladder, follows)
+                                         refine, describe, order, memory, casts_lookins, ladder, follows,
+                                         wide_pixels)
         return cls
     return wrap
 

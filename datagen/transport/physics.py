@@ -374,16 +374,16 @@ class LegPhysics:
             area = 1.0
         elif jitter is not None:
             iy, ix = np.divmod(np.arange(c.n_pixels), nx)
-            targets = c.fov_points(ix[None] + jitter[:, :1], iy[None] + jitter[:, 1:])      # (B, S, 3)
+            targets = c.region_points(ix[None], iy[None], jitter[:, :1], jitter[:, 1:])      # (B, S, 3)
             pix = np.arange(c.n_pixels)[None]
-            area = c.fov_size[0] * c.fov_size[1] / c.n_pixels
+            area = c.pixel_area()
         else:
             mu, mv = connect_samples
             uv = stratified_grid(mu, mv, rng, count=c.n_pixels)               # (S, M, 2)
             iy, ix = np.divmod(np.arange(c.n_pixels), nx)
-            targets = c.fov_points(ix[:, None] + uv[..., 0], iy[:, None] + uv[..., 1]).reshape(1, -1, 3)
+            targets = c.region_points(ix[:, None], iy[:, None], uv[..., 0], uv[..., 1]).reshape(1, -1, 3)
             pix = np.repeat(np.arange(c.n_pixels), mu * mv)[None]
-            area = c.fov_size[0] * c.fov_size[1] / (c.n_pixels * mu * mv)
+            area = c.pixel_area(mu * mv)
         ch = c.channel(laser, pix)
         keep = ch[0] >= 0
         targets, pix, ch = targets[:, keep], pix[:, keep], ch[:, keep]
@@ -438,7 +438,7 @@ class LegPhysics:
         if c.convention != "aperture":
             return
         lasers = np.flatnonzero(c.spots_inside_fov())   # on the FoV's edge (or outside): not imaged
-        ch = c.channel(lasers, c.fov_pixel(c.spots[lasers], self.tol))
+        ch = c.points_channel(lasers, c.spots[lasers], self.tol)
         lasers, ch = lasers[ch >= 0], ch[ch >= 0]
         if len(lasers) == 0:
             return

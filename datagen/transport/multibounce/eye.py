@@ -111,7 +111,7 @@ def eye_vertices(capture: Capture, caster: RayCaster, physics: LegPhysics, pixel
     count = pixels.count[laser]
     pick = np.minimum((take(0) * count).astype(np.int64), np.maximum(count - 1, 0))
     row = np.minimum(pixels.first[laser] + pick, max(len(pixels.ix) - 1, 0))
-    y = c.fov_points(pixels.ix[row] + take(1), pixels.iy[row] + take(2)) if len(pixels.ix) \
+    y = c.region_points(pixels.ix[row], pixels.iy[row], take(1), take(2)) if len(pixels.ix) \
         else np.zeros((n, 3))
     normal = np.broadcast_to(np.asarray(c.fov_normal, dtype=np.float64), (n, 3))
     local, _ = square_to_hemisphere(take(3), take(4), "cosine")

@@ -74,7 +74,7 @@ def earliest_arrival(capture: Capture, caster: RayCaster, physics: LegPhysics, g
     iy, ix = np.divmod(pix, nx)
     centres = np.ascontiguousarray(capture.fov_points(ix + 0.5, iy + 0.5), dtype=np.float64)
     frame = (np.asarray(capture.fov_u, dtype=np.float64), np.asarray(capture.fov_v, dtype=np.float64),
-             0.5 * capture.fov_size[0] / nx, 0.5 * capture.fov_size[1] / ny)
+             0.5 * capture.region_size[0], 0.5 * capture.region_size[1])
     tris = np.ascontiguousarray(np.asarray(caster.vertices, dtype=np.float64)[np.asarray(caster.faces)])
     length = _min_lengths(np.ascontiguousarray(capture.spots[laser], dtype=np.float64),
                           np.ascontiguousarray(capture.spot_normals[laser], dtype=np.float64), centres, frame, tris,
@@ -96,8 +96,8 @@ def _key(capture: Capture, caster: RayCaster, physics: LegPhysics, gap: float) -
     for a in (caster.vertices, caster.faces, capture.spots, capture.spot_normals, capture.emitter_legs,
               capture.fov_center, capture.fov_u, capture.fov_v, capture.sensor):
         h.update(np.ascontiguousarray(a).tobytes())
-    h.update(repr((capture.kind, capture.fov_size, capture.fov_pixels, float(caster.offset), float(gap),
-                   bool(physics.settings.count_laser_leg), bool(physics.settings.count_sensor_leg))).encode())
+    h.update(repr((capture.kind, capture.fov_size, capture.fov_pixels, capture.pixel_size, float(caster.offset),
+                   float(gap), bool(physics.settings.count_laser_leg), bool(physics.settings.count_sensor_leg))).encode())
     return h.hexdigest()
 
 

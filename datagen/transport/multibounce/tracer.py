@@ -241,7 +241,7 @@ class MultibounceTracer:
         self._fov_object = np.zeros(len(albedo), dtype=bool)     # per object id: may hold FoV points
         self._fov_object[np.asarray(physics.fov_objects, dtype=np.int64)] = True
         # the FoV's pixel regions (aperture captures): one uniform target in each recorded one per vertex
-        pixel_area = capture.fov_size[0] * capture.fov_size[1] / capture.n_pixels if capture.n_pixels else 0.0
+        pixel_area = capture.pixel_area() if capture.n_pixels else 0.0
         self.pixels = PixelTable(*self._recorded_pixels(), pixel_area)
         self._p_a = 1.0 / self.pixels.area if self.pixels.area > 0 else 0.0
         self._fov = (capture.fov_center, capture.fov_u, capture.fov_v, capture.fov_normal,
@@ -339,7 +339,7 @@ class MultibounceTracer:
         # metres of counted path that can still reach it (a FoV hit may lie up to the tolerance outside the rectangle)
         limit = SPEED_OF_LIGHT * self.t_follow - self.min_tail + ph.tol
         fov = (np.asarray(c.fov_center, dtype=np.float64), np.asarray(c.fov_u, dtype=np.float64),
-               np.asarray(c.fov_v, dtype=np.float64), 0.5 * c.fov_size[0], 0.5 * c.fov_size[1])
+               np.asarray(c.fov_v, dtype=np.float64), 0.5 * c.fov_extent[0], 0.5 * c.fov_extent[1])
         no_pid = np.zeros(0, np.int64)
         while len(flux) and order < MAX_VERTICES:
             self.stats.steps += 1
@@ -405,8 +405,8 @@ class MultibounceTracer:
         # ray x → y
         first, count = self.pixels.first[laser], self.pixels.count[laser]
         ids, n = slots
-        points = (rng.random((len(x), self.pixels.max_count, 2)) if ids is None
-                  else rng.random((n, self.pixels.max_count, 2))[ids])
+        points = c.region_offsets(rng.random((len(x), self.pixels.max_count, 2)) if ids is None
+                                  else rng.random((n, self.pixels.max_count, 2))[ids])
         b, s_idx, y, wk, r, cos_y = fov_targets_ranged(np.ascontiguousarray(x), np.ascontiguousarray(n_x), first,
                                                        count, self.pixels.ix, self.pixels.iy, points, self._fov)
         vis = self.caster.visible(x[b], n_x[b], y, c.fov_normal)
@@ -450,7 +450,7 @@ class MultibounceTracer:
         if c.convention != "aperture":
             return
         on_wall = np.flatnonzero(hits.hit & self._fov_object[hits.object_id])   # only these can be in the FoV
-        chan = c.channel(laser[on_wall], c.fov_pixel(hits.points[on_wall], ph.tol))
+        chan = c.points_channel(laser[on_wall], hits.points[on_wall], ph.tol)
         idx = on_wall[chan >= 0]
         chan = chan[chan >= 0]
         if not len(idx):
@@ -460,7 +460,7 @@ class MultibounceTracer:
         collect, d_ys = sensor_collection(ph, y, n_y, np.full(len(idx), ph.wall_object), -wk)
         cos_x = dot(n_x[idx], wk)
         cos_y = -dot(wk, c.fov_normal)
-        p_a = c.n_pixels / (c.fov_size[0] * c.fov_size[1])
+        p_a = c.pixel_density()
         g = geometry_weight(cos_x, cos_y, r) / np.pi
         p_d = q[idx] * g
         p_e = (on_arrays(eye_share)(p_a, g, self.pixels.count[laser[idx]], p_in[idx]) if self._eye_serves(order)

@@ -194,7 +194,6 @@ MAX_FOV_CELLS = 64
 """Cap on the automatic FoV cells per pixel side (aperture captures)."""
 
 
-
 @dataclass
 class QuadratureStats:
     """Counters from a quadrature run (recorded in the result attributes); ``runs`` counts the primary's passes."""
@@ -230,7 +229,7 @@ def _leg_may_be_blocked(caster: RayCaster, faces: np.ndarray, apexes: np.ndarray
 
 @register("quadrature", QuadratureSettings, "deterministic hidden-surface quadrature with exact time binning",
           options=QuadratureOptions, replica=QuadratureOptions.replica, refine=QuadratureOptions.refine,
-          describe=QuadratureOptions.describe, memory=quadrature_memory)
+          describe=QuadratureOptions.describe, memory=quadrature_memory, wide_pixels=True)
 class Quadrature:
     """Deterministic hidden-surface quadrature of the primary with exact time binning (module doc).
 
@@ -285,7 +284,7 @@ class Quadrature:
         lx, ly = c.laser_shape
         grid = c.spots.reshape(ly, lx, 3)
         self.laser_hull = laser_hull = grid[[0, 0, -1, -1], [0, -1, -1, 0]]
-        hw, hh = 0.5 * c.fov_size[0], 0.5 * c.fov_size[1]
+        hw, hh = 0.5 * c.fov_extent[0], 0.5 * c.fov_extent[1]
         fov_hull = np.array([c.fov_center + a * hw * c.fov_u + b * hh * c.fov_v for a in (-1, 1) for b in (-1, 1)])
         self.visibility = {}
         self.spot_occluders = None              # the laser legs' complete occluder test, for the compiled primary
@@ -333,13 +332,14 @@ class Quadrature:
             self.fov_cells = None
             self.fov_cells_fixed = True
         else:
-            pw, ph = c.fov_size[0] / nx, c.fov_size[1] / ny
+            pw, ph = c.region_size
             k = self.aperture_cells(c, s.edge, s.fov_cells)
             self.fov_cells_fixed = self.aperture_cells(c, 2.0 * s.edge, s.fov_cells) == k      # the same at 2h
             g = (np.arange(k) + 0.5) / k
             gu, gv = np.meshgrid(g, g, indexing="xy")                          # (k, k): v rows, u columns
             iy, ix = np.divmod(np.arange(c.n_pixels), nx)
-            self.targets = c.fov_points(ix[:, None] + gu.reshape(1, -1), iy[:, None] + gv.reshape(1, -1)).reshape(-1, 3)
+            self.targets = c.region_points(ix[:, None], iy[:, None], gu.reshape(1, -1),
+                                           gv.reshape(1, -1)).reshape(-1, 3)
             self.target_pixel = np.repeat(np.arange(c.n_pixels), k * k)
             self.target_area = pw * ph / (k * k)
             self.fov_cells = k
@@ -566,7 +566,7 @@ class Quadrature:
         points."""
         if capture.convention == "point_radiance":
             return None
-        side = max(capture.fov_size[0] / capture.fov_pixels[0], capture.fov_size[1] / capture.fov_pixels[1])
+        side = max(capture.region_size)
         k = fov_cells_per_side(forced, capture.n_lasers > 1, side, edge)
         return k if isinstance(forced, int) else min(MAX_FOV_CELLS, k)
 
