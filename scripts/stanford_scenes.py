@@ -46,11 +46,20 @@ SCENES = {  # file: (capture, width, falloff, snr, material, what the paper says
 RETRO = {"kind": "retroreflective", "albedo": 0.9, "specular": 0.9, "lobe_width": 0.005}
 """The retroreflective scenes' sheeting. Its lobe width agrees with published road-sign sheeting figures
 (docs/physics.md, "Retroreflective"): ASTM D4956's minimum coefficients of retroreflection of sheeting Types I–III
-fall from 0.2° to 0.5° of observation angle to 0.38–0.43, as a GGX lobe of α = 0.005 does. The same tables give an
-entrance-angle falloff cos^m with m 3.6–6.0, which these scenes leave out (``entrance_falloff`` 0): on the two
-charts it raises the count-map correlation but narrows the return, lowers the second round trip and moves the
-relative L2 away from the captures (docs/real.md, "What does not match yet"). The release does not say which
-sheeting its charts, letters and sign are."""
+fall from 0.2° to 0.5° of observation angle to 0.38–0.43, as a GGX lobe of α = 0.005 does. The release does not say
+which sheeting its charts, letters and sign are."""
+
+CHART_SHEETING = {**RETRO, "entrance_falloff": 2}
+"""The dot chart's sheeting: :data:`RETRO` with an entrance-angle falloff cos^2 (fitted with :data:`CHART_SETUP` on
+the two dot-chart captures, docs/real.md "The set-up fitted on the dot charts": the 40 / 65 cm hidden-count ratio
+wants the falloff, the return's width and relative L2 want it small; the road-sign tables' m is 3.6–6.0)."""
+
+CHART_SETUP = {"wall_albedo": 0.41, "detector_fov": "35mm"}
+"""The set-up fitted on the two dot-chart captures (docs/real.md, "The set-up fitted on the dot charts"): the
+detector's field of view on the wall (``capture.detector_fov``; with the sheeting's falloff it sets the 40 / 65 cm
+hidden-count ratio, real 1.79) and the wall's albedo (the second round trip: real 0.42 % of the main return); with
+them :data:`PHOTONS` of the charts. The other scenes keep the scan's cell as the FoV and a wall of 0.8 (not
+fitted)."""
 DIFFUSE = {"kind": "lambertian", "albedo": 0.8}
 
 
@@ -127,7 +136,7 @@ def chart(front: np.ndarray, depth: np.ndarray, width: float, pitch: float):
              f"depth {d:.4f} m: the median of datagen's LCT depth map (+- 5 mm: one 16 ps bin is 2.4 mm, the "
              "dots' depths spread +- 5 mm)"]
     return [("dot_chart", mask, DISK_PITCH, ((uu[0] + uu[-1]) / 2, d, (vv[0] + vv[-1]) / 2),
-             [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], RETRO)], notes
+             [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], CHART_SHEETING)], notes
 
 
 def cutouts(name: str, front: np.ndarray, depth: np.ndarray, width: float, pitch: float, material: dict):
@@ -172,8 +181,12 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
              "# hidden side +y, u = +x to the right as the wall sees the scene, v = +z up.",
              "# Uncertainty:"]
     lines += [f"#   {t}" for t in notes]
+    setup = CHART_SETUP if "dot_chart" in name else {"wall_albedo": 0.8}
     lines += ["#   laser / SPAD position, the wall's albedo, the laser's energy and the detector are not in the files:",
-              "#   assumed (below); photons_per_pulse is set so the simulated hidden counts are about the capture's.",
+              ("#   fitted on the two dot-chart captures (docs/real.md): the detector's field of view on the wall,\n"
+               "#   the wall's albedo, the sheeting's entrance falloff and photons_per_pulse; the rest assumed (below)."
+               if "detector_fov" in setup else
+               "#   assumed (below); photons_per_pulse is set so the simulated hidden counts are about the capture's."),
               "# Simulate the capture: datagen simulate THIS.yaml --like STORE --out DIR  (STORE: datagen import-capture",
               f"#   {capture} --bin-resolution 4ps --out STORE); compare: datagen compare-capture STORE DIR.",
               f"#   simulate --like took {SECONDS[name]} s on two cores (docs/real.md).",
@@ -181,7 +194,8 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
               "  - builder: quad", "    name: relay_wall", "    label: relay_wall",
               f"    corner: [{-width - 0.2:.2f}, 0.0, {-width - 0.2:.2f}]",
               f"    edge_u: [{2 * width + 0.4:.2f}, 0.0, 0.0]", f"    edge_v: [0.0, 0.0, {2 * width + 0.4:.2f}]",
-              "    material: {kind: lambertian, albedo: 0.8}      # assumed"]
+              f"    material: {{kind: lambertian, albedo: {setup['wall_albedo']}}}      "
+              + ("# fitted: the second round trip" if "detector_fov" in setup else "# assumed")]
     for part, mask, pitch, centre, u, v, mat in parts:
         lines += ["  - builder: mask", f"    name: {part}", f"    pitch: {pitch:.6g}",
                   f"    center: [{centre[0]:.5f}, {centre[1]:.5f}, {centre[2]:.5f}]",
@@ -195,8 +209,10 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
               "capture:                         # --like replaces the grid by the capture's (same centre)",
               "  type: confocal",
               f"  laser_grid: {{center: [0.0, 0.0, 0.0], size: [{2 * width * 64 / 63:.5f}, {2 * width * 64 / 63:.5f}], "
-              "points: [64, 64]}", "",
-              "simulation:",
+              "points: [64, 64]}"]
+    if "detector_fov" in setup:
+        lines += [f"  detector_fov: {setup['detector_fov']}              # fitted: the 40 / 65 cm hidden-count ratio"]
+    lines += ["", "simulation:",
               "  estimator: {kind: quadrature, " + ESTIMATOR[name]]
     lines += orders_lines(name, parts)
     lines += ["  count_laser_leg: false", "  count_sensor_leg: false",
@@ -233,22 +249,22 @@ def orders_lines(name: str, parts) -> list[str]:
 
 
 ESTIMATOR = {
-    "stanford_dot_chart_40cm": "edge: 0.01, fov_cells: 6}   # FoV cells ~1 mm: the retroreflected cone integrated",
-    "stanford_dot_chart_65cm": "edge: 0.01, fov_cells: 6}   # FoV cells ~1 mm: the retroreflected cone integrated",
+    "stanford_dot_chart_40cm": "edge: 0.01, fov_cells: 14}   # FoV cells 2.5 mm: the retroreflected cone integrated",
+    "stanford_dot_chart_65cm": "edge: 0.01, fov_cells: 14}   # FoV cells 2.5 mm: the retroreflected cone integrated",
     "stanford_diffuse_s": "edge: 0.02}                # Lambertian: each scan cell's midpoint suffices",
     "stanford_s_u": "edge: 0.03, fov_cells: 3}   # FoV cells ~4 mm (cheaper than the charts' 1 mm)",
     "stanford_exit_sign": "edge: 0.03, fov_cells: 3}   # FoV cells ~4 mm (cheaper than the charts' 1 mm)",
 }
 """The quadrature's settings per scene: cost against how finely the retroreflected cone is integrated."""
 
-PHOTONS = {"stanford_dot_chart_40cm": 4.4e4, "stanford_dot_chart_65cm": 4.4e4, "stanford_diffuse_s": 8.1e6,
+PHOTONS = {"stanford_dot_chart_40cm": 7.3e4, "stanford_dot_chart_65cm": 7.3e4, "stanford_diffuse_s": 8.1e6,
            "stanford_s_u": 2.0e4, "stanford_exit_sign": 4.7e4}
 """Photons per pulse, set so the simulated hidden counts over the 0.1 s exposure are about the capture's (the
 compare-capture hidden counts of docs/real.md); not a prediction of the laser's power. The two dot-chart captures
 share one value: the same set-up and laser (their direct light totals agree within 2 %), so that their simulated
 40 cm / 65 cm hidden-count ratio is the model's, not a per-scene setting."""
 
-SECONDS = {"stanford_dot_chart_40cm": 67, "stanford_dot_chart_65cm": 93, "stanford_diffuse_s": 16,
+SECONDS = {"stanford_dot_chart_40cm": 312, "stanford_dot_chart_65cm": 421, "stanford_diffuse_s": 16,
            "stanford_s_u": 282, "stanford_exit_sign": 113}
 """Wall time of ``simulate --like`` on the 2-core machine the figures were measured on (docs/real.md; the 40 cm
 chart's with its second round trip and ``--detector``, while other jobs shared the cores: "The second round trip")."""

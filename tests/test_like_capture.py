@@ -169,6 +169,7 @@ def test_the_real_captures_grid_on_the_library_scene(tmp_path):
     assert notes == []                # its grid, written to 0.1 µm of the capture's, is the capture's: no note
     cap = resolve_capture(scene, RayCaster(scene))
     np.testing.assert_allclose(cap.spots.reshape(64, 64, 3), t.points, atol=1e-9)
+    assert cap.pixel_size == scene.capture.detector_fov == (0.035, 0.035)    # the detector's FoV kept on its grid
 
 
 @pytest.mark.parametrize("name, depth, kind", [("stanford_dot_chart_40cm", 0.4065, "retroreflective"),
@@ -202,3 +203,4 @@ def test_the_two_dot_chart_scenes_share_one_laser():
     near, far = (load_scene(ROOT / "scene_library" / f"stanford_dot_chart_{d}cm.yaml") for d in (40, 65))
     assert near.laser.photons_per_pulse == far.laser.photons_per_pulse
     assert np.allclose(near.laser.emitter, far.laser.emitter) and np.allclose(near.sensor.position, far.sensor.position)
+    assert near.capture.detector_fov == far.capture.detector_fov is not None       # one detector, one FoV
