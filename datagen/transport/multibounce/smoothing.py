@@ -41,6 +41,13 @@ SHAPE_NODES_MAX = 1 << 23
 """Most fine nodes (nodes × the fine grid's) of the accumulator that bins the nodes' unit tents once
 (:meth:`DeepSmoothing.binned_shapes`, 64 MiB); longer grids deposit tent by tent."""
 
+BINNED_SHAPES_BYTES = 1 << 26
+"""Bytes of binned unit tents kept across tracers (:meth:`DeepSmoothing.binned_shapes`, oldest dropped first): a
+capture sequence builds a tracer per frame, each with the same nodes on the same grid."""
+
+_BINNED_SHAPES: dict[tuple, np.ndarray] = {}
+"""(axis, IRF, direct, oversample, first node s, Δ s, nodes) → the read-only (nodes, n_bins) binned unit tents."""
+
 SMOOTH_MIN_BINS = 4
 """No smoothing when the output bins are not at least this many times finer than Δ (nothing to gain)."""
 
@@ -430,11 +437,21 @@ class DeepSmoothing:
         if getattr(self, "_binned_key", None) != key:
             shapes = None
             if self.nodes * sink.n_fine <= SHAPE_NODES_MAX:
-                one = sink.spawn(self.nodes)
-                t = self.node_times
-                one.add_tents(np.stack([t - self.width, t, t + self.width], axis=1), np.ones(self.nodes),
-                              np.arange(self.nodes))
-                shapes = one.binned()
+                fine = getattr(sink, "fine", sink)        # the grid the shapes are binned on, and its IRF
+                memo = (fine.axis, fine.irf, fine.direct, fine.oversample, self.t_start, self.width, self.nodes)
+                shapes = _BINNED_SHAPES.get(memo)
+                if shapes is None:
+                    one = sink.spawn(self.nodes)
+                    t = self.node_times
+                    one.add_tents(np.stack([t - self.width, t, t + self.width], axis=1), np.ones(self.nodes),
+                                  np.arange(self.nodes))
+                    shapes = one.binned()
+                    shapes.flags.writeable = False
+                    while _BINNED_SHAPES and sum(a.nbytes for a in _BINNED_SHAPES.values()) + shapes.nbytes > \
+                            BINNED_SHAPES_BYTES:
+                        _BINNED_SHAPES.pop(next(iter(_BINNED_SHAPES)))
+                    if shapes.nbytes <= BINNED_SHAPES_BYTES:
+                        _BINNED_SHAPES[memo] = shapes
             self._binned_key, self._binned_shapes = key, shapes
         return self._binned_shapes
 
