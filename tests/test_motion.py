@@ -87,6 +87,25 @@ def test_scene_at_moves_only_the_moving_object_rigidly():
     np.testing.assert_allclose(posed_vertices(scene.moving["walker"].motion, built, 0.0), built, atol=1e-12)
 
 
+def test_each_instant_checks_the_moving_object_against_everything_and_the_still_pairs_once(monkeypatch):
+    import datagen.scene.coincident as coincident
+    crate = {"builder": "box", "name": "crate", "center": [4.5, 3.0, 0.3], "size": [0.4, 0.4, 0.6]}
+    scene = scene_from_dict({**SCENE, "objects": [ROOM, crate, WALKER]})
+    tested = []
+    find = coincident.find_coincident_faces
+    monkeypatch.setattr(coincident, "find_coincident_faces",
+                        lambda *a: tested.append(a[3]) or find(*a))
+    for t in (0.1, 0.2):                  # the walker on the floor, clear of the crate: as built from scratch
+        frame = scene.at(t)
+        pairs = tested[-1]                # the walker's pairs only (the still ones were checked when built)
+        assert pairs is not None and pairs.tolist() == [o.name == "walker" for o in scene.objects]
+        alone = datagen.Scene(frame.objects, frame.laser, frame.sensor, capture=frame.capture)
+        assert [o.faces.tolist() for o in frame.objects] == [o.faces.tolist() for o in alone.objects]
+        assert frame.notes == alone.notes
+    with pytest.raises(SceneError, match="'crate' and 'walker'.*coplanar faces"):
+        scene.at(0.707)                   # walked into the crate: their bottoms overlap, seen from below
+
+
 @pytest.mark.filterwarnings("ignore::UserWarning")
 @pytest.mark.parametrize("changes, expected", [
     ({"objects.1.motion": {"kind": "keyframes", "keyframes": [{"t": 0, "position": [4, 3, 0.9]},

@@ -294,15 +294,21 @@ class _Reach:
     - Any other open face (or an inconsistently wound closed mesh, whose inside is unknown): both sides.
     """
 
-    def __init__(self, objects: list[SceneObject], viewpoints: list[np.ndarray], tol: float):
+    def __init__(self, objects: list[SceneObject], viewpoints: list[np.ndarray], tol: float,
+                 static: StaticFaces | None = None):
         self.objects, self.viewpoints, self.tol = objects, viewpoints, tol
         self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._static, self._view = static, _view(viewpoints) if static is not None else None
 
     def _closed(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """(F,) closed-component label of each face of object i (−1 open) and, indexed by label + 1, +1 where
-        light reaches the side the winding normals point to, −1 the other side, 0 both (open or undecided)."""
+        light reaches the side the winding normals point to, −1 the other side, 0 both (open or undecided); those
+        of an object that does not move are kept in ``static`` for the same object and viewpoints."""
+        obj = self.objects[i]
+        kept = None if self._static is None or obj.name in self._static.moving else self._static.reach.get(obj.name)
+        if kept is not None and kept[0] is obj and kept[1] == self._view:
+            self._cache[i] = kept[2]
         if i not in self._cache:
-            obj = self.objects[i]
             label = _closed_components(obj.vertices, obj.faces)
             tri = obj.vertices[obj.faces]
             seen = np.zeros(int(label.max(initial=-1)) + 2, dtype=np.int64)
@@ -317,6 +323,8 @@ class _Reach:
                         break
                 seen[comp + 1] = int(np.sign(volume)) * where       # outward winding: +1 if volume > 0
             self._cache[i] = label, seen
+            if self._static is not None and obj.name not in self._static.moving:
+                self._static.reach[obj.name] = (obj, self._view, (label, seen))
         return self._cache[i]
 
     def sides(self, obj: np.ndarray, face: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -346,7 +354,8 @@ class _Reach:
         return out
 
 
-def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: float) -> Coincidence:
+def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: float,
+                          moving: np.ndarray | None = None, static: StaticFaces | None = None) -> Coincidence:
     """Overlapping coplanar faces of different objects and the sides light reaches both from.
 
     Two faces coincide when each one's vertices lie within ``tol`` of the other's plane and their overlap (the
@@ -364,6 +373,8 @@ def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: floa
             sensor, the emitter). See :class:`_Reach`. May be a callable returning them, called only when
             some faces coincide (deciding them can cost O(F)).
         tol: metres, the coplanarity tolerance (COPLANAR_TOL_REL × scene size).
+        moving: (n_objects,) bool, or None for every object: only pairs with at least one such object are tested.
+        static: where the sides of the objects that do not move are kept across calls (:class:`StaticFaces`).
     Returns:
         :class:`Coincidence` (face pairs sorted by object pair, then face indices).
     """
@@ -386,6 +397,8 @@ def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: floa
     # keep clusters holding faces of at least two objects
     pairs = _sorted_unique(cluster * len(objects) + obj[idx])
     multi = np.bincount(pairs // len(objects), minlength=int(cluster.max(initial=-1)) + 1) >= 2
+    if moving is not None:                                  # and a face of a moving object
+        multi &= np.bincount(cluster, weights=moving[obj[idx]], minlength=len(multi)) > 0
     sel = np.flatnonzero(multi[cluster])
     if len(sel) == 0:
         return Coincidence.empty()
@@ -403,6 +416,8 @@ def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: floa
     found = []
     for a, b in _candidate_pairs(cl, lo + tol / 2, hi - tol / 2):       # pairs overlapping by > tol
         keep = obj[idx[a]] != obj[idx[b]]
+        if moving is not None:
+            keep &= moving[obj[idx[a]]] | moving[obj[idx[b]]]
         keep &= (np.minimum(hi[a, 0], hi[b, 0]) - np.maximum(lo[a, 0], lo[b, 0])) > tol
         keep &= (np.minimum(hi[a, 1], hi[b, 1]) - np.maximum(lo[a, 1], lo[b, 1])) > tol
         a, b = a[keep], b[keep]
@@ -427,11 +442,38 @@ def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: floa
     fa, fb = idx[a], idx[b]
     offset = d[a] + matmul(n[a], origin)                                    # world coordinates
     viewpoints = [np.asarray(p, dtype=np.float64) for p in (viewpoints() if callable(viewpoints) else viewpoints)]
-    reach = _Reach(objects, viewpoints, tol)
+    reach = _Reach(objects, viewpoints, tol, static)
     sides = reach.sides(obj[fa], local[fa], n[a], offset) & reach.sides(obj[fb], local[fb], n[a], offset)
     c = Coincidence(np.stack([obj[fa], obj[fb]], 1), np.stack([local[fa], local[fb]], 1), n[a], offset, area,
                     point, duplicate, sides.astype(np.int8))
     return c.take(np.lexsort((c.faces[:, 1], c.faces[:, 0], c.objects[:, 1], c.objects[:, 0])))
+
+
+class StaticFaces:
+    """The check's verdict on the objects that do not move, kept across a sequence's frames (:meth:`Scene.at
+    <datagen.scene.Scene.at>`): once the objects not named in ``moving`` passed :func:`resolve_coincident_faces` with
+    nothing among them to remove or refuse, a check of the same objects (the same instances) at the same tolerance,
+    from the same viewpoints, tests only the pairs with a moving object: every moving object against everything.
+
+    Attributes:
+        moving: the moving objects' names; objects: the static objects found clean (() before); tol: metres, the
+            tolerance then; view: the viewpoints their verdict read ((3,) tuples; None: no two of their faces
+            coincide); spot_on: the laser spot lies on one of their faces; reach: name → (object, viewpoints, its
+            :meth:`_Reach._closed`).
+    """
+
+    def __init__(self, moving):
+        self.moving, self.objects, self.tol, self.view, self.spot_on = frozenset(moving), (), None, None, False
+        self.reach: dict[str, tuple] = {}
+
+    def holds(self, statics: tuple[SceneObject, ...], tol: float) -> bool:
+        """Whether the verdict covers ``statics`` at ``tol`` (the viewpoints are the caller's to compare)."""
+        return (self.tol == tol and len(statics) == len(self.objects)
+                and all(a is b for a, b in zip(statics, self.objects)))
+
+
+def _view(points: list) -> tuple:
+    return tuple(tuple(float(x) for x in np.asarray(p, dtype=np.float64)) for p in points)
 
 
 def _side_words(mask: int) -> str:
@@ -439,8 +481,8 @@ def _side_words(mask: int) -> str:
             FRONT | BACK: "from both sides"}[mask]
 
 
-def resolve_coincident_faces(objects: list[SceneObject], laser: Laser, sensor: Sensor,
-                             where: str = "") -> tuple[list[SceneObject], list[str]]:
+def resolve_coincident_faces(objects: list[SceneObject], laser: Laser, sensor: Sensor, where: str = "",
+                             static: StaticFaces | None = None) -> tuple[list[SceneObject], list[str]]:
     """Apply the coincident-face policy; returns the objects to keep and notes on what was removed.
 
     Policy (docs/hard_cases.md, case 7). Faces are coincident when coplanar within COPLANAR_TOL_REL × the
@@ -460,6 +502,10 @@ def resolve_coincident_faces(objects: list[SceneObject], laser: Laser, sensor: S
     Exact duplicates within one object are removed too (:func:`duplicate_faces`). The tolerance is tied to the
     ray offset, so coincident faces are exactly those the ray caster cannot order by depth.
 
+    ``static`` (a sequence's frames): the verdict on the objects that do not move, read when it holds (then only
+    the pairs with a moving object are tested, and the static objects' own duplicates not again) and kept when
+    they come out clean (:class:`StaticFaces`).
+
     Raises:
         SceneError: as above; ``where`` ("file: ") prefixes the message.
     """
@@ -468,21 +514,44 @@ def resolve_coincident_faces(objects: list[SceneObject], laser: Laser, sensor: S
     tol = COPLANAR_TOL_REL * max(float(np.max(bounds.max(axis=0) - bounds.min(axis=0))), 1e-3)
     notes: list[str] = []
     kept = []
-    for o in objects:
+    moves = np.array([static is not None and o.name in static.moving for o in objects])
+    statics = tuple(o for o, m in zip(objects, moves) if not m)
+    spot = np.asarray(laser.spot, float)
+
+    def spot_on(objs: list[SceneObject]) -> bool:
+        return bool(objs) and _on_a_face(spot, np.concatenate([o.vertices[o.faces] for o in objs]),
+                                         SPOT_ON_SURFACE_REL * tol / COPLANAR_TOL_REL)
+
+    # the laser spot decides which side of room surfaces and closed meshes light reaches, unless it is off
+    # every surface (an invalid scene, reported by transport.resolve_capture): then the sensor, the emitter
+    def viewpoints():                                  # (the static objects' part kept once known)
+        moved = [o for o, m in zip(objects, moves) if m]
+        spot_ok = static.spot_on or spot_on(moved) if known else spot_on(kept)
+        return ([laser.spot] if spot_ok else []) + [sensor.position, laser.emitter]
+
+    known = static is not None and static.holds(statics, tol)
+    if known and static.view is not None:              # their verdict read the viewpoints: the same ones?
+        known = static.view == _view(viewpoints())
+    clean = True                                        # nothing removed from or refused among the static objects
+    for o, m in zip(objects, moves):
+        if known and not m:
+            kept.append(o)                              # checked clean at this tolerance
+            continue
         dup = duplicate_faces(o.vertices, o.faces, tol)
+        clean &= bool(m or not dup.any())
         if dup.any():
             notes.append(f"object {o.name!r}: removed {int(dup.sum())} duplicate face(s) (same vertices as an "
                          f"earlier face of the object)")
             o = SceneObject(o.name, o.label, o.material, o.vertices, o.faces[~dup])
         kept.append(o)
-    # the laser spot decides which side of room surfaces and closed meshes light reaches, unless it is off
-    # every surface (an invalid scene, reported by transport.resolve_capture): then the sensor, the emitter
-    def viewpoints():
-        spot_ok = _on_a_face(np.asarray(laser.spot, float), np.concatenate([o.vertices[o.faces] for o in kept]),
-                             SPOT_ON_SURFACE_REL * tol / COPLANAR_TOL_REL)
-        return ([laser.spot] if spot_ok else []) + [sensor.position, laser.emitter]
-
-    c = find_coincident_faces(kept, viewpoints, tol)
+    c = find_coincident_faces(kept, viewpoints, tol, moves if known else None, static)
+    if static is not None and not known:               # keep the verdict on the static objects when clean
+        both = ~moves[c.objects].any(axis=1)
+        clean &= not (c.sides[both] != 0).any()
+        if clean:
+            static.objects, static.tol, static.spot_on = statics, tol, spot_on(list(statics))
+            # some of their faces coincide: their sides read the viewpoints
+            static.view = _view(viewpoints()) if both.any() else None
     c = c.take(c.sides != 0)
     if len(c.sides) == 0:
         return kept, notes

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .coincident import resolve_coincident_faces
+from .coincident import StaticFaces, resolve_coincident_faces
 from .materials import MaterialTable
 from .motion import posed_vertices
 from .parts import ROOM_LABELS, CaptureSpec, Laser, SceneError, SceneObject, Sensor
@@ -74,8 +74,14 @@ class Scene:
     summed_primary: bool = False
     moving: dict[str, Moving] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list, init=False)
+    _static: StaticFaces | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
+        self._check()
+
+    def _check(self, static: StaticFaces | None = None) -> None:
+        """Construction's checks (class doc, Raises); ``static``: the coincident-face verdict on the objects that
+        do not move, from an earlier instant (:meth:`at`)."""
         names = [o.name.lower() for o in self.objects]   # case-insensitive: component files on macOS/Windows
         dup = {o.name for o in self.objects if names.count(o.name.lower()) > 1}
         if dup:
@@ -88,7 +94,8 @@ class Scene:
         if needs_fov and self.sensor.fov is None:
             raise SceneError(f"{self._where()}sensor.fov is required unless capture gives a sensor_grid "
                              f"(or is confocal)")
-        self.objects, self.notes = resolve_coincident_faces(self.objects, self.laser, self.sensor, self._where())
+        self.objects, self.notes = resolve_coincident_faces(self.objects, self.laser, self.sensor, self._where(),
+                                                            static)
         for o in self.objects:
             tri = o.vertices[o.faces]
             if not np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).any():
@@ -174,14 +181,18 @@ class Scene:
 
     def at(self, t: float) -> "Scene":
         """The scene at time ``t`` s: every moving object at its pose then, the rest unchanged (a new
-        :class:`Scene`; construction's checks run again). Without moving objects, this scene."""
+        :class:`Scene`; construction's checks run again, every moving object's against everything; the pairs of
+        objects that do not move, once found clean, are not tested again: :class:`~datagen.scene.coincident.StaticFaces`).
+        Without moving objects, this scene."""
         if not self.moving:
             return self
-        objects = [SceneObject(o.name, o.label, o.material, posed_vertices(self.moving[o.name].motion,
-                                                                          self.moving[o.name].vertices, t), o.faces)
-                   if o.name in self.moving else o for o in self.objects]
-        out = Scene(objects, self.laser, self.sensor, self.name, self.source, self.defaults, self.capture,
-                    self.summed_primary, self.moving)
+        if self._static is None or self._static.moving != set(self.moving):
+            self._static = StaticFaces(self.moving)
+        out = copy.copy(self)
+        out.objects = [SceneObject(o.name, o.label, o.material, posed_vertices(self.moving[o.name].motion,
+                                                                              self.moving[o.name].vertices, t), o.faces)
+                       if o.name in self.moving else o for o in self.objects]
+        out._check(self._static)
         return out
 
     def _check_room(self) -> None:
