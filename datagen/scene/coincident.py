@@ -9,12 +9,14 @@ to back (the side light can reach each face from decides, not the winding).
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .parts import ROOM_LABELS, Laser, SceneError, SceneObject, Sensor
+from .static_faces import StaticFaces, viewpoint_key
 from ..vectors import matmul
 
 COPLANAR_TOL_REL = 1e-5
@@ -43,6 +45,11 @@ within this fraction of the scene size of some face."""
 
 PAIR_CHUNK = 1 << 20
 """Candidate face pairs tested per vectorised batch (bounds temporary memory to ~100 MB)."""
+
+COMPONENTS_KEPT, COMPONENTS_FACES = 16, 1 << 16
+"""Meshes (of at most this many faces) whose closed components are kept by their faces' merged vertices (a moving
+object's are the same in every pose; :func:`_closed_components`)."""
+_COMPONENTS: dict[bytes, np.ndarray] = {}
 
 FRONT, BACK = 1, 2
 """Side bits of a face: FRONT the side its canonical normal points to, BACK the other."""
@@ -260,6 +267,11 @@ def _closed_components(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
     f = _row_groups(vertices)[2][faces]
     n = int(f.max()) + 1
+    first = np.full(n, f.size)          # merged vertices numbered by first use: the same in any pose
+    np.minimum.at(first, f.reshape(-1), np.arange(f.size))
+    key = hashlib.sha1(np.argsort(np.argsort(first))[f].tobytes()).digest() if len(f) <= COMPONENTS_FACES else None
+    if key in _COMPONENTS:
+        return _COMPONENTS[key].copy()
     a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
     _, vertex_label = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
     label = vertex_label[f[:, 0]]
@@ -270,7 +282,12 @@ def _closed_components(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     pos = np.minimum(np.searchsorted(keys, rev), len(keys) - 1)
     edge_ok = (a != b) & (counts == 1) & (keys[pos] == rev)
     bad = np.unique(label[~edge_ok.reshape(-1, 3).all(axis=1)])
-    return np.where(np.isin(label, bad), -1, label)
+    label = np.where(np.isin(label, bad), -1, label)
+    if key is not None:
+        if len(_COMPONENTS) >= COMPONENTS_KEPT:
+            _COMPONENTS.pop(next(iter(_COMPONENTS)))
+        _COMPONENTS[key] = label.copy()
+    return label
 
 
 def _winding_number(tri: np.ndarray, point: np.ndarray) -> float:
@@ -298,7 +315,7 @@ class _Reach:
                  static: StaticFaces | None = None):
         self.objects, self.viewpoints, self.tol = objects, viewpoints, tol
         self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._static, self._view = static, _view(viewpoints) if static is not None else None
+        self._static, self._key = static, viewpoint_key(viewpoints) if static is not None else None
 
     def _closed(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """(F,) closed-component label of each face of object i (−1 open) and, indexed by label + 1, +1 where
@@ -306,7 +323,7 @@ class _Reach:
         of an object that does not move are kept in ``static`` for the same object and viewpoints."""
         obj = self.objects[i]
         kept = None if self._static is None or obj.name in self._static.moving else self._static.reach.get(obj.name)
-        if kept is not None and kept[0] is obj and kept[1] == self._view:
+        if kept is not None and kept[0] is obj and kept[1] == self._key:
             self._cache[i] = kept[2]
         if i not in self._cache:
             label = _closed_components(obj.vertices, obj.faces)
@@ -324,7 +341,7 @@ class _Reach:
                 seen[comp + 1] = int(np.sign(volume)) * where       # outward winding: +1 if volume > 0
             self._cache[i] = label, seen
             if self._static is not None and obj.name not in self._static.moving:
-                self._static.reach[obj.name] = (obj, self._view, (label, seen))
+                self._static.reach[obj.name] = (obj, self._key, (label, seen))
         return self._cache[i]
 
     def sides(self, obj: np.ndarray, face: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -449,33 +466,6 @@ def find_coincident_faces(objects: list[SceneObject], viewpoints: Any, tol: floa
     return c.take(np.lexsort((c.faces[:, 1], c.faces[:, 0], c.objects[:, 1], c.objects[:, 0])))
 
 
-class StaticFaces:
-    """The check's verdict on the objects that do not move, kept across a sequence's frames (:meth:`Scene.at
-    <datagen.scene.Scene.at>`): once the objects not named in ``moving`` passed :func:`resolve_coincident_faces` with
-    nothing among them to remove or refuse, a check of the same objects (the same instances) at the same tolerance,
-    from the same viewpoints, tests only the pairs with a moving object: every moving object against everything.
-
-    Attributes:
-        moving: the moving objects' names; objects: the static objects found clean (() before); tol: metres, the
-            tolerance then; view: the viewpoints their verdict read ((3,) tuples; None: no two of their faces
-            coincide); spot_on: the laser spot lies on one of their faces; reach: name → (object, viewpoints, its
-            :meth:`_Reach._closed`).
-    """
-
-    def __init__(self, moving):
-        self.moving, self.objects, self.tol, self.view, self.spot_on = frozenset(moving), (), None, None, False
-        self.reach: dict[str, tuple] = {}
-
-    def holds(self, statics: tuple[SceneObject, ...], tol: float) -> bool:
-        """Whether the verdict covers ``statics`` at ``tol`` (the viewpoints are the caller's to compare)."""
-        return (self.tol == tol and len(statics) == len(self.objects)
-                and all(a is b for a, b in zip(statics, self.objects)))
-
-
-def _view(points: list) -> tuple:
-    return tuple(tuple(float(x) for x in np.asarray(p, dtype=np.float64)) for p in points)
-
-
 def _side_words(mask: int) -> str:
     return {FRONT: "from the side the normal points to", BACK: "from the side opposite the normal",
             FRONT | BACK: "from both sides"}[mask]
@@ -531,7 +521,7 @@ def resolve_coincident_faces(objects: list[SceneObject], laser: Laser, sensor: S
 
     known = static is not None and static.holds(statics, tol)
     if known and static.view is not None:              # their verdict read the viewpoints: the same ones?
-        known = static.view == _view(viewpoints())
+        known = static.view == viewpoint_key(viewpoints())
     clean = True                                        # nothing removed from or refused among the static objects
     for o, m in zip(objects, moves):
         if known and not m:
@@ -551,7 +541,7 @@ def resolve_coincident_faces(objects: list[SceneObject], laser: Laser, sensor: S
         if clean:
             static.objects, static.tol, static.spot_on = statics, tol, spot_on(list(statics))
             # some of their faces coincide: their sides read the viewpoints
-            static.view = _view(viewpoints()) if both.any() else None
+            static.view = viewpoint_key(viewpoints()) if both.any() else None
     c = c.take(c.sides != 0)
     if len(c.sides) == 0:
         return kept, notes

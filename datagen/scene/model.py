@@ -20,10 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from .coincident import StaticFaces, resolve_coincident_faces
+from .coincident import resolve_coincident_faces
 from .materials import MaterialTable
 from .motion import posed_vertices
 from .parts import ROOM_LABELS, CaptureSpec, Laser, SceneError, SceneObject, Sensor
+from .static_faces import StaticFaces
 
 ROOM_MARGIN = 1e-6
 """Metres a moving object may stand past the room's bounding box (its faces may touch the walls and floor)."""
@@ -182,8 +183,8 @@ class Scene:
     def at(self, t: float) -> "Scene":
         """The scene at time ``t`` s: every moving object at its pose then, the rest unchanged (a new
         :class:`Scene`; construction's checks run again, every moving object's against everything; the pairs of
-        objects that do not move, once found clean, are not tested again: :class:`~datagen.scene.coincident.StaticFaces`).
-        Without moving objects, this scene."""
+        objects that do not move, once found clean, are not tested again:
+        :class:`~datagen.scene.static_faces.StaticFaces`). Without moving objects, this scene."""
         if not self.moving:
             return self
         if self._static is None or self._static.moving != set(self.moving):
