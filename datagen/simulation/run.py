@@ -45,8 +45,8 @@ class Planned(NamedTuple):
     plan: Plan
 
 
-def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned | None = None
-                      ) -> tuple[Estimator, Plan]:
+def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned | None = None,
+                      memory_checked: bool = False) -> tuple[Estimator, Plan]:
     """Plan the effects and build the configured estimator (scene → planner → transport), ready to run.
 
     Without ``config.split_components`` the estimator sees the scene with one primary component
@@ -59,6 +59,9 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
     estimator object or settings exist before that step; the pile-up decision is the detector stage's
     (:func:`make_result`).
 
+    ``memory_checked``: the caller checked a run of the scene at least as large (a sequence's change: its
+    reference's).
+
     Returns:
         (the estimator, the :class:`~datagen.planner.Plan`).
     Raises:
@@ -66,7 +69,8 @@ def prepare_transport(scene: Scene, config: SimulationConfig, planned: Planned |
         SceneError: the capture or planner errors (:func:`datagen.scene.resolve_capture`,
             :func:`datagen.planner.plan_effects`) and the estimator's settings errors.
     """
-    check_simulation_memory(scene, config)     # refuse what cannot fit before allocating anything
+    if not memory_checked:
+        check_simulation_memory(scene, config)     # refuse what cannot fit before allocating anything
     scene, caster, capture, plan = planned if planned is not None else plan_transport(scene, config)
     entry = estimator(config.estimator.kind)
     secondary = plan.secondary_mode(config.secondary)
@@ -155,7 +159,7 @@ class Replicas:
     Args:
         scene, config: as for :func:`simulate`. rng: the sampling stream (the replicas' root is drawn from it).
         planned: the :class:`Planned` steps of an earlier run of the same scene and config but the estimator's
-            settings (None: plan here).
+            settings (None: plan here). memory_checked: as for :func:`prepare_transport`.
     Attributes:
         entry: the estimator's :class:`~datagen.transport.EstimatorEntry`; replica_config: the config of one
         replica; transport: the estimator; sums: :class:`~datagen.simulation.replicas.ReplicaSums`;
@@ -163,11 +167,12 @@ class Replicas:
     """
 
     def __init__(self, scene: Scene, config: SimulationConfig, rng: np.random.Generator,
-                 planned: Planned | None = None):
+                 planned: Planned | None = None, memory_checked: bool = False):
         t0 = time.perf_counter()
         self.scene, self.config = scene, config
         self.entry = estimator(config.estimator.kind)
-        check_simulation_memory(scene, config)   # the grids as the user gave them (a replica's are smaller)
+        if not memory_checked:
+            check_simulation_memory(scene, config)   # the grids as the user gave them (a replica's are smaller)
         update = self.entry.replica(config.estimator, config.error.replicas) if self.entry.replica is not None else {}
         self.replica_config = config.with_estimator(**update)
         self.planned = planned if planned is not None else plan_transport(scene, self.replica_config)
@@ -175,7 +180,7 @@ class Replicas:
             paths = max(1, -(-config.tracer_paths(self.planned.capture.n_lasers) // config.error.replicas))
             self.replica_config = self.replica_config.model_copy(
                 update={"multibounce": self.replica_config.multibounce.model_copy(update={"paths": paths})})
-        self.transport, self.plan = prepare_transport(scene, self.replica_config, self.planned)
+        self.transport, self.plan = prepare_transport(scene, self.replica_config, self.planned, memory_checked)
         # the tracer's replicas are counted apart from the base's, so that each gets the share of the work that
         # the error of their sum asks for (replicas.tracer_replicas_wanted); beside a deterministic base (the
         # quadrature) the base runs once and only the tracer has replicas

@@ -129,8 +129,8 @@ def _change_run(scene: Scene, config: SimulationConfig, root: np.random.SeedSequ
     if not config.split_components:
         scene = scene.with_summed_primary()
     caster = RayCaster(scene)
-    runs = Replicas(scene, config, _rng(root, STREAM_CHANGES),
-                    Planned(scene, caster, resolve_capture(scene, caster), plan))
+    runs = Replicas(scene, config, _rng(root, STREAM_CHANGES),                  # (the reference's memory checked)
+                    Planned(scene, caster, resolve_capture(scene, caster), plan), memory_checked=True)
     runs.run(1, tracer_target=1, min_tracer=1)
     first = _replica_total(runs)
     if not second:
