@@ -24,6 +24,8 @@ Modules (they import each other directly, never through this package):
   ``RESERVED_NAMES``, :func:`check_object_name`, ...);
 - :mod:`~datagen.scene.model`: the :class:`Scene` dataclass (checks and coincident faces on construction);
 - :mod:`~datagen.scene.coincident`: coplanar overlapping faces rejected or de-duplicated;
+- :mod:`~datagen.scene.static_faces`: that check's verdict on the objects that do not move, kept across a sequence's
+  instants;
 - :mod:`~datagen.scene.builders`: meshes and objects built in Python;
 - :mod:`~datagen.scene.load`: the scene-file schema and :func:`load_scene`;
 - :mod:`~datagen.scene.yamlfile`: bounded YAML reading (:func:`read_yaml`, :func:`parse_yaml`) and one-line
