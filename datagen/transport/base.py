@@ -192,7 +192,7 @@ class EstimatorEntry:
         casts_lookins: the estimator samples the scene from the laser spot with lookins (pictures can show them).
         ladder: the settings the accuracy benchmark steps through (``datagen bench accuracy``,
             :func:`datagen.analysis.run_accuracy`), or None: the benchmark's own ladders only.
-        wide_pixels: the estimator integrates pixel regions wider than their grid cells (a confocal capture's
+        wide_pixels: the estimator integrates pixel regions other than their grid cells (a confocal capture's
             ``detector_fov``, :attr:`datagen.scene.capture.Capture.pixel_size`) in its primary; the others refuse
             such a capture, and so does every estimator's Monte Carlo secondary.
         follows_plan: the planned physics switches (:data:`PLANNED_SWITCHES`) the estimator takes from the
@@ -249,7 +249,7 @@ def register(name: str, settings_class: type, summary: str, *, options: type,
     instance of ``options``, the estimator's settings model: :class:`EstimatorOptions`). A Monte Carlo estimator gives
     ``replica`` (how to split its sampling into independent replicas, whose spread is the error estimate of
     every result); a deterministic one gives ``refine`` and ``order``; one with both parts gives both (the
-    quadrature: a deterministic primary and a Monte Carlo secondary). ``memory``, ``casts_lookins``, ``ladder``
+    quadrature: a deterministic primary and a Monte Carlo secondary). ``memory``, ``casts_lookins``, ``ladder``,
     ``follows_plan`` and ``wide_pixels``: see :class:`EstimatorEntry`; ``follows_plan`` None takes the class attribute
     ``follows_plan`` (so a subclass keeps its base estimator's rule), or all of :data:`PLANNED_SWITCHES`.
 

@@ -70,8 +70,7 @@ def earliest_arrival(capture: Capture, caster: RayCaster, physics: LegPhysics, g
     if cached is not None:
         return cached.copy()
     laser, pix, chan = channel_pairs(capture)
-    nx, ny = capture.fov_pixels
-    iy, ix = np.divmod(pix, nx)
+    iy, ix = np.divmod(pix, capture.fov_pixels[0])
     centres = np.ascontiguousarray(capture.fov_points(ix + 0.5, iy + 0.5), dtype=np.float64)
     frame = (np.asarray(capture.fov_u, dtype=np.float64), np.asarray(capture.fov_v, dtype=np.float64),
              0.5 * capture.region_size[0], 0.5 * capture.region_size[1])
