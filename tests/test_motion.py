@@ -169,10 +169,11 @@ def test_sequence_frames_match_frames_simulated_alone_within_their_stated_error(
 
 def test_a_changes_sequence_starts_from_its_first_frame_simulated_alone_and_scrambles_each_sobol_set_once():
     """The 'changes' method's reference runs with the config as given: frame 0 is the frame simulated on its own, to
-    the bit. Its changes draw the same Sobol sets every frame: the area sampler's memo gives them to the bit and
+    the bit. Its changes draw the same Sobol sets every frame: the Sobol memo (datagen.sampling.sobol) gives them to the bit and
     spawns the child the scrambling would have spawned, so every later draw is the same too."""
-    from datagen.sampling.surfaces import unit_square_points
-    from datagen.transport.area.points import square_points
+    from scipy.stats import qmc
+
+    from datagen.sampling import sobol
 
     scene = scene_from_dict(scene_with())
     config = datagen.resolve_config(scene)
@@ -183,11 +184,14 @@ def test_a_changes_sequence_starts_from_its_first_frame_simulated_alone_and_scra
 
     def draws(points):
         rng = np.random.default_rng(np.random.SeedSequence(11, spawn_key=(3, 0)))
-        return [points(128, "sobol", rng), points(64, "sobol", rng), rng.random(4), points(128, "sobol", rng)]
-    first = draws(unit_square_points)
+        return [points(4, 128, rng), points(5, 64, rng), rng.random(4), points(4, 128, rng),
+                rng.spawn(1)[0].random(3)]
+    first = draws(lambda d, n, rng: qmc.Sobol(d=d, scramble=True, seed=rng).random(n))
+    sobol._memo.clear()
     for _ in range(2):                       # the second time from the memo
-        for a, b in zip(first, draws(square_points)):
+        for a, b in zip(first, draws(sobol.scrambled_sobol)):
             np.testing.assert_array_equal(a, b)
+    assert len(sobol._memo) == 3
 
 
 def test_motion_during_a_confocal_scan_is_each_point_at_its_own_instant():

@@ -29,6 +29,15 @@ def test_hit_distance_point_and_normal_are_exact():
     assert [caster.face_object[f] for f in h.face] == [4, 2]
 
 
+def test_hit_points_are_the_points_with_zero_where_a_ray_misses():
+    """Hits.hit_points: a hit's point as it is (box face at x = 4.75), a miss (a ray out of the room through the
+    open corridor end) 0 instead of nan."""
+    caster = RayCaster(room(1.0))
+    h = caster.intersect(np.array([[0.0, 0.3, 0.5], [5.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]))
+    assert h.hit.tolist() == [True, False] and np.isnan(h.points[1]).all()
+    np.testing.assert_array_equal(h.hit_points(), [[4.75, 0.3, 0.5], [0.0, 0.0, 0.0]])
+
+
 def test_visibility_blocked_by_box():
     caster = RayCaster(room(1.0))
     p = np.array([[4.0, 0.3, 0.5], [4.0, -0.8, 0.5]])

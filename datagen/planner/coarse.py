@@ -118,7 +118,7 @@ def coarse_energies(g: PlanGeometry) -> CoarseEnergies:
         area_y = c.fov_size[0] * c.fov_size[1] / (nu * nv)
     d_sy = y - c.sensor
     probe = caster.intersect(np.broadcast_to(c.sensor, y.shape), d_sy / np.linalg.norm(d_sy, axis=1)[:, None])
-    on = probe.hit & (np.linalg.norm(np.nan_to_num(probe.points) - y, axis=1) < tol)
+    on = probe.hit & (np.linalg.norm(probe.hit_points() - y, axis=1) < tol)
     y, obj_y = y[on], probe.object_id[on]
     if len(x) == 0 or len(y) == 0:
         return CoarseEnergies(zero, zero, len(x))

@@ -12,11 +12,11 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.stats import qmc
 
 from ..errors import ConfigError
 from ..scene import RayCaster
 from .directions import stratified_grid
+from .sobol import scrambled_sobol
 
 AreaSampling = Literal["stratified", "sobol", "random"]
 """How :func:`sample_surfaces` draws points: jittered sub-triangles, scrambled Sobol points, or independent."""
@@ -143,7 +143,7 @@ def unit_square_points(samples: int, method: AreaSampling, rng: np.random.Genera
         u = stratified_grid(k, k, rng)[0]
         return np.concatenate([u, padding(len(u), method, rng)], axis=1)
     if method == "sobol":
-        return qmc.Sobol(d=4, scramble=True, seed=rng).random_base2(max(0, int(np.ceil(np.log2(samples)))))
+        return scrambled_sobol(4, samples, rng)
     return rng.random((samples, 4))
 
 
@@ -172,7 +172,7 @@ def sample_surfaces(caster: RayCaster, faces: np.ndarray, samples: int, method: 
         areas = caster.face_area[faces]
         total = float(areas.sum())
         if method == "sobol":
-            u = qmc.Sobol(d=5, scramble=True, seed=rng).random_base2(max(0, int(np.ceil(np.log2(samples)))))
+            u = scrambled_sobol(5, samples, rng)
         else:
             u = rng.random((samples, 5))
         pad = u[:, 3:]

@@ -261,8 +261,8 @@ class Capture:
         b = (matmul(rel, self.fov_v)) / self.fov_size[1] + 0.5
         inside = (np.abs(matmul(rel, self.fov_normal)) <= tol) & (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
         nx, ny = self.fov_pixels
-        ix = np.clip((np.nan_to_num(a) * nx).astype(np.int64), 0, nx - 1)
-        iy = np.clip((np.nan_to_num(b) * ny).astype(np.int64), 0, ny - 1)
+        ix = np.minimum((np.where(inside, a, 0.0) * nx).astype(np.int64), nx - 1)    # inside: a, b in [0, 1]
+        iy = np.minimum((np.where(inside, b, 0.0) * ny).astype(np.int64), ny - 1)
         return np.where(inside, iy * nx + ix, -1)
 
 
@@ -395,7 +395,7 @@ def resolve_capture(scene: Scene, caster: RayCaster) -> Capture:
     targets = np.concatenate([center + gu.reshape(-1, 1) * u + gv.reshape(-1, 1) * v,
                               capture.sensor_points().reshape(-1, 3)])
     probe = caster.intersect(np.broadcast_to(sensor, targets.shape), unit(targets - sensor))
-    on_wall = probe.hit & (np.abs(dot(np.nan_to_num(probe.points) - center, normal)) <= tol)
+    on_wall = probe.hit & (np.abs(dot(probe.hit_points() - center, normal)) <= tol)
     if not on_wall.any():
         raise SceneError(f"{where}{grid_field} (center {center.tolist()}, size {list(size)}) sees no surface "
                          f"from the sensor at {sensor.tolist()}")

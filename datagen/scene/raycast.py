@@ -50,6 +50,11 @@ class Hits:
     face: np.ndarray
     object_id: np.ndarray
 
+    def hit_points(self) -> np.ndarray:
+        """(..., 3) float64 :attr:`points` with 0 where no hit (``numpy.nan_to_num`` of them, without its
+        per-call checks: a hit's point is finite)."""
+        return np.where(self.hit[..., None], self.points, 0.0)
+
 
 class RayCaster:
     """Embree BVH over all objects of a :class:`~datagen.scene.Scene`.

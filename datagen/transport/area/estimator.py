@@ -59,7 +59,7 @@ from ...errors import ConfigError, SceneError
 from ...processes import ForkedCall
 from ...sampling import sample_surfaces, square_to_hemisphere
 from ...sampling.directions import stratified_grid, to_world
-from ...sampling.surfaces import AreaSampling, SurfaceSamples
+from ...sampling.surfaces import AreaSampling, SurfaceSamples, unit_square_points
 from ...scene import RayCaster, Scene, resolve_capture
 from ...scene.capture import Capture
 from ...vectors import distinct_rows, dot, matmul
@@ -67,7 +67,6 @@ from ..base import PLANNED_SWITCHES, Connections, Counters, EstimatorOptions, Si
 from .kernels import (connection_weights, fov_targets, lobe_directions, material_arrays, primary_impulses,
                       sensor_collection, spot_irradiance)
 from .memory import area_memory
-from .points import square_points
 from .secondary import AreaSecondary, spot_hits
 from ..physics import LegPhysics, PhysicsSettings
 
@@ -419,7 +418,7 @@ class AreaSampler:
             dirs = to_world(local, n_b)
             lobe_directions(dirs, n_x, obj, w_spot, (u, v), material_arrays(self.physics))
             hits = cst.intersect(x[:, None] + cst.offset * n_b, dirs)
-            hp = np.nan_to_num(hits.points)
+            hp = hits.hit_points()
             hch = np.where(hits.hit, c.channel(laser, c.fov_pixel(hp, self.tol)), -1)
             db, dk = np.nonzero(hch >= 0)
             y = np.concatenate([y, hp[db, dk]])
@@ -448,12 +447,12 @@ class AreaSampler:
         area_set, density_a = sample_surfaces(self.caster, self.hidden_faces, s.area_samples + s.fov_paths - n_fov,
                                               s.sampling, rng)
         batch = max(1, min(s.batch, MAX_CONNECTIONS // max(self._targets_per_sample(), 1)))
-        fov_uv = square_points(n_fov, s.sampling, rng) if n_fov else np.zeros((0, 4))
+        fov_uv = unit_square_points(n_fov, s.sampling, rng) if n_fov else np.zeros((0, 4))
         self._fov_density = len(fov_uv) / (c.fov_size[0] * c.fov_size[1])         # M_f / A_FoV, 1/m²
         for laser in range(c.n_lasers):
             parts, n_spot = [area_set], 0
             if s.spot_samples > 0:
-                uv = square_points(s.spot_samples, s.sampling, rng)
+                uv = unit_square_points(s.spot_samples, s.sampling, rng)
                 found, hit = self.from_spot(uv, laser)
                 parts.append(found.take(hit))
                 n_spot = len(uv)

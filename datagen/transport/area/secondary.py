@@ -33,7 +33,7 @@ def spot_hits(capture, caster, uv: np.ndarray, laser: int) -> tuple[SurfaceSampl
     hits = caster.intersect(np.broadcast_to(capture.spots[laser] + caster.offset * capture.spot_normals[laser],
                                             local.shape), to_world(local, normal))
     face = np.where(hits.hit, hits.face, 0)
-    found = SurfaceSamples(np.nan_to_num(hits.points), caster.face_normals[face], face, caster.face_object[face],
+    found = SurfaceSamples(hits.hit_points(), caster.face_normals[face], face, caster.face_object[face],
                            np.zeros(len(face)), uv[:, 2:4] if uv.shape[1] >= 4 else np.zeros((len(face), 2)))
     return found, hits.hit
 
@@ -88,7 +88,7 @@ class AreaSecondary:
             local, _ = square_to_hemisphere(draw(pd), draw(pd), "cosine")
             hits = cst.intersect(x[:, None] + cst.offset * n_side, to_world(local, n_side))
             face = np.where(hits.hit, hits.face, 0).ravel()
-            blocks.append(SurfaceSamples(np.nan_to_num(hits.points).reshape(-1, 3), cst.face_normals[face], face,
+            blocks.append(SurfaceSamples(hits.hit_points().reshape(-1, 3), cst.face_normals[face], face,
                                          cst.face_object[face], np.zeros(len(face)), np.zeros((len(face), 2))))
             found.append(hits.hit.ravel())
         if pa:
