@@ -2,8 +2,8 @@
 the low-photon regime a network trained on datagen is meant for, and the figures it has to beat (docs/real.md,
 "Baselines at lower exposures").
 
-    python benchmarks/real_low_light.py FOLDER [--exposures 1 0.1 0.01] [--methods lct phasor fbp] [--seed 0]
-                                               [--network FILE.pt | none]
+    python benchmarks/real_low_light.py FOLDER [--exposures 1 0.1 0.01] [--methods lct phasor fbp fk] [--seed 0]
+                                               [--network FILE.pt | none] [--venv /opt/venvs/tal-bench]
 
 FOLDER holds the release's ``data_*.mat`` files (the project never ships them; the release is published with
 O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``datagen import-capture
@@ -18,6 +18,21 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    falloff and snr 0.8 of the release's script, on every capture as ``datagen reconstruct`` does by default), and
    its depth map (:func:`~datagen.analysis.reconstruct.depth_map`: the strongest voxel's depth where the front
    view reaches 0.25 of its maximum, NaN elsewhere).
+   **f-k migration** ("fk", Lindell, Wetzstein & O'Toole 2019) is tal's, ``tal.reconstruct.fk`` of y-tal 0.20.0,
+   run as benchmarks/bench_recon.py runs it: in tal's separate environment (``--venv``, default
+   ``$TAL_BENCH_VENV`` or /opt/venvs/tal-bench, made by ``bash benchmarks/tal/setup_env.sh``; without it the run
+   says so in one line and goes on without f-k), through benchmarks/tal/recon_side.py (``bench_recon.tal_side``,
+   a private HOME). It gets what LCT gets: the same thinned counts summed to 512 bins of 16 ps, the same direct
+   light zeroed (:func:`fk_input`), written as a tal HDF5 capture (``datagen.io.write_tal_hdf5``: t_start 0, the
+   release's grid, no laser position, so no laser cos/d² compensation) in a temporary folder. tal's f-k has no
+   parameters of its own: it weights H by a ramp linear in t (0 to 1 over the time axis; the f-k release's script
+   takes √(H·t²), tal |H·t|, so tal's volume grows as the counts squared where LCT's grows as the counts), zero-pads
+   to 2T × 2N × 2N, maps the spectrum by the Stolt transform (linear interpolation; the half-width from the grid,
+   the depth range T·cΔt/2) and returns |·|²; no t² falloff, no snr. Its voxel k lies (k + ½)·cΔt/2 from the wall,
+   as LCT's; the voxels up to the trimmed depth are left out, as :func:`~datagen.analysis.reconstruct.confocal_volume`
+   zeroes them; and :func:`~datagen.analysis.reconstruct.depth_map`'s rule makes its depth map from the strongest
+   voxel of each column (:func:`fk_depth`). f-k needs an N × N scan of one pitch (the release's are). Its time is
+   tal's solve alone, without the export, the subprocess and tal's import (about 2.5 s per reconstruction more).
 3. **Reference.** The object's mask is the full-exposure LCT reconstruction's found points (that same depth map's
    non-NaN points): a shape reference made from the capture itself, so that LCT at full exposure scores IoU 1 by
    construction. Depths are referred to the charts' nominal 0.40 / 0.65 m and the diffuse "S"'s 0.50 m
@@ -34,13 +49,14 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    of the network's training (``examples.train_depth_image.describe``) and a warning when the dataset config it
    was trained on is no longer the repository's (:func:`stale`).
 
-f-k migration is not among the methods here: datagen runs it through tal in a separate environment
-(benchmarks/bench_recon.py); its column is to come. The printed table is the one docs/real.md quotes.
+The printed table is the one docs/real.md quotes.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -53,8 +69,16 @@ from real_captures import DEPTHS  # noqa: E402  (the reference depths, one table
 EXPOSURES = (1.0, 0.1, 0.01)
 """Fractions of each capture's exposure."""
 
+METHODS = ("lct", "phasor", "fbp", "fk")
+"""Methods ``--methods`` takes: datagen's three baselines and tal's f-k migration (module doc)."""
+
 SHIPPED = ROOT / "examples" / "weights" / "lct_release_net.pt"
 """The network trained on ``configs/datasets/lct_release.yaml`` that ships with the repository (docs/training.md)."""
+
+
+def default_venv() -> Path:
+    """tal's venv for fk: ``$TAL_BENCH_VENV``, else /opt/venvs/tal-bench (benchmarks/bench_recon.py's default)."""
+    return Path(os.environ.get("TAL_BENCH_VENV", "/opt/venvs/tal-bench"))
 
 
 def config_fingerprint(record: dict) -> str:
@@ -113,6 +137,74 @@ def found(scan: np.ndarray, dt: float, pitch, method: str) -> np.ndarray:
     return depth_map(volume, depths)[0]
 
 
+def fk_input(scan: np.ndarray, dt: float) -> tuple[np.ndarray, float, int]:
+    """(data (ny, nx, M) float64, its bin width s, bins zeroed) of a scan as
+    :func:`~datagen.analysis.reconstruct.confocal_volume` hands it to LCT by default: summed to at most
+    :data:`~datagen.analysis.reconstruct.MAX_BINS` bins, the direct light
+    (:func:`~datagen.analysis.confocal.direct_light_bins`) zeroed, zero-padded to a power of two."""
+    from datagen.analysis.confocal import direct_light_bins
+    from datagen.analysis.reconstruct import MAX_BINS, coarsen
+
+    data, dt = coarsen(np.array(scan, dtype=np.float64), dt, MAX_BINS)     # a copy: the trim must not zero the scan
+    n_trim = direct_light_bins(data, dt)
+    data[..., :n_trim] = 0.0
+    m = 1 << max(1, int(np.ceil(np.log2(data.shape[-1]))))
+    return np.concatenate([data, np.zeros(data.shape[:2] + (m - data.shape[-1],))], axis=-1), dt, n_trim
+
+
+def fk_capture(data: np.ndarray, dt: float, pitch):
+    """A datagen Result of a prepared scan (:func:`fk_input`) for ``write_tal_hdf5``: confocal, the time axis from 0
+    (the hidden round trip, no wall legs), the release's grid of the scan's pitch in datagen's frame
+    (``lct_scan_points``), no laser or sensor position.
+
+    Raises:
+        ValueError: a scan that is not N × N of one pitch (tal's f-k reads one N and one half-width).
+    """
+    from datagen.io.orientation import LCT_WALL_NORMAL, lct_half_width, lct_scan_points
+    from datagen.simulation import Result
+
+    ny, nx = data.shape[:2]
+    pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
+    if ny != nx or not np.isclose(pitch_y, pitch_x, rtol=1e-6):
+        raise ValueError(f"f-k (tal) takes an N x N scan of one pitch; got {ny} x {nx} at {pitch_y:g} / {pitch_x:g} m")
+    points = lct_scan_points(lct_half_width(pitch_x, nx), (ny, nx))
+    attrs = {"capture": {"type": "confocal", "convention": "counts"},
+             "config": {"count_laser_leg": False, "count_sensor_leg": False}}
+    return Result(np.arange(data.shape[-1] + 1) * dt, data, {}, np.zeros(data.shape, np.int64), attrs,
+                  laser_points=points, sensor_points=points, wall_normal=LCT_WALL_NORMAL.copy())
+
+
+def fk_depth(scan: np.ndarray, dt: float, pitch, venv: Path) -> tuple[np.ndarray, float]:
+    """((ny, nx) depth map m, NaN where nothing is found; tal's solve time s) of tal's f-k migration on a scan of
+    counts (module doc): exported in a temporary folder, reconstructed by benchmarks/tal/recon_side.py in the tal
+    venv ``venv`` over the depths past the trimmed light, its strongest voxel per column put through
+    :func:`~datagen.analysis.reconstruct.depth_map`'s rule.
+
+    Raises:
+        SystemExit: recon_side.py failed (its output in the message).
+    """
+    from bench_recon import tal_side
+
+    from datagen.analysis.reconstruct import depth_map
+    from datagen.io import write_tal_hdf5
+    from datagen.units import SPEED_OF_LIGHT
+
+    data, dt, n_trim = fk_input(scan, dt)
+    voxel = SPEED_OF_LIGHT * dt / 2
+    # recon_side keeps the voxels between the first and the last of these: past the trimmed depth n_trim·voxel,
+    # the voxel edge between the last zeroed (n_trim − ½) and the first kept (n_trim + ½), up to the end
+    planes = np.array([n_trim * voxel, (data.shape[-1] + 1) * voxel])
+    with tempfile.TemporaryDirectory(prefix="real_low_light_fk_") as tmp:
+        capture = write_tal_hdf5(fk_capture(data, dt, pitch), Path(tmp) / "scan.hdf5")
+        tal_side([capture], ["fk"], planes, Path(tmp) / "fk.npz", venv)
+        with np.load(Path(tmp) / "fk.npz") as out:            # (1, Sx, Sy): tal's H is (T, Sx, Sy)
+            depth, front = out["depth_fk"][0].T.astype(np.float64), out["peak_fk"][0].T.astype(np.float64)
+            seconds = float(out["seconds_fk"][0])
+    # depth_map's rule on the one voxel per column recon_side keeps: 0 where its front view reaches the level, NaN
+    # elsewhere, plus that voxel's depth
+    return depth + depth_map(front[..., None], np.zeros(1))[0], seconds
+
+
 def score(depth: np.ndarray, mask: np.ndarray, hit: np.ndarray | None = None) -> tuple[float, float]:
     """(median depth over ``mask`` where found, m (NaN: nothing found there); IoU of the found points with mask).
     The found points are ``hit`` where given (a network's mask output), else where the depth is not NaN."""
@@ -140,9 +232,9 @@ def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarr
 
 
 def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURES, methods=("lct", "phasor", "fbp"),
-             rng: np.random.Generator | None = None, network=None) -> list[dict]:
+             rng: np.random.Generator | None = None, network=None, venv: Path | None = None) -> list[dict]:
     """Rows {capture, exposure, method, depth, error, iou, seconds} of one capture (module doc); ``network`` a
-    loaded (net, record) adds its row."""
+    loaded (net, record) adds its row; "fk" among the methods needs ``venv``, the tal venv."""
     rng = rng if rng is not None else np.random.default_rng(0)
     mask = ~np.isnan(found(counts, dt, pitch, "lct"))
     reference = DEPTHS.get(name)
@@ -151,15 +243,22 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
         scan = thin(counts, fraction, rng)
         for method in list(methods) + (["network"] if network is not None else []):
             t0 = time.perf_counter()
+            seconds = None
             if method == "network":                    # its depth over the object; its mask head's IoU
                 depth_map, seen = network_depth(network, scan, dt, pitch)
                 depth = score(depth_map, mask)[0]
                 iou = score(depth_map, mask, seen)[1] if network[0].mask else float("nan")
+            elif method == "fk":                       # tal's, in its venv; its time the solve alone
+                if venv is None:
+                    raise ValueError("the fk method needs the tal venv (venv=)")
+                depth_map, seconds = fk_depth(scan, dt, pitch, venv)
+                depth, iou = score(depth_map, mask)
             else:
                 depth, iou = score(found(scan, dt, pitch, method), mask)
             rows.append({"capture": name, "exposure": fraction, "method": method, "depth": depth,
                          "error": depth - reference if reference is not None else float("nan"), "iou": iou,
-                         "counts": float(scan.sum()), "seconds": time.perf_counter() - t0})
+                         "counts": float(scan.sum()),
+                         "seconds": time.perf_counter() - t0 if seconds is None else seconds})
     return rows
 
 
@@ -167,12 +266,19 @@ def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path)
     parser.add_argument("--exposures", type=float, nargs="+", default=list(EXPOSURES))
-    parser.add_argument("--methods", nargs="+", default=["lct", "phasor", "fbp"], choices=["lct", "phasor", "fbp"])
+    parser.add_argument("--methods", nargs="+", default=["lct", "phasor", "fbp"], choices=list(METHODS))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--only", nargs="+", default=None, help="captures by name (dot_chart_40cm ...)")
     parser.add_argument("--network", default=str(SHIPPED),
                         help="a trained network (.pt, module doc; default: the shipped one), or 'none'")
+    parser.add_argument("--venv", type=Path, default=default_venv(),
+                        help="tal's venv for fk (bash benchmarks/tal/setup_env.sh makes it)")
     args = parser.parse_args(argv)
+    methods = list(args.methods)
+    if "fk" in methods and not (args.venv / "bin" / "python").is_file():
+        print(f"fk: no tal venv at {args.venv} (make it with 'bash benchmarks/tal/setup_env.sh' or give --venv "
+              "PATH); going on without f-k", file=sys.stderr)
+        methods.remove("fk")
     network = None
     if args.network != "none":
         sys.path.insert(0, str(ROOT))
@@ -198,8 +304,8 @@ def main(argv=None) -> list[dict]:
     for path in files:
         name = path.stem.removeprefix("data_")
         counts, dt, pitch = read_release_file(path)
-        for row in evaluate(counts, dt, pitch, name, args.exposures, args.methods,
-                            np.random.default_rng([args.seed, seeds[path]]), network):
+        for row in evaluate(counts, dt, pitch, name, args.exposures, methods,
+                            np.random.default_rng([args.seed, seeds[path]]), network, args.venv):
             rows.append(row)
             print(f"{row['capture']} | {row['exposure']:g} | {row['method']} | {row['depth']:.4f} | "
                   f"{row['error']:+.4f} | {row['iou']:.3f} | {row['counts']:.3g} | {row['seconds']:.1f}", flush=True)

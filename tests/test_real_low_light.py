@@ -138,3 +138,46 @@ def test_the_shipped_network_finds_the_patch_beside_lct(release_folder):
                                                             (0.1, "network")]
     for row in rows[1::2]:
         assert row["depth"] == pytest.approx(DEPTH, abs=0.03) and row["iou"] > 0.55, row
+
+
+def test_fk_without_the_tal_venv_is_one_line_and_the_run_goes_on(release_folder, tmp_path, capsys):
+    """``--methods ... fk`` with no tal venv at ``--venv``: one line naming --venv and the setup script, and the
+    other methods' rows as without fk."""
+    rows = real_low_light.main([str(release_folder[0]), "--exposures", "1", "--methods", "lct", "fk",
+                                "--network", "none", "--venv", str(tmp_path / "no-venv")])
+    assert [r["method"] for r in rows] == ["lct"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no tal venv at" in err[0] and "--venv" in err[0] and "setup_env.sh" in err[0]
+
+
+def test_fk_gets_the_scan_lct_gets(release_folder, tmp_path):
+    """What f-k is handed (without tal): the bins and trim :func:`confocal_volume` gives LCT, and a tal capture
+    that holds it with datagen's column along Sx and row along Sy, t_start 0 and no laser position."""
+    from datagen.analysis.reconstruct import confocal_volume
+    from datagen.io import read_tal_hdf5, write_tal_hdf5
+
+    counts, dt, pitch = real_low_light.read_release_file(release_folder[0] / "data_patch.mat")
+    scan = real_low_light.thin(counts, 0.1, np.random.default_rng(1))
+    kept = scan.copy()
+    data, width, n_trim = real_low_light.fk_input(scan, dt)
+    np.testing.assert_array_equal(scan, kept)                                 # the scan itself is not trimmed
+    _, depths, info = confocal_volume(scan, dt, pitch, "lct")
+    assert (width, n_trim, data.shape[-1]) == (info["bin_width"], info["trim_bins"], len(depths))
+    assert n_trim > 0 and not data[..., :n_trim].any() and data[..., n_trim:].sum() > 0
+    out = read_tal_hdf5(write_tal_hdf5(real_low_light.fk_capture(data, width, pitch),
+                                       tmp_path / "fk_patch.hdf5"))
+    np.testing.assert_array_equal(out["H"], data.transpose(2, 1, 0))          # H[t, column, row]
+    assert out["t_start"] == 0 and out["delta_t"] == pytest.approx(299792458.0 * width) and out["laser_xyz"] is None
+    grid = out["sensor_grid_xyz"]                                             # (Sx, Sy, 3): x along Sx, z along Sy
+    assert grid[-1, 0, 0] - grid[0, 0, 0] == pytest.approx(pitch[1] * 15) and grid[0, -1, 2] > grid[0, 0, 2]
+    with pytest.raises(ValueError, match="N x N scan of one pitch"):
+        real_low_light.fk_capture(data[:, :8], width, pitch)
+
+
+@pytest.mark.skipif(not (Path(real_low_light.default_venv()) / "bin" / "python").is_file(),
+                    reason="no tal venv (bash benchmarks/tal/setup_env.sh makes it)")
+def test_fk_through_tal_finds_the_patch(release_folder):
+    """With the tal venv: f-k's row, its depth within 1.5 cm of the patch's 0.5 m (0.507 m, IoU 0.56 here)."""
+    rows = real_low_light.main([str(release_folder[0]), "--exposures", "1", "--methods", "fk", "--network", "none"])
+    assert [r["method"] for r in rows] == ["fk"] and rows[0]["depth"] == pytest.approx(DEPTH, abs=0.015), rows
+    assert rows[0]["iou"] > 0.3

@@ -20,8 +20,10 @@ Methods (y-tal 0.20's ``tal.reconstruct``):
        (nothing else changes). Its volume's depth k is (k + ½)·delta_t/2 (t_start 0); the depth map keeps the
        strongest voxel between the first and the last of the --depths, like the other methods.
 A confocal capture first gets tal.reconstruct.compensate_laser_cos_dsqr (for datagen's aperture convention with a
-co-located sensor it undoes the wall → sensor leg's cos/d², docs/scans.md "Checks"); a single-sensor exhaustive
-capture needs none (its sensor leg is one constant factor).
+co-located sensor it undoes the wall → sensor leg's cos/d², docs/scans.md "Checks"), unless it records no laser
+position (a lab file's, e.g. the LCT release's rectified counts that benchmarks/real_low_light.py exports: nothing
+to undo, and tal's compensation needs the position); a single-sensor exhaustive capture needs none (its sensor
+leg is one constant factor).
 """
 from __future__ import annotations
 
@@ -54,7 +56,8 @@ def solve_one(path: str, methods: list[str], depths: np.ndarray) -> dict:
     d.H = np.asarray(d.H, dtype=np.float64)
     confocal = bool(d.is_confocal())
     if confocal:
-        tal.reconstruct.compensate_laser_cos_dsqr(d)
+        if np.shape(d.laser_xyz) == (3,):               # an empty dataset reads as h5py.Empty: no position
+            tal.reconstruct.compensate_laser_cos_dsqr(d)
         grid, normal = np.asarray(d.sensor_grid_xyz), np.asarray(d.sensor_grid_normals)[0, 0]
     else:
         grid, normal = np.asarray(d.laser_grid_xyz), np.asarray(d.laser_grid_normals)[0, 0]
