@@ -28,6 +28,20 @@ def test_the_config_and_its_smoke_variant_load():
     assert smoke.detector_draws == full.detector_draws            # the smoke variant draws the same detector
 
 
+def test_the_every_order_variant_differs_only_in_the_orders_it_simulates():
+    """configs/datasets/lct_release_every_order.yaml (the ablation of docs/real.md): lct_release.yaml's samples, seed,
+    room, detector draws and labels, the simulation's orders 3 (the tracer's light) instead of 1 and nothing else."""
+    full = load_dataset_config(FULL)
+    every = load_dataset_config(ROOT / "configs" / "datasets" / "lct_release_every_order.yaml")
+    skip = {"name", "simulation"}
+    assert every.model_dump(exclude=skip) == full.model_dump(exclude=skip)
+    a, b = full.simulation_config("train"), every.simulation_config("train")
+    assert (a.orders_setting(), b.orders_setting()) == (1, 3)
+    assert b.multibounce.paths == 512 and not b.effects["secondary"]
+    assert b.model_dump(exclude={"orders", "multibounce", "secondary"}) == a.model_dump(
+        exclude={"orders", "multibounce", "secondary"})
+
+
 def test_a_smoke_sample_draws_its_detector_within_the_ranges():
     config = load_dataset_config(SMOKE)
     ranges = DetectorDraws.model_validate(config.detector_draws)
