@@ -167,10 +167,12 @@ def test_sequence_frames_match_frames_simulated_alone_within_their_stated_error(
     assert np.all(seq.boxes[:, 0, 0] < seq.positions[:, 0]) and np.all(seq.positions[:, 0] < seq.boxes[:, 0, 1])
 
 
-def test_a_changes_sequence_starts_from_its_first_frame_simulated_alone_and_scrambles_each_sobol_set_once():
+def test_a_changes_sequence_starts_from_its_first_frame_simulated_alone_and_scrambles_each_sobol_set_once(
+        monkeypatch):
     """The 'changes' method's reference runs with the config as given: frame 0 is the frame simulated on its own, to
-    the bit. Its changes draw the same Sobol sets every frame: the Sobol memo (datagen.sampling.sobol) gives them to the bit and
-    spawns the child the scrambling would have spawned, so every later draw is the same too."""
+    the bit. Its changes draw the same Sobol sets every frame: the Sobol memo (datagen.sampling.sobol) scrambles each
+    set once, gives it again to the bit and spawns the child the scrambling would have spawned, so every later draw
+    is the same too."""
     from scipy.stats import qmc
 
     from datagen.sampling import sobol
@@ -187,11 +189,12 @@ def test_a_changes_sequence_starts_from_its_first_frame_simulated_alone_and_scra
         return [points(4, 128, rng), points(5, 64, rng), rng.random(4), points(4, 128, rng),
                 rng.spawn(1)[0].random(3)]
     first = draws(lambda d, n, rng: qmc.Sobol(d=d, scramble=True, seed=rng).random(n))
-    sobol._memo.clear()
+    scrambled, engine = [], qmc.Sobol
+    monkeypatch.setattr(sobol.qmc, "Sobol", lambda *a, **k: scrambled.append(k["d"]) or engine(*a, **k))
     for _ in range(2):                       # the second time from the memo
         for a, b in zip(first, draws(sobol.scrambled_sobol)):
             np.testing.assert_array_equal(a, b)
-    assert len(sobol._memo) == 3
+    assert sorted(scrambled) == [4, 4, 5]    # three sets, each scrambled once
 
 
 def test_motion_during_a_confocal_scan_is_each_point_at_its_own_instant():

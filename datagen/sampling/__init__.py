@@ -4,6 +4,8 @@
 - :mod:`.lookins`: the paper's lookins (√N×√N rays from the laser spot, :func:`sample_lookins` →
   :class:`Lookins`, arrays (N, 3) / (N,)) and hemispherical cameras (:func:`observe` →
   :class:`ObservedPoints`, arrays (B, l·p, 3) / (B, l·p); every pixel 2π/(l·p) sr).
+- :mod:`.sobol`: scrambled Sobol sets (:func:`~.sobol.scrambled_sobol`, (2^m, d) float64), each scrambled once and
+  remembered while its generator's seed sequence repeats it (a capture sequence's changes).
 - :mod:`.surfaces`: points on triangles, one implementation for every estimator: :func:`subdivide_triangles`,
   :func:`subdivide_with_vertices`, :func:`sample_surfaces` → :class:`SurfaceSamples` (points (M, 3), areas (M,)).
 
