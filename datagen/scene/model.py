@@ -98,8 +98,7 @@ class Scene:
         self.objects, self.notes = resolve_coincident_faces(self.objects, self.laser, self.sensor, self._where(),
                                                             static)
         tri = np.concatenate([o.vertices[o.faces] for o in self.objects])
-        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-        twice_area = np.abs(e1[:, [1, 2, 0]] * e2[:, [2, 0, 1]] - e1[:, [2, 0, 1]] * e2[:, [1, 2, 0]]).sum(axis=1)
+        twice_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
         starts = np.cumsum([0] + [len(o.faces) for o in self.objects[:-1]])
         for o, area in zip(self.objects, np.maximum.reduceat(twice_area, starts)):
             if not area > 0:
