@@ -233,7 +233,8 @@ def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarr
 
 def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURES, methods=("lct", "phasor", "fbp"),
              rng: np.random.Generator | None = None, network=None, venv: Path | None = None) -> list[dict]:
-    """Rows {capture, exposure, method, depth, error, iou, seconds} of one capture (module doc); ``network`` a
+    """Rows {capture, exposure, method, depth, error, iou, counts, seconds, map} of one capture (module doc; "map"
+    the (ny, nx) depth m where the method found the object, NaN elsewhere); ``network`` a
     loaded (net, record) adds its row; "fk" among the methods needs ``venv``, the tal venv."""
     rng = rng if rng is not None else np.random.default_rng(0)
     mask = ~np.isnan(found(counts, dt, pitch, "lct"))
@@ -248,16 +249,18 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
                 depth_map, seen = network_depth(network, scan, dt, pitch)
                 depth = score(depth_map, mask)[0]
                 iou = score(depth_map, mask, seen)[1] if network[0].mask else float("nan")
+                depth_map = np.where(seen, depth_map, np.nan)
             elif method == "fk":                       # tal's, in its venv; its time the solve alone
                 if venv is None:
                     raise ValueError("the fk method needs the tal venv (venv=)")
                 depth_map, seconds = fk_depth(scan, dt, pitch, venv)
                 depth, iou = score(depth_map, mask)
             else:
-                depth, iou = score(found(scan, dt, pitch, method), mask)
+                depth_map = found(scan, dt, pitch, method)
+                depth, iou = score(depth_map, mask)
             rows.append({"capture": name, "exposure": fraction, "method": method, "depth": depth,
                          "error": depth - reference if reference is not None else float("nan"), "iou": iou,
-                         "counts": float(scan.sum()),
+                         "counts": float(scan.sum()), "map": depth_map,
                          "seconds": time.perf_counter() - t0 if seconds is None else seconds})
     return rows
 
@@ -273,6 +276,11 @@ def main(argv=None) -> list[dict]:
                         help="a trained network (.pt, module doc; default: the shipped one), or 'none'")
     parser.add_argument("--venv", type=Path, default=default_venv(),
                         help="tal's venv for fk (bash benchmarks/tal/setup_env.sh makes it)")
+    parser.add_argument("--png", type=Path, default=None,
+                        help="write DIR/low_light_<capture>.png: every method's depth map at every exposure")
+    parser.add_argument("--sim", type=Path, default=None,
+                        help="a build of the network's dataset config: score the network on its held-out split too")
+    parser.add_argument("--sim-split", default="test", help="the split of --sim to score (default: test)")
     args = parser.parse_args(argv)
     methods = list(args.methods)
     if "fk" in methods and not (args.venv / "bin" / "python").is_file():
@@ -299,17 +307,75 @@ def main(argv=None) -> list[dict]:
     for f in args.exposures:
         if not 0 < f <= 1:
             raise SystemExit(f"--exposures: a fraction lies in (0, 1], got {f}")
+    if args.png is not None:
+        args.png.mkdir(parents=True, exist_ok=True)
+    if args.sim is not None:
+        if network is None:
+            raise SystemExit("--sim: scores a network; give one with --network")
+        sim = sim_scores(network, args.sim, args.sim_split)
+        print(f"network on {args.sim} split {args.sim_split} (simulated, held out; {sim['samples']} samples, their "
+              f"stored counts): median depth over the object off by {sim['depth_error']:.4f} m (mean |·|), mask "
+              f"IoU {sim['iou']:.3f} (mean)")
     rows = []
     print("capture | exposure | method | median depth over the object (m) | minus reference (m) | IoU | counts | s")
     for path in files:
         name = path.stem.removeprefix("data_")
         counts, dt, pitch = read_release_file(path)
+        found_here = []
         for row in evaluate(counts, dt, pitch, name, args.exposures, methods,
                             np.random.default_rng([args.seed, seeds[path]]), network, args.venv):
-            rows.append(row)
+            found_here.append(row)
             print(f"{row['capture']} | {row['exposure']:g} | {row['method']} | {row['depth']:.4f} | "
                   f"{row['error']:+.4f} | {row['iou']:.3f} | {row['counts']:.3g} | {row['seconds']:.1f}", flush=True)
+        if args.png is not None:
+            print(f"wrote {plot_capture(found_here, pitch, args.png / f'low_light_{name}.png')}")
+        rows += found_here
     return rows
+
+
+def plot_capture(rows: list[dict], pitch, path: Path) -> Path:
+    """The depth maps of one capture's rows (:func:`evaluate`), methods down and exposures across, the reference mask
+    (the full-exposure LCT's found points) outlined on each: ``datagen.plot.reconstruction.plot_depth_grid``."""
+    from datagen.plot.reconstruction import plot_depth_grid
+
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    exposures = list(dict.fromkeys(r["exposure"] for r in rows))
+    at = {(r["method"], r["exposure"]): r for r in rows}
+    cells = [[(at[m, f]["map"], f"{at[m, f]['depth']:.3f} m (IoU {at[m, f]['iou']:.2f})") for f in exposures]
+             for m in methods]
+    name = rows[0]["capture"]
+    reference = DEPTHS.get(name)
+    lct_full = at.get(("lct", 1.0))
+    outline = None if lct_full is None else np.isfinite(lct_full["map"])
+    depth_range = None if reference is None else (reference - 0.1, reference + 0.1)
+    return plot_depth_grid(cells, methods, [f"exposure × {f:g}" for f in exposures], pitch, path,
+                           f"{name}: depth where each method finds the object (outline: the full-exposure LCT's)",
+                           outline=outline, depth_range=depth_range)
+
+
+def sim_scores(network, data: Path, split: str) -> dict:
+    """The network on a dataset split's stored counts (simulated captures it was not trained on): {"samples": n with
+    object pixels, "depth_error": mean over them of |median depth over the label's object pixels − the label's|
+    (m), "iou": mean IoU of its mask with the label's (``wall_depth`` > 0)}: the sim-to-sim figures beside the
+    captures'."""
+    import datagen
+    from examples.train_depth_image import predict_depth, scan_pitch
+
+    net, record = network
+    ds = datagen.NLOSDataset(data, split=split, fields=("counts", "wall_depth", "params"))
+    dt = float(ds.card["time_edges"]["bin_width"])
+    errors, ious = [], []
+    for i in range(len(ds)):
+        item = ds[i]
+        label = np.asarray(item["wall_depth"], dtype=np.float64).reshape(np.shape(item["counts"])[:2])
+        mask = label > 0
+        if not mask.any():
+            continue
+        depth, seen = predict_depth(net, record, np.asarray(item["counts"], np.float64), dt, scan_pitch(item["params"]))
+        errors.append(abs(float(np.median(depth[mask])) - float(np.median(label[mask]))))
+        ious.append(float((seen & mask).sum() / (seen | mask).sum()))
+    return {"samples": len(errors), "depth_error": float(np.mean(errors)) if errors else float("nan"),
+            "iou": float(np.mean(ious)) if ious else float("nan")}
 
 
 if __name__ == "__main__":

@@ -126,6 +126,16 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False) -> dict[str, 
     return {k: torch.stack(v) for k, v in out.items()}
 
 
+def temporal_encoder() -> torch.nn.Sequential:
+    """(B, 1, T, h, w) → (B, 16, T/32, h, w): (k, 1, 1) 3-D convolutions over each scan point's transient (8-bin
+    patches, then two stride-2 layers), the same at every point."""
+    relu = torch.nn.ReLU
+    return torch.nn.Sequential(
+        torch.nn.Conv3d(1, 16, (8, 1, 1), stride=(8, 1, 1)), relu(),
+        torch.nn.Conv3d(16, 16, (3, 1, 1), stride=(2, 1, 1), padding=(1, 0, 0)), relu(),
+        torch.nn.Conv3d(16, 16, (3, 1, 1), stride=(2, 1, 1), padding=(1, 0, 0)), relu())
+
+
 class DepthNet(torch.nn.Module):
     """(B, 1, T, H, W) standardised scan → (B, H, W) standardised depth (module doc). ≈ 24 k parameters at 256
     bins: (k, 1, 1) 3-D convolutions encode each scan point's transient (8-bin patches, then two stride-2
@@ -138,10 +148,7 @@ class DepthNet(torch.nn.Module):
             raise ValueError(f"DepthNet: the scan needs a multiple of 32 time bins, got {bins}")
         self.bins = bins
         relu = torch.nn.ReLU
-        self.temporal = torch.nn.Sequential(
-            torch.nn.Conv3d(1, 16, (8, 1, 1), stride=(8, 1, 1)), relu(),
-            torch.nn.Conv3d(16, 16, (3, 1, 1), stride=(2, 1, 1), padding=(1, 0, 0)), relu(),
-            torch.nn.Conv3d(16, 16, (3, 1, 1), stride=(2, 1, 1), padding=(1, 0, 0)), relu())
+        self.temporal = temporal_encoder()
         self.spatial = torch.nn.Sequential(
             torch.nn.Conv2d(16 * (bins // 32), features, 1), relu(),
             torch.nn.Conv2d(features, 32, 3, padding=1), relu(),
@@ -163,6 +170,59 @@ class DepthNet(torch.nn.Module):
         return (out[:, 0], out[:, 1]) if self.mask else (out, None)
 
 
+class DepthUNet(torch.nn.Module):
+    """(B, 1, T, H, W) standardised LCT volume → (B, 2, H, W): DepthNet's temporal encoder at every scan point, then
+    a small U-Net over the scan grid (two 2 × 2 max-pool levels, bilinear up-sampling with skip connections), whose
+    field of view spans the whole 32 × 32 grid of a pooled scan; its input also holds each column's maximum (the
+    front view). ≈ 0.25 M parameters at 256 bins. ``--arch unet`` (module doc); always with a mask head."""
+
+    def __init__(self, bins: int, features: int = 32, mask: bool = True):
+        super().__init__()
+        if bins % 32:
+            raise ValueError(f"DepthUNet: the scan needs a multiple of 32 time bins, got {bins}")
+        self.bins, self.mask = bins, True
+        relu, f = torch.nn.ReLU, features
+
+        def block(c_in: int, c_out: int) -> torch.nn.Sequential:
+            return torch.nn.Sequential(torch.nn.Conv2d(c_in, c_out, 3, padding=1), relu(),
+                                       torch.nn.Conv2d(c_out, c_out, 3, padding=1), relu())
+
+        self.temporal = temporal_encoder()
+        self.stem = torch.nn.Sequential(torch.nn.Conv2d(16 * (bins // 32) + 1, f, 1), relu(), block(f, f))
+        self.down1, self.down2 = block(f, 2 * f), block(2 * f, 2 * f)
+        self.up1, self.up2 = block(4 * f, 2 * f), block(3 * f, f)
+        self.out = torch.nn.Conv2d(f, 2, 1)
+
+    def forward(self, x: torch.Tensor, size: tuple[int, int] | None = None) -> torch.Tensor:
+        """(B, 1, T, h, w) → (B, 2, h, w), or (B, 2, *size) upsampled bilinearly: the standardised depth and the
+        mask logit (a grid whose sides are not multiples of 4 is padded by replication to them, and cut back)."""
+        b, _, _, h, w = x.shape
+        pool, up = torch.nn.functional.max_pool2d, torch.nn.functional.interpolate
+        s = self.stem(torch.cat([self.temporal(x).reshape(b, -1, h, w), x.amax(2)], 1))
+        s = torch.nn.functional.pad(s, (0, -w % 4, 0, -h % 4), mode="replicate")
+        d1 = self.down1(pool(s, 2))
+        d2 = self.down2(pool(d1, 2))
+        u1 = self.up1(torch.cat([up(d2, size=d1.shape[-2:], mode="bilinear", align_corners=False), d1], 1))
+        out = self.out(self.up2(torch.cat([up(u1, size=s.shape[-2:], mode="bilinear", align_corners=False), s], 1)))
+        out = out[..., :h, :w]
+        if size is not None and tuple(size) != (h, w):
+            out = up(out, size=tuple(size), mode="bilinear", align_corners=False)
+        return out
+
+    heads = DepthNet.heads
+
+
+ARCHS = {"cnn": DepthNet, "unet": DepthUNet}
+"""The networks ``--arch`` names."""
+
+
+def dihedral(arrays, k: int):
+    """The arrays (..., h, w) of a batch, each turned by the k-th (0–7) symmetry of the square: k % 4 quarter turns,
+    then transposed when k ≥ 4 (a confocal scan of a mirrored or turned scene is the scan mirrored or turned)."""
+    out = [torch.rot90(a, k % 4, (-2, -1)) for a in arrays]
+    return [a.transpose(-2, -1) for a in out] if k >= 4 else out
+
+
 def draw_counts(noise: datagen.SPADNoise, envelope: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
     """Fresh counts (B, 1, T, H, W) of envelopes in the network layout (SPADNoise wants time last)."""
     return noise(envelope.permute(0, 1, 3, 4, 2), gen).permute(0, 1, 4, 2, 3)
@@ -175,7 +235,8 @@ def save_model(path, net: DepthNet, pool: int, x_norm: tuple[float, float], d_no
     ``provenance`` (str, float, int or dicts of them: :func:`train` writes ``input``, ``mask_threshold``,
     ``config_sha256``, ``splits``, ``dataset_code_version``, ``code_version``, ``command``, ``train_seconds``,
     ``val``)."""
-    torch.save({"state": net.state_dict(), "bins": net.bins, "mask": net.mask, "pool": pool, "x_norm": x_norm,
+    arch = next(name for name, cls in ARCHS.items() if type(net) is cls)
+    torch.save({"state": net.state_dict(), "arch": arch, "bins": net.bins, "mask": net.mask, "pool": pool, "x_norm": x_norm,
                 "d_norm": d_norm, "data": str(data), **provenance}, path)
 
 
@@ -183,7 +244,7 @@ def load_model(path) -> tuple[DepthNet, dict]:
     """(network in eval mode, its record) of a :func:`save_model` file; :func:`describe` says what the record holds
     of its training."""
     record = torch.load(path, map_location="cpu", weights_only=True)
-    net = DepthNet(record["bins"], mask=record.get("mask", False))
+    net = ARCHS[record.get("arch", "cnn")](record["bins"], mask=record.get("mask", False))
     net.load_state_dict(record["state"])
     return net.eval(), record
 
@@ -266,7 +327,8 @@ def git_version(path: Path) -> str:
 
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
           val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
-          stored: bool = False, mask: bool = False, lct: bool = False, command: str = "") -> dict[str, np.ndarray]:
+          stored: bool = False, mask: bool = False, lct: bool = False, command: str = "", arch: str = "cnn",
+          augment: bool = False) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
     ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
@@ -306,7 +368,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     with torch.no_grad():
         x = inputs(torch.arange(min(64, len(tr["depth"]))))
         x_mean, x_std = x.mean(), x.std() + 1e-6
-    net = DepthNet(tr[key].shape[2], mask=mask)
+    net = ARCHS[arch](tr[key].shape[2], mask=mask)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     n = len(tr["depth"])
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=epochs * -(-n // batch))
@@ -315,10 +377,11 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         order = torch.randperm(n, generator=gen)
         for start in range(0, n, batch):
             rows = order[start:start + batch]
-            x = (inputs(rows) - x_mean) / x_std
-            seen = mask_tr[rows]
+            x, seen, want = (inputs(rows) - x_mean) / x_std, mask_tr[rows], (target[rows] - d_mean) / d_std
+            if augment:
+                x, seen, want = dihedral((x, seen, want), int(torch.randint(8, (), generator=gen)))
             depth, logit = net.heads(net(x, size))
-            err = depth - (target[rows] - d_mean) / d_std
+            err = depth - want
             loss = (err[seen] ** 2).mean() if seen.any() else (err * 0).sum()
             if logit is not None:
                 loss = loss + mask_loss(logit, seen, pos_weight)
@@ -373,12 +436,18 @@ def main(argv=None):
     parser.add_argument("--mask", action="store_true", help="also learn where the object is seen (a mask head)")
     parser.add_argument("--stored-counts", action="store_true",
                         help="train on the stored counts (each sample's drawn detector) instead of fresh noise")
+    parser.add_argument("--arch", choices=sorted(ARCHS), default="cnn",
+                        help="the network: DepthNet (cnn) or DepthUNet (unet, always with a mask head)")
+    parser.add_argument("--augment", action="store_true",
+                        help="turn and mirror each training batch by a random symmetry of the square")
     parser.add_argument("--input", choices=["counts", "lct"], default="counts",
                         help="the network's input: the counts' log, or the LCT volume of the stored counts")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
-                 pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask, lct=args.input == "lct",
+                 pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask or args.arch == "unet",
+                 lct=args.input == "lct",
+                 arch=args.arch, augment=args.augment,
                  command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None else argv))
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])

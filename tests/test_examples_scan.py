@@ -111,3 +111,39 @@ def test_depth_network_on_the_lct_volume_saves_what_it_was_trained_on(wall, tmp_
     assert depth.shape == seen.shape == (16, 16) and np.isfinite(depth).all() and seen.dtype == bool
     with pytest.raises(ValueError, match="needs the scan's bin_width and pitch"):
         train_depth_image.predict_depth(net, record, np.asarray(item["counts"], np.float64))
+
+
+def test_the_unet_with_augmentation_saves_its_architecture_and_predicts(wall, tmp_path):
+    """``--arch unet --augment``: the record names the architecture, load_model rebuilds a DepthUNet with the same
+    weights (the same output to the bit), and it predicts a finite depth and a mask on the 16 × 16 grid (pooled
+    2 × 2 to 8 × 8, two 2 × 2 pooling levels)."""
+    torch.set_num_threads(1)
+    net_file = tmp_path / "unet.pt"
+    train_depth_image.main([str(wall), "--val", "test", "--epochs", "2", "--batch", "2", "--threads", "1", "--input",
+                            "lct", "--pool", "2", "--arch", "unet", "--augment", "--out", str(tmp_path / "u.npz"),
+                            "--save", str(net_file)])
+    net, record = train_depth_image.load_model(net_file)
+    assert record["arch"] == "unet" and isinstance(net, train_depth_image.DepthUNet) and net.mask
+    again, _ = train_depth_image.load_model(net_file)
+    x = torch.randn(1, 1, net.bins, 8, 8, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        torch.testing.assert_close(net(x, (16, 16)), again(x, (16, 16)), rtol=0, atol=0)
+    card = NLOSDataset(wall, split="train", fields=("counts",)).card
+    item = NLOSDataset(wall, split="test", fields=("counts", "params")).read(0)
+    depth, seen = train_depth_image.predict_depth(net, record, np.asarray(item["counts"], np.float64),
+                                                  card["time_edges"]["bin_width"],
+                                                  train_depth_image.scan_pitch(item["params"]))
+    assert depth.shape == seen.shape == (16, 16) and np.isfinite(depth).all() and seen.dtype == bool
+
+
+def test_the_augmentation_is_the_eight_symmetries_of_the_square_applied_alike():
+    """dihedral(k): k = 0 the identity, 1 a quarter turn (numpy's rot90 over the last two axes), 4 the transpose; the
+    eight images of an asymmetric array are all different, and every array of the batch is turned alike."""
+    a = torch.arange(12.0).reshape(1, 3, 4) ** 2
+    images = [train_depth_image.dihedral((a, a + 1), k) for k in range(8)]
+    for x, y in images:
+        torch.testing.assert_close(y, x + 1)
+    torch.testing.assert_close(images[0][0], a)
+    np.testing.assert_array_equal(images[1][0].numpy(), np.rot90(a.numpy(), 1, (-2, -1)))
+    np.testing.assert_array_equal(images[4][0].numpy(), a.numpy().transpose(0, 2, 1))
+    assert len({tuple(x.flatten().tolist()) + tuple(x.shape) for x, _ in images}) == 8

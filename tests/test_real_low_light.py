@@ -181,3 +181,62 @@ def test_fk_through_tal_finds_the_patch(release_folder):
     rows = real_low_light.main([str(release_folder[0]), "--exposures", "1", "--methods", "fk", "--network", "none"])
     assert [r["method"] for r in rows] == ["fk"] and rows[0]["depth"] == pytest.approx(DEPTH, abs=0.015), rows
     assert rows[0]["iou"] > 0.3
+
+
+def test_png_draws_every_method_at_every_exposure(release_folder, tmp_path):
+    """``--png DIR``: one picture per capture, methods down and exposures across; each row keeps its depth map,
+    NaN exactly where the method found nothing (the full-exposure LCT's found points are the reference mask, so its
+    map is finite exactly on them)."""
+    import matplotlib.image
+
+    rows = real_low_light.main([str(release_folder[0]), "--exposures", "1", "0.1", "--methods", "lct", "fbp",
+                                "--network", "none", "--png", str(tmp_path)])
+    png = tmp_path / "low_light_patch.png"
+    height, width = matplotlib.image.imread(png).shape[:2]
+    assert width > height > 200                                # 2 rows × 2 columns of maps and a colour bar
+    full = rows[0]["map"]
+    assert full.shape == (16, 16) and np.isfinite(full).sum() > 0
+    assert np.nanmedian(full) == pytest.approx(DEPTH, abs=0.01)
+    for row in rows:                                # each row's IoU is its map's found points against the reference
+        hit, ref = np.isfinite(row["map"]), np.isfinite(full)
+        assert row["iou"] == pytest.approx((hit & ref).sum() / (hit | ref).sum(), abs=1e-12), row["method"]
+
+
+def test_sim_scores_compare_the_network_with_the_labels(monkeypatch, tmp_path):
+    """The sim-to-sim figures (``--sim``): a network that returns the label itself scores depth error 0 and IoU 1; one
+    whose depth is 5 cm deeper and whose mask is the label's left half scores 0.05 m and the half's share of the
+    label's pixels."""
+    import examples.train_depth_image as tdi
+    from datagen.dataset import build_dataset, load_dataset_config
+    from datagen.dataset.config import SplitSpec
+
+    configs = Path(__file__).resolve().parents[1] / "configs" / "datasets"
+    config = load_dataset_config(configs / "wall_smoke.yaml")
+    config = config.model_copy(update={"splits": {"test": SplitSpec(count=2)}})
+    build_dataset(config, tmp_path / "d", workers=0, progress=False)
+    labels = [np.asarray(datagen.NLOSDataset(tmp_path / "d", split="test", fields=("wall_depth",)).read(i)
+                         ["wall_depth"], np.float64).reshape(16, 16) for i in range(2)]
+    monkeypatch.setattr(tdi, "scan_pitch", lambda params: 0.01)
+    perfect = dict(zip(range(2), labels))
+    calls = iter(range(2))
+
+    def exact(net, rec, counts, dt, pitch):
+        lab = perfect[next(calls)]
+        return lab, lab > 0
+
+    monkeypatch.setattr(tdi, "predict_depth", exact)
+    got = real_low_light.sim_scores((None, {}), tmp_path / "d", "test")
+    with_object = sum(bool((lab > 0).any()) for lab in labels)
+    assert got == {"samples": with_object, "depth_error": 0.0, "iou": 1.0}
+    calls = iter(range(2))
+
+    def half(net, rec, counts, dt, pitch):
+        lab = perfect[next(calls)]
+        seen = lab > 0
+        seen[:, 8:] = False
+        return lab + 0.05, seen
+
+    monkeypatch.setattr(tdi, "predict_depth", half)
+    got = real_low_light.sim_scores((None, {}), tmp_path / "d", "test")
+    shares = [float(((lab > 0)[:, :8]).sum() / (lab > 0).sum()) for lab in labels if (lab > 0).any()]
+    assert got["depth_error"] == pytest.approx(0.05, abs=1e-9) and got["iou"] == pytest.approx(np.mean(shares))
