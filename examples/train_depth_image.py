@@ -293,7 +293,8 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: fl
 
 def mask_loss(logit: torch.Tensor, seen: torch.Tensor, pos_weight: float) -> torch.Tensor:
     """Binary cross-entropy of the mask logit (B, H, W) against ``seen`` (B, H, W) bool, its object pixels weighted
-    ``pos_weight`` (the training set's background-to-object ratio: the objects cover 16 % of the lct_release scans),
+    ``pos_weight`` (by default the training set's background-to-object ratio: the objects cover 16 % of the
+    lct_release scans; ``--pos-weight``),
     plus the soft Dice loss per sample, 1 − (2 Σ p·y + 1) / (Σ p + Σ y + 1), averaged over the batch."""
     y = seen.float()
     bce = torch.nn.functional.binary_cross_entropy_with_logits(logit, y, pos_weight=torch.tensor(pos_weight))
@@ -328,7 +329,7 @@ def git_version(path: Path) -> str:
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
           val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
           stored: bool = False, mask: bool = False, lct: bool = False, command: str = "", arch: str = "cnn",
-          augment: bool = False) -> dict[str, np.ndarray]:
+          augment: bool = False, pos_weight: float | None = None) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
     ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
@@ -336,7 +337,9 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     IRF; one noise draw per sample) instead of fresh counts from the split's detector; with ``lct`` the input is the
     LCT volume of the stored counts (:func:`lct_input`; implies ``stored``); with ``mask`` the network also learns
     where the object is seen (a second output, :func:`mask_loss` against ``wall_depth > 0`` over every pixel, added
-    to the depth loss; its threshold the one of :data:`MASK_THRESHOLDS` of best validation IoU). Returns {"depth":
+    to the depth loss, its object pixels weighted ``pos_weight``, by default the background-to-object ratio; its
+    threshold the one of :data:`MASK_THRESHOLDS` of best validation IoU); ``arch`` names the network (:data:`ARCHS`);
+    with ``augment`` each batch is turned by a random symmetry of the square (:func:`dihedral`). Returns {"depth":
     (N, H, W) float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the
     object pixels, "iou": the validation mask IoU (NaN without ``mask``)}."""
     torch.manual_seed(seed)
@@ -358,7 +361,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         split["base"] = upsample_nearest(split["strongest"], size) if lct else torch.zeros_like(split["depth"])
     target = tr["depth"] - tr["base"]
     d_mean, d_std = target[mask_tr].mean(), target[mask_tr].std()
-    pos_weight = float((~mask_tr).sum() / mask_tr.sum().clamp(min=1))
+    if pos_weight is None:
+        pos_weight = float((~mask_tr).sum() / mask_tr.sum().clamp(min=1))
     if lct:
         inputs = lambda rows: tr["lct"][rows].float()                           # noqa: E731
     elif stored:
@@ -440,6 +444,8 @@ def main(argv=None):
                         help="the network: DepthNet (cnn) or DepthUNet (unet, always with a mask head)")
     parser.add_argument("--augment", action="store_true",
                         help="turn and mirror each training batch by a random symmetry of the square")
+    parser.add_argument("--pos-weight", type=float, default=None,
+                        help="the mask loss's weight of object pixels (default: the background-to-object ratio)")
     parser.add_argument("--input", choices=["counts", "lct"], default="counts",
                         help="the network's input: the counts' log, or the LCT volume of the stored counts")
     args = parser.parse_args(argv)
@@ -447,7 +453,7 @@ def main(argv=None):
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
                  pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask or args.arch == "unet",
                  lct=args.input == "lct",
-                 arch=args.arch, augment=args.augment,
+                 arch=args.arch, augment=args.augment, pos_weight=args.pos_weight,
                  command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None else argv))
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
