@@ -4,6 +4,7 @@ the low-photon regime a network trained on datagen is meant for, and the figures
 
     python benchmarks/real_low_light.py FOLDER [--exposures 1 0.1 0.01] [--methods lct phasor fbp fk] [--seed 0]
                                                [--network FILE.pt | none] [--venv /opt/venvs/tal-bench]
+                                               [--png DIR] [--sim DATA [--sim-split test]]
 
 FOLDER holds the release's ``data_*.mat`` files (the project never ships them; the release is published with
 O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``datagen import-capture
@@ -48,6 +49,13 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    probability ≥ the record's threshold), without one it is not scored (NaN). The run prints what the record says
    of the network's training (``examples.train_depth_image.describe``) and a warning when the dataset config it
    was trained on is no longer the repository's (:func:`stale`).
+
+6. **Pictures** (``--png DIR``): ``DIR/low_light_<capture>.png``, every method's depth map (where it found the
+   object) at every exposure, methods down and exposures across, the reference mask outlined on each.
+7. **Sim-to-sim** (``--sim DATA``): the network on a build of its dataset config's held-out split (``--sim-split``,
+   default ``test``: ``datagen build configs/datasets/lct_release.yaml --splits test=100``), its stored counts: the
+   mean |error| of its median depth over the label's object pixels and the mean IoU of its mask with the label's
+   (:func:`sim_scores`), printed before the captures' rows: the figure beside the sim-to-real one.
 
 The printed table is the one docs/real.md quotes.
 """

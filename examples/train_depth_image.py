@@ -12,9 +12,13 @@ Reads the ``train`` and ``val`` splits with ``NLOSDataset(..., layout="network")
 the batch from the stored envelope with :class:`datagen.SPADNoise` (the split's detector); validation reads the
 stored (frozen) counts. Input log(1 + counts), standardised.
 
-Network (:class:`DepthNet`, ≈ 24 k parameters): the same temporal encoder at every scan point ((k, 1, 1) 3-D
-convolutions over time), then 2-D convolutions over the scan grid to one depth per pixel; ≈ 1 s of CPU per
-epoch of 200 samples of 16 × 16 × 256 on 2 threads.
+Network (``--arch cnn``, :class:`DepthNet`, ≈ 24 k parameters): the same temporal encoder at every scan point
+((k, 1, 1) 3-D convolutions over time), then 2-D convolutions over the scan grid to one depth per pixel; ≈ 1 s of
+CPU per epoch of 200 samples of 16 × 16 × 256 on 2 threads. ``--arch unet`` (:class:`DepthUNet`, ≈ 0.3 M
+parameters, always with the mask head) puts a two-level U-Net over the scan grid after the same temporal encoder,
+its input also each column's maximum: its field of view spans a 32 × 32 grid, where DepthNet's three 3 × 3 layers
+see 7 × 7 points. ``--augment`` turns each training batch by one of the 8 symmetries of the square (a confocal scan
+of a turned or mirrored scene is the scan turned or mirrored the same way, its labels too).
 
 Network-resolution scans (``configs/datasets/wall128.yaml``, ``confocal64.yaml``): ``--pool K`` sums the scan over
 K × K blocks of scan points on loading (a 128 × 128 × 512 scan is 32 MiB; its full-resolution forward pass and
@@ -38,8 +42,9 @@ LCT volume each column holds its own point's object. The mask loss weighs the ob
 background-to-object ratio and adds a soft Dice term (:func:`mask_loss`); the probability threshold is the one of
 best validation IoU (:data:`MASK_THRESHOLDS`), kept in the saved record. A saved network also records the data it
 was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that trained
-it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, trained on the first 800 +
-100 samples of ``configs/datasets/lct_release.yaml``.
+it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, a DepthUNet on the unpooled
+LCT volume (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20``) trained on the first 800 +
+100 samples of ``configs/datasets/lct_release.yaml`` (docs/training.md).
 """
 from __future__ import annotations
 
