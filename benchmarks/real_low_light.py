@@ -241,8 +241,9 @@ def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarr
 
 def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURES, methods=("lct", "phasor", "fbp"),
              rng: np.random.Generator | None = None, network=None, venv: Path | None = None) -> list[dict]:
-    """Rows {capture, exposure, method, depth, error, iou, counts, seconds, map} of one capture (module doc; "map"
-    the (ny, nx) depth m where the method found the object, NaN elsewhere); ``network`` a
+    """Rows {capture, exposure, method, depth, error, iou, counts, seconds, map, reference} of one capture (module
+    doc; "map" the (ny, nx) depth m where the method found the object, NaN elsewhere; "reference" the (ny, nx) bool
+    reference mask, the same array in every row); ``network`` a
     loaded (net, record) adds its row; "fk" among the methods needs ``venv``, the tal venv."""
     rng = rng if rng is not None else np.random.default_rng(0)
     mask = ~np.isnan(found(counts, dt, pitch, "lct"))
@@ -268,7 +269,7 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
                 depth, iou = score(depth_map, mask)
             rows.append({"capture": name, "exposure": fraction, "method": method, "depth": depth,
                          "error": depth - reference if reference is not None else float("nan"), "iou": iou,
-                         "counts": float(scan.sum()), "map": depth_map,
+                         "counts": float(scan.sum()), "map": depth_map, "reference": mask,
                          "seconds": time.perf_counter() - t0 if seconds is None else seconds})
     return rows
 
@@ -342,8 +343,8 @@ def main(argv=None) -> list[dict]:
 
 
 def plot_capture(rows: list[dict], pitch, path: Path) -> Path:
-    """The depth maps of one capture's rows (:func:`evaluate`), methods down and exposures across, the reference mask
-    (the full-exposure LCT's found points) outlined on each: ``datagen.plot.reconstruction.plot_depth_grid``."""
+    """The depth maps of one capture's rows (:func:`evaluate`), methods down and exposures across, the rows' reference
+    mask (the full-exposure LCT's found points) outlined on each: ``datagen.plot.reconstruction.plot_depth_grid``."""
     from datagen.plot.reconstruction import plot_depth_grid
 
     methods = list(dict.fromkeys(r["method"] for r in rows))
@@ -353,19 +354,17 @@ def plot_capture(rows: list[dict], pitch, path: Path) -> Path:
              for m in methods]
     name = rows[0]["capture"]
     reference = DEPTHS.get(name)
-    lct_full = at.get(("lct", 1.0))
-    outline = None if lct_full is None else np.isfinite(lct_full["map"])
     depth_range = None if reference is None else (reference - 0.1, reference + 0.1)
     return plot_depth_grid(cells, methods, [f"exposure × {f:g}" for f in exposures], pitch, path,
                            f"{name}: depth where each method finds the object (outline: the full-exposure LCT's)",
-                           outline=outline, depth_range=depth_range)
+                           outline=rows[0]["reference"], depth_range=depth_range)
 
 
 def sim_scores(network, data: Path, split: str) -> dict:
     """The network on a dataset split's stored counts (simulated captures it was not trained on): {"samples": n with
     object pixels, "depth_error": mean over them of |median depth over the label's object pixels − the label's|
-    (m), "iou": mean IoU of its mask with the label's (``wall_depth`` > 0)}: the sim-to-sim figures beside the
-    captures'."""
+    (m), "iou": mean IoU of its mask with the label's (``wall_depth`` > 0)}, each scored by :func:`score` as the
+    captures' rows are: the sim-to-sim figures beside the captures'."""
     import datagen
     from examples.train_depth_image import predict_depth, scan_pitch
 
@@ -380,8 +379,8 @@ def sim_scores(network, data: Path, split: str) -> dict:
         if not mask.any():
             continue
         depth, seen = predict_depth(net, record, np.asarray(item["counts"], np.float64), dt, scan_pitch(item["params"]))
-        errors.append(abs(float(np.median(depth[mask])) - float(np.median(label[mask]))))
-        ious.append(float((seen & mask).sum() / (seen | mask).sum()))
+        errors.append(abs(score(depth, mask)[0] - float(np.median(label[mask]))))
+        ious.append(score(depth, mask, seen)[1])
     return {"samples": len(errors), "depth_error": float(np.mean(errors)) if errors else float("nan"),
             "iou": float(np.mean(ious)) if ious else float("nan")}
 

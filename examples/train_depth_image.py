@@ -179,7 +179,8 @@ class DepthUNet(torch.nn.Module):
     """(B, 1, T, H, W) standardised LCT volume → (B, 2, H, W): DepthNet's temporal encoder at every scan point, then
     a small U-Net over the scan grid (two 2 × 2 max-pool levels, bilinear up-sampling with skip connections), whose
     field of view spans the whole 32 × 32 grid of a pooled scan; its input also holds each column's maximum (the
-    front view). ≈ 0.25 M parameters at 256 bins. ``--arch unet`` (module doc); always with a mask head."""
+    front view). ≈ 0.3 M parameters at 256 bins. ``--arch unet`` (module doc); always with a mask head (``mask`` is
+    taken, as :class:`DepthNet` takes it, and ignored)."""
 
     def __init__(self, bins: int, features: int = 32, mask: bool = True):
         super().__init__()
@@ -241,8 +242,8 @@ def save_model(path, net: DepthNet, pool: int, x_norm: tuple[float, float], d_no
     ``config_sha256``, ``splits``, ``dataset_code_version``, ``code_version``, ``command``, ``train_seconds``,
     ``val``)."""
     arch = next(name for name, cls in ARCHS.items() if type(net) is cls)
-    torch.save({"state": net.state_dict(), "arch": arch, "bins": net.bins, "mask": net.mask, "pool": pool, "x_norm": x_norm,
-                "d_norm": d_norm, "data": str(data), **provenance}, path)
+    torch.save({"state": net.state_dict(), "arch": arch, "bins": net.bins, "mask": net.mask, "pool": pool,
+                "x_norm": x_norm, "d_norm": d_norm, "data": str(data), **provenance}, path)
 
 
 def load_model(path) -> tuple[DepthNet, dict]:
@@ -457,8 +458,7 @@ def main(argv=None):
     torch.set_num_threads(args.threads)
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
                  pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask or args.arch == "unet",
-                 lct=args.input == "lct",
-                 arch=args.arch, augment=args.augment, pos_weight=args.pos_weight,
+                 lct=args.input == "lct", arch=args.arch, augment=args.augment, pos_weight=args.pos_weight,
                  command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None else argv))
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])

@@ -198,6 +198,8 @@ def test_png_draws_every_method_at_every_exposure(release_folder, tmp_path):
     full = rows[0]["map"]
     assert full.shape == (16, 16) and np.isfinite(full).sum() > 0
     assert np.nanmedian(full) == pytest.approx(DEPTH, abs=0.01)
+    for row in rows:                                # the outlined reference: the full-exposure LCT's found points
+        np.testing.assert_array_equal(row["reference"], np.isfinite(full))
     from datagen.plot.reconstruction import plot_depth_grid
     with pytest.raises(ValueError, match="cells must be 2 × 2"):
         plot_depth_grid([[(full, "a")]], ["lct", "fbp"], ["1", "0.1"], 0.04, tmp_path / "bad.png")
