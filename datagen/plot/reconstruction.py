@@ -95,7 +95,7 @@ def plot_depth_grid(cells: list[list[tuple[np.ndarray, str]]], rows: list[str], 
         found = np.concatenate([d[np.isfinite(d)] for d in maps])
         depth_range = tuple(np.percentile(found, [2, 98])) if found.size else (0.0, 1.0)
     fig, axes = plt.subplots(len(rows), len(columns), figsize=(2.6 * len(columns) + 1, 2.5 * len(rows)),
-                             squeeze=False)
+                             squeeze=False, layout="constrained")    # room for the title, labels and colour bar
     image = None
     for i, row in enumerate(cells):
         for j, (depth, caption) in enumerate(row):
@@ -106,16 +106,14 @@ def plot_depth_grid(cells: list[list[tuple[np.ndarray, str]]], rows: list[str], 
             if outline is not None and np.any(outline):
                 ax.contour(np.asarray(outline, dtype=float), levels=[0.5], colors="white", linewidths=0.6,
                            origin="lower", extent=wall)
-            ax.set_title(caption, fontsize=8)
+            ax.set_title(f"{columns[j]}\n{caption}" if i == 0 else caption, fontsize=8)
             ax.set_xticks([])
             ax.set_yticks([])
             if j == 0:
                 ax.set_ylabel(rows[i])
-            if i == 0:
-                ax.set_title(f"{columns[j]}\n{caption}", fontsize=8)
     fig.colorbar(image, ax=axes, label="depth from the wall (m)", shrink=0.6)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title, wrap=True)          # wrapped to the figure's width (a grid of one or two maps is narrow)
     path = Path(path)
     fig.savefig(path, dpi=80)
     plt.close(fig)
