@@ -108,15 +108,21 @@ def scan_pitch(params) -> float:
     return float(grid["size"][0]) / int(grid["points"][0])
 
 
-def load_split(path, split: str, pool: int = 1, lct: bool = False) -> dict[str, torch.Tensor]:
+def load_split(path, split: str, pool: int = 1, lct: bool = False,
+               mask_label: str = "outline") -> dict[str, torch.Tensor]:
     """{"envelope", "counts": (N, 1, T, H/pool, W/pool) float32 (summed over pool × pool scan points), "depth":
     (N, H, W) float32 m (the label's grid)} of one split, in memory; with ``lct`` instead of the envelope and counts
     "lct": (N, 1, LCT_BINS, H/pool, W/pool) float16 the LCT volume of each sample's stored counts and "strongest":
-    (N, H/pool, W/pool) the depth m of its strongest voxels (:func:`lct_input`)."""
-    fields = ("counts", "wall_depth") + (("params",) if lct else ("envelope",))
+    (N, H/pool, W/pool) the depth m of its strongest voxels (:func:`lct_input`); with ``mask_label`` "lct" also
+    "seen": (N, H, W) bool, what the LCT of the sample's noise-free envelope finds (:func:`lct_seen`)."""
+    if mask_label not in MASK_LABELS:
+        raise ValueError(f"mask_label must be one of {', '.join(MASK_LABELS)}, got {mask_label!r}")
+    fields = ("counts", "wall_depth") + (("params",) if lct else ()) + \
+        (("envelope",) if not lct or mask_label == "lct" else ())
     ds = datagen.NLOSDataset(path, split=split, fields=fields, layout="network", counts_dtype=torch.float32)
     bin_width = float(ds.card["time_edges"]["bin_width"])
-    out = {"depth": [], **({"lct": [], "strongest": []} if lct else {"envelope": [], "counts": []})}
+    out = {"depth": [], **({"lct": [], "strongest": []} if lct else {"envelope": [], "counts": []}),
+           **({"seen": []} if mask_label == "lct" else {})}
     for i in range(len(ds)):
         item = ds[i]
         if lct:
@@ -128,7 +134,32 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False) -> dict[str, 
             out["envelope"].append(pool_scan(item["envelope"], pool))
             out["counts"].append(pool_scan(item["counts"], pool))
         out["depth"].append(item["wall_depth"][0])
+        if mask_label == "lct":
+            out["seen"].append(lct_seen(item["envelope"][0].numpy(), bin_width, scan_pitch(item["params"]),
+                                        item["wall_depth"][0] > 0))
     return {k: torch.stack(v) for k, v in out.items()}
+
+
+MASK_LABELS = ("outline", "lct")
+"""What the mask head learns (``--mask-label``): "outline", the label's own mask (``wall_depth > 0``: the cut-out's
+exact outline on the scan grid); "lct", what a long exposure's LCT finds (:func:`lct_seen`), the kind of mask the
+real-capture evaluation's reference is (benchmarks/real_low_light.py: the full-exposure LCT's found points)."""
+
+
+def lct_seen(envelope: np.ndarray, bin_width: float, pitch, outline: torch.Tensor) -> torch.Tensor:
+    """(H, W) bool: where the LCT of a noise-free scan ``envelope`` (T, H, W), reconstructed as ``datagen
+    reconstruct`` runs it (:func:`datagen.analysis.reconstruct.confocal_volume`; in LCT_BINS bins, as the input),
+    finds something
+    (:func:`datagen.analysis.reconstruct.depth_map`: the front view at 0.25 of its maximum); nothing where the
+    label's ``outline`` (H, W) bool is empty (no object in view: the front view's maximum is then the wall's noise
+    of the transport, not an object). The mask of a scan of unlimited exposure, as wide as LCT's blur."""
+    from datagen.analysis.reconstruct import confocal_volume, depth_map
+
+    if not bool(outline.any()):
+        return torch.zeros(outline.shape, dtype=torch.bool)
+    volume, depths, _ = confocal_volume(np.moveaxis(np.asarray(envelope, np.float64), 0, -1), bin_width, pitch, "lct",
+                                        max_bins=LCT_BINS)
+    return torch.as_tensor(np.isfinite(depth_map(volume, depths)[0]))
 
 
 def temporal_encoder() -> torch.nn.Sequential:
@@ -239,8 +270,8 @@ def save_model(path, net: DepthNet, pool: int, x_norm: tuple[float, float], d_no
     """Write the trained network, what its input needs (bins, pool, the input's standardisation) and its depth
     scale to ``path`` (torch.save of a dict; :func:`load_model` reads it), with the data set it was trained on and
     ``provenance`` (str, float, int or dicts of them: :func:`train` writes ``input``, ``mask_threshold``,
-    ``config_sha256``, ``splits``, ``dataset_code_version``, ``code_version``, ``command``, ``train_seconds``,
-    ``val``)."""
+    ``config_sha256``, ``splits``, ``dataset_code_version``, ``code_version``, ``command``, ``mask_label``,
+    ``train_seconds``, ``val``)."""
     arch = next(name for name, cls in ARCHS.items() if type(net) is cls)
     torch.save({"state": net.state_dict(), "arch": arch, "bins": net.bins, "mask": net.mask, "pool": pool,
                 "x_norm": x_norm, "d_norm": d_norm, "data": str(data), **provenance}, path)
@@ -335,7 +366,8 @@ def git_version(path: Path) -> str:
 def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e-3, train_split: str = "train",
           val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
           stored: bool = False, mask: bool = False, lct: bool = False, command: str = "", arch: str = "cnn",
-          augment: bool = False, pos_weight: float | None = None) -> dict[str, np.ndarray]:
+          augment: bool = False, pos_weight: float | None = None,
+          mask_label: str = "outline") -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
     ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
@@ -344,14 +376,16 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     LCT volume of the stored counts (:func:`lct_input`; implies ``stored``); with ``mask`` the network also learns
     where the object is seen (a second output, :func:`mask_loss` against ``wall_depth > 0`` over every pixel, added
     to the depth loss, its object pixels weighted ``pos_weight``, by default the background-to-object ratio; its
-    threshold the one of :data:`MASK_THRESHOLDS` of best validation IoU); ``arch`` names the network (:data:`ARCHS`);
+    threshold the one of :data:`MASK_THRESHOLDS` of best validation IoU; with ``mask_label`` "lct" the mask learnt
+    and validated is what a long exposure's LCT finds instead, :data:`MASK_LABELS`; the depth is learnt over the
+    label's own mask either way); ``arch`` names the network (:data:`ARCHS`);
     with ``augment`` each batch is turned by a random symmetry of the square (:func:`dihedral`). Returns {"depth":
     (N, H, W) float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the
     object pixels, "iou": the validation mask IoU (NaN without ``mask``)}."""
     torch.manual_seed(seed)
     t0 = time.perf_counter()
     version = git_version(Path(__file__).resolve().parent)          # of the code as it is loaded, at the start
-    tr, va = load_split(path, train_split, pool, lct), load_split(path, val_split, pool, lct)
+    tr, va = (load_split(path, s, pool, lct, mask_label) for s in (train_split, val_split))
     ds = datagen.NLOSDataset(path, split=train_split, fields=("counts",))
     det = ds.detector_config()
     noise = ds.spad_noise() if pool == 1 else ds.spad_noise(dcr=det.dcr * pool ** 2,        # summed background
@@ -362,13 +396,14 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         log(f"  loaded {len(tr['depth'])} + {len(va['depth'])} samples, input {tuple(tr[key].shape[1:])}, "
             f"labels {size} ({time.perf_counter() - t0:.0f} s)")
     gen = torch.Generator().manual_seed(seed)
-    mask_tr = tr["depth"] > 0
+    mask_tr = tr["depth"] > 0                                   # where the depth is learnt
+    seen_tr = tr.get("seen", mask_tr)                           # what the mask head learns
     for split in (tr, va):            # the depth learnt: the label less the LCT's strongest voxel (0 on counts)
         split["base"] = upsample_nearest(split["strongest"], size) if lct else torch.zeros_like(split["depth"])
     target = tr["depth"] - tr["base"]
     d_mean, d_std = target[mask_tr].mean(), target[mask_tr].std()
     if pos_weight is None:
-        pos_weight = float((~mask_tr).sum() / mask_tr.sum().clamp(min=1))
+        pos_weight = float((~seen_tr).sum() / seen_tr.sum().clamp(min=1))
     if lct:
         inputs = lambda rows: tr["lct"][rows].float()                           # noqa: E731
     elif stored:
@@ -387,12 +422,13 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         order = torch.randperm(n, generator=gen)
         for start in range(0, n, batch):
             rows = order[start:start + batch]
-            x, seen, want = (inputs(rows) - x_mean) / x_std, mask_tr[rows], (target[rows] - d_mean) / d_std
+            x, obj, seen, want = ((inputs(rows) - x_mean) / x_std, mask_tr[rows], seen_tr[rows],
+                                  (target[rows] - d_mean) / d_std)
             if augment:
-                x, seen, want = dihedral((x, seen, want), int(torch.randint(8, (), generator=gen)))
+                x, obj, seen, want = dihedral((x, obj, seen, want), int(torch.randint(8, (), generator=gen)))
             depth, logit = net.heads(net(x, size))
             err = depth - want
-            loss = (err[seen] ** 2).mean() if seen.any() else (err * 0).sum()
+            loss = (err[obj] ** 2).mean() if obj.any() else (err * 0).sum()
             if logit is not None:
                 loss = loss + mask_loss(logit, seen, pos_weight)
             opt.zero_grad()
@@ -406,7 +442,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         x = ((va["lct"].float() if lct else torch.log1p(va["counts"])) - x_mean) / x_std
         depth, logit = net.heads(torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)]))
         depth = va["base"] + depth * d_std + d_mean
-    seen_va = va["depth"] > 0
+    obj_va = va["depth"] > 0
+    seen_va = va.get("seen", obj_va)
     threshold, iou = 0.5, float("nan")
     if logit is not None:
         prob = torch.sigmoid(logit)
@@ -416,13 +453,13 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     if save is not None:
         card = ds.card
         err = (depth - va["depth"]).abs()
-        mae = float(np.mean([float(e[m].mean()) for e, m in zip(err, seen_va) if m.any()]))
+        mae = float(np.mean([float(e[m].mean()) for e, m in zip(err, obj_va) if m.any()]))
         save_model(save, net, pool, (float(x_mean), float(x_std)), (float(d_mean), float(d_std)), path,
                    input="lct" if lct else "counts", mask_threshold=threshold,
                    config_sha256=card["config_sha256"], config_name=card["name"],
                    splits={s: int(card["splits"][s]["count"]) for s in (train_split, val_split)},
                    dataset_code_version=card.get("code_version", "unknown"),
-                   code_version=version, command=command,
+                   code_version=version, command=command, mask_label=mask_label,
                    train_seconds=round(time.perf_counter() - t0, 1), val={"depth_mae_m": mae, "mask_iou": iou})
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
@@ -452,6 +489,8 @@ def main(argv=None):
                         help="turn and mirror each training batch by a random symmetry of the square")
     parser.add_argument("--pos-weight", type=float, default=None,
                         help="the mask loss's weight of object pixels (default: the background-to-object ratio)")
+    parser.add_argument("--mask-label", choices=MASK_LABELS, default="outline",
+                        help="what the mask head learns: the label's outline, or what a long exposure's LCT finds")
     parser.add_argument("--input", choices=["counts", "lct"], default="counts",
                         help="the network's input: the counts' log, or the LCT volume of the stored counts")
     args = parser.parse_args(argv)
@@ -459,6 +498,7 @@ def main(argv=None):
     pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
                  pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask or args.arch == "unet",
                  lct=args.input == "lct", arch=args.arch, augment=args.augment, pos_weight=args.pos_weight,
+                 mask_label=args.mask_label,
                  command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None else argv))
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
