@@ -136,30 +136,44 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
         out["depth"].append(item["wall_depth"][0])
         if mask_label == "lct":
             out["seen"].append(lct_seen(item["envelope"][0].numpy(), bin_width, scan_pitch(item["params"]),
-                                        item["wall_depth"][0] > 0))
+                                        item["wall_depth"][0]))
     return {k: torch.stack(v) for k, v in out.items()}
 
 
 MASK_LABELS = ("outline", "lct")
 """What the mask head learns (``--mask-label``): "outline", the label's own mask (``wall_depth > 0``: the cut-out's
-exact outline on the scan grid); "lct", what a long exposure's LCT finds (:func:`lct_seen`), the kind of mask the
+exact outline on the scan grid); "lct", what a long exposure's LCT finds near the object (:func:`lct_seen`), the kind of mask the
 real-capture evaluation's reference is (benchmarks/real_low_light.py: the full-exposure LCT's found points)."""
 
 
-def lct_seen(envelope: np.ndarray, bin_width: float, pitch, outline: torch.Tensor) -> torch.Tensor:
+def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor) -> torch.Tensor:
     """(H, W) bool: where the LCT of a noise-free scan ``envelope`` (T, H, W), reconstructed as ``datagen
     reconstruct`` runs it (:func:`datagen.analysis.reconstruct.confocal_volume`; in LCT_BINS bins, as the input),
-    finds something
-    (:func:`datagen.analysis.reconstruct.depth_map`: the front view at 0.25 of its maximum); nothing where the
-    label's ``outline`` (H, W) bool is empty (no object in view: the front view's maximum is then the wall's noise
-    of the transport, not an object). The mask of a scan of unlimited exposure, as wide as LCT's blur."""
-    from datagen.analysis.reconstruct import confocal_volume, depth_map
+    finds something (:func:`datagen.analysis.reconstruct.depth_map`: the front view at 0.25 of its maximum), kept
+    within LCT's resolution of the object: of the label's outline (``depth`` (H, W) m, 0 where the object is not
+    seen) dilated by Δx = c·γ·√(w² + z²) / (2w) (O'Toole, Lindell & Wetzstein 2018, the confocal set-up's lateral
+    resolution; γ = :data:`RESOLUTION_FWHM`, w the scan's half-width, z the outline's median depth). Nothing where
+    the outline is empty. The mask of a scan of unlimited exposure, as wide as LCT's blur and no wider."""
+    from scipy.ndimage import distance_transform_edt
 
-    if not bool(outline.any()):
+    from datagen.analysis.reconstruct import confocal_volume, depth_map
+    from datagen.units import SPEED_OF_LIGHT
+
+    outline = np.asarray(depth) > 0
+    if not outline.any():
         return torch.zeros(outline.shape, dtype=torch.bool)
     volume, depths, _ = confocal_volume(np.moveaxis(np.asarray(envelope, np.float64), 0, -1), bin_width, pitch, "lct",
                                         max_bins=LCT_BINS)
-    return torch.as_tensor(np.isfinite(depth_map(volume, depths)[0]))
+    pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
+    half = 0.25 * (pitch_y * outline.shape[0] + pitch_x * outline.shape[1])
+    z = float(np.median(np.asarray(depth)[outline]))
+    reach = SPEED_OF_LIGHT * RESOLUTION_FWHM * np.hypot(half, z) / (2 * half)
+    near = distance_transform_edt(~outline, sampling=(pitch_y, pitch_x)) <= reach
+    return torch.as_tensor(np.isfinite(depth_map(volume, depths)[0]) & near)
+
+
+RESOLUTION_FWHM = 60e-12
+"""s: the temporal resolution γ of :func:`lct_seen`'s resolution bound, the LCT release's system FWHM (its paper)."""
 
 
 def temporal_encoder() -> torch.nn.Sequential:
