@@ -40,7 +40,9 @@ strongest voxel. On the raw counts the mask head does not learn where a cut-out 
 point comes from the whole object: a 3 × 3 neighbourhood of 16 × 16 pooled points does not see the shape); on the
 LCT volume each column holds its own point's object. The mask loss weighs the object pixels by the training set's
 background-to-object ratio and adds a soft Dice term (:func:`mask_loss`); the probability threshold is the one of
-best validation IoU (:data:`MASK_THRESHOLDS`), kept in the saved record. A saved network also records the data it
+best validation IoU (:data:`MASK_THRESHOLDS`), kept in the saved record. The mask learnt is the label's outline, or
+with ``--mask-label lct`` what the LCT of the noise-free scan finds near the object (:func:`lct_seen`), the kind of
+mask benchmarks/real_low_light.py's reference is (docs/real.md weighs the two). A saved network also records the data it
 was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that trained
 it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, a DepthUNet on the unpooled
 LCT volume (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20``) trained on the first 800 +
