@@ -83,6 +83,13 @@ def test_cli_import_fit_compare_and_draw(tmp_path):
     assert res.exit_code == 0, res.output
     assert "relative L2 (normalised, scan-summed) 0.0" in res.output and "wrote" in res.output
     assert (tmp_path / "side.png").stat().st_size > 10_000
+    res = runner.invoke(main, ["compare-capture", str(tmp_path / "imp"), str(tmp_path / "sim"),
+                               "--write-gain", str(tmp_path / "gain.npy")])      # this pair has no hidden signal
+    assert res.exit_code == 2 and "error: --write-gain" in res.output and "the note above says why" in res.output
+    assert "no hidden signal above the background" in res.output and not (tmp_path / "gain.npy").exists()
+    res = runner.invoke(main, ["compare-capture", str(tmp_path / "imp"), str(tmp_path / "sim"),
+                               "--write-gain", str(tmp_path / "gain.txt")])
+    assert res.exit_code == 2 and "--write-gain" in res.output and "expected a .npy file" in res.output
     res = runner.invoke(main, ["compare-capture", str(tmp_path / "nothing"), str(tmp_path / "sim")])
     assert res.exit_code == 2 and res.output.startswith("error: no capture file at")
 

@@ -5,6 +5,7 @@ and the value."""
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,11 @@ def test_the_like_store_goes_to_compare_capture_and_reconstruct_as_it_is(importe
     out = run("compare-capture", store, tmp / "sim2", "--png", tmp / "c.png")
     assert "hidden signal: direct light excluded" in out and "noise floor" in out, out
     assert "leading edge sim - real" in out
+    out = run("compare-capture", store, tmp / "sim2", "--write-gain", tmp / "g.npy")   # calibrated on this target
+    gain = np.load(tmp / "g.npy")
+    assert gain.shape == (8, 8) and gain.mean() == pytest.approx(1.0) and (gain >= 0).all()
+    out = run("compare-capture", store, tmp / "sim2", "--gain", tmp / "g.npy")        # the same capture: its own map
+    assert float(re.search(r"hidden-count maps: correlation ([0-9.]+)", out).group(1)) > 0.99, out
     depths = []
     for what in (store, tmp / "sim2"):                   # the box, where the capture's own reconstruction has it
         run("reconstruct", what, "--out", tmp / "rec")

@@ -14,7 +14,9 @@ bin width. Then, in order:
    :data:`MIN_FLOOR_BINS`; else the last tenth of the window), subtracted from both scans.
 3. **Gain.** Optionally each simulated point is multiplied by a gain map: "direct" estimates it from the measured
    scan's direct light (each point's counts in the excluded bins above its floor, over their mean: laser power,
-   focus and the wall's albedo scale the direct and the hidden light alike), or an (ny, nx) map is given.
+   focus and the wall's albedo scale the direct and the hidden light alike), or an (ny, nx) map is given, e.g. one
+   read off another capture of the same scanner against its own simulation (:func:`calibrated_gain`: a flat-field
+   calibration on a known target).
 4. **Scale.** The simulation is scaled to the measured hidden counts (one factor: the model's absolute scale is its
    own, the measurement's its exposure's).
 
@@ -39,7 +41,8 @@ from ..spad.rates import rebin_envelope
 from .compare_capture import fwhm, peak_time
 from .confocal import align_confocal, direct_light_bins
 
-__all__ = ["HiddenComparison", "hidden_comparison", "hidden_metrics", "leading_edges", "decay_time",
+__all__ = ["HiddenComparison", "hidden_comparison", "hidden_metrics", "leading_edges", "decay_time", "calibrated_gain",
+           "GAIN_MODEL_FLOOR",
            "SIGNAL_FREE", "MIN_FLOOR_BINS", "EDGE_SMOOTHING", "EDGE_LEVEL", "FLOOR_DRAWS"]
 
 SIGNAL_FREE = 0.01
@@ -56,6 +59,10 @@ counting noise in a 4 ps bin does not set it."""
 EDGE_LEVEL = 0.25
 """Points whose simulated hidden counts reach 25 % of the largest point's have a leading edge worth comparing (the
 hidden object is seen there)."""
+
+GAIN_MODEL_FLOOR = 0.01
+""":func:`calibrated_gain` divides by the simulated hidden counts of a point, at least 1 % of their mean over the scan
+(where the simulation sends almost no light the ratio is noise)."""
 
 FLOOR_DRAWS = 4
 """Pairs of Poisson draws averaged for each noise floor."""
@@ -244,7 +251,8 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
     out = HiddenComparison(hidden_metrics(r, m, t))
     rng = np.random.default_rng(seed)
     floors = {k: [] for k in METRICS}
-    sim_level = np.maximum(m / scale / (g[:, None] if g is not None else 1.0), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):           # a gain of 0 at a point: no light there
+        sim_level = np.maximum(m / scale / (g[:, None] if g is not None else 1.0), 0.0)
     sim_level = np.nan_to_num(sim_level, nan=0.0, posinf=0.0)
     for _ in range(max(1, int(draws))):
         r_star = rng.poisson(np.maximum(m + br[:, None], 0.0)).astype(np.float64)
@@ -260,5 +268,25 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
                 "t": t, "real_sum": r.sum(axis=0), "model_sum": m.sum(axis=0),
                 "real_map": r.sum(axis=1).reshape(shape), "model_map": m.sum(axis=1).reshape(shape),
                 "real": r.reshape(shape + (-1,)), "model": m.reshape(shape + (-1,)), "bin_width": dt,
-                "t0": n_trim * dt})
+                "t0": n_trim * dt, "gain_map": (g if g is not None else np.ones(len(real_h))).reshape(shape)})
     return out
+
+
+def calibrated_gain(comparison: HiddenComparison) -> np.ndarray:
+    """(ny, nx) float64, mean 1: the per-point gain that makes a simulation's hidden-count map the measured one, of a
+    :func:`hidden_comparison` of a capture of a known target with its simulation: the gain it applied times the
+    measured hidden counts over the (gained, scaled) simulated ones, each point's simulated counts taken at least
+    :data:`GAIN_MODEL_FLOOR` of their mean, negative counts (below the floor) as 0, then divided by the mean. Given as
+    ``gain`` to the comparison of another capture of the same scanner and grid (``compare-capture --gain FILE.npy``),
+    it carries what varies per scan point with the scanner (laser power, focus, the detector's alignment with the
+    laser spot), not with the scene, to that capture; the model's own errors on the known target come with it.
+
+    Raises:
+        ValueError: a comparison whose simulation has no hidden counts.
+    """
+    model = np.asarray(comparison["model_map"], dtype=np.float64)
+    if not model.mean() > 0:
+        raise ValueError("the simulation has no hidden counts to calibrate a gain against")
+    ratio = np.maximum(comparison["real_map"], 0.0) / np.maximum(model, GAIN_MODEL_FLOOR * model.mean())
+    gain = comparison["gain_map"] * ratio
+    return gain / gain.mean() if gain.mean() > 0 else np.ones_like(gain)

@@ -412,8 +412,11 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
                    "light) or a .npy (ny, nx) map")
 @click.option("--draws", type=click.IntRange(min=1, max=64), default=4, show_default=True,
               help="pairs of Poisson draws per noise floor")
+@click.option("--write-gain", "write_gain", type=click.Path(path_type=Path), default=None,
+              help="write the per-point gain that makes SIM's hidden-count map REAL's to this .npy (a flat-field "
+                   "calibration on a known target: --gain FILE.npy on another capture of the same scanner)")
 @friendly_errors
-def compare_capture(real, sim, png, width, bin_resolution, allow_negative, trim, gain, draws):
+def compare_capture(real, sim, png, width, bin_resolution, allow_negative, trim, gain, draws, write_gain):
     """Sim-to-real distance of REAL (a lab file or store) and SIM (a datagen result store or a lab file).
 
     Whole transients: both put on the hidden time axis (per-point offsets removed) at REAL's bin width and
@@ -424,6 +427,7 @@ def compare_capture(real, sim, png, width, bin_resolution, allow_negative, trim,
     (--gain: per point too); prints the scan-summed relative L2, the per-point leading-edge difference (median,
     spread), the hidden-count maps' correlation, the return's FWHM and decay, each with its Poisson noise floor (a
     perfect simulation scores about 1x). --png draws the count maps, transients and LCT reconstructions side by side.
+    --write-gain keeps the per-point gain that makes SIM's hidden-count map REAL's, for --gain on another capture.
     """
     from ..analysis.compare_capture import compare_captures
     from ..io.lab_formats import capture_kind
@@ -431,6 +435,10 @@ def compare_capture(real, sim, png, width, bin_resolution, allow_negative, trim,
 
     if png is not None:
         check_output_file(png, "--png")
+    if write_gain is not None:
+        check_output_file(write_gain, "--write-gain")
+        if write_gain.suffix.lower() != ".npy":
+            raise click.BadParameter(f"expected a .npy file, got {str(write_gain)!r}", param_hint="--write-gain")
     trim_s = trim_option(trim)
     gain_v = _gain_option(gain)
     r, r_off, r_desc = load_capture(real, width_option(width), bin_option(bin_resolution, "--bin-resolution"),
@@ -462,6 +470,17 @@ def compare_capture(real, sim, png, width, bin_resolution, allow_negative, trim,
         hidden = _hidden_section(r_data, r, r_off, s, s_off, trim_s, gain_v, draws, f"real {real}, sim {sim}")
     elif r_kind == s_kind == "confocal":
         click.echo("note: no hidden-signal comparison: it needs two confocal scans of one grid")
+    if write_gain is not None:
+        if hidden is None:
+            raise ValueError(f"--write-gain {write_gain}: no hidden-signal comparison of real {real} and sim {sim} "
+                             "to read a gain from (the note above says why)")
+        from ..analysis.hidden_compare import calibrated_gain
+
+        g = calibrated_gain(hidden)
+        np.save(write_gain, g)
+        click.echo(f"wrote {write_gain}: the per-point gain that makes sim's hidden-count map real's ({g.shape[0]} x "
+                   f"{g.shape[1]}, mean 1, max/min {g.max() / max(g.min(), 1e-12):.3g}); --gain {write_gain} "
+                   "applies it")
     if png is not None:
         if hidden is not None:
             from ..plot.capture import plot_hidden_comparison
