@@ -119,8 +119,8 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
     "seen": (N, H, W) bool, what the LCT of the sample's noise-free envelope finds (:func:`lct_seen`)."""
     if mask_label not in MASK_LABELS:
         raise ValueError(f"mask_label must be one of {', '.join(MASK_LABELS)}, got {mask_label!r}")
-    fields = ("counts", "wall_depth") + (("params",) if lct else ()) + \
-        (("envelope",) if not lct or mask_label == "lct" else ())
+    fields = ("counts", "wall_depth") + (("params",) if lct or mask_label == "lct" else ()) + \
+        (("envelope",) if not lct or mask_label == "lct" else ())          # params: the pitch; envelope: lct_seen
     ds = datagen.NLOSDataset(path, split=split, fields=fields, layout="network", counts_dtype=torch.float32)
     bin_width = float(ds.card["time_edges"]["bin_width"])
     out = {"depth": [], **({"lct": [], "strongest": []} if lct else {"envelope": [], "counts": []}),
@@ -144,8 +144,9 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
 
 MASK_LABELS = ("outline", "lct")
 """What the mask head learns (``--mask-label``): "outline", the label's own mask (``wall_depth > 0``: the cut-out's
-exact outline on the scan grid); "lct", what a long exposure's LCT finds near the object (:func:`lct_seen`), the kind of mask the
-real-capture evaluation's reference is (benchmarks/real_low_light.py: the full-exposure LCT's found points)."""
+exact outline on the scan grid); "lct", what a long exposure's LCT finds near the object (:func:`lct_seen`), the
+kind of mask the real-capture evaluation's reference is (benchmarks/real_low_light.py: the full-exposure LCT's found
+points)."""
 
 
 def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor) -> torch.Tensor:

@@ -174,3 +174,16 @@ def test_the_lct_mask_label_finds_a_point_where_it_is_and_nothing_without_an_obj
     assert not train_depth_image.lct_seen(envelope, dt, pitch, torch.zeros(n, n)).any()
     with pytest.raises(ValueError, match="mask_label must be one of outline, lct, got 'edges'"):
         train_depth_image.load_split("nowhere", "train", mask_label="edges")
+
+
+def test_the_lct_mask_label_loads_beside_either_input(wall):
+    """load_split with mask_label "lct" gives the "seen" masks (N, H, W) bool on the label's grid beside the counts
+    as beside the LCT volume (the pitch read from the params either way), the same masks for both, and none where
+    the label has no object pixels."""
+    counts = train_depth_image.load_split(wall, "test", mask_label="lct")
+    volume = train_depth_image.load_split(wall, "test", lct=True, mask_label="lct")
+    assert counts["seen"].shape == counts["depth"].shape == (2, 16, 16) and counts["seen"].dtype == torch.bool
+    torch.testing.assert_close(counts["seen"], volume["seen"])
+    assert counts["seen"].any()
+    for seen, depth in zip(counts["seen"], counts["depth"]):
+        assert (depth > 0).any() or not seen.any()
