@@ -111,7 +111,11 @@ def test_bad_input_is_named():
     mu = capture()
     with pytest.raises(ValueError, match=r"grids differ: real \(24, 24\), sim \(12, 24\)"):
         hidden_comparison(mu, EDGES, None, mu[::2], EDGES, None, sim_is_counts=False)
-    with pytest.raises(ValueError, match=r"gain map must hold finite values >= 0 of the scan's shape \(24, 24\)"):
+    with pytest.raises(ValueError, match=r"gain map must have the scan's shape \(24, 24\), got shape \(3, 3\)"):
         hidden_comparison(mu, EDGES, None, mu, EDGES, None, sim_is_counts=False, gain=np.ones((3, 3)))
+    g = np.ones((24, 24))
+    g[2, 5], g[7, 1] = np.nan, -1.0
+    with pytest.raises(ValueError, match=r"finite values >= 0; 2 do not, the first at \(2, 5\): nan"):
+        hidden_comparison(mu, EDGES, None, mu, EDGES, None, sim_is_counts=False, gain=g)
     with pytest.raises(ValueError, match="bins left after the direct light"):
         hidden_comparison(mu, EDGES, None, mu, EDGES, None, sim_is_counts=False, trim=4.09e-9)

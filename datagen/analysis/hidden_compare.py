@@ -239,9 +239,13 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
         g, gain_how = None, "none"
     else:
         g = np.asarray(gain, dtype=np.float64)
-        if g.shape != shape or not (np.isfinite(g).all() and (g >= 0).all()):
-            raise ValueError(f"the gain map must hold finite values >= 0 of the scan's shape {shape}, got shape "
-                             f"{g.shape}")
+        if g.shape != shape:
+            raise ValueError(f"the gain map must have the scan's shape {shape}, got shape {g.shape}")
+        bad = ~(np.isfinite(g) & (g >= 0))
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            raise ValueError(f"the gain map must hold finite values >= 0; {int(bad.sum())} do not, the first at "
+                             f"({i}, {j}): {float(g[i, j])}")
         g, gain_how = g.reshape(-1), "map"
     r, m, br, bs, scale = _prepare(real_h, sim_h, floor_bins, g)
     if not (r.sum() > 0 and scale > 0):
