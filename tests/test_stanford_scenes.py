@@ -50,3 +50,25 @@ def test_the_shipped_chart_scenes_stand_on_their_fitted_planes():
         tilt = np.degrees(np.arccos(abs(normal[1]) / np.linalg.norm(normal)))
         assert 2.0 < tilt < 2.6 and u[1] < 0 and v[1] < 0
         assert chart["center"][1] == pytest.approx(depth, abs=5e-4)
+
+
+REAL = Path(__import__("os").environ.get("DATAGEN_REAL_CAPTURES", ROOT.parent / "shared" / "real"))
+
+
+@pytest.mark.skipif(not (REAL / "data_dot_chart_40cm.mat").is_file(),
+                    reason=f"the Stanford LCT release's captures are not at {REAL} (set DATAGEN_REAL_CAPTURES)")
+@pytest.mark.parametrize("d", [40, 65])
+def test_the_shipped_chart_files_are_what_the_script_reads_off_the_captures(d):
+    """The chart in scene_library is the script's reading of the release's capture: the same plane (u, v to 1e-6, the
+    file's rounding), centre (10 µm) and disks."""
+    import yaml
+
+    name = f"stanford_dot_chart_{d}cm"
+    capture, falloff, snr, _ = stanford_scenes.SCENES[name]
+    width, pitch, front, depth = stanford_scenes.reconstruct(REAL / capture, falloff, snr)
+    [(_, mask, _, centre, u, v, _)], _ = stanford_scenes.chart(front, depth, width, pitch)
+    chart = yaml.safe_load((ROOT / "scene_library" / f"{name}.yaml").read_text())["objects"][1]
+    np.testing.assert_allclose(chart["u"], u, atol=1e-6)
+    np.testing.assert_allclose(chart["v"], v, atol=1e-6)
+    np.testing.assert_allclose(chart["center"], centre, atol=1e-5)
+    assert chart["rows"] == stanford_scenes.rows_of(mask)
