@@ -50,16 +50,17 @@ fall from 0.2° to 0.5° of observation angle to 0.38–0.43, as a GGX lobe of �
 which sheeting its charts, letters and sign are."""
 
 CHART_SHEETING = {**RETRO, "entrance_falloff": 2}
-"""The dot chart's sheeting: :data:`RETRO` with an entrance-angle falloff cos^2 (fitted with :data:`CHART_SETUP` on
-the two dot-chart captures, docs/real.md "The set-up fitted on the dot charts": the 40 / 65 cm hidden-count ratio
-wants the falloff, the return's width and relative L2 want it small; the road-sign tables' m is 3.6–6.0)."""
+"""The sheeting of every retroreflective scene: :data:`RETRO` with an entrance-angle falloff cos^2, fitted with
+:data:`CHART_SETUP` on the two dot-chart captures (docs/real.md "The set-up fitted on the dot charts": the 40 / 65 cm
+hidden-count ratio wants the falloff, the return's width and relative L2 want it small; the road-sign tables' m is
+3.6–6.0). The letters and the sign are assumed to be of the charts' sheeting (the release does not say)."""
 
 CHART_SETUP = {"wall_albedo": 0.41, "detector_fov": "35mm"}
 """The set-up fitted on the two dot-chart captures (docs/real.md, "The set-up fitted on the dot charts"): the
 detector's field of view on the wall (``capture.detector_fov``; with the sheeting's falloff it sets the 40 / 65 cm
 hidden-count ratio, real 1.79) and the wall's albedo (the second round trip: real 0.42 % of the main return); with
-them :data:`PHOTONS` of the charts. The other scenes keep the scan's cell as the FoV and a wall of 0.8 (not
-fitted)."""
+them :data:`PHOTONS` of the charts. Every scene has it: one scanner and one wall (the "S U"'s two letters, 0.64 and
+1.04 m out, test it: docs/real.md)."""
 DIFFUSE = {"kind": "lambertian", "albedo": 0.8}
 
 
@@ -188,12 +189,13 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
              "# hidden side +y, u = +x to the right as the wall sees the scene, v = +z up.",
              "# Uncertainty:"]
     lines += [f"#   {t}" for t in notes]
-    setup = CHART_SETUP if "dot_chart" in name else {"wall_albedo": 0.8}
+    setup = CHART_SETUP
     lines += ["#   laser / SPAD position, the wall's albedo, the laser's energy and the detector are not in the files:",
-              ("#   fitted on the two dot-chart captures (docs/real.md): the detector's field of view on the wall,\n"
-               "#   the wall's albedo, the sheeting's entrance falloff and photons_per_pulse; the rest assumed (below)."
-               if "detector_fov" in setup else
-               "#   assumed (below); photons_per_pulse is set so the simulated hidden counts are about the capture's."),
+              "#   fitted on the two dot-chart captures (docs/real.md): the detector's field of view on the wall,",
+              ("#   the wall's albedo, the sheeting's entrance falloff and photons_per_pulse; the rest assumed (below)."
+               if "dot_chart" in name else
+               "#   the wall's albedo and the sheeting's entrance falloff; photons_per_pulse is set so the simulated\n"
+               "#   hidden counts are about the capture's; the rest assumed (below)."),
               "# Simulate the capture: datagen simulate THIS.yaml --like STORE --out DIR  (STORE: datagen import-capture",
               f"#   {capture} --bin-resolution 4ps --out STORE); compare: datagen compare-capture STORE DIR.",
               f"#   simulate --like took {SECONDS[name]} s on two cores (docs/real.md).",
@@ -202,7 +204,7 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
               f"    corner: [{-width - 0.2:.2f}, 0.0, {-width - 0.2:.2f}]",
               f"    edge_u: [{2 * width + 0.4:.2f}, 0.0, 0.0]", f"    edge_v: [0.0, 0.0, {2 * width + 0.4:.2f}]",
               f"    material: {{kind: lambertian, albedo: {setup['wall_albedo']}}}      "
-              + ("# fitted: the second round trip" if "detector_fov" in setup else "# assumed")]
+              + "# fitted: the charts' second round trip"]
     for part, mask, pitch, centre, u, v, mat in parts:
         lines += ["  - builder: mask", f"    name: {part}", f"    pitch: {pitch:.6g}",
                   f"    center: [{centre[0]:.5f}, {centre[1]:.5f}, {centre[2]:.5f}]",
@@ -217,8 +219,7 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
               "  type: confocal",
               f"  laser_grid: {{center: [0.0, 0.0, 0.0], size: [{2 * width * 64 / 63:.5f}, {2 * width * 64 / 63:.5f}], "
               "points: [64, 64]}"]
-    if "detector_fov" in setup:
-        lines += [f"  detector_fov: {setup['detector_fov']}              # fitted: the 40 / 65 cm hidden-count ratio"]
+    lines += [f"  detector_fov: {setup['detector_fov']}              # fitted: the charts' 40 / 65 cm hidden-count ratio"]
     lines += ["", "simulation:",
               "  estimator: {kind: quadrature, " + ESTIMATOR[name]]
     lines += orders_lines(name, parts)
@@ -258,23 +259,24 @@ def orders_lines(name: str, parts) -> list[str]:
 ESTIMATOR = {
     "stanford_dot_chart_40cm": "edge: 0.01, fov_cells: 14}   # FoV cells 2.5 mm: the retroreflected cone integrated",
     "stanford_dot_chart_65cm": "edge: 0.01, fov_cells: 14}   # FoV cells 2.5 mm: the retroreflected cone integrated",
-    "stanford_diffuse_s": "edge: 0.02}                # Lambertian: each scan cell's midpoint suffices",
-    "stanford_s_u": "edge: 0.03, fov_cells: 3}   # FoV cells ~4 mm (cheaper than the charts' 1 mm)",
-    "stanford_exit_sign": "edge: 0.03, fov_cells: 3}   # FoV cells ~4 mm (cheaper than the charts' 1 mm)",
+    "stanford_diffuse_s": "edge: 0.02, fov_cells: 3}   # FoV cells ~12 mm: Lambertian, smooth over the FoV",
+    "stanford_s_u": "edge: 0.03, fov_cells: 8}   # FoV cells 4.4 mm (cheaper than the charts' 2.5 mm)",
+    "stanford_exit_sign": "edge: 0.03, fov_cells: 8}   # FoV cells 4.4 mm (cheaper than the charts' 2.5 mm)",
 }
 """The quadrature's settings per scene: cost against how finely the retroreflected cone is integrated."""
 
-PHOTONS = {"stanford_dot_chart_40cm": 7.3e4, "stanford_dot_chart_65cm": 7.3e4, "stanford_diffuse_s": 8.1e6,
-           "stanford_s_u": 2.0e4, "stanford_exit_sign": 4.7e4}
+PHOTONS = {"stanford_dot_chart_40cm": 7.3e4, "stanford_dot_chart_65cm": 7.3e4, "stanford_diffuse_s": 3.1e6,
+           "stanford_s_u": 4.7e4, "stanford_exit_sign": 1.0e5}
 """Photons per pulse, set so the simulated hidden counts over the 0.1 s exposure are about the capture's (the
 compare-capture hidden counts of docs/real.md); not a prediction of the laser's power. The two dot-chart captures
 share one value: the same set-up and laser (their direct light totals agree within 2 %), so that their simulated
 40 cm / 65 cm hidden-count ratio is the model's, not a per-scene setting."""
 
-SECONDS = {"stanford_dot_chart_40cm": 251, "stanford_dot_chart_65cm": 279, "stanford_diffuse_s": 16,
-           "stanford_s_u": 282, "stanford_exit_sign": 113}
-"""Wall time of ``simulate --like`` on the 2-core machine the figures were measured on (docs/real.md; the charts'
-with ``--detector``, the 40 cm chart's with its second round trip, nothing else running)."""
+SECONDS = {"stanford_dot_chart_40cm": 251, "stanford_dot_chart_65cm": 279, "stanford_diffuse_s": 31,
+           "stanford_s_u": 1036, "stanford_exit_sign": 332}
+"""Wall time of ``simulate --like`` on the 2-core machine the figures were measured on (docs/real.md; with
+``--detector``, the 40 cm chart's with its second round trip; the "S U"'s with another job beside it part of the
+time)."""
 
 
 def main(folder: Path) -> None:
@@ -286,7 +288,8 @@ def main(folder: Path) -> None:
         if "chart" in name:
             parts, notes = chart(front, depth, width, pitch)
         else:
-            parts, notes = cutouts(name, front, depth, width, pitch, DIFFUSE if name == "stanford_diffuse_s" else RETRO)
+            parts, notes = cutouts(name, front, depth, width, pitch,
+                                  DIFFUSE if name == "stanford_diffuse_s" else CHART_SHEETING)
         out = ROOT / "scene_library" / f"{name}.yaml"
         out.write_text(scene_text(name, what, capture, width, parts, notes, PHOTONS[name]))
         print(f"wrote {out}")

@@ -210,3 +210,18 @@ def test_the_two_dot_chart_scenes_share_one_laser():
     assert near.laser.photons_per_pulse == far.laser.photons_per_pulse
     assert np.allclose(near.laser.emitter, far.laser.emitter) and np.allclose(near.sensor.position, far.sensor.position)
     assert near.capture.detector_fov == far.capture.detector_fov is not None       # one detector, one FoV
+
+
+def test_every_release_scene_has_the_set_up_fitted_on_the_charts():
+    """One scanner and one wall: every release scene sees the relay wall through the 35 mm field of view, with the
+    wall's albedo 0.41 and, where retroreflective, the charts' sheeting (lobe 0.005, cos² entrance falloff), all
+    fitted on the two dot-chart captures (docs/real.md)."""
+    from datagen.scene import load_scene
+
+    for name in ("dot_chart_40cm", "dot_chart_65cm", "diffuse_s", "s_u", "exit_sign"):
+        scene = load_scene(ROOT / "scene_library" / f"stanford_{name}.yaml")
+        assert scene.capture.detector_fov == (0.035, 0.035), name
+        assert scene.objects[0].material.albedo == pytest.approx(0.41), name
+        for o in scene.objects[1:]:
+            m = o.material
+            assert m.kind == "lambertian" or (m.lobe_width == 0.005 and m.entrance_falloff == 2), name
