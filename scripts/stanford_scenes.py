@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
@@ -83,21 +84,38 @@ def rows_of(mask: np.ndarray) -> list[str]:
     return ["".join("#" if c else "." for c in r) for r in mask[::-1]]
 
 
-def plane(depth: np.ndarray, found: np.ndarray, u: np.ndarray, v: np.ndarray):
-    """depth ≈ d0 + a·u + b·v over ``found``: (d0, a, b, rms m)."""
+class Plane(NamedTuple):
+    """An object's plane read off a depth map: depth ≈ d0 + a·u + b·v (m; u, v on the wall), ``rms`` m off it."""
+    d0: float
+    a: float
+    b: float
+    rms: float
+
+    def depth_at(self, u: float, v: float) -> float:
+        return self.d0 + self.a * u + self.b * v
+
+    @property
+    def tilt(self) -> float:
+        """Degrees off parallel to the wall."""
+        return float(np.degrees(np.arctan(np.hypot(self.a, self.b))))
+
+    def frame(self) -> tuple[list[float], list[float]]:
+        """Unit u, v of the plane y = d0 + a x + b z (v made perpendicular to u), rounded to 1e-6."""
+        u = np.array([1.0, self.a, 0.0]) / np.hypot(1.0, self.a)
+        v = np.array([0.0, self.b, 1.0])
+        v = v - (v @ u) * u
+        v /= np.linalg.norm(v)
+        return [round(float(x), 6) for x in u], [round(float(x), 6) for x in v]
+
+
+def plane(depth: np.ndarray, found: np.ndarray, g: np.ndarray) -> Plane:
+    """The least-squares plane of the (n, n) depth map over the points ``found`` (bool), rows along v and columns
+    along u at the scan's positions ``g`` (n,) m."""
+    v, u = np.meshgrid(g, g, indexing="ij")
     A = np.column_stack([np.ones(found.sum()), u[found], v[found]])
     coef, *_ = np.linalg.lstsq(A, depth[found], rcond=None)
     rms = float(np.sqrt(np.mean((A @ coef - depth[found]) ** 2)))
-    return float(coef[0]), float(coef[1]), float(coef[2]), rms
-
-
-def frame(a: float, b: float) -> tuple[list[float], list[float]]:
-    """Unit u, v of the plane y = d0 + a x + b z (v made perpendicular to u)."""
-    u = np.array([1.0, a, 0.0]) / np.hypot(1.0, a)
-    v = np.array([0.0, b, 1.0])
-    v = v - (v @ u) * u
-    v /= np.linalg.norm(v)
-    return [round(float(x), 6) for x in u], [round(float(x), 6) for x in v]
+    return Plane(float(coef[0]), float(coef[1]), float(coef[2]), rms)
 
 
 def chart(front: np.ndarray, depth: np.ndarray, width: float, pitch: float):
@@ -132,25 +150,21 @@ def chart(front: np.ndarray, depth: np.ndarray, width: float, pitch: float):
         mask |= (U - c[0]) ** 2 + (V - c[1]) ** 2 <= (diam / 2) ** 2
     # the chart's plane, fitted to the depth map over the dots (as the cut-outs' planes are): a chart set up by hand
     # stands a degree or two off parallel to the wall, which moves each point's return by tens of ps
-    V, U = np.meshgrid(g, g, indexing="ij")
-    d0, a, b, rms = plane(depth, np.isfinite(depth) & (lab > 0), U, V)
-    u, v = frame(a, b)
+    fit = plane(depth, np.isfinite(depth) & (lab > 0), g)
     cu, cv = (uu[0] + uu[-1]) / 2, (vv[0] + vv[-1]) / 2
-    d = d0 + a * cu + b * cv
-    tilt = np.degrees(np.arctan(np.hypot(a, b)))
+    d = fit.depth_at(cu, cv)
     notes = [f"dots: 3 x 3 disks {diam * 100:.1f} cm across (front view's half maximum {np.median(diams) * 100:.1f} "
              f"cm less the LCT's blur {blur * 100:.1f} cm; +- 1 cm), {CHART_SPACING:.2f} m apart about u = "
              f"{c0[0]:+.4f}, v = {c0[1]:+.4f} m (+- 5 mm)",
              f"plane fitted to datagen's LCT depth map over the dots: depth {d:.4f} m at the chart's centre, tilted "
-             f"{tilt:.1f} deg (slopes {a:+.3f} along u, {b:+.3f} along v), rms {rms * 1000:.1f} mm off the plane "
-             "(+- 2.4 mm, one 16 ps bin)"]
-    return [("dot_chart", mask, DISK_PITCH, (cu, d, cv), u, v, CHART_SHEETING)], notes
+             f"{fit.tilt:.1f} deg (slopes {fit.a:+.3f} along u, {fit.b:+.3f} along v), rms {fit.rms * 1000:.1f} mm off "
+             "the plane (+- 2.4 mm, one 16 ps bin)"]
+    return [("dot_chart", mask, DISK_PITCH, (cu, d, cv), *fit.frame(), CHART_SHEETING)], notes
 
 
 def cutouts(name: str, front: np.ndarray, depth: np.ndarray, width: float, pitch: float, material: dict):
     n = front.shape[0]
     g = np.linspace(-width, width, n)
-    V, U = np.meshgrid(g, g, indexing="ij")
     f = ndimage.gaussian_filter(front, 1.0) if name == "stanford_diffuse_s" else front
     found = np.isfinite(depth)
     if name == "stanford_s_u":                                       # two letters at two depths
@@ -163,21 +177,19 @@ def cutouts(name: str, front: np.ndarray, depth: np.ndarray, width: float, pitch
         lab, k = ndimage.label(mask)
         sizes = ndimage.sum(mask, lab, range(1, k + 1))
         sel = np.isin(lab, 1 + np.flatnonzero(sizes >= 10))          # specks of a few cells are noise
-        d0, a, b, rms = plane(depth, sel, U, V)
-        u, v = frame(a, b)
-        sub = sel
-        ys, xs = np.nonzero(sub)
+        fit = plane(depth, sel, g)
+        ys, xs = np.nonzero(sel)
         y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
         cu, cv = (g[x0] + g[x1 - 1]) / 2, (g[y0] + g[y1 - 1]) / 2
-        centre = (cu, d0 + a * cu + b * cv, cv)
-        parts.append((part, sub[y0:y1, x0:x1], pitch, centre, u, v, material))
-        tilt = np.degrees(np.arctan(np.hypot(a, b)))
+        centre = (cu, fit.depth_at(cu, cv), cv)
+        parts.append((part, sel[y0:y1, x0:x1], pitch, centre, *fit.frame(), material))
         notes.append(f"{part}: plane fitted to the depth map where the front view reaches {MASK_LEVEL:g} of its "
-                     f"maximum (its own): depth {centre[1]:.4f} m at its centre, tilted {tilt:.1f} deg (slopes {a:+.3f} along "
-                     f"u, {b:+.3f} along v), rms {rms * 1000:.0f} mm off the plane; outline: the front view at "
-                     f"{MASK_LEVEL:g} of its maximum, one cell = the scan pitch {pitch * 1000:.2f} mm (+- a cell, "
-                     "and the reconstruction's blur of about 1-2 cm); cells projected on the wall (a tilted letter "
-                     f"is {100 * (1 / np.cos(np.radians(tilt)) - 1):.0f} % longer across its tilt)")
+                     f"maximum (its own): depth {centre[1]:.4f} m at its centre, tilted {fit.tilt:.1f} deg (slopes "
+                     f"{fit.a:+.3f} along u, {fit.b:+.3f} along v), rms {fit.rms * 1000:.0f} mm off the plane; "
+                     f"outline: the front view at {MASK_LEVEL:g} of its maximum, one cell = the scan pitch "
+                     f"{pitch * 1000:.2f} mm (+- a cell, and the reconstruction's blur of about 1-2 cm); cells "
+                     "projected on the wall (a tilted letter is "
+                     f"{100 * (1 / np.cos(np.radians(fit.tilt)) - 1):.0f} % longer across its tilt)")
     return parts, notes
 
 
@@ -189,7 +201,6 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
              "# hidden side +y, u = +x to the right as the wall sees the scene, v = +z up.",
              "# Uncertainty:"]
     lines += [f"#   {t}" for t in notes]
-    setup = CHART_SETUP
     lines += ["#   laser / SPAD position, the wall's albedo, the laser's energy and the detector are not in the files:",
               "#   fitted on the two dot-chart captures (docs/real.md): the detector's field of view on the wall,",
               ("#   the wall's albedo, the sheeting's entrance falloff and photons_per_pulse; the rest assumed (below)."
@@ -203,7 +214,7 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
               "  - builder: quad", "    name: relay_wall", "    label: relay_wall",
               f"    corner: [{-width - 0.2:.2f}, 0.0, {-width - 0.2:.2f}]",
               f"    edge_u: [{2 * width + 0.4:.2f}, 0.0, 0.0]", f"    edge_v: [0.0, 0.0, {2 * width + 0.4:.2f}]",
-              f"    material: {{kind: lambertian, albedo: {setup['wall_albedo']}}}      "
+              f"    material: {{kind: lambertian, albedo: {CHART_SETUP['wall_albedo']}}}      "
               + "# fitted: the charts' second round trip"]
     for part, mask, pitch, centre, u, v, mat in parts:
         lines += ["  - builder: mask", f"    name: {part}", f"    pitch: {pitch:.6g}",
@@ -219,7 +230,7 @@ def scene_text(name: str, what: str, capture: str, width: float, parts, notes, p
               "  type: confocal",
               f"  laser_grid: {{center: [0.0, 0.0, 0.0], size: [{2 * width * 64 / 63:.5f}, {2 * width * 64 / 63:.5f}], "
               "points: [64, 64]}"]
-    lines += [f"  detector_fov: {setup['detector_fov']}              # fitted: the charts' 40 / 65 cm hidden-count ratio"]
+    lines += [f"  detector_fov: {CHART_SETUP['detector_fov']}              # fitted: the charts' 40 / 65 cm hidden-count ratio"]
     lines += ["", "simulation:",
               "  estimator: {kind: quadrature, " + ESTIMATOR[name]]
     lines += orders_lines(name, parts)
