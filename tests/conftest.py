@@ -1,6 +1,7 @@
 """Shared fixtures: small analytic scenes, and rooms drawn from configs/rooms/wall.yaml."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,12 @@ from datagen.scene import Material
 from datagen.scene import FieldOfView, Laser, Scene, Sensor, box, quad
 
 ROOT = Path(__file__).resolve().parents[1]
+REAL = Path(os.environ.get("DATAGEN_REAL_CAPTURES", ROOT.parent / "shared" / "real"))
+"""The Stanford LCT release's captures (never shipped): $DATAGEN_REAL_CAPTURES or ../shared/real; tests that read
+them skip, saying why, when they are absent."""
+NEEDS_REAL = pytest.mark.skipif(not (REAL / "data_dot_chart_40cm.mat").is_file(),
+                                reason=f"the Stanford LCT release's captures are not at {REAL} (set "
+                                       "DATAGEN_REAL_CAPTURES to the folder holding its data_*.mat files)")
 
 
 def pytest_sessionstart(session):

@@ -8,7 +8,6 @@ other tests make small synthetic files.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +15,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from test_hostile import cli
-
-REAL = Path(os.environ.get("DATAGEN_REAL_CAPTURES", Path(__file__).resolve().parents[1].parent / "shared" / "real"))
+from conftest import REAL
 
 
 def real_file(name: str) -> Path:

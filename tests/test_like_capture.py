@@ -4,7 +4,6 @@ compare-capture and reconstruct take it as it is; what cannot be reconciled is o
 and the value."""
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
@@ -12,16 +11,13 @@ import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
+from conftest import NEEDS_REAL, REAL
 
 from datagen.cli.main import main
 from datagen.io import read_result
 from datagen.io.lab_formats import read_capture_store
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = Path(os.environ.get("DATAGEN_REAL_CAPTURES", ROOT.parent / "shared" / "real"))
-NEEDS_REAL = pytest.mark.skipif(not (REAL / "data_dot_chart_40cm.mat").is_file(),
-                                reason=f"the Stanford LCT release's captures are not at {REAL} (set "
-                                       "DATAGEN_REAL_CAPTURES to the folder holding its data_*.mat files)")
 
 
 def run(*args, code=0):

@@ -4,13 +4,13 @@ by ``datagen reconstruct``, both agreeing with the F's wall-view label; and, whe
 ``datagen reconstruct`` on them at the charts' and the diffuse "S"'s depths with the release's own front view."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 from scipy.io import loadmat
+from conftest import NEEDS_REAL, REAL
 
 import datagen
 from datagen.cli.main import main
@@ -188,11 +188,6 @@ def test_reconstruct_refuses_what_is_not_a_scan_in_one_line(tmp_path, f_capture)
 
 
 # ---- the release's own captures (not shipped: ../shared/real, or DATAGEN_REAL_CAPTURES) ---------------------
-
-REAL = Path(os.environ.get("DATAGEN_REAL_CAPTURES", ROOT.parent / "shared" / "real"))
-NEEDS_REAL = pytest.mark.skipif(not (REAL / "data_dot_chart_40cm.mat").is_file(),
-                                reason=f"the Stanford LCT release's captures are not at {REAL} (set "
-                                       "DATAGEN_REAL_CAPTURES to the folder holding its data_*.mat files)")
 
 
 @NEEDS_REAL

@@ -13,18 +13,17 @@ of its round trips, so its mean arrival is twice the main return's.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import NEEDS_REAL, REAL
 
 import datagen
 from datagen.analysis.second_round_trip import second_round_trip
 from datagen.scene import scene_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = Path(os.environ.get("DATAGEN_REAL_CAPTURES", ROOT.parent / "shared" / "real"))
 WALL_X, SPOT = 2.0, np.array([2.0, 0.0, 1.0])
 SENSOR = np.array([1.5, -3.0, 1.0])
 HALF = 0.05                      # the pixel region's half side, m
@@ -187,8 +186,7 @@ def test_the_40cm_charts_second_round_trip_is_the_closed_form_when_every_cone_la
     assert echo.sum() / main.sum() == pytest.approx(closed, rel=0.06)
 
 
-@pytest.mark.skipif(not (REAL / "data_dot_chart_40cm.mat").is_file(),
-                    reason=f"the Stanford LCT release's captures are not at {REAL} (set DATAGEN_REAL_CAPTURES)")
+@NEEDS_REAL
 def test_the_real_40cm_charts_second_round_trip_is_the_one_docs_real_md_reports():
     from datagen.io.lab_formats import read_lab_capture
 

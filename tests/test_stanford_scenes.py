@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import NEEDS_REAL, REAL
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("stanford_scenes", ROOT / "scripts" / "stanford_scenes.py")
@@ -52,11 +53,7 @@ def test_the_shipped_chart_scenes_stand_on_their_fitted_planes():
         assert chart["center"][1] == pytest.approx(depth, abs=5e-4)
 
 
-REAL = Path(__import__("os").environ.get("DATAGEN_REAL_CAPTURES", ROOT.parent / "shared" / "real"))
-
-
-@pytest.mark.skipif(not (REAL / "data_dot_chart_40cm.mat").is_file(),
-                    reason=f"the Stanford LCT release's captures are not at {REAL} (set DATAGEN_REAL_CAPTURES)")
+@NEEDS_REAL
 @pytest.mark.parametrize("d", [40, 65])
 def test_the_shipped_chart_files_are_what_the_script_reads_off_the_captures(d):
     """The chart in scene_library is the script's reading of the release's capture: the same plane (u, v to 1e-6, the
