@@ -134,9 +134,9 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
 
     for i in range(len(ds)):
         item = ds[i]
+        pitch = scan_pitch(item["params"]) if "params" in fields else None
         if lct:
-            volume, strongest = lct_input(np.moveaxis(item["counts"][0].numpy(), 0, -1), bin_width,
-                                          scan_pitch(item["params"]), pool)
+            volume, strongest = lct_input(np.moveaxis(item["counts"][0].numpy(), 0, -1), bin_width, pitch, pool)
             put("lct", i, volume, torch.float16)                 # float16: 2 MiB per 64 × 64 sample
             put("strongest", i, strongest)
         else:
@@ -144,8 +144,7 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
             put("counts", i, pool_scan(item["counts"], pool))
         put("depth", i, item["wall_depth"][0])
         if mask_label == "lct":
-            put("seen", i, lct_seen(item["envelope"][0].numpy(), bin_width, scan_pitch(item["params"]),
-                                    item["wall_depth"][0]))
+            put("seen", i, lct_seen(item["envelope"][0].numpy(), bin_width, pitch, item["wall_depth"][0]))
     return blocks
 
 
