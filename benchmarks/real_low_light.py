@@ -4,7 +4,7 @@ the low-photon regime a network trained on datagen is meant for, and the figures
 
     python benchmarks/real_low_light.py FOLDER [--exposures 1 0.1 0.01] [--methods lct phasor fbp fk] [--seed 0]
                                                [--network FILE.pt | none] [--venv /opt/venvs/tal-bench]
-                                               [--png DIR] [--sim DATA [--sim-split test]]
+                                               [--png DIR] [--sim DATA [--sim-split test]] [--background none]
 
 FOLDER holds the release's ``data_*.mat`` files (the project never ships them; the release is published with
 O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``datagen import-capture
@@ -15,16 +15,17 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    what the same SPAD would have counted over f of the time, up to the pile-up that a shorter exposure does not
    change (pile-up acts per cycle, thinning per detection).
 2. **Reconstruction.** Each method of ``datagen reconstruct`` as shipped
-   (:func:`datagen.analysis.reconstruct.confocal_volume`: the direct light trimmed, 512 bins of 16 ps, the t²
-   falloff and snr 0.8 of the release's script, on every capture as ``datagen reconstruct`` does by default), and
+   (:func:`datagen.analysis.reconstruct.confocal_volume`: each point's background floor subtracted, the direct
+   light trimmed, 512 bins of 16 ps, the t² falloff and snr 0.8 of the release's script, on every capture as
+   ``datagen reconstruct`` does by default), and
    its depth map (:func:`~datagen.analysis.reconstruct.depth_map`: the strongest voxel's depth where the front
    view reaches 0.25 of its maximum, NaN elsewhere).
    **f-k migration** ("fk", Lindell, Wetzstein & O'Toole 2019) is tal's, ``tal.reconstruct.fk`` of y-tal 0.20.0,
    run as benchmarks/bench_recon.py runs it: in tal's separate environment (``--venv``, default
    ``$TAL_BENCH_VENV`` or /opt/venvs/tal-bench, made by ``bash benchmarks/tal/setup_env.sh``; without it the run
    says so in one line and goes on without f-k), through benchmarks/tal/recon_side.py (``bench_recon.tal_side``,
-   a private HOME). It gets what LCT gets: the same thinned counts summed to 512 bins of 16 ps, the same direct
-   light zeroed (:func:`fk_input`), written as a tal HDF5 capture (``datagen.io.write_tal_hdf5``: t_start 0, the
+   a private HOME). It gets what LCT gets: the same thinned counts summed to 512 bins of 16 ps, the same floor
+   subtracted and direct light zeroed (:func:`fk_input`), written as a tal HDF5 capture (``datagen.io.write_tal_hdf5``: t_start 0, the
    release's grid, no laser position, so no laser cos/d² compensation) in a temporary folder. tal's f-k has no
    parameters of its own: it weights H by a ramp linear in t (0 to 1 over the time axis; the f-k release's script
    takes √(H·t²), tal |H·t|, so tal's volume grows as the counts squared where LCT's grows as the counts), zero-pads
@@ -137,27 +138,24 @@ def thin(counts: np.ndarray, fraction: float, rng: np.random.Generator) -> np.nd
     return rng.binomial(np.asarray(counts, dtype=np.int64), fraction).astype(np.float64)
 
 
-def found(scan: np.ndarray, dt: float, pitch, method: str) -> np.ndarray:
-    """(ny, nx) depth map (m, NaN where nothing is found) of one method as ``datagen reconstruct`` runs it."""
+def found(scan: np.ndarray, dt: float, pitch, method: str, background: str | None = "auto") -> np.ndarray:
+    """(ny, nx) depth map (m, NaN where nothing is found) of one method as ``datagen reconstruct`` runs it
+    (``background`` None: as ``--background none`` does, each point's floor kept)."""
     from datagen.analysis.reconstruct import confocal_volume, depth_map
 
-    volume, depths, _ = confocal_volume(scan, dt, pitch, method)
+    volume, depths, _ = confocal_volume(scan, dt, pitch, method, background=background)
     return depth_map(volume, depths)[0]
 
 
-def fk_input(scan: np.ndarray, dt: float) -> tuple[np.ndarray, float, int]:
+def fk_input(scan: np.ndarray, dt: float, background: str | None = "auto") -> tuple[np.ndarray, float, int]:
     """(data (ny, nx, M) float64, its bin width s, bins zeroed) of a scan as
-    :func:`~datagen.analysis.reconstruct.confocal_volume` hands it to LCT by default: summed to at most
-    :data:`~datagen.analysis.reconstruct.MAX_BINS` bins, the direct light
-    (:func:`~datagen.analysis.confocal.direct_light_bins`) zeroed, zero-padded to a power of two."""
-    from datagen.analysis.confocal import direct_light_bins
-    from datagen.analysis.reconstruct import MAX_BINS, coarsen
+    :func:`~datagen.analysis.reconstruct.confocal_volume` hands it to LCT by default
+    (:func:`~datagen.analysis.reconstruct.prepare_scan`: summed to at most
+    :data:`~datagen.analysis.reconstruct.MAX_BINS` bins, each point's floor subtracted, the direct light zeroed,
+    zero-padded to a power of two)."""
+    from datagen.analysis.reconstruct import prepare_scan
 
-    data, dt = coarsen(np.array(scan, dtype=np.float64), dt, MAX_BINS)     # a copy: the trim must not zero the scan
-    n_trim = direct_light_bins(data, dt)
-    data[..., :n_trim] = 0.0
-    m = 1 << max(1, int(np.ceil(np.log2(data.shape[-1]))))
-    return np.concatenate([data, np.zeros(data.shape[:2] + (m - data.shape[-1],))], axis=-1), dt, n_trim
+    return prepare_scan(scan, dt, background=background)
 
 
 def fk_capture(data: np.ndarray, dt: float, pitch):
@@ -182,7 +180,8 @@ def fk_capture(data: np.ndarray, dt: float, pitch):
                   laser_points=points, sensor_points=points, wall_normal=LCT_WALL_NORMAL.copy())
 
 
-def fk_depth(scan: np.ndarray, dt: float, pitch, venv: Path) -> tuple[np.ndarray, float]:
+def fk_depth(scan: np.ndarray, dt: float, pitch, venv: Path, background: str | None = "auto"
+             ) -> tuple[np.ndarray, float]:
     """((ny, nx) depth map m, NaN where nothing is found; tal's solve time s) of tal's f-k migration on a scan of
     counts (module doc): exported in a temporary folder, reconstructed by benchmarks/tal/recon_side.py in the tal
     venv ``venv`` over the depths past the trimmed light, its strongest voxel per column put through
@@ -197,7 +196,7 @@ def fk_depth(scan: np.ndarray, dt: float, pitch, venv: Path) -> tuple[np.ndarray
     from datagen.io import write_tal_hdf5
     from datagen.units import SPEED_OF_LIGHT
 
-    data, dt, n_trim = fk_input(scan, dt)
+    data, dt, n_trim = fk_input(scan, dt, background)
     voxel = SPEED_OF_LIGHT * dt / 2
     # recon_side keeps the voxels between the first and the last of these: past the trimmed depth n_trim·voxel,
     # the voxel edge between the last zeroed (n_trim − ½) and the first kept (n_trim + ½), up to the end
@@ -240,13 +239,15 @@ def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarr
 
 
 def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURES, methods=("lct", "phasor", "fbp"),
-             rng: np.random.Generator | None = None, network=None, venv: Path | None = None) -> list[dict]:
+             rng: np.random.Generator | None = None, network=None, venv: Path | None = None,
+             background: str | None = "auto") -> list[dict]:
     """Rows {capture, exposure, method, depth, error, iou, counts, seconds, map, reference} of one capture (module
     doc; "map" the (ny, nx) depth m where the method found the object, NaN elsewhere; "reference" the (ny, nx) bool
     reference mask, the same array in every row); ``network`` a
-    loaded (net, record) adds its row; "fk" among the methods needs ``venv``, the tal venv."""
+    loaded (net, record) adds its row; "fk" among the methods needs ``venv``, the tal venv; ``background`` the
+    baselines' and the reference's floor ("auto" subtracted, None kept; the network reads its input as trained)."""
     rng = rng if rng is not None else np.random.default_rng(0)
-    mask = ~np.isnan(found(counts, dt, pitch, "lct"))
+    mask = ~np.isnan(found(counts, dt, pitch, "lct", background))
     reference = DEPTHS.get(name)
     rows = []
     for fraction in exposures:
@@ -262,10 +263,10 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
             elif method == "fk":                       # tal's, in its venv; its time the solve alone
                 if venv is None:
                     raise ValueError("the fk method needs the tal venv (venv=)")
-                depth_map, seconds = fk_depth(scan, dt, pitch, venv)
+                depth_map, seconds = fk_depth(scan, dt, pitch, venv, background)
                 depth, iou = score(depth_map, mask)
             else:
-                depth_map = found(scan, dt, pitch, method)
+                depth_map = found(scan, dt, pitch, method, background)
                 depth, iou = score(depth_map, mask)
             rows.append({"capture": name, "exposure": fraction, "method": method, "depth": depth,
                          "error": depth - reference if reference is not None else float("nan"), "iou": iou,
@@ -290,6 +291,9 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--sim", type=Path, default=None,
                         help="a build of the network's dataset config: score the network on its held-out split too")
     parser.add_argument("--sim-split", default="test", help="the split of --sim to score (default: test)")
+    parser.add_argument("--background", choices=["auto", "none"], default="auto",
+                        help="the baselines' and the reference's floor: subtracted (auto, as datagen reconstruct "
+                             "does by default) or kept (none)")
     args = parser.parse_args(argv)
     methods = list(args.methods)
     if "fk" in methods and not (args.venv / "bin" / "python").is_file():
@@ -332,7 +336,8 @@ def main(argv=None) -> list[dict]:
         counts, dt, pitch = read_release_file(path)
         found_here = []
         for row in evaluate(counts, dt, pitch, name, args.exposures, methods,
-                            np.random.default_rng([args.seed, seeds[path]]), network, args.venv):
+                            np.random.default_rng([args.seed, seeds[path]]), network, args.venv,
+                            None if args.background == "none" else "auto"):
             found_here.append(row)
             print(f"{row['capture']} | {row['exposure']:g} | {row['method']} | {row['depth']:.4f} | "
                   f"{row['error']:+.4f} | {row['iou']:.3f} | {row['counts']:.3g} | {row['seconds']:.1f}", flush=True)

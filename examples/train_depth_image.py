@@ -78,14 +78,15 @@ def lct_input(counts: np.ndarray, bin_width: float, pitch: float | tuple[float, 
     """((1, LCT_BINS, H/pool, W/pool) float32 in [0, 1], (H/pool, W/pool) float32 m): the LCT volume of one scan of
     counts (H, W, T) (bin width s, grid pitch m, as :func:`datagen.analysis.reconstruct.confocal_volume` takes them),
     reconstructed from the counts summed over pool × pool scan points (the pitch times pool) and LCT_BINS bins, as
-    ``datagen reconstruct`` runs it (the direct light trimmed, t² falloff, snr 0.8), depth on the first axis, divided
+    ``datagen reconstruct --background none`` runs it (the direct light trimmed, t² falloff, snr 0.8; the floor
+    kept, as the shipped weights were trained), depth on the first axis, divided
     by its maximum; and the depth of each column's strongest voxel (the network's depth is a correction to it)."""
     from datagen.analysis.reconstruct import confocal_volume
 
     pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
     scan = pool_scan(torch.as_tensor(np.moveaxis(np.asarray(counts, np.float32), -1, 0))[None], pool)[0]
     volume, depths, _ = confocal_volume(np.moveaxis(scan.double().numpy(), 0, -1), bin_width,
-                                   (pitch_y * pool, pitch_x * pool), "lct", max_bins=LCT_BINS)
+                                   (pitch_y * pool, pitch_x * pool), "lct", max_bins=LCT_BINS, background=None)
     volume, depths = volume[..., :LCT_BINS], depths[:LCT_BINS]
     top = volume.max()
     strongest = depths[np.argmax(volume, axis=-1)].astype(np.float32)
@@ -172,7 +173,7 @@ def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor)
     if not outline.any():
         return torch.zeros(outline.shape, dtype=torch.bool)
     volume, depths, _ = confocal_volume(np.moveaxis(np.asarray(envelope, np.float64), 0, -1), bin_width, pitch, "lct",
-                                        max_bins=LCT_BINS)
+                                        max_bins=LCT_BINS, background=None)
     pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
     half = 0.25 * (pitch_y * outline.shape[0] + pitch_x * outline.shape[1])
     z = float(np.median(np.asarray(depth)[outline]))

@@ -75,7 +75,8 @@ def reconstruct(path: Path, falloff: str, snr: float):
     n = cap.data().shape[0]
     pitch = 2 * width / (n - 1)
     scan, dt = align_confocal(cap.data(), cap.time_edges(), cap.time_offsets())
-    vol, depths, _ = confocal_volume(scan, dt, pitch, "lct", falloff, snr)
+    vol, depths, _ = confocal_volume(scan, dt, pitch, "lct", falloff, snr, background=None)   # the floor kept,
+    # as the shipped scene files were read off
     depth, front = depth_map(vol, depths)
     return width, pitch, front, depth
 

@@ -1,6 +1,6 @@
 """The reconstruction baselines on any confocal scan (datagen.analysis.confocal, .lct, .reconstruct): the time axis
-put on the hidden round trip, the direct light found and zeroed, t² and t⁴ falloffs, and each method finding a
-point target where it is."""
+put on the hidden round trip, the direct light found and zeroed, each point's background floor subtracted, t² and t⁴
+falloffs, and each method finding a point target where it is."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +8,7 @@ import pytest
 
 from datagen.analysis.confocal import align_confocal, direct_light_bins, grid_pitches
 from datagen.analysis.lct import lct_volume
-from datagen.analysis.reconstruct import coarsen, confocal_volume, depth_map
+from datagen.analysis.reconstruct import FLOOR_BLOCKS, background_floor, coarsen, confocal_volume, depth_map
 from datagen.units import SPEED_OF_LIGHT as C
 
 N, DT, M = 16, 32e-12, 256
@@ -112,3 +112,40 @@ def test_bins_are_summed_in_pairs_and_a_grid_has_one_pitch_per_axis():
     grid[0, 0, 0] = 0.03
     with pytest.raises(ValueError, match="not a regular grid: the spacing between rows runs from 0.2 m to 0.202"):
         grid_pitches(grid)
+
+
+def test_the_floor_is_the_quietest_run_after_the_direct_light():
+    """A Poisson floor of 3 counts per bin with a return in the window's last run: the estimate is the minimum of the
+    other three runs' means, whose expectation is 0.846 standard errors below the floor (the expected minimum of
+    three standard normals, -0.8463, its sd 0.748), not the late window's floor plus the return."""
+    rng = np.random.default_rng(4)
+    lam, first = 3.0, 32
+    scan = rng.poisson(lam, (N, N, M)).astype(float)
+    scan[..., -40:] += 20.0                                     # a hidden return in the last run
+    floor = background_floor(scan, first)
+    n = (M - first) // FLOOR_BLOCKS
+    se = np.sqrt(lam / n)
+    assert floor.shape == (N, N) and (floor < lam + 3 * se).all()
+    assert FLOOR_BLOCKS == 4 and floor.mean() == pytest.approx(lam - 0.8463 * se, abs=4 * 0.748 * se / N)
+    assert scan[..., -M // 10:].mean() > lam + 5                 # where a late-window floor would have read it
+    assert not background_floor(point_scan(0.45), 0).any()      # no background: nothing subtracted
+    with pytest.raises(ValueError, match="0 <= first < M"):
+        background_floor(scan, M)
+
+
+@pytest.mark.parametrize("method", ["lct", "phasor"])
+def test_ambient_light_is_subtracted_before_the_falloff_weighs_it_up(method):
+    """Sunlight on the wall (a floor of 60 counts per bin, three times the point's 20 counts): with the floor kept,
+    the volume's far end outweighs the point (LCT weighs the floor up by t²); subtracted, the point is found at its
+    depth. Without a floor the subtraction changes nothing."""
+    rng = np.random.default_rng(5)
+    scan = rng.poisson(20.0 * point_scan(0.45) + 60.0).astype(float)
+    for background, near in (("auto", True), (None, False)):
+        vol, depths, _ = confocal_volume(scan, DT, PITCH, method, background=background)
+        found = depths[np.unravel_index(vol.argmax(), vol.shape)[2]]
+        assert (abs(found - 0.45) < 0.02) == near, (background, found)
+    clean = point_scan(0.45)
+    np.testing.assert_array_equal(confocal_volume(clean, DT, PITCH, method)[0],
+                                  confocal_volume(clean, DT, PITCH, method, background=None)[0])
+    with pytest.raises(ValueError, match="background must be 'auto' or None, got 'median'"):
+        confocal_volume(clean, DT, PITCH, method, background="median")

@@ -1,10 +1,12 @@
 """Baseline reconstructions of a confocal scan, what ``datagen reconstruct`` runs: LCT, phasor fields or filtered
 backprojection, and the depth map of what they find.
 
-:func:`confocal_volume` takes a scan on the hidden round-trip axis (:func:`~datagen.analysis.confocal.align_confocal`),
-sums pairs of bins until at most ``max_bins`` remain (the LCT release's script sums 4 ps bins to 16 ps), zeroes the
-direct light (:func:`~datagen.analysis.confocal.direct_light_bins`, or a given duration), pads the time axis to a
-power of two and runs one method:
+:func:`confocal_volume` takes a scan on the hidden round-trip axis (:func:`~datagen.analysis.confocal.align_confocal`)
+and prepares it (:func:`prepare_scan`): sums pairs of bins until at most ``max_bins`` remain (the LCT release's
+script sums 4 ps bins to 16 ps), subtracts each point's background floor (:func:`background_floor`: ambient light
+and dark counts, which the radiometric falloff below would otherwise weigh up with t² or t⁴ until they outshine a
+distant object), zeroes the direct light (:func:`~datagen.analysis.confocal.direct_light_bins`, or a given
+duration), pads the time axis to a power of two; then it runs one method:
 
 - "lct": :func:`~datagen.analysis.lct.lct_volume`, the Wiener-deconvolved light-cone transform (O'Toole, Lindell &
   Wetzstein 2018);
@@ -42,6 +44,9 @@ MAX_BINS = 512
 FOUND_LEVEL = 0.25
 """Default share of the front view's maximum above which a scan point counts as having found something."""
 
+FLOOR_BLOCKS = 4
+"""Runs of bins after the direct light among which :func:`background_floor` takes the quietest."""
+
 PHASOR_PITCHES = 4
 """The phasor method's virtual wavelength in grid pitches (benchmarks/tal/recon_side.py's choice)."""
 
@@ -63,10 +68,71 @@ def coarsen(scan: np.ndarray, bin_width: float, max_bins: int) -> tuple[np.ndarr
     return out, bin_width
 
 
+def background_floor(scan: np.ndarray, first: int = 0, blocks: int = FLOOR_BLOCKS) -> np.ndarray:
+    """Each scan point's background floor, counts (or photons) per bin: the mean of the quietest of ``blocks``
+    equal runs of its bins from ``first`` on (after the direct light).
+
+    The quietest run rather than a fixed late window, so that a hidden return reaching the window's end (a
+    simulated scan cut close behind its scene) is not taken for background: of the runs one holds no return as
+    long as the scene's light fills less than (blocks − 1) / blocks of the window. On noisy counts the minimum
+    of the runs' means lies below the floor λ by about √(λ / n) for runs of n bins (the expected minimum of four
+    normal means is 1.03 standard errors low): the floor is under-subtracted on average, and over-subtracted at a
+    point only where every run's noise is positive (1 in 2^blocks).
+
+    Args:
+        scan: (ny, nx, M) transients (counts or expected photons) on the hidden round-trip axis.
+        first: the first bin after the direct light (0 ≤ first < M); blocks: runs, ≥ 1 (fewer where fewer bins
+            remain).
+    Returns:
+        float64 (ny, nx), ≥ 0.
+    Raises:
+        ValueError: not an (ny, nx, M) scan, or ``first`` outside it.
+    """
+    s = np.asarray(scan, dtype=np.float64)
+    if s.ndim != 3 or not 0 <= first < s.shape[-1]:
+        raise ValueError(f"expected a scan (ny, nx, M) and 0 <= first < M, got shape {s.shape} and first {first}")
+    rest = s[..., first:]
+    n = max(1, min(int(blocks), rest.shape[-1]))
+    size = rest.shape[-1] // n
+    means = rest[..., : n * size].reshape(s.shape[:2] + (n, size)).mean(axis=-1)
+    return np.maximum(means.min(axis=-1), 0.0)
+
+
+def prepare_scan(scan: np.ndarray, bin_width: float, trim: float | Literal["auto"] | None = "auto",
+                 max_bins: int = MAX_BINS, background: Literal["auto"] | None = "auto"
+                 ) -> tuple[np.ndarray, float, int]:
+    """A scan as every method of :func:`confocal_volume` takes it (module doc): summed to at most ``max_bins``
+    bins (:func:`coarsen`), each point's floor subtracted (``background`` "auto": :func:`background_floor` after
+    the direct light; None: kept), the direct light zeroed (``trim``: "auto", :func:`direct_light_bins`; a duration
+    in s; or None), zero-padded to a power of two.
+
+    Args:
+        scan: (ny, nx, M) transients ≥ 0 on the hidden round-trip axis; bin_width: s.
+    Returns:
+        (data (ny, nx, 2^k) float64, a new array; its bin width s; the bins zeroed at the start).
+    Raises:
+        ValueError: ``background`` neither "auto" nor None.
+    """
+    data, dt = coarsen(np.array(scan, dtype=np.float64), float(bin_width), max_bins)     # a copy: trim zeroes it
+    if trim == "auto":
+        n_trim = direct_light_bins(data, dt)
+    elif trim:
+        n_trim = int(np.ceil(float(trim) / dt - 1e-9))
+    else:
+        n_trim = 0
+    if background == "auto" and n_trim < data.shape[-1]:
+        data -= background_floor(data, n_trim)[..., None]
+    elif background not in ("auto", None):
+        raise ValueError(f"background must be 'auto' or None, got {background!r}")
+    data[..., :n_trim] = 0.0
+    m = 1 << max(1, int(np.ceil(np.log2(data.shape[-1]))))
+    return np.concatenate([data, np.zeros(data.shape[:2] + (m - data.shape[-1],))], axis=-1), dt, n_trim
+
+
 def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float | tuple[float, float], method: str = "lct",
                     falloff: Literal["diffuse", "retroreflective"] = "retroreflective", snr: float = 0.8,
-                    trim: float | Literal["auto"] | None = "auto", max_bins: int = MAX_BINS
-                    ) -> tuple[np.ndarray, np.ndarray, dict]:
+                    trim: float | Literal["auto"] | None = "auto", max_bins: int = MAX_BINS,
+                    background: Literal["auto"] | None = "auto") -> tuple[np.ndarray, np.ndarray, dict]:
     """Reconstruct an aligned confocal scan with one of :data:`METHODS`.
 
     Args:
@@ -77,6 +143,7 @@ def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float | tuple[flo
             (the release script's defaults: t², 0.8; its diffuse "S" used t⁴ and 0.08).
         trim: the direct light to zero: "auto" (:func:`direct_light_bins`), a duration in s, or None.
         max_bins: the time axis is summed to at most this many bins (:func:`coarsen`).
+        background: "auto" subtracts each point's floor (:func:`background_floor`), None keeps it.
     Returns:
         volume (ny, nx, Z) float64 ≥ 0 in the scan's orientation; depths (Z,) float64 m from the wall of its last
         axis; info {"bin_width": s reconstructed, "trim_bins": bins zeroed, "trim": s zeroed, "wavelength": m or
@@ -87,21 +154,12 @@ def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float | tuple[flo
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    data = np.array(scan, dtype=np.float64)                   # a copy: the trim below must not zero the caller's
-    if data.ndim != 3:
-        raise ValueError(f"a confocal scan is (ny, nx, M); got shape {data.shape}")
-    ny, nx = data.shape[:2]
+    if np.ndim(scan) != 3:
+        raise ValueError(f"a confocal scan is (ny, nx, M); got shape {np.shape(scan)}")
+    ny, nx = np.shape(scan)[:2]
     pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
-    data, dt = coarsen(data, float(bin_width), max_bins)
-    if trim == "auto":
-        n_trim = direct_light_bins(data, dt)
-    elif trim:
-        n_trim = int(np.ceil(float(trim) / dt - 1e-9))
-    else:
-        n_trim = 0
-    data[..., :n_trim] = 0.0
-    m = 1 << max(1, int(np.ceil(np.log2(data.shape[-1]))))
-    data = np.concatenate([data, np.zeros(data.shape[:2] + (m - data.shape[-1],))], axis=-1)
+    data, dt, n_trim = prepare_scan(scan, bin_width, trim, max_bins, background)
+    m = data.shape[-1]
     info = {"bin_width": dt, "trim_bins": n_trim, "trim": n_trim * dt, "wavelength": None}
     if method == "phasor":
         wavelength = max(PHASOR_PITCHES * max(pitch_y, pitch_x), 4 * SPEED_OF_LIGHT * dt)

@@ -544,7 +544,8 @@ def _fronts(hidden, pitch):
     for key in ("real", "model"):
         scan = np.concatenate([np.zeros(hidden[key].shape[:2] + (hidden["trim_bins"],)), np.maximum(hidden[key], 0)],
                               axis=-1)
-        vol, _, _ = confocal_volume(scan, hidden["bin_width"], pitch, "lct", trim=hidden["trim"])
+        vol, _, _ = confocal_volume(scan, hidden["bin_width"], pitch, "lct", trim=hidden["trim"],
+                                    background=None)    # the floor is already subtracted
         out.append(vol.max(axis=-1))
     return tuple(out)
 

@@ -71,12 +71,15 @@ def _scan_input(path: Path, split: str | None, index: int | None, use_counts: bo
               help="lct: the Wiener filter's signal-to-noise ratio")
 @click.option("--trim", default="auto", show_default=True,
               help="direct light to zero first: auto, or a duration from the wall (e.g. 2.4ns; 0 for none)")
+@click.option("--background", type=click.Choice(["auto", "none"]), default="auto", show_default=True,
+              help="auto: subtract each point's floor (ambient light, dark counts: the mean of its quietest quarter "
+                   "after the direct light) first; none: keep it")
 @click.option("--level", type=click.FloatRange(min=0, max=1, min_open=True), default=FOUND_LEVEL, show_default=True,
               help="a scan point has found something where its front view reaches this share of the maximum")
 @click.option("--max-bins", "max_bins", type=click.IntRange(min=2), default=MAX_BINS, show_default=True,
               help="sum neighbouring bins until at most this many remain")
 @friendly_errors
-def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim, level, max_bins):
+def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim, background, level, max_bins):
     """Reconstruct the confocal scan in STORE (an imported capture, a simulated result, a lab file, or a dataset
     sample with --split/--index) and write OUT/depth.npy (m on the scan grid, NaN where nothing is found),
     OUT/volume.npy (ny, nx, Z), OUT/volume_depths.npy (Z,) m and OUT/reconstruction.png; prints the median depth
@@ -98,7 +101,8 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
         raise ValueError(f"{store}: laser_points: {exc}") from None
     scan, dt = align_confocal(env, edges, offsets)
     try:
-        volume, depths, info = confocal_volume(scan, dt, pitch, method, falloff, snr, trim_s, max_bins)
+        volume, depths, info = confocal_volume(scan, dt, pitch, method, falloff, snr, trim_s, max_bins,
+                                                 None if background == "none" else "auto")
     except ValueError as exc:
         raise ValueError(f"{store}: {exc}") from None
     depth, _ = depth_map(volume, depths, level)
@@ -113,7 +117,8 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
                f"{pitch[0] * 1e3:.4g} (between rows) x {pitch[1] * 1e3:.4g} (between columns)")
     click.echo(f"{what}: {scan.shape[0]} x {scan.shape[1]} points of pitch {pitches} mm, "
                f"{method} on {info['bin_width'] * 1e12:.4g} ps bins, direct light trimmed to "
-               f"{info['trim'] * 1e9:.4g} ns ({'auto' if trim_s == 'auto' else 'given'})")
+               f"{info['trim'] * 1e9:.4g} ns ({'auto' if trim_s == 'auto' else 'given'})"
+               + (", each point's floor subtracted" if background == "auto" else ""))
     median = f"median depth {np.median(depth[found]):.4f} m" if found.any() else "nothing found"
     click.echo(f"found at {int(found.sum())} of {found.size} scan points (front view >= {level:g} of its maximum): "
                f"{median}")
