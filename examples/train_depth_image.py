@@ -123,6 +123,8 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
     fields = ("counts", "wall_depth") + (("params",) if lct or mask_label == "lct" else ()) + \
         (("envelope",) if not lct or mask_label == "lct" else ())          # params: the pitch; envelope: lct_seen
     ds = datagen.NLOSDataset(path, split=split, fields=fields, layout="network", counts_dtype=torch.float32)
+    if len(ds) == 0:
+        raise ValueError(f"{path}: split {split!r} holds no samples")
     bin_width = float(ds.card["time_edges"]["bin_width"])
     blocks: dict[str, torch.Tensor] = {}
 
@@ -158,7 +160,8 @@ points)."""
 
 def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor) -> torch.Tensor:
     """(H, W) bool: where the LCT of a noise-free scan ``envelope`` (T, H, W), reconstructed as ``datagen
-    reconstruct`` runs it (:func:`datagen.analysis.reconstruct.confocal_volume`; in LCT_BINS bins, as the input),
+    reconstruct --background none`` runs it (:func:`datagen.analysis.reconstruct.confocal_volume`; in LCT_BINS bins,
+    as the input),
     finds something (:func:`datagen.analysis.reconstruct.depth_map`: the front view at 0.25 of its maximum), kept
     within LCT's resolution of the object: of the label's outline (``depth`` (H, W) m, 0 where the object is not
     seen) dilated by Δx = c·γ·√(w² + z²) / (2w) (O'Toole, Lindell & Wetzstein 2018, the confocal set-up's lateral
@@ -519,11 +522,17 @@ def main(argv=None):
                         help="the network's input: the counts' log, or the LCT volume of the stored counts")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
-                 pool=args.pool, save=args.save, stored=args.stored_counts, mask=args.mask or args.arch == "unet",
-                 lct=args.input == "lct", arch=args.arch, augment=args.augment, pos_weight=args.pos_weight,
-                 mask_label=args.mask_label,
-                 command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None else argv))
+    from datagen.errors import DatasetError
+
+    try:
+        pred = train(args.data, args.epochs, args.batch, args.seed, train_split=args.train, val_split=args.val,
+                     pool=args.pool, save=args.save, stored=args.stored_counts,
+                     mask=args.mask or args.arch == "unet", lct=args.input == "lct", arch=args.arch,
+                     augment=args.augment, pos_weight=args.pos_weight, mask_label=args.mask_label,
+                     command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None
+                                                                                else argv))
+    except (ValueError, DatasetError) as exc:        # a data path, split or option that does not fit: one line
+        raise SystemExit(f"train_depth_image: {exc}") from None
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])
     trivial = out.with_name(out.stem + "_trivial.npz")

@@ -187,3 +187,9 @@ def test_the_lct_mask_label_loads_beside_either_input(wall):
     assert counts["seen"].any()
     for seen, depth in zip(counts["seen"], counts["depth"]):
         assert (depth > 0).any() or not seen.any()
+
+
+def test_training_on_a_split_the_data_lack_is_one_line(wall):
+    """A split that is not in the dataset: one line naming it and the splits there are, no traceback."""
+    with pytest.raises(SystemExit, match=r"train_depth_image: split 'nosuch' not in .*\(splits: \['test', 'train'\]\)"):
+        train_depth_image.main([str(wall), "--train", "nosuch", "--epochs", "1", "--threads", "1"])
