@@ -25,11 +25,11 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    ``$TAL_BENCH_VENV`` or /opt/venvs/tal-bench, made by ``bash benchmarks/tal/setup_env.sh``; without it the run
    says so in one line and goes on without f-k), through benchmarks/tal/recon_side.py (``bench_recon.tal_side``,
    a private HOME). It gets what LCT gets: the same thinned counts summed to 512 bins of 16 ps, the same floor
-   subtracted and direct light zeroed (:func:`fk_input`), written as a tal HDF5 capture (``datagen.io.write_tal_hdf5``: t_start 0, the
-   release's grid, no laser position, so no laser cos/d² compensation) in a temporary folder. tal's f-k has no
-   parameters of its own: it weights H by a ramp linear in t (0 to 1 over the time axis; the f-k release's script
-   takes √(H·t²), tal |H·t|, so tal's volume grows as the counts squared where LCT's grows as the counts), zero-pads
-   to 2T × 2N × 2N, maps the spectrum by the Stolt transform (linear interpolation; the half-width from the grid,
+   subtracted and direct light zeroed (:func:`fk_input`), written as a tal HDF5 capture
+   (``datagen.io.write_tal_hdf5``: t_start 0, the release's grid, no laser position, so no laser cos/d²
+   compensation) in a temporary folder. tal's f-k has no parameters of its own: it weights H by a ramp linear in t
+   (0 to 1 over the time axis; the f-k release's script takes √(H·t²), tal |H·t|, so tal's volume grows as the
+   counts squared where LCT's grows as the counts), zero-pads to 2T × 2N × 2N, maps the spectrum by the Stolt transform (linear interpolation; the half-width from the grid,
    the depth range T·cΔt/2) and returns |·|²; no t² falloff, no snr. Its voxel k lies (k + ½)·cΔt/2 from the wall,
    as LCT's; the voxels up to the trimmed depth are left out, as :func:`~datagen.analysis.reconstruct.confocal_volume`
    zeroes them; and :func:`~datagen.analysis.reconstruct.depth_map`'s rule makes its depth map from the strongest

@@ -191,5 +191,6 @@ def test_the_lct_mask_label_loads_beside_either_input(wall):
 
 def test_training_on_a_split_the_data_lack_is_one_line(wall):
     """A split that is not in the dataset: one line naming it and the splits there are, no traceback."""
-    with pytest.raises(SystemExit, match=r"train_depth_image: split 'nosuch' not in .*\(splits: \['test', 'train'\]\)"):
+    expected = r"train_depth_image: split 'nosuch' not in .*\(splits: \['test', 'train'\]\)"
+    with pytest.raises(SystemExit, match=expected):
         train_depth_image.main([str(wall), "--train", "nosuch", "--epochs", "1", "--threads", "1"])
