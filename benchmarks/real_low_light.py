@@ -20,21 +20,21 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    ``datagen reconstruct`` does by default), and
    its depth map (:func:`~datagen.analysis.reconstruct.depth_map`: the strongest voxel's depth where the front
    view reaches 0.25 of its maximum, NaN elsewhere).
-   **f-k migration** ("fk", Lindell, Wetzstein & O'Toole 2019) is tal's, ``tal.reconstruct.fk`` of y-tal 0.20.0,
-   run as benchmarks/bench_recon.py runs it: in tal's separate environment (``--venv``, default
-   ``$TAL_BENCH_VENV`` or /opt/venvs/tal-bench, made by ``bash benchmarks/tal/setup_env.sh``; without it the run
-   says so in one line and goes on without f-k), through benchmarks/tal/recon_side.py (``bench_recon.tal_side``,
-   a private HOME). It gets what LCT gets: the same thinned counts summed to 512 bins of 16 ps, the same floor
-   subtracted and direct light zeroed (:func:`fk_input`), written as a tal HDF5 capture
-   (``datagen.io.write_tal_hdf5``: t_start 0, the release's grid, no laser position, so no laser cos/d²
-   compensation) in a temporary folder. tal's f-k has no parameters of its own: it weights H by a ramp linear in t
-   (0 to 1 over the time axis; the f-k release's script takes √(H·t²), tal |H·t|, so tal's volume grows as the
-   counts squared where LCT's grows as the counts), zero-pads to 2T × 2N × 2N, maps the spectrum by the Stolt transform (linear interpolation; the half-width from the grid,
-   the depth range T·cΔt/2) and returns |·|²; no t² falloff, no snr. Its voxel k lies (k + ½)·cΔt/2 from the wall,
-   as LCT's; the voxels up to the trimmed depth are left out, as :func:`~datagen.analysis.reconstruct.confocal_volume`
-   zeroes them; and :func:`~datagen.analysis.reconstruct.depth_map`'s rule makes its depth map from the strongest
-   voxel of each column (:func:`fk_depth`). f-k needs an N × N scan of one pitch (the release's are). Its time is
-   tal's solve alone, without the export, the subprocess and tal's import (about 2.5 s per reconstruction more).
+   **f-k migration** ("fk", Lindell, Wetzstein & O'Toole 2019) is tal's, ``tal.reconstruct.fk`` of y-tal 0.20.0, run
+   as benchmarks/bench_recon.py runs it: in tal's separate environment (``--venv``, default ``$TAL_BENCH_VENV`` or
+   /opt/venvs/tal-bench, made by ``bash benchmarks/tal/setup_env.sh``; without it the run says so in one line and goes
+   on without f-k), through benchmarks/tal/recon_side.py (``bench_recon.tal_side``, a private HOME). It gets what LCT
+   gets: the same thinned counts summed to 512 bins of 16 ps, the same floor subtracted and direct light zeroed
+   (:func:`fk_input`), written as a tal HDF5 capture (``datagen.io.write_tal_hdf5``: t_start 0, the release's grid, no
+   laser position, so no laser cos/d² compensation) in a temporary folder. tal's f-k has no parameters of its own: it
+   weights H by a ramp linear in t (0 to 1 over the time axis; the f-k release's script takes √(H·t²), tal |H·t|, so
+   tal's volume grows as the counts squared where LCT's grows as the counts), zero-pads to 2T × 2N × 2N, maps the
+   spectrum by the Stolt transform (linear interpolation; the half-width from the grid, the depth range T·cΔt/2) and
+   returns |·|²; no t² falloff, no snr. Its voxel k lies (k + ½)·cΔt/2 from the wall, as LCT's; the voxels up to the
+   trimmed depth are left out, as :func:`~datagen.analysis.reconstruct.confocal_volume` zeroes them; and
+   :func:`~datagen.analysis.reconstruct.depth_map`'s rule makes its depth map from the strongest voxel of each column
+   (:func:`fk_depth`). f-k needs an N × N scan of one pitch (the release's are). Its time is tal's solve alone,
+   without the export, the subprocess and tal's import (about 2.5 s per reconstruction more).
 3. **Reference.** The object's mask is the full-exposure LCT reconstruction's found points (that same depth map's
    non-NaN points): a shape reference made from the capture itself, so that LCT at full exposure scores IoU 1 by
    construction. Depths are referred to the charts' nominal 0.40 / 0.65 m and the diffuse "S"'s 0.50 m
