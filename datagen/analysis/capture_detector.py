@@ -14,7 +14,13 @@ puts any scan there):
   net counts after it, :func:`direct_to_hidden`. What fraction of the direct light the set-up lets through cannot be
   told from the capture alone (it needs the geometry's prediction of the hidden return): compare this ratio with a
   simulation of the scene (attenuation = real ratio / simulated ratio, ``detector.direct``);
-* the IRF: a two-tail fit (:func:`datagen.spad.fit.fit_detector`) of the direct returns summed over the scan.
+* the IRF: a two-tail fit (:func:`datagen.spad.fit.fit_detector`) of the direct returns summed over the scan, the
+  core's position fitted (``irf_position="free"``, the default) or held at the middle of the first bin ("aligned":
+  on the aligned axis the direct light arrives in the first bin, where the LCT release's rectification puts each
+  point's direct peak). A return cropped at its peak does not tell its core's position from its width: a free fit
+  of the release's charts puts the centre 18 ps before the first bin with a core of 78 ps FWHM, the aligned one
+  gives 53 ps (docs/detector.md, "Estimating the detector of a capture"; what each does to a simulation of the
+  capture: docs/real.md).
 """
 from __future__ import annotations
 
@@ -24,8 +30,8 @@ import numpy as np
 
 from .confocal import direct_light_bins
 
-__all__ = ["LATE_FRACTION", "GAIN_WINDOW", "IRF_WINDOW", "CaptureDetector", "background_map", "gain_map",
-           "direct_to_hidden", "estimate_capture_detector"]
+__all__ = ["LATE_FRACTION", "GAIN_WINDOW", "IRF_WINDOW", "IRF_POSITIONS", "CaptureDetector", "background_map",
+           "gain_map", "direct_to_hidden", "estimate_capture_detector"]
 
 LATE_FRACTION = 0.1
 """The background floor is read on the last 10 % of the window (the LCT release's captures: bins 1843-2047 of 2048,
@@ -40,6 +46,11 @@ IRF_WINDOW = 1.2e-9
 scenes start after 2.4 ns)."""
 
 
+IRF_POSITIONS = ("free", "aligned")
+"""How the IRF fit places the core: "free" fits its centre, "aligned" holds it at the middle of the first bin (the
+direct light's arrival on the aligned axis, the LCT release's direct peak)."""
+
+
 @dataclass
 class CaptureDetector:
     """What :func:`estimate_capture_detector` estimates.
@@ -52,6 +63,7 @@ class CaptureDetector:
         direct_bins: the number of leading bins that hold the direct light (:func:`direct_light_bins`).
         fit: the two-tail :class:`~datagen.spad.fit_result.DetectorFit` of the scan-summed direct return, or None.
         notes: one line each for what the estimate could not do.
+        irf_position: how the fit placed the IRF's core (:data:`IRF_POSITIONS`).
     """
 
     background: np.ndarray
@@ -62,6 +74,7 @@ class CaptureDetector:
     direct_bins: int
     fit: object | None = None
     notes: list[str] = field(default_factory=list)
+    irf_position: str = "free"
 
 
 def _late(n_bins: int, late: tuple[int, int] | None) -> slice:
@@ -111,7 +124,7 @@ def direct_to_hidden(scan: np.ndarray, background: np.ndarray, direct_bins: int)
 
 def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple[int, int] | None = None,
                               direct_bins: int | None = None, fit_irf: bool = True, repetition_rate: float = 10e6,
-                              n_cycles: int = 1_000_000) -> CaptureDetector:
+                              n_cycles: int = 1_000_000, irf_position: str = "free") -> CaptureDetector:
     """Background, gain, direct-to-hidden ratio and IRF of a confocal capture (module doc).
 
     Args:
@@ -121,11 +134,14 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
         fit_irf: fit the two-tail IRF to the scan-summed direct return (:data:`IRF_WINDOW`).
         repetition_rate, n_cycles: the exposure, for the fit's background rate in Hz (the IRF's shape does not
             depend on them; the LCT files do not state them).
+        irf_position: one of :data:`IRF_POSITIONS` (module doc).
     Returns:
         :class:`CaptureDetector`.
     Raises:
         ValueError: not an (ny, nx, T) scan of counts, late bins outside the window, no direct light.
     """
+    if irf_position not in IRF_POSITIONS:
+        raise ValueError(f"irf_position must be one of {', '.join(IRF_POSITIONS)}, got {irf_position!r}")
     s = np.asarray(scan, dtype=np.float64)
     if s.ndim != 3 or s.shape[-1] < 2 or not np.isfinite(s).all() or (s < 0).any():
         raise ValueError(f"expected a confocal scan of counts (ny, nx, T) >= 0, got shape {s.shape}")
@@ -146,8 +162,9 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
         stop = min(summed.size, peak + int(round(IRF_WINDOW / bin_width)))
         h = np.rint(summed[:stop])
         try:
+            fixed = {"position": 0.5 * bin_width} if irf_position == "aligned" else None
             fit = fit_detector(h, bin_width=bin_width, repetition_rate=repetition_rate, n_cycles=n_cycles,
-                               model="poisson", irf="two_tail", allow_cropped_edge=True)
+                               model="poisson", irf="two_tail", allow_cropped_edge=True, fixed=fixed)
         except ConfigError as exc:
             notes.append(f"the IRF was not fitted: {exc}")
-    return CaptureDetector(background, gain, direct, hidden, ratio, n_direct, fit, notes)
+    return CaptureDetector(background, gain, direct, hidden, ratio, n_direct, fit, notes, irf_position)

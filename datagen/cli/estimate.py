@@ -54,7 +54,9 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
     if est.fit is not None:
         rows.append("irf:")
         rows += [f"  {k}: {v!r}" for k, v in est.fit.irf_model.model_dump().items()]
-        rows.append(f"# IRF fit: chi2/dof {est.fit.pearson_chi2 / est.fit.dof:.3g} on {est.fit.dof} dof")
+        how = ("its core centred on the direct light's arrival, the middle of the first bin" if est.irf_position ==
+               "aligned" else "its core's position fitted")
+        rows.append(f"# IRF fit ({how}): chi2/dof {est.fit.pearson_chi2 / est.fit.dof:.3g} on {est.fit.dof} dof")
     return "\n".join(rows) + "\n"
 
 
@@ -66,18 +68,23 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
 @click.option("--direct-bins", "direct_bins", type=click.IntRange(min=1), default=None,
               help="bins of the direct light from t = 0 (default: where its tail ends)")
 @click.option("--no-irf", "no_irf", is_flag=True, help="skip the two-tail IRF fit")
+@click.option("--irf-position", "irf_position", type=click.Choice(["free", "aligned"]), default="free",
+              show_default=True, help="the IRF core's centre: fitted, or held at the middle of the first bin of the "
+                                      "aligned axis (where the LCT release puts each point's direct peak)")
 @click.option("--repetition-rate", "repetition_rate", default="10MHz",
               help="the laser's repetition rate, for the floor in Hz (default 10MHz: the LCT files do not state it)")
 @click.option("--n-cycles", "n_cycles", type=click.IntRange(min=1), default=1_000_000,
               help="laser cycles per scan point (default 1e6)")
 @friendly_errors
-def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_irf, repetition_rate, n_cycles):
+def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_irf, irf_position, repetition_rate,
+                     n_cycles):
     """Estimate the detector of the confocal capture CAPTURE (a lab file or a store) and write OUT/detector.yaml,
     OUT/gain.npy, OUT/background.npy, OUT/estimates.json and OUT/maps.png.
 
     Background: each point's floor on its late bins; gain: its direct counts (0.2 ns from its direct return)
     relative to their mean; the direct-to-hidden ratio of net counts; the IRF: a two-tail fit of the scan-summed
-    direct return (docs/detector.md).
+    direct return, its core's centre fitted or, with --irf-position aligned, held in the first bin
+    (docs/detector.md).
     """
     from ..analysis.capture_detector import estimate_capture_detector
     from ..analysis.confocal import align_confocal
@@ -93,7 +100,7 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
     scan, dt = align_confocal(data, result.time_edges, offsets)
     est = estimate_capture_detector(scan, dt, late=_bins(late, "--late"), direct_bins=direct_bins,
                                     fit_irf=not no_irf, repetition_rate=parse_rate(repetition_rate),
-                                    n_cycles=n_cycles)
+                                    n_cycles=n_cycles, irf_position=irf_position)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     np.save(out / "gain.npy", est.gain)
