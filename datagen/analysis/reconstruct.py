@@ -113,6 +113,8 @@ def prepare_scan(scan: np.ndarray, bin_width: float, trim: float | Literal["auto
     Raises:
         ValueError: ``background`` neither "auto" nor None.
     """
+    if background not in ("auto", None):
+        raise ValueError(f"background must be 'auto' or None, got {background!r}")
     data, dt = coarsen(np.array(scan, dtype=np.float64), float(bin_width), max_bins)     # a copy: trim zeroes it
     if trim == "auto":
         n_trim = direct_light_bins(data, dt)
@@ -122,8 +124,6 @@ def prepare_scan(scan: np.ndarray, bin_width: float, trim: float | Literal["auto
         n_trim = 0
     if background == "auto" and n_trim < data.shape[-1]:
         data -= background_floor(data, n_trim)[..., None]
-    elif background not in ("auto", None):
-        raise ValueError(f"background must be 'auto' or None, got {background!r}")
     data[..., :n_trim] = 0.0
     m = 1 << max(1, int(np.ceil(np.log2(data.shape[-1]))))
     return np.concatenate([data, np.zeros(data.shape[:2] + (m - data.shape[-1],))], axis=-1), dt, n_trim
