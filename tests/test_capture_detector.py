@@ -262,16 +262,18 @@ def _cropped_direct_returns(seed: int = 7) -> tuple[np.ndarray, dict]:
 
 
 def test_the_irf_fit_holds_the_core_where_the_aligned_axis_puts_the_direct_light():
-    """Held at the middle of the first bin (`aligned`), the two-tail fit of a return cropped at its peak recovers the
-    core within 5 % and the slow tail within 10 %. `free` (the default) fits the position too (on a return of the
+    """Held at the middle of the first bin (`aligned`, the default), the two-tail fit of a return cropped at its peak
+    recovers the core within 5 % and the slow tail within 10 %. `free` fits the position too (on a return of the
     model's own shape it finds it; on the release's summed returns it does not, docs/detector.md); an unknown mode
     is refused."""
     counts, true = _cropped_direct_returns()
-    irf = estimate_capture_detector(counts, 4e-12, irf_position="aligned").fit.irf_model
+    held = estimate_capture_detector(counts, 4e-12)
+    assert held.irf_position == "aligned"
+    irf = held.fit.irf_model
     assert irf.sigma == pytest.approx(true["sigma"], rel=0.05)
     assert irf.tail2 == pytest.approx(true["tail2"], rel=0.10)
     assert irf.tail2_weight == pytest.approx(true["tail2_weight"], rel=0.10)
-    free = estimate_capture_detector(counts, 4e-12)
+    free = estimate_capture_detector(counts, 4e-12, irf_position="free")
     assert free.irf_position == "free" and free.fit is not None
-    with pytest.raises(ValueError, match="irf_position must be one of free, aligned, got 'peak'"):
+    with pytest.raises(ValueError, match="irf_position must be one of aligned, free, got 'peak'"):
         estimate_capture_detector(counts, 4e-12, irf_position="peak")

@@ -15,12 +15,12 @@ puts any scan there):
   told from the capture alone (it needs the geometry's prediction of the hidden return): compare this ratio with a
   simulation of the scene (attenuation = real ratio / simulated ratio, ``detector.direct``);
 * the IRF: a two-tail fit (:func:`datagen.spad.fit.fit_detector`) of the direct returns summed over the scan, the
-  core's position fitted (``irf_position="free"``, the default) or held at the middle of the first bin ("aligned":
-  on the aligned axis the direct light arrives in the first bin, where the LCT release's rectification puts each
-  point's direct peak). A return cropped at its peak does not tell its core's position from its width: a free fit
-  of the release's charts puts the centre 18 ps before the first bin with a core of 78 ps FWHM, the aligned one
-  gives 53 ps (docs/detector.md, "Estimating the detector of a capture"; what each does to a simulation of the
-  capture: docs/real.md).
+  core's centre held at the middle of the first bin (``irf_position="aligned"``, the default: on the aligned axis the
+  direct light arrives in the first bin, and the LCT release's rectification puts each point's direct peak there)
+  or fitted ("free"). A return cropped at its peak does not tell its core's position from its width: a free fit
+  of the release's charts puts the centre 18 ps before the first bin, before the direct light can arrive, with a
+  core of 78 ps FWHM; the aligned one gives 53 ps (docs/detector.md, "Estimating the detector of a capture"; what
+  each does to a simulation of the capture: docs/real.md).
 """
 from __future__ import annotations
 
@@ -46,9 +46,9 @@ IRF_WINDOW = 1.2e-9
 scenes start after 2.4 ns)."""
 
 
-IRF_POSITIONS = ("free", "aligned")
-"""How the IRF fit places the core: "free" fits its centre, "aligned" holds it at the middle of the first bin (the
-direct light's arrival on the aligned axis, the LCT release's direct peak)."""
+IRF_POSITIONS = ("aligned", "free")
+"""How the IRF fit places the core: "aligned" (the default) holds it at the middle of the first bin (the
+direct light's arrival on the aligned axis, the LCT release's direct peak), "free" fits its centre."""
 
 
 @dataclass
@@ -74,7 +74,7 @@ class CaptureDetector:
     direct_bins: int
     fit: object | None = None
     notes: list[str] = field(default_factory=list)
-    irf_position: str = "free"
+    irf_position: str = "aligned"
 
 
 def _late(n_bins: int, late: tuple[int, int] | None) -> slice:
@@ -124,7 +124,7 @@ def direct_to_hidden(scan: np.ndarray, background: np.ndarray, direct_bins: int)
 
 def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple[int, int] | None = None,
                               direct_bins: int | None = None, fit_irf: bool = True, repetition_rate: float = 10e6,
-                              n_cycles: int = 1_000_000, irf_position: str = "free") -> CaptureDetector:
+                              n_cycles: int = 1_000_000, irf_position: str = "aligned") -> CaptureDetector:
     """Background, gain, direct-to-hidden ratio and IRF of a confocal capture (module doc).
 
     Args:
