@@ -15,9 +15,10 @@ puts any scan there):
   told from the capture alone (it needs the geometry's prediction of the hidden return): compare this ratio with a
   simulation of the scene (attenuation = real ratio / simulated ratio, ``detector.direct``);
 * the IRF: a two-tail fit (:func:`datagen.spad.fit.fit_detector`) of the direct returns summed over the scan, the
-  core's centre held at the middle of the first bin (``irf_position="aligned"``, the default: on the aligned axis the
-  direct light arrives in the first bin, and the LCT release's rectification puts each point's direct peak there)
-  or fitted ("free"). A return cropped at its peak does not tell its core's position from its width: a free fit
+  core's centre held at the middle of the bin where that return peaks (``irf_position="aligned"``, the default: on
+  the aligned axis the direct light arrives in the first bin, and the LCT release's rectification puts each point's
+  direct peak there; a capture whose time zero is off peaks later, and the core follows its peak) or fitted
+  ("free"). A return cropped at its peak does not tell its core's position from its width: a free fit
   of the release's charts puts the centre 18 ps before the first bin, before the direct light can arrive, with a
   core of 78 ps FWHM; the aligned one gives 53 ps (docs/detector.md, "Estimating the detector of a capture"; what
   each does to a simulation of the capture: docs/real.md).
@@ -47,8 +48,8 @@ scenes start after 2.4 ns)."""
 
 
 IRF_POSITIONS = ("aligned", "free")
-"""How the IRF fit places the core: "aligned" (the default) holds it at the middle of the first bin (the
-direct light's arrival on the aligned axis, the LCT release's direct peak), "free" fits its centre."""
+"""How the IRF fit places the core: "aligned" (the default) holds it at the middle of the bin where the scan-summed
+direct return peaks (the first bin on the aligned axis, the LCT release's direct peak), "free" fits its centre."""
 
 
 @dataclass
@@ -162,7 +163,7 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
         stop = min(summed.size, peak + int(round(IRF_WINDOW / bin_width)))
         h = np.rint(summed[:stop])
         try:
-            fixed = {"position": 0.5 * bin_width} if irf_position == "aligned" else None
+            fixed = {"position": (peak + 0.5) * bin_width} if irf_position == "aligned" else None
             fit = fit_detector(h, bin_width=bin_width, repetition_rate=repetition_rate, n_cycles=n_cycles,
                                model="poisson", irf="two_tail", allow_cropped_edge=True, fixed=fixed)
         except ConfigError as exc:

@@ -70,9 +70,9 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
               help="bins of the direct light from t = 0 (default: where its tail ends)")
 @click.option("--no-irf", "no_irf", is_flag=True, help="skip the two-tail IRF fit")
 @click.option("--irf-position", "irf_position", type=click.Choice(["aligned", "free"]), default="aligned",
-              show_default=True, help="the IRF core's centre: held at the middle of the first bin of the aligned "
-                                      "axis, where the direct light arrives (the LCT release puts each point's "
-                                      "direct peak there), or fitted")
+              show_default=True, help="the IRF core's centre: held at the middle of the bin where the summed direct "
+                                      "return peaks (the first bin of the aligned axis, where the direct light "
+                                      "arrives and the LCT release puts each point's direct peak), or fitted")
 @click.option("--repetition-rate", "repetition_rate", default="10MHz",
               help="the laser's repetition rate, for the floor in Hz (default 10MHz: the LCT files do not state it)")
 @click.option("--n-cycles", "n_cycles", type=click.IntRange(min=1), default=1_000_000,
@@ -85,7 +85,7 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
 
     Background: each point's floor on its late bins; gain: its direct counts (0.2 ns from its direct return)
     relative to their mean; the direct-to-hidden ratio of net counts; the IRF: a two-tail fit of the scan-summed
-    direct return, its core's centre held in the first bin or, with --irf-position free, fitted
+    direct return, its core's centre held at that return's peak or, with --irf-position free, fitted
     (docs/detector.md).
     """
     from ..analysis.capture_detector import estimate_capture_detector
