@@ -55,8 +55,8 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
         rows.append("irf:")
         rows += [f"  {k}: {v!r}" for k, v in est.fit.irf_model.model_dump().items()]
         aligned = est.irf_position == "aligned"
-        how = ("its core centred on the direct light's arrival, the middle of the first bin" if aligned else
-               "its core's position fitted")
+        how = ("its core centred on the direct light's arrival, the middle of the bin where the summed direct "
+               "return peaks" if aligned else "its core's position fitted")
         rows.append(f"# IRF fit ({how}): chi2/dof {est.fit.pearson_chi2 / est.fit.dof:.3g} on {est.fit.dof} dof")
     return "\n".join(rows) + "\n"
 
