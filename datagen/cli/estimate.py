@@ -14,6 +14,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from ..analysis.capture_detector import IRF_POSITIONS
 from .capture import mat_options
 from .errors import friendly_errors
 
@@ -69,7 +70,7 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
 @click.option("--direct-bins", "direct_bins", type=click.IntRange(min=1), default=None,
               help="bins of the direct light from t = 0 (default: where its tail ends)")
 @click.option("--no-irf", "no_irf", is_flag=True, help="skip the two-tail IRF fit")
-@click.option("--irf-position", "irf_position", type=click.Choice(["aligned", "free"]), default="aligned",
+@click.option("--irf-position", "irf_position", type=click.Choice(IRF_POSITIONS), default="aligned",
               show_default=True, help="the IRF core's centre: held at the middle of the bin where the summed direct "
                                       "return peaks (the first bin of the aligned axis, where the direct light "
                                       "arrives and the LCT release puts each point's direct peak), or fitted")
