@@ -11,7 +11,8 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file with a scen
 2. ``datagen reconstruct STORE --method M`` for each method, and reads the median depth it prints;
 3. ``datagen estimate-capture STORE`` (the two-tail IRF, background and gain maps, docs/detector.md);
 4. ``datagen simulate SCENE --like STORE --detector EST/detector.yaml``;
-5. ``datagen compare-capture STORE SIM --gain direct`` and reads its hidden-signal figures (docs/capture_io.md).
+5. ``datagen compare-capture STORE SIM --gain direct`` and reads its hidden-signal figures (docs/capture_io.md),
+   the power of the direct counts its gain took among them.
 
 It prints one table row per capture (with the second round trip of the real and the simulated scan where it falls
 inside the record: :func:`datagen.analysis.second_round_trip.second_round_trip`, docs/real.md) and, when both dot
@@ -38,6 +39,7 @@ FIGURES = {   # compare-capture's hidden-signal lines → (name, pattern)
     "rel_l2": r"relative L2 \(scan-summed hidden\) ([0-9.]+) \(noise floor ([0-9.]+)",
     "edge": r"leading edge sim - real over \d+ points: median ([-+0-9.]+) ps",
     "map_r": r"hidden-count maps: correlation ([-0-9.]+)",
+    "gain_power": r"direct counts to the power ([0-9.]+)",
     "fwhm": r"return FWHM: real ([0-9.]+) ps, sim ([0-9.]+) ps",
 }
 
@@ -125,7 +127,8 @@ def main() -> None:
         ref = f" (reference {DEPTHS[name]:.2f} m)" if name in DEPTHS else ""
         l2, edge, map_r, fwhm = r["rel_l2"], r["edge"], r["map_r"], r["fwhm"]
         print(f"{name}: depth {depths}{ref}; simulate --like {r['sim_s']:.0f} s; hidden relative L2 {l2[0]:.3f} "
-              f"(noise floor {l2[1]:.3f}); leading edge {edge[0]:+.1f} ps; map correlation {map_r[0]:.3f}; FWHM real "
+              f"(noise floor {l2[1]:.3f}); leading edge {edge[0]:+.1f} ps; map correlation {map_r[0]:.3f} (gain: the "
+              f"direct counts to the power {r['gain_power'][0]:.2f}); FWHM real "
               f"{fwhm[0]:.0f} ps, sim {fwhm[1]:.0f} ps ({fwhm[1] / fwhm[0] - 1:+.1%})", flush=True)
         er, es = r["echo"]
         if er is not None and es is not None:

@@ -7,9 +7,14 @@ puts any scan there):
 
 * the background map: each point's floor, the mean counts per bin of its late bins (after the hidden scene's
   return; by default the last :data:`LATE_FRACTION` of the window), :func:`background_map`;
-* the gain map: each point's direct counts (the first :data:`GAIN_WINDOW` s after its direct return, less its
-  floor), divided by their mean, :func:`gain_map` (the light each point receives, relative: laser power, focus,
-  the wall's albedo there; what the hidden counts follow);
+* the gain map: what each point's hidden light is multiplied by, relative. Its direct counts (the first
+  :data:`GAIN_WINDOW` s after its direct return, less its floor) over their mean, :func:`gain_map`, raised to the
+  power γ that the hidden counts follow them with over the scan, :func:`gain_exponent` (a slope of logs over groups
+  of points, held to [0, 1]). Laser power scales both alike (γ = 1); the focus and the alignment of the detector's
+  field of view with the laser spot scale the direct light, a point on the wall, more than the hidden light spread
+  over the field of view (γ < 1). On the LCT release's dot charts γ is 0.50 / 0.38, and the gain each chart's
+  simulation asks for (real over simulated hidden counts, point by point) is a power of its direct counts: their
+  logs correlate at 0.95-0.96 (docs/real.md);
 * the direct-to-hidden ratio: the net counts of the direct light (the bins :func:`direct_light_bins` gives) over the
   net counts after it, :func:`direct_to_hidden`. What fraction of the direct light the set-up lets through cannot be
   told from the capture alone (it needs the geometry's prediction of the hidden return): compare this ratio with a
@@ -31,8 +36,9 @@ import numpy as np
 
 from .confocal import direct_light_bins
 
-__all__ = ["LATE_FRACTION", "GAIN_WINDOW", "IRF_WINDOW", "IRF_POSITIONS", "CaptureDetector", "background_map",
-           "gain_map", "direct_to_hidden", "estimate_capture_detector"]
+__all__ = ["LATE_FRACTION", "GAIN_WINDOW", "IRF_WINDOW", "IRF_POSITIONS", "GAIN_GROUPS", "CaptureDetector",
+           "background_map", "gain_map", "gain_exponent", "net_noise", "hidden_gain", "direct_to_hidden",
+           "estimate_capture_detector"]
 
 LATE_FRACTION = 0.1
 """The background floor is read on the last 10 % of the window (the LCT release's captures: bins 1843-2047 of 2048,
@@ -47,6 +53,9 @@ IRF_WINDOW = 1.2e-9
 scenes start after 2.4 ns)."""
 
 
+GAIN_GROUPS = 8
+""":func:`gain_exponent` averages the points in 8 groups by their direct counts before it reads the slope."""
+
 IRF_POSITIONS = ("aligned", "free")
 """How the IRF fit places the core: "aligned" (the default) holds it at the middle of the bin where the scan-summed
 direct return peaks (the first bin on the aligned axis, the LCT release's direct peak), "free" fits its centre."""
@@ -58,13 +67,15 @@ class CaptureDetector:
 
     Attributes:
         background: float64 (ny, nx) counts per bin of each point's floor.
-        gain: float64 (ny, nx) each point's net direct counts over their mean (mean 1).
+        gain: float64 (ny, nx) the hidden light's gain, ``direct_gain ** gain_exponent`` over its mean (mean 1).
         direct_counts, hidden_counts: float64 (ny, nx) net counts (floor removed) of the direct light and after it.
         direct_to_hidden: total net direct over total net hidden counts.
         direct_bins: the number of leading bins that hold the direct light (:func:`direct_light_bins`).
         fit: the two-tail :class:`~datagen.spad.fit_result.DetectorFit` of the scan-summed direct return, or None.
         notes: one line each for what the estimate could not do.
         irf_position: how the fit placed the IRF's core (:data:`IRF_POSITIONS`).
+        direct_gain: float64 (ny, nx) each point's net direct counts over their mean (:func:`gain_map`).
+        gain_exponent: γ, how the hidden counts follow the direct counts (:func:`gain_exponent`).
     """
 
     background: np.ndarray
@@ -76,6 +87,8 @@ class CaptureDetector:
     fit: object | None = None
     notes: list[str] = field(default_factory=list)
     irf_position: str = "aligned"
+    direct_gain: np.ndarray | None = None
+    gain_exponent: float = 1.0
 
 
 def _late(n_bins: int, late: tuple[int, int] | None) -> slice:
@@ -108,6 +121,66 @@ def gain_map(scan: np.ndarray, bin_width: float, background: np.ndarray) -> tupl
         raise ValueError("the scan's first bins hold no net counts above the floor: no direct light to read a gain "
                          "from (is the capture on the hidden round-trip axis, its direct light at t = 0?)")
     return direct / mean, direct
+
+
+def gain_exponent(direct: np.ndarray, hidden: np.ndarray, hidden_noise: np.ndarray,
+                  model: np.ndarray | None = None) -> float:
+    """γ: the power of a point's direct counts that its hidden counts follow over the scan (module doc).
+
+    The points with direct counts > 0 are split into :data:`GAIN_GROUPS` groups of equal size by their direct
+    counts; γ is the least-squares slope of log mean hidden counts against log mean direct counts over the groups,
+    held to [0, 1]. Averaging before the log keeps counting noise out of the slope (a log of single points' noisy
+    hidden counts, or a cut on them, pulls it towards 0). The scene's own variation over the scan (where the hidden
+    object is) enters too: without ``model`` it averages out within a group only where it does not follow the direct
+    light (an object on the bright side of the scan reads a larger γ, on the dim side a smaller one); with
+    ``model``, a simulation's hidden counts at each point without the gain (any scale), each group's mean hidden
+    counts are divided by the model's, which takes the scene out. γ is 1 (the light as it is) when a group's mean
+    hidden counts are not three times their noise (the hidden light too weak, or its floor over-subtracted, to
+    tell), a group's model mean is not > 0, or fewer than :data:`GAIN_GROUPS` points have direct light.
+
+    Args:
+        direct, hidden: (ny, nx) net counts (floor removed) of each point's direct light and of what follows it.
+        hidden_noise: (ny, nx) the standard deviation of ``hidden`` (counting noise of the counts and of the floor).
+        model: (ny, nx) or None: the scene's hidden counts per point without the gain.
+    Returns:
+        float in [0, 1].
+    """
+    d = np.asarray(direct, dtype=np.float64).ravel()
+    h = np.asarray(hidden, dtype=np.float64).ravel()
+    var = np.asarray(hidden_noise, dtype=np.float64).ravel() ** 2
+    lit = (d > 0) & np.isfinite(d) & np.isfinite(h) & np.isfinite(var)
+    if lit.sum() < GAIN_GROUPS:
+        return 1.0
+    order = np.argsort(d[lit], kind="stable")
+    groups = np.array_split(order, GAIN_GROUPS)
+    dd, hh, vv = d[lit], h[lit], var[lit]
+    mean_d = np.array([dd[g].mean() for g in groups])
+    mean_h = np.array([hh[g].mean() for g in groups])
+    noise = np.array([np.sqrt(vv[g].sum()) / g.size for g in groups])
+    scene = np.ones(GAIN_GROUPS)
+    if model is not None:
+        mm = np.asarray(model, dtype=np.float64).ravel()[lit]
+        scene = np.array([mm[g].mean() for g in groups])
+    if not (mean_h > 3.0 * noise).all() or not (scene > 0).all() or not np.ptp(np.log(mean_d)) > 0:
+        return 1.0
+    slope = float(np.polyfit(np.log(mean_d), np.log(mean_h / scene), 1)[0])
+    return float(min(max(slope, 0.0), 1.0))
+
+
+def net_noise(window: np.ndarray, floor: np.ndarray, floor_bins: int) -> np.ndarray:
+    """The standard deviation of a window's net counts (its counts less ``floor`` per bin, the floor the mean of
+    ``floor_bins`` bins): sqrt(counts + K² · floor / floor_bins) for K bins, Poisson counts. window: (..., K)
+    counts; floor: (...) counts per bin. Returns float64 (...)."""
+    w = np.asarray(window, dtype=np.float64)
+    return np.sqrt(w.sum(axis=-1) + w.shape[-1] ** 2 * np.maximum(floor, 0.0) / max(int(floor_bins), 1))
+
+
+def hidden_gain(direct_gain: np.ndarray, exponent: float) -> np.ndarray:
+    """The hidden light's gain: ``direct_gain ** exponent`` (:func:`gain_map`, :func:`gain_exponent`) over its
+    mean. Returns float64 of ``direct_gain``'s shape, mean 1 (all ones when it is all zero)."""
+    g = np.asarray(direct_gain, dtype=np.float64) ** float(exponent)
+    mean = float(g.mean())
+    return g / mean if mean > 0 else np.ones_like(g)
 
 
 def direct_to_hidden(scan: np.ndarray, background: np.ndarray, direct_bins: int) -> tuple[float, np.ndarray,
@@ -147,12 +220,16 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
     if s.ndim != 3 or s.shape[-1] < 2 or not np.isfinite(s).all() or (s < 0).any():
         raise ValueError(f"expected a confocal scan of counts (ny, nx, T) >= 0, got shape {s.shape}")
     background = background_map(s, late)
-    gain, _ = gain_map(s, bin_width, background)
+    direct_gain, direct_net = gain_map(s, bin_width, background)
     n_direct = direct_light_bins(s, bin_width) if direct_bins is None else int(direct_bins)
     notes = []
     if n_direct <= 0:
         notes.append("no direct light found at t = 0: the direct-to-hidden ratio is not estimated")
     ratio, direct, hidden = direct_to_hidden(s, background, max(n_direct, 1))
+    n, k = s.shape[-1], max(n_direct, 1)
+    late_bins = len(range(*_late(n, late).indices(n)))
+    exponent = gain_exponent(direct_net, hidden, net_noise(s[..., k:], background, late_bins))
+    gain = hidden_gain(direct_gain, exponent)
     fit = None
     if fit_irf:
         from ..errors import ConfigError
@@ -168,4 +245,5 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
                                model="poisson", irf="two_tail", allow_cropped_edge=True, fixed=fixed)
         except ConfigError as exc:
             notes.append(f"the IRF was not fitted: {exc}")
-    return CaptureDetector(background, gain, direct, hidden, ratio, n_direct, fit, notes, irf_position)
+    return CaptureDetector(background, gain, direct, hidden, ratio, n_direct, fit, notes, irf_position,
+                           direct_gain, exponent)

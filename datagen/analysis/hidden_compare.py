@@ -13,10 +13,12 @@ bin width. Then, in order:
    :data:`SIGNAL_FREE` of its peak (plus three times its counting noise when it holds counts) (at least
    :data:`MIN_FLOOR_BINS`; else the last tenth of the window), subtracted from both scans.
 3. **Gain.** Optionally each simulated point is multiplied by a gain map: "direct" estimates it from the measured
-   scan's direct light (each point's counts in the excluded bins above its floor, over their mean: laser power,
-   focus and the wall's albedo scale the direct and the hidden light alike), or an (ny, nx) map is given, e.g. one
-   read off another capture of the same scanner against its own simulation (:func:`calibrated_gain`: a flat-field
-   calibration on a known target).
+   scan's direct light (:mod:`~datagen.analysis.capture_detector`: each point's direct counts above its floor over
+   their mean, raised to the power γ that the measured hidden counts over the simulated ones follow them with over
+   the scan, :func:`~datagen.analysis.capture_detector.gain_exponent`; laser power scales the direct and the hidden
+   light alike, focus and alignment the direct light, a point, more), or
+   an (ny, nx) map is given, e.g. one read off another capture of the same scanner against its own simulation
+   (:func:`calibrated_gain`: a flat-field calibration on a known target).
 4. **Scale.** The simulation is scaled to the measured hidden counts (one factor: the model's absolute scale is its
    own, the measurement's its exposure's).
 
@@ -39,6 +41,7 @@ import numpy as np
 
 from ..spad.rates import rebin_envelope
 from .compare_capture import fwhm, peak_time
+from .capture_detector import gain_exponent, gain_map, hidden_gain, net_noise
 from .confocal import align_confocal, direct_light_bins
 
 __all__ = ["HiddenComparison", "hidden_comparison", "hidden_metrics", "leading_edges", "decay_time", "calibrated_gain",
@@ -75,9 +78,10 @@ class HiddenComparison(dict):
     """The result of :func:`hidden_comparison`, a dict: each of :data:`METRICS` and ``floor`` {metric: noise floor};
     ``fwhm_real`` / ``fwhm_sim``, ``decay_real`` / ``decay_sim``, ``edge_points`` (points compared), ``map_corr``;
     ``trim_bins``, ``trim`` (s), ``trim_how`` ("auto" or "given"), ``floor_bins``, ``gain`` (how: "none", "direct",
-    "map"), ``scale``; ``counts_real`` / ``counts_sim`` (hidden counts above the floor, the simulation's before
-    scaling); for drawing: ``t`` (K,) s, ``real_sum`` / ``model_sum`` (K,), ``real_map`` / ``model_map`` (ny, nx),
-    ``real`` / ``model`` (ny, nx, K) hidden transients, ``bin_width``, ``t0`` (s of the first kept bin)."""
+    "map"), ``gain_exponent`` (γ of "direct", else None), ``scale``; ``counts_real`` / ``counts_sim`` (hidden counts
+    above the floor, the simulation's before scaling); for drawing: ``t`` (K,) s, ``real_sum`` / ``model_sum`` (K,),
+    ``real_map`` / ``model_map`` (ny, nx), ``real`` / ``model`` (ny, nx, K) hidden transients, ``bin_width``, ``t0``
+    (s of the first kept bin)."""
 
 
 def _smooth(x: np.ndarray, width: int) -> np.ndarray:
@@ -228,11 +232,18 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
     if floor_bins.sum() < MIN_FLOOR_BINS:
         floor_bins = np.zeros(len(ss), bool)
         floor_bins[-max(1, len(ss) // 10):] = True
+    exponent = None
     if isinstance(gain, str) and gain == "direct":
-        direct = r_al[..., :n_trim].reshape(-1, n_trim) if n_trim else np.zeros((real_h.shape[0], 1))
         br = real_h[:, floor_bins].mean(axis=1)
-        d = np.maximum(direct.sum(axis=1) - br * n_trim, 0.0)
-        g, gain_how = (d / d.mean() if d.mean() > 0 else np.ones_like(d)), "direct"
+        try:
+            direct_gain, direct = gain_map(r_al, dt, br.reshape(shape))
+        except ValueError:                                       # no direct light above the floor: no gain
+            direct_gain, direct = np.ones(shape), np.ones(shape)
+        bs = sim_h[:, floor_bins].mean(axis=1)
+        noise = net_noise(real_h, br, int(floor_bins.sum()))
+        exponent = gain_exponent(direct, (real_h - br[:, None]).sum(axis=1), noise,
+                                 model=(sim_h - bs[:, None]).sum(axis=1))
+        g, gain_how = hidden_gain(direct_gain, exponent).reshape(-1), "direct"
     elif isinstance(gain, str):
         if gain != "none":
             raise ValueError(f"gain must be 'none', 'direct' or an (ny, nx) map, got {gain!r}")
@@ -268,7 +279,8 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
             floors[name].append(abs(k[name]))
     out["floor"] = {k: float(np.nanmean(v)) if np.isfinite(v).any() else float("nan") for k, v in floors.items()}
     out.update({"trim_bins": int(n_trim), "trim": n_trim * dt, "trim_how": how, "floor_bins": int(floor_bins.sum()),
-                "gain": gain_how, "scale": scale, "counts_real": float(r.sum()), "counts_sim": float((sim_h - bs[:, None]).sum()),
+                "gain": gain_how, "gain_exponent": exponent, "scale": scale,
+                "counts_real": float(r.sum()), "counts_sim": float((sim_h - bs[:, None]).sum()),
                 "t": t, "real_sum": r.sum(axis=0), "model_sum": m.sum(axis=0),
                 "real_map": r.sum(axis=1).reshape(shape), "model_map": m.sum(axis=1).reshape(shape),
                 "real": r.reshape(shape + (-1,)), "model": m.reshape(shape + (-1,)), "bin_width": dt,

@@ -409,7 +409,7 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
               help="hidden signal: the direct light to exclude, auto (found in REAL) or a duration, e.g. 2.4ns")
 @click.option("--gain", default="none", show_default=True,
               help="hidden signal: per-point gain applied to SIM: none, direct (estimated from REAL's direct "
-                   "light) or a .npy (ny, nx) map")
+                   "light, as estimate-capture's gain.npy) or a .npy (ny, nx) map")
 @click.option("--draws", type=click.IntRange(min=1, max=64), default=4, show_default=True,
               help="pairs of Poisson draws per noise floor")
 @click.option("--write-gain", "write_gain", type=click.Path(path_type=Path), default=None,
@@ -550,6 +550,13 @@ def _fronts(hidden, pitch):
     return tuple(out)
 
 
+def _gain_how(h) -> str:
+    """How the comparison's gain was made, for its first line."""
+    if h["gain"] != "direct":
+        return h["gain"]
+    return f"direct (real's direct counts to the power {h['gain_exponent']:.3f}, the hidden counts' slope on them)"
+
+
 def _hidden_section(r_data, r, r_off, s, s_off, trim, gain, draws, where: str):
     """Run and print the hidden-signal comparison; returns it, or None (with a note) when it cannot run."""
     from ..analysis.hidden_compare import hidden_comparison
@@ -575,7 +582,7 @@ def _hidden_section(r_data, r, r_off, s, s_off, trim, gain, draws, where: str):
 
     click.echo(f"hidden signal: direct light excluded (the first {h['trim'] * 1e9:.4g} ns, {h['trim_how']}; not "
                f"modelled), background floor per point from {h['floor_bins']} signal-free bins subtracted, gain "
-               f"{h['gain']}, sim scaled x{h['scale']:.4g} to real's hidden counts")
+               f"{_gain_how(h)}, sim scaled x{h['scale']:.4g} to real's hidden counts")
     click.echo(f"hidden counts: real {h['counts_real']:.6g}, sim {h['counts_sim']:.6g} (above the floor)")
     click.echo(f"relative L2 (scan-summed hidden) {h['rel_l2']:.4f} {vs(h['rel_l2'], f['rel_l2'])}")
     click.echo(f"leading edge sim - real over {h['edge_points']} points: median {ps(h['edge_median'])} (noise floor "

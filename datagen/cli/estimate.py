@@ -31,6 +31,10 @@ def _bins(text: str | None, option: str) -> tuple[int, int] | None:
         raise click.BadParameter(f"{text!r}: give FIRST:STOP bin indices", param_hint=option) from None
 
 
+def _span(x: np.ndarray) -> str:
+    return f"{x.max() / max(x.min(), 1e-300):.3g}"
+
+
 def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_cycles: int) -> str:
     """The ``detector.yaml`` text of an estimate (:class:`~datagen.analysis.capture_detector.CaptureDetector`):
     ``detector:`` (poisson, the exposure given, the mean floor as ``dcr``, the maps as ``gain.npy`` and
@@ -39,7 +43,9 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
     rows = [f"# Estimated by datagen estimate-capture from {source} (docs/detector.md \"detector.yaml\").",
             f"# background: mean {floor:.4g} counts per bin per scan point (range {est.background.min():.4g} .. "
             f"{est.background.max():.4g}); background.npy holds it relative (mean 1)",
-            f"# gain: max/min {est.gain.max() / max(est.gain.min(), 1e-300):.3g} (gain.npy, mean 1)",
+            f"# gain: max/min {est.gain.max() / max(est.gain.min(), 1e-300):.3g} (gain.npy, mean 1): the direct "
+            f"counts' (max/min {_span(est.direct_gain)}) to the power {est.gain_exponent:.3f}, the slope the hidden",
+            "# counts follow them with (it multiplies all light, the direct light's included)",
             f"# direct-to-hidden ratio of net counts: {est.direct_to_hidden:.4g} (direct light: the first "
             f"{est.direct_bins} bins); detector.direct's attenuation = this / a simulation's ratio",
             "# the exposure (repetition_rate, n_cycles) is assumed when the capture does not state it: dcr holds the",
@@ -85,9 +91,9 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
     OUT/gain.npy, OUT/background.npy, OUT/estimates.json and OUT/maps.png.
 
     Background: each point's floor on its late bins; gain: its direct counts (0.2 ns from its direct return)
-    relative to their mean; the direct-to-hidden ratio of net counts; the IRF: a two-tail fit of the scan-summed
-    direct return, its core's centre held at that return's peak or, with --irf-position free, fitted
-    (docs/detector.md).
+    relative to their mean, to the power the hidden counts follow them with over the scan; the direct-to-hidden
+    ratio of net counts; the IRF: a two-tail fit of the scan-summed direct return, its core's centre held at that
+    return's peak or, with --irf-position free, fitted (docs/detector.md).
     """
     from ..analysis.capture_detector import estimate_capture_detector
     from ..analysis.confocal import align_confocal
@@ -114,17 +120,20 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
     record = {"source": desc, "bin_width_s": dt, "background_counts_per_bin": est.background.tolist(),
               "background_mean_counts_per_bin": floor, "direct_counts": est.direct_counts.tolist(),
               "hidden_counts": est.hidden_counts.tolist(), "direct_to_hidden": est.direct_to_hidden,
-              "direct_bins": est.direct_bins, "notes": est.notes,
+              "direct_bins": est.direct_bins, "notes": est.notes, "gain_exponent": est.gain_exponent,
+              "direct_gain": est.direct_gain.tolist(),
               "irf": None if est.fit is None else est.fit.irf_model.model_dump(),
               "irf_chi2_per_dof": None if est.fit is None else est.fit.pearson_chi2 / est.fit.dof}
     (out / "estimates.json").write_text(json.dumps(record))
-    plot_capture_maps({"gain (direct counts / mean)": est.gain, "background (counts per bin)": est.background,
-                       "net direct counts": est.direct_counts, "net hidden counts": est.hidden_counts},
+    plot_capture_maps({f"gain (direct counts / mean)^{est.gain_exponent:.2f}": est.gain,
+                       "background (counts per bin)": est.background, "net direct counts": est.direct_counts,
+                       "net hidden counts": est.hidden_counts},
                       out / "maps.png", title=desc)
     click.echo(f"{desc}: {scan.shape[0]} x {scan.shape[1]} points, {scan.shape[2]} bins of {dt * 1e12:.4g} ps")
     click.echo(f"background: mean {floor:.4g} counts per bin (range {est.background.min():.4g} .. "
                f"{est.background.max():.4g})")
-    click.echo(f"gain: max/min {est.gain.max() / max(est.gain.min(), 1e-300):.3g}; correlation with the hidden "
+    click.echo(f"gain: max/min {_span(est.gain)}, the direct counts' (max/min {_span(est.direct_gain)}) to the power "
+               f"{est.gain_exponent:.3f} (the slope of log hidden on log direct counts); correlation with the hidden "
                f"counts {np.corrcoef(est.gain.ravel(), est.hidden_counts.ravel())[0, 1]:.3f}")
     click.echo(f"direct-to-hidden ratio (net counts) {est.direct_to_hidden:.4g}, direct light in the first "
                f"{est.direct_bins} bins ({est.direct_bins * dt * 1e9:.3g} ns)")
