@@ -16,9 +16,9 @@ bin width. Then, in order:
    scan's direct light (:mod:`~datagen.analysis.capture_detector`: each point's direct counts above its floor over
    their mean, raised to the power γ that the measured hidden counts over the simulated ones follow them with over
    the scan, :func:`~datagen.analysis.capture_detector.gain_exponent`; laser power scales the direct and the hidden
-   light alike, focus and alignment the direct light, a point, more), or
-   an (ny, nx) map is given, e.g. one read off another capture of the same scanner against its own simulation
-   (:func:`calibrated_gain`: a flat-field calibration on a known target).
+   light alike, focus and alignment the direct light, a point, more), or an (ny, nx) map is given, e.g. one read
+   off another capture of the same scanner against its own simulation (:func:`calibrated_gain`: a flat-field
+   calibration on a known target).
 4. **Scale.** The simulation is scaled to the measured hidden counts (one factor: the model's absolute scale is its
    own, the measurement's its exposure's).
 

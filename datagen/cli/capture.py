@@ -408,8 +408,8 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
 @click.option("--trim", default="auto", show_default=True,
               help="hidden signal: the direct light to exclude, auto (found in REAL) or a duration, e.g. 2.4ns")
 @click.option("--gain", default="none", show_default=True,
-              help="hidden signal: per-point gain applied to SIM: none, direct (estimated from REAL's direct "
-                   "light, as estimate-capture's gain.npy) or a .npy (ny, nx) map")
+              help="hidden signal: per-point gain applied to SIM: none, direct (REAL's direct light to the power "
+                   "that REAL's hidden counts over SIM's follow it with) or a .npy (ny, nx) map")
 @click.option("--draws", type=click.IntRange(min=1, max=64), default=4, show_default=True,
               help="pairs of Poisson draws per noise floor")
 @click.option("--write-gain", "write_gain", type=click.Path(path_type=Path), default=None,
