@@ -171,6 +171,10 @@ def test_estimators_recover_known_gain_and_background_maps(scans):
     assert est.background.mean() == pytest.approx(floor.mean(), rel=0.05)
     assert est.direct_to_hidden > 100                               # datagen's unattenuated direct light
     assert est.gain_exponent == 1.0                   # the hidden counts within the floor's noise: the light as it is
+    no_direct = counts.copy()                     # the direct light cut: its 0.2 ns hold each point's floor alone
+    no_direct[..., :12] = np.random.default_rng(4).poisson(floor[..., None], (8, 8, 12))
+    cut = estimate_capture_detector(no_direct, 16e-12, fit_irf=False)
+    assert (cut.gain == 1.0).all() and any("not above its noise" in note for note in cut.notes)
 
 
 def test_estimate_capture_writes_a_detector_a_simulation_loads(scans, tmp_path):

@@ -88,6 +88,23 @@ def test_gain_from_the_direct_light_follows_it_to_the_power_the_hidden_light_doe
     assert linear["map_decorrelation"] > 5 * linear["floor"]["map_decorrelation"]
 
 
+def test_no_gain_from_a_direct_light_within_its_noise():
+    """A capture whose direct light was cut (here: none at all, the floor's 0.02 counts per bin alone in its first
+    0.2 ns): a gain read off it would be counting noise (zero at most points, huge at a few), so "direct" applies
+    none and says why; the comparison is the plain one. The same capture with its direct light gets the gain."""
+    rng = np.random.default_rng(11)
+    direct = capture(amp=0) - 0.02
+    real = rng.poisson(capture(amp=10) - direct).astype(float)
+    plain = hidden_comparison(real, EDGES, None, capture(amp=10), EDGES, None, sim_is_counts=False, seed=1)
+    asked = hidden_comparison(real, EDGES, None, capture(amp=10), EDGES, None, sim_is_counts=False, gain="direct",
+                              seed=1)
+    assert asked["gain"].startswith("none (direct asked") and asked["gain_exponent"] is None
+    assert asked["map_corr"] == plain["map_corr"] and asked["rel_l2"] == plain["rel_l2"]
+    lit = hidden_comparison(rng.poisson(capture(amp=10)).astype(float), EDGES, None, capture(amp=10), EDGES, None,
+                            sim_is_counts=False, gain="direct", seed=1)
+    assert lit["gain"] == "direct"
+
+
 def test_a_gain_calibrated_on_one_capture_restores_another_of_the_same_scanner():
     """A scanner's gain, 4x across the scan times a per-point factor of ±20 %, on two captures: a calibration
     target (100 counts per bin at the peak) and a dimmer scene whose return comes 30 ps later. calibrated_gain of the

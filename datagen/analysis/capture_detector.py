@@ -37,8 +37,8 @@ import numpy as np
 from .confocal import direct_light_bins
 
 __all__ = ["LATE_FRACTION", "GAIN_WINDOW", "IRF_WINDOW", "IRF_POSITIONS", "GAIN_GROUPS", "CaptureDetector",
-           "background_map", "gain_map", "gain_exponent", "net_noise", "hidden_gain", "direct_to_hidden",
-           "estimate_capture_detector"]
+           "background_map", "gain_map", "gain_exponent", "net_noise", "direct_light_seen", "hidden_gain",
+           "direct_to_hidden", "estimate_capture_detector"]
 
 LATE_FRACTION = 0.1
 """The background floor is read on the last 10 % of the window (the LCT release's captures: bins 1843-2047 of 2048,
@@ -175,6 +175,19 @@ def net_noise(window: np.ndarray, floor: np.ndarray, floor_bins: int) -> np.ndar
     return np.sqrt(w.sum(axis=-1) + w.shape[-1] ** 2 * np.maximum(floor, 0.0) / max(int(floor_bins), 1))
 
 
+def direct_light_seen(scan: np.ndarray, bin_width: float, floor: np.ndarray, floor_bins: int) -> bool:
+    """Whether a scan's direct light can give a gain: at least half of its points hold net counts in the first
+    :data:`GAIN_WINDOW` s (:func:`gain_map`'s) above three times their noise (:func:`net_noise`). A capture whose
+    direct light was cut, or a simulation without it, holds only the floor's noise there, and a gain read off it is
+    noise too. scan: (ny, nx, T) counts on the aligned axis; floor: (ny, nx) counts per bin, the mean of
+    ``floor_bins`` bins."""
+    s = np.asarray(scan, dtype=np.float64)
+    k = max(1, min(s.shape[-1], int(round(GAIN_WINDOW / bin_width))))
+    window = s[..., :k]
+    net = window.sum(axis=-1) - k * np.asarray(floor, dtype=np.float64)
+    return bool(np.mean(net > 3.0 * net_noise(window, floor, floor_bins)) >= 0.5)
+
+
 def hidden_gain(direct_gain: np.ndarray, exponent: float) -> np.ndarray:
     """The hidden light's gain: ``direct_gain ** exponent`` (:func:`gain_map`, :func:`gain_exponent`) over its
     mean. Returns float64 of ``direct_gain``'s shape, mean 1 (all ones when it is all zero)."""
@@ -230,6 +243,9 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
     late_bins = len(range(*_late(n, late).indices(n)))
     exponent = gain_exponent(direct_net, hidden, net_noise(s[..., k:], background, late_bins))
     gain = hidden_gain(direct_gain, exponent)
+    if not direct_light_seen(s, bin_width, background, late_bins):
+        gain = np.ones_like(direct_gain)
+        notes.append("the direct light is not above its noise at half of the points: no gain (gain.npy all 1)")
     fit = None
     if fit_irf:
         from ..errors import ConfigError

@@ -16,9 +16,10 @@ bin width. Then, in order:
    scan's direct light (:mod:`~datagen.analysis.capture_detector`: each point's direct counts above its floor over
    their mean, raised to the power γ that the measured hidden counts over the simulated ones follow them with over
    the scan, :func:`~datagen.analysis.capture_detector.gain_exponent`; laser power scales the direct and the hidden
-   light alike, focus and alignment the direct light, a point, more), or an (ny, nx) map is given, e.g. one read
-   off another capture of the same scanner against its own simulation (:func:`calibrated_gain`: a flat-field
-   calibration on a known target).
+   light alike, focus and alignment the direct light, a point, more; no gain when the direct light is not above its
+   noise at half of the points, :func:`~datagen.analysis.capture_detector.direct_light_seen`), or an (ny, nx) map
+   is given, e.g. one read off another capture of the same scanner against its own simulation
+   (:func:`calibrated_gain`: a flat-field calibration on a known target).
 4. **Scale.** The simulation is scaled to the measured hidden counts (one factor: the model's absolute scale is its
    own, the measurement's its exposure's).
 
@@ -41,7 +42,7 @@ import numpy as np
 
 from ..spad.rates import rebin_envelope
 from .compare_capture import fwhm, peak_time
-from .capture_detector import gain_exponent, gain_map, hidden_gain, net_noise
+from .capture_detector import direct_light_seen, gain_exponent, gain_map, hidden_gain, net_noise
 from .confocal import align_confocal, direct_light_bins
 
 __all__ = ["HiddenComparison", "hidden_comparison", "hidden_metrics", "leading_edges", "decay_time", "calibrated_gain",
@@ -78,10 +79,10 @@ class HiddenComparison(dict):
     """The result of :func:`hidden_comparison`, a dict: each of :data:`METRICS` and ``floor`` {metric: noise floor};
     ``fwhm_real`` / ``fwhm_sim``, ``decay_real`` / ``decay_sim``, ``edge_points`` (points compared), ``map_corr``;
     ``trim_bins``, ``trim`` (s), ``trim_how`` ("auto" or "given"), ``floor_bins``, ``gain`` (how: "none", "direct",
-    "map"), ``gain_exponent`` (γ of "direct", else None), ``scale``; ``counts_real`` / ``counts_sim`` (hidden counts
-    above the floor, the simulation's before scaling); for drawing: ``t`` (K,) s, ``real_sum`` / ``model_sum`` (K,),
-    ``real_map`` / ``model_map`` (ny, nx), ``real`` / ``model`` (ny, nx, K) hidden transients, ``bin_width``, ``t0``
-    (s of the first kept bin)."""
+    "map", or "none (…)" saying why "direct" gave no gain), ``gain_exponent`` (γ of "direct", else None),
+    ``scale``; ``counts_real`` / ``counts_sim`` (hidden counts above the floor, the simulation's before scaling); for
+    drawing: ``t`` (K,) s, ``real_sum`` / ``model_sum`` (K,), ``real_map`` / ``model_map`` (ny, nx), ``real`` /
+    ``model`` (ny, nx, K) hidden transients, ``bin_width``, ``t0`` (s of the first kept bin)."""
 
 
 def _smooth(x: np.ndarray, width: int) -> np.ndarray:
@@ -235,15 +236,14 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
     exponent = None
     if isinstance(gain, str) and gain == "direct":
         br = real_h[:, floor_bins].mean(axis=1)
-        try:
+        g, gain_how = None, "none (direct asked: REAL's direct light is not above its noise at half of its points)"
+        if direct_light_seen(r_al, dt, br.reshape(shape), int(floor_bins.sum())):
             direct_gain, direct = gain_map(r_al, dt, br.reshape(shape))
-        except ValueError:                                       # no direct light above the floor: no gain
-            direct_gain, direct = np.ones(shape), np.ones(shape)
-        bs = sim_h[:, floor_bins].mean(axis=1)
-        noise = net_noise(real_h, br, int(floor_bins.sum()))
-        exponent = gain_exponent(direct, (real_h - br[:, None]).sum(axis=1), noise,
-                                 model=(sim_h - bs[:, None]).sum(axis=1))
-        g, gain_how = hidden_gain(direct_gain, exponent).reshape(-1), "direct"
+            bs = sim_h[:, floor_bins].mean(axis=1)
+            noise = net_noise(real_h, br, int(floor_bins.sum()))
+            exponent = gain_exponent(direct, (real_h - br[:, None]).sum(axis=1), noise,
+                                     model=(sim_h - bs[:, None]).sum(axis=1))
+            g, gain_how = hidden_gain(direct_gain, exponent).reshape(-1), "direct"
     elif isinstance(gain, str):
         if gain != "none":
             raise ValueError(f"gain must be 'none', 'direct' or an (ny, nx) map, got {gain!r}")
