@@ -98,7 +98,7 @@ def test_no_gain_from_a_direct_light_within_its_noise():
     plain = hidden_comparison(real, EDGES, None, capture(amp=10), EDGES, None, sim_is_counts=False, seed=1)
     asked = hidden_comparison(real, EDGES, None, capture(amp=10), EDGES, None, sim_is_counts=False, gain="direct",
                               seed=1)
-    assert asked["gain"].startswith("none (direct asked") and asked["gain_exponent"] is None
+    assert asked["gain"].startswith("none (direct: ") and asked["gain_exponent"] is None
     assert asked["map_corr"] == plain["map_corr"] and asked["rel_l2"] == plain["rel_l2"]
     lit = hidden_comparison(rng.poisson(capture(amp=10)).astype(float), EDGES, None, capture(amp=10), EDGES, None,
                             sim_is_counts=False, gain="direct", seed=1)

@@ -79,7 +79,7 @@ def test_the_like_store_goes_to_compare_capture_and_reconstruct_as_it_is(importe
     assert "hidden signal: direct light excluded" in out and "noise floor" in out, out
     assert "leading edge sim - real" in out
     out = run("compare-capture", store, tmp / "sim2", "--gain", "direct")   # a simulation's export: no direct light
-    assert "gain none (direct asked: REAL's direct light is not above its noise at half of its points)" in out, out
+    assert "gain none (direct: REAL's direct light is not above its noise at half of its points)" in out, out
     out = run("compare-capture", store, tmp / "sim2", "--write-gain", tmp / "g.npy")   # calibrated on this target
     gain = np.load(tmp / "g.npy")
     assert gain.shape == (8, 8) and gain.mean() == pytest.approx(1.0) and (gain >= 0).all()

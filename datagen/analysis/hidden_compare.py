@@ -236,7 +236,7 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
     exponent = None
     if isinstance(gain, str) and gain == "direct":
         br = real_h[:, floor_bins].mean(axis=1)
-        g, gain_how = None, "none (direct asked: REAL's direct light is not above its noise at half of its points)"
+        g, gain_how = None, "none (direct: REAL's direct light is not above its noise at half of its points)"
         if direct_light_seen(r_al, dt, br.reshape(shape), int(floor_bins.sum())):
             direct_gain, direct = gain_map(r_al, dt, br.reshape(shape))
             bs = sim_h[:, floor_bins].mean(axis=1)

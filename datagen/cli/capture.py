@@ -407,9 +407,10 @@ def fit_detector_cmd(hist, repetition_rate, n_cycles, bin_width, width, t_start,
               help="REAL may hold negative bins (a background-subtracted capture)")
 @click.option("--trim", default="auto", show_default=True,
               help="hidden signal: the direct light to exclude, auto (found in REAL) or a duration, e.g. 2.4ns")
-@click.option("--gain", default="none", show_default=True,
-              help="hidden signal: per-point gain applied to SIM: none, direct (REAL's direct light to the power "
-                   "that REAL's hidden counts over SIM's follow it with) or a .npy (ny, nx) map")
+@click.option("--gain", default="direct", show_default=True,
+              help="hidden signal: per-point gain applied to SIM: direct (REAL's direct light to the power that "
+                   "REAL's hidden counts over SIM's follow it with; none where that light is within its noise), "
+                   "none, or a .npy (ny, nx) map")
 @click.option("--draws", type=click.IntRange(min=1, max=64), default=4, show_default=True,
               help="pairs of Poisson draws per noise floor")
 @click.option("--write-gain", "write_gain", type=click.Path(path_type=Path), default=None,
