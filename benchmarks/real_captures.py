@@ -126,9 +126,10 @@ def main() -> None:
         depths = ", ".join(f"{m} {r[m]:.4f} m" for m in args.methods)
         ref = f" (reference {DEPTHS[name]:.2f} m)" if name in DEPTHS else ""
         l2, edge, map_r, fwhm = r["rel_l2"], r["edge"], r["map_r"], r["fwhm"]
+        power = f"to the power {r['gain_power'][0]:.2f}" if r["gain_power"] else "as they are, their power not read"
         print(f"{name}: depth {depths}{ref}; simulate --like {r['sim_s']:.0f} s; hidden relative L2 {l2[0]:.3f} "
               f"(noise floor {l2[1]:.3f}); leading edge {edge[0]:+.1f} ps; map correlation {map_r[0]:.3f} (gain: the "
-              f"direct counts to the power {r['gain_power'][0]:.2f}); FWHM real "
+              f"direct counts {power}); FWHM real "
               f"{fwhm[0]:.0f} ps, sim {fwhm[1]:.0f} ps ({fwhm[1] / fwhm[0] - 1:+.1%})", flush=True)
         er, es = r["echo"]
         if er is not None and es is not None:

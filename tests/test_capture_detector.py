@@ -211,7 +211,9 @@ def test_gain_exponent_reads_the_power_the_hidden_counts_follow():
     assert gain_exponent(direct, hidden, np.sqrt(hidden)) > 0.5
     assert gain_exponent(direct, hidden, np.sqrt(hidden), model=1 + 2 * xx) == pytest.approx(0.4, abs=0.03)
     weak = rng.normal(0.0, 30.0, (64, 64))                            # net counts of a floor: no hidden light
-    assert gain_exponent(direct, weak, np.full((64, 64), 30.0)) == 1.0
+    notes: list[str] = []
+    assert gain_exponent(direct, weak, np.full((64, 64), 30.0), notes=notes) == 1.0
+    assert len(notes) == 1 and "not 3 times their noise" in notes[0]
     assert gain_exponent(direct, hidden, np.sqrt(hidden), model=np.zeros((64, 64))) == 1.0
 
 

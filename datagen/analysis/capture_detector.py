@@ -124,7 +124,7 @@ def gain_map(scan: np.ndarray, bin_width: float, background: np.ndarray) -> tupl
 
 
 def gain_exponent(direct: np.ndarray, hidden: np.ndarray, hidden_noise: np.ndarray,
-                  model: np.ndarray | None = None) -> float:
+                  model: np.ndarray | None = None, notes: list[str] | None = None) -> float:
     """γ: the power of a point's direct counts that its hidden counts follow over the scan (module doc).
 
     The points with direct counts > 0 are split into :data:`GAIN_GROUPS` groups of equal size by their direct
@@ -142,15 +142,21 @@ def gain_exponent(direct: np.ndarray, hidden: np.ndarray, hidden_noise: np.ndarr
         direct, hidden: (ny, nx) net counts (floor removed) of each point's direct light and of what follows it.
         hidden_noise: (ny, nx) the standard deviation of ``hidden`` (counting noise of the counts and of the floor).
         model: (ny, nx) or None: the scene's hidden counts per point without the gain.
+        notes: a list that gets one line saying why, when γ is 1 because it could not be read.
     Returns:
         float in [0, 1].
     """
+    def cannot(why: str) -> float:
+        if notes is not None:
+            notes.append(f"the gain's power is 1: {why}")
+        return 1.0
+
     d = np.asarray(direct, dtype=np.float64).ravel()
     h = np.asarray(hidden, dtype=np.float64).ravel()
     var = np.asarray(hidden_noise, dtype=np.float64).ravel() ** 2
     lit = (d > 0) & np.isfinite(d) & np.isfinite(h) & np.isfinite(var)
     if lit.sum() < GAIN_GROUPS:
-        return 1.0
+        return cannot(f"fewer than {GAIN_GROUPS} points have direct light")
     order = np.argsort(d[lit], kind="stable")
     groups = np.array_split(order, GAIN_GROUPS)
     dd, hh, vv = d[lit], h[lit], var[lit]
@@ -161,8 +167,13 @@ def gain_exponent(direct: np.ndarray, hidden: np.ndarray, hidden_noise: np.ndarr
     if model is not None:
         mm = np.asarray(model, dtype=np.float64).ravel()[lit]
         scene = np.array([mm[g].mean() for g in groups])
-    if not (mean_h > 3.0 * noise).all() or not (scene > 0).all() or not np.ptp(np.log(mean_d)) > 0:
-        return 1.0
+    if not (mean_h > 3.0 * noise).all():
+        return cannot("the hidden counts of some points, grouped by their direct counts, are not 3 times their noise "
+                      "above the floor (too weak, or the floor read over late hidden light)")
+    if not (scene > 0).all():
+        return cannot("the simulation sends no hidden light to some points, grouped by their direct counts")
+    if not np.ptp(np.log(mean_d)) > 0:
+        return cannot("the direct counts do not vary over the scan")
     slope = float(np.polyfit(np.log(mean_d), np.log(mean_h / scene), 1)[0])
     return float(min(max(slope, 0.0), 1.0))
 
@@ -241,10 +252,11 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
     ratio, direct, hidden = direct_to_hidden(s, background, max(n_direct, 1))
     n, k = s.shape[-1], max(n_direct, 1)
     late_bins = len(range(*_late(n, late).indices(n)))
-    exponent = gain_exponent(direct_net, hidden, net_noise(s[..., k:], background, late_bins))
-    gain = hidden_gain(direct_gain, exponent)
-    if not direct_light_seen(s, bin_width, background, late_bins):
-        gain = np.ones_like(direct_gain)
+    if direct_light_seen(s, bin_width, background, late_bins):
+        exponent = gain_exponent(direct_net, hidden, net_noise(s[..., k:], background, late_bins), notes=notes)
+        gain = hidden_gain(direct_gain, exponent)
+    else:
+        exponent, gain = 1.0, np.ones_like(direct_gain)
         notes.append("the direct light is not above its noise at half of the points: no gain (gain.npy all 1)")
     fit = None
     if fit_irf:

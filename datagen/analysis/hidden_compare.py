@@ -80,6 +80,7 @@ class HiddenComparison(dict):
     ``fwhm_real`` / ``fwhm_sim``, ``decay_real`` / ``decay_sim``, ``edge_points`` (points compared), ``map_corr``;
     ``trim_bins``, ``trim`` (s), ``trim_how`` ("auto" or "given"), ``floor_bins``, ``gain`` (how: "none", "direct",
     "map", or "none (…)" saying why "direct" gave no gain), ``gain_exponent`` (γ of "direct", else None),
+    ``gain_note`` (why that γ is 1 when it could not be read, else None),
     ``scale``; ``counts_real`` / ``counts_sim`` (hidden counts above the floor, the simulation's before scaling); for
     drawing: ``t`` (K,) s, ``real_sum`` / ``model_sum`` (K,), ``real_map`` / ``model_map`` (ny, nx), ``real`` /
     ``model`` (ny, nx, K) hidden transients, ``bin_width``, ``t0`` (s of the first kept bin)."""
@@ -233,7 +234,7 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
     if floor_bins.sum() < MIN_FLOOR_BINS:
         floor_bins = np.zeros(len(ss), bool)
         floor_bins[-max(1, len(ss) // 10):] = True
-    exponent = None
+    exponent = gain_note = None
     if isinstance(gain, str) and gain == "direct":
         br = real_h[:, floor_bins].mean(axis=1)
         g, gain_how = None, "none (direct: REAL's direct light is not above its noise at half of its points)"
@@ -241,9 +242,11 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
             direct_gain, direct = gain_map(r_al, dt, br.reshape(shape))
             bs = sim_h[:, floor_bins].mean(axis=1)
             noise = net_noise(real_h, br, int(floor_bins.sum()))
+            why: list[str] = []
             exponent = gain_exponent(direct, (real_h - br[:, None]).sum(axis=1), noise,
-                                     model=(sim_h - bs[:, None]).sum(axis=1))
+                                     model=(sim_h - bs[:, None]).sum(axis=1), notes=why)
             g, gain_how = hidden_gain(direct_gain, exponent).reshape(-1), "direct"
+            gain_note = why[0] if why else None
     elif isinstance(gain, str):
         if gain != "none":
             raise ValueError(f"gain must be 'none', 'direct' or an (ny, nx) map, got {gain!r}")
@@ -279,7 +282,7 @@ def hidden_comparison(real: np.ndarray, real_edges: np.ndarray, real_offsets: np
             floors[name].append(abs(k[name]))
     out["floor"] = {k: float(np.nanmean(v)) if np.isfinite(v).any() else float("nan") for k, v in floors.items()}
     out.update({"trim_bins": int(n_trim), "trim": n_trim * dt, "trim_how": how, "floor_bins": int(floor_bins.sum()),
-                "gain": gain_how, "gain_exponent": exponent, "scale": scale,
+                "gain": gain_how, "gain_exponent": exponent, "gain_note": gain_note, "scale": scale,
                 "counts_real": float(r.sum()), "counts_sim": float((sim_h - bs[:, None]).sum()),
                 "t": t, "real_sum": r.sum(axis=0), "model_sum": m.sum(axis=0),
                 "real_map": r.sum(axis=1).reshape(shape), "model_map": m.sum(axis=1).reshape(shape),

@@ -555,6 +555,8 @@ def _gain_how(h) -> str:
     """How the comparison's gain was made, for its first line."""
     if h["gain"] != "direct":
         return h["gain"]
+    if h.get("gain_note"):
+        return f"direct (real's direct counts as they are: {h['gain_note']})"
     return f"direct (real's direct counts to the power {h['gain_exponent']:.3f}, the hidden counts' slope on them)"
 
 

@@ -35,6 +35,12 @@ def _span(x: np.ndarray) -> str:
     return f"{x.max() / max(x.min(), 1e-300):.3g}"
 
 
+def _power_source(est, where: str) -> str:
+    """Where the gain's power came from: the hidden counts' slope, or not read (``where`` says why)."""
+    unread = [n for n in est.notes if n.startswith("the gain's power is 1") or "no gain (gain.npy all 1)" in n]
+    return f"not read: {where} says why" if unread else "the slope of log hidden on log direct counts"
+
+
 def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_cycles: int) -> str:
     """The ``detector.yaml`` text of an estimate (:class:`~datagen.analysis.capture_detector.CaptureDetector`):
     ``detector:`` (poisson, the exposure given, the mean floor as ``dcr``, the maps as ``gain.npy`` and
@@ -44,8 +50,9 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
             f"# background: mean {floor:.4g} counts per bin per scan point (range {est.background.min():.4g} .. "
             f"{est.background.max():.4g}); background.npy holds it relative (mean 1)",
             f"# gain: max/min {est.gain.max() / max(est.gain.min(), 1e-300):.3g} (gain.npy, mean 1): the direct "
-            f"counts' (max/min {_span(est.direct_gain)}) to the power {est.gain_exponent:.3f}, the slope the hidden",
-            "# counts follow them with (it multiplies all light, the direct light's included)",
+            f"counts' (max/min {_span(est.direct_gain)}) to the power {est.gain_exponent:.3f}, "
+            f"{_power_source(est, 'a note in estimates.json')}",
+            "# (it multiplies all light, the direct light's included)",
             f"# direct-to-hidden ratio of net counts: {est.direct_to_hidden:.4g} (direct light: the first "
             f"{est.direct_bins} bins); detector.direct's attenuation = this / a simulation's ratio",
             "# the exposure (repetition_rate, n_cycles) is assumed when the capture does not state it: dcr holds the",
@@ -133,7 +140,7 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
     click.echo(f"background: mean {floor:.4g} counts per bin (range {est.background.min():.4g} .. "
                f"{est.background.max():.4g})")
     click.echo(f"gain: max/min {_span(est.gain)}, the direct counts' (max/min {_span(est.direct_gain)}) to the power "
-               f"{est.gain_exponent:.3f} (the slope of log hidden on log direct counts); correlation with the hidden "
+               f"{est.gain_exponent:.3f} ({_power_source(est, 'the note below')}); correlation with the hidden "
                f"counts {np.corrcoef(est.gain.ravel(), est.hidden_counts.ravel())[0, 1]:.3f}")
     click.echo(f"direct-to-hidden ratio (net counts) {est.direct_to_hidden:.4g}, direct light in the first "
                f"{est.direct_bins} bins ({est.direct_bins * dt * 1e9:.3g} ns)")
