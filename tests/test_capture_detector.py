@@ -175,6 +175,7 @@ def test_estimators_recover_known_gain_and_background_maps(scans):
     no_direct[..., :12] = np.random.default_rng(4).poisson(floor[..., None], (8, 8, 12))
     cut = estimate_capture_detector(no_direct, 16e-12, fit_irf=False)
     assert (cut.gain == 1.0).all() and any("not above its noise" in note for note in cut.notes)
+    assert "not above its noise" in cut.gain_note and est.gain_note.startswith("the gain's power is 1")
 
 
 def test_estimate_capture_writes_a_detector_a_simulation_loads(scans, tmp_path):

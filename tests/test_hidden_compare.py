@@ -71,9 +71,9 @@ def test_gain_from_the_direct_light_restores_the_map():
 def test_gain_from_the_direct_light_follows_it_to_the_power_the_hidden_light_does():
     """Focus and alignment scale the direct light, a point on the wall, more than the hidden light: a gain over 4x
     (log-uniform per point, seeded) on the direct light and its square root on the hidden light. "direct" reads the
-    power off the measured scan alone (the slope of log mean hidden on log mean direct counts over groups of points):
-    0.5 within 0.05, and its gain brings the map within 2.5x its noise floor; the direct light as it is (the power 1,
-    given as a map) over-corrects it to more than 5x."""
+    power against the simulation (the slope of the log of the measured over the simulated mean hidden counts on log
+    mean direct counts, over groups of points): 0.5 within 0.05, and its gain brings the map within 2.5x its noise
+    floor; the direct light as it is (the power 1, given as a map) over-corrects it to more than 5x."""
     rng = np.random.default_rng(10)
     gain = 4.0 ** rng.uniform(-0.5, 0.5, (N, N))
     direct = capture(amp=0) - 0.02

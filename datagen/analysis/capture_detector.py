@@ -76,6 +76,7 @@ class CaptureDetector:
         irf_position: how the fit placed the IRF's core (:data:`IRF_POSITIONS`).
         direct_gain: float64 (ny, nx) each point's net direct counts over their mean (:func:`gain_map`).
         gain_exponent: γ, how the hidden counts follow the direct counts (:func:`gain_exponent`).
+        gain_note: why γ was not read (it is then 1), or why there is no gain (``gain`` all 1); None when it was.
     """
 
     background: np.ndarray
@@ -89,6 +90,7 @@ class CaptureDetector:
     irf_position: str = "aligned"
     direct_gain: np.ndarray | None = None
     gain_exponent: float = 1.0
+    gain_note: str | None = None
 
 
 def _late(n_bins: int, late: tuple[int, int] | None) -> slice:
@@ -108,13 +110,18 @@ def background_map(scan: np.ndarray, late: tuple[int, int] | None = None) -> np.
     return s[..., _late(s.shape[-1], late)].mean(axis=-1)
 
 
+def _gain_bins(n_bins: int, bin_width: float) -> int:
+    """The bins of the first :data:`GAIN_WINDOW` s of a window of ``n_bins`` bins (at least 1)."""
+    return max(1, min(n_bins, int(round(GAIN_WINDOW / bin_width))))
+
+
 def gain_map(scan: np.ndarray, bin_width: float, background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(gain, net direct counts): each point's counts over the first :data:`GAIN_WINDOW` s of the aligned axis less
     ``background`` (counts per bin) times those bins (at least 0: a gain is never negative), and that over its
     mean. scan: (ny, nx, T) aligned counts;
     returns float64 (ny, nx) twice. Raises ValueError when the direct light holds no net counts."""
     s = np.asarray(scan, dtype=np.float64)
-    k = max(1, min(s.shape[-1], int(round(GAIN_WINDOW / bin_width))))
+    k = _gain_bins(s.shape[-1], bin_width)
     direct = np.maximum(s[..., :k].sum(axis=-1) - k * background, 0.0)   # a noisy floor above a dark point: no gain
     mean = float(direct.mean())
     if not mean > 0:
@@ -193,7 +200,7 @@ def direct_light_seen(scan: np.ndarray, bin_width: float, floor: np.ndarray, flo
     noise too. scan: (ny, nx, T) counts on the aligned axis; floor: (ny, nx) counts per bin, the mean of
     ``floor_bins`` bins."""
     s = np.asarray(scan, dtype=np.float64)
-    k = max(1, min(s.shape[-1], int(round(GAIN_WINDOW / bin_width))))
+    k = _gain_bins(s.shape[-1], bin_width)
     window = s[..., :k]
     net = window.sum(axis=-1) - k * np.asarray(floor, dtype=np.float64)
     return bool(np.mean(net > 3.0 * net_noise(window, floor, floor_bins)) >= 0.5)
@@ -252,19 +259,21 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
     ratio, direct, hidden = direct_to_hidden(s, background, max(n_direct, 1))
     n, k = s.shape[-1], max(n_direct, 1)
     late_bins = len(range(*_late(n, late).indices(n)))
+    why: list[str] = []
     if direct_light_seen(s, bin_width, background, late_bins):
-        exponent = gain_exponent(direct_net, hidden, net_noise(s[..., k:], background, late_bins), notes=notes)
+        exponent = gain_exponent(direct_net, hidden, net_noise(s[..., k:], background, late_bins), notes=why)
         gain = hidden_gain(direct_gain, exponent)
     else:
         exponent, gain = 1.0, np.ones_like(direct_gain)
-        notes.append("the direct light is not above its noise at half of the points: no gain (gain.npy all 1)")
+        why.append("the direct light is not above its noise at half of the points: no gain (gain.npy all 1)")
+    notes += why
     fit = None
     if fit_irf:
         from ..errors import ConfigError
         from ..spad.fit import fit_detector
 
         summed = s.reshape(-1, s.shape[-1]).sum(axis=0)
-        peak = int(np.argmax(summed[: max(1, int(round(GAIN_WINDOW / bin_width)))]))
+        peak = int(np.argmax(summed[:_gain_bins(summed.size, bin_width)]))
         stop = min(summed.size, peak + int(round(IRF_WINDOW / bin_width)))
         h = np.rint(summed[:stop])
         try:
@@ -274,4 +283,4 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
         except ConfigError as exc:
             notes.append(f"the IRF was not fitted: {exc}")
     return CaptureDetector(background, gain, direct, hidden, ratio, n_direct, fit, notes, irf_position,
-                           direct_gain, exponent)
+                           direct_gain, exponent, why[0] if why else None)

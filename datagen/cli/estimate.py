@@ -37,8 +37,7 @@ def _span(x: np.ndarray) -> str:
 
 def _power_source(est, where: str) -> str:
     """Where the gain's power came from: the hidden counts' slope, or not read (``where`` says why)."""
-    unread = [n for n in est.notes if n.startswith("the gain's power is 1") or "no gain (gain.npy all 1)" in n]
-    return f"not read: {where} says why" if unread else "the slope of log hidden on log direct counts"
+    return f"not read: {where} says why" if est.gain_note else "the slope of log hidden on log direct counts"
 
 
 def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_cycles: int) -> str:
@@ -49,7 +48,7 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
     rows = [f"# Estimated by datagen estimate-capture from {source} (docs/detector.md \"detector.yaml\").",
             f"# background: mean {floor:.4g} counts per bin per scan point (range {est.background.min():.4g} .. "
             f"{est.background.max():.4g}); background.npy holds it relative (mean 1)",
-            f"# gain: max/min {est.gain.max() / max(est.gain.min(), 1e-300):.3g} (gain.npy, mean 1): the direct "
+            f"# gain: max/min {_span(est.gain)} (gain.npy, mean 1): the direct "
             f"counts' (max/min {_span(est.direct_gain)}) to the power {est.gain_exponent:.3f}, "
             f"{_power_source(est, 'a note in estimates.json')}",
             "# (it multiplies all light, the direct light's included)",
