@@ -51,7 +51,8 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
             f"# gain: max/min {_span(est.gain)} (gain.npy, mean 1): the direct "
             f"counts' (max/min {_span(est.direct_gain)}) to the power {est.gain_exponent:.3f}, "
             f"{_power_source(est, 'a note in estimates.json')}",
-            "# (it multiplies all light, the direct light's included)",
+            "# (it multiplies all light, the direct light's included; a simulation that carries the direct light gives",
+            "# it its own pattern, the direct counts over their mean, with detector.direct.counts_map: direct_counts.npy)",
             f"# direct-to-hidden ratio of net counts: {est.direct_to_hidden:.4g} (direct light: the first "
             f"{est.direct_bins} bins); detector.direct's attenuation = this / a simulation's ratio",
             "# the exposure (repetition_rate, n_cycles) is assumed when the capture does not state it: dcr holds the",
@@ -78,7 +79,8 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
 @click.argument("capture", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory")
 @mat_options()
-@click.option("--late", default=None, help="bins FIRST:STOP of the floor (default: the last 10 % of the window)")
+@click.option("--late", default=None, help="bins FIRST:STOP of the floor (default: the run of 10 % of the window, after the "
+                                   "direct light, with the fewest counts)")
 @click.option("--direct-bins", "direct_bins", type=click.IntRange(min=1), default=None,
               help="bins of the direct light from t = 0 (default: where its tail ends)")
 @click.option("--no-irf", "no_irf", is_flag=True, help="skip the two-tail IRF fit")
@@ -94,9 +96,9 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
 def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_irf, irf_position, repetition_rate,
                      n_cycles):
     """Estimate the detector of the confocal capture CAPTURE (a lab file or a store) and write OUT/detector.yaml,
-    OUT/gain.npy, OUT/background.npy, OUT/estimates.json and OUT/maps.png.
+    OUT/gain.npy, OUT/background.npy, OUT/direct_counts.npy, OUT/estimates.json and OUT/maps.png.
 
-    Background: each point's floor on its late bins; gain: its direct counts (0.2 ns from its direct return)
+    Background: each point's floor over the quietest run of bins after the direct light; gain: its direct counts (0.2 ns from its direct return)
     relative to their mean, to the power the hidden counts follow them with over the scan; the direct-to-hidden
     ratio of net counts; the IRF: a two-tail fit of the scan-summed direct return, its core's centre held at that
     return's peak or, with --irf-position free, fitted (docs/detector.md).
@@ -119,12 +121,14 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     np.save(out / "gain.npy", est.gain)
+    np.save(out / "direct_counts.npy", est.direct_gain)
     floor = float(est.background.mean())
     np.save(out / "background.npy", est.background / floor if floor > 0 else np.ones_like(est.background))
     (out / "detector.yaml").write_text(detector_yaml(est, desc, dt, parse_rate(repetition_rate), n_cycles))
     DetectorConfig.from_yaml(out / "detector.yaml")                # it loads, maps and all
     record = {"source": desc, "bin_width_s": dt, "background_counts_per_bin": est.background.tolist(),
-              "background_mean_counts_per_bin": floor, "direct_counts": est.direct_counts.tolist(),
+              "background_mean_counts_per_bin": floor,
+              "background_bins": [list(span) for span in est.floor_bins], "direct_counts": est.direct_counts.tolist(),
               "hidden_counts": est.hidden_counts.tolist(), "direct_to_hidden": est.direct_to_hidden,
               "direct_bins": est.direct_bins, "notes": est.notes, "gain_exponent": est.gain_exponent,
               "direct_gain": est.direct_gain.tolist(),
@@ -136,8 +140,9 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
                        "net hidden counts": est.hidden_counts},
                       out / "maps.png", title=desc)
     click.echo(f"{desc}: {scan.shape[0]} x {scan.shape[1]} points, {scan.shape[2]} bins of {dt * 1e12:.4g} ps")
+    spans = ", ".join(f"{a}:{b} ({a * dt * 1e9:.3g}-{b * dt * 1e9:.3g} ns)" for a, b in est.floor_bins)
     click.echo(f"background: mean {floor:.4g} counts per bin (range {est.background.min():.4g} .. "
-               f"{est.background.max():.4g})")
+               f"{est.background.max():.4g}), read over bins {spans}")
     click.echo(f"gain: max/min {_span(est.gain)}, the direct counts' (max/min {_span(est.direct_gain)}) to the power "
                f"{est.gain_exponent:.3f} ({_power_source(est, 'the note below')}); correlation with the hidden "
                f"counts {np.corrcoef(est.gain.ravel(), est.hidden_counts.ravel())[0, 1]:.3f}")
@@ -152,4 +157,5 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
                    f"{est.fit.pearson_chi2 / est.fit.dof:.3g}")
     for line in est.notes:
         click.echo(f"note: {line}")
-    click.echo(f"wrote {out / 'detector.yaml'}, gain.npy, background.npy, estimates.json, maps.png")
+    click.echo(f"wrote {out / 'detector.yaml'}, gain.npy, background.npy, direct_counts.npy, estimates.json, "
+               "maps.png")

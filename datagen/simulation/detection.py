@@ -19,7 +19,7 @@ from ..errors import ConfigError
 from ..planner import Plan
 from ..planner.orders import orders_record
 from ..scene import Scene
-from ..spad.maps import direct_factor
+from ..spad.maps import check_map_shape, direct_factor
 from ..spad.pileup import counting_detector, pile_up_from_envelope
 from ..units import SPEED_OF_LIGHT
 from ..transport.base import Estimator
@@ -165,27 +165,57 @@ def attenuate_direct(envelope: np.ndarray, components: dict[str, np.ndarray], ca
     """The envelope and components as the detector sees them with ``detector.direct`` applied (docs/detector.md):
     without ``until``, the ``first_bounce`` component times ``attenuation`` at every time and the envelope less the
     light removed (the other components untouched); with ``until``, every array's light before ``until`` after each
-    scan point's direct return (:func:`direct_times`) times ``attenuation`` (:func:`datagen.spad.maps.direct_factor`).
-    Unchanged (the same objects) when ``detector.direct`` is not set.
+    scan point's direct return (:func:`direct_times`) times ``attenuation`` (:func:`datagen.spad.maps.direct_factor`);
+    with ``counts_map``, the ``first_bounce`` component first given that pattern over the scan
+    (:func:`_direct_counts_map`). Unchanged (the same objects) when ``detector.direct`` is not set.
 
     Raises:
-        ConfigError: a direct attenuation without ``until`` where the simulation computes no direct light
-            (``effects.first_bounce`` off; one line prefixed ``where``, the scene file), or a gate on a capture other
-            than a confocal scan.
+        ConfigError: a direct attenuation without ``until``, or a ``counts_map``, where the simulation computes no
+            direct light (``effects.first_bounce`` off; one line prefixed ``where``, the scene file); a
+            ``counts_map`` or ``gain_map`` whose shape is not the scan's; a gate on a capture other than a confocal
+            scan.
     """
-    direct = config.detector_config().direct
+    detector = config.detector_config()
+    direct = detector.direct
     if direct is None:
         return envelope, components
+    if "first_bounce" not in components and (direct.until is None or direct.counts_map is not None):
+        what = (f"{{attenuation: {direct.attenuation:g}}} attenuates" if direct.counts_map is None
+                else "counts_map shapes")
+        raise ConfigError(f"{where}detector.direct: {what} the direct light (the first_bounce component), which "
+                          "this simulation does not compute; set simulation.effects.first_bounce: true"
+                          + (", or give detector.direct.until for a time gate" if direct.counts_map is None else ""))
+    if direct.counts_map is not None:
+        try:
+            envelope, components = _direct_counts_map(envelope, components, detector, where)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
     if direct.until is None:
-        if "first_bounce" not in components:
-            raise ConfigError(f"{where}detector.direct: {{attenuation: {direct.attenuation:g}}} attenuates the direct "
-                              "light (the first_bounce component), which this simulation does not compute; set "
-                              "simulation.effects.first_bounce: true, or give detector.direct.until for a time gate")
         first = components["first_bounce"]
         kept = first * direct.attenuation
         return envelope - (first - kept), {**components, "first_bounce": kept}
     factor = direct_factor(config.time.edges, direct_times(capture, config), direct)
     return envelope * factor, {name: a * factor for name, a in components.items()}
+
+
+def _direct_counts_map(envelope: np.ndarray, components: dict[str, np.ndarray], detector,
+                       where: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The ``first_bounce`` component scaled point by point so that what the detector sees of it (times
+    ``detector.gain_map``, G) follows ``detector.direct.counts_map`` (M), its scan total seen unchanged: with F_p
+    the component's total at point p, F_p·G_p becomes M_p·Σ(F·G)/ΣM (docs/detector.md, "The direct light,
+    attenuated"). Points where no direct light was simulated stay dark."""
+    first = components["first_bounce"]
+    lead = first.shape[:-1]
+    target = check_map_shape(detector.direct.counts_map, "direct.counts_map", lead, f"{where}detector.")
+    gain = detector.scan_map("gain_map")
+    gain = np.ones(lead) if gain is None else check_map_shape(gain, "gain_map", lead, f"{where}detector.")
+    seen = first.sum(axis=-1) * gain
+    if not seen.any() or not target.any():
+        return envelope, components
+    wanted = target * (seen.sum() / target.sum())
+    scale = np.divide(wanted, seen, out=np.zeros(lead), where=seen > 0)
+    shaped = first * scale[..., None]
+    return envelope - first + shaped, {**components, "first_bounce": shaped}
 
 
 def zero_envelope_warning(envelope: np.ndarray, outside: np.ndarray, config: SimulationConfig, target: str,

@@ -7,7 +7,9 @@ background maps"): the direct light off each scanned point attenuated by a state
   bounce out of the SPAD: spot and FoV apart, a polariser, a mask); or, with ``until``, the light arriving before
   ``until`` after each scan point's direct return (a time gate with a transmission: a gated SPAD, or a
   neutral-density filter switched over the first bounce). :func:`direct_factor` is the gate's per-bin factor, exact
-  for the fraction of a bin before the gate's end.
+  for the fraction of a bin before the gate's end. Its ``counts_map`` gives the direct light its own pattern over
+  the scan, as measured (a capture's direct counts, ``datagen estimate-capture``'s ``direct_counts.npy``), where the
+  gain map gives the hidden light its own.
 * ``detector.gain_map`` and ``detector.background_map``: (ny, nx) non-negative factors, one per scan point, given
   inline or as a ``.npy`` file (:func:`read_map`); the gain multiplies the light each point's histogram receives
   and the background map the background rate (pde·ambient + dcr) there (:func:`datagen.spad.rates_from_envelope`).
@@ -19,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer
 
 from ..units import parse_duration
 
@@ -41,6 +43,12 @@ class DirectLight(BaseModel):
             it multiplies all the light that arrives before ``until`` after each scan point's direct return.
         until: s (> 0; strings such as "300ps") or None (default): how long after each scan point's direct return
             the gate lasts (light after it is untouched); None: no gate, the direct component attenuated.
+        counts_map: None (default), or a (ny, nx) map (inline, or a ``.npy`` path relative to the file that names
+            it) of the direct light's counts over the scan: the simulated direct light (``first_bounce``) is scaled
+            point by point so that what the detector sees of it, ``detector.gain_map`` included, follows this map,
+            its scan total unchanged (:func:`datagen.simulation.detection.attenuate_direct`). A capture's direct
+            counts carry the direct light's own geometry and its gain (focus, alignment), which on the LCT release
+            vary 5-16x over a scan while its hidden light follows them to a power of about 0.5 (docs/detector.md).
 
     Raises:
         pydantic.ValidationError (a ValueError): a value out of range, naming the field and the value.
@@ -50,18 +58,37 @@ class DirectLight(BaseModel):
 
     attenuation: float = Field(gt=0.0, le=1.0)
     until: float | None = Field(None, gt=0.0)
+    counts_map: tuple[tuple[float, ...], ...] | None = None
 
     @field_validator("until", mode="before")
     @classmethod
     def _duration(cls, value: Any) -> Any:
         return parse_duration(value) if isinstance(value, str) else value
 
+    @field_validator("counts_map", mode="before")
+    @classmethod
+    def _read_counts_map(cls, value: Any) -> Any:
+        return None if value is None else read_map(value, "direct.counts_map")
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler):
+        data = handler(self)
+        if isinstance(data, dict) and data.get("counts_map") is None:   # without it, dumped as before
+            data.pop("counts_map", None)
+        return data
+
 
 def maps_relative_to(detector: dict, base: str | Path) -> dict:
-    """``detector`` (a detector mapping) with its map paths (:data:`MAP_FIELDS` given as relative ``.npy`` paths)
-    made relative to ``base``, the folder of the file that names them; other fields as they are (a copy)."""
-    return {k: (str(Path(base) / v) if k in MAP_FIELDS and isinstance(v, str) and not Path(v).is_absolute() else v)
-            for k, v in detector.items()}
+    """``detector`` (a detector mapping) with its map paths (:data:`MAP_FIELDS` and ``direct.counts_map`` given as
+    relative ``.npy`` paths) made relative to ``base``, the folder of the file that names them; other fields as they
+    are (a copy)."""
+    def moved(v):
+        return str(Path(base) / v) if isinstance(v, str) and not Path(v).is_absolute() else v
+
+    out = {k: (moved(v) if k in MAP_FIELDS else v) for k, v in detector.items()}
+    if isinstance(out.get("direct"), dict) and "counts_map" in out["direct"]:
+        out["direct"] = {**out["direct"], "counts_map": moved(out["direct"]["counts_map"])}
+    return out
 
 
 def read_map(value: Any, field: str, base: Path | None = None) -> tuple[tuple[float, ...], ...]:
