@@ -62,6 +62,51 @@ def test_a_smoke_sample_draws_its_detector_within_the_ranges():
     np.testing.assert_array_equal(again.arrays["counts"], sample.arrays["counts"])
 
 
+def test_the_light_level_is_drawn_as_hidden_counts(tmp_path):
+    """``detector_draws.hidden_counts`` (instead of gain_scale): once simulated, the gain map is scaled so that the
+    median over the scan of the expected hidden counts (the envelope less its first_bounce component, at the config's
+    100 ms) is the drawn target, to 1e-9 (:func:`scale_to_hidden_counts` on a simulated scan with its components),
+    and the counts are drawn with it: their net hidden sum within 4 % of the expected one at the drawn exposure
+    (Poisson, thousands of counts). In a build the record carries the target and the scale; gain_scale and
+    hidden_counts together are one line."""
+    import dataclasses
+
+    import datagen
+    from datagen.dataset.detector_draws import scale_to_hidden_counts
+    from test_capture_detector import OVER, patch_scene
+    scene = patch_scene()
+    config = datagen.resolve_config(scene, {**OVER, "detector": {**OVER["detector"], "pde": 1.0, "exposure": "100ms",
+                                                                 "dcr": 1e4}})
+    result = datagen.simulate(scene, config)
+    gain = np.linspace(0.5, 1.5, 64).reshape(8, 8)
+    drawn_config = config.model_copy(update={"detector": {**config.detector, "gain_map": gain.tolist(),
+                                                          "exposure": "20ms"}})
+    drawn = {"hidden_counts": 500.0, "full_cycles": 1e6}
+    out, cfg, record = scale_to_hidden_counts(result, drawn_config, drawn, np.random.default_rng(0))
+    hidden = result.envelope - result.components["first_bounce"]
+    seen = cfg.detector_config().scan_map("gain_map")
+    assert np.median(1e6 * hidden.sum(-1) * seen) == pytest.approx(500.0, rel=1e-9)
+    np.testing.assert_allclose(seen, gain * record["gain_scale"], rtol=1e-12)
+    late = result.time_edges[:-1] >= 2.5e-9                                 # the patch's return, from 3.3 ns
+    dark = (result.time_edges[:-1] >= 1e-9) & ~late                          # no light: the floor
+    net = out.counts[..., late].sum() - out.counts[..., dark].mean(-1).sum() * late.sum()
+    assert net == pytest.approx(0.2 * 1e6 * (hidden[..., late].sum(-1) * seen).sum(), rel=0.04)
+    np.testing.assert_array_equal(out.envelope, result.envelope)
+    assert out.attrs["detector"]["gain_map"][0][0] == pytest.approx(seen[0, 0])
+    raw = yaml.safe_load(SMOKE.read_text())
+    draws = {k: v for k, v in raw["detector_draws"].items() if k != "gain_scale"}
+    raw.update(detector_draws={**draws, "hidden_counts": [300, 3000]}, room=str((SMOKE.parent / raw["room"]).resolve()))
+    (tmp_path / "lit.yaml").write_text(yaml.safe_dump(raw))
+    sample = make_sample(load_dataset_config(tmp_path / "lit.yaml"), "train", 0)
+    record = json.loads(str(sample.arrays["params"]))["detector_draw"]
+    assert 300 <= record["hidden_counts"] <= 3000 and record["full_cycles"] == pytest.approx(1e6)
+    assert record["gain_scale"] > 0 and "note" not in record
+    with pytest.raises(ConfigError) as err:
+        draw_detector({**draws, "hidden_counts": [300, 3000], "gain_scale": [0.5, 2.0]}, np.random.default_rng(0),
+                      (16, 16), config)
+    assert "\n" not in str(err.value) and "gain_scale or hidden_counts" in str(err.value)
+
+
 def test_the_drawn_maps_and_irf_reach_the_simulation():
     config = load_dataset_config(SMOKE)
     from datagen.dataset.config import setup_sample

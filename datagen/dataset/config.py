@@ -531,7 +531,7 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
     from .layout import array_axes, capture_kind
     from .labels import scene_labels
     from .zones import zone_capture
-    from .detector_draws import DETECTOR_STREAM, draw_sample_detector
+    from .detector_draws import DETECTOR_STREAM, draw_sample_detector, scale_to_hidden_counts
     from .sequences import sequence_sample
     from ..simulation import simulate_to_tolerance
 
@@ -548,6 +548,7 @@ def make_sample(config: DatasetConfig, split: str, index: int, progress: bool = 
                                        sample_seed_sequence(config.seed, split, index, "sampling"), ids))
     result = simulate_to_tolerance(room.scene, sim_config, config.tolerance, max_cost=config.cost_cap,
                                    sampling_rng=rngs["sampling"], noise_rng=rngs["noise"], progress=progress)
+    result, sim_config, drawn = scale_to_hidden_counts(result, sim_config, drawn, rngs["noise"], f"{where}: ")
     result, nodes = zone_capture(config, split, room, sim_config, result,   # a flood: the zones' result
                                  sample_rngs(config.seed, split, index)["noise"], where)
     t2 = time.perf_counter()

@@ -16,6 +16,14 @@ ones keep the config's fixed value):
 ``exposure``                  s per scan point, drawn log-uniformly (a capture at a tenth or a hundredth of the
                               light: the detections thinned, signal and background alike)
 ``gain_scale``                the gain map's mean: the light each point receives, relative to the transport's
+``hidden_counts``             instead of ``gain_scale``: the light level as the median over the scan points of
+                              their expected hidden counts (the light less the direct component) at the config's
+                              own exposure, drawn log-uniformly; the gain map is scaled to it once the sample is
+                              simulated and the counts drawn with it (:func:`scale_to_hidden_counts`), the drawn
+                              ``exposure`` thinning them after. A lab sets its exposure for its object: the LCT
+                              release's diffuse "S" needed about 40 times the charts' light for its 356 hidden
+                              counts per point, where one light level for every material leaves Lambertian
+                              cut-outs 30-100 times dimmer than it (docs/datasets.md)
 ``gain_range``                the gain map's max/min, drawn log-uniformly (a smooth field:
                               :func:`datagen.spad.map_draws.draw_gain_fields`)
 ``background_bands``          ``{ratio, bands}``: the background map's band levels up to ``ratio`` apart in
@@ -25,8 +33,8 @@ ones keep the config's fixed value):
                               time; it needs ``effects.first_bounce``)
 ============================  =================================================================================
 
-Every draw is uniform in its range (``exposure``, ``gain_range`` and ``direct.attenuation`` log-uniform: they span
-decades). The stream is ``SeedSequence(seed, spawn_key=(split_key, index, DETECTOR_STREAM))``: :data:`N_UNIFORMS`
+Every draw is uniform in its range (``exposure``, ``gain_range``, ``hidden_counts`` and ``direct.attenuation``
+log-uniform: they span decades). The stream is ``SeedSequence(seed, spawn_key=(split_key, index, DETECTOR_STREAM))``: :data:`N_UNIFORMS`
 uniforms in a fixed order whatever fields are set, then one integer seeding the torch generator of the maps, so a
 sample's draw depends only on (config, split, index) and adding a field moves no other draw.
 """
@@ -42,7 +50,7 @@ from ..units import parse_duration
 from .ranges import CountRange, Model, NonNegative, Positive, Range, Unit
 
 __all__ = ["DETECTOR_STREAM", "N_UNIFORMS", "DetectorDraws", "check_detector_draws", "draw_detector",
-           "draw_sample_detector"]
+           "draw_sample_detector", "scale_to_hidden_counts"]
 
 DETECTOR_STREAM = 5
 """Last entry of the spawn_key of a sample's detector draw (the build's streams are 0–4: :data:`~.config.STREAMS`)."""
@@ -52,7 +60,7 @@ N_UNIFORMS = 16
 
 _ORDER = ("irf.sigma", "irf.tail", "irf.tail_weight", "irf.tail2", "irf.tail2_weight", "irf.tail_delay", "dcr",
           "exposure", "gain_scale", "gain_range", "background_bands.ratio", "background_bands.bands",
-          "direct.attenuation", "direct.until")
+          "direct.attenuation", "direct.until", "hidden_counts")
 
 
 def _durations(value: Any) -> Any:
@@ -125,9 +133,16 @@ class DetectorDraws(Model):
     dcr: NonNegative | None = None
     exposure: Seconds | None = None
     gain_scale: Positive | None = None
+    hidden_counts: Positive | None = None
     gain_range: Range | None = None
     background_bands: BandDraws | None = None
     direct: DirectDraws | None = None
+
+    @model_validator(mode="after")
+    def _one_light_level(self):
+        if self.gain_scale is not None and self.hidden_counts is not None:
+            raise ValueError("give gain_scale or hidden_counts, not both: each sets the light level")
+        return self
 
     @field_validator("gain_range")
     @classmethod
@@ -188,10 +203,14 @@ def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int,
         if draws.direct.until is not None:
             direct["until"] = draws.direct.until.draw(u["direct.until"])
         record["direct"] = detector["direct"] = direct
-    maps = (draws.gain_scale, draws.gain_range, draws.background_bands)
+    if draws.hidden_counts is not None:
+        record["hidden_counts"] = draws.hidden_counts.draw_log(u["hidden_counts"])
+        record["full_cycles"] = float(sim_config.detector_config().cycles)
+    maps = (draws.gain_scale, draws.gain_range, draws.background_bands, draws.hidden_counts)
     if any(m is not None for m in maps):
         if scan is None:
-            raise ConfigError("detector_draws: gain_scale, gain_range and background_bands need a scanned capture "
+            raise ConfigError("detector_draws: gain_scale, hidden_counts, gain_range and background_bands need a "
+                              "scanned capture "
                               "(capture.scan in the room distribution)")
         import torch
 
@@ -223,3 +242,41 @@ def draw_sample_detector(draws: dict | None, stream: np.random.SeedSequence, roo
     grid = capture.laser_grid if capture is not None and capture.type == "confocal" else None
     scan = None if grid is None else (int(grid.points[1]), int(grid.points[0]))     # points are (nx, ny)
     return draw_detector(draws, np.random.default_rng(stream), scan, sim_config)
+
+
+def scale_to_hidden_counts(result, sim_config, drawn: dict, noise_rng: np.random.Generator, where: str = ""):
+    """A simulated sample brought to its drawn light level (``detector_draws.hidden_counts``, module doc): the gain map
+    G times s, s = target / median over the scan points p of C·Σ_t h_p(t)·G_p, for h the envelope less its
+    ``first_bounce`` component (the hidden light, as the detector receives it) and C the laser cycles of the config's
+    own exposure (``drawn["full_cycles"]``), then the counts drawn again from the envelope with it
+    (:func:`datagen.simulation.detection.detector_counts`). The envelope is unchanged (the gain acts at the detector).
+
+    Args:
+        result: the sample's :class:`~datagen.simulation.Result`; sim_config: the config it was simulated with (its
+            drawn detector); drawn: :func:`draw_detector`'s record; noise_rng: the generator of the new draw.
+    Returns:
+        (result, sim_config, drawn) with the new counts, detector and ``gain_scale`` = s; unchanged without a
+        ``hidden_counts`` draw, or (with a ``note``) when the scene returns no hidden light.
+    """
+    target = drawn.get("hidden_counts")
+    if target is None:
+        return result, sim_config, drawn
+    import dataclasses
+
+    from ..simulation.detection import detector_counts
+
+    envelope = np.asarray(result.envelope, dtype=np.float64)
+    hidden = envelope - np.asarray(result.components["first_bounce"]) if "first_bounce" in result.components \
+        else envelope
+    gain = sim_config.detector_config().scan_map("gain_map")
+    gain = np.ones(envelope.shape[:-1]) if gain is None else gain
+    level = float(np.median(drawn["full_cycles"] * hidden.sum(axis=-1) * gain))
+    if not level > 0:
+        return result, sim_config, {**drawn, "note": "no hidden light: the light level was not set"}
+    scale = target / level
+    detector = {**sim_config.detector, "gain_map": (gain * scale).tolist()}
+    config = sim_config.model_copy(update={"detector": detector})
+    counts, det, plan = detector_counts(envelope, config, result.attrs["plan"], noise_rng, where)
+    attrs = {**result.attrs, "detector": det.model_dump(mode="json"), "config": config.model_dump(mode="json"),
+             "plan": plan}
+    return dataclasses.replace(result, counts=counts, attrs=attrs), config, {**drawn, "gain_scale": scale}
