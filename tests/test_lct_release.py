@@ -67,8 +67,9 @@ def test_the_light_level_is_drawn_as_hidden_counts(tmp_path):
     median over the scan of the expected hidden counts (the envelope less its first_bounce component, at the config's
     100 ms) is the drawn target, to 1e-9 (:func:`scale_to_hidden_counts` on a simulated scan with its components),
     and the counts are drawn with it: their net hidden sum within 4 % of the expected one at the drawn exposure
-    (Poisson, thousands of counts). In a build the record carries the target and the scale; gain_scale and
-    hidden_counts together are one line."""
+    (Poisson, thousands of counts); a target past what the detector counts is held where the brightest bin expects
+    0.3 detections per cycle. In a build the record carries the target and the scale; gain_scale and hidden_counts
+    together are one line."""
     import dataclasses
 
     import datagen
@@ -81,18 +82,22 @@ def test_the_light_level_is_drawn_as_hidden_counts(tmp_path):
     gain = np.linspace(0.5, 1.5, 64).reshape(8, 8)
     drawn_config = config.model_copy(update={"detector": {**config.detector, "gain_map": gain.tolist(),
                                                           "exposure": "20ms"}})
-    drawn = {"hidden_counts": 500.0, "full_cycles": 1e6}
+    drawn = {"hidden_counts": 100.0, "full_cycles": 1e6}
     out, cfg, record = scale_to_hidden_counts(result, drawn_config, drawn, np.random.default_rng(0))
     hidden = result.envelope - result.components["first_bounce"]
     seen = cfg.detector_config().scan_map("gain_map")
-    assert np.median(1e6 * hidden.sum(-1) * seen) == pytest.approx(500.0, rel=1e-9)
+    assert np.median(1e6 * hidden.sum(-1) * seen) == pytest.approx(100.0, rel=1e-9)
     np.testing.assert_allclose(seen, gain * record["gain_scale"], rtol=1e-12)
     late = result.time_edges[:-1] >= 2.5e-9                                 # the patch's return, from 3.3 ns
     dark = (result.time_edges[:-1] >= 1e-9) & ~late                          # no light: the floor
     net = out.counts[..., late].sum() - out.counts[..., dark].mean(-1).sum() * late.sum()
     assert net == pytest.approx(0.2 * 1e6 * (hidden[..., late].sum(-1) * seen).sum(), rel=0.04)
     np.testing.assert_array_equal(out.envelope, result.envelope)
-    assert out.attrs["detector"]["gain_map"][0][0] == pytest.approx(seen[0, 0])
+    assert out.attrs["detector"]["gain_map"][0][0] == pytest.approx(seen[0, 0]) and not record["held"]
+    _, cfg, record = scale_to_hidden_counts(result, drawn_config, {**drawn, "hidden_counts": 1e12},
+                                            np.random.default_rng(0))    # past what a SPAD counts: held there
+    seen = cfg.detector_config().scan_map("gain_map")
+    assert record["held"] and (result.envelope * seen[..., None]).max() == pytest.approx(0.3, rel=1e-12)
     raw = yaml.safe_load(SMOKE.read_text())
     draws = {k: v for k, v in raw["detector_draws"].items() if k != "gain_scale"}
     raw.update(detector_draws={**draws, "hidden_counts": [300, 3000]}, room=str((SMOKE.parent / raw["room"]).resolve()))

@@ -49,8 +49,14 @@ from ..errors import ConfigError
 from ..units import parse_duration
 from .ranges import CountRange, Model, NonNegative, Positive, Range, Unit
 
-__all__ = ["DETECTOR_STREAM", "N_UNIFORMS", "DetectorDraws", "check_detector_draws", "draw_detector",
+__all__ = ["DETECTOR_STREAM", "MAX_DETECTION_PROBABILITY", "N_UNIFORMS", "DetectorDraws", "check_detector_draws", "draw_detector",
            "draw_sample_detector", "scale_to_hidden_counts"]
+
+MAX_DETECTION_PROBABILITY = 0.3
+""":func:`scale_to_hidden_counts` raises a sample's light no further than its brightest bin's expected detections
+per laser cycle reaching 0.3, the LCT release's brightest direct light (docs/datasets.md): past it a SPAD piles up,
+and a lab attenuates the direct light instead (the release's diffuse "S" let 0.27 % of it through). It also bounds a
+scene that returns almost no hidden light, whose direct light would otherwise be raised past any count."""
 
 DETECTOR_STREAM = 5
 """Last entry of the spawn_key of a sample's detector draw (the build's streams are 0–4: :data:`~.config.STREAMS`)."""
@@ -246,7 +252,8 @@ def draw_sample_detector(draws: dict | None, stream: np.random.SeedSequence, roo
 
 def scale_to_hidden_counts(result, sim_config, drawn: dict, noise_rng: np.random.Generator, where: str = ""):
     """A simulated sample brought to its drawn light level (``detector_draws.hidden_counts``, module doc): the gain map
-    G times s, s = target / median over the scan points p of C·Σ_t h_p(t)·G_p, for h the envelope less its
+    G times s, s = target / median over the scan points p of C·Σ_t h_p(t)·G_p, held so that no bin expects more than
+    :data:`MAX_DETECTION_PROBABILITY` detections per cycle (G·envelope), for h the envelope less its
     ``first_bounce`` component (the hidden light, as the detector receives it) and C the laser cycles of the config's
     own exposure (``drawn["full_cycles"]``), then the counts drawn again from the envelope with it
     (:func:`datagen.simulation.detection.detector_counts`). The envelope is unchanged (the gain acts at the detector).
@@ -255,8 +262,9 @@ def scale_to_hidden_counts(result, sim_config, drawn: dict, noise_rng: np.random
         result: the sample's :class:`~datagen.simulation.Result`; sim_config: the config it was simulated with (its
             drawn detector); drawn: :func:`draw_detector`'s record; noise_rng: the generator of the new draw.
     Returns:
-        (result, sim_config, drawn) with the new counts, detector and ``gain_scale`` = s; unchanged without a
-        ``hidden_counts`` draw, or (with a ``note``) when the scene returns no hidden light.
+        (result, sim_config, drawn) with the new counts, detector and ``gain_scale`` = s (and ``held``: true when
+        the detection limit held the light short of the target); unchanged without a ``hidden_counts`` draw, or
+        (with a ``note``) when the scene returns no hidden light.
     """
     target = drawn.get("hidden_counts")
     if target is None:
@@ -273,10 +281,12 @@ def scale_to_hidden_counts(result, sim_config, drawn: dict, noise_rng: np.random
     level = float(np.median(drawn["full_cycles"] * hidden.sum(axis=-1) * gain))
     if not level > 0:
         return result, sim_config, {**drawn, "note": "no hidden light: the light level was not set"}
-    scale = target / level
+    limit = MAX_DETECTION_PROBABILITY / float((envelope * gain[..., None]).max())
+    scale = min(target / level, limit)
     detector = {**sim_config.detector, "gain_map": (gain * scale).tolist()}
     config = sim_config.model_copy(update={"detector": detector})
     counts, det, plan = detector_counts(envelope, config, result.attrs["plan"], noise_rng, where)
     attrs = {**result.attrs, "detector": det.model_dump(mode="json"), "config": config.model_dump(mode="json"),
              "plan": plan}
-    return dataclasses.replace(result, counts=counts, attrs=attrs), config, {**drawn, "gain_scale": scale}
+    return (dataclasses.replace(result, counts=counts, attrs=attrs), config,
+            {**drawn, "gain_scale": scale, "held": bool(limit < target / level)})
