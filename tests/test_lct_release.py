@@ -70,8 +70,6 @@ def test_the_light_level_is_drawn_as_hidden_counts(tmp_path):
     (Poisson, thousands of counts); a target past what the detector counts is held where the brightest bin expects
     0.3 detections per cycle. In a build the record carries the target and the scale; gain_scale and hidden_counts
     together are one line."""
-    import dataclasses
-
     import datagen
     from datagen.dataset.detector_draws import scale_to_hidden_counts
     from test_capture_detector import OVER, patch_scene

@@ -38,8 +38,8 @@ import numpy as np
 from .confocal import direct_light_bins
 
 __all__ = ["LATE_FRACTION", "GAIN_WINDOW", "IRF_WINDOW", "IRF_POSITIONS", "GAIN_GROUPS", "CaptureDetector",
-           "FLOOR_SPREAD", "floor_bins", "background_map", "gain_map", "gain_exponent", "net_noise", "direct_light_seen", "hidden_gain",
-           "direct_to_hidden", "estimate_capture_detector"]
+           "FLOOR_SPREAD", "floor_bins", "background_map", "gain_map", "gain_exponent", "net_noise",
+           "direct_light_seen", "hidden_gain", "direct_to_hidden", "estimate_capture_detector"]
 
 LATE_FRACTION = 0.1
 """The background floor is read on a run of 10 % of the window's bins (205 of the LCT release's 2048)."""
@@ -140,12 +140,17 @@ def floor_bins(scan: np.ndarray, first: int = 0) -> list[tuple[int, int]]:
     return spans
 
 
+def _spans(late) -> list[tuple[int, int]]:
+    """``late`` as a list of spans (first, stop): one span, or a list of them (:func:`floor_bins`)."""
+    return [(int(a), int(b)) for a, b in ([late] if np.ndim(late) == 1 else late)]
+
+
 def _late(n_bins: int, late) -> np.ndarray:
     """The bins of ``late``: None (the last :data:`LATE_FRACTION` of the window), one span (first, stop) or a list
     of spans."""
     if late is None:
         return np.arange(n_bins - max(1, int(round(LATE_FRACTION * n_bins))), n_bins)
-    spans = [late] if np.ndim(late) == 1 else list(late)
+    spans = _spans(late)
     for first, stop in spans:
         if not 0 <= first < stop <= n_bins:
             raise ValueError(f"late bins {first}:{stop} are not within the capture's {n_bins} bins")
@@ -335,5 +340,4 @@ def estimate_capture_detector(scan: np.ndarray, bin_width: float, *, late: tuple
         except ConfigError as exc:
             notes.append(f"the IRF was not fitted: {exc}")
     return CaptureDetector(background, gain, direct, hidden, ratio, n_direct, fit, notes, irf_position,
-                           direct_gain, exponent, why[0] if why else None,
-                           [tuple(int(b) for b in span) for span in ([window] if np.ndim(window) == 1 else window)])
+                           direct_gain, exponent, why[0] if why else None, _spans(window))

@@ -51,8 +51,9 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
             f"# gain: max/min {_span(est.gain)} (gain.npy, mean 1): the direct "
             f"counts' (max/min {_span(est.direct_gain)}) to the power {est.gain_exponent:.3f}, "
             f"{_power_source(est, 'a note in estimates.json')}",
-            "# (it multiplies all light, the direct light's included; a simulation that carries the direct light gives",
-            "# it its own pattern, the direct counts over their mean, with detector.direct.counts_map: direct_counts.npy)",
+            "# (it multiplies all light, the direct light's included; a simulation that carries the direct light",
+            "# gives it its own pattern, the direct counts over their mean, with",
+            "# detector.direct.counts_map: direct_counts.npy)",
             f"# direct-to-hidden ratio of net counts: {est.direct_to_hidden:.4g} (direct light: the first "
             f"{est.direct_bins} bins); detector.direct's attenuation = this / a simulation's ratio",
             "# the exposure (repetition_rate, n_cycles) is assumed when the capture does not state it: dcr holds the",
@@ -79,8 +80,9 @@ def detector_yaml(est, source: str, bin_width: float, repetition_rate: float, n_
 @click.argument("capture", type=click.Path(path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(path_type=Path), help="output directory")
 @mat_options()
-@click.option("--late", default=None, help="bins FIRST:STOP of the floor (default: the run of 10 % of the window, after the "
-                                   "direct light, with the fewest counts)")
+@click.option("--late", default=None,
+              help="bins FIRST:STOP of the floor (default: the runs of 10 % of the window after the direct light "
+                   "with the fewest counts)")
 @click.option("--direct-bins", "direct_bins", type=click.IntRange(min=1), default=None,
               help="bins of the direct light from t = 0 (default: where its tail ends)")
 @click.option("--no-irf", "no_irf", is_flag=True, help="skip the two-tail IRF fit")
@@ -98,10 +100,10 @@ def estimate_capture(capture, out, width, bin_resolution, late, direct_bins, no_
     """Estimate the detector of the confocal capture CAPTURE (a lab file or a store) and write OUT/detector.yaml,
     OUT/gain.npy, OUT/background.npy, OUT/direct_counts.npy, OUT/estimates.json and OUT/maps.png.
 
-    Background: each point's floor over the quietest run of bins after the direct light; gain: its direct counts (0.2 ns from its direct return)
-    relative to their mean, to the power the hidden counts follow them with over the scan; the direct-to-hidden
-    ratio of net counts; the IRF: a two-tail fit of the scan-summed direct return, its core's centre held at that
-    return's peak or, with --irf-position free, fitted (docs/detector.md).
+    Background: each point's floor over the quietest runs of bins after the direct light; gain: its direct counts
+    (0.2 ns from its direct return) relative to their mean, to the power the hidden counts follow them with over
+    the scan; the direct-to-hidden ratio of net counts; the IRF: a two-tail fit of the scan-summed direct return,
+    its core's centre held at that return's peak or, with --irf-position free, fitted (docs/detector.md).
     """
     from ..analysis.capture_detector import estimate_capture_detector
     from ..analysis.confocal import align_confocal

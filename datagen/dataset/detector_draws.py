@@ -34,9 +34,10 @@ ones keep the config's fixed value):
 ============================  =================================================================================
 
 Every draw is uniform in its range (``exposure``, ``gain_range``, ``hidden_counts`` and ``direct.attenuation``
-log-uniform: they span decades). The stream is ``SeedSequence(seed, spawn_key=(split_key, index, DETECTOR_STREAM))``: :data:`N_UNIFORMS`
-uniforms in a fixed order whatever fields are set, then one integer seeding the torch generator of the maps, so a
-sample's draw depends only on (config, split, index) and adding a field moves no other draw.
+log-uniform: they span decades). The stream is ``SeedSequence(seed, spawn_key=(split_key, index,
+DETECTOR_STREAM))``: :data:`N_UNIFORMS` uniforms in a fixed order whatever fields are set, then one integer seeding
+the torch generator of the maps, so a sample's draw depends only on (config, split, index) and adding a field moves
+no other draw.
 """
 from __future__ import annotations
 
@@ -49,8 +50,8 @@ from ..errors import ConfigError
 from ..units import parse_duration
 from .ranges import CountRange, Model, NonNegative, Positive, Range, Unit
 
-__all__ = ["DETECTOR_STREAM", "MAX_DETECTION_PROBABILITY", "N_UNIFORMS", "DetectorDraws", "check_detector_draws", "draw_detector",
-           "draw_sample_detector", "scale_to_hidden_counts"]
+__all__ = ["DETECTOR_STREAM", "MAX_DETECTION_PROBABILITY", "N_UNIFORMS", "DetectorDraws", "check_detector_draws",
+           "draw_detector", "draw_sample_detector", "scale_to_hidden_counts"]
 
 MAX_DETECTION_PROBABILITY = 0.3
 """:func:`scale_to_hidden_counts` raises a sample's light no further than its brightest bin's expected detections
@@ -216,8 +217,7 @@ def draw_detector(value: dict | None, rng: np.random.Generator, scan: tuple[int,
     if any(m is not None for m in maps):
         if scan is None:
             raise ConfigError("detector_draws: gain_scale, hidden_counts, gain_range and background_bands need a "
-                              "scanned capture "
-                              "(capture.scan in the room distribution)")
+                              "scanned capture (capture.scan in the room distribution)")
         import torch
 
         from ..spad.map_draws import draw_background_bands, draw_gain_fields
