@@ -77,7 +77,7 @@ def reconstruct(path: Path, falloff: str, snr: float):
     scan, dt = align_confocal(cap.data(), cap.time_edges(), cap.time_offsets())
     vol, depths, _ = confocal_volume(scan, dt, pitch, "lct", falloff, snr, background=None)   # the floor kept,
     # as the shipped scene files were read off
-    depth, front = depth_map(vol, depths)
+    depth, front = depth_map(vol, depths, pedestal=None)   # a share of the maximum, as the scene files were read
     return width, pitch, front, depth
 
 

@@ -94,6 +94,29 @@ def test_each_method_finds_the_point_at_its_depth(method):
     assert np.isfinite(depth[iy, ix]) and np.isnan(depth).any() and front.shape == (N, N)
 
 
+def test_what_is_found_is_measured_from_the_front_views_pedestal():
+    """A weak capture's front view sits on a pedestal (the maximum over depth of its noise): an "L" of 1.0 over a
+    third of a 32 × 32 scan on a pedestal of 0.40 ± 0.02 (seeded). A share of the maximum (pedestal None) finds the
+    whole scan; measured from the 5th percentile (the default) the "L" alone, none of the pedestal."""
+    rng = np.random.default_rng(11)
+    obj = np.zeros((32, 32), bool)
+    obj[4:28, 4:14] = obj[4:12, 4:28] = True
+    front = np.where(obj, 1.0, 0.40 + 0.02 * rng.standard_normal((32, 32)))
+    volume = np.zeros((32, 32, 5))
+    volume[..., 2] = front
+    depths = np.linspace(0.3, 0.7, 5)
+    old, _ = depth_map(volume, depths, 0.25, pedestal=None)
+    new, fv = depth_map(volume, depths)
+    assert np.isfinite(old).all()
+    np.testing.assert_array_equal(np.isfinite(new), obj)
+    assert np.nanmedian(new) == depths[2] and np.array_equal(fv, front)
+    # the level is a share of the way from the pedestal: at 0.95 of it only the "L" reaches it still
+    base = np.percentile(front, 5)
+    np.testing.assert_array_equal(np.isfinite(depth_map(volume, depths, 0.95)[0]), front >= base + 0.95 * (1 - base))
+    with pytest.raises(ValueError, match="pedestal must be a percentile in \\[0, 50\\], got 60"):
+        depth_map(volume, depths, pedestal=60)
+
+
 @pytest.mark.parametrize("method", ["lct", "phasor"])
 def test_a_rectangle_of_two_pitches_puts_the_point_where_it_is(method):
     """12 rows 8 cm apart, 16 columns 5 cm apart: the kernel takes each axis's pitch (a point 10 cm up, centred)."""

@@ -42,7 +42,14 @@ MAX_BINS = 512
 (the padded 3-D FFT of a 64 × 64 scan then holds 1024 × 128 × 128 values)."""
 
 FOUND_LEVEL = 0.25
-"""Default share of the front view's maximum above which a scan point counts as having found something."""
+"""Default share of the way from the front view's pedestal to its maximum above which a scan point counts as having
+found something."""
+
+FOUND_PEDESTAL = 5.0
+"""Percentile of the front view taken as its pedestal: the level a reconstruction's front view keeps where there is
+no object (the maximum over depth of its noise and blur). On the Stanford release's diffuse "S" it is 0.20 of the
+maximum, so a share of the maximum alone finds two thirds of the scan (docs/real.md, "Baselines at lower
+exposures"); an object that covers more than 95 % of the scan loses its weakest points to it."""
 
 FLOOR_BLOCKS = 4
 """Runs of bins after the direct light among which :func:`background_floor` takes the quietest."""
@@ -178,20 +185,27 @@ def confocal_volume(scan: np.ndarray, bin_width: float, pitch: float | tuple[flo
     return vol, depths, info
 
 
-def depth_map(volume: np.ndarray, depths: np.ndarray, level: float = FOUND_LEVEL) -> tuple[np.ndarray, np.ndarray]:
+def depth_map(volume: np.ndarray, depths: np.ndarray, level: float = FOUND_LEVEL,
+              pedestal: float | None = FOUND_PEDESTAL) -> tuple[np.ndarray, np.ndarray]:
     """Depth of what a reconstruction found at each scan point.
 
     Args:
         volume: (ny, nx, Z) reconstruction (its magnitude is used); depths: (Z,) m of its last axis.
-        level: a scan point has found something where its front-view value (the maximum over depth) reaches
-            ``level`` × the front view's maximum (0 < level ≤ 1).
+        level: a scan point has found something where its front-view value F (the maximum over depth) reaches
+            P + ``level`` · (max F − P), 0 < level ≤ 1, P the front view's pedestal.
+        pedestal: the percentile of F taken as P (0–50; :data:`FOUND_PEDESTAL`), or None for P = 0 (a share of the
+            maximum).
     Returns:
         ((ny, nx) float64 depth in m of the strongest voxel, NaN where nothing is found; (ny, nx) front view).
     Raises:
-        ValueError: level outside (0, 1].
+        ValueError: level outside (0, 1], pedestal outside [0, 50].
     """
     if not 0 < level <= 1:
         raise ValueError(f"level must be in (0, 1], got {level}")
+    if pedestal is not None and not 0 <= pedestal <= 50:
+        raise ValueError(f"pedestal must be a percentile in [0, 50], got {pedestal}")
     depth, front = depth_from_volume(volume, depths)
-    found = front >= level * front.max() if front.max() > 0 else np.zeros(front.shape, bool)
+    base = 0.0 if pedestal is None else float(np.percentile(front, pedestal))
+    top = float(front.max())
+    found = front >= base + level * (top - base) if top > base else np.zeros(front.shape, bool)
     return np.where(found, depth, np.nan), front

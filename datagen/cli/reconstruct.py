@@ -15,7 +15,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..analysis.reconstruct import FOUND_LEVEL, MAX_BINS, METHODS
+from ..analysis.reconstruct import FOUND_LEVEL, FOUND_PEDESTAL, MAX_BINS, METHODS
 from .errors import friendly_errors
 
 
@@ -75,11 +75,16 @@ def _scan_input(path: Path, split: str | None, index: int | None, use_counts: bo
               help="auto: subtract each point's floor (ambient light, dark counts: the mean of its quietest quarter "
                    "after the direct light) first; none: keep it")
 @click.option("--level", type=click.FloatRange(min=0, max=1, min_open=True), default=FOUND_LEVEL, show_default=True,
-              help="a scan point has found something where its front view reaches this share of the maximum")
+              help="a scan point has found something where its front view reaches this share of the way from its "
+                   "pedestal to its maximum")
+@click.option("--pedestal", type=click.FloatRange(min=0, max=50), default=FOUND_PEDESTAL, show_default=True,
+              help="the front view's pedestal (its level where nothing is): this percentile of it; 0 for none (a "
+                   "share of the maximum)")
 @click.option("--max-bins", "max_bins", type=click.IntRange(min=2), default=MAX_BINS, show_default=True,
               help="sum neighbouring bins until at most this many remain")
 @friendly_errors
-def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim, background, level, max_bins):
+def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim, background, level, pedestal,
+                max_bins):
     """Reconstruct the confocal scan in STORE (an imported capture, a simulated result, a lab file, or a dataset
     sample with --split/--index) and write OUT/depth.npy (m on the scan grid, NaN where nothing is found),
     OUT/volume.npy (ny, nx, Z), OUT/volume_depths.npy (Z,) m and OUT/reconstruction.png; prints the median depth
@@ -105,7 +110,7 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
                                                  None if background == "none" else "auto")
     except ValueError as exc:
         raise ValueError(f"{store}: {exc}") from None
-    depth, _ = depth_map(volume, depths, level)
+    depth, _ = depth_map(volume, depths, level, pedestal or None)
     out.mkdir(parents=True, exist_ok=True)
     np.save(out / "depth.npy", depth)
     np.save(out / "volume.npy", volume.astype(np.float32))
