@@ -37,8 +37,10 @@ from datagen.analysis.hidden_ratio import hidden_count_ratio
 from datagen.units import SPEED_OF_LIGHT
 
 ROOT = Path(__file__).resolve().parents[1]
-DEPTHS = {"dot_chart_40cm": 0.40, "dot_chart_65cm": 0.65, "diffuse_s": 0.50}
-"""Reference depths (m): the charts' nominal distances, the diffuse "S" where the release's script puts it."""
+DEPTHS = {"dot_chart_40cm": 0.40, "dot_chart_65cm": 0.65, "resolution_chart_40cm": 0.40, "resolution_chart_65cm": 0.65,
+          "diffuse_s": 0.50}
+"""Reference depths (m): the charts' nominal distances (their file names), the diffuse "S" where the release's
+script puts it."""
 
 FIGURES = {   # compare-capture's hidden-signal lines → (name, pattern)
     "rel_l2": r"relative L2 \(scan-summed hidden\) ([0-9.]+) \(noise floor ([0-9.]+)",

@@ -19,7 +19,7 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    light trimmed, 512 bins of 16 ps, the t² falloff and snr 0.8 of the release's script, on every capture as
    ``datagen reconstruct`` does by default), and
    its depth map (:func:`~datagen.analysis.reconstruct.depth_map`: the strongest voxel's depth where the front
-   view reaches 0.25 of its maximum, NaN elsewhere).
+   view reaches 0.25 of the way from its pedestal, its 5th percentile, to its maximum, NaN elsewhere).
    **f-k migration** ("fk", Lindell, Wetzstein & O'Toole 2019) is tal's, ``tal.reconstruct.fk`` of y-tal 0.20.0, run
    as benchmarks/bench_recon.py runs it: in tal's separate environment (``--venv``, default ``$TAL_BENCH_VENV`` or
    /opt/venvs/tal-bench, made by ``bash benchmarks/tal/setup_env.sh``; without it the run says so in one line and goes
@@ -74,6 +74,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from real_captures import DEPTHS  # noqa: E402  (the reference depths, one table for both benchmarks)
+
+from datagen.analysis.reconstruct import FOUND_PEDESTAL  # noqa: E402
 
 EXPOSURES = (1.0, 0.1, 0.01)
 """Fractions of each capture's exposure."""
@@ -138,13 +140,15 @@ def thin(counts: np.ndarray, fraction: float, rng: np.random.Generator) -> np.nd
     return rng.binomial(np.asarray(counts, dtype=np.int64), fraction).astype(np.float64)
 
 
-def found(scan: np.ndarray, dt: float, pitch, method: str, background: str | None = "auto") -> np.ndarray:
+def found(scan: np.ndarray, dt: float, pitch, method: str, background: str | None = "auto",
+          pedestal: float | None = FOUND_PEDESTAL) -> np.ndarray:
     """(ny, nx) depth map (m, NaN where nothing is found) of one method as ``datagen reconstruct`` runs it
-    (``background`` None: as ``--background none`` does, each point's floor kept)."""
+    (``background`` None: as ``--background none`` does, each point's floor kept; ``pedestal`` as its
+    ``--pedestal``, None for 0)."""
     from datagen.analysis.reconstruct import confocal_volume, depth_map
 
     volume, depths, _ = confocal_volume(scan, dt, pitch, method, background=background)
-    return depth_map(volume, depths)[0]
+    return depth_map(volume, depths, pedestal=pedestal)[0]
 
 
 def fk_input(scan: np.ndarray, dt: float, background: str | None = "auto") -> tuple[np.ndarray, float, int]:
@@ -180,8 +184,8 @@ def fk_capture(data: np.ndarray, dt: float, pitch):
                   laser_points=points, sensor_points=points, wall_normal=LCT_WALL_NORMAL.copy())
 
 
-def fk_depth(scan: np.ndarray, dt: float, pitch, venv: Path, background: str | None = "auto"
-             ) -> tuple[np.ndarray, float]:
+def fk_depth(scan: np.ndarray, dt: float, pitch, venv: Path, background: str | None = "auto",
+             pedestal: float | None = FOUND_PEDESTAL) -> tuple[np.ndarray, float]:
     """((ny, nx) depth map m, NaN where nothing is found; tal's solve time s) of tal's f-k migration on a scan of
     counts (module doc): exported in a temporary folder, reconstructed by benchmarks/tal/recon_side.py in the tal
     venv ``venv`` over the depths past the trimmed light, its strongest voxel per column put through
@@ -209,7 +213,7 @@ def fk_depth(scan: np.ndarray, dt: float, pitch, venv: Path, background: str | N
             seconds = float(out["seconds_fk"][0])
     # depth_map's rule on the one voxel per column recon_side keeps: 0 where its front view reaches the level, NaN
     # elsewhere, plus that voxel's depth
-    return depth + depth_map(front[..., None], np.zeros(1))[0], seconds
+    return depth + depth_map(front[..., None], np.zeros(1), pedestal=pedestal)[0], seconds
 
 
 def score(depth: np.ndarray, mask: np.ndarray, hit: np.ndarray | None = None) -> tuple[float, float]:
@@ -240,14 +244,15 @@ def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarr
 
 def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURES, methods=("lct", "phasor", "fbp"),
              rng: np.random.Generator | None = None, network=None, venv: Path | None = None,
-             background: str | None = "auto") -> list[dict]:
+             background: str | None = "auto", pedestal: float | None = FOUND_PEDESTAL) -> list[dict]:
     """Rows {capture, exposure, method, depth, error, iou, counts, seconds, map, reference} of one capture (module
     doc; "map" the (ny, nx) depth m where the method found the object, NaN elsewhere; "reference" the (ny, nx) bool
     reference mask, the same array in every row); ``network`` a
     loaded (net, record) adds its row; "fk" among the methods needs ``venv``, the tal venv; ``background`` the
-    baselines' and the reference's floor ("auto" subtracted, None kept; the network reads its input as trained)."""
+    baselines' and the reference's floor ("auto" subtracted, None kept; the network reads its input as trained);
+    ``pedestal`` their found points' rule (:func:`~datagen.analysis.reconstruct.depth_map`)."""
     rng = rng if rng is not None else np.random.default_rng(0)
-    mask = ~np.isnan(found(counts, dt, pitch, "lct", background))
+    mask = ~np.isnan(found(counts, dt, pitch, "lct", background, pedestal))
     reference = DEPTHS.get(name)
     rows = []
     for fraction in exposures:
@@ -263,10 +268,10 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
             elif method == "fk":                       # tal's, in its venv; its time the solve alone
                 if venv is None:
                     raise ValueError("the fk method needs the tal venv (venv=)")
-                depth_map, seconds = fk_depth(scan, dt, pitch, venv, background)
+                depth_map, seconds = fk_depth(scan, dt, pitch, venv, background, pedestal)
                 depth, iou = score(depth_map, mask)
             else:
-                depth_map = found(scan, dt, pitch, method, background)
+                depth_map = found(scan, dt, pitch, method, background, pedestal)
                 depth, iou = score(depth_map, mask)
             rows.append({"capture": name, "exposure": fraction, "method": method, "depth": depth,
                          "error": depth - reference if reference is not None else float("nan"), "iou": iou,
@@ -294,6 +299,9 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--background", choices=["auto", "none"], default="auto",
                         help="the baselines' and the reference's floor: subtracted (auto, as datagen reconstruct "
                              "does by default) or kept (none)")
+    parser.add_argument("--pedestal", type=float, default=FOUND_PEDESTAL,
+                        help="the baselines' and the reference's found points: from this percentile of the front "
+                             "view to its maximum, as datagen reconstruct --pedestal (0: a share of the maximum)")
     args = parser.parse_args(argv)
     methods = list(args.methods)
     if "fk" in methods and not (args.venv / "bin" / "python").is_file():
@@ -337,7 +345,7 @@ def main(argv=None) -> list[dict]:
         found_here = []
         for row in evaluate(counts, dt, pitch, name, args.exposures, methods,
                             np.random.default_rng([args.seed, seeds[path]]), network, args.venv,
-                            None if args.background == "none" else "auto"):
+                            None if args.background == "none" else "auto", args.pedestal or None):
             found_here.append(row)
             print(f"{row['capture']} | {row['exposure']:g} | {row['method']} | {row['depth']:.4f} | "
                   f"{row['error']:+.4f} | {row['iou']:.3f} | {row['counts']:.3g} | {row['seconds']:.1f}", flush=True)

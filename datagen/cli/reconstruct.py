@@ -125,6 +125,7 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
                f"{info['trim'] * 1e9:.4g} ns ({'auto' if trim_s == 'auto' else 'given'})"
                + (", each point's floor subtracted" if background == "auto" else ""))
     median = f"median depth {np.median(depth[found]):.4f} m" if found.any() else "nothing found"
-    click.echo(f"found at {int(found.sum())} of {found.size} scan points (front view >= {level:g} of its maximum): "
-               f"{median}")
+    rule = (f"{level:g} of the way from its {pedestal:g}th percentile to its maximum" if pedestal
+            else f"{level:g} of its maximum")
+    click.echo(f"found at {int(found.sum())} of {found.size} scan points (front view >= {rule}): {median}")
     click.echo(f"wrote {out}/depth.npy, volume.npy, volume_depths.npy, reconstruction.png")
