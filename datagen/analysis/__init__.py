@@ -24,6 +24,8 @@ imported from its module.
   direct-to-hidden ratio and a two-tail IRF fit (``datagen estimate-capture``).
 - :mod:`.second_round_trip`: a retroreflector's second round trip (object → wall → object) in a confocal scan, its
   size and time measured alike on a capture and on its simulation, the main return's tail fitted on both sides.
+- :mod:`.hidden_ratio`: the hidden counts of one object captured at two distances, the direct light's slow tail
+  taken out (the ratio a simulation without direct light is compared with).
 - reconstructions of confocal scans, the benchmark's baselines: :mod:`.backprojection` (filtered backprojection),
   :mod:`.lct` (the light-cone transform, O'Toole et al. 2018), :mod:`.phasor` (phasor fields with
   Rayleigh–Sommerfeld diffraction, Liu et al. 2019); :mod:`.confocal` puts any confocal scan on their time axis and

@@ -10,15 +10,15 @@ tail, so its ratio is to be compared with the hidden light alone.
 
 **The measurement** (:func:`hidden_count_ratio`), on the two captures' scan-summed transients, ``near`` and ``far``:
 
-1. *Floor and direct light.* Each transient less its floor (the mean over ``floor_bins``); its direct counts the net
-   counts before the window.
+1. *Floor and direct light.* Each transient less its floor (the mean over :data:`FLOOR_BINS`); its direct counts the
+   net counts before the window.
 2. *The direct tail's shape.* The far capture's net transient over its direct counts, from the window's start to
    ``far_onset`` (the bin its hidden light starts at: up to it the far capture holds the direct light alone). Both
    captures being of one scanner, the near capture's direct tail has the same shape: the two normalised transients
    are compared over the last quarter of the span before the window (``shape_check``, about 1 when they agree).
 3. *Past the onset* the shape is extrapolated by an exponential fitted (least squares on the log of means over
    :data:`GROUP` bins) to the last :data:`FIT_SPAN` before ``far_onset``; a power law fitted alike gives the spread
-   that this choice makes (``hidden_ratio_range``).
+   that this choice makes (``hidden_range``).
 4. *The hidden counts*: each window's counts less the tail's share of it (its summed shape times the capture's
    direct counts).
 """
