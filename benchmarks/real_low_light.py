@@ -144,7 +144,7 @@ def found(scan: np.ndarray, dt: float, pitch, method: str, background: str | Non
           pedestal: float | None = FOUND_PEDESTAL) -> np.ndarray:
     """(ny, nx) depth map (m, NaN where nothing is found) of one method as ``datagen reconstruct`` runs it
     (``background`` None: as ``--background none`` does, each point's floor kept; ``pedestal`` as its
-    ``--pedestal``, None for 0)."""
+    ``--pedestal``)."""
     from datagen.analysis.reconstruct import confocal_volume, depth_map
 
     volume, depths, _ = confocal_volume(scan, dt, pitch, method, background=background)
@@ -345,7 +345,7 @@ def main(argv=None) -> list[dict]:
         found_here = []
         for row in evaluate(counts, dt, pitch, name, args.exposures, methods,
                             np.random.default_rng([args.seed, seeds[path]]), network, args.venv,
-                            None if args.background == "none" else "auto", args.pedestal or None):
+                            None if args.background == "none" else "auto", args.pedestal):
             found_here.append(row)
             print(f"{row['capture']} | {row['exposure']:g} | {row['method']} | {row['depth']:.4f} | "
                   f"{row['error']:+.4f} | {row['iou']:.3f} | {row['counts']:.3g} | {row['seconds']:.1f}", flush=True)

@@ -106,6 +106,7 @@ def test_what_is_found_is_measured_from_the_front_views_pedestal():
     volume[..., 2] = front
     depths = np.linspace(0.3, 0.7, 5)
     old, _ = depth_map(volume, depths, 0.25, pedestal=None)
+    np.testing.assert_array_equal(depth_map(volume, depths, 0.25, pedestal=0)[0], old)   # --pedestal 0
     new, fv = depth_map(volume, depths)
     assert np.isfinite(old).all()
     np.testing.assert_array_equal(np.isfinite(new), obj)

@@ -193,8 +193,8 @@ def depth_map(volume: np.ndarray, depths: np.ndarray, level: float = FOUND_LEVEL
         volume: (ny, nx, Z) reconstruction (its magnitude is used); depths: (Z,) m of its last axis.
         level: a scan point has found something where its front-view value F (the maximum over depth) reaches
             P + ``level`` · (max F − P), 0 < level ≤ 1, P the front view's pedestal.
-        pedestal: the percentile of F taken as P (0–50; :data:`FOUND_PEDESTAL`), or None for P = 0 (a share of the
-            maximum).
+        pedestal: the percentile of F taken as P (0 < pedestal ≤ 50; :data:`FOUND_PEDESTAL`), or 0 / None for
+            P = 0 (a share of the maximum, ``datagen reconstruct --pedestal 0``).
     Returns:
         ((ny, nx) float64 depth in m of the strongest voxel, NaN where nothing is found; (ny, nx) front view).
     Raises:
@@ -205,7 +205,7 @@ def depth_map(volume: np.ndarray, depths: np.ndarray, level: float = FOUND_LEVEL
     if pedestal is not None and not 0 <= pedestal <= 50:
         raise ValueError(f"pedestal must be a percentile in [0, 50], got {pedestal}")
     depth, front = depth_from_volume(volume, depths)
-    base = 0.0 if pedestal is None else float(np.percentile(front, pedestal))
+    base = float(np.percentile(front, pedestal)) if pedestal else 0.0
     top = float(front.max())
     found = front >= base + level * (top - base) if top > base else np.zeros(front.shape, bool)
     return np.where(found, depth, np.nan), front

@@ -110,7 +110,7 @@ def reconstruct(store, method, out, split, index, use_counts, falloff, snr, trim
                                                  None if background == "none" else "auto")
     except ValueError as exc:
         raise ValueError(f"{store}: {exc}") from None
-    depth, _ = depth_map(volume, depths, level, pedestal or None)
+    depth, _ = depth_map(volume, depths, level, pedestal)
     out.mkdir(parents=True, exist_ok=True)
     np.save(out / "depth.npy", depth)
     np.save(out / "volume.npy", volume.astype(np.float32))
