@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen.analysis.hidden_ratio import hidden_count_ratio
+from datagen.analysis.hidden_ratio import hidden_count_ratio, release_hidden_counts
 from datagen.units import SPEED_OF_LIGHT
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,12 +75,6 @@ def summed(store: Path) -> np.ndarray:
     return data.reshape(-1, data.shape[-1]).sum(axis=0)
 
 
-def hidden_counts(store: Path) -> float:
-    """The release README's hidden counts of a store (scan-summed, bins 600–1899 less 1300 × the floor)."""
-    s = summed(store)
-    return float(s[600:1900].sum() - 1300 * s[1900:2048].mean())
-
-
 def echo(store: Path, expected: bool = False):
     """The second round trip of a store's scan (real: with its counting noise from 100 Poisson redraws), or None
     when it falls too late in the record to be measured."""
@@ -110,8 +104,8 @@ def one_capture(mat: Path, scene: Path, work: Path, methods: list[str]) -> dict:
     for key, pattern in FIGURES.items():
         found = re.search(pattern, out)
         row[key] = tuple(float(g) for g in found.groups()) if found else None
-    row["hidden"] = (hidden_counts(real), hidden_counts(sim))
     row["summed"] = summed(real)
+    row["hidden"] = (release_hidden_counts(row["summed"]), release_hidden_counts(summed(sim)))
     row["echo"] = (echo(real), echo(sim, expected=True))
     return row
 

@@ -16,15 +16,15 @@ import sys
 
 import numpy as np
 
-HIDDEN = (600, 1900)
-FLOOR = (1900, 2048)
 ECHO_DRAWS = 100              # Poisson redraws of the real counts for the echo's counting noise
 
 
 def hidden_counts(data: np.ndarray) -> float:
-    """Σ bins 600–1899 less 1300 × the mean of bins 1900–2047 (scan-summed)."""
-    s = data.reshape(-1, data.shape[-1]).sum(axis=0)
-    return float(s[HIDDEN[0]:HIDDEN[1]].sum() - (HIDDEN[1] - HIDDEN[0]) * s[FLOOR[0]:FLOOR[1]].mean())
+    """The release's hidden counts of a scan (..., K), scan-summed
+    (:func:`datagen.analysis.hidden_ratio.release_hidden_counts`)."""
+    from datagen.analysis.hidden_ratio import release_hidden_counts
+
+    return release_hidden_counts(data.reshape(-1, data.shape[-1]).sum(axis=0))
 
 
 def main(pairs: list[str]) -> None:

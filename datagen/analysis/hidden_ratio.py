@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HiddenRatio", "hidden_count_ratio", "WINDOW", "FLOOR_BINS", "GROUP", "FIT_SPAN"]
+__all__ = ["HiddenRatio", "hidden_count_ratio", "release_hidden_counts", "WINDOW", "FLOOR_BINS", "GROUP", "FIT_SPAN"]
 
 WINDOW = (600, 1900)
 """Bins (of 4 ps) of the release's hidden-count window, 2.4–7.6 ns: start inclusive, end exclusive."""
@@ -82,6 +82,19 @@ def _window_tail(shape: np.ndarray, onset: int, stop: int, bin_width: float) -> 
     return measured + exp_sum, measured + pow_sum, -1.0 / slope
 
 
+def release_hidden_counts(summed: np.ndarray) -> float:
+    """The release's hidden counts of a scan-summed transient ``summed`` (K ≥ 2048 bins of 4 ps): the counts of
+    :data:`WINDOW` less its length times the mean of :data:`FLOOR_BINS` (its README; the direct light's tail
+    included)."""
+    net = _net(summed)
+    return float(net[WINDOW[0]:WINDOW[1]].sum())
+
+
+def _net(summed: np.ndarray) -> np.ndarray:
+    """A scan-summed transient less its floor, the mean of :data:`FLOOR_BINS`."""
+    return summed - summed[FLOOR_BINS[0]:FLOOR_BINS[1]].mean()
+
+
 def hidden_count_ratio(near: np.ndarray, far: np.ndarray, far_onset: int, bin_width: float = 4e-12) -> HiddenRatio:
     """The hidden-count ratio of one object captured near and far by one scanner (module doc).
 
@@ -99,12 +112,9 @@ def hidden_count_ratio(near: np.ndarray, far: np.ndarray, far_onset: int, bin_wi
                          f"got shapes {near.shape} and {far.shape}")
     if not WINDOW[0] + FIT_SPAN <= far_onset <= WINDOW[1]:
         raise ValueError(f"hidden_count_ratio: far_onset {far_onset} outside bins {WINDOW[0] + FIT_SPAN}–{WINDOW[1]}")
-    nets, directs, windows = [], [], []
-    for s in (near, far):
-        net = s - s[FLOOR_BINS[0]:FLOOR_BINS[1]].mean()
-        nets.append(net)
-        directs.append(float(net[:WINDOW[0]].sum()))
-        windows.append(float(net[WINDOW[0]:WINDOW[1]].sum()))
+    nets = [_net(near), _net(far)]
+    directs = [float(net[:WINDOW[0]].sum()) for net in nets]
+    windows = [release_hidden_counts(s) for s in (near, far)]
     shape = nets[1] / directs[1]
     check = slice(WINDOW[0] * 3 // 4, WINDOW[0])
     shape_check = float(nets[0][check].sum() / directs[0] / shape[check].sum())
