@@ -161,8 +161,8 @@ points)."""
 def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor) -> torch.Tensor:
     """(H, W) bool: where the LCT of a noise-free scan ``envelope`` (T, H, W), reconstructed as ``datagen
     reconstruct --background none`` runs it (:func:`datagen.analysis.reconstruct.confocal_volume`; in LCT_BINS bins,
-    as the input), finds something (:func:`datagen.analysis.reconstruct.depth_map`: the front view at 0.25 of its
-    maximum), kept within LCT's resolution of the object: of the label's outline (``depth`` (H, W) m, 0 where the
+    as the input), finds something (:func:`datagen.analysis.reconstruct.depth_map` as shipped: the front view at 0.25 of
+    the way from its pedestal to its maximum, the rule of the evaluation's reference), kept within LCT's resolution of the object: of the label's outline (``depth`` (H, W) m, 0 where the
     object is not seen) dilated by Δx = c·γ·√(w² + z²) / (2w) (O'Toole, Lindell & Wetzstein 2018, the confocal
     set-up's lateral resolution; γ = :data:`RESOLUTION_FWHM`, w the scan's half-width, z the outline's median
     depth). Nothing where the outline is empty. The mask of a scan of unlimited exposure, as wide as LCT's blur and
@@ -182,8 +182,8 @@ def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor)
     z = float(np.median(np.asarray(depth)[outline]))
     reach = SPEED_OF_LIGHT * RESOLUTION_FWHM * np.hypot(half, z) / (2 * half)
     near = distance_transform_edt(~outline, sampling=(pitch_y, pitch_x)) <= reach
-    # a share of the front view's maximum (no pedestal: a noise-free envelope), the rule the shipped weights saw
-    return torch.as_tensor(np.isfinite(depth_map(volume, depths, pedestal=None)[0]) & near)
+    # the rule of the real-capture evaluation's reference: 0.25 of the way from the front view's pedestal to its maximum
+    return torch.as_tensor(np.isfinite(depth_map(volume, depths)[0]) & near)
 
 
 RESOLUTION_FWHM = 60e-12
