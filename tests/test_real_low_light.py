@@ -246,3 +246,27 @@ def test_sim_scores_compare_the_network_with_the_labels(monkeypatch, tmp_path):
     got = real_low_light.sim_scores((None, {}), tmp_path / "d", "test")
     shares = [float(((lab > 0)[:, :8]).sum() / (lab > 0).sum()) for lab in labels if (lab > 0).any()]
     assert got["depth_error"] == pytest.approx(0.05, abs=1e-9) and got["iou"] == pytest.approx(np.mean(shares))
+
+
+def test_more_draws_thin_each_lower_exposure_again_and_keep_the_first(release_folder, capsys):
+    """``--draws 3``: the full exposure once, 1/10 three times; draw 0 is the single-draw run's thinning (same
+    counts, same IoU), the other draws are other thinnings (their totals differ, each within 5σ of a tenth); the
+    summary's line gives the mean and range of the three IoUs and how many reach 0.6; ``--draws 0`` is one line."""
+    folder = str(release_folder[0])
+    one = real_low_light.main([folder, "--exposures", "1", "0.1", "--methods", "lct", "--network", "none"])
+    capsys.readouterr()
+    three = real_low_light.main([folder, "--exposures", "1", "0.1", "--methods", "lct", "--network", "none",
+                                 "--draws", "3"])
+    assert [(r["exposure"], r["draw"]) for r in three] == [(1.0, 0), (0.1, 0), (0.1, 1), (0.1, 2)]
+    assert three[1]["counts"] == one[1]["counts"] and three[1]["iou"] == one[1]["iou"]
+    total = three[0]["counts"]
+    assert len({r["counts"] for r in three[1:]}) == 3
+    for row in three[1:]:
+        assert row["counts"] == pytest.approx(0.1 * total, abs=5 * np.sqrt(0.1 * total))
+    ious = [r["iou"] for r in three[1:]]
+    printed = capsys.readouterr().out
+    assert "patch | 0.1 (draw 2) | lct |" in printed
+    assert "patch | 0.1 | lct | — |" in printed             # no stated depth for it: no depth error to average
+    assert f"{np.mean(ious):.3f} [{min(ious):.3f}, {max(ious):.3f}] | {sum(i >= 0.6 for i in ious)}/3" in printed
+    with pytest.raises(SystemExit, match="--draws: at least 1 thinning, got 0"):
+        real_low_light.main([folder, "--draws", "0", "--network", "none"])
