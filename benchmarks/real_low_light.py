@@ -383,8 +383,8 @@ MASK_TARGET = 0.6
 
 def summarize(rows: list[dict]) -> list[str]:
     """One line per capture, exposure below the full one and method over the rows' draws (:func:`evaluate`): the
-    depth's difference from the reference (mean, min, max; m), the IoU's mean, min and max, and how many draws reach
-    :data:`MASK_TARGET`."""
+    depth's difference from the reference (mean, min, max over the draws that found the object; m; "—" for a capture
+    of no stated depth), the IoU's mean, min and max, and how many draws reach :data:`MASK_TARGET`."""
     groups: dict[tuple, list[dict]] = {}
     for row in rows:
         if row["exposure"] < 1:
@@ -393,8 +393,10 @@ def summarize(rows: list[dict]) -> list[str]:
     for (capture, exposure, method), group in groups.items():
         error = np.array([r["error"] for r in group])
         iou = np.array([r["iou"] for r in group])
-        depth = (f"{np.mean(error):+.4f} [{np.min(error):+.4f}, {np.max(error):+.4f}]" if np.isfinite(error).all()
-                 else "—")
+        known = error[np.isfinite(error)]        # none: no stated depth; some: draws that found nothing over the object
+        depth = "—" if not known.size else (f"{np.mean(known):+.4f} [{np.min(known):+.4f}, {np.max(known):+.4f}]" +
+                                            (f" (nothing found in {len(error) - known.size} of {len(error)})"
+                                             if known.size < len(error) else ""))
         lines.append(f"{capture} | {exposure:g} | {method} | {depth} | {np.mean(iou):.3f} [{np.min(iou):.3f}, "
                      f"{np.max(iou):.3f}] | {int(np.sum(iou >= MASK_TARGET))}/{len(group)}")
     return lines

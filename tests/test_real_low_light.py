@@ -270,3 +270,16 @@ def test_more_draws_thin_each_lower_exposure_again_and_keep_the_first(release_fo
     assert f"{np.mean(ious):.3f} [{min(ious):.3f}, {max(ious):.3f}] | {sum(i >= 0.6 for i in ious)}/3" in printed
     with pytest.raises(SystemExit, match="--draws: at least 1 thinning, got 0"):
         real_low_light.main([folder, "--draws", "0", "--network", "none"])
+
+
+def test_the_summary_averages_the_depth_over_the_draws_that_found_the_object():
+    """summarize: the full exposure is left out; a capture's depth error is averaged over the draws that found
+    something (one draw with NaN is counted, not averaged); a capture with no stated depth gets "—"."""
+    def row(capture, exposure, draw, error, iou):
+        return {"capture": capture, "exposure": exposure, "draw": draw, "method": "lct", "error": error, "iou": iou}
+
+    rows = [row("chart", 1.0, 0, 0.0, 1.0), row("chart", 0.1, 0, 0.004, 0.7), row("chart", 0.1, 1, float("nan"), 0.0),
+            row("chart", 0.1, 2, 0.008, 0.5), row("sign", 0.1, 0, float("nan"), 0.9)]
+    assert real_low_light.summarize(rows) == [
+        "chart | 0.1 | lct | +0.0060 [+0.0040, +0.0080] (nothing found in 1 of 3) | 0.400 [0.000, 0.700] | 1/3",
+        "sign | 0.1 | lct | — | 0.900 [0.900, 0.900] | 1/1"]
