@@ -165,8 +165,8 @@ def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor)
     of the way from its pedestal to its maximum, the rule of the evaluation's reference), kept within LCT's
     resolution of the object: of the label's outline (``depth`` (H, W) m, 0 where the object is not seen) dilated
     by Δx = c·γ·√(w² + z²) / (2w) (O'Toole, Lindell & Wetzstein 2018, the confocal set-up's lateral resolution;
-    γ = :data:`RESOLUTION_FWHM`, w the scan's half-width, z the outline's median depth). Nothing where the outline is empty. The mask of a scan of unlimited exposure, as wide as LCT's blur and
-    no wider."""
+    γ = :data:`RESOLUTION_FWHM`, w the scan's half-width, z the outline's median depth). Nothing where the outline
+    is empty. The mask of a scan of unlimited exposure, as wide as LCT's blur and no wider."""
     from scipy.ndimage import distance_transform_edt
 
     from datagen.analysis.reconstruct import confocal_volume, depth_map
