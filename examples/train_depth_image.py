@@ -186,6 +186,29 @@ def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor)
     return torch.as_tensor(np.isfinite(depth_map(volume, depths)[0]) & near)
 
 
+DEPTH_OVER = ("outline", "mask")
+"""Where the depth head learns (``--depth-over``): "outline", the label's own mask; "mask", the label's outline and
+the mask the mask head learns (:data:`MASK_LABELS`), the points past the outline given the depth of the outline's
+nearest point (:func:`extend_depth`): with ``--mask-label lct`` the mask reaches past the outline by LCT's blur, and a
+depth read where the mask is found is then a learnt one."""
+
+
+def extend_depth(depth: torch.Tensor, over: torch.Tensor) -> torch.Tensor:
+    """(N, H, W) float32 m: ``depth`` (N, H, W) m, 0 where the object is not seen, with each point of ``over``
+    (N, H, W) bool outside the object given the depth of the object's nearest point (Euclidean, on the scan grid);
+    0 elsewhere, and a sample without object stays 0."""
+    from scipy.ndimage import distance_transform_edt
+
+    out = torch.zeros_like(depth)
+    for i, (d, o) in enumerate(zip(depth.numpy(), over.numpy())):
+        seen = d > 0
+        if not seen.any():
+            continue
+        near = distance_transform_edt(~seen, return_distances=False, return_indices=True)
+        out[i] = torch.as_tensor(np.where(seen | o, d[near[0], near[1]], 0).astype(np.float32))
+    return out
+
+
 RESOLUTION_FWHM = 60e-12
 """s: the temporal resolution γ of :func:`lct_seen`'s resolution bound, the LCT release's system FWHM (its paper)."""
 
@@ -299,7 +322,7 @@ def save_model(path, net: DepthNet, pool: int, x_norm: tuple[float, float], d_no
     scale to ``path`` (torch.save of a dict; :func:`load_model` reads it), with the data set it was trained on and
     ``provenance`` (str, float, int or dicts of them: :func:`train` writes ``input``, ``mask_threshold``,
     ``config_sha256``, ``splits``, ``dataset_code_version``, ``code_version``, ``command``, ``mask_label``,
-    ``train_seconds``, ``val``)."""
+    ``depth_over``, ``train_seconds``, ``val``)."""
     arch = next(name for name, cls in ARCHS.items() if type(net) is cls)
     torch.save({"state": net.state_dict(), "arch": arch, "bins": net.bins, "mask": net.mask, "pool": pool,
                 "x_norm": x_norm, "d_norm": d_norm, "data": str(data), **provenance}, path)
@@ -395,7 +418,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
           val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
           stored: bool = False, mask: bool = False, lct: bool = False, command: str = "", arch: str = "cnn",
           augment: bool = False, pos_weight: float | None = None,
-          mask_label: str = "outline") -> dict[str, np.ndarray]:
+          mask_label: str = "outline", depth_over: str = "outline") -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
     ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
@@ -405,11 +428,14 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     where the object is seen (a second output, :func:`mask_loss` against ``wall_depth > 0`` over every pixel, added
     to the depth loss, its object pixels weighted ``pos_weight``, by default the background-to-object ratio; its
     threshold the one of :data:`MASK_THRESHOLDS` of best validation IoU; with ``mask_label`` "lct" the mask learnt
-    and validated is what a long exposure's LCT finds instead, :data:`MASK_LABELS`; the depth is learnt over the
-    label's own mask either way); ``arch`` names the network (:data:`ARCHS`);
+    and validated is what a long exposure's LCT finds instead, :data:`MASK_LABELS`); the depth is learnt over
+    the label's own mask, or with ``depth_over`` "mask" over it and the mask the mask head learns
+    (:data:`DEPTH_OVER`; validated over the label's own mask either way); ``arch`` names the network (:data:`ARCHS`);
     with ``augment`` each batch is turned by a random symmetry of the square (:func:`dihedral`). Returns {"depth":
     (N, H, W) float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the
     object pixels, "iou": the validation mask IoU (NaN without ``mask``)}."""
+    if depth_over not in DEPTH_OVER:
+        raise ValueError(f"depth_over must be one of {', '.join(DEPTH_OVER)}, got {depth_over!r}")
     torch.manual_seed(seed)
     t0 = time.perf_counter()
     version = git_version(Path(__file__).resolve().parent)          # of the code as it is loaded, at the start
@@ -424,11 +450,12 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         log(f"  loaded {len(tr['depth'])} + {len(va['depth'])} samples, input {tuple(tr[key].shape[1:])}, "
             f"labels {size} ({time.perf_counter() - t0:.0f} s)")
     gen = torch.Generator().manual_seed(seed)
-    mask_tr = tr["depth"] > 0                                   # where the depth is learnt
-    seen_tr = tr.get("seen", mask_tr)                           # what the mask head learns
+    seen_tr = tr.get("seen", tr["depth"] > 0)                   # what the mask head learns
+    learnt = extend_depth(tr["depth"], seen_tr) if depth_over == "mask" else tr["depth"]
+    mask_tr = learnt > 0                                        # where the depth is learnt
     for split in (tr, va):            # the depth learnt: the label less the LCT's strongest voxel (0 on counts)
         split["base"] = upsample_nearest(split["strongest"], size) if lct else torch.zeros_like(split["depth"])
-    target = tr["depth"] - tr["base"]
+    target = learnt - tr["base"]
     d_mean, d_std = target[mask_tr].mean(), target[mask_tr].std()
     if pos_weight is None:
         pos_weight = float((~seen_tr).sum() / seen_tr.sum().clamp(min=1))
@@ -487,11 +514,11 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
                    config_sha256=card["config_sha256"], config_name=card["name"],
                    splits={s: int(card["splits"][s]["count"]) for s in (train_split, val_split)},
                    dataset_code_version=card.get("code_version", "unknown"),
-                   code_version=version, command=command, mask_label=mask_label,
+                   code_version=version, command=command, mask_label=mask_label, depth_over=depth_over,
                    train_seconds=round(time.perf_counter() - t0, 1), val={"depth_mae_m": mae, "mask_iou": iou})
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
-            "trivial": np.full(tuple(va["depth"].shape), float(tr["depth"][mask_tr].mean()), dtype=np.float32),
+            "trivial": np.full(tuple(va["depth"].shape), float(tr["depth"][tr["depth"] > 0].mean()), dtype=np.float32),
             "iou": iou}
 
 
@@ -519,6 +546,8 @@ def main(argv=None):
                         help="the mask loss's weight of object pixels (default: the background-to-object ratio)")
     parser.add_argument("--mask-label", choices=MASK_LABELS, default="outline",
                         help="what the mask head learns: the label's outline, or what a long exposure's LCT finds")
+    parser.add_argument("--depth-over", choices=DEPTH_OVER, default="outline",
+                        help="where the depth is learnt: the label's outline, or also the mask the mask head learns")
     parser.add_argument("--input", choices=["counts", "lct"], default="counts",
                         help="the network's input: the counts' log, or the LCT volume of the stored counts")
     args = parser.parse_args(argv)
@@ -530,7 +559,7 @@ def main(argv=None):
                      pool=args.pool, save=args.save, stored=args.stored_counts,
                      mask=args.mask or args.arch == "unet", lct=args.input == "lct", arch=args.arch,
                      augment=args.augment, pos_weight=args.pos_weight, mask_label=args.mask_label,
-                     command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None
+                     depth_over=args.depth_over, command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None
                                                                                 else argv))
     except (ValueError, DatasetError) as exc:        # a data path, split or option that does not fit: one line
         raise SystemExit(f"train_depth_image: {exc}") from None

@@ -121,10 +121,10 @@ def test_the_unet_with_augmentation_saves_its_architecture_and_predicts(wall, tm
     net_file = tmp_path / "unet.pt"
     train_depth_image.main([str(wall), "--val", "test", "--epochs", "2", "--batch", "2", "--threads", "1", "--input",
                             "lct", "--pool", "2", "--arch", "unet", "--augment", "--mask-label", "lct",
-                            "--out", str(tmp_path / "u.npz"), "--save", str(net_file)])
+                            "--depth-over", "mask", "--out", str(tmp_path / "u.npz"), "--save", str(net_file)])
     net, record = train_depth_image.load_model(net_file)
     assert record["arch"] == "unet" and isinstance(net, train_depth_image.DepthUNet) and net.mask
-    assert record["mask_label"] == "lct"
+    assert record["mask_label"] == "lct" and record["depth_over"] == "mask"
     again, _ = train_depth_image.load_model(net_file)
     x = torch.randn(1, 1, net.bins, 8, 8, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():
@@ -174,6 +174,24 @@ def test_the_lct_mask_label_finds_a_point_where_it_is_and_nothing_without_an_obj
     assert not train_depth_image.lct_seen(envelope, dt, pitch, torch.zeros(n, n)).any()
     with pytest.raises(ValueError, match="mask_label must be one of outline, lct, got 'edges'"):
         train_depth_image.load_split("nowhere", "train", mask_label="edges")
+
+
+def test_the_depth_is_extended_over_the_mask_from_the_nearest_outline_point():
+    """extend_depth: an outline of two points (row 2, columns 2 and 3, at 0.5 and 0.7 m) and a mask over row 2's
+    columns 0–5 and the point (4, 3): the outline keeps its depths, columns 0–1 take 0.5 m and 4–5 take 0.7 m (their
+    nearest outline points), (4, 3) takes 0.7 m (2 points below column 3); every point outside both stays 0, and a
+    sample without an outline stays 0 whatever its mask; an unknown ``depth_over`` is refused in one line."""
+    depth = torch.zeros(2, 6, 6)
+    depth[0, 2, 2], depth[0, 2, 3] = 0.5, 0.7
+    over = torch.zeros(2, 6, 6, dtype=torch.bool)
+    over[:, 2, :] = True
+    over[:, 4, 3] = True
+    out = train_depth_image.extend_depth(depth, over)
+    np.testing.assert_allclose(out[0, 2].numpy(), [0.5, 0.5, 0.5, 0.7, 0.7, 0.7], rtol=1e-6)
+    assert out[0, 4, 3] == pytest.approx(0.7)
+    assert (out[0] > 0).sum() == 7 and not out[1].any() and out.dtype == torch.float32
+    with pytest.raises(ValueError, match="depth_over must be one of outline, mask, got 'rim'"):
+        train_depth_image.train("nowhere", depth_over="rim")
 
 
 def test_the_lct_mask_label_loads_beside_either_input(wall):
