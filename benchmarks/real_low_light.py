@@ -284,6 +284,7 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
                 depth_map = found(scan, dt, pitch, method, background, pedestal)
                 depth, iou = score(depth_map, mask)
             rows.append({"capture": name, "exposure": fraction, "draw": draw, "method": method, "depth": depth,
+                         "target": reference if reference is not None else float("nan"),
                          "error": depth - reference if reference is not None else float("nan"), "iou": iou,
                          "counts": float(scan.sum()), "map": depth_map, "reference": mask,
                          "seconds": time.perf_counter() - t0 if seconds is None else seconds})
@@ -383,8 +384,9 @@ MASK_TARGET = 0.6
 
 def summarize(rows: list[dict]) -> list[str]:
     """One line per capture, exposure below the full one and method over the rows' draws (:func:`evaluate`): the
-    depth's difference from the reference (mean, min, max over the draws that found the object; m; "—" for a capture
-    of no stated depth), the IoU's mean, min and max, and how many draws reach :data:`MASK_TARGET`."""
+    depth's difference from the reference (mean, min, max over the draws that found the object, and how many found
+    nothing; m; "—" for a capture of no stated depth, its rows' ``target`` NaN), the IoU's mean, min and max, and how
+    many draws reach :data:`MASK_TARGET`."""
     groups: dict[tuple, list[dict]] = {}
     for row in rows:
         if row["exposure"] < 1:
@@ -393,10 +395,15 @@ def summarize(rows: list[dict]) -> list[str]:
     for (capture, exposure, method), group in groups.items():
         error = np.array([r["error"] for r in group])
         iou = np.array([r["iou"] for r in group])
-        known = error[np.isfinite(error)]        # none: no stated depth; some: draws that found nothing over the object
-        depth = "—" if not known.size else (f"{np.mean(known):+.4f} [{np.min(known):+.4f}, {np.max(known):+.4f}]" +
-                                            (f" (nothing found in {len(error) - known.size} of {len(error)})"
-                                             if known.size < len(error) else ""))
+        known = error[np.isfinite(error)]        # the draws that found something over the object
+        missed = f"nothing found in {len(error) - known.size} of {len(error)}"
+        if not np.isfinite(group[0]["target"]):
+            depth = "—"
+        elif not known.size:
+            depth = missed
+        else:
+            depth = f"{np.mean(known):+.4f} [{np.min(known):+.4f}, {np.max(known):+.4f}]" + \
+                (f" ({missed})" if known.size < len(error) else "")
         lines.append(f"{capture} | {exposure:g} | {method} | {depth} | {np.mean(iou):.3f} [{np.min(iou):.3f}, "
                      f"{np.max(iou):.3f}] | {int(np.sum(iou >= MASK_TARGET))}/{len(group)}")
     return lines

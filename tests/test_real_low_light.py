@@ -274,12 +274,18 @@ def test_more_draws_thin_each_lower_exposure_again_and_keep_the_first(release_fo
 
 def test_the_summary_averages_the_depth_over_the_draws_that_found_the_object():
     """summarize: the full exposure is left out; a capture's depth error is averaged over the draws that found
-    something (one draw with NaN is counted, not averaged); a capture with no stated depth gets "—"."""
-    def row(capture, exposure, draw, error, iou):
-        return {"capture": capture, "exposure": exposure, "draw": draw, "method": "lct", "error": error, "iou": iou}
+    something (one draw with NaN is counted, not averaged); a capture with no stated depth gets "—", one with a
+    stated depth where no draw found anything says so."""
+    nan = float("nan")
 
-    rows = [row("chart", 1.0, 0, 0.0, 1.0), row("chart", 0.1, 0, 0.004, 0.7), row("chart", 0.1, 1, float("nan"), 0.0),
-            row("chart", 0.1, 2, 0.008, 0.5), row("sign", 0.1, 0, float("nan"), 0.9)]
+    def row(capture, exposure, draw, error, iou, target=0.4):
+        return {"capture": capture, "exposure": exposure, "draw": draw, "method": "lct", "error": error, "iou": iou,
+                "target": target}
+
+    rows = [row("chart", 1.0, 0, 0.0, 1.0), row("chart", 0.1, 0, 0.004, 0.7), row("chart", 0.1, 1, nan, 0.0),
+            row("chart", 0.1, 2, 0.008, 0.5), row("sign", 0.1, 0, nan, 0.9, nan), row("chart", 0.01, 0, nan, 0.0),
+            row("chart", 0.01, 1, nan, 0.0)]
     assert real_low_light.summarize(rows) == [
         "chart | 0.1 | lct | +0.0060 [+0.0040, +0.0080] (nothing found in 1 of 3) | 0.400 [0.000, 0.700] | 1/3",
-        "sign | 0.1 | lct | — | 0.900 [0.900, 0.900] | 1/1"]
+        "sign | 0.1 | lct | — | 0.900 [0.900, 0.900] | 1/1",
+        "chart | 0.01 | lct | nothing found in 2 of 2 | 0.000 [0.000, 0.000] | 0/2"]
