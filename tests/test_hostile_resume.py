@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -252,3 +254,26 @@ def test_the_api_refuses_a_config_whose_splits_are_all_zero(tmp_path, no_probe):
     with pytest.raises(ValueError, match=r"every split has count 0 \(train\): nothing to build"):
         build_dataset(empty, tmp_path / "ds", workers=0, progress=False)
     assert not (tmp_path / "ds").exists()
+
+
+@pytest.mark.timeout(300)
+def test_a_store_opens_and_reads_the_same_once_its_asset_folder_is_gone(tmp_path):
+    """The card names the mesh asset folder by its absolute path on the build's machine. Reading needs no mesh file
+    (the room's simulation block, capture and motion): once the folder is removed, as on another machine or after
+    the build's checkout is deleted, the store still opens and its counts and labels read bit for bit as before."""
+    folder = asset_folder(tmp_path)
+    config, out = asset_config(tmp_path, folder), tmp_path / "ds"
+    cli(build_args(config, out), 0, "2 shards built")
+    fields = ("counts", "envelope", "wall_depth")
+    before = [NLOSDataset(out, split="train", fields=fields).read(i) for i in range(2)]
+    shutil.rmtree(tmp_path / "assets")
+    read = (f"import numpy as np, datagen; ds = datagen.NLOSDataset({str(out)!r}, split='train', fields={fields!r}); "
+            f"np.savez({str(tmp_path / 'after.npz')!r}, **{{f'{{n}}{{i}}': np.asarray(ds.read(i)[n]) "
+            f"for i in range(2) for n in {fields!r}}})")
+    done = subprocess.run([sys.executable, "-c", read], capture_output=True, text=True, timeout=240)  # a new process
+    assert done.returncode == 0, done.stderr[-2000:]
+    after = np.load(tmp_path / "after.npz")
+    for i, item in enumerate(before):
+        for name in fields:
+            np.testing.assert_array_equal(np.asarray(item[name]), after[f"{name}{i}"])
+    assert after["counts0"].sum() > 0

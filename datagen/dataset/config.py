@@ -265,7 +265,7 @@ class DatasetConfig(_Model):
         sampled scene (used for the card's per-split detector, which the loader's noise re-draw needs)."""
         from ..simulation import SimulationConfig
         from ..simulation.config import merge_overrides
-        dist = self.room_distribution(split)
+        dist = self.room_distribution(split, meshes=False)       # the simulation block: no mesh file is needed
         merged, _ = merge_overrides(dict(getattr(dist, "simulation", {}) or {}), self.simulation_overrides())
         with warnings.catch_warnings():       # the room's old keys: noted when a scene of it is resolved
             warnings.simplefilter("ignore", FutureWarning)
@@ -285,11 +285,19 @@ class DatasetConfig(_Model):
         from .labels import LabelSpec
         return LabelSpec.model_validate(self.labels)
 
-    def room_distribution(self, split: str):
+    def room_distribution(self, split: str, meshes: bool = True):
         """The split's room distribution: room with the dataset's ``room_overrides``, then the split's; cached
-        per process."""
-        return _distribution(json.dumps(self.room, sort_keys=True), json.dumps(self.room_overrides, sort_keys=True),
-                             json.dumps(self.splits[split].room_overrides, sort_keys=True))
+        per process. With ``meshes`` False the mesh objects (``objects.mesh``) are left out of the room and of the
+        overrides, and their asset files are not looked for: what reading a store takes from the room (its
+        ``simulation`` block, capture and motion) is the same without them, and a store then opens where the
+        asset folders its card names (absolute paths of the build's machine) are gone.
+
+        Raises:
+            ConfigError: an invalid room or override, or (``meshes`` True) an asset folder or file that exists
+                nowhere.
+        """
+        texts = [self.room, self.room_overrides, self.splits[split].room_overrides]
+        return _distribution(*(json.dumps(t if meshes else _without_meshes(t), sort_keys=True) for t in texts))
 
 
 def location_free_json(data: dict) -> dict:
@@ -301,6 +309,14 @@ def location_free_json(data: dict) -> dict:
     if isinstance(mesh, dict) and isinstance(mesh.get("assets"), list):
         mesh["assets"] = [Path(entry).name if isinstance(entry, str) else entry for entry in mesh["assets"]]
     return data
+
+
+def _without_meshes(room: dict) -> dict:
+    """A copy of a room mapping (or of room overrides) without ``objects.mesh``."""
+    room = copy.deepcopy(room)
+    if isinstance(room.get("objects"), dict):
+        room["objects"].pop("mesh", None)
+    return room
 
 
 @lru_cache(maxsize=16)

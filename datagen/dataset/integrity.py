@@ -188,7 +188,7 @@ def card_problems(card: dict, config: DatasetConfig) -> list[str]:
 
     expected = {name: (shape, dt.str) for name, (shape, dt) in label_shapes(spec).items()} if config.store.labels \
         else {}
-    motion = config.room_distribution(next(iter(config.splits))).motion
+    motion = config.room_distribution(next(iter(config.splits)), meshes=False).motion
     frames = motion.frames
     if frames is not None and motion.walkers.max > 0:
         from .layout import FRAME_FIELDS       # a capture sequence's labels: one per frame
