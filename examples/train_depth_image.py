@@ -45,8 +45,8 @@ with ``--mask-label lct`` what the LCT of the noise-free scan finds near the obj
 mask benchmarks/real_low_light.py's reference is (docs/real.md weighs the two). A saved network also records the data it
 was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that trained
 it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, a DepthUNet on the unpooled
-LCT volume (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20``) trained on the first 800 +
-100 samples of ``configs/datasets/lct_release.yaml`` (docs/training.md).
+LCT volume (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20 --mask-label lct --depth-over
+mask``) trained on the first 800 + 100 samples of ``configs/datasets/lct_release.yaml`` (docs/training.md).
 """
 from __future__ import annotations
 
