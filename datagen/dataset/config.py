@@ -287,17 +287,13 @@ class DatasetConfig(_Model):
 
     def room_distribution(self, split: str, meshes: bool = True):
         """The split's room distribution: room with the dataset's ``room_overrides``, then the split's; cached
-        per process. With ``meshes`` False the mesh objects (``objects.mesh``) are left out of the room and of the
-        overrides, and their asset files are not looked for: what reading a store takes from the room (its
-        ``simulation`` block, capture and motion) is the same without them, and a store then opens where the
-        asset folders its card names (absolute paths of the build's machine) are gone.
-
-        Raises:
-            ConfigError: an invalid room or override, or (``meshes`` True) an asset folder or file that exists
-                nowhere.
-        """
+        per process. ``meshes`` False leaves the mesh objects out (:func:`~datagen.dataset.rooms.without_meshes`):
+        what reading a store takes from the room (simulation block, capture, motion) holds without them, so a store
+        opens where the asset folders its card names are gone. Raises ConfigError: an invalid room or override;
+        with ``meshes``, an asset folder or file that exists nowhere."""
+        from .rooms import without_meshes
         texts = [self.room, self.room_overrides, self.splits[split].room_overrides]
-        return _distribution(*(json.dumps(t if meshes else _without_meshes(t), sort_keys=True) for t in texts))
+        return _distribution(*(json.dumps(t if meshes else without_meshes(t), sort_keys=True) for t in texts))
 
 
 def location_free_json(data: dict) -> dict:
@@ -309,14 +305,6 @@ def location_free_json(data: dict) -> dict:
     if isinstance(mesh, dict) and isinstance(mesh.get("assets"), list):
         mesh["assets"] = [Path(entry).name if isinstance(entry, str) else entry for entry in mesh["assets"]]
     return data
-
-
-def _without_meshes(room: dict) -> dict:
-    """A copy of a room mapping (or of room overrides) without ``objects.mesh``."""
-    room = copy.deepcopy(room)
-    if isinstance(room.get("objects"), dict):
-        room["objects"].pop("mesh", None)
-    return room
 
 
 @lru_cache(maxsize=16)

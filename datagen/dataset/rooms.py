@@ -445,6 +445,15 @@ def resolve_room_assets(data: dict, base: Path | None, where: str) -> dict:
     return out
 
 
+def without_meshes(room: dict) -> dict:
+    """A copy of a room mapping (or of room overrides) without ``objects.mesh``: the room as reading a dataset store
+    needs it, with no mesh asset file to find (:meth:`~datagen.dataset.config.DatasetConfig.room_distribution`)."""
+    room = copy.deepcopy(room)
+    if isinstance(room.get("objects"), dict):
+        room["objects"].pop("mesh", None)
+    return room
+
+
 def load_room_distribution(source: str | Path | dict, _source: str | None = None,
                            base_dir: str | Path | None = None) -> RoomDistribution:
     """Load, validate and feasibility-check a room distribution from a YAML file or a parsed dict.
