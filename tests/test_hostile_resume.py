@@ -260,7 +260,8 @@ def test_the_api_refuses_a_config_whose_splits_are_all_zero(tmp_path, no_probe):
 def test_a_store_opens_and_reads_the_same_once_its_asset_folder_is_gone(tmp_path):
     """The card names the mesh asset folder by its absolute path on the build's machine. Reading needs no mesh file
     (the room's simulation block, capture and motion): once the folder is removed, as on another machine or after
-    the build's checkout is deleted, the store still opens and its counts and labels read bit for bit as before."""
+    the build's checkout is deleted, the store still opens and its counts and labels read bit for bit as before, and
+    ``datagen verify`` checks every shard, says in a note that the asset files were not checked, and passes."""
     folder = asset_folder(tmp_path)
     config, out = asset_config(tmp_path, folder), tmp_path / "ds"
     cli(build_args(config, out), 0, "2 shards built")
@@ -277,3 +278,10 @@ def test_a_store_opens_and_reads_the_same_once_its_asset_folder_is_gone(tmp_path
         for name in fields:
             np.testing.assert_array_equal(np.asarray(item[name]), after[f"{name}{i}"])
     assert after["counts0"].sum() > 0
+    verify = subprocess.run([sys.executable, "-c", "from datagen.cli.main import main; main()", "verify", str(out),
+                             "--quiet"], capture_output=True, text=True, timeout=240)
+    assert verify.returncode == 0, verify.stderr[-2000:]
+    assert "ok, 2 shards" in verify.stdout and "Traceback" not in verify.stderr
+    note = [line for line in verify.stderr.splitlines() if line.startswith("note:")]
+    assert len(note) == 1 and "mesh asset files were not checked" in note[0] and "asset folder or file not found" \
+        in note[0], verify.stderr
