@@ -559,9 +559,10 @@ def main(argv=None):
                      pool=args.pool, save=args.save, stored=args.stored_counts,
                      mask=args.mask or args.arch == "unet", lct=args.input == "lct", arch=args.arch,
                      augment=args.augment, pos_weight=args.pos_weight, mask_label=args.mask_label,
-                     depth_over=args.depth_over, command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None
+                     depth_over=args.depth_over,
+                     command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None
                                                                                 else argv))
-    except (ValueError, DatasetError) as exc:        # a data path, split or option that does not fit: one line
+    except (ValueError, DatasetError, FileNotFoundError) as exc:   # a data path, split or option that does not fit
         raise SystemExit(f"train_depth_image: {exc}") from None
     out = Path(args.out or f"{Path(args.data)}_net_{args.val}.npz")
     np.savez(out, depth=pred["depth"], index=pred["index"])

@@ -178,9 +178,9 @@ def test_the_lct_mask_label_finds_a_point_where_it_is_and_nothing_without_an_obj
 
 def test_the_depth_is_extended_over_the_mask_from_the_nearest_outline_point():
     """extend_depth: an outline of two points (row 2, columns 2 and 3, at 0.5 and 0.7 m) and a mask over row 2's
-    columns 0–5 and the point (4, 3): the outline keeps its depths, columns 0–1 take 0.5 m and 4–5 take 0.7 m (their
-    nearest outline points), (4, 3) takes 0.7 m (2 points below column 3); every point outside both stays 0, and a
-    sample without an outline stays 0 whatever its mask; an unknown ``depth_over`` is refused in one line."""
+    columns 0–5 and the point (4, 3): the outline keeps its depths, columns 0–1 take 0.5 m and 4–5 take 0.7 m
+    (their nearest outline points), (4, 3) takes 0.7 m (2 points below column 3); every point outside both stays 0,
+    and a sample without an outline stays 0 whatever its mask; an unknown ``depth_over`` is refused in one line."""
     depth = torch.zeros(2, 6, 6)
     depth[0, 2, 2], depth[0, 2, 3] = 0.5, 0.7
     over = torch.zeros(2, 6, 6, dtype=torch.bool)
@@ -212,3 +212,9 @@ def test_training_on_a_split_the_data_lack_is_one_line(wall):
     expected = r"train_depth_image: split 'nosuch' not in .*\(splits: \['test', 'train'\]\)"
     with pytest.raises(SystemExit, match=expected):
         train_depth_image.main([str(wall), "--train", "nosuch", "--epochs", "1", "--threads", "1"])
+
+
+def test_training_on_a_path_without_a_dataset_is_one_line(tmp_path):
+    """A data path that holds no dataset: one line naming it, no traceback."""
+    with pytest.raises(SystemExit, match=f"train_depth_image: no datagen dataset at {tmp_path / 'none'}"):
+        train_depth_image.main([str(tmp_path / "none"), "--epochs", "1", "--threads", "1"])
