@@ -40,13 +40,15 @@ strongest voxel. On the raw counts the mask head does not learn where a cut-out 
 point comes from the whole object: a 3 × 3 neighbourhood of 16 × 16 pooled points does not see the shape); on the
 LCT volume each column holds its own point's object. The mask loss weighs the object pixels by the training set's
 background-to-object ratio and adds a soft Dice term (:func:`mask_loss`); the probability threshold is the one of
-best validation IoU (:data:`MASK_THRESHOLDS`), kept in the saved record. The mask learnt is the label's outline, or
+best validation IoU (:data:`MASK_THRESHOLDS`), kept in the saved record. The mask learnt is the label's outline,
 with ``--mask-label lct`` what the LCT of the noise-free scan finds near the object (:func:`lct_seen`), the kind of
-mask benchmarks/real_low_light.py's reference is (docs/real.md weighs the two). A saved network also records the data it
-was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that trained
-it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, a DepthUNet on the unpooled
-LCT volume (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20 --mask-label lct --depth-over
-mask``) trained on the first 2000 + 100 samples of ``configs/datasets/lct_release.yaml`` (docs/training.md).
+mask benchmarks/real_low_light.py's reference is (docs/real.md weighs them), or with ``counts`` what the LCT of the
+sample's own stored counts finds, made as that reference is made from a capture. A saved network also records the
+data it was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that
+trained it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, a DepthUNet on the
+unpooled LCT volume (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20 --mask-label lct
+--depth-over mask``) trained on the first 2000 + 100 samples of ``configs/datasets/lct_release.yaml``
+(docs/training.md).
 """
 from __future__ import annotations
 
@@ -112,61 +114,77 @@ def scan_pitch(params) -> float:
 
 
 def load_split(path, split: str, pool: int = 1, lct: bool = False,
-               mask_label: str = "outline") -> dict[str, torch.Tensor]:
+               mask_label: str = "outline", workers: int = 0) -> dict[str, torch.Tensor]:
     """{"envelope", "counts": (N, 1, T, H/pool, W/pool) float32 (summed over pool × pool scan points), "depth":
     (N, H, W) float32 m (the label's grid)} of one split, in memory; with ``lct`` instead of the envelope and counts
     "lct": (N, 1, LCT_BINS, H/pool, W/pool) float16 the LCT volume of each sample's stored counts and "strongest":
-    (N, H/pool, W/pool) the depth m of its strongest voxels (:func:`lct_input`); with ``mask_label`` "lct" also
-    "seen": (N, H, W) bool, what the LCT of the sample's noise-free envelope finds (:func:`lct_seen`)."""
+    (N, H/pool, W/pool) the depth m of its strongest voxels (:func:`lct_input`); with ``mask_label`` "lct" or
+    "counts" also "seen": (N, H, W) bool, what the LCT of the sample's noise-free envelope or of its stored counts
+    finds (:func:`lct_seen`). ``workers`` > 0 prepares the samples in that many processes (a torch DataLoader's
+    workers; the LCTs run on one core each), 0 in this one; the result is the same."""
     if mask_label not in MASK_LABELS:
         raise ValueError(f"mask_label must be one of {', '.join(MASK_LABELS)}, got {mask_label!r}")
-    fields = ("counts", "wall_depth") + (("params",) if lct or mask_label == "lct" else ()) + \
+    fields = ("counts", "wall_depth") + (("params",) if lct or mask_label != "outline" else ()) + \
         (("envelope",) if not lct or mask_label == "lct" else ())          # params: the pitch; envelope: lct_seen
     ds = datagen.NLOSDataset(path, split=split, fields=fields, layout="network", counts_dtype=torch.float32)
     if len(ds) == 0:
         raise ValueError(f"{path}: split {split!r} holds no samples")
-    bin_width = float(ds.card["time_edges"]["bin_width"])
-    blocks: dict[str, torch.Tensor] = {}
-
-    def put(key: str, i: int, value: torch.Tensor, dtype: torch.dtype | None = None) -> None:
-        # Each output is one block per split, allocated at the first sample: rows kept one by one between the LCT's
-        # freed buffers fragmented the heap (with 2 threads, 17 MB of memory per sample for 2 MiB kept).
-        if key not in blocks:
-            blocks[key] = torch.empty((len(ds),) + tuple(value.shape), dtype=dtype or value.dtype)
-        blocks[key][i] = value
-
-    for i in range(len(ds)):
-        item = ds[i]
-        pitch = scan_pitch(item["params"]) if "params" in fields else None
-        if lct:
-            volume, strongest = lct_input(np.moveaxis(item["counts"][0].numpy(), 0, -1), bin_width, pitch, pool)
-            put("lct", i, volume, torch.float16)                 # float16: 2 MiB per 64 × 64 sample
-            put("strongest", i, strongest)
-        else:
-            put("envelope", i, pool_scan(item["envelope"], pool))
-            put("counts", i, pool_scan(item["counts"], pool))
-        put("depth", i, item["wall_depth"][0])
-        if mask_label == "lct":
-            put("seen", i, lct_seen(item["envelope"][0].numpy(), bin_width, pitch, item["wall_depth"][0]))
+    prepared = _Prepared(ds, float(ds.card["time_edges"]["bin_width"]), pool, lct, mask_label)
+    # Each output is one block per split, allocated at the first sample: rows kept one by one between the LCT's
+    # freed buffers fragmented the heap (with 2 threads, 17 MB of memory per sample for 2 MiB kept).
+    for i, row in enumerate(torch.utils.data.DataLoader(prepared, batch_size=None, num_workers=workers)):
+        if i == 0:
+            blocks = {key: torch.empty((len(ds),) + tuple(v.shape), dtype=v.dtype) for key, v in row.items()}
+        for key, value in row.items():
+            blocks[key][i] = value
     return blocks
 
 
-MASK_LABELS = ("outline", "lct")
+class _Prepared(torch.utils.data.Dataset):
+    """One split's samples as :func:`load_split` keeps them: the i-th item the dict of its rows for sample i."""
+
+    def __init__(self, ds, bin_width: float, pool: int, lct: bool, mask_label: str):
+        self.ds, self.bin_width, self.pool, self.lct, self.mask_label = ds, bin_width, pool, lct, mask_label
+
+    def __len__(self) -> int:
+        return len(self.ds)
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        item, row = self.ds[i], {}
+        pitch = scan_pitch(item["params"]) if "params" in item else None
+        if self.lct:
+            volume, row["strongest"] = lct_input(np.moveaxis(item["counts"][0].numpy(), 0, -1), self.bin_width,
+                                                 pitch, self.pool)
+            row["lct"] = volume.half()                                # float16: 2 MiB per 64 × 64 sample
+        else:
+            row["envelope"], row["counts"] = (pool_scan(item[k], self.pool) for k in ("envelope", "counts"))
+        row["depth"] = item["wall_depth"][0]
+        if self.mask_label != "outline":
+            scan = item["envelope" if self.mask_label == "lct" else "counts"][0].numpy()
+            row["seen"] = lct_seen(scan, self.bin_width, pitch, row["depth"], measured=self.mask_label == "counts")
+        return row
+
+
+MASK_LABELS = ("outline", "lct", "counts")
 """What the mask head learns (``--mask-label``): "outline", the label's own mask (``wall_depth > 0``: the cut-out's
-exact outline on the scan grid); "lct", what a long exposure's LCT finds near the object (:func:`lct_seen`), the
-kind of mask the real-capture evaluation's reference is (benchmarks/real_low_light.py: the full-exposure LCT's found
-points)."""
+exact outline on the scan grid); "lct", what a long exposure's LCT finds near the object (:func:`lct_seen` of the
+noise-free envelope), the kind of mask the real-capture evaluation's reference is (benchmarks/real_low_light.py: the
+full-exposure LCT's found points); "counts", what the LCT of the sample's own stored counts finds near the object,
+made as that reference is made from a measured capture (:func:`lct_seen` with ``measured``: the noise and the floor
+of the sample's full exposure in it, the floor subtracted)."""
 
 
-def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor) -> torch.Tensor:
-    """(H, W) bool: where the LCT of a noise-free scan ``envelope`` (T, H, W), reconstructed as ``datagen
-    reconstruct --background none`` runs it (:func:`datagen.analysis.reconstruct.confocal_volume`; in LCT_BINS bins,
-    as the input), finds something (:func:`datagen.analysis.reconstruct.depth_map` as shipped: the front view at 0.25
-    of the way from its pedestal to its maximum, the rule of the evaluation's reference), kept within LCT's
-    resolution of the object: of the label's outline (``depth`` (H, W) m, 0 where the object is not seen) dilated
-    by Δx = c·γ·√(w² + z²) / (2w) (O'Toole, Lindell & Wetzstein 2018, the confocal set-up's lateral resolution;
-    γ = :data:`RESOLUTION_FWHM`, w the scan's half-width, z the outline's median depth). Nothing where the outline
-    is empty. The mask of a scan of unlimited exposure, as wide as LCT's blur and no wider."""
+def lct_seen(scan: np.ndarray, bin_width: float, pitch, depth: torch.Tensor, measured: bool = False) -> torch.Tensor:
+    """(H, W) bool: where the LCT of a scan (T, H, W) finds something, kept within LCT's resolution of the object. The
+    scan is a noise-free ``envelope``, reconstructed as ``datagen reconstruct --background none`` runs it
+    (:func:`datagen.analysis.reconstruct.confocal_volume`; in LCT_BINS bins, as the input); or with ``measured`` a
+    capture's counts (noise and floor), reconstructed as the real-capture evaluation's reference is (each point's
+    floor subtracted, up to :data:`~datagen.analysis.reconstruct.MAX_BINS` bins). Found: the front view at 0.25 of
+    the way from its pedestal to its maximum (:func:`datagen.analysis.reconstruct.depth_map` as shipped, the rule of
+    the evaluation's reference); kept within LCT's resolution of the label's outline (``depth`` (H, W) m, 0 where
+    the object is not seen) dilated by Δx = c·γ·√(w² + z²) / (2w) (O'Toole, Lindell & Wetzstein 2018, the confocal
+    set-up's lateral resolution; γ = :data:`RESOLUTION_FWHM`, w the scan's half-width, z the outline's median
+    depth). Nothing where the outline is empty."""
     from scipy.ndimage import distance_transform_edt
 
     from datagen.analysis.reconstruct import confocal_volume, depth_map
@@ -175,8 +193,8 @@ def lct_seen(envelope: np.ndarray, bin_width: float, pitch, depth: torch.Tensor)
     outline = np.asarray(depth) > 0
     if not outline.any():
         return torch.zeros(outline.shape, dtype=torch.bool)
-    volume, depths, _ = confocal_volume(np.moveaxis(np.asarray(envelope, np.float64), 0, -1), bin_width, pitch, "lct",
-                                        max_bins=LCT_BINS, background=None)
+    volume, depths, _ = confocal_volume(np.moveaxis(np.asarray(scan, np.float64), 0, -1), bin_width, pitch, "lct",
+                                        **({} if measured else {"max_bins": LCT_BINS, "background": None}))
     pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
     half = 0.25 * (pitch_y * outline.shape[0] + pitch_x * outline.shape[1])
     z = float(np.median(np.asarray(depth)[outline]))
@@ -418,7 +436,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
           val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
           stored: bool = False, mask: bool = False, lct: bool = False, command: str = "", arch: str = "cnn",
           augment: bool = False, pos_weight: float | None = None,
-          mask_label: str = "outline", depth_over: str = "outline") -> dict[str, np.ndarray]:
+          mask_label: str = "outline", depth_over: str = "outline", workers: int = 0) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
     ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
@@ -431,7 +449,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     and validated is what a long exposure's LCT finds instead, :data:`MASK_LABELS`); the depth is learnt over
     the label's own mask, or with ``depth_over`` "mask" over it and the mask the mask head learns
     (:data:`DEPTH_OVER`; validated over the label's own mask either way); ``arch`` names the network (:data:`ARCHS`);
-    with ``augment`` each batch is turned by a random symmetry of the square (:func:`dihedral`). Returns {"depth":
+    with ``augment`` each batch is turned by a random symmetry of the square (:func:`dihedral`); ``workers`` the
+    processes that prepare the samples (:func:`load_split`). Returns {"depth":
     (N, H, W) float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the
     object pixels, "iou": the validation mask IoU (NaN without ``mask``)}."""
     if depth_over not in DEPTH_OVER:
@@ -439,7 +458,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     torch.manual_seed(seed)
     t0 = time.perf_counter()
     version = git_version(Path(__file__).resolve().parent)          # of the code as it is loaded, at the start
-    tr, va = (load_split(path, s, pool, lct, mask_label) for s in (train_split, val_split))
+    tr, va = (load_split(path, s, pool, lct, mask_label, workers) for s in (train_split, val_split))
     ds = datagen.NLOSDataset(path, split=train_split, fields=("counts",))
     det = ds.detector_config()
     noise = ds.spad_noise() if pool == 1 else ds.spad_noise(dcr=det.dcr * pool ** 2,        # summed background
@@ -528,7 +547,8 @@ def main(argv=None):
     parser.add_argument("--epochs", type=int, default=40)
     parser.add_argument("--batch", type=int, default=16)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument("--threads", type=int, default=2,
+                        help="torch CPU threads, and the processes that prepare the samples")
     parser.add_argument("--train", default="train")
     parser.add_argument("--val", default="val")
     parser.add_argument("--pool", type=int, default=1, help="sum the scan over POOL × POOL scan points (module doc)")
@@ -545,7 +565,8 @@ def main(argv=None):
     parser.add_argument("--pos-weight", type=float, default=None,
                         help="the mask loss's weight of object pixels (default: the background-to-object ratio)")
     parser.add_argument("--mask-label", choices=MASK_LABELS, default="outline",
-                        help="what the mask head learns: the label's outline, or what a long exposure's LCT finds")
+                        help="what the mask head learns: the label's outline, what the LCT of the noise-free scan "
+                             "finds (lct), or of the sample's stored counts, as a capture's reference (counts)")
     parser.add_argument("--depth-over", choices=DEPTH_OVER, default="outline",
                         help="where the depth is learnt: the label's outline, or also the mask the mask head learns")
     parser.add_argument("--input", choices=["counts", "lct"], default="counts",
@@ -559,7 +580,7 @@ def main(argv=None):
                      pool=args.pool, save=args.save, stored=args.stored_counts,
                      mask=args.mask or args.arch == "unet", lct=args.input == "lct", arch=args.arch,
                      augment=args.augment, pos_weight=args.pos_weight, mask_label=args.mask_label,
-                     depth_over=args.depth_over,
+                     depth_over=args.depth_over, workers=args.threads,
                      command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None
                                                                                 else argv))
     except (ValueError, DatasetError, FileNotFoundError) as exc:   # a data path, split or option that does not fit
