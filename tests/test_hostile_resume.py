@@ -285,3 +285,27 @@ def test_a_store_opens_and_reads_the_same_once_its_asset_folder_is_gone(tmp_path
     note = [line for line in verify.stderr.splitlines() if line.startswith("note:")]
     assert len(note) == 1 and "mesh asset files were not checked" in note[0] and "asset folder or file not found" \
         in note[0], verify.stderr
+
+
+def test_only_a_missing_asset_folder_is_a_note_in_the_asset_check(tmp_path, monkeypatch):
+    """asset_problems: a config whose asset folder exists nowhere (a store copied from the machine that built it)
+    adds one note naming the folder and reports no problem; any other config error (here an invalid room, raised
+    where the entries are resolved) is raised as it is, not turned into a note."""
+    from datagen.dataset import config as dataset_config
+    from datagen.dataset import integrity
+    from datagen.errors import ConfigError
+
+    folder = asset_folder(tmp_path)
+    config = load_dataset_config(asset_config(tmp_path, folder))
+    shutil.rmtree(tmp_path / "assets")
+    dataset_config._distribution.cache_clear()         # the rooms this process loaded while the folder was there
+    notes: list[str] = []
+    assert integrity.asset_problems({"assets": []}, config, notes) == []
+    assert len(notes) == 1 and "asset folder or file not found" in notes[0] and str(folder) in notes[0], notes
+
+    def invalid(config):
+        raise ConfigError("room: walls.albedo: 1.5 is above 1")
+
+    monkeypatch.setattr(integrity, "config_asset_entries", invalid)
+    with pytest.raises(ConfigError, match="walls.albedo: 1.5"):
+        integrity.asset_problems({"assets": []}, config, [])

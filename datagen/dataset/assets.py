@@ -66,12 +66,19 @@ class Asset:
     watertight: bool
 
 
+class AssetNotFoundError(ConfigError):
+    """A mesh asset folder or file that a room names exists nowhere (:func:`resolve_assets`): the one config
+    problem a store copied from the machine that built it has by nature
+    (:func:`datagen.dataset.integrity.asset_problems` notes it; every other ConfigError stays an error)."""
+
+
 def resolve_assets(entries: list[str], base: Path | None, where: str) -> list[str]:
     """Absolute paths of asset folders or files: each entry relative to ``base`` (the room file's folder) first,
     then to the working directory.
 
     Raises:
-        ConfigError: an entry exists in neither place (``where``: the field, e.g. "rooms.yaml: objects.mesh.assets").
+        AssetNotFoundError: an entry exists in neither place (``where``: the field, e.g. "rooms.yaml:
+            objects.mesh.assets").
     """
     out = []
     for entry in entries:
@@ -80,7 +87,7 @@ def resolve_assets(entries: list[str], base: Path | None, where: str) -> list[st
         found = next((p for p in candidates if p.exists()), None)
         if found is None:
             looked = ", ".join(str(p) for p in dict.fromkeys(candidates))
-            raise ConfigError(f"{where}: asset folder or file not found: {entry!r} (looked at {looked})")
+            raise AssetNotFoundError(f"{where}: asset folder or file not found: {entry!r} (looked at {looked})")
         out.append(str(found.resolve()))
     return out
 

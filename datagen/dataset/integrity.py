@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, DatasetError
-from .assets import asset_changes, config_asset_entries, current_asset_record
+from ..errors import DatasetError
+from .assets import AssetNotFoundError, asset_changes, config_asset_entries, current_asset_record
 from .config import DatasetConfig, config_from_json
 from .store import (ShardTask, file_sha256, marker_path, plan_shards, read_card, read_marker,
                     shard_file, zarr_module)
@@ -251,7 +251,7 @@ def asset_problems(card: dict, config: DatasetConfig, notes: list[str] | None = 
     (a store copied from the machine that built it), adds a line to ``notes`` instead."""
     try:
         entries = config_asset_entries(config)
-    except ConfigError as exc:                 # the folders the card names (absolute paths of the build) are gone
+    except AssetNotFoundError as exc:          # the folders the card names (absolute paths of the build) are gone
         if notes is not None:
             notes.append(f"the mesh asset files were not checked: {exc}")
         return []
