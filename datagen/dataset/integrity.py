@@ -248,7 +248,11 @@ def asset_problems(card: dict, config: DatasetConfig, notes: list[str] | None = 
     """The mesh asset files now against those the card pins (:func:`datagen.dataset.assets.asset_changes`): one
     line naming the asset folder, the first file added, removed or changed and how many more. A card that pins
     none (built before datagen recorded them) while its config draws meshes, or whose asset folders are not here
-    (a store copied from the machine that built it), adds a line to ``notes`` instead."""
+    (a store copied from the machine that built it), adds a line to ``notes`` instead.
+
+    Raises:
+        ConfigError: the card's room config fails in any other way than an asset folder that exists nowhere
+            (:class:`~datagen.dataset.assets.AssetNotFoundError`)."""
     try:
         entries = config_asset_entries(config)
     except AssetNotFoundError as exc:          # the folders the card names (absolute paths of the build) are gone
