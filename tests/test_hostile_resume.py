@@ -288,20 +288,24 @@ def test_a_store_opens_and_reads_the_same_once_its_asset_folder_is_gone(tmp_path
 
 
 def test_only_a_missing_asset_folder_is_a_note_in_the_asset_check(tmp_path, monkeypatch):
-    """asset_problems: a config whose asset folder exists nowhere (a store copied from the machine that built it)
-    adds one note naming the folder and reports no problem; any other config error (here an invalid room, raised
-    where the entries are resolved) is raised as it is, not turned into a note."""
-    from datagen.dataset import config as dataset_config
+    """asset_problems: an asset folder that exists nowhere (a store copied from the machine that built it; the
+    error resolve_assets raises for it) adds one note naming the folder and reports no problem; any other config
+    error (here an invalid room, raised where the entries are resolved) is raised as it is, not turned into a note.
+    The end-to-end case, verify on a store whose folders are gone, is the test above."""
     from datagen.dataset import integrity
+    from datagen.dataset.assets import resolve_assets
     from datagen.errors import ConfigError
 
-    folder = asset_folder(tmp_path)
-    config = load_dataset_config(asset_config(tmp_path, folder))
-    shutil.rmtree(tmp_path / "assets")
-    dataset_config._distribution.cache_clear()         # the rooms this process loaded while the folder was there
+    config = load_dataset_config(asset_config(tmp_path, asset_folder(tmp_path)))
+    gone = tmp_path / "elsewhere" / "meshes"
+
+    def missing(config):
+        return resolve_assets([str(gone)], tmp_path, "rooms.yaml: objects.mesh.assets")
+
+    monkeypatch.setattr(integrity, "config_asset_entries", missing)
     notes: list[str] = []
     assert integrity.asset_problems({"assets": []}, config, notes) == []
-    assert len(notes) == 1 and "asset folder or file not found" in notes[0] and str(folder) in notes[0], notes
+    assert len(notes) == 1 and "asset folder or file not found" in notes[0] and str(gone) in notes[0], notes
 
     def invalid(config):
         raise ConfigError("room: walls.albedo: 1.5 is above 1")
