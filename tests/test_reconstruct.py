@@ -79,6 +79,25 @@ def test_lct_trims_the_direct_light_itself_and_finds_the_point_with_either_fallo
         lct_volume(scan, DT, HALF, falloff="specular")
 
 
+def test_the_kept_kernel_gives_the_volume_a_kernel_built_anew_gives(monkeypatch):
+    """lct_volume keeps its two latest inverse kernels: alternating two geometries, snr and backprojection, each
+    volume equals, bit for bit, the one computed with no kernel kept (KERNEL_CACHE_BYTES 0); the kept kernel is
+    read-only, so no caller can change what the next call uses."""
+    from datagen.analysis import lct
+
+    rng = np.random.default_rng(5)
+    scan = with_direct_light(point_scan(0.5), rng)
+    calls = [dict(half_width=HALF), dict(half_width=(HALF, 0.8 * HALF)), dict(half_width=HALF, snr=0.08),
+             dict(half_width=HALF, backprojection=True), dict(half_width=HALF)]
+    kept = [lct_volume(scan, DT, **call) for call in calls]
+    monkeypatch.setattr(lct, "KERNEL_CACHE_BYTES", 0)
+    for call, volume in zip(calls, kept):
+        np.testing.assert_array_equal(volume, lct_volume(scan, DT, **call))
+    kernel = lct.inverse_kernel((N, N), M, 0.1, 0.8, False)
+    with pytest.raises(ValueError, match="read-only"):
+        kernel[0, 0, 0] = 0.0
+
+
 @pytest.mark.parametrize("method", ["lct", "fbp", "phasor"])
 def test_each_method_finds_the_point_at_its_depth(method):
     scan = with_direct_light(point_scan(0.45), np.random.default_rng(3))

@@ -14,6 +14,7 @@ docs/scans.md). The kernel is even along both scan axes, so the volume keeps the
 """
 from __future__ import annotations
 
+import functools
 from typing import Literal
 
 import numpy as np
@@ -42,6 +43,32 @@ def light_cone_psf(n: int | tuple[int, int], m: int, slope: float | tuple[float,
     psf /= psf[:, ny, nx].sum()
     psf /= np.linalg.norm(psf)
     return np.roll(psf, (ny, nx), axis=(1, 2))
+
+
+KERNEL_CACHE_BYTES = 256 * 2 ** 20
+"""The largest inverse kernel :func:`inverse_kernel` keeps for the next call (bytes; 136 MB at 64 × 64 × 512)."""
+
+
+def inverse_kernel(n: tuple[int, int], m: int, slope: float | tuple[float, float], snr: float,
+                   backprojection: bool) -> np.ndarray:
+    """(2m, 2ny, nx + 1) complex128, read-only: the Fourier-domain filter :func:`lct_volume` multiplies by, the
+    conjugate of the light-cone kernel's real FFT (:func:`light_cone_psf`), divided by |FFT|² + 1/snr (Wiener)
+    unless ``backprojection``. The two latest (arguments equal) are kept when no larger than
+    :data:`KERNEL_CACHE_BYTES`: a run over many scans of one geometry (a data set's samples, a capture's thinnings)
+    builds the kernel once; the result is the same array, bit for bit, as building it anew."""
+    if 2 * m * 2 * n[0] * (n[1] + 1) * 16 <= KERNEL_CACHE_BYTES:
+        return _kept_inverse_kernel(tuple(n), m, slope, snr, backprojection)
+    return _inverse_kernel(tuple(n), m, slope, snr, backprojection)
+
+
+def _inverse_kernel(n, m, slope, snr, backprojection) -> np.ndarray:
+    fpsf = np.fft.rfftn(light_cone_psf(n, m, slope))
+    invpsf = np.conj(fpsf) if backprojection else np.conj(fpsf) / (np.abs(fpsf) ** 2 + 1.0 / snr)
+    invpsf.flags.writeable = False
+    return invpsf
+
+
+_kept_inverse_kernel = functools.lru_cache(maxsize=2)(_inverse_kernel)
 
 
 def resampling_operator(m: int) -> tuple[np.ndarray, np.ndarray]:
@@ -102,9 +129,8 @@ def lct_volume(scan: np.ndarray, bin_width: float, half_width: float | tuple[flo
         scan[..., :int(np.ceil(trim / bin_width - 1e-9))] = 0.0
     data = np.moveaxis(scan, 2, 0) * np.linspace(0, 1, m)[:, None, None] ** FALLOFF_POWER[falloff]   # (M, ny, nx)
     rng = m * SPEED_OF_LIGHT * bin_width
-    slope = half_width / rng if np.ndim(half_width) == 0 else tuple(np.asarray(half_width, float) / rng)
-    fpsf = np.fft.rfftn(light_cone_psf((ny, nx), m, slope))
-    invpsf = np.conj(fpsf) if backprojection else np.conj(fpsf) / (np.abs(fpsf) ** 2 + 1.0 / snr)
+    slope = float(half_width) / rng if np.ndim(half_width) == 0 else tuple(float(h) / rng for h in half_width)
+    invpsf = inverse_kernel((ny, nx), m, slope, snr, backprojection)
     padded = np.zeros((2 * m, 2 * ny, 2 * nx))
     padded[:m, :ny, :nx] = (mtx @ data.reshape(m, -1)).reshape(m, ny, nx)
     # the kernel and the data are real: the real FFT gives the real part of the complex one's result
