@@ -200,7 +200,8 @@ def test_triangle_counts_are_read_from_the_headers(tmp_path):
 def test_resume_with_another_estimator_is_refused_before_the_probe(built, monkeypatch):
     config, out, folder = built
     (config.parent / "other").mkdir()
-    other = asset_config(config.parent / "other", folder, edit=lambda d: d["simulation"].update(estimator={"kind": "area"}))
+    other = asset_config(config.parent / "other", folder,
+                         edit=lambda d: d["simulation"].update(estimator={"kind": "area"}))
     monkeypatch.setattr(build_module, "_probe", lambda c: pytest.fail("probe computed before the config check"))
     before = snapshot(out)
     cli(build_args(other, out, "--resume"), 2, f"{out} was built from a different config (differs in: "

@@ -91,8 +91,8 @@ def resampling_operator(m: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def lct_volume(scan: np.ndarray, bin_width: float, half_width: float | tuple[float, float], snr: float = 0.8,
-               falloff: Literal["diffuse", "retroreflective"] = "diffuse", trim: float | Literal["auto"] | None = "auto",
-               backprojection: bool = False) -> np.ndarray:
+               falloff: Literal["diffuse", "retroreflective"] = "diffuse",
+               trim: float | Literal["auto"] | None = "auto", backprojection: bool = False) -> np.ndarray:
     """LCT reconstruction of a confocal scan.
 
     Args:

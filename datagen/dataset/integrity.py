@@ -201,7 +201,8 @@ def card_problems(card: dict, config: DatasetConfig) -> list[str]:
                             f"{expected_slots} component slots first")
     for name in ("envelope", "counts", "components"):
         if name in fields and fields[name][0][-1:] != (n_bins,):
-            problems.append(f"card: {name} has shape {list(fields[name][0])}, the config implies {n_bins} time bins last")
+            problems.append(f"card: {name} has shape {list(fields[name][0])}, "
+                            f"the config implies {n_bins} time bins last")
     for name, (shape, dtype) in expected.items():
         if name in fields and fields[name] != (tuple(shape), dtype):
             problems.append(f"card: {name} is {list(fields[name][0])} {fields[name][1]}, the config implies "
