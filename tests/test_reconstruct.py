@@ -79,6 +79,26 @@ def test_lct_trims_the_direct_light_itself_and_finds_the_point_with_either_fallo
         lct_volume(scan, DT, HALF, falloff="specular")
 
 
+@pytest.mark.parametrize("n, m, slope", [((16, 16), 256, 0.1), ((16, 16), 256, 0.5), ((16, 12), 128, (0.2, 0.15)),
+                                         ((8, 8), 16, 2.0), ((32, 32), 512, 0.081)])
+def test_the_light_cone_kernel_is_the_nearest_bin_of_each_column(n, m, slope):
+    """light_cone_psf against the release script's construction, written out here: |cone − z| over the whole
+    (2m, 2ny, 2nx) grid, 1 where it is least in its column (ties both), normalised; equal bit for bit, over square
+    and rectangular grids and slopes whose cone stays inside the range or leaves it (slope 2)."""
+    from datagen.analysis.lct import light_cone_psf
+
+    ny, nx = n
+    sy, sx = (slope, slope) if np.ndim(slope) == 0 else slope
+    gz, gy, gx = np.meshgrid(np.linspace(0, 2, 2 * m), np.linspace(-1, 1, 2 * ny), np.linspace(-1, 1, 2 * nx),
+                             indexing="ij")
+    cone = (4 * sx) ** 2 * (gx ** 2 + gy ** 2) if sx == sy else (4 * sx) ** 2 * gx ** 2 + (4 * sy) ** 2 * gy ** 2
+    gap = np.abs(cone - gz)
+    psf = (gap == gap.min(axis=0, keepdims=True)).astype(np.float64)
+    psf /= psf[:, ny, nx].sum()
+    psf /= np.linalg.norm(psf)
+    np.testing.assert_array_equal(light_cone_psf(n, m, slope), np.roll(psf, (ny, nx), axis=(1, 2)))
+
+
 def test_the_kept_kernel_gives_the_volume_a_kernel_built_anew_gives(monkeypatch):
     """lct_volume keeps its two latest inverse kernels: alternating two geometries, snr and backprojection, each
     volume equals, bit for bit, the one computed with no kernel kept (KERNEL_CACHE_BYTES 0); the kept kernel is

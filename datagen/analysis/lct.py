@@ -36,10 +36,17 @@ def light_cone_psf(n: int | tuple[int, int], m: int, slope: float | tuple[float,
     ny, nx = (n, n) if np.ndim(n) == 0 else n
     sy, sx = (slope, slope) if np.ndim(slope) == 0 else slope
     z = np.linspace(0, 2, 2 * m)
-    gz, gy, gx = np.meshgrid(z, np.linspace(-1, 1, 2 * ny), np.linspace(-1, 1, 2 * nx), indexing="ij")
+    gy, gx = np.meshgrid(np.linspace(-1, 1, 2 * ny), np.linspace(-1, 1, 2 * nx), indexing="ij")
     cone = (4 * sx) ** 2 * (gx ** 2 + gy ** 2) if sx == sy else (4 * sx) ** 2 * gx ** 2 + (4 * sy) ** 2 * gy ** 2
-    psf = np.abs(cone - gz)
-    psf = (psf == psf.min(axis=0, keepdims=True)).astype(np.float64)
+    # each column holds 1 at the z nearest its cone (both, where two are equally near): z is increasing, so the
+    # nearest is one of the two z about the cone, and only those two are compared
+    above = np.clip(np.searchsorted(z, cone), 1, 2 * m - 1)
+    below_gap, above_gap = np.abs(cone - z[above - 1]), np.abs(cone - z[above])
+    nearest = np.minimum(below_gap, above_gap)
+    psf = np.zeros((2 * m, 2 * ny, 2 * nx))
+    rows, cols = np.indices(cone.shape)
+    psf[above - 1, rows, cols] = below_gap == nearest
+    psf[above, rows, cols] = above_gap == nearest
     psf /= psf[:, ny, nx].sum()
     psf /= np.linalg.norm(psf)
     return np.roll(psf, (ny, nx), axis=(1, 2))
