@@ -78,6 +78,20 @@ def _inverse_kernel(n, m, slope, snr, backprojection) -> np.ndarray:
 _kept_inverse_kernel = functools.lru_cache(maxsize=2)(_inverse_kernel)
 
 
+def padded_convolution(data: np.ndarray, filt: np.ndarray) -> np.ndarray:
+    """(m, ny, nx) float64: ``data`` (m, ny, nx) zero-padded to (2m, 2ny, 2nx), multiplied in the Fourier domain by
+    ``filt`` (2m, 2ny, nx + 1) (a real FFT's half spectrum, :func:`inverse_kernel`) and cropped back, as
+    ``irfftn(rfftn(padded) · filt)[:m, :ny, :nx]``. The kernel and the data are real, so the real FFT gives the real
+    part of the complex one's result. The 1-D transforms run one axis at a time in the order ``rfftn`` / ``irfftn``
+    take them, each only over the rows that are not all zero (forward) or that are kept (back): the same numbers, bit
+    for bit, with about half the work."""
+    m, ny, nx = data.shape
+    spectrum = np.fft.fft(np.fft.fft(np.fft.rfft(data, 2 * nx, axis=2), 2 * ny, axis=1), 2 * m, axis=0)
+    spectrum *= filt
+    kept = np.fft.ifft(np.fft.ifft(spectrum, axis=0)[:m], axis=1)[:, :ny]
+    return np.fft.irfft(kept, 2 * nx, axis=2)[..., :nx]
+
+
 def resampling_operator(m: int) -> tuple[np.ndarray, np.ndarray]:
     """(m, m) matrices taking the time axis t to v = t² and back (m a power of two).
 
@@ -138,10 +152,7 @@ def lct_volume(scan: np.ndarray, bin_width: float, half_width: float | tuple[flo
     rng = m * SPEED_OF_LIGHT * bin_width
     slope = float(half_width) / rng if np.ndim(half_width) == 0 else tuple(float(h) / rng for h in half_width)
     invpsf = inverse_kernel((ny, nx), m, slope, snr, backprojection)
-    padded = np.zeros((2 * m, 2 * ny, 2 * nx))
-    padded[:m, :ny, :nx] = (mtx @ data.reshape(m, -1)).reshape(m, ny, nx)
-    # the kernel and the data are real: the real FFT gives the real part of the complex one's result
-    vol = np.fft.irfftn(np.fft.rfftn(padded) * invpsf, s=padded.shape, axes=(0, 1, 2))[:m, :ny, :nx]
+    vol = padded_convolution((mtx @ data.reshape(m, -1)).reshape(m, ny, nx), invpsf)
     vol = (mtxi @ vol.reshape(m, -1)).reshape(m, ny, nx)
     return np.moveaxis(np.maximum(vol, 0.0), 0, 2)
 
