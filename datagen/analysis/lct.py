@@ -61,8 +61,8 @@ def inverse_kernel(n: tuple[int, int], m: int, slope: float | tuple[float, float
     """(2m, 2ny, nx + 1) complex128, read-only: the Fourier-domain filter :func:`lct_volume` multiplies by, the
     conjugate of the light-cone kernel's real FFT (:func:`light_cone_psf`), divided by |FFT|² + 1/snr (Wiener)
     unless ``backprojection``. The two latest (arguments equal) are kept when no larger than
-    :data:`KERNEL_CACHE_BYTES`: a run over many scans of one geometry (a data set's samples, a capture's thinnings)
-    builds the kernel once; the result is the same array, bit for bit, as building it anew."""
+    :data:`KERNEL_CACHE_BYTES`: a run over many scans of one geometry (a capture's thinnings, a data set whose
+    scans share one grid and time axis) builds the kernel once; the result is the same array, bit for bit, as building it anew."""
     if 2 * m * 2 * n[0] * (n[1] + 1) * 16 <= KERNEL_CACHE_BYTES:
         return _kept_inverse_kernel(tuple(n), m, slope, snr, backprojection)
     return _inverse_kernel(tuple(n), m, slope, snr, backprojection)
