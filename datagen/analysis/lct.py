@@ -92,23 +92,34 @@ def padded_convolution(data: np.ndarray, filt: np.ndarray) -> np.ndarray:
     return np.fft.irfft(kept, 2 * nx, axis=2)[..., :nx]
 
 
-def resampling_operator(m: int) -> tuple[np.ndarray, np.ndarray]:
-    """(m, m) matrices taking the time axis t to v = t² and back (m a power of two).
+def resampling_operator(m: int):
+    """(m, m) scipy CSR matrices (float64, read-only) taking the time axis t to v = t² and back (m a power of two;
+    the release's ``resamplingOperator``). Each row holds a few non-zeros (about 2m in all), so :func:`lct_volume`
+    multiplies by them sparse. The latest four are kept by m (m = 2048 takes about 1 s to build).
 
     Raises:
         ValueError: m is not a power of two.
     """
-    from scipy import sparse
-
     if m < 2 or m & (m - 1):
         raise ValueError(f"LCT needs a power-of-two number of time bins, got {m}")
+    return _resampling_operator(m)
+
+
+@functools.lru_cache(maxsize=4)
+def _resampling_operator(m: int):
+    from scipy import sparse
+
     x = np.arange(1, m * m + 1)
     mtx = sparse.csr_matrix((1.0 / np.sqrt(x), (x - 1, np.ceil(np.sqrt(x)).astype(np.int64) - 1)), shape=(m * m, m))
     mtxi = mtx.T.tocsr()
     for _ in range(int(round(np.log2(m)))):
         mtx = 0.5 * (mtx[0::2, :] + mtx[1::2, :])
         mtxi = 0.5 * (mtxi[:, 0::2] + mtxi[:, 1::2])
-    return np.asarray(mtx.todense()), np.asarray(mtxi.todense())
+    kept = tuple(sparse.csr_matrix(a) for a in (mtx, mtxi))
+    for a in kept:
+        a.eliminate_zeros()
+        a.data.flags.writeable = False
+    return kept
 
 
 def lct_volume(scan: np.ndarray, bin_width: float, half_width: float | tuple[float, float], snr: float = 0.8,
