@@ -62,7 +62,8 @@ def inverse_kernel(n: tuple[int, int], m: int, slope: float | tuple[float, float
     conjugate of the light-cone kernel's real FFT (:func:`light_cone_psf`), divided by |FFT|² + 1/snr (Wiener)
     unless ``backprojection``. The two latest (arguments equal) are kept when no larger than
     :data:`KERNEL_CACHE_BYTES`: a run over many scans of one geometry (a capture's thinnings, a data set whose
-    scans share one grid and time axis) builds the kernel once; the result is the same array, bit for bit, as building it anew."""
+    scans share one grid and time axis) builds the kernel once; the result is the same array, bit for bit, as
+    building it anew."""
     if 2 * m * 2 * n[0] * (n[1] + 1) * 16 <= KERNEL_CACHE_BYTES:
         return _kept_inverse_kernel(tuple(n), m, slope, snr, backprojection)
     return _inverse_kernel(tuple(n), m, slope, snr, backprojection)
@@ -115,11 +116,10 @@ def _resampling_operator(m: int):
     for _ in range(int(round(np.log2(m)))):
         mtx = 0.5 * (mtx[0::2, :] + mtx[1::2, :])
         mtxi = 0.5 * (mtxi[:, 0::2] + mtxi[:, 1::2])
-    kept = tuple(sparse.csr_matrix(a) for a in (mtx, mtxi))
-    for a in kept:
+    for a in (mtx, mtxi):                        # CSR still: row / column slices and sums of CSR matrices are CSR
         a.eliminate_zeros()
         a.data.flags.writeable = False
-    return kept
+    return mtx, mtxi
 
 
 def lct_volume(scan: np.ndarray, bin_width: float, half_width: float | tuple[float, float], snr: float = 0.8,
