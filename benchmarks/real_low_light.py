@@ -52,7 +52,8 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    none`` leaves it out): the same thinned counts, as its record says it reads them (the LCT volume of the scan,
    or the counts summed to its time axis and over its pool of scan points), its depth image, whose median over the
    reference mask is its depth; with a mask head (``--mask``) the IoU is of where it sees the object (its
-   probability ≥ the record's threshold), without one it is not scored (NaN). The run prints what the record says
+   probability ≥ the record's threshold), without one it is not scored (NaN); several files (``--network A.pt
+   B.pt``) are averaged (:func:`network_depth`). The run prints what the record says
    of the network's training (``examples.train_depth_image.describe``) and a warning when the dataset config it
    was trained on is no longer the repository's (:func:`stale`).
 
@@ -235,16 +236,29 @@ def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarr
     """((ny, nx) depth m, (ny, nx) bool where it sees the object) of ``network`` = (net, record)
     (``examples.train_depth_image.load_model``) on a scan of counts (ny, nx, T) of bin width ``dt`` and grid pitch
     ``pitch`` (m): a network on the LCT volume reconstructs it from the scan as it is; one on counts gets them summed
-    pairwise to at most its bins, zero-padded to them."""
+    pairwise to at most its bins, zero-padded to them. ``network`` a list of several (net, record) averages them
+    (``--network A.pt B.pt``): the depth is the first's, the object is seen where the mean of their mask
+    probabilities, each moved so that its record's threshold sits at 0.5 (``predict_depth(probability=True)``),
+    reaches 0.5."""
     from datagen.analysis.reconstruct import coarsen
     from examples.train_depth_image import predict_depth
 
-    net, record = network
-    if record.get("input", "counts") == "lct":
-        return predict_depth(net, record, scan, dt, pitch)
-    data, _ = coarsen(scan, dt, record["bins"])
-    data = np.concatenate([data, np.zeros(data.shape[:2] + (record["bins"] - data.shape[-1],))], axis=-1)
-    return predict_depth(net, record, data)
+    networks = [network] if isinstance(network, tuple) else list(network)
+    maps = []
+    for net, record in networks:
+        data = scan
+        if record.get("input", "counts") != "lct":
+            data, _ = coarsen(scan, dt, record["bins"])
+            data = np.concatenate([data, np.zeros(data.shape[:2] + (record["bins"] - data.shape[-1],))], axis=-1)
+        maps.append(predict_depth(net, record, data, dt, pitch, probability=len(networks) > 1))
+    if len(maps) == 1:
+        return maps[0]
+    return maps[0][0], np.mean([prob for _, prob in maps], axis=0) >= 0.5
+
+
+def network_has_mask(network) -> bool:
+    """Whether ``network`` ((net, record) or a list of them, :func:`network_depth`) says where it sees the object."""
+    return all(net.mask for net, _ in ([network] if isinstance(network, tuple) else network))
 
 
 def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURES, methods=("lct", "phasor", "fbp"),
@@ -273,7 +287,7 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
             if method == "network":                    # its depth over the object; its mask head's IoU
                 depth_map, seen = network_depth(network, scan, dt, pitch)
                 depth = score(depth_map, mask)[0]
-                iou = score(depth_map, mask, seen)[1] if network[0].mask else float("nan")
+                iou = score(depth_map, mask, seen)[1] if network_has_mask(network) else float("nan")
                 depth_map = np.where(seen, depth_map, np.nan)
             elif method == "fk":                       # tal's, in its venv; its time the solve alone
                 if venv is None:
@@ -301,8 +315,9 @@ def main(argv=None) -> list[dict]:
                         help="thinnings of each exposure below the full one; with more than 1 a summary over them "
                              "follows the rows (draw 0 is the same whatever --draws)")
     parser.add_argument("--only", nargs="+", default=None, help="captures by name (dot_chart_40cm ...)")
-    parser.add_argument("--network", default=str(SHIPPED),
-                        help="a trained network (.pt, module doc; default: the shipped one), or 'none'")
+    parser.add_argument("--network", nargs="+", default=[str(SHIPPED)],
+                        help="a trained network (.pt, module doc; default: the shipped one), several to average "
+                             "them (the first's depth, the mean of their masks), or 'none'")
     parser.add_argument("--venv", type=Path, default=default_venv(),
                         help="tal's venv for fk (bash benchmarks/tal/setup_env.sh makes it)")
     parser.add_argument("--png", type=Path, default=None,
@@ -323,16 +338,21 @@ def main(argv=None) -> list[dict]:
               "PATH); going on without f-k", file=sys.stderr)
         methods.remove("fk")
     network = None
-    if args.network != "none":
+    if args.network != ["none"]:
         sys.path.insert(0, str(ROOT))
         from examples.train_depth_image import describe, load_model
-        if not Path(args.network).is_file():
-            raise SystemExit(f"--network: no file at {args.network}")
-        network = load_model(args.network)
-        print(f"network {args.network}: {describe(network[1])}")
-        reason = stale(network[1]) if "config_name" in network[1] else None
-        if reason is not None:
-            print(f"warning: network {args.network} is stale: {reason}", file=sys.stderr)
+        network = []
+        for path in args.network:
+            if not Path(path).is_file():
+                raise SystemExit(f"--network: no file at {path}")
+            network.append(load_model(path))
+            print(f"network {path}: {describe(network[-1][1])}")
+            reason = stale(network[-1][1]) if "config_name" in network[-1][1] else None
+            if reason is not None:
+                print(f"warning: network {path} is stale: {reason}", file=sys.stderr)
+        if len(network) > 1 and not network_has_mask(network):
+            raise SystemExit("--network: averaging networks needs each to have a mask head")
+        network = network[0] if len(network) == 1 else network
     files = sorted(args.folder.glob("data_*.mat"))
     seeds = {path: k for k, path in enumerate(files)}           # a capture's stream is its place in the folder
     if args.only:
@@ -433,9 +453,8 @@ def sim_scores(network, data: Path, split: str) -> dict:
     (m), "iou": mean IoU of its mask with the label's (``wall_depth`` > 0)}, each scored by :func:`score` as the
     captures' rows are: the sim-to-sim figures beside the captures'."""
     import datagen
-    from examples.train_depth_image import predict_depth, scan_pitch
+    from examples.train_depth_image import scan_pitch
 
-    net, record = network
     ds = datagen.NLOSDataset(data, split=split, fields=("counts", "wall_depth", "params"))
     dt = float(ds.card["time_edges"]["bin_width"])
     errors, ious = [], []
@@ -445,7 +464,7 @@ def sim_scores(network, data: Path, split: str) -> dict:
         mask = label > 0
         if not mask.any():
             continue
-        depth, seen = predict_depth(net, record, np.asarray(item["counts"], np.float64), dt, scan_pitch(item["params"]))
+        depth, seen = network_depth(network, np.asarray(item["counts"], np.float64), dt, scan_pitch(item["params"]))
         errors.append(abs(score(depth, mask)[0] - float(np.median(label[mask]))))
         ious.append(score(depth, mask, seen)[1])
     return {"samples": len(errors), "depth_error": float(np.mean(errors)) if errors else float("nan"),

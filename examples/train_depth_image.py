@@ -30,8 +30,7 @@ flux (these scans detect ≪ 1 photon per cycle and bin); the validation input i
 Results on small builds of both configs: docs/datasets.md ("Network resolution").
 
 Loss: mean squared depth error over the pixels where the label sees the hidden object (``wall_depth > 0``), the
-pixels ``datagen score`` scores. The trivial baseline is the training set's mean depth over those pixels, the same
-for every pixel and sample.
+pixels ``datagen score`` scores. The trivial baseline is the training set's mean depth over those pixels, everywhere.
 
 The LCT input (``--input lct``, for ``configs/datasets/lct_release.yaml``; docs/training.md): each sample's stored
 counts reconstructed by LCT as ``datagen reconstruct`` does (256 depth bins of 4.8 mm, on the scan grid, pooled by
@@ -47,8 +46,7 @@ sample's own stored counts finds, made as that reference is made from a capture.
 data it was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that
 trained it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, a DepthUNet on the
 unpooled LCT volume (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20 --mask-label lct
---depth-over mask``) trained on the first 2000 + 100 samples of ``configs/datasets/lct_release.yaml``
-(docs/training.md).
+--depth-over mask``) trained on the first 2000 + 100 samples of ``configs/datasets/lct_release.yaml``: docs/training.md.
 """
 from __future__ import annotations
 
@@ -366,15 +364,16 @@ def describe(record: dict) -> str:
 
 
 def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: float | None = None,
-                  pitch: float | tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  pitch: float | tuple[float, float] | None = None, probability: bool = False) -> tuple:
     """(H, W) float64 depth (m) of one scan of counts (H, W, T), the depth upsampled back to (H, W); and (H, W) bool
-    where it sees the object (its mask head's probability ≥ ``record["mask_threshold"]``, 0.5 where the record has
-    none; True everywhere for a network without a mask head). A network on counts (``record["input"]`` "counts",
-    the default) takes them on its time axis (``record["bins"]`` bins of its training set's width) and sums them
-    over ``record["pool"]`` × ``record["pool"]`` scan points; one on the LCT volume (``"lct"``) takes them at their
-    own bin width (``bin_width`` s and the grid ``pitch`` m are then required: :func:`lct_input`), which, summed
-    pairwise to at most LCT_BINS bins, must come to its training set's (32 ps for ``lct_release``: the release's
-    2048 bins of 4 ps, the data set's 512 of 16 ps); that is not checked (the record does not hold it).
+    where it sees the object (its mask head's probability ≥ ``record["mask_threshold"]``, 0.5 where the record has none;
+    True everywhere for a network without a mask head), or with ``probability`` that probability (float32) moved so that
+    the threshold sits at 0.5 (sigmoid(logit − logit(threshold))). A network on counts (``record["input"]`` "counts",
+    the default) takes them on its time axis (``record["bins"]`` bins of its training set's width) and sums them over
+    ``record["pool"]`` × ``record["pool"]`` scan points; one on the LCT volume (``"lct"``) takes them at their own bin
+    width (``bin_width`` s and the grid ``pitch`` m are then required: :func:`lct_input`), which, summed pairwise to at
+    most LCT_BINS bins, must come to its training set's (32 ps for ``lct_release``: the release's 2048 bins of 4 ps, the
+    data set's 512 of 16 ps); that is not checked (the record does not hold it).
 
     Raises:
         ValueError: an LCT-input network without ``bin_width`` and ``pitch``.
@@ -392,9 +391,10 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: fl
     with torch.no_grad():
         depth, logit = net.heads(net((x - x_mean) / x_std, tuple(counts.shape[:2])))
     depth = base + (depth[0] * d_std + d_mean).double().numpy()
-    if logit is None:
-        return depth, np.ones(depth.shape, bool)
-    return depth, torch.sigmoid(logit[0]).numpy() >= record.get("mask_threshold", 0.5)
+    threshold = record.get("mask_threshold", 0.5)
+    if logit is None or not probability:
+        return depth, np.ones(depth.shape, bool) if logit is None else torch.sigmoid(logit[0]).numpy() >= threshold
+    return depth, torch.sigmoid(logit[0] - float(np.log(threshold / (1 - threshold)))).numpy()
 
 
 def mask_loss(logit: torch.Tensor, seen: torch.Tensor, pos_weight: float) -> torch.Tensor:

@@ -108,6 +108,49 @@ def test_a_saved_network_runs_on_the_capture_beside_the_baselines(release_folder
     assert 0.0 <= masked["iou"] <= 1.0
     with pytest.raises(SystemExit, match="--network: no file at"):
         real_low_light.main([str(release_folder[0]), "--network", str(tmp_path / "absent.pt")])
+    twice = real_low_light.main([str(release_folder[0]), "--exposures", "1", "--methods", "lct", "--network",
+                                 str(tmp_path / "masked.pt"), str(tmp_path / "masked.pt")])
+    twice = [r for r in twice if r["method"] == "network"][0]  # a network averaged with itself is that network
+    assert twice["depth"] == masked["depth"] and twice["iou"] == masked["iou"]
+    assert np.array_equal(np.isnan(twice["map"]), np.isnan(masked["map"]))
+    with pytest.raises(SystemExit, match="needs each to have a mask head"):
+        real_low_light.main([str(release_folder[0]), "--network", str(tmp_path / "masked.pt"),
+                             str(tmp_path / "net.pt")])
+
+
+def test_averaged_networks_take_the_first_depth_and_the_mean_of_their_moved_probabilities(monkeypatch):
+    """``--network A.pt B.pt``: the depth is A's; a point is seen where the mean of the two probabilities, each moved
+    so that its own threshold sits at 0.5, reaches 0.5. Moved probabilities 0.8 and 0.3 (mean 0.55) are seen, 0.8
+    and 0.1 (0.45) are not; predict_depth's moved probability is sigmoid(logit − logit(threshold))."""
+    import torch
+
+    import examples.train_depth_image as tdi
+
+    probs = {"a": np.array([[0.8, 0.8]]), "b": np.array([[0.3, 0.1]])}
+
+    def fake(net, record, counts, dt, pitch, probability=False):
+        return np.full((1, 2), 0.4 if record["name"] == "a" else 0.9), probs[record["name"]]
+
+    monkeypatch.setattr(tdi, "predict_depth", fake)
+    pair = [(None, {"name": "a", "input": "lct"}), (None, {"name": "b", "input": "lct"})]
+    depth, seen = real_low_light.network_depth(pair, np.zeros((1, 2, 4)), 1e-11, 0.01)
+    assert np.array_equal(depth, [[0.4, 0.4]]) and seen.tolist() == [[True, False]]
+    monkeypatch.undo()
+
+    class Net(torch.nn.Module):                      # a mask head whose logits are given
+        mask = True
+
+        def forward(self, x, size=None):
+            return torch.tensor([[[[0.0, 0.0]], [[-2.0, 1.0]]]])
+
+        heads = tdi.DepthNet.heads
+
+    record = {"x_norm": (0.0, 1.0), "d_norm": (0.0, 1.0), "pool": 1, "mask_threshold": 0.3}
+    _, moved = tdi.predict_depth(Net(), record, np.zeros((1, 2, 4)), probability=True)
+    logit_t = np.log(0.3 / 0.7)
+    assert moved == pytest.approx(1 / (1 + np.exp(-(np.array([[-2.0, 1.0]]) - logit_t))), rel=1e-6)
+    _, seen = tdi.predict_depth(Net(), record, np.zeros((1, 2, 4)))
+    assert seen.tolist() == [[False, True]] and (moved >= 0.5).tolist() == seen.tolist()
 
 
 def test_the_shipped_network_was_trained_on_the_repository_config():
@@ -127,6 +170,10 @@ def test_the_shipped_network_was_trained_on_the_repository_config():
     assert real_low_light.SHIPPED.stat().st_size < 2 * 2 ** 20            # small: 0.3 M float32 parameters
     changed = dict(record, config_sha256="0" * 64)
     assert "retrain it" in real_low_light.stale(changed)
+    outline = real_low_light.SHIPPED.with_name("lct_release_outline_net.pt")   # the one it is averaged with
+    net, other = load_model(outline)
+    assert real_low_light.stale(other) is None and other["splits"] == record["splits"] and net.mask
+    assert other["mask_label"] == "outline" and other["input"] == "lct" and outline.stat().st_size < 2 * 2 ** 20
 
 
 def test_the_shipped_network_finds_the_patch_beside_lct(release_folder):
@@ -226,24 +273,24 @@ def test_sim_scores_compare_the_network_with_the_labels(monkeypatch, tmp_path):
     perfect = dict(zip(range(2), labels))
     calls = iter(range(2))
 
-    def exact(net, rec, counts, dt, pitch):
+    def exact(net, rec, counts, dt, pitch, probability=False):
         lab = perfect[next(calls)]
         return lab, lab > 0
 
     monkeypatch.setattr(tdi, "predict_depth", exact)
-    got = real_low_light.sim_scores((None, {}), tmp_path / "d", "test")
+    got = real_low_light.sim_scores((None, {"input": "lct"}), tmp_path / "d", "test")
     with_object = sum(bool((lab > 0).any()) for lab in labels)
     assert got == {"samples": with_object, "depth_error": 0.0, "iou": 1.0}
     calls = iter(range(2))
 
-    def half(net, rec, counts, dt, pitch):
+    def half(net, rec, counts, dt, pitch, probability=False):
         lab = perfect[next(calls)]
         seen = lab > 0
         seen[:, 8:] = False
         return lab + 0.05, seen
 
     monkeypatch.setattr(tdi, "predict_depth", half)
-    got = real_low_light.sim_scores((None, {}), tmp_path / "d", "test")
+    got = real_low_light.sim_scores((None, {"input": "lct"}), tmp_path / "d", "test")
     shares = [float(((lab > 0)[:, :8]).sum() / (lab > 0).sum()) for lab in labels if (lab > 0).any()]
     assert got["depth_error"] == pytest.approx(0.05, abs=1e-9) and got["iou"] == pytest.approx(np.mean(shares))
 
