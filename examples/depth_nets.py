@@ -66,7 +66,7 @@ class DepthNet(torch.nn.Module):
 
     def __init__(self, bins: int, features: int = 32, mask: bool = False):
         super().__init__()
-        self.mask = mask
+        self.mask, self.mask_heads = mask, int(mask)
         if bins % 32:
             raise ValueError(f"DepthNet: the scan needs a multiple of 32 time bins, got {bins}")
         self.bins = bins
@@ -92,19 +92,26 @@ class DepthNet(torch.nn.Module):
         output."""
         return (out[:, 0], out[:, 1]) if self.mask else (out, None)
 
+    def logits(self, out: torch.Tensor) -> torch.Tensor | None:
+        """(B, mask_heads, h, w): the logits of every mask head of a forward output, or None without a mask head."""
+        return out[:, 1:] if self.mask else None
+
 
 class DepthUNet(torch.nn.Module):
     """(B, 1, T, H, W) standardised LCT volume → (B, 2, H, W): DepthNet's temporal encoder at every scan point, then
     a small U-Net over the scan grid (two 2 × 2 max-pool levels, bilinear up-sampling with skip connections), whose
     field of view spans the whole 32 × 32 grid of a pooled scan; its input also holds each column's maximum (the
     front view). ≈ 0.3 M parameters at 256 bins. ``--arch unet`` (module doc); always with a mask head (``mask`` is
-    taken, as :class:`DepthNet` takes it, and ignored)."""
+    taken, as :class:`DepthNet` takes it, and ignored); ``heads`` mask heads, (B, 1 + heads, H, W) out (a second one:
+    ``--outline-head``, the label's outline beside another mask label)."""
 
-    def __init__(self, bins: int, features: int = 32, mask: bool = True):
+    def __init__(self, bins: int, features: int = 32, mask: bool = True, heads: int = 1):
         super().__init__()
         if bins % 32:
             raise ValueError(f"DepthUNet: the scan needs a multiple of 32 time bins, got {bins}")
-        self.bins, self.mask = bins, True
+        if heads < 1:
+            raise ValueError(f"DepthUNet: at least one mask head, got {heads}")
+        self.bins, self.mask, self.mask_heads = bins, True, heads
         relu, f = torch.nn.ReLU, features
 
         def block(c_in: int, c_out: int) -> torch.nn.Sequential:
@@ -115,7 +122,7 @@ class DepthUNet(torch.nn.Module):
         self.stem = torch.nn.Sequential(torch.nn.Conv2d(16 * (bins // 32) + 1, f, 1), relu(), block(f, f))
         self.down1, self.down2 = block(f, 2 * f), block(2 * f, 2 * f)
         self.up1, self.up2 = block(4 * f, 2 * f), block(3 * f, f)
-        self.out = torch.nn.Conv2d(f, 2, 1)
+        self.out = torch.nn.Conv2d(f, 1 + heads, 1)
 
     def forward(self, x: torch.Tensor, size: tuple[int, int] | None = None) -> torch.Tensor:
         """(B, 1, T, h, w) → (B, 2, h, w), or (B, 2, *size) upsampled bilinearly: the standardised depth and the
@@ -133,7 +140,7 @@ class DepthUNet(torch.nn.Module):
             out = up(out, size=tuple(size), mode="bilinear", align_corners=False)
         return out
 
-    heads = DepthNet.heads
+    heads, logits = DepthNet.heads, DepthNet.logits
 
 
 ARCHS = {"cnn": DepthNet, "unet": DepthUNet}
@@ -151,11 +158,12 @@ def save_model(path, net: DepthNet, pool: int, x_norm: tuple[float, float], d_no
                data, **provenance) -> None:
     """Write the trained network, what its input needs (bins, pool, the input's standardisation) and its depth
     scale to ``path`` (torch.save of a dict; :func:`load_model` reads it), with the data set it was trained on and
-    ``provenance`` (str, float, int or dicts of them: :func:`train` writes ``input``, ``mask_threshold``,
-    ``config_sha256``, ``splits``, ``dataset_code_version``, ``code_version``, ``command``, ``mask_label``,
-    ``depth_over``, ``train_seconds``, ``val``)."""
+    ``provenance`` (str, float, int or lists or dicts of them: :func:`train` writes ``input``, ``mask_threshold``,
+    ``mask_thresholds`` (with two mask heads: each head's), ``config_sha256``, ``splits``, ``dataset_code_version``,
+    ``code_version``, ``command``, ``mask_label``, ``depth_over``, ``train_seconds``, ``val``)."""
     arch = next(name for name, cls in ARCHS.items() if type(net) is cls)
     torch.save({"state": net.state_dict(), "arch": arch, "bins": net.bins, "mask": net.mask, "pool": pool,
+                **({"mask_heads": net.mask_heads} if net.mask_heads > 1 else {}),
                 "x_norm": x_norm, "d_norm": d_norm, "data": str(data), **provenance}, path)
 
 
@@ -163,7 +171,8 @@ def load_model(path) -> tuple[DepthNet, dict]:
     """(network in eval mode, its record) of a :func:`save_model` file; :func:`describe` says what the record holds
     of its training."""
     record = torch.load(path, map_location="cpu", weights_only=True)
-    net = ARCHS[record.get("arch", "cnn")](record["bins"], mask=record.get("mask", False))
+    heads = {"heads": record["mask_heads"]} if "mask_heads" in record else {}
+    net = ARCHS[record.get("arch", "cnn")](record["bins"], mask=record.get("mask", False), **heads)
     net.load_state_dict(record["state"])
     return net.eval(), record
 
@@ -183,7 +192,9 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: fl
     """(H, W) float64 depth (m) of one scan of counts (H, W, T), the depth upsampled back to (H, W); and (H, W) bool
     where it sees the object (its mask head's probability ≥ ``record["mask_threshold"]``, 0.5 where the record has none;
     True everywhere for a network without a mask head), or with ``probability`` that probability (float32) moved so that
-    the threshold sits at 0.5 (sigmoid(logit − logit(threshold))). A network on counts (``record["input"]`` "counts",
+    the threshold sits at 0.5 (sigmoid(logit − logit(threshold))). A network with several mask heads
+    (``record["mask_thresholds"]``, one per head) sees the object where the mean of its heads' probabilities, each so
+    moved, reaches 0.5, and with ``probability`` returns that mean. A network on counts (``record["input"]`` "counts",
     the default) takes them on its time axis (``record["bins"]`` bins of its training set's width) and sums them over
     ``record["pool"]`` × ``record["pool"]`` scan points; one on the LCT volume (``"lct"``) takes them at their own bin
     width (``bin_width`` s and the grid ``pitch`` m are then required: :func:`lct_input`), which, summed pairwise to at
@@ -204,9 +215,14 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: fl
         x = torch.as_tensor(np.moveaxis(np.asarray(counts, dtype=np.float32), -1, 0))[None]
         x = torch.log1p(pool_scan(x, record["pool"])[None])
     with torch.no_grad():
-        depth, logit = net.heads(net((x - x_mean) / x_std, tuple(counts.shape[:2])))
+        out = net((x - x_mean) / x_std, tuple(counts.shape[:2]))
+    depth, logits = net.heads(out)[0], net.logits(out)
     depth = base + (depth[0] * d_std + d_mean).double().numpy()
-    threshold = record.get("mask_threshold", 0.5)
-    if logit is None or not probability:
-        return depth, np.ones(depth.shape, bool) if logit is None else torch.sigmoid(logit[0]).numpy() >= threshold
-    return depth, torch.sigmoid(logit[0] - float(np.log(threshold / (1 - threshold)))).numpy()
+    if logits is None:
+        return depth, np.ones(depth.shape, bool)
+    thresholds = record.get("mask_thresholds", [record.get("mask_threshold", 0.5)])
+    if len(thresholds) == 1 and not probability:
+        return depth, torch.sigmoid(logits[0, 0]).numpy() >= thresholds[0]
+    moved = np.mean([torch.sigmoid(logit - float(np.log(t / (1 - t)))).numpy()
+                     for logit, t in zip(logits[0], thresholds, strict=True)], axis=0)
+    return depth, moved if probability else moved >= 0.5

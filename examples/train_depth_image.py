@@ -236,7 +236,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
           val_split: str = "val", pool: int = 1, log=print, save: str | Path | None = None,
           stored: bool = False, mask: bool = False, lct: bool = False, command: str = "", arch: str = "cnn",
           augment: bool = False, pos_weight: float | None = None,
-          mask_label: str = "outline", depth_over: str = "outline", workers: int = 0) -> dict[str, np.ndarray]:
+          mask_label: str = "outline", depth_over: str = "outline", workers: int = 0,
+          outline_head: bool = False) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
     ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
@@ -248,13 +249,20 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     threshold the one of :data:`MASK_THRESHOLDS` of best validation IoU; with ``mask_label`` "lct" the mask learnt
     and validated is what a long exposure's LCT finds instead, :data:`MASK_LABELS`); the depth is learnt over
     the label's own mask, or with ``depth_over`` "mask" over it and the mask the mask head learns
-    (:data:`DEPTH_OVER`; validated over the label's own mask either way); ``arch`` names the network (:data:`ARCHS`);
+    (:data:`DEPTH_OVER`; validated over the label's own mask either way); with ``outline_head`` (``--arch unet``, a
+    ``mask_label`` other than "outline") a second mask head learns the label's outline beside it, its own threshold
+    chosen the same way, and the network sees the object where the mean of the two heads' probabilities, each moved
+    so that its threshold sits at 0.5, reaches 0.5 (:func:`predict_depth`; ``mask_thresholds`` in the record);
+    ``arch`` names the network (:data:`ARCHS`);
     with ``augment`` each batch is turned by a random symmetry of the square (:func:`dihedral`); ``workers`` the
     processes that prepare the samples (:func:`load_split`). Returns {"depth":
     (N, H, W) float32 m on the label's grid, "index": (N,), "trivial": (N, H, W) the training mean depth over the
     object pixels, "iou": the validation mask IoU (NaN without ``mask``)}."""
     if depth_over not in DEPTH_OVER:
         raise ValueError(f"depth_over must be one of {', '.join(DEPTH_OVER)}, got {depth_over!r}")
+    if outline_head and (arch != "unet" or mask_label == "outline"):
+        raise ValueError(f"an outline head needs --arch unet and a mask label other than outline, got --arch {arch} "
+                         f"--mask-label {mask_label}")
     torch.manual_seed(seed)
     t0 = time.perf_counter()
     version = git_version(Path(__file__).resolve().parent)          # of the code as it is loaded, at the start
@@ -287,7 +295,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     with torch.no_grad():
         x = inputs(torch.arange(min(64, len(tr["depth"]))))
         x_mean, x_std = x.mean(), x.std() + 1e-6
-    net = ARCHS[arch](tr[key].shape[2], mask=mask)
+    net = ARCHS[arch](tr[key].shape[2], mask=mask, **({"heads": 2} if outline_head else {}))
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     n = len(tr["depth"])
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=epochs * -(-n // batch))
@@ -296,15 +304,19 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         order = torch.randperm(n, generator=gen)
         for start in range(0, n, batch):
             rows = order[start:start + batch]
-            x, obj, seen, want = ((inputs(rows) - x_mean) / x_std, mask_tr[rows], seen_tr[rows],
-                                  (target[rows] - d_mean) / d_std)
+            x, obj, seen, want, outline = ((inputs(rows) - x_mean) / x_std, mask_tr[rows], seen_tr[rows],
+                                           (target[rows] - d_mean) / d_std, tr["depth"][rows] > 0)
             if augment:
-                x, obj, seen, want = dihedral((x, obj, seen, want), int(torch.randint(8, (), generator=gen)))
-            depth, logit = net.heads(net(x, size))
+                x, obj, seen, want, outline = dihedral((x, obj, seen, want, outline),
+                                                       int(torch.randint(8, (), generator=gen)))
+            out = net(x, size)
+            depth, logit = net.heads(out)
             err = depth - want
             loss = (err[obj] ** 2).mean() if obj.any() else (err * 0).sum()
             if logit is not None:
                 loss = loss + mask_loss(logit, seen, pos_weight)
+            if outline_head:
+                loss = loss + mask_loss(net.logits(out)[:, 1], outline, pos_weight)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -314,16 +326,29 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     net.eval()
     with torch.no_grad():
         x = ((va["lct"].float() if lct else torch.log1p(va["counts"])) - x_mean) / x_std
-        depth, logit = net.heads(torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)]))
+        out = torch.cat([net(x[s:s + 64], size) for s in range(0, len(x), 64)])
+        (depth, logit), logits = net.heads(out), net.logits(out)
         depth = va["base"] + depth * d_std + d_mean
     obj_va = va["depth"] > 0
     seen_va = va.get("seen", obj_va)
-    threshold, iou = 0.5, float("nan")
+    threshold, iou, heads, val_heads = 0.5, float("nan"), {}, {}
     if logit is not None:
         prob = torch.sigmoid(logit)
         iou, threshold = max((mask_iou(prob, seen_va, t), t) for t in MASK_THRESHOLDS)
         if log:
             log(f"  validation mask IoU {iou:.3f} at probability ≥ {threshold}")
+    if outline_head:                       # the outline head's threshold; the two heads' mean, as predict_depth
+        outline_iou, outline_threshold = max((mask_iou(torch.sigmoid(logits[:, 1]), obj_va, t), t)
+                                             for t in MASK_THRESHOLDS)
+        thresholds = torch.tensor([threshold, outline_threshold])[None, :, None, None]
+        both = torch.sigmoid(logits - torch.log(thresholds / (1 - thresholds))).mean(1)
+        heads = {"mask_thresholds": [threshold, outline_threshold]}
+        val_heads = {"outline_iou": outline_iou, "both_iou": mask_iou(both, seen_va, 0.5),
+                     "both_outline_iou": mask_iou(both, obj_va, 0.5)}
+        if log:
+            log(f"  validation outline IoU {outline_iou:.3f} at probability ≥ {outline_threshold}; the two heads "
+                f"averaged: IoU {val_heads['both_iou']:.3f} against the mask label, "
+                f"{val_heads['both_outline_iou']:.3f} against the outline")
     if save is not None:
         card = ds.card
         err = (depth - va["depth"]).abs()
@@ -334,7 +359,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
                    splits={s: int(card["splits"][s]["count"]) for s in (train_split, val_split)},
                    dataset_code_version=card.get("code_version", "unknown"),
                    code_version=version, command=command, mask_label=mask_label, depth_over=depth_over,
-                   train_seconds=round(time.perf_counter() - t0, 1), val={"depth_mae_m": mae, "mask_iou": iou})
+                   train_seconds=round(time.perf_counter() - t0, 1), **heads,
+                   val={"depth_mae_m": mae, "mask_iou": iou, **val_heads})
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
             "trivial": np.full(tuple(va["depth"].shape), float(tr["depth"][tr["depth"] > 0].mean()), dtype=np.float32),
@@ -367,6 +393,9 @@ def main(argv=None):
     parser.add_argument("--mask-label", choices=MASK_LABELS, default="outline",
                         help="what the mask head learns: the label's outline, what the LCT of the noise-free scan "
                              "finds (lct), or of the sample's stored counts, as a capture's reference (counts)")
+    parser.add_argument("--outline-head", action="store_true",
+                        help="a second mask head learning the label's outline beside --mask-label's; the mask is "
+                             "where the mean of the two heads' probabilities, each moved to its threshold, reaches 0.5")
     parser.add_argument("--depth-over", choices=DEPTH_OVER, default="outline",
                         help="where the depth is learnt: the label's outline, or also the mask the mask head learns")
     parser.add_argument("--input", choices=["counts", "lct"], default="counts",
@@ -380,7 +409,7 @@ def main(argv=None):
                      pool=args.pool, save=args.save, stored=args.stored_counts,
                      mask=args.mask or args.arch == "unet", lct=args.input == "lct", arch=args.arch,
                      augment=args.augment, pos_weight=args.pos_weight, mask_label=args.mask_label,
-                     depth_over=args.depth_over, workers=args.threads,
+                     depth_over=args.depth_over, workers=args.threads, outline_head=args.outline_head,
                      command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None
                                                                                 else argv))
     except (ValueError, DatasetError, FileNotFoundError) as exc:   # a data path, split or option that does not fit

@@ -114,21 +114,30 @@ def test_depth_network_on_the_lct_volume_saves_what_it_was_trained_on(wall, tmp_
 
 
 def test_the_unet_with_augmentation_saves_its_architecture_and_predicts(wall, tmp_path):
-    """``--arch unet --augment --mask-label lct``: the record names the architecture and the mask label, load_model
-    rebuilds a DepthUNet with the same weights (the same output to the bit), and it predicts a finite depth and a
-    mask on the 16 × 16 grid (pooled 2 × 2 to 8 × 8, two 2 × 2 pooling levels)."""
+    """``--arch unet --augment --mask-label lct --outline-head``: the record names the architecture, the mask label
+    and each head's threshold, load_model rebuilds a DepthUNet with both mask heads and the same weights (the same
+    output to the bit), and it predicts a finite depth and a mask on the 16 × 16 grid (pooled 2 × 2 to 8 × 8, two
+    2 × 2 pooling levels). An outline head beside the outline mask label, or on the CNN, is refused."""
     torch.set_num_threads(1)
     net_file = tmp_path / "unet.pt"
     train_depth_image.main([str(wall), "--val", "test", "--epochs", "2", "--batch", "2", "--threads", "1", "--input",
                             "lct", "--pool", "2", "--arch", "unet", "--augment", "--mask-label", "lct",
-                            "--depth-over", "mask", "--out", str(tmp_path / "u.npz"), "--save", str(net_file)])
+                            "--depth-over", "mask", "--outline-head", "--out", str(tmp_path / "u.npz"),
+                            "--save", str(net_file)])
     net, record = train_depth_image.load_model(net_file)
     assert record["arch"] == "unet" and isinstance(net, train_depth_image.DepthUNet) and net.mask
-    assert record["mask_label"] == "lct" and record["depth_over"] == "mask"
+    assert record["mask_label"] == "lct" and record["depth_over"] == "mask" and net.mask_heads == 2
+    assert len(record["mask_thresholds"]) == 2 and set(record["mask_thresholds"]) <= set(train_depth_image.MASK_THRESHOLDS)
+    assert record["mask_thresholds"][0] == record["mask_threshold"]
+    assert {"outline_iou", "both_iou", "both_outline_iou"} <= set(record["val"])
     again, _ = train_depth_image.load_model(net_file)
     x = torch.randn(1, 1, net.bins, 8, 8, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():
         torch.testing.assert_close(net(x, (16, 16)), again(x, (16, 16)), rtol=0, atol=0)
+        assert net(x).shape == (1, 3, 8, 8)
+    for refused in (["--arch", "unet", "--mask-label", "outline"], ["--arch", "cnn", "--mask-label", "lct"]):
+        with pytest.raises(SystemExit, match=f"an outline head needs --arch unet .* got {' '.join(refused)}"):
+            train_depth_image.main([str(wall), "--val", "test", "--input", "lct", "--outline-head", *refused])
     card = NLOSDataset(wall, split="train", fields=("counts",)).card
     item = NLOSDataset(wall, split="test", fields=("counts", "params")).read(0)
     depth, seen = train_depth_image.predict_depth(net, record, np.asarray(item["counts"], np.float64),

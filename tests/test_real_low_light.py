@@ -143,7 +143,7 @@ def test_averaged_networks_take_the_first_depth_and_the_mean_of_their_moved_prob
         def forward(self, x, size=None):
             return torch.tensor([[[[0.0, 0.0]], [[-2.0, 1.0]]]])
 
-        heads = tdi.DepthNet.heads
+        heads, logits = tdi.DepthNet.heads, tdi.DepthNet.logits
 
     record = {"x_norm": (0.0, 1.0), "d_norm": (0.0, 1.0), "pool": 1, "mask_threshold": 0.3}
     _, moved = tdi.predict_depth(Net(), record, np.zeros((1, 2, 4)), probability=True)
@@ -151,6 +151,17 @@ def test_averaged_networks_take_the_first_depth_and_the_mean_of_their_moved_prob
     assert moved == pytest.approx(1 / (1 + np.exp(-(np.array([[-2.0, 1.0]]) - logit_t))), rel=1e-6)
     _, seen = tdi.predict_depth(Net(), record, np.zeros((1, 2, 4)))
     assert seen.tolist() == [[False, True]] and (moved >= 0.5).tolist() == seen.tolist()
+
+    class TwoHeads(Net):                             # --outline-head: a second mask head, its own threshold
+        def forward(self, x, size=None):
+            return torch.tensor([[[[0.0, 0.0]], [[-2.0, 1.0]], [[3.0, -3.0]]]])
+
+    two = dict(record, mask_thresholds=[0.3, 0.7])   # moved: 0.240, 0.864 and 0.896, 0.021: means 0.568, 0.443
+    _, mean = tdi.predict_depth(TwoHeads(), two, np.zeros((1, 2, 4)), probability=True)
+    second = 1 / (1 + np.exp(-(np.array([[3.0, -3.0]]) - np.log(0.7 / 0.3))))
+    assert mean == pytest.approx((moved + second) / 2, rel=1e-6)
+    _, seen = tdi.predict_depth(TwoHeads(), two, np.zeros((1, 2, 4)))
+    assert seen.tolist() == [[True, False]]          # the first head alone: [[False, True]]
 
 
 def test_the_shipped_network_was_trained_on_the_repository_config():
