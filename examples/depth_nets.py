@@ -193,8 +193,9 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: fl
     where it sees the object (its mask head's probability ≥ ``record["mask_threshold"]``, 0.5 where the record has none;
     True everywhere for a network without a mask head), or with ``probability`` that probability (float32) moved so that
     the threshold sits at 0.5 (sigmoid(logit − logit(threshold))). A network with several mask heads
-    (``record["mask_thresholds"]``, one per head) sees the object where the mean of its heads' probabilities, each so
-    moved, reaches 0.5, and with ``probability`` returns that mean. A network on counts (``record["input"]`` "counts",
+    (``record["mask_thresholds"]``, one per head read, the first heads; a head past them is not read: an auxiliary
+    one) sees the object where the mean of those heads' probabilities, each so moved, reaches 0.5, and with
+    ``probability`` returns that mean. A network on counts (``record["input"]`` "counts",
     the default) takes them on its time axis (``record["bins"]`` bins of its training set's width) and sums them over
     ``record["pool"]`` × ``record["pool"]`` scan points; one on the LCT volume (``"lct"``) takes them at their own bin
     width (``bin_width`` s and the grid ``pitch`` m are then required: :func:`lct_input`), which, summed pairwise to at
@@ -224,5 +225,5 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: fl
     if len(thresholds) == 1 and not probability:
         return depth, torch.sigmoid(logits[0, 0]).numpy() >= thresholds[0]
     moved = np.mean([torch.sigmoid(logit - float(np.log(t / (1 - t)))).numpy()
-                     for logit, t in zip(logits[0], thresholds, strict=True)], axis=0)
+                     for logit, t in zip(logits[0, :len(thresholds)], thresholds, strict=True)], axis=0)
     return depth, moved if probability else moved >= 0.5

@@ -165,6 +165,11 @@ def lct_seen(scan: np.ndarray, bin_width: float, pitch, depth: torch.Tensor, mea
     return torch.as_tensor(np.isfinite(depth_map(volume, depths)[0]) & near)
 
 
+OUTLINE_HEADS = ("mean", "auxiliary")
+"""What a second mask head learning the outline (``--outline-head``) does to the mask: "mean", the mean of the two
+heads' probabilities, each moved so that its threshold sits at 0.5, reaches 0.5; "auxiliary", the first head alone
+(the outline head only shapes the training through its loss)."""
+
 DEPTH_OVER = ("outline", "mask")
 """Where the depth head learns (``--depth-over``): "outline", the label's own mask; "mask", the label's outline and
 the mask the mask head learns (:data:`MASK_LABELS`), the points past the outline given the depth of the outline's
@@ -237,7 +242,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
           stored: bool = False, mask: bool = False, lct: bool = False, command: str = "", arch: str = "cnn",
           augment: bool = False, pos_weight: float | None = None,
           mask_label: str = "outline", depth_over: str = "outline", workers: int = 0,
-          outline_head: bool = False) -> dict[str, np.ndarray]:
+          outline_head: str | None = None) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
     ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
@@ -251,8 +256,10 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     the label's own mask, or with ``depth_over`` "mask" over it and the mask the mask head learns
     (:data:`DEPTH_OVER`; validated over the label's own mask either way); with ``outline_head`` (``--arch unet``, a
     ``mask_label`` other than "outline") a second mask head learns the label's outline beside it, its own threshold
-    chosen the same way, and the network sees the object where the mean of the two heads' probabilities, each moved
-    so that its threshold sits at 0.5, reaches 0.5 (:func:`predict_depth`; ``mask_thresholds`` in the record);
+    chosen the same way: with "mean" the network sees the object where the mean of the two heads' probabilities,
+    each moved so that its threshold sits at 0.5, reaches 0.5, with "auxiliary" where the first head alone sees it
+    (the outline head only a loss) (:func:`predict_depth` reads the heads ``mask_thresholds`` in the record lists;
+    :data:`OUTLINE_HEADS`);
     ``arch`` names the network (:data:`ARCHS`);
     with ``augment`` each batch is turned by a random symmetry of the square (:func:`dihedral`); ``workers`` the
     processes that prepare the samples (:func:`load_split`). Returns {"depth":
@@ -260,6 +267,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     object pixels, "iou": the validation mask IoU (NaN without ``mask``)}."""
     if depth_over not in DEPTH_OVER:
         raise ValueError(f"depth_over must be one of {', '.join(DEPTH_OVER)}, got {depth_over!r}")
+    if outline_head not in (None,) + OUTLINE_HEADS:
+        raise ValueError(f"outline_head must be one of {', '.join(OUTLINE_HEADS)}, got {outline_head!r}")
     if outline_head and (arch != "unet" or mask_label == "outline"):
         raise ValueError(f"an outline head needs --arch unet and a mask label other than outline, got --arch {arch} "
                          f"--mask-label {mask_label}")
@@ -342,7 +351,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
                                              for t in MASK_THRESHOLDS)
         thresholds = torch.tensor([threshold, outline_threshold])[None, :, None, None]
         both = torch.sigmoid(logits - torch.log(thresholds / (1 - thresholds))).mean(1)
-        heads = {"mask_thresholds": [threshold, outline_threshold]}
+        heads = {"mask_thresholds": [threshold, outline_threshold][:2 if outline_head == "mean" else 1],
+                 "outline_head": outline_head, "outline_threshold": outline_threshold}
         val_heads = {"outline_iou": outline_iou, "both_iou": mask_iou(both, seen_va, 0.5),
                      "both_outline_iou": mask_iou(both, obj_va, 0.5)}
         if log:
@@ -393,9 +403,10 @@ def main(argv=None):
     parser.add_argument("--mask-label", choices=MASK_LABELS, default="outline",
                         help="what the mask head learns: the label's outline, what the LCT of the noise-free scan "
                              "finds (lct), or of the sample's stored counts, as a capture's reference (counts)")
-    parser.add_argument("--outline-head", action="store_true",
+    parser.add_argument("--outline-head", nargs="?", const="mean", choices=OUTLINE_HEADS, default=None,
                         help="a second mask head learning the label's outline beside --mask-label's; the mask is "
-                             "where the mean of the two heads' probabilities, each moved to its threshold, reaches 0.5")
+                             "where the mean of the two heads' probabilities, each moved to its threshold, reaches "
+                             "0.5 (mean, the default) or the first head's (auxiliary: the outline head only a loss)")
     parser.add_argument("--depth-over", choices=DEPTH_OVER, default="outline",
                         help="where the depth is learnt: the label's outline, or also the mask the mask head learns")
     parser.add_argument("--input", choices=["counts", "lct"], default="counts",

@@ -127,8 +127,10 @@ def test_the_unet_with_augmentation_saves_its_architecture_and_predicts(wall, tm
     net, record = train_depth_image.load_model(net_file)
     assert record["arch"] == "unet" and isinstance(net, train_depth_image.DepthUNet) and net.mask
     assert record["mask_label"] == "lct" and record["depth_over"] == "mask" and net.mask_heads == 2
-    assert len(record["mask_thresholds"]) == 2 and set(record["mask_thresholds"]) <= set(train_depth_image.MASK_THRESHOLDS)
-    assert record["mask_thresholds"][0] == record["mask_threshold"]
+    thresholds = record["mask_thresholds"]
+    assert len(thresholds) == 2 and set(thresholds) <= set(train_depth_image.MASK_THRESHOLDS)
+    assert record["mask_thresholds"][0] == record["mask_threshold"] and record["outline_head"] == "mean"
+    assert record["mask_thresholds"][1] == record["outline_threshold"]
     assert {"outline_iou", "both_iou", "both_outline_iou"} <= set(record["val"])
     again, _ = train_depth_image.load_model(net_file)
     x = torch.randn(1, 1, net.bins, 8, 8, generator=torch.Generator().manual_seed(0))
@@ -138,6 +140,8 @@ def test_the_unet_with_augmentation_saves_its_architecture_and_predicts(wall, tm
     for refused in (["--arch", "unet", "--mask-label", "outline"], ["--arch", "cnn", "--mask-label", "lct"]):
         with pytest.raises(SystemExit, match=f"an outline head needs --arch unet .* got {' '.join(refused)}"):
             train_depth_image.main([str(wall), "--val", "test", "--input", "lct", "--outline-head", *refused])
+    with pytest.raises(ValueError, match="outline_head must be one of mean, auxiliary, got 'both'"):
+        train_depth_image.train(wall, arch="unet", mask_label="lct", outline_head="both")
     card = NLOSDataset(wall, split="train", fields=("counts",)).card
     item = NLOSDataset(wall, split="test", fields=("counts", "params")).read(0)
     depth, seen = train_depth_image.predict_depth(net, record, np.asarray(item["counts"], np.float64),

@@ -162,6 +162,10 @@ def test_averaged_networks_take_the_first_depth_and_the_mean_of_their_moved_prob
     assert mean == pytest.approx((moved + second) / 2, rel=1e-6)
     _, seen = tdi.predict_depth(TwoHeads(), two, np.zeros((1, 2, 4)))
     assert seen.tolist() == [[True, False]]          # the first head alone: [[False, True]]
+    auxiliary = dict(record, mask_thresholds=[0.3])  # --outline-head auxiliary: the second head is not read
+    _, alone = tdi.predict_depth(TwoHeads(), auxiliary, np.zeros((1, 2, 4)), probability=True)
+    assert np.array_equal(alone, moved)
+    assert tdi.predict_depth(TwoHeads(), auxiliary, np.zeros((1, 2, 4)))[1].tolist() == [[False, True]]
 
 
 def test_the_shipped_network_was_trained_on_the_repository_config():
