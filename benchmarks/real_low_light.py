@@ -345,9 +345,10 @@ def main(argv=None) -> list[dict]:
         for path in args.network:
             if not Path(path).is_file():
                 raise SystemExit(f"--network: no file at {path}")
-            network.append(load_model(path))
-            print(f"network {path}: {describe(network[-1][1])}")
-            reason = stale(network[-1][1]) if "config_name" in network[-1][1] else None
+            net, record = load_model(path)
+            network.append((net, record))
+            print(f"network {path}: {describe(record)}")
+            reason = stale(record) if "config_name" in record else None
             if reason is not None:
                 print(f"warning: network {path} is stale: {reason}", file=sys.stderr)
         if len(network) > 1 and not network_has_mask(network):

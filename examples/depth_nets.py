@@ -98,11 +98,11 @@ class DepthNet(torch.nn.Module):
 
 
 class DepthUNet(torch.nn.Module):
-    """(B, 1, T, H, W) standardised LCT volume → (B, 2, H, W): DepthNet's temporal encoder at every scan point, then
-    a small U-Net over the scan grid (two 2 × 2 max-pool levels, bilinear up-sampling with skip connections), whose
-    field of view spans the whole 32 × 32 grid of a pooled scan; its input also holds each column's maximum (the
-    front view). ≈ 0.3 M parameters at 256 bins. ``--arch unet`` (module doc); always with a mask head (``mask`` is
-    taken, as :class:`DepthNet` takes it, and ignored); ``heads`` mask heads, (B, 1 + heads, H, W) out (a second one:
+    """(B, 1, T, H, W) standardised LCT volume → (B, 1 + heads, H, W): DepthNet's temporal encoder at every scan
+    point, then a small U-Net over the scan grid (two 2 × 2 max-pool levels, bilinear up-sampling with skip
+    connections), whose field of view spans the whole 32 × 32 grid of a pooled scan; its input also holds each
+    column's maximum (the front view). ≈ 0.3 M parameters at 256 bins. ``--arch unet`` (module doc); always with a
+    mask head (``mask`` is taken, as :class:`DepthNet` takes it, and ignored); ``heads`` mask heads (a second one:
     ``--outline-head``, the label's outline beside another mask label)."""
 
     def __init__(self, bins: int, features: int = 32, mask: bool = True, heads: int = 1):
@@ -125,8 +125,9 @@ class DepthUNet(torch.nn.Module):
         self.out = torch.nn.Conv2d(f, 1 + heads, 1)
 
     def forward(self, x: torch.Tensor, size: tuple[int, int] | None = None) -> torch.Tensor:
-        """(B, 1, T, h, w) → (B, 2, h, w), or (B, 2, *size) upsampled bilinearly: the standardised depth and the
-        mask logit (a grid whose sides are not multiples of 4 is padded by replication to them, and cut back)."""
+        """(B, 1, T, h, w) → (B, 1 + heads, h, w), or (B, 1 + heads, *size) upsampled bilinearly: the standardised
+        depth and each mask head's logit (a grid whose sides are not multiples of 4 is padded by replication to
+        them, and cut back)."""
         b, _, _, h, w = x.shape
         pool, up = torch.nn.functional.max_pool2d, torch.nn.functional.interpolate
         s = self.stem(torch.cat([self.temporal(x).reshape(b, -1, h, w), x.amax(2)], 1))
@@ -224,6 +225,14 @@ def predict_depth(net: DepthNet, record: dict, counts: np.ndarray, bin_width: fl
     thresholds = record.get("mask_thresholds", [record.get("mask_threshold", 0.5)])
     if len(thresholds) == 1 and not probability:
         return depth, torch.sigmoid(logits[0, 0]).numpy() >= thresholds[0]
-    moved = np.mean([torch.sigmoid(logit - float(np.log(t / (1 - t)))).numpy()
-                     for logit, t in zip(logits[0, :len(thresholds)], thresholds, strict=True)], axis=0)
+    moved = moved_mean(logits[0], thresholds).numpy()
     return depth, moved if probability else moved >= 0.5
+
+
+def moved_mean(logits: torch.Tensor, thresholds) -> torch.Tensor:
+    """(..., h, w) float32: the mean over the first len(``thresholds``) mask heads of ``logits`` (..., K, h, w) of each
+    head's probability moved so that its threshold sits at 0.5, sigmoid(logit − logit(threshold)); a point is seen
+    where it reaches 0.5 (:func:`predict_depth`; ``benchmarks/real_low_light.py --network A.pt B.pt`` averages
+    networks' so)."""
+    moved = [torch.sigmoid(logits[..., k, :, :] - float(np.log(t / (1 - t)))) for k, t in enumerate(thresholds)]
+    return torch.stack(moved).mean(0)

@@ -62,8 +62,8 @@ import torch
 import datagen
 from datagen.dataset.score import score_predictions
 from examples.depth_nets import (  # noqa: F401  (re-exported: the names this module's users import)
-    ARCHS, LCT_BINS, DepthNet, DepthUNet, describe, dihedral, lct_input, load_model, pool_scan, predict_depth,
-    save_model, temporal_encoder, upsample_nearest)
+    ARCHS, LCT_BINS, DepthNet, DepthUNet, describe, dihedral, lct_input, load_model, moved_mean, pool_scan,
+    predict_depth, save_model, temporal_encoder, upsample_nearest)
 
 
 def scan_pitch(params) -> float:
@@ -226,6 +226,13 @@ MASK_THRESHOLDS = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
 """Mask-probability thresholds tried on the validation split; the one of best mean IoU goes to the record."""
 
 
+def best_threshold(logit: torch.Tensor, seen: torch.Tensor) -> tuple[float, float]:
+    """(mean IoU, threshold): the one of :data:`MASK_THRESHOLDS` at which sigmoid(``logit``) (N, H, W) ≥ threshold
+    has the best :func:`mask_iou` with ``seen`` (N, H, W) bool."""
+    prob = torch.sigmoid(logit)
+    return max((mask_iou(prob, seen, t), t) for t in MASK_THRESHOLDS)
+
+
 def git_version(path: Path) -> str:
     """``git:`` + ``git describe --always --dirty`` of the checkout holding ``path``, or "unknown"."""
     import subprocess
@@ -342,15 +349,12 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     seen_va = va.get("seen", obj_va)
     threshold, iou, heads, val_heads = 0.5, float("nan"), {}, {}
     if logit is not None:
-        prob = torch.sigmoid(logit)
-        iou, threshold = max((mask_iou(prob, seen_va, t), t) for t in MASK_THRESHOLDS)
+        iou, threshold = best_threshold(logit, seen_va)
         if log:
             log(f"  validation mask IoU {iou:.3f} at probability ≥ {threshold}")
     if outline_head:                       # the outline head's threshold; the two heads' mean, as predict_depth
-        outline_iou, outline_threshold = max((mask_iou(torch.sigmoid(logits[:, 1]), obj_va, t), t)
-                                             for t in MASK_THRESHOLDS)
-        thresholds = torch.tensor([threshold, outline_threshold])[None, :, None, None]
-        both = torch.sigmoid(logits - torch.log(thresholds / (1 - thresholds))).mean(1)
+        outline_iou, outline_threshold = best_threshold(logits[:, 1], obj_va)
+        both = moved_mean(logits, [threshold, outline_threshold])
         heads = {"mask_thresholds": [threshold, outline_threshold][:2 if outline_head == "mean" else 1],
                  "outline_head": outline_head, "outline_threshold": outline_threshold}
         val_heads = {"outline_iou": outline_iou, "both_iou": mask_iou(both, seen_va, 0.5),
