@@ -4,7 +4,8 @@ the low-photon regime a network trained on datagen is meant for, and the figures
 
     python benchmarks/real_low_light.py FOLDER [--exposures 1 0.1 0.01] [--methods lct phasor fbp fk] [--seed 0]
                                                [--draws 1]
-                                               [--network FILE.pt | none] [--venv /opt/venvs/tal-bench]
+                                               [--network FILE.pt ... | none] [--network-depth first|mean]
+                                               [--venv /opt/venvs/tal-bench]
                                                [--png DIR] [--sim DATA [--sim-split test]] [--background none]
 
 FOLDER holds the release's ``data_*.mat`` files (the project never ships them; the release is published with
@@ -53,7 +54,8 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    or the counts summed to its time axis and over its pool of scan points), its depth image, whose median over the
    reference mask is its depth; with a mask head (``--mask``) the IoU is of where it sees the object (its
    probability ≥ the record's threshold), without one it is not scored (NaN); several files (``--network A.pt
-   B.pt``) are averaged (:func:`network_depth`). The run prints what the record says
+   B.pt``) are averaged, the depth the first's or, with ``--network-depth mean``, the mean of their depth maps
+   (:func:`network_depth`). The run prints what the record says
    of the network's training (``examples.train_depth_image.describe``) and a warning when the dataset config it
    was trained on is no longer the repository's (:func:`stale`).
 
@@ -232,17 +234,25 @@ def score(depth: np.ndarray, mask: np.ndarray, hit: np.ndarray | None = None) ->
             float((hit & mask).sum()) / union if union else float("nan"))
 
 
-def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarray, np.ndarray]:
+NETWORK_DEPTHS = ("first", "mean")
+"""What averaged networks' depth is (``--network-depth``): the first network's, or the mean of their depth maps."""
+
+
+def network_depth(network, scan: np.ndarray, dt: float, pitch,
+                  depth: str = "first") -> tuple[np.ndarray, np.ndarray]:
     """((ny, nx) depth m, (ny, nx) bool where it sees the object) of ``network`` = (net, record)
     (``examples.train_depth_image.load_model``) on a scan of counts (ny, nx, T) of bin width ``dt`` and grid pitch
     ``pitch`` (m): a network on the LCT volume reconstructs it from the scan as it is; one on counts gets them summed
     pairwise to at most its bins, zero-padded to them. ``network`` a list of several (net, record) averages them
-    (``--network A.pt B.pt``): the depth is the first's, the object is seen where the mean of their mask
-    probabilities, each moved so that its record's threshold sits at 0.5 (``predict_depth(probability=True)``),
-    reaches 0.5."""
+    (``--network A.pt B.pt``): the depth is the first's (``depth="first"``) or the mean of their (ny, nx) depth maps
+    (``"mean"``, ``--network-depth mean``), the object is seen where the mean of their mask probabilities, each moved
+    so that its record's threshold sits at 0.5 (``predict_depth(probability=True)``), reaches 0.5. Raises ValueError
+    for a ``depth`` not in :data:`NETWORK_DEPTHS`."""
     from datagen.analysis.reconstruct import coarsen
     from examples.train_depth_image import predict_depth
 
+    if depth not in NETWORK_DEPTHS:
+        raise ValueError(f"depth must be one of {', '.join(NETWORK_DEPTHS)}, got {depth!r}")
     networks = [network] if isinstance(network, tuple) else list(network)
     maps = []
     for net, record in networks:
@@ -253,7 +263,8 @@ def network_depth(network, scan: np.ndarray, dt: float, pitch) -> tuple[np.ndarr
         maps.append(predict_depth(net, record, data, dt, pitch, probability=len(networks) > 1))
     if len(maps) == 1:
         return maps[0]
-    return maps[0][0], np.mean([prob for _, prob in maps], axis=0) >= 0.5
+    depths = maps[0][0] if depth == "first" else np.mean([d for d, _ in maps], axis=0)
+    return depths, np.mean([prob for _, prob in maps], axis=0) >= 0.5
 
 
 def network_has_mask(network) -> bool:
@@ -263,13 +274,15 @@ def network_has_mask(network) -> bool:
 
 def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURES, methods=("lct", "phasor", "fbp"),
              rng: np.random.Generator | None = None, network=None, venv: Path | None = None,
-             background: str | None = "auto", pedestal: float | None = FOUND_PEDESTAL, draws: int = 1) -> list[dict]:
+             background: str | None = "auto", pedestal: float | None = FOUND_PEDESTAL, draws: int = 1,
+             network_depths: str = "first") -> list[dict]:
     """Rows {capture, exposure, draw, method, depth, error, iou, counts, seconds, map, reference} of one capture
     (module doc; "map" the (ny, nx) depth m where the method found the object, NaN elsewhere; "reference" the (ny, nx)
     bool reference mask, the same array in every row); ``draws`` thinnings of each exposure below the full one
     (draw 0 from ``rng``, draw d ≥ 1 from ``rng.spawn``'s d-th child, so draw 0 is the same whatever ``draws``; the
     full exposure is drawn once); ``network`` a
-    loaded (net, record) adds its row; "fk" among the methods needs ``venv``, the tal venv; ``background`` the
+    loaded (net, record) adds its row (a list of them averaged, their depth by ``network_depths``,
+    :func:`network_depth`); "fk" among the methods needs ``venv``, the tal venv; ``background`` the
     baselines' and the reference's floor ("auto" subtracted, None kept; the network reads its input as trained);
     ``pedestal`` their found points' rule (:func:`~datagen.analysis.reconstruct.depth_map`)."""
     if draws < 1:
@@ -285,7 +298,7 @@ def evaluate(counts: np.ndarray, dt: float, pitch, name: str, exposures=EXPOSURE
             t0 = time.perf_counter()
             seconds = None
             if method == "network":                    # its depth over the object; its mask head's IoU
-                depth_map, seen = network_depth(network, scan, dt, pitch)
+                depth_map, seen = network_depth(network, scan, dt, pitch, network_depths)
                 depth = score(depth_map, mask)[0]
                 iou = score(depth_map, mask, seen)[1] if network_has_mask(network) else float("nan")
                 depth_map = np.where(seen, depth_map, np.nan)
@@ -318,6 +331,8 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--network", nargs="+", default=[str(SHIPPED)],
                         help="a trained network (.pt, module doc; default: the shipped one), several to average "
                              "them (the first's depth, the mean of their masks), or 'none'")
+    parser.add_argument("--network-depth", choices=list(NETWORK_DEPTHS), default="first",
+                        help="averaged networks' depth: the first's (default) or the mean of their depth maps")
     parser.add_argument("--venv", type=Path, default=default_venv(),
                         help="tal's venv for fk (bash benchmarks/tal/setup_env.sh makes it)")
     parser.add_argument("--png", type=Path, default=None,
@@ -370,7 +385,7 @@ def main(argv=None) -> list[dict]:
     if args.sim is not None:
         if network is None:
             raise SystemExit("--sim: scores a network; give one with --network")
-        sim = sim_scores(network, args.sim, args.sim_split)
+        sim = sim_scores(network, args.sim, args.sim_split, args.network_depth)
         print(f"network on {args.sim} split {args.sim_split} (simulated, held out; {sim['samples']} samples, their "
               f"stored counts): median depth over the object off by {sim['depth_error']:.4f} m (mean |·|), mask "
               f"IoU {sim['iou']:.3f} (mean)")
@@ -382,7 +397,8 @@ def main(argv=None) -> list[dict]:
         found_here = []
         for row in evaluate(counts, dt, pitch, name, args.exposures, methods,
                             np.random.default_rng([args.seed, seeds[path]]), network, args.venv,
-                            None if args.background == "none" else "auto", args.pedestal, args.draws):
+                            None if args.background == "none" else "auto", args.pedestal, args.draws,
+                            args.network_depth):
             found_here.append(row)
             exposure = f"{row['exposure']:g}" + (f" (draw {row['draw']})" if row["draw"] else "")
             print(f"{row['capture']} | {exposure} | {row['method']} | {row['depth']:.4f} | "
@@ -448,11 +464,12 @@ def plot_capture(rows: list[dict], pitch, path: Path) -> Path:
                            outline=rows[0]["reference"], depth_range=depth_range)
 
 
-def sim_scores(network, data: Path, split: str) -> dict:
+def sim_scores(network, data: Path, split: str, network_depths: str = "first") -> dict:
     """The network on a dataset split's stored counts (simulated captures it was not trained on): {"samples": n with
     object pixels, "depth_error": mean over them of |median depth over the label's object pixels − the label's|
     (m), "iou": mean IoU of its mask with the label's (``wall_depth`` > 0)}, each scored by :func:`score` as the
-    captures' rows are: the sim-to-sim figures beside the captures'."""
+    captures' rows are: the sim-to-sim figures beside the captures' (averaged networks' depth by
+    ``network_depths``, :func:`network_depth`)."""
     import datagen
     from examples.train_depth_image import scan_pitch
 
@@ -465,7 +482,8 @@ def sim_scores(network, data: Path, split: str) -> dict:
         mask = label > 0
         if not mask.any():
             continue
-        depth, seen = network_depth(network, np.asarray(item["counts"], np.float64), dt, scan_pitch(item["params"]))
+        depth, seen = network_depth(network, np.asarray(item["counts"], np.float64), dt, scan_pitch(item["params"]),
+                                    network_depths)
         errors.append(abs(score(depth, mask)[0] - float(np.median(label[mask]))))
         ious.append(score(depth, mask, seen)[1])
     return {"samples": len(errors), "depth_error": float(np.mean(errors)) if errors else float("nan"),

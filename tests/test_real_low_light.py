@@ -135,6 +135,10 @@ def test_averaged_networks_take_the_first_depth_and_the_mean_of_their_moved_prob
     pair = [(None, {"name": "a", "input": "lct"}), (None, {"name": "b", "input": "lct"})]
     depth, seen = real_low_light.network_depth(pair, np.zeros((1, 2, 4)), 1e-11, 0.01)
     assert np.array_equal(depth, [[0.4, 0.4]]) and seen.tolist() == [[True, False]]
+    depth, seen = real_low_light.network_depth(pair, np.zeros((1, 2, 4)), 1e-11, 0.01, depth="mean")
+    assert depth == pytest.approx(np.array([[0.65, 0.65]])) and seen.tolist() == [[True, False]]   # (0.4 + 0.9) / 2
+    with pytest.raises(ValueError, match="depth must be one of first, mean, got 'median'"):
+        real_low_light.network_depth(pair, np.zeros((1, 2, 4)), 1e-11, 0.01, depth="median")
     monkeypatch.undo()
 
     class Net(torch.nn.Module):                      # a mask head whose logits are given
