@@ -412,11 +412,48 @@ def main(argv=None) -> list[dict]:
               f"IoU: mean [min, max] | draws with IoU ≥ {MASK_TARGET:g}")
         for line in summarize(rows):
             print(line)
+        verdicts = targets(rows)
+        if verdicts:
+            missed = ", ".join(f"{capture} {what}" for capture, what, met in verdicts if not met) or "none"
+            print(f"network's targets at {TARGET_EXPOSURE:g} (mask IoU ≥ {MASK_TARGET:g}, chart depth within "
+                  f"{DEPTH_TARGET * 100:g} cm; mean and 3/4 of the draws): {sum(m for _, _, m in verdicts)} of "
+                  f"{len(verdicts)} met; missed: {missed}")
     return rows
 
 
 MASK_TARGET = 0.6
 """The mask IoU a network is asked for at 1/10 of the exposure (docs/real.md, "A network trained on datagen")."""
+
+DEPTH_TARGET = 0.01
+"""How far (m) a network's median depth on a chart may lie from its nominal distance at 1/10 of the exposure."""
+
+TARGET_EXPOSURE = 0.1
+"""The exposure, as a fraction of the capture's, at which :func:`targets` scores a method."""
+
+
+def targets(rows: list[dict], method: str = "network") -> list[tuple[str, str, bool]]:
+    """(capture, "mask" or "depth", met) of ``method`` over the rows' draws at :data:`TARGET_EXPOSURE`
+    (:func:`evaluate`), by docs/real.md's rule ("Over eight thinnings"): a mask target is met when the IoU's mean
+    reaches :data:`MASK_TARGET` and so do at least three quarters of the draws (6 of 8); a depth target, asked of the
+    charts (the captures of :data:`~benchmarks.real_captures.DEPTHS` named "…chart…"), when the difference from
+    the nominal distance, averaged over the draws that found the object (as :func:`summarize`), is within
+    :data:`DEPTH_TARGET` and so is that of at least three quarters of the draws (a draw that found nothing misses).
+    Empty when no row is of that method and exposure."""
+    groups: dict[str, list[dict]] = {}
+    for row in rows:
+        if row["method"] == method and row["exposure"] == TARGET_EXPOSURE:
+            groups.setdefault(row["capture"], []).append(row)
+    verdicts = []
+    for capture, group in groups.items():
+        need = int(np.ceil(0.75 * len(group)))
+        iou = np.array([r["iou"] for r in group])
+        verdicts.append((capture, "mask", bool(np.mean(iou) >= MASK_TARGET and np.sum(iou >= MASK_TARGET) >= need)))
+        if "chart" in capture and capture in DEPTHS:
+            error = np.array([r["error"] for r in group])
+            found_it = error[np.isfinite(error)]               # a draw that found nothing: NaN, within nothing
+            verdicts.append((capture, "depth", bool(found_it.size and abs(np.mean(found_it)) <= DEPTH_TARGET
+                                                    and np.sum(np.abs(found_it) <= DEPTH_TARGET) >= need)))
+    return verdicts
 
 
 def summarize(rows: list[dict]) -> list[str]:
