@@ -431,6 +431,16 @@ TARGET_EXPOSURE = 0.1
 """The exposure, as a fraction of the capture's, at which :func:`targets` scores a method."""
 
 
+def thinned_groups(rows: list[dict]) -> dict[tuple[str, float, str], list[dict]]:
+    """The rows (:func:`evaluate`) of each exposure below the full one, by (capture, exposure, method), in their
+    order: one list of draws each, what :func:`summarize` and :func:`targets` sum up."""
+    groups: dict[tuple[str, float, str], list[dict]] = {}
+    for row in rows:
+        if row["exposure"] < 1:
+            groups.setdefault((row["capture"], row["exposure"], row["method"]), []).append(row)
+    return groups
+
+
 def targets(rows: list[dict], method: str = "network") -> list[tuple[str, str, bool]]:
     """(capture, "mask" or "depth", met) of ``method`` over the rows' draws at :data:`TARGET_EXPOSURE`
     (:func:`evaluate`), by docs/real.md's rule ("Over eight thinnings"): a mask target is met when the IoU's mean
@@ -439,12 +449,10 @@ def targets(rows: list[dict], method: str = "network") -> list[tuple[str, str, b
     the nominal distance, averaged over the draws that found the object (as :func:`summarize`), is within
     :data:`DEPTH_TARGET` and so is that of at least three quarters of the draws (a draw that found nothing misses).
     Empty when no row is of that method and exposure."""
-    groups: dict[str, list[dict]] = {}
-    for row in rows:
-        if row["method"] == method and row["exposure"] == TARGET_EXPOSURE:
-            groups.setdefault(row["capture"], []).append(row)
     verdicts = []
-    for capture, group in groups.items():
+    for (capture, exposure, of), group in thinned_groups(rows).items():
+        if of != method or exposure != TARGET_EXPOSURE:
+            continue
         need = int(np.ceil(0.75 * len(group)))
         iou = np.array([r["iou"] for r in group])
         verdicts.append((capture, "mask", bool(np.mean(iou) >= MASK_TARGET and np.sum(iou >= MASK_TARGET) >= need)))
@@ -461,12 +469,8 @@ def summarize(rows: list[dict]) -> list[str]:
     depth's difference from the reference (mean, min, max over the draws that found the object, and how many found
     nothing; m; "—" for a capture of no stated depth, its rows' ``target`` NaN), the IoU's mean, min and max, and how
     many draws reach :data:`MASK_TARGET`."""
-    groups: dict[tuple, list[dict]] = {}
-    for row in rows:
-        if row["exposure"] < 1:
-            groups.setdefault((row["capture"], row["exposure"], row["method"]), []).append(row)
     lines = []
-    for (capture, exposure, method), group in groups.items():
+    for (capture, exposure, method), group in thinned_groups(rows).items():
         error = np.array([r["error"] for r in group])
         iou = np.array([r["iou"] for r in group])
         known = error[np.isfinite(error)]        # the draws that found something over the object

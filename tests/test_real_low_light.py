@@ -362,8 +362,7 @@ def test_the_targets_follow_the_rule_mean_and_three_quarters_of_the_draws():
     draws at 0.6 misses; 6 of 8 meets); a chart's depth when the mean difference over the draws that found it is
     within 1 cm and 6 of 8 draws are (+0.98 cm mean with 6 of 8 meets; +0.92 cm over the seven draws that found it,
     two of them at 1.1 cm, misses; 6 of 8 at 0.95 cm and two at 2 cm, mean 1.21 cm, misses); a capture with no
-    stated chart depth has no depth target; other exposures and methods are
-    not scored."""
+    stated chart depth has no depth target; other exposures and methods are not scored."""
     nan = float("nan")
 
     def rows(capture, ious, errors, method="network", exposure=0.1):
