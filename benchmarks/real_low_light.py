@@ -330,7 +330,7 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--only", nargs="+", default=None, help="captures by name (dot_chart_40cm ...)")
     parser.add_argument("--network", nargs="+", default=[str(SHIPPED)],
                         help="a trained network (.pt, module doc; default: the shipped one), several to average "
-                             "them (the first's depth, the mean of their masks), or 'none'")
+                             "them (the mean of their masks; their depth by --network-depth), or 'none'")
     parser.add_argument("--network-depth", choices=list(NETWORK_DEPTHS), default="first",
                         help="averaged networks' depth: the first's (default) or the mean of their depth maps")
     parser.add_argument("--venv", type=Path, default=default_venv(),
