@@ -62,7 +62,7 @@ import torch
 import datagen
 from datagen.dataset.score import score_predictions
 from examples.depth_nets import (  # noqa: F401  (re-exported: the names this module's users import)
-    ARCHS, LCT_BINS, DepthNet, DepthUNet, describe, dihedral, lct_input, load_model, moved_mean, pool_scan,
+    ARCHS, BASE_BINS, LCT_BINS, DepthNet, DepthUNet, describe, dihedral, lct_input, load_model, moved_mean, pool_scan,
     predict_depth, save_model, temporal_encoder, upsample_nearest)
 
 
@@ -75,13 +75,14 @@ def scan_pitch(params) -> float:
 
 
 def load_split(path, split: str, pool: int = 1, lct: bool = False,
-               mask_label: str = "outline", workers: int = 0) -> dict[str, torch.Tensor]:
+               mask_label: str = "outline", workers: int = 0,
+               base_bins: int = LCT_BINS) -> dict[str, torch.Tensor]:
     """{"envelope", "counts": (N, 1, T, H/pool, W/pool) float32 (summed over pool × pool scan points), "depth":
     (N, H, W) float32 m (the label's grid)} of one split, in memory; with ``lct`` instead of the envelope and counts
     "lct": (N, 1, LCT_BINS, H/pool, W/pool) float16 the LCT volume of each sample's stored counts and "strongest":
-    (N, H/pool, W/pool) the depth m of its strongest voxels (:func:`lct_input`); with ``mask_label`` "lct" or
-    "counts" also "seen": (N, H, W) bool, what the LCT of the sample's noise-free envelope or of its stored counts
-    finds (:func:`lct_seen`). ``workers`` > 0 prepares the samples in that many processes (a torch DataLoader's
+    (N, H/pool, W/pool) the depth m of its strongest voxels (:func:`lct_input`, in ``base_bins`` bins); with
+    ``mask_label`` "lct" or "counts" also "seen": (N, H, W) bool, what the LCT of the sample's noise-free envelope or
+    of its stored counts finds (:func:`lct_seen`). ``workers`` > 0 prepares the samples in that many processes (a torch DataLoader's
     workers; the LCTs run on one core each), 0 in this one; the result is the same."""
     if mask_label not in MASK_LABELS:
         raise ValueError(f"mask_label must be one of {', '.join(MASK_LABELS)}, got {mask_label!r}")
@@ -90,7 +91,7 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
     ds = datagen.NLOSDataset(path, split=split, fields=fields, layout="network", counts_dtype=torch.float32)
     if len(ds) == 0:
         raise ValueError(f"{path}: split {split!r} holds no samples")
-    prepared = _Prepared(ds, float(ds.card["time_edges"]["bin_width"]), pool, lct, mask_label)
+    prepared = _Prepared(ds, float(ds.card["time_edges"]["bin_width"]), pool, lct, mask_label, base_bins)
     # Each output is one block per split, allocated at the first sample: rows kept one by one between the LCT's
     # freed buffers fragmented the heap (with 2 threads, 17 MB of memory per sample for 2 MiB kept).
     for i, row in enumerate(torch.utils.data.DataLoader(prepared, batch_size=None, num_workers=workers)):
@@ -104,8 +105,9 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
 class _Prepared(torch.utils.data.Dataset):
     """One split's samples as :func:`load_split` keeps them: the i-th item the dict of its rows for sample i."""
 
-    def __init__(self, ds, bin_width: float, pool: int, lct: bool, mask_label: str):
+    def __init__(self, ds, bin_width: float, pool: int, lct: bool, mask_label: str, base_bins: int = LCT_BINS):
         self.ds, self.bin_width, self.pool, self.lct, self.mask_label = ds, bin_width, pool, lct, mask_label
+        self.base_bins = base_bins
 
     def __len__(self) -> int:
         return len(self.ds)
@@ -115,7 +117,7 @@ class _Prepared(torch.utils.data.Dataset):
         pitch = scan_pitch(item["params"]) if "params" in item else None
         if self.lct:
             volume, row["strongest"] = lct_input(np.moveaxis(item["counts"][0].numpy(), 0, -1), self.bin_width,
-                                                 pitch, self.pool)
+                                                 pitch, self.pool, self.base_bins)
             row["lct"] = volume.half()                                # float16: 2 MiB per 64 × 64 sample
         else:
             row["envelope"], row["counts"] = (pool_scan(item[k], self.pool) for k in ("envelope", "counts"))
@@ -249,7 +251,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
           stored: bool = False, mask: bool = False, lct: bool = False, command: str = "", arch: str = "cnn",
           augment: bool = False, pos_weight: float | None = None,
           mask_label: str = "outline", depth_over: str = "outline", workers: int = 0,
-          outline_head: str | None = None) -> dict[str, np.ndarray]:
+          outline_head: str | None = None, base_bins: int = LCT_BINS) -> dict[str, np.ndarray]:
     """Train on ``train_split``, predict ``val_split``, the scans summed over ``pool`` × ``pool`` scan points (module
     doc); with ``save`` the trained network goes to that file (:func:`save_model`, with the card's
     ``config_sha256``, split counts and code version, this checkout's code version and ``command``); with ``stored``
@@ -266,7 +268,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     chosen the same way: with "mean" the network sees the object where the mean of the two heads' probabilities,
     each moved so that its threshold sits at 0.5, reaches 0.5, with "auxiliary" where the first head alone sees it
     (the outline head only a loss) (:func:`predict_depth` reads the heads ``mask_thresholds`` in the record lists;
-    :data:`OUTLINE_HEADS`);
+    :data:`OUTLINE_HEADS`); with ``lct`` the depth learnt is the label less the strongest voxel's depth in the LCT
+    volume of ``base_bins`` bins (:data:`BASE_BINS`; the record keeps it for :func:`predict_depth`);
     ``arch`` names the network (:data:`ARCHS`);
     with ``augment`` each batch is turned by a random symmetry of the square (:func:`dihedral`); ``workers`` the
     processes that prepare the samples (:func:`load_split`). Returns {"depth":
@@ -282,7 +285,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
     torch.manual_seed(seed)
     t0 = time.perf_counter()
     version = git_version(Path(__file__).resolve().parent)          # of the code as it is loaded, at the start
-    tr, va = (load_split(path, s, pool, lct, mask_label, workers) for s in (train_split, val_split))
+    tr, va = (load_split(path, s, pool, lct, mask_label, workers, base_bins) for s in (train_split, val_split))
     ds = datagen.NLOSDataset(path, split=train_split, fields=("counts",))
     det = ds.detector_config()
     noise = ds.spad_noise() if pool == 1 else ds.spad_noise(dcr=det.dcr * pool ** 2,        # summed background
@@ -374,6 +377,7 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
                    dataset_code_version=card.get("code_version", "unknown"),
                    code_version=version, command=command, mask_label=mask_label, depth_over=depth_over,
                    train_seconds=round(time.perf_counter() - t0, 1), **heads,
+                   **({"base_bins": base_bins} if base_bins != LCT_BINS else {}),
                    val={"depth_mae_m": mae, "mask_iou": iou, **val_heads})
     n_va = len(va["depth"])
     return {"depth": depth.numpy().astype(np.float32), "index": np.arange(n_va),
@@ -415,6 +419,9 @@ def main(argv=None):
                         help="where the depth is learnt: the label's outline, or also the mask the mask head learns")
     parser.add_argument("--input", choices=["counts", "lct"], default="counts",
                         help="the network's input: the counts' log, or the LCT volume of the stored counts")
+    parser.add_argument("--base-bins", type=int, choices=BASE_BINS, default=LCT_BINS,
+                        help="with --input lct, the depth bins of the LCT volume whose strongest voxel the depth "
+                             "corrects: the input's own 256 (4.8 mm) or 512 (16 ps, 2.4 mm)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     from datagen.errors import DatasetError
@@ -425,6 +432,7 @@ def main(argv=None):
                      mask=args.mask or args.arch == "unet", lct=args.input == "lct", arch=args.arch,
                      augment=args.augment, pos_weight=args.pos_weight, mask_label=args.mask_label,
                      depth_over=args.depth_over, workers=args.threads, outline_head=args.outline_head,
+                     base_bins=args.base_bins,
                      command="python -m examples.train_depth_image " + " ".join(sys.argv[1:] if argv is None
                                                                                 else argv))
     except (ValueError, DatasetError, FileNotFoundError) as exc:   # a data path, split or option that does not fit

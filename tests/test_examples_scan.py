@@ -274,3 +274,49 @@ def test_training_on_a_path_without_a_dataset_is_one_line(tmp_path):
     """A data path that holds no dataset: one line naming it, no traceback."""
     with pytest.raises(SystemExit, match=f"train_depth_image: no datagen dataset at {tmp_path / 'none'}"):
         train_depth_image.main([str(tmp_path / "none"), "--epochs", "1", "--threads", "1"])
+
+
+def test_the_fine_base_reads_a_point_closer_than_the_input_voxels_do():
+    """lct_input's strongest-voxel depth (the base the network's depth corrects) at a point's own scan position in
+    the noise-free confocal scan of that point (:func:`point_scan`: 16 × 16 points at 12.5 mm, 512 bins of 16 ps),
+    z from 0.380 to 0.420 m in 2 mm steps: with ``base_bins=512`` it lies within 1.5 16 ps voxels, 1.5·c·16 ps/2 =
+    3.6 mm (+ 0.2 mm; a voxel, and LCT's resampling of t² moves the peak by up to half of one), of z at every z, and
+    its errors spread over at most that (+ 0.1 mm; measured 0.1 to 3.7 mm); in the input's own 256 bins (4.8 mm
+    voxels) they spread wider (measured −1.9 to +5.7 mm); 384 bins are refused in one line."""
+    c, n, pitch, dt = 299792458.0, 16, 0.0125, 16e-12
+    errors = {256: [], 512: []}
+    for z in np.arange(0.380, 0.4201, 0.002):
+        scan = np.moveaxis(point_scan(n, pitch, dt, z, 8, 8)[0], 0, -1)
+        for bins, err in errors.items():
+            err.append(float(train_depth_image.lct_input(scan, dt, pitch, 1, bins)[1][8, 8]) - z)
+    reach = 1.5 * c * dt / 2
+    assert np.abs(errors[512]).max() <= reach + 2e-4, errors[512]
+    assert np.ptp(errors[512]) <= reach + 1e-4 < np.ptp(errors[256]), errors
+    with pytest.raises(ValueError, match="base_bins must be one of 256, 512, got 384"):
+        train_depth_image.lct_input(scan, dt, pitch, 1, 384)
+
+
+def test_the_fine_base_is_kept_in_the_record_and_read_back(wall, tmp_path, monkeypatch):
+    """``--input lct --base-bins 512``: the record keeps base_bins 512 and predict_depth asks lct_input for that base
+    (the shipped records, without the key, get the input's own LCT_BINS)."""
+    torch.set_num_threads(1)
+    net_file = tmp_path / "fine.pt"
+    train_depth_image.main([str(wall), "--val", "test", "--epochs", "1", "--batch", "2", "--threads", "1", "--input",
+                            "lct", "--base-bins", "512", "--out", str(tmp_path / "fine.npz"), "--save", str(net_file)])
+    net, record = train_depth_image.load_model(net_file)
+    assert record["base_bins"] == 512
+    asked = []
+    real_input = train_depth_image.lct_input
+
+    def spy(*args):
+        asked.append(args[4])
+        return real_input(*args)
+
+    monkeypatch.setattr("examples.depth_nets.lct_input", spy)
+    item = NLOSDataset(wall, split="test", fields=("counts", "params")).read(0)
+    dt = NLOSDataset(wall, split="test", fields=("counts",)).card["time_edges"]["bin_width"]
+    pitch = train_depth_image.scan_pitch(item["params"])
+    depth, _ = train_depth_image.predict_depth(net, record, np.asarray(item["counts"], np.float64), dt, pitch)
+    record.pop("base_bins")
+    train_depth_image.predict_depth(net, record, np.asarray(item["counts"], np.float64), dt, pitch)
+    assert asked == [512, train_depth_image.LCT_BINS] and np.isfinite(depth).all()
