@@ -82,8 +82,8 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
     "lct": (N, 1, LCT_BINS, H/pool, W/pool) float16 the LCT volume of each sample's stored counts and "strongest":
     (N, H/pool, W/pool) the depth m of its strongest voxels (:func:`lct_input`, in ``base_bins`` bins); with
     ``mask_label`` "lct" or "counts" also "seen": (N, H, W) bool, what the LCT of the sample's noise-free envelope or
-    of its stored counts finds (:func:`lct_seen`). ``workers`` > 0 prepares the samples in that many processes (a torch DataLoader's
-    workers; the LCTs run on one core each), 0 in this one; the result is the same."""
+    of its stored counts finds (:func:`lct_seen`). ``workers`` > 0 prepares the samples in that many processes (a
+    torch DataLoader's workers; the LCTs run on one core each), 0 in this one; the result is the same."""
     if mask_label not in MASK_LABELS:
         raise ValueError(f"mask_label must be one of {', '.join(MASK_LABELS)}, got {mask_label!r}")
     fields = ("counts", "wall_depth") + (("params",) if lct or mask_label != "outline" else ()) + \
@@ -279,6 +279,8 @@ def train(path, epochs: int = 40, batch: int = 16, seed: int = 0, lr: float = 3e
         raise ValueError(f"depth_over must be one of {', '.join(DEPTH_OVER)}, got {depth_over!r}")
     if outline_head not in (None,) + OUTLINE_HEADS:
         raise ValueError(f"outline_head must be one of {', '.join(OUTLINE_HEADS)}, got {outline_head!r}")
+    if base_bins != LCT_BINS and not lct:
+        raise ValueError(f"--base-bins {base_bins} is the base of a network on the LCT volume: it needs --input lct")
     if outline_head and (arch != "unet" or mask_label == "outline"):
         raise ValueError(f"an outline head needs --arch unet and a mask label other than outline, got --arch {arch} "
                          f"--mask-label {mask_label}")

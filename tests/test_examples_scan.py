@@ -298,8 +298,11 @@ def test_the_fine_base_reads_a_point_closer_than_the_input_voxels_do():
 
 def test_the_fine_base_is_kept_in_the_record_and_read_back(wall, tmp_path, monkeypatch):
     """``--input lct --base-bins 512``: the record keeps base_bins 512 and predict_depth asks lct_input for that base
-    (the shipped records, without the key, get the input's own LCT_BINS)."""
+    (the shipped records, without the key, get the input's own LCT_BINS); without ``--input lct`` it is one line."""
     torch.set_num_threads(1)
+    with pytest.raises(SystemExit, match="train_depth_image: --base-bins 512 is the base of a network on the LCT "
+                                         "volume: it needs --input lct"):
+        train_depth_image.main([str(wall), "--val", "test", "--base-bins", "512"])
     net_file = tmp_path / "fine.pt"
     train_depth_image.main([str(wall), "--val", "test", "--epochs", "1", "--batch", "2", "--threads", "1", "--input",
                             "lct", "--base-bins", "512", "--out", str(tmp_path / "fine.npz"), "--save", str(net_file)])
