@@ -29,7 +29,7 @@ def lct_input(counts: np.ndarray, bin_width: float, pitch: float | tuple[float, 
     by its maximum; and the depth of each column's strongest voxel (the network's depth is a correction to it) in
     that volume (``base_bins`` None or LCT_BINS), or with ``base_bins`` 512 (:data:`BASE_BINS`) in the LCT volume of
     the same counts in up to that many bins (16 ps, 2.4 mm voxels, ``datagen reconstruct``'s default; the input's
-    4.8 mm voxels put the release's 40 cm charts' base 3.6 mm deeper than LCT at 16 ps reads them, docs/real.md).
+    4.8 mm voxels put the release's 40 cm charts' base 1.2–3.6 mm deeper than LCT at 16 ps reads them, docs/real.md).
 
     Raises:
         ValueError: ``base_bins`` not in :data:`BASE_BINS`."""
