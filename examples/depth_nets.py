@@ -19,36 +19,44 @@ def pool_scan(scan: torch.Tensor, pool: int) -> torch.Tensor:
     return scan.reshape(1, t, h // pool, pool, w // pool, pool).sum((3, 5))
 
 
+LCT_BINS = 256
+"""Depth bins of the LCT input (``--input lct``): the dataset's 512 bins of 16 ps summed pairwise, 4.8 mm each."""
+
+BASE_BINS = (LCT_BINS, 512)
+"""Depth bins of the LCT volume whose strongest voxel the network's depth corrects (``--base-bins``,
+:func:`lct_input`): the input's own, or 512 (16 ps, 2.4 mm)."""
+
+
 def lct_input(counts: np.ndarray, bin_width: float, pitch: float | tuple[float, float],
-              pool: int, base_bins: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+              pool: int, base_bins: int = LCT_BINS) -> tuple[torch.Tensor, torch.Tensor]:
     """((1, LCT_BINS, H/pool, W/pool) float32 in [0, 1], (H/pool, W/pool) float32 m): the LCT volume of one scan of
     counts (H, W, T) (bin width s, grid pitch m, as :func:`datagen.analysis.reconstruct.confocal_volume` takes them),
     reconstructed from the counts summed over pool × pool scan points (the pitch times pool) and LCT_BINS bins, as
     ``datagen reconstruct --background none`` runs it (the direct light trimmed, t² falloff, snr 0.8; the floor
     kept, as the shipped weights were trained), depth on the first axis, divided
     by its maximum; and the depth of each column's strongest voxel (the network's depth is a correction to it) in
-    that volume (``base_bins`` None or LCT_BINS), or with ``base_bins`` 512 (:data:`BASE_BINS`) in the LCT volume of
-    the same counts in up to that many bins (16 ps, 2.4 mm voxels, ``datagen reconstruct``'s default; the input's
+    that volume (``base_bins`` LCT_BINS), or with ``base_bins`` 512 (:data:`BASE_BINS`) in the LCT volume of the
+    same counts in up to that many bins (16 ps, 2.4 mm voxels, ``datagen reconstruct``'s default; the input's
     4.8 mm voxels put the release's 40 cm charts' base 1.2–3.6 mm deeper than LCT at 16 ps reads them, docs/real.md).
 
     Raises:
         ValueError: ``base_bins`` not in :data:`BASE_BINS`."""
     from datagen.analysis.reconstruct import confocal_volume
 
+    if base_bins not in BASE_BINS:
+        raise ValueError(f"base_bins must be one of {', '.join(map(str, BASE_BINS))}, got {base_bins}")
     pitch_y, pitch_x = (pitch, pitch) if np.ndim(pitch) == 0 else pitch
     scan = pool_scan(torch.as_tensor(np.moveaxis(np.asarray(counts, np.float32), -1, 0))[None], pool)[0]
-    volume, depths, _ = confocal_volume(np.moveaxis(scan.double().numpy(), 0, -1), bin_width,
-                                   (pitch_y * pool, pitch_x * pool), "lct", max_bins=LCT_BINS, background=None)
-    volume, depths = volume[..., :LCT_BINS], depths[:LCT_BINS]
+    data, grid = np.moveaxis(scan.double().numpy(), 0, -1), (pitch_y * pool, pitch_x * pool)
+
+    def lct(bins: int) -> tuple[np.ndarray, np.ndarray]:
+        volume, depths, _ = confocal_volume(data, bin_width, grid, "lct", max_bins=bins, background=None)
+        return volume[..., :bins], depths[:bins]
+
+    volume, depths = lct(LCT_BINS)
     top = volume.max()
-    strongest = depths[np.argmax(volume, axis=-1)].astype(np.float32)
-    if base_bins not in (None, LCT_BINS):
-        if base_bins not in BASE_BINS:
-            raise ValueError(f"base_bins must be one of {', '.join(map(str, BASE_BINS))}, got {base_bins}")
-        fine, fine_depths, _ = confocal_volume(np.moveaxis(scan.double().numpy(), 0, -1), bin_width,
-                                               (pitch_y * pool, pitch_x * pool), "lct", max_bins=base_bins,
-                                               background=None)
-        strongest = fine_depths[np.argmax(fine[..., :base_bins], axis=-1)].astype(np.float32)
+    base, base_depths = (volume, depths) if base_bins == LCT_BINS else lct(base_bins)
+    strongest = base_depths[np.argmax(base, axis=-1)].astype(np.float32)
     volume = np.moveaxis(volume / top if top > 0 else volume, -1, 0)[None].astype(np.float32)
     return torch.as_tensor(volume), torch.as_tensor(strongest)
 
@@ -57,13 +65,6 @@ def upsample_nearest(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor
     """(B, h, w) → (B, *size), each pixel the value of the input pixel it falls in (an integer factor: repeats)."""
     return torch.nn.functional.interpolate(image[:, None], size=tuple(size), mode="nearest")[:, 0]
 
-
-LCT_BINS = 256
-"""Depth bins of the LCT input (``--input lct``): the dataset's 512 bins of 16 ps summed pairwise, 4.8 mm each."""
-
-BASE_BINS = (LCT_BINS, 512)
-"""Depth bins of the LCT volume whose strongest voxel the network's depth corrects (``--base-bins``,
-:func:`lct_input`): the input's own, or 512 (16 ps, 2.4 mm)."""
 
 
 def temporal_encoder() -> torch.nn.Sequential:

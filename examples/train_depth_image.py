@@ -105,7 +105,7 @@ def load_split(path, split: str, pool: int = 1, lct: bool = False,
 class _Prepared(torch.utils.data.Dataset):
     """One split's samples as :func:`load_split` keeps them: the i-th item the dict of its rows for sample i."""
 
-    def __init__(self, ds, bin_width: float, pool: int, lct: bool, mask_label: str, base_bins: int = LCT_BINS):
+    def __init__(self, ds, bin_width: float, pool: int, lct: bool, mask_label: str, base_bins: int):
         self.ds, self.bin_width, self.pool, self.lct, self.mask_label = ds, bin_width, pool, lct, mask_label
         self.base_bins = base_bins
 
