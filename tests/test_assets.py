@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+import yaml
 
 from datagen.errors import ConfigError
 from datagen.dataset import LabelSpec, load_room_distribution, sample_room, scene_labels
@@ -219,3 +220,30 @@ def test_config_fingerprint_does_not_depend_on_where_the_checkout_lives(tmp_path
     assert here.fingerprint() == there.fingerprint()
     moved = there.model_copy(update={"seed": there.seed + 1})
     assert moved.fingerprint() != here.fingerprint()                                         # still a fingerprint
+
+
+def test_room_overrides_assets_resolve_against_the_config_folder(tmp_path, monkeypatch):
+    """Mesh assets given in a dataset's ``room_overrides`` (configs/datasets/lct_release_charts.yaml: the charts alone)
+    are found against the config file's folder from any working directory, replace the room's list, and hash
+    location-free like the room's; one that exists nowhere is a ConfigError naming the field and the entry."""
+    import shutil
+    from datagen.dataset import load_dataset_config
+    for part in ("configs", "assets"):
+        shutil.copytree(ROOT / part, tmp_path / "elsewhere" / part)
+    monkeypatch.chdir(tmp_path)                                       # neither checkout's root
+    here = load_dataset_config(ROOT / "configs/datasets/lct_release_charts.yaml")
+    there = load_dataset_config(tmp_path / "elsewhere/configs/datasets/lct_release_charts.yaml")
+    files = here.room_distribution("val").objects.mesh.assets
+    assert len(files) == 15 and all(Path(f).is_file() and Path(f).parent == ROOT / "assets/meshes/cutouts"
+                                    for f in files)
+    assert {Path(f).stem.split("_")[0] for f in files} == {"dots", "bars"}     # the charts alone
+    assert here.fingerprint() == there.fingerprint()
+    data = yaml.safe_load((ROOT / "configs/datasets/lct_release_charts.yaml").read_text())
+    data["room_overrides"]["objects"]["mesh"]["assets"][0] = "../../assets/meshes/cutouts/no_such_chart.ply"
+    with pytest.raises(ConfigError, match=r"room_overrides: objects.mesh.assets: .*'../../assets/meshes/cutouts/"
+                                          r"no_such_chart.ply'"):
+        load_dataset_config(data, base_dir=ROOT / "configs/datasets")
+    data["room_overrides"]["objects"]["mesh"]["assets"][0] = "../../assets/meshes/cutouts/dots_2x2_30.ply"
+    data["splits"]["val"]["room_overrides"] = {"objects": {"mesh": {"assets": ["../../assets/meshes/cutouts"]}}}
+    split = load_dataset_config(data, base_dir=ROOT / "configs/datasets")     # a split's list, against the same folder
+    assert split.room_distribution("val").objects.mesh.assets == [str(ROOT / "assets/meshes/cutouts")]

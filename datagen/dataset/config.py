@@ -300,10 +300,11 @@ def location_free_json(data: dict) -> dict:
     """:meth:`DatasetConfig.to_json` output (or a card's ``config``) with the mesh asset entries reduced to their
     folder or file names, as :meth:`DatasetConfig.fingerprint` hashes it (a copy; the input is unchanged)."""
     data = copy.deepcopy(data)
-    room = data.get("room")
-    mesh = (room.get("objects") or {}).get("mesh") if isinstance(room, dict) else None
-    if isinstance(mesh, dict) and isinstance(mesh.get("assets"), list):
-        mesh["assets"] = [Path(entry).name if isinstance(entry, str) else entry for entry in mesh["assets"]]
+    splits = [s for s in (data.get("splits") or {}).values() if isinstance(s, dict)]
+    for room in [data.get("room"), data.get("room_overrides")] + [s.get("room_overrides") for s in splits]:
+        mesh = (room.get("objects") or {}).get("mesh") if isinstance(room, dict) else None
+        if isinstance(mesh, dict) and isinstance(mesh.get("assets"), list):
+            mesh["assets"] = [Path(entry).name if isinstance(entry, str) else entry for entry in mesh["assets"]]
     return data
 
 
@@ -340,13 +341,13 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
     """Load, resolve and fully validate a dataset config.
 
     ``room`` and a string ``detector`` are read from their files (relative paths are tried against the
-    config file's directory, then the working directory) and inlined; the room distribution of every split
-    (with its overrides), the label spec, the simulation overrides and the detector are validated now, so a
-    bad config fails before any work starts.
+    config file's directory, then the working directory) and inlined; mesh assets in ``room_overrides`` (the
+    dataset's or a split's) are resolved against the config file's directory, then the working directory; the room
+    distribution of every split (with its overrides), the label spec, the simulation overrides and the detector
+    are validated now, so a bad config fails before any work starts.
 
     Args:
-        source: YAML path or an already parsed mapping.
-        base_dir: directory for relative paths when ``source`` is a mapping.
+        source: YAML path or an already parsed mapping; base_dir: directory for relative paths of a mapping.
     Returns:
         :class:`DatasetConfig` with ``room`` and ``detector`` as mappings.
     Raises:
@@ -374,13 +375,15 @@ def load_dataset_config(source: str | Path | dict, base_dir: str | Path | None =
         updates["room"] = _room_with_assets(_read_yaml(room_file, f"{prefix}room"), room_file.parent, str(room_file))
     else:
         updates["room"] = _room_with_assets(config.room, base, f"{prefix}room")
+    updates["room_overrides"] = _room_with_assets(config.room_overrides, base, f"{prefix}room_overrides")
+    updates["splits"] = {name: spec.model_copy(update={"room_overrides": _room_with_assets(
+        spec.room_overrides, base, f"{prefix}splits.{name}.room_overrides")}) for name, spec in config.splits.items()}
     if isinstance(config.detector, str):
         det = _read_yaml(_find_file(config.detector, base, f"{prefix}detector"), f"{prefix}detector")
         det = det["detector"] if set(det) == {"detector"} else det
         # a preset's TDC axis is replaced by the dataset's time axis: the histogram bins are the envelope bins
         updates["detector"] = {k: v for k, v in det.items() if k not in PRESET_TIME_FIELDS}
-    if updates:
-        config = config.model_copy(update=updates)
+    config = config.model_copy(update=updates)
     _validate_parts(config, prefix)
     return config
 
