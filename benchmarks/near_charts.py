@@ -31,7 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT))
-from real_low_light import SHIPPED, found, network_depth, score, thin  # noqa: E402
+from real_low_light import SHIPPED, found, labelled_scans, load_network, network_depth, score, thin  # noqa: E402
 
 
 def chart_errors(data: Path, networks: dict, split: str = "val", fraction: float = 0.1) -> tuple[np.ndarray, dict]:
@@ -47,21 +47,15 @@ def chart_errors(data: Path, networks: dict, split: str = "val", fraction: float
     Raises:
         datagen.DatagenError: DATA is not a readable dataset or lacks the split.
     """
-    import datagen
-    from examples.train_depth_image import scan_pitch
-
-    ds = datagen.NLOSDataset(data, split=split, fields=("counts", "wall_depth", "params"))
-    dt = float(ds.card["time_edges"]["bin_width"])
     truth, errors = [], {name: [] for name in ["lct", *networks]}
-    for i in range(len(ds)):
-        item = ds[i]
-        counts = np.asarray(item["counts"], np.float64)
-        label = np.asarray(item["wall_depth"], np.float64).reshape(counts.shape[:2])
-        pitch = scan_pitch(item["params"])
-        reference = ~np.isnan(found(counts, dt, pitch, "lct"))
-        if not (label > 0).any() or not reference.any():
+    for i, counts, label, dt, pitch in labelled_scans(data, split):
+        chart = label > 0
+        if not chart.any():
             continue
-        truth.append(float(np.median(label[label > 0])))
+        reference = ~np.isnan(found(counts, dt, pitch, "lct"))
+        if not reference.any():
+            continue
+        truth.append(float(np.median(label[chart])))
         counts = thin(counts, fraction, np.random.default_rng(i))
         errors["lct"].append(score(found(counts, dt, pitch, "lct"), reference)[0] - truth[-1])
         for name, network in networks.items():
@@ -85,12 +79,8 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     if not 0 < args.fraction <= 1:
         raise SystemExit(f"--fraction: a share of the exposure lies in (0, 1], got {args.fraction}")
-    from examples.train_depth_image import load_model
-    networks = {}
-    for path in args.network:
-        if not Path(path).is_file():
-            raise SystemExit(f"--network: no file at {path}")
-        networks["shipped" if Path(path).resolve() == SHIPPED else Path(path).stem] = load_model(path)
+    networks = {"shipped" if Path(path).resolve() == SHIPPED else Path(path).stem: load_network(path)
+                for path in args.network}
     if not (args.data / "zarr.json").is_file():
         raise SystemExit(f"{args.data}: not a dataset (build one: datagen build "
                          "configs/datasets/lct_release_charts.yaml --out DIR)")

@@ -354,18 +354,7 @@ def main(argv=None) -> list[dict]:
         methods.remove("fk")
     network = None
     if args.network != ["none"]:
-        sys.path.insert(0, str(ROOT))
-        from examples.train_depth_image import describe, load_model
-        network = []
-        for path in args.network:
-            if not Path(path).is_file():
-                raise SystemExit(f"--network: no file at {path}")
-            net, record = load_model(path)
-            network.append((net, record))
-            print(f"network {path}: {describe(record)}")
-            reason = stale(record) if "config_name" in record else None
-            if reason is not None:
-                print(f"warning: network {path} is stale: {reason}", file=sys.stderr)
+        network = [load_network(path) for path in args.network]
         if len(network) > 1 and not network_has_mask(network):
             raise SystemExit("--network: averaging networks needs each to have a mask head")
         network = network[0] if len(network) == 1 else network
@@ -419,6 +408,38 @@ def main(argv=None) -> list[dict]:
                   f"{DEPTH_TARGET * 100:g} cm; mean and 3/4 of the draws): {sum(m for _, _, m in verdicts)} of "
                   f"{len(verdicts)} met; missed: {missed}")
     return rows
+
+
+def load_network(path) -> tuple:
+    """(network, record) of a saved network (``examples.train_depth_image.load_model``), its record described in one
+    printed line and a warning on stderr when the dataset config it was trained on is no longer the repository's
+    (:func:`stale`). Raises SystemExit: no file at ``path`` (one line)."""
+    sys.path.insert(0, str(ROOT))
+    from examples.train_depth_image import describe, load_model
+    if not Path(path).is_file():
+        raise SystemExit(f"--network: no file at {path}")
+    net, record = load_model(path)
+    print(f"network {path}: {describe(record)}")
+    reason = stale(record) if "config_name" in record else None
+    if reason is not None:
+        print(f"warning: network {path} is stale: {reason}", file=sys.stderr)
+    return net, record
+
+
+def labelled_scans(data: Path, split: str):
+    """Yield (i, counts (H, W, T) float64, wall-depth label (H, W) float64 m, 0 off the object, bin width s, scan
+    pitch m) for each sample of a dataset split (its stored counts): what :func:`sim_scores` and
+    benchmarks/near_charts.py score a network on."""
+    import datagen
+    from examples.train_depth_image import scan_pitch
+
+    ds = datagen.NLOSDataset(data, split=split, fields=("counts", "wall_depth", "params"))
+    dt = float(ds.card["time_edges"]["bin_width"])
+    for i in range(len(ds)):
+        item = ds[i]
+        counts = np.asarray(item["counts"], np.float64)
+        label = np.asarray(item["wall_depth"], np.float64).reshape(counts.shape[:2])
+        yield i, counts, label, dt, scan_pitch(item["params"])
 
 
 MASK_TARGET = 0.6
@@ -511,20 +532,12 @@ def sim_scores(network, data: Path, split: str, network_depths: str = "first") -
     (m), "iou": mean IoU of its mask with the label's (``wall_depth`` > 0)}, each scored by :func:`score` as the
     captures' rows are: the sim-to-sim figures beside the captures' (averaged networks' depth by
     ``network_depths``, :func:`network_depth`)."""
-    import datagen
-    from examples.train_depth_image import scan_pitch
-
-    ds = datagen.NLOSDataset(data, split=split, fields=("counts", "wall_depth", "params"))
-    dt = float(ds.card["time_edges"]["bin_width"])
     errors, ious = [], []
-    for i in range(len(ds)):
-        item = ds[i]
-        label = np.asarray(item["wall_depth"], dtype=np.float64).reshape(np.shape(item["counts"])[:2])
+    for _, counts, label, dt, pitch in labelled_scans(data, split):
         mask = label > 0
         if not mask.any():
             continue
-        depth, seen = network_depth(network, np.asarray(item["counts"], np.float64), dt, scan_pitch(item["params"]),
-                                    network_depths)
+        depth, seen = network_depth(network, counts, dt, pitch, network_depths)
         errors.append(abs(score(depth, mask)[0] - float(np.median(label[mask]))))
         ious.append(score(depth, mask, seen)[1])
     return {"samples": len(errors), "depth_error": float(np.mean(errors)) if errors else float("nan"),

@@ -42,7 +42,7 @@ from ..units import parse_duration, parse_fraction
 from .components import COMPONENT_ROOM, OTHER_COMPONENTS, component_arrays, component_slots  # noqa: F401
 from .components import MULTIBOUNCE, orders_summary  # noqa: F401
 from .dtypes import stored_counts
-from .legacy import RENAMED_KEYS, note_old_keys
+from .legacy import RENAMED_KEYS, note_old_keys, room_blocks
 from .sample_params import accuracy_record, params_array
 
 STREAMS: dict[str, int] = {"geometry": 0, "materials": 1, "sensor": 2, "sampling": 3, "noise": 4}
@@ -300,9 +300,8 @@ def location_free_json(data: dict) -> dict:
     """:meth:`DatasetConfig.to_json` output (or a card's ``config``) with the mesh asset entries reduced to their
     folder or file names, as :meth:`DatasetConfig.fingerprint` hashes it (a copy; the input is unchanged)."""
     data = copy.deepcopy(data)
-    splits = [s for s in (data.get("splits") or {}).values() if isinstance(s, dict)]
-    for room in [data.get("room"), data.get("room_overrides")] + [s.get("room_overrides") for s in splits]:
-        mesh = (room.get("objects") or {}).get("mesh") if isinstance(room, dict) else None
+    for room in room_blocks(data):
+        mesh = (room.get("objects") or {}).get("mesh")
         if isinstance(mesh, dict) and isinstance(mesh.get("assets"), list):
             mesh["assets"] = [Path(entry).name if isinstance(entry, str) else entry for entry in mesh["assets"]]
     return data

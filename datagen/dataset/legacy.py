@@ -28,12 +28,19 @@ def canonical_json(data: dict) -> dict:
     room_sim = room.get("simulation") if isinstance(room.get("simulation"), dict) else {}
     if isinstance(data.get("simulation"), dict):
         data["simulation"] = merge_overrides(room_sim, data["simulation"])[0]
-    blocks = [room, data.get("room_overrides")] + [s.get("room_overrides") for s in (data.get("splits") or {}).values()
-                                                  if isinstance(s, dict)]
-    for block in blocks:
-        if isinstance(block, dict) and isinstance(block.get("simulation"), dict):
+    for block in room_blocks(data):
+        if isinstance(block.get("simulation"), dict):
             block["simulation"] = merge_overrides(block["simulation"], {})[0]
     return data
+
+
+def room_blocks(data: dict) -> list[dict]:
+    """The room mappings of a dataset config's JSON (a card's ``config`` or :meth:`DatasetConfig.to_json`): its
+    ``room`` and every ``room_overrides`` (the dataset's, then each split's), those that are mappings, in place (not
+    copies)."""
+    splits = [s for s in (data.get("splits") or {}).values() if isinstance(s, dict)]
+    blocks = [data.get("room"), data.get("room_overrides")] + [s.get("room_overrides") for s in splits]
+    return [block for block in blocks if isinstance(block, dict)]
 
 
 def note_old_keys(data: Any, where: str) -> None:
