@@ -53,11 +53,12 @@ O'Toole, Lindell & Wetzstein, Nature 555, 338 (2018)). For each file, read as ``
    none`` leaves it out): the same thinned counts, as its record says it reads them (the LCT volume of the scan,
    or the counts summed to its time axis and over its pool of scan points), its depth image, whose median over the
    reference mask is its depth; with a mask head (``--mask``) the IoU is of where it sees the object (its
-   probability ≥ the record's threshold), without one it is not scored (NaN); several files (``--network A.pt
-   B.pt``) are averaged, the depth the first's or, with ``--network-depth mean``, the mean of their depth maps
-   (:func:`network_depth`). The run prints what the record says
-   of the network's training (``examples.train_depth_image.describe``) and a warning when the dataset config it
-   was trained on is no longer the repository's (:func:`stale`).
+   probability ≥ the record's threshold; with two heads, ``--outline-head``, the mean of the two probabilities,
+   each moved so that its threshold sits at 0.5, ≥ 0.5), without one it is not scored (NaN); several files
+   (``--network A.pt B.pt``) are averaged, the depth the first's or, with ``--network-depth mean``, the mean of their
+   depth maps (:func:`network_depth`). The run prints what the record says of the network's training
+   (``examples.train_depth_image.describe``) and a warning when the dataset config it was trained on is no longer
+   the repository's (:func:`stale`).
 
 6. **Pictures** (``--png DIR``): ``DIR/low_light_<capture>.png``, every method's depth map (where it found the
    object) at every exposure, methods down and exposures across, the reference mask outlined on each.

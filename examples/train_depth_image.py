@@ -45,8 +45,9 @@ mask benchmarks/real_low_light.py's reference is (docs/real.md weighs them), or 
 sample's own stored counts finds, made as that reference is made from a capture. A saved network also records the
 data it was trained on (the card's ``config_sha256``, its split counts and the code that built it), the code that
 trained it and the command (:func:`describe`); ``examples/weights/lct_release_net.pt`` is one, a DepthUNet on the
-unpooled LCT volume (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20 --mask-label lct
---depth-over mask``) trained on the first 2000 + 100 samples of ``configs/datasets/lct_release.yaml``: docs/training.md.
+unpooled LCT volume with two mask heads (``--input lct --pool 1 --arch unet --augment --pos-weight 1 --epochs 20
+--mask-label lct --outline-head --depth-over mask --seed 8``) trained on the first 2000 + 100 samples of
+``configs/datasets/lct_release.yaml``: docs/training.md.
 """
 from __future__ import annotations
 
