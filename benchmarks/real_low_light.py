@@ -82,6 +82,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT))                   # examples.train_depth_image: the networks' loading and inputs
 from real_captures import DEPTHS  # noqa: E402  (the reference depths, one table for both benchmarks)
 
 from datagen.analysis.reconstruct import FOUND_PEDESTAL  # noqa: E402
@@ -415,7 +416,6 @@ def load_network(path) -> tuple:
     """(network, record) of a saved network (``examples.train_depth_image.load_model``), its record described in one
     printed line and a warning on stderr when the dataset config it was trained on is no longer the repository's
     (:func:`stale`). Raises SystemExit: no file at ``path`` (one line)."""
-    sys.path.insert(0, str(ROOT))
     from examples.train_depth_image import describe, load_model
     if not Path(path).is_file():
         raise SystemExit(f"--network: no file at {path}")
